@@ -1,0 +1,661 @@
+"""Hierarchical uniform bicubic B-spline surfaces (H-splines; Forsey & Bartels 1988, thesis §3.4).
+
+Representation
+--------------
+Level 0 is a dense control grid ``cvs : (nu, nv, 3)`` (object space), open or periodic in u and v
+independently. Each finer level ``k >= 1`` halves the knot spacing (thesis eq. 3.13–3.15) and is
+*sparse*: it holds only the **active patches** that were refined, and the CVs of their 4×4 blocks.
+A level-``k`` CV's position is its **derived vector** (the binary subdivision of level ``k-1``)
+plus its **offset**, stored in the local frame of level ``k-1`` at the CV's parameter centre
+(thesis Fig. 3.9): ``position = derived + F @ offset`` with ``F = [e_u, e_v, n]`` columns
+(unit tangent along u, the tangent completing a right-handed frame, unit normal).
+
+C2 rule (thesis Fig. 3.8): a CV may carry an offset only if its basis function vanishes on the
+border to the coarser region, i.e. every existing patch in its support (a 4×4 block) is active.
+Such CVs are *movable*.
+
+Because subdivision reproduces the coarser surface exactly, the surface is
+
+    Q(u, v) = Q0(u, v) + sum_{k>=1} sum_{movable j at level k} B_j^k(u, v) · F_j @ offset_j
+
+and each level's sum vanishes outside its active region. `evaluate` uses this form (one sparse
+B-spline sum per level); `cv_positions` builds the explicit hierarchy of derived + offset CVs,
+and the tests check the two agree, which is the refinement-exactness property.
+
+Keys: a patch ``(pu, pv)`` at level ``k`` has key ``pu * Pv_k + pv``; a CV ``(ju, jv)`` has key
+``ju * Nv_k + jv`` (``Pv_k``, ``Nv_k``: patch and CV counts along v at level ``k``). Key arrays are
+sorted, so membership is a `np.searchsorted`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .basis import Direction, basis, locate, refine_rows
+
+__all__ = [
+    "Level",
+    "HSpline",
+    "Details",
+    "SurfaceEval",
+    "from_grid",
+    "refine",
+    "make_movable",
+    "set_offsets",
+    "offsets_of",
+    "details",
+    "evaluate",
+    "cv_positions",
+    "cv_uv",
+    "surface_normals",
+    "patch_cvs",
+    "storage_size",
+    "HierarchyArrays",
+    "to_arrays",
+    "from_arrays",
+]
+
+_I4 = np.arange(4)
+
+
+@dataclass(frozen=True)
+class Level:
+    """The sparse content of one hierarchy level ``k >= 1``.
+
+    Attributes
+    ----------
+    k : int
+        The level.
+    patches : (m,) int64
+        Sorted keys of the active (refined) patches.
+    cv_keys : (c,) int64
+        Sorted keys of the CVs present (union of the active patches' 4×4 blocks).
+    offsets : (c, 3) float64
+        Offset of each CV in the local frame of level ``k-1``; zero where not movable.
+    movable : (c,) bool
+        C2 rule: every existing patch of the CV's support is active.
+    patch_rows : (m, 4, 4) int64
+        For each active patch, the rows (into ``cv_keys``) of its CVs ``[a, b]`` =
+        ``(pu + a, pv + b)``.
+    """
+
+    k: int
+    patches: np.ndarray
+    cv_keys: np.ndarray
+    offsets: np.ndarray
+    movable: np.ndarray
+    patch_rows: np.ndarray
+
+
+@dataclass(frozen=True)
+class HSpline:
+    """A hierarchical B-spline surface: level-0 grid plus sparse finer levels.
+
+    Attributes
+    ----------
+    cvs : (nu, nv, 3) float64
+        Level-0 control vertices, ``cvs[i, j]`` with ``i`` along u (USD ``acra:cvs`` index
+        ``j * nu + i``).
+    u, v : Direction
+        Level-0 CV count and wrap of each direction.
+    depth : int
+        Number of levels the object may use (levels ``0 .. depth-1``; contract ``acra:levels``).
+    fine : tuple[Level, ...]
+        ``fine[k - 1]`` is level ``k``; always ``depth - 1`` entries (possibly empty).
+    """
+
+    cvs: np.ndarray
+    u: Direction
+    v: Direction
+    depth: int
+    fine: tuple[Level, ...]
+
+    def level(self, k: int) -> Level:
+        if not 1 <= k < self.depth:
+            raise IndexError(f"level {k} outside 1..{self.depth - 1}")
+        return self.fine[k - 1]
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        """Parameter extent ``(P0u, P0v)`` in level-0 patch units."""
+        return float(self.u.patches0), float(self.v.patches0)
+
+    def size(self) -> float:
+        """Object size: the diagonal of the level-0 control net's bounding box."""
+        pts = self.cvs.reshape(-1, 3)
+        return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+
+
+@dataclass(frozen=True)
+class Details:
+    """World-space detail vectors of every fine level, for one configuration.
+
+    Attributes
+    ----------
+    vectors : tuple of (c_k, 3) float64
+        ``F_j @ offset_j`` per CV of level ``k`` (zero for non-movable CVs); entry ``k - 1``.
+    frames : tuple of (c_k, 3, 3) float64
+        Local frame of each CV, columns ``(e_u, e_v, n)`` of level ``k-1`` at the CV centre.
+    """
+
+    vectors: tuple[np.ndarray, ...]
+    frames: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True)
+class SurfaceEval:
+    """Surface points and partial derivatives (with respect to level-0 ``u``, ``v``).
+
+    Each field is ``(m, 3) float64`` or ``None`` when not requested.
+    """
+
+    points: np.ndarray
+    du: np.ndarray | None = None
+    dv: np.ndarray | None = None
+    duu: np.ndarray | None = None
+    duv: np.ndarray | None = None
+    dvv: np.ndarray | None = None
+
+
+# --------------------------------------------------------------------------------------------
+# construction and refinement
+
+
+def _empty_level(k: int) -> Level:
+    return Level(
+        k=k,
+        patches=np.zeros(0, np.int64),
+        cv_keys=np.zeros(0, np.int64),
+        offsets=np.zeros((0, 3)),
+        movable=np.zeros(0, bool),
+        patch_rows=np.zeros((0, 4, 4), np.int64),
+    )
+
+
+def from_grid(cvs: np.ndarray, u_periodic: bool = False, v_periodic: bool = False, depth: int = 1) -> HSpline:
+    """An H-spline with only its level-0 grid.
+
+    Parameters
+    ----------
+    cvs : (nu, nv, 3) float64
+        Level-0 control vertices.
+    depth : int
+        Levels the object may use (``>= 1``).
+    """
+    cvs = np.ascontiguousarray(cvs, dtype=np.float64)
+    if cvs.ndim != 3 or cvs.shape[2] != 3:
+        raise ValueError(f"cvs must have shape (nu, nv, 3), got {cvs.shape}")
+    if depth < 1:
+        raise ValueError(f"depth must be at least 1, got {depth}")
+    u = Direction(cvs.shape[0], bool(u_periodic))
+    v = Direction(cvs.shape[1], bool(v_periodic))
+    return HSpline(cvs=cvs, u=u, v=v, depth=int(depth), fine=tuple(_empty_level(k) for k in range(1, depth)))
+
+
+def _patch_keys(hs: HSpline, k: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
+    return pu * hs.v.patches(k) + pv
+
+
+def _cv_keys(hs: HSpline, k: int, ju: np.ndarray, jv: np.ndarray) -> np.ndarray:
+    return ju * hs.v.cvs(k) + jv
+
+
+def _split_patch(hs: HSpline, k: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    npv = hs.v.patches(k)
+    return keys // npv, keys % npv
+
+
+def _split_cv(hs: HSpline, k: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ncv = hs.v.cvs(k)
+    return keys // ncv, keys % ncv
+
+
+def _lookup(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``keys`` in ``sorted_keys`` and whether each was found."""
+    if sorted_keys.size == 0:
+        return np.zeros(keys.shape, np.int64), np.zeros(keys.shape, bool)
+    rows = np.searchsorted(sorted_keys, keys)
+    rows = np.minimum(rows, sorted_keys.size - 1)
+    return rows, sorted_keys[rows] == keys
+
+
+def _valid_patches(hs: HSpline, k: int, pu: np.ndarray, pv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ok = hs.u.patch_valid(pu, k) & hs.v.patch_valid(pv, k)
+    return hs.u.wrap_patch(pu, k), hs.v.wrap_patch(pv, k), ok
+
+
+def _build_level(hs: HSpline, k: int, patches: np.ndarray, old: Level) -> Level:
+    """Level ``k`` with the given active patch keys; keeps the offsets ``old`` had."""
+    patches = np.unique(patches)
+    pu, pv = _split_patch(hs, k, patches)
+    ju = hs.u.wrap_cv(pu[:, None] + _I4[None, :], k)  # (m, 4)
+    jv = hs.v.wrap_cv(pv[:, None] + _I4[None, :], k)
+    block = _cv_keys(hs, k, ju[:, :, None], jv[:, None, :])  # (m, 4, 4)
+    cv_keys, inverse = np.unique(block.reshape(-1), return_inverse=True)
+    patch_rows = inverse.reshape(-1, 4, 4).astype(np.int64)
+
+    # movable: all existing support patches (ju-3..ju) x (jv-3..jv) active
+    cu, cv = _split_cv(hs, k, cv_keys)
+    su = cu[:, None] - 3 + _I4[None, :]  # (c, 4)
+    sv = cv[:, None] - 3 + _I4[None, :]
+    su_w, sv_w = hs.u.wrap_patch(su, k), hs.v.wrap_patch(sv, k)
+    ok_u, ok_v = hs.u.patch_valid(su, k), hs.v.patch_valid(sv, k)
+    skeys = _patch_keys(hs, k, su_w[:, :, None], sv_w[:, None, :])
+    _, found = _lookup(patches, skeys)
+    exists = ok_u[:, :, None] & ok_v[:, None, :]
+    movable = np.all(found | ~exists, axis=(1, 2))
+
+    offsets = np.zeros((cv_keys.size, 3))
+    if old.cv_keys.size:
+        rows, hit = _lookup(old.cv_keys, cv_keys)
+        offsets[hit] = old.offsets[rows[hit]]
+    if np.any(offsets[~movable] != 0.0):
+        raise ValueError(f"level {k}: refinement would leave offsets on CVs that are not free to move")
+    return Level(k=k, patches=patches, cv_keys=cv_keys, offsets=offsets, movable=movable, patch_rows=patch_rows)
+
+
+def refine(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
+    """Activate level-``k`` patches (and their ancestors) by binary subdivision.
+
+    Creates only the CVs of the new patches, with zero offsets: the surface is unchanged.
+
+    Parameters
+    ----------
+    patches : (m, 2) int64
+        ``(pu, pv)`` at level ``k``; periodic directions wrap, patches outside an open domain
+        are ignored.
+    """
+    patches = np.asarray(patches, dtype=np.int64).reshape(-1, 2)
+    if not 1 <= k < hs.depth:
+        raise ValueError(f"cannot refine to level {k}: the object has levels 0..{hs.depth - 1}")
+    fine = list(hs.fine)
+    pu, pv = patches[:, 0], patches[:, 1]
+    for level in range(k, 0, -1):
+        wu, wv, ok = _valid_patches(hs, level, pu, pv)
+        keys = _patch_keys(hs, level, wu[ok], wv[ok])
+        old = fine[level - 1]
+        if keys.size and not np.all(_lookup(old.patches, keys)[1]):
+            fine[level - 1] = _build_level(hs, level, np.concatenate([old.patches, keys]), old)
+        pu, pv = wu[ok] >> 1, wv[ok] >> 1
+    return replace(hs, fine=tuple(fine))
+
+
+def make_movable(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
+    """Refine so that every CV of the given level-``k`` patches is movable (thesis §3.4).
+
+    A CV ``j`` is supported on patches ``j-3 .. j``, so patch ``p``'s CVs need the 7×7 block of
+    patches ``p-3 .. p+3`` active (clipped at an open border).
+
+    Parameters
+    ----------
+    patches : (m, 2) int64
+        ``(pu, pv)`` at level ``k``.
+    """
+    if k == 0:
+        return hs
+    patches = np.asarray(patches, dtype=np.int64).reshape(-1, 2)
+    d = np.arange(-3, 4)
+    pu = (patches[:, 0, None, None] + d[None, :, None]) + 0 * d[None, None, :]
+    pv = (patches[:, 1, None, None] + 0 * d[None, :, None]) + d[None, None, :]
+    return refine(hs, k, np.stack([pu.reshape(-1), pv.reshape(-1)], axis=1))
+
+
+def set_offsets(hs: HSpline, k: int, cvs_uv: np.ndarray, offsets: np.ndarray, add: bool = False) -> HSpline:
+    """Set (or add to) the local-frame offsets of level-``k`` CVs.
+
+    Parameters
+    ----------
+    cvs_uv : (c, 2) int64
+        CV indices ``(ju, jv)`` at level ``k`` (periodic directions wrap).
+    offsets : (c, 3) float64
+        Offsets in each CV's local frame ``(e_u, e_v, n)``.
+
+    Raises ``ValueError`` if a CV is absent or not movable (C2 rule).
+    """
+    lev = hs.level(k)
+    cvs_uv = np.asarray(cvs_uv, dtype=np.int64).reshape(-1, 2)
+    offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 3)
+    ju, jv = hs.u.wrap_cv(cvs_uv[:, 0], k), hs.v.wrap_cv(cvs_uv[:, 1], k)
+    rows, found = _lookup(lev.cv_keys, _cv_keys(hs, k, ju, jv))
+    if not np.all(found):
+        bad = cvs_uv[~found][0]
+        raise ValueError(f"level {k}: CV {tuple(int(x) for x in bad)} does not exist (refine its patches first)")
+    if not np.all(lev.movable[rows]):
+        bad = cvs_uv[~lev.movable[rows]][0]
+        raise ValueError(f"level {k}: CV {tuple(int(x) for x in bad)} is not free to move (C2 rule at a refined-region border)")
+    new = lev.offsets.copy()
+    if add:
+        np.add.at(new, rows, offsets)
+    else:
+        new[rows] = offsets
+    fine = list(hs.fine)
+    fine[k - 1] = replace(lev, offsets=new)
+    return replace(hs, fine=tuple(fine))
+
+
+def offsets_of(hs: HSpline, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Movable CVs of level ``k`` with their offsets: ``(c, 2) int64`` indices, ``(c, 3)``."""
+    lev = hs.level(k)
+    ju, jv = _split_cv(hs, k, lev.cv_keys[lev.movable])
+    return np.stack([ju, jv], axis=1), lev.offsets[lev.movable]
+
+
+def cv_uv(hs: HSpline, k: int, keys: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Parameter centres ``(u, v)`` (level-0 units) of level-``k`` CVs (all present by default)."""
+    keys = hs.level(k).cv_keys if keys is None else keys
+    ju, jv = _split_cv(hs, k, keys)
+    return hs.u.greville(ju, k), hs.v.greville(jv, k)
+
+
+def patch_cvs(hs: HSpline, k: int, patches: np.ndarray) -> np.ndarray:
+    """CV indices ``(ju, jv)`` of level-``k`` patches: ``(m, 4, 4, 2) int64`` (wrapped)."""
+    patches = np.asarray(patches, dtype=np.int64).reshape(-1, 2)
+    ju = hs.u.wrap_cv(patches[:, 0, None] + _I4[None, :], k)
+    jv = hs.v.wrap_cv(patches[:, 1, None] + _I4[None, :], k)
+    return np.stack(np.broadcast_arrays(ju[:, :, None], jv[:, None, :]), axis=-1)
+
+
+def storage_size(hs: HSpline) -> int:
+    """Total CVs stored: the level-0 grid plus every present fine CV."""
+    return int(hs.cvs.shape[0] * hs.cvs.shape[1] + sum(lev.cv_keys.size for lev in hs.fine))
+
+
+# --------------------------------------------------------------------------------------------
+# evaluation
+
+
+def _level_basis(d: Direction, x: np.ndarray, k: int, order: int, side: int):
+    """Segment, and basis rows for derivative orders 0..order w.r.t. level-0 units."""
+    seg, t = locate(d, x, k)
+    if side < 0:
+        # points exactly on an interior knot take the segment to their left
+        on_knot = (t == 0.0) & ((seg > 0) | d.periodic)
+        seg = np.where(on_knot, seg - 1, seg)
+        seg = d.wrap_patch(seg, k)
+        t = np.where(on_knot, 1.0, t)
+    scale = float(1 << k)
+    rows = [basis(t, o) * scale**o for o in range(order + 1)]
+    return seg, rows
+
+
+def _accumulate(out: list, rows_u, rows_v, block: np.ndarray, sel: np.ndarray | slice, order: int) -> None:
+    """Add the tensor-product sums of ``block (m, 4, 4, 3)`` into the derivative slots."""
+    combos = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)][: {0: 1, 1: 3, 2: 6}[order]]
+    for slot, (a, b) in enumerate(combos):
+        out[slot][sel] += np.einsum("ma,mb,mabc->mc", rows_u[a][sel], rows_v[b][sel], block)
+
+
+def evaluate(
+    hs: HSpline,
+    u: np.ndarray,
+    v: np.ndarray,
+    order: int = 0,
+    det: Details | None = None,
+    upto: int | None = None,
+    side: int = 0,
+) -> SurfaceEval:
+    """Points (and partial derivatives) of the surface at parameters ``(u, v)``.
+
+    Parameters
+    ----------
+    u, v : (m,) float64
+        Parameters in level-0 patch units (``[0, P0]``; periodic directions wrap).
+    order : int
+        0: points; 1: plus ``du, dv``; 2: plus ``duu, duv, dvv``.
+    det : Details, optional
+        Precomputed `details(hs)`; computed if omitted.
+    upto : int, optional
+        Evaluate only levels ``0..upto`` (the coarser surface a level's frames refer to).
+    side : int
+        ``-1`` evaluates points on an interior knot from the segment on their left (one-sided
+        derivatives); ``0`` from the right.
+    """
+    u = np.atleast_1d(np.asarray(u, dtype=np.float64))
+    v = np.atleast_1d(np.asarray(v, dtype=np.float64))
+    top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
+    if top >= 1 and det is None:
+        det = details(hs, upto=top)
+    nslots = {0: 1, 1: 3, 2: 6}[order]
+    out = [np.zeros((u.size, 3)) for _ in range(nslots)]
+
+    su, ru = _level_basis(hs.u, u, 0, order, side)
+    sv, rv = _level_basis(hs.v, v, 0, order, side)
+    iu = hs.u.wrap_cv(su[:, None] + _I4, 0)
+    iv = hs.v.wrap_cv(sv[:, None] + _I4, 0)
+    block = hs.cvs[iu[:, :, None], iv[:, None, :]]
+    _accumulate(out, ru, rv, block, slice(None), order)
+
+    for k in range(1, top + 1):
+        lev = hs.fine[k - 1]
+        if lev.patches.size == 0 or not np.any(lev.movable):
+            continue
+        su, ru = _level_basis(hs.u, u, k, order, side)
+        sv, rv = _level_basis(hs.v, v, k, order, side)
+        prow, found = _lookup(lev.patches, _patch_keys(hs, k, su, sv))
+        if not np.any(found):
+            continue
+        sel = np.nonzero(found)[0]
+        block = det.vectors[k - 1][lev.patch_rows[prow[sel]]]
+        _accumulate(out, ru, rv, block, sel, order)
+    names = ["points", "du", "dv", "duu", "duv", "dvv"][:nslots]
+    return SurfaceEval(**dict(zip(names, out)))
+
+
+def _degenerate(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cross products ``du × dv`` and where they are too small to give a direction."""
+    n = np.cross(ev.du, ev.dv)
+    return n, np.linalg.norm(n, axis=1) <= 1e-12 * max(scale, 1e-300) ** 2
+
+
+def _nudged(hs: HSpline, u: np.ndarray, v: np.ndarray, amount: float) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters moved toward the centre of their level-0 patch by ``amount`` of the way."""
+    out = []
+    for d, x in ((hs.u, u), (hs.v, v)):
+        seg, t = locate(d, x, 0)
+        out.append(seg + t + amount * (0.5 - t))
+    return out[0], out[1]
+
+
+def surface_normals(
+    hs: HSpline,
+    u: np.ndarray,
+    v: np.ndarray,
+    det: Details | None = None,
+    upto: int | None = None,
+    ev: SurfaceEval | None = None,
+) -> tuple[SurfaceEval, np.ndarray]:
+    """First-order evaluation plus unit normals that are finite everywhere.
+
+    Where ``du × dv`` vanishes (a pole, a collapsed edge) the normal is the limit taken from
+    inside the patch: the derivative of ``du × dv`` toward the patch centre (exact when one
+    tangent vanishes linearly); where that vanishes too, the point is nudged toward its patch
+    centre by growing amounts until the cross product has a direction (acra-notes §1).
+
+    Returns
+    -------
+    ev : SurfaceEval (order 1)
+    normals : (m, 3) float64, unit length
+    """
+    u = np.atleast_1d(np.asarray(u, dtype=np.float64))
+    v = np.atleast_1d(np.asarray(v, dtype=np.float64))
+    ev = evaluate(hs, u, v, order=1, det=det, upto=upto) if ev is None else ev
+    scale = hs.size()
+    n, bad = _degenerate(ev, scale)
+    if np.any(bad):
+        # first-order Taylor term of du × dv along the direction toward the patch centre:
+        # exact limit where du or dv vanishes linearly (a pole, a collapsed edge)
+        idx = np.nonzero(bad)[0]
+        e2 = evaluate(hs, u[idx], v[idx], order=2, det=det, upto=upto)
+        su = np.sign(0.5 - locate(hs.u, u[idx], 0)[1])[:, None]
+        sv = np.sign(0.5 - locate(hs.v, v[idx], 0)[1])[:, None]
+        c_u = np.cross(e2.duu, e2.dv) + np.cross(e2.du, e2.duv)
+        c_v = np.cross(e2.duv, e2.dv) + np.cross(e2.du, e2.dvv)
+        nf = su * c_u + sv * c_v
+        ok = np.linalg.norm(nf, axis=1) > 1e-9 * scale**2
+        n[idx[ok]] = nf[ok]
+        bad[idx[ok]] = False
+    for amount in (1e-3, 1e-2, 1e-1, 0.5):
+        if not np.any(bad):
+            break
+        idx = np.nonzero(bad)[0]
+        nu_, nv_ = _nudged(hs, u[idx], v[idx], amount)
+        nf, still = _degenerate(evaluate(hs, nu_, nv_, order=1, det=det, upto=upto), scale)
+        n[idx[~still]] = nf[~still]
+        bad[idx[~still]] = False
+    n[bad] = (0.0, 0.0, 1.0)
+    return ev, n / np.linalg.norm(n, axis=1)[:, None]
+
+
+def _frames(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
+    """Orthonormal frames ``(m, 3, 3)``, columns ``(e_u, e_v, n)``."""
+    n = normals
+    t = ev.du - np.sum(ev.du * n, axis=1)[:, None] * n
+    tl = np.linalg.norm(t, axis=1)
+    weak = tl <= 1e-12 * (np.linalg.norm(ev.du, axis=1) + np.linalg.norm(ev.dv, axis=1) + 1e-300)
+    if np.any(weak):  # du vanishes (pole): take the direction perpendicular to dv instead
+        alt = np.cross(ev.dv[weak], n[weak])
+        t[weak] = alt
+        tl[weak] = np.linalg.norm(alt, axis=1)
+    still = tl <= 1e-300
+    if np.any(still):  # fully degenerate: any perpendicular of n
+        pick = np.where(np.abs(n[still, 0:1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+        alt = pick - np.sum(pick * n[still], axis=1)[:, None] * n[still]
+        t[still] = alt
+        tl[still] = np.linalg.norm(alt, axis=1)
+    e_u = t / tl[:, None]
+    e_v = np.cross(n, e_u)
+    return np.stack([e_u, e_v, n], axis=2)
+
+
+def details(hs: HSpline, upto: int | None = None) -> Details:
+    """World detail vectors of levels ``1..upto``, computed coarse to fine.
+
+    The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
+    parameter centre, so moving a coarse CV carries finer detail along (thesis Fig. 3.10).
+    """
+    top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
+    vectors: list[np.ndarray] = []
+    frames: list[np.ndarray] = []
+    for k in range(1, top + 1):
+        lev = hs.fine[k - 1]
+        c = lev.cv_keys.size
+        vec = np.zeros((c, 3))
+        fr = np.zeros((c, 3, 3))
+        if c and np.any(lev.movable):
+            rows = np.nonzero(lev.movable)[0]
+            gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
+            partial = Details(tuple(vectors), tuple(frames))
+            ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)
+            f = _frames(ev, n)
+            fr[rows] = f
+            vec[rows] = np.einsum("mij,mj->mi", f, lev.offsets[rows])
+        vectors.append(vec)
+        frames.append(fr)
+    return Details(tuple(vectors), tuple(frames))
+
+
+def cv_positions(hs: HSpline, k: int, det: Details | None = None) -> np.ndarray:
+    """Explicit positions (derived + offset) of the CVs present at level ``k``.
+
+    Level 0 returns ``cvs`` reshaped ``(nu * nv, 3)`` in key order; level ``k >= 1`` returns
+    ``(c_k, 3)`` aligned with ``level(k).cv_keys``, built by binary subdivision of level
+    ``k-1`` (thesis Fig. 3.7) plus each CV's detail vector.
+    """
+    if k == 0:
+        return hs.cvs.reshape(-1, 3).copy()
+    det = details(hs, upto=k) if det is None else det
+    parent = cv_positions(hs, k - 1, det)
+    parent_keys = (np.arange(hs.u.n)[:, None] * hs.v.n + np.arange(hs.v.n)[None, :]).reshape(-1) if k == 1 else hs.level(k - 1).cv_keys
+    lev = hs.level(k)
+    ju, jv = _split_cv(hs, k, lev.cv_keys)
+    iu, wu = refine_rows(hs.u, k - 1, ju)
+    iv, wv = refine_rows(hs.v, k - 1, jv)
+    pkeys = _cv_keys(hs, k - 1, iu[:, :, None], iv[:, None, :])  # (c, 3, 3)
+    w = wu[:, :, None] * wv[:, None, :]
+    rows, found = _lookup(parent_keys, pkeys)
+    if not np.all(found | (w == 0.0)):
+        raise AssertionError(f"level {k}: a derived CV needs a coarser CV that is not stored")
+    derived = np.einsum("mab,mabc->mc", w, parent[rows])
+    return derived + det.vectors[k - 1]
+
+
+# --------------------------------------------------------------------------------------------
+# plain-array form (what the pipeline stores in USD)
+
+
+@dataclass(frozen=True)
+class HierarchyArrays:
+    """The fine levels of an H-spline as flat arrays (lossless, storage-sized).
+
+    Attributes
+    ----------
+    patch_level : (m,) int32
+        Level (``>= 1``) of each refined patch.
+    patches : (m, 2) int32
+        ``(pu, pv)`` of each refined patch at its level.
+    offset_level : (c,) int32
+        Level of each non-zero offset.
+    offset_cvs : (c, 2) int32
+        ``(ju, jv)`` of each offset CV at its level.
+    offsets : (c, 3) float64
+        Offsets in the CVs' local frames.
+    """
+
+    patch_level: np.ndarray
+    patches: np.ndarray
+    offset_level: np.ndarray
+    offset_cvs: np.ndarray
+    offsets: np.ndarray
+
+
+def to_arrays(hs: HSpline) -> HierarchyArrays:
+    """The fine levels as flat arrays; only refined patches and non-zero offsets are kept."""
+    pl, pp, ol, oc, oo = [], [], [], [], []
+    for lev in hs.fine:
+        pu, pv = _split_patch(hs, lev.k, lev.patches)
+        pl.append(np.full(pu.size, lev.k))
+        pp.append(np.stack([pu, pv], axis=1))
+        nz = np.any(lev.offsets != 0.0, axis=1)
+        ju, jv = _split_cv(hs, lev.k, lev.cv_keys[nz])
+        ol.append(np.full(ju.size, lev.k))
+        oc.append(np.stack([ju, jv], axis=1))
+        oo.append(lev.offsets[nz])
+    cat = lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape)  # noqa: E731
+    return HierarchyArrays(
+        patch_level=cat(pl, (0,)).astype(np.int32),
+        patches=cat(pp, (0, 2)).astype(np.int32).reshape(-1, 2),
+        offset_level=cat(ol, (0,)).astype(np.int32),
+        offset_cvs=cat(oc, (0, 2)).astype(np.int32).reshape(-1, 2),
+        offsets=cat(oo, (0, 3)).astype(np.float64).reshape(-1, 3),
+    )
+
+
+def from_arrays(base: HSpline, arrays: HierarchyArrays) -> HSpline:
+    """Rebuild the fine levels stored by `to_arrays` on top of a level-0-only ``base``.
+
+    Raises ``ValueError`` naming the level and index when a patch or offset is out of range or
+    an offset sits on a CV that the C2 rule keeps fixed.
+    """
+    hs = base
+    levels = np.asarray(arrays.patch_level, dtype=np.int64)
+    patches = np.asarray(arrays.patches, dtype=np.int64).reshape(-1, 2)
+    for k in np.unique(levels):
+        if not 1 <= k < hs.depth:
+            raise ValueError(f"refined patch at level {k}, outside 1..{hs.depth - 1}")
+        sel = patches[levels == k]
+        for d, col, name in ((hs.u, 0, "u"), (hs.v, 1, "v")):
+            bad = (sel[:, col] < 0) | (sel[:, col] >= d.patches(int(k)))
+            if np.any(bad):
+                raise ValueError(f"level {k}: patch index {int(sel[bad][0, col])} along {name} outside 0..{d.patches(int(k)) - 1}")
+        hs = refine(hs, int(k), sel)
+    olev = np.asarray(arrays.offset_level, dtype=np.int64)
+    ocvs = np.asarray(arrays.offset_cvs, dtype=np.int64).reshape(-1, 2)
+    offs = np.asarray(arrays.offsets, dtype=np.float64).reshape(-1, 3)
+    for k in np.unique(olev):
+        if not 1 <= k < hs.depth:
+            raise ValueError(f"offset at level {k}, outside 1..{hs.depth - 1}")
+        sel = olev == k
+        hs = set_offsets(hs, int(k), ocvs[sel], offs[sel])
+    return hs

@@ -1,0 +1,227 @@
+"""H-spline surfaces (thesis §3.4): exactness, continuity, locality, detail riding along."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from acra import basis as B
+from acra import hspline as H
+from acra import shapes
+from conftest import wavy_sheet, with_random_offsets
+
+
+def _net_eval(hs, k, u, v, det):
+    """Evaluate the explicit level-k control net (derived + offset CVs) on its active patches."""
+    pos = H.cv_positions(hs, k, det)
+    lev = hs.level(k)
+    su, tu = B.locate(hs.u, u, k)
+    sv, tv = B.locate(hs.v, v, k)
+    rows, found = H._lookup(lev.patches, su * hs.v.patches(k) + sv)
+    q = np.einsum("ma,mb,mabc->mc", B.basis(tu), B.basis(tv), pos[lev.patch_rows[rows]])
+    return q, found
+
+
+def _random_uv(hs, n, seed):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(0, hs.u.patches0, n), rng.uniform(0, hs.v.patches0, n)
+
+
+@pytest.mark.parametrize("periodic", [(False, False), (True, False), (True, True)])
+def test_refinement_leaves_the_surface_unchanged(periodic):
+    rng = np.random.default_rng(3)
+    nu, nv = 7, 6
+    cvs = rng.normal(size=(nu, nv, 3))
+    hs0 = H.from_grid(cvs, *periodic, depth=4)
+    u, v = _random_uv(hs0, 10_000, 4)
+    before = H.evaluate(hs0, u, v).points
+    # refine a random patch set at every level, including ones across a periodic seam
+    hs = hs0
+    for k in (1, 2, 3):
+        n = hs.u.patches(k), hs.v.patches(k)
+        hs = H.refine(hs, k, np.stack([rng.integers(0, n[0], 12), rng.integers(0, n[1], 12)], 1))
+    det = H.details(hs)
+    size = hs.size()
+    assert np.abs(H.evaluate(hs, u, v, det=det).points - before).max() <= 1e-12 * size
+    covered = 0
+    for k in (1, 2, 3):
+        q, found = _net_eval(hs, k, u, v, det)
+        covered += found.sum()
+        assert np.abs(q[found] - before[found]).max() <= 1e-12 * size
+    assert covered > 1000
+
+
+def test_explicit_net_equals_detail_sum_with_random_offsets(sheet4):
+    hs = H.make_movable(sheet4, 3, [[10, 9], [11, 9]])
+    hs = with_random_offsets(hs)
+    det = H.details(hs)
+    u, v = _random_uv(hs, 10_000, 5)
+    p = H.evaluate(hs, u, v, det=det).points
+    for k in (1, 2, 3):
+        q, found = _net_eval(hs, k, u, v, det)
+        assert found.sum() > 50
+        # the level-k net reproduces the surface of levels 0..k on its active patches
+        pk = H.evaluate(hs, u[found], v[found], det=det, upto=k).points
+        assert np.abs(q[found] - pk).max() <= 1e-12 * hs.size()
+    assert np.abs(H.evaluate(hs, u, v, det=det, upto=3).points - p).max() == 0.0
+
+
+def _knot_points(hs, k, n=200, seed=0):
+    """Points on level-k knot lines of both directions (inside the domain)."""
+    rng = np.random.default_rng(seed)
+    ku = rng.integers(1, hs.u.patches(k), n) / float(1 << k)
+    kv = rng.integers(1, hs.v.patches(k), n) / float(1 << k)
+    fu = rng.uniform(0, hs.u.patches0, n)
+    fv = rng.uniform(0, hs.v.patches0, n)
+    return (ku, fv), (fu, kv)
+
+
+@pytest.mark.parametrize("k", [0, 1, 2, 3])
+def test_c2_across_patch_and_refined_region_borders(sheet4, k):
+    hs = H.make_movable(sheet4, 3, [[10, 9]])
+    hs = H.make_movable(hs, 2, [[3, 3]])
+    hs = with_random_offsets(hs, scale=0.2, seed=7)
+    det = H.details(hs)
+    for axis, (u, v) in enumerate(_knot_points(hs, k)):
+        left = H.evaluate(hs, u, v, order=2, det=det, side=-1)
+        right = H.evaluate(hs, u, v, order=2, det=det, side=0)
+        for name in ("points", "du", "dv", "duu", "duv", "dvv"):
+            a, b = getattr(left, name), getattr(right, name)
+            scale = max(1.0, np.abs(a).max())
+            assert np.abs(a - b).max() <= 1e-10 * scale, (axis, name)
+    # the third derivative is allowed to jump: the test would see a broken C2 as a jump here
+    u = np.array([1.0])
+    v = np.array([1.3])
+    l3 = B.basis(np.array([1.0]), 3)[0]
+    r3 = B.basis(np.array([0.0]), 3)[0]
+    assert not np.allclose(l3[1:], r3[:3])
+
+
+def test_c2_rule_refuses_offsets_on_border_cvs(sheet4):
+    hs = H.refine(sheet4, 1, [[4, 4]])  # one patch: none of its CVs has its whole support active
+    idx, off = H.offsets_of(hs, 1)
+    assert idx.shape[0] == 0
+    with pytest.raises(ValueError, match="not free to move"):
+        H.set_offsets(hs, 1, [[5, 5]], [[0, 0, 1.0]])
+    hs = H.make_movable(hs, 1, [[4, 4]])
+    idx, _ = H.offsets_of(hs, 1)
+    block = {(4 + a, 4 + b) for a in range(4) for b in range(4)}
+    assert block <= {tuple(x) for x in idx}
+
+
+def test_open_border_cvs_are_movable(sheet4):
+    # the domain edge is not a border to a coarser level: its CVs may move
+    hs = H.make_movable(sheet4, 1, [[0, 0]])
+    idx, _ = H.offsets_of(hs, 1)
+    assert (0, 0) in {tuple(x) for x in idx}
+
+
+def test_coarse_move_carries_level3_bump_along(sheet4):
+    hs = H.make_movable(sheet4, 3, [[10, 9]])
+    bump = np.array([[10 + a, 9 + b] for a in range(4) for b in range(4)])
+    offs = np.zeros((16, 3))
+    offs[:, 2] = 0.02 * (1 + np.arange(16) % 3)
+    offs[:, 0] = 0.005
+    hs = H.set_offsets(hs, 3, bump, offs)
+    det0 = H.details(hs)
+
+    # (a) a rigid motion of the level-0 grid moves the whole surface, bump included, rigidly
+    ang = 0.7
+    rot = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]]) @ np.array(
+        [[1, 0, 0], [0, np.cos(0.3), -np.sin(0.3)], [0, np.sin(0.3), np.cos(0.3)]]
+    )
+    moved = H.HSpline(hs.cvs @ rot.T + [1.0, -2.0, 0.5], hs.u, hs.v, hs.depth, hs.fine)
+    u, v = _random_uv(hs, 5000, 9)
+    p0 = H.evaluate(hs, u, v, det=det0).points
+    p1 = H.evaluate(moved, u, v).points
+    assert np.abs(p1 - (p0 @ rot.T + [1.0, -2.0, 0.5])).max() <= 1e-9 * hs.size()
+
+    # (b) moving one coarse CV near the bump: the bump's CVs keep their shape in their frames
+    cvs = hs.cvs.copy()
+    cvs[3, 3] += [0.1, -0.2, 0.6]
+    bent = H.HSpline(cvs, hs.u, hs.v, hs.depth, hs.fine)
+    det1 = H.details(bent)
+    lev = hs.level(3)
+    rows = H._lookup(lev.cv_keys, bump[:, 0] * hs.v.cvs(3) + bump[:, 1])[0]
+    for surf, det in ((hs, det0), (bent, det1)):
+        pos = H.cv_positions(surf, 3, det)[rows]
+        derived = pos - det.vectors[2][rows]
+        local = np.einsum("mji,mj->mi", det.frames[2][rows], pos - derived)
+        np.testing.assert_allclose(local, offs, rtol=0, atol=1e-9)
+    # and the bump really moved with the coarse surface (not a vacuous check)
+    pb0 = H.cv_positions(hs, 3, det0)[rows]
+    pb1 = H.cv_positions(bent, 3, det1)[rows]
+    assert np.abs(pb1 - pb0).max() > 1e-2
+    # the frames turned, so the world detail vectors turned with them
+    assert np.abs(det1.vectors[2][rows] - det0.vectors[2][rows]).max() > 1e-4
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(1, 3), st.integers(0, 10_000))
+def test_locality_of_an_offset(k, seed):
+    rng = np.random.default_rng(seed)
+    hs = wavy_sheet(seed=seed % 5)
+    pu = int(rng.integers(0, hs.u.patches(k)))
+    pv = int(rng.integers(0, hs.v.patches(k)))
+    hs = H.make_movable(hs, k, [[pu, pv]])
+    j = np.array([[pu + int(rng.integers(0, 4)), pv + int(rng.integers(0, 4))]])
+    moved = H.set_offsets(hs, k, j, rng.normal(size=(1, 3)))
+    u, v = _random_uv(hs, 4000, seed)
+    d = np.linalg.norm(H.evaluate(moved, u, v).points - H.evaluate(hs, u, v).points, axis=1)
+    scale = float(1 << k)
+    inside = (u > (j[0, 0] - 3) / scale) & (u < (j[0, 0] + 1) / scale) & (v > (j[0, 1] - 3) / scale) & (v < (j[0, 1] + 1) / scale)
+    assert d[~inside].max(initial=0.0) == 0.0
+    assert d[inside].max(initial=1.0) > 0.0
+
+
+def test_storage_grows_with_the_refined_area_only():
+    cvs, pu, pv = shapes.sphere(16, 14)
+    hs = H.from_grid(cvs, pu, pv, depth=7)
+    # detail in one region: a 2x2 block of level-6 patches made movable, plus a level-3 area
+    base = np.array([[300, 300], [301, 300], [300, 301], [301, 301]])
+    hs = H.make_movable(hs, 6, base)
+    hs = H.make_movable(hs, 3, np.array([[37, 37], [38, 38]]))
+    dense = 16 * 64 * (11 * 64 + 3)
+    assert H.storage_size(hs) <= 3000
+    assert H.storage_size(hs) * 100 < dense
+
+
+def test_sphere_poles_have_limit_normals():
+    cvs, pu, pv = shapes.sphere(8, 9)
+    hs = H.from_grid(cvs, pu, pv)
+    u = np.linspace(0, hs.u.patches0, 33)
+    for vv, sign in ((0.0, -1.0), (float(hs.v.patches0), 1.0)):
+        ev, n = H.surface_normals(hs, u, np.full(u.size, vv))
+        assert np.all(np.isfinite(n))
+        assert np.ptp(ev.points, axis=0).max() < 1e-12  # the pole is one point
+        np.testing.assert_allclose(n, np.tile([0, 0, sign], (u.size, 1)), atol=1e-6)
+
+
+def test_collapsed_edges_evaluate_finite():
+    # a degenerate patch: a whole row of an open sheet collapsed to one point
+    cvs, pu, pv = shapes.sheet(6, 6)
+    cvs[:, 0] = cvs[2, 2]
+    cvs[:, 1] = cvs[2, 2]
+    cvs[:, 2] = cvs[2, 2]
+    hs = H.from_grid(cvs, pu, pv)
+    u, v = np.meshgrid(np.linspace(0, 3, 13), np.linspace(0, 3, 13))
+    ev, n = H.surface_normals(hs, u.ravel(), v.ravel())
+    assert np.all(np.isfinite(n)) and np.allclose(np.linalg.norm(n, axis=1), 1.0)
+
+
+def test_arrays_round_trip_is_exact(sheet4):
+    hs = H.make_movable(sheet4, 3, [[10, 9]])
+    hs = H.make_movable(hs, 2, [[1, 1]])
+    hs = with_random_offsets(hs, seed=11)
+    arr = H.to_arrays(hs)
+    back = H.from_arrays(H.from_grid(hs.cvs, False, False, hs.depth), arr)
+    for a, b in zip(hs.fine, back.fine):
+        np.testing.assert_array_equal(a.patches, b.patches)
+        np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
+        np.testing.assert_array_equal(a.offsets, b.offsets)
+    with pytest.raises(ValueError, match="outside"):
+        H.from_arrays(H.from_grid(hs.cvs, False, False, 2), arr)
+
+
+def test_refine_rejects_levels_outside_depth(sheet4):
+    with pytest.raises(ValueError, match="levels 0..3"):
+        H.refine(sheet4, 4, [[0, 0]])
