@@ -1,0 +1,448 @@
+"""The collision response (thesis §4.2–4.3): data points, per-level absorption, three responses.
+
+Everything here is a pure function: it takes a surface, data points and controls and returns a
+new surface (new level-0 CVs and offsets); the caller's objects are never modified.
+
+Order (thesis §4.3.4): the wanted moves ``dQ_k = target_k - Q(u_k, v_k)`` are computed once;
+then for each level ``l`` from coarse to fine the level takes its share ``a[l] dQ_k``, split into
+a deformational (``d[l]``), translational (``t[l]``) and rotational (``r[l]``) part, each applied
+to the surface left by the previous step.
+
+**Interpretation (cumulative targets).** Moving a coarse level turns the frames of finer CVs, so
+finer detail rides along and the data point drifts slightly from ``Q + a[0] dQ``. Each level's
+deformational step therefore aims at ``Q_orig + (shares applied so far + its own) · dQ`` rather
+than at ``Q_current + a[l] dQ``; without drift the two are the same, and with it the final level
+lands on the full target. Under ``obey`` a level that is not refined at a point is skipped there
+and its share is not made up by finer levels: the remainder is exactly the missing absorption.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import hspline as H
+from .basis import locate
+from .interpolate import point_weights, solve
+
+__all__ = [
+    "Controls",
+    "ControlError",
+    "check_controls",
+    "DataPoints",
+    "rigidity_share",
+    "contact_targets",
+    "additional_targets",
+    "region_midpoints",
+    "respond",
+    "quat_from_axis_angle",
+    "quat_rotate",
+    "slerp_mean",
+]
+
+
+class ControlError(ValueError):
+    """An invalid control: ``attribute`` names the contract attribute (``acra:absorption``, …)."""
+
+    def __init__(self, attribute: str, problem: str):
+        self.attribute, self.problem = attribute, problem
+        super().__init__(f"{attribute}: {problem}")
+
+
+@dataclass(frozen=True)
+class Controls:
+    """Validated ACRA controls for one object (see `check_controls`).
+
+    Attributes
+    ----------
+    absorption : (L,) float64
+    deform, translate, rotate : (L,) float64
+    rigidity : float
+    refine : bool
+        ``True``: refine patches down to an absorbing level; ``False``: obey the refinement.
+    """
+
+    absorption: np.ndarray
+    deform: np.ndarray
+    translate: np.ndarray
+    rotate: np.ndarray
+    rigidity: float = 50.0
+    refine: bool = True
+
+
+def check_controls(levels, absorption=None, deform=None, translate=None, rotate=None, rigidity=50.0, refine="refine") -> Controls:
+    """Validate controls against the contract and fill its defaults.
+
+    Defaults: absorption ``[0, …, 0, 1]``, all deformational, rigidity 50, ``refine``.
+    Raises `ControlError` naming the attribute: counts not matching ``levels``, negative or
+    non-finite values, sums off 1 by more than 1e-6, rigidity outside ``[1, 100]``, unknown
+    policy token.
+    """
+    if not isinstance(levels, (int, np.integer)) or levels < 1:
+        raise ControlError("acra:levels", f"must be an integer of at least 1, got {levels!r}")
+    L = int(levels)
+    if absorption is None:
+        absorption = np.zeros(L)
+        absorption[-1] = 1.0
+    mixes = {}
+    for name, val, fill in (("deform", deform, 1.0), ("translate", translate, 0.0), ("rotate", rotate, 0.0)):
+        mixes[name] = np.full(L, fill) if val is None else val
+    if deform is None and (translate is not None or rotate is not None):
+        mixes["deform"] = 1.0 - np.asarray(mixes["translate"], float) - np.asarray(mixes["rotate"], float)
+    arrays = {}
+    for name, val in (("absorption", absorption), *mixes.items()):
+        a = np.asarray(val, dtype=np.float64).reshape(-1)
+        attr = f"acra:{name}"
+        if a.size != L:
+            raise ControlError(attr, f"has {a.size} values but acra:levels is {L}")
+        if not np.all(np.isfinite(a)):
+            raise ControlError(attr, "contains NaN or infinity")
+        if np.any(a < 0):
+            raise ControlError(attr, f"value {float(a[a < 0][0])} is negative; shares must be >= 0")
+        arrays[name] = a
+    if abs(arrays["absorption"].sum() - 1.0) > 1e-6:
+        raise ControlError("acra:absorption", f"sums to {arrays['absorption'].sum():.9g}, must sum to 1")
+    total = arrays["deform"] + arrays["translate"] + arrays["rotate"]
+    bad = np.nonzero(np.abs(total - 1.0) > 1e-6)[0]
+    if bad.size:
+        raise ControlError("acra:deform", f"deform + translate + rotate at level {int(bad[0])} sums to {total[bad[0]]:.9g}, must be 1")
+    r = float(rigidity)
+    if not np.isfinite(r) or not 1.0 <= r <= 100.0:
+        raise ControlError("acra:rigidity", f"{rigidity!r} is outside [1, 100]")
+    if refine not in ("refine", "obey"):
+        raise ControlError("acra:refine", f"unknown token {refine!r} (use 'refine' or 'obey')")
+    return Controls(arrays["absorption"], arrays["deform"], arrays["translate"], arrays["rotate"], r, refine == "refine")
+
+
+# --------------------------------------------------------------------------------------------
+# data points (thesis §4.2)
+
+
+@dataclass(frozen=True)
+class DataPoints:
+    """Where points of one surface must go.
+
+    Attributes
+    ----------
+    uv : (K, 2) float64
+        Parameters of each point on the surface (level-0 units).
+    target : (K, 3) float64
+        Where the point must go (object space of the surface).
+    is_contact : (K,) bool
+        Contact point ``P`` (True) or additional point ``A`` (False); rotations use contacts.
+    """
+
+    uv: np.ndarray
+    target: np.ndarray
+    is_contact: np.ndarray
+
+
+def rigidity_share(r1: float, r2: float | None) -> float:
+    """Eq. 4.15: ``R = R1 / (R1 + R2)``; a rigid collider (``r2 is None``) gives ``R = 0``.
+
+    Surface 1 interpolates ``R P1 + (1 - R) P2``, so it moves ``1 - R`` of the way: the more
+    rigid surface moves less, and against a collider the deformable moves all the way.
+    """
+    if r2 is None or np.isinf(r2):
+        return 0.0
+    return float(r1) / (float(r1) + float(r2))
+
+
+def contact_targets(p1: np.ndarray, p2: np.ndarray, share: float) -> np.ndarray:
+    """Eq. 4.15: the common target ``P' = R P1 + (1 - R) P2`` of two contact points ``(3,)``."""
+    return share * np.asarray(p1, float) + (1.0 - share) * np.asarray(p2, float)
+
+
+def additional_targets(a: np.ndarray, b: np.ndarray, share: float) -> np.ndarray:
+    """Eq. 4.16: ``A' = R A + (1 - R) B`` for additional points ``a`` and their hits ``b``, ``(k, 3)``."""
+    return share * np.asarray(a, float) + (1.0 - share) * np.asarray(b, float)
+
+
+def region_midpoints(hs: H.HSpline, uv_inside: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
+    """Parametric middle of the part of each level-``level`` patch inside a region (eq. 4.16).
+
+    Parameters
+    ----------
+    uv_inside : (n, 2) float64
+        Parameters of surface samples that lie inside the other object.
+
+    Returns
+    -------
+    uv_mid : (g, 2) float64
+        One point per patch that is wholly or partly inside: the mean of its inside samples
+        (periodic directions are averaged on the circle so a seam does not split the mean).
+    patches : (g, 2) int64
+        The patch of each point.
+    """
+    uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
+    if uv_inside.shape[0] == 0:
+        return np.zeros((0, 2)), np.zeros((0, 2), np.int64)
+    su, _ = locate(hs.u, uv_inside[:, 0], level)
+    sv, _ = locate(hs.v, uv_inside[:, 1], level)
+    keys = su * hs.v.patches(level) + sv
+    uniq, inv = np.unique(keys, return_inverse=True)
+    mids = np.zeros((uniq.size, 2))
+    for col, d in ((0, hs.u), (1, hs.v)):
+        x = uv_inside[:, col]
+        if d.periodic:
+            ang = 2 * np.pi * x / d.patches0
+            c = np.bincount(inv, np.cos(ang), uniq.size)
+            s = np.bincount(inv, np.sin(ang), uniq.size)
+            mids[:, col] = np.mod(np.arctan2(s, c), 2 * np.pi) * d.patches0 / (2 * np.pi)
+        else:
+            mids[:, col] = np.bincount(inv, x, uniq.size) / np.bincount(inv, minlength=uniq.size)
+    return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1)
+
+
+# --------------------------------------------------------------------------------------------
+# quaternions
+
+
+def quat_from_axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(m, 4)`` as ``(w, x, y, z)`` from unit axes ``(m, 3)`` and angles ``(m,)``."""
+    axis = np.atleast_2d(axis)
+    half = 0.5 * np.atleast_1d(angle)
+    return np.concatenate([np.cos(half)[:, None], np.sin(half)[:, None] * axis], axis=1)
+
+
+def quat_rotate(q: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``x (m, 3)`` by unit quaternions ``q (m, 4)``."""
+    w, v = q[:, :1], q[:, 1:]
+    t = 2.0 * np.cross(v, x)
+    return x + w * t + np.cross(v, t)
+
+
+def slerp_mean(qs: np.ndarray) -> np.ndarray:
+    """Mean of unit quaternions ``(n, 4)`` by successive slerp with weights ``1/i``."""
+    acc = qs[0]
+    for i in range(1, qs.shape[0]):
+        q = qs[i] if np.dot(acc, qs[i]) >= 0 else -qs[i]
+        t = 1.0 / (i + 1)
+        cos = np.clip(np.dot(acc, q), -1.0, 1.0)
+        ang = np.arccos(cos)
+        if ang < 1e-12:
+            acc = (1 - t) * acc + t * q
+        else:
+            acc = (np.sin((1 - t) * ang) * acc + np.sin(t * ang) * q) / np.sin(ang)
+        acc = acc / np.linalg.norm(acc)
+    return acc
+
+
+# --------------------------------------------------------------------------------------------
+# applying moves to a level
+
+
+def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
+    """Add world (object-space) moves ``dv (P, 3)`` to CVs of ``level``.
+
+    Level 0 moves the grid directly; finer levels store ``F^T dv`` in the offsets, so the CV's
+    position moves by exactly ``dv`` (its frame depends only on coarser levels).
+    """
+    if cv_rows.size == 0:
+        return hs
+    if level == 0:
+        cvs = hs.cvs.reshape(-1, 3).copy()
+        np.add.at(cvs, cv_rows, dv)
+        return replace(hs, cvs=cvs.reshape(hs.cvs.shape))
+    lev = hs.level(level)
+    frames = det.frames[level - 1][cv_rows]
+    offsets = lev.offsets.copy()
+    np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
+    fine = list(hs.fine)
+    fine[level - 1] = replace(lev, offsets=offsets)
+    return replace(hs, fine=tuple(fine))
+
+
+def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of the 16 CVs of each point's level patch, and whether each is movable: ``(K, 16)``."""
+    su, _ = locate(hs.u, uv[:, 0], level)
+    sv, _ = locate(hs.v, uv[:, 1], level)
+    i4 = np.arange(4)
+    ju = hs.u.wrap_cv(su[:, None] + i4, level)
+    jv = hs.v.wrap_cv(sv[:, None] + i4, level)
+    if level == 0:
+        rows = (ju[:, :, None] * hs.v.n + jv[:, None, :]).reshape(-1, 16)
+        return rows, np.ones(rows.shape, bool)
+    lev = hs.level(level)
+    rows, found = H._lookup(lev.cv_keys, H._cv_keys(hs, level, ju[:, :, None], jv[:, None, :]).reshape(-1, 16))
+    _, pfound = H._lookup(lev.patches, H._patch_keys(hs, level, su, sv))
+    ok = found & pfound[:, None]
+    if lev.cv_keys.size:
+        ok &= lev.movable[rows]
+    return rows, ok
+
+
+def _translate(hs, level, uv, moves, det):
+    """Translational response: every CV of each point's level patch moves by that point's move.
+
+    A CV shared by several patches takes the mean of their moves; a patch holding several
+    points moves by their mean.
+    """
+    rows, ok = _patch_cv_rows(hs, level, uv)
+    flat_rows = rows[ok]
+    flat_moves = np.repeat(moves[:, None, :], 16, axis=1)[ok]
+    uniq, inv = np.unique(flat_rows, return_inverse=True)
+    acc = np.zeros((uniq.size, 3))
+    np.add.at(acc, inv, flat_moves)
+    acc /= np.bincount(inv, minlength=uniq.size)[:, None]
+    return _move_level(hs, level, uniq, acc, det)
+
+
+def _rotation_pivots(hs, level, uv, det):
+    """Pivot of a level's rotation: the point on the surface of the coarser levels (base of the
+    detail being turned); for level 0, the centroid of the level-0 control net."""
+    if level == 0:
+        return np.broadcast_to(hs.cvs.reshape(-1, 3).mean(axis=0), (uv.shape[0], 3)).copy()
+    return H.evaluate(hs, uv[:, 0], uv[:, 1], det=det, upto=level - 1).points
+
+
+def rotation_of(pivot: np.ndarray, p: np.ndarray, p_rot: np.ndarray):
+    """Axis ``(m, 3)`` and angle ``(m,)`` turning ``p - pivot`` toward ``p_rot - pivot`` (§4.2.2)."""
+    a = p - pivot
+    b = p_rot - pivot
+    axis = np.cross(a, b)
+    n = np.linalg.norm(axis, axis=1)
+    ang = np.arctan2(n, np.sum(a * b, axis=1))
+    ok = n > 1e-15 * (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1) + 1e-300)
+    axis = np.where(ok[:, None], axis / np.where(ok, n, 1.0)[:, None], [1.0, 0.0, 0.0])
+    return axis, np.where(ok, ang, 0.0)
+
+
+def _rotate(hs, level, uv, points, moves, det):
+    """Rotational response: turn the detail of each point's patch about the coarser surface.
+
+    The quaternion turns ``P - C`` toward ``P + r dP - C`` (``C``: pivot); it rotates the detail
+    vectors (offsets) of the 16 CVs of the patch; a CV reached by several quaternions takes
+    their slerp mean. Level 0, which has no detail, rotates its CVs about the net centroid.
+    Additional points, and contacts where the level has no detail to turn, take the rotational
+    share as a deformation (see `respond`).
+    """
+    pivots = _rotation_pivots(hs, level, uv, det)
+    axis, ang = rotation_of(pivots, points, points + moves)
+    quats = quat_from_axis_angle(axis, ang)
+    rows, ok = _patch_cv_rows(hs, level, uv)
+    flat_rows = rows[ok]
+    flat_q = np.repeat(quats[:, None, :], 16, axis=1)[ok]
+    flat_piv = np.repeat(pivots[:, None, :], 16, axis=1)[ok]
+    uniq, inv = np.unique(flat_rows, return_inverse=True)
+    dv = np.zeros((uniq.size, 3))
+    for i in range(uniq.size):
+        sel = inv == i
+        q = slerp_mean(flat_q[sel]) if sel.sum() > 1 else flat_q[sel][0]
+        if level == 0:
+            x = hs.cvs.reshape(-1, 3)[uniq[i]] - flat_piv[sel][0]
+        else:
+            x = det.vectors[level - 1][uniq[i]]
+        dv[i] = quat_rotate(q[None], x[None])[0] - x
+    return _move_level(hs, level, uniq, dv, det)
+
+
+# --------------------------------------------------------------------------------------------
+# the response
+
+
+@dataclass(frozen=True)
+class ResponseReport:
+    """What `respond` did.
+
+    Attributes
+    ----------
+    applied : (K,) float64
+        Share of its move each data point received (1 unless ``obey`` skipped levels).
+    remaining : (K, 3) float64
+        ``target - Q`` after the response.
+    refined : int
+        Patches the ``refine`` policy activated.
+    """
+
+    applied: np.ndarray
+    remaining: np.ndarray
+    refined: int
+
+
+def respond(
+    hs: H.HSpline,
+    points: DataPoints,
+    controls: Controls,
+    method: str = "direct",
+    iterations: int = 5,
+) -> tuple[H.HSpline, ResponseReport]:
+    """Move a surface so it passes through its data points (thesis §4.3.4 prolongation).
+
+    Parameters
+    ----------
+    hs : HSpline
+        The surface (object space).
+    points : DataPoints
+        Contact and additional points with their targets.
+    controls : Controls
+        Absorption and response mix per level, refinement policy.
+    method : str
+        ``"direct"`` minimum-norm solve or ``"blend"`` (iterated Bartels–Beatty) for the
+        deformational step; ``iterations`` caps the latter.
+
+    Returns
+    -------
+    HSpline
+        The responded surface (a new object).
+    ResponseReport
+    """
+    uv = np.asarray(points.uv, dtype=np.float64).reshape(-1, 2)
+    K = uv.shape[0]
+    if K == 0:
+        return hs, ResponseReport(np.zeros(0), np.zeros((0, 3)), 0)
+    L = controls.absorption.size
+    if L > hs.depth:
+        raise ControlError("acra:absorption", f"has {L} levels but the surface has {hs.depth}")
+    det = H.details(hs) if hs.depth > 1 else None
+    q0 = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
+    dq = np.asarray(points.target, dtype=np.float64) - q0
+    applied = np.zeros(K)
+    refined = 0
+    for level in range(L):
+        a = float(controls.absorption[level])
+        if a <= 0.0:
+            continue
+        if level >= 1 and controls.refine:
+            su, _ = locate(hs.u, uv[:, 0], level)
+            sv, _ = locate(hs.v, uv[:, 1], level)
+            before = sum(lev.patches.size for lev in hs.fine)
+            hs = H.make_movable(hs, level, np.stack([su, sv], axis=1))
+            refined += sum(lev.patches.size for lev in hs.fine) - before
+            det = H.details(hs)
+        pw = point_weights(hs, level, uv[:, 0], uv[:, 1])
+        present = pw.active
+        d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
+        if d > 0:
+            cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
+            goal = q0 + (applied + a * d)[:, None] * dq
+            want = np.where(present[:, None], goal - cur, 0.0)
+            dv = solve(pw, want, method=method, iterations=iterations)
+            hs = _move_level(hs, level, pw.cv_rows, dv, det)
+            det = H.details(hs) if hs.depth > 1 else None
+        sel = np.nonzero(present)[0]
+        if t > 0 and sel.size:
+            hs = _translate(hs, level, uv[sel], a * t * dq[sel], det)
+            det = H.details(hs) if hs.depth > 1 else None
+        if r > 0 and sel.size:
+            rot = sel[np.asarray(points.is_contact, bool)[sel]]
+            rest = sel[~np.asarray(points.is_contact, bool)[sel]]
+            if rot.size:
+                cur = H.evaluate(hs, uv[rot, 0], uv[rot, 1], det=det).points
+                pivots = _rotation_pivots(hs, level, uv[rot], det)
+                # a level with no detail at the contact has nothing to turn: deform instead
+                flat = np.linalg.norm(cur - pivots, axis=1) <= 1e-9 * hs.size()
+                rest = np.concatenate([rest, rot[flat]])
+                rot = rot[~flat]
+            if rot.size:
+                hs = _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det)
+                det = H.details(hs) if hs.depth > 1 else None
+            if rest.size:  # additional points (and flat contacts) take the share as deformation
+                sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
+                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations)
+                hs = _move_level(hs, level, sub.cv_rows, dv, det)
+                det = H.details(hs) if hs.depth > 1 else None
+        applied = applied + np.where(present, a, 0.0)
+    final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
+    return hs, ResponseReport(applied, np.asarray(points.target) - final, refined)

@@ -1,0 +1,83 @@
+"""Bartels–Beatty interpolation, its multi-point blend and the direct minimum-norm solve (§4.1)."""
+
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from acra import hspline as H
+from acra import shapes
+from acra.basis import basis, locate, Direction
+from acra.interpolate import PointWeights, bartels_beatty, blend_update, iterate_blend, min_norm_solve, point_weights
+
+
+def curve_weights(n_cvs, params):
+    """PointWeights of points on an open uniform cubic curve with ``n_cvs`` CVs."""
+    d = Direction(n_cvs, False)
+    seg, t = locate(d, np.asarray(params, float), 0)
+    b = basis(t)
+    point = np.repeat(np.arange(len(params)), 4)
+    col = (seg[:, None] + np.arange(4)).reshape(-1)
+    return PointWeights(0, point, col, b.reshape(-1), np.arange(n_cvs), len(params), np.ones(len(params), bool))
+
+
+def test_one_point_on_a_curve_is_exact_and_minimal():
+    rng = np.random.default_rng(0)
+    cvs = rng.normal(size=(8, 3))
+    for u in rng.uniform(0, 5, 20):
+        seg, t = locate(Direction(8, False), np.array([u]), 0)
+        w = basis(t)[0]
+        dq = rng.normal(size=3)
+        dv = bartels_beatty(w, dq)
+        assert np.abs(w @ dv - dq).max() <= 1e-12
+        # minimum norm: equals the pseudo-inverse solution
+        np.testing.assert_allclose(dv, np.linalg.pinv(w[None, :]) @ dq[None, :], atol=1e-12)
+
+
+def test_one_point_on_a_surface_by_every_solver():
+    hs = H.from_grid(*shapes.sheet(11, 11), depth=1)
+    pw = point_weights(hs, 0, np.array([3.37]), np.array([5.81]))
+    dq = np.array([[0.1, -0.2, 0.3]])
+    for dv in (min_norm_solve(pw, dq), blend_update(pw, dq), iterate_blend(pw, dq, 1)[0]):
+        assert np.abs(pw.apply(dv) - dq).max() <= 1e-12
+    # the blend for one point is exactly Bartels-Beatty (eq. 4.11)
+    np.testing.assert_allclose(blend_update(pw, dq), bartels_beatty(pw.w, dq[0]), atol=1e-15)
+
+
+def test_thesis_curve_8_cvs_through_4_points_residual_falls():
+    pw = curve_weights(8, [0.4, 1.3, 2.2, 4.1])
+    rng = np.random.default_rng(1)
+    dq = rng.normal(size=(4, 3))
+    _, hist = iterate_blend(pw, dq, iterations=8)
+    assert np.all(np.diff(hist) < 0), hist
+    assert hist[5] < 0.2 * hist[0]
+    assert np.abs(pw.apply(min_norm_solve(pw, dq)) - dq).max() <= 1e-10
+
+
+def test_thesis_surface_11x11_through_3_points_residual_falls():
+    hs = H.from_grid(*shapes.sheet(11, 11), depth=1)
+    pw = point_weights(hs, 0, np.array([2.2, 2.9, 3.4]), np.array([3.1, 3.3, 2.6]))
+    dq = np.array([[0, 0, 0.3], [0, 0, -0.2], [0.05, 0, 0.25]])
+    _, hist = iterate_blend(pw, dq, iterations=8)
+    assert np.all(np.diff(hist) < 0), hist
+    assert np.abs(pw.apply(min_norm_solve(pw, dq)) - dq).max() <= 1e-10
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 12), st.integers(0, 10_000))
+def test_min_norm_is_exact_and_minimal_for_random_points(k, seed):
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sheet(9, 9), depth=1)
+    pw = point_weights(hs, 0, rng.uniform(0, 6, k), rng.uniform(0, 6, k))
+    dq = rng.normal(size=(k, 3))
+    dv = min_norm_solve(pw, dq)
+    W = pw.dense()
+    if np.linalg.matrix_rank(W) == k:  # distinct enough points: exact and equal to pinv
+        assert np.abs(W @ dv - dq).max() <= 1e-8
+        np.testing.assert_allclose(dv, np.linalg.pinv(W) @ dq, atol=1e-7)
+    assert np.all(np.isfinite(dv))
+
+
+def test_coincident_points_with_different_targets_stay_finite():
+    hs = H.from_grid(*shapes.sheet(8, 8), depth=1)
+    pw = point_weights(hs, 0, np.array([2.5, 2.5]), np.array([2.5, 2.5]))
+    dv = min_norm_solve(pw, np.array([[0, 0, 1.0], [0, 0, -1.0]]))
+    assert np.all(np.isfinite(dv)) and np.abs(pw.apply(dv)).max() < 1e-6

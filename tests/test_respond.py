@@ -1,0 +1,208 @@
+"""ACRA response (thesis §4.2–4.3): controls, rigidity, absorption locality, the three responses."""
+
+import numpy as np
+import pytest
+
+from acra import hspline as H
+from acra import respond as R
+from acra import shapes
+
+
+def flat_sheet(n=12, depth=4):
+    return H.from_grid(*shapes.sheet(n, n, n - 3.0, n - 3.0), depth=depth)
+
+
+def one_point(hs, uv, move):
+    uv = np.asarray(uv, float).reshape(1, 2)
+    q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+    return R.DataPoints(uv, q + np.asarray(move, float), np.array([True]))
+
+
+def controls(L, level, d=1.0, t=0.0, r=0.0, refine="refine"):
+    a = np.zeros(L)
+    a[level] = 1.0
+    return R.check_controls(L, a, np.full(L, d), np.full(L, t), np.full(L, r), refine=refine)
+
+
+@pytest.mark.parametrize(
+    "kwargs,attr,words",
+    [
+        (dict(absorption=[0.5, 0.4]), "acra:absorption", "sums to 0.9"),
+        (dict(absorption=[1.5, -0.5]), "acra:absorption", "negative"),
+        (dict(absorption=[1.0]), "acra:absorption", "has 1 values but acra:levels is 2"),
+        (dict(deform=[1, 1], translate=[0.5, 0]), "acra:deform", "level 0 sums to 1.5"),
+        (dict(translate=[0, -0.1], deform=[1, 1.1]), "acra:translate", "negative"),
+        (dict(rigidity=0.5), "acra:rigidity", "outside [1, 100]"),
+        (dict(rigidity=101), "acra:rigidity", "outside [1, 100]"),
+        (dict(rigidity=float("nan")), "acra:rigidity", "outside"),
+        (dict(refine="maybe"), "acra:refine", "unknown token"),
+        (dict(absorption=[float("nan"), 1]), "acra:absorption", "NaN"),
+    ],
+)
+def test_invalid_controls_name_the_attribute(kwargs, attr, words):
+    with pytest.raises(R.ControlError) as err:
+        R.check_controls(2, **kwargs)
+    assert err.value.attribute == attr and words in str(err.value)
+
+
+def test_control_defaults():
+    c = R.check_controls(3)
+    np.testing.assert_array_equal(c.absorption, [0, 0, 1])
+    np.testing.assert_array_equal(c.deform, [1, 1, 1])
+    assert c.rigidity == 50 and c.refine
+    # within 1e-6 of 1 is accepted
+    R.check_controls(2, absorption=[0.5, 0.5 + 5e-7])
+
+
+@pytest.mark.parametrize("r1,r2", [(10.0, 90.0), (50.0, 50.0), (1.0, 100.0), (70.0, 20.0)])
+def test_rigidity_moves_two_deformables_in_ratio_r2_r1(r1, r2):
+    s1 = flat_sheet(depth=1)
+    s2 = H.from_grid(s1.cvs + [0, 0, 0.3], False, False, 1)  # a parallel sheet 0.3 above
+    uv = np.array([[4.3, 4.6]])
+    p1 = H.evaluate(s1, uv[:, 0], uv[:, 1]).points[0] + [0, 0, 0.0]
+    p2 = H.evaluate(s2, uv[:, 0], uv[:, 1]).points[0]
+    share = R.rigidity_share(r1, r2)
+    target = R.contact_targets(p1, p2, share)
+    c = R.check_controls(1, [1.0], rigidity=r1)
+    out1, rep1 = R.respond(s1, R.DataPoints(uv, target[None], np.array([True])), c)
+    out2, rep2 = R.respond(s2, R.DataPoints(uv, target[None], np.array([True])), c)
+    m1 = np.linalg.norm(H.evaluate(out1, uv[:, 0], uv[:, 1]).points[0] - p1)
+    m2 = np.linalg.norm(H.evaluate(out2, uv[:, 0], uv[:, 1]).points[0] - p2)
+    assert m1 / m2 == pytest.approx(r2 / r1, rel=0.02)
+    assert m1 + m2 == pytest.approx(0.3, rel=1e-9)
+
+
+def test_against_a_rigid_collider_the_deformable_moves_all_the_way():
+    hs = flat_sheet(depth=1)
+    uv = np.array([[4.0, 4.0]])
+    p1 = H.evaluate(hs, uv[:, 0], uv[:, 1]).points[0]
+    p2 = p1 + [0, 0, -0.25]
+    target = R.contact_targets(p1, p2, R.rigidity_share(30.0, None))
+    np.testing.assert_allclose(target, p2)
+    out, rep = R.respond(hs, R.DataPoints(uv, target[None], np.array([True])), R.check_controls(1, [1.0]))
+    assert np.abs(rep.remaining).max() <= 1e-12
+
+
+def _moved_area(before, after, rng_uv):
+    pa = H.evaluate(before, *rng_uv).points
+    pb = H.evaluate(after, *rng_uv).points
+    d = np.linalg.norm(pb - pa, axis=1)
+    return np.mean(d > 0.01 * d.max())
+
+
+def test_fine_absorption_is_at_least_four_times_more_local():
+    hs = flat_sheet(n=12, depth=4)
+    dp = one_point(hs, [4.4, 4.7], [0, 0, -0.2])
+    rng = np.random.default_rng(0)
+    uv = (rng.uniform(0, 9, 40_000), rng.uniform(0, 9, 40_000))
+    coarse, _ = R.respond(hs, dp, controls(4, 0))
+    fine, rep = R.respond(hs, dp, controls(4, 3))
+    assert np.abs(rep.remaining).max() < 1e-10
+    a0, a3 = _moved_area(hs, coarse, uv), _moved_area(hs, fine, uv)
+    assert a3 * 4 <= a0, (a0, a3)
+
+
+def bumpy(level=2, height=0.3):
+    """A flat sheet with a bump modelled on ``level`` (offsets along the normal)."""
+    hs = flat_sheet(n=10, depth=level + 1)
+    c = 3 << level
+    hs = H.make_movable(hs, level, [[c, c]])
+    cvs = np.array([[c + a, c + b] for a in range(4) for b in range(4)])
+    ring = np.array([1, 2, 2, 1])
+    h = height * np.outer(ring, ring).reshape(-1) / 4
+    return H.set_offsets(hs, level, cvs, np.stack([0 * h, 0 * h, h], 1)), cvs
+
+
+def _block_rows(hs, k, start=12):
+    """Rows (into level k's CV arrays) of the 4x4 CV block starting at ``(start, start)``."""
+    keys = (start + np.arange(4))[:, None] * hs.v.cvs(k) + (start + np.arange(4))[None, :]
+    rows, found = H._lookup(hs.level(k).cv_keys, keys.reshape(-1))
+    assert found.all()
+    return rows
+
+
+def test_translational_response_keeps_the_detail_rigid():
+    hs, cvs = bumpy()
+    k = 2
+    uv = np.array([[12.5 / 4, 12.5 / 4]])  # inside level-2 patch (12, 12), whose CVs are the bump
+    move = np.array([0.07, -0.02, -0.15])
+    dp = R.DataPoints(uv, H.evaluate(hs, uv[:, 0], uv[:, 1]).points + move, np.array([True]))
+    out, rep = R.respond(hs, dp, controls(3, k, d=0.0, t=1.0))
+    before = H.cv_positions(hs, k)[_block_rows(hs, k)]
+    after = H.cv_positions(out, k)[_block_rows(out, k)]
+    np.testing.assert_allclose(after - before, np.tile(move, (16, 1)), atol=1e-9)
+    dist = lambda p: np.linalg.norm(p[:, None] - p[None], axis=2)  # noqa: E731
+    assert np.abs(dist(after) - dist(before)).max() <= 1e-9
+    assert np.abs(rep.remaining).max() <= 1e-9
+
+
+def test_rotational_response_turns_the_detail_by_the_predicted_rotation():
+    hs, cvs = bumpy()
+    k = 2
+    uv = np.array([[12.5 / 4, 12.5 / 4]])  # inside level-2 patch (12, 12), whose CVs are the bump
+    det = H.details(hs)
+    p = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
+    pivot = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det, upto=k - 1).points
+    move = np.array([[0.1, 0.0, -0.05]])
+    dp = R.DataPoints(uv, p + move, np.array([True]))
+    out, _ = R.respond(hs, dp, controls(3, k, d=0.0, r=1.0))
+    axis, ang = R.rotation_of(pivot, p, p + move)
+    # predicted: axis normal to the plane (pivot, P, P_rot), angle at the pivot
+    a, b = p[0] - pivot[0], p[0] + move[0] - pivot[0]
+    np.testing.assert_allclose(axis[0], np.cross(a, b) / np.linalg.norm(np.cross(a, b)), atol=1e-12)
+    assert ang[0] == pytest.approx(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b)), abs=1e-12)
+    d_before = det.vectors[k - 1][_block_rows(hs, k)]
+    d_after = H.details(out).vectors[k - 1][_block_rows(out, k)]
+    q = R.quat_from_axis_angle(axis, ang)
+    np.testing.assert_allclose(d_after, R.quat_rotate(np.repeat(q, 16, 0), d_before), atol=1e-6)
+    assert np.abs(d_after - d_before).max() > 1e-3
+    # the contact point now lies on the ray from the pivot toward P_rot
+    pn = H.evaluate(out, uv[:, 0], uv[:, 1]).points[0]
+    u1 = (pn - pivot[0]) / np.linalg.norm(pn - pivot[0])
+    np.testing.assert_allclose(u1, b / np.linalg.norm(b), atol=1e-6)
+
+
+def test_slerp_mean_of_two_rotations_is_the_half_way_rotation():
+    q1 = R.quat_from_axis_angle(np.array([[0, 0, 1.0]]), np.array([0.2]))[0]
+    q2 = R.quat_from_axis_angle(np.array([[0, 0, 1.0]]), np.array([0.6]))[0]
+    np.testing.assert_allclose(R.slerp_mean(np.stack([q1, q2])), R.quat_from_axis_angle(np.array([[0, 0, 1.0]]), np.array([0.4]))[0], atol=1e-12)
+
+
+def test_refine_removes_what_obey_leaves_as_the_missing_absorption():
+    hs = flat_sheet(n=10, depth=3)
+    dp = one_point(hs, [3.3, 3.4], [0, 0, -0.2])
+    a = np.array([0.0, 0.4, 0.6])
+    ref, rep_r = R.respond(hs, dp, R.check_controls(3, a, refine="refine"))
+    obey, rep_o = R.respond(hs, dp, R.check_controls(3, a, refine="obey"))
+    assert np.abs(rep_r.remaining).max() <= 1e-10
+    # nothing is refined, so levels 1 and 2 are missing: the remainder is their whole share
+    np.testing.assert_allclose(rep_o.remaining, [[0, 0, -0.2]], atol=1e-12)
+    # with level 1 refined by the animator, obey leaves exactly level 2's share
+    hs1 = H.make_movable(hs, 1, [[6, 6]])
+    _, rep_1 = R.respond(hs1, dp, R.check_controls(3, a, refine="obey"))
+    np.testing.assert_allclose(rep_1.remaining, [[0, 0, -0.2 * 0.6]], atol=1e-10)
+    np.testing.assert_allclose(rep_1.applied, [0.4])
+
+
+def test_respond_is_pure_and_mixes_levels():
+    hs, _ = bumpy()
+    before = [lev.offsets.copy() for lev in hs.fine]
+    cvs0 = hs.cvs.copy()
+    uv = np.array([[3.4, 3.3], [3.0, 3.6]])
+    q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+    dp = R.DataPoints(uv, q + [0, 0, -0.1], np.array([True, False]))
+    c = R.check_controls(3, [0.2, 0.3, 0.5], [1, 0.5, 0.5], [0, 0.5, 0], [0, 0, 0.5])
+    out, rep = R.respond(hs, dp, c)
+    np.testing.assert_array_equal(hs.cvs, cvs0)
+    for lev, off in zip(hs.fine, before):
+        np.testing.assert_array_equal(lev.offsets, off)
+    assert np.all(np.isfinite(rep.remaining)) and np.abs(rep.remaining).max() < 0.1
+
+
+def test_region_midpoints_average_across_a_periodic_seam():
+    hs = H.from_grid(*shapes.torus(8, 6))
+    uv = np.array([[7.9, 1.2], [0.1, 1.4], [0.05, 1.3]])
+    mids, patches = R.region_midpoints(hs, uv, 0)
+    # 7.9 is in patch 7, the others in patch 0
+    assert patches.tolist() == [[0, 1], [7, 1]]
+    np.testing.assert_allclose(mids[0], [0.075, 1.35], atol=1e-9)
