@@ -1,0 +1,165 @@
+"""The pipeline's data model: static models read once per run, per-frame states evaluated per time.
+
+Newton-style split: a *model* holds what never changes during a run (topology, controls, the
+animator's hierarchy, a collider's mesh); a *state* holds what a time code evaluates to (the
+animator's level-0 CVs, world transforms, ``acra:enabled``). The frame loop never mutates either:
+responses are new objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from acra.hspline import HierarchyArrays, HSpline
+from acra.tessellate import GridTopology
+
+__all__ = ["Controls", "DeformableModel", "ColliderModel", "SceneModel", "DeformableState", "ColliderState", "InputError"]
+
+
+class InputError(ValueError):
+    """Invalid input: the message is one line naming the prim, the attribute and the problem."""
+
+    def __init__(self, prim: str, attribute: str | None, problem: str):
+        self.prim, self.attribute, self.problem = prim, attribute, problem
+        where = f"{prim}.{attribute}" if attribute else prim
+        super().__init__(f"{where}: {problem}")
+
+
+@dataclass(frozen=True)
+class Controls:
+    """ACRA controls of one deformable, validated (contract §1).
+
+    Attributes
+    ----------
+    absorption : (L,) float64
+        Share of the response each level absorbs; ``>= 0``, sums to 1.
+    deform, translate, rotate : (L,) float64
+        Per-level response mix; each level's three values ``>= 0`` and sum to 1.
+    rigidity : float
+        Relative rigidity in ``[1, 100]``.
+    refine : bool
+        ``True`` for the ``refine`` policy, ``False`` for ``obey``.
+    samples : int
+        Display samples per level-0 patch edge.
+    """
+
+    absorption: np.ndarray
+    deform: np.ndarray
+    translate: np.ndarray
+    rotate: np.ndarray
+    rigidity: float = 50.0
+    refine: bool = True
+    samples: int = 4
+
+
+@dataclass(frozen=True)
+class DeformableModel:
+    """A deformable H-spline object: everything that is fixed for the run.
+
+    Attributes
+    ----------
+    path : str
+        Prim path.
+    u_periodic, v_periodic : bool
+    nu, nv : int
+        Level-0 grid size.
+    depth : int
+        ``acra:levels``.
+    controls : Controls
+    hierarchy : HierarchyArrays
+        The animator's refined patches and offsets (input, not time-varying).
+    topology : GridTopology
+        Display tessellation (fixed for the run).
+    """
+
+    path: str
+    u_periodic: bool
+    v_periodic: bool
+    nu: int
+    nv: int
+    depth: int
+    controls: Controls
+    hierarchy: HierarchyArrays
+    topology: GridTopology
+
+
+@dataclass(frozen=True)
+class ColliderModel:
+    """A rigid collider mesh (``PhysicsCollisionAPI``), in its object space.
+
+    Attributes
+    ----------
+    path : str
+    vertices : (n, 3) float64
+    triangles : (f, 3) int64
+        Faces triangulated (fan) from the Mesh's polygons.
+    """
+
+    path: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+
+@dataclass(frozen=True)
+class SceneModel:
+    """All objects of a stage and its frame range.
+
+    Attributes
+    ----------
+    deformables, colliders : tuple
+    start, end : int
+        Integer frames to process (inclusive).
+    meters_per_unit, up_axis : stage metadata (for reports)
+    """
+
+    deformables: tuple[DeformableModel, ...]
+    colliders: tuple[ColliderModel, ...]
+    start: int
+    end: int
+    meters_per_unit: float = 1.0
+    up_axis: str = "Y"
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class DeformableState:
+    """A deformable at one time code: the animator's shape, before any response.
+
+    Attributes
+    ----------
+    surface : HSpline
+        Object-space H-spline (level-0 CVs at this time + the animator's hierarchy).
+    xform : (4, 4) float64
+        Object-to-world matrix, column-vector convention: ``world = xform @ [p, 1]``.
+    enabled : bool
+        ``acra:enabled`` at this time.
+    """
+
+    surface: HSpline
+    xform: np.ndarray
+    enabled: bool = True
+
+
+@dataclass(frozen=True)
+class ColliderState:
+    """A collider at one time code.
+
+    Attributes
+    ----------
+    xform : (4, 4) float64
+        Object-to-world matrix, column-vector convention.
+    """
+
+    xform: np.ndarray
+
+
+def apply_xform(xform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` points mapped by a ``(4, 4)`` column-convention matrix."""
+    return points @ xform[:3, :3].T + xform[:3, 3]
+
+
+def apply_inverse(xform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` world points mapped back into the object space of ``xform``."""
+    return (points - xform[:3, 3]) @ np.linalg.inv(xform[:3, :3]).T
