@@ -1,0 +1,319 @@
+"""The scene-file API (contract §4): build a stage in a few lines, like a Blender script.
+
+A scene file defines ``build() -> Usd.Stage`` composed of these helpers and can be run on its own::
+
+    from pathlib import Path
+    from acra import shapes
+    from pipeline.authoring import new_stage, add_deformable, key_transform, add_collider, box, save
+
+    def build():
+        stage = new_stage(1, 24)
+        cvs, up, vp = shapes.sphere(8, 8)
+        ball = add_deformable(stage, "/World/ball", cvs, u_wrap="periodic", levels=3,
+                              absorption=[0.2, 0.3, 0.5])
+        key_transform(ball, 1, translate=(0, 0, 3))
+        key_transform(ball, 24, translate=(0, 0, 0.5))
+        add_collider(stage, "/World/floor", *box((10, 10, 1)))
+        return stage
+
+    if __name__ == "__main__":
+        save(build(), Path(__file__).with_suffix(".usda"))
+
+Every deformable gets its rest display tessellation (points, normals, topology) so the stage is
+viewable before any response; `key_cvs` keys that preview along with the CVs. No ``extent`` is
+authored on deformables: the output layer may not override it (contract §2), so a stale rest
+extent would make viewers cull or frame the deformed surface wrongly; USD computes bounds from
+``points`` when ``extent`` is absent.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, Vt
+
+from acra.hspline import HSpline, from_arrays, from_grid, to_arrays
+from acra.tessellate import GridTopology, display_topology, evaluate_grid
+
+from .usdio import WRAPS, cvs_to_flat, export_layer, read_hierarchy
+
+__all__ = [
+    "new_stage",
+    "add_xform",
+    "add_deformable",
+    "key_cvs",
+    "add_collider",
+    "box",
+    "uv_sphere",
+    "key_transform",
+    "key_enabled",
+    "save",
+]
+
+T = Sdf.ValueTypeNames
+_OP_ORDER = ("xformOp:translate", "xformOp:rotateXYZ", "xformOp:scale")
+
+
+def new_stage(start: int, end: int, fps: float = 24, up_axis: str = "Z", meters_per_unit: float = 1.0) -> Usd.Stage:
+    """An in-memory stage with a ``/World`` Xform as default prim and its metadata set.
+
+    ``start``..``end`` are the frames a run processes; ``fps`` sets both time codes and frames per
+    second (one time code per frame).
+    """
+    stage = Usd.Stage.CreateInMemory()
+    world = UsdGeom.Xform.Define(stage, "/World").GetPrim()
+    stage.SetDefaultPrim(world)
+    stage.SetStartTimeCode(int(start))
+    stage.SetEndTimeCode(int(end))
+    stage.SetTimeCodesPerSecond(float(fps))
+    stage.SetFramesPerSecond(float(fps))
+    UsdGeom.SetStageUpAxis(stage, {"Y": UsdGeom.Tokens.y, "Z": UsdGeom.Tokens.z}[up_axis.upper()])
+    UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
+    return stage
+
+
+def _parents(stage: Usd.Stage, path: str) -> None:
+    """Define missing ancestors as Xforms, so transforms inherit through them."""
+    for anc in reversed(Sdf.Path(path).GetParentPath().GetPrefixes()):
+        if not stage.GetPrimAtPath(anc):
+            UsdGeom.Xform.Define(stage, anc)
+
+
+def add_xform(stage: Usd.Stage, path: str) -> Usd.Prim:
+    """An Xform prim (a group whose transform its children inherit)."""
+    _parents(stage, path)
+    return UsdGeom.Xform.Define(stage, path).GetPrim()
+
+
+def _set(prim: Usd.Prim, name: str, tname: Sdf.ValueTypeName, value, time=None) -> Usd.Attribute:
+    attr = prim.CreateAttribute(name, tname)
+    attr.Set(value) if time is None else attr.Set(value, Usd.TimeCode(time))
+    return attr
+
+
+def _set_display(mesh: UsdGeom.Mesh, points: np.ndarray, normals: np.ndarray, time=None) -> None:
+    tc = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+    mesh.CreatePointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(points, dtype=np.float32)), tc)
+    mesh.CreateNormalsAttr().Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, dtype=np.float32)), tc)
+
+
+def add_deformable(
+    stage: Usd.Stage,
+    path: str,
+    cvs: np.ndarray,
+    u_wrap: str = "open",
+    v_wrap: str = "open",
+    levels: int | None = None,
+    absorption=None,
+    deform=None,
+    translate=None,
+    rotate=None,
+    rigidity: float = 50.0,
+    refine: str = "refine",
+    samples: int = 4,
+    hierarchy: HSpline | None = None,
+    enabled: bool = True,
+) -> Usd.Prim:
+    """A deformable H-spline Mesh: every ``acra:`` attribute plus the rest display tessellation.
+
+    Parameters
+    ----------
+    cvs : (nu, nv, 3) float64
+        Level-0 CVs in object space, ``cvs[i, j]`` with ``i`` along u.
+    levels : int, optional
+        ``acra:levels``; defaults to ``hierarchy.depth``, else 1.
+    absorption, deform, translate, rotate : (levels,) float, optional
+        Controls (contract §1); unset ones are authored with the contract's defaults
+        (``[0, …, 0, 1]``, all deform). Values are written as given: `pipeline.usdio.read_scene`
+        is the single place that validates them.
+    hierarchy : HSpline, optional
+        The animator's refined patches and offsets (its ``cvs`` are replaced by ``cvs``); stored
+        in ``acra:hierarchy:*``. Its grid size and wraps must match.
+    """
+    cvs = np.asarray(cvs, dtype=np.float64)
+    if cvs.ndim != 3 or cvs.shape[2] != 3:
+        raise ValueError(f"cvs must have shape (nu, nv, 3), got {cvs.shape}")
+    nu, nv = cvs.shape[:2]
+    uper, vper = u_wrap == "periodic", v_wrap == "periodic"
+    if levels is None:
+        levels = hierarchy.depth if hierarchy is not None else 1
+    if hierarchy is not None:
+        if hierarchy.cvs.shape != cvs.shape or (hierarchy.u.periodic, hierarchy.v.periodic) != (uper, vper):
+            raise ValueError(f"{path}: hierarchy grid {hierarchy.cvs.shape[:2]} / wraps do not match cvs {cvs.shape[:2]} / ({u_wrap}, {v_wrap})")
+        if hierarchy.depth != levels:
+            raise ValueError(f"{path}: hierarchy has {hierarchy.depth} levels, levels={levels}")
+    _parents(stage, path)
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    prim = mesh.GetPrim()
+    L = int(levels)
+    ones, zeros = np.ones(L), np.zeros(L)
+    mix_given = any(x is not None for x in (deform, translate, rotate))
+    floats = lambda x, default: Vt.FloatArray(list(np.asarray(default if x is None else x, dtype=np.float64).reshape(-1)))  # noqa: E731
+    _set(prim, "acra:cvs", T.Point3fArray, Vt.Vec3fArray.FromNumpy(cvs_to_flat(cvs).astype(np.float32)))
+    _set(prim, "acra:uCount", T.Int, int(nu))
+    _set(prim, "acra:vCount", T.Int, int(nv))
+    _set(prim, "acra:uWrap", T.Token, u_wrap)
+    _set(prim, "acra:vWrap", T.Token, v_wrap)
+    _set(prim, "acra:levels", T.Int, L)
+    _set(prim, "acra:absorption", T.FloatArray, floats(absorption, np.eye(L)[-1] if L else zeros))
+    _set(prim, "acra:deform", T.FloatArray, floats(deform, zeros if mix_given else ones))
+    _set(prim, "acra:translate", T.FloatArray, floats(translate, zeros))
+    _set(prim, "acra:rotate", T.FloatArray, floats(rotate, zeros))
+    _set(prim, "acra:rigidity", T.Float, float(rigidity))
+    _set(prim, "acra:refine", T.Token, refine)
+    _set(prim, "acra:samples", T.Int, int(samples))
+    _set(prim, "acra:enabled", T.Bool, bool(enabled))
+    if hierarchy is not None:
+        a = to_arrays(hierarchy)
+        _set(prim, "acra:hierarchy:patchLevel", T.IntArray, Vt.IntArray.FromNumpy(a.patch_level))
+        _set(prim, "acra:hierarchy:patches", T.Int2Array, Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(a.patches)))
+        _set(prim, "acra:hierarchy:offsetLevel", T.IntArray, Vt.IntArray.FromNumpy(a.offset_level))
+        _set(prim, "acra:hierarchy:offsetCvs", T.Int2Array, Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(a.offset_cvs)))
+        _set(prim, "acra:hierarchy:offsets", T.Double3Array, Vt.Vec3dArray.FromNumpy(np.ascontiguousarray(a.offsets)))
+
+    template, topology = _structure(prim)
+    points, normals = evaluate_grid(replace(template, cvs=np.ascontiguousarray(cvs)), topology)
+    quads = topology.quads
+    mesh.CreateFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(quads), 4, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(quads.reshape(-1).astype(np.int32)))
+    mesh.CreateSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    _set_display(mesh, points, normals)
+    return prim
+
+
+def _structure(prim: Usd.Prim) -> tuple[HSpline, GridTopology]:
+    """The deformable's refinement structure (zero CVs) and display topology, as authored.
+
+    Controls are not validated here (scenes may author bad values on purpose; `read_scene`
+    reports them), only what the preview tessellation needs.
+    """
+    get = lambda n, d: prim.GetAttribute(n).Get() if prim.GetAttribute(n).HasAuthoredValue() else d  # noqa: E731
+    nu, nv = int(get("acra:uCount", 0)), int(get("acra:vCount", 0))
+    uper, vper = WRAPS.get(str(get("acra:uWrap", "open")), False), WRAPS.get(str(get("acra:vWrap", "open")), False)
+    base = from_grid(np.zeros((nu, nv, 3)), uper, vper, depth=int(get("acra:levels", 1)))
+    topology = display_topology(base.u, base.v, int(get("acra:samples", 4)))
+    return from_arrays(base, read_hierarchy(prim)), topology
+
+
+def key_cvs(prim: Usd.Prim, frame: float, cvs: np.ndarray) -> None:
+    """Key ``acra:cvs`` (``(nu, nv, 3)``) at ``frame``, with the matching display preview.
+
+    Once any key exists USD uses the keys at every time (held before the first and after the
+    last), not the rest value `add_deformable` authored.
+    """
+    template, topology = _structure(prim)
+    cvs = np.asarray(cvs, dtype=np.float64)
+    if cvs.shape != template.cvs.shape:
+        raise ValueError(f"{prim.GetPath()}: cvs shape {cvs.shape}, the object has {template.cvs.shape}")
+    _set(prim, "acra:cvs", T.Point3fArray, Vt.Vec3fArray.FromNumpy(cvs_to_flat(cvs).astype(np.float32)), frame)
+    points, normals = evaluate_grid(replace(template, cvs=np.ascontiguousarray(cvs)), topology)
+    _set_display(UsdGeom.Mesh(prim), points, normals, frame)
+
+
+def _faces(faces) -> tuple[np.ndarray, np.ndarray]:
+    """Polygon list (``(f, k)`` array or sequence of sequences) to USD counts and indices."""
+    if isinstance(faces, np.ndarray) and faces.ndim == 2:
+        return np.full(len(faces), faces.shape[1], np.int32), faces.reshape(-1).astype(np.int32)
+    polys = [np.asarray(f, dtype=np.int32).reshape(-1) for f in faces]
+    return np.array([len(p) for p in polys], np.int32), np.concatenate(polys) if polys else np.zeros(0, np.int32)
+
+
+def add_collider(stage: Usd.Stage, path: str, vertices: np.ndarray, faces) -> Usd.Prim:
+    """A rigid collider: a Mesh with ``PhysicsCollisionAPI`` applied.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+        Object-space points.
+    faces : (f, k) int or sequence of int sequences
+        Polygons, counter-clockwise seen from outside.
+    """
+    _parents(stage, path)
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    v = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
+    counts, indices = _faces(faces)
+    mesh.CreatePointsAttr().Set(Vt.Vec3fArray.FromNumpy(v))
+    mesh.CreateFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(counts))
+    mesh.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(np.ascontiguousarray(indices)))
+    mesh.CreateSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
+    mesh.CreateExtentAttr().Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, v.min(axis=0))), Gf.Vec3f(*map(float, v.max(axis=0)))]))
+    UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
+    return mesh.GetPrim()
+
+
+def box(size=1.0, center=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """An axis-aligned box: ``vertices (8, 3) float64``, ``faces (6, 4) int64`` (outward, CCW).
+
+    ``size`` is one edge length or ``(sx, sy, sz)``.
+    """
+    half = np.broadcast_to(np.asarray(size, dtype=np.float64), (3,)) / 2.0
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+    faces = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]], np.int64)
+    return corners * half + np.asarray(center, dtype=np.float64), faces
+
+
+def uv_sphere(radius: float = 1.0, segments: int = 16, rings: int = 8, center=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """A latitude-longitude sphere around z: ``vertices (2 + (rings-1) segments, 3) float64``,
+    ``faces (2 segments (rings-1), 3) int64`` triangles (outward, CCW).
+    """
+    if segments < 3 or rings < 2:
+        raise ValueError(f"a uv sphere needs segments >= 3 and rings >= 2, got {segments}, {rings}")
+    phi = np.pi * np.arange(1, rings) / rings - np.pi / 2.0  # latitudes of the inner rings
+    theta = 2.0 * np.pi * np.arange(segments) / segments
+    pp, tt = np.meshgrid(phi, theta, indexing="ij")
+    ring = np.stack([np.cos(pp) * np.cos(tt), np.cos(pp) * np.sin(tt), np.sin(pp)], axis=-1).reshape(-1, 3)
+    verts = np.concatenate([[[0.0, 0.0, -1.0]], ring, [[0.0, 0.0, 1.0]]]) * radius + np.asarray(center, dtype=np.float64)
+    north = len(verts) - 1
+    j = np.arange(segments)
+    j1 = (j + 1) % segments
+    idx = lambda r, s: 1 + r * segments + s  # noqa: E731
+    tris = [np.stack([np.zeros_like(j), idx(0, j1), idx(0, j)], axis=1)]
+    for r in range(rings - 2):
+        a, b, c, d = idx(r, j), idx(r, j1), idx(r + 1, j1), idx(r + 1, j)
+        tris += [np.stack([a, b, c], axis=1), np.stack([a, c, d], axis=1)]
+    tris.append(np.stack([idx(rings - 2, j), idx(rings - 2, j1), np.full_like(j, north)], axis=1))
+    return verts, np.concatenate(tris).astype(np.int64)
+
+
+def key_transform(prim: Usd.Prim, frame: float, translate=None, rotate_xyz=None, scale=None) -> None:
+    """Key the prim's translate / rotateXYZ (degrees) / scale ops at ``frame`` (linear in between).
+
+    Missing ops are added; the three are kept in the order translate, rotateXYZ, scale (so the
+    object is scaled, then rotated, then moved), ahead of any other ops the prim has.
+    """
+    xf = UsdGeom.Xformable(prim)
+    ops = {op.GetOpName(): op for op in xf.GetOrderedXformOps()}
+    values = {"xformOp:translate": translate, "xformOp:rotateXYZ": rotate_xyz, "xformOp:scale": scale}
+    add = {"xformOp:translate": xf.AddTranslateOp, "xformOp:rotateXYZ": xf.AddRotateXYZOp, "xformOp:scale": xf.AddScaleOp}
+    changed = False
+    for name, value in values.items():
+        if value is not None and name not in ops:
+            ops[name] = add[name]()
+            changed = True
+    if changed:
+        ordered = [ops[n] for n in _OP_ORDER if n in ops]
+        ordered += [op for op in xf.GetOrderedXformOps() if op.GetOpName() not in _OP_ORDER]
+        xf.SetXformOpOrder(ordered)
+    tc = Usd.TimeCode(frame)
+    for name, value in values.items():
+        if value is not None:
+            v = np.asarray(value, dtype=np.float64).reshape(3)
+            ops[name].Set(Gf.Vec3d(*v) if name == "xformOp:translate" else Gf.Vec3f(*map(float, v)), tc)
+
+
+def key_enabled(prim: Usd.Prim, frame: float, value: bool) -> None:
+    """Key ``acra:enabled`` at ``frame``, held until the next key.
+
+    As with every USD attribute, once keyed the keys alone define the value (the first key holds
+    before it): key ``True`` where the response should start as well as ``False`` where it stops.
+    """
+    _set(prim, "acra:enabled", T.Bool, bool(value), frame)
+
+
+def save(stage: Usd.Stage, path: str | os.PathLike) -> Path:
+    """Write the stage's root layer to ``path`` (atomically); the stage itself is left as is."""
+    return export_layer(stage.GetRootLayer(), Path(path))

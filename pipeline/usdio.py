@@ -1,0 +1,741 @@
+"""USD in and out: open and validate an input stage, evaluate it per time code, write the output layer.
+
+Reading builds a `SceneModel` once per run and checks every rule of contract §1; any violation is an
+`InputError` naming the prim, the attribute and the problem, raised before anything is written.
+`state_at` evaluates the animator's shapes and world transforms at any (sub-frame) time code.
+`write_output` writes one layer of ``over`` opinions that sublayers the input (docs/usd-schema.md).
+
+Conventions
+-----------
+* USD ``acra:cvs`` is flat, index ``j * uCount + i`` with ``i`` along u; `acra.hspline` uses
+  ``cvs[i, j]``, so ``cvs = flat.reshape(vCount, uCount, 3).transpose(1, 0, 2)``.
+* USD matrices are row-vector (translation in the last row); ours are column-vector, so every
+  matrix read is transposed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import runpy
+import sys
+import uuid
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdPhysics, Vt
+
+from acra.basis import Direction
+from acra.hspline import HierarchyArrays, HSpline, from_arrays, from_grid, to_arrays
+from acra.tessellate import display_topology
+
+from .model import (
+    ColliderModel,
+    ColliderState,
+    Controls,
+    DeformableModel,
+    DeformableState,
+    InputError,
+    SceneModel,
+)
+
+__all__ = [
+    "USD_SUFFIXES",
+    "open_input",
+    "load_scene_file",
+    "read_scene",
+    "read_deformable",
+    "read_hierarchy",
+    "frame_range",
+    "surface_template",
+    "state_at",
+    "DeformableResult",
+    "FramesResult",
+    "write_output",
+    "export_layer",
+    "read_output_hierarchy",
+    "cvs_to_flat",
+    "flat_to_cvs",
+]
+
+USD_SUFFIXES = (".usda", ".usdc", ".usd")
+SUM_TOLERANCE = 1e-6
+
+T = Sdf.ValueTypeNames
+# contract §1 (name, type, default); None marks a required attribute
+CONTRACT_TYPES = {
+    "acra:cvs": T.Point3fArray,
+    "acra:uCount": T.Int,
+    "acra:vCount": T.Int,
+    "acra:uWrap": T.Token,
+    "acra:vWrap": T.Token,
+    "acra:levels": T.Int,
+    "acra:absorption": T.FloatArray,
+    "acra:deform": T.FloatArray,
+    "acra:translate": T.FloatArray,
+    "acra:rotate": T.FloatArray,
+    "acra:rigidity": T.Float,
+    "acra:refine": T.Token,
+    "acra:samples": T.Int,
+    "acra:enabled": T.Bool,
+}
+# the project's input hierarchy (docs/usd-schema.md), fields of acra.hspline.HierarchyArrays
+HIERARCHY_TYPES = {
+    "acra:hierarchy:patchLevel": T.IntArray,
+    "acra:hierarchy:patches": T.Int2Array,
+    "acra:hierarchy:offsetLevel": T.IntArray,
+    "acra:hierarchy:offsetCvs": T.Int2Array,
+    "acra:hierarchy:offsets": T.Double3Array,
+}
+_HIERARCHY_FIELDS = {
+    "acra:hierarchy:patchLevel": "patch_level",
+    "acra:hierarchy:patches": "patches",
+    "acra:hierarchy:offsetLevel": "offset_level",
+    "acra:hierarchy:offsetCvs": "offset_cvs",
+    "acra:hierarchy:offsets": "offsets",
+}
+# the output state (docs/usd-schema.md), time-sampled at every processed frame
+RESPONSE_TYPES = {
+    "acra:response:cvs": T.Double3Array,
+    "acra:response:patchLevel": T.IntArray,
+    "acra:response:patches": T.Int2Array,
+    "acra:response:offsetLevel": T.IntArray,
+    "acra:response:offsetCvs": T.Int2Array,
+    "acra:response:offsets": T.Double3Array,
+    "acra:response:residual": T.Double,
+    "acra:response:inCollision": T.Bool,
+}
+INPUT_ATTRIBUTES = tuple(CONTRACT_TYPES) + tuple(HIERARCHY_TYPES)
+WRAPS = {"open": False, "periodic": True}
+REFINE_POLICIES = {"refine": True, "obey": False}
+_REQUIRED = object()
+
+
+# --------------------------------------------------------------------------------------------
+# opening
+
+
+def _tf_message(exc: BaseException) -> str:
+    """The first human part of a (multi-line, C++-decorated) ``Tf.ErrorException``."""
+    text = str(exc)
+    quoted = re.findall(r" : '(.*?)'(?:\n|$)", text, flags=re.S)
+    msg = quoted[0] if quoted else text
+    return " ".join(msg.split()) or type(exc).__name__
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def open_input(path: str | os.PathLike) -> Usd.Stage:
+    """Open a USD input stage (``.usda``, ``.usdc``, ``.usd``); never saved by the pipeline.
+
+    A layer already open in this process is reloaded from disk (unless it has unsaved edits), so
+    the stage always shows the file as it is now. Raises `InputError` naming the file when it does
+    not exist, is unreadable, broken or has composition errors.
+    """
+    p = Path(path)
+    name = str(path)
+    if p.suffix.lower() not in USD_SUFFIXES:
+        raise InputError(name, None, f"cannot open: not a USD file (expected {', '.join(USD_SUFFIXES)})")
+    if not p.exists():
+        raise InputError(name, None, "cannot open: no such file")
+    if not p.is_file():
+        raise InputError(name, None, "cannot open: not a regular file")
+    if not os.access(p, os.R_OK):
+        raise InputError(name, None, "cannot open: permission denied")
+    try:
+        layer = Sdf.Layer.Find(str(p.resolve()))
+        if layer is not None and not layer.dirty:
+            layer.Reload()
+        stage = Usd.Stage.Open(str(p.resolve()), Usd.Stage.LoadAll)
+    except Exception as exc:  # Tf.ErrorException from the parsers
+        raise InputError(name, None, f"cannot open: {_tf_message(exc)}") from exc
+    if stage is None:
+        raise InputError(name, None, "cannot open: USD returned no stage")
+    for layer in stage.GetLayerStack(includeSessionLayers=False):
+        for sub in layer.subLayerPaths:
+            if Sdf.Layer.FindOrOpenRelativeToLayer(layer, sub) is None:
+                raise InputError(name, None, f"cannot open: sublayer @{sub}@ of {layer.identifier} not found")
+    errors = stage.GetCompositionErrors()
+    if errors:
+        raise InputError(name, None, f"cannot open: composition error: {' '.join(str(errors[0]).split())}")
+    return stage
+
+
+def load_scene_file(path: str | os.PathLike) -> Path:
+    """Run a scene file's ``build()`` and export its stage's root layer to ``<dir>/<stem>.usda``.
+
+    Scene files are trusted Python (contract §4). The module runs with ``__name__`` set to
+    ``"acra_scene"`` (so its ``if __name__ == "__main__"`` block does not fire) and with its
+    directory on ``sys.path``, as when run on its own. Any exception, a missing ``build`` or a
+    result that is not a `Usd.Stage` is an `InputError` naming the file.
+
+    Returns
+    -------
+    Path of the exported ``.usda`` (written atomically).
+    """
+    p = Path(path)
+    name = str(path)
+    if not p.is_file():
+        raise InputError(name, None, "cannot open: no such file")
+    sys.path.insert(0, str(p.resolve().parent))
+    try:
+        try:
+            namespace = runpy.run_path(str(p), run_name="acra_scene")
+        except Exception as exc:
+            raise InputError(name, None, f"scene failed to load: {type(exc).__name__}: {_one_line(exc)}") from exc
+        build = namespace.get("build")
+        if not callable(build):
+            raise InputError(name, None, "scene defines no build() function")
+        try:
+            stage = build()
+        except Exception as exc:
+            raise InputError(name, "build()", f"raised {type(exc).__name__}: {_one_line(exc)}") from exc
+    finally:
+        sys.path.remove(str(p.resolve().parent))
+    if not isinstance(stage, Usd.Stage):
+        raise InputError(name, "build()", f"returned {type(stage).__name__}, expected a Usd.Stage")
+    return export_layer(stage.GetRootLayer(), p.with_suffix(".usda"))
+
+
+# --------------------------------------------------------------------------------------------
+# reading and validation
+
+
+def _typed(prim: Usd.Prim, name: str, tname: Sdf.ValueTypeName) -> Usd.Attribute | None:
+    """The attribute if declared, after checking its type; ``None`` if not declared."""
+    attr = prim.GetAttribute(name)
+    if not attr or not attr.IsAuthored():
+        return None
+    if attr.GetTypeName() != tname:
+        raise InputError(str(prim.GetPath()), name, f"has type {attr.GetTypeName()}, expected {tname}")
+    return attr
+
+
+def _static(prim: Usd.Prim, name: str, tname: Sdf.ValueTypeName, default=_REQUIRED):
+    """Value of a non-animatable attribute (its default, or its single time sample)."""
+    path = str(prim.GetPath())
+    attr = _typed(prim, name, tname)
+    if attr is None or not attr.HasAuthoredValue():
+        if default is _REQUIRED:
+            state = "declared without a value" if attr is not None else "missing required attribute"
+            raise InputError(path, name, f"{state} ({tname})")
+        return default
+    if attr.ValueMightBeTimeVarying():
+        raise InputError(path, name, "is not animatable: author one default value")
+    value = attr.Get(Usd.TimeCode.EarliestTime())
+    if value is None:
+        raise InputError(path, name, "has no value")
+    return value
+
+
+def _finite_scalar(path: str, name: str, value: float) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise InputError(path, name, f"{value} is not finite")
+    return value
+
+
+def _float_array(path: str, name: str, value, levels: int) -> np.ndarray:
+    a = np.asarray(value, dtype=np.float64).reshape(-1)
+    if a.size != levels:
+        raise InputError(path, name, f"has {a.size} values, expected acra:levels = {levels}")
+    bad = ~np.isfinite(a)
+    if np.any(bad):
+        raise InputError(path, name, f"{a[bad][0]} at level {int(np.nonzero(bad)[0][0])} is not finite")
+    neg = a < 0.0
+    if np.any(neg):
+        lvl = int(np.nonzero(neg)[0][0])
+        raise InputError(path, name, f"negative share {a[lvl]:g} at level {lvl}")
+    return a
+
+
+def _token(path: str, name: str, value: str, allowed: dict) -> bool:
+    if value not in allowed:
+        raise InputError(path, name, f"unknown token {value!r}, expected one of {', '.join(map(repr, allowed))}")
+    return allowed[value]
+
+
+def _read_controls(prim: Usd.Prim, levels: int) -> Controls:
+    path = str(prim.GetPath())
+    absorption = _static(prim, "acra:absorption", T.FloatArray, None)
+    absorption = np.eye(levels)[-1] if absorption is None else _float_array(path, "acra:absorption", absorption, levels)
+    total = float(absorption.sum())
+    if abs(total - 1.0) > SUM_TOLERANCE:
+        raise InputError(path, "acra:absorption", f"shares sum to {total:.9g}, expected 1 (within {SUM_TOLERANCE:g})")
+
+    # unauthored mix arrays are zeros, except that with none authored everything deforms
+    raw = {n: _static(prim, f"acra:{n}", T.FloatArray, None) for n in ("deform", "translate", "rotate")}
+    mix = {}
+    for n, value in raw.items():
+        if value is not None:
+            mix[n] = _float_array(path, f"acra:{n}", value, levels)
+        else:
+            mix[n] = np.ones(levels) if n == "deform" and all(v is None for v in raw.values()) else np.zeros(levels)
+    sums = mix["deform"] + mix["translate"] + mix["rotate"]
+    off = np.abs(sums - 1.0) > SUM_TOLERANCE
+    if np.any(off):
+        lvl = int(np.nonzero(off)[0][0])
+        parts = " + ".join(f"{mix[n][lvl]:g}" for n in ("deform", "translate", "rotate"))
+        raise InputError(
+            path, "acra:deform",
+            f"level {lvl}: deform + translate + rotate = {parts} = {sums[lvl]:.9g}, expected 1 "
+            f"(within {SUM_TOLERANCE:g}; acra:deform, acra:translate, acra:rotate)",
+        )
+
+    rigidity = _finite_scalar(path, "acra:rigidity", _static(prim, "acra:rigidity", T.Float, 50.0))
+    if not 1.0 <= rigidity <= 100.0:
+        raise InputError(path, "acra:rigidity", f"{rigidity:g} outside [1, 100]")
+    refine = _token(path, "acra:refine", str(_static(prim, "acra:refine", T.Token, "refine")), REFINE_POLICIES)
+    samples = int(_static(prim, "acra:samples", T.Int, 4))
+    if samples < 1:
+        raise InputError(path, "acra:samples", f"{samples} is less than 1")
+    return Controls(absorption, mix["deform"], mix["translate"], mix["rotate"], rigidity, refine, samples)
+
+
+def read_hierarchy(prim: Usd.Prim) -> HierarchyArrays:
+    """The animator's ``acra:hierarchy:*`` arrays, checked for type, matching lengths and NaN.
+
+    Whether the entries fit the grid (levels, ranges, the C2 rule) is checked by
+    `read_deformable`, which rebuilds the hierarchy with `acra.hspline.from_arrays`.
+    """
+    path = str(prim.GetPath())
+    empty = {
+        "acra:hierarchy:patchLevel": np.zeros(0, np.int32),
+        "acra:hierarchy:patches": np.zeros((0, 2), np.int32),
+        "acra:hierarchy:offsetLevel": np.zeros(0, np.int32),
+        "acra:hierarchy:offsetCvs": np.zeros((0, 2), np.int32),
+        "acra:hierarchy:offsets": np.zeros((0, 3), np.float64),
+    }
+    arrays = {}
+    for name, tname in HIERARCHY_TYPES.items():
+        value = _static(prim, name, tname, None)
+        arrays[name] = empty[name] if value is None else np.array(value, dtype=empty[name].dtype).reshape((-1,) + empty[name].shape[1:])
+    for a, b in (("patchLevel", "patches"), ("offsetLevel", "offsetCvs"), ("offsetLevel", "offsets")):
+        na, nb = len(arrays[f"acra:hierarchy:{a}"]), len(arrays[f"acra:hierarchy:{b}"])
+        if na != nb:
+            raise InputError(path, f"acra:hierarchy:{b}", f"has {nb} entries but acra:hierarchy:{a} has {na}")
+    offs = arrays["acra:hierarchy:offsets"]
+    if not np.all(np.isfinite(offs)):
+        row = int(np.nonzero(~np.all(np.isfinite(offs), axis=1))[0][0])
+        raise InputError(path, "acra:hierarchy:offsets", f"NaN or inf at index {row}")
+    return HierarchyArrays(**{_HIERARCHY_FIELDS[n]: a for n, a in arrays.items()})
+
+
+def _cvs_samples(prim: Usd.Prim, count: int, desc: str):
+    """Yield ``(time, (count, 3) float32)`` for every time sample of acra:cvs (or its default)."""
+    path = str(prim.GetPath())
+    attr = _typed(prim, "acra:cvs", T.Point3fArray)
+    if attr is None or not attr.HasAuthoredValue():
+        state = "declared without a value" if attr is not None else "missing required attribute"
+        raise InputError(path, "acra:cvs", f"{state} (point3f[])")
+    times = attr.GetTimeSamples() or [Usd.TimeCode.Default()]
+    for t in times:
+        value = attr.Get(t)
+        when = "at the default time" if isinstance(t, Usd.TimeCode) else f"at time {t:g}"
+        flat = np.asarray(value if value is not None else Vt.Vec3fArray())
+        if len(flat) != count:
+            raise InputError(path, "acra:cvs", f"has {len(flat)} values {when}, expected {desc}")
+        bad = ~np.all(np.isfinite(flat), axis=1)
+        if np.any(bad):
+            raise InputError(path, "acra:cvs", f"NaN or inf {when} at index {int(np.nonzero(bad)[0][0])}")
+        yield t, flat
+
+
+def flat_to_cvs(flat: np.ndarray, nu: int, nv: int) -> np.ndarray:
+    """USD row-major ``(nu * nv, 3)`` (index ``j * nu + i``) to ``cvs[i, j]``: ``(nu, nv, 3) float64``."""
+    return np.ascontiguousarray(np.asarray(flat, dtype=np.float64).reshape(nv, nu, 3).transpose(1, 0, 2))
+
+
+def cvs_to_flat(cvs: np.ndarray) -> np.ndarray:
+    """``cvs[i, j]`` ``(nu, nv, 3)`` to USD row-major ``(nu * nv, 3)`` (index ``j * nu + i``)."""
+    cvs = np.asarray(cvs)
+    return np.ascontiguousarray(cvs.transpose(1, 0, 2).reshape(-1, 3))
+
+
+def read_deformable(prim: Usd.Prim) -> tuple[DeformableModel, HSpline]:
+    """Validate one deformable prim (contract §1 and the hierarchy attributes).
+
+    Returns the model and the surface at the first ``acra:cvs`` sample (or its default value).
+    """
+    path = str(prim.GetPath())
+    if not prim.IsA(UsdGeom.Mesh):
+        raise InputError(path, "acra:cvs", f"deformables must be UsdGeom.Mesh prims, this is a {prim.GetTypeName() or 'typeless prim'}")
+    if prim.IsInstanceProxy():
+        raise InputError(path, None, "a deformable inside an instance cannot be overridden: make it uninstanced")
+    nu = int(_static(prim, "acra:uCount", T.Int))
+    nv = int(_static(prim, "acra:vCount", T.Int))
+    uper = _token(path, "acra:uWrap", str(_static(prim, "acra:uWrap", T.Token, "open")), WRAPS)
+    vper = _token(path, "acra:vWrap", str(_static(prim, "acra:vWrap", T.Token, "open")), WRAPS)
+    for name, n, per in (("acra:uCount", nu, uper), ("acra:vCount", nv, vper)):
+        need = 3 if per else 4
+        if n < need:
+            kind = "a periodic" if per else "an open"
+            raise InputError(path, name, f"{n} CVs, {kind} direction needs at least {need}")
+    levels = int(_static(prim, "acra:levels", T.Int, 1))
+    if levels < 1:
+        raise InputError(path, "acra:levels", f"{levels} is less than 1")
+    controls = _read_controls(prim, levels)
+    _typed(prim, "acra:enabled", T.Bool)  # animatable: only its type is checked here
+    hierarchy = read_hierarchy(prim)
+
+    first = None
+    for _, flat in _cvs_samples(prim, nu * nv, f"acra:uCount * acra:vCount = {nu} * {nv} = {nu * nv}"):
+        first = flat if first is None else first
+    base = from_grid(flat_to_cvs(first, nu, nv), uper, vper, depth=levels)
+    # patches first (no offsets), so an error names the attribute that holds the bad entry
+    for stage_, arrays in (
+        ("patch", replace(hierarchy, offset_level=hierarchy.offset_level[:0], offset_cvs=hierarchy.offset_cvs[:0], offsets=hierarchy.offsets[:0])),
+        ("offset", hierarchy),
+    ):
+        try:
+            surface = from_arrays(base, arrays)
+        except ValueError as exc:
+            msg = str(exc)
+            if msg.startswith("refined patch at level"):
+                name = "acra:hierarchy:patchLevel"
+            elif msg.startswith("offset at level"):
+                name = "acra:hierarchy:offsetLevel"
+            else:
+                name = "acra:hierarchy:patches" if stage_ == "patch" else "acra:hierarchy:offsetCvs"
+            raise InputError(path, name, msg) from exc
+    topology = display_topology(Direction(nu, uper), Direction(nv, vper), controls.samples)
+    model = DeformableModel(path, uper, vper, nu, nv, levels, controls, hierarchy, topology)
+    return model, surface
+
+
+def _read_collider(prim: Usd.Prim, time: Usd.TimeCode) -> ColliderModel:
+    """A collision mesh in object space, its polygons fan-triangulated (counter-clockwise)."""
+    path = str(prim.GetPath())
+    mesh = UsdGeom.Mesh(prim)
+    pts = _typed(prim, "points", T.Point3fArray)
+    counts = _typed(prim, "faceVertexCounts", T.IntArray)
+    indices = _typed(prim, "faceVertexIndices", T.IntArray)
+    for name, attr in (("points", pts), ("faceVertexCounts", counts), ("faceVertexIndices", indices)):
+        if attr is None or not attr.HasAuthoredValue():
+            raise InputError(path, name, "a collider mesh needs points and faces")
+    vertices = np.asarray(pts.Get(time), dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(counts.Get(time), dtype=np.int64).reshape(-1)
+    indices = np.asarray(indices.Get(time), dtype=np.int64).reshape(-1)
+    if not np.all(np.isfinite(vertices)):
+        raise InputError(path, "points", f"NaN or inf at index {int(np.nonzero(~np.all(np.isfinite(vertices), axis=1))[0][0])}")
+    if counts.size == 0:
+        raise InputError(path, "faceVertexCounts", "a collider mesh needs at least one face")
+    if np.any(counts < 3):
+        raise InputError(path, "faceVertexCounts", f"face {int(np.argmax(counts < 3))} has {int(counts[counts < 3][0])} vertices, at least 3 needed")
+    if counts.sum() != indices.size:
+        raise InputError(path, "faceVertexIndices", f"has {indices.size} values, faceVertexCounts sum to {int(counts.sum())}")
+    if np.any((indices < 0) | (indices >= len(vertices))):
+        raise InputError(path, "faceVertexIndices", f"index outside 0..{len(vertices) - 1}")
+    starts = np.cumsum(counts) - counts
+    ntri = counts - 2
+    face = np.repeat(np.arange(counts.size), ntri)
+    k = np.arange(int(ntri.sum())) - np.repeat(np.cumsum(ntri) - ntri, ntri)
+    s = starts[face]
+    tris = np.stack([indices[s], indices[s + k + 1], indices[s + k + 2]], axis=1)
+    if mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
+        tris = tris[:, ::-1]
+    return ColliderModel(path, vertices, np.ascontiguousarray(tris))
+
+
+def _metadata_frame(stage: Usd.Stage, key: str) -> int | None:
+    if not stage.HasAuthoredMetadata(key):
+        return None
+    value = float(stage.GetMetadata(key))
+    if not math.isfinite(value) or value != round(value):
+        raise InputError(stage.GetRootLayer().identifier, key, f"{value:g} is not an integer frame")
+    return int(value)
+
+
+def _sample_range(stage: Usd.Stage) -> tuple[float, float] | None:
+    """Earliest and latest time sample or spline knot of any attribute on the stage."""
+    lo, hi = math.inf, -math.inf
+    for prim in stage.Traverse():
+        for attr in prim.GetAttributes():
+            times = list(attr.GetTimeSamples())
+            if attr.HasSpline():
+                times += [float(t) for t in attr.GetSpline().GetKnots().keys()]
+            if times:
+                lo, hi = min(lo, min(times)), max(hi, max(times))
+    return None if lo > hi else (lo, hi)
+
+
+def frame_range(stage: Usd.Stage) -> tuple[int, int]:
+    """``startTimeCode..endTimeCode``; where unauthored, the span of the time samples, else 0..0."""
+    start, end = _metadata_frame(stage, "startTimeCode"), _metadata_frame(stage, "endTimeCode")
+    if start is None or end is None:
+        span = _sample_range(stage)
+        lo, hi = (0, 0) if span is None else (math.floor(span[0]), math.ceil(span[1]))
+        start = lo if start is None else start
+        end = hi if end is None else end
+    if start > end:
+        raise InputError(stage.GetRootLayer().identifier, "endTimeCode", f"{end} is before startTimeCode {start}")
+    return start, end
+
+
+def _is_deformable(prim: Usd.Prim) -> bool:
+    return any(prim.GetAttribute(n).IsAuthored() for n in INPUT_ATTRIBUTES if prim.HasAttribute(n))
+
+
+def read_scene(stage: Usd.Stage) -> SceneModel:
+    """Every deformable and rigid collider of a stage, validated against contract §1.
+
+    A prim carrying any ``acra:`` input attribute is a deformable (so a forgotten ``acra:cvs`` is
+    reported, not ignored); any other Mesh with ``PhysicsCollisionAPI`` is a collider, read at
+    ``startTimeCode``. Objects are sorted by path. ``extra["templates"]`` maps each deformable's
+    path to its surface (level-0 CVs of the first sample plus the animator's hierarchy), the
+    structure `state_at` reuses.
+    """
+    start, end = frame_range(stage)
+    deformables, colliders, templates = [], [], {}
+    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+        if _is_deformable(prim):
+            model, surface = read_deformable(prim)
+            deformables.append(model)
+            templates[model.path] = surface
+        elif prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdPhysics.CollisionAPI):
+            colliders.append(_read_collider(prim, Usd.TimeCode(start)))
+    deformables.sort(key=lambda m: m.path)
+    colliders.sort(key=lambda m: m.path)
+    return SceneModel(
+        deformables=tuple(deformables),
+        colliders=tuple(colliders),
+        start=start,
+        end=end,
+        meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
+        up_axis=str(UsdGeom.GetStageUpAxis(stage)),
+        extra={"templates": templates},
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# per-time evaluation
+
+
+def surface_template(scene: SceneModel, model: DeformableModel) -> HSpline:
+    """The deformable's refinement structure (cached in ``scene.extra``): swap ``cvs`` per frame."""
+    templates = scene.extra.setdefault("templates", {})
+    hs = templates.get(model.path)
+    if hs is None:
+        base = from_grid(np.zeros((model.nu, model.nv, 3)), model.u_periodic, model.v_periodic, depth=model.depth)
+        hs = templates[model.path] = from_arrays(base, model.hierarchy)
+    return hs
+
+
+def _matrix(m) -> np.ndarray:
+    """USD row-vector ``Gf.Matrix4d`` to a column-vector ``(4, 4) float64``."""
+    return np.array(m, dtype=np.float64).T.copy()
+
+
+def state_at(stage: Usd.Stage, scene: SceneModel, t: float) -> tuple[list[DeformableState], list[ColliderState]]:
+    """The animator's scene at time code ``t`` (any real, sub-frames included).
+
+    Level-0 CVs come from ``acra:cvs`` at ``t`` (USD interpolates time samples linearly), the
+    hierarchy from the model; world transforms resolve time samples, Ts splines and animated
+    ancestors. States are in ``scene`` order.
+    """
+    tc = Usd.TimeCode(float(t))
+    cache = UsdGeom.XformCache(tc)
+    dstates = []
+    for m in scene.deformables:
+        prim = stage.GetPrimAtPath(m.path)
+        flat = np.asarray(prim.GetAttribute("acra:cvs").Get(tc))
+        if len(flat) != m.nu * m.nv:
+            raise InputError(m.path, "acra:cvs", f"has {len(flat)} values at time {float(t):g}, expected {m.nu * m.nv}")
+        surface = replace(surface_template(scene, m), cvs=flat_to_cvs(flat, m.nu, m.nv))
+        enabled_attr = prim.GetAttribute("acra:enabled")
+        enabled = enabled_attr.Get(tc) if enabled_attr and enabled_attr.HasAuthoredValue() else True
+        dstates.append(DeformableState(surface, _matrix(cache.GetLocalToWorldTransform(prim)), bool(enabled)))
+    cstates = [ColliderState(_matrix(cache.GetLocalToWorldTransform(stage.GetPrimAtPath(c.path)))) for c in scene.colliders]
+    return dstates, cstates
+
+
+# --------------------------------------------------------------------------------------------
+# writing
+
+
+@dataclass(frozen=True)
+class DeformableResult:
+    """One deformable at one processed frame, after the response (object space).
+
+    Attributes
+    ----------
+    points, normals : (n, 3) float64
+        Display tessellation (the model's topology) and its unit normals.
+    surface : HSpline
+        The surface after the response: level-0 CVs and the full hierarchy.
+    residual : float
+        Remaining penetration depth after the response (scene units).
+    in_collision : bool
+        Whether detection found the object in collision at this frame.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    surface: HSpline
+    residual: float = 0.0
+    in_collision: bool = False
+
+
+@dataclass
+class FramesResult:
+    """Results of a run: ``frames[frame][prim path] -> DeformableResult``."""
+
+    frames: dict[int, dict[str, DeformableResult]] = field(default_factory=dict)
+
+    def add(self, frame: int, path: str, result: DeformableResult) -> None:
+        self.frames.setdefault(int(frame), {})[str(path)] = result
+
+
+def _relative_asset(target: Path, anchor_dir: Path) -> str:
+    rel = Path(os.path.relpath(target.resolve(), anchor_dir.resolve())).as_posix()
+    return rel if rel.startswith("../") else f"./{rel}"
+
+
+def _export(layer: Sdf.Layer, path: str) -> None:
+    """Write a layer to ``path`` (format from the suffix); raises on failure."""
+    if not layer.Export(path):
+        raise OSError(f"USD could not write {path}")
+
+
+def export_layer(layer: Sdf.Layer, path: str | os.PathLike) -> Path:
+    """Write ``layer`` to ``path`` atomically: a temporary sibling renamed over it.
+
+    On any error (or interruption) the temporary file is removed and ``path`` is untouched.
+    """
+    out = Path(path)
+    tmp = out.parent / f".{out.name}.{uuid.uuid4().hex}.tmp{out.suffix}"
+    try:
+        _export(layer, str(tmp))
+        os.replace(tmp, out)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    return out
+
+
+def _stage_metadata(input_path: Path, scene: SceneModel) -> dict:
+    """The input's effective stage metadata, so the output opens as a complete stage.
+
+    Values the input leaves unauthored are written as USD resolves them (fallbacks), and the
+    frame range as `read_scene` resolved it, so the output means exactly what the input meant.
+    """
+    root = Sdf.Layer.FindOrOpen(str(input_path.resolve()))
+    src = Usd.Stage.OpenMasked(root, Usd.StagePopulationMask(), Usd.Stage.LoadNone)
+    return {
+        "startTimeCode": float(root.startTimeCode) if root.HasStartTimeCode() else float(scene.start),
+        "endTimeCode": float(root.endTimeCode) if root.HasEndTimeCode() else float(scene.end),
+        "timeCodesPerSecond": float(src.GetTimeCodesPerSecond()),
+        "framesPerSecond": float(src.GetFramesPerSecond()),
+        "upAxis": str(UsdGeom.GetStageUpAxis(src)),
+        "metersPerUnit": float(UsdGeom.GetStageMetersPerUnit(src)),
+        "defaultPrim": root.defaultPrim if root.HasDefaultPrim() else None,
+    }
+
+
+def _spec(prim_spec: Sdf.PrimSpec, name: str, tname: Sdf.ValueTypeName, custom: bool) -> Sdf.AttributeSpec:
+    spec = prim_spec.attributes.get(name)
+    return spec if spec is not None else Sdf.AttributeSpec(prim_spec, name, tname, Sdf.VariabilityVarying, custom)
+
+
+def _check_result(model: DeformableModel, frame: int, r: DeformableResult) -> None:
+    n = model.topology.u.size
+    where = f"frame {frame}, {model.path}"
+    for name, a in (("points", r.points), ("normals", r.normals)):
+        a = np.asarray(a)
+        if a.shape != (n, 3):
+            raise ValueError(f"{where}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{where}: {name} hold NaN or inf")
+    if r.surface.cvs.shape != (model.nu, model.nv, 3) or r.surface.depth != model.depth:
+        raise ValueError(f"{where}: surface does not match the model's grid or levels")
+    if not np.all(np.isfinite(r.surface.cvs)) or not math.isfinite(float(r.residual)):
+        raise ValueError(f"{where}: surface CVs or residual are not finite")
+
+
+def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, scene: SceneModel, frames_result: FramesResult) -> Path:
+    """Write the output layer: overs of points, normals, topology and response state per frame.
+
+    The layer sublayers ``input_path`` by a path relative to the output's directory, copies the
+    input's stage metadata, and holds nothing else (no transform, no ``acra:`` input attribute).
+    Every frame must hold a result for every deformable of ``scene``. The file is written
+    atomically and deterministically (sorted paths and frames, no timestamps).
+    """
+    inp, out = Path(input_path), Path(output_path)
+    meta = _stage_metadata(inp, scene)
+    frames = sorted(frames_result.frames)
+    models = sorted(scene.deformables, key=lambda m: m.path)
+    for f in frames:
+        per = frames_result.frames[f]
+        extra = sorted(set(per) - {m.path for m in models})
+        if extra:
+            raise ValueError(f"frame {f}: result for {extra[0]}, which is not a deformable of the scene")
+        for m in models:
+            if m.path not in per:
+                raise ValueError(f"frame {f}: no result for {m.path}")
+            _check_result(m, f, per[m.path])
+
+    layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
+    with Sdf.ChangeBlock():
+        layer.subLayerPaths.append(_relative_asset(inp, out.parent))
+        for key, value in meta.items():
+            if value is not None:
+                layer.pseudoRoot.SetInfo(key, value)
+        for m in models:
+            prim = Sdf.CreatePrimInLayer(layer, m.path)
+            topo = m.topology
+            counts = _spec(prim, "faceVertexCounts", T.IntArray, False)
+            counts.default = Vt.IntArray.FromNumpy(np.full(len(topo.quads), 4, np.int32))
+            indices = _spec(prim, "faceVertexIndices", T.IntArray, False)
+            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.quads.reshape(-1), dtype=np.int32))
+            normals = _spec(prim, "normals", T.Normal3fArray, False)
+            normals.SetInfo("interpolation", UsdGeom.Tokens.vertex)
+            specs = {
+                "points": _spec(prim, "points", T.Point3fArray, False).path,
+                "normals": normals.path,
+                **{n: _spec(prim, n, tn, True).path for n, tn in RESPONSE_TYPES.items()},
+            }
+            for f in frames:
+                r = frames_result.frames[f][m.path]
+                t = float(f)
+                arrays = to_arrays(r.surface)
+                layer.SetTimeSample(specs["points"], t, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(r.points, dtype=np.float32)))
+                layer.SetTimeSample(specs["normals"], t, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(r.normals, dtype=np.float32)))
+                layer.SetTimeSample(specs["acra:response:cvs"], t, Vt.Vec3dArray.FromNumpy(cvs_to_flat(r.surface.cvs).astype(np.float64)))
+                layer.SetTimeSample(specs["acra:response:patchLevel"], t, Vt.IntArray.FromNumpy(arrays.patch_level.astype(np.int32)))
+                layer.SetTimeSample(specs["acra:response:patches"], t, Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(arrays.patches, dtype=np.int32)))
+                layer.SetTimeSample(specs["acra:response:offsetLevel"], t, Vt.IntArray.FromNumpy(arrays.offset_level.astype(np.int32)))
+                layer.SetTimeSample(specs["acra:response:offsetCvs"], t, Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(arrays.offset_cvs, dtype=np.int32)))
+                layer.SetTimeSample(specs["acra:response:offsets"], t, Vt.Vec3dArray.FromNumpy(np.ascontiguousarray(arrays.offsets, dtype=np.float64)))
+                layer.SetTimeSample(specs["acra:response:residual"], t, float(r.residual))
+                layer.SetTimeSample(specs["acra:response:inCollision"], t, bool(r.in_collision))
+    return export_layer(layer, out)
+
+
+def read_output_hierarchy(stage: Usd.Stage, prim_path: str, t: float) -> HSpline:
+    """The response state written at time code ``t``: level-0 CVs plus the full hierarchy."""
+    prim = stage.GetPrimAtPath(prim_path)
+    if not prim:
+        raise KeyError(f"no prim at {prim_path}")
+    tc = Usd.TimeCode(float(t))
+    nu = int(prim.GetAttribute("acra:uCount").Get())
+    nv = int(prim.GetAttribute("acra:vCount").Get())
+    wrap = lambda n: WRAPS[str(prim.GetAttribute(n).Get() or "open")]  # noqa: E731
+    levels_attr = prim.GetAttribute("acra:levels")
+    levels = int(levels_attr.Get()) if levels_attr and levels_attr.HasAuthoredValue() else 1
+    get = lambda n, dt, shape: np.array(prim.GetAttribute(n).Get(tc), dtype=dt).reshape(shape)  # noqa: E731
+    cvs = flat_to_cvs(get("acra:response:cvs", np.float64, (-1, 3)), nu, nv)
+    arrays = HierarchyArrays(
+        patch_level=get("acra:response:patchLevel", np.int32, (-1,)),
+        patches=get("acra:response:patches", np.int32, (-1, 2)),
+        offset_level=get("acra:response:offsetLevel", np.int32, (-1,)),
+        offset_cvs=get("acra:response:offsetCvs", np.int32, (-1, 2)),
+        offsets=get("acra:response:offsets", np.float64, (-1, 3)),
+    )
+    return from_arrays(from_grid(cvs, wrap("acra:uWrap"), wrap("acra:vWrap"), depth=levels), arrays)

@@ -1,0 +1,194 @@
+"""The scene-file API (pipeline.authoring)."""
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import trimesh
+from pxr import Sdf, Usd, UsdGeom, UsdPhysics, UsdValidation
+
+from acra import hspline as H
+from acra import shapes
+from acra.tessellate import display_topology, evaluate_grid
+from pipeline import authoring as A
+from pipeline import usdio as U
+
+
+def test_new_stage_metadata():
+    stage = A.new_stage(3, 40, fps=30, up_axis="Y", meters_per_unit=0.01)
+    assert stage.GetRootLayer().anonymous
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (3, 40)
+    assert stage.GetTimeCodesPerSecond() == stage.GetFramesPerSecond() == 30
+    assert UsdGeom.GetStageUpAxis(stage) == "Y" and UsdGeom.GetStageMetersPerUnit(stage) == 0.01
+    assert stage.GetDefaultPrim().GetPath() == "/World" and stage.GetDefaultPrim().IsA(UsdGeom.Xform)
+
+
+def test_add_deformable_authors_contract_attributes_and_rest_tessellation():
+    stage = A.new_stage(1, 1)
+    cvs, up, vp = shapes.sphere(8, 7)
+    prim = A.add_deformable(stage, "/World/a/ball", cvs, u_wrap="periodic", levels=2, samples=3)
+    assert stage.GetPrimAtPath("/World/a").IsA(UsdGeom.Xform)
+    for name, tname in U.CONTRACT_TYPES.items():
+        attr = prim.GetAttribute(name)
+        assert attr.HasAuthoredValue() and attr.GetTypeName() == tname, name
+    get = lambda n: prim.GetAttribute(n).Get()  # noqa: E731
+    assert (get("acra:uCount"), get("acra:vCount"), get("acra:uWrap"), get("acra:vWrap")) == (8, 7, "periodic", "open")
+    assert list(get("acra:absorption")) == [0, 1] and list(get("acra:deform")) == [1, 1]
+    assert list(get("acra:translate")) == list(get("acra:rotate")) == [0, 0]
+    assert (get("acra:rigidity"), get("acra:refine"), get("acra:samples"), get("acra:enabled")) == (50, "refine", 3, True)
+
+    mesh = UsdGeom.Mesh(prim)
+    hs = H.from_grid(cvs, up, vp, depth=2)
+    topo = display_topology(hs.u, hs.v, 3)
+    points, normals = evaluate_grid(hs, topo)
+    np.testing.assert_array_equal(np.asarray(mesh.GetPointsAttr().Get()), points.astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(mesh.GetNormalsAttr().Get()), normals.astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(mesh.GetFaceVertexIndicesAttr().Get()), topo.quads.reshape(-1))
+    assert set(np.asarray(mesh.GetFaceVertexCountsAttr().Get())) == {4}
+    assert mesh.GetNormalsInterpolation() == "vertex" and mesh.GetSubdivisionSchemeAttr().Get() == "none"
+    assert not mesh.GetExtentAttr().HasAuthoredValue()  # the output may not override a stale extent
+    (m,) = U.read_scene(stage).deformables  # what the author wrote is valid input
+    assert m.topology.u.size == len(points)
+
+
+def test_partial_mix_defaults_to_zero():
+    stage = A.new_stage(1, 1)
+    cvs, _, _ = shapes.sheet(4, 4)
+    prim = A.add_deformable(stage, "/World/s", cvs, levels=2, translate=[1, 0.5], rotate=[0, 0.5])
+    assert list(prim.GetAttribute("acra:deform").Get()) == [0, 0]
+    (m,) = U.read_scene(stage).deformables
+    np.testing.assert_array_equal(m.controls.translate + m.controls.rotate + m.controls.deform, [1, 1])
+
+
+def test_hierarchy_is_stored_and_shapes_the_rest_preview():
+    cvs, up, vp = shapes.sheet(6, 5, width=3.0, depth=2.0)
+    hs = H.make_movable(H.from_grid(cvs, up, vp, depth=3), 2, [[4, 3]])
+    idx, off = H.offsets_of(hs, 2)
+    hs = H.set_offsets(hs, 2, idx, np.random.default_rng(0).normal(size=off.shape) * 0.1)
+    stage = A.new_stage(1, 1)
+    prim = A.add_deformable(stage, "/World/s", cvs, hierarchy=hs, samples=2)
+    assert prim.GetAttribute("acra:levels").Get() == 3
+    points, _ = evaluate_grid(hs, display_topology(hs.u, hs.v, 2))
+    flat, _ = evaluate_grid(H.from_grid(cvs, up, vp), display_topology(hs.u, hs.v, 2))
+    got = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get())
+    np.testing.assert_array_equal(got, points.astype(np.float32))
+    assert np.abs(got - flat).max() > 1e-3  # the offsets show in the preview
+    scene = U.read_scene(stage)
+    template = U.surface_template(scene, scene.deformables[0])
+    a, b = H.to_arrays(template), H.to_arrays(hs)
+    np.testing.assert_array_equal(a.offset_cvs, b.offset_cvs)
+    np.testing.assert_array_equal(a.offsets, b.offsets)
+    with pytest.raises(ValueError, match="levels"):
+        A.add_deformable(stage, "/World/t", cvs, hierarchy=hs, levels=2)
+    with pytest.raises(ValueError, match="do not match"):
+        A.add_deformable(stage, "/World/t", cvs[:5], hierarchy=hs)
+
+
+def test_key_cvs_keys_cvs_and_preview():
+    stage = A.new_stage(1, 10)
+    cvs, _, _ = shapes.sheet(5, 4)
+    prim = A.add_deformable(stage, "/World/s", cvs, samples=2)
+    bent = cvs.copy()
+    bent[2, 1, 2] = 1.0
+    A.key_cvs(prim, 1, cvs)
+    A.key_cvs(prim, 10, bent)
+    assert prim.GetAttribute("acra:cvs").GetTimeSamples() == [1.0, 10.0]
+    mesh = UsdGeom.Mesh(prim)
+    assert mesh.GetPointsAttr().GetTimeSamples() == [1.0, 10.0]
+    hs = H.from_grid(bent)
+    expected, _ = evaluate_grid(hs, display_topology(hs.u, hs.v, 2))
+    np.testing.assert_array_equal(np.asarray(mesh.GetPointsAttr().Get(10)), expected.astype(np.float32))
+    scene = U.read_scene(stage)
+    (d,), _ = U.state_at(stage, scene, 5.5)
+    np.testing.assert_allclose(d.surface.cvs[2, 1, 2], 0.5, atol=1e-6)
+    with pytest.raises(ValueError, match="cvs shape"):
+        A.key_cvs(prim, 3, cvs[:, :3])
+
+
+def test_box_and_uv_sphere_are_closed_and_outward():
+    for verts, faces, volume in (
+        (*A.box((2.0, 3.0, 4.0)), 24.0),
+        (*A.uv_sphere(2.0, segments=24, rings=12), 4.0 / 3.0 * np.pi * 8.0),
+    ):
+        tri = faces if faces.shape[1] == 3 else np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
+        tm = trimesh.Trimesh(verts, tri, process=False)
+        assert tm.is_watertight and tm.is_winding_consistent
+        assert tm.volume > 0 and tm.volume == pytest.approx(volume, rel=0.05)
+    v, f = A.uv_sphere(1.0, 5, 3, center=(1, 2, 3))
+    assert v.shape == (2 + 2 * 5, 3) and f.shape == (2 * 5 * 2, 3)
+    np.testing.assert_allclose(np.linalg.norm(v - [1, 2, 3], axis=1), 1.0)
+
+
+def test_add_collider():
+    stage = A.new_stage(1, 1)
+    prim = A.add_collider(stage, "/World/props/crate", *A.box(2.0, center=(0, 0, 1)))
+    assert prim.HasAPI(UsdPhysics.CollisionAPI) and prim.IsA(UsdGeom.Mesh)
+    assert stage.GetPrimAtPath("/World/props").IsA(UsdGeom.Xform)
+    (c,) = U.read_scene(stage).colliders
+    assert c.triangles.shape == (12, 3)
+    tm = trimesh.Trimesh(c.vertices, c.triangles, process=False)
+    assert tm.is_watertight and tm.volume == pytest.approx(8.0)
+    lo, hi = UsdGeom.Mesh(prim).GetExtentAttr().Get()
+    assert tuple(lo) == (-1, -1, 0) and tuple(hi) == (1, 1, 2)
+
+
+def test_key_transform_order_and_linear_interpolation():
+    stage = A.new_stage(0, 10)
+    prim = A.add_xform(stage, "/World/x")
+    A.key_transform(prim, 0, scale=(1, 1, 1))
+    A.key_transform(prim, 0, rotate_xyz=(0, 0, 0), translate=(0, 0, 0))
+    A.key_transform(prim, 10, translate=(10, 0, 0), rotate_xyz=(0, 0, 90), scale=(3, 3, 3))
+    names = [op.GetOpName() for op in UsdGeom.Xformable(prim).GetOrderedXformOps()]
+    assert names == ["xformOp:translate", "xformOp:rotateXYZ", "xformOp:scale"]
+    m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(5)).T
+    c = s = np.sqrt(0.5)
+    np.testing.assert_allclose(m[:3, :3], 2.0 * np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), atol=1e-6)
+    np.testing.assert_allclose(m[:3, 3], [5, 0, 0], atol=1e-9)
+
+
+def test_key_enabled_is_held():
+    stage = A.new_stage(1, 5)
+    cvs, _, _ = shapes.sheet(4, 4)
+    prim = A.add_deformable(stage, "/World/s", cvs)
+    A.key_enabled(prim, 1, True)
+    A.key_enabled(prim, 3, False)
+    scene = U.read_scene(stage)
+    assert [U.state_at(stage, scene, t)[0][0].enabled for t in (1, 2.99, 3, 5)] == [True, True, False, False]
+
+
+def test_save_writes_a_valid_stage_and_leaves_the_stage(tmp_path):
+    stage = A.new_stage(1, 4)
+    cvs, _, _ = shapes.torus(8, 6)
+    ring = A.add_deformable(stage, "/World/ring", cvs, u_wrap="periodic", v_wrap="periodic", samples=2)
+    A.key_transform(ring, 1, translate=(0, 0, 2))
+    A.key_transform(ring, 4, translate=(0, 0, 0))
+    A.add_collider(stage, "/World/floor", *A.box((5, 5, 0.1)))
+    path = A.save(stage, tmp_path / "scene.usda")
+    assert stage.GetRootLayer().anonymous and sorted(p.name for p in tmp_path.iterdir()) == ["scene.usda"]
+    opened = Usd.Stage.Open(str(path))
+    ctx = UsdValidation.ValidationContext(UsdValidation.ValidationRegistry().GetOrLoadAllValidators())
+    assert [e.GetMessage() for e in ctx.Validate(opened)] == []
+    scene = U.read_scene(U.open_input(path))
+    assert [m.path for m in scene.deformables] == ["/World/ring"] and (scene.start, scene.end) == (1, 4)
+
+
+def test_scene_file_runs_on_its_own(tmp_path):
+    py = tmp_path / "drop.py"
+    py.write_text(
+        "from pathlib import Path\n"
+        "from acra import shapes\n"
+        "from pipeline.authoring import new_stage, add_deformable, save\n"
+        "def build():\n"
+        "    stage = new_stage(1, 2)\n"
+        "    add_deformable(stage, '/World/s', shapes.sheet(4, 5)[0])\n"
+        "    return stage\n"
+        "if __name__ == '__main__':\n"
+        "    save(build(), Path(__file__).with_suffix('.usda'))\n"
+    )
+    subprocess.run([sys.executable, str(py)], check=True, cwd=tmp_path)
+    standalone = (tmp_path / "drop.usda").read_bytes()
+    (tmp_path / "drop.usda").unlink()
+    assert U.load_scene_file(py).read_bytes() == standalone
+    assert Sdf.Layer.OpenAsAnonymous(str(tmp_path / "drop.usda")).GetPrimAtPath("/World/s")

@@ -1,0 +1,494 @@
+"""USD input validation, per-time evaluation and the output layer (pipeline.usdio)."""
+
+import math
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Ts, Usd, UsdGeom, UsdValidation, Vt
+
+from acra import hspline as H
+from acra import shapes
+from acra.tessellate import evaluate_grid
+from pipeline import authoring as A
+from pipeline import usdio as U
+from pipeline.model import InputError
+
+SHEET = "/World/rig/sheet"
+FLOOR = "/World/floor"
+
+
+def sheet_hierarchy(seed=0):
+    """A 6×5 open sheet, 3 levels, refined and offset at levels 1 and 2 (random float64 offsets)."""
+    rng = np.random.default_rng(seed)
+    cvs, _, _ = shapes.sheet(6, 5, width=3.0, depth=2.0, height=0.2 * rng.normal(size=(6, 5)))
+    hs = H.from_grid(cvs, depth=3)
+    hs = H.make_movable(hs, 1, [[2, 1]])
+    hs = H.make_movable(hs, 2, [[5, 3]])
+    for k in (1, 2):
+        idx, off = H.offsets_of(hs, k)
+        hs = H.set_offsets(hs, k, idx, 0.05 * rng.normal(size=off.shape))
+    return hs
+
+
+def build_stage(frames=(1, 3)):
+    """Parent Xform keyed in translate; a keyed sheet; a box collider."""
+    stage = A.new_stage(*frames)
+    rig = A.add_xform(stage, "/World/rig")
+    A.key_transform(rig, frames[0], translate=(0, 0, 0))
+    A.key_transform(rig, frames[1], translate=(1, 2, 0), rotate_xyz=(0, 0, 20))
+    hs = sheet_hierarchy()
+    sheet = A.add_deformable(stage, SHEET, hs.cvs, levels=3, hierarchy=hs, absorption=[0.2, 0.3, 0.5], samples=2)
+    A.key_cvs(sheet, frames[0], hs.cvs)
+    A.key_cvs(sheet, frames[1], hs.cvs + [0.0, 0.0, 0.5])
+    A.add_collider(stage, FLOOR, *A.box((4, 4, 0.2), center=(0, 0, -1)))
+    return stage
+
+
+@pytest.fixture
+def scene_file(tmp_path):
+    path = tmp_path / "in.usda"
+    A.save(build_stage(), path)
+    return path
+
+
+def run_identity(stage, scene, frames=None, perturb=None):
+    """Frame results holding the animator's shape (optionally with a perturbed hierarchy)."""
+    res = U.FramesResult()
+    for f in frames or range(scene.start, scene.end + 1):
+        ds, _ = U.state_at(stage, scene, f)
+        for m, d in zip(scene.deformables, ds):
+            surface = d.surface if perturb is None else perturb(d.surface, f)
+            p, n = evaluate_grid(surface, m.topology)
+            res.add(f, m.path, U.DeformableResult(p, n, surface, residual=0.01 * f, in_collision=f % 2 == 0))
+    return res
+
+
+def validate(stage):
+    ctx = UsdValidation.ValidationContext(UsdValidation.ValidationRegistry().GetOrLoadAllValidators())
+    return [e.GetMessage() for e in ctx.Validate(stage)]
+
+
+# --------------------------------------------------------------------------------------------
+# reading
+
+
+def test_read_scene_models(scene_file):
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    assert (scene.start, scene.end, scene.up_axis, scene.meters_per_unit) == (1, 3, "Z", 1.0)
+    (m,) = scene.deformables
+    (c,) = scene.colliders
+    assert m.path == SHEET and (m.nu, m.nv, m.depth) == (6, 5, 3)
+    np.testing.assert_array_equal(m.controls.absorption, np.float32([0.2, 0.3, 0.5]))
+    np.testing.assert_array_equal(m.controls.deform, [1, 1, 1])
+    np.testing.assert_array_equal(m.controls.translate + m.controls.rotate, [0, 0, 0])
+    assert (m.controls.rigidity, m.controls.refine, m.controls.samples) == (50.0, True, 2)
+    expected = H.to_arrays(sheet_hierarchy())
+    for name in ("patch_level", "patches", "offset_level", "offset_cvs", "offsets"):
+        np.testing.assert_array_equal(getattr(m.hierarchy, name), getattr(expected, name))
+    assert m.topology.u.size == (3 * 2 + 1) * (2 * 2 + 1)
+    assert c.path == FLOOR and c.vertices.shape == (8, 3) and c.triangles.shape == (12, 3)
+
+
+def test_grid_index_convention(tmp_path):
+    """USD acra:cvs index j * uCount + i is our cvs[i, j]."""
+    stage = A.new_stage(0, 0)
+    cvs = np.random.default_rng(3).normal(size=(5, 7, 3))
+    prim = A.add_deformable(stage, "/World/s", cvs)
+    flat = np.asarray(prim.GetAttribute("acra:cvs").Get())
+    nu = 5
+    for i, j in [(0, 0), (4, 0), (1, 6), (3, 2)]:
+        np.testing.assert_array_equal(flat[j * nu + i], cvs[i, j].astype(np.float32))
+    scene = U.read_scene(stage)
+    (d,), _ = U.state_at(stage, scene, 0)
+    np.testing.assert_array_equal(d.surface.cvs, cvs.astype(np.float32).astype(np.float64))
+
+
+def test_frame_range_from_samples_or_zero():
+    stage = Usd.Stage.CreateInMemory()
+    assert U.frame_range(stage) == (0, 0)
+    xf = UsdGeom.Xform.Define(stage, "/X")
+    op = xf.AddTranslateXOp()
+    spline = Ts.Spline("double")
+    for t, v in ((-2.0, 0.0), (7.5, 1.0)):
+        spline.SetKnot(Ts.Knot(time=t, value=v, nextInterp=Ts.InterpLinear))
+    op.GetAttr().SetSpline(spline)
+    xf.AddScaleOp().Set(Gf.Vec3f(1, 1, 1), 3.0)
+    assert U.frame_range(stage) == (-2, 8)
+    stage.SetStartTimeCode(1.5)
+    with pytest.raises(InputError, match="startTimeCode: 1.5 is not an integer frame"):
+        U.frame_range(stage)
+
+
+def test_collider_fan_triangulation_and_orientation():
+    stage = A.new_stage(0, 0)
+    verts = np.array([[0, 0, 0], [1, 0, 0], [1.5, 1, 0], [0.5, 1.5, 0], [-0.5, 1, 0], [3, 0, 0], [3, 1, 0]], float)
+    A.add_collider(stage, "/World/c", verts, [[0, 1, 2, 3, 4], [1, 5, 6]])
+    (c,) = U.read_scene(stage).colliders
+    np.testing.assert_array_equal(c.triangles, [[0, 1, 2], [0, 2, 3], [0, 3, 4], [1, 5, 6]])
+    UsdGeom.Mesh(stage.GetPrimAtPath("/World/c")).CreateOrientationAttr().Set(UsdGeom.Tokens.leftHanded)
+    (c,) = U.read_scene(stage).colliders
+    np.testing.assert_array_equal(c.triangles[0], [2, 1, 0])
+
+
+def test_collider_uses_start_time_points():
+    stage = A.new_stage(4, 6)
+    v, f = A.box(1.0)
+    prim = A.add_collider(stage, "/World/c", v, f)
+    UsdGeom.Mesh(prim).GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy((v + 5).astype(np.float32)), 4.0)
+    UsdGeom.Mesh(prim).GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy((v + 9).astype(np.float32)), 6.0)
+    (c,) = U.read_scene(stage).colliders
+    np.testing.assert_array_equal(c.vertices, v + 5)
+
+
+# --------------------------------------------------------------------------------------------
+# per-time evaluation
+
+
+def test_state_at_spline_op_and_animated_parent_at_subframes():
+    stage = A.new_stage(0, 4)
+    parent = A.add_xform(stage, "/World/parent")
+    A.key_transform(parent, 0, translate=(0, 0, 0), rotate_xyz=(0, 0, 0))
+    A.key_transform(parent, 4, translate=(0, 10, 0), rotate_xyz=(0, 0, 90))
+    cvs, _, _ = shapes.sheet(4, 4)
+    prim = A.add_deformable(stage, "/World/parent/s", cvs)
+    spline = Ts.Spline("double")
+    spline.SetKnot(Ts.Knot(time=1.0, value=2.0, nextInterp=Ts.InterpLinear))
+    spline.SetKnot(Ts.Knot(time=2.0, value=4.0, nextInterp=Ts.InterpLinear))
+    UsdGeom.Xformable(prim).AddTranslateXOp().GetAttr().SetSpline(spline)
+    A.add_collider(stage, "/World/parent/c", *A.box(1.0))
+    scene = U.read_scene(stage)
+    for t in (0.25, 1.5, 1.75, 3.5):
+        (d,), (c,) = U.state_at(stage, scene, t)
+        a = math.radians(90.0 * t / 4.0)
+        par = np.eye(4)
+        par[:3, :3] = [[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]]
+        par[:3, 3] = (0, 10 * t / 4, 0)
+        child = np.eye(4)
+        child[0, 3] = 2.0 + 2.0 * min(max(t - 1.0, 0.0), 1.0)  # held outside the knots
+        np.testing.assert_allclose(d.xform, par @ child, atol=1e-6)
+        np.testing.assert_allclose(c.xform, par, atol=1e-6)
+        # column convention: the object origin lands at the world translation
+        np.testing.assert_allclose(d.xform @ [0, 0, 0, 1], (par @ child)[:, 3], atol=1e-6)
+
+
+def test_state_at_interpolates_cvs_and_holds_enabled(scene_file):
+    stage = U.open_input(scene_file)
+    A.key_enabled(stage.GetPrimAtPath(SHEET), 1, True)
+    A.key_enabled(stage.GetPrimAtPath(SHEET), 2, False)
+    scene = U.read_scene(stage)
+    base = sheet_hierarchy()
+    (d1,), _ = U.state_at(stage, scene, 1.0)
+    (dm,), _ = U.state_at(stage, scene, 2.5)
+    np.testing.assert_allclose(dm.surface.cvs, base.cvs + [0, 0, 0.375], atol=1e-6)
+    # the hierarchy rides along unchanged, only level-0 CVs swap
+    assert dm.surface.fine is not None and all(a is b for a, b in zip(dm.surface.fine, d1.surface.fine))
+    got = H.to_arrays(dm.surface)
+    np.testing.assert_array_equal(got.offsets, H.to_arrays(base).offsets)
+    assert [U.state_at(stage, scene, t)[0][0].enabled for t in (1.0, 1.9, 2.0, 2.7, 3.0)] == [True, True, False, False, False]
+
+
+# --------------------------------------------------------------------------------------------
+# writing
+
+
+def perturbed(surface, frame):
+    """A response-like surface: moved CVs, an extra refined region with full-precision offsets."""
+    rng = np.random.default_rng(frame)
+    hs = H.make_movable(surface, 2, [[1, 1]])
+    idx, off = H.offsets_of(hs, 2)
+    hs = H.set_offsets(hs, 2, idx, off + rng.normal(size=off.shape) / 3.0)
+    from dataclasses import replace
+
+    return replace(hs, cvs=hs.cvs + rng.normal(size=hs.cvs.shape) * np.pi / 7.0)
+
+
+def test_hierarchy_round_trip_bit_for_bit(scene_file, tmp_path):
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    res = run_identity(stage, scene, perturb=perturbed)
+    out = U.write_output(scene_file, tmp_path / "out.usda", scene, res)
+    ostage = Usd.Stage.Open(str(out))
+    for f, per in res.frames.items():
+        written = per[SHEET].surface
+        back = U.read_output_hierarchy(ostage, SHEET, f)
+        assert back.cvs.dtype == np.float64
+        np.testing.assert_array_equal(back.cvs, written.cvs)
+        a, b = H.to_arrays(back), H.to_arrays(written)
+        for name in ("patch_level", "patches", "offset_level", "offset_cvs", "offsets"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        for la, lb in zip(back.fine, written.fine):
+            np.testing.assert_array_equal(la.cv_keys, lb.cv_keys)
+            np.testing.assert_array_equal(la.offsets, lb.offsets)
+        prim = ostage.GetPrimAtPath(SHEET)
+        assert prim.GetAttribute("acra:response:residual").Get(f) == pytest.approx(0.01 * f, abs=0)
+        assert prim.GetAttribute("acra:response:inCollision").Get(f) == (f % 2 == 0)
+
+
+def test_output_composes_validates_and_holds_only_overs(scene_file, tmp_path):
+    before = scene_file.read_bytes()
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    res = run_identity(stage, scene, perturb=perturbed)
+    out_dir = tmp_path / "renders"
+    out_dir.mkdir()
+    out = U.write_output(scene_file, out_dir / "shot.acra.usda", scene, res)
+    assert scene_file.read_bytes() == before
+
+    layer = Sdf.Layer.OpenAsAnonymous(str(out))
+    assert list(layer.subLayerPaths) == ["../in.usda"]
+    specs = []
+    layer.Traverse(layer.pseudoRoot.path, specs.append)
+    allowed = {"points", "normals", "faceVertexCounts", "faceVertexIndices", *U.RESPONSE_TYPES}
+    for path in specs:
+        if path.IsPrimPath():
+            assert layer.GetPrimAtPath(path).specifier == Sdf.SpecifierOver, path
+        elif path.IsPropertyPath():
+            assert path.name in allowed, path
+    assert {p.name for p in specs if p.IsPropertyPath()} == allowed
+
+    ostage = Usd.Stage.Open(str(out))
+    assert validate(ostage) == []
+    assert ostage.GetPrimAtPath(FLOOR).HasAPI("PhysicsCollisionAPI")  # input prims show through
+    for key in ("startTimeCode", "endTimeCode", "timeCodesPerSecond", "framesPerSecond", "upAxis", "metersPerUnit", "defaultPrim"):
+        assert ostage.GetMetadata(key) == stage.GetMetadata(key), key
+    mesh = UsdGeom.Mesh(ostage.GetPrimAtPath(SHEET))
+    assert mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
+    for f in (1, 2, 3):
+        np.testing.assert_array_equal(np.asarray(mesh.GetPointsAttr().Get(f)), res.frames[f][SHEET].points.astype(np.float32))
+        np.testing.assert_array_equal(np.asarray(mesh.GetNormalsAttr().Get(f)), res.frames[f][SHEET].normals.astype(np.float32))
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get())
+    assert counts.sum() == np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).size
+    # transforms are untouched at every frame and between frames
+    for prim in stage.Traverse():
+        if prim.IsA(UsdGeom.Xformable):
+            for t in (1.0, 1.5, 2.0, 2.25, 3.0):
+                a = UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t)
+                b = UsdGeom.Xformable(ostage.GetPrimAtPath(prim.GetPath())).ComputeLocalToWorldTransform(t)
+                assert a == b, (prim.GetPath(), t)
+    # acra: inputs resolve to the input's values (not overridden)
+    for name in U.INPUT_ATTRIBUTES:
+        a, b = stage.GetPrimAtPath(SHEET).GetAttribute(name), ostage.GetPrimAtPath(SHEET).GetAttribute(name)
+        if a.HasAuthoredValue():
+            assert a.GetTimeSamples() == b.GetTimeSamples() and a.Get(2) == b.Get(2), name
+
+
+def test_output_bounds_follow_written_points(scene_file, tmp_path):
+    """No extent is authored on deformables, so USD bounds come from the output's points."""
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    res = run_identity(stage, scene, perturb=perturbed)
+    ostage = Usd.Stage.Open(str(U.write_output(scene_file, tmp_path / "out.usda", scene, res)))
+    for f in (1, 3):
+        box = UsdGeom.BBoxCache(f, [UsdGeom.Tokens.default_]).ComputeLocalBound(ostage.GetPrimAtPath(SHEET))
+        rng = box.ComputeAlignedRange()
+        pts = res.frames[f][SHEET].points.astype(np.float32)
+        np.testing.assert_allclose([rng.GetMin(), rng.GetMax()], [pts.min(axis=0), pts.max(axis=0)], rtol=1e-6)
+
+
+def test_output_is_deterministic(scene_file, tmp_path):
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    res = run_identity(stage, scene, perturb=perturbed)
+    a = U.write_output(scene_file, tmp_path / "a.usda", scene, res)
+    b = U.write_output(scene_file, tmp_path / "b.usda", scene, run_identity(stage, U.read_scene(stage), perturb=perturbed))
+    assert a.read_bytes() == b.read_bytes()
+
+
+@pytest.mark.parametrize("where", ["export", "replace"])
+def test_write_is_atomic(scene_file, tmp_path, monkeypatch, where):
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    res = run_identity(stage, scene)
+    out = tmp_path / "out.usda"
+    real_export = U._export
+
+    def export_then_fail(layer, path):
+        real_export(layer, path)  # the temporary file is complete on disk ...
+        raise KeyboardInterrupt  # ... and the run is interrupted before the rename
+
+    if where == "export":
+        monkeypatch.setattr(U, "_export", export_then_fail)
+    else:
+        monkeypatch.setattr(U.os, "replace", lambda *a: (_ for _ in ()).throw(OSError("disk full")))
+    with pytest.raises((KeyboardInterrupt, OSError)):
+        U.write_output(scene_file, out, scene, res)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.usda"]
+
+
+def test_write_rejects_incomplete_results(scene_file, tmp_path):
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    res = run_identity(stage, scene)
+    del res.frames[2][SHEET]
+    with pytest.raises(ValueError, match=f"frame 2: no result for {SHEET}"):
+        U.write_output(scene_file, tmp_path / "out.usda", scene, res)
+    res = run_identity(stage, scene)
+    r = res.frames[3][SHEET]
+    res.frames[3][SHEET] = U.DeformableResult(r.points[:-1], r.normals[:-1], r.surface)
+    with pytest.raises(ValueError, match="points has shape"):
+        U.write_output(scene_file, tmp_path / "out.usda", scene, res)
+    assert not (tmp_path / "out.usda").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# invalid input
+
+
+def _retype(prim, name, tname, value):
+    prim.RemoveProperty(name)
+    prim.CreateAttribute(name, tname).Set(value)
+
+
+def _set(prim, name, value, time=None):
+    attr = prim.GetAttribute(name)
+    attr.Set(value) if time is None else attr.Set(value, time)
+
+
+def _counts(nu, nv, u_wrap="open"):
+    def edit(prim):
+        _set(prim, "acra:uCount", nu)
+        _set(prim, "acra:vCount", nv)
+        _set(prim, "acra:uWrap", u_wrap)
+        cvs = Vt.Vec3fArray.FromNumpy(np.zeros((nu * nv, 3), np.float32))
+        prim.GetAttribute("acra:cvs").Clear()
+        _set(prim, "acra:cvs", cvs)
+        for name in U.HIERARCHY_TYPES:
+            prim.RemoveProperty(name)
+
+    return edit
+
+
+def _cvs_at(frame, fn):
+    def edit(prim):
+        flat = np.asarray(prim.GetAttribute("acra:cvs").Get(frame)).copy()
+        _set(prim, "acra:cvs", Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(fn(flat), dtype=np.float32)), frame)
+
+    return edit
+
+
+F = Vt.FloatArray
+BAD = {
+    "missing uCount": (lambda p: p.RemoveProperty("acra:uCount"), "acra:uCount", "missing required attribute"),
+    "missing cvs": (lambda p: p.RemoveProperty("acra:cvs"), "acra:cvs", "missing required attribute"),
+    "cvs float[]": (lambda p: _retype(p, "acra:cvs", Sdf.ValueTypeNames.FloatArray, F([0.0] * 30)), "acra:cvs", "has type float[], expected point3f[]"),
+    "cvs size at one sample": (_cvs_at(3, lambda a: a[:-1]), "acra:cvs", "has 29 values at time 3"),
+    "NaN in cvs": (_cvs_at(3, lambda a: np.where(np.arange(len(a))[:, None] == 7, np.nan, a)), "acra:cvs", "NaN or inf at time 3 at index 7"),
+    "inf rigidity": (lambda p: _set(p, "acra:rigidity", float("inf")), "acra:rigidity", "inf is not finite"),
+    "rigidity double": (lambda p: _retype(p, "acra:rigidity", Sdf.ValueTypeNames.Double, 5.0), "acra:rigidity", "expected float"),
+    "absorption sum 0.9": (lambda p: _set(p, "acra:absorption", F([0.2, 0.2, 0.5])), "acra:absorption", "sum to 0.9"),
+    "negative share": (lambda p: _set(p, "acra:absorption", F([-0.5, 0.5, 1.0])), "acra:absorption", "negative share -0.5 at level 0"),
+    "mix sum": (lambda p: _set(p, "acra:translate", F([0.0, 0.5, 0.0])), "acra:deform", "level 1: deform + translate + rotate = 1 + 0.5 + 0 = 1.5"),
+    "negative mix": (lambda p: (_set(p, "acra:translate", F([0, 0, -0.5])), _set(p, "acra:deform", F([1, 1, 1.5]))), "acra:translate", "negative share"),
+    "rigidity 0": (lambda p: _set(p, "acra:rigidity", 0.0), "acra:rigidity", "0 outside [1, 100]"),
+    "rigidity 101": (lambda p: _set(p, "acra:rigidity", 101.0), "acra:rigidity", "101 outside [1, 100]"),
+    "uWrap token": (lambda p: _set(p, "acra:uWrap", "closed"), "acra:uWrap", "unknown token 'closed'"),
+    "refine token": (lambda p: _set(p, "acra:refine", "always"), "acra:refine", "unknown token 'always'"),
+    "open uCount 3": (_counts(3, 5), "acra:uCount", "3 CVs, an open direction needs at least 4"),
+    "periodic uCount 2": (_counts(2, 5, "periodic"), "acra:uCount", "2 CVs, a periodic direction needs at least 3"),
+    "absorption length": (lambda p: _set(p, "acra:absorption", F([0.5, 0.5])), "acra:absorption", "has 2 values, expected acra:levels = 3"),
+    "rotate length": (lambda p: _set(p, "acra:rotate", F([0.0] * 4)), "acra:rotate", "has 4 values"),
+    "levels 0": (lambda p: _set(p, "acra:levels", 0), "acra:levels", "0 is less than 1"),
+    "samples 0": (lambda p: _set(p, "acra:samples", 0), "acra:samples", "0 is less than 1"),
+    "enabled int": (lambda p: _retype(p, "acra:enabled", Sdf.ValueTypeNames.Int, 1), "acra:enabled", "expected bool"),
+    "animated control": (lambda p: (_set(p, "acra:rigidity", 20.0, 1.0), _set(p, "acra:rigidity", 30.0, 2.0)), "acra:rigidity", "is not animatable"),
+    "hierarchy C2": (
+        lambda p: (_set(p, "acra:hierarchy:offsetCvs", Vt.Vec2iArray([Gf.Vec2i(2, 3)])),
+                   _set(p, "acra:hierarchy:offsetLevel", Vt.IntArray([2])),
+                   _set(p, "acra:hierarchy:offsets", Vt.Vec3dArray([Gf.Vec3d(0, 0, 1)]))),
+        "acra:hierarchy:offsetCvs", "level 2: CV (2, 3) is not free to move"),
+    "hierarchy level": (lambda p: _set(p, "acra:hierarchy:patchLevel", Vt.IntArray([3] * len(p.GetAttribute("acra:hierarchy:patchLevel").Get()))), "acra:hierarchy:patchLevel", "outside 1..2"),
+    "hierarchy lengths": (lambda p: _set(p, "acra:hierarchy:offsetLevel", Vt.IntArray([1])), "acra:hierarchy:offsetCvs", "acra:hierarchy:offsetLevel has 1"),
+    "hierarchy NaN": (lambda p: _set(p, "acra:hierarchy:offsets", Vt.Vec3dArray.FromNumpy(np.full((len(p.GetAttribute("acra:hierarchy:offsets").Get()), 3), np.nan))), "acra:hierarchy:offsets", "NaN or inf at index 0"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_invalid_input_names_prim_and_attribute(case, tmp_path):
+    edit, attribute, problem = BAD[case]
+    stage = build_stage()
+    edit(stage.GetPrimAtPath(SHEET))
+    path = tmp_path / "bad.usda"
+    A.save(stage, path)
+    with pytest.raises(InputError) as info:
+        U.read_scene(U.open_input(path))
+    err = info.value
+    assert (err.prim, err.attribute) == (SHEET, attribute)
+    message = str(err)
+    assert "\n" not in message and message.startswith(f"{SHEET}.{attribute}: ")
+    assert problem in message
+
+
+def test_invalid_collider(tmp_path):
+    stage = build_stage()
+    UsdGeom.Mesh(stage.GetPrimAtPath(FLOOR)).GetFaceVertexIndicesAttr().Set(Vt.IntArray([0, 1, 2, 99] * 6))
+    with pytest.raises(InputError, match=rf"^{FLOOR}\.faceVertexIndices: index outside 0\.\.7$"):
+        U.read_scene(stage)
+
+
+@pytest.mark.parametrize(
+    "name, content, problem",
+    [
+        ("missing.usda", None, "cannot open: no such file"),
+        ("broken.usda", b'#usda 1.0\ndef Mesh "a" {\n  int x = \n', "cannot open: "),
+        ("garbage.usdc", b"\x00\x01 not crate", "cannot open: "),
+        ("scene.txt", b"hello", "not a USD file"),
+        ("nosub.usda", b'#usda 1.0\n(\n    subLayers = [@./anim.usda@]\n)\n', "cannot open: sublayer @./anim.usda@ of "),
+        ("noref.usda", b'#usda 1.0\ndef Xform "W" (references = @./gone.usda@) {}\n', "cannot open: composition error: Could not open asset"),
+    ],
+)
+def test_unreadable_files(tmp_path, name, content, problem):
+    path = tmp_path / name
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(InputError) as info:
+        U.open_input(path)
+    assert info.value.prim == str(path) and problem in str(info.value) and "\n" not in str(info.value)
+
+
+def test_directory_is_not_a_stage(tmp_path):
+    (tmp_path / "dir.usda").mkdir()
+    with pytest.raises(InputError, match=r"dir\.usda: cannot open: not a regular file$"):
+        U.open_input(tmp_path / "dir.usda")
+
+
+# --------------------------------------------------------------------------------------------
+# scene files
+
+SCENE = """
+import numpy as np
+from acra import shapes
+from pipeline import authoring as A
+
+def build():
+    stage = A.new_stage(1, 2)
+    cvs, up, vp = shapes.sheet(5, 4)
+    A.add_deformable(stage, "/World/s", cvs)
+    {extra}
+    return stage
+
+if __name__ == "__main__":
+    raise SystemExit("must not run as main when loaded by acra")
+"""
+
+
+def test_load_scene_file(tmp_path):
+    py = tmp_path / "shot.py"
+    py.write_text(SCENE.format(extra=""))
+    usda = U.load_scene_file(py)
+    assert usda == tmp_path / "shot.usda" and usda.is_file()
+    scene = U.read_scene(U.open_input(usda))
+    assert [m.path for m in scene.deformables] == ["/World/s"] and (scene.start, scene.end) == (1, 2)
+
+
+@pytest.mark.parametrize("extra, problem", [("raise RuntimeError('boom')", "build(): raised RuntimeError: boom"), ("return 42", "build(): returned int")])
+def test_scene_file_errors(tmp_path, extra, problem):
+    py = tmp_path / "shot.py"
+    py.write_text(SCENE.format(extra=extra))
+    with pytest.raises(InputError) as info:
+        U.load_scene_file(py)
+    assert str(info.value).startswith(f"{py}.{problem}")
+    assert not (tmp_path / "shot.usda").exists()
+    (tmp_path / "bad.py").write_text("import nonexistent_module_xyz\n")
+    with pytest.raises(InputError, match="scene failed to load: ModuleNotFoundError"):
+        U.load_scene_file(tmp_path / "bad.py")
