@@ -211,6 +211,23 @@ def test_follow_path_constant_speed_and_orientation():
         np.testing.assert_allclose(np.array(m.TransformDir(Gf.Vec3d(*fwd))), t, atol=1e-9)
 
 
+@pytest.mark.parametrize("axis", ["Y", "Z"])
+def test_follow_path_keeps_the_stage_up_axis_up(axis):
+    stage, prim = new_prim()
+    UsdGeom.SetStageUpAxis(stage, getattr(UsdGeom.Tokens, axis.lower()))
+    up = np.array([0.0, 1, 0]) if axis == "Y" else np.array([0.0, 0, 1])
+    path = P.path_through(np.array([[0, 0, 0], [2, 1, 1], [4, 3, 0], [5, 0, 2.0]]))
+    K.follow_path(prim, path, np.arange(10.0))                 # forward = local +x, up from the stage
+    xf = UsdGeom.Xformable(prim)
+    _, T, _, _ = P.sample_path(path, np.arange(10.0) / 9)
+    for f, t in zip(range(10), T):
+        m = xf.ComputeLocalToWorldTransform(float(f))
+        np.testing.assert_allclose(np.array(m.TransformDir(Gf.Vec3d(1, 0, 0))), t, atol=1e-9)
+        local_up = np.array(m.TransformDir(Gf.Vec3d(*up)))
+        proj = up - (up @ t) * t
+        np.testing.assert_allclose(local_up, proj / np.linalg.norm(proj), atol=1e-9)
+
+
 def test_follow_path_with_ease_starts_and_stops_at_rest():
     _, prim = new_prim()
     path = P.path_through(np.array([[0, 0, 0], [2, 1, 0], [4, 3, 1.0]]))

@@ -211,7 +211,7 @@ def _vector_op(xf: UsdGeom.Xformable, name: str, add) -> UsdGeom.XformOp:
 
 
 def follow_path(prim, path, frames, timing: "_easing.DistanceTime | None" = None, orient: bool = True,
-                forward=(1.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), method: str = "gauss",
+                forward=(1.0, 0.0, 0.0), up=None, method: str = "gauss",
                 suffix: str = "path", table: "_paths.ArcLengthTable | None" = None, **params):
     """Move a prim along a path curve, one time sample per frame.
 
@@ -220,8 +220,8 @@ def follow_path(prim, path, frames, timing: "_easing.DistanceTime | None" = None
     ``frames[-1]``; normalised time ``(f - f0) / (f1 - f0)`` goes through the distance-time
     function ``timing`` (default constant speed) and the arc-length inverse (``method``).
     Writes ``xformOp:translate:{suffix}`` (double3) and, if ``orient``, ``xformOp:orient:{suffix}``
-    (quatd) turning the local ``forward`` axis onto the tangent with ``up`` kept upright.
-    Returns ``(translate_op, orient_op or None)``.
+    (quatd) turning the local ``forward`` axis onto the tangent with ``up`` kept upright
+    (default: the stage's ``upAxis``, Y or Z).  Returns ``(translate_op, orient_op or None)``.
     """
     frames = np.asarray(frames, dtype=np.float64).reshape(-1)
     if frames.size < 2 or np.any(np.diff(frames) <= 0):
@@ -240,6 +240,8 @@ def follow_path(prim, path, frames, timing: "_easing.DistanceTime | None" = None
     _write_samples(top.GetAttr(), frames, [vec(*map(float, p)) for p in P])
     oop = None
     if orient:
+        if up is None:
+            up = (0.0, 0.0, 1.0) if UsdGeom.GetStageUpAxis(prim.GetStage()) == UsdGeom.Tokens.z else (0.0, 1.0, 0.0)
         q = _paths.orientations(T, forward, up)
         oop = _vector_op(xf, f"xformOp:orient:{suffix}",
                          lambda: xf.AddOrientOp(precision=dbl, opSuffix=suffix))
