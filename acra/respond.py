@@ -341,6 +341,29 @@ def _rotate(hs, level, uv, points, moves, det):
 # --------------------------------------------------------------------------------------------
 # the response
 
+def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray):
+    """Data points for one level's solve: contacts as they are, additional points merged per
+    level-``level`` patch (mean parameters and mean wanted move), thesis eq. 4.16.
+
+    The additional points come one per patch of the finest absorbing level; a coarser level has
+    fewer CVs than that, and solving every point there would over-determine it. One point per
+    patch of the level being solved keeps its system within its CVs.
+
+    Returns ``uv (g, 2)``, ``want (g, 3)``.
+    """
+    extra = ~is_contact
+    if not np.any(extra):
+        return uv, want
+    mids, patches = region_midpoints(hs, uv[extra], level)
+    su, _ = locate(hs.u, uv[extra, 0], level)
+    sv, _ = locate(hs.v, uv[extra, 1], level)
+    keys = su * hs.v.patches(level) + sv
+    uniq, inv = np.unique(keys, return_inverse=True)
+    moves = np.stack([np.bincount(inv, want[extra, c], uniq.size) for c in range(3)], axis=1)
+    moves /= np.bincount(inv, minlength=uniq.size)[:, None]
+    return np.concatenate([uv[is_contact], mids]), np.concatenate([want[is_contact], moves])
+
+
 
 @dataclass(frozen=True)
 class ResponseReport:
@@ -418,8 +441,10 @@ def respond(
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
-            dv = solve(pw, want, method=method, iterations=iterations)
-            hs = _move_level(hs, level, pw.cv_rows, dv, det)
+            luv, lwant = _per_level_points(hs, level, uv, want, np.asarray(points.is_contact, bool))
+            lpw = point_weights(hs, level, luv[:, 0], luv[:, 1])
+            dv = solve(lpw, lwant, method=method, iterations=iterations)
+            hs = _move_level(hs, level, lpw.cv_rows, dv, det)
             det = H.details(hs) if hs.depth > 1 else None
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:

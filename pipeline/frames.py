@@ -1,0 +1,249 @@
+"""The frame loop: detect → respond → detect again, per frame, from the animator's shape.
+
+Each frame starts from the animator's input at that time code (`usdio.state_at`), so frames are
+independent and the run is stateless (thesis §2.5 "animator override"). Within a frame the loop
+iterates: detect every pair, turn each contact into data points (thesis eq. 4.15–4.16), respond
+every deformable (`acra.respond.respond`), and detect again, until the residual penetration of
+every pair is within tolerance or the iteration cap is reached. Transforms are only read.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from pxr import Usd
+
+from acra import hspline as H
+from acra import respond as R
+from acra.tessellate import evaluate_grid
+from pipeline import detect as D
+from pipeline import usdio
+from pipeline.model import SceneModel, apply_inverse, apply_xform
+
+__all__ = ["FrameStats", "RunOptions", "run_frames", "data_points_for"]
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Frame-loop settings.
+
+    Attributes
+    ----------
+    iterations : int
+        Cap on detect → respond rounds per frame.
+    tolerance : float
+        Residual penetration accepted, as a fraction of the pair's object size (contract: 1e-3).
+    method : str
+        Interpolation solver, ``"direct"`` or ``"blend"``.
+    """
+
+    iterations: int = 4
+    tolerance: float = 1e-3
+    method: str = "direct"
+
+
+@dataclass
+class FrameStats:
+    """What one frame did (for the summary, the plots and the benchmark).
+
+    Times are milliseconds; ``residual`` is the largest remaining penetration in world units and
+    ``residual_rel`` the same over the pair's size.
+    """
+
+    frame: int
+    in_collision: bool = False
+    iterations: int = 0
+    residual: float = 0.0
+    residual_rel: float = 0.0
+    ms_detect: float = 0.0
+    ms_respond: float = 0.0
+    ms_total: float = 0.0
+    contacts: list = field(default_factory=list)
+    data_points: dict = field(default_factory=dict)
+    regions: dict = field(default_factory=dict)
+    events: list = field(default_factory=list)
+
+
+def _controls(model) -> R.Controls:
+    c = model.controls
+    return R.Controls(c.absorption, c.deform, c.translate, c.rotate, c.rigidity, c.refine)
+
+
+def _group_level(controls: R.Controls, depth: int) -> int:
+    """Level whose patches get one additional point each: the finest absorbing level."""
+    levels = np.nonzero(controls.absorption > 0)[0]
+    return int(min(levels.max() if levels.size else 0, depth - 1))
+
+
+def data_points_for(
+    ga: D.SurfaceGeometry,
+    gb: D.Geometry,
+    uv: np.ndarray,
+    p_self: np.ndarray,
+    p_other: np.ndarray,
+    region_uv: np.ndarray | None,
+    share: float,
+    group_level: int,
+    direction: np.ndarray | None = None,
+) -> tuple[R.DataPoints, np.ndarray]:
+    """Data points of one surface of a pair, in its object space (thesis eq. 4.15–4.16).
+
+    Parameters
+    ----------
+    uv : (2,) float64
+        The contact's parameters on this surface.
+    p_self, p_other : (3,) float64
+        World contact points on this surface and on the other.
+    region_uv : (k, 2) float64 or None
+        Parameters of this surface's vertices inside the other object.
+    share : float
+        ``R`` of eq. 4.15 for this surface (0 moves it all the way to the other).
+    direction : (3,) float64, optional
+        Cast direction for the additional points; default ``p_other - p_self``. Later rounds of a
+        frame pass the first round's direction: once a response has closed the gap between the
+        contact points, their difference no longer says which way is out.
+
+    Returns
+    -------
+    DataPoints (object space of ``ga``), and the world targets ``(K, 3)`` for the preview.
+    """
+    target_p = R.contact_targets(p_self, p_other, share)
+    uvs = [np.asarray(uv, float).reshape(1, 2)]
+    targets = [target_p[None]]
+    direction = p_other - p_self if direction is None else np.asarray(direction, float)
+    size = ga.size
+    if region_uv is not None and len(region_uv) and np.linalg.norm(direction) > 1e-9 * size:
+        mids, _ = R.region_midpoints(ga.surface, region_uv, group_level)
+        a_world = apply_xform(ga.xform, H.evaluate(ga.surface, mids[:, 0], mids[:, 1], det=ga.details).points)
+        hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
+        if np.any(valid):
+            uvs.append(mids[valid])
+            targets.append(R.additional_targets(a_world[valid], hits[valid], share))
+    uv_all = np.concatenate(uvs)
+    world = np.concatenate(targets)
+    is_contact = np.zeros(len(uv_all), bool)
+    is_contact[0] = True
+    return R.DataPoints(uv_all, apply_inverse(ga.xform, world), is_contact), world
+
+
+def _pairs(n_def: int, n_col: int):
+    """Every deformable–deformable pair once and every deformable–collider pair."""
+    for i in range(n_def):
+        for j in range(i + 1, n_def):
+            yield i, ("d", j)
+        for j in range(n_col):
+            yield i, ("c", j)
+
+
+def run_frames(
+    stage: Usd.Stage,
+    scene: SceneModel,
+    frames: list[int],
+    options: RunOptions = RunOptions(),
+    on_frame: Callable[[FrameStats, usdio.FramesResult], None] | None = None,
+) -> tuple[usdio.FramesResult, list[FrameStats]]:
+    """Process ``frames`` and return the per-frame results to write and their statistics."""
+    statics = [D.prepare_collider(c) for c in scene.colliders]
+    defs = scene.deformables
+    controls = [_controls(m) for m in defs]
+    result = usdio.FramesResult()
+    stats: list[FrameStats] = []
+    caches: dict = {}
+    state_memo: dict = {}
+
+    def states(t: float):
+        if t not in state_memo:
+            if len(state_memo) > 64:
+                state_memo.clear()
+            state_memo[t] = usdio.state_at(stage, scene, t)
+        return state_memo[t]
+
+    def geometry(kind_j, t):
+        dstates, cstates = states(t)
+        kind, j = kind_j
+        if kind == "d":
+            return D.SurfaceGeometry(dstates[j].surface, dstates[j].xform, name=defs[j].path)
+        return D.ColliderGeometry(statics[j], cstates[j].xform)
+
+    for frame in frames:
+        t0 = time.perf_counter()
+        st = FrameStats(frame)
+        dstates, cstates = states(float(frame))
+        surfaces = [s.surface for s in dstates]
+        enabled = [s.enabled for s in dstates]
+        directions: dict = {}
+        best = (np.inf, list(surfaces))
+        rounds = max(1, options.iterations)
+        for it in range(rounds + 1):
+            geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path) for i in range(len(defs))]
+            cgeoms = [D.ColliderGeometry(statics[j], cstates[j].xform) for j in range(len(statics))]
+            td = time.perf_counter()
+            found = []
+            worst, worst_rel = 0.0, 0.0
+            for i, other in _pairs(len(defs), len(statics)):
+                if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
+                    continue
+                gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
+                key = (i, other)
+                cache = caches.setdefault(key, D.RewindCache())
+                at = lambda t, i=i, other=other: (geometry(("d", i), t), geometry(other, t))  # noqa: E731
+                c = D.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache)
+                if c is None:
+                    continue
+                size = max(geoms[i].size, gb.size)
+                worst = max(worst, c.depth)
+                worst_rel = max(worst_rel, c.depth / size)
+                if c.depth > options.tolerance * size or it == 0:
+                    found.append((i, other, c))
+            st.ms_detect += 1e3 * (time.perf_counter() - td)
+            if it == 0:
+                st.in_collision = bool(found)
+                st.contacts = [(c.point_a, c.point_b) for _, _, c in found]
+                st.regions = {defs[i].path: c.region_a.points for i, _, c in found}
+            if worst_rel < best[0]:
+                best = (worst_rel, list(surfaces))
+                st.residual, st.residual_rel = worst, worst_rel
+            if not found or worst_rel <= options.tolerance or it == rounds:
+                break
+            tr = time.perf_counter()
+            points: dict[int, list] = {}
+            for i, other, c in found:
+                gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
+                r_other = None if other[0] == "c" or not enabled[other[1]] else controls[other[1]].rigidity
+                if enabled[i]:
+                    share = R.rigidity_share(controls[i].rigidity, r_other)
+                    push = directions.setdefault((i, other), c.point_b - c.point_a)
+                    dp, world = data_points_for(geoms[i], gb, c.uv_a, c.point_a, c.point_b, c.region_a.uv, share,
+                                                _group_level(controls[i], surfaces[i].depth), push)
+                    points.setdefault(i, []).append((dp, world))
+                if other[0] == "d" and enabled[other[1]]:
+                    j = other[1]
+                    share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
+                    push = -directions.setdefault((i, other), c.point_b - c.point_a)
+                    dp, world = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a, c.region_b.uv, share,
+                                                _group_level(controls[j], surfaces[j].depth), push)
+                    points.setdefault(j, []).append((dp, world))
+            for i, lst in points.items():
+                dp = R.DataPoints(
+                    np.concatenate([d.uv for d, _ in lst]),
+                    np.concatenate([d.target for d, _ in lst]),
+                    np.concatenate([d.is_contact for d, _ in lst]),
+                )
+                surfaces[i], _ = R.respond(surfaces[i], dp, controls[i], method=options.method)
+                if it == 0:
+                    st.data_points[defs[i].path] = np.concatenate([w for _, w in lst])
+            st.ms_respond += 1e3 * (time.perf_counter() - tr)
+            st.iterations = it + 1
+        surfaces = best[1]
+        for i, model in enumerate(defs):
+            det = H.details(surfaces[i]) if surfaces[i].depth > 1 else None
+            pts, nrm = evaluate_grid(surfaces[i], model.topology, det)
+            result.add(frame, model.path, usdio.DeformableResult(pts, nrm, surfaces[i], st.residual, st.in_collision))
+        st.ms_total = 1e3 * (time.perf_counter() - t0)
+        stats.append(st)
+        if on_frame is not None:
+            on_frame(st, result)
+    return result, stats

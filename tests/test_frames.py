@@ -1,0 +1,57 @@
+"""End to end through `acra run`: a box jumps deep into a sheet and stays; bad input writes nothing."""
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom
+
+from pipeline.cli import main
+
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "box_into_sheet.py"
+
+
+@pytest.fixture(scope="module")
+def box_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("box")
+    scene = d / "box_into_sheet.py"
+    shutil.copy(SCENE, scene)
+    assert main(["run", str(scene), "--quiet"]) == 0
+    return d / "box_into_sheet.usda", d / "box_into_sheet.acra.usda"
+
+
+def test_box_into_sheet_is_cleared_on_the_side_it_came_from(box_run):
+    src, out = box_run
+    stage = Usd.Stage.Open(str(out))
+    sheet = stage.GetPrimAtPath("/World/Sheet")
+    points = UsdGeom.Mesh(sheet).GetPointsAttr()
+    residual = sheet.GetAttribute("acra:response:residual")
+    for frame in range(11, 17):  # the box sits 0.7 deep from frame 11 on
+        p = np.array(points.Get(frame))
+        under = (np.abs(p[:, 0] - 0.2) < 0.45) & (np.abs(p[:, 1] + 0.1) < 0.45)
+        # pushed down with the box (it came from above), never left above its bottom face
+        assert p[under, 2].max() <= -0.7 + 1e-3 * 5.7
+        assert np.all(np.isfinite(p)) and p[:, 2].max() <= 1e-9
+        assert residual.Get(frame) <= 1e-3 * 5.7
+    # before the contact the sheet is untouched
+    np.testing.assert_allclose(np.array(points.Get(5))[:, 2], 0.0, atol=1e-9)
+
+
+def test_transforms_unchanged(box_run):
+    src, out = box_run
+    a, b = Usd.Stage.Open(str(src)), Usd.Stage.Open(str(out))
+    for path in ("/World/Mover", "/World/Mover/Box", "/World/Sheet"):
+        for f in range(1, 17):
+            ma = UsdGeom.Xformable(a.GetPrimAtPath(path)).ComputeLocalToWorldTransform(f)
+            mb = UsdGeom.Xformable(b.GetPrimAtPath(path)).ComputeLocalToWorldTransform(f)
+            assert ma == mb
+
+
+def test_bad_input_exits_nonzero_with_one_line_and_writes_nothing(tmp_path, capsys):
+    bad = tmp_path / "bad.usda"
+    bad.write_text('#usda 1.0\n(\n startTimeCode = 1\n endTimeCode = 2\n)\ndef Mesh "M" {\n int acra:uCount = 4\n int acra:vCount = 4\n point3f[] acra:cvs = [(0,0,0)]\n}\n')
+    code = main(["run", str(bad), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "/M" in err[0] and "acra:cvs" in err[0]
+    assert not (tmp_path / "bad.acra.usda").exists()
