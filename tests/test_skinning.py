@@ -88,7 +88,8 @@ def test_forward_kinematics_closed_form():
         assert np.allclose(W[j, :3, :3], rot_z(ang[j]), atol=1e-12)
     assert np.allclose(W[0, :3, 3], [0.5, 0.0, 0.0])
     assert np.allclose(W[1, :3, 3], W[0, :3, :3] @ [2.0, 0.1, 0.0] + W[0, :3, 3], atol=1e-12)
-    assert np.allclose(sk.bind_transforms(skel), sk.forward_kinematics(skel, sk.identity_pose(skel)))
+    rest_pose = sk.identity_pose(skel)
+    assert np.allclose(sk.bind_transforms(skel), sk.forward_kinematics(skel, rest_pose))
     assert np.allclose(sk.skinning_matrices(skel, sk.identity_pose(skel)), np.eye(4), atol=1e-12)
 
 

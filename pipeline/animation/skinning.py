@@ -227,7 +227,8 @@ def forward_kinematics(skeleton: Skeleton, rotations) -> np.ndarray:
     local = skeleton.rest_local @ local
     world = np.empty_like(local)
     for j, p in enumerate(skeleton.parents):
-        world[..., j, :, :] = local[..., j, :, :] if p < 0 else world[..., p, :, :] @ local[..., j, :, :]
+        lj = local[..., j, :, :]
+        world[..., j, :, :] = lj if p < 0 else world[..., p, :, :] @ lj
     return world
 
 
@@ -361,7 +362,8 @@ def psd_fit(skeleton: Skeleton, rest_points, weights, vertices, sample_rotations
     rots = np.asarray(sample_rotations, dtype=np.float64)
     X = np.asarray(sample_shapes, dtype=np.float64)
     if X.shape != (len(rots), len(vid), 3):
-        raise ValueError(f"sample_shapes must be (S, m, 3) = {(len(rots), len(vid), 3)}, got {X.shape}")
+        raise ValueError(f"sample_shapes must be (S, m, 3) = {(len(rots), len(vid), 3)}, "
+                         f"got {X.shape}")
     joints = np.asarray(joints, dtype=np.int64).ravel()
     disp = []
     for rq, x in zip(rots, X):

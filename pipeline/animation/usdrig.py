@@ -14,7 +14,7 @@ transposed on the way out.  ``GfQuatf`` is stored as ``(x, y, z, w)``; ours are 
 from __future__ import annotations
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+from pxr import Gf, Sdf, UsdGeom, UsdSkel, Vt
 
 from .skinning import Skeleton, matrix_to_quat, quat_multiply, quat_normalize, bind_transforms
 
