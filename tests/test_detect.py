@@ -1,0 +1,359 @@
+"""Collision detection: broad phase, inside tests, rewound contacts, ray casts, residuals.
+
+Run ``python tests/test_detect.py`` for the timings quoted in docs/detection.md.
+"""
+
+import sys
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+from acra import hspline as H
+from acra import shapes
+from pipeline import detect as D
+from pipeline.model import ColliderModel
+
+# A box: vertex 4x + 2y + z has coordinate -1/+1 per bit; 12 triangles wound outward.
+BOX_VERTICES = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+BOX_TRIANGLES = np.array([
+    [0, 1, 3], [0, 3, 2],  # -x
+    [4, 6, 7], [4, 7, 5],  # +x
+    [0, 4, 5], [0, 5, 1],  # -y
+    [2, 3, 7], [2, 7, 6],  # +y
+    [0, 2, 6], [0, 6, 4],  # -z
+    [1, 5, 7], [1, 7, 3],  # +z
+])
+
+
+def box(half, path="/box"):
+    return D.prepare_collider(ColliderModel(path, BOX_VERTICES * half, BOX_TRIANGLES))
+
+
+def move(x=0.0, y=0.0, z=0.0):
+    m = np.eye(4)
+    m[:3, 3] = (x, y, z)
+    return m
+
+
+def sphere_geom(xform=None, name="/sphere"):
+    return D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14)), move() if xform is None else xform, name)
+
+
+def sheet_geom(n=10, width=7.0):
+    return D.SurfaceGeometry(H.from_grid(*shapes.sheet(n, n, width=width, depth=width)), move(), "/sheet")
+
+
+def inradius(geom, centre):
+    """Smallest distance from ``centre`` to the faces of ``geom``'s full mesh (brute force)."""
+    fm = D.full_mesh(geom)
+    c = np.asarray(centre, float) - fm.origin
+    tri = fm.mesh.triangles
+    return np.linalg.norm(trimesh.triangles.closest_point(tri, np.tile(c, (len(tri), 1))) - c, axis=1).min()
+
+
+def assert_finite(contact):
+    for name in ("uv_a", "uv_b", "local_b", "point_a", "point_b"):
+        x = getattr(contact, name)
+        assert x is None or np.all(np.isfinite(x)), name
+    for reg in (contact.region_a, contact.region_b):
+        assert np.all(np.isfinite(reg.points)) and np.all(np.isfinite(reg.depth))
+    assert np.isfinite(contact.depth) and np.isfinite(contact.t_contact)
+
+
+def test_box_mesh_is_closed_and_outward():
+    mesh = trimesh.Trimesh(BOX_VERTICES, BOX_TRIANGLES)
+    assert mesh.is_watertight and mesh.volume == pytest.approx(8.0)
+    assert box(1.0).closed
+
+
+@pytest.mark.parametrize("maker,closed", [(shapes.sphere, True), (shapes.torus, True), (shapes.tube, False), (shapes.sheet, False)])
+def test_full_mesh_is_watertight_exactly_for_closed_objects(maker, closed):
+    cvs, pu, pv = maker(8, 8)
+    g = D.SurfaceGeometry(H.from_grid(cvs, pu, pv), move(1.0, 2.0, 3.0))
+    assert D.is_closed(g) == closed
+    fm = D.full_mesh(g)
+    assert fm.closed == closed and fm.mesh.is_watertight == closed  # topology test agrees with the mesh
+    if closed:
+        assert fm.mesh.volume > 0
+
+
+def test_patch_density_follows_refinement():
+    hs = H.from_grid(*shapes.sheet(8, 8, width=5.0, depth=5.0), depth=5)
+    hs = H.refine(hs, 3, [[10, 10]])  # inside level-0 patch (1, 1)
+    g = D.SurfaceGeometry(hs, move())
+    dens = D.patch_density(g)
+    assert dens[1, 1] == 16 and dens.sum() == 8 * (dens.size - 1) + 16
+    tess = D.tessellate(g, [[1, 1], [0, 0]])
+    assert tess.points.shape == (17 * 17 + 9 * 9, 3) and tess.triangles.shape == (2 * 256 + 2 * 64, 3)
+    np.testing.assert_allclose(tess.points, H.evaluate(hs, tess.uv[:, 0], tess.uv[:, 1]).points, atol=1e-14)
+
+
+def test_broad_phase_tessellates_only_patches_near_the_box():
+    # 17 x 17 patches of unit size; a patch's control hull spans CVs p..p+3, i.e. x in
+    # [x0 + (p - 1), x0 + (p + 2)]: a box of half-size 0.1 at the corner x0 meets patches 0, 1.
+    g = sheet_geom(n=20, width=17.0)
+    b = D.ColliderGeometry(box(0.1), move(-8.5, -8.5, 0.0))
+    c = D.detect_pair(g, b)
+    assert c is not None and c.region_a.points.shape == (1, 3)  # the sheet's corner vertex
+    np.testing.assert_allclose(c.region_a.points[0], [-8.5, -8.5, 0.0], atol=1e-12)
+    assert c.depth == pytest.approx(0.1, abs=1e-12)
+    np.testing.assert_array_equal(D.tessellated(g), [[0, 0], [0, 1], [1, 0], [1, 1]])
+    assert "_full" not in g.__dict__  # the open sheet's full grid was never built
+    # two spheres far apart: nothing is tessellated at all
+    s1, s2 = sphere_geom(), sphere_geom(move(2.5, 0.3, 0.0), "/s2")
+    assert D.detect_pair(s1, s2) is None
+    assert D.tessellated(s1).size == 0 and D.tessellated(s2).size == 0
+
+
+def test_box_wholly_inside_sphere_is_detected_without_fcl_contact():
+    s = sphere_geom()
+    b = D.ColliderGeometry(box(0.2), move(0.1, -0.05, 0.08))
+    assert D.intersect(s, b).count == 0  # fcl sees no crossing surfaces
+    assert D.touching(s, b)
+    c = D.detect_pair(s, b)
+    assert c is not None and c.region_a.empty and c.region_b.points.shape == (8, 3)
+    corners = BOX_VERTICES * 0.2 + [0.1, -0.05, 0.08]
+    r = np.linalg.norm(c.region_b.points, axis=1)
+    np.testing.assert_allclose(np.sort(r), np.sort(np.linalg.norm(corners, axis=1)), atol=1e-15)
+    # depth to the tessellation lies between the inscribed and the unit sphere's
+    r_in = inradius(s, [0, 0, 0])
+    assert 1.0 - r_in < 1e-3
+    assert np.all(c.region_b.depth <= 1.0 - r + 1e-12) and np.all(c.region_b.depth >= r_in - r - 1e-12)
+    # fallback contact: the deepest box corner and its closest sphere point (radially outward)
+    assert not c.rewound and c.uv_b is None
+    i = np.argmax(c.region_b.depth)
+    np.testing.assert_array_equal(c.point_b, c.region_b.points[i])
+    np.testing.assert_allclose(c.local_b, c.point_b - [0.1, -0.05, 0.08], atol=1e-15)
+    assert abs(np.linalg.norm(c.point_a) - 1.0) < 1e-4
+    assert np.dot(c.point_a, c.point_b) / np.linalg.norm(c.point_b) > 0.999
+    assert_finite(c)
+
+
+def test_sphere_wholly_inside_collider_has_exact_depths():
+    s = D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14, radii=(0.3, 0.3, 0.3), center=(0.1, 0.0, 0.0))), move(0.0, 0.2, 0.0))
+    b = D.ColliderGeometry(box(1.0), move(0.0, 0.2, 0.0))
+    assert D.intersect(s, b).count == 0
+    c = D.detect_pair(s, b)
+    assert c is not None and c.region_b.empty
+    # every vertex is inside; a point inside a box is as deep as its nearest face plane
+    all_uv = D.tessellate(s, np.argwhere(np.ones((16, 11), bool))).uv
+    assert len(c.region_a.points) == len(np.unique(D._wrap_uv(s.surface, all_uv), axis=0))
+    local = c.region_a.points - [0.0, 0.2, 0.0]
+    np.testing.assert_allclose(c.region_a.depth, (1.0 - np.abs(local)).min(axis=1), atol=1e-12)
+    # fallback: P_B is the deepest vertex's foot on the nearest face
+    assert not c.rewound
+    assert np.abs(c.local_b).max() == pytest.approx(1.0, abs=1e-12)
+    assert np.linalg.norm(c.point_b - c.point_a) == pytest.approx(c.depth, abs=1e-12)
+    assert_finite(c)
+
+
+def jump_motion(sheet, collider):
+    """Box above the sheet until t = 10, 70 % through it from t = 11 on, linear in between."""
+
+    def geometry_at(t):
+        z = 0.7 + (-0.2 - 0.7) * float(np.clip(t - 10.0, 0.0, 1.0))
+        return sheet, D.ColliderGeometry(collider, move(0.3, 0.2, z))
+
+    return geometry_at
+
+
+def test_deep_jump_is_pushed_back_the_way_it_came():
+    sheet, collider = sheet_geom(), box(0.5)
+    geometry_at = jump_motion(sheet, collider)
+    cache = D.RewindCache()
+    results = {}
+    for t in (11.0, 14.0):
+        ga, gb = geometry_at(t)
+        c = D.detect_pair(ga, gb, t, geometry_at, start=0.0, cache=cache)
+        assert c is not None and c.rewound and c.region_b.empty  # the open sheet has no inside
+        # first touch when the bottom face (z = 0.2 - 0.9 (t - 10)) reaches the sheet
+        assert 10.0 + 2.0 / 9.0 - 1e-12 <= c.t_contact <= 10.0 + 2.0 / 9.0 + 2.0**-12
+        # the contact is on the box's bottom face, near its centre, the side it came from
+        assert c.local_b[2] == pytest.approx(-0.5, abs=1e-9)
+        assert np.abs(c.local_b[:2]).max() < 0.1
+        np.testing.assert_allclose(c.point_a, [0.3 + c.local_b[0], 0.2 + c.local_b[1], 0.0], atol=1e-9)
+        np.testing.assert_allclose(c.point_b, [0.3 + c.local_b[0], 0.2 + c.local_b[1], -0.7], atol=1e-9)
+        # the sheet must move with the box's motion (-z), to its bottom face, not through it
+        push = (c.point_b - c.point_a) / np.linalg.norm(c.point_b - c.point_a)
+        assert push @ [0.0, 0.0, -1.0] > 1.0 - 1e-9
+        hits, valid = D.cast(gb, c.region_a.points, np.broadcast_to(push, c.region_a.points.shape))
+        assert valid.all()
+        np.testing.assert_allclose(hits[:, 2], -0.7, atol=1e-9)
+        assert np.all(hits[:, 2] < c.region_a.points[:, 2])
+        results[t] = c
+    assert results[11.0].t_contact == results[14.0].t_contact
+    np.testing.assert_array_equal(results[11.0].local_b, results[14.0].local_b)
+    assert len(cache.anchors) == 1  # frame 14 reused the search of frame 11
+    # without rewinding, the deepest point's nearest face is the top one: it would push through
+    c = D.detect_pair(*geometry_at(11.0), 11.0)
+    assert not c.rewound and c.depth == pytest.approx(0.3, abs=1e-12)
+    assert c.point_b[2] - c.point_a[2] == pytest.approx(0.3, abs=1e-12)
+
+
+def test_collision_at_the_first_frame_falls_back_to_the_deepest_point():
+    sheet, collider = sheet_geom(), box(0.5)
+    geometry_at = jump_motion(sheet, collider)
+    c = D.detect_pair(*geometry_at(11.0), 11.0, geometry_at, start=11.0)
+    assert not c.rewound and c.t_contact == 11.0
+    assert c.point_a[2] == pytest.approx(0.0, abs=1e-12) and c.point_b[2] == pytest.approx(0.3, abs=1e-12)
+
+
+@pytest.mark.parametrize("rewind", [False, True])
+def test_grazing_contact(rewind):
+    s, collider = sphere_geom(), box(1.0)
+    depth = 1e-6 * 2.0  # of the sphere's diameter
+
+    def geometry_at(t):
+        z = 3.0 + (2.0 - depth - 3.0) * float(np.clip(t - 10.0, 0.0, 1.0))
+        return s, D.ColliderGeometry(collider, move(0.0, 0.0, z))
+
+    c = D.detect_pair(*geometry_at(11.0), 11.0, geometry_at if rewind else None, start=0.0)
+    assert c is not None  # the pole vertex is exactly at z = 1
+    assert_finite(c)
+    assert c.depth == pytest.approx(depth, abs=1e-12)
+    np.testing.assert_allclose(c.point_a, [0.0, 0.0, 1.0], atol=1e-9)
+    if rewind:
+        assert c.rewound and 11.0 - 2.0**-12 <= c.t_contact <= 11.0
+        assert abs(c.local_b[2] + 1.0) < 1e-9
+    else:
+        assert c.point_b[2] == pytest.approx(1.0 - depth, abs=1e-12)
+
+
+@pytest.mark.parametrize("rewind", [False, True])
+def test_coplanar_face_on_the_sheet_gives_finite_output(rewind):
+    sheet, collider = sheet_geom(), box(0.5)
+    gb = D.ColliderGeometry(collider, move(0.3, 0.2, 0.5))  # bottom face lies on the sheet
+    assert D.touching(sheet, gb)
+    c = D.detect_pair(sheet, gb, 5.0, (lambda t: (sheet, gb)) if rewind else None, start=0.0)
+    assert c is not None and not c.rewound  # always touching: no earlier free time
+    assert_finite(c)
+    assert c.depth <= 1e-12 and c.intersections.count > 0
+    assert abs(c.point_a[2]) < 1e-12 and abs(c.point_b[2]) < 1e-12
+
+
+def analytic_hits(origins, dirs, radius):
+    b = np.einsum("ij,ij->i", origins, dirs)
+    return -b + np.sqrt(b * b - np.einsum("ij,ij->i", origins, origins) + radius * radius)
+
+
+@pytest.mark.parametrize("kind", ["hspline", "icosphere"])
+def test_ray_casts_hit_the_unit_sphere(kind):
+    if kind == "hspline":
+        g = sphere_geom()
+        r_in = inradius(g, [0, 0, 0])
+    else:
+        ico = trimesh.creation.icosphere(subdivisions=5)
+        g = D.ColliderGeometry(D.prepare_collider(ColliderModel("/ico", ico.vertices, ico.faces)), move())
+        r_in = np.abs(np.einsum("ij,ij->i", ico.face_normals, ico.triangles[:, 0])).min()
+    assert 1.0 - r_in < 1e-3
+    rng = np.random.default_rng(7)
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    origins = rng.uniform(-0.3, 0.3, size=(200, 3))
+    hits, valid = D.cast(g, origins, 3.0 * dirs)
+    assert valid.all()
+    s = np.einsum("ij,ij->i", hits - origins, dirs)
+    np.testing.assert_allclose(hits, origins + s[:, None] * dirs, atol=1e-9)  # on the ray
+    # the tessellation lies in the shell r_in <= |x| <= 1: the hit is where the ray crosses it
+    assert np.all(s >= analytic_hits(origins, dirs, r_in) - 1e-9)
+    assert np.all(s <= analytic_hits(origins, dirs, 1.0) + 1e-9)
+    # just outside, pointing away: the surface just behind counts; farther out it does not
+    out = dirs[:5] * np.array([1.001, 1.001, 1.2, 1.2, 1.2])[:, None]
+    hits, valid = D.cast(g, out, dirs[:5])
+    np.testing.assert_array_equal(valid, [True, True, False, False, False])
+    assert np.all(np.linalg.norm(hits[:2], axis=1) <= 1.0 + 1e-12)
+    np.testing.assert_array_equal(hits[2:], out[2:])
+    # just inside, pointing inward: the exit is on the far side, not the entry behind
+    hits, valid = D.cast(g, 0.9995 * dirs[:5], -dirs[:5])
+    assert valid.all() and np.all(np.einsum("ij,ij->i", hits, dirs[:5]) < -0.99)
+
+
+def test_residual_separated_and_analytic_overlaps():
+    s = sphere_geom()
+    far = D.ColliderGeometry(box(0.3), move(0.0, 0.0, 1.5))
+    assert D.residual(s, far) == D.Residual(0.0, 0.0, 0)
+    # a wide box pressed 0.1 onto the north pole: each cap vertex is as deep as its height
+    cap = D.ColliderGeometry(box(2.0), move(0.0, 0.0, 2.9))
+    res = D.residual(s, cap)
+    ra, _ = D.regions(s, cap)
+    assert res.max == pytest.approx(0.1, abs=1e-12)  # the pole is exactly at z = 1
+    np.testing.assert_allclose(ra.depth, ra.points[:, 2] - 0.9, atol=1e-12)
+    assert res.count == len(ra.points) > 0 and res.mean == pytest.approx(np.mean(ra.points[:, 2] - 0.9), abs=1e-12)
+    # two unit spheres 1.5 apart overlap by 0.5: bounded by the inscribed and the true sphere
+    other = sphere_geom(move(0.0, 0.0, 1.5), "/other")
+    res = D.residual(s, other)
+    gap = 1.0 - inradius(other, [0.0, 0.0, 1.5])
+    assert 0.5 - gap - 1e-12 <= res.max <= 0.5 + 1e-12 and gap < 1e-3
+    ra, rb = D.regions(s, other)
+    assert len(ra.points) == len(rb.points) > 0  # symmetric configuration
+    assert res.count == len(ra.points) + len(rb.points)
+    assert D.default_tolerance(s, cap) == pytest.approx(1e-3 * s.size)
+
+
+def test_projection_is_a_true_closest_point_on_a_refined_surface():
+    from conftest import wavy_sheet, with_random_offsets
+
+    hs = with_random_offsets(H.make_movable(wavy_sheet(depth=3), 2, [[6, 6]]), scale=0.1)
+    rot = trimesh.transformations.rotation_matrix(0.4, [1.0, 2.0, 0.5])
+    g = D.SurfaceGeometry(hs, rot @ move(0.5, 0.0, 0.2))
+    rng = np.random.default_rng(3)
+    uv = rng.uniform([1.0, 1.0], [4.0, 3.0], size=(40, 2))
+    ev = D.surface_points(g, uv, order=1)
+    n = np.cross(ev.du, ev.dv)
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    offset = 0.05 * rng.uniform(-1, 1, size=40)
+    targets = ev.points + offset[:, None] * n
+    pr = D.project(g, targets)
+    ev = D.surface_points(g, pr.uv, order=1)
+    r = targets - ev.points
+    for t in (ev.du, ev.dv):  # first-order optimality: the offset is normal to the surface
+        assert np.all(np.abs(np.einsum("ij,ij->i", r, t)) <= 1e-10 * np.linalg.norm(t, axis=1))
+    assert np.all(pr.distance <= np.abs(offset) + 1e-12)  # no farther than the point it came from
+    np.testing.assert_allclose(pr.points, D.surface_points(g, pr.uv).points, atol=1e-15)
+
+
+# --------------------------------------------------------------------------------------------
+# timings (python tests/test_detect.py)
+
+
+def _median_ms(fn, runs=7):
+    out = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(out))
+
+
+def benchmark():
+    collider = box(0.3)
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    pairs = {
+        "sphere 16x14 vs box (12 tri), 0.1 deep": lambda z=1.2: (D.SurfaceGeometry(hs, move()), D.ColliderGeometry(collider, move(0.0, 0.0, z))),
+        "sphere 16x14 vs sphere 16x14, 0.1 deep": lambda z=1.9: (D.SurfaceGeometry(hs, move()), D.SurfaceGeometry(hs, move(0.0, 0.0, z))),
+    }
+    rays = np.random.default_rng(0).normal(size=(100, 3))
+    for name, pair in pairs.items():
+        start_z = 1.2 + 0.4 if "box" in name else 1.9 + 0.4
+        end_z = 1.2 if "box" in name else 1.9
+
+        def geometry_at(t, pair=pair, a=start_z, b=end_z):
+            return pair(a + (b - a) * float(np.clip(t - 10.0, 0.0, 1.0)))
+
+        rows = {
+            "detect_pair (fallback, fresh geometry)": lambda: D.detect_pair(*pair(), 11.0),
+            "detect_pair (rewound, fresh cache)": lambda: D.detect_pair(*pair(), 11.0, geometry_at, start=0.0),
+            "residual (fresh geometry)": lambda: D.residual(*pair()),
+            "cast 100 rays onto B (fresh geometry)": lambda: D.cast(pair()[1], rays * 0.1 + [0, 0, 1.0], rays),
+            "touching (fresh geometry)": lambda: D.touching(*pair()),
+        }
+        print(name)
+        for label, fn in rows.items():
+            print(f"  {label:42s} {_median_ms(fn):8.1f} ms")
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, __file__.rsplit("/", 1)[0])
+    benchmark()
