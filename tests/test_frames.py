@@ -55,3 +55,18 @@ def test_bad_input_exits_nonzero_with_one_line_and_writes_nothing(tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and "/M" in err[0] and "acra:cvs" in err[0]
     assert not (tmp_path / "bad.acra.usda").exists()
+
+
+def test_rrd_reads_back_with_meshes_on_the_frame_timeline(tmp_path):
+    from rerun.chunk import RrdReader
+
+    scene = tmp_path / "box_into_sheet.py"
+    shutil.copy(SCENE, scene)
+    rrd = tmp_path / "box.rrd"
+    assert main(["run", str(scene), "--quiet", "--frames", "9:12", "--rrd", str(rrd)]) == 0
+    chunks = list(RrdReader(str(rrd)).stream().to_chunks())
+    paths = {c.entity_path for c in chunks}
+    assert {"/world/World/Sheet", "/metrics/residual_rel", "/metrics/ms_frame", "/contacts"} <= paths
+    temporal = [c for c in chunks if c.entity_path == "/world/World/Sheet" and not c.is_static]
+    assert temporal and "frame" in temporal[0].to_record_batch().schema.names
+    assert any(c.is_static for c in chunks if c.entity_path == "/world/World/Sheet")
