@@ -31,47 +31,33 @@ __all__ = [
     "ColliderStatic", "prepare_collider", "SurfaceGeometry", "ColliderGeometry", "Geometry",
     "FullMesh", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
-    "full_mesh", "is_closed", "intersect", "inside", "surface_distance", "project", "regions",
-    "touching", "rewind", "detect_pair", "residual", "cast", "default_tolerance",
+    "full_mesh", "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
+    "regions", "touching", "rewind", "detect_pair", "residual", "cast", "default_tolerance",
 ]
 
 _MAX_CONTACTS = 1_000_000
 _COLLAPSE = 1e-12  # a grid line within this fraction of the object size is one point (a pole)
 _PAD = 1e-7  # box padding, fraction of the pair's size: exactly touching boxes still overlap
-# measured costs (µs) that choose between kd-tree candidates and an fcl BVH for closest points
-_US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0
+_US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see _Closest
 
 
-# --------------------------------------------------------------------------------------------
-# closest points on a triangle set
-
-
+# --- closest points on a triangle set ---------------------------------------------------------
 class _Closest:
-    """Exact closest points on a triangle set.
-
-    The closest point is no farther than the nearest vertex (``d_v``), so its triangle has its
-    centroid within ``d_v + reach`` (``reach``: the largest centroid-to-corner distance) and lies
-    in the box of the query points grown by ``max d_v``. Points near the surface test the
-    triangles of that ball (kd-trees); deep points, whose ball holds much of a curved surface,
-    query an fcl BVH (about 20 µs each) of the triangles in that box, whichever is cheaper by
-    the measured costs. A collider passes its run-long BVH.
-    """
+    """Exact closest points on triangles. The closest point is no farther than the nearest vertex
+    (``d_v``), so its triangle's centroid is within ``d_v + reach`` (the largest centroid-corner
+    distance): near points test that ball's triangles (kd-trees); deep points, whose ball covers
+    much of a curved surface, query an fcl BVH of the triangles within ``d_v``, if cheaper."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh: fcl.CollisionObject | None = None) -> None:
         self.vertices, self.faces, self.bvh = vertices, faces, bvh
         self.tri = vertices[faces]  # (f, 3, 3)
-        cen = self.tri.mean(axis=1)
-        self.reach = float(np.linalg.norm(self.tri - cen[:, None], axis=2).max()) if len(cen) else 0.0
+        self._cen = self.tri.mean(axis=1)
+        self.reach = float(np.linalg.norm(self.tri - self._cen[:, None], axis=2).max()) if len(faces) else 0.0
         self.vtree = cKDTree(vertices[np.unique(faces)])
-        self._cen = cen
 
     @cached_property
     def ctree(self) -> cKDTree:
         return cKDTree(self._cen)
-
-    @cached_property
-    def tri_box(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.tri.min(axis=1), self.tri.max(axis=1)
 
     def query(self, points: np.ndarray):
         """Distances ``(k,)``, closest points ``(k, 3)`` and face rows ``(k,) int64``."""
@@ -84,10 +70,10 @@ class _Closest:
         ball = dv <= 2.0 * self.reach
         deep = np.nonzero(~ball)[0]
         bvh, rows = self.bvh, None
-        if len(deep) and bvh is None:  # a BVH of the triangles in reach, if that is cheaper
+        if len(deep) and bvh is None:  # a BVH of the triangles in reach, if cheaper than balls
             grow = dv[deep].max() * (1 + 1e-9)
             lo, hi = points[deep].min(axis=0) - grow, points[deep].max(axis=0) + grow
-            rows = np.nonzero(_overlap(*self.tri_box, lo, hi, 0.0))[0]
+            rows = np.nonzero(_overlap(self.tri.min(axis=1), self.tri.max(axis=1), lo, hi, 0.0))[0]
             pairs = self.ctree.query_ball_point(points[deep], radius[deep], return_length=True).sum()
             ball[deep] = pairs * _US_PAIR < _US_BVH_FACE * len(rows) + _US_FCL_QUERY * len(deep)
             if not ball[deep].all():
@@ -120,23 +106,12 @@ def _bvh(vertices: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:
     return fcl.CollisionObject(model, fcl.Transform())
 
 
-def _corners_box(xform: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World boxes of object-space boxes ``(..., 3)``: their 8 corners mapped by ``xform``."""
-    sel = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], bool)  # (8, 3)
-    corners = np.where(sel, hi[..., None, :], lo[..., None, :])  # (..., 8, 3)
-    world = apply_xform(xform, corners.reshape(-1, 3)).reshape(corners.shape)
-    return world.min(axis=-2), world.max(axis=-2)
-
-
 def _overlap(lo_a, hi_a, lo_b, hi_b, pad: float) -> np.ndarray:
     """Whether boxes overlap (broadcast over leading axes)."""
     return np.all((lo_a <= hi_b + pad) & (lo_b <= hi_a + pad), axis=-1)
 
 
-# --------------------------------------------------------------------------------------------
-# static collider data (once per run) and per-time geometry
-
-
+# --- static collider data (once per run) and per-time geometry --------------------------------
 @dataclass(frozen=True, eq=False)
 class ColliderStatic:
     """A collider's run-constant data in its object space: merged non-degenerate ``mesh`` (its
@@ -219,17 +194,15 @@ class FullMesh:
 
 @dataclass(frozen=True, eq=False)
 class SurfaceGeometry:
-    """A deformable at one time: object-space surface, ``xform (4, 4)``, collision density.
-
-    Everything derived (details, world patch boxes, patch tessellations, the full mesh) is built
-    lazily and kept on the instance, so several pairs sharing an object share the work.
-    """
+    """A deformable at one time: object-space ``surface``, ``xform (4, 4)``, collision density.
+    All derived data is built lazily and kept here, so pairs sharing an object share the work."""
 
     surface: HSpline
     xform: np.ndarray
     name: str = ""
     density: int = 8
     max_density: int = 64
+    _patch_cache: dict = field(default_factory=dict, init=False, repr=False)
 
     @cached_property
     def details(self) -> H.Details | None:
@@ -237,9 +210,12 @@ class SurfaceGeometry:
 
     @cached_property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """World boxes of every level-0 patch: ``lo, hi`` each ``(P0u, P0v, 3)``."""
+        """World boxes ``lo, hi`` ``(P0u, P0v, 3)`` of the level-0 patches: hull boxes' 8 corners mapped."""
         lo, hi = patch_hulls(self.surface, self.details)
-        return _corners_box(self.xform, lo, hi)
+        sel = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], bool)  # (8, 3)
+        corners = np.where(sel, hi[..., None, :], lo[..., None, :])  # (P0u, P0v, 8, 3)
+        world = apply_xform(self.xform, corners.reshape(-1, 3)).reshape(corners.shape)
+        return world.min(axis=-2), world.max(axis=-2)
 
     @cached_property
     def bounds(self) -> np.ndarray:
@@ -252,20 +228,9 @@ class SurfaceGeometry:
         return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
 
     @cached_property
-    def _patch_cache(self) -> dict:
-        return {}
-
-    @cached_property
-    def _full(self) -> FullMesh:
-        return _build_full_mesh(self)
-
-    @cached_property
     def closed(self) -> bool:
-        """Periodic both ways, or one way with both ends of the other collapsed (poles).
-
-        A cubic is fixed by 4 points per segment, so 4 coincident samples per patch along an end
-        line mean the whole line collapses.
-        """
+        """Periodic both ways, or one way with both ends of the other collapsed (poles); a cubic is
+        fixed by 4 points per segment, so 4 coincident samples per patch make an end one point."""
         hs = self.surface
         if hs.u.periodic == hs.v.periodic:
             return hs.u.periodic
@@ -273,27 +238,27 @@ class SurfaceGeometry:
         run = np.arange(4 * per.patches0) / 4.0
         for e in (0.0, float(end.patches0)):
             uv = (run, np.full_like(run, e)) if hs.u.periodic else (np.full_like(run, e), run)
-            line = H.evaluate(hs, *uv, det=self.details).points
-            if np.ptp(line, axis=0).max() > _COLLAPSE * max(hs.size(), 1e-300):
+            if np.ptp(H.evaluate(hs, *uv, det=self.details).points, axis=0).max() > _COLLAPSE * hs.size():
                 return False
         return True
+
+    @cached_property
+    def _full(self) -> FullMesh:
+        return _build_full_mesh(self)
 
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
 
 
 def patch_density(geom: SurfaceGeometry) -> np.ndarray:
-    """Steps per edge of each level-0 patch: ``(P0u, P0v) int64``.
-
-    ``max(density, 2 * 2**k)`` with ``k`` the finest level that has an active patch inside the
-    level-0 patch, capped at ``max_density``.
-    """
+    """Steps per edge of each level-0 patch ``(P0u, P0v) int64``: ``max(density, 2 * 2**k)``, ``k``
+    the finest level with an active patch inside it, capped at ``max_density``."""
     hs = geom.surface
     finest = np.zeros((hs.u.patches0, hs.v.patches0), np.int64)
     for lev in hs.fine:
         if lev.patches.size:
             npv = hs.v.patches(lev.k)
-            finest[lev.patches // npv >> lev.k, lev.patches % npv >> lev.k] = lev.k
+            finest[(lev.patches // npv) >> lev.k, (lev.patches % npv) >> lev.k] = lev.k
     return np.minimum(np.maximum(geom.density, 2 * (1 << finest)), geom.max_density)
 
 
@@ -311,33 +276,26 @@ def _grid_triangles(s: int) -> np.ndarray:
 
 
 def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
-    """Collision grids over level-0 ``patches (m, 2) int64``, each at its `patch_density`.
-
-    Grids are cached per patch on ``geom``; neighbouring grids of different density meet with
-    T-junctions (gaps of the order of the tessellation error), which fcl tolerates.
-    """
+    """Collision grids over level-0 ``patches (m, 2) int64`` at their `patch_density`, cached per
+    patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error)."""
     patches = np.unique(np.asarray(patches, np.int64).reshape(-1, 2), axis=0)
-    cache = geom._patch_cache
-    dens = patch_density(geom)
+    cache, dens = geom._patch_cache, patch_density(geom)
     missing = np.array([p for p in patches if (p[0], p[1]) not in cache], np.int64).reshape(-1, 2)
-    if len(missing):
-        sm = dens[missing[:, 0], missing[:, 1]]
-        for s in np.unique(sm):
-            sel = missing[sm == s]
-            pts, uv, _, _ = patch_grids(geom.surface, sel, int(s), det=geom.details)
-            pts = apply_xform(geom.xform, pts)
-            n = (int(s) + 1) ** 2
-            for r, p in enumerate(sel):
-                cache[(p[0], p[1])] = (pts[r * n:(r + 1) * n], uv[r * n:(r + 1) * n], int(s))
-    pts, uvs, tris, tp, base = [], [], [], [], 0
-    for p in patches:
-        q, uv, s = cache[(p[0], p[1])]
-        t = _grid_triangles(s)
-        pts.append(q), uvs.append(uv), tris.append(t + base), tp.append(np.broadcast_to(p, (len(t), 2)))
-        base += len(q)
+    steps = dens[missing[:, 0], missing[:, 1]]
+    for s in np.unique(steps):
+        sel, n = missing[steps == s], (int(s) + 1) ** 2
+        pts, uv, _, _ = patch_grids(geom.surface, sel, int(s), det=geom.details)
+        pts = apply_xform(geom.xform, pts)
+        for r, p in enumerate(sel):
+            cache[(p[0], p[1])] = (pts[r * n:(r + 1) * n], uv[r * n:(r + 1) * n], _grid_triangles(int(s)))
     if not len(patches):
         return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
-    return Tessellation(np.concatenate(pts), np.concatenate(uvs), np.concatenate(tris), np.concatenate(tp))
+    grids = [cache[(p[0], p[1])] for p in patches]
+    base = np.cumsum([0] + [len(g[0]) for g in grids[:-1]])
+    return Tessellation(
+        np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]),
+        np.concatenate([g[2] + b for g, b in zip(grids, base)]),
+        np.repeat(patches, [len(g[2]) for g in grids], axis=0))
 
 
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:
@@ -345,19 +303,15 @@ def tessellated(geom: SurfaceGeometry) -> np.ndarray:
     return np.array(sorted(geom._patch_cache), np.int64).reshape(-1, 2)
 
 
+def full_mesh(geom: SurfaceGeometry) -> FullMesh:
+    """The whole surface as one mesh (cached), watertight if closed: a rectilinear grid as fine as
+    the densest patch of each patch column (row); poles merged into one vertex, seams shared."""
+    return geom._full
+
+
 def _axis(d: Direction, steps: np.ndarray) -> np.ndarray:
     """Vertex parameters along one direction with ``steps[p]`` steps in patch ``p``, end included."""
     return np.concatenate([p + np.arange(s) / s for p, s in enumerate(steps)] + [[float(d.patches0)]])
-
-
-def full_mesh(geom: SurfaceGeometry) -> FullMesh:
-    """The whole surface as one mesh (cached on ``geom``): watertight for a closed object.
-
-    A rectilinear grid whose steps per patch column (row) are the largest `patch_density` in it,
-    so it is as fine as the patch grids wherever they are used. Grid lines that collapse to one
-    point (a pole) are merged into one vertex; the periodic seam is shared.
-    """
-    return geom._full
 
 
 def _build_full_mesh(geom: SurfaceGeometry) -> FullMesh:
@@ -366,25 +320,22 @@ def _build_full_mesh(geom: SurfaceGeometry) -> FullMesh:
     cu, cv = len(au) - hs.u.periodic, len(av) - hs.v.periodic  # distinct vertex lines
     uu, vv = np.meshgrid(au[:cu], av[:cv], indexing="ij")
     obj = H.evaluate(hs, uu.reshape(-1), vv.reshape(-1), det=geom.details).points
-    rep = np.arange(cu * cv).reshape(cu, cv)
-    tol = _COLLAPSE * max(hs.size(), 1e-300)
-    grid = obj.reshape(cu, cv, 3)
-    for j in np.nonzero(np.ptp(grid, axis=0).max(axis=-1) <= tol)[0]:  # a v-row collapsed (pole)
+    grid, rep = obj.reshape(cu, cv, 3), np.arange(cu * cv).reshape(cu, cv)
+    tol = _COLLAPSE * hs.size()
+    for j in np.nonzero(np.ptp(grid, axis=0).max(axis=-1) <= tol)[0]:  # a line of constant v is a pole
         rep[:, j] = rep[0, j]
     for i in np.nonzero(np.ptp(grid, axis=1).max(axis=-1) <= tol)[0]:
         rep[i, :] = rep[i, 0]
-    i = np.arange(len(au) - 1)[:, None]
-    j = np.arange(len(av) - 1)[None, :]
-    idx = lambda a, b: rep[a % cu, b % cv]  # noqa: E731
-    quads = np.stack(np.broadcast_arrays(idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)), -1).reshape(-1, 4)
+    i, j = np.arange(len(au) - 1)[:, None], np.arange(len(av) - 1)[None, :]
+    quads = np.stack(np.broadcast_arrays(*(rep[a % cu, b % cv] for a, b in ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)))), -1)
     u0, v0, u1, v1 = np.broadcast_arrays(au[i], av[j], au[i + 1], av[j + 1])
-    quv = np.stack([np.stack(c, -1) for c in ((u0, v0), (u1, v0), (u1, v1), (u0, v1))], 2).reshape(-1, 4, 2)
+    quv = np.stack([np.stack(c, -1) for c in ((u0, v0), (u1, v0), (u1, v1), (u0, v1))], 2)
+    quads, quv = quads.reshape(-1, 4), quv.reshape(-1, 4, 2)
     faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     face_uv = np.concatenate([quv[:, [0, 1, 2]], quv[:, [0, 2, 3]]])
     keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    world = apply_xform(geom.xform, obj)
     origin = geom.bounds.mean(axis=0)
-    mesh = trimesh.Trimesh(world - origin, faces[keep], process=False)
+    mesh = trimesh.Trimesh(apply_xform(geom.xform, obj) - origin, faces[keep], process=False)
     return FullMesh(mesh, origin, geom.closed, face_uv[keep])
 
 
@@ -393,10 +344,7 @@ def is_closed(geom: Geometry) -> bool:
     return geom.static.closed if isinstance(geom, ColliderGeometry) else geom.closed
 
 
-# --------------------------------------------------------------------------------------------
-# narrow phase
-
-
+# --- narrow phase -------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Intersections:
     """Crossing triangle pairs (fcl): world contact ``points (k, 3)``; level-0 patch of ``A``'s
@@ -417,10 +365,6 @@ def _pad(ga: Geometry, gb: Geometry) -> float:
     return _PAD * max(ga.size, gb.size)
 
 
-def _no_intersections(collider: bool) -> Intersections:
-    return Intersections(np.zeros((0, 3)), np.zeros((0, 2), np.int64), None if collider else np.zeros((0, 2), np.int64), np.zeros(0, np.int64))
-
-
 def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
     return bool(_overlap(ga.bounds[0], ga.bounds[1], gb.bounds[0], gb.bounds[1], pad))
 
@@ -431,25 +375,24 @@ def _triangles_near(pa: np.ndarray, fa: np.ndarray, pb: np.ndarray, fb: np.ndarr
     keep = [np.ones(len(fa), bool), np.ones(len(fb), bool)]
     for _ in range(rounds):
         for me, other in ((0, 1), (1, 0)):
-            if not keep[other].any():
+            if keep[other].any():
+                lo, hi = boxes[other][0][keep[other]].min(axis=0), boxes[other][1][keep[other]].max(axis=0)
+                keep[me] &= _overlap(boxes[me][0], boxes[me][1], lo, hi, pad)
+            else:
                 keep[me][:] = False
-                continue
-            lo, hi = boxes[other][0][keep[other]].min(axis=0), boxes[other][1][keep[other]].max(axis=0)
-            keep[me] &= _overlap(boxes[me][0], boxes[me][1], lo, hi, pad)
     return np.nonzero(keep[0])[0], np.nonzero(keep[1])[0]
 
 
 def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
-    """Triangle pairs where the surfaces cross (touching and coplanar contact included).
-
-    Tessellates only the patches of ``A`` (and ``B``) whose boxes overlap the other object's box,
-    keeps those overlapping a patch box of the other side, and gives fcl only the triangles whose
-    boxes overlap the box of the other side's remaining triangles (so BVHs stay small).
-    """
+    """Triangle pairs where the surfaces cross or touch. Tessellates only patches whose boxes meet
+    the other object's box; ``A``'s triangles go into a collider's object space (crossing is
+    affine-invariant), where its BVH was built once."""
     collider = isinstance(gb, ColliderGeometry)
     pad = _pad(ga, gb)
+    empty = np.zeros((0, 2), np.int64)
+    none = Intersections(np.zeros((0, 3)), empty, None if collider else empty, np.zeros(0, np.int64))
     if not _boxes_overlap(ga, gb, pad):
-        return _no_intersections(collider)
+        return none
     ca = candidate_patches(ga, gb.bounds, pad)
     if not collider:
         cb = candidate_patches(gb, ga.bounds, pad)
@@ -458,16 +401,16 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
                       lb[cb[:, 0], cb[:, 1]][None], hb[cb[:, 0], cb[:, 1]][None], pad)
         ca, cb = ca[ov.any(axis=1)], cb[ov.any(axis=0)]
     if not len(ca):
-        return _no_intersections(collider)
+        return none
     ta = tessellate(ga, ca)
-    if collider:  # in the collider's object space, where its BVH was built once
-        pa, (pb, fb_all, ob) = apply_inverse(gb.xform, ta.points), (gb.static.mesh.vertices, gb.static.mesh.faces, gb.static.bvh)
+    if collider:
+        pa, pb, fb_all, ob = apply_inverse(gb.xform, ta.points), gb.static.mesh.vertices, gb.static.mesh.faces, gb.static.bvh
     else:
         tb = tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
     ka, kb = _triangles_near(pa, ta.triangles, pb, fb_all, pad)
     if not len(ka):
-        return _no_intersections(collider)
+        return none
     oa = _bvh(pa, ta.triangles[ka])
     if not collider:
         ob = _bvh(pb, fb_all[kb])
@@ -482,15 +425,10 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     return Intersections(pos, ta.tri_patch[fa], tb.tri_patch[kb[fb]], np.full(n, -1, np.int64))
 
 
-# --------------------------------------------------------------------------------------------
-# inside tests, distances, projections
-
-
+# --- inside tests, distances, projections -------------------------------------------------------
 def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
-    """Which world ``points (k, 3)`` lie inside ``geom``: ``(k,) bool`` (all False if open).
-
-    Ray parity on the watertight mesh (embree); points on the surface may go either way.
-    """
+    """Which world ``points (k, 3)`` lie inside ``geom``: ``(k,) bool``, all False if it is open.
+    Ray parity on the watertight mesh (embree); points on the surface may go either way."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if not len(points) or not is_closed(geom):
         return np.zeros(len(points), bool)
@@ -501,20 +439,15 @@ def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
 
 
 def surface_distance(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distance ``(k,)`` from world ``points (k, 3)`` to ``geom``'s surface, and the closest points.
-
-    Exact on the tessellation. For a collider the closest point is found in object space and
-    mapped to world: exact when the matrix is a similarity (rotation, uniform scale,
-    translation), an upper bound under non-uniform scale or shear.
-    """
+    """Distances ``(k,)`` from world ``points (k, 3)`` to ``geom``'s tessellated surface, and the
+    closest points ``(k, 3)``. A collider is queried in object space: exact for a similarity
+    matrix (rotation, uniform scale, translation), an upper bound under non-uniform scale."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if isinstance(geom, ColliderGeometry):
-        _, close, _ = geom.static.index.query(apply_inverse(geom.xform, points))
-        close = apply_xform(geom.xform, close)
+        close = apply_xform(geom.xform, geom.static.index.query(apply_inverse(geom.xform, points))[1])
     else:
         fm = full_mesh(geom)
-        _, close, _ = fm.index.query(points - fm.origin)
-        close = close + fm.origin
+        close = fm.index.query(points - fm.origin)[1] + fm.origin
     return np.linalg.norm(points - close, axis=1), close
 
 
@@ -538,34 +471,31 @@ def _wrap_uv(hs: HSpline, uv: np.ndarray) -> np.ndarray:
 
 
 def surface_points(geom: SurfaceGeometry, uv: np.ndarray, order: int = 0) -> H.SurfaceEval:
-    """World points (and world-space partial derivatives up to ``order``) at ``uv (k, 2)``."""
+    """World points and world-space partial derivatives up to ``order`` at ``uv (k, 2)``."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     ev = H.evaluate(geom.surface, uv[:, 0], uv[:, 1], order=order, det=geom.details)
-    L = geom.xform[:3, :3]
-    lin = {k: None if x is None else x @ L.T for k, x in vars(ev).items() if k != "points"}
+    lin = {k: None if x is None else x @ geom.xform[:3, :3].T for k, x in vars(ev).items() if k != "points"}
     return H.SurfaceEval(apply_xform(geom.xform, ev.points), **lin)
 
 
 def _newton(geom: SurfaceGeometry, targets: np.ndarray, uv: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray]:
-    """Newton on ``|S(u, v) - target|^2 / 2`` with full Hessian ``J^T J + r . S''``.
-
-    Gauss–Newton alone converges only linearly (rate depth / curvature radius) for points deep on
-    the concave side. The Hessian is shifted to stay positive; a step is kept if it gets closer,
-    or, once the distance is flat to rounding, if it shrinks the gradient ``J^T r``.
-    """
-    hs = geom.surface
-    uv = _wrap_uv(hs, uv)
+    """Newton on ``|S(u, v) - target|^2 / 2`` with the full Hessian ``J^T J + r . S''`` (Gauss–Newton
+    is only linear, rate depth / curvature radius, deep on the concave side), shifted positive; a
+    step is kept if it gets closer or, the distance flat to rounding, shrinks the gradient."""
+    hs, uv = geom.surface, _wrap_uv(geom.surface, uv)
     ev = surface_points(geom, uv, order=2)
     r = ev.points - targets
     dist = np.linalg.norm(r, axis=1)
-    cap = 0.5 / geom.density  # stay within the tessellation cell the start came from
+    cap = 0.5 / geom.density  # stay near the tessellation cell the start came from
+    flat_tol = 1e-14 * (np.abs(targets).max(axis=1) + geom.size)  # rounding of |r|
 
     def grad(e, res):
         return np.stack([np.einsum("ka,ka->k", res, e.du), np.einsum("ka,ka->k", res, e.dv)], axis=1)
 
     g = grad(ev, r)
     for _ in range(iters):
-        Hs = np.einsum("kai,kaj->kij", np.stack([ev.du, ev.dv], 2), np.stack([ev.du, ev.dv], 2))
+        J = np.stack([ev.du, ev.dv], 2)
+        Hs = np.einsum("kai,kaj->kij", J, J)
         Hs += np.stack([np.einsum("ka,ka->k", r, x) for x in (ev.duu, ev.duv, ev.dvv)], axis=1)[:, [[0, 1], [1, 2]]]
         lo = np.linalg.eigvalsh(Hs)[:, 0]
         Hs += np.maximum(1e-9 * np.trace(Hs, axis1=1, axis2=2) + 1e-300 - lo, 0.0)[:, None, None] * np.eye(2)
@@ -575,8 +505,8 @@ def _newton(geom: SurfaceGeometry, targets: np.ndarray, uv: np.ndarray, iters: i
         ec = surface_points(geom, cand, order=2)
         rc = ec.points - targets
         dc, gc = np.linalg.norm(rc, axis=1), grad(ec, rc)
-        flat = dc <= dist + 1e-14 * (np.abs(targets).max(axis=1) + geom.size)  # rounding of |r|
-        ok = np.isfinite(dc) & ((dc < dist) | (flat & (np.abs(gc).max(axis=1) < np.abs(g).max(axis=1))))
+        shrinks = (dc <= dist + flat_tol) & (np.abs(gc).max(axis=1) < np.abs(g).max(axis=1))
+        ok = np.isfinite(dc) & ((dc < dist) | shrinks)
         if not ok.any():
             break
         uv[ok], dist[ok], r[ok], g[ok] = cand[ok], dc[ok], rc[ok], gc[ok]
@@ -586,28 +516,21 @@ def _newton(geom: SurfaceGeometry, targets: np.ndarray, uv: np.ndarray, iters: i
 
 
 def project(geom: Geometry, points: np.ndarray, newton: int = 8) -> Projection:
-    """Closest points on ``geom`` to world ``points (k, 3)``.
-
-    On a deformable: the closest point of the full mesh, its ``(u, v)`` interpolated from the
-    face corners, then ``newton`` Gauss–Newton steps on the H-spline itself.
-    """
+    """Closest points on ``geom`` to world ``points (k, 3)``. On a deformable: the full mesh's
+    closest point, its ``(u, v)`` from the face corners, then ``newton`` steps on the H-spline."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if isinstance(geom, ColliderGeometry):
-        _, local, _ = geom.static.index.query(apply_inverse(geom.xform, points))
+        local = geom.static.index.query(apply_inverse(geom.xform, points))[1]
         world = apply_xform(geom.xform, local)
         return Projection(world, np.linalg.norm(world - points, axis=1), None, local)
     fm = full_mesh(geom)
     _, close, face = fm.index.query(points - fm.origin)
     bary = trimesh.triangles.points_to_barycentric(fm.mesh.triangles[face], close)
-    uv0 = np.einsum("kj,kjc->kc", bary, fm.face_uv[face])
-    uv, world = _newton(geom, points, uv0, newton)
+    uv, world = _newton(geom, points, np.einsum("kj,kjc->kc", bary, fm.face_uv[face]), newton)
     return Projection(world, np.linalg.norm(world - points, axis=1), uv, None)
 
 
-# --------------------------------------------------------------------------------------------
-# interpenetration regions
-
-
+# --- interpenetration regions -------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Region:
     """Tessellation vertices of one object inside the other: parameters ``uv (k, 2)`` (``None``
@@ -638,21 +561,13 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
     return pts[keep], None if uv is None else uv[keep]
 
 
-def _empty_region(geom: Geometry) -> Region:
-    return Region(None if isinstance(geom, ColliderGeometry) else np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0))
-
-
 def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Region, Region]:
-    """The interpenetration regions: ``A``'s vertices inside ``B`` and ``B``'s inside ``A``.
-
-    A region is empty when the other object is open (no inside). ``depth=False`` skips the
-    distances (zeros), for yes/no questions.
-    """
-    pad = _pad(ga, gb)
-    out = []
+    """The interpenetration regions: ``A``'s vertices inside ``B`` and ``B``'s inside ``A`` (empty
+    when the other object is open). ``depth=False`` leaves depths at zero."""
+    pad, out = _pad(ga, gb), []
     for x, y in ((ga, gb), (gb, ga)):
         if not is_closed(y) or not _boxes_overlap(x, y, pad):
-            out.append(_empty_region(x))
+            out.append(Region(None if isinstance(x, ColliderGeometry) else np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)))
             continue
         pts, uv = _candidate_vertices(x, y.bounds, pad)
         m = inside(y, pts)
@@ -662,36 +577,29 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
 
 
 def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
-    """Whether the pair touches or interpenetrates.
-
-    Without crossing triangles each surface lies wholly inside or wholly outside the other: it
-    is outside if any of it is outside the other's box (a patch box or a collider vertex), else
-    a few vertices decide (majority, in case one sits on the other surface).
-    """
+    """Whether the pair touches or interpenetrates. Without crossing triangles each surface is wholly
+    inside or outside the other: outside if any of it leaves the other's box, else 5 vertices vote."""
     pad = _pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return False
     if intersect(ga, gb).count:
         return True
     for x, y in ((ga, gb), (gb, ga)):
-        if is_closed(y):
-            if isinstance(x, SurfaceGeometry):
-                if len(candidate_patches(x, y.bounds, pad)) < x.surface.u.patches0 * x.surface.v.patches0:
-                    continue
-            elif not np.all((x.vertices >= y.bounds[0] - pad) & (x.vertices <= y.bounds[1] + pad)):
+        if not is_closed(y):
+            continue
+        if isinstance(x, SurfaceGeometry):
+            if len(candidate_patches(x, y.bounds, pad)) < x.surface.u.patches0 * x.surface.v.patches0:
                 continue
-            pts, _ = _candidate_vertices(x, y.bounds, pad)
-            if len(pts):
-                sample = pts[np.linspace(0, len(pts) - 1, min(5, len(pts))).astype(np.int64)]
-                if 2 * inside(y, sample).sum() > len(sample):
-                    return True
+        elif not np.all((x.vertices >= y.bounds[0] - pad) & (x.vertices <= y.bounds[1] + pad)):
+            continue
+        pts, _ = _candidate_vertices(x, y.bounds, pad)
+        sample = pts[np.linspace(0, len(pts) - 1, min(5, len(pts))).astype(np.int64)]
+        if len(sample) and 2 * inside(y, sample).sum() > len(sample):
+            return True
     return False
 
 
-# --------------------------------------------------------------------------------------------
-# contact rewinding
-
-
+# --- contact rewinding --------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Anchor:
     """Where a pair first touched: the first touching time ``t_contact`` (at most ``2**-steps``
@@ -719,7 +627,7 @@ GeometryAt = Callable[[float], "tuple[SurfaceGeometry, Geometry]"]
 
 
 def _anchor_at(ga: SurfaceGeometry, gb: Geometry, t: float) -> Anchor | None:
-    """The central point of a (tiny) intersection and its material points on both surfaces."""
+    """The centre of a (tiny) intersection projected onto both surfaces."""
     inter = intersect(ga, gb)
     if inter.count:
         centre = inter.points.mean(axis=0)
@@ -733,21 +641,12 @@ def _anchor_at(ga: SurfaceGeometry, gb: Geometry, t: float) -> Anchor | None:
     return Anchor(float(t), pa.uv[0], None if pb.uv is None else pb.uv[0], None if pb.local is None else pb.local[0], centre)
 
 
-def rewind(
-    geometry_at: GeometryAt,
-    t: float,
-    start: float | None = None,
-    cache: RewindCache | None = None,
-    max_back: int = 8,
-    steps: int = 12,
-) -> Anchor | None:
-    """First contact of the input motion before ``t``, or ``None`` if there is no earlier free time.
-
-    Steps back whole frames (at most ``max_back``, never before ``start``) to the last time the
-    pair did not touch, bisects ``steps`` times between it and the next frame, and anchors the
-    contact at the first touching time (`_anchor_at`). ``geometry_at(time)`` returns the pair's
-    geometry (the animator's, before any response) at any time code.
-    """
+def rewind(geometry_at: GeometryAt, t: float, start: float | None = None, cache: RewindCache | None = None,
+           max_back: int = 8, steps: int = 12) -> Anchor | None:
+    """First contact of the input motion before ``t`` (``None`` without an earlier free time):
+    ``geometry_at(time)`` gives the input geometry (no response) at any time. Steps back whole
+    frames (``max_back``, not before ``start``) to the last free time, bisects ``steps`` times up
+    to the next frame and anchors the contact at the first touching time."""
     cache = RewindCache() if cache is None else cache
 
     def hit(x: float) -> bool:
@@ -755,52 +654,37 @@ def rewind(
             cache.touching[x] = touching(*geometry_at(x))
         return cache.touching[x]
 
-    if not hit(t):
+    if not hit(float(t)):
         return None  # the input is free at t: the contact is the response's doing
     lo, hi = None, float(t)
     for k in range(1, max_back + 1):
-        x = float(t - k)
-        if start is not None and x < start:
+        if start is not None and t - k < start:
             break
-        if not hit(x):
-            lo = x
+        if not hit(float(t - k)):
+            lo = float(t - k)
             break
-        hi = x
+        hi = float(t - k)
     if lo is None:
         return None
     if (lo, hi) not in cache.anchors:
         a, b = lo, hi
         for _ in range(steps):
             mid = 0.5 * (a + b)
-            if touching(*geometry_at(mid)):
-                b = mid
-            else:
-                a = mid
+            a, b = (a, mid) if touching(*geometry_at(mid)) else (mid, b)
         cache.anchors[(lo, hi)] = _anchor_at(*geometry_at(b), b)
     return cache.anchors[(lo, hi)]
 
 
-# --------------------------------------------------------------------------------------------
-# the frame loop's entry points
-
-
+# --- the frame loop's entry points --------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class PairContact:
-    """Detection of one pair at time ``t`` (world units).
-
-    Attributes
-    ----------
-    a, b : str — names (prim paths) of ``A`` (deformable) and ``B``
-    t_contact : float — first touching time if ``rewound``, else ``t``
-    rewound : bool — contact from rewinding (else the deepest-point fallback)
-    uv_a : (2,) float64 — contact parameters on ``A``
-    uv_b : (2,) float64 or None — contact parameters on a deformable ``B``
-    local_b : (3,) float64 or None — contact material point (object space) on a collider ``B``
-    point_a, point_b : (3,) float64 — ``P_A``, ``P_B``: those material points at time ``t``
-    region_a, region_b : Region — ``A``'s vertices inside ``B``, ``B``'s inside ``A``, at ``t``
-    depth : float — largest region depth (``0`` when the surfaces only cross)
-    intersections : Intersections — crossing triangle pairs at ``t``
-    """
+    """Detection of one pair at time ``t`` (world units): names ``a``, ``b`` (``A`` deformable);
+    ``t_contact``, the first touching time if ``rewound`` (else ``t``, deepest-point fallback);
+    contact parameters ``uv_a (2,)`` and ``uv_b (2,)`` (``None`` for a collider ``B``); the
+    collider's contact material point ``local_b (3,)`` (object space, else ``None``); ``P_A``,
+    ``P_B`` = ``point_a, point_b (3,)``, those material points at time ``t``; ``region_a`` (``A``'s
+    vertices inside ``B``), ``region_b``; ``depth``, the largest region depth (0 if the surfaces
+    only cross); ``intersections``, the crossing triangle pairs at ``t``."""
 
     a: str
     b: str
@@ -826,42 +710,31 @@ def _deepest(region: Region, tol: float) -> int:
 
 
 def _fallback(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inter: Intersections):
-    """Deepest region vertex and its closest point on the other surface (or the crossing centre)."""
-    collider = isinstance(gb, ColliderGeometry)
+    """``uv_a, uv_b, local_b, P_A, P_B`` from the deepest (central among equals) region vertex and
+    its closest point on the other surface, or the crossing centre's when both regions are empty."""
     tol = 1e-9 * max(ga.size, gb.size)
-    if not ra.empty and ra.max_depth >= rb.max_depth:
-        i = _deepest(ra, tol)
-        pb = project(gb, ra.points[i][None])
-        uv_b = None if pb.uv is None else pb.uv[0]
-        local_b = None if pb.local is None else pb.local[0]
-        return ra.uv[i], uv_b, local_b, ra.points[i], pb.points[0]
-    if not rb.empty:
+    if not rb.empty and (ra.empty or rb.max_depth > ra.max_depth):
         i = _deepest(rb, tol)
-        pa = project(ga, rb.points[i][None])
-        local_b = apply_inverse(gb.xform, rb.points[i][None])[0] if collider else None
-        return pa.uv[0], None if collider else rb.uv[i], local_b, pa.points[0], rb.points[i]
-    centre = inter.points.mean(axis=0)[None]
-    pa, pb = project(ga, centre), project(gb, centre)
-    return pa.uv[0], None if pb.uv is None else pb.uv[0], None if pb.local is None else pb.local[0], pa.points[0], pb.points[0]
+        pa, pb = project(ga, rb.points[i][None]), rb.points[i]
+        local_b = apply_inverse(gb.xform, pb[None])[0] if isinstance(gb, ColliderGeometry) else None
+        return pa.uv[0], None if rb.uv is None else rb.uv[i], local_b, pa.points[0], pb
+    if not ra.empty:
+        i = _deepest(ra, tol)
+        uv_a, pa, pb = ra.uv[i], ra.points[i], project(gb, ra.points[i][None])
+    else:
+        centre = inter.points.mean(axis=0)[None]
+        pr = project(ga, centre)
+        uv_a, pa, pb = pr.uv[0], pr.points[0], project(gb, centre)
+    return uv_a, None if pb.uv is None else pb.uv[0], None if pb.local is None else pb.local[0], pa, pb.points[0]
 
 
-def detect_pair(
-    ga: SurfaceGeometry,
-    gb: Geometry,
-    t: float = 0.0,
-    geometry_at: GeometryAt | None = None,
-    *,
-    start: float | None = None,
-    cache: RewindCache | None = None,
-    max_back: int = 8,
-    steps: int = 12,
-) -> PairContact | None:
-    """Detect a pair at time ``t``: ``None`` if it neither touches nor interpenetrates.
-
-    ``ga``/``gb`` are the pair's current geometry (possibly already responded); ``geometry_at``
-    gives the animator's input at any time for `rewind` (omit it to use the deepest-point
-    fallback). ``P_A``/``P_B`` are the rewound material points evaluated on the current geometry.
-    """
+def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: GeometryAt | None = None, *,
+                start: float | None = None, cache: RewindCache | None = None, max_back: int = 8,
+                steps: int = 12) -> PairContact | None:
+    """Detect a pair at time ``t``, ``None`` if it neither touches nor interpenetrates. ``ga``/``gb``:
+    current geometry (possibly responded); ``geometry_at``: the input at any time, for `rewind`
+    (else, or with no earlier free time, the deepest-point fallback). ``P_A``/``P_B`` are the
+    anchor's material points on the current geometry."""
     if not isinstance(ga, SurfaceGeometry):
         raise TypeError("A must be a deformable SurfaceGeometry (collider–collider pairs are never tested)")
     inter = intersect(ga, gb)
@@ -870,23 +743,18 @@ def detect_pair(
         return None
     anchor = None if geometry_at is None else rewind(geometry_at, t, start, cache, max_back, steps)
     if anchor is not None:
-        uv_a, uv_b, local_b = anchor.uv_a, anchor.uv_b, anchor.local_b
+        uv_a, uv_b, local_b, t_c = anchor.uv_a, anchor.uv_b, anchor.local_b, anchor.t_contact
         pa = surface_points(ga, uv_a).points[0]
-        if isinstance(gb, ColliderGeometry):
-            pb = apply_xform(gb.xform, local_b[None])[0]
-        else:
-            pb = surface_points(gb, uv_b).points[0]
-        t_c = anchor.t_contact
+        pb = apply_xform(gb.xform, local_b[None])[0] if local_b is not None else surface_points(gb, uv_b).points[0]
     else:
-        uv_a, uv_b, local_b, pa, pb = _fallback(ga, gb, ra, rb, inter)
-        t_c = float(t)
+        (uv_a, uv_b, local_b, pa, pb), t_c = _fallback(ga, gb, ra, rb, inter), float(t)
     depth = max(ra.max_depth, rb.max_depth)
     return PairContact(ga.name, gb.name, float(t), t_c, anchor is not None, uv_a, uv_b, local_b, pa, pb, ra, rb, depth, inter)
 
 
 @dataclass(frozen=True)
 class Residual:
-    """Remaining penetration of a pair: largest and mean region depth, and the vertex count."""
+    """Penetration left in a pair: largest and mean region depth, and the region vertex count."""
 
     max: float
     mean: float
@@ -894,7 +762,7 @@ class Residual:
 
 
 def residual(ga: SurfaceGeometry, gb: Geometry) -> Residual:
-    """Penetration left: depths of ``A``'s vertices inside ``B`` and ``B``'s inside ``A``."""
+    """Depths of ``A``'s vertices inside ``B`` and ``B``'s inside ``A`` (0 for a free pair)."""
     ra, rb = regions(ga, gb)
     d = np.concatenate([ra.depth, rb.depth])
     return Residual(float(d.max()) if d.size else 0.0, float(d.mean()) if d.size else 0.0, int(d.size))
@@ -905,36 +773,27 @@ def default_tolerance(ga: Geometry, gb: Geometry, fraction: float = 1e-3) -> flo
     return fraction * min(ga.size, gb.size)
 
 
-def cast(
-    geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """First hits of world rays ``origins, directions (n, 3)`` on ``geom`` (thesis eq. 4.16).
-
-    A hit may lie up to ``behind`` (default ``1e-3`` of the object's size) behind its origin, for
-    points pushed just past the surface, except from inside a closed ``geom``, where it must be
-    ahead (the exit, not the entry behind). Returns ``hits (n, 3)`` (the origin where none) and
-    ``valid (n,) bool``.
-    """
+def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """First hits of world rays ``origins, directions (n, 3)`` on ``geom`` (thesis eq. 4.16):
+    ``hits (n, 3)`` (the origin where none) and ``valid (n,) bool``. A hit may lie up to ``behind``
+    (default ``1e-3`` of the object's size) behind its origin, for points pushed just past the
+    surface, except from inside a closed ``geom``: there it must be ahead (the exit)."""
     origins = np.asarray(origins, np.float64).reshape(-1, 3)
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
     hits, valid = origins.copy(), np.zeros(len(origins), bool)
     length = np.linalg.norm(directions, axis=1)
-    ok = length > 0
-    if not ok.any():
+    rows = np.nonzero(length > 0)[0]
+    if not len(rows):
         return hits, valid
-    unit = np.zeros_like(directions)
-    unit[ok] = directions[ok] / length[ok, None]
+    unit = directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
-    back = np.where(inside(geom, origins), 0.0, behind)
-    start = origins - back[:, None] * unit
+    start = origins[rows] - np.where(inside(geom, origins[rows]), 0.0, behind)[:, None] * unit
     if isinstance(geom, ColliderGeometry):
-        mesh, o, d = geom.static.mesh, apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
+        mesh, o, d, back = geom.static.mesh, apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T, geom.xform
     else:
         fm = full_mesh(geom)
-        mesh, o, d = fm.mesh, start - fm.origin, unit
-    rows = np.nonzero(ok)[0]
-    loc, ray, _ = mesh.ray.intersects_location(o[rows], d[rows], multiple_hits=False)
-    rays = rows[ray]
-    hits[rays] = apply_xform(geom.xform, loc) if isinstance(geom, ColliderGeometry) else loc + fm.origin
-    valid[rays] = True
+        mesh, o, d, back = fm.mesh, start - fm.origin, unit, np.eye(4)
+        back[:3, 3] = fm.origin
+    loc, ray, _ = mesh.ray.intersects_location(o, d, multiple_hits=False)
+    hits[rows[ray]], valid[rows[ray]] = apply_xform(back, loc), True
     return hits, valid
