@@ -67,11 +67,6 @@ class FrameStats:
     events: list = field(default_factory=list)
 
 
-def _controls(model) -> R.Controls:
-    c = model.controls
-    return R.Controls(c.absorption, c.deform, c.translate, c.rotate, c.rigidity, c.refine)
-
-
 def _group_level(controls: R.Controls, depth: int) -> int:
     """Level whose patches get one additional point each: the finest absorbing level."""
     levels = np.nonzero(controls.absorption > 0)[0]
@@ -148,7 +143,7 @@ def run_frames(
     """Process ``frames`` and return the per-frame results to write and their statistics."""
     statics = [D.prepare_collider(c) for c in scene.colliders]
     defs = scene.deformables
-    controls = [_controls(m) for m in defs]
+    controls = [m.controls for m in defs]
     result = usdio.FramesResult()
     stats: list[FrameStats] = []
     caches: dict = {}

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from acra.hspline import HierarchyArrays, HSpline
+from acra.respond import Controls as AcraControls
 from acra.tessellate import GridTopology
 
 __all__ = ["Controls", "DeformableModel", "ColliderModel", "SceneModel", "DeformableState", "ColliderState", "InputError"]
@@ -28,29 +29,17 @@ class InputError(ValueError):
 
 
 @dataclass(frozen=True)
-class Controls:
-    """ACRA controls of one deformable, validated (contract §1).
+class Controls(AcraControls):
+    """ACRA controls of one deformable as read from USD (contract §1): the algorithm's
+    `acra.respond.Controls` (absorption, deform/translate/rotate mix, rigidity, refine policy)
+    plus the display tessellation density.
 
     Attributes
     ----------
-    absorption : (L,) float64
-        Share of the response each level absorbs; ``>= 0``, sums to 1.
-    deform, translate, rotate : (L,) float64
-        Per-level response mix; each level's three values ``>= 0`` and sum to 1.
-    rigidity : float
-        Relative rigidity in ``[1, 100]``.
-    refine : bool
-        ``True`` for the ``refine`` policy, ``False`` for ``obey``.
     samples : int
-        Display samples per level-0 patch edge.
+        Display samples per level-0 patch edge (``acra:samples``).
     """
 
-    absorption: np.ndarray
-    deform: np.ndarray
-    translate: np.ndarray
-    rotate: np.ndarray
-    rigidity: float = 50.0
-    refine: bool = True
     samples: int = 4
 
 
