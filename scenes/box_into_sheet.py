@@ -13,6 +13,7 @@ import numpy as np
 
 from acra import shapes
 from pipeline import authoring as A
+from pipeline.animation import usdkeys as K
 
 
 def build():
@@ -24,8 +25,10 @@ def build():
     verts, faces = A.box(1.0)
     box = A.add_xform(stage, "/World/Mover")
     A.add_collider(stage, "/World/Mover/Box", verts, faces)
-    for frame, z in ((1, 1.5), (10, 0.55), (11, -0.2), (16, -0.2)):
-        A.key_transform(box, frame, translate=(0.2, -0.1, z))
+    # native USD splines on single-axis translate ops (linear knots: the jump at 10 -> 11 is kept)
+    K.key_translate(box, "x", [1, 16], [0.2, 0.2])
+    K.key_translate(box, "y", [1, 16], [-0.1, -0.1])
+    K.key_translate(box, "z", [1, 10, 11, 16], [1.5, 0.55, -0.2, -0.2], interp="linear")
     return stage
 
 
