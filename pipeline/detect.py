@@ -605,7 +605,7 @@ class Anchor:
     """Where a pair first touched: the first touching time ``t_contact`` (at most ``2**-steps``
     frames late), the contact's parameters ``uv_a (2,)`` on ``A`` and ``uv_b (2,)`` on a deformable
     ``B`` (else ``None``), its object-space point ``local_b (3,)`` on a collider (else ``None``),
-    and the world centre ``point (3,)`` of the intersection at ``t_contact``."""
+    and the world ``point (3,)`` it was anchored at (at ``t_contact``)."""
 
     t_contact: float
     uv_a: np.ndarray
@@ -627,16 +627,17 @@ GeometryAt = Callable[[float], "tuple[SurfaceGeometry, Geometry]"]
 
 
 def _anchor_at(ga: SurfaceGeometry, gb: Geometry, t: float) -> Anchor | None:
-    """The centre of a (tiny) intersection projected onto both surfaces."""
-    inter = intersect(ga, gb)
-    if inter.count:
-        centre = inter.points.mean(axis=0)
+    """The deepest (central among equals) vertex of a (tiny) interpenetration, else the centre of
+    the crossing triangles' contacts, projected onto both surfaces."""
+    ra, rb = regions(ga, gb)
+    if not (ra.empty and rb.empty):
+        deeper = rb if ra.empty or rb.max_depth > ra.max_depth else ra
+        centre = deeper.points[_deepest(deeper, 1e-9 * max(ga.size, gb.size))]
     else:
-        ra, rb = regions(ga, gb, depth=False)
-        pts = np.concatenate([ra.points, rb.points])
-        if not len(pts):
+        inter = intersect(ga, gb)
+        if not inter.count:
             return None
-        centre = pts.mean(axis=0)
+        centre = inter.points.mean(axis=0)
     pa, pb = project(ga, centre[None]), project(gb, centre[None])
     return Anchor(float(t), pa.uv[0], None if pb.uv is None else pb.uv[0], None if pb.local is None else pb.local[0], centre)
 

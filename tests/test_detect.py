@@ -200,6 +200,26 @@ def test_collision_at_the_first_frame_falls_back_to_the_deepest_point():
     assert c.point_a[2] == pytest.approx(0.0, abs=1e-12) and c.point_b[2] == pytest.approx(0.3, abs=1e-12)
 
 
+def test_two_spheres_rewound_to_the_poles_that_met():
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    a = D.SurfaceGeometry(hs, move(), "/a")
+
+    def geometry_at(t):  # B falls from z = 2.3 to 1.9 between frames 10 and 11
+        return a, D.SurfaceGeometry(hs, move(0.0, 0.0, 2.3 - 0.4 * float(np.clip(t - 10.0, 0.0, 1.0))), "/b")
+
+    c = D.detect_pair(*geometry_at(11.0), 11.0, geometry_at, start=0.0)
+    assert c is not None and c.rewound and c.a == "/a" and c.b == "/b"
+    # the pole vertices are the tessellations' extreme points: they meet when B's centre is at z = 2
+    assert 10.75 <= c.t_contact <= 10.75 + 2.0**-12
+    assert c.uv_a[1] == pytest.approx(11.0, abs=1e-3) and c.uv_b[1] == pytest.approx(0.0, abs=1e-3)
+    np.testing.assert_allclose(c.point_a, [0.0, 0.0, 1.0], atol=1e-6)
+    np.testing.assert_allclose(c.point_b, [0.0, 0.0, 0.9], atol=1e-6)  # B's south pole, now 0.1 deep
+    assert c.depth == pytest.approx(0.1, abs=1e-3) and not c.region_a.empty and not c.region_b.empty
+    # A's inside points cast along P_A -> P_B reach B's surface below them
+    hits, valid = D.cast(geometry_at(11.0)[1], c.region_a.points, np.broadcast_to(c.point_b - c.point_a, c.region_a.points.shape))
+    assert valid.all() and np.all(hits[:, 2] < c.region_a.points[:, 2])
+
+
 @pytest.mark.parametrize("rewind", [False, True])
 def test_grazing_contact(rewind):
     s, collider = sphere_geom(), box(1.0)
@@ -342,16 +362,19 @@ def benchmark():
         def geometry_at(t, pair=pair, a=start_z, b=end_z):
             return pair(a + (b - a) * float(np.clip(t - 10.0, 0.0, 1.0)))
 
+        warm = D.RewindCache()
+        D.detect_pair(*pair(), 11.0, geometry_at, start=0.0, cache=warm)
         rows = {
             "detect_pair (fallback, fresh geometry)": lambda: D.detect_pair(*pair(), 11.0),
             "detect_pair (rewound, fresh cache)": lambda: D.detect_pair(*pair(), 11.0, geometry_at, start=0.0),
+            "detect_pair (rewound, warm cache)": lambda: D.detect_pair(*pair(), 11.0, geometry_at, start=0.0, cache=warm),
             "residual (fresh geometry)": lambda: D.residual(*pair()),
             "cast 100 rays onto B (fresh geometry)": lambda: D.cast(pair()[1], rays * 0.1 + [0, 0, 1.0], rays),
             "touching (fresh geometry)": lambda: D.touching(*pair()),
         }
         print(name)
         for label, fn in rows.items():
-            print(f"  {label:42s} {_median_ms(fn):8.1f} ms")
+            print(f"  {label:44s} {_median_ms(fn):8.1f} ms")
 
 
 if __name__ == "__main__":
