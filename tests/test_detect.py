@@ -3,7 +3,6 @@
 Run ``python tests/test_detect.py`` for the timings quoted in docs/detection.md.
 """
 
-import sys
 import time
 
 import numpy as np
@@ -13,7 +12,8 @@ import trimesh
 from acra import hspline as H
 from acra import shapes
 from pipeline import detect as D
-from pipeline.model import ColliderModel
+from pipeline.model import ColliderModel, apply_inverse
+from conftest import wavy_sheet, with_random_offsets
 
 # A box: vertex 4x + 2y + z has coordinate -1/+1 per bit; 12 triangles wound outward.
 BOX_VERTICES = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
@@ -79,6 +79,17 @@ def test_full_mesh_is_watertight_exactly_for_closed_objects(maker, closed):
         assert fm.mesh.volume > 0
 
 
+def test_full_mesh_of_a_refined_sphere_is_watertight_and_tagged():
+    hs = H.from_grid(*shapes.sphere(8, 8), depth=4)
+    hs = H.make_movable(hs, 3, [[20, 20]])  # level-0 patch (2, 2) and its neighbours get 16 steps
+    g = D.SurfaceGeometry(with_random_offsets(hs), move(5.0, -2.0, 1.0))
+    fm = D.full_mesh(g)
+    assert fm.closed and fm.mesh.is_watertight and fm.mesh.volume > 0
+    assert D.patch_density(g).max() == 16
+    corners = fm.mesh.triangles.reshape(-1, 3) + fm.origin
+    np.testing.assert_allclose(D.surface_points(g, fm.face_uv.reshape(-1, 2)).points, corners, atol=1e-12)
+
+
 def test_patch_density_follows_refinement():
     hs = H.from_grid(*shapes.sheet(8, 8, width=5.0, depth=5.0), depth=5)
     hs = H.refine(hs, 3, [[10, 10]])  # inside level-0 patch (1, 1)
@@ -131,22 +142,47 @@ def test_box_wholly_inside_sphere_is_detected_without_fcl_contact():
     assert_finite(c)
 
 
-def test_sphere_wholly_inside_collider_has_exact_depths():
-    s = D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14, radii=(0.3, 0.3, 0.3), center=(0.1, 0.0, 0.0))), move(0.0, 0.2, 0.0))
-    b = D.ColliderGeometry(box(1.0), move(0.0, 0.2, 0.0))
+def test_sphere_wholly_inside_a_rotated_scaled_collider_has_exact_depths():
+    # the collider's matrix is a similarity (rotation, scale 1.5, translation): depths stay exact
+    m = move(0.3, 0.2, -0.1) @ trimesh.transformations.rotation_matrix(0.7, [1.0, 1.0, 0.3]) @ np.diag([1.5, 1.5, 1.5, 1.0])
+    s = D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14, radii=(0.3, 0.3, 0.3), center=(0.1, 0.0, 0.0))), m)
+    b = D.ColliderGeometry(box(1.0), m)
     assert D.intersect(s, b).count == 0
     c = D.detect_pair(s, b)
     assert c is not None and c.region_b.empty
     # every vertex is inside; a point inside a box is as deep as its nearest face plane
     all_uv = D.tessellate(s, np.argwhere(np.ones((16, 11), bool))).uv
     assert len(c.region_a.points) == len(np.unique(D._wrap_uv(s.surface, all_uv), axis=0))
-    local = c.region_a.points - [0.0, 0.2, 0.0]
-    np.testing.assert_allclose(c.region_a.depth, (1.0 - np.abs(local)).min(axis=1), atol=1e-12)
+    local = apply_inverse(m, c.region_a.points)
+    np.testing.assert_allclose(c.region_a.depth, 1.5 * (1.0 - np.abs(local)).min(axis=1), atol=1e-12)
     # fallback: P_B is the deepest vertex's foot on the nearest face
     assert not c.rewound
     assert np.abs(c.local_b).max() == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(apply_inverse(m, c.point_b[None])[0], c.local_b, atol=1e-12)
     assert np.linalg.norm(c.point_b - c.point_a) == pytest.approx(c.depth, abs=1e-12)
     assert_finite(c)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_box_placements_give_consistent_finite_results(seed):
+    rng = np.random.default_rng(seed)
+    s = sphere_geom()
+    rot = trimesh.transformations.random_rotation_matrix(rng.uniform(size=3))
+    m = move(*rng.uniform(-1.2, 1.2, size=3)) @ rot
+    b = D.ColliderGeometry(box(rng.uniform(0.05, 0.6)), m)
+    c = D.detect_pair(s, b)
+    res = D.residual(s, b)
+    if c is None:
+        assert res == D.Residual(0.0, 0.0, 0) and not D.touching(s, b)
+        return
+    assert_finite(c) and D.touching(s, b)
+    assert c.depth == res.max and res.count == len(c.region_a.points) + len(c.region_b.points)
+    # region vertices really are inside: sphere vertices inside the box, box corners inside r <= 1
+    local = apply_inverse(m, c.region_a.points)
+    half = np.abs(b.static.mesh.vertices).max()
+    assert np.all(np.abs(local) <= half + 1e-9)
+    assert np.all(np.linalg.norm(c.region_b.points, axis=1) <= 1.0 + 1e-9)
+    assert np.all(c.region_a.depth <= half + 1e-12) and np.all(c.region_b.depth >= 0.0)
 
 
 def jump_motion(sheet, collider):
@@ -313,8 +349,6 @@ def test_residual_separated_and_analytic_overlaps():
 
 
 def test_projection_is_a_true_closest_point_on_a_refined_surface():
-    from conftest import wavy_sheet, with_random_offsets
-
     hs = with_random_offsets(H.make_movable(wavy_sheet(depth=3), 2, [[6, 6]]), scale=0.1)
     rot = trimesh.transformations.rotation_matrix(0.4, [1.0, 2.0, 0.5])
     g = D.SurfaceGeometry(hs, rot @ move(0.5, 0.0, 0.2))
@@ -378,5 +412,4 @@ def benchmark():
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, __file__.rsplit("/", 1)[0])
     benchmark()
