@@ -35,7 +35,7 @@ class RunOptions:
     iterations : int
         Cap on detect → respond rounds per frame.
     tolerance : float
-        Residual penetration accepted, as a fraction of the pair's object size (contract: 1e-3).
+        Residual penetration accepted, as a fraction of the deformable's size (the smaller of two deformables; contract: 1e-3).
     method : str
         Interpolation solver, ``"direct"`` or ``"blend"``.
     """
@@ -188,7 +188,8 @@ def run_frames(
                 c = D.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache)
                 if c is None:
                     continue
-                size = max(geoms[i].size, gb.size)
+                # the contract's "object size": the deformable's own (the smaller one of two deformables)
+                size = geoms[i].size if other[0] == "c" else min(geoms[i].size, gb.size)
                 worst = max(worst, c.depth)
                 worst_rel = max(worst_rel, c.depth / size)
                 if c.depth > options.tolerance * size or it == 0:
