@@ -175,9 +175,15 @@ def region_midpoints(hs: H.HSpline, uv_inside: np.ndarray, level: int) -> tuple[
     patches : (g, 2) int64
         The patch of each point.
     """
+    mids, patches, _ = _patch_groups(hs, uv_inside, level)
+    return mids, patches
+
+
+def _patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int):
+    """`region_midpoints` plus the group of each input point: ``inv (n,) int64``."""
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     if uv_inside.shape[0] == 0:
-        return np.zeros((0, 2)), np.zeros((0, 2), np.int64)
+        return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
     su, _ = locate(hs.u, uv_inside[:, 0], level)
     sv, _ = locate(hs.v, uv_inside[:, 1], level)
     keys = su * hs.v.patches(level) + sv
@@ -192,7 +198,7 @@ def region_midpoints(hs: H.HSpline, uv_inside: np.ndarray, level: int) -> tuple[
             mids[:, col] = np.mod(np.arctan2(s, c), 2 * np.pi) * d.patches0 / (2 * np.pi)
         else:
             mids[:, col] = np.bincount(inv, x, uniq.size) / np.bincount(inv, minlength=uniq.size)
-    return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1)
+    return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
 
 
 # --------------------------------------------------------------------------------------------
@@ -354,13 +360,10 @@ def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarra
     extra = ~is_contact
     if not np.any(extra):
         return uv, want
-    mids, patches = region_midpoints(hs, uv[extra], level)
-    su, _ = locate(hs.u, uv[extra, 0], level)
-    sv, _ = locate(hs.v, uv[extra, 1], level)
-    keys = su * hs.v.patches(level) + sv
-    uniq, inv = np.unique(keys, return_inverse=True)
-    moves = np.stack([np.bincount(inv, want[extra, c], uniq.size) for c in range(3)], axis=1)
-    moves /= np.bincount(inv, minlength=uniq.size)[:, None]
+    mids, _, inv = _patch_groups(hs, uv[extra], level)
+    g = mids.shape[0]
+    moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
+    moves /= np.bincount(inv, minlength=g)[:, None]
     return np.concatenate([uv[is_contact], mids]), np.concatenate([want[is_contact], moves])
 
 

@@ -159,7 +159,19 @@ def _outside(times: np.ndarray, t: np.ndarray, side: str):
 # Curve objects
 # ---------------------------------------------------------------------------------------------
 
-class KeyCurve:
+class _Keyed:
+    """What every key curve shares: ``times (k,)`` and ``values (k, d)`` attributes."""
+
+    @property
+    def dim(self) -> int:
+        return self.values.shape[1]
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        return float(self.times[0]), float(self.times[-1])
+
+
+class KeyCurve(_Keyed):
     """Piecewise cubic key curve in USD Ts knot form.
 
     Segment ``i`` (keys ``i -> i+1``, ``h_i = t_{i+1} - t_i``) is, for ``interp[i] == CURVE``,
@@ -214,14 +226,6 @@ class KeyCurve:
             self._linear_time = (np.abs(a - 1 / 3) <= 1e-12) & (np.abs(b - 1 / 3) <= 1e-12)
 
     # -- properties ------------------------------------------------------------------------------
-    @property
-    def dim(self) -> int:
-        return self.values.shape[1]
-
-    @property
-    def domain(self) -> tuple[float, float]:
-        return float(self.times[0]), float(self.times[-1])
-
     @property
     def standard_widths(self) -> bool:
         """True when every curved segment has handles at 1/3, 2/3 (Ts ``Hermite`` curve type)."""
@@ -331,7 +335,7 @@ class KeyCurve:
         return f"KeyCurve(k={self.times.size}, d={self.dim}, domain={self.domain})"
 
 
-class BSplineCurve:
+class BSplineCurve(_Keyed):
     """Uniform cubic B-spline key curve (approximating, C2): ``[u^3 u^2 u 1] M_S G``.
 
     ``control : (k, d)`` sits at uniformly spaced ``times : (k,)``.  Segment ``j`` spans
@@ -353,14 +357,6 @@ class BSplineCurve:
         self.values = _as_values(control, k)
         self._ext = np.concatenate(
             [2 * self.values[:1] - self.values[1:2], self.values, 2 * self.values[-1:] - self.values[-2:-1]])
-
-    @property
-    def dim(self) -> int:
-        return self.values.shape[1]
-
-    @property
-    def domain(self) -> tuple[float, float]:
-        return float(self.times[0]), float(self.times[-1])
 
     def _geometry(self, t, side):
         t = np.asarray(t, dtype=np.float64)
@@ -388,7 +384,7 @@ class BSplineCurve:
         return out.reshape(shape + (self.dim,))
 
 
-class EasedCurve:
+class EasedCurve(_Keyed):
     """Keys joined by a distance-time easing ``f`` (Blender's easing interpolation modes).
 
     ``v(t) = v_i + (v_{i+1} - v_i) f((t - t_i) / h_i)`` with ``f`` from
@@ -399,14 +395,6 @@ class EasedCurve:
         self.times = _as_times(times)
         self.values = _as_values(values, self.times.size)
         self.ease = ease
-
-    @property
-    def dim(self) -> int:
-        return self.values.shape[1]
-
-    @property
-    def domain(self) -> tuple[float, float]:
-        return float(self.times[0]), float(self.times[-1])
 
     def evaluate(self, t) -> np.ndarray:
         """Values at ``t`` -> ``t.shape + (d,)``."""
@@ -491,6 +479,22 @@ def bezier(times, values, left, right) -> KeyCurve:
                     interp=CURVE)
 
 
+def _chained_polygon(points, times, problem: str):
+    """Validate a chained-cubic polygon ``(3n+1, d)`` and its key times ``(n+1,)``.
+
+    Returns ``P (3n+1, d) float64``, ``n``, ``t (n+1,) float64`` (default ``0..n``).
+    """
+    P = np.asarray(points, dtype=np.float64)
+    P = P[:, None] if P.ndim == 1 else P
+    if P.ndim != 2 or (P.shape[0] - 1) % 3 or P.shape[0] < 4:
+        raise ValueError(problem)
+    n = (P.shape[0] - 1) // 3
+    t = np.arange(n + 1, dtype=np.float64) if times is None else _as_times(times)
+    if t.size != n + 1:
+        raise ValueError(f"need {n + 1} key times for {P.shape[0]} points")
+    return P, n, t
+
+
 def bezier_polygon(control, times=None) -> KeyCurve:
     """Chained cubic Bézier from a control polygon ``control : (3n+1, d)`` (``M_B`` per segment).
 
@@ -498,14 +502,7 @@ def bezier_polygon(control, times=None) -> KeyCurve:
     sit at 1/3 and 2/3 of each interval, so time (or the path parameter) is linear in u and
     slope = ``3 (p1 - p0) / h``.  Used for paths and for keys given as a Bézier polygon.
     """
-    P = np.asarray(control, dtype=np.float64)
-    P = P[:, None] if P.ndim == 1 else P
-    if P.ndim != 2 or (P.shape[0] - 1) % 3 or P.shape[0] < 4:
-        raise ValueError("a Bezier polygon has 3n+1 control points, n >= 1")
-    n = (P.shape[0] - 1) // 3
-    t = np.arange(n + 1, dtype=np.float64) if times is None else _as_times(times)
-    if t.size != n + 1:
-        raise ValueError(f"need {n + 1} key times for {P.shape[0]} control points")
+    P, n, t = _chained_polygon(control, times, "a Bezier polygon has 3n+1 control points, n >= 1")
     h = np.diff(t)[:, None]
     s_out = np.empty((n + 1, P.shape[1]))
     s_in = np.empty_like(s_out)
@@ -522,14 +519,7 @@ def interpolating_cubic(points, times=None) -> KeyCurve:
     ``points[0::3]`` at ``times : (n+1,)`` (default ``0..n``).  C0 only at the joins (slides).
     Exact as a Hermite: ``p'(0) = c_1`` and ``p'(1) = 3 c_3 + 2 c_2 + c_1`` from ``M_I G``.
     """
-    P = np.asarray(points, dtype=np.float64)
-    P = P[:, None] if P.ndim == 1 else P
-    if P.ndim != 2 or (P.shape[0] - 1) % 3 or P.shape[0] < 4:
-        raise ValueError("need 3n+1 points, n >= 1")
-    n = (P.shape[0] - 1) // 3
-    t = np.arange(n + 1, dtype=np.float64) if times is None else _as_times(times)
-    if t.size != n + 1:
-        raise ValueError(f"need {n + 1} key times for {P.shape[0]} points")
+    P, n, t = _chained_polygon(points, times, "need 3n+1 points, n >= 1")
     G = np.stack([P[3 * j:3 * j + 4] for j in range(n)])            # (n, 4, d)
     C = np.einsum("ab,nbd->nad", M_INTERPOLATING, G)                 # u^3, u^2, u, 1
     h = np.diff(t)[:, None]

@@ -30,6 +30,7 @@ import numpy as np
 
 from . import curves as _curves
 from . import easing as _easing
+from .skinning import matrix_to_quat as _matrix_to_quat
 
 __all__ = [
     "ParametricCurve", "ArcLengthTable", "path_through",
@@ -337,37 +338,9 @@ def sample_path(curve, t, timing: "_easing.DistanceTime | None" = None,
 
 
 def quaternions_from_matrices(R: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``(n, 4)`` as (w, x, y, z) from proper rotations ``R : (n, 3, 3)``.
-
-    Shepperd's method: take the largest of ``1 + trace`` and ``1 + 2 R_ii - trace`` as the pivot.
-    """
-    R = np.asarray(R, dtype=np.float64)
-    tr = np.trace(R, axis1=1, axis2=2)
-    cand = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], axis=1)
-    k = np.argmax(cand, axis=1)
-    q = np.empty((R.shape[0], 4))
-    for j in range(4):
-        sel = k == j
-        if not np.any(sel):
-            continue
-        M = R[sel]
-        if j == 0:
-            r = np.sqrt(1 + tr[sel]) * 2
-            q[sel] = np.stack([r / 4, (M[:, 2, 1] - M[:, 1, 2]) / r, (M[:, 0, 2] - M[:, 2, 0]) / r,
-                               (M[:, 1, 0] - M[:, 0, 1]) / r], axis=1)
-        else:
-            a = j - 1
-            b, c = (a + 1) % 3, (a + 2) % 3
-            r = np.sqrt(1 + M[:, a, a] - M[:, b, b] - M[:, c, c]) * 2
-            qq = np.empty((M.shape[0], 4))
-            qq[:, 0] = (M[:, c, b] - M[:, b, c]) / r
-            qq[:, 1 + a] = r / 4
-            qq[:, 1 + b] = (M[:, b, a] + M[:, a, b]) / r
-            qq[:, 1 + c] = (M[:, c, a] + M[:, a, c]) / r
-            q[sel] = qq
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q[q[:, 0] < 0] *= -1
-    return q
+    """Unit quaternions ``(n, 4)`` as (w, x, y, z), ``w >= 0``, from proper rotations ``R : (n, 3, 3)``
+    (Shepperd's method, shared with skinning: `skinning.matrix_to_quat`)."""
+    return _matrix_to_quat(R).reshape(-1, 4)
 
 
 def orientations(tangents, forward=(1.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)) -> np.ndarray:

@@ -16,23 +16,13 @@ from __future__ import annotations
 import numpy as np
 from pxr import Gf, Sdf, UsdGeom, UsdSkel, Vt
 
+from ..usdio import cvs_to_flat, flat_to_cvs  # the contract's grid order, defined once
 from .skinning import Skeleton, matrix_to_quat, quat_multiply, quat_normalize, bind_transforms
 
 __all__ = ["cvs_to_flat", "flat_to_cvs", "write_cvs_samples", "read_cvs_samples",
            "joint_paths", "write_skeleton"]
 
 CVS_ATTR = "acra:cvs"
-
-
-def cvs_to_flat(cvs) -> np.ndarray:
-    """``(nu, nv, 3)`` grid → ``(nu·nv, 3)`` in the contract's order, index ``j * nu + i``."""
-    c = np.asarray(cvs)
-    return c.transpose(1, 0, 2).reshape(-1, 3)
-
-
-def flat_to_cvs(flat, nu, nv) -> np.ndarray:
-    """Inverse of :func:`cvs_to_flat`: ``(nu·nv, 3)`` → ``(nu, nv, 3)``."""
-    return np.asarray(flat).reshape(nv, nu, 3).transpose(1, 0, 2)
 
 
 def _spec_path(stage, path):
