@@ -9,13 +9,14 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.model import InputError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "run_file", "RunReport"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,33 +47,66 @@ def _frames(arg: str | None, start: int, end: int) -> list[int]:
     return list(range(a, b + 1))
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass
+class RunReport:
+    """What a run did: the output path, per-frame statistics and the write time."""
+
+    output: Path
+    stats: list
+    ms_write: float
+    seconds: float
+    scene: object = None
+
+    def summary(self) -> str:
+        hit = [s for s in self.stats if s.in_collision]
+        worst = max((s.residual_rel for s in self.stats), default=0.0)
+        med = lambda xs: float(np.median(xs)) if xs else 0.0  # noqa: E731
+        n = len(self.stats)
+        return (
+            f"acra: {n} frames, {len(hit)} in collision; largest residual penetration "
+            f"{worst:.2e} of object size; median ms per frame: detection {med([s.ms_detect for s in self.stats]):.1f}, "
+            f"response {med([s.ms_respond for s in self.stats]):.1f}, writing {self.ms_write / max(1, n):.1f}; "
+            f"total {self.seconds:.2f} s -> {self.output}"
+        )
+
+
+def run_file(
+    src: Path,
+    output: Path | None = None,
+    frames: str | None = None,
+    iterations: int = 4,
+    tolerance: float = 1e-3,
+    rrd: Path | None = None,
+    spawn: bool = False,
+    progress: bool = False,
+) -> RunReport:
+    """Everything `acra run` does, as a function (the tests and `acra bench` call it)."""
     from pipeline import frames as F
     from pipeline import usdio
 
     t_start = time.perf_counter()
-    src = Path(args.input)
-    if args.iterations < 1:
-        raise InputError("--iterations", None, f"must be at least 1, got {args.iterations}")
-    if not np.isfinite(args.tolerance) or args.tolerance <= 0:
-        raise InputError("--tolerance", None, f"must be a positive number, got {args.tolerance}")
+    src = Path(src)
+    if iterations < 1:
+        raise InputError("--iterations", None, f"must be at least 1, got {iterations}")
+    if not np.isfinite(tolerance) or tolerance <= 0:
+        raise InputError("--tolerance", None, f"must be a positive number, got {tolerance}")
     stage_path = usdio.load_scene_file(src) if src.suffix == ".py" else src
-    out = args.output or stage_path.with_name(stage_path.stem + ".acra.usda")
+    out = Path(output) if output else stage_path.with_name(stage_path.stem + ".acra.usda")
     stage = usdio.open_input(stage_path)
     scene = usdio.read_scene(stage)
-    frames = _frames(args.frames, scene.start, scene.end)
+    frame_list = _frames(frames, scene.start, scene.end)
 
     preview = None
-    if args.rrd or args.spawn:
+    if rrd or spawn:
         from pipeline import preview as P
 
-        preview = P.Preview(scene, stage_path.stem, rrd=args.rrd, spawn=args.spawn)
+        preview = P.Preview(scene, stage_path.stem, rrd=rrd, spawn=spawn)
 
     bar = None
-    if not args.quiet and len(frames) > 1:
+    if progress and len(frame_list) > 1:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(frames), unit="frame", file=sys.stderr, leave=False)
+        bar = tqdm(total=len(frame_list), unit="frame", file=sys.stderr, leave=False)
 
     def on_frame(st, result):
         if preview is not None:
@@ -80,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.update(1)
 
-    result, stats = F.run_frames(stage, scene, frames, F.RunOptions(args.iterations, args.tolerance), on_frame)
+    result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance), on_frame)
     if bar is not None:
         bar.close()
     tw = time.perf_counter()
@@ -88,15 +122,15 @@ def run(args: argparse.Namespace) -> int:
     ms_write = 1e3 * (time.perf_counter() - tw)
     if preview is not None:
         preview.close()
-    hit = [s for s in stats if s.in_collision]
-    worst = max((s.residual_rel for s in stats), default=0.0)
-    med = lambda xs: float(np.median(xs)) if xs else 0.0  # noqa: E731
-    print(
-        f"acra: {len(frames)} frames, {len(hit)} in collision; largest residual penetration "
-        f"{worst:.2e} of object size; median ms per frame: detection {med([s.ms_detect for s in stats]):.1f}, "
-        f"response {med([s.ms_respond for s in stats]):.1f}, writing {ms_write / max(1, len(frames)):.1f}; "
-        f"total {time.perf_counter() - t_start:.2f} s -> {out}"
+    return RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene)
+
+
+def run(args: argparse.Namespace) -> int:
+    report = run_file(
+        args.input, args.output, args.frames, args.iterations, args.tolerance,
+        rrd=args.rrd, spawn=args.spawn, progress=not args.quiet,
     )
+    print(report.summary())
     return 0
 
 

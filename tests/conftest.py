@@ -24,3 +24,35 @@ def with_random_offsets(hs, scale=0.05, seed=1):
 @pytest.fixture
 def sheet4():
     return wavy_sheet()
+
+
+# --- scenes: each scene file runs once per test session, through the same code as `acra run` ----
+
+SCENES = __import__("pathlib").Path(__file__).resolve().parents[1] / "scenes"
+_scene_runs: dict = {}
+
+
+def scene_names() -> list[str]:
+    """Every scene file in ``scenes/`` (each is run as a test)."""
+    return sorted(p.stem for p in SCENES.glob("*.py") if not p.stem.startswith("_"))
+
+
+@pytest.fixture(scope="session")
+def run_scene(tmp_path_factory):
+    """``run_scene(name)`` → RunReport (``.output``, ``.stats``, ``.scene``), run once per session.
+
+    The scene file is copied to a temporary directory first, so a test run never writes into the
+    repository; the Rerun recording goes beside it as ``NAME.rrd``.
+    """
+    import shutil
+
+    from pipeline.cli import run_file
+
+    def run(name: str):
+        if name not in _scene_runs:
+            d = tmp_path_factory.mktemp(name)
+            shutil.copy(SCENES / f"{name}.py", d / f"{name}.py")
+            _scene_runs[name] = run_file(d / f"{name}.py", rrd=d / f"{name}.rrd")
+        return _scene_runs[name]
+
+    return run
