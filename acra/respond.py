@@ -130,7 +130,7 @@ class DataPoints:
     target : (K, 3) float64
         Where the point must go (object space of the surface).
     is_contact : (K,) bool
-        Contact point ``P`` (True) or additional point ``A`` (False); rotations use contacts.
+        Contact point ``P`` (True) or additional point ``A`` (False).
     """
 
     uv: np.ndarray
@@ -321,8 +321,9 @@ def _rotate(hs, level, uv, points, moves, det):
     The quaternion turns ``P - C`` toward ``P + r dP - C`` (``C``: pivot); it rotates the detail
     vectors (offsets) of the 16 CVs of the patch; a CV reached by several quaternions takes
     their slerp mean. Level 0, which has no detail, rotates its CVs about the net centroid.
-    Additional points, and contacts where the level has no detail to turn, take the rotational
-    share as a deformation (see `respond`).
+    Contacts and additional points are treated alike (thesis: "an identical process"); points
+    where the level has no detail to turn take the rotational share as a deformation (see
+    `respond`).
     """
     pivots = _rotation_pivots(hs, level, uv, det)
     axis, ang = rotation_of(pivots, points, points + moves)
@@ -454,19 +455,16 @@ def respond(
             hs = _translate(hs, level, uv[sel], a * t * dq[sel], det)
             det = H.details(hs) if hs.depth > 1 else None
         if r > 0 and sel.size:
-            rot = sel[np.asarray(points.is_contact, bool)[sel]]
-            rest = sel[~np.asarray(points.is_contact, bool)[sel]]
-            if rot.size:
-                cur = H.evaluate(hs, uv[rot, 0], uv[rot, 1], det=det).points
-                pivots = _rotation_pivots(hs, level, uv[rot], det)
-                # a level with no detail at the contact has nothing to turn: deform instead
-                flat = np.linalg.norm(cur - pivots, axis=1) <= 1e-9 * hs.size()
-                rest = np.concatenate([rest, rot[flat]])
-                rot = rot[~flat]
+            # thesis §4.3.2: contacts and additional points alike turn their patch's detail
+            cur = H.evaluate(hs, uv[sel, 0], uv[sel, 1], det=det).points
+            pivots = _rotation_pivots(hs, level, uv[sel], det)
+            # a level with no detail at a point has nothing to turn there: deform instead
+            flat = np.linalg.norm(cur - pivots, axis=1) <= 1e-9 * hs.size()
+            rot, rest = sel[~flat], sel[flat]
             if rot.size:
                 hs = _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det)
                 det = H.details(hs) if hs.depth > 1 else None
-            if rest.size:  # additional points (and flat contacts) take the share as deformation
+            if rest.size:  # points without detail take the share as deformation
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
                 dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations)
                 hs = _move_level(hs, level, sub.cv_rows, dv, det)

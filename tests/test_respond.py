@@ -206,3 +206,24 @@ def test_region_midpoints_average_across_a_periodic_seam():
     # 7.9 is in patch 7, the others in patch 0
     assert patches.tolist() == [[0, 1], [7, 1]]
     np.testing.assert_allclose(mids[0], [0.075, 1.35], atol=1e-9)
+
+
+def test_rotational_response_turns_the_detail_at_additional_points_too():
+    """Thesis §4.3.2: "an identical process" (a rotation) is used for each additional point.
+
+    Regression (scene rolling_bump): additional points took the rotational share as a
+    deformation, so a bump pushed sideways was stretched (its CVs' detail grew to 2.2 times its
+    height) instead of turning over. A rotation keeps every detail vector's length.
+    """
+    hs, cvs = bumpy()
+    k = 2
+    det = H.details(hs)
+    uv = np.array([[12.5, 12.5], [13.5, 12.5], [12.5, 13.5], [13.5, 13.5]]) / 4  # bump patches
+    p = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
+    dp = R.DataPoints(uv, p + [0.1, 0.0, 0.0], np.array([True, False, False, False]))
+    out, _ = R.respond(hs, dp, controls(3, k, d=0.0, r=1.0))
+    before = det.vectors[k - 1][_block_rows(hs, k)]
+    after = H.details(out).vectors[k - 1][_block_rows(out, k)]
+    np.testing.assert_allclose(np.linalg.norm(after, axis=1), np.linalg.norm(before, axis=1), atol=1e-9)
+    turned = np.arctan2(after[:, 0], after[:, 2])  # toward +x, the push, about the y axis
+    assert turned.min() > 0.05, turned
