@@ -29,7 +29,7 @@ from pipeline.model import ColliderModel, apply_inverse, apply_xform
 
 __all__ = [
     "ColliderStatic", "prepare_collider", "SurfaceGeometry", "ColliderGeometry", "Geometry",
-    "FullMesh", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
+    "FullMesh", "Shape", "shape_of", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "full_mesh", "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
     "regions", "touching", "rewind", "detect_pair", "residual", "cast", "default_tolerance",
@@ -178,9 +178,10 @@ class Tessellation:
 
 @dataclass(frozen=True, eq=False)
 class FullMesh:
-    """A deformable's full-domain grid (`full_mesh`): ``mesh`` with vertices relative to ``origin
-    (3,)`` (embree works in float32), degenerate faces removed; ``closed``; parameters of each
-    face corner ``face_uv (f, 3, 2)``, unwrapped across a periodic seam."""
+    """A deformable's full-domain grid (`full_mesh`), in object space: ``mesh`` with vertices
+    relative to ``origin (3,)`` (embree works in float32), degenerate faces removed; ``closed``;
+    parameters of each face corner ``face_uv (f, 3, 2)``, unwrapped across a periodic seam. Map
+    world points in and out with `SurfaceGeometry.to_mesh` / `SurfaceGeometry.from_mesh`."""
 
     mesh: trimesh.Trimesh
     origin: np.ndarray
@@ -192,40 +193,35 @@ class FullMesh:
         return _Closest(self.mesh.vertices, self.mesh.faces)
 
 
-@dataclass(frozen=True, eq=False)
-class SurfaceGeometry:
-    """A deformable at one time: object-space ``surface``, ``xform (4, 4)``, collision density.
-    All derived data is built lazily and kept here, so pairs sharing an object share the work."""
+class Shape:
+    """Everything about a surface that does not depend on where it is: level details, patch hull
+    boxes, collision grids and the full mesh with its ray and closest-point indices, all in object
+    space. A deformable's input shape is the same at every time code unless its ``acra:cvs`` are
+    keyed, so one `Shape` serves every frame and every rewinding step (`shape_of`); only the
+    matrix changes. Built lazily, so what is never needed is never computed."""
 
-    surface: HSpline
-    xform: np.ndarray
-    name: str = ""
-    density: int = 8
-    max_density: int = 64
-    _patch_cache: dict = field(default_factory=dict, init=False, repr=False)
+    def __init__(self, surface: HSpline, density: int = 8, max_density: int = 64) -> None:
+        self.surface, self.density, self.max_density = surface, density, max_density
+        self.grids: dict = {}  # (pu, pv) -> object points (n, 3), uv (n, 2), triangles (f, 3)
 
     @cached_property
     def details(self) -> H.Details | None:
         return H.details(self.surface) if self.surface.depth > 1 else None
 
     @cached_property
-    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """World boxes ``lo, hi`` ``(P0u, P0v, 3)`` of the level-0 patches: hull boxes' 8 corners mapped."""
-        lo, hi = patch_hulls(self.surface, self.details)
-        sel = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], bool)  # (8, 3)
-        corners = np.where(sel, hi[..., None, :], lo[..., None, :])  # (P0u, P0v, 8, 3)
-        world = apply_xform(self.xform, corners.reshape(-1, 3)).reshape(corners.shape)
-        return world.min(axis=-2), world.max(axis=-2)
-
-    @cached_property
-    def bounds(self) -> np.ndarray:
-        """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
-        lo, hi = self.boxes
-        return np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+    def hulls(self) -> tuple[np.ndarray, np.ndarray]:
+        """Object-space boxes ``lo, hi (P0u, P0v, 3)`` of the level-0 patches' control hulls."""
+        return patch_hulls(self.surface, self.details)
 
     @cached_property
     def size(self) -> float:
-        return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
+        """Object-space box diagonal."""
+        lo, hi = self.hulls
+        return float(np.linalg.norm(hi.reshape(-1, 3).max(axis=0) - lo.reshape(-1, 3).min(axis=0)))
+
+    @cached_property
+    def density_map(self) -> np.ndarray:
+        return _patch_density(self.surface, self.density, self.max_density)
 
     @cached_property
     def closed(self) -> bool:
@@ -243,8 +239,88 @@ class SurfaceGeometry:
         return True
 
     @cached_property
-    def _full(self) -> FullMesh:
+    def full(self) -> FullMesh:
         return _build_full_mesh(self)
+
+
+_SHAPES: dict = {}  # id(surface) -> (surface, density, max_density, Shape), most recent last
+_SHAPES_KEPT = 64
+
+
+def shape_of(surface: HSpline, density: int = 8, max_density: int = 64) -> Shape:
+    """The `Shape` of ``surface`` (the same object for the same surface object and densities).
+
+    Keyed by identity: surfaces are immutable, and the frame loop hands the same object back for
+    unchanged input CVs. The most recent ``_SHAPES_KEPT`` shapes are kept."""
+    key = id(surface)
+    hit = _SHAPES.pop(key, None)
+    if hit is None or hit[0] is not surface or hit[1:3] != (density, max_density):
+        hit = (surface, density, max_density, Shape(surface, density, max_density))
+    _SHAPES[key] = hit
+    while len(_SHAPES) > _SHAPES_KEPT:
+        del _SHAPES[next(iter(_SHAPES))]
+    return hit[3]
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceGeometry:
+    """A deformable at one time: object-space ``surface``, ``xform (4, 4)``, collision density.
+    Object-space data lives in its `Shape` (shared across times); world data is derived lazily
+    and kept here, so pairs sharing an object share the work."""
+
+    surface: HSpline
+    xform: np.ndarray
+    name: str = ""
+    density: int = 8
+    max_density: int = 64
+    _patch_cache: dict = field(default_factory=dict, init=False, repr=False)
+
+    @cached_property
+    def shape(self) -> Shape:
+        return shape_of(self.surface, self.density, self.max_density)
+
+    @property
+    def details(self) -> H.Details | None:
+        return self.shape.details
+
+    @cached_property
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """World boxes ``lo, hi`` ``(P0u, P0v, 3)`` of the level-0 patches: hull boxes' 8 corners mapped."""
+        lo, hi = self.shape.hulls
+        sel = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], bool)  # (8, 3)
+        corners = np.where(sel, hi[..., None, :], lo[..., None, :])  # (P0u, P0v, 8, 3)
+        world = apply_xform(self.xform, corners.reshape(-1, 3)).reshape(corners.shape)
+        return world.min(axis=-2), world.max(axis=-2)
+
+    @cached_property
+    def bounds(self) -> np.ndarray:
+        """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
+        lo, hi = self.boxes
+        return np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+
+    @cached_property
+    def size(self) -> float:
+        return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
+
+    @property
+    def closed(self) -> bool:
+        return self.shape.closed
+
+    @property
+    def _full(self) -> FullMesh:
+        return self.shape.full
+
+    @cached_property
+    def _inverse(self) -> np.ndarray:
+        return np.linalg.inv(self.xform)
+
+    def to_mesh(self, points: np.ndarray) -> np.ndarray:
+        """World points ``(k, 3)`` in the full mesh's frame (object space less its origin)."""
+        return apply_xform(self._inverse, points) - self.shape.full.origin
+
+    def from_mesh(self, points: np.ndarray) -> np.ndarray:
+        """Full-mesh-frame points ``(k, 3)`` in world space."""
+        return apply_xform(self.xform, points + self.shape.full.origin)
 
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
@@ -253,13 +329,16 @@ Geometry = Union[SurfaceGeometry, ColliderGeometry]
 def patch_density(geom: SurfaceGeometry) -> np.ndarray:
     """Steps per edge of each level-0 patch ``(P0u, P0v) int64``: ``max(density, 2 * 2**k)``, ``k``
     the finest level with an active patch inside it, capped at ``max_density``."""
-    hs = geom.surface
+    return geom.shape.density_map
+
+
+def _patch_density(hs: HSpline, density: int, max_density: int) -> np.ndarray:
     finest = np.zeros((hs.u.patches0, hs.v.patches0), np.int64)
     for lev in hs.fine:
         if lev.patches.size:
             npv = hs.v.patches(lev.k)
             finest[(lev.patches // npv) >> lev.k, (lev.patches % npv) >> lev.k] = lev.k
-    return np.minimum(np.maximum(geom.density, 2 * (1 << finest)), geom.max_density)
+    return np.minimum(np.maximum(density, 2 * (1 << finest)), max_density)
 
 
 def candidate_patches(geom: SurfaceGeometry, bounds: np.ndarray, pad: float = 0.0) -> np.ndarray:
@@ -279,15 +358,21 @@ def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     """Collision grids over level-0 ``patches (m, 2) int64`` at their `patch_density`, cached per
     patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error)."""
     patches = np.unique(np.asarray(patches, np.int64).reshape(-1, 2), axis=0)
-    cache, dens = geom._patch_cache, patch_density(geom)
-    missing = np.array([p for p in patches if (p[0], p[1]) not in cache], np.int64).reshape(-1, 2)
+    cache, shape = geom._patch_cache, geom.shape
+    grids, dens = shape.grids, shape.density_map
+    missing = np.array([p for p in patches if (p[0], p[1]) not in grids], np.int64).reshape(-1, 2)
     steps = dens[missing[:, 0], missing[:, 1]]
     for s in np.unique(steps):
         sel, n = missing[steps == s], (int(s) + 1) ** 2
-        pts, uv, _, _ = patch_grids(geom.surface, sel, int(s), det=geom.details)
-        pts = apply_xform(geom.xform, pts)
+        pts, uv, _, _ = patch_grids(geom.surface, sel, int(s), det=shape.details)
         for r, p in enumerate(sel):
-            cache[(p[0], p[1])] = (pts[r * n:(r + 1) * n], uv[r * n:(r + 1) * n], _grid_triangles(int(s)))
+            grids[(p[0], p[1])] = (pts[r * n:(r + 1) * n], uv[r * n:(r + 1) * n], _grid_triangles(int(s)))
+    todo = [(p[0], p[1]) for p in patches if (p[0], p[1]) not in cache]
+    if todo:
+        obj = [grids[p] for p in todo]
+        world = apply_xform(geom.xform, np.concatenate([g[0] for g in obj]))
+        for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g[0]) for g in obj[:-1]]))):
+            cache[p] = (w, g[1], g[2])
     if not len(patches):
         return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
     grids = [cache[(p[0], p[1])] for p in patches]
@@ -314,12 +399,12 @@ def _axis(d: Direction, steps: np.ndarray) -> np.ndarray:
     return np.concatenate([p + np.arange(s) / s for p, s in enumerate(steps)] + [[float(d.patches0)]])
 
 
-def _build_full_mesh(geom: SurfaceGeometry) -> FullMesh:
-    hs, dens = geom.surface, patch_density(geom)
+def _build_full_mesh(shape: Shape) -> FullMesh:
+    hs, dens = shape.surface, shape.density_map
     au, av = _axis(hs.u, dens.max(axis=1)), _axis(hs.v, dens.max(axis=0))
     cu, cv = len(au) - hs.u.periodic, len(av) - hs.v.periodic  # distinct vertex lines
     uu, vv = np.meshgrid(au[:cu], av[:cv], indexing="ij")
-    obj = H.evaluate(hs, uu.reshape(-1), vv.reshape(-1), det=geom.details).points
+    obj = H.evaluate(hs, uu.reshape(-1), vv.reshape(-1), det=shape.details).points
     grid, rep = obj.reshape(cu, cv, 3), np.arange(cu * cv).reshape(cu, cv)
     tol = _COLLAPSE * hs.size()
     for j in np.nonzero(np.ptp(grid, axis=0).max(axis=-1) <= tol)[0]:  # a line of constant v is a pole
@@ -334,9 +419,9 @@ def _build_full_mesh(geom: SurfaceGeometry) -> FullMesh:
     faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     face_uv = np.concatenate([quv[:, [0, 1, 2]], quv[:, [0, 2, 3]]])
     keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    origin = geom.bounds.mean(axis=0)
-    mesh = trimesh.Trimesh(apply_xform(geom.xform, obj) - origin, faces[keep], process=False)
-    return FullMesh(mesh, origin, geom.closed, face_uv[keep])
+    origin = 0.5 * (obj.min(axis=0) + obj.max(axis=0))
+    mesh = trimesh.Trimesh(obj - origin, faces[keep], process=False)
+    return FullMesh(mesh, origin, shape.closed, face_uv[keep])
 
 
 def is_closed(geom: Geometry) -> bool:
@@ -434,20 +519,19 @@ def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
         return np.zeros(len(points), bool)
     if isinstance(geom, ColliderGeometry):
         return geom.static.mesh.contains(apply_inverse(geom.xform, points))
-    fm = full_mesh(geom)
-    return fm.mesh.contains(points - fm.origin)
+    return full_mesh(geom).mesh.contains(geom.to_mesh(points))
 
 
 def surface_distance(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distances ``(k,)`` from world ``points (k, 3)`` to ``geom``'s tessellated surface, and the
     closest points ``(k, 3)``. A collider is queried in object space: exact for a similarity
-    matrix (rotation, uniform scale, translation), an upper bound under non-uniform scale."""
+    matrix (rotation, uniform scale, translation), an upper bound under non-uniform scale. A
+    deformable is queried the same way, in its `Shape`'s object space."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if isinstance(geom, ColliderGeometry):
         close = apply_xform(geom.xform, geom.static.index.query(apply_inverse(geom.xform, points))[1])
     else:
-        fm = full_mesh(geom)
-        close = fm.index.query(points - fm.origin)[1] + fm.origin
+        close = geom.from_mesh(full_mesh(geom).index.query(geom.to_mesh(points))[1])
     return np.linalg.norm(points - close, axis=1), close
 
 
@@ -524,7 +608,7 @@ def project(geom: Geometry, points: np.ndarray, newton: int = 8) -> Projection:
         world = apply_xform(geom.xform, local)
         return Projection(world, np.linalg.norm(world - points, axis=1), None, local)
     fm = full_mesh(geom)
-    _, close, face = fm.index.query(points - fm.origin)
+    _, close, face = fm.index.query(geom.to_mesh(points))
     bary = trimesh.triangles.points_to_barycentric(fm.mesh.triangles[face], close)
     uv, world = _newton(geom, points, np.einsum("kj,kjc->kc", bary, fm.face_uv[face]), newton)
     return Projection(world, np.linalg.norm(world - points, axis=1), uv, None)
@@ -793,8 +877,9 @@ def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: fl
         mesh, o, d, back = geom.static.mesh, apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T, geom.xform
     else:
         fm = full_mesh(geom)
-        mesh, o, d, back = fm.mesh, start - fm.origin, unit, np.eye(4)
-        back[:3, 3] = fm.origin
+        back = geom.xform.copy()
+        back[:3, 3] += geom.xform[:3, :3] @ fm.origin
+        mesh, o, d = fm.mesh, geom.to_mesh(start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
     loc, ray, _ = mesh.ray.intersects_location(o, d, multiple_hits=False)
     hits[rows[ray]], valid[rows[ray]] = apply_xform(back, loc), True
     return hits, valid

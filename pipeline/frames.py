@@ -10,7 +10,7 @@ every pair is within tolerance or the iteration cap is reached. Transforms are o
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -149,12 +149,32 @@ def run_frames(
     caches: dict = {}
     state_memo: dict = {}
 
+    canonical: list = [None] * len(defs)  # last input surface of each deformable
+    display: dict = {}  # id(surface) -> (surface, points, normals)
+
     def states(t: float):
         if t not in state_memo:
             if len(state_memo) > 64:
                 state_memo.clear()
-            state_memo[t] = usdio.state_at(stage, scene, t)
+            dstates, cstates = usdio.state_at(stage, scene, t)
+            for i, s in enumerate(dstates):  # unchanged input CVs: hand back the same surface, so
+                c = canonical[i]             # its object-space Shape (detect.shape_of) is reused
+                if c is not None and np.array_equal(c.cvs, s.surface.cvs):
+                    dstates[i] = replace(s, surface=c)
+                else:
+                    canonical[i] = s.surface
+            state_memo[t] = (dstates, cstates)
         return state_memo[t]
+
+    def tessellation(i: int, surface: H.HSpline):
+        """Display points and normals of a deformable's surface, once per distinct surface."""
+        hit = display.get(id(surface))
+        if hit is None or hit[0] is not surface:
+            if len(display) > 4 * len(defs):
+                display.clear()
+            det = D.shape_of(surface).details
+            hit = display[id(surface)] = (surface, *evaluate_grid(surface, defs[i].topology, det))
+        return hit[1], hit[2]
 
     def geometry(kind_j, t):
         dstates, cstates = states(t)
@@ -235,8 +255,7 @@ def run_frames(
             st.iterations = it + 1
         surfaces = best[1]
         for i, model in enumerate(defs):
-            det = H.details(surfaces[i]) if surfaces[i].depth > 1 else None
-            pts, nrm = evaluate_grid(surfaces[i], model.topology, det)
+            pts, nrm = tessellation(i, surfaces[i])
             result.add(frame, model.path, usdio.DeformableResult(pts, nrm, surfaces[i], st.residual, st.in_collision))
         st.ms_total = 1e3 * (time.perf_counter() - t0)
         stats.append(st)

@@ -48,8 +48,8 @@ def sheet_geom(n=10, width=7.0):
 def inradius(geom, centre):
     """Smallest distance from ``centre`` to the faces of ``geom``'s full mesh (brute force)."""
     fm = D.full_mesh(geom)
-    c = np.asarray(centre, float) - fm.origin
-    tri = fm.mesh.triangles
+    c = np.asarray(centre, float)
+    tri = geom.from_mesh(fm.mesh.triangles.reshape(-1, 3)).reshape(-1, 3, 3)  # world triangles
     return np.linalg.norm(trimesh.triangles.closest_point(tri, np.tile(c, (len(tri), 1))) - c, axis=1).min()
 
 
@@ -86,7 +86,7 @@ def test_full_mesh_of_a_refined_sphere_is_watertight_and_tagged():
     fm = D.full_mesh(g)
     assert fm.closed and fm.mesh.is_watertight and fm.mesh.volume > 0
     assert D.patch_density(g).max() == 16
-    corners = fm.mesh.triangles.reshape(-1, 3) + fm.origin
+    corners = g.from_mesh(fm.mesh.triangles.reshape(-1, 3))
     np.testing.assert_allclose(D.surface_points(g, fm.face_uv.reshape(-1, 2)).points, corners, atol=1e-12)
 
 
@@ -111,7 +111,7 @@ def test_broad_phase_tessellates_only_patches_near_the_box():
     np.testing.assert_allclose(c.region_a.points[0], [-8.5, -8.5, 0.0], atol=1e-12)
     assert c.depth == pytest.approx(0.1, abs=1e-12)
     np.testing.assert_array_equal(D.tessellated(g), [[0, 0], [0, 1], [1, 0], [1, 1]])
-    assert "_full" not in g.__dict__  # the open sheet's full grid was never built
+    assert "full" not in g.shape.__dict__  # the open sheet's full grid was never built
     # two spheres far apart: nothing is tessellated at all
     s1, s2 = sphere_geom(), sphere_geom(move(2.5, 0.3, 0.0), "/s2")
     assert D.detect_pair(s1, s2) is None
