@@ -79,6 +79,8 @@ def run_file(
     rrd: Path | None = None,
     spawn: bool = False,
     progress: bool = False,
+    method: str = "direct",
+    density: int = 8,
 ) -> RunReport:
     """Everything `acra run` does, as a function (the tests and `acra bench` call it)."""
     from pipeline import frames as F
@@ -114,7 +116,7 @@ def run_file(
         if bar is not None:
             bar.update(1)
 
-    result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance), on_frame)
+    result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance, method, density), on_frame)
     if bar is not None:
         bar.close()
     tw = time.perf_counter()

@@ -37,12 +37,15 @@ class RunOptions:
     tolerance : float
         Residual penetration accepted, as a fraction of the deformable's size (the smaller of two deformables; contract: 1e-3).
     method : str
-        Interpolation solver, ``"direct"`` or ``"blend"``.
+        Interpolation solver, ``"direct"`` or ``"blend"`` (iterated Bartels–Beatty).
+    density : int
+        Collision tessellation: least steps per level-0 patch edge (`detect.patch_density`).
     """
 
     iterations: int = 4
     tolerance: float = 1e-3
     method: str = "direct"
+    density: int = 8
 
 
 @dataclass
@@ -172,7 +175,7 @@ def run_frames(
         if hit is None or hit[0] is not surface:
             if len(display) > 4 * len(defs):
                 display.clear()
-            det = D.shape_of(surface).details
+            det = D.shape_of(surface, options.density).details
             hit = display[id(surface)] = (surface, *evaluate_grid(surface, defs[i].topology, det))
         return hit[1], hit[2]
 
@@ -180,7 +183,7 @@ def run_frames(
         dstates, cstates = states(t)
         kind, j = kind_j
         if kind == "d":
-            return D.SurfaceGeometry(dstates[j].surface, dstates[j].xform, name=defs[j].path)
+            return D.SurfaceGeometry(dstates[j].surface, dstates[j].xform, name=defs[j].path, density=options.density)
         return D.ColliderGeometry(statics[j], cstates[j].xform)
 
     for frame in frames:
@@ -193,7 +196,7 @@ def run_frames(
         best = (np.inf, list(surfaces))
         rounds = max(1, options.iterations)
         for it in range(rounds + 1):
-            geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path) for i in range(len(defs))]
+            geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
             cgeoms = [D.ColliderGeometry(statics[j], cstates[j].xform) for j in range(len(statics))]
             td = time.perf_counter()
             found = []
