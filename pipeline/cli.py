@@ -32,6 +32,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--iterations", type=int, default=4, help="cap on detect/respond rounds per frame (default 4)")
     run.add_argument("--tolerance", type=float, default=1e-3, help="accepted residual penetration, fraction of object size (default 1e-3)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    bench = sub.add_parser("bench", help="time the thesis's Fig. 5.2 stages on a scene (default: dog_head_spike)")
+    bench.add_argument("scene", nargs="?", type=Path, help="scene file or stage (default scenes/dog_head_spike.py)")
+    bench.add_argument("--repeat", type=int, default=3, help="cold runs to take medians over (default 3)")
     return p
 
 
@@ -136,10 +139,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def bench(args: argparse.Namespace) -> int:
+    from pipeline.bench import format_report, run_bench
+
+    if args.repeat < 1:
+        raise InputError("--repeat", None, f"must be at least 1, got {args.repeat}")
+    print(format_report(run_bench(args.scene, args.repeat)))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return run(args)
+        return bench(args) if args.command == "bench" else run(args)
     except InputError as err:
         print(f"acra: error: {err}", file=sys.stderr)
         return 2

@@ -12,6 +12,7 @@ float64 unless stated.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 from typing import Callable, Union
@@ -29,7 +30,7 @@ from pipeline.model import ColliderModel, apply_inverse, apply_xform
 
 __all__ = [
     "ColliderStatic", "prepare_collider", "SurfaceGeometry", "ColliderGeometry", "Geometry",
-    "FullMesh", "Shape", "shape_of", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
+    "FullMesh", "Shape", "SetupClock", "shape_of", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "full_mesh", "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
     "regions", "touching", "rewind", "detect_pair", "residual", "cast", "default_tolerance",
@@ -193,6 +194,27 @@ class FullMesh:
         return _Closest(self.mesh.vertices, self.mesh.faces)
 
 
+class SetupClock:
+    """Milliseconds spent building `Shape` data (the thesis's "initial setup" of RAPID, Fig. 5.2):
+    the frame loop reads it around detection to report set-up apart from the queries."""
+
+    ms: float = 0.0
+
+
+def _timed_setup(build):
+    """Decorate a `Shape` builder so its time goes to `SetupClock`."""
+
+    def timed(self):
+        t = time.perf_counter()
+        try:
+            return build(self)
+        finally:
+            SetupClock.ms += 1e3 * (time.perf_counter() - t)
+
+    timed.__name__, timed.__doc__ = build.__name__, build.__doc__
+    return timed
+
+
 class Shape:
     """Everything about a surface that does not depend on where it is: level details, patch hull
     boxes, collision grids and the full mesh with its ray and closest-point indices, all in object
@@ -205,10 +227,12 @@ class Shape:
         self.grids: dict = {}  # (pu, pv) -> object points (n, 3), uv (n, 2), triangles (f, 3)
 
     @cached_property
+    @_timed_setup
     def details(self) -> H.Details | None:
         return H.details(self.surface) if self.surface.depth > 1 else None
 
     @cached_property
+    @_timed_setup
     def hulls(self) -> tuple[np.ndarray, np.ndarray]:
         """Object-space boxes ``lo, hi (P0u, P0v, 3)`` of the level-0 patches' control hulls."""
         return patch_hulls(self.surface, self.details)
@@ -239,8 +263,14 @@ class Shape:
         return True
 
     @cached_property
+    @_timed_setup
     def full(self) -> FullMesh:
-        return _build_full_mesh(self)
+        """The full mesh with its ray intersector and closest-point index built."""
+        fm = _build_full_mesh(self)
+        if len(fm.mesh.faces):
+            fm.mesh.ray.intersects_first(np.zeros((1, 3)), np.ones((1, 3)))  # build the embree scene now
+            fm.index.vtree
+        return fm
 
 
 _SHAPES: dict = {}  # id(surface) -> (surface, density, max_density, Shape), most recent last

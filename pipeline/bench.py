@@ -1,0 +1,137 @@
+"""`acra bench`: the thesis's Fig. 5.2 timing table, measured on this machine.
+
+Runs a scene (default: `scenes/dog_head_spike.py`, the thesis's 30-frame dog head and spike)
+``repeat`` times in-process, each from a cold start (no cached shape data), and reports median
+milliseconds per frame for each stage of Fig. 5.2 — set-up, detection, conversion to response
+inputs, response of the large and the small object, USD writing — over the collision frames and
+over the free frames, beside the thesis's figures (Pentium 150 MHz, 1998). Then times ``acra run``
+end to end in a fresh process (start-up included) and checks issue #6's targets. Numbers are
+medians of one invocation; the machine is shared, so compare ratios within one run.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["THESIS", "TARGETS", "Bench", "run_bench", "format_report", "default_scene"]
+
+# Fig. 5.2: (stage, frames requiring it, wall-clock ms averaged over those frames)
+THESIS = {
+    "set-up": (5, "large 3919, small 12"),
+    "detection": (30, "16"),
+    "conversion": (4, "358"),
+    "response, large": (4, "590"),
+    "response, small": (4, "14"),
+    "USD writing": (None, "—"),
+}
+# issue #6 targets: ms per collision frame, ms per free frame, s end to end
+TARGETS = {"collision frame": 10.0, "free frame": 2.0, "end to end": 3.0}
+
+
+def default_scene() -> Path:
+    return Path(__file__).resolve().parents[1] / "scenes" / "dog_head_spike.py"
+
+
+@dataclass
+class Bench:
+    """Per-stage medians ``rows[stage] = (collision ms, free ms)``, frame counts, end-to-end s."""
+
+    scene: Path
+    rows: dict
+    n_collision: int
+    n_free: int
+    frame_ms: tuple
+    end_to_end_s: float
+    residual_rel: float
+    large: str
+    small: str
+    repeat: int
+
+
+def _median(xs) -> float:
+    return float(np.median(xs)) if len(xs) else float("nan")
+
+
+def run_bench(scene: Path | None = None, repeat: int = 3) -> Bench:
+    """Measure the Fig. 5.2 table on ``scene`` (see the module docstring)."""
+    from pipeline import detect as D
+    from pipeline.cli import run_file
+
+    scene = Path(scene or default_scene()).resolve()
+    per_stage: dict = {k: ([], []) for k in ("set-up", "detection", "conversion", "response, large",
+                                             "response, small", "display tessellation", "USD writing")}
+    frame_ms: tuple = ([], [])
+    worst = 0.0
+    with tempfile.TemporaryDirectory() as tmp:
+        src = Path(tmp) / scene.name
+        src.write_text(scene.read_text())
+        for _ in range(repeat):
+            D._SHAPES.clear()  # cold start: every run builds its own shape data
+            report = run_file(src, output=Path(tmp) / "out.acra.usda")
+            large, small = _large_small(report)
+            write = report.ms_write / max(1, len(report.stats))
+            for s in report.stats:
+                col = 0 if s.in_collision else 1
+                per_stage["set-up"][col].append(s.ms_setup)
+                per_stage["detection"][col].append(s.ms_detect)
+                per_stage["conversion"][col].append(s.ms_convert)
+                per_stage["response, large"][col].append(s.ms_respond_by.get(large, 0.0))
+                per_stage["response, small"][col].append(s.ms_respond_by.get(small, 0.0))
+                per_stage["display tessellation"][col].append(s.ms_output)
+                per_stage["USD writing"][col].append(write)
+                frame_ms[col].append(s.ms_total + write)
+                worst = max(worst, s.residual_rel)
+        n_col = sum(s.in_collision for s in report.stats)
+        runs = []
+        for _ in range(repeat):
+            t = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "pipeline.cli", "run", str(src), "-o", str(Path(tmp) / "e2e.acra.usda"),
+                            "--quiet"], check=True, capture_output=True)
+            runs.append(time.perf_counter() - t)
+    rows = {k: (_median(c), _median(f)) for k, (c, f) in per_stage.items()}
+    return Bench(scene, rows, n_col, len(report.stats) - n_col, (_median(frame_ms[0]), _median(frame_ms[1])),
+                 _median(runs), worst, large, small, repeat)
+
+
+def _large_small(report) -> tuple[str, str]:
+    """Paths of the deformables with the most and the fewest stored CVs."""
+    from pipeline import usdio
+
+    sizes = {}
+    for m in report.scene.deformables:
+        hs = usdio.surface_template(report.scene, m)
+        sizes[m.path] = int(hs.cvs.shape[0] * hs.cvs.shape[1] + sum(lev.cv_keys.size for lev in hs.fine))
+    order = sorted(sizes, key=sizes.get)
+    return order[-1], order[0]
+
+
+def format_report(b: Bench) -> str:
+    """The markdown report: Fig. 5.2 beside ours, then the targets."""
+    lines = [
+        f"`acra bench {b.scene.name}` — medians over {b.repeat} cold runs, ms per frame "
+        f"({b.n_collision} collision frames, {b.n_free} free frames); large = `{b.large}`, small = `{b.small}`",
+        "",
+        "| stage | ACRA here: collision frames | ACRA here: free frames | thesis Fig. 5.2 (frames: ms) |",
+        "|---|---:|---:|---|",
+    ]
+    for stage, (c, f) in b.rows.items():
+        n, ms = THESIS.get(stage, (None, "—"))
+        lines.append(f"| {stage} | {c:.1f} | {f:.2f} | {'' if n is None else f'{n}: '}{ms} |")
+    lines.append(f"| **whole frame** | **{b.frame_ms[0]:.1f}** | **{b.frame_ms[1]:.2f}** | |")
+    lines += ["", "| target (issue #6) | measured | goal | |", "|---|---:|---:|---|"]
+    for name, got in (("collision frame", b.frame_ms[0]), ("free frame", b.frame_ms[1]), ("end to end", b.end_to_end_s)):
+        goal = TARGETS[name]
+        unit = "s" if name == "end to end" else "ms"
+        verdict = "met" if got <= goal else f"missed by {got / goal:.1f}×"
+        lines.append(f"| {name} | {got:.2f} {unit} | ≤ {goal:g} {unit} | {verdict} |")
+    lines.append(f"| residual penetration | {b.residual_rel:.2e} of size | ≤ 1e-3 | {'met' if b.residual_rel <= 1e-3 else 'missed'} |")
+    return "\n".join(lines)
+
+
