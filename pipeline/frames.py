@@ -72,7 +72,8 @@ class FrameStats:
     ms_output: float = 0.0
     ms_total: float = 0.0
     contacts: list = field(default_factory=list)
-    data_points: dict = field(default_factory=dict)
+    data_points: dict = field(default_factory=dict)  # path -> (from (K, 3), target (K, 3)), world
+    xforms: dict = field(default_factory=dict)  # path -> (4, 4) object-to-world, every object
     regions: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
 
@@ -113,11 +114,13 @@ def data_points_for(
 
     Returns
     -------
-    DataPoints (object space of ``ga``), and the world targets ``(K, 3)`` for the preview.
+    DataPoints (object space of ``ga``), the world targets ``(K, 3)`` and the world points
+    ``(K, 3)`` they move from (the surface before the response), for the preview's arrows.
     """
     target_p = R.contact_targets(p_self, p_other, share)
     uvs = [np.asarray(uv, float).reshape(1, 2)]
     targets = [target_p[None]]
+    origins = [np.asarray(p_self, float).reshape(1, 3)]
     direction = p_other - p_self if direction is None else np.asarray(direction, float)
     size = ga.size
     if region_uv is not None and len(region_uv) and np.linalg.norm(direction) > 1e-9 * size:
@@ -127,11 +130,12 @@ def data_points_for(
         if np.any(valid):
             uvs.append(mids[valid])
             targets.append(R.additional_targets(a_world[valid], hits[valid], share))
+            origins.append(a_world[valid])
     uv_all = np.concatenate(uvs)
     world = np.concatenate(targets)
     is_contact = np.zeros(len(uv_all), bool)
     is_contact[0] = True
-    return R.DataPoints(uv_all, apply_inverse(ga.xform, world), is_contact), world
+    return R.DataPoints(uv_all, apply_inverse(ga.xform, world), is_contact), world, np.concatenate(origins)
 
 
 def _pairs(n_def: int, n_col: int):
@@ -197,6 +201,8 @@ def run_frames(
         t0 = time.perf_counter()
         st = FrameStats(frame)
         dstates, cstates = states(float(frame))
+        st.xforms = {m.path: s.xform for m, s in zip(defs, dstates)}
+        st.xforms.update({c.path: s.xform for c, s in zip(scene.colliders, cstates)})
         surfaces = [s.surface for s in dstates]
         enabled = [s.enabled for s in dstates]
         directions: dict = {}
@@ -243,28 +249,28 @@ def run_frames(
                 if enabled[i]:
                     share = R.rigidity_share(controls[i].rigidity, r_other)
                     push = directions.setdefault((i, other), c.point_b - c.point_a)
-                    dp, world = data_points_for(geoms[i], gb, c.uv_a, c.point_a, c.point_b, c.region_a.uv, share,
-                                                _group_level(controls[i], surfaces[i].depth), push)
-                    points.setdefault(i, []).append((dp, world))
+                    dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, c.point_b, c.region_a.uv, share,
+                                                       _group_level(controls[i], surfaces[i].depth), push)
+                    points.setdefault(i, []).append((dp, world, start))
                 if other[0] == "d" and enabled[other[1]]:
                     j = other[1]
                     share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
                     push = -directions.setdefault((i, other), c.point_b - c.point_a)
-                    dp, world = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a, c.region_b.uv, share,
-                                                _group_level(controls[j], surfaces[j].depth), push)
-                    points.setdefault(j, []).append((dp, world))
+                    dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a, c.region_b.uv, share,
+                                                       _group_level(controls[j], surfaces[j].depth), push)
+                    points.setdefault(j, []).append((dp, world, start))
             st.ms_setup += D.SetupClock.ms - setup0
             st.ms_convert += 1e3 * (time.perf_counter() - tr) - (D.SetupClock.ms - setup0)
             for i, lst in points.items():
                 t_i = time.perf_counter()
                 dp = R.DataPoints(
-                    np.concatenate([d.uv for d, _ in lst]),
-                    np.concatenate([d.target for d, _ in lst]),
-                    np.concatenate([d.is_contact for d, _ in lst]),
+                    np.concatenate([d.uv for d, _, _ in lst]),
+                    np.concatenate([d.target for d, _, _ in lst]),
+                    np.concatenate([d.is_contact for d, _, _ in lst]),
                 )
                 surfaces[i], _ = R.respond(surfaces[i], dp, controls[i], method=options.method)
                 if it == 0:
-                    st.data_points[defs[i].path] = np.concatenate([w for _, w in lst])
+                    st.data_points[defs[i].path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))
                 ms = 1e3 * (time.perf_counter() - t_i)
                 st.ms_respond += ms
                 st.ms_respond_by[defs[i].path] = st.ms_respond_by.get(defs[i].path, 0.0) + ms

@@ -66,10 +66,48 @@ def test_rrd_reads_back_with_meshes_on_the_frame_timeline(tmp_path):
     assert main(["run", str(scene), "--quiet", "--frames", "9:12", "--rrd", str(rrd)]) == 0
     chunks = list(RrdReader(str(rrd)).stream().to_chunks())
     paths = {c.entity_path for c in chunks}
-    assert {"/world/World/Sheet", "/metrics/residual_rel", "/metrics/ms_frame", "/contacts"} <= paths
+    assert {"/world/World/Sheet", "/world/World/Mover/Box", "/metrics/residual_rel", "/metrics/ms/total",
+            "/metrics/ms/detect", "/world/acra/contacts", "/world/acra/data_points/World/Sheet"} <= paths
     temporal = [c for c in chunks if c.entity_path == "/world/World/Sheet" and not c.is_static]
     assert temporal and "frame" in temporal[0].to_record_batch().schema.names
     assert any(c.is_static for c in chunks if c.entity_path == "/world/World/Sheet")
+    # the box is drawn where USD puts it: its transform is logged per frame (z = 0.55 at frame 10)
+    box = [c for c in chunks if c.entity_path == "/world/World/Mover/Box" and not c.is_static]
+    names = " ".join(str(n) for c in box for n in c.to_record_batch().schema.names)
+    assert "Transform3D" in names or "translation" in names.lower()
+    # the default blueprint travels with the recording: the 3D view, three plots and the event log
+    reader = RrdReader(str(rrd))
+    stores = reader.blueprints()
+    assert stores
+    views = {c.entity_path.split("/")[2] for c in reader.stream(store=stores[0]).to_chunks() if c.entity_path.startswith("/view/")}
+    assert len(views) == 5
+
+
+def test_preview_clears_markers_of_a_free_frame(tmp_path):
+    """Scrubbing from a collision frame to a free one must not show the old contacts."""
+    from rerun.chunk import RrdReader
+
+    from pipeline import frames as F
+    from pipeline import preview as P
+    from pipeline import usdio
+
+    scene_file = tmp_path / "box_into_sheet.py"
+    shutil.copy(SCENE, scene_file)
+    stage_path = usdio.load_scene_file(scene_file)
+    stage = usdio.open_input(stage_path)
+    scene = usdio.read_scene(stage)
+    result, stats = F.run_frames(stage, scene, [10, 11])
+    assert not stats[0].in_collision and stats[1].in_collision
+    rrd = tmp_path / "p.rrd"
+    preview = P.Preview(scene, "p", rrd=rrd)
+    preview.log_frame(stats[1], result)  # collision first, then the free frame
+    preview.log_frame(stats[0], result)
+    preview.close()
+    cleared = set()
+    for c in RrdReader(str(rrd)).stream().to_chunks():
+        if any("Clear" in str(n) for n in c.to_record_batch().schema.names):
+            cleared.add(c.entity_path)
+    assert {"/world/acra/contacts", "/world/acra/data_points/World/Sheet", "/world/acra/region/World/Sheet"} <= cleared
 
 
 def test_two_runs_give_byte_identical_layers(tmp_path):
