@@ -1,0 +1,39 @@
+"""A slab slides over a bump whose response is rotational on level 2 (thesis Fig. 5.10): the bump
+turns over in the direction the slab moves until the slab slides past it.
+
+    python scenes/rolling_bump.py          # writes rolling_bump.usda beside this file
+    acra run scenes/rolling_bump.py --rrd rolling_bump.rrd
+
+The bump is local detail on level 2 of a 3-level sheet, and level 2 absorbs all of the response
+as a rotation (the thesis: "since that is the level where the control vertices were offset to
+create the bump"). The rotation turns the bump's detail about its base on the level-1 surface.
+"""
+
+from pathlib import Path
+
+from pipeline import authoring as A
+from pipeline.animation import usdkeys as K
+from scenes._spikes import feature_sheet
+
+#: the slab's underside (z) and the x of its leading face at the first and last frame (the
+#: bump's crest is at z = 0.405, x = 0; the face first touches it between frames 4 and 5 and is
+#: past its far foot, x = 0.48, from frame 9 on)
+SLAB_Z = 0.2
+SLAB_X = (-0.6, 0.76)
+
+
+def build():
+    stage = A.new_stage(1, 11, fps=24, up_axis="Z")
+    cvs, hs = feature_sheet(tip=0.5, spread=0.7)
+    A.add_deformable(stage, "/World/Sheet", cvs, levels=3, absorption=[0, 0, 1], deform=[1, 1, 0],
+                     rotate=[0, 0, 1], rigidity=10, samples=8, hierarchy=hs)
+    slab = A.add_xform(stage, "/World/Mover")
+    # the slab's leading face is at local x = 0, its underside at local z = 0
+    A.add_collider(stage, "/World/Mover/Slab", *A.box((1.2, 1.2, 0.3), center=(-0.6, 0.0, 0.15)))
+    K.key_translate(slab, "z", [1, 11], [SLAB_Z, SLAB_Z])
+    K.key_translate(slab, "x", [1, 11], list(SLAB_X))
+    return stage
+
+
+if __name__ == "__main__":
+    A.save(build(), Path(__file__).with_suffix(".usda"))
