@@ -85,7 +85,7 @@ def build():
     cvs, hs = head()
     A.add_deformable(
         stage, "/World/Head", cvs, u_wrap="periodic", v_wrap="open", hierarchy=hs,
-        absorption=[0, 0, 0.2, 0.3, 0.5, 0, 0], rigidity=10, samples=4,
+        absorption=[0, 0, 0.2, 0.3, 0.5, 0, 0], rigidity=10, samples=6,
     )
     cvs, hs = spike()
     mover = A.add_xform(stage, "/World/Jab")
