@@ -250,7 +250,7 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     if level == 0:
         cvs = hs.cvs.reshape(-1, 3).copy()
         np.add.at(cvs, cv_rows, dv)
-        return replace(hs, cvs=cvs.reshape(hs.cvs.shape))
+        return replace(hs, cvs=_closed_ends(hs, cvs.reshape(hs.cvs.shape)))
     lev = hs.level(level)
     frames = det.frames[level - 1][cv_rows]
     offsets = lev.offsets.copy()
@@ -258,6 +258,31 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     fine = list(hs.fine)
     fine[level - 1] = replace(lev, offsets=offsets)
     return replace(hs, fine=tuple(fine))
+
+
+def _closed_ends(hs: H.HSpline, cvs: np.ndarray) -> np.ndarray:
+    """Level-0 ``cvs (nu, nv, 3)`` (``hs``'s after a move) with every end that ``hs`` closes closed again.
+
+    A grid periodic one way closes an end of the other, a sphere's pole (`acra.shapes.sphere`),
+    when ``R0 + 4 R1 + R2`` (its first three rows) is one point all around. Moving rows 1–2 alone,
+    as any level-0 contact within two patches does, splits it: the surface gets a hole, detection
+    no longer sees an inside and the pole normal flips. The end row ``R0`` takes the least change
+    that closes the end again (after a collapsed pole row ``R1`` is collapsed to its mean), so the
+    surface changes only in that end's patch rows. 1e-6 of the size covers float32 ``acra:cvs``.
+    """
+    if hs.u.periodic == hs.v.periodic:
+        return cvs
+    swap = not hs.u.periodic  # the periodic direction first
+    old, new = (hs.cvs.transpose(1, 0, 2), cvs.transpose(1, 0, 2).copy()) if swap else (hs.cvs, cvs.copy())
+    tol, m = 1e-6 * hs.size(), old.shape[1]
+    for e0, e1, e2 in ((0, 1, 2), (m - 1, m - 2, m - 3)) if m >= 5 else ():
+        if np.ptp(old[:, e0] + 4.0 * old[:, e1] + old[:, e2], axis=0).max() > tol:
+            continue
+        if np.ptp(old[:, e1], axis=0).max() <= tol:
+            new[:, e1] = new[:, e1].mean(axis=0)
+        ends = new[:, e0] + 4.0 * new[:, e1] + new[:, e2]
+        new[:, e0] -= ends - ends.mean(axis=0)
+    return new.transpose(1, 0, 2) if swap else new
 
 
 def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
