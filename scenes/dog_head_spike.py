@@ -76,7 +76,7 @@ def spike() -> tuple[np.ndarray, H.HSpline]:
     cvs[..., :2] *= np.clip(0.6 - cvs[..., 2:3], 0.0, None) / 1.2
     cvs = cvs[..., [0, 2, 1]] * np.array([1.0, -1.0, 1.0])
     hs = H.from_grid(cvs, u_periodic, v_periodic, depth=3)
-    hs = H.refine(hs, 1, np.array([[pu, pv] for pu in range(2) for pv in range(9, 11)]))
+    hs = H.refine(hs, 1, np.array([[pu, pv] for pu in range(2) for pv in range(8, 10)]))  # at the tip
     return cvs, hs
 
 
