@@ -6,7 +6,7 @@
 The ball (`acra.shapes.sphere`: periodic u, open v, each pole a collapsed CV row) rests at the
 origin. The torus (`acra.shapes.torus`, periodic both ways) lies in the same plane; its parent
 Xform ``/World/Carrier`` slides it along x with a native USD spline (Catmull-Rom keys through
-`usdkeys.key_translate`), so the outside of its tube presses into the ball's equator, 0.22 deep
+`usdkeys.key_translate`), so the outside of its tube presses into the ball's equator, 0.2 deep
 at the turn, and pulls back out. Both objects deform (thesis eq. 4.15): the ball has rigidity 20
 and the torus 60, so the ball takes 3/4 of the push and the torus 1/4. Level 0 absorbs a share of
 each response, which moves the ball's CVs next to its poles: the poles must stay closed.
@@ -25,7 +25,7 @@ RIGIDITY = {"ball": 20.0, "torus": 60.0}
 def build():
     stage = A.new_stage(1, 11, fps=24, up_axis="Z")
     levels = dict(levels=3, absorption=[0.2, 0.3, 0.5], samples=4)
-    cvs, u_wrap, v_wrap = shapes.sphere(8, 8)
+    cvs, _, _ = shapes.sphere(8, 8)
     A.add_deformable(stage, "/World/Ball", cvs, u_wrap="periodic", v_wrap="open", rigidity=RIGIDITY["ball"], **levels)
     cvs, _, _ = shapes.torus(12, 8, major=1.0, minor=0.35)
     carrier = A.add_xform(stage, "/World/Carrier")

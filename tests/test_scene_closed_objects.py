@@ -46,7 +46,8 @@ def _contact_moves(report, st):
         proj = D.project(D.SurfaceGeometry(state.surface, state.xform), p[None])
         assert proj.distance[0] <= 1e-9, m.path  # the contact point is a material point of the input
         hs = usdio.read_output_hierarchy(out, m.path, st.frame)
-        moved.append(apply_xform(state.xform, H.evaluate(hs, proj.uv[:, 0], proj.uv[:, 1], det=H.details(hs)).points)[0])
+        q = H.evaluate(hs, proj.uv[:, 0], proj.uv[:, 1], det=H.details(hs)).points
+        moved.append(apply_xform(state.xform, q)[0])
     return np.array([p_a, p_b, *moved])
 
 
