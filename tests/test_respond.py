@@ -227,3 +227,31 @@ def test_rotational_response_turns_the_detail_at_additional_points_too():
     np.testing.assert_allclose(np.linalg.norm(after, axis=1), np.linalg.norm(before, axis=1), atol=1e-9)
     turned = np.arctan2(after[:, 0], after[:, 2])  # toward +x, the push, about the y axis
     assert turned.min() > 0.05, turned
+
+
+
+def test_contact_among_one_point_per_patch_does_not_ring():
+    """A contact inside a dent sampled once per patch nearly repeats its neighbours' rows.
+
+    Regression (scene rigid_floor): one additional point per level-3 patch of a 0.2-deep dent,
+    sampled at the knots as detection does before any refinement, plus a contact whose target
+    is 1% of the depth off the smooth dent. The Gram matrix's smallest eigenvalue was 1e-9 of
+    the largest (the next 1.3e-2) and the exact solve moved the 7-wide sheet by 14; with that
+    mode dropped (`interpolate.min_norm_solve`, rcond 1e-6) the sheet moves at most the depth
+    (0.2005 measured) and the contact misses by 0.0013 of its 0.002 inconsistency.
+    """
+    hs = flat_sheet(n=10, depth=4)
+    g = np.linspace(0, 7, 57)  # 8 samples per level-0 patch: one per level-3 patch, at the knots
+    uu, vv = (x.reshape(-1) for x in np.meshgrid(g, g, indexing="ij"))
+    inside = (uu - 3.5) ** 2 + (vv - 3.5) ** 2 < 1.0
+    mids, _ = R.region_midpoints(hs, np.stack([uu[inside], vv[inside]], 1), 3)
+    for contact in ([3.67, 3.59], [3.5625, 3.5625]):
+        uv = np.concatenate([[contact], mids])
+        depth = 0.2 * (1.0 - ((uv[:, 0] - 3.5) ** 2 + (uv[:, 1] - 3.5) ** 2))
+        depth[0] += 0.002
+        q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+        dp = R.DataPoints(uv, q - depth[:, None] * [0, 0, 1], np.arange(len(uv)) == 0)
+        out, rep = R.respond(hs, dp, controls(4, 3))
+        moved = np.linalg.norm(H.evaluate(out, uu, vv).points - H.evaluate(hs, uu, vv).points, axis=1)
+        assert moved.max() <= 1.01 * depth.max(), (contact, moved.max())
+        assert np.abs(rep.remaining).max() < 0.002, np.abs(rep.remaining).max()
