@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 _MAX_CONTACTS = 1_000_000
-_COLLAPSE = 1e-12  # a grid line within this fraction of the object size is one point (a pole)
+_COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
 _PAD = 1e-7  # box padding, fraction of the pair's size: exactly touching boxes still overlap
 _US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see _Closest
 
@@ -757,7 +757,7 @@ def _anchor_at(ga: SurfaceGeometry, gb: Geometry, t: float) -> Anchor | None:
 
 
 def rewind(geometry_at: GeometryAt, t: float, start: float | None = None, cache: RewindCache | None = None,
-           max_back: int = 8, steps: int = 12) -> Anchor | None:
+           max_back: int = 10_000, steps: int = 12) -> Anchor | None:
     """First contact of the input motion before ``t`` (``None`` without an earlier free time):
     ``geometry_at(time)`` gives the input geometry (no response) at any time. Steps back whole
     frames (``max_back``, not before ``start``) to the last free time, bisects ``steps`` times up
@@ -844,7 +844,7 @@ def _fallback(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inter: 
 
 
 def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: GeometryAt | None = None, *,
-                start: float | None = None, cache: RewindCache | None = None, max_back: int = 8,
+                start: float | None = None, cache: RewindCache | None = None, max_back: int = 10_000,
                 steps: int = 12) -> PairContact | None:
     """Detect a pair at time ``t``, ``None`` if it neither touches nor interpenetrates. ``ga``/``gb``:
     current geometry (possibly responded); ``geometry_at``: the input at any time, for `rewind`

@@ -413,3 +413,10 @@ def benchmark():
 
 if __name__ == "__main__":
     benchmark()
+
+
+def test_an_off_centre_ball_stored_in_float32_is_still_closed():
+    """float32 ``acra:cvs`` round a pole row by ~1e-8 of the size: still one point, still closed."""
+    cvs, pu, pv = shapes.sphere(8, 8, radii=(0.7,) * 3, center=(0.3, 0.1, 0.2))
+    g = D.SurfaceGeometry(H.from_grid(cvs.astype(np.float32).astype(np.float64), pu, pv), move())
+    assert g.closed and D.full_mesh(g).mesh.is_watertight
