@@ -2,7 +2,7 @@
 
 Runs inside the Blender venv's python (``bpy`` + its own numpy, nothing from this project):
 
-    .venv-blender/bin/python benchmarks/_blender_shrinkwrap.py IN.npz OUT.npz [--repeats N]
+    .venv-blender/bin/python benchmarks/_blender_shrinkwrap.py IN.npz OUT.npz [--repeats N] [--wrap-method M]
 
 IN.npz (written by `shrinkwrap.Keyed.save_npz`; Z up like Blender):
 
@@ -16,7 +16,8 @@ IN.npz (written by `shrinkwrap.Keyed.save_npz`; Z up like Blender):
 
 Each deformable gets one Shrinkwrap modifier per target (``NEAREST_SURFACEPOINT``, ``OUTSIDE``,
 offset 0): a vertex found inside a target goes to the nearest point of its surface, every other
-vertex stays. A target moves by its object matrix, as an animator keys it, so Blender keeps the
+vertex stays. With ``--wrap-method PROJECT`` a vertex is cast along its normal both ways and the
+nearest hit is taken; ``TARGET_PROJECT`` casts along the target's normals. A target moves by its object matrix, as an animator keys it, so Blender keeps the
 target's BVH tree between frames (as ACRA keeps its collider's) unless its shape changes.
 
 OUT.npz: ``def{i}_points (F, n, 3) float64`` evaluated positions; ``ms_modifier (F,)`` median over
@@ -68,6 +69,7 @@ def main():
     ap.add_argument("inp")
     ap.add_argument("out")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--wrap-method", default="NEAREST_SURFACEPOINT", choices=("NEAREST_SURFACEPOINT", "PROJECT", "TARGET_PROJECT"))
     args = ap.parse_args()
     data = np.load(args.inp)
     frames = data["frames"]
@@ -85,7 +87,8 @@ def main():
         for k in data[f"def{i}_targets"]:
             m = ob.modifiers.new(f"shrinkwrap{k}", "SHRINKWRAP")
             m.target = targets[int(k)][0]
-            m.wrap_method = "NEAREST_SURFACEPOINT"
+            m.wrap_method = args.wrap_method
+            m.use_negative_direction = m.use_positive_direction = True  # PROJECT: both ways along the normal
             m.wrap_mode = "OUTSIDE"
             m.offset = 0.0
         defs.append((ob, pts))

@@ -412,11 +412,12 @@ def opposite_moves(keyed: np.ndarray, a: np.ndarray, b: np.ndarray, size: float)
 # the two runs
 
 
-def run_blender(python: Path, keyed: Keyed, work: Path, repeats: int) -> dict:
+def run_blender(python: Path, keyed: Keyed, work: Path, repeats: int, wrap_method: str = "NEAREST_SURFACEPOINT") -> dict:
     """Run `_blender_shrinkwrap.py` on the keyed frames; returns its OUT.npz as a dict."""
     inp, out = work / "keyed.npz", work / "shrinkwrap.npz"
     keyed.save_npz(inp)
-    proc = subprocess.run([str(python), str(BLENDER_SIDE), str(inp), str(out), "--repeats", str(repeats)], capture_output=True, text=True)
+    cmd = [str(python), str(BLENDER_SIDE), str(inp), str(out), "--repeats", str(repeats), "--wrap-method", wrap_method]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"Blender side failed ({proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
     with np.load(out) as z:
@@ -616,7 +617,8 @@ def update_doc(doc: Path, name: str, text: str) -> None:
     doc.write_text(new)
 
 
-def collect(src: Path, frames: str | None, python: Path, repeats: int, acra_repeats: int, samples: int | None = None):
+def collect(src: Path, frames: str | None, python: Path, repeats: int, acra_repeats: int, samples: int | None = None,
+            wrap_method: str = "NEAREST_SURFACEPOINT"):
     """Both runs on scene file or stage ``src``: ``(keyed, shrinkwrap npz dict, ACRA stats,
     ACRA median ms per frame (F,), ACRA world points per deformable)``."""
     from pipeline import usdio
@@ -629,7 +631,7 @@ def collect(src: Path, frames: str | None, python: Path, repeats: int, acra_repe
         else:
             stage_path = src
         keyed = export_keyed(stage_path, frames, samples)
-        sw = run_blender(python, keyed, work, repeats)
+        sw = run_blender(python, keyed, work, repeats, wrap_method)
         stats, ms_acra, acra_points = run_acra(stage_path, keyed, work, acra_repeats)
     return keyed, sw, stats, ms_acra, acra_points
 
@@ -649,6 +651,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=7, help="Shrinkwrap evaluations per frame, median (default 7)")
     ap.add_argument("--acra-repeats", type=int, default=3, help="ACRA runs, median per frame (default 3)")
     ap.add_argument("--samples", type=int, help="evaluate both on this many steps per level-0 patch edge (default: acra:samples)")
+    ap.add_argument("--wrap-method", default="NEAREST_SURFACEPOINT", choices=("NEAREST_SURFACEPOINT", "PROJECT", "TARGET_PROJECT"),
+                    help="Shrinkwrap's wrap method (default %(default)s; PROJECT casts along the vertex normal both ways)")
     ap.add_argument("--no-doc", action="store_true", help="print only; do not update docs/shrinkwrap.md")
     args = ap.parse_args(argv)
     src = (args.scene or default_scene()).resolve()
@@ -659,7 +663,8 @@ def main(argv=None) -> int:
         return 1
 
     t0 = time.perf_counter()
-    keyed, sw, stats, ms_acra, acra_points = collect(src, args.frames, python, args.repeats, args.acra_repeats, args.samples)
+    keyed, sw, stats, ms_acra, acra_points = collect(src, args.frames, python, args.repeats, args.acra_repeats, args.samples,
+                                                     args.wrap_method)
     sw_points = [sw[f"def{i}_points"] for i in range(len(keyed.def_paths))]
     all_rows = compare(keyed, acra_points, sw_points, ms_acra, sw["ms_modifier"])
     hit = [bool(r.keyed.count or s.in_collision) for r, s in zip(all_rows, stats)]
@@ -670,6 +675,7 @@ def main(argv=None) -> int:
     command = "python3 benchmarks/shrinkwrap.py " + " ".join(
         shlex.quote(a) for a in [rel] + (["--frames", args.frames] if args.frames else [])
         + (["--samples", str(args.samples)] if args.samples else [])
+        + (["--wrap-method", args.wrap_method] if args.wrap_method != "NEAREST_SURFACEPOINT" else [])
         + (["--repeats", str(args.repeats)] if args.repeats != 7 else [])
         + (["--acra-repeats", str(args.acra_repeats)] if args.acra_repeats != 3 else []))
     notes = {
@@ -681,7 +687,7 @@ def main(argv=None) -> int:
             f"(whole `depsgraph.update()`: median {np.median(sw['ms_depsgraph']):.2f} ms; first evaluation of a frame: "
             f"median {np.median(sw['ms_cold']):.2f} ms)"
         ),
-        "vertices": "; ".join(
+        "vertices": f"Shrinkwrap `wrap_method='{args.wrap_method}'`, `wrap_mode='OUTSIDE'`, `offset=0`: " + "; ".join(
             f"`{p}` ({len(keyed.def_points[i][0])} vertices) "
             + (("shrinkwrapped against " + ", ".join(f"`{keyed.tgt_paths[k]}` ({len(keyed.tgt_tris[k])} triangles)"
                                                      for k in keyed.targets_of(i))) if keyed.targets_of(i) else "not modified (the stiffer one)")
@@ -690,6 +696,7 @@ def main(argv=None) -> int:
         "samples": len(face_samples(np.eye(3), np.array([[0, 1, 2]]))),
     }
     name = src.stem + (f"-samples{args.samples}" if args.samples else "") + (f"-frames{args.frames}" if args.frames else "")
+    name += "" if args.wrap_method == "NEAREST_SURFACEPOINT" else f"-{args.wrap_method.lower()}"
     text = section(name, command, rows, quiet, notes)
     print(text)
     print(f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
