@@ -406,11 +406,14 @@ class ResponseReport:
         ``target - Q`` after the response.
     refined : int
         Patches the ``refine`` policy activated.
+    details : Details or None
+        ``H.details`` of the responded surface (computed anyway; callers may reuse it).
     """
 
     applied: np.ndarray
     remaining: np.ndarray
     refined: int
+    details: H.Details | None = None
 
 
 def respond(
@@ -419,6 +422,7 @@ def respond(
     controls: Controls,
     method: str = "direct",
     iterations: int = 5,
+    det: H.Details | None = None,
 ) -> tuple[H.HSpline, ResponseReport]:
     """Move a surface so it passes through its data points (thesis §4.3.4 prolongation).
 
@@ -433,6 +437,8 @@ def respond(
     method : str
         ``"direct"`` minimum-norm solve or ``"blend"`` (iterated Bartels–Beatty) for the
         deformational step; ``iterations`` caps the latter.
+    det : Details, optional
+        ``H.details(hs)`` if the caller has it already (details are most of a response's cost).
 
     Returns
     -------
@@ -447,7 +453,8 @@ def respond(
     L = controls.absorption.size
     if L > hs.depth:
         raise ControlError("acra:absorption", f"has {L} levels but the surface has {hs.depth}")
-    det = H.details(hs) if hs.depth > 1 else None
+    if det is None and hs.depth > 1:
+        det = H.details(hs)
     q0 = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
@@ -461,8 +468,10 @@ def respond(
             sv, _ = locate(hs.v, uv[:, 1], level)
             before = sum(lev.patches.size for lev in hs.fine)
             hs = H.make_movable(hs, level, np.stack([su, sv], axis=1))
-            refined += sum(lev.patches.size for lev in hs.fine) - before
-            det = H.details(hs)
+            added = sum(lev.patches.size for lev in hs.fine) - before
+            refined += added
+            if added:  # new CVs need their frames; refinement alone moves nothing
+                det = H.details(hs)
         pw = point_weights(hs, level, uv[:, 0], uv[:, 1])
         present = pw.active
         d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
@@ -496,4 +505,4 @@ def respond(
                 det = H.details(hs) if hs.depth > 1 else None
         applied = applied + np.where(present, a, 0.0)
     final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
-    return hs, ResponseReport(applied, np.asarray(points.target) - final, refined)
+    return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)

@@ -30,7 +30,7 @@ from pipeline.model import ColliderModel, apply_inverse, apply_xform
 
 __all__ = [
     "ColliderStatic", "prepare_collider", "SurfaceGeometry", "ColliderGeometry", "Geometry",
-    "FullMesh", "Shape", "SetupClock", "shape_of", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
+    "FullMesh", "Shape", "SetupClock", "shape_of", "seed_details", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "full_mesh", "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
     "regions", "touching", "rewind", "detect_pair", "residual", "cast", "default_tolerance",
@@ -290,6 +290,13 @@ def shape_of(surface: HSpline, density: int = 8, max_density: int = 64) -> Shape
     while len(_SHAPES) > _SHAPES_KEPT:
         del _SHAPES[next(iter(_SHAPES))]
     return hit[3]
+
+
+def seed_details(surface: HSpline, details: H.Details | None, density: int = 8, max_density: int = 64) -> None:
+    """Give ``surface``'s `Shape` details computed elsewhere (by `acra.respond.respond`)."""
+    shape = shape_of(surface, density, max_density)
+    if details is not None and "details" not in shape.__dict__:
+        shape.__dict__["details"] = details
 
 
 @dataclass(frozen=True, eq=False)

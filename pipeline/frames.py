@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 from pxr import Usd
+from threadpoolctl import threadpool_limits
 
 from acra import hspline as H
 from acra import respond as R
@@ -154,7 +155,17 @@ def run_frames(
     options: RunOptions = RunOptions(),
     on_frame: Callable[[FrameStats, usdio.FramesResult], None] | None = None,
 ) -> tuple[usdio.FramesResult, list[FrameStats]]:
-    """Process ``frames`` and return the per-frame results to write and their statistics."""
+    """Process ``frames`` and return the per-frame results to write and their statistics.
+
+    BLAS runs single-threaded here: ACRA's systems are small (a Gram matrix per object, K ≲ a few
+    hundred), and a threaded OpenBLAS on a busy 2-core machine made a 100×100 ``eigh`` take
+    272 ms instead of 1.8 ms (measured; `docs/performance.md`).
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_frames(stage, scene, frames, options, on_frame)
+
+
+def _run_frames(stage, scene, frames, options, on_frame):
     statics = [D.prepare_collider(c) for c in scene.colliders]
     defs = scene.deformables
     controls = [m.controls for m in defs]
@@ -268,7 +279,9 @@ def run_frames(
                     np.concatenate([d.target for d, _, _ in lst]),
                     np.concatenate([d.is_contact for d, _, _ in lst]),
                 )
-                surfaces[i], _ = R.respond(surfaces[i], dp, controls[i], method=options.method)
+                surfaces[i], rep = R.respond(surfaces[i], dp, controls[i], method=options.method,
+                                             det=D.shape_of(surfaces[i], options.density).details)
+                D.seed_details(surfaces[i], rep.details, options.density)
                 if it == 0:
                     st.data_points[defs[i].path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))
                 ms = 1e3 * (time.perf_counter() - t_i)
