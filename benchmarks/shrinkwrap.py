@@ -2,16 +2,20 @@
 
     python3 benchmarks/shrinkwrap.py                              # default scene, writes docs/shrinkwrap.md
     python3 benchmarks/shrinkwrap.py scenes/box_into_sheet.py --frames 9:16
+    python3 benchmarks/shrinkwrap.py scenes/dog_head_spike.py --samples 16 --frames 12:18
+    python3 benchmarks/shrinkwrap.py scenes/box_into_sheet.py --wrap-method PROJECT
     python3 benchmarks/shrinkwrap.py STAGE.usda --venv PATH --no-doc
 
 What an animator would do without ACRA: put a Shrinkwrap modifier (nearest surface point, snap
 mode *Outside*, offset 0) on the soft object, targeting the collider. Per frame this benchmark
 
 1. exports, in world space, the deformable's display mesh as the animator keyed it (the input
-   H-spline evaluated on its display topology) and every collider's mesh and matrix;
+   H-spline evaluated on its display topology, or on ``--samples`` steps per level-0 patch
+   edge) and every target's mesh and keyed matrix;
 2. runs Blender (``bpy``, in its own venv ``.venv-blender/``: the wheel pins numpy < 2) on them
    and times only the modifiers (``Modifier.execution_time``, median of ``--repeats``);
-3. runs ACRA on the same stage and frames (`pipeline.cli.run_file`) and reads its output points;
+3. runs ACRA on the same stage and frames (`pipeline.cli.run_file`) and reads its output points
+   (with ``--samples``, its response surfaces evaluated on that grid);
 4. measures both results the same way (`pair_residual`, `displacement`): how deep a vertex of one
    object still lies inside the other (trimesh ``contains`` + ``signed_distance``), also between
    vertices (points sampled on the deformable's triangles), relative to the deformable's size
