@@ -652,7 +652,7 @@ def revision() -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("scene", nargs="?", type=Path, help="scene file (.py) or USD stage (default: %(default)s)", default=None)
+    ap.add_argument("scene", nargs="?", type=Path, help="scene file (.py) or USD stage (default: scenes/dog_head_spike.py, else scenes/box_into_sheet.py)")
     ap.add_argument("--frames", help="START:END inclusive (default: the stage's range)")
     ap.add_argument("--venv", type=Path, help="an existing venv with bpy (default: create .venv-blender/ once)")
     ap.add_argument("--repeats", type=int, default=7, help="Shrinkwrap evaluations per frame, median (default 7)")
