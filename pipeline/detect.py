@@ -30,7 +30,7 @@ from pipeline.model import ColliderModel, apply_inverse, apply_xform
 
 __all__ = [
     "ColliderStatic", "prepare_collider", "SurfaceGeometry", "ColliderGeometry", "Geometry",
-    "FullMesh", "Shape", "SetupClock", "shape_of", "seed_details", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
+    "FullMesh", "Shape", "SetupClock", "shape_of", "seed_details", "changed_patches", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "full_mesh", "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
     "regions", "touching", "rewind", "detect_pair", "residual", "cast", "default_tolerance",
@@ -188,10 +188,43 @@ class FullMesh:
     origin: np.ndarray
     closed: bool
     face_uv: np.ndarray
+    grid: np.ndarray | None = None  # (cu * cv, 3) object-space grid points, for `Shape` derivation
+    grid_uv: np.ndarray | None = None  # (cu * cv, 2)
 
     @cached_property
     def index(self) -> _Closest:
         return _Closest(self.mesh.vertices, self.mesh.faces)
+
+
+def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
+    """Level-0 patches ``(P0u, P0v) bool`` where ``new`` may differ from ``old`` (same grid).
+
+    A changed level-``k`` CV ``j`` (level-0 row, or an offset that differs or is new and non-zero)
+    moves level-``k`` patches ``j-3 .. j``, i.e. level-0 patches ``(j-3)>>k .. j>>k``; ``margin``
+    more patches cover finer details whose frames follow the moved surface (their support reaches
+    less than one level-0 patch beyond) and grid vertices on patch borders."""
+    mask = np.zeros((new.u.patches0, new.v.patches0), bool)
+    hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))]
+    for k in range(1, new.depth):
+        a, b = old.level(k), new.level(k)
+        rows, found = H._lookup(a.cv_keys, b.cv_keys)
+        same = np.zeros(b.cv_keys.size, bool)
+        same[found] = np.all(a.offsets[rows[found]] == b.offsets[found], axis=-1)
+        moved = ~same & (found | np.any(b.offsets != 0, axis=-1))
+        hits.append((k, *H._split_cv(new, k, b.cv_keys[moved])))
+    for k, ju, jv in hits:
+        if not len(ju):
+            continue
+        lo_u, hi_u = ((ju - 3) >> k) - margin, (ju >> k) + margin
+        lo_v, hi_v = ((jv - 3) >> k) - margin, (jv >> k) + margin
+        for du in range(int((hi_u - lo_u).max()) + 1):
+            for dv in range(int((hi_v - lo_v).max()) + 1):
+                qu, qv = lo_u + du, lo_v + dv
+                ok = (qu <= hi_u) & (qv <= hi_v)
+                qu = np.mod(qu, new.u.patches0) if new.u.periodic else np.clip(qu, 0, new.u.patches0 - 1)
+                qv = np.mod(qv, new.v.patches0) if new.v.periodic else np.clip(qv, 0, new.v.patches0 - 1)
+                mask[qu[ok], qv[ok]] = True
+    return mask
 
 
 class SetupClock:
@@ -222,9 +255,10 @@ class Shape:
     keyed, so one `Shape` serves every frame and every rewinding step (`shape_of`); only the
     matrix changes. Built lazily, so what is never needed is never computed."""
 
-    def __init__(self, surface: HSpline, density: int = 8, max_density: int = 64) -> None:
+    def __init__(self, surface: HSpline, density: int = 8, max_density: int = 64, parent: "Shape | None" = None) -> None:
         self.surface, self.density, self.max_density = surface, density, max_density
         self.grids: dict = {}  # (pu, pv) -> object points (n, 3), uv (n, 2), triangles (f, 3)
+        self.parent = parent  # a shape this one differs from locally (a response of it)
 
     @cached_property
     @_timed_setup
@@ -262,11 +296,26 @@ class Shape:
                 return False
         return True
 
+    def _reuse(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The parent's full-mesh grid and which of its points to re-evaluate, if the parent's
+        full mesh exists and the grid is the same (same densities)."""
+        p = self.parent
+        if p is None or "full" not in p.__dict__ or p.full.grid is None:
+            return None
+        if p.density_map.shape != self.density_map.shape or np.any(p.density_map != self.density_map):
+            return None
+        mask = changed_patches(p.surface, self.surface)
+        uv = p.full.grid_uv
+        iu = np.clip(np.floor(uv[:, 0]).astype(np.int64), 0, mask.shape[0] - 1)
+        iv = np.clip(np.floor(uv[:, 1]).astype(np.int64), 0, mask.shape[1] - 1)
+        return p.full.grid, mask[iu, iv]
+
     @cached_property
     @_timed_setup
     def full(self) -> FullMesh:
         """The full mesh with its ray intersector and closest-point index built."""
-        fm = _build_full_mesh(self)
+        fm = _build_full_mesh(self, self._reuse())
+        self.parent = None  # do not keep a chain of responded shapes alive
         if len(fm.mesh.faces):
             fm.mesh.ray.intersects_first(np.zeros((1, 3)), np.ones((1, 3)))  # build the embree scene now
             fm.index.vtree
@@ -292,11 +341,15 @@ def shape_of(surface: HSpline, density: int = 8, max_density: int = 64) -> Shape
     return hit[3]
 
 
-def seed_details(surface: HSpline, details: H.Details | None, density: int = 8, max_density: int = 64) -> None:
-    """Give ``surface``'s `Shape` details computed elsewhere (by `acra.respond.respond`)."""
+def seed_details(surface: HSpline, details: H.Details | None, density: int = 8, max_density: int = 64,
+                 parent: HSpline | None = None) -> None:
+    """Give ``surface``'s `Shape` details computed elsewhere (by `acra.respond.respond`) and the
+    shape it was responded from, whose full mesh it then updates only where it changed."""
     shape = shape_of(surface, density, max_density)
     if details is not None and "details" not in shape.__dict__:
         shape.__dict__["details"] = details
+    if parent is not None and shape.parent is None and "full" not in shape.__dict__:
+        shape.parent = shape_of(parent, density, max_density)
 
 
 @dataclass(frozen=True, eq=False)
@@ -436,12 +489,19 @@ def _axis(d: Direction, steps: np.ndarray) -> np.ndarray:
     return np.concatenate([p + np.arange(s) / s for p, s in enumerate(steps)] + [[float(d.patches0)]])
 
 
-def _build_full_mesh(shape: Shape) -> FullMesh:
+def _build_full_mesh(shape: Shape, reuse: tuple[np.ndarray, np.ndarray] | None = None) -> FullMesh:
+    """``reuse = (grid (n, 3), stale (n,) bool)``: a parent's grid points, of which only the stale
+    ones are evaluated again (a response changes a surface locally)."""
     hs, dens = shape.surface, shape.density_map
     au, av = _axis(hs.u, dens.max(axis=1)), _axis(hs.v, dens.max(axis=0))
     cu, cv = len(au) - hs.u.periodic, len(av) - hs.v.periodic  # distinct vertex lines
     uu, vv = np.meshgrid(au[:cu], av[:cv], indexing="ij")
-    obj = H.evaluate(hs, uu.reshape(-1), vv.reshape(-1), det=shape.details).points
+    grid_uv = np.stack([uu.reshape(-1), vv.reshape(-1)], axis=1)
+    if reuse is None:
+        obj = H.evaluate(hs, grid_uv[:, 0], grid_uv[:, 1], det=shape.details).points
+    else:
+        obj, stale = reuse[0].copy(), reuse[1]
+        obj[stale] = H.evaluate(hs, grid_uv[stale, 0], grid_uv[stale, 1], det=shape.details).points
     grid, rep = obj.reshape(cu, cv, 3), np.arange(cu * cv).reshape(cu, cv)
     tol = _COLLAPSE * hs.size()
     for j in np.nonzero(np.ptp(grid, axis=0).max(axis=-1) <= tol)[0]:  # a line of constant v is a pole
@@ -458,7 +518,7 @@ def _build_full_mesh(shape: Shape) -> FullMesh:
     keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     origin = 0.5 * (obj.min(axis=0) + obj.max(axis=0))
     mesh = trimesh.Trimesh(obj - origin, faces[keep], process=False)
-    return FullMesh(mesh, origin, shape.closed, face_uv[keep])
+    return FullMesh(mesh, origin, shape.closed, face_uv[keep], obj, grid_uv)
 
 
 def is_closed(geom: Geometry) -> bool:

@@ -279,9 +279,10 @@ def _run_frames(stage, scene, frames, options, on_frame):
                     np.concatenate([d.target for d, _, _ in lst]),
                     np.concatenate([d.is_contact for d, _, _ in lst]),
                 )
-                surfaces[i], rep = R.respond(surfaces[i], dp, controls[i], method=options.method,
-                                             det=D.shape_of(surfaces[i], options.density).details)
-                D.seed_details(surfaces[i], rep.details, options.density)
+                parent = surfaces[i]
+                surfaces[i], rep = R.respond(parent, dp, controls[i], method=options.method,
+                                             det=D.shape_of(parent, options.density).details)
+                D.seed_details(surfaces[i], rep.details, options.density, parent=parent)
                 if it == 0:
                     st.data_points[defs[i].path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))
                 ms = 1e3 * (time.perf_counter() - t_i)

@@ -420,3 +420,44 @@ def test_an_off_centre_ball_stored_in_float32_is_still_closed():
     cvs, pu, pv = shapes.sphere(8, 8, radii=(0.7,) * 3, center=(0.3, 0.1, 0.2))
     g = D.SurfaceGeometry(H.from_grid(cvs.astype(np.float32).astype(np.float64), pu, pv), move())
     assert g.closed and D.full_mesh(g).mesh.is_watertight
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_responded_shape_updates_its_full_mesh_only_where_it_changed(seed):
+    """The derived full mesh (parent's grid, stale points re-evaluated) equals a fresh build."""
+    from acra import respond as R
+
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(24, 16), depth=3)
+    u0 = int(rng.integers(0, 24))
+    hs = H.make_movable(hs, 2, [[4 * u0, 24]])
+    hs = with_random_offsets(hs, 0.02, seed)
+    parent = D.shape_of(hs)
+    parent.full  # built, so the child can reuse it
+    uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
+    p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+    out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=[0, 0.5, 0.5]))
+    D.seed_details(out, rep.details, parent=hs)
+    child = D.shape_of(out)
+    assert child.parent is parent
+    stale = child._reuse()[1]
+    assert 0 < stale.sum() < 0.25 * stale.size  # local: most of the grid is reused
+    derived = child.full
+    fresh = D._build_full_mesh(D.Shape(out))
+    np.testing.assert_allclose(derived.grid, fresh.grid, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(derived.mesh.faces, fresh.mesh.faces)
+    assert derived.mesh.is_watertight and child.parent is None
+
+
+def test_changed_patches_marks_the_support_of_a_moved_cv():
+    hs = H.from_grid(*shapes.sheet(12, 12, width=9.0, depth=9.0), depth=2)
+    hs = H.make_movable(hs, 1, [[8, 8]])
+    idx, off = H.offsets_of(hs, 1)
+    row = int(np.nonzero((idx[:, 0] == 9) & (idx[:, 1] == 9))[0][0])
+    off = off.copy()
+    off[row] = [0.0, 0.0, 0.1]
+    moved = H.set_offsets(hs, 1, idx, off)
+    mask = D.changed_patches(hs, moved, margin=0)
+    # level-1 CV 9 supports level-1 patches 6..9, i.e. level-0 patches 3..4 in each direction
+    assert set(map(tuple, np.argwhere(mask))) == {(3, 3), (3, 4), (4, 3), (4, 4)}
+    assert not D.changed_patches(hs, hs).any()
