@@ -52,6 +52,9 @@ class _Closest:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh: fcl.CollisionObject | None = None) -> None:
         self.vertices, self.faces, self.bvh = vertices, faces, bvh
         self.tri = vertices[faces]  # (f, 3, 3)
+        # trimesh's closest_point has absolute tolerances (1e-13): work in units of the mesh's size
+        self.unit = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
+        self.unit = self.unit if self.unit > 0 else 1.0
         self._cen = self.tri.mean(axis=1)
         self.reach = float(np.linalg.norm(self.tri - self._cen[:, None], axis=2).max()) if len(faces) else 0.0
         self.vtree = cKDTree(vertices[np.unique(faces)])
@@ -85,7 +88,7 @@ class _Closest:
             lens = np.fromiter((len(x) for x in lists), np.int64, len(near))
             idx = np.fromiter((i for x in lists for i in x), np.int64, int(lens.sum()))
             owner = np.repeat(np.arange(len(near)), lens)
-            cp = trimesh.triangles.closest_point(self.tri[idx], points[near][owner])
+            cp = self.unit * trimesh.triangles.closest_point(self.tri[idx] / self.unit, points[near][owner] / self.unit)
             d = np.linalg.norm(cp - points[near][owner], axis=1)
             order = np.lexsort((d, owner))  # per owner, nearest first
             first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]

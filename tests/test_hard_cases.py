@@ -549,12 +549,7 @@ def _scale_numbers(tmp_path, s: float):
     return np.array([st.residual_rel for st in r.stats]), moved
 
 
-@pytest.mark.parametrize("s", [
-    1e3,
-    pytest.param(1e-3, marks=pytest.mark.xfail(strict=True, reason="detection's closest points use trimesh.triangles."
-                 "closest_point, whose region tests compare squared lengths with an absolute 1e-13: at 1e-3 a point "
-                 "4.3e-8 under the box's bottom gets the side face (depth 8e-5), so the rewound push is diagonal")),
-])
+@pytest.mark.parametrize("s", [1e3, 1e-3])  # 1e-3 failed while trimesh's closest points ran in absolute units
 def test_scaled_scene_matches_unit_scale(tmp_path, unit_scale, s):
     """Relative residuals and relative displacements of every point equal the unit scene's within
     1e-6 relative (plus float32 rounding of the output points, 2^-23 of the size)."""
