@@ -617,6 +617,10 @@ def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if not len(points) or not is_closed(geom):
         return np.zeros(len(points), bool)
+    # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
+    # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
+    if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
+        trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
     if isinstance(geom, ColliderGeometry):
         return geom.static.mesh.contains(apply_inverse(geom.xform, points))
     return full_mesh(geom).mesh.contains(geom.to_mesh(points))
