@@ -102,12 +102,10 @@ def run_bench(scene: Path | None = None, repeat: int = 3) -> Bench:
 
 def _large_small(report) -> tuple[str, str]:
     """Paths of the deformables with the most and the fewest stored CVs."""
+    from acra.hspline import storage_size
     from pipeline import usdio
 
-    sizes = {}
-    for m in report.scene.deformables:
-        hs = usdio.surface_template(report.scene, m)
-        sizes[m.path] = int(hs.cvs.shape[0] * hs.cvs.shape[1] + sum(lev.cv_keys.size for lev in hs.fine))
+    sizes = {m.path: storage_size(usdio.surface_template(report.scene, m)) for m in report.scene.deformables}
     order = sorted(sizes, key=sizes.get)
     return order[-1], order[0]
 

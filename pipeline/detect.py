@@ -275,12 +275,6 @@ class Shape:
         return patch_hulls(self.surface, self.details)
 
     @cached_property
-    def size(self) -> float:
-        """Object-space box diagonal."""
-        lo, hi = self.hulls
-        return float(np.linalg.norm(hi.reshape(-1, 3).max(axis=0) - lo.reshape(-1, 3).min(axis=0)))
-
-    @cached_property
     def density_map(self) -> np.ndarray:
         return _patch_density(self.surface, self.density, self.max_density)
 
