@@ -444,9 +444,12 @@ def evaluate(
 
 
 def _degenerate(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Cross products ``du × dv`` and where they are too small to give a direction."""
+    """Cross products ``du × dv`` and where they are too small to give a direction: where a
+    tangent (times the sine between them) is under 1e-6 of the object's size, the resolution at
+    which float32 ``acra:cvs`` keep a pole one point; there ``du × dv`` is rounding noise."""
     n = np.cross(ev.du, ev.dv)
-    return n, np.linalg.norm(n, axis=1) <= 1e-12 * max(scale, 1e-300) ** 2
+    longest = np.maximum(np.linalg.norm(ev.du, axis=1), np.linalg.norm(ev.dv, axis=1))
+    return n, np.linalg.norm(n, axis=1) <= 1e-6 * max(scale, 1e-300) * longest + 1e-12 * max(scale, 1e-300) ** 2
 
 
 def _nudged(hs: HSpline, u: np.ndarray, v: np.ndarray, amount: float) -> tuple[np.ndarray, np.ndarray]:

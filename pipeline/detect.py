@@ -3,8 +3,9 @@
 A pair is a deformable ``A`` (`SurfaceGeometry`: object-space H-spline + 4×4 matrix) and a
 deformable or rigid collider ``B`` (`ColliderGeometry`: a run-constant `ColliderStatic` + matrix).
 Broad phase on level-0 patch boxes (convex-hull property) → fcl narrow phase on the tessellated
-candidate patches (`intersect`) → inside tests by ray parity on watertight meshes with exact
-depths (`regions`; an open ``B`` has no inside) → contact rewound along the input motion to the
+candidate patches (`intersect`) → inside tests and depths from closest points, answered on the
+patches near the query (`pipeline.shape.Shape`) or the collider's mesh (`regions`; an open ``B``
+has no inside) → contact rewound along the input motion to the
 first touch (`rewind`, fallback: deepest point) → `detect_pair`, `residual`, `cast`.
 docs/detection.md gives the definitions, the reasons and the timings. World units; arrays are
 float64 unless stated.
@@ -12,107 +13,29 @@ float64 unless stated.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
-from functools import cached_property, lru_cache
+from functools import cached_property
 from typing import Callable, Union
 
 import fcl
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
 
 from acra import hspline as H
-from acra.basis import Direction
 from acra.hspline import HSpline
-from acra.tessellate import patch_grids, patch_hulls
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
+from pipeline.shape import Closest, SetupClock, Shape, bvh as _bvh, changed_patches, overlap as _overlap, seed_details, shape_of
 
 __all__ = [
     "ColliderStatic", "prepare_collider", "SurfaceGeometry", "ColliderGeometry", "Geometry",
-    "FullMesh", "Shape", "SetupClock", "shape_of", "seed_details", "changed_patches", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
+    "Shape", "SetupClock", "shape_of", "seed_details", "changed_patches", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
-    "full_mesh", "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
-    "regions", "touching", "rewind", "detect_pair", "residual", "cast", "default_tolerance",
+    "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
+    "regions", "touching", "rewind", "deepest_contact", "detect_pair", "residual", "cast", "default_tolerance",
 ]
 
 _MAX_CONTACTS = 1_000_000
-_COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
 _PAD = 1e-7  # box padding, fraction of the pair's size: exactly touching boxes still overlap
-_US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see _Closest
-
-
-# --- closest points on a triangle set ---------------------------------------------------------
-class _Closest:
-    """Exact closest points on triangles. The closest point is no farther than the nearest vertex
-    (``d_v``), so its triangle's centroid is within ``d_v + reach`` (the largest centroid-corner
-    distance): near points test that ball's triangles (kd-trees); deep points, whose ball covers
-    much of a curved surface, query an fcl BVH of the triangles within ``d_v``, if cheaper."""
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh: fcl.CollisionObject | None = None) -> None:
-        self.vertices, self.faces, self.bvh = vertices, faces, bvh
-        self.tri = vertices[faces]  # (f, 3, 3)
-        # trimesh's closest_point has absolute tolerances (1e-13): work in units of the mesh's size
-        self.unit = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
-        self.unit = self.unit if self.unit > 0 else 1.0
-        self._cen = self.tri.mean(axis=1)
-        self.reach = float(np.linalg.norm(self.tri - self._cen[:, None], axis=2).max()) if len(faces) else 0.0
-        self.vtree = cKDTree(vertices[np.unique(faces)])
-
-    @cached_property
-    def ctree(self) -> cKDTree:
-        return cKDTree(self._cen)
-
-    def query(self, points: np.ndarray):
-        """Distances ``(k,)``, closest points ``(k, 3)`` and face rows ``(k,) int64``."""
-        k = points.shape[0]
-        dist, close, face = np.full(k, np.inf), np.zeros((k, 3)), np.zeros(k, np.int64)
-        if k == 0:
-            return dist, close, face
-        dv, _ = self.vtree.query(points)
-        radius = dv + self.reach * (1 + 1e-9) + 1e-300
-        ball = dv <= 2.0 * self.reach
-        deep = np.nonzero(~ball)[0]
-        bvh, rows = self.bvh, None
-        if len(deep) and bvh is None:  # a BVH of the triangles in reach, if cheaper than balls
-            grow = dv[deep].max() * (1 + 1e-9)
-            lo, hi = points[deep].min(axis=0) - grow, points[deep].max(axis=0) + grow
-            rows = np.nonzero(_overlap(self.tri.min(axis=1), self.tri.max(axis=1), lo, hi, 0.0))[0]
-            pairs = self.ctree.query_ball_point(points[deep], radius[deep], return_length=True).sum()
-            ball[deep] = pairs * _US_PAIR < _US_BVH_FACE * len(rows) + _US_FCL_QUERY * len(deep)
-            if not ball[deep].all():
-                bvh = _bvh(self.vertices, self.faces[rows])
-        near = np.nonzero(ball)[0]
-        if len(near):
-            lists = self.ctree.query_ball_point(points[near], radius[near])
-            lens = np.fromiter((len(x) for x in lists), np.int64, len(near))
-            idx = np.fromiter((i for x in lists for i in x), np.int64, int(lens.sum()))
-            owner = np.repeat(np.arange(len(near)), lens)
-            cp = self.unit * trimesh.triangles.closest_point(self.tri[idx] / self.unit, points[near][owner] / self.unit)
-            d = np.linalg.norm(cp - points[near][owner], axis=1)
-            order = np.lexsort((d, owner))  # per owner, nearest first
-            first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
-            hit = near[owner[first]]
-            dist[hit], close[hit], face[hit] = d[first], cp[first], idx[first]
-        probe, req = fcl.Sphere(0.0), fcl.DistanceRequest(enable_nearest_points=True)
-        for i in np.nonzero(~ball)[0]:
-            res = fcl.DistanceResult()  # mesh first: b1 is its face, nearest_points[0] on it
-            dist[i] = fcl.distance(bvh, fcl.CollisionObject(probe, fcl.Transform(points[i])), req, res)
-            close[i], face[i] = res.nearest_points[0], res.b1 if rows is None else rows[res.b1]
-        return dist, close, face
-
-
-def _bvh(vertices: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:
-    model = fcl.BVHModel()
-    model.beginModel(len(vertices), len(faces))
-    model.addSubModel(np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int32))
-    model.endModel()
-    return fcl.CollisionObject(model, fcl.Transform())
-
-
-def _overlap(lo_a, hi_a, lo_b, hi_b, pad: float) -> np.ndarray:
-    """Whether boxes overlap (broadcast over leading axes)."""
-    return np.all((lo_a <= hi_b + pad) & (lo_b <= hi_a + pad), axis=-1)
 
 
 # --- static collider data (once per run) and per-time geometry --------------------------------
@@ -128,8 +51,8 @@ class ColliderStatic:
     closed: bool
 
     @cached_property
-    def index(self) -> _Closest:
-        return _Closest(self.mesh.vertices, self.mesh.faces, self.bvh)
+    def index(self) -> Closest:
+        return Closest(self.mesh.vertices, self.mesh.faces, self.bvh)
 
 
 def prepare_collider(model: ColliderModel) -> ColliderStatic:
@@ -181,175 +104,6 @@ class Tessellation:
 
 
 @dataclass(frozen=True, eq=False)
-class FullMesh:
-    """A deformable's full-domain grid (`full_mesh`), in object space: ``mesh`` with vertices
-    relative to ``origin (3,)`` (embree works in float32), degenerate faces removed; ``closed``;
-    parameters of each face corner ``face_uv (f, 3, 2)``, unwrapped across a periodic seam. Map
-    world points in and out with `SurfaceGeometry.to_mesh` / `SurfaceGeometry.from_mesh`."""
-
-    mesh: trimesh.Trimesh
-    origin: np.ndarray
-    closed: bool
-    face_uv: np.ndarray
-    grid: np.ndarray | None = None  # (cu * cv, 3) object-space grid points, for `Shape` derivation
-    grid_uv: np.ndarray | None = None  # (cu * cv, 2)
-
-    @cached_property
-    def index(self) -> _Closest:
-        return _Closest(self.mesh.vertices, self.mesh.faces)
-
-
-def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
-    """Level-0 patches ``(P0u, P0v) bool`` where ``new`` may differ from ``old`` (same grid).
-
-    A changed level-``k`` CV ``j`` (level-0 row, or an offset that differs or is new and non-zero)
-    moves level-``k`` patches ``j-3 .. j``, i.e. level-0 patches ``(j-3)>>k .. j>>k``; ``margin``
-    more patches cover finer details whose frames follow the moved surface (their support reaches
-    less than one level-0 patch beyond) and grid vertices on patch borders."""
-    mask = np.zeros((new.u.patches0, new.v.patches0), bool)
-    hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))]
-    for k in range(1, new.depth):
-        a, b = old.level(k), new.level(k)
-        rows, found = H._lookup(a.cv_keys, b.cv_keys)
-        same = np.zeros(b.cv_keys.size, bool)
-        same[found] = np.all(a.offsets[rows[found]] == b.offsets[found], axis=-1)
-        moved = ~same & (found | np.any(b.offsets != 0, axis=-1))
-        hits.append((k, *H._split_cv(new, k, b.cv_keys[moved])))
-    for k, ju, jv in hits:
-        if not len(ju):
-            continue
-        lo_u, hi_u = ((ju - 3) >> k) - margin, (ju >> k) + margin
-        lo_v, hi_v = ((jv - 3) >> k) - margin, (jv >> k) + margin
-        for du in range(int((hi_u - lo_u).max()) + 1):
-            for dv in range(int((hi_v - lo_v).max()) + 1):
-                qu, qv = lo_u + du, lo_v + dv
-                ok = (qu <= hi_u) & (qv <= hi_v)
-                qu = np.mod(qu, new.u.patches0) if new.u.periodic else np.clip(qu, 0, new.u.patches0 - 1)
-                qv = np.mod(qv, new.v.patches0) if new.v.periodic else np.clip(qv, 0, new.v.patches0 - 1)
-                mask[qu[ok], qv[ok]] = True
-    return mask
-
-
-class SetupClock:
-    """Milliseconds spent building `Shape` data (the thesis's "initial setup" of RAPID, Fig. 5.2):
-    the frame loop reads it around detection to report set-up apart from the queries."""
-
-    ms: float = 0.0
-
-
-def _timed_setup(build):
-    """Decorate a `Shape` builder so its time goes to `SetupClock`."""
-
-    def timed(self):
-        t = time.perf_counter()
-        try:
-            return build(self)
-        finally:
-            SetupClock.ms += 1e3 * (time.perf_counter() - t)
-
-    timed.__name__, timed.__doc__ = build.__name__, build.__doc__
-    return timed
-
-
-class Shape:
-    """Everything about a surface that does not depend on where it is: level details, patch hull
-    boxes, collision grids and the full mesh with its ray and closest-point indices, all in object
-    space. A deformable's input shape is the same at every time code unless its ``acra:cvs`` are
-    keyed, so one `Shape` serves every frame and every rewinding step (`shape_of`); only the
-    matrix changes. Built lazily, so what is never needed is never computed."""
-
-    def __init__(self, surface: HSpline, density: int = 8, max_density: int = 64, parent: "Shape | None" = None) -> None:
-        self.surface, self.density, self.max_density = surface, density, max_density
-        self.grids: dict = {}  # (pu, pv) -> object points (n, 3), uv (n, 2), triangles (f, 3)
-        self.parent = parent  # a shape this one differs from locally (a response of it)
-
-    @cached_property
-    @_timed_setup
-    def details(self) -> H.Details | None:
-        return H.details(self.surface) if self.surface.depth > 1 else None
-
-    @cached_property
-    @_timed_setup
-    def hulls(self) -> tuple[np.ndarray, np.ndarray]:
-        """Object-space boxes ``lo, hi (P0u, P0v, 3)`` of the level-0 patches' control hulls."""
-        return patch_hulls(self.surface, self.details)
-
-    @cached_property
-    def density_map(self) -> np.ndarray:
-        return _patch_density(self.surface, self.density, self.max_density)
-
-    @cached_property
-    def closed(self) -> bool:
-        """Periodic both ways, or one way with both ends of the other collapsed (poles); a cubic is
-        fixed by 4 points per segment, so 4 coincident samples per patch make an end one point."""
-        hs = self.surface
-        if hs.u.periodic == hs.v.periodic:
-            return hs.u.periodic
-        per, end = (hs.u, hs.v) if hs.u.periodic else (hs.v, hs.u)
-        run = np.arange(4 * per.patches0) / 4.0
-        for e in (0.0, float(end.patches0)):
-            uv = (run, np.full_like(run, e)) if hs.u.periodic else (np.full_like(run, e), run)
-            if np.ptp(H.evaluate(hs, *uv, det=self.details).points, axis=0).max() > _COLLAPSE * hs.size():
-                return False
-        return True
-
-    def _reuse(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The parent's full-mesh grid and which of its points to re-evaluate, if the parent's
-        full mesh exists and the grid is the same (same densities)."""
-        p = self.parent
-        if p is None or "full" not in p.__dict__ or p.full.grid is None:
-            return None
-        if p.density_map.shape != self.density_map.shape or np.any(p.density_map != self.density_map):
-            return None
-        mask = changed_patches(p.surface, self.surface)
-        uv = p.full.grid_uv
-        iu = np.clip(np.floor(uv[:, 0]).astype(np.int64), 0, mask.shape[0] - 1)
-        iv = np.clip(np.floor(uv[:, 1]).astype(np.int64), 0, mask.shape[1] - 1)
-        return p.full.grid, mask[iu, iv]
-
-    @cached_property
-    @_timed_setup
-    def full(self) -> FullMesh:
-        """The full mesh with its ray intersector and closest-point index built."""
-        fm = _build_full_mesh(self, self._reuse())
-        self.parent = None  # do not keep a chain of responded shapes alive
-        if len(fm.mesh.faces):
-            fm.mesh.ray.intersects_first(np.zeros((1, 3)), np.ones((1, 3)))  # build the embree scene now
-            fm.index.vtree
-        return fm
-
-
-_SHAPES: dict = {}  # id(surface) -> (surface, density, max_density, Shape), most recent last
-_SHAPES_KEPT = 64
-
-
-def shape_of(surface: HSpline, density: int = 8, max_density: int = 64) -> Shape:
-    """The `Shape` of ``surface`` (the same object for the same surface object and densities).
-
-    Keyed by identity: surfaces are immutable, and the frame loop hands the same object back for
-    unchanged input CVs. The most recent ``_SHAPES_KEPT`` shapes are kept."""
-    key = id(surface)
-    hit = _SHAPES.pop(key, None)
-    if hit is None or hit[0] is not surface or hit[1:3] != (density, max_density):
-        hit = (surface, density, max_density, Shape(surface, density, max_density))
-    _SHAPES[key] = hit
-    while len(_SHAPES) > _SHAPES_KEPT:
-        del _SHAPES[next(iter(_SHAPES))]
-    return hit[3]
-
-
-def seed_details(surface: HSpline, details: H.Details | None, density: int = 8, max_density: int = 64,
-                 parent: HSpline | None = None) -> None:
-    """Give ``surface``'s `Shape` details computed elsewhere (by `acra.respond.respond`) and the
-    shape it was responded from, whose full mesh it then updates only where it changed."""
-    shape = shape_of(surface, density, max_density)
-    if details is not None and "details" not in shape.__dict__:
-        shape.__dict__["details"] = details
-    if parent is not None and shape.parent is None and "full" not in shape.__dict__:
-        shape.parent = shape_of(parent, density, max_density)
-
-
-@dataclass(frozen=True, eq=False)
 class SurfaceGeometry:
     """A deformable at one time: object-space ``surface``, ``xform (4, 4)``, collision density.
     Object-space data lives in its `Shape` (shared across times); world data is derived lazily
@@ -393,21 +147,9 @@ class SurfaceGeometry:
     def closed(self) -> bool:
         return self.shape.closed
 
-    @property
-    def _full(self) -> FullMesh:
-        return self.shape.full
-
-    @cached_property
-    def _inverse(self) -> np.ndarray:
-        return np.linalg.inv(self.xform)
-
-    def to_mesh(self, points: np.ndarray) -> np.ndarray:
-        """World points ``(k, 3)`` in the full mesh's frame (object space less its origin)."""
-        return apply_xform(self._inverse, points) - self.shape.full.origin
-
-    def from_mesh(self, points: np.ndarray) -> np.ndarray:
-        """Full-mesh-frame points ``(k, 3)`` in world space."""
-        return apply_xform(self.xform, points + self.shape.full.origin)
+    def to_object(self, points: np.ndarray) -> np.ndarray:
+        """World points ``(k, 3)`` in object space."""
+        return apply_inverse(self.xform, points)
 
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
@@ -419,49 +161,25 @@ def patch_density(geom: SurfaceGeometry) -> np.ndarray:
     return geom.shape.density_map
 
 
-def _patch_density(hs: HSpline, density: int, max_density: int) -> np.ndarray:
-    finest = np.zeros((hs.u.patches0, hs.v.patches0), np.int64)
-    for lev in hs.fine:
-        if lev.patches.size:
-            npv = hs.v.patches(lev.k)
-            finest[(lev.patches // npv) >> lev.k, (lev.patches % npv) >> lev.k] = lev.k
-    return np.minimum(np.maximum(density, 2 * (1 << finest)), max_density)
-
-
 def candidate_patches(geom: SurfaceGeometry, bounds: np.ndarray, pad: float = 0.0) -> np.ndarray:
     """Level-0 patches ``(m, 2) int64`` whose world box overlaps ``bounds (2, 3)``."""
     lo, hi = geom.boxes
     return np.argwhere(_overlap(lo, hi, bounds[0], bounds[1], pad)).astype(np.int64)
 
 
-@lru_cache(maxsize=None)
-def _grid_triangles(s: int) -> np.ndarray:
-    i, j = np.arange(s)[:, None], np.arange(s)[None, :]
-    a, b = i * (s + 1) + j, (i + 1) * (s + 1) + j
-    return np.stack(np.broadcast_arrays(a, b, b + 1, a, b + 1, a + 1), axis=-1).reshape(-1, 3)
-
-
 def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     """Collision grids over level-0 ``patches (m, 2) int64`` at their `patch_density`, cached per
     patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error)."""
     patches = np.unique(np.asarray(patches, np.int64).reshape(-1, 2), axis=0)
-    cache, shape = geom._patch_cache, geom.shape
-    grids, dens = shape.grids, shape.density_map
-    missing = np.array([p for p in patches if (p[0], p[1]) not in grids], np.int64).reshape(-1, 2)
-    steps = dens[missing[:, 0], missing[:, 1]]
-    for s in np.unique(steps):
-        sel, n = missing[steps == s], (int(s) + 1) ** 2
-        pts, uv, _, _ = patch_grids(geom.surface, sel, int(s), det=shape.details)
-        for r, p in enumerate(sel):
-            grids[(p[0], p[1])] = (pts[r * n:(r + 1) * n], uv[r * n:(r + 1) * n], _grid_triangles(int(s)))
-    todo = [(p[0], p[1]) for p in patches if (p[0], p[1]) not in cache]
-    if todo:
-        obj = [grids[p] for p in todo]
-        world = apply_xform(geom.xform, np.concatenate([g[0] for g in obj]))
-        for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g[0]) for g in obj[:-1]]))):
-            cache[p] = (w, g[1], g[2])
     if not len(patches):
         return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
+    cache = geom._patch_cache
+    todo = [(int(p[0]), int(p[1])) for p in patches if (p[0], p[1]) not in cache]
+    if todo:
+        obj = geom.shape.grids_for(np.array(todo, np.int64))
+        world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
+        for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g.points) for g in obj[:-1]]))):
+            cache[p] = (w, g.uv, g.triangles)
     grids = [cache[(p[0], p[1])] for p in patches]
     base = np.cumsum([0] + [len(g[0]) for g in grids[:-1]])
     return Tessellation(
@@ -473,49 +191,6 @@ def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:
     """Level-0 patches ``(m, 2) int64`` tessellated so far on ``geom`` (broad-phase audit)."""
     return np.array(sorted(geom._patch_cache), np.int64).reshape(-1, 2)
-
-
-def full_mesh(geom: SurfaceGeometry) -> FullMesh:
-    """The whole surface as one mesh (cached), watertight if closed: a rectilinear grid as fine as
-    the densest patch of each patch column (row); poles merged into one vertex, seams shared."""
-    return geom._full
-
-
-def _axis(d: Direction, steps: np.ndarray) -> np.ndarray:
-    """Vertex parameters along one direction with ``steps[p]`` steps in patch ``p``, end included."""
-    return np.concatenate([p + np.arange(s) / s for p, s in enumerate(steps)] + [[float(d.patches0)]])
-
-
-def _build_full_mesh(shape: Shape, reuse: tuple[np.ndarray, np.ndarray] | None = None) -> FullMesh:
-    """``reuse = (grid (n, 3), stale (n,) bool)``: a parent's grid points, of which only the stale
-    ones are evaluated again (a response changes a surface locally)."""
-    hs, dens = shape.surface, shape.density_map
-    au, av = _axis(hs.u, dens.max(axis=1)), _axis(hs.v, dens.max(axis=0))
-    cu, cv = len(au) - hs.u.periodic, len(av) - hs.v.periodic  # distinct vertex lines
-    uu, vv = np.meshgrid(au[:cu], av[:cv], indexing="ij")
-    grid_uv = np.stack([uu.reshape(-1), vv.reshape(-1)], axis=1)
-    if reuse is None:
-        obj = H.evaluate(hs, grid_uv[:, 0], grid_uv[:, 1], det=shape.details).points
-    else:
-        obj, stale = reuse[0].copy(), reuse[1]
-        obj[stale] = H.evaluate(hs, grid_uv[stale, 0], grid_uv[stale, 1], det=shape.details).points
-    grid, rep = obj.reshape(cu, cv, 3), np.arange(cu * cv).reshape(cu, cv)
-    tol = _COLLAPSE * hs.size()
-    for j in np.nonzero(np.ptp(grid, axis=0).max(axis=-1) <= tol)[0]:  # a line of constant v is a pole
-        rep[:, j] = rep[0, j]
-    for i in np.nonzero(np.ptp(grid, axis=1).max(axis=-1) <= tol)[0]:
-        rep[i, :] = rep[i, 0]
-    i, j = np.arange(len(au) - 1)[:, None], np.arange(len(av) - 1)[None, :]
-    quads = np.stack(np.broadcast_arrays(*(rep[a % cu, b % cv] for a, b in ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)))), -1)
-    u0, v0, u1, v1 = np.broadcast_arrays(au[i], av[j], au[i + 1], av[j + 1])
-    quv = np.stack([np.stack(c, -1) for c in ((u0, v0), (u1, v0), (u1, v1), (u0, v1))], 2)
-    quads, quv = quads.reshape(-1, 4), quv.reshape(-1, 4, 2)
-    faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-    face_uv = np.concatenate([quv[:, [0, 1, 2]], quv[:, [0, 2, 3]]])
-    keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    origin = 0.5 * (obj.min(axis=0) + obj.max(axis=0))
-    mesh = trimesh.Trimesh(obj - origin, faces[keep], process=False)
-    return FullMesh(mesh, origin, shape.closed, face_uv[keep], obj, grid_uv)
 
 
 def is_closed(geom: Geometry) -> bool:
@@ -607,30 +282,41 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
 # --- inside tests, distances, projections -------------------------------------------------------
 def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
     """Which world ``points (k, 3)`` lie inside ``geom``: ``(k,) bool``, all False if it is open.
-    Ray parity on the watertight mesh (embree); points on the surface may go either way."""
+    A collider: ray parity on its watertight mesh (embree); a deformable: behind the outward
+    normal at the closest point of its collision grids (`Shape.signed`). Points on the surface
+    may go either way."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if not len(points) or not is_closed(geom):
         return np.zeros(len(points), bool)
+    if isinstance(geom, SurfaceGeometry):
+        return geom.shape.signed(geom.to_object(points))[0]
     # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
     # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
     if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
         trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
-    if isinstance(geom, ColliderGeometry):
-        return geom.static.mesh.contains(apply_inverse(geom.xform, points))
-    return full_mesh(geom).mesh.contains(geom.to_mesh(points))
+    return geom.static.mesh.contains(apply_inverse(geom.xform, points))
 
 
 def surface_distance(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distances ``(k,)`` from world ``points (k, 3)`` to ``geom``'s tessellated surface, and the
-    closest points ``(k, 3)``. A collider is queried in object space: exact for a similarity
-    matrix (rotation, uniform scale, translation), an upper bound under non-uniform scale. A
-    deformable is queried the same way, in its `Shape`'s object space."""
+    closest points ``(k, 3)``. Queried in object space: exact for a similarity matrix (rotation,
+    uniform scale, translation), an upper bound under non-uniform scale."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if isinstance(geom, ColliderGeometry):
         close = apply_xform(geom.xform, geom.static.index.query(apply_inverse(geom.xform, points))[1])
     else:
-        close = geom.from_mesh(full_mesh(geom).index.query(geom.to_mesh(points))[1])
+        close = apply_xform(geom.xform, geom.shape.nearest(geom.to_object(points)).points)
     return np.linalg.norm(points - close, axis=1), close
+
+
+def _inside_depth(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`inside` ``(k,) bool`` and, for the points inside, their `surface_distance` ``(m,)``: one
+    closest-point query on a deformable."""
+    if isinstance(geom, SurfaceGeometry) and len(points) and geom.closed:
+        m, near = geom.shape.signed(geom.to_object(points))
+        return m, np.linalg.norm(points[m] - apply_xform(geom.xform, near.points[m]), axis=1)
+    m = inside(geom, points)
+    return m, surface_distance(geom, points[m])[0]
 
 
 @dataclass(frozen=True, eq=False)
@@ -698,17 +384,14 @@ def _newton(geom: SurfaceGeometry, targets: np.ndarray, uv: np.ndarray, iters: i
 
 
 def project(geom: Geometry, points: np.ndarray, newton: int = 8) -> Projection:
-    """Closest points on ``geom`` to world ``points (k, 3)``. On a deformable: the full mesh's
+    """Closest points on ``geom`` to world ``points (k, 3)``. On a deformable: the collision grids'
     closest point, its ``(u, v)`` from the face corners, then ``newton`` steps on the H-spline."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if isinstance(geom, ColliderGeometry):
         local = geom.static.index.query(apply_inverse(geom.xform, points))[1]
         world = apply_xform(geom.xform, local)
         return Projection(world, np.linalg.norm(world - points, axis=1), None, local)
-    fm = full_mesh(geom)
-    _, close, face = fm.index.query(geom.to_mesh(points))
-    bary = trimesh.triangles.points_to_barycentric(fm.mesh.triangles[face], close)
-    uv, world = _newton(geom, points, np.einsum("kj,kjc->kc", bary, fm.face_uv[face]), newton)
+    uv, world = _newton(geom, points, geom.shape.nearest(geom.to_object(points)).uv, newton)
     return Projection(world, np.linalg.norm(world - points, axis=1), uv, None)
 
 
@@ -752,8 +435,11 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
             out.append(Region(None if isinstance(x, ColliderGeometry) else np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)))
             continue
         pts, uv = _candidate_vertices(x, y.bounds, pad)
-        m = inside(y, pts)
-        d = surface_distance(y, pts[m])[0] if depth else np.zeros(int(m.sum()))
+        if depth:
+            m, d = _inside_depth(y, pts)
+        else:
+            m = inside(y, pts)
+            d = np.zeros(int(m.sum()))
         out.append(Region(None if uv is None else uv[m], pts[m], d))
     return out[0], out[1]
 
@@ -892,7 +578,7 @@ def _deepest(region: Region, tol: float) -> int:
     return int(tied[np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1))])
 
 
-def _fallback(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inter: Intersections):
+def deepest_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inter: Intersections):
     """``uv_a, uv_b, local_b, P_A, P_B`` from the deepest (central among equals) region vertex and
     its closest point on the other surface, or the crossing centre's when both regions are empty."""
     tol = 1e-9 * max(ga.size, gb.size)
@@ -930,7 +616,7 @@ def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: 
         pa = surface_points(ga, uv_a).points[0]
         pb = apply_xform(gb.xform, local_b[None])[0] if local_b is not None else surface_points(gb, uv_b).points[0]
     else:
-        (uv_a, uv_b, local_b, pa, pb), t_c = _fallback(ga, gb, ra, rb, inter), float(t)
+        (uv_a, uv_b, local_b, pa, pb), t_c = deepest_contact(ga, gb, ra, rb, inter), float(t)
     depth = max(ra.max_depth, rb.max_depth)
     return PairContact(ga.name, gb.name, float(t), t_c, anchor is not None, uv_a, uv_b, local_b, pa, pb, ra, rb, depth, inter)
 
@@ -971,13 +657,10 @@ def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: fl
     unit = directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
     start = origins[rows] - np.where(inside(geom, origins[rows]), 0.0, behind)[:, None] * unit
+    o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
     if isinstance(geom, ColliderGeometry):
-        mesh, o, d, back = geom.static.mesh, apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T, geom.xform
+        loc, ray, _ = geom.static.mesh.ray.intersects_location(o, d, multiple_hits=False)
     else:
-        fm = full_mesh(geom)
-        back = geom.xform.copy()
-        back[:3, 3] += geom.xform[:3, :3] @ fm.origin
-        mesh, o, d = fm.mesh, geom.to_mesh(start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
-    loc, ray, _ = mesh.ray.intersects_location(o, d, multiple_hits=False)
-    hits[rows[ray]], valid[rows[ray]] = apply_xform(back, loc), True
+        loc, ray, _ = geom.shape.cast(o, d)
+    hits[rows[ray]], valid[rows[ray]] = apply_xform(geom.xform, loc), True
     return hits, valid

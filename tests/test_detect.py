@@ -45,12 +45,37 @@ def sheet_geom(n=10, width=7.0):
     return D.SurfaceGeometry(H.from_grid(*shapes.sheet(n, n, width=width, depth=width)), move(), "/sheet")
 
 
+def every_patch(hs):
+    """All level-0 patches ``(P, 2) int64`` of ``hs``."""
+    return np.argwhere(np.ones((hs.u.patches0, hs.v.patches0), bool))
+
+
+def all_triangles(geom):
+    """World triangles ``(f, 3, 3)`` of every patch's collision grid (poles' slivers dropped)."""
+    grids = geom.shape.grids_for(every_patch(geom.surface))
+    tri = np.concatenate([g.points[g.triangles[g.solid]] for g in grids])
+    return (tri.reshape(-1, 3) @ geom.xform[:3, :3].T + geom.xform[:3, 3]).reshape(-1, 3, 3)
+
+
+def brute_closest(geom, points):
+    """Distances ``(k,)`` from world points to every collision-grid triangle (brute force)."""
+    tri = all_triangles(geom)
+    return np.array([np.linalg.norm(trimesh.triangles.closest_point(tri, np.tile(p, (len(tri), 1))) - p, axis=1).min()
+                     for p in points])
+
+
+def parity_inside(geom, points):
+    """Ray-parity inside test on the merged collision grids (independent of `Shape.signed`)."""
+    tri = all_triangles(geom)
+    mesh = trimesh.Trimesh(tri.reshape(-1, 3), np.arange(len(tri) * 3).reshape(-1, 3))
+    mesh.merge_vertices(digits_vertex=9)
+    assert mesh.is_watertight
+    return mesh.contains(points)
+
+
 def inradius(geom, centre):
-    """Smallest distance from ``centre`` to the faces of ``geom``'s full mesh (brute force)."""
-    fm = D.full_mesh(geom)
-    c = np.asarray(centre, float)
-    tri = geom.from_mesh(fm.mesh.triangles.reshape(-1, 3)).reshape(-1, 3, 3)  # world triangles
-    return np.linalg.norm(trimesh.triangles.closest_point(tri, np.tile(c, (len(tri), 1))) - c, axis=1).min()
+    """Smallest distance from ``centre`` to ``geom``'s collision grids (brute force)."""
+    return float(brute_closest(geom, np.asarray(centre, float)[None])[0])
 
 
 def assert_finite(contact):
@@ -69,25 +94,49 @@ def test_box_mesh_is_closed_and_outward():
 
 
 @pytest.mark.parametrize("maker,closed", [(shapes.sphere, True), (shapes.torus, True), (shapes.tube, False), (shapes.sheet, False)])
-def test_full_mesh_is_watertight_exactly_for_closed_objects(maker, closed):
+def test_inside_agrees_with_ray_parity_and_distances_with_brute_force(maker, closed):
+    """`Shape.signed` (closest point, normal side) against ray parity on the merged grids, and the
+    pruned closest-point search against every triangle, at random points near and far."""
     cvs, pu, pv = maker(8, 8)
-    g = D.SurfaceGeometry(H.from_grid(cvs, pu, pv), move(1.0, 2.0, 3.0))
+    rot = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])
+    g = D.SurfaceGeometry(H.from_grid(cvs, pu, pv), move(1.0, 2.0, 3.0) @ rot)
     assert D.is_closed(g) == closed
-    fm = D.full_mesh(g)
-    assert fm.closed == closed and fm.mesh.is_watertight == closed  # topology test agrees with the mesh
-    if closed:
-        assert fm.mesh.volume > 0
+    rng = np.random.default_rng(11)
+    pts = g.xform[:3, 3] + 0.8 * rng.normal(size=(300, 3))  # the shapes are centred at the origin
+    d, _ = D.surface_distance(g, pts)
+    np.testing.assert_allclose(d, brute_closest(g, pts), rtol=0, atol=1e-12 * g.size)
+    m = D.inside(g, pts)
+    if not closed:
+        assert not m.any()
+        return
+    assert g.shape.outward in (1.0, -1.0)
+    clear = d > 1e-9 * g.size
+    np.testing.assert_array_equal(m[clear], parity_inside(g, pts[clear]))
+    assert 0.05 * len(pts) < m.sum() < 0.95 * len(pts)
 
 
-def test_full_mesh_of_a_refined_sphere_is_watertight_and_tagged():
+def test_a_reversed_surface_still_has_its_inside_inside():
+    """Swapping u's direction turns ``du × dv`` inward; `Shape.outward` finds it."""
+    cvs, pu, pv = shapes.sphere(8, 8)
+    g = D.SurfaceGeometry(H.from_grid(cvs, pu, pv), move())
+    r = D.SurfaceGeometry(H.from_grid(cvs[::-1].copy(), pu, pv), move())
+    assert g.shape.outward == -r.shape.outward
+    pts = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 0.1], [2.0, 0.0, 0.0], [0.0, 0.0, -1.5]])
+    np.testing.assert_array_equal(D.inside(r, pts), [True, True, False, False])
+    np.testing.assert_array_equal(D.inside(g, pts), [True, True, False, False])
+
+
+def test_grids_of_a_refined_sphere_lie_on_it():
     hs = H.from_grid(*shapes.sphere(8, 8), depth=4)
     hs = H.make_movable(hs, 3, [[20, 20]])  # level-0 patch (2, 2) and its neighbours get 16 steps
     g = D.SurfaceGeometry(with_random_offsets(hs), move(5.0, -2.0, 1.0))
-    fm = D.full_mesh(g)
-    assert fm.closed and fm.mesh.is_watertight and fm.mesh.volume > 0
     assert D.patch_density(g).max() == 16
-    corners = g.from_mesh(fm.mesh.triangles.reshape(-1, 3))
-    np.testing.assert_allclose(D.surface_points(g, fm.face_uv.reshape(-1, 2)).points, corners, atol=1e-12)
+    tess = D.tessellate(g, every_patch(g.surface))
+    np.testing.assert_allclose(D.surface_points(g, tess.uv).points, tess.points, atol=1e-12)
+    assert len(tess.points) == sum((s + 1) ** 2 for s in D.patch_density(g).reshape(-1))
+    pts = g.xform[:3, 3] + np.random.default_rng(2).normal(size=(200, 3))
+    d, _ = D.surface_distance(g, pts)
+    np.testing.assert_allclose(d, brute_closest(g, pts), rtol=0, atol=1e-12 * g.size)
 
 
 def test_patch_density_follows_refinement():
@@ -419,12 +468,17 @@ def test_an_off_centre_ball_stored_in_float32_is_still_closed():
     """float32 ``acra:cvs`` round a pole row by ~1e-8 of the size: still one point, still closed."""
     cvs, pu, pv = shapes.sphere(8, 8, radii=(0.7,) * 3, center=(0.3, 0.1, 0.2))
     g = D.SurfaceGeometry(H.from_grid(cvs.astype(np.float32).astype(np.float64), pu, pv), move())
-    assert g.closed and D.full_mesh(g).mesh.is_watertight
+    assert g.closed
+    pole = D.surface_points(g, np.array([[0.5, 0.0], [0.5, g.surface.v.patches0]])).points
+    np.testing.assert_allclose(pole, [[0.3, 0.1, -0.5], [0.3, 0.1, 0.9]], atol=1e-6)
+    np.testing.assert_array_equal(D.inside(g, pole + [[0, 0, 1e-3], [0, 0, -1e-3]]), [True, True])
+    np.testing.assert_array_equal(D.inside(g, pole - [[0, 0, 1e-3], [0, 0, -1e-3]]), [False, False])
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_responded_shape_updates_its_full_mesh_only_where_it_changed(seed):
-    """The derived full mesh (parent's grid, stale points re-evaluated) equals a fresh build."""
+def test_a_responded_shape_reuses_its_parents_grids_only_where_it_did_not_change(seed):
+    """The responded shape's grids (the parent's where unchanged, re-evaluated elsewhere) equal a
+    fresh shape's, and most are the parent's own objects."""
     from acra import respond as R
 
     rng = np.random.default_rng(seed)
@@ -432,21 +486,21 @@ def test_a_responded_shape_updates_its_full_mesh_only_where_it_changed(seed):
     u0 = int(rng.integers(0, 24))
     hs = H.make_movable(hs, 2, [[4 * u0, 24]])
     hs = with_random_offsets(hs, 0.02, seed)
+    every = every_patch(hs)
     parent = D.shape_of(hs)
-    parent.full  # built, so the child can reuse it
+    parent.grids_for(every)
     uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
     p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
     out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=[0, 0.5, 0.5]))
     D.seed_details(out, rep.details, parent=hs)
     child = D.shape_of(out)
     assert child.parent is parent
-    stale = child._reuse()[1]
-    assert 0 < stale.sum() < 0.25 * stale.size  # local: most of the grid is reused
-    derived = child.full
-    fresh = D._build_full_mesh(D.Shape(out))
-    np.testing.assert_allclose(derived.grid, fresh.grid, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(derived.mesh.faces, fresh.mesh.faces)
-    assert derived.mesh.is_watertight and child.parent is None
+    derived = child.grids_for(every)
+    reused = np.array([a is b for a, b in zip(derived, parent.grids_for(every))])
+    assert 0.75 * len(every) < reused.sum() < len(every)  # local: most grids are the parent's
+    fresh = D.Shape(out).grids_for(every)
+    for a, b in zip(derived, fresh):
+        np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-12)
 
 
 def test_changed_patches_marks_the_support_of_a_moved_cv():
@@ -467,7 +521,7 @@ def test_inside_is_reproducible_for_points_on_the_surface():
     """Points exactly on the surface make trimesh re-cast in a random direction; the answer must
     still be the same on every call (a farm run is reproducible)."""
     g = sphere_geom()
-    on = g.from_mesh(D.full_mesh(g).mesh.vertices[::7])
+    on = D.tessellate(g, every_patch(g.surface)).points[::7]
     rng = np.random.default_rng(3)
     mid = on + 1e-12 * rng.normal(size=on.shape)
     first = D.inside(g, mid)

@@ -41,6 +41,11 @@ def test_the_soft_head_takes_the_dent_and_it_stays_local(dog):
         assert head.moved[far].max() < 1e-6  # float32 storage only: the dent is local
         if not s.in_collision:
             assert head.moved.max() < 1e-6 and spike.moved.max() < 1e-6
-        elif head.moved.max() > 0.01:
-            # rigidity 10 against 80: eq. 4.15 puts the data points 8/9 of the way toward the spike
-            assert head.moved.max() > 5.0 * spike.moved.max()
+        else:
+            # rigidity 10 against 80: eq. 4.15 moves the first-touch points 8/9 and 1/9 of the gap
+            (h0, h1), (s0, s1) = (s.data_points[p] for p in ("/World/Head", "/World/Jab/Spike"))
+            assert np.linalg.norm(h1[0] - h0[0]) == pytest.approx(8.0 * np.linalg.norm(s1[0] - s0[0]), rel=1e-9)
+            if head.moved.max() > 0.01:
+                # later rounds add the spike's own eq. 4.16 points (cast back out of the head) each
+                # round, so over a 3-round frame its largest move grows: measured 4.9-6.3x
+                assert head.moved.max() > 4.5 * spike.moved.max()
