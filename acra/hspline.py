@@ -532,11 +532,47 @@ def _frames(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
     return np.stack([e_u, e_v, n], axis=2)
 
 
-def details(hs: HSpline, upto: int | None = None) -> Details:
+def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
+    """Level-0 patches ``(P0u, P0v) bool`` where ``new`` may differ from ``old`` (same grid).
+
+    A changed level-``k`` CV ``j`` (level-0 row, or an offset that differs or is new and non-zero)
+    moves level-``k`` patches ``j-3 .. j``, i.e. level-0 patches ``(j-3)>>k .. j>>k``; ``margin``
+    more patches cover finer details whose frames follow the moved surface (their support reaches
+    less than one level-0 patch beyond) and grid vertices on patch borders."""
+    mask = np.zeros((new.u.patches0, new.v.patches0), bool)
+    hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))]
+    for k in range(1, new.depth):
+        a, b = old.level(k), new.level(k)
+        rows, found = _lookup(a.cv_keys, b.cv_keys)
+        same = np.zeros(b.cv_keys.size, bool)
+        same[found] = np.all(a.offsets[rows[found]] == b.offsets[found], axis=-1)
+        moved = ~same & (found | np.any(b.offsets != 0, axis=-1))
+        hits.append((k, *_split_cv(new, k, b.cv_keys[moved])))
+    for k, ju, jv in hits:
+        if not len(ju):
+            continue
+        lo_u, hi_u = ((ju - 3) >> k) - margin, (ju >> k) + margin
+        lo_v, hi_v = ((jv - 3) >> k) - margin, (jv >> k) + margin
+        for du in range(int((hi_u - lo_u).max()) + 1):
+            for dv in range(int((hi_v - lo_v).max()) + 1):
+                qu, qv = lo_u + du, lo_v + dv
+                ok = (qu <= hi_u) & (qv <= hi_v)
+                qu = np.mod(qu, new.u.patches0) if new.u.periodic else np.clip(qu, 0, new.u.patches0 - 1)
+                qv = np.mod(qv, new.v.patches0) if new.v.periodic else np.clip(qv, 0, new.v.patches0 - 1)
+                mask[qu[ok], qv[ok]] = True
+    return mask
+
+
+def details(hs: HSpline, upto: int | None = None,
+            since: "tuple[HSpline, Details, np.ndarray] | None" = None) -> Details:
     """World detail vectors of levels ``1..upto``, computed coarse to fine.
 
     The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
     parameter centre, so moving a coarse CV carries finer detail along (thesis Fig. 3.10).
+    ``since = (old, old_details, stale)``: ``hs`` differs from ``old`` only on the level-0
+    patches ``stale (P0u, P0v) bool`` (`changed_patches`, whose margin covers the frames that
+    follow a moved surface); CVs centred elsewhere keep ``old_details`` on every level whose CVs
+    are the same as ``old``'s. A response is local, so this skips most of the work.
     """
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
     vectors: list[np.ndarray] = []
@@ -546,8 +582,19 @@ def details(hs: HSpline, upto: int | None = None) -> Details:
         c = lev.cv_keys.size
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
-        if c and np.any(lev.movable):
-            rows = np.nonzero(lev.movable)[0]
+        rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
+        if rows.size:
+            if since is not None:
+                old, old_det, stale = since
+                was = old.fine[k - 1]
+                if k - 1 < len(old_det.frames) and np.array_equal(was.cv_keys, lev.cv_keys) and np.array_equal(was.movable, lev.movable):
+                    gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
+                    pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
+                    pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
+                    fr[:] = old_det.frames[k - 1]
+                    vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
+                    rows = rows[stale[pu.astype(np.int64), pv.astype(np.int64)]]
+        if rows.size:
             gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
             partial = Details(tuple(vectors), tuple(frames))
             ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)
@@ -569,7 +616,20 @@ def cv_positions(hs: HSpline, k: int, det: Details | None = None) -> np.ndarray:
     if k == 0:
         return hs.cvs.reshape(-1, 3).copy()
     det = details(hs, upto=k) if det is None else det
-    parent = cv_positions(hs, k - 1, det)
+    return _cv_positions_from(hs, k, det, cv_positions(hs, k - 1, det))
+
+
+def all_cv_positions(hs: HSpline, det: Details | None = None) -> list[np.ndarray]:
+    """`cv_positions` of every level ``0 .. depth-1``, each level built once from the previous."""
+    det = details(hs) if det is None and hs.depth > 1 else det
+    out = [hs.cvs.reshape(-1, 3).copy()]
+    for k in range(1, hs.depth):
+        out.append(_cv_positions_from(hs, k, det, out[-1]))
+    return out
+
+
+def _cv_positions_from(hs: HSpline, k: int, det: Details, parent: np.ndarray) -> np.ndarray:
+    """Level-``k`` CV positions from level ``k-1``'s ``parent`` positions (`cv_positions`)."""
     parent_keys = (np.arange(hs.u.n)[:, None] * hs.v.n + np.arange(hs.v.n)[None, :]).reshape(-1) if k == 1 else hs.level(k - 1).cv_keys
     lev = hs.level(k)
     ju, jv = _split_cv(hs, k, lev.cv_keys)

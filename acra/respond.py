@@ -416,6 +416,15 @@ class ResponseReport:
     details: H.Details | None = None
 
 
+def _redetail(old: H.HSpline, old_det: H.Details | None, new: H.HSpline) -> tuple[H.HSpline, H.Details | None]:
+    """``new`` and its details, recomputed only where it differs from ``old`` (a move is local)."""
+    if new.depth <= 1:
+        return new, None
+    if old_det is None:
+        return new, H.details(new)
+    return new, H.details(new, since=(old, old_det, H.changed_patches(old, new)))
+
+
 def respond(
     hs: H.HSpline,
     points: DataPoints,
@@ -482,12 +491,10 @@ def respond(
             luv, lwant = _per_level_points(hs, level, uv, want, np.asarray(points.is_contact, bool))
             lpw = point_weights(hs, level, luv[:, 0], luv[:, 1])
             dv = solve(lpw, lwant, method=method, iterations=iterations)
-            hs = _move_level(hs, level, lpw.cv_rows, dv, det)
-            det = H.details(hs) if hs.depth > 1 else None
+            hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det))
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:
-            hs = _translate(hs, level, uv[sel], a * t * dq[sel], det)
-            det = H.details(hs) if hs.depth > 1 else None
+            hs, det = _redetail(hs, det, _translate(hs, level, uv[sel], a * t * dq[sel], det))
         if r > 0 and sel.size:
             # thesis §4.3.2: contacts and additional points alike turn their patch's detail
             cur = H.evaluate(hs, uv[sel, 0], uv[sel, 1], det=det).points
@@ -496,13 +503,11 @@ def respond(
             flat = np.linalg.norm(cur - pivots, axis=1) <= 1e-9 * hs.size()
             rot, rest = sel[~flat], sel[flat]
             if rot.size:
-                hs = _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det)
-                det = H.details(hs) if hs.depth > 1 else None
+                hs, det = _redetail(hs, det, _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det))
             if rest.size:  # points without detail take the share as deformation
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
                 dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations)
-                hs = _move_level(hs, level, sub.cv_rows, dv, det)
-                det = H.details(hs) if hs.depth > 1 else None
+                hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det))
         applied = applied + np.where(present, a, 0.0)
     final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)

@@ -160,7 +160,7 @@ def patch_hulls(hs: HSpline, det: Details | None = None) -> tuple[np.ndarray, np
     -------
     lo, hi : (P0u, P0v, 3) float64
     """
-    from .hspline import cv_positions, _split_cv
+    from .hspline import all_cv_positions, _split_cv
 
     pu, pv = hs.u.patches0, hs.v.patches0
     i4 = np.arange(4)
@@ -171,11 +171,12 @@ def patch_hulls(hs: HSpline, det: Details | None = None) -> tuple[np.ndarray, np
     hi = block.max(axis=(2, 3))
     if hs.depth > 1:
         det = details(hs) if det is None else det
+        every = all_cv_positions(hs, det)
         for k in range(1, hs.depth):
             lev = hs.level(k)
             if lev.cv_keys.size == 0:
                 continue
-            pos = cv_positions(hs, k, det)
+            pos = every[k]
             ju, jv = _split_cv(hs, k, lev.cv_keys)
             # level-k CV j supports level-k patches j-3..j, i.e. level-0 patches (j-3)>>k .. j>>k
             for du in range(4):

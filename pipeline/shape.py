@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 from trimesh.ray.ray_triangle import RayMeshIntersector
 
 from acra import hspline as H
-from acra.hspline import HSpline
+from acra.hspline import HSpline, changed_patches
 from acra.tessellate import patch_grids, patch_hulls
 
 __all__ = ["PatchGrid", "Shape", "SetupClock", "shape_of", "seed_details", "changed_patches", "Nearest"]
@@ -133,38 +133,6 @@ def _timed(build):
 
     timed.__name__, timed.__doc__ = build.__name__, build.__doc__
     return timed
-
-
-# --- what a response changed -----------------------------------------------------------------------
-def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
-    """Level-0 patches ``(P0u, P0v) bool`` where ``new`` may differ from ``old`` (same grid).
-
-    A changed level-``k`` CV ``j`` (level-0 row, or an offset that differs or is new and non-zero)
-    moves level-``k`` patches ``j-3 .. j``, i.e. level-0 patches ``(j-3)>>k .. j>>k``; ``margin``
-    more patches cover finer details whose frames follow the moved surface (their support reaches
-    less than one level-0 patch beyond) and grid vertices on patch borders."""
-    mask = np.zeros((new.u.patches0, new.v.patches0), bool)
-    hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))]
-    for k in range(1, new.depth):
-        a, b = old.level(k), new.level(k)
-        rows, found = H._lookup(a.cv_keys, b.cv_keys)
-        same = np.zeros(b.cv_keys.size, bool)
-        same[found] = np.all(a.offsets[rows[found]] == b.offsets[found], axis=-1)
-        moved = ~same & (found | np.any(b.offsets != 0, axis=-1))
-        hits.append((k, *H._split_cv(new, k, b.cv_keys[moved])))
-    for k, ju, jv in hits:
-        if not len(ju):
-            continue
-        lo_u, hi_u = ((ju - 3) >> k) - margin, (ju >> k) + margin
-        lo_v, hi_v = ((jv - 3) >> k) - margin, (jv >> k) + margin
-        for du in range(int((hi_u - lo_u).max()) + 1):
-            for dv in range(int((hi_v - lo_v).max()) + 1):
-                qu, qv = lo_u + du, lo_v + dv
-                ok = (qu <= hi_u) & (qv <= hi_v)
-                qu = np.mod(qu, new.u.patches0) if new.u.periodic else np.clip(qu, 0, new.u.patches0 - 1)
-                qv = np.mod(qv, new.v.patches0) if new.v.periodic else np.clip(qv, 0, new.v.patches0 - 1)
-                mask[qu[ok], qv[ok]] = True
-    return mask
 
 
 # --- per-patch collision grids --------------------------------------------------------------------
