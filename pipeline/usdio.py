@@ -644,19 +644,52 @@ def _spec(prim_spec: Sdf.PrimSpec, name: str, tname: Sdf.ValueTypeName, custom: 
     return spec if spec is not None else Sdf.AttributeSpec(prim_spec, name, tname, Sdf.VariabilityVarying, custom)
 
 
-def _check_result(model: DeformableModel, frame: int, r: DeformableResult) -> None:
+def _checked_vec3f(model: DeformableModel, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
+    """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
     n = model.topology.u.size
-    where = f"frame {frame}, {model.path}"
-    for name, a in (("points", r.points), ("normals", r.normals)):
-        a = np.asarray(a)
-        if a.shape != (n, 3):
-            raise ValueError(f"{where}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{where}: {name} hold NaN or inf")
-    if r.surface.cvs.shape != (model.nu, model.nv, 3) or r.surface.depth != model.depth:
-        raise ValueError(f"{where}: surface does not match the model's grid or levels")
-    if not np.all(np.isfinite(r.surface.cvs)) or not math.isfinite(float(r.residual)):
-        raise ValueError(f"{where}: surface CVs or residual are not finite")
+    a = np.asarray(a)
+    if a.shape != (n, 3):
+        raise ValueError(f"frame {frame}, {model.path}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"frame {frame}, {model.path}: {name} hold NaN or inf")
+    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(a, dtype=np.float32))
+
+
+def _response_values(model: DeformableModel, frame: int, surface: HSpline) -> dict:
+    """The ``acra:response:*`` arrays of a checked surface as Vt values (float64: exact round trip)."""
+    if surface.cvs.shape != (model.nu, model.nv, 3) or surface.depth != model.depth:
+        raise ValueError(f"frame {frame}, {model.path}: surface does not match the model's grid or levels")
+    if not np.all(np.isfinite(surface.cvs)):
+        raise ValueError(f"frame {frame}, {model.path}: surface CVs are not finite")
+    a = to_arrays(surface)
+    return {
+        "acra:response:cvs": Vt.Vec3dArray.FromNumpy(cvs_to_flat(np.asarray(surface.cvs, dtype=np.float64))),
+        "acra:response:patchLevel": Vt.IntArray.FromNumpy(np.ascontiguousarray(a.patch_level, dtype=np.int32)),
+        "acra:response:patches": Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(a.patches, dtype=np.int32)),
+        "acra:response:offsetLevel": Vt.IntArray.FromNumpy(np.ascontiguousarray(a.offset_level, dtype=np.int32)),
+        "acra:response:offsetCvs": Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(a.offset_cvs, dtype=np.int32)),
+        "acra:response:offsets": Vt.Vec3dArray.FromNumpy(np.ascontiguousarray(a.offsets, dtype=np.float64)),
+    }
+
+
+class _Converted:
+    """Vt values of the objects of a run's results, built once per distinct object.
+
+    The frame loop hands back the same surface and the same display arrays at every frame whose
+    result is unchanged (the free frames), so each is checked and converted once and the time
+    samples share one Vt array (copy-on-write, so sharing is safe). Objects are kept alive here
+    while their ``id`` is a key.
+    """
+
+    def __init__(self) -> None:
+        self._memo: dict = {}
+
+    def __call__(self, kind: tuple, obj, make):
+        """``make()``'s value for ``obj``, made at the first call with this ``kind`` and object."""
+        hit = self._memo.get((kind, id(obj)))
+        if hit is None or hit[0] is not obj:
+            hit = self._memo[(kind, id(obj))] = (obj, make())
+        return hit[1]
 
 
 def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, scene: SceneModel, frames_result: FramesResult) -> Path:
@@ -665,12 +698,16 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
     The layer sublayers ``input_path`` by a path relative to the output's directory, copies the
     input's stage metadata, and holds nothing else (no transform, no ``acra:`` input attribute).
     Every frame must hold a result for every deformable of ``scene``. The file is written
-    atomically and deterministically (sorted paths and frames, no timestamps).
+    atomically and deterministically (sorted paths and frames, no timestamps); its format follows
+    the suffix (``.usda`` text, ``.usdc``/``.usd`` binary crate, see docs/cli.md for the cost).
+    Results that repeat an earlier frame's objects are checked and converted once (`_Converted`).
     """
     inp, out = Path(input_path), Path(output_path)
     meta = _stage_metadata(inp, scene)
     frames = sorted(frames_result.frames)
     models = sorted(scene.deformables, key=lambda m: m.path)
+    convert = _Converted()
+    values: dict = {}  # (frame, path) -> {attribute name: value}
     for f in frames:
         per = frames_result.frames[f]
         extra = sorted(set(per) - {m.path for m in models})
@@ -679,7 +716,16 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
         for m in models:
             if m.path not in per:
                 raise ValueError(f"frame {f}: no result for {m.path}")
-            _check_result(m, f, per[m.path])
+            r = per[m.path]
+            if not math.isfinite(float(r.residual)):
+                raise ValueError(f"frame {f}, {m.path}: residual is not finite")
+            values[f, m.path] = {
+                "points": convert((m.path, "points"), r.points, lambda: _checked_vec3f(m, f, "points", r.points)),
+                "normals": convert((m.path, "normals"), r.normals, lambda: _checked_vec3f(m, f, "normals", r.normals)),
+                **convert((m.path, "state"), r.surface, lambda: _response_values(m, f, r.surface)),
+                "acra:response:residual": float(r.residual),
+                "acra:response:inCollision": bool(r.in_collision),
+            }
 
     layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
     with Sdf.ChangeBlock():
@@ -702,19 +748,8 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 **{n: _spec(prim, n, tn, True).path for n, tn in RESPONSE_TYPES.items()},
             }
             for f in frames:
-                r = frames_result.frames[f][m.path]
-                t = float(f)
-                arrays = to_arrays(r.surface)
-                layer.SetTimeSample(specs["points"], t, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(r.points, dtype=np.float32)))
-                layer.SetTimeSample(specs["normals"], t, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(r.normals, dtype=np.float32)))
-                layer.SetTimeSample(specs["acra:response:cvs"], t, Vt.Vec3dArray.FromNumpy(cvs_to_flat(r.surface.cvs).astype(np.float64)))
-                layer.SetTimeSample(specs["acra:response:patchLevel"], t, Vt.IntArray.FromNumpy(arrays.patch_level.astype(np.int32)))
-                layer.SetTimeSample(specs["acra:response:patches"], t, Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(arrays.patches, dtype=np.int32)))
-                layer.SetTimeSample(specs["acra:response:offsetLevel"], t, Vt.IntArray.FromNumpy(arrays.offset_level.astype(np.int32)))
-                layer.SetTimeSample(specs["acra:response:offsetCvs"], t, Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(arrays.offset_cvs, dtype=np.int32)))
-                layer.SetTimeSample(specs["acra:response:offsets"], t, Vt.Vec3dArray.FromNumpy(np.ascontiguousarray(arrays.offsets, dtype=np.float64)))
-                layer.SetTimeSample(specs["acra:response:residual"], t, float(r.residual))
-                layer.SetTimeSample(specs["acra:response:inCollision"], t, bool(r.in_collision))
+                for name, value in values[f, m.path].items():
+                    layer.SetTimeSample(specs[name], float(f), value)
     return export_layer(layer, out)
 
 

@@ -331,6 +331,73 @@ def test_write_rejects_incomplete_results(scene_file, tmp_path):
     assert not (tmp_path / "out.usda").exists()
 
 
+
+def _shared_and_copied(stage, scene):
+    """Results whose frames 1-3 hold the very same objects (as the frame loop gives free frames), and
+    the same results with every frame's arrays and surface copied."""
+    one = run_identity(stage, scene, frames=[1], perturb=perturbed).frames[1][SHEET]
+    shared, copied = U.FramesResult(), U.FramesResult()
+    for f in (1, 2, 3):
+        shared.add(f, SHEET, U.DeformableResult(one.points, one.normals, one.surface, 0.01 * f, f == 2))
+        surface = H.from_arrays(H.from_grid(one.surface.cvs.copy(), depth=one.surface.depth), H.to_arrays(one.surface))
+        copied.add(f, SHEET, U.DeformableResult(one.points.copy(), one.normals.copy(), surface, 0.01 * f, f == 2))
+    return one, shared, copied
+
+
+def test_shared_results_are_written_as_their_copies(scene_file, tmp_path):
+    """Repeated objects are converted once; the layer is byte-identical to one from copies."""
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    one, shared, copied = _shared_and_copied(stage, scene)
+    a = U.write_output(scene_file, tmp_path / "shared.usda", scene, shared)
+    b = U.write_output(scene_file, tmp_path / "copied.usda", scene, copied)
+    assert a.read_bytes() == b.read_bytes()
+    ostage = Usd.Stage.Open(str(a))
+    prim = ostage.GetPrimAtPath(SHEET)
+    for f in (1, 2, 3):
+        np.testing.assert_array_equal(np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(f)), one.points.astype(np.float32))
+        np.testing.assert_array_equal(U.read_output_hierarchy(ostage, SHEET, f).cvs, one.surface.cvs)
+        assert prim.GetAttribute("acra:response:residual").Get(f) == pytest.approx(0.01 * f, abs=0)
+        assert prim.GetAttribute("acra:response:inCollision").Get(f) == (f == 2)
+
+
+def test_shared_invalid_values_are_rejected_at_their_first_frame(scene_file, tmp_path):
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    one, shared, _ = _shared_and_copied(stage, scene)
+    one.normals[5, 1] = np.nan  # the array every frame holds
+    with pytest.raises(ValueError, match=f"frame 1, {SHEET}: normals hold NaN"):
+        U.write_output(scene_file, tmp_path / "out.usda", scene, shared)
+    _, shared, _ = _shared_and_copied(stage, scene)
+    r = shared.frames[3][SHEET]
+    shared.frames[3][SHEET] = U.DeformableResult(r.points, r.normals, r.surface, float("inf"))
+    with pytest.raises(ValueError, match=f"frame 3, {SHEET}: residual is not finite"):
+        U.write_output(scene_file, tmp_path / "out.usda", scene, shared)
+    assert not (tmp_path / "out.usda").exists()
+
+
+@pytest.mark.parametrize("suffix", [".usdc", ".usd"])
+def test_binary_output_round_trips_and_is_deterministic(scene_file, tmp_path, suffix):
+    """``-o NAME.usdc`` (and ``.usd``, whose default format is the crate) writes the binary crate
+    with the same content: points, the response state bit for bit, byte-identical across runs."""
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    res = run_identity(stage, scene, perturb=perturbed)
+    out = U.write_output(scene_file, tmp_path / f"out{suffix}", scene, res)
+    again = U.write_output(scene_file, tmp_path / f"again{suffix}", scene, run_identity(stage, U.read_scene(stage), perturb=perturbed))
+    assert out.read_bytes()[:8] == b"PXR-USDC"
+    assert out.read_bytes() == again.read_bytes()
+    ostage = Usd.Stage.Open(str(out))
+    assert validate(ostage) == []
+    mesh = UsdGeom.Mesh(ostage.GetPrimAtPath(SHEET))
+    for f, per in res.frames.items():
+        np.testing.assert_array_equal(np.asarray(mesh.GetPointsAttr().Get(f)), per[SHEET].points.astype(np.float32))
+        back, written = U.read_output_hierarchy(ostage, SHEET, f), per[SHEET].surface
+        np.testing.assert_array_equal(back.cvs, written.cvs)
+        a, b = H.to_arrays(back), H.to_arrays(written)
+        for name in ("patch_level", "patches", "offset_level", "offset_cvs", "offsets"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
 # --------------------------------------------------------------------------------------------
 # invalid input
 
