@@ -7,6 +7,7 @@ nothing written; the output layer is written atomically at the end.
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
 import time
 from dataclasses import dataclass
@@ -52,13 +53,19 @@ def _frames(arg: str | None, start: int, end: int) -> list[int]:
 
 @dataclass
 class RunReport:
-    """What a run did: the output path, per-frame statistics and the write time."""
+    """What a run did: the output path, per-frame statistics, the write time, what was written.
+
+    ``stage_path`` is the USD input read (the exported ``.usda`` of a scene file) and ``result`` the
+    `usdio.FramesResult` written, so a caller can write it again (``acra bench`` times ``.usdc``).
+    """
 
     output: Path
     stats: list
     ms_write: float
     seconds: float
     scene: object = None
+    stage_path: Path | None = None
+    result: object = None
 
     def summary(self) -> str:
         hit = [s for s in self.stats if s.in_collision]
@@ -127,7 +134,7 @@ def run_file(
     ms_write = 1e3 * (time.perf_counter() - tw)
     if preview is not None:
         preview.close()
-    return RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene)
+    return RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path, result)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -148,9 +155,31 @@ def bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _settle_imports(command: str) -> None:
+    """Import what ``command`` will run, then move every object so far out of the cyclic GC's reach.
+
+    ``gc.freeze`` keeps the collector from re-walking the ~90 000 long-lived objects the imports
+    create (numpy, pxr, scipy, trimesh) at each full collection during the run (measured: 0.11 s of
+    GC in a dog_head_spike run, 0.07 s after). For processes that are the command only.
+    """
+    if command == "run":
+        from pipeline import frames, usdio  # noqa: F401
+    gc.freeze()
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The command line (contract §3); returns the exit status.
+
+    ``argv=None`` means this process is the command (the ``acra`` script, ``python -m
+    pipeline.cli``): then import-time objects are frozen out of the cyclic GC (`_settle_imports`),
+    and so is everything at the end, so the interpreter's final collection does not walk trimesh's
+    and scipy's object graphs before exiting (0.15-0.2 s measured; atexit handlers still run).
+    """
+    as_program = argv is None
     args = build_parser().parse_args(argv)
     try:
+        if as_program:
+            _settle_imports(args.command)
         return bench(args) if args.command == "bench" else run(args)
     except InputError as err:
         print(f"acra: error: {err}", file=sys.stderr)
@@ -158,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("acra: interrupted; nothing written", file=sys.stderr)
         return 130
+    finally:
+        if as_program:
+            gc.freeze()
 
 
 if __name__ == "__main__":
