@@ -26,15 +26,17 @@ def test_library_calls_leave_the_callers_gc_alone(tmp_path):
 
 def test_program_run_freezes_and_still_runs_exit_handlers(tmp_path):
     """As the command (argv from sys.argv) the run freezes import-time objects and, at the end,
-    everything; atexit handlers (Rerun's flush, for one) still run, and the output is complete."""
+    everything; atexit handlers still run, and the output layer and the recording are complete."""
+    from rerun.chunk import RrdReader
+
     scene = tmp_path / SCENE.name
     shutil.copy(SCENE, scene)
-    out = tmp_path / "box.acra.usda"
+    out, rrd = tmp_path / "box.acra.usda", tmp_path / "box.rrd"
     code = (
         "import atexit, gc, sys\n"
         "atexit.register(lambda: print('atexit frozen', gc.get_freeze_count() > 0, flush=True))\n"
         "from pipeline.cli import main\n"
-        f"sys.argv = ['acra', 'run', {str(scene)!r}, '-o', {str(out)!r}, '--quiet', '--frames', '1:2']\n"
+        f"sys.argv = ['acra', 'run', {str(scene)!r}, '-o', {str(out)!r}, '--rrd', {str(rrd)!r}, '--quiet', '--frames', '1:2']\n"
         "sys.exit(main())\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
@@ -43,3 +45,4 @@ def test_program_run_freezes_and_still_runs_exit_handlers(tmp_path):
     assert "acra: 2 frames" in done.stdout
     stage = Usd.Stage.Open(str(out))
     assert stage.GetPrimAtPath("/World/Sheet").GetAttribute("points").GetTimeSamples() == [1.0, 2.0]
+    assert "/world/World/Sheet" in {c.entity_path for c in RrdReader(str(rrd)).stream()}
