@@ -24,11 +24,11 @@ import trimesh
 from acra import hspline as H
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
-from pipeline.shape import Closest, SetupClock, Shape, bvh as _bvh, changed_patches, overlap as _overlap, seed_details, shape_of
+from pipeline.shape import Closest, Shape, bvh as _bvh, overlap as _overlap, shape_of
 
 __all__ = [
     "ColliderStatic", "prepare_collider", "SurfaceGeometry", "ColliderGeometry", "Geometry",
-    "Shape", "SetupClock", "shape_of", "seed_details", "changed_patches", "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
+    "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
     "regions", "touching", "rewind", "deepest_contact", "detect_pair", "residual", "cast", "default_tolerance",

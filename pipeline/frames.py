@@ -21,6 +21,7 @@ from acra import hspline as H
 from acra import respond as R
 from acra.tessellate import evaluate_grid
 from pipeline import detect as D
+from pipeline import shape as S
 from pipeline import usdio
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
@@ -54,7 +55,7 @@ class FrameStats:
     """What one frame did (for the summary, the plots and the benchmark).
 
     Times are milliseconds (thesis Fig. 5.2's split): ``ms_setup`` building object-space shape data
-    (`detect.Shape`, the analogue of RAPID's initial set-up), ``ms_detect`` detection queries less
+    (`shape.Shape`, the analogue of RAPID's initial set-up), ``ms_detect`` detection queries less
     set-up, ``ms_convert`` contacts to data points, ``ms_respond`` the responses (``ms_respond_by``
     per deformable path), ``ms_output`` the display tessellation; ``residual`` is the largest remaining penetration in world units and
     ``residual_rel`` the same over the pair's size.
@@ -200,7 +201,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 state_memo.clear()
             dstates, cstates = usdio.state_at(stage, scene, t)
             for i, s in enumerate(dstates):  # unchanged input CVs: hand back the same surface, so
-                c = canonical[i]             # its object-space Shape (detect.shape_of) is reused
+                c = canonical[i]             # its object-space Shape (shape.shape_of) is reused
                 if c is not None and np.array_equal(c.cvs, s.surface.cvs):
                     dstates[i] = replace(s, surface=c)
                 else:
@@ -214,7 +215,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
         if hit is None or hit[0] is not surface:
             if len(display) > 4 * len(defs):
                 display.clear()
-            det = D.shape_of(surface, options.density).details
+            det = S.shape_of(surface, options.density).details
             hit = display[id(surface)] = (surface, *evaluate_grid(surface, defs[i].topology, det))
         return hit[1], hit[2]
 
@@ -239,7 +240,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
         for it in range(rounds + 1):
             geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
             cgeoms = [D.ColliderGeometry(statics[j], cstates[j].xform) for j in range(len(statics))]
-            td, setup0 = time.perf_counter(), D.SetupClock.ms
+            td, setup0 = time.perf_counter(), S.SetupClock.ms
             found = []
             worst, worst_rel = 0.0, 0.0
             for i, other in _pairs(len(defs), len(statics)):
@@ -260,8 +261,8 @@ def _run_frames(stage, scene, frames, options, on_frame):
                     c = _deepest_instead(geoms[i], gb, c)
                 if c.depth > options.tolerance * size or it == 0:
                     found.append((i, other, c))
-            st.ms_setup += D.SetupClock.ms - setup0
-            st.ms_detect += 1e3 * (time.perf_counter() - td) - (D.SetupClock.ms - setup0)
+            st.ms_setup += S.SetupClock.ms - setup0
+            st.ms_detect += 1e3 * (time.perf_counter() - td) - (S.SetupClock.ms - setup0)
             if it == 0:
                 st.in_collision = bool(found)
                 st.contacts = [(c.point_a, c.point_b) for _, _, c in found]
@@ -271,7 +272,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 st.residual, st.residual_rel = worst, worst_rel
             if not found or worst_rel <= options.tolerance or it == rounds:
                 break
-            tr, setup0 = time.perf_counter(), D.SetupClock.ms
+            tr, setup0 = time.perf_counter(), S.SetupClock.ms
             points: dict[int, list] = {}
             for i, other, c in found:
                 gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
@@ -289,8 +290,8 @@ def _run_frames(stage, scene, frames, options, on_frame):
                     dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a, c.region_b.uv, share,
                                                        _group_level(controls[j], surfaces[j].depth), push)
                     points.setdefault(j, []).append((dp, world, start))
-            st.ms_setup += D.SetupClock.ms - setup0
-            st.ms_convert += 1e3 * (time.perf_counter() - tr) - (D.SetupClock.ms - setup0)
+            st.ms_setup += S.SetupClock.ms - setup0
+            st.ms_convert += 1e3 * (time.perf_counter() - tr) - (S.SetupClock.ms - setup0)
             for i, lst in points.items():
                 t_i = time.perf_counter()
                 dp = R.DataPoints(
@@ -300,8 +301,8 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 )
                 parent = surfaces[i]
                 surfaces[i], rep = R.respond(parent, dp, controls[i], method=options.method,
-                                             det=D.shape_of(parent, options.density).details)
-                D.seed_details(surfaces[i], rep.details, options.density, parent=parent)
+                                             det=S.shape_of(parent, options.density).details)
+                S.seed_details(surfaces[i], rep.details, options.density, parent=parent)
                 if it == 0:
                     st.data_points[defs[i].path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))
                 ms = 1e3 * (time.perf_counter() - t_i)

@@ -29,7 +29,7 @@ from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.tessellate import patch_grids, patch_hulls
 
-__all__ = ["PatchGrid", "Shape", "SetupClock", "shape_of", "seed_details", "changed_patches", "Nearest"]
+__all__ = ["PatchGrid", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh", "overlap"]
 
 COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
 _US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see Closest

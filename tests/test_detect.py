@@ -12,6 +12,7 @@ import trimesh
 from acra import hspline as H
 from acra import shapes
 from pipeline import detect as D
+from pipeline import shape as S
 from pipeline.model import ColliderModel, apply_inverse
 from conftest import wavy_sheet, with_random_offsets
 
@@ -487,18 +488,18 @@ def test_a_responded_shape_reuses_its_parents_grids_only_where_it_did_not_change
     hs = H.make_movable(hs, 2, [[4 * u0, 24]])
     hs = with_random_offsets(hs, 0.02, seed)
     every = every_patch(hs)
-    parent = D.shape_of(hs)
+    parent = S.shape_of(hs)
     parent.grids_for(every)
     uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
     p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
     out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=[0, 0.5, 0.5]))
-    D.seed_details(out, rep.details, parent=hs)
-    child = D.shape_of(out)
+    S.seed_details(out, rep.details, parent=hs)
+    child = S.shape_of(out)
     assert child.parent is parent
     derived = child.grids_for(every)
     reused = np.array([a is b for a, b in zip(derived, parent.grids_for(every))])
     assert 0.75 * len(every) < reused.sum() < len(every)  # local: most grids are the parent's
-    fresh = D.Shape(out).grids_for(every)
+    fresh = S.Shape(out).grids_for(every)
     for a, b in zip(derived, fresh):
         np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-12)
 
@@ -511,10 +512,10 @@ def test_changed_patches_marks_the_support_of_a_moved_cv():
     off = off.copy()
     off[row] = [0.0, 0.0, 0.1]
     moved = H.set_offsets(hs, 1, idx, off)
-    mask = D.changed_patches(hs, moved, margin=0)
+    mask = H.changed_patches(hs, moved, margin=0)
     # level-1 CV 9 supports level-1 patches 6..9, i.e. level-0 patches 3..4 in each direction
     assert set(map(tuple, np.argwhere(mask))) == {(3, 3), (3, 4), (4, 3), (4, 4)}
-    assert not D.changed_patches(hs, hs).any()
+    assert not H.changed_patches(hs, hs).any()
 
 
 def test_inside_is_reproducible_for_points_on_the_surface():
