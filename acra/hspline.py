@@ -33,7 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .basis import Direction, basis, locate, refine_rows
+from .basis import Direction, basis_all, locate, refine_rows
 
 __all__ = [
     "Level",
@@ -365,26 +365,27 @@ def storage_size(hs: HSpline) -> int:
 # --------------------------------------------------------------------------------------------
 # evaluation
 
-
-def _level_basis(d: Direction, x: np.ndarray, k: int, order: int, side: int):
-    """Segment, and basis rows for derivative orders 0..order w.r.t. level-0 units."""
+# (a, b): derivative orders along u and v of each output slot, in SurfaceEval's field order
+_SLOTS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
+_NSLOTS = {0: 1, 1: 3, 2: 6}
+def _segments(d: Direction, x: np.ndarray, k: int, side: int) -> tuple[np.ndarray, np.ndarray]:
+    """Level-``k`` segment and local parameter of ``x``; ``side < 0`` takes a point on an
+    interior knot from the segment on its left."""
     seg, t = locate(d, x, k)
     if side < 0:
-        # points exactly on an interior knot take the segment to their left
         on_knot = (t == 0.0) & ((seg > 0) | d.periodic)
-        seg = np.where(on_knot, seg - 1, seg)
-        seg = d.wrap_patch(seg, k)
+        seg = d.wrap_patch(np.where(on_knot, seg - 1, seg), k)
         t = np.where(on_knot, 1.0, t)
-    scale = float(1 << k)
-    rows = [basis(t, o) * scale**o for o in range(order + 1)]
-    return seg, rows
+    return seg, t
 
 
-def _accumulate(out: list, rows_u, rows_v, block: np.ndarray, sel: np.ndarray | slice, order: int) -> None:
-    """Add the tensor-product sums of ``block (m, 4, 4, 3)`` into the derivative slots."""
-    combos = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)][: {0: 1, 1: 3, 2: 6}[order]]
-    for slot, (a, b) in enumerate(combos):
-        out[slot][sel] += np.einsum("ma,mb,mabc->mc", rows_u[a][sel], rows_v[b][sel], block)
+def _rows(t: np.ndarray, scale: np.ndarray, order: int) -> np.ndarray:
+    """Basis rows of derivative orders ``0..order`` w.r.t. level-0 units: ``(m, order+1, 4)``;
+    ``scale (m,)`` is ``2**k`` of each point's level (d/dx = 2**k d/dt)."""
+    rows = basis_all(t, order).transpose(1, 0, 2)
+    for o in range(1, order + 1):
+        rows[:, o] *= (scale**o)[:, None]
+    return rows
 
 
 def evaluate(
@@ -397,6 +398,11 @@ def evaluate(
     side: int = 0,
 ) -> SurfaceEval:
     """Points (and partial derivatives) of the surface at parameters ``(u, v)``.
+
+    The sum over levels of the module docstring: each point takes level 0's patch and every
+    finer level's active patch under it; all those (point, level) terms are gathered first and
+    contracted with their 4×4 CV blocks in one batch, so the cost is a few array operations per
+    level plus one tensor product per term.
 
     Parameters
     ----------
@@ -417,30 +423,54 @@ def evaluate(
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
     if top >= 1 and det is None:
         det = details(hs, upto=top)
-    nslots = {0: 1, 1: 3, 2: 6}[order]
-    out = [np.zeros((u.size, 3)) for _ in range(nslots)]
+    m = u.size
 
-    su, ru = _level_basis(hs.u, u, 0, order, side)
-    sv, rv = _level_basis(hs.v, v, 0, order, side)
+    # gather the (point, level) terms: point index, local parameters, level scale, and the rows
+    # of the CV block in one table of level-0 CVs followed by each used level's detail vectors
+    su, tu = _segments(hs.u, u, 0, side)
+    sv, tv = _segments(hs.v, v, 0, side)
     iu = hs.u.wrap_cv(su[:, None] + _I4, 0)
     iv = hs.v.wrap_cv(sv[:, None] + _I4, 0)
-    block = hs.cvs[iu[:, :, None], iv[:, None, :]]
-    _accumulate(out, ru, rv, block, slice(None), order)
-
+    pts, tus, tvs, scales = [np.arange(m)], [tu], [tv], [np.ones(m)]
+    rows, tables, base = [iu[:, :, None] * hs.v.n + iv[:, None, :]], [hs.cvs.reshape(-1, 3)], hs.u.n * hs.v.n
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
         if lev.patches.size == 0 or not np.any(lev.movable):
             continue
-        su, ru = _level_basis(hs.u, u, k, order, side)
-        sv, rv = _level_basis(hs.v, v, k, order, side)
+        su, tu = _segments(hs.u, u, k, side)
+        sv, tv = _segments(hs.v, v, k, side)
         prow, found = _lookup(lev.patches, _patch_keys(hs, k, su, sv))
-        if not np.any(found):
-            continue
         sel = np.nonzero(found)[0]
-        block = det.vectors[k - 1][lev.patch_rows[prow[sel]]]
-        _accumulate(out, ru, rv, block, sel, order)
-    names = ["points", "du", "dv", "duu", "duv", "dvv"][:nslots]
-    return SurfaceEval(**dict(zip(names, out)))
+        if not sel.size:
+            continue
+        pts.append(sel)
+        tus.append(tu[sel])
+        tvs.append(tv[sel])
+        scales.append(np.full(sel.size, float(1 << k)))
+        rows.append(lev.patch_rows[prow[sel]] + base)
+        tables.append(det.vectors[k - 1])
+        base += lev.cv_keys.size
+    scale = np.concatenate(scales)
+    ru = _rows(np.concatenate(tus), scale, order)  # (n, o, 4)
+    rv = _rows(np.concatenate(tvs), scale, order)
+    block = np.take(np.concatenate(tables), np.concatenate(rows), axis=0)  # (n, 4 a, 4 b, 3 c)
+
+    # tensor products as batched matrix products: sum_b rv[o, b] block[a, b, c] -> (n, a, o, c),
+    # then sum_a ru[p, a] (...) -> (n, p, o, c)
+    n, o = block.shape[0], order + 1
+    half = rv[:, None] @ block
+    terms = (ru @ half.reshape(n, 4, 3 * o)).reshape(n, o, o, 3)
+
+    # each level's points are distinct, so plain fancy-index adds accumulate correctly
+    bounds = np.cumsum([0] + [p.size for p in pts])
+    names = ["points", "du", "dv", "duu", "duv", "dvv"][: _NSLOTS[order]]
+    out = {}
+    for name, (a, b) in zip(names, _SLOTS):
+        acc = terms[:m, a, b].copy()
+        for p, lo, hi in zip(pts[1:], bounds[1:-1], bounds[2:]):
+            acc[p] += terms[lo:hi, a, b]
+        out[name] = acc
+    return SurfaceEval(**out)
 
 
 def _degenerate(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
