@@ -51,6 +51,10 @@ __all__ = [
     "cv_uv",
     "surface_normals",
     "patch_cvs",
+    "closed_ends",
+    "pole_of",
+    "pole_ring",
+    "pole_patches",
     "storage_size",
     "HierarchyArrays",
     "to_arrays",
@@ -355,6 +359,67 @@ def patch_cvs(hs: HSpline, k: int, patches: np.ndarray) -> np.ndarray:
     ju = hs.u.wrap_cv(patches[:, 0, None] + _I4[None, :], k)
     jv = hs.v.wrap_cv(patches[:, 1, None] + _I4[None, :], k)
     return np.stack(np.broadcast_arrays(ju[:, :, None], jv[:, None, :]), axis=-1)
+
+
+# --------------------------------------------------------------------------------------------
+# poles: an end of the open direction that closes to one point
+
+
+def closed_ends(hs: HSpline) -> tuple[tuple[int, int], ...]:
+    """Ends of the open direction that close to a point (a pole, `acra.shapes.sphere`).
+
+    Only a grid periodic in the other direction closes an end: there the surface at the end is
+    ``(R0 + 4 R1 + R2) / 6`` blended around, with ``R0..R2`` its three outermost CV rows, and it is
+    one point when that sum is the same all around (within 1e-6 of the size, which covers float32
+    ``acra:cvs``). Returns ``(axis, end)`` pairs: axis 0 = u, 1 = v; end 0 at parameter 0, 1 at
+    ``P0``.
+    """
+    if hs.u.periodic == hs.v.periodic:
+        return ()
+    axis = 0 if not hs.u.periodic else 1
+    grid = hs.cvs if axis == 1 else hs.cvs.transpose(1, 0, 2)  # (periodic, open, 3)
+    m, tol, out = grid.shape[1], 1e-6 * hs.size(), []
+    for end, (e0, e1, e2) in enumerate(((0, 1, 2), (m - 1, m - 2, m - 3))):
+        if m >= 5 and np.ptp(grid[:, e0] + 4.0 * grid[:, e1] + grid[:, e2], axis=0).max() <= tol:
+            out.append((axis, end))
+    return tuple(out)
+
+
+def pole_of(hs: HSpline, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Index into `closed_ends` of the pole each point ``(u, v) (K,)`` sits on, or -1.
+
+    A point is on a pole when its open parameter is within 1e-9 of a closed end: there every
+    value of the periodic parameter names the same surface point, so the parameter a projection
+    returns is arbitrary and anything weighted by it must not depend on it."""
+    out = np.full(np.size(u), -1, np.int64)
+    for i, (axis, end) in enumerate(closed_ends(hs)):
+        d = hs.u if axis == 0 else hs.v
+        x = np.atleast_1d(np.asarray(u if axis == 0 else v, np.float64))
+        out[np.abs(x - end * d.patches0) <= 1e-9 * d.patches0] = i
+    return out
+
+
+def pole_ring(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+    """The level-``k`` CVs that make a pole: ``keys (N, 3) int64`` (one column of three rows per
+    periodic index ``0..N-1``, outermost row first) and ``weights (3,)``, the basis of the three
+    rows at the end (1/6, 4/6, 1/6). The pole point is ``sum_j B_j(s) (weights @ rows_j)``, the
+    same for every ``s`` iff ``weights @ rows_j`` is the same for every column ``j``."""
+    per, opn = (hs.v, hs.u) if axis == 0 else (hs.u, hs.v)
+    n = per.cvs(k)
+    rows = np.array([0, 1, 2]) if end == 0 else opn.cvs(k) - 1 - np.array([0, 1, 2])
+    j = np.arange(n)[:, None]
+    ju, jv = np.broadcast_arrays(rows[None, :], j) if axis == 0 else np.broadcast_arrays(j, rows[None, :])
+    return _cv_keys(hs, k, ju, jv), np.array([1.0, 4.0, 1.0]) / 6.0
+
+
+def pole_patches(hs: HSpline, k: int, axis: int, end: int) -> np.ndarray:
+    """Level-``k`` patches ``(3 N, 2) int64`` whose activation makes the whole `pole_ring` movable:
+    the three patch rows at the end, all around (a ring CV's support reaches three patches in)."""
+    per, opn = (hs.v, hs.u) if axis == 0 else (hs.u, hs.v)
+    rows = np.array([0, 1, 2]) if end == 0 else opn.patches(k) - 1 - np.array([0, 1, 2])
+    p = np.arange(per.patches(k))
+    a, b = np.meshgrid(rows, p, indexing="ij") if axis == 0 else np.meshgrid(p, rows, indexing="ij")
+    return np.stack([a.reshape(-1), b.reshape(-1)], axis=1).astype(np.int64)
 
 
 def storage_size(hs: HSpline) -> int:

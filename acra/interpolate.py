@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .basis import basis, locate
-from .hspline import HSpline, _cv_keys, _lookup, _patch_keys
+from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
 __all__ = [
     "PointWeights",
@@ -81,6 +81,12 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> Poin
     Level 0: all 16 CVs of the point's patch. Level ``k >= 1``: the CVs of the point's level-k
     patch that exist and are movable (C2 rule); a point whose patch is not refined to ``k`` gets
     no weights (``active`` False): under the ``obey`` policy it is not moved by this level.
+
+    A point on a pole (`H.pole_of`) is the same surface point for every value of the periodic
+    parameter, so its row is that row averaged over the parameter: each CV of the level's
+    `H.pole_ring` weighs its row's weight over the ring size. A projection's arbitrary choice of
+    the parameter then changes nothing, and moving the point moves the pole as one point. On a
+    level whose ring is not wholly movable the point gets no weights.
     """
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     v = np.atleast_1d(np.asarray(v, dtype=np.float64))
@@ -91,28 +97,45 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> Poin
     i4 = np.arange(4)
     ju = hs.u.wrap_cv(su[:, None] + i4, level)
     jv = hs.v.wrap_cv(sv[:, None] + i4, level)
-    if level == 0:
-        rows = (ju[:, :, None] * hs.v.n + jv[:, None, :]).reshape(-1, 16)
-        ok = np.ones(rows.shape, bool)
-    else:
-        lev = hs.level(level)
-        _, pfound = _lookup(lev.patches, _patch_keys(hs, level, su, sv))
-        keys = _cv_keys(hs, level, ju[:, :, None], jv[:, None, :]).reshape(-1, 16)
-        rows, found = _lookup(lev.cv_keys, keys)
-        ok = found & pfound[:, None]
-        ok &= lev.movable[rows] if lev.cv_keys.size else False
+    keys = _cv_keys(hs, level, ju[:, :, None], jv[:, None, :]).reshape(-1, 16)
+    rows, ok = _movable_rows(hs, level, keys)
+    if level:
+        ok &= _lookup(hs.level(level).patches, _patch_keys(hs, level, su, sv))[1][:, None]
     ok &= w > 0.0
+    pole = pole_of(hs, u, v)
+    ok[pole >= 0] = False
     pt = np.repeat(np.arange(u.size), 16).reshape(-1, 16)
-    cv_rows, col = np.unique(rows[ok], return_inverse=True)
+    pts, rws, ws = [pt[ok]], [rows[ok]], [w[ok]]
+    for i, (axis, end) in enumerate(closed_ends(hs)):
+        on = np.nonzero(pole == i)[0]
+        ring, rw = pole_ring(hs, level, axis, end)
+        rrows, rok = _movable_rows(hs, level, ring)
+        if not on.size or not rok.all():
+            continue
+        pts.append(np.repeat(on, ring.size))
+        rws.append(np.tile(rrows.reshape(-1), on.size))
+        ws.append(np.tile(np.broadcast_to(rw / ring.shape[0], ring.shape).reshape(-1), on.size))
+    point, allrows, wts = np.concatenate(pts), np.concatenate(rws), np.concatenate(ws)
+    cv_rows, col = np.unique(allrows, return_inverse=True)
     return PointWeights(
         level=level,
-        point=pt[ok],
+        point=point,
         col=col.astype(np.int64),
-        w=w[ok],
+        w=wts,
         cv_rows=cv_rows.astype(np.int64),
         npoints=u.size,
-        active=np.bincount(pt[ok], minlength=u.size) > 0,
+        active=np.bincount(point, minlength=u.size) > 0,
     )
+
+
+def _movable_rows(hs: HSpline, level: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of CV ``keys`` (any shape) at ``level`` (level 0: flat grid index) and whether each
+    exists and is movable."""
+    if level == 0:
+        return keys, np.ones(keys.shape, bool)
+    lev = hs.level(level)
+    rows, found = _lookup(lev.cv_keys, keys)
+    return rows, found & (lev.movable[rows] if lev.cv_keys.size else False)
 
 
 def bartels_beatty(w: np.ndarray, dq: np.ndarray) -> np.ndarray:

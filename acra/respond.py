@@ -261,27 +261,26 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
 
 
 def _closed_ends(hs: H.HSpline, cvs: np.ndarray) -> np.ndarray:
-    """Level-0 ``cvs (nu, nv, 3)`` (``hs``'s after a move) with every end that ``hs`` closes closed again.
+    """Level-0 ``cvs (nu, nv, 3)`` (``hs``'s after a move) with every end that ``hs`` closes
+    (`H.closed_ends`) closed again.
 
-    A grid periodic one way closes an end of the other, a sphere's pole (`acra.shapes.sphere`),
-    when ``R0 + 4 R1 + R2`` (its first three rows) is one point all around. Moving rows 1–2 alone,
-    as any level-0 contact within two patches does, splits it: the surface gets a hole, detection
-    no longer sees an inside and the pole normal flips. The end row ``R0`` takes the least change
-    that closes the end again (after a collapsed pole row ``R1`` is collapsed to its mean), so the
-    surface changes only in that end's patch rows. 1e-6 of the size covers float32 ``acra:cvs``.
+    Moving rows 1–2 of a pole alone, as any level-0 contact within two patches does, splits it:
+    the surface gets a hole, detection no longer sees an inside and the pole normal flips. The end
+    row ``R0`` takes the least change that closes the end again (after a collapsed pole row ``R1``
+    is collapsed to its mean), so the surface changes only in that end's patch rows.
     """
-    if hs.u.periodic == hs.v.periodic:
+    ends = H.closed_ends(hs)
+    if not ends:
         return cvs
-    swap = not hs.u.periodic  # the periodic direction first
+    swap = ends[0][0] == 0  # the periodic direction first
     old, new = (hs.cvs.transpose(1, 0, 2), cvs.transpose(1, 0, 2).copy()) if swap else (hs.cvs, cvs.copy())
     tol, m = 1e-6 * hs.size(), old.shape[1]
-    for e0, e1, e2 in ((0, 1, 2), (m - 1, m - 2, m - 3)) if m >= 5 else ():
-        if np.ptp(old[:, e0] + 4.0 * old[:, e1] + old[:, e2], axis=0).max() > tol:
-            continue
+    for _, end in ends:
+        e0, e1, e2 = (0, 1, 2) if end == 0 else (m - 1, m - 2, m - 3)
         if np.ptp(old[:, e1], axis=0).max() <= tol:
             new[:, e1] = new[:, e1].mean(axis=0)
-        ends = new[:, e0] + 4.0 * new[:, e1] + new[:, e2]
-        new[:, e0] -= ends - ends.mean(axis=0)
+        ring = new[:, e0] + 4.0 * new[:, e1] + new[:, e2]
+        new[:, e0] -= ring - ring.mean(axis=0)
     return new.transpose(1, 0, 2) if swap else new
 
 
@@ -416,6 +415,16 @@ class ResponseReport:
     details: H.Details | None = None
 
 
+def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
+    """Refine the whole level-``level`` `H.pole_ring` of every pole a point ``uv (K, 2)`` sits on:
+    such a point weighs the ring all around (`point_weights`), so the ring must be movable."""
+    pole = H.pole_of(hs, uv[:, 0], uv[:, 1])
+    for i, (axis, end) in enumerate(H.closed_ends(hs)):
+        if np.any(pole == i):
+            hs = H.refine(hs, level, H.pole_patches(hs, level, axis, end))
+    return hs
+
+
 def _redetail(old: H.HSpline, old_det: H.Details | None, new: H.HSpline) -> tuple[H.HSpline, H.Details | None]:
     """``new`` and its details, recomputed only where it differs from ``old`` (a move is local)."""
     if new.depth <= 1:
@@ -477,6 +486,7 @@ def respond(
             sv, _ = locate(hs.v, uv[:, 1], level)
             before = sum(lev.patches.size for lev in hs.fine)
             hs = H.make_movable(hs, level, np.stack([su, sv], axis=1))
+            hs = _open_pole_rings(hs, level, uv)
             added = sum(lev.patches.size for lev in hs.fine) - before
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing

@@ -446,7 +446,7 @@ def test_box_into_a_pole_is_resolved(pole3):
 
 
 @pytest.mark.xfail(strict=True, reason="finer levels open the pole: level-1/2 offsets of the CVs around the pole move "
-                   "them apart, so the pole becomes a ring 1.6e-3 of the size wide (a hole; detection then sees "
+                   "them apart, so the pole becomes a ring 1.3e-3 of the size wide (a hole; detection then sees "
                    "the sphere as open)")
 def test_box_into_a_pole_keeps_it_closed_on_every_level(pole3):
     r, _, size = pole3

@@ -311,3 +311,17 @@ def test_batched_evaluation_equals_the_per_level_sum(periodic):
             for s in range(ref.shape[0]):
                 np.testing.assert_allclose(getattr(ev, names[s]), ref[s], rtol=0, atol=1e-12)
 
+
+def test_closed_ends_and_pole_points():
+    sphere = H.from_grid(*shapes.sphere(8, 9))
+    assert H.closed_ends(sphere) == ((1, 0), (1, 1))
+    for shape in (shapes.torus(), shapes.sheet(6, 6), shapes.tube()):
+        assert H.closed_ends(H.from_grid(*shape)) == ()
+    P = sphere.v.patches0
+    pole = H.pole_of(sphere, np.array([0.3, 2.0, 5.5, 1.0]), np.array([0.0, P, P - 1e-3, P * (1 - 1e-11)]))
+    np.testing.assert_array_equal(pole, [0, 1, -1, 1])
+    # the ring's columns are what the pole point weighs: each column's rows blend to the pole
+    keys, w = H.pole_ring(sphere, 0, 1, 1)
+    cols = sphere.cvs.reshape(-1, 3)[keys]  # (N, 3, 3)
+    tip = H.evaluate(sphere, np.array([0.7]), np.array([float(P)])).points[0]
+    np.testing.assert_allclose(np.einsum("r,jrc->jc", w, cols), np.tile(tip, (keys.shape[0], 1)), atol=1e-12)

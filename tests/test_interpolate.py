@@ -81,3 +81,23 @@ def test_coincident_points_with_different_targets_stay_finite():
     pw = point_weights(hs, 0, np.array([2.5, 2.5]), np.array([2.5, 2.5]))
     dv = min_norm_solve(pw, np.array([[0, 0, 1.0], [0, 0, -1.0]]))
     assert np.all(np.isfinite(dv)) and np.abs(pw.apply(dv)).max() < 1e-6
+
+
+def test_a_point_on_a_pole_weighs_the_ring_all_around():
+    """At a pole every u names the same point, so its row is the row averaged over u: each ring
+    CV weighs its row's end weight (1/6, 4/6, 1/6) over the ring size, whatever u was given."""
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    P = float(hs.v.patches0)
+    hs = H.refine(hs, 2, H.pole_patches(hs, 2, 1, 1))
+    for level in (0, 2):
+        rows = [point_weights(hs, level, np.array([u]), np.array([P])) for u in (0.0, 0.37, 5.9)]
+        for pw in rows[1:]:
+            np.testing.assert_array_equal(pw.cv_rows, rows[0].cv_rows)
+            np.testing.assert_array_equal(pw.w, rows[0].w)
+        pw = rows[0]
+        keys, w = H.pole_ring(hs, level, 1, 1)
+        assert pw.active[0] and pw.cv_rows.size == keys.size
+        assert abs(pw.w.sum() - 1.0) <= 1e-15  # partition of unity
+        np.testing.assert_allclose(np.sort(pw.w), np.sort(np.tile(w / keys.shape[0], keys.shape[0])), rtol=1e-15)
+    # level 1's ring is not refined: a pole point gets no weights there (obey leaves it alone)
+    assert not point_weights(hs, 1, np.array([0.3]), np.array([0.0])).active[0]

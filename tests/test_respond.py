@@ -282,3 +282,24 @@ def test_noisy_dent_on_three_levels_stays_within_its_depth():
         out, _ = R.respond(hs, dp, R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3]))
         worst = max(worst, np.abs(H.evaluate(out, uu, vv).points - p)[:, 2].max() / 0.15)
     assert worst < 1.1, worst
+
+
+@pytest.mark.parametrize("level", [0, 2])
+def test_a_contact_on_a_pole_moves_it_as_one_point_whatever_its_u(level):
+    """A projection onto a pole returns an arbitrary u (1e-15 changes in evaluation moved the
+    spike's tip contact from u = 0.125 to 2.25). The response must not depend on it: equal
+    surfaces for three u, the pole on its target, and still one point."""
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    P = float(hs.v.patches0)
+    ctl = controls(3, level)
+    outs = []
+    for u in (0.125, 2.25, 7.5):
+        out, rep = R.respond(hs, one_point(hs, [u, P], [0.02, -0.01, -0.05]), ctl)
+        assert np.abs(rep.remaining).max() <= 1e-12
+        outs.append(out)
+    uu, vv = np.meshgrid(np.linspace(0, hs.u.patches0, 17), np.linspace(0, P, 19))
+    pts = [H.evaluate(o, uu.ravel(), vv.ravel()).points for o in outs]
+    for p in pts[1:]:
+        np.testing.assert_allclose(p, pts[0], rtol=0, atol=1e-12)
+    ring = H.evaluate(outs[0], np.linspace(0, hs.u.patches0, 33), np.full(33, P)).points
+    assert np.ptp(ring, axis=0).max() <= 1e-12
