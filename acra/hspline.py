@@ -646,16 +646,32 @@ def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
     for k, ju, jv in hits:
         if not len(ju):
             continue
-        lo_u, hi_u = ((ju - 3) >> k) - margin, (ju >> k) + margin
-        lo_v, hi_v = ((jv - 3) >> k) - margin, (jv >> k) + margin
-        for du in range(int((hi_u - lo_u).max()) + 1):
-            for dv in range(int((hi_v - lo_v).max()) + 1):
-                qu, qv = lo_u + du, lo_v + dv
-                ok = (qu <= hi_u) & (qv <= hi_v)
-                qu = np.mod(qu, new.u.patches0) if new.u.periodic else np.clip(qu, 0, new.u.patches0 - 1)
+        # (j - 3 + d) >> k for d = 0..3 covers every level-0 patch of j's support; the interval
+        # always meets the domain, so clipping (open) or wrapping (periodic) loses nothing
+        for du in range(4):
+            qu = (ju - 3 + du) >> k
+            qu = np.mod(qu, new.u.patches0) if new.u.periodic else np.clip(qu, 0, new.u.patches0 - 1)
+            for dv in range(4):
+                qv = (jv - 3 + dv) >> k
                 qv = np.mod(qv, new.v.patches0) if new.v.periodic else np.clip(qv, 0, new.v.patches0 - 1)
-                mask[qu[ok], qv[ok]] = True
+                mask[qu, qv] = True
+    for axis, d in ((0, new.u), (1, new.v)):
+        mask = _dilate(mask, margin, axis, d.periodic)
     return mask
+
+
+def _dilate(mask: np.ndarray, m: int, axis: int, periodic: bool) -> np.ndarray:
+    """``mask`` grown by ``m`` cells both ways along ``axis`` (wrapping if ``periodic``)."""
+    out = mask.copy()
+    for s in range(1, m + 1):
+        if periodic:
+            out |= np.roll(mask, s, axis) | np.roll(mask, -s, axis)
+            continue
+        a = np.moveaxis(out, axis, 0)
+        b = np.moveaxis(mask, axis, 0)
+        a[s:] |= b[:-s]
+        a[:-s] |= b[s:]
+    return out
 
 
 def details(hs: HSpline, upto: int | None = None,

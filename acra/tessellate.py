@@ -172,11 +172,11 @@ def patch_hulls(hs: HSpline, det: Details | None = None) -> tuple[np.ndarray, np
     if hs.depth > 1:
         det = details(hs) if det is None else det
         every = all_cv_positions(hs, det)
+        cells, points = [], []
         for k in range(1, hs.depth):
             lev = hs.level(k)
             if lev.cv_keys.size == 0:
                 continue
-            pos = every[k]
             ju, jv = _split_cv(hs, k, lev.cv_keys)
             # level-k CV j supports level-k patches j-3..j, i.e. level-0 patches (j-3)>>k .. j>>k
             for du in range(4):
@@ -184,6 +184,15 @@ def patch_hulls(hs: HSpline, det: Details | None = None) -> tuple[np.ndarray, np
                     qu = hs.u.wrap_patch((ju - 3 + du) >> k, 0)
                     qv = hs.v.wrap_patch((jv - 3 + dv) >> k, 0)
                     ok = hs.u.patch_valid(qu, 0) & hs.v.patch_valid(qv, 0)
-                    np.minimum.at(lo, (qu[ok], qv[ok]), pos[ok])
-                    np.maximum.at(hi, (qu[ok], qv[ok]), pos[ok])
+                    cells.append(qu[ok] * pv + qv[ok])
+                    points.append(every[k][ok])
+        if cells:
+            # one sort groups every (patch, control point) pair; reduceat takes each patch's box
+            cell = np.concatenate(cells)
+            order = np.argsort(cell, kind="stable")
+            cell, pts = cell[order], np.concatenate(points)[order]
+            start = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+            flo, fhi, at = lo.reshape(-1, 3), hi.reshape(-1, 3), cell[start]
+            flo[at] = np.minimum(flo[at], np.minimum.reduceat(pts, start, axis=0))
+            fhi[at] = np.maximum(fhi[at], np.maximum.reduceat(pts, start, axis=0))
     return lo, hi
