@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from functools import cached_property
+from itertools import chain
 
 import fcl
 import numpy as np
@@ -95,8 +96,8 @@ class Closest:
         near = np.nonzero(ball)[0]
         if len(near):
             lists = self.ctree.query_ball_point(points[near], radius[near])
-            lens = np.fromiter((len(x) for x in lists), np.int64, len(near))
-            idx = np.fromiter((i for x in lists for i in x), np.int64, int(lens.sum()))
+            lens = np.fromiter(map(len, lists), np.int64, len(near))
+            idx = np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))
             owner = np.repeat(np.arange(len(near)), lens)
         if len(near) and len(idx):
             cp = self.unit * trimesh.triangles.closest_point(self.tri[idx] / self.unit, points[near][owner] / self.unit)
