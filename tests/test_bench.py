@@ -20,7 +20,7 @@ def test_bench_splits_every_stage_over_collision_and_free_frames():
     # a free frame never converts or responds; the sheet is the only deformable (large = small)
     assert b.rows["conversion"][1] == 0 and b.rows["response, large"][1] == 0
     assert b.rows["response, large"][0] > 0 and b.large == b.small == "/World/Sheet"
-    assert b.frame_ms[0] > b.frame_ms[1] > 0 and b.end_to_end_s > 0
+    assert b.frame_ms[0] > b.frame_ms[1] > 0 and b.end_to_end_s > 0 and b.end_to_end_usdc_s > 0
     # the same results written as .usdc too: only the writing differs between the two frame times
     # (one run, so one write time per frame kind and medians shift by it exactly)
     write, write_usdc = b.rows["USD writing"], b.rows["USD writing, .usdc"]
@@ -29,7 +29,7 @@ def test_bench_splits_every_stage_over_collision_and_free_frames():
     assert b.residual_rel <= 1e-3
     text = B.format_report(b)
     assert "| detection |" in text and "30: 16" in text and "end to end" in text
-    assert "free frame, `-o NAME.usdc`" in text
+    assert "free frame, `-o NAME.usdc`" in text and "end to end, `-o NAME.usdc`" in text
 
 
 def test_bench_rejects_a_bad_repeat(capsys):
