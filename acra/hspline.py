@@ -399,15 +399,19 @@ def pole_of(hs: HSpline, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
+def _end_rows(count: int, end: int) -> np.ndarray:
+    """The three outermost of ``count`` rows at ``end`` (0: first, 1: last), outermost first."""
+    return np.array([0, 1, 2]) if end == 0 else count - 1 - np.array([0, 1, 2])
+
+
 def pole_ring(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
     """The level-``k`` CVs that make a pole: ``keys (N, 3) int64`` (one column of three rows per
     periodic index ``0..N-1``, outermost row first) and ``weights (3,)``, the basis of the three
     rows at the end (1/6, 4/6, 1/6). The pole point is ``sum_j B_j(s) (weights @ rows_j)``, the
     same for every ``s`` iff ``weights @ rows_j`` is the same for every column ``j``."""
     per, opn = (hs.v, hs.u) if axis == 0 else (hs.u, hs.v)
-    n = per.cvs(k)
-    rows = np.array([0, 1, 2]) if end == 0 else opn.cvs(k) - 1 - np.array([0, 1, 2])
-    j = np.arange(n)[:, None]
+    rows = _end_rows(opn.cvs(k), end)
+    j = np.arange(per.cvs(k))[:, None]
     ju, jv = np.broadcast_arrays(rows[None, :], j) if axis == 0 else np.broadcast_arrays(j, rows[None, :])
     return _cv_keys(hs, k, ju, jv), np.array([1.0, 4.0, 1.0]) / 6.0
 
@@ -416,7 +420,7 @@ def pole_patches(hs: HSpline, k: int, axis: int, end: int) -> np.ndarray:
     """Level-``k`` patches ``(3 N, 2) int64`` whose activation makes the whole `pole_ring` movable:
     the three patch rows at the end, all around (a ring CV's support reaches three patches in)."""
     per, opn = (hs.v, hs.u) if axis == 0 else (hs.u, hs.v)
-    rows = np.array([0, 1, 2]) if end == 0 else opn.patches(k) - 1 - np.array([0, 1, 2])
+    rows = _end_rows(opn.patches(k), end)
     p = np.arange(per.patches(k))
     a, b = np.meshgrid(rows, p, indexing="ij") if axis == 0 else np.meshgrid(p, rows, indexing="ij")
     return np.stack([a.reshape(-1), b.reshape(-1)], axis=1).astype(np.int64)

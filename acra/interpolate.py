@@ -108,9 +108,11 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> Poin
     pts, rws, ws = [pt[ok]], [rows[ok]], [w[ok]]
     for i, (axis, end) in enumerate(closed_ends(hs)):
         on = np.nonzero(pole == i)[0]
+        if not on.size:
+            continue
         ring, rw = pole_ring(hs, level, axis, end)
         rrows, rok = _movable_rows(hs, level, ring)
-        if not on.size or not rok.all():
+        if not rok.all():
             continue
         pts.append(np.repeat(on, ring.size))
         rws.append(np.tile(rrows.reshape(-1), on.size))
