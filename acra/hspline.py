@@ -641,12 +641,8 @@ def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
     mask = np.zeros((new.u.patches0, new.v.patches0), bool)
     hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))]
     for k in range(1, new.depth):
-        a, b = old.level(k), new.level(k)
-        rows, found = _lookup(a.cv_keys, b.cv_keys)
-        same = np.zeros(b.cv_keys.size, bool)
-        same[found] = np.all(a.offsets[rows[found]] == b.offsets[found], axis=-1)
-        moved = ~same & (found | np.any(b.offsets != 0, axis=-1))
-        hits.append((k, *_split_cv(new, k, b.cv_keys[moved])))
+        b = new.level(k)
+        hits.append((k, *_split_cv(new, k, b.cv_keys[_moved_cvs(old, new, k)])))
     for k, ju, jv in hits:
         if not len(ju):
             continue
@@ -686,10 +682,13 @@ def details(hs: HSpline, upto: int | None = None,
     parameter centre, so moving a coarse CV carries finer detail along (thesis Fig. 3.10).
     ``since = (old, old_details, stale)``: ``hs`` differs from ``old`` only on the level-0
     patches ``stale (P0u, P0v) bool`` (`changed_patches`, whose margin covers the frames that
-    follow a moved surface); CVs centred elsewhere keep ``old_details`` on every level whose CVs
-    are the same as ``old``'s. A response is local, so this skips most of the work.
+    follow a moved surface) and by refinement. A CV ``old`` had movable keeps its frame if its
+    level is no finer than the coarsest level that moved (its frame's surface is unchanged) or if
+    it is centred off ``stale``; only the others, and CVs refinement added, are evaluated. A
+    response is local and a refinement moves nothing, so this skips most of the work.
     """
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
+    first = _first_moved(since[0], hs) if since is not None else 0
     vectors: list[np.ndarray] = []
     frames: list[np.ndarray] = []
     for k in range(1, top + 1):
@@ -698,17 +697,19 @@ def details(hs: HSpline, upto: int | None = None,
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
         rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
-        if rows.size:
-            if since is not None:
-                old, old_det, stale = since
-                was = old.fine[k - 1]
-                if k - 1 < len(old_det.frames) and np.array_equal(was.cv_keys, lev.cv_keys) and np.array_equal(was.movable, lev.movable):
-                    gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
-                    pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
-                    pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
-                    fr[:] = old_det.frames[k - 1]
-                    vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
-                    rows = rows[stale[pu.astype(np.int64), pv.astype(np.int64)]]
+        if rows.size and since is not None and k - 1 < len(since[1].frames):
+            old, old_det, stale = since
+            was = old.fine[k - 1]
+            orow, found = _lookup(was.cv_keys, lev.cv_keys[rows])
+            found &= was.movable[orow] if was.cv_keys.size else False
+            fr[rows[found]] = old_det.frames[k - 1][orow[found]]
+            if k > first:  # the surface under this level's frames moved on the stale patches
+                gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
+                pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
+                pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
+                found &= ~stale[pu.astype(np.int64), pv.astype(np.int64)]
+            vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
+            rows = rows[~found]
         if rows.size:
             gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
             partial = Details(tuple(vectors), tuple(frames))
@@ -719,6 +720,28 @@ def details(hs: HSpline, upto: int | None = None,
         vectors.append(vec)
         frames.append(fr)
     return Details(tuple(vectors), tuple(frames))
+
+
+def _first_moved(old: HSpline, new: HSpline) -> int:
+    """The coarsest level whose CVs differ between ``old`` and ``new`` (``depth`` if none):
+    a changed level-0 CV, or a level-``k`` offset that differs or is new and non-zero. Refinement
+    alone (new CVs with zero offsets) moves nothing. Frames of levels ``<=`` it are unchanged."""
+    if old.cvs.shape != new.cvs.shape or np.any(old.cvs != new.cvs):
+        return 0
+    for k in range(1, new.depth):
+        if np.any(_moved_cvs(old, new, k)):
+            return k
+    return new.depth
+
+
+def _moved_cvs(old: HSpline, new: HSpline, k: int) -> np.ndarray:
+    """Which of ``new``'s level-``k`` CVs ``(c_k,) bool`` moved from ``old``: an offset that
+    differs, or a new CV with a non-zero offset (a new CV with offset zero is a refinement)."""
+    a, b = old.level(k), new.level(k)
+    rows, found = _lookup(a.cv_keys, b.cv_keys)
+    same = np.zeros(b.cv_keys.size, bool)
+    same[found] = np.all(a.offsets[rows[found]] == b.offsets[found], axis=-1)
+    return ~same & (found | np.any(b.offsets != 0, axis=-1))
 
 
 def cv_positions(hs: HSpline, k: int, det: Details | None = None) -> np.ndarray:

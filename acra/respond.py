@@ -485,12 +485,13 @@ def respond(
             su, _ = locate(hs.u, uv[:, 0], level)
             sv, _ = locate(hs.v, uv[:, 1], level)
             before = sum(lev.patches.size for lev in hs.fine)
+            coarse = hs
             hs = H.make_movable(hs, level, np.stack([su, sv], axis=1))
             hs = _open_pole_rings(hs, level, uv)
             added = sum(lev.patches.size for lev in hs.fine) - before
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
-                det = H.details(hs)
+                hs, det = _redetail(coarse, det, hs)
         pw = point_weights(hs, level, uv[:, 0], uv[:, 1])
         present = pw.active
         d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))

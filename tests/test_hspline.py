@@ -258,6 +258,37 @@ def test_details_since_a_local_move_equal_a_full_recomputation(seed):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_details_since_a_refinement_evaluate_only_the_new_cvs(seed, monkeypatch):
+    """Refinement moves nothing: `details(since=...)` keeps every old frame, evaluates frames
+    only for the CVs it added, and equals a full pass; a move on top of it still does."""
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=4)
+    hs = H.make_movable(hs, 2, [[4 * int(rng.integers(0, 12)) + 2, 14]])
+    hs = with_random_offsets(hs, 0.02, seed)
+    det = H.details(hs)
+    finer = H.make_movable(hs, 3, [[8 * int(rng.integers(0, 12)) + 4, 30]])
+    added = sum(int(b.movable.sum() - a.movable.sum()) for a, b in zip(hs.fine, finer.fine))
+    assert added > 0
+    evaluated = []
+    real = H.surface_normals
+    monkeypatch.setattr(H, "surface_normals", lambda hs_, u, *a, **kw: evaluated.append(np.size(u)) or real(hs_, u, *a, **kw))
+    fast = H.details(finer, since=(hs, det, H.changed_patches(hs, finer)))
+    assert sum(evaluated) == added
+    monkeypatch.setattr(H, "surface_normals", real)
+    full = H.details(finer)
+    for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
+        np.testing.assert_array_equal(a, b)
+    idx, off = H.offsets_of(finer, 2)
+    off = off.copy()
+    off[int(rng.integers(0, len(off)))] += rng.normal(scale=0.05, size=3)
+    moved = H.set_offsets(finer, 2, idx, off)
+    fast = H.details(moved, since=(finer, full, H.changed_patches(finer, moved)))
+    full = H.details(moved)
+    for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
 def _per_level_sum(hs, u, v, order, det, side=0):
     """Reference for `evaluate`: the module docstring's sum, one level at a time, term by term."""
     from acra.basis import basis, locate
