@@ -43,10 +43,13 @@ def overlap(lo_a, hi_a, lo_b, hi_b, pad: float) -> np.ndarray:
 
 
 def bvh(vertices: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:
-    """An fcl BVH of a triangle set at the identity transform."""
+    """An fcl BVH of a triangle set at the identity transform; face rows are kept, so fcl's
+    ``b1``/``b2`` are rows of ``faces``. Only the vertices the faces use go in: fcl's build costs
+    per vertex too (3,009 vertices for 39 faces: 2.4 ms, compacted 0.2 ms)."""
+    used, tri = np.unique(faces, return_inverse=True)
     model = fcl.BVHModel()
-    model.beginModel(len(vertices), len(faces))
-    model.addSubModel(np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int32))
+    model.beginModel(len(used), len(faces))
+    model.addSubModel(np.ascontiguousarray(vertices[used], np.float64), np.ascontiguousarray(tri.reshape(-1, 3), np.int32))
     model.endModel()
     return fcl.CollisionObject(model, fcl.Transform())
 
