@@ -30,7 +30,7 @@ from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.tessellate import patch_grids, patch_hulls
 
-__all__ = ["PatchGrid", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh", "overlap"]
+__all__ = ["PatchGrid", "GridSet", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh", "overlap"]
 
 COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
 _US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see Closest
@@ -158,17 +158,45 @@ class PatchGrid:
         edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2)
         return np.nonzero(edges.min(axis=1) > tol)[0]
 
-    @cached_property
-    def index(self) -> Closest:
-        return Closest(self.points, self.triangles[self.solid])
 
-    def uv_at(self, face: np.ndarray, close: np.ndarray) -> np.ndarray:
-        """Parameters ``(k, 2)`` of points ``close (k, 3)`` on solid faces ``face (k,)`` (rows of
-        `index`), interpolated from the corners and kept inside the patch (a pole's normal is a
-        limit taken from inside its patch, `acra.hspline.surface_normals`)."""
-        tri = self.triangles[self.solid[face]]
+
+class GridSet:
+    """Several patch grids as one triangle set, so a batch of queries near a contact is answered
+    by one kd-tree pass and one exact closest-point call per grid density instead of one of each
+    per patch grid. Grids of one density share a `Closest` index (its search radius grows with
+    the largest triangle, so a coarse grid must not widen a fine one's). ``face_lo, face_hi
+    (f, 2)``: the parameter box of each solid face's patch (closest points' parameters are kept
+    inside their patch)."""
+
+    def __init__(self, grids: list[PatchGrid]) -> None:
+        grids = sorted(grids, key=lambda g: len(g.points), reverse=True)  # finest first
+        base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+        self.points = np.concatenate([g.points for g in grids])
+        self.uv = np.concatenate([g.uv for g in grids])
+        self.triangles = np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)])
+        count = np.array([len(g.solid) for g in grids])
+        self.face_lo = np.repeat(np.array([g.uv[0] for g in grids]), count, axis=0)
+        self.face_hi = np.repeat(np.array([g.uv[-1] for g in grids]), count, axis=0)
+        size = np.array([len(g.points) for g in grids])
+        first = np.cumsum(np.r_[0, count])
+        self.indices = []  # (first face row, Closest) per density
+        for n in np.unique(size)[::-1]:
+            a, b = np.nonzero(size == n)[0][[0, -1]]
+            self.indices.append((first[a], Closest(self.points, self.triangles[first[a]:first[b + 1]])))
+
+    def nearest(self, q: np.ndarray) -> Nearest:
+        """Closest points to ``q (k, 3)`` and their parameters, interpolated from the face
+        corners."""
+        dist, close, face = np.full(len(q), np.inf), np.zeros((len(q), 3)), np.zeros(len(q), np.int64)
+        for start, index in self.indices:
+            bound = None if not np.isfinite(dist).any() else np.where(np.isfinite(dist), dist * (1 + 1e-9) + 1e-300, np.inf)
+            d, cp, f = index.query(q, bound)
+            better = d < dist
+            dist[better], close[better], face[better] = d[better], cp[better], f[better] + start
+        tri = self.triangles[face]
         bary = trimesh.triangles.points_to_barycentric(self.points[tri], close)
-        return np.clip(np.einsum("kj,kjc->kc", bary, self.uv[tri]), self.uv[0], self.uv[-1])
+        uv = np.clip(np.einsum("kj,kjc->kc", bary, self.uv[tri]), self.face_lo[face], self.face_hi[face])
+        return Nearest(dist, close, uv)
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,6 +219,7 @@ class Shape:
     def __init__(self, surface: HSpline, density: int = 8, max_density: int = 64, parent: "Shape | None" = None) -> None:
         self.surface, self.density, self.max_density = surface, density, max_density
         self.grids: dict[tuple[int, int], PatchGrid] = {}
+        self._gridsets: dict[tuple[int, ...], GridSet] = {}
         self.parent = parent
 
     @cached_property
@@ -292,39 +321,32 @@ class Shape:
     def nearest(self, q: np.ndarray) -> Nearest:
         """Closest points on the collision grids to object-space points ``q (k, 3)``.
 
-        Only patches that can hold the answer are visited: the nearest hull-box centre and the
-        nearest grid vertex of its patch bound the distance; every patch whose box lies within
-        that bound is searched exactly (`Closest`)."""
+        Only patches that can hold the answer are visited: the nearest point of a coarse sample
+        of the surface bounds the distance; the patches whose hull boxes lie within that bound
+        of some query are searched exactly, all queries at once (`GridSet`)."""
         q = np.asarray(q, np.float64).reshape(-1, 3)
-        k = len(q)
-        dist, close, uv = np.full(k, np.inf), np.zeros((k, 3)), np.zeros((k, 2))
-        if not k:
-            return Nearest(dist, close, uv)
+        if not len(q):
+            return Nearest(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)))
         lo, hi, patches = self._boxes
         upper = self._coarse[2].query(q)[0]  # a surface point: the closest is no farther
         reach = upper.max() * (1 + 1e-9) + 1e-300
         pre = np.nonzero(overlap(lo, hi, q.min(axis=0) - reach, q.max(axis=0) + reach, 0.0))[0]
         gap = np.linalg.norm(np.maximum(np.maximum(lo[pre][None] - q[:, None], q[:, None] - hi[pre][None]), 0.0), axis=2)
-        owner, col = np.nonzero(gap <= upper[:, None] * (1 + 1e-9) + 1e-300)
-        cand, gap = pre[col], gap[owner, col]
-        # the nearest grid vertex of any candidate bounds the distance tightly (a grid step), so the
-        # exact search below only visits triangles within that bound
-        found, which = np.unique(cand, return_inverse=True)
-        grids = self.grids_for(patches[found])
-        for g, grid in enumerate(grids):
-            sel = which == g
-            r = owner[sel]
-            upper[r] = np.minimum(upper[r], grid.index.vtree.query(q[r])[0])
-        live = gap <= upper[owner] * (1 + 1e-9) + 1e-300
-        for g, grid in enumerate(grids):
-            r = owner[live & (which == g)]
-            if not len(r):
-                continue
-            d, cp, f = grid.index.query(q[r], np.minimum(upper[r], dist[r]) * (1 + 1e-9) + 1e-300)
-            better = d < dist[r]
-            r = r[better]
-            dist[r], close[r], uv[r] = d[better], cp[better], grid.uv_at(f[better], cp[better])
-        return Nearest(dist, close, uv)
+        cand = pre[np.nonzero(gap <= upper[:, None] * (1 + 1e-9) + 1e-300)[1]]
+        # one search over the union of every query's candidates: it holds each query's closest
+        # point, and the union's nearest vertex bounds the distance to a grid step
+        return self._gridset(tuple(int(p) for p in np.unique(cand))).nearest(q)
+
+    def _gridset(self, found: tuple[int, ...]) -> GridSet:
+        """The `GridSet` of flattened patch rows ``found`` (the last few are kept: consecutive
+        rounds and frames query the same contact)."""
+        hit = self._gridsets.pop(found, None)
+        if hit is None:
+            hit = GridSet(self.grids_for(self._boxes[2][list(found)]))
+        self._gridsets[found] = hit
+        while len(self._gridsets) > 16:
+            del self._gridsets[next(iter(self._gridsets))]
+        return hit
 
     def signed(self, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
         """Which object-space points ``q (k, 3)`` are inside ``(k,) bool`` (all False if the

@@ -116,6 +116,30 @@ def test_inside_agrees_with_ray_parity_and_distances_with_brute_force(maker, clo
     assert 0.05 * len(pts) < m.sum() < 0.95 * len(pts)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_closest_points_over_grids_of_mixed_density_match_brute_force(seed):
+    """Grids refined to 16 and 32 steps beside 8-step ones (one index per density in
+    `GridSet`): distances equal a search of every triangle, points lie at those distances, and
+    parameters map back onto the triangle the point is on."""
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=5)
+    hs = H.make_movable(hs, 4, [[16 * int(rng.integers(0, 12)) + 8, 72]])
+    hs = with_random_offsets(H.make_movable(hs, 3, [[8 * int(rng.integers(0, 12)) + 4, 20]]), 0.02, seed)
+    g = D.SurfaceGeometry(hs, move(0.5, -0.2, 0.1))
+    assert len(np.unique(g.shape.density_map)) >= 3
+    pts = g.xform[:3, 3] + 0.6 * rng.normal(size=(200, 3))
+    near = g.shape.nearest(g.to_object(pts))
+    np.testing.assert_allclose(near.distance, brute_closest(g, pts), rtol=0, atol=1e-12 * g.size)
+    np.testing.assert_allclose(np.linalg.norm(near.points - g.to_object(pts), axis=1), near.distance, rtol=1e-12, atol=1e-15)
+    grids = g.shape.grids_for(every_patch(hs))
+    lo, hi = np.array([gr.uv[0] for gr in grids]), np.array([gr.uv[-1] for gr in grids])
+    home = np.all((near.uv[:, None] >= lo[None] - 1e-12) & (near.uv[:, None] <= hi[None] + 1e-12), axis=2)
+    assert home.any(axis=1).all()  # each parameter lies in some patch's box
+    ev = H.evaluate(hs, near.uv[:, 0], near.uv[:, 1], det=g.shape.details).points
+    step = 1.0 / g.shape.density_map.min()  # chord error of the grids: a few times step² of size
+    assert np.max(np.linalg.norm(ev - near.points, axis=1)) < 4 * step**2 * g.size
+
+
 def test_a_reversed_surface_still_has_its_inside_inside():
     """Swapping u's direction turns ``du × dv`` inward; `Shape.outward` finds it."""
     cvs, pu, pv = shapes.sphere(8, 8)
