@@ -30,6 +30,7 @@ sorted, so membership is a `np.searchsorted`.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -116,6 +117,27 @@ class HSpline:
     depth: int
     fine: tuple[Level, ...]
 
+    @cached_property
+    def _terms_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What `evaluate` looks patches up in, built once per surface: the levels it visits
+        ``(L,) int64`` (0, then each level with a movable CV), every visited fine level's active
+        patch keys shifted past the previous levels' ``(p,) int64`` (sorted, so one
+        `np.searchsorted` finds a point's patch on every level), where each level's keys end
+        ``(L,) int64``, and each patch's CV block as rows of the table ``[level-0 CVs; level-1
+        detail vectors; ...]`` ``(p, 4, 4) int64``."""
+        levels, keys, rows, ends = [0], [], [], [0]
+        shift, base = 0, self.u.n * self.v.n
+        for lev in self.fine:
+            if lev.patches.size and np.any(lev.movable):
+                levels.append(lev.k)
+                keys.append(lev.patches + shift)
+                rows.append(lev.patch_rows + base)
+                ends.append(ends[-1] + lev.patches.size)
+            shift += self.u.patches(lev.k) * self.v.patches(lev.k)
+            base += lev.cv_keys.size
+        cat = lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape, np.int64)  # noqa: E731
+        return np.array(levels, np.int64), cat(keys, (0,)), np.array(ends[1:], np.int64), cat(rows, (0, 4, 4))
+
     def level(self, k: int) -> Level:
         if not 1 <= k < self.depth:
             raise IndexError(f"level {k} outside 1..{self.depth - 1}")
@@ -146,6 +168,11 @@ class Details:
 
     vectors: tuple[np.ndarray, ...]
     frames: tuple[np.ndarray, ...]
+
+    @cached_property
+    def table(self) -> np.ndarray:
+        """Every level's detail vectors stacked ``(sum c_k, 3)``, in level order."""
+        return np.concatenate(self.vectors) if self.vectors else np.zeros((0, 3))
 
 
 @dataclass(frozen=True)
@@ -493,36 +520,35 @@ def evaluate(
     if top >= 1 and det is None:
         det = details(hs, upto=top)
     m = u.size
+    levels, keys, ends, patch_rows = hs._terms_index
+    used = int(np.searchsorted(levels, top, side="right"))  # levels 0 and the fine ones up to top
+    levels = levels[:used]
 
-    # gather the (point, level) terms: point index, local parameters, level scale, and the rows
-    # of the CV block in one table of level-0 CVs followed by each used level's detail vectors
-    su, tu = _segments(hs.u, u, 0, side)
-    sv, tv = _segments(hs.v, v, 0, side)
-    iu = hs.u.wrap_cv(su[:, None] + _I4, 0)
-    iv = hs.v.wrap_cv(sv[:, None] + _I4, 0)
-    pts, tus, tvs, scales = [np.arange(m)], [tu], [tv], [np.ones(m)]
-    rows, tables, base = [iu[:, :, None] * hs.v.n + iv[:, None, :]], [hs.cvs.reshape(-1, 3)], hs.u.n * hs.v.n
-    for k in range(1, top + 1):
-        lev = hs.fine[k - 1]
-        if lev.patches.size == 0 or not np.any(lev.movable):
-            continue
-        su, tu = _segments(hs.u, u, k, side)
-        sv, tv = _segments(hs.v, v, k, side)
-        prow, found = _lookup(lev.patches, _patch_keys(hs, k, su, sv))
-        sel = np.nonzero(found)[0]
-        if not sel.size:
-            continue
-        pts.append(sel)
-        tus.append(tu[sel])
-        tvs.append(tv[sel])
-        scales.append(np.full(sel.size, float(1 << k)))
-        rows.append(lev.patch_rows[prow[sel]] + base)
-        tables.append(det.vectors[k - 1])
-        base += lev.cv_keys.size
-    scale = np.concatenate(scales)
-    ru = _rows(np.concatenate(tus), scale, order)  # (n, o, 4)
-    rv = _rows(np.concatenate(tvs), scale, order)
-    block = np.take(np.concatenate(tables), np.concatenate(rows), axis=0)  # (n, 4 a, 4 b, 3 c)
+    # every visited level's segment and local parameter of every point at once (`locate`)
+    su, tu = _segments_all(hs.u, u, levels, side)
+    sv, tv = _segments_all(hs.v, v, levels, side)
+    iu = hs.u.wrap_cv(su[0][:, None] + _I4, 0)
+    iv = hs.v.wrap_cv(sv[0][:, None] + _I4, 0)
+    rows0 = iu[:, :, None] * hs.v.n + iv[:, None, :]
+    if used > 1:
+        # the (point, fine level) terms: the point's level-k patch is active; found in level order
+        npv = (hs.v.patches0 << levels[1:])[:, None]
+        shift = np.concatenate([[0], np.cumsum((hs.u.patches0 * hs.v.patches0) << (2 * np.arange(1, hs.depth - 1)))])
+        want = su[1:] * npv + sv[1:] + shift[levels[1:] - 1][:, None]  # (L-1, m)
+        live = keys[: ends[used - 2]]
+        pos = np.minimum(np.searchsorted(live, want), max(live.size - 1, 0))
+        lvl, pts = np.nonzero(live[pos] == want) if live.size else (np.zeros(0, np.int64),) * 2
+        lvl = lvl + 1
+        tus, tvs = np.concatenate([tu[0], tu[lvl, pts]]), np.concatenate([tv[0], tv[lvl, pts]])
+        scale = np.concatenate([np.ones(m), np.ldexp(1.0, levels[lvl])])
+        rows = np.concatenate([rows0, patch_rows[pos[lvl - 1, pts]]])
+        table = np.concatenate([hs.cvs.reshape(-1, 3), det.table])
+    else:
+        pts = np.zeros(0, np.int64)
+        tus, tvs, scale, rows, table = tu[0], tv[0], np.ones(m), rows0, hs.cvs.reshape(-1, 3)
+    ru = _rows(tus, scale, order)  # (n, o, 4)
+    rv = _rows(tvs, scale, order)
+    block = np.take(table, rows, axis=0)  # (n, 4 a, 4 b, 3 c)
 
     # tensor products as batched matrix products: sum_b rv[o, b] block[a, b, c] -> (n, a, o, c),
     # then sum_a ru[p, a] (...) -> (n, p, o, c)
@@ -530,16 +556,28 @@ def evaluate(
     half = rv[:, None] @ block
     terms = (ru @ half.reshape(n, 4, 3 * o)).reshape(n, o, o, 3)
 
-    # each level's points are distinct, so plain fancy-index adds accumulate correctly
-    bounds = np.cumsum([0] + [p.size for p in pts])
+    # level 0 plus each fine term, added in level order (the terms are sorted by level)
+    acc = terms[:m].copy()
+    if len(pts):
+        np.add.at(acc, pts, terms[m:])
     names = ["points", "du", "dv", "duu", "duv", "dvv"][: _NSLOTS[order]]
-    out = {}
-    for name, (a, b) in zip(names, _SLOTS):
-        acc = terms[:m, a, b].copy()
-        for p, lo, hi in zip(pts[1:], bounds[1:-1], bounds[2:]):
-            acc[p] += terms[lo:hi, a, b]
-        out[name] = acc
-    return SurfaceEval(**out)
+    return SurfaceEval(**{name: acc[:, a, b] for name, (a, b) in zip(names, _SLOTS)})
+
+
+def _segments_all(d: Direction, x: np.ndarray, levels: np.ndarray, side: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_segments` of ``x (m,)`` on each of ``levels (L,)``: ``(L, m) int64`` and ``(L, m)``."""
+    scale = np.ldexp(1.0, levels)[:, None]
+    count = (d.patches0 << levels)[:, None]
+    xs = x[None] * scale
+    xs = np.mod(xs, count) if d.periodic else np.clip(xs, 0.0, count.astype(np.float64))
+    seg = np.minimum(np.floor(xs).astype(np.int64), count - 1)  # mod can round up to count
+    t = xs - seg
+    if side < 0:
+        on_knot = (t == 0.0) & ((seg > 0) | d.periodic)
+        seg = np.where(on_knot, seg - 1, seg)
+        seg = np.mod(seg, count) if d.periodic else seg
+        t = np.where(on_knot, 1.0, t)
+    return seg, t
 
 
 def _degenerate(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
