@@ -149,12 +149,18 @@ def patch_grids(hs: HSpline, patches: np.ndarray, samples: int, det: Details | N
     return pts, np.stack([u, v], axis=1), tris, tri_patch
 
 
-def patch_hulls(hs: HSpline, det: Details | None = None) -> tuple[np.ndarray, np.ndarray]:
+def patch_hulls(hs: HSpline, det: Details | None = None, only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned boxes bounding every level-0 patch, from the convex-hull property.
 
     A patch lies in the hull of its 16 level-0 CVs plus whatever detail finer levels add; the
     detail of each fine CV is bounded by its level's CV positions, so the box of all control
     points (all levels) whose support touches the patch bounds it.
+
+    Parameters
+    ----------
+    only : (P0u, P0v) bool, optional
+        Bound just these patches (a responded surface reuses its parent's other boxes); the
+        other entries of the result are level 0's boxes alone.
 
     Returns
     -------
@@ -184,6 +190,8 @@ def patch_hulls(hs: HSpline, det: Details | None = None) -> tuple[np.ndarray, np
                     qu = hs.u.wrap_patch((ju - 3 + du) >> k, 0)
                     qv = hs.v.wrap_patch((jv - 3 + dv) >> k, 0)
                     ok = hs.u.patch_valid(qu, 0) & hs.v.patch_valid(qv, 0)
+                    if only is not None:
+                        ok &= only[np.clip(qu, 0, pu - 1), np.clip(qv, 0, pv - 1)]
                     cells.append(qu[ok] * pv + qv[ok])
                     points.append(every[k][ok])
         if cells:

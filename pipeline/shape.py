@@ -230,8 +230,16 @@ class Shape:
     @cached_property
     @_timed
     def hulls(self) -> tuple[np.ndarray, np.ndarray]:
-        """Object-space boxes ``lo, hi (P0u, P0v, 3)`` of the level-0 patches' control hulls."""
-        return patch_hulls(self.surface, self.details)
+        """Object-space boxes ``lo, hi (P0u, P0v, 3)`` of the level-0 patches' control hulls;
+        the parent's where the response did not reach."""
+        stale = self._stale
+        if stale is None or stale.all():
+            return patch_hulls(self.surface, self.details)
+        lo, hi = (x.copy() for x in self.parent.hulls)
+        if stale.any():
+            new = patch_hulls(self.surface, self.details, only=stale)
+            lo[stale], hi[stale] = new[0][stale], new[1][stale]
+        return lo, hi
 
     @cached_property
     def density_map(self) -> np.ndarray:
@@ -264,9 +272,18 @@ class Shape:
     @_timed
     def _coarse(self) -> tuple[np.ndarray, np.ndarray, cKDTree]:
         """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)``, ``triangles
-        (8 P, 3) int64`` and a kd-tree of the points (their distance bounds a query's)."""
-        p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
-        pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)
+        (8 P, 3) int64`` and a kd-tree of the points (their distance bounds a query's); the
+        parent's points where the response did not reach."""
+        stale = self._stale
+        if stale is None or stale.all():
+            p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
+            pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)
+            return pts, tris, cKDTree(pts)
+        pts, tris, _ = self.parent._coarse
+        pts = pts.copy()
+        if stale.any():  # 9 points per patch, patches in row-major order
+            new = patch_grids(self.surface, np.argwhere(stale), 2, det=self.details)[0]
+            pts.reshape(stale.size, 9, 3)[stale.reshape(-1)] = new.reshape(-1, 9, 3)
         return pts, tris, cKDTree(pts)
 
     @cached_property

@@ -528,6 +528,31 @@ def test_a_responded_shape_reuses_its_parents_grids_only_where_it_did_not_change
         np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
+def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed, absorption):
+    """Hull boxes and the coarse sample grid of a responded shape (the parent's where the
+    response did not reach, recomputed elsewhere) equal a fresh shape's bit for bit, whichever
+    levels moved."""
+    from acra import respond as R
+
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(24, 16), depth=3)
+    u0 = int(rng.integers(0, 24))
+    hs = with_random_offsets(H.make_movable(hs, 2, [[4 * u0, 24]]), 0.02, seed)
+    parent = S.shape_of(hs)
+    uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
+    p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+    out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=absorption))
+    S.seed_details(out, rep.details, parent=hs)
+    child = S.shape_of(out)
+    assert child.parent is parent and 0 < child._stale.sum() < child._stale.size
+    fresh = S.Shape(out)
+    fresh.__dict__["details"] = rep.details
+    for a, b in zip(child.hulls + child._coarse[:2], fresh.hulls + fresh._coarse[:2]):
+        np.testing.assert_array_equal(a, b)
+    assert np.any(child._coarse[0] != parent._coarse[0])  # the move reached the coarse grid
+
+
 def test_changed_patches_marks_the_support_of_a_moved_cv():
     hs = H.from_grid(*shapes.sheet(12, 12, width=9.0, depth=9.0), depth=2)
     hs = H.make_movable(hs, 1, [[8, 8]])
