@@ -19,6 +19,8 @@ __all__ = [
     "GridTopology",
     "display_topology",
     "evaluate_grid",
+    "grid_samples",
+    "pole_normals",
     "patch_grids",
     "patch_hulls",
 ]
@@ -93,13 +95,50 @@ def evaluate_grid(hs: HSpline, topo: GridTopology, det: Details | None = None) -
     points : (n, 3) float64
     normals : (n, 3) float64
     """
+    points, limit = grid_samples(hs, topo, det)
+    return points, pole_normals(hs, topo, points, limit)
+
+
+def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
+                 since: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``(n, 3)`` and limit unit normals ``(n, 3)`` (`surface_normals`) at a grid's
+    vertices. ``since = (points, limit, stale)``: those of a surface that differs from ``hs``
+    only on the level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`); only vertices on
+    a stale patch (or its border) are evaluated, the others are copied. Each vertex is evaluated
+    on its own, so the result equals a full evaluation bit for bit."""
     det = details(hs) if det is None and hs.depth > 1 else det
-    ev, n = surface_normals(hs, topo.u, topo.v, det=det)
-    pts = ev.points
+    if since is None:
+        ev, n = surface_normals(hs, topo.u, topo.v, det=det)
+        return ev.points, n
+    points, limit, stale = (x.copy() for x in since)
+    on = np.zeros(topo.u.size, bool)
+    for cu in _cells(hs.u, topo.u):
+        for cv in _cells(hs.v, topo.v):
+            on |= stale[cu, cv]
+    idx = np.nonzero(on)[0]
+    if idx.size:
+        ev, n = surface_normals(hs, topo.u[idx], topo.v[idx], det=det)
+        points[idx], limit[idx] = ev.points, n
+    return points, limit
+
+
+def _cells(d: Direction, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The level-0 patch of each parameter ``x (n,)`` and the one before it where ``x`` is on
+    the border between them (else the same patch), both in range."""
+    cell = np.floor(x).astype(np.int64)
+    before = np.where(cell == x, cell - 1, cell)
+    if d.periodic:
+        return np.mod(cell, d.patches0), np.mod(before, d.patches0)
+    return np.clip(cell, 0, d.patches0 - 1), np.clip(before, 0, d.patches0 - 1)
+
+
+def pole_normals(hs: HSpline, topo: GridTopology, points: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """Display normals ``(n, 3)``: the limit normals, except that every grid line collapsed to
+    one point (a pole) shares the mean of its limit normals, so shading at a pole is smooth."""
     nu, nv = topo.shape
     scale = hs.size()
-    grid_p = pts.reshape(nu, nv, 3)
-    grid_n = n.reshape(nu, nv, 3)
+    grid_p = points.reshape(nu, nv, 3)
+    grid_n = limit.reshape(nu, nv, 3).copy()
     for axis in (0, 1):
         spread = np.ptp(grid_p, axis=axis).max(axis=-1)  # per line across the other index
         for line in np.nonzero(spread <= 1e-12 * scale)[0]:
@@ -108,7 +147,7 @@ def evaluate_grid(hs: HSpline, topo: GridTopology, det: Details | None = None) -
             norm = np.linalg.norm(m)
             if norm > 1e-12:
                 grid_n[sl] = m / norm
-    return pts, grid_n.reshape(-1, 3)
+    return grid_n.reshape(-1, 3)
 
 
 def patch_grids(hs: HSpline, patches: np.ndarray, samples: int, det: Details | None = None):

@@ -19,7 +19,7 @@ from threadpoolctl import threadpool_limits
 
 from acra import hspline as H
 from acra import respond as R
-from acra.tessellate import evaluate_grid
+from acra.tessellate import grid_samples, pole_normals
 from pipeline import detect as D
 from pipeline import shape as S
 from pipeline import usdio
@@ -193,7 +193,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
     state_memo: dict = {}
 
     canonical: list = [None] * len(defs)  # last input surface of each deformable
-    display: dict = {}  # id(surface) -> (surface, points, normals)
+    display: dict = {}  # id(surface) -> (surface, points, normals, limit normals), most recent last
 
     def states(t: float):
         if t not in state_memo:
@@ -210,13 +210,24 @@ def _run_frames(stage, scene, frames, options, on_frame):
         return state_memo[t]
 
     def tessellation(i: int, surface: H.HSpline):
-        """Display points and normals of a deformable's surface, once per distinct surface."""
-        hit = display.get(id(surface))
+        """Display points and normals of a deformable's surface, once per distinct surface; a
+        responded surface re-evaluates only the patches changed since its nearest displayed
+        ancestor (the input surface, as a rule)."""
+        hit = display.pop(id(surface), None)
         if hit is None or hit[0] is not surface:
-            if len(display) > 4 * len(defs):
-                display.clear()
-            det = S.shape_of(surface, options.density).details
-            hit = display[id(surface)] = (surface, *evaluate_grid(surface, defs[i].topology, det))
+            shape = S.shape_of(surface, options.density)
+            since, up, stale = None, shape, np.zeros(shape.density_map.shape, bool)
+            while since is None and up.parent is not None:
+                stale, up = stale | up._stale, up.parent
+                old = display.get(id(up.surface))
+                if old is not None and old[0] is up.surface:
+                    since = (old[1], old[3], stale)
+            topo = defs[i].topology
+            pts, limit = grid_samples(surface, topo, shape.details, since)
+            hit = (surface, pts, pole_normals(surface, topo, pts, limit), limit)
+        display[id(surface)] = hit  # most recent last
+        while len(display) > 4 * len(defs):
+            del display[next(iter(display))]
         return hit[1], hit[2]
 
     def geometry(kind_j, t):

@@ -71,3 +71,31 @@ def test_patch_hulls_bound_the_surface():
     pu = np.minimum(u.astype(int), hs.u.patches0 - 1)
     pv = np.minimum(v.astype(int), hs.v.patches0 - 1)
     assert np.all(p >= lo[pu, pv] - 1e-12) and np.all(p <= hi[pu, pv] + 1e-12)
+
+
+@pytest.mark.parametrize("seed,level", [(0, 0), (1, 1), (2, 2), (3, 1)])
+def test_display_samples_since_a_local_move_equal_a_full_evaluation(seed, level):
+    """`grid_samples(since=...)` evaluates only vertices on stale patches (borders included),
+    and equals a full evaluation bit for bit, poles' shared normals too."""
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=3)
+    hs = with_random_offsets(H.make_movable(hs, 2, [[4 * int(rng.integers(0, 12)) + 2, 14]]), 0.02, seed)
+    topo = T.display_topology(hs.u, hs.v, 4)
+    old = T.grid_samples(hs, topo)
+    if level == 0:
+        cvs = hs.cvs.copy()
+        cvs[int(rng.integers(0, 12)), int(rng.integers(0, 10))] += rng.normal(scale=0.05, size=3)
+        moved = H.replace(hs, cvs=cvs)
+    else:
+        idx, off = H.offsets_of(hs, level)
+        off = off.copy()
+        off[int(rng.integers(0, len(off)))] += rng.normal(scale=0.05, size=3)
+        moved = H.set_offsets(hs, level, idx, off)
+    stale = H.changed_patches(hs, moved)
+    assert 0 < stale.sum() < stale.size
+    fast = T.grid_samples(moved, topo, since=(*old, stale))
+    full = T.grid_samples(moved, topo)
+    for a, b in zip(fast, full):
+        np.testing.assert_array_equal(a, b)
+    assert np.any(fast[0] != old[0])
+    np.testing.assert_array_equal(T.pole_normals(moved, topo, *fast), T.evaluate_grid(moved, topo)[1])
