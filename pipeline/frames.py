@@ -140,13 +140,17 @@ def data_points_for(
     return R.DataPoints(uv_all, apply_inverse(ga.xform, world), is_contact), world, np.concatenate(origins)
 
 
+MEET = 1e-3  # rewound contact points this close (fraction of the size) meet, whatever the run's tolerance
+
+
 def _deepest_instead(ga: D.SurfaceGeometry, gb: D.Geometry, c: D.PairContact) -> D.PairContact:
     """The contact of a later round between two deformables whose rewound contact points
     already meet while only one side has vertices inside the other: the deepest region vertex
     and its closest point on the other surface (`detect.deepest_contact`).
 
     The first round moves the first-touch points onto a common target (eq. 4.15); once they
-    meet, their data point only pins the surface there. If the other side has no vertex inside
+    meet (closer than the larger of the run's tolerance and `MEET`, so a run asked for 1e-9
+    keeps the rule), their data point only pins the surface there. If the other side has no vertex inside
     (a sharp tip in a smooth dent: eq. 4.16 gives it no additional point), nothing moves it
     further and the tip stays inside: measured on `dog_head_spike`, later rounds never lowered
     the largest residual (docs/speed-vs-error.md). With both regions present the additional
@@ -268,7 +272,8 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 size = geoms[i].size if other[0] == "c" else min(geoms[i].size, gb.size)
                 worst = max(worst, c.depth)
                 worst_rel = max(worst_rel, c.depth / size)
-                if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= options.tolerance * size:
+                meet = max(options.tolerance, MEET) * size
+                if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
                     c = _deepest_instead(geoms[i], gb, c)
                 if c.depth > options.tolerance * size or it == 0:
                     found.append((i, other, c))

@@ -49,3 +49,22 @@ def test_the_soft_head_takes_the_dent_and_it_stays_local(dog):
                 # later rounds add the spike's own eq. 4.16 points (cast back out of the head) each
                 # round, so over a 3-round frame its largest move grows: measured 4.9-6.3x
                 assert head.moved.max() > 4.5 * spike.moved.max()
+
+
+def test_rounds_past_the_tolerance_keep_lowering_the_residual():
+    """At tolerance 1e-9 every round runs; the later-round rule (`frames.MEET`) must still
+    fire, or frame 15 stalls at its first round's 1.37e-3 whatever the cap (measured before
+    the fix). Measured after: 1.37e-3, 8.7e-4 at caps 2 and 4 (frame 15)."""
+    import pathlib
+
+    from conftest import SCENES
+    from pipeline import frames as F, usdio
+
+    stage = usdio.open_input(usdio.load_scene_file(pathlib.Path(SCENES / "dog_head_spike.py")))
+    scene = usdio.read_scene(stage)
+    worst = {}
+    for cap in (2, 4):
+        _, stats = F.run_frames(stage, scene, [14, 15, 16], F.RunOptions(iterations=cap, tolerance=1e-9))
+        assert [s.iterations for s in stats] == [cap] * 3
+        worst[cap] = max(s.residual_rel for s in stats)
+    assert worst[4] < 0.9e-3 < worst[2]
