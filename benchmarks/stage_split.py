@@ -1,0 +1,83 @@
+"""Where a collision frame's wall-clock time goes, function by function (no profiler overhead).
+
+    python3 benchmarks/stage_split.py [SCENE.py] [--frames 13:17] [--warm 5]
+
+Wraps the detection, response and shape-building functions the frame loop calls with
+``time.perf_counter`` and prints, per function, the calls and the milliseconds per collision frame
+spent inside it (nested: `regions` includes the `Shape.nearest` calls it makes). The scene runs
+the ``--warm`` frame first in the same process, then ``--frames`` in one `run_frames` call, which
+builds the input shapes again (a run of every frame would have built them at its first frame).
+cProfile's per-call overhead inflates Python-heavy functions; this split does not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import functools
+import pathlib
+import time
+
+from acra import hspline as H
+from acra import respond as R
+from pipeline import detect as D
+from pipeline import frames as F
+from pipeline import shape as S
+from pipeline import usdio
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SPENT: dict = collections.defaultdict(lambda: [0, 0.0])  # label -> [calls, seconds]
+
+
+def _timed(label: str, f):
+    @functools.wraps(f)
+    def wrapper(*args, **kwargs):
+        t = time.perf_counter()
+        try:
+            return f(*args, **kwargs)
+        finally:
+            SPENT[label][0] += 1
+            SPENT[label][1] += time.perf_counter() - t
+    return wrapper
+
+
+def instrument() -> None:
+    """Wrap the functions named in the table (module attributes, so internal calls are seen)."""
+    for name in ("intersect", "regions", "rewind", "touching", "cast", "project", "deepest_contact", "tessellate"):
+        setattr(D, name, _timed(f"detect.{name}", getattr(D, name)))
+    F.data_points_for = _timed("frames.data_points_for", F.data_points_for)
+    F.grid_samples = _timed("display: tessellate.grid_samples", F.grid_samples)
+    R.respond = _timed("respond.respond", R.respond)
+    H.details = _timed("hspline.details", H.details)
+    H.evaluate = _timed("hspline.evaluate", H.evaluate)
+    for name in ("nearest", "cast", "_build"):
+        setattr(S.Shape, name, _timed(f"Shape.{name}", getattr(S.Shape, name)))
+    for name in ("hulls", "_coarse"):
+        prop = getattr(S.Shape, name)
+        prop.func = _timed(f"Shape.{name}", prop.func)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
+    ap.add_argument("--frames", default="13:17", help="collision frames START:END (default 13:17)")
+    ap.add_argument("--warm", type=int, default=5, help="a free frame run first (default 5)")
+    args = ap.parse_args()
+    a, b = (int(x) for x in args.frames.split(":"))
+    instrument()
+    stage = usdio.open_input(usdio.load_scene_file(args.scene))
+    scene = usdio.read_scene(stage)
+    F.run_frames(stage, scene, [args.warm])
+    SPENT.clear()
+    t = time.perf_counter()
+    _, stats = F.run_frames(stage, scene, list(range(a, b + 1)))
+    per = 1e3 / len(stats)
+    total = (time.perf_counter() - t) * per
+    print(f"{args.scene.name}, frames {a}-{b}: {total:.1f} ms per frame, rounds {[s.iterations for s in stats]}\n")
+    print("| function | calls | ms per frame | share |\n|---|---:|---:|---:|")
+    for label, (calls, sec) in sorted(SPENT.items(), key=lambda kv: -kv[1][1]):
+        print(f"| `{label}` | {calls} | {sec * per:.1f} | {100 * sec * per / total:.0f} % |")
+
+
+if __name__ == "__main__":
+    main()
