@@ -118,25 +118,27 @@ class HSpline:
     fine: tuple[Level, ...]
 
     @cached_property
-    def _terms_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _terms_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What `evaluate` looks patches up in, built once per surface: the levels it visits
-        ``(L,) int64`` (0, then each level with a movable CV), every visited fine level's active
-        patch keys shifted past the previous levels' ``(p,) int64`` (sorted, so one
-        `np.searchsorted` finds a point's patch on every level), where each level's keys end
-        ``(L,) int64``, and each patch's CV block as rows of the table ``[level-0 CVs; level-1
-        detail vectors; ...]`` ``(p, 4, 4) int64``."""
-        levels, keys, rows, ends = [0], [], [], [0]
+        ``(L,) int64`` (0, then each level with a movable CV); every visited fine level's active
+        patch keys plus that level's shift past all coarser levels' keys ``(p,) int64`` (sorted,
+        so one `np.searchsorted` finds a point's patch on every level); the shifts ``(L-1,)
+        int64``; where each fine level's keys end ``(L-1,) int64``; and each patch's CV block as
+        rows of the table ``[level-0 CVs; level-1 detail vectors; ...]`` ``(p, 4, 4) int64``."""
+        levels, keys, shifts, ends, rows = [0], [], [], [], []
         shift, base = 0, self.u.n * self.v.n
         for lev in self.fine:
             if lev.patches.size and np.any(lev.movable):
                 levels.append(lev.k)
                 keys.append(lev.patches + shift)
+                shifts.append(shift)
+                ends.append((ends[-1] if ends else 0) + lev.patches.size)
                 rows.append(lev.patch_rows + base)
-                ends.append(ends[-1] + lev.patches.size)
             shift += self.u.patches(lev.k) * self.v.patches(lev.k)
             base += lev.cv_keys.size
         cat = lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape, np.int64)  # noqa: E731
-        return np.array(levels, np.int64), cat(keys, (0,)), np.array(ends[1:], np.int64), cat(rows, (0, 4, 4))
+        ints = lambda xs: np.array(xs, np.int64)  # noqa: E731
+        return ints(levels), cat(keys, (0,)), ints(shifts), ints(ends), cat(rows, (0, 4, 4))
 
     def level(self, k: int) -> Level:
         if not 1 <= k < self.depth:
@@ -520,7 +522,7 @@ def evaluate(
     if top >= 1 and det is None:
         det = details(hs, upto=top)
     m = u.size
-    levels, keys, ends, patch_rows = hs._terms_index
+    levels, keys, shifts, ends, patch_rows = hs._terms_index
     used = int(np.searchsorted(levels, top, side="right"))  # levels 0 and the fine ones up to top
     levels = levels[:used]
 
@@ -533,8 +535,7 @@ def evaluate(
     if used > 1:
         # the (point, fine level) terms: the point's level-k patch is active; found in level order
         npv = (hs.v.patches0 << levels[1:])[:, None]
-        shift = np.concatenate([[0], np.cumsum((hs.u.patches0 * hs.v.patches0) << (2 * np.arange(1, hs.depth - 1)))])
-        want = su[1:] * npv + sv[1:] + shift[levels[1:] - 1][:, None]  # (L-1, m)
+        want = su[1:] * npv + sv[1:] + shifts[: used - 1, None]  # (L-1, m) shifted keys
         live = keys[: ends[used - 2]]
         pos = np.minimum(np.searchsorted(live, want), max(live.size - 1, 0))
         lvl, pts = np.nonzero(live[pos] == want) if live.size else (np.zeros(0, np.int64),) * 2

@@ -150,9 +150,9 @@ def _deepest_instead(ga: D.SurfaceGeometry, gb: D.Geometry, c: D.PairContact) ->
 
     The first round moves the first-touch points onto a common target (eq. 4.15); once they
     meet (closer than the larger of the run's tolerance and `MEET`, so a run asked for 1e-9
-    keeps the rule), their data point only pins the surface there. If the other side has no vertex inside
-    (a sharp tip in a smooth dent: eq. 4.16 gives it no additional point), nothing moves it
-    further and the tip stays inside: measured on `dog_head_spike`, later rounds never lowered
+    keeps the rule), their data point only pins the surface there. If the other side has no
+    vertex inside (a sharp tip in a smooth dent: eq. 4.16 gives it no additional point), nothing
+    moves it further and the tip stays inside: measured on `dog_head_spike`, later rounds never lowered
     the largest residual (docs/speed-vs-error.md). With both regions present the additional
     points of both sides carry the rest, and the first-touch pair keeps the rigidity split; a
     collider does not move, so the deformable's own additional points carry the rest (measured:

@@ -1,5 +1,7 @@
 """Shared, seeded test objects."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -19,6 +21,20 @@ def with_random_offsets(hs, scale=0.05, seed=1):
         idx, off = H.offsets_of(hs, k)
         hs = H.set_offsets(hs, k, idx, scale * rng.normal(size=off.shape))
     return hs
+
+
+def nudged(hs, level, rng, cv=None, scale=0.05):
+    """``hs`` with one CV moved by a normal step of ``scale``: on level 0 the CV ``cv`` (a random
+    one if omitted), on a finer level a random offset of ``level``."""
+    if level == 0:
+        cvs = hs.cvs.copy()
+        i, j = cv if cv is not None else (int(rng.integers(0, cvs.shape[0])), int(rng.integers(0, cvs.shape[1])))
+        cvs[i, j] += rng.normal(scale=scale, size=3)
+        return replace(hs, cvs=cvs)
+    idx, off = H.offsets_of(hs, level)
+    off = off.copy()
+    off[int(rng.integers(0, len(off)))] += rng.normal(scale=scale, size=3)
+    return H.set_offsets(hs, level, idx, off)
 
 
 @pytest.fixture

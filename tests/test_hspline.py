@@ -1,7 +1,5 @@
 """H-spline surfaces (thesis §3.4): exactness, continuity, locality, detail riding along."""
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -9,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 from acra import basis as B
 from acra import hspline as H
 from acra import shapes
-from conftest import wavy_sheet, with_random_offsets
+from conftest import nudged, wavy_sheet, with_random_offsets
 
 
 def _net_eval(hs, k, u, v, det):
@@ -241,15 +239,7 @@ def test_details_since_a_local_move_equal_a_full_recomputation(seed):
     levels = [0] + [k for k in range(1, hs.depth) if len(H.offsets_of(hs, k)[1])]
     assert len(levels) >= 2
     for k in levels:
-        if k == 0:
-            cvs = hs.cvs.copy()
-            cvs[u0, 4] += rng.normal(scale=0.05, size=3)
-            moved = replace(hs, cvs=cvs)
-        else:
-            idx, off = H.offsets_of(hs, k)
-            off = off.copy()
-            off[int(rng.integers(0, len(off)))] += rng.normal(scale=0.05, size=3)
-            moved = H.set_offsets(hs, k, idx, off)
+        moved = nudged(hs, k, rng, cv=(u0, 4))
         stale = H.changed_patches(hs, moved)
         assert 0 < stale.sum() < stale.size
         fast = H.details(moved, since=(hs, det, stale))
@@ -279,10 +269,7 @@ def test_details_since_a_refinement_evaluate_only_the_new_cvs(seed, monkeypatch)
     full = H.details(finer)
     for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
         np.testing.assert_array_equal(a, b)
-    idx, off = H.offsets_of(finer, 2)
-    off = off.copy()
-    off[int(rng.integers(0, len(off)))] += rng.normal(scale=0.05, size=3)
-    moved = H.set_offsets(finer, 2, idx, off)
+    moved = nudged(finer, 2, rng)
     fast = H.details(moved, since=(finer, full, H.changed_patches(finer, moved)))
     full = H.details(moved)
     for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):

@@ -7,7 +7,7 @@ import trimesh
 from acra import hspline as H
 from acra import shapes
 from acra import tessellate as T
-from conftest import wavy_sheet, with_random_offsets
+from conftest import nudged, wavy_sheet, with_random_offsets
 
 
 @pytest.mark.parametrize("maker,closed", [(shapes.sphere, True), (shapes.torus, True), (shapes.tube, False)])
@@ -82,15 +82,7 @@ def test_display_samples_since_a_local_move_equal_a_full_evaluation(seed, level)
     hs = with_random_offsets(H.make_movable(hs, 2, [[4 * int(rng.integers(0, 12)) + 2, 14]]), 0.02, seed)
     topo = T.display_topology(hs.u, hs.v, 4)
     old = T.grid_samples(hs, topo)
-    if level == 0:
-        cvs = hs.cvs.copy()
-        cvs[int(rng.integers(0, 12)), int(rng.integers(0, 10))] += rng.normal(scale=0.05, size=3)
-        moved = H.replace(hs, cvs=cvs)
-    else:
-        idx, off = H.offsets_of(hs, level)
-        off = off.copy()
-        off[int(rng.integers(0, len(off)))] += rng.normal(scale=0.05, size=3)
-        moved = H.set_offsets(hs, level, idx, off)
+    moved = nudged(hs, level, rng)
     stale = H.changed_patches(hs, moved)
     assert 0 < stale.sum() < stale.size
     fast = T.grid_samples(moved, topo, since=(*old, stale))
