@@ -301,7 +301,8 @@ class Shape:
 
     @cached_property
     def _stale(self) -> np.ndarray | None:
-        """Patches ``(P0u, P0v) bool`` the parent's grids cannot serve (``None``: no parent)."""
+        """Patches ``(P0u, P0v) bool`` where the parent's grids, hull boxes, coarse points and
+        display samples cannot serve (``None``: no parent)."""
         p = self.parent
         if p is None:
             return None
@@ -343,7 +344,7 @@ class Shape:
         q = np.asarray(q, np.float64).reshape(-1, 3)
         if not len(q):
             return Nearest(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)))
-        lo, hi, patches = self._boxes
+        lo, hi, _ = self._boxes
         upper = self._coarse[2].query(q)[0]  # a surface point: the closest is no farther
         reach = upper.max() * (1 + 1e-9) + 1e-300
         pre = np.nonzero(overlap(lo, hi, q.min(axis=0) - reach, q.max(axis=0) + reach, 0.0))[0]
