@@ -284,6 +284,128 @@ def _closed_ends(hs: H.HSpline, cvs: np.ndarray) -> np.ndarray:
     return new.transpose(1, 0, 2) if swap else new
 
 
+def _ring_sums(hs: H.HSpline, det: H.Details, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Level ``k``'s share of one pole (`H.pole_ring`): per ring column ``j`` the sum
+    ``D0 + 4 D1 + D2`` of its three rows' detail vectors, ``sums (N, 3) float64``; the rows of
+    those CVs in the level, ``rows (N, 3) int64``; and whether each is movable, ``ok (N, 3) bool``.
+
+    A fine level adds ``sum_j B_j(s) sums_j / 6`` at the pole, so it keeps the pole one point iff
+    ``sums`` is the same for every column (an absent CV's detail is zero)."""
+    ring, _ = H.pole_ring(hs, k, axis, end)
+    lev = hs.level(k)
+    rows, ok = H._lookup(lev.cv_keys, ring)
+    if lev.cv_keys.size:
+        ok &= lev.movable[rows]
+    vec = np.where(ok[..., None], det.vectors[k - 1][rows], 0.0) if ok.any() else np.zeros(ring.shape + (3,))
+    return vec[:, 0] + 4.0 * vec[:, 1] + vec[:, 2], rows, ok
+
+
+def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, int]]:
+    """``(k, axis, end)`` of every fine level whose share of a pole of ``hs`` keeps it one point
+    (the ring sums agree within 1e-9 of the size): the rings `_close_rings` must keep closed."""
+    if det is None:
+        return []
+    tol = 1e-9 * hs.size()
+    return [(k, axis, end) for k in range(1, hs.depth) for axis, end in H.closed_ends(hs)
+            if np.ptp(_ring_sums(hs, det, k, axis, end)[0], axis=0).max() <= tol]
+
+
+_RING_W = np.array([1.0, 4.0, 1.0])  # a ring column's three rows in its pole sum (`_ring_sums`)
+
+
+def _open_ring(hs: H.HSpline, det: H.Details | None, k: int, axis: int, end: int,
+               refine: bool) -> tuple[H.HSpline, H.Details | None, bool]:
+    """Make level ``k``'s whole pole ring movable under ``refine`` (its three patch rows all
+    around, `H.pole_patches`); returns the surface, its details and whether the ring is movable."""
+    ok = _ring_sums(hs, det, k, axis, end)[2].all()
+    if not ok and refine:
+        hs, det = _redetail(hs, det, H.refine(hs, k, H.pole_patches(hs, k, axis, end)))
+        ok = _ring_sums(hs, det, k, axis, end)[2].all()
+    return hs, det, bool(ok)
+
+
+def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, int, int]],
+                 refine: bool) -> tuple[H.HSpline, H.Details | None]:
+    """Close again every fine level's pole ring in ``rings`` (`_closed_rings` before a response).
+
+    The fine-level analogue of `_closed_ends`: a move of some ring columns, or a coarser move that
+    turns the frames of their details, opens the pole into a ring of points (a hole, bug F in
+    docs/hard-cases.md). Each column takes the minimum-norm change of its three CVs,
+    ``-off_j (1, 4, 1) / 18``, that brings its sum to the common value: their mean when the whole
+    ring is movable (refined so under ``refine``), else zero, the absent CVs' value; under
+    ``obey`` a column not wholly movable stays open. The deformational step already keeps the
+    rings closed (`_ring_constraints`), so this only mops up the translational and rotational
+    steps and frame turns. Levels are closed coarse to fine, as closing one turns the next's
+    frames.
+    """
+    tol = 1e-12 * hs.size()
+    for k, axis, end in rings:
+        sums = _ring_sums(hs, det, k, axis, end)[0]
+        if np.ptp(sums, axis=0).max() <= tol:
+            continue
+        hs, det, full = _open_ring(hs, det, k, axis, end, refine)
+        sums, rows, ok = _ring_sums(hs, det, k, axis, end)
+        off = sums - (sums.mean(axis=0) if full else 0.0)
+        fix = ok.all(axis=1) & (np.abs(off).max(axis=1) > tol)
+        if fix.any():
+            dv = -off[fix, None, :] * (_RING_W / (_RING_W @ _RING_W))[None, :, None]
+            hs, det = _redetail(hs, det, _move_level(hs, k, rows[fix].reshape(-1), dv.reshape(-1, 3), det))
+    return hs, det
+
+
+def _reach_rings(hs: H.HSpline, det: H.Details | None, pw, uv: np.ndarray, rings: list[tuple[int, int, int]]):
+    """Under ``refine``: make wholly movable each pole ring of ``pw``'s level that its points
+    ``uv (K, 2)`` move a CV of, so `_ring_constraints` can keep it closed; ``pw`` is recomputed
+    if that refined anything."""
+    before = hs
+    for k, axis, end in rings:
+        if k == pw.level:
+            rows, ok = _ring_sums(hs, det, k, axis, end)[1:]
+            if not ok.all() and np.isin(rows[ok], pw.cv_rows).any():
+                hs, det, _ = _open_ring(hs, det, k, axis, end, True)
+    if hs is not before:
+        pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
+    return hs, det, pw
+
+
+def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw, want: np.ndarray,
+                      rings: list[tuple[int, int, int]]):
+    """Add to a level's interpolation problem one virtual point per column of each of its pole
+    rings that the move reaches: ``(sum_j - mean sum) / 6``, the column's offset from the pole,
+    must become zero. The minimum-norm solve then moves the CVs near the pole so that it stays
+    one point while the data points reach their targets (closing afterwards, `_close_rings`,
+    would pull them back). The rings must be wholly movable.
+
+    ``pw`` : PointWeights of the data points; ``want (K, 3)``: their wanted moves. Returns both
+    extended by the ``N`` virtual points of each ring.
+    """
+    from .interpolate import PointWeights
+
+    point, col, w = [pw.point], [pw.cv_rows[pw.col]], [pw.w]
+    targets, n = [want], pw.npoints
+    for k, axis, end in rings:
+        if k != pw.level:
+            continue
+        sums, rows, ok = _ring_sums(hs, det, k, axis, end)
+        if not ok.all() or not np.isin(rows, pw.cv_rows).any():
+            continue
+        N = rows.shape[0]
+        # row j: +w_r / 6 on column j's CVs, -w_r / (6 N) on every column's
+        own = np.repeat(np.arange(N), 3)
+        point += [n + own, np.repeat(n + np.arange(N), 3 * N)]
+        col += [rows.reshape(-1), np.tile(rows.reshape(-1), N)]
+        w += [np.tile(_RING_W / 6.0, N), -np.tile(_RING_W / (6.0 * N), N * N)]
+        targets.append(-(sums - sums.mean(axis=0)) / 6.0)
+        n += N
+    if n == pw.npoints:
+        return pw, want
+    cvs = np.concatenate(col)
+    cv_rows, inv = np.unique(cvs, return_inverse=True)
+    active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
+    return PointWeights(pw.level, np.concatenate(point), inv.astype(np.int64), np.concatenate(w), cv_rows.astype(np.int64),
+                        n, active), np.concatenate(targets)
+
+
 def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rows of the 16 CVs of each point's level patch, and whether each is movable: ``(K, 16)``."""
     su, _ = locate(hs.u, uv[:, 0], level)
@@ -473,6 +595,7 @@ def respond(
         raise ControlError("acra:absorption", f"has {L} levels but the surface has {hs.depth}")
     if det is None and hs.depth > 1:
         det = H.details(hs)
+    rings = _closed_rings(hs, det)
     q0 = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
@@ -501,6 +624,9 @@ def respond(
             want = np.where(present[:, None], goal - cur, 0.0)
             luv, lwant = _per_level_points(hs, level, uv, want, np.asarray(points.is_contact, bool))
             lpw = point_weights(hs, level, luv[:, 0], luv[:, 1])
+            if controls.refine:
+                hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
+            lpw, lwant = _ring_constraints(hs, det, lpw, lwant, rings)
             dv = solve(lpw, lwant, method=method, iterations=iterations)
             hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det))
         sel = np.nonzero(present)[0]
@@ -520,5 +646,6 @@ def respond(
                 dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations)
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det))
         applied = applied + np.where(present, a, 0.0)
+    hs, det = _close_rings(hs, det, rings, controls.refine)
     final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)

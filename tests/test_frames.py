@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 
+from pipeline import frames as F
 from pipeline.cli import main
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "box_into_sheet.py"
@@ -127,3 +128,24 @@ def test_demo_motion_is_keyed_with_native_usd_splines(tmp_path):
     op = stage.GetPrimAtPath("/World/Mover").GetAttribute("xformOp:translateZ")
     assert op.HasSpline() and not op.GetTimeSamples()
     assert op.Get(10.5) == pytest.approx(0.175)
+
+
+def test_spread_keeps_additional_points_apart_and_covers_the_rest():
+    """`frames._spread`: kept points are pairwise farther than the radius and farther from the
+    contact; every dropped point is within the radius of a kept one or of the contact, so thinning
+    leaves no part of the region without a point (seeded clusters, as at a pole)."""
+    rng = np.random.default_rng(7)
+    for n in (0, 1, 5, 60):
+        pts = np.concatenate([rng.normal(0, 0.002, (n // 2, 3)), rng.uniform(-0.05, 0.05, (n - n // 2, 3))])
+        contact, radius = np.array([0.001, 0.0, 0.0]), 4e-3
+        keep = F._spread(pts, contact, radius)
+        kept = pts[keep]
+        if len(kept) > 1:
+            d = np.linalg.norm(kept[:, None] - kept[None], axis=2) + np.eye(len(kept))
+            assert d.min() > radius
+        assert np.all(np.linalg.norm(kept - contact, axis=1) > radius)
+        anchors = np.concatenate([kept, contact[None]])
+        for p in pts[~keep]:
+            assert np.linalg.norm(anchors - p, axis=1).min() <= radius
+        if n == 60:
+            assert 0 < keep.sum() < n  # the cluster was thinned, the spread points kept

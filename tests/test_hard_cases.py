@@ -445,10 +445,10 @@ def test_box_into_a_pole_is_resolved(pole3):
     box_case(r, "/World/Ball", box, size, along=(2, -1))
 
 
-@pytest.mark.xfail(strict=True, reason="finer levels open the pole: level-1/2 offsets of the CVs around the pole move "
-                   "them apart, so the pole becomes a ring 1.3e-3 of the size wide (a hole; detection then sees "
-                   "the sphere as open)")
 def test_box_into_a_pole_keeps_it_closed_on_every_level(pole3):
+    """Bug F: levels 1-2 used to open the pole into a ring 1.3e-3 of the size wide (a hole, through
+    which detection saw the sphere as open); `respond` now keeps every fine level's pole ring
+    closed (`_ring_constraints`, `_close_rings`)."""
     r, _, size = pole3
     _assert_pole_closed(r, size)
 
