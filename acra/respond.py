@@ -24,7 +24,7 @@ import numpy as np
 
 from . import hspline as H
 from .basis import locate
-from .interpolate import point_weights, solve
+from .interpolate import PointWeights, point_weights, solve
 
 __all__ = [
     "Controls",
@@ -379,8 +379,6 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw, want: np.ndarray
     ``pw`` : PointWeights of the data points; ``want (K, 3)``: their wanted moves. Returns both
     extended by the ``N`` virtual points of each ring.
     """
-    from .interpolate import PointWeights
-
     point, col, w = [pw.point], [pw.cv_rows[pw.col]], [pw.w]
     targets, n = [want], pw.npoints
     for k, axis, end in rings:

@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 from pxr import Usd
+from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from acra import hspline as H
@@ -150,8 +151,6 @@ def _spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarra
     anything the tolerance could see, but their nearly equal rows make the interpolation
     ill-conditioned: measured on `dog_head_spike`'s spike tip, 46 points within 0.04 of each
     other moved the tip 2.6e-3 of the size where no point asked more than 4e-4."""
-    from scipy.spatial import cKDTree
-
     keep = np.ones(len(points), bool)
     if len(points) == 0:
         return keep
