@@ -353,7 +353,7 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
     return hs, det
 
 
-def _reach_rings(hs: H.HSpline, det: H.Details | None, pw, uv: np.ndarray, rings: list[tuple[int, int, int]]):
+def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.ndarray, rings: list[tuple[int, int, int]]):
     """Under ``refine``: make wholly movable each pole ring of ``pw``'s level that its points
     ``uv (K, 2)`` move a CV of, so `_ring_constraints` can keep it closed; ``pw`` is recomputed
     if that refined anything."""
@@ -368,7 +368,7 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw, uv: np.ndarray, rings
     return hs, det, pw
 
 
-def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw, want: np.ndarray,
+def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, want: np.ndarray,
                       rings: list[tuple[int, int, int]]):
     """Add to a level's interpolation problem one virtual point per column of each of its pole
     rings that the move reaches: ``(sum_j - mean sum) / 6``, the column's offset from the pole,
