@@ -31,7 +31,7 @@ __all__ = [
     "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
-    "regions", "touching", "rewind", "deepest_contact", "detect_pair", "residual", "cast", "default_tolerance",
+    "regions", "touching", "rewind", "depth_along", "deepest_contact", "detect_pair", "residual", "cast", "default_tolerance",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -444,6 +444,25 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
     return out[0], out[1]
 
 
+ON_SURFACE = 1e-6  # a vertex this close to the other surface (fraction of the pair's size) lies on it
+
+
+def _on_surface(x: Geometry, y: Geometry, region: Region, pad: float) -> Region:
+    """``region`` (``x``'s vertices inside ``y``) plus ``x``'s candidate vertices lying on a closed
+    ``y``'s surface (within `ON_SURFACE` of the pair's size), at depth 0: what a motion that
+    went through ``y`` up to its far face left touching (`detect_pair`)."""
+    if not is_closed(y) or not _boxes_overlap(x, y, pad):
+        return region
+    pts, uv = _candidate_vertices(x, y.bounds, pad)
+    near = surface_distance(y, pts)[0] <= ON_SURFACE * max(x.size, y.size)
+    rows = lambda a: np.ascontiguousarray(a).view(np.dtype((np.void, 24))).ravel()  # noqa: E731 (exact rows)
+    new = near & ~np.isin(rows(pts), rows(region.points))
+    if not new.any():
+        return region
+    return Region(None if uv is None else np.concatenate([region.uv, uv[new]]),
+                  np.concatenate([region.points, pts[new]]), np.concatenate([region.depth, np.zeros(int(new.sum()))]))
+
+
 def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     """Whether the pair touches or interpenetrates. Without crossing triangles each surface is wholly
     inside or outside the other: outside if any of it leaves the other's box, else 5 vertices vote."""
@@ -553,7 +572,9 @@ class PairContact:
     collider's contact material point ``local_b (3,)`` (object space, else ``None``); ``P_A``,
     ``P_B`` = ``point_a, point_b (3,)``, those material points at time ``t``; ``region_a`` (``A``'s
     vertices inside ``B``), ``region_b``; ``depth``, the largest region depth (0 if the surfaces
-    only cross); ``intersections``, the crossing triangle pairs at ``t``."""
+    only cross); ``intersections``, the crossing triangle pairs at ``t``; ``depth_along``, for a
+    rewound contact, how far the motion since the first touch carried the contact points past
+    each other (`depth_along`, else 0)."""
 
     a: str
     b: str
@@ -569,6 +590,12 @@ class PairContact:
     region_b: Region
     depth: float
     intersections: Intersections
+    depth_along: float = 0.0
+
+    @property
+    def penetration(self) -> float:
+        """What the frame loop must clear: the larger of the region ``depth`` and ``depth_along``."""
+        return max(self.depth, self.depth_along)
 
 
 def _deepest(region: Region, tol: float) -> int:
@@ -597,6 +624,45 @@ def deepest_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, i
     return uv_a, None if pb.uv is None else pb.uv[0], None if pb.local is None else pb.local[0], pa, pb.points[0]
 
 
+def _outward(geom: Geometry, uv: np.ndarray | None, local: np.ndarray | None) -> np.ndarray | None:
+    """World outward unit normal ``(3,)`` of a closed ``geom`` at a material point: ``uv (2,)`` on a
+    deformable, object-space ``local (3,)`` on a collider (its nearest face's normal); ``None``
+    for an open object, which has no outward side."""
+    if not is_closed(geom):
+        return None
+    inv_t = np.linalg.inv(geom.xform[:3, :3]).T  # normals map by the inverse transpose
+    if isinstance(geom, ColliderGeometry):
+        mesh = geom.static.mesh
+        face = geom.static.index.query(np.asarray(local, np.float64).reshape(1, 3))[2][0]
+        n = mesh.face_normals[face] * (1.0 if mesh.volume >= 0 else -1.0)
+    else:
+        uv = np.asarray(uv, np.float64).reshape(1, 2)
+        n = geom.shape.outward * H.surface_normals(geom.surface, uv[:, 0], uv[:, 1], det=geom.details)[1][0]
+    n = inv_t @ n
+    return n / np.linalg.norm(n)
+
+
+def depth_along(ga: SurfaceGeometry, gb: Geometry, anchor: Anchor, pa: np.ndarray, pb: np.ndarray) -> float:
+    """Penetration along the motion at a rewound contact: how far ``P_A`` lies behind ``B``'s
+    surface at ``P_B`` along ``B``'s outward normal there, ``(P_B - P_A) . n_B``, or ``P_B`` behind
+    ``A``'s at ``P_A`` for an open ``B`` (the larger where both are closed); 0 if neither is closed
+    or the points have not passed each other.
+
+    The two material points coincided at the first touch. The region depth measures to the
+    nearest surface, so a collider that went through up to its far face (a box whose top face
+    lands on the sheet it entered by its bottom) has region depth 0 although the motion carried
+    the sheet's contact point a whole box height behind the entry face: this is the depth the
+    response must undo (docs/detection.md, bug D of docs/hard-cases.md)."""
+    out = 0.0
+    nb = _outward(gb, anchor.uv_b, anchor.local_b)
+    if nb is not None:
+        out = max(out, float((pb - pa) @ nb))
+    na = _outward(ga, anchor.uv_a, None)
+    if na is not None:
+        out = max(out, float((pa - pb) @ na))
+    return out
+
+
 def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: GeometryAt | None = None, *,
                 start: float | None = None, cache: RewindCache | None = None, max_back: int = 10_000,
                 steps: int = 12) -> PairContact | None:
@@ -618,7 +684,12 @@ def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: 
     else:
         (uv_a, uv_b, local_b, pa, pb), t_c = deepest_contact(ga, gb, ra, rb, inter), float(t)
     depth = max(ra.max_depth, rb.max_depth)
-    return PairContact(ga.name, gb.name, float(t), t_c, anchor is not None, uv_a, uv_b, local_b, pa, pb, ra, rb, depth, inter)
+    along = 0.0 if anchor is None else depth_along(ga, gb, anchor, pa, pb)
+    if along > depth:  # the motion went farther than the nearest surface: the touching vertices were swept too
+        pad = _pad(ga, gb)
+        ra, rb = _on_surface(ga, gb, ra, pad), _on_surface(gb, ga, rb, pad)
+    return PairContact(ga.name, gb.name, float(t), t_c, anchor is not None, uv_a, uv_b, local_b, pa, pb, ra, rb, depth, inter,
+                       along)
 
 
 @dataclass(frozen=True)
@@ -657,10 +728,30 @@ def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: fl
     unit = directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
     start = origins[rows] - np.where(inside(geom, origins[rows]), 0.0, behind)[:, None] * unit
+    found, ok = _first_hits(geom, start, unit)
+    hits[rows[ok]], valid[rows[ok]] = found[ok], True
+    # an origin on the surface whose ray goes in (just ahead of it is inside) counts as inside:
+    # its hit is the exit ahead, not the surface it sits on
+    eps = ON_SURFACE * geom.size
+    on = ok & (np.linalg.norm(found - origins[rows], axis=1) <= eps)
+    if on.any() and is_closed(geom):
+        ahead = origins[rows[on]] + 2.0 * eps * unit[on]
+        into = inside(geom, ahead)
+        if into.any():
+            sub = np.nonzero(on)[0][into]
+            exit_, got = _first_hits(geom, ahead[into], unit[sub])
+            hits[rows[sub[got]]] = exit_[got]
+    return hits, valid
+
+
+def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First hits ``(n, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` (start where none)
+    and which rays hit ``(n,) bool``."""
     o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
     if isinstance(geom, ColliderGeometry):
         loc, ray, _ = geom.static.mesh.ray.intersects_location(o, d, multiple_hits=False)
     else:
         loc, ray, _ = geom.shape.cast(o, d)
-    hits[rows[ray]], valid[rows[ray]] = apply_xform(geom.xform, loc), True
+    hits, valid = start.copy(), np.zeros(len(start), bool)
+    hits[ray], valid[ray] = apply_xform(geom.xform, loc), True
     return hits, valid

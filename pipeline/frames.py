@@ -270,12 +270,12 @@ def _run_frames(stage, scene, frames, options, on_frame):
                     continue
                 # the contract's "object size": the deformable's own (the smaller one of two deformables)
                 size = geoms[i].size if other[0] == "c" else min(geoms[i].size, gb.size)
-                worst = max(worst, c.depth)
-                worst_rel = max(worst_rel, c.depth / size)
+                worst = max(worst, c.penetration)
+                worst_rel = max(worst_rel, c.penetration / size)
                 meet = max(options.tolerance, MEET) * size
                 if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
                     c = _deepest_instead(geoms[i], gb, c)
-                if c.depth > options.tolerance * size or it == 0:
+                if c.penetration > options.tolerance * size or it == 0:
                     found.append((i, other, c))
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_detect += 1e3 * (time.perf_counter() - td) - (S.SetupClock.ms - setup0)

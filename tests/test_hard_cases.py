@@ -587,11 +587,15 @@ def test_half_box_jumps_push_the_sheet_back_the_way_the_box_came(tmp_path):
     _assert_came_from_above(r, box, size)
 
 
-@pytest.mark.xfail(strict=True, reason="exact half jumps end with the box's top face on the sheet: depth 0 to the "
-                   "nearest face, so the frame loop accepts the input (no response) and the sheet stays on the far side")
 def test_half_box_jump_onto_the_far_face_pushes_back(tmp_path):
     r, box, size = _jump(tmp_path, "jumps_through", [1.0, 0.5, 0.0, -0.5])
     _assert_came_from_above(r, box, size)
+    for st in r.stats:  # the depth along the motion: from the sheet (z = 0) to the box's bottom face
+        lo, hi = box_bounds(r.src, box, st.frame)
+        fr = r.frames["/World/Sheet"][st.frame]
+        along = -lo[2] if lo[2] < 0.0 <= hi[2] else 0.0
+        assert np.linalg.norm(fr.p_out - fr.p_in, axis=1).max() <= 2.0 * along + TOL * size, st.frame
+        assert st.residual_rel <= TOL
 
 
 # --- 10. degenerate patches -------------------------------------------------------------------------
