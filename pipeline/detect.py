@@ -6,7 +6,8 @@ Broad phase on level-0 patch boxes (convex-hull property) → fcl narrow phase o
 candidate patches (`intersect`) → inside tests and depths from closest points, answered on the
 patches near the query (`pipeline.shape.Shape`) or the collider's mesh (`regions`; an open ``B``
 has no inside) → contact rewound along the input motion to the
-first touch (`rewind`, fallback: deepest point) → `detect_pair`, `residual`, `cast`.
+first touch (`rewind`, fallback: the way out the whole region needs least, `exit_contact`, or
+the deepest point, `deepest_contact`) → `detect_pair`, `residual`, `cast`.
 docs/detection.md gives the definitions, the reasons and the timings. World units; arrays are
 float64 unless stated.
 """
@@ -31,7 +32,8 @@ __all__ = [
     "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
-    "regions", "touching", "rewind", "depth_along", "deepest_contact", "detect_pair", "residual", "cast", "default_tolerance",
+    "regions", "touching", "rewind", "depth_along", "deepest_contact", "exit_contact", "detect_pair", "residual",
+    "cast", "default_tolerance",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -624,6 +626,107 @@ def deepest_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, i
     return uv_a, None if pb.uv is None else pb.uv[0], None if pb.local is None else pb.local[0], pa, pb.points[0]
 
 
+EXIT_DIRECTIONS = 64  # candidate exit directions of the fallback, at most
+_EXIT_COS = np.cos(np.radians(2.0))  # candidates closer than 2 degrees are one
+
+
+def _exit_candidates(dirs: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Distinct unit directions ``(m, 3)`` from unit ``dirs (k, 3)`` with ``depth (k,)``: the
+    deepest left, then every direction within 2 degrees of it dropped, at most `EXIT_DIRECTIONS`."""
+    left, kept = dirs[np.argsort(-depth, kind="stable")], []
+    while len(left) and len(kept) < EXIT_DIRECTIONS:
+        kept.append(left[0])
+        left = left[left @ left[0] < _EXIT_COS]
+    return np.array(kept).reshape(-1, 3)
+
+
+def _exit_lengths(geom: Geometry, points: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """How far each of ``points (k, 3)`` inside ``geom`` travels along each of ``dirs (m, 3)`` to
+    leave it: ``(m, k)``, ``nan`` where the ray found no exit (rounding at an edge)."""
+    m, k = len(dirs), len(points)
+    if not m or not k:
+        return np.zeros((m, k))
+    o, d = np.tile(points, (m, 1)), np.repeat(dirs, k, axis=0)
+    hits, valid = cast(geom, o, d)
+    return np.where(valid, np.einsum("ij,ij->i", hits - o, d), np.nan).reshape(m, k)
+
+
+def _own_normals(geom: Geometry, region: Region) -> tuple[np.ndarray, np.ndarray]:
+    """World unit normals ``(n, 3)`` of ``geom``'s own surface at its region vertices and the
+    region row of each ``(n,) int64``: the H-spline normal on a deformable, the normals of every
+    face meeting the vertex on a collider (a box corner gives its three face normals)."""
+    inv_t = np.linalg.inv(geom.xform[:3, :3]).T
+    if isinstance(geom, ColliderGeometry):
+        mesh = geom.static.mesh
+        vert = mesh.kdtree.query(apply_inverse(geom.xform, region.points))[1]
+        faces = mesh.vertex_faces[vert]  # (k, most faces at a vertex), -1 padded
+        rows, col = np.nonzero(faces >= 0)
+        n = mesh.face_normals[faces[rows, col]]
+    else:
+        rows = np.arange(len(region.points))
+        n = H.surface_normals(geom.surface, region.uv[:, 0], region.uv[:, 1], det=geom.details)[1]
+    n = n @ inv_t.T
+    return n / np.linalg.norm(n, axis=1, keepdims=True), rows
+
+
+def exit_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inter: Intersections):
+    """The fallback contact ``uv_a, uv_b, local_b, P_A, P_B``: the way out that the whole
+    interpenetration needs least, for contacts with no motion to rewind.
+
+    A direction ``d`` (``A`` moves along ``d`` relative to ``B``) costs the farthest any region
+    vertex must travel to leave: ``A``'s vertices inside ``B`` along ``d`` to ``B``'s surface,
+    ``B``'s inside ``A`` along ``-d`` (ray casts from inside: the exit ahead; a ray that finds no
+    exit is left out). Candidates are each vertex's nearest way out (to its closest point on the
+    other surface) and ± its own surface's normals there (`_own_normals`: a sheet's two sides, a
+    box corner's three faces), one per 2 degrees, deepest first, at most `EXIT_DIRECTIONS`; the
+    cheapest wins, ties (within ``1e-9`` of the size) to the smaller mean travel, then to the
+    deeper candidate. The contact is the vertex that must travel farthest that way (central among
+    equals) and its exit point, so ``P_B - P_A`` is along ``d``. The nearest-point rule
+    (`deepest_contact`) lets one vertex decide: for a unit cube centred on a sheet all six faces tie
+    at 0.5 for the deepest vertex and a side face was chosen, which the sheet's far side can only
+    reach by travelling 1.0 (and the sheet then slides sideways); here top and bottom cost 0.5,
+    the sides about 1.0. Deterministic: no random choice, the same region gives the same contact.
+    Both regions empty (the surfaces only cross): `deepest_contact`'s crossing centre."""
+    tol = 1e-9 * max(ga.size, gb.size)
+    if ra.empty and rb.empty:
+        return deepest_contact(ga, gb, ra, rb, inter)
+    dirs, depth = [], []
+    for x, y, reg, sign in ((ga, gb, ra, 1.0), (gb, ga, rb, -1.0)):
+        if reg.empty:
+            continue
+        close = surface_distance(y, reg.points)[1] - reg.points
+        norm = np.linalg.norm(close, axis=1)
+        ok = norm > tol
+        dirs.append(sign * close[ok] / norm[ok, None])
+        depth.append(reg.depth[ok])
+        own, rows = _own_normals(x, reg)
+        dirs += [own, -own]
+        depth += [reg.depth[rows]] * 2
+    cand = _exit_candidates(np.concatenate(dirs), np.concatenate(depth))
+    if not len(cand):  # every region vertex on the other surface: the deepest-point rule
+        return deepest_contact(ga, gb, ra, rb, inter)
+    ea, eb = _exit_lengths(gb, ra.points, cand), _exit_lengths(ga, rb.points, -cand)
+    travel = np.concatenate([ea, eb], axis=1)  # (m, |ra| + |rb|), nan: no exit found
+    seen = np.isfinite(travel)
+    count = seen.sum(axis=1)
+    worst = np.where(count > 0, np.where(seen, travel, -np.inf).max(axis=1), np.inf)
+    mean = np.where(seen, travel, 0.0).sum(axis=1) / np.maximum(count, 1)
+    best = np.nonzero(worst <= worst.min() + tol)[0]
+    j = int(best[np.argmin(mean[best])])
+    row = np.where(seen[j], travel[j], -np.inf)
+    tied = np.nonzero(row >= row.max() - tol)[0]
+    pts = np.concatenate([ra.points, rb.points])
+    i = int(tied[np.argmin(np.linalg.norm(pts[tied] - pts[tied].mean(axis=0), axis=1))])
+    d = cand[j]
+    if i < len(ra.points):  # A's vertex leaves B along d: P_B is its exit
+        pa, pr = ra.points[i], project(gb, (ra.points[i] + row[i] * d)[None])
+        return ra.uv[i], None if pr.uv is None else pr.uv[0], None if pr.local is None else pr.local[0], pa, pr.points[0]
+    i -= len(ra.points)  # B's vertex leaves A along -d: P_A is its exit
+    pb, pr = rb.points[i], project(ga, (rb.points[i] - row[i + len(ra.points)] * d)[None])
+    local_b = apply_inverse(gb.xform, pb[None])[0] if isinstance(gb, ColliderGeometry) else None
+    return pr.uv[0], None if rb.uv is None else rb.uv[i], local_b, pr.points[0], pb
+
+
 def _outward(geom: Geometry, uv: np.ndarray | None, local: np.ndarray | None) -> np.ndarray | None:
     """World outward unit normal ``(3,)`` of a closed ``geom`` at a material point: ``uv (2,)`` on a
     deformable, object-space ``local (3,)`` on a collider (its nearest face's normal); ``None``
@@ -665,11 +768,13 @@ def depth_along(ga: SurfaceGeometry, gb: Geometry, anchor: Anchor, pa: np.ndarra
 
 def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: GeometryAt | None = None, *,
                 start: float | None = None, cache: RewindCache | None = None, max_back: int = 10_000,
-                steps: int = 12) -> PairContact | None:
+                steps: int = 12, whole: bool = False) -> PairContact | None:
     """Detect a pair at time ``t``, ``None`` if it neither touches nor interpenetrates. ``ga``/``gb``:
     current geometry (possibly responded); ``geometry_at``: the input at any time, for `rewind`
-    (else, or with no earlier free time, the deepest-point fallback). ``P_A``/``P_B`` are the
-    anchor's material points on the current geometry."""
+    (else, or with no earlier free time, the fallback: `deepest_contact`, the deepest vertex's
+    nearest way out, or with ``whole`` `exit_contact`, the way out the whole region needs least;
+    the frame loop asks for ``whole`` in a frame's first round). ``P_A``/``P_B`` are the anchor's
+    material points on the current geometry."""
     if not isinstance(ga, SurfaceGeometry):
         raise TypeError("A must be a deformable SurfaceGeometry (collider–collider pairs are never tested)")
     inter = intersect(ga, gb)
@@ -682,7 +787,7 @@ def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: 
         pa = surface_points(ga, uv_a).points[0]
         pb = apply_xform(gb.xform, local_b[None])[0] if local_b is not None else surface_points(gb, uv_b).points[0]
     else:
-        (uv_a, uv_b, local_b, pa, pb), t_c = deepest_contact(ga, gb, ra, rb, inter), float(t)
+        (uv_a, uv_b, local_b, pa, pb), t_c = (exit_contact if whole else deepest_contact)(ga, gb, ra, rb, inter), float(t)
     depth = max(ra.max_depth, rb.max_depth)
     along = 0.0 if anchor is None else depth_along(ga, gb, anchor, pa, pb)
     if along > depth:  # the motion went farther than the nearest surface: the touching vertices were swept too

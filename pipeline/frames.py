@@ -265,7 +265,9 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 key = (i, other)
                 cache = caches.setdefault(key, D.RewindCache())
                 at = lambda t, i=i, other=other: (geometry(("d", i), t), geometry(other, t))  # noqa: E731
-                c = D.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache)
+                # without motion to rewind, the first round picks the way out the whole region
+                # needs least; later rounds clear what the response left, each vertex its nearest way
+                c = D.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache, whole=it == 0)
                 if c is None:
                     continue
                 # the contract's "object size": the deformable's own (the smaller one of two deformables)

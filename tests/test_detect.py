@@ -336,6 +336,30 @@ def test_collision_at_the_first_frame_falls_back_to_the_deepest_point():
     assert c.point_a[2] == pytest.approx(0.0, abs=1e-12) and c.point_b[2] == pytest.approx(0.3, abs=1e-12)
 
 
+def test_the_whole_region_fallback_takes_the_way_out_it_needs_least():
+    """A unit cube centred on a sheet (bug E, docs/hard-cases.md): every sheet vertex inside is
+    nearer a side face than the top or bottom (0.5 away), so the deepest vertex's nearest way out
+    is sideways, where the far side of the region must travel up to 1.0. The whole region leaves
+    by the top or the bottom at 0.5. A 0.3 box inside a sphere leaves along one of its face
+    normals (1.127 for its far corners) rather than through a corner (1.26)."""
+    sheet = D.SurfaceGeometry(H.from_grid(*shapes.sheet(12, 12, width=4.0, depth=4.0)), move(), "/sheet")
+    cube = D.ColliderGeometry(box(0.5), move(0.1, -0.1, 0.0))
+    near = D.detect_pair(sheet, cube)
+    assert abs(near.point_b[2] - near.point_a[2]) < 1e-12  # the old rule: a side face
+    c = D.detect_pair(sheet, cube, whole=True)
+    assert not c.rewound and c.region_a.max_depth < 0.5 - 1e-3
+    push = c.point_b - c.point_a
+    np.testing.assert_allclose(np.abs(push), [0.0, 0.0, 0.5], atol=1e-12)
+    assert np.all(np.abs(c.point_a[:2] - [0.1, -0.1]) < 0.1)  # central among the tied vertices
+    assert D.detect_pair(sheet, cube, whole=True).point_b.tolist() == c.point_b.tolist()  # deterministic
+    s, inner = sphere_geom(), D.ColliderGeometry(box(0.15), move())
+    c = D.detect_pair(s, inner, whole=True)
+    push = (c.point_b - c.point_a) / np.linalg.norm(c.point_b - c.point_a)  # the sphere's wall moves in
+    assert np.sort(np.abs(push))[-1] > 1.0 - 1e-9
+    # a far corner's travel to the wall along an axis (the unit sphere's, tessellated: within 2e-3)
+    assert np.linalg.norm(c.point_b - c.point_a) == pytest.approx(np.sqrt(1.0 - 2 * 0.15**2) + 0.15, abs=2e-3)
+
+
 def test_two_spheres_rewound_to_the_poles_that_met():
     hs = H.from_grid(*shapes.sphere(16, 14))
     a = D.SurfaceGeometry(hs, move(), "/a")
