@@ -380,7 +380,8 @@ def test_box_jumping_wholly_inside_a_sphere_is_cleared(tmp_path):
                    "fallback picks an axis (far corners travel 1.127, not 1.26 through a corner), but no sphere vertex "
                    "is inside the box, so eq. 4.16 gives the sphere no additional point: the one contact point pulls a "
                    "thin finger of wall past the box, which it does not wrap; reported 2.6e-3, measured 6.8e-2 (corners "
-                   "up to 0.26 inside by ray parity, not by the detector's closest-point test: the finger folds)")
+                   "up to 0.26 inside by ray parity; the finger folds over itself, winding number 2 at one corner, "
+                   "so the detector's closest-point test calls 7 of 8 outside)")
 def test_box_wholly_inside_a_sphere_from_the_first_frame_is_cleared(tmp_path):
     stage, size = ball_stage(1)
     box = moving_box(stage, 0.3, {"x": [0.0]})
