@@ -6,7 +6,8 @@ Broad phase on level-0 patch boxes (convex-hull property) → fcl narrow phase o
 candidate patches (`intersect`) → inside tests and depths from closest points, answered on the
 patches near the query (`pipeline.shape.Shape`) or the collider's mesh (`regions`; an open ``B``
 has no inside) → contact rewound along the input motion to the
-first touch (`rewind`, fallback: deepest point) → `detect_pair`, `residual`, `cast`.
+first touch (`rewind`, fallback: the way out the whole region needs least, `exit_contact`, or
+the deepest point, `deepest_contact`) → `detect_pair`, `residual`, `cast`.
 docs/detection.md gives the definitions, the reasons and the timings. World units; arrays are
 float64 unless stated.
 """
@@ -31,7 +32,8 @@ __all__ = [
     "Tessellation", "Intersections", "Region", "Projection", "Anchor", "PairContact",
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
-    "regions", "touching", "rewind", "deepest_contact", "detect_pair", "residual", "cast", "default_tolerance",
+    "regions", "touching", "rewind", "depth_along", "deepest_contact", "exit_contact", "detect_pair", "residual",
+    "cast", "default_tolerance",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -444,6 +446,25 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
     return out[0], out[1]
 
 
+ON_SURFACE = 1e-6  # a vertex this close to the other surface (fraction of the pair's size) lies on it
+
+
+def _on_surface(x: Geometry, y: Geometry, region: Region, pad: float) -> Region:
+    """``region`` (``x``'s vertices inside ``y``) plus ``x``'s candidate vertices lying on a closed
+    ``y``'s surface (within `ON_SURFACE` of the pair's size), at depth 0: what a motion that
+    went through ``y`` up to its far face left touching (`detect_pair`)."""
+    if not is_closed(y) or not _boxes_overlap(x, y, pad):
+        return region
+    pts, uv = _candidate_vertices(x, y.bounds, pad)
+    near = surface_distance(y, pts)[0] <= ON_SURFACE * max(x.size, y.size)
+    rows = lambda a: np.ascontiguousarray(a).view(np.dtype((np.void, 24))).ravel()  # noqa: E731 (exact rows)
+    new = near & ~np.isin(rows(pts), rows(region.points))
+    if not new.any():
+        return region
+    return Region(None if uv is None else np.concatenate([region.uv, uv[new]]),
+                  np.concatenate([region.points, pts[new]]), np.concatenate([region.depth, np.zeros(int(new.sum()))]))
+
+
 def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     """Whether the pair touches or interpenetrates. Without crossing triangles each surface is wholly
     inside or outside the other: outside if any of it leaves the other's box, else 5 vertices vote."""
@@ -553,7 +574,9 @@ class PairContact:
     collider's contact material point ``local_b (3,)`` (object space, else ``None``); ``P_A``,
     ``P_B`` = ``point_a, point_b (3,)``, those material points at time ``t``; ``region_a`` (``A``'s
     vertices inside ``B``), ``region_b``; ``depth``, the largest region depth (0 if the surfaces
-    only cross); ``intersections``, the crossing triangle pairs at ``t``."""
+    only cross); ``intersections``, the crossing triangle pairs at ``t``; ``depth_along``, for a
+    rewound contact, how far the motion since the first touch carried the contact points past
+    each other (`depth_along`, else 0)."""
 
     a: str
     b: str
@@ -569,6 +592,12 @@ class PairContact:
     region_b: Region
     depth: float
     intersections: Intersections
+    depth_along: float = 0.0
+
+    @property
+    def penetration(self) -> float:
+        """What the frame loop must clear: the larger of the region ``depth`` and ``depth_along``."""
+        return max(self.depth, self.depth_along)
 
 
 def _deepest(region: Region, tol: float) -> int:
@@ -597,13 +626,155 @@ def deepest_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, i
     return uv_a, None if pb.uv is None else pb.uv[0], None if pb.local is None else pb.local[0], pa, pb.points[0]
 
 
+EXIT_DIRECTIONS = 64  # candidate exit directions of the fallback, at most
+_EXIT_COS = np.cos(np.radians(2.0))  # candidates closer than 2 degrees are one
+
+
+def _exit_candidates(dirs: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Distinct unit directions ``(m, 3)`` from unit ``dirs (k, 3)`` with ``depth (k,)``: the
+    deepest left, then every direction within 2 degrees of it dropped, at most `EXIT_DIRECTIONS`."""
+    left, kept = dirs[np.argsort(-depth, kind="stable")], []
+    while len(left) and len(kept) < EXIT_DIRECTIONS:
+        kept.append(left[0])
+        left = left[left @ left[0] < _EXIT_COS]
+    return np.array(kept).reshape(-1, 3)
+
+
+def _exit_lengths(geom: Geometry, points: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """How far each of ``points (k, 3)`` inside ``geom`` travels along each of ``dirs (m, 3)`` to
+    leave it: ``(m, k)``, ``nan`` where the ray found no exit (rounding at an edge)."""
+    m, k = len(dirs), len(points)
+    if not m or not k:
+        return np.zeros((m, k))
+    o, d = np.tile(points, (m, 1)), np.repeat(dirs, k, axis=0)
+    hits, valid = cast(geom, o, d)
+    return np.where(valid, np.einsum("ij,ij->i", hits - o, d), np.nan).reshape(m, k)
+
+
+def _own_normals(geom: Geometry, region: Region) -> tuple[np.ndarray, np.ndarray]:
+    """World unit normals ``(n, 3)`` of ``geom``'s own surface at its region vertices and the
+    region row of each ``(n,) int64``: the H-spline normal on a deformable, the normals of every
+    face meeting the vertex on a collider (a box corner gives its three face normals)."""
+    inv_t = np.linalg.inv(geom.xform[:3, :3]).T
+    if isinstance(geom, ColliderGeometry):
+        mesh = geom.static.mesh
+        vert = mesh.kdtree.query(apply_inverse(geom.xform, region.points))[1]
+        faces = mesh.vertex_faces[vert]  # (k, most faces at a vertex), -1 padded
+        rows, col = np.nonzero(faces >= 0)
+        n = mesh.face_normals[faces[rows, col]]
+    else:
+        rows = np.arange(len(region.points))
+        n = H.surface_normals(geom.surface, region.uv[:, 0], region.uv[:, 1], det=geom.details)[1]
+    n = n @ inv_t.T
+    return n / np.linalg.norm(n, axis=1, keepdims=True), rows
+
+
+def exit_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inter: Intersections):
+    """The fallback contact ``uv_a, uv_b, local_b, P_A, P_B``: the way out that the whole
+    interpenetration needs least, for contacts with no motion to rewind.
+
+    A direction ``d`` (``A`` moves along ``d`` relative to ``B``) costs the farthest any region
+    vertex must travel to leave: ``A``'s vertices inside ``B`` along ``d`` to ``B``'s surface,
+    ``B``'s inside ``A`` along ``-d`` (ray casts from inside: the exit ahead; a ray that finds no
+    exit is left out). Candidates are each vertex's nearest way out (to its closest point on the
+    other surface) and ± its own surface's normals there (`_own_normals`: a sheet's two sides, a
+    box corner's three faces), one per 2 degrees, deepest first, at most `EXIT_DIRECTIONS`; the
+    cheapest wins, ties (within ``1e-9`` of the size) to the smaller mean travel, then to the
+    deeper candidate. The contact is the vertex that must travel farthest that way (central among
+    equals) and its exit point, so ``P_B - P_A`` is along ``d``. The nearest-point rule
+    (`deepest_contact`) lets one vertex decide: for a unit cube centred on a sheet all six faces tie
+    at 0.5 for the deepest vertex and a side face was chosen, which the sheet's far side can only
+    reach by travelling 1.0 (and the sheet then slides sideways); here top and bottom cost 0.5,
+    the sides about 1.0. Deterministic: no random choice, the same region gives the same contact.
+    Both regions empty (the surfaces only cross): `deepest_contact`'s crossing centre."""
+    tol = 1e-9 * max(ga.size, gb.size)
+    if ra.empty and rb.empty:
+        return deepest_contact(ga, gb, ra, rb, inter)
+    dirs, depth = [], []
+    for x, y, reg, sign in ((ga, gb, ra, 1.0), (gb, ga, rb, -1.0)):
+        if reg.empty:
+            continue
+        close = surface_distance(y, reg.points)[1] - reg.points
+        norm = np.linalg.norm(close, axis=1)
+        ok = norm > tol
+        dirs.append(sign * close[ok] / norm[ok, None])
+        depth.append(reg.depth[ok])
+        own, rows = _own_normals(x, reg)
+        dirs += [own, -own]
+        depth += [reg.depth[rows]] * 2
+    cand = _exit_candidates(np.concatenate(dirs), np.concatenate(depth))
+    if not len(cand):  # every region vertex on the other surface: the deepest-point rule
+        return deepest_contact(ga, gb, ra, rb, inter)
+    ea, eb = _exit_lengths(gb, ra.points, cand), _exit_lengths(ga, rb.points, -cand)
+    travel = np.concatenate([ea, eb], axis=1)  # (m, |ra| + |rb|), nan: no exit found
+    seen = np.isfinite(travel)
+    count = seen.sum(axis=1)
+    worst = np.where(count > 0, np.where(seen, travel, -np.inf).max(axis=1), np.inf)
+    mean = np.where(seen, travel, 0.0).sum(axis=1) / np.maximum(count, 1)
+    best = np.nonzero(worst <= worst.min() + tol)[0]
+    j = int(best[np.argmin(mean[best])])
+    row = np.where(seen[j], travel[j], -np.inf)
+    tied = np.nonzero(row >= row.max() - tol)[0]
+    pts = np.concatenate([ra.points, rb.points])
+    i = int(tied[np.argmin(np.linalg.norm(pts[tied] - pts[tied].mean(axis=0), axis=1))])
+    d = cand[j]
+    if i < len(ra.points):  # A's vertex leaves B along d: P_B is its exit
+        pa, pr = ra.points[i], project(gb, (ra.points[i] + row[i] * d)[None])
+        return ra.uv[i], None if pr.uv is None else pr.uv[0], None if pr.local is None else pr.local[0], pa, pr.points[0]
+    i -= len(ra.points)  # B's vertex leaves A along -d: P_A is its exit
+    pb, pr = rb.points[i], project(ga, (rb.points[i] - row[i + len(ra.points)] * d)[None])
+    local_b = apply_inverse(gb.xform, pb[None])[0] if isinstance(gb, ColliderGeometry) else None
+    return pr.uv[0], None if rb.uv is None else rb.uv[i], local_b, pr.points[0], pb
+
+
+def _outward(geom: Geometry, uv: np.ndarray | None, local: np.ndarray | None) -> np.ndarray | None:
+    """World outward unit normal ``(3,)`` of a closed ``geom`` at a material point: ``uv (2,)`` on a
+    deformable, object-space ``local (3,)`` on a collider (its nearest face's normal); ``None``
+    for an open object, which has no outward side."""
+    if not is_closed(geom):
+        return None
+    inv_t = np.linalg.inv(geom.xform[:3, :3]).T  # normals map by the inverse transpose
+    if isinstance(geom, ColliderGeometry):
+        mesh = geom.static.mesh
+        face = geom.static.index.query(np.asarray(local, np.float64).reshape(1, 3))[2][0]
+        n = mesh.face_normals[face] * (1.0 if mesh.volume >= 0 else -1.0)
+    else:
+        uv = np.asarray(uv, np.float64).reshape(1, 2)
+        n = geom.shape.outward * H.surface_normals(geom.surface, uv[:, 0], uv[:, 1], det=geom.details)[1][0]
+    n = inv_t @ n
+    return n / np.linalg.norm(n)
+
+
+def depth_along(ga: SurfaceGeometry, gb: Geometry, anchor: Anchor, pa: np.ndarray, pb: np.ndarray) -> float:
+    """Penetration along the motion at a rewound contact: how far ``P_A`` lies behind ``B``'s
+    surface at ``P_B`` along ``B``'s outward normal there, ``(P_B - P_A) . n_B``, or ``P_B`` behind
+    ``A``'s at ``P_A`` for an open ``B`` (the larger where both are closed); 0 if neither is closed
+    or the points have not passed each other.
+
+    The two material points coincided at the first touch. The region depth measures to the
+    nearest surface, so a collider that went through up to its far face (a box whose top face
+    lands on the sheet it entered by its bottom) has region depth 0 although the motion carried
+    the sheet's contact point a whole box height behind the entry face: this is the depth the
+    response must undo (docs/detection.md, bug D of docs/hard-cases.md)."""
+    out = 0.0
+    nb = _outward(gb, anchor.uv_b, anchor.local_b)
+    if nb is not None:
+        out = max(out, float((pb - pa) @ nb))
+    na = _outward(ga, anchor.uv_a, None)
+    if na is not None:
+        out = max(out, float((pa - pb) @ na))
+    return out
+
+
 def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: GeometryAt | None = None, *,
                 start: float | None = None, cache: RewindCache | None = None, max_back: int = 10_000,
-                steps: int = 12) -> PairContact | None:
+                steps: int = 12, whole: bool = False) -> PairContact | None:
     """Detect a pair at time ``t``, ``None`` if it neither touches nor interpenetrates. ``ga``/``gb``:
     current geometry (possibly responded); ``geometry_at``: the input at any time, for `rewind`
-    (else, or with no earlier free time, the deepest-point fallback). ``P_A``/``P_B`` are the
-    anchor's material points on the current geometry."""
+    (else, or with no earlier free time, the fallback: `deepest_contact`, the deepest vertex's
+    nearest way out, or with ``whole`` `exit_contact`, the way out the whole region needs least;
+    the frame loop asks for ``whole`` in a frame's first round). ``P_A``/``P_B`` are the anchor's
+    material points on the current geometry."""
     if not isinstance(ga, SurfaceGeometry):
         raise TypeError("A must be a deformable SurfaceGeometry (collider–collider pairs are never tested)")
     inter = intersect(ga, gb)
@@ -616,9 +787,14 @@ def detect_pair(ga: SurfaceGeometry, gb: Geometry, t: float = 0.0, geometry_at: 
         pa = surface_points(ga, uv_a).points[0]
         pb = apply_xform(gb.xform, local_b[None])[0] if local_b is not None else surface_points(gb, uv_b).points[0]
     else:
-        (uv_a, uv_b, local_b, pa, pb), t_c = deepest_contact(ga, gb, ra, rb, inter), float(t)
+        (uv_a, uv_b, local_b, pa, pb), t_c = (exit_contact if whole else deepest_contact)(ga, gb, ra, rb, inter), float(t)
     depth = max(ra.max_depth, rb.max_depth)
-    return PairContact(ga.name, gb.name, float(t), t_c, anchor is not None, uv_a, uv_b, local_b, pa, pb, ra, rb, depth, inter)
+    along = 0.0 if anchor is None else depth_along(ga, gb, anchor, pa, pb)
+    if along > depth:  # the motion went farther than the nearest surface: the touching vertices were swept too
+        pad = _pad(ga, gb)
+        ra, rb = _on_surface(ga, gb, ra, pad), _on_surface(gb, ga, rb, pad)
+    return PairContact(ga.name, gb.name, float(t), t_c, anchor is not None, uv_a, uv_b, local_b, pa, pb, ra, rb, depth, inter,
+                       along)
 
 
 @dataclass(frozen=True)
@@ -657,10 +833,30 @@ def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: fl
     unit = directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
     start = origins[rows] - np.where(inside(geom, origins[rows]), 0.0, behind)[:, None] * unit
+    found, ok = _first_hits(geom, start, unit)
+    hits[rows[ok]], valid[rows[ok]] = found[ok], True
+    # an origin on the surface whose ray goes in (just ahead of it is inside) counts as inside:
+    # its hit is the exit ahead, not the surface it sits on
+    eps = ON_SURFACE * geom.size
+    on = ok & (np.linalg.norm(found - origins[rows], axis=1) <= eps)
+    if on.any() and is_closed(geom):
+        ahead = origins[rows[on]] + 2.0 * eps * unit[on]
+        into = inside(geom, ahead)
+        if into.any():
+            sub = np.nonzero(on)[0][into]
+            exit_, got = _first_hits(geom, ahead[into], unit[sub])
+            hits[rows[sub[got]]] = exit_[got]
+    return hits, valid
+
+
+def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First hits ``(n, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` (start where none)
+    and which rays hit ``(n,) bool``."""
     o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
     if isinstance(geom, ColliderGeometry):
         loc, ray, _ = geom.static.mesh.ray.intersects_location(o, d, multiple_hits=False)
     else:
         loc, ray, _ = geom.shape.cast(o, d)
-    hits[rows[ray]], valid[rows[ray]] = apply_xform(geom.xform, loc), True
+    hits, valid = start.copy(), np.zeros(len(start), bool)
+    hits[ray], valid[ray] = apply_xform(geom.xform, loc), True
     return hits, valid

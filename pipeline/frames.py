@@ -287,17 +287,19 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 key = (i, other)
                 cache = caches.setdefault(key, D.RewindCache())
                 at = lambda t, i=i, other=other: (geometry(("d", i), t), geometry(other, t))  # noqa: E731
-                c = D.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache)
+                # without motion to rewind, the first round picks the way out the whole region
+                # needs least; later rounds clear what the response left, each vertex its nearest way
+                c = D.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache, whole=it == 0)
                 if c is None:
                     continue
                 # the contract's "object size": the deformable's own (the smaller one of two deformables)
                 size = geoms[i].size if other[0] == "c" else min(geoms[i].size, gb.size)
-                worst = max(worst, c.depth)
-                worst_rel = max(worst_rel, c.depth / size)
+                worst = max(worst, c.penetration)
+                worst_rel = max(worst_rel, c.penetration / size)
                 meet = max(options.tolerance, MEET) * size
                 if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
                     c = _deepest_instead(geoms[i], gb, c)
-                if c.depth > options.tolerance * size or it == 0:
+                if c.penetration > options.tolerance * size or it == 0:
                     found.append((i, other, c))
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_detect += 1e3 * (time.perf_counter() - td) - (S.SetupClock.ms - setup0)

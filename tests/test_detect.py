@@ -302,12 +302,62 @@ def test_deep_jump_is_pushed_back_the_way_it_came():
     assert c.point_b[2] - c.point_a[2] == pytest.approx(0.3, abs=1e-12)
 
 
+def test_a_box_through_up_to_its_far_face_is_deep_along_the_motion():
+    """A box that went through the sheet until its top face lies on it (bug D, docs/hard-cases.md):
+    depth 0 to the nearest face, but the motion since the first touch carried the sheet's contact
+    point a whole box height behind the bottom face it came in by. The sheet's vertices on the top
+    face join the region, and their casts along the push leave by the bottom face, not the top."""
+    sheet, collider = sheet_geom(), box(0.5)
+
+    def geometry_at(t):  # above until t = 10, top face on the sheet (z = -0.5) from t = 11 on
+        return sheet, D.ColliderGeometry(collider, move(0.3, 0.2, 0.7 - 1.2 * float(np.clip(t - 10.0, 0.0, 1.0))))
+
+    ga, gb = geometry_at(11.0)
+    assert not D.detect_pair(ga, gb, 11.0).region_a.points.size  # unrewound: nothing inside
+    c = D.detect_pair(ga, gb, 11.0, geometry_at, start=0.0)
+    assert c.rewound and c.depth == 0.0 and c.local_b[2] == pytest.approx(-0.5, abs=1e-9)
+    assert c.depth_along == pytest.approx(1.0, abs=1e-9) and c.penetration == c.depth_along
+    assert len(c.region_a.points) == 64 and np.all(c.region_a.depth == 0.0)  # the 8 x 8 under the face
+    np.testing.assert_allclose(c.region_a.points[:, 2], 0.0, atol=1e-12)
+    hits, valid = D.cast(gb, c.region_a.points, np.broadcast_to(c.point_b - c.point_a, c.region_a.points.shape))
+    inner = np.all(np.abs(c.region_a.points[:, :2] - [0.3, 0.2]) < 0.5 - 1e-6, axis=1)
+    assert valid[inner].all() and inner.sum() == 64
+    np.testing.assert_allclose(hits[inner, 2], -1.0, atol=1e-6)
+    # the same box pressed only 0.3 in: the motion and the nearest face agree, nothing added
+    c = D.detect_pair(*geometry_at(10.5), 10.5, geometry_at, start=0.0)
+    assert c.depth_along == pytest.approx(c.depth, abs=1e-9) and np.all(c.region_a.depth > 0.0)
+
+
 def test_collision_at_the_first_frame_falls_back_to_the_deepest_point():
     sheet, collider = sheet_geom(), box(0.5)
     geometry_at = jump_motion(sheet, collider)
     c = D.detect_pair(*geometry_at(11.0), 11.0, geometry_at, start=11.0)
     assert not c.rewound and c.t_contact == 11.0
     assert c.point_a[2] == pytest.approx(0.0, abs=1e-12) and c.point_b[2] == pytest.approx(0.3, abs=1e-12)
+
+
+def test_the_whole_region_fallback_takes_the_way_out_it_needs_least():
+    """A unit cube centred on a sheet (bug E, docs/hard-cases.md): every sheet vertex inside is
+    nearer a side face than the top or bottom (0.5 away), so the deepest vertex's nearest way out
+    is sideways, where the far side of the region must travel up to 1.0. The whole region leaves
+    by the top or the bottom at 0.5. A 0.3 box inside a sphere leaves along one of its face
+    normals (1.127 for its far corners) rather than through a corner (1.26)."""
+    sheet = D.SurfaceGeometry(H.from_grid(*shapes.sheet(12, 12, width=4.0, depth=4.0)), move(), "/sheet")
+    cube = D.ColliderGeometry(box(0.5), move(0.1, -0.1, 0.0))
+    near = D.detect_pair(sheet, cube)
+    assert abs(near.point_b[2] - near.point_a[2]) < 1e-12  # the old rule: a side face
+    c = D.detect_pair(sheet, cube, whole=True)
+    assert not c.rewound and c.region_a.max_depth < 0.5 - 1e-3
+    push = c.point_b - c.point_a
+    np.testing.assert_allclose(np.abs(push), [0.0, 0.0, 0.5], atol=1e-12)
+    assert np.all(np.abs(c.point_a[:2] - [0.1, -0.1]) < 0.1)  # central among the tied vertices
+    assert D.detect_pair(sheet, cube, whole=True).point_b.tolist() == c.point_b.tolist()  # deterministic
+    s, inner = sphere_geom(), D.ColliderGeometry(box(0.15), move())
+    c = D.detect_pair(s, inner, whole=True)
+    push = (c.point_b - c.point_a) / np.linalg.norm(c.point_b - c.point_a)  # the sphere's wall moves in
+    assert np.sort(np.abs(push))[-1] > 1.0 - 1e-9
+    # a far corner's travel to the wall along an axis (the unit sphere's, tessellated: within 2e-3)
+    assert np.linalg.norm(c.point_b - c.point_a) == pytest.approx(np.sqrt(1.0 - 2 * 0.15**2) + 0.15, abs=2e-3)
 
 
 def test_two_spheres_rewound_to_the_poles_that_met():
