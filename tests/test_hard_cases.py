@@ -511,10 +511,11 @@ def test_obey_leaves_absorption_on_an_unrefined_level_unapplied(tmp_path):
     assert r.stats[-1].residual == pytest.approx(0.2, rel=1e-6)
 
 
-@pytest.mark.xfail(strict=True, reason="all absorption on level 2 under refine: one additional point per level-2 patch; "
-                   "once each patch's midpoint is on its target, later rounds add nothing and 4.5e-3 of the size stays "
-                   "inside at the box's bottom corners (absorption 0, 0.5, 0.5 clears it to 4.4e-4)")
 def test_refine_clears_absorption_on_an_unrefined_level(tmp_path):
+    """All absorption on level 2 under ``refine``: the response refines where the box is and
+    later rounds act at each rim patch's deepest sample once its middle is on its target
+    (`frames.data_points_for`); before that, 4.5e-3 of the size stayed inside at the box's
+    bottom corners whatever the number of rounds."""
     r, box, size = _level2_only(tmp_path, "refine", iterations=8)
     box_case(r, "/World/Sheet", box, size, along=(2, -1))
 
