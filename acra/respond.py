@@ -35,6 +35,7 @@ __all__ = [
     "contact_targets",
     "additional_targets",
     "region_midpoints",
+    "region_deepest",
     "respond",
     "quat_from_axis_angle",
     "quat_rotate",
@@ -177,6 +178,35 @@ def region_midpoints(hs: H.HSpline, uv_inside: np.ndarray, level: int) -> tuple[
     """
     mids, patches, _ = _patch_groups(hs, uv_inside, level)
     return mids, patches
+
+
+def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
+    """The deepest inside sample of each level-``level`` patch, in `region_midpoints`' order.
+
+    Where a later round finds a patch still partly inside but the middle of its inside part
+    already on its target (a sliver along the other object's edge, where the C2 surface curls
+    back up between the samples), the middle moves nothing; the deepest sample is where the
+    residual is.
+
+    Parameters
+    ----------
+    uv_inside : (n, 2) float64
+        Parameters of surface samples inside the other object.
+    depth : (n,) float64
+        Their depths (distance to the other surface).
+
+    Returns
+    -------
+    uv_deep : (g, 2) float64
+    depth_deep : (g,) float64
+        The patch's largest depth.
+    """
+    uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
+    depth = np.asarray(depth, np.float64).reshape(-1)
+    _, _, inv = _patch_groups(hs, uv_inside, level)
+    order = np.lexsort((depth, inv))  # by patch, deepest last
+    last = np.r_[inv[order][1:] != inv[order][:-1], True] if order.size else np.zeros(0, bool)
+    return uv_inside[order[last]], depth[order[last]]
 
 
 def _patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int):

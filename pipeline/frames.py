@@ -87,6 +87,9 @@ def _group_level(controls: R.Controls, depth: int) -> int:
     return int(min(levels.max() if levels.size else 0, depth - 1))
 
 
+STALLED = 0.1  # a patch's middle asking a move of at most this fraction of the patch's depth has stalled
+
+
 def data_points_for(
     ga: D.SurfaceGeometry,
     gb: D.Geometry,
@@ -97,6 +100,8 @@ def data_points_for(
     share: float,
     group_level: int,
     direction: np.ndarray | None = None,
+    region_depth: np.ndarray | None = None,
+    settled: float = 0.0,
 ) -> tuple[R.DataPoints, np.ndarray]:
     """Data points of one surface of a pair, in its object space (thesis eq. 4.15–4.16).
 
@@ -114,6 +119,15 @@ def data_points_for(
         Cast direction for the additional points; default ``p_other - p_self``. Later rounds of a
         frame pass the first round's direction: once a response has closed the gap between the
         contact points, their difference no longer says which way is out.
+    region_depth : (k,) float64, optional
+        Depths of the ``region_uv`` samples. With them, a patch whose middle has *stalled* (its
+        cast asks a move of at most `STALLED` of the patch's depth, and that depth is more than
+        ``settled``, a world length that counts as done) takes its deepest sample as its point
+        instead (`respond.region_deepest`). Without this, a later round whose region is a sliver
+        along the other object's edge pins middles already on their targets and moves nothing,
+        however many rounds run (docs/hard-cases.md, case 7).
+    settled : float
+        See ``region_depth``.
 
     Returns
     -------
@@ -130,6 +144,14 @@ def data_points_for(
         mids, _ = R.region_midpoints(ga.surface, region_uv, group_level)
         a_world = apply_xform(ga.xform, H.evaluate(ga.surface, mids[:, 0], mids[:, 1], det=ga.details).points)
         hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
+        if region_depth is not None:
+            deep, depth = R.region_deepest(ga.surface, region_uv, region_depth, group_level)
+            stalled = np.nonzero(valid & (depth > settled) & (np.linalg.norm(hits - a_world, axis=1) <= STALLED * depth))[0]
+            if stalled.size:
+                d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[stalled, 0], deep[stalled, 1], det=ga.details).points)
+                d_hits, d_valid = D.cast(gb, d_world, np.broadcast_to(direction, d_world.shape))
+                use = stalled[d_valid]
+                mids[use], a_world[use], hits[use] = deep[use], d_world[d_valid], d_hits[d_valid]
         valid &= _spread(a_world, np.asarray(p_self, float), MEET * size)
         if np.any(valid):
             uvs.append(mids[valid])
@@ -278,7 +300,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
             geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
             cgeoms = [D.ColliderGeometry(statics[j], cstates[j].xform) for j in range(len(statics))]
             td, setup0 = time.perf_counter(), S.SetupClock.ms
-            found = []
+            found, settled = [], {}  # settled: a move this short (world) counts as done
             worst, worst_rel = 0.0, 0.0
             for i, other in _pairs(len(defs), len(statics)):
                 if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
@@ -296,7 +318,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 size = geoms[i].size if other[0] == "c" else min(geoms[i].size, gb.size)
                 worst = max(worst, c.penetration)
                 worst_rel = max(worst_rel, c.penetration / size)
-                meet = max(options.tolerance, MEET) * size
+                meet = settled[key] = max(options.tolerance, MEET) * size
                 if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
                     c = _deepest_instead(geoms[i], gb, c)
                 if c.penetration > options.tolerance * size or it == 0:
@@ -321,14 +343,16 @@ def _run_frames(stage, scene, frames, options, on_frame):
                     share = R.rigidity_share(controls[i].rigidity, r_other)
                     push = directions.setdefault((i, other), c.point_b - c.point_a)
                     dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, c.point_b, c.region_a.uv, share,
-                                                       _group_level(controls[i], surfaces[i].depth), push)
+                                                       _group_level(controls[i], surfaces[i].depth), push,
+                                                       c.region_a.depth, settled[(i, other)])
                     points.setdefault(i, []).append((dp, world, start))
                 if other[0] == "d" and enabled[other[1]]:
                     j = other[1]
                     share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
                     push = -directions.setdefault((i, other), c.point_b - c.point_a)
                     dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a, c.region_b.uv, share,
-                                                       _group_level(controls[j], surfaces[j].depth), push)
+                                                       _group_level(controls[j], surfaces[j].depth), push,
+                                                       c.region_b.depth, settled[(i, other)])
                     points.setdefault(j, []).append((dp, world, start))
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_convert += 1e3 * (time.perf_counter() - tr) - (S.SetupClock.ms - setup0)

@@ -149,3 +149,40 @@ def test_spread_keeps_additional_points_apart_and_covers_the_rest():
             assert np.linalg.norm(anchors - p, axis=1).min() <= radius
         if n == 60:
             assert 0 < keep.sum() < n  # the cluster was thinned, the spread points kept
+
+
+@pytest.mark.parametrize("u_low, settled, took", [
+    (2.14, 0.005, "deepest"),  # middle x = 0.02: 0.002 inside, 1/20 of the patch's depth 0.04
+    (2.3, 0.005, "middle"),  # middle x = 0.1: 0.01 inside, 1/4 of it: not stalled
+    (2.14, 0.05, "middle"),  # the patch's depth 0.04 counts as done
+])
+def test_a_patch_whose_middle_has_stalled_takes_its_deepest_sample(u_low, settled, took):
+    """Eq. 4.16's point of a patch is the middle of its inside part; where that middle asks a
+    move of at most `frames.STALLED` of the patch's depth (the stall of docs/hard-cases.md case 7:
+    the middle on the box's face, the patch's corner sample still inside), the sample is taken
+    instead. A sheet tilted as z = 0.1 x, a box whose bottom is z = 0, and two samples of
+    level-0 patch (2, 2): x = 0.4 (0.04 inside) and x = u_low - 2.5 (below the box)."""
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline import frames as F
+    from pipeline.model import ColliderModel
+
+    cvs, _, _ = shapes.sheet(8, 8, width=5.0, depth=5.0)
+    cvs[..., 2] = 0.1 * cvs[..., 0]
+    sheet = D.SurfaceGeometry(H.from_grid(cvs), np.eye(4), "/sheet")
+    corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 2.0)])
+    tris = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", corners, tris)), np.eye(4))
+    region_uv = np.array([[2.9, 2.5], [u_low, 2.5]])
+    contact = np.array([0.3, 0.0, 0.03])  # apart from both samples (`_spread` drops points on the contact)
+    args = (sheet, box, np.array([2.8, 2.5]), contact, contact * [1, 1, 0], region_uv, 0.0, 0, np.array([0.0, 0.0, -1.0]))
+    mid_u = (2.9 + u_low) / 2
+    mean, _, _ = F.data_points_for(*args)  # without depths: the middle, as eq. 4.16 says
+    np.testing.assert_allclose(mean.uv[1], [mid_u, 2.5])
+    np.testing.assert_allclose(mean.target[1], [mid_u - 2.5, 0.0, 0.0], atol=1e-9)
+    dp, _, _ = F.data_points_for(*args, region_depth=np.array([0.04, 0.0]), settled=settled)
+    u = 2.9 if took == "deepest" else mid_u
+    np.testing.assert_allclose(dp.uv[1], [u, 2.5])
+    np.testing.assert_allclose(dp.target[1], [u - 2.5, 0.0, 0.0], atol=1e-9)
