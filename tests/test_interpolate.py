@@ -1,7 +1,7 @@
 """Bartels–Beatty interpolation, its multi-point blend and the direct minimum-norm solve (§4.1)."""
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 
 from acra import hspline as H
 from acra import shapes
@@ -63,6 +63,7 @@ def test_thesis_surface_11x11_through_3_points_residual_falls():
 
 @settings(max_examples=30, deadline=None)
 @given(st.integers(1, 12), st.integers(0, 10_000))
+@example(8, 160)
 def test_min_norm_is_exact_and_minimal_for_random_points(k, seed):
     rng = np.random.default_rng(seed)
     hs = H.from_grid(*shapes.sheet(9, 9), depth=1)
@@ -70,9 +71,15 @@ def test_min_norm_is_exact_and_minimal_for_random_points(k, seed):
     dq = rng.normal(size=(k, 3))
     dv = min_norm_solve(pw, dq)
     W = pw.dense()
-    if np.linalg.matrix_rank(W) == k:  # distinct enough points: exact and equal to pinv
+    lam = np.linalg.eigvalsh(W @ W.T)
+    full = np.linalg.pinv(W) @ dq
+    if lam[0] > 1e-4 * lam[-1]:  # distinct enough points (min_norm_solve's rcond): exact, = pinv
         assert np.abs(W @ dv - dq).max() <= 1e-8
-        np.testing.assert_allclose(dv, np.linalg.pinv(W) @ dq, atol=1e-7)
+        np.testing.assert_allclose(dv, full, atol=1e-7)
+    else:  # nearly dependent (hypothesis found k=8, seed=160, full rank by matrix_rank): the
+        # modes below rcond are dropped, so the moves are smaller than pinv's and in W's row space
+        assert np.linalg.norm(dv) <= np.linalg.norm(full) * (1 + 1e-9)
+        np.testing.assert_allclose(np.linalg.pinv(W) @ (W @ dv), dv, atol=1e-7)
     assert np.all(np.isfinite(dv))
 
 
