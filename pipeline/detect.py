@@ -316,7 +316,7 @@ def _inside_depth(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.nd
     closest-point query on a deformable."""
     if isinstance(geom, SurfaceGeometry) and len(points) and geom.closed:
         m, near = geom.shape.signed(geom.to_object(points))
-        return m, np.linalg.norm(points[m] - apply_xform(geom.xform, near.points[m]), axis=1)
+        return m, np.linalg.norm(points[m] - apply_xform(geom.xform, near.points), axis=1)
     m = inside(geom, points)
     return m, surface_distance(geom, points[m])[0]
 

@@ -628,3 +628,32 @@ def test_inside_is_reproducible_for_points_on_the_surface():
     for _ in range(5):
         np.random.default_rng().random(10)  # unrelated draws in between do not matter
         np.testing.assert_array_equal(D.inside(g, mid), first)
+
+
+def test_points_outside_the_cv_hull_are_outside_without_a_search():
+    """`Shape.signed` skips the closest-point search for points outside the convex hull of every
+    level's CVs (the surface and what it encloses lie inside it). On a thin spindle with detail,
+    seeded points filling its box: the same inside set and the same nearest points as a search of
+    every point, while most points are decided by the hull alone; and every CV-hull half-space
+    holds the surface's own samples (convex hull property, including the fine levels)."""
+    rng = np.random.default_rng(11)
+    c, s_ = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    tilt = np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]]) @ np.array([[c, 0, s_], [0, 1, 0], [-s_, 0, c]])
+    cvs = shapes.sphere(8, 12, radii=(0.15, 0.15, 1.0))[0] @ tilt.T  # diagonal in its box, like a spike
+    hs = H.from_grid(cvs, True, False, depth=3)
+    hs = H.make_movable(H.make_movable(hs, 1, [[4, 9]]), 2, [[9, 18], [5, 17]])  # away from the poles
+    hs = with_random_offsets(hs, 0.02, seed=11)
+    hulled, plain = S.Shape(hs), S.Shape(hs)
+    plain.__dict__["cv_hull"] = None  # the cached property, bypassed: search every point
+    lo, hi = hs.cvs.reshape(-1, 3).min(axis=0), hs.cvs.reshape(-1, 3).max(axis=0)
+    q = rng.uniform(lo, hi, (3000, 3))
+    m1, n1 = hulled.signed(q)
+    m2, n2 = plain.signed(q)
+    np.testing.assert_array_equal(m1, m2)
+    np.testing.assert_allclose(n1.points, n2.points, rtol=0, atol=1e-12)  # other search batches: rounding
+    assert 0 < m1.sum() < 0.1 * len(q)
+    outside = (q @ hulled.cv_hull[:, :3].T + hulled.cv_hull[:, 3]).max(axis=1) > 0
+    assert outside.mean() > 0.8  # most of a thin object's box is decided without a search
+    uu, vv = np.meshgrid(np.linspace(0, hs.u.patches0, 40), np.linspace(0, hs.v.patches0, 40))
+    p = H.evaluate(hs, uu.ravel(), vv.ravel()).points
+    assert (p @ hulled.cv_hull[:, :3].T + hulled.cv_hull[:, 3]).max() <= 1e-12
