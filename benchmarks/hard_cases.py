@@ -1,0 +1,73 @@
+"""The figures of docs/hard-cases.md's results table: every hard case's residuals and moves.
+
+    python3 benchmarks/hard_cases.py            # every case, xfails included (--runxfail)
+    python3 benchmarks/hard_cases.py -k pole    # pytest's -k selection
+
+Runs `tests/test_hard_cases.py` under pytest with `check` wrapped, and prints per test the
+largest residual the frame loop reported and the largest the test measured (fractions of the
+deformable's size), the largest display-point move over its bound ``2 d + tol · size``, the
+outcome and the test's wall time. Tests that assert without `check` (a documented remainder,
+exact equalities) show only their outcome and time.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import sys
+import time
+
+import numpy as np
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import test_hard_cases as T  # noqa: E402  (the tests' own helpers, imported once and shared with pytest)
+
+ROWS: dict = {}
+_check = T.check
+
+
+def _recording(r, path, depth, size, residual, tol=T.TOL):
+    """`check`, recording what it is about to assert for the running test."""
+    row = ROWS.setdefault(_Plugin.current, {"reported": 0.0, "measured": 0.0, "moved": 0.0})
+    for st in r.stats:
+        fr = r.frames[path][st.frame]
+        bound = 2.0 * depth[st.frame] + tol * size
+        row["moved"] = max(row["moved"], float(np.linalg.norm(fr.p_out - fr.p_in, axis=1).max() / bound))
+        row["reported"] = max(row["reported"], float(st.residual_rel))
+        row["measured"] = max(row["measured"], float(residual[st.frame] / size))
+    return _check(r, path, depth, size, residual, tol)
+
+
+class _Plugin:
+    current = ""
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(self, item, nextitem):
+        """Name the running test (its module fixtures' runs count for it) and time all its phases."""
+        _Plugin.current = item.name
+        t = time.perf_counter()
+        yield
+        ROWS.setdefault(item.name, {})["seconds"] = time.perf_counter() - t
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_makereport(self, item, call):
+        yield
+        if call.when == "call":
+            ROWS.setdefault(item.name, {})["outcome"] = "failed" if call.excinfo else "passed"
+
+
+def main() -> None:
+    T.check = _recording
+    args = [str(ROOT / "tests" / "test_hard_cases.py"), "--runxfail", "-q", "-p", "no:cacheprovider", *sys.argv[1:]]
+    pytest.main(args, plugins=[_Plugin()])
+    print("\n| test | outcome | residual reported | residual measured | moved / bound | s |")
+    print("|---|---|---:|---:|---:|---:|")
+    for name, row in ROWS.items():
+        figs = [f"{row[k]:.2e}" if k in row else "—" for k in ("reported", "measured")]
+        moved = f"{row['moved']:.2f}" if "moved" in row else "—"
+        print(f"| `{name}` | {row.get('outcome', '?')} | {figs[0]} | {figs[1]} | {moved} | {row.get('seconds', 0):.1f} |")
+
+
+if __name__ == "__main__":
+    main()
