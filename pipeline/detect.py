@@ -651,11 +651,17 @@ def _exit_lengths(geom: Geometry, points: np.ndarray, dirs: np.ndarray) -> np.nd
     return np.where(valid, np.einsum("ij,ij->i", hits - o, d), np.nan).reshape(m, k)
 
 
+def _world_normals(geom: Geometry, n: np.ndarray) -> np.ndarray:
+    """Object-space normals ``n (k, 3)`` of ``geom`` as world unit normals ``(k, 3)`` (normals map
+    by the inverse transpose of the matrix, so a non-uniform scale keeps them perpendicular)."""
+    n = np.asarray(n, np.float64).reshape(-1, 3) @ np.linalg.inv(geom.xform[:3, :3])
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
 def _own_normals(geom: Geometry, region: Region) -> tuple[np.ndarray, np.ndarray]:
     """World unit normals ``(n, 3)`` of ``geom``'s own surface at its region vertices and the
     region row of each ``(n,) int64``: the H-spline normal on a deformable, the normals of every
     face meeting the vertex on a collider (a box corner gives its three face normals)."""
-    inv_t = np.linalg.inv(geom.xform[:3, :3]).T
     if isinstance(geom, ColliderGeometry):
         mesh = geom.static.mesh
         vert = mesh.kdtree.query(apply_inverse(geom.xform, region.points))[1]
@@ -665,8 +671,7 @@ def _own_normals(geom: Geometry, region: Region) -> tuple[np.ndarray, np.ndarray
     else:
         rows = np.arange(len(region.points))
         n = H.surface_normals(geom.surface, region.uv[:, 0], region.uv[:, 1], det=geom.details)[1]
-    n = n @ inv_t.T
-    return n / np.linalg.norm(n, axis=1, keepdims=True), rows
+    return _world_normals(geom, n), rows
 
 
 def exit_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inter: Intersections):
@@ -733,7 +738,6 @@ def _outward(geom: Geometry, uv: np.ndarray | None, local: np.ndarray | None) ->
     for an open object, which has no outward side."""
     if not is_closed(geom):
         return None
-    inv_t = np.linalg.inv(geom.xform[:3, :3]).T  # normals map by the inverse transpose
     if isinstance(geom, ColliderGeometry):
         mesh = geom.static.mesh
         face = geom.static.index.query(np.asarray(local, np.float64).reshape(1, 3))[2][0]
@@ -741,8 +745,7 @@ def _outward(geom: Geometry, uv: np.ndarray | None, local: np.ndarray | None) ->
     else:
         uv = np.asarray(uv, np.float64).reshape(1, 2)
         n = geom.shape.outward * H.surface_normals(geom.surface, uv[:, 0], uv[:, 1], det=geom.details)[1][0]
-    n = inv_t @ n
-    return n / np.linalg.norm(n)
+    return _world_normals(geom, n)[0]
 
 
 def depth_along(ga: SurfaceGeometry, gb: Geometry, anchor: Anchor, pa: np.ndarray, pb: np.ndarray) -> float:
