@@ -395,22 +395,25 @@ def patch_cvs(hs: HSpline, k: int, patches: np.ndarray) -> np.ndarray:
 
 
 def closed_ends(hs: HSpline) -> tuple[tuple[int, int], ...]:
-    """Ends of the open direction that close to a point (a pole, `acra.shapes.sphere`).
+    """Ends of an open direction that close to a point: a pole (`acra.shapes.sphere`) or a
+    collapsed edge of an open grid (a fan's apex, degenerate triangular patches).
 
-    Only a grid periodic in the other direction closes an end: there the surface at the end is
-    ``(R0 + 4 R1 + R2) / 6`` blended around, with ``R0..R2`` its three outermost CV rows, and it is
-    one point when that sum is the same all around (within 1e-6 of the size, which covers float32
-    ``acra:cvs``). Returns ``(axis, end)`` pairs: axis 0 = u, 1 = v; end 0 at parameter 0, 1 at
-    ``P0``.
+    The surface at an end is ``(R0 + 4 R1 + R2) / 6`` blended along the other direction, with
+    ``R0..R2`` its three outermost CV rows; it is one point when that sum is the same all along
+    (within 1e-6 of the size, which covers float32 ``acra:cvs``), whether the other direction is
+    periodic (a pole) or open (a collapsed edge): in both, every parameter along the end names the
+    same point, and a response must keep it one point. Returns ``(axis, end)`` pairs: axis 0 = u,
+    1 = v; end 0 at parameter 0, 1 at ``P0``.
     """
-    if hs.u.periodic == hs.v.periodic:
-        return ()
-    axis = 0 if not hs.u.periodic else 1
-    grid = hs.cvs if axis == 1 else hs.cvs.transpose(1, 0, 2)  # (periodic, open, 3)
-    m, tol, out = grid.shape[1], 1e-6 * hs.size(), []
-    for end, (e0, e1, e2) in enumerate(((0, 1, 2), (m - 1, m - 2, m - 3))):
-        if m >= 5 and np.ptp(grid[:, e0] + 4.0 * grid[:, e1] + grid[:, e2], axis=0).max() <= tol:
-            out.append((axis, end))
+    out, tol = [], 1e-6 * hs.size()
+    for axis, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            continue
+        grid = hs.cvs if axis == 1 else hs.cvs.transpose(1, 0, 2)  # (other, this, 3)
+        m = grid.shape[1]
+        for end, (e0, e1, e2) in enumerate(((0, 1, 2), (m - 1, m - 2, m - 3))):
+            if m >= 5 and np.ptp(grid[:, e0] + 4.0 * grid[:, e1] + grid[:, e2], axis=0).max() <= tol:
+                out.append((axis, end))
     return tuple(out)
 
 

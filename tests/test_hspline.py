@@ -335,6 +335,13 @@ def test_closed_ends_and_pole_points():
     assert H.closed_ends(sphere) == ((1, 0), (1, 1))
     for shape in (shapes.torus(), shapes.sheet(6, 6), shapes.tube()):
         assert H.closed_ends(H.from_grid(*shape)) == ()
+    # an open grid whose v = 0 edge is one point (a fan's apex) closes that end too
+    fan, _, _ = shapes.sheet(8, 8, width=3.0, depth=3.0)
+    fan[:, :, 0] *= ((np.arange(8) - 1.0) / 5)[None, :]
+    fan[:, 0, 0] = -fan[:, 2, 0]
+    fan = H.from_grid(fan)
+    assert H.closed_ends(fan) == ((1, 0),)
+    np.testing.assert_array_equal(H.pole_of(fan, np.array([0.3, 4.9, 2.0]), np.array([0.0, 0.0, 0.5])), [0, 0, -1])
     P = sphere.v.patches0
     pole = H.pole_of(sphere, np.array([0.3, 2.0, 5.5, 1.0]), np.array([0.0, P, P - 1e-3, P * (1 - 1e-11)]))
     np.testing.assert_array_equal(pole, [0, 1, -1, 1])
