@@ -752,7 +752,8 @@ def details(hs: HSpline, upto: int | None = None,
                 pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
                 pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
                 found &= ~stale[pu.astype(np.int64), pv.astype(np.int64)]
-                found &= ring < 0  # a ring's frame depends on its whole end (`_end_normal`)
+                # a ring's frames depend on the surface all along its end (`_end_normal`)
+                found &= (ring < 0) | ~_ends_stale(hs, ends, stale)[np.maximum(ring, 0)]
             vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
             rows, ring = rows[~found], ring[~found]
         if rows.size:
@@ -774,13 +775,25 @@ def details(hs: HSpline, upto: int | None = None,
 
 def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray) -> np.ndarray:
     """For level-``k`` CV ``rows (m,) int64``: the index into ``ends`` (`closed_ends`) of the pole
-    ring (`pole_ring`) each belongs to, or -1, as ``(m,) int64``."""
+    ring (`pole_ring`: the three CV rows at the end, all along it) each belongs to, or -1, as
+    ``(m,) int64``."""
     out = np.full(rows.size, -1, np.int64)
     if not ends or not rows.size:
         return out
-    keys = hs.level(k).cv_keys[rows]
+    ju, jv = _split_cv(hs, k, hs.level(k).cv_keys[rows])
     for i, (axis, end) in enumerate(ends):
-        out[np.isin(keys, pole_ring(hs, k, axis, end)[0])] = i
+        j, d = (ju, hs.u) if axis == 0 else (jv, hs.v)
+        out[np.isin(j, _end_rows(d.cvs(k), end))] = i
+    return out
+
+
+def _ends_stale(hs: HSpline, ends: tuple[tuple[int, int], ...], stale: np.ndarray) -> np.ndarray:
+    """Whether the surface moved anywhere along each closed end: ``(len(ends),) bool``, from the
+    level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`)."""
+    out = np.zeros(max(len(ends), 1), bool)
+    for i, (axis, end) in enumerate(ends):
+        row = stale[-end if end else 0] if axis == 0 else stale[:, -end if end else 0]
+        out[i] = bool(row.any())
     return out
 
 
