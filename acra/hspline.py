@@ -165,7 +165,8 @@ class Details:
     vectors : tuple of (c_k, 3) float64
         ``F_j @ offset_j`` per CV of level ``k`` (zero for non-movable CVs); entry ``k - 1``.
     frames : tuple of (c_k, 3, 3) float64
-        Local frame of each CV, columns ``(e_u, e_v, n)`` of level ``k-1`` at the CV centre.
+        Local frame of each CV, columns ``(e_u, e_v, n)`` of level ``k-1`` at the CV centre; the
+        CVs of a pole ring (`pole_ring`) take their end's one normal (`_end_normal`).
     """
 
     vectors: tuple[np.ndarray, ...]
@@ -721,12 +722,15 @@ def details(hs: HSpline, upto: int | None = None,
     """World detail vectors of levels ``1..upto``, computed coarse to fine.
 
     The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
-    parameter centre, so moving a coarse CV carries finer detail along (thesis Fig. 3.10).
+    parameter centre, so moving a coarse CV carries finer detail along (thesis Fig. 3.10); the
+    CVs of a pole ring at a closed end all take the end's one normal (`_end_normal`), since the
+    normals there swing with bumps far below the tolerance (docs/hard-cases.md bug J).
     ``since = (old, old_details, stale)``: ``hs`` differs from ``old`` only on the level-0
     patches ``stale (P0u, P0v) bool`` (`changed_patches`, whose margin covers the frames that
     follow a moved surface) and by refinement. A CV ``old`` had movable keeps its frame if its
     level is no finer than the coarsest level that moved (its frame's surface is unchanged) or if
-    it is centred off ``stale``; only the others, and CVs refinement added, are evaluated. A
+    it is centred off ``stale`` (a ring CV: if its end is off ``stale`` all along); only the
+    others, and CVs refinement added, are evaluated. A
     response is local and a refinement moves nothing, so this skips most of the work.
     """
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
