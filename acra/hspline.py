@@ -165,7 +165,8 @@ class Details:
     vectors : tuple of (c_k, 3) float64
         ``F_j @ offset_j`` per CV of level ``k`` (zero for non-movable CVs); entry ``k - 1``.
     frames : tuple of (c_k, 3, 3) float64
-        Local frame of each CV, columns ``(e_u, e_v, n)`` of level ``k-1`` at the CV centre.
+        Local frame of each CV, columns ``(e_u, e_v, n)`` of level ``k-1`` at the CV centre; the
+        CVs of a pole ring (`pole_ring`) take their end's one normal (`_end_normal`).
     """
 
     vectors: tuple[np.ndarray, ...]
@@ -395,22 +396,25 @@ def patch_cvs(hs: HSpline, k: int, patches: np.ndarray) -> np.ndarray:
 
 
 def closed_ends(hs: HSpline) -> tuple[tuple[int, int], ...]:
-    """Ends of the open direction that close to a point (a pole, `acra.shapes.sphere`).
+    """Ends of an open direction that close to a point: a pole (`acra.shapes.sphere`) or a
+    collapsed edge of an open grid (a fan's apex, degenerate triangular patches).
 
-    Only a grid periodic in the other direction closes an end: there the surface at the end is
-    ``(R0 + 4 R1 + R2) / 6`` blended around, with ``R0..R2`` its three outermost CV rows, and it is
-    one point when that sum is the same all around (within 1e-6 of the size, which covers float32
-    ``acra:cvs``). Returns ``(axis, end)`` pairs: axis 0 = u, 1 = v; end 0 at parameter 0, 1 at
-    ``P0``.
+    The surface at an end is ``(R0 + 4 R1 + R2) / 6`` blended along the other direction, with
+    ``R0..R2`` its three outermost CV rows; it is one point when that sum is the same all along
+    (within 1e-6 of the size, which covers float32 ``acra:cvs``), whether the other direction is
+    periodic (a pole) or open (a collapsed edge): in both, every parameter along the end names the
+    same point, and a response must keep it one point. Returns ``(axis, end)`` pairs: axis 0 = u,
+    1 = v; end 0 at parameter 0, 1 at ``P0``.
     """
-    if hs.u.periodic == hs.v.periodic:
-        return ()
-    axis = 0 if not hs.u.periodic else 1
-    grid = hs.cvs if axis == 1 else hs.cvs.transpose(1, 0, 2)  # (periodic, open, 3)
-    m, tol, out = grid.shape[1], 1e-6 * hs.size(), []
-    for end, (e0, e1, e2) in enumerate(((0, 1, 2), (m - 1, m - 2, m - 3))):
-        if m >= 5 and np.ptp(grid[:, e0] + 4.0 * grid[:, e1] + grid[:, e2], axis=0).max() <= tol:
-            out.append((axis, end))
+    out, tol = [], 1e-6 * hs.size()
+    for axis, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            continue
+        grid = hs.cvs if axis == 1 else hs.cvs.transpose(1, 0, 2)  # (other, this, 3)
+        m = grid.shape[1]
+        for end, (e0, e1, e2) in enumerate(((0, 1, 2), (m - 1, m - 2, m - 3))):
+            if m >= 5 and np.ptp(grid[:, e0] + 4.0 * grid[:, e1] + grid[:, e2], axis=0).max() <= tol:
+                out.append((axis, end))
     return tuple(out)
 
 
@@ -718,16 +722,20 @@ def details(hs: HSpline, upto: int | None = None,
     """World detail vectors of levels ``1..upto``, computed coarse to fine.
 
     The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
-    parameter centre, so moving a coarse CV carries finer detail along (thesis Fig. 3.10).
+    parameter centre, so moving a coarse CV carries finer detail along (thesis Fig. 3.10); the
+    CVs of a pole ring at a closed end all take the end's one normal (`_end_normal`), since the
+    normals there swing with bumps far below the tolerance (docs/hard-cases.md bug J).
     ``since = (old, old_details, stale)``: ``hs`` differs from ``old`` only on the level-0
     patches ``stale (P0u, P0v) bool`` (`changed_patches`, whose margin covers the frames that
     follow a moved surface) and by refinement. A CV ``old`` had movable keeps its frame if its
     level is no finer than the coarsest level that moved (its frame's surface is unchanged) or if
-    it is centred off ``stale``; only the others, and CVs refinement added, are evaluated. A
+    it is centred off ``stale`` (a ring CV: if its end is off ``stale`` all along); only the
+    others, and CVs refinement added, are evaluated. A
     response is local and a refinement moves nothing, so this skips most of the work.
     """
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
     first = _first_moved(since[0], hs) if since is not None else 0
+    ends = closed_ends(hs) if top >= 1 else ()
     vectors: list[np.ndarray] = []
     frames: list[np.ndarray] = []
     for k in range(1, top + 1):
@@ -736,6 +744,7 @@ def details(hs: HSpline, upto: int | None = None,
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
         rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
+        ring = _ring_members(hs, k, ends, rows)  # (len(rows),) int64: closed end of each row, or -1
         if rows.size and since is not None and k - 1 < len(since[1].frames):
             old, old_det, stale = since
             was = old.fine[k - 1]
@@ -747,18 +756,74 @@ def details(hs: HSpline, upto: int | None = None,
                 pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
                 pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
                 found &= ~stale[pu.astype(np.int64), pv.astype(np.int64)]
+                # a ring's frames depend on the surface all along its end (`_end_normal`)
+                found &= (ring < 0) | ~_ends_stale(hs, ends, stale)[np.maximum(ring, 0)]
             vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
-            rows = rows[~found]
+            rows, ring = rows[~found], ring[~found]
         if rows.size:
             gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
             partial = Details(tuple(vectors), tuple(frames))
             ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)
+            for i, (axis, end) in enumerate(ends):
+                if np.any(ring == i):
+                    n_end = _end_normal(hs, k, axis, end, partial)
+                    if n_end is not None:
+                        n[ring == i] = n_end
             f = _frames(ev, n)
             fr[rows] = f
             vec[rows] = np.einsum("mij,mj->mi", f, lev.offsets[rows])
         vectors.append(vec)
         frames.append(fr)
     return Details(tuple(vectors), tuple(frames))
+
+
+def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray) -> np.ndarray:
+    """For level-``k`` CV ``rows (m,) int64``: the index into ``ends`` (`closed_ends`) of the pole
+    ring (`pole_ring`: the three CV rows at the end, all along it) each belongs to, or -1, as
+    ``(m,) int64``."""
+    out = np.full(rows.size, -1, np.int64)
+    if not ends or not rows.size:
+        return out
+    ju, jv = _split_cv(hs, k, hs.level(k).cv_keys[rows])
+    for i, (axis, end) in enumerate(ends):
+        j, d = (ju, hs.u) if axis == 0 else (jv, hs.v)
+        out[np.isin(j, _end_rows(d.cvs(k), end))] = i
+    return out
+
+
+def _ends_stale(hs: HSpline, ends: tuple[tuple[int, int], ...], stale: np.ndarray) -> np.ndarray:
+    """Whether the surface moved anywhere along each closed end: ``(len(ends),) bool``, from the
+    level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`)."""
+    out = np.zeros(max(len(ends), 1), bool)
+    for i, (axis, end) in enumerate(ends):
+        row = stale[-end if end else 0] if axis == 0 else stale[:, -end if end else 0]
+        out[i] = bool(row.any())
+    return out
+
+
+def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.ndarray | None:
+    """The one normal ``(3,) float64`` that every CV of level ``k``'s ring at a closed end frames
+    its detail with: the mean of the limit normals of the surface of levels ``0..k-1`` along the
+    end (2 per level-``k`` patch), normalised.
+
+    A ring's CVs shape the end point and the surface within a level-``k`` patch of it. The per-CV
+    normals there are the worst conditioned on the surface: along a collapsed end one tangent
+    vanishes, so a bump far below the tolerance across the short direction turns them by tens of
+    degrees, and a fan apex that a response bent into a cone has a different limit normal for
+    every parameter along it (measured on hard case 10b, levels 0-2: the level-1 surface's normals
+    within a level-2 patch of the apex spread 63 degrees after two rounds, and level 2's detail,
+    0.06 long, turned sideways by up to 0.05 and folded the fan, display normal z -0.89). One
+    normal per ring turns the ring's detail together. For a pole with a tangent plane (a sphere)
+    it is that plane's normal. ``None`` where the limit normals cancel (no side is favoured):
+    the CVs then keep their own."""
+    other = hs.v if axis == 0 else hs.u
+    m = 2 * other.patches(k)
+    s = np.arange(m) * other.patches0 / m if other.periodic else np.linspace(0.0, other.patches0, m + 1)
+    at = np.full_like(s, end * (hs.u if axis == 0 else hs.v).patches0)
+    u, v = (at, s) if axis == 0 else (s, at)
+    n = surface_normals(hs, u, v, det=det, upto=k - 1)[1].mean(axis=0)
+    length = np.linalg.norm(n)
+    return n / length if length > 1e-6 else None
 
 
 def _first_moved(old: HSpline, new: HSpline) -> int:

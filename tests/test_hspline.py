@@ -335,6 +335,13 @@ def test_closed_ends_and_pole_points():
     assert H.closed_ends(sphere) == ((1, 0), (1, 1))
     for shape in (shapes.torus(), shapes.sheet(6, 6), shapes.tube()):
         assert H.closed_ends(H.from_grid(*shape)) == ()
+    # an open grid whose v = 0 edge is one point (a fan's apex) closes that end too
+    fan, _, _ = shapes.sheet(8, 8, width=3.0, depth=3.0)
+    fan[:, :, 0] *= ((np.arange(8) - 1.0) / 5)[None, :]
+    fan[:, 0, 0] = -fan[:, 2, 0]
+    fan = H.from_grid(fan)
+    assert H.closed_ends(fan) == ((1, 0),)
+    np.testing.assert_array_equal(H.pole_of(fan, np.array([0.3, 4.9, 2.0]), np.array([0.0, 0.0, 0.5])), [0, 0, -1])
     P = sphere.v.patches0
     pole = H.pole_of(sphere, np.array([0.3, 2.0, 5.5, 1.0]), np.array([0.0, P, P - 1e-3, P * (1 - 1e-11)]))
     np.testing.assert_array_equal(pole, [0, 1, -1, 1])
@@ -343,3 +350,33 @@ def test_closed_ends_and_pole_points():
     cols = sphere.cvs.reshape(-1, 3)[keys]  # (N, 3, 3)
     tip = H.evaluate(sphere, np.array([0.7]), np.array([float(P)])).points[0]
     np.testing.assert_allclose(np.einsum("r,jrc->jc", w, cols), np.tile(tip, (keys.shape[0], 1)), atol=1e-12)
+
+
+def test_a_pole_rings_detail_turns_as_one_under_a_small_coarse_wiggle():
+    """Every CV of a fine level's pole ring frames its detail with one normal, the end's
+    (`hspline._end_normal`). Near a pole one tangent vanishes, so the per-CV normals there swing
+    with any bump across the short direction: here a level-1 wiggle of 1e-4 of the size (alternate
+    columns up and down, four rows from the pole) turned level-2 ring detail by up to 180 degrees
+    with per-CV normals (spread 2.0 between the ring's normals); with one normal per ring, which
+    the symmetric wiggle leaves where it was, the detail does not turn (docs/hard-cases.md bug J:
+    the turning folded a fan's apex)."""
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    axis, end = H.closed_ends(hs)[1]
+    for k in (1, 2):
+        hs = H.refine(hs, k, H.pole_patches(hs, k, axis, end))
+    keys, _ = H.pole_ring(hs, 2, axis, end)
+    rows, _ = H._lookup(hs.level(2).cv_keys, keys.reshape(-1))
+    ju, jv = H._split_cv(hs, 2, hs.level(2).cv_keys[rows])
+    hs = H.set_offsets(hs, 2, np.stack([ju, jv], 1), np.tile([0.0, 0.0, -0.05], (rows.size, 1)))
+    det = H.details(hs)
+    assert np.ptp(det.frames[1][rows][:, :, 2], axis=0).max() <= 1e-12
+    lev = hs.level(1)
+    ju1, jv1 = H._split_cv(hs, 1, lev.cv_keys)
+    near = (jv1 >= hs.v.cvs(1) - 4) & lev.movable
+    wiggle = np.zeros((near.sum(), 3))
+    wiggle[:, 2] = 1e-4 * hs.size() * np.where(ju1[near] % 2 == 0, 1.0, -1.0)
+    det2 = H.details(H.set_offsets(hs, 1, np.stack([ju1[near], jv1[near]], 1), wiggle))
+    v0, v1 = det.vectors[1][rows], det2.vectors[1][rows]
+    cos = np.sum(v0 * v1, axis=1) / (np.linalg.norm(v0, axis=1) * np.linalg.norm(v1, axis=1))
+    assert np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max() <= 1.0
+    assert np.ptp(det2.frames[1][rows][:, :, 2], axis=0).max() <= 1e-12

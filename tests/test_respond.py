@@ -342,3 +342,26 @@ def test_points_near_a_pole_keep_it_one_point_on_every_level(t):
     assert np.ptp(ring, axis=0).max() <= 1e-12 * hs.size()
     moved = H.evaluate(out, np.linspace(0, hs.u.patches0, 33), np.full(33, P - 0.5), det=det).points
     assert np.ptp(moved[:, 2]) > 1e-3  # the points did dent the cap unevenly (the case is not trivial)
+
+
+def test_a_level0_response_keeps_a_collapsed_edge_one_point():
+    """An open grid whose v = 0 edge is one point (a fan's apex, docs/hard-cases.md case 10):
+    points on and near the apex move level 0 (a contact on it whatever its u, additional points
+    a fraction of a patch away), and the edge stays one point. Before `H.closed_ends` knew open
+    grids, the edge opened into a curve (3.3e-3 of the size across, case 10's first round) and
+    the coarse levels then folded the surface there."""
+    cvs, _, _ = shapes.sheet(8, 8, width=3.0, depth=3.0)
+    cvs[:, :, 0] *= ((np.arange(8) - 1.0) / 5)[None, :]
+    cvs[:, 0, 0] = -cvs[:, 2, 0]
+    hs = H.from_grid(cvs)
+    edge = np.linspace(0.0, hs.u.patches0, 41)
+    outs = []
+    for u in (0.3, 2.5, 4.9):
+        uv = np.array([[u, 0.0], [2.2, 0.1], [2.6, 0.3], [3.1, 0.2]])
+        q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+        move = np.array([[0.0, 0.0, -0.1], [0.0, 0.01, -0.09], [0.0, 0.0, -0.08], [0.02, 0.0, -0.07]])
+        out, rep = R.respond(hs, R.DataPoints(uv, q + move, np.arange(4) == 0), R.check_controls(1))
+        apex = H.evaluate(out, edge, np.zeros_like(edge)).points
+        assert np.ptp(apex, axis=0).max() <= 1e-12 * hs.size()
+        outs.append(apex[0])
+    np.testing.assert_allclose(outs[1:], [outs[0]] * 2, rtol=0, atol=1e-12)
