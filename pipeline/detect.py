@@ -33,7 +33,7 @@ __all__ = [
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
     "regions", "touching", "rewind", "depth_along", "deepest_contact", "exit_contact", "detect_pair", "residual",
-    "cast", "default_tolerance",
+    "cast", "default_tolerance", "face_samples", "along_contact",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -488,6 +488,28 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     return False
 
 
+def face_samples(geom: ColliderGeometry, bounds: np.ndarray, spacing: float) -> np.ndarray:
+    """World points ``(n, 3)`` on the collider's triangles within the world box ``bounds (2, 3)``,
+    on a barycentric grid of each triangle whose box meets it, at most ``spacing`` apart along
+    each edge (vertices included). A collider's region holds only its mesh's vertices, 8 for a
+    box: too few to say which part of the other surface its faces need cleared
+    (`frames.collider_points_for`)."""
+    mesh = geom.static.mesh
+    tri = apply_xform(geom.xform, mesh.vertices[mesh.faces].reshape(-1, 3)).reshape(-1, 3, 3)
+    tri = tri[_overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0)]
+    if not len(tri):
+        return np.zeros((0, 3))
+    steps = np.maximum(np.ceil(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1) / spacing), 1).astype(np.int64)
+    out = []
+    for n in np.unique(steps):
+        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        keep = i + j <= n
+        bary = np.stack([i[keep], j[keep], n - i[keep] - j[keep]], axis=1) / n  # (m, 3)
+        out.append(np.einsum("mk,tkc->tmc", bary, tri[steps == n]).reshape(-1, 3))
+    pts = np.unique(np.concatenate(out), axis=0)
+    return pts[np.all((pts >= bounds[0]) & (pts <= bounds[1]), axis=1)]
+
+
 # --- contact rewinding --------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Anchor:
@@ -718,11 +740,32 @@ def exit_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inte
     mean = np.where(seen, travel, 0.0).sum(axis=1) / np.maximum(count, 1)
     best = np.nonzero(worst <= worst.min() + tol)[0]
     j = int(best[np.argmin(mean[best])])
-    row = np.where(seen[j], travel[j], -np.inf)
+    return _leaving(ga, gb, ra, rb, cand[j], travel[j])
+
+
+def along_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, d: np.ndarray):
+    """The contact ``uv_a, uv_b, local_b, P_A, P_B`` of the region vertex that must travel
+    farthest along a given direction ``d (3,)`` to leave (``A`` moving along ``d`` relative to
+    ``B``; `exit_contact`'s rule with its direction fixed), or ``None`` if no region vertex finds
+    its way out that way. The frame loop's later rounds use it where the first round's push must
+    be kept (`frames.collider_points_for`): the deepest vertex's nearest way out, a side wall of a
+    pocket, can point against it."""
+    d = np.asarray(d, np.float64) / np.linalg.norm(d)
+    travel = np.concatenate([_exit_lengths(gb, ra.points, d[None]), _exit_lengths(ga, rb.points, -d[None])], axis=1)[0]
+    if not np.isfinite(travel).any():
+        return None
+    return _leaving(ga, gb, ra, rb, d, travel)
+
+
+def _leaving(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, d: np.ndarray, travel: np.ndarray):
+    """`exit_contact`'s contact for the direction ``d (3,)`` with the region vertices' travel
+    ``(|ra| + |rb|,)`` (nan: no exit): the farthest-travelling vertex (central among equals)
+    and its exit point."""
+    tol = 1e-9 * max(ga.size, gb.size)
+    row = np.where(np.isfinite(travel), travel, -np.inf)
     tied = np.nonzero(row >= row.max() - tol)[0]
     pts = np.concatenate([ra.points, rb.points])
     i = int(tied[np.argmin(np.linalg.norm(pts[tied] - pts[tied].mean(axis=0), axis=1))])
-    d = cand[j]
     if i < len(ra.points):  # A's vertex leaves B along d: P_B is its exit
         pa, pr = ra.points[i], project(gb, (ra.points[i] + row[i] * d)[None])
         return ra.uv[i], None if pr.uv is None else pr.uv[0], None if pr.local is None else pr.local[0], pa, pr.points[0]

@@ -369,20 +369,11 @@ def test_box_jumping_wholly_inside_a_sphere_is_found_and_pushed_the_way_it_came(
         assert fr.p_out[:, 0].min() <= -1.0 + TOL * size
 
 
-@pytest.mark.xfail(strict=True, reason="box wholly inside: the 1.15-deep pocket around the 0.3 box does not close on "
-                   "it: residual 8.6e-3 of the size after 8 rounds (1.5e-2 after 4; a 12 x 10 sphere or a 4th "
-                   "level does not help), box corners still up to 0.045 inside")
 def test_box_jumping_wholly_inside_a_sphere_is_cleared(tmp_path):
     r, box, size, depth = _inside_jump(tmp_path, "inside_jump8", 8)
     _inside_case(r, box, size, depth)
 
 
-@pytest.mark.xfail(strict=True, reason="box wholly inside the sphere from frame 1 (no motion to rewind): the whole-region "
-                   "fallback picks an axis (far corners travel 1.127, not 1.26 through a corner), but no sphere vertex "
-                   "is inside the box, so eq. 4.16 gives the sphere no additional point: the one contact point pulls a "
-                   "thin finger of wall past the box, which it does not wrap; reported 2.6e-3, measured 6.8e-2 (corners "
-                   "up to 0.26 inside by ray parity; the finger folds over itself, winding number 2 at one corner, "
-                   "so the detector's closest-point test calls 7 of 8 outside)")
 def test_box_wholly_inside_a_sphere_from_the_first_frame_is_cleared(tmp_path):
     stage, size = ball_stage(1)
     box = moving_box(stage, 0.3, {"x": [0.0]})
