@@ -384,6 +384,32 @@ def test_box_wholly_inside_a_sphere_from_the_first_frame_is_cleared(tmp_path):
     _inside_case(r, box, size, {1: 1.0 + 0.15 * np.sqrt(3)})
 
 
+def test_box_wholly_inside_a_sphere_is_wrapped_by_a_pocket_along_one_axis(tmp_path):
+    """Case 3c's mechanism (`frames.collider_points_for`, docs/hard-cases.md G): the wall in
+    front of the box is pushed along the way out the fallback chose, one of the box's axes, past
+    its far face, and wraps it: every sphere point in the box's shadow on that side ends at or
+    past the far face (the thin finger of the contact point alone left most of them short), and
+    the wall on the other side of the sphere has not moved."""
+    stage, size = ball_stage(1)
+    box = moving_box(stage, 0.3, {"x": [0.0]})
+    r = run(stage, tmp_path, "inside_pocket")
+    fr = r.frames["/World/Ball"][1]
+    lo, hi = box_bounds(r.src, box, 1)
+    p_in, p_out = fr.world(fr.hs_in), fr.world(fr.hs_out)
+    wrapped = []
+    for axis in range(3):
+        rest = [k for k in range(3) if k != axis]
+        shadow = np.all((p_in[:, rest] >= lo[rest]) & (p_in[:, rest] <= hi[rest]), axis=1)
+        for sign in (1.0, -1.0):  # the wall on the sign side pushed along -sign
+            side = shadow & (sign * p_in[:, axis] > 0)
+            far = lo[axis] if sign > 0 else hi[axis]
+            if np.all(sign * (p_out[side, axis] - far) <= TOL * size):
+                wrapped.append((axis, sign))
+                other = shadow & (sign * p_in[:, axis] < 0)
+                np.testing.assert_allclose(p_out[other], p_in[other], atol=TOL * size)
+    assert len(wrapped) == 1, wrapped
+
+
 # --- 4. tangent and coplanar faces ------------------------------------------------------------------
 @pytest.mark.parametrize("keys", [
     {"z": [0.75, 0.25, 0.25]},  # lands from above; its bottom face lies on the sheet
