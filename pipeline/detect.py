@@ -33,7 +33,7 @@ __all__ = [
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
     "regions", "touching", "rewind", "depth_along", "deepest_contact", "exit_contact", "detect_pair", "residual",
-    "cast", "default_tolerance", "face_samples", "along_contact",
+    "cast", "default_tolerance", "face_samples",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -740,32 +740,11 @@ def exit_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, inte
     mean = np.where(seen, travel, 0.0).sum(axis=1) / np.maximum(count, 1)
     best = np.nonzero(worst <= worst.min() + tol)[0]
     j = int(best[np.argmin(mean[best])])
-    return _leaving(ga, gb, ra, rb, cand[j], travel[j])
-
-
-def along_contact(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, d: np.ndarray):
-    """The contact ``uv_a, uv_b, local_b, P_A, P_B`` of the region vertex that must travel
-    farthest along a given direction ``d (3,)`` to leave (``A`` moving along ``d`` relative to
-    ``B``; `exit_contact`'s rule with its direction fixed), or ``None`` if no region vertex finds
-    its way out that way. The frame loop's later rounds use it where the first round's push must
-    be kept (`frames.collider_points_for`): the deepest vertex's nearest way out, a side wall of a
-    pocket, can point against it."""
-    d = np.asarray(d, np.float64) / np.linalg.norm(d)
-    travel = np.concatenate([_exit_lengths(gb, ra.points, d[None]), _exit_lengths(ga, rb.points, -d[None])], axis=1)[0]
-    if not np.isfinite(travel).any():
-        return None
-    return _leaving(ga, gb, ra, rb, d, travel)
-
-
-def _leaving(ga: SurfaceGeometry, gb: Geometry, ra: Region, rb: Region, d: np.ndarray, travel: np.ndarray):
-    """`exit_contact`'s contact for the direction ``d (3,)`` with the region vertices' travel
-    ``(|ra| + |rb|,)`` (nan: no exit): the farthest-travelling vertex (central among equals)
-    and its exit point."""
-    tol = 1e-9 * max(ga.size, gb.size)
-    row = np.where(np.isfinite(travel), travel, -np.inf)
+    row = np.where(seen[j], travel[j], -np.inf)
     tied = np.nonzero(row >= row.max() - tol)[0]
     pts = np.concatenate([ra.points, rb.points])
     i = int(tied[np.argmin(np.linalg.norm(pts[tied] - pts[tied].mean(axis=0), axis=1))])
+    d = cand[j]
     if i < len(ra.points):  # A's vertex leaves B along d: P_B is its exit
         pa, pr = ra.points[i], project(gb, (ra.points[i] + row[i] * d)[None])
         return ra.uv[i], None if pr.uv is None else pr.uv[0], None if pr.local is None else pr.local[0], pa, pr.points[0]

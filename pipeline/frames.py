@@ -441,11 +441,6 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 meet = settled[key] = max(options.tolerance, MEET) * size
                 if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
                     c = _deepest_instead(geoms[i], gb, c)
-                if key in wrapping and not c.rewound:  # keep the first round's push (`collider_points_for`)
-                    along = D.along_contact(geoms[i], gb, c.region_a, c.region_b, directions[key])
-                    if along is not None:
-                        uv_a, uv_b, local_b, pa, pb = along
-                        c = replace(c, uv_a=uv_a, uv_b=uv_b, local_b=local_b, point_a=pa, point_b=pb)
                 if c.penetration > options.tolerance * size or it == 0:
                     found.append((i, other, c))
             st.ms_setup += S.SetupClock.ms - setup0

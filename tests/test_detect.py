@@ -677,19 +677,3 @@ def test_face_samples_cover_a_collider_at_the_spacing():
     half = D.face_samples(b, np.array([[0.0, -1.0, -1.0], [0.2, 1.0, 1.0]]), 0.05)  # the -x half
     assert len(half) and np.all(half[:, 0] <= 0.2 + 1e-12) and np.all(half[:, 0] >= 0.05 - 1e-12)
 
-
-def test_along_contact_keeps_the_given_direction():
-    """`detect.along_contact`: a 0.3 box inside a sphere, the sphere moving along -x relative to
-    it. The contact is a corner that must travel farthest along +x to leave the sphere (a far
-    corner, x = -0.15) and its exit on the wall in front, so ``P_B - P_A`` is along -x; the
-    nearest-way rule (`deepest_contact`) picks the corner's radial way out instead."""
-    s, inner = sphere_geom(), D.ColliderGeometry(box(0.15), move())
-    ra, rb = D.regions(s, inner)
-    uv_a, uv_b, local_b, pa, pb = D.along_contact(s, inner, ra, rb, np.array([-1.0, 0.0, 0.0]))
-    assert pb[0] == pytest.approx(-0.15) and pa[0] > 0.95
-    d = (pb - pa) / np.linalg.norm(pb - pa)
-    np.testing.assert_allclose(d, [-1.0, 0.0, 0.0], atol=2e-3)
-    np.testing.assert_allclose(local_b, pb, atol=1e-15)
-    assert uv_b is None and np.linalg.norm(D.surface_points(s, uv_a).points[0] - pa) < 1e-12
-    near = D.deepest_contact(s, inner, ra, rb, D.intersect(s, inner))
-    assert abs((near[4] - near[3])[0]) < 0.6 * np.linalg.norm(near[4] - near[3])  # diagonal (1/sqrt 3), not along x
