@@ -352,8 +352,9 @@ def test_box_jumping_wholly_inside_a_sphere_is_found_and_pushed_the_way_it_came(
     """fcl sees no crossing once the box is inside; detection still finds it, rewinds to where it
     entered (+x), and the sphere's +x wall is pushed in along -x (it must reach the box's far
     face, x = -0.15, a move of 1.15 = 0.30 of the size): after the default 4 rounds the wall in
-    the box's shadow is past the box's centre (measured x <= -0.086) and the far side of the
-    sphere (x = -1) has not moved toward +x. The residual is the next test."""
+    the box's shadow is past the box's centre (measured x <= -0.152, past the far face; -0.086
+    before bug H's fix) and the far side of the sphere (x = -1) has not moved toward +x. The
+    residual is the next test."""
     r, box, size, depth = _inside_jump(tmp_path, "inside_jump", 4)
     assert not _fcl_sees_contact(r, box, 2)
     assert [s.in_collision for s in r.stats] == [False, True, True]
