@@ -206,8 +206,8 @@ def collider_points_for(
     thin finger that neither wrapped the box nor cleared it (docs/hard-cases.md, G and H). Here
     both sides give the wall's samples:
 
-    * the collider's faces inside ``ga`` (`detect.face_samples`, about two per group-level
-      patch, near the regions), cast along ``-direction`` onto the wall in front of them
+    * the collider's faces inside ``ga`` (`detect.face_samples`, at most half a group-level
+      patch's size apart, near the regions), cast along ``-direction`` onto the wall in front of them
       (`detect.cast`: from inside, the exit ahead); such a wall point must get, along
       ``direction``, to where the line through the sample leaves the collider (its far side);
     * ``ga``'s own vertices inside the collider (``region_a``), which must get to where their
@@ -224,6 +224,21 @@ def collider_points_for(
     surface through points of the covered patches alone falls off before the collider's outline.
     Later rounds move only patches with lagging samples, by their lag: measured, re-deciding the
     ring from a pocket's rim made a round push patches outside the box by a third of the size.
+
+    Parameters
+    ----------
+    region_a, region_b : Region
+        ``ga``'s vertices inside the collider and the collider's inside ``ga`` (`detect.regions`).
+    direction : (3,) float64
+        The push: ``ga`` moves along it relative to the collider (the frame's first ``P_B - P_A``).
+    share : float
+        ``R`` of eq. 4.15 (0 against a collider: all the way).
+    group_level : int
+        The finest absorbing level: one point per patch of it.
+    clear : float
+        World length the points go past the collider.
+    first : bool
+        The pair's first round of the frame (the ring).
 
     Returns
     -------
