@@ -846,11 +846,14 @@ def default_tolerance(ga: Geometry, gb: Geometry, fraction: float = 1e-3) -> flo
     return fraction * min(ga.size, gb.size)
 
 
-def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None = None,
+         within: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """First hits of world rays ``origins, directions (n, 3)`` on ``geom`` (thesis eq. 4.16):
     ``hits (n, 3)`` (the origin where none) and ``valid (n,) bool``. A hit may lie up to ``behind``
     (default ``1e-3`` of the object's size) behind its origin, for points pushed just past the
-    surface, except from inside a closed ``geom``: there it must be ahead (the exit)."""
+    surface, except from inside a closed ``geom``: there it must be ahead (the exit). ``within
+    (n,) bool``: `inside` for the origins if the caller has it already (it is most of a cast's
+    cost on a deformable)."""
     origins = np.asarray(origins, np.float64).reshape(-1, 3)
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
     hits, valid = origins.copy(), np.zeros(len(origins), bool)
@@ -860,7 +863,8 @@ def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: fl
         return hits, valid
     unit = directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
-    start = origins[rows] - np.where(inside(geom, origins[rows]), 0.0, behind)[:, None] * unit
+    ins = inside(geom, origins[rows]) if within is None else np.asarray(within, bool).reshape(-1)[rows]
+    start = origins[rows] - np.where(ins, 0.0, behind)[:, None] * unit
     found, ok = _first_hits(geom, start, unit)
     hits[rows[ok]], valid[rows[ok]] = found[ok], True
     # an origin on the surface whose ray goes in (just ahead of it is inside) counts as inside:

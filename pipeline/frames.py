@@ -259,20 +259,21 @@ def collider_points_for(
     spacing = 0.5 * ga.size / (max(hs.u.patches0, hs.v.patches0) << group_level)
     s = D.face_samples(gb, np.stack([pts.min(axis=0) - spacing, pts.max(axis=0) + spacing]), spacing)
     s = s[D.inside(ga, s)]
-    wall, ok = D.cast(ga, s, np.broadcast_to(-unit, s.shape))
+    wall, ok = D.cast(ga, s, np.broadcast_to(-unit, s.shape), within=np.ones(len(s), bool))
     # where the line through each sample leaves the collider along the push (the sample itself if
     # the push takes it straight out)
     ahead = s + 2.0 * D.ON_SURFACE * max(ga.size, gb.size) * unit
     far = s.copy()
     into = D.inside(gb, ahead)
     if into.any():
-        exit_, got = D.cast(gb, ahead[into], np.broadcast_to(unit, ahead[into].shape))
+        exit_, got = D.cast(gb, ahead[into], np.broadcast_to(unit, ahead[into].shape), within=np.ones(int(into.sum()), bool))
         far[np.nonzero(into)[0][got]] = exit_[got]
     uv = np.full((len(s), 2), np.nan)
     if ok.any():
         uv[ok] = D.project(ga, wall[ok]).uv
     if not region_a.empty:
-        exit_, got = D.cast(gb, region_a.points, np.broadcast_to(unit, region_a.points.shape))
+        exit_, got = D.cast(gb, region_a.points, np.broadcast_to(unit, region_a.points.shape),
+                            within=np.ones(len(region_a.points), bool))
         wall, far = np.concatenate([wall, region_a.points]), np.concatenate([far, exit_])
         uv, ok = np.concatenate([uv, region_a.uv]), np.concatenate([ok, got])
     lag = (far - wall) @ unit
