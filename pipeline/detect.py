@@ -33,7 +33,7 @@ __all__ = [
     "Residual", "RewindCache", "patch_density", "candidate_patches", "tessellate", "tessellated",
     "is_closed", "intersect", "inside", "surface_distance", "surface_points", "project",
     "regions", "touching", "rewind", "depth_along", "deepest_contact", "exit_contact", "detect_pair", "residual",
-    "cast", "default_tolerance",
+    "cast", "default_tolerance", "face_samples",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -488,6 +488,28 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     return False
 
 
+def face_samples(geom: ColliderGeometry, bounds: np.ndarray, spacing: float) -> np.ndarray:
+    """World points ``(n, 3)`` on the collider's triangles within the world box ``bounds (2, 3)``,
+    on a barycentric grid of each triangle whose box meets it, at most ``spacing`` apart along
+    each edge (vertices included). A collider's region holds only its mesh's vertices, 8 for a
+    box: too few to say which part of the other surface its faces need cleared
+    (`frames.collider_points_for`)."""
+    mesh = geom.static.mesh
+    tri = apply_xform(geom.xform, mesh.vertices[mesh.faces].reshape(-1, 3)).reshape(-1, 3, 3)
+    tri = tri[_overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0)]
+    if not len(tri):
+        return np.zeros((0, 3))
+    steps = np.maximum(np.ceil(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1) / spacing), 1).astype(np.int64)
+    out = []
+    for n in np.unique(steps):
+        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        keep = i + j <= n
+        bary = np.stack([i[keep], j[keep], n - i[keep] - j[keep]], axis=1) / n  # (m, 3)
+        out.append(np.einsum("mk,tkc->tmc", bary, tri[steps == n]).reshape(-1, 3))
+    pts = np.unique(np.concatenate(out), axis=0)
+    return pts[np.all((pts >= bounds[0]) & (pts <= bounds[1]), axis=1)]
+
+
 # --- contact rewinding --------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Anchor:
@@ -824,11 +846,14 @@ def default_tolerance(ga: Geometry, gb: Geometry, fraction: float = 1e-3) -> flo
     return fraction * min(ga.size, gb.size)
 
 
-def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None = None,
+         within: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """First hits of world rays ``origins, directions (n, 3)`` on ``geom`` (thesis eq. 4.16):
     ``hits (n, 3)`` (the origin where none) and ``valid (n,) bool``. A hit may lie up to ``behind``
     (default ``1e-3`` of the object's size) behind its origin, for points pushed just past the
-    surface, except from inside a closed ``geom``: there it must be ahead (the exit)."""
+    surface, except from inside a closed ``geom``: there it must be ahead (the exit). ``within
+    (n,) bool``: `inside` for the origins if the caller has it already (it is most of a cast's
+    cost on a deformable)."""
     origins = np.asarray(origins, np.float64).reshape(-1, 3)
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
     hits, valid = origins.copy(), np.zeros(len(origins), bool)
@@ -838,7 +863,8 @@ def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: fl
         return hits, valid
     unit = directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
-    start = origins[rows] - np.where(inside(geom, origins[rows]), 0.0, behind)[:, None] * unit
+    ins = inside(geom, origins[rows]) if within is None else np.asarray(within, bool).reshape(-1)[rows]
+    start = origins[rows] - np.where(ins, 0.0, behind)[:, None] * unit
     found, ok = _first_hits(geom, start, unit)
     hits[rows[ok]], valid[rows[ok]] = found[ok], True
     # an origin on the surface whose ray goes in (just ahead of it is inside) counts as inside:

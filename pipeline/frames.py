@@ -20,13 +20,14 @@ from threadpoolctl import threadpool_limits
 
 from acra import hspline as H
 from acra import respond as R
+from acra.basis import locate
 from acra.tessellate import grid_samples, pole_normals
 from pipeline import detect as D
 from pipeline import shape as S
 from pipeline import usdio
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
-__all__ = ["FrameStats", "RunOptions", "run_frames", "data_points_for"]
+__all__ = ["FrameStats", "RunOptions", "run_frames", "data_points_for", "collider_points_for"]
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,140 @@ def data_points_for(
     return R.DataPoints(uv_all, apply_inverse(ga.xform, world), is_contact), world, np.concatenate(origins)
 
 
+WRAP_RING = 1  # patches around the ones a collider's outline covers that a new pocket pushes too
+
+
+def _grow(a: np.ndarray, u_periodic: bool, v_periodic: bool, width: int) -> np.ndarray:
+    """``a (m, n) float64`` with each cell the largest of its ``(2 width + 1)^2`` neighbourhood
+    (``-inf`` beyond an open edge; a periodic direction wraps)."""
+    out = a.copy()
+    for axis, periodic in ((0, u_periodic), (1, v_periodic)):
+        src, out = out, out.copy()
+        m = src.shape[axis]
+        for k in range(1, width + 1):
+            for sh in (k, -k):
+                moved = np.roll(src, sh, axis=axis)
+                if not periodic:
+                    idx = np.arange(m)
+                    bad = (idx < sh) if sh > 0 else (idx >= m + sh)
+                    moved = np.where(bad[:, None] if axis == 0 else bad[None, :], -np.inf, moved)
+                out = np.maximum(out, moved)
+    return out
+
+
+def collider_points_for(
+    ga: D.SurfaceGeometry,
+    gb: D.ColliderGeometry,
+    region_a: D.Region,
+    region_b: D.Region,
+    direction: np.ndarray,
+    share: float,
+    group_level: int,
+    clear: float = 0.0,
+    first: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Additional points (eq. 4.16) of a closed surface ``ga`` with a collider ``gb`` inside it:
+    the wall in front of the collider, pushed along ``direction`` past it (a pocket).
+
+    Eq. 4.16 takes additional points from a surface's own region, its samples inside the other
+    object. A collider wholly inside a closed surface leaves that region empty (no sample of a
+    sphere lies inside a box inside it), so the wall got the contact point alone, which pulled a
+    thin finger that neither wrapped the box nor cleared it (docs/hard-cases.md, G and H). Here
+    both sides give the wall's samples:
+
+    * the collider's faces inside ``ga`` (`detect.face_samples`, at most half a group-level
+      patch's size apart, near the regions), cast along ``-direction`` onto the wall in front of them
+      (`detect.cast`: from inside, the exit ahead); such a wall point must get, along
+      ``direction``, to where the line through the sample leaves the collider (its far side);
+    * ``ga``'s own vertices inside the collider (``region_a``), which must get to where their
+      line along ``direction`` leaves it (eq. 4.16's own cast).
+
+    Each sample's *lag* is how far along ``direction`` it must still go. The points are one per
+    group-level patch holding samples, at the patch's parametric centre, moved along ``direction``
+    by the patch's largest lag plus ``clear`` (a world length; the frame loop passes what counts
+    as done, so a wall between two points that sags by up to that much still clears the collider).
+    Patch centres on a regular grid keep the interpolation well conditioned, where the samples
+    crowd; and the largest lag lets no sample of the patch lag behind the point's move. A first
+    round (``first``, the pocket being made) also pushes the patches within `WRAP_RING` of those,
+    each centre to the farthest plane along ``direction`` its neighbours must reach: a C2
+    surface through points of the covered patches alone falls off before the collider's outline.
+    Later rounds move only patches with lagging samples, by their lag: measured, re-deciding the
+    ring from a pocket's rim made a round push patches outside the box by a third of the size.
+
+    Parameters
+    ----------
+    region_a, region_b : Region
+        ``ga``'s vertices inside the collider and the collider's inside ``ga`` (`detect.regions`).
+    direction : (3,) float64
+        The push: ``ga`` moves along it relative to the collider (the frame's first ``P_B - P_A``).
+    share : float
+        ``R`` of eq. 4.15 (0 against a collider: all the way).
+    group_level : int
+        The finest absorbing level: one point per patch of it.
+    clear : float
+        World length the points go past the collider.
+    first : bool
+        The pair's first round of the frame (the ring).
+
+    Returns
+    -------
+    uv : (g, 2) float64
+        Parameters of the points on ``ga`` (patch centres, level-0 units).
+    target : (g, 3) float64
+        World targets, ``R A + (1 - R) B`` of eq. 4.16 with ``B`` the point moved as above.
+    origin : (g, 3) float64
+        World points before the move.
+    """
+    none = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3))
+    length = np.linalg.norm(direction)
+    pts = np.concatenate([region_a.points, region_b.points])
+    if not len(pts) or not ga.closed or length <= 1e-9 * ga.size:
+        return none
+    unit = np.asarray(direction, float) / length
+    hs = ga.surface
+    spacing = 0.5 * ga.size / (max(hs.u.patches0, hs.v.patches0) << group_level)
+    s = D.face_samples(gb, np.stack([pts.min(axis=0) - spacing, pts.max(axis=0) + spacing]), spacing)
+    s = s[D.inside(ga, s)]
+    wall, ok = D.cast(ga, s, np.broadcast_to(-unit, s.shape), within=np.ones(len(s), bool))
+    # where the line through each sample leaves the collider along the push (the sample itself if
+    # the push takes it straight out)
+    ahead = s + 2.0 * D.ON_SURFACE * max(ga.size, gb.size) * unit
+    far = s.copy()
+    into = D.inside(gb, ahead)
+    if into.any():
+        exit_, got = D.cast(gb, ahead[into], np.broadcast_to(unit, ahead[into].shape), within=np.ones(int(into.sum()), bool))
+        far[np.nonzero(into)[0][got]] = exit_[got]
+    uv = np.full((len(s), 2), np.nan)
+    if ok.any():
+        uv[ok] = D.project(ga, wall[ok]).uv
+    if not region_a.empty:
+        exit_, got = D.cast(gb, region_a.points, np.broadcast_to(unit, region_a.points.shape),
+                            within=np.ones(len(region_a.points), bool))
+        wall, far = np.concatenate([wall, region_a.points]), np.concatenate([far, exit_])
+        uv, ok = np.concatenate([uv, region_a.uv]), np.concatenate([ok, got])
+    lag = (far - wall) @ unit
+    ok &= lag > 0
+    if not ok.any():
+        return none
+    uv, lag, plane = uv[ok], lag[ok], far[ok] @ unit
+    su, _ = locate(hs.u, uv[:, 0], group_level)
+    sv, _ = locate(hs.v, uv[:, 1], group_level)
+    shape = (hs.u.patches(group_level), hs.v.patches(group_level))
+    most, need = np.full(shape, -np.inf), np.full(shape, -np.inf)
+    np.maximum.at(most, (su, sv), lag)
+    np.maximum.at(need, (su, sv), plane)
+    need = _grow(need, hs.u.periodic, hs.v.periodic, WRAP_RING if first else 0)
+    pp = np.argwhere(np.isfinite(need))
+    mid = (pp + 0.5) / (1 << group_level)
+    a = apply_xform(ga.xform, H.evaluate(hs, mid[:, 0], mid[:, 1], det=ga.details).points)
+    move = most[pp[:, 0], pp[:, 1]]
+    if first:
+        move = np.maximum(move, need[pp[:, 0], pp[:, 1]] - a @ unit)
+    go = move > 0
+    b = a[go] + (move[go, None] + clear) * unit
+    return mid[go], R.additional_targets(a[go], b, share), a[go]
+
+
 def _spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarray:
     """Which additional points ``points (g, 3)`` to keep so no two kept points, and no kept point
     and the contact point ``contact (3,)``, are within ``radius`` (greedy, in order).
@@ -294,6 +429,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
         surfaces = [s.surface for s in dstates]
         enabled = [s.enabled for s in dstates]
         directions: dict = {}
+        wrapping: set = set()  # collider pairs pushed by `collider_points_for` this frame
         best = (np.inf, list(surfaces))
         rounds = max(1, options.iterations)
         for it in range(rounds + 1):
@@ -342,10 +478,25 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 if enabled[i]:
                     share = R.rigidity_share(controls[i].rigidity, r_other)
                     push = directions.setdefault((i, other), c.point_b - c.point_a)
-                    dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, c.point_b, c.region_a.uv, share,
-                                                       _group_level(controls[i], surfaces[i].depth), push,
+                    # a collider with vertices inside a closed surface: the wall in front of it is pushed
+                    # past it along the push, its own region included (`collider_points_for`); every
+                    # later round of the frame does the same, so the pocket keeps its direction
+                    wrap = other[0] == "c" and (not c.region_b.empty or (i, other) in wrapping)
+                    clear = settled[(i, other)] if wrap else 0.0
+                    p_other = c.point_b + clear * push / max(np.linalg.norm(push), 1e-300)
+                    dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, p_other, None if wrap else c.region_a.uv,
+                                                       share, _group_level(controls[i], surfaces[i].depth), push,
                                                        c.region_a.depth, settled[(i, other)])
                     points.setdefault(i, []).append((dp, world, start))
+                    if wrap:
+                        uv, world, start = collider_points_for(geoms[i], gb, c.region_a, c.region_b, push, share,
+                                                               _group_level(controls[i], surfaces[i].depth), clear,
+                                                               (i, other) not in wrapping)
+                        wrapping.add((i, other))
+                        keep = _spread(start, c.point_a, MEET * geoms[i].size)
+                        if keep.any():
+                            dp = R.DataPoints(uv[keep], apply_inverse(geoms[i].xform, world[keep]), np.zeros(int(keep.sum()), bool))
+                            points[i].append((dp, world[keep], start[keep]))
                 if other[0] == "d" and enabled[other[1]]:
                     j = other[1]
                     share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)

@@ -657,3 +657,23 @@ def test_points_outside_the_cv_hull_are_outside_without_a_search():
     uu, vv = np.meshgrid(np.linspace(0, hs.u.patches0, 40), np.linspace(0, hs.v.patches0, 40))
     p = H.evaluate(hs, uu.ravel(), vv.ravel()).points
     assert (p @ hulled.cv_hull[:, :3].T + hulled.cv_hull[:, 3]).max() <= 1e-12
+
+
+def test_face_samples_cover_a_collider_at_the_spacing():
+    """`detect.face_samples`: points on the box's faces within the given bounds, the corners
+    included, every face point within the spacing of a sample."""
+    b = D.ColliderGeometry(box(0.15), move(0.2, 0.0, 0.0))
+    bounds = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    s = D.face_samples(b, bounds, 0.05)
+    local = s - [0.2, 0.0, 0.0]
+    np.testing.assert_allclose(np.abs(local).max(axis=1), 0.15, atol=1e-12)  # on the surface
+    corners = BOX_VERTICES * 0.15 + [0.2, 0.0, 0.0]
+    assert np.all(np.linalg.norm(s[:, None] - corners[None], axis=2).min(axis=0) < 1e-12)
+    rng = np.random.default_rng(3)
+    probe = rng.uniform(-0.15, 0.15, (500, 3))
+    probe[np.arange(500), rng.integers(0, 3, 500)] = rng.choice([-0.15, 0.15], 500)  # on a face
+    near = np.linalg.norm((probe + [0.2, 0.0, 0.0])[:, None] - s[None], axis=2).min(axis=1)
+    assert near.max() <= 0.05
+    half = D.face_samples(b, np.array([[0.0, -1.0, -1.0], [0.2, 1.0, 1.0]]), 0.05)  # the -x half
+    assert len(half) and np.all(half[:, 0] <= 0.2 + 1e-12) and np.all(half[:, 0] >= 0.05 - 1e-12)
+

@@ -186,3 +186,70 @@ def test_a_patch_whose_middle_has_stalled_takes_its_deepest_sample(u_low, settle
     u = 2.9 if took == "deepest" else mid_u
     np.testing.assert_allclose(dp.uv[1], [u, 2.5])
     np.testing.assert_allclose(dp.target[1], [u - 2.5, 0.0, 0.0], atol=1e-9)
+
+
+def _ball_and_box(lo, hi):
+    """The 8 × 8-CV unit sphere with 3 levels (group level 2) and an axis-aligned box collider
+    ``[lo, hi]`` (world ``(3,)`` each), as detection geometry at the identity matrix."""
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    ball = D.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 8), depth=3), np.eye(4), "/ball")
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], float)
+    tris = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", corners, tris)), np.eye(4))
+    return ball, box
+
+
+def test_a_box_inside_a_sphere_gets_the_wall_in_front_pushed_past_it():
+    """`frames.collider_points_for` (docs/hard-cases.md G, H): a 0.3 box wholly inside the unit
+    sphere has no sphere vertex inside it, so eq. 4.16's own-region points are none; the box's
+    faces give them instead. Pushed along -x, the wall in front (x near 1) gets one point per
+    level-2 patch, at the patch centre, moved along -x only, past the box's far face by the
+    clearance; in the pocket's first round the points reach beyond the box's outline on every
+    side (the ring), in a later round only the patches the box covers move, by their lag."""
+    from acra.basis import locate
+    from pipeline import detect as D
+
+    ball, box = _ball_and_box([-0.15] * 3, [0.15] * 3)
+    ra, rb = D.regions(ball, box)
+    assert ra.empty and len(rb.points) == 8
+    push, clear = np.array([-1.15, 0.0, 0.0]), 0.004
+    hs = ball.surface
+    for first in (True, False):
+        uv, target, origin = F.collider_points_for(ball, box, ra, rb, push, 0.0, 2, clear, first)
+        patches = np.stack([locate(hs.u, uv[:, 0], 2)[0], locate(hs.v, uv[:, 1], 2)[0]], axis=1)
+        assert len(np.unique(patches, axis=0)) == len(uv) > 0  # one point per level-2 patch
+        np.testing.assert_allclose(uv, (patches + 0.5) / 4)  # at its centre
+        assert np.all(origin[:, 0] > 0.85)  # on the wall in front
+        np.testing.assert_allclose(target[:, 1:], origin[:, 1:], atol=1e-12)  # along the push only
+        assert np.all(target[:, 0] <= -0.15 - clear + 1e-12)  # past the far face
+        y, z = origin[:, 1], origin[:, 2]
+        if first:  # the ring: beyond the outline on every side
+            assert y.min() < -0.15 and y.max() > 0.15 and z.min() < -0.15 and z.max() > 0.15
+            n_first = len(uv)
+        else:  # the covered patches alone, each by its largest lag (to the far face) + clear
+            assert len(uv) < n_first
+            assert np.all(np.abs(y) < 0.15 + 0.2) and np.all(np.abs(z) < 0.15 + 0.2)
+            assert np.all(origin[:, 0] - target[:, 0] <= 1.15 + clear + 1e-9)
+
+
+def test_a_box_through_a_sphere_wall_takes_both_regions_to_its_inner_face():
+    """A box [0.85, 1.15] × [-0.1, 0.1]² through the +x wall of the unit sphere, pushed along
+    -x: the sphere's vertices inside the box (its own region) and the box's inner corners inside
+    the sphere (the collider's) give one set of points, all aiming at the box's inner face
+    x = 0.85 less the clearance."""
+    from pipeline import detect as D
+
+    ball, box = _ball_and_box([0.85, -0.1, -0.1], [1.15, 0.1, 0.1])
+    ra, rb = D.regions(ball, box)
+    assert not ra.empty and len(rb.points) == 4
+    uv, target, origin = F.collider_points_for(ball, box, ra, rb, np.array([-0.3, 0.0, 0.0]), 0.0, 2, 0.004, False)
+    assert len(uv) > 0
+    np.testing.assert_allclose(target[:, 1:], origin[:, 1:], atol=1e-12)
+    assert np.all(target[:, 0] <= 0.85 - 0.004 + 1e-12)
+    # a patch centre moves by the largest lag of its samples: at most the wall's bulge past 0.85
+    assert np.all(origin[:, 0] - target[:, 0] <= 1.0 - 0.85 + 0.004 + 1e-9)

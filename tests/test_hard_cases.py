@@ -352,8 +352,9 @@ def test_box_jumping_wholly_inside_a_sphere_is_found_and_pushed_the_way_it_came(
     """fcl sees no crossing once the box is inside; detection still finds it, rewinds to where it
     entered (+x), and the sphere's +x wall is pushed in along -x (it must reach the box's far
     face, x = -0.15, a move of 1.15 = 0.30 of the size): after the default 4 rounds the wall in
-    the box's shadow is past the box's centre (measured x <= -0.086) and the far side of the
-    sphere (x = -1) has not moved toward +x. The residual is the next test."""
+    the box's shadow is past the box's centre (measured x <= -0.152, past the far face; -0.086
+    before bug H's fix) and the far side of the sphere (x = -1) has not moved toward +x. The
+    residual is the next test."""
     r, box, size, depth = _inside_jump(tmp_path, "inside_jump", 4)
     assert not _fcl_sees_contact(r, box, 2)
     assert [s.in_collision for s in r.stats] == [False, True, True]
@@ -369,20 +370,11 @@ def test_box_jumping_wholly_inside_a_sphere_is_found_and_pushed_the_way_it_came(
         assert fr.p_out[:, 0].min() <= -1.0 + TOL * size
 
 
-@pytest.mark.xfail(strict=True, reason="box wholly inside: the 1.15-deep pocket around the 0.3 box does not close on "
-                   "it: residual 8.6e-3 of the size after 8 rounds (1.5e-2 after 4; a 12 x 10 sphere or a 4th "
-                   "level does not help), box corners still up to 0.045 inside")
 def test_box_jumping_wholly_inside_a_sphere_is_cleared(tmp_path):
     r, box, size, depth = _inside_jump(tmp_path, "inside_jump8", 8)
     _inside_case(r, box, size, depth)
 
 
-@pytest.mark.xfail(strict=True, reason="box wholly inside the sphere from frame 1 (no motion to rewind): the whole-region "
-                   "fallback picks an axis (far corners travel 1.127, not 1.26 through a corner), but no sphere vertex "
-                   "is inside the box, so eq. 4.16 gives the sphere no additional point: the one contact point pulls a "
-                   "thin finger of wall past the box, which it does not wrap; reported 2.6e-3, measured 6.8e-2 (corners "
-                   "up to 0.26 inside by ray parity; the finger folds over itself, winding number 2 at one corner, "
-                   "so the detector's closest-point test calls 7 of 8 outside)")
 def test_box_wholly_inside_a_sphere_from_the_first_frame_is_cleared(tmp_path):
     stage, size = ball_stage(1)
     box = moving_box(stage, 0.3, {"x": [0.0]})
@@ -391,6 +383,32 @@ def test_box_wholly_inside_a_sphere_from_the_first_frame_is_cleared(tmp_path):
     assert r.stats[0].in_collision
     # the nearest way out: the wall nearest a corner moves to the far corner (1 + 0.15 sqrt 3)
     _inside_case(r, box, size, {1: 1.0 + 0.15 * np.sqrt(3)})
+
+
+def test_box_wholly_inside_a_sphere_is_wrapped_by_a_pocket_along_one_axis(tmp_path):
+    """Case 3c's mechanism (`frames.collider_points_for`, docs/hard-cases.md G): the wall in
+    front of the box is pushed along the way out the fallback chose, one of the box's axes, past
+    its far face, and wraps it: every sphere point in the box's shadow on that side ends at or
+    past the far face (the thin finger of the contact point alone left most of them short), and
+    the wall on the other side of the sphere has not moved."""
+    stage, size = ball_stage(1)
+    box = moving_box(stage, 0.3, {"x": [0.0]})
+    r = run(stage, tmp_path, "inside_pocket")
+    fr = r.frames["/World/Ball"][1]
+    lo, hi = box_bounds(r.src, box, 1)
+    p_in, p_out = fr.world(fr.hs_in), fr.world(fr.hs_out)
+    wrapped = []
+    for axis in range(3):
+        rest = [k for k in range(3) if k != axis]
+        shadow = np.all((p_in[:, rest] >= lo[rest]) & (p_in[:, rest] <= hi[rest]), axis=1)
+        for sign in (1.0, -1.0):  # the wall on the sign side pushed along -sign
+            side = shadow & (sign * p_in[:, axis] > 0)
+            far = lo[axis] if sign > 0 else hi[axis]
+            if np.all(sign * (p_out[side, axis] - far) <= TOL * size):
+                wrapped.append((axis, sign))
+                other = shadow & (sign * p_in[:, axis] < 0)
+                np.testing.assert_allclose(p_out[other], p_in[other], atol=TOL * size)
+    assert len(wrapped) == 1, wrapped
 
 
 # --- 4. tangent and coplanar faces ------------------------------------------------------------------
