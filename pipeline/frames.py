@@ -60,7 +60,9 @@ class FrameStats:
     (`shape.Shape`, the analogue of RAPID's initial set-up), ``ms_detect`` detection queries less
     set-up, ``ms_convert`` contacts to data points, ``ms_respond`` the responses (``ms_respond_by``
     per deformable path), ``ms_output`` the display tessellation; ``residual`` is the largest remaining penetration in world units and
-    ``residual_rel`` the same over the pair's size.
+    ``residual_rel`` the same over the pair's size: the size of the animator's surfaces at this frame
+    (the smaller of two deformables), fixed over the rounds, so a response that grows or shrinks a
+    surface does not rescale its own residual.
     """
 
     frame: int
@@ -435,6 +437,8 @@ def _run_frames(stage, scene, frames, options, on_frame):
         for it in range(rounds + 1):
             geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
             cgeoms = [D.ColliderGeometry(statics[j], cstates[j].xform) for j in range(len(statics))]
+            if it == 0:  # the animator's surfaces: the residual's scale stays fixed while rounds reshape them
+                sizes = [g.size for g in geoms]
             td, setup0 = time.perf_counter(), S.SetupClock.ms
             found, settled = [], {}  # settled: a move this short (world) counts as done
             worst, worst_rel = 0.0, 0.0
@@ -451,7 +455,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 if c is None:
                     continue
                 # the contract's "object size": the deformable's own (the smaller one of two deformables)
-                size = geoms[i].size if other[0] == "c" else min(geoms[i].size, gb.size)
+                size = sizes[i] if other[0] == "c" else min(sizes[i], sizes[other[1]])
                 worst = max(worst, c.penetration)
                 worst_rel = max(worst_rel, c.penetration / size)
                 meet = settled[key] = max(options.tolerance, MEET) * size
@@ -493,7 +497,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
                                                                _group_level(controls[i], surfaces[i].depth), clear,
                                                                (i, other) not in wrapping)
                         wrapping.add((i, other))
-                        keep = _spread(start, c.point_a, MEET * geoms[i].size)
+                        keep = _spread(start, c.point_a, MEET * sizes[i])
                         if keep.any():
                             dp = R.DataPoints(uv[keep], apply_inverse(geoms[i].xform, world[keep]), np.zeros(int(keep.sum()), bool))
                             points[i].append((dp, world[keep], start[keep]))

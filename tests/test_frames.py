@@ -111,6 +111,27 @@ def test_preview_clears_markers_of_a_free_frame(tmp_path):
     assert {"/world/acra/contacts", "/world/acra/data_points/World/Sheet", "/world/acra/region/World/Sheet"} <= cleared
 
 
+def test_residual_is_relative_to_the_animators_surface(tmp_path):
+    """``residual_rel`` divides by the input surface's size at that frame, not by the size of the
+    surface a round left: the dent the box makes grows the sheet's box, and a residual measured
+    against it would look smaller than the one the animator's object has."""
+    from pipeline import detect as D
+    from pipeline import usdio
+
+    scene_file = tmp_path / "box_into_sheet.py"
+    shutil.copy(SCENE, scene_file)
+    stage = usdio.open_input(usdio.load_scene_file(scene_file))
+    scene = usdio.read_scene(stage)
+    result, stats = F.run_frames(stage, scene, [11, 12])
+    for st in stats:
+        dstates, _ = usdio.state_at(stage, scene, float(st.frame))
+        size = D.SurfaceGeometry(dstates[0].surface, dstates[0].xform, density=8).size
+        responded = D.SurfaceGeometry(result.frames[st.frame]["/World/Sheet"].surface, dstates[0].xform, density=8).size
+        assert st.iterations >= 2 and st.residual > 0
+        assert responded > size * (1 + 1e-3)  # the dent grew the box: the two scales differ
+        assert st.residual_rel == pytest.approx(st.residual / size, rel=1e-12)
+
+
 def test_two_runs_give_byte_identical_layers(tmp_path):
     scene = tmp_path / "box_into_sheet.py"
     shutil.copy(SCENE, scene)
