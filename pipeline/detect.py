@@ -493,10 +493,23 @@ def face_samples(geom: ColliderGeometry, bounds: np.ndarray, spacing: float) -> 
     on a barycentric grid of each triangle whose box meets it, at most ``spacing`` apart along
     each edge (vertices included). A collider's region holds only its mesh's vertices, 8 for a
     box: too few to say which part of the other surface its faces need cleared
-    (`frames.collider_points_for`)."""
+    (`frames.collider_points_for`).
+
+    A triangle longer than the box's diagonal is first split in four, repeatedly, keeping the
+    pieces whose box meets ``bounds``: the samples then cost the area inside the box, not the
+    triangle's (a floor 1e3 across at a spacing of 1e-2 would be 5e9 points)."""
     mesh = geom.static.mesh
     tri = apply_xform(geom.xform, mesh.vertices[mesh.faces].reshape(-1, 3)).reshape(-1, 3, 3)
-    tri = tri[_overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0)]
+    limit = max(float(np.linalg.norm(bounds[1] - bounds[0])), spacing)
+    while True:
+        tri = tri[_overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0)]
+        big = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1) > limit
+        if not big.any():
+            break
+        a, b, c = (tri[big][:, k] for k in range(3))
+        ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+        tri = np.concatenate([tri[~big], np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1),
+                              np.stack([ca, bc, c], 1), np.stack([ab, bc, ca], 1)])
     if not len(tri):
         return np.zeros((0, 3))
     steps = np.maximum(np.ceil(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1) / spacing), 1).astype(np.int64)

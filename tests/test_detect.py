@@ -677,3 +677,20 @@ def test_face_samples_cover_a_collider_at_the_spacing():
     half = D.face_samples(b, np.array([[0.0, -1.0, -1.0], [0.2, 1.0, 1.0]]), 0.05)  # the -x half
     assert len(half) and np.all(half[:, 0] <= 0.2 + 1e-12) and np.all(half[:, 0] >= 0.05 - 1e-12)
 
+
+
+def test_face_samples_of_a_huge_face_cost_only_the_part_in_the_bounds():
+    """A floor 2e3 across through a 0.2 box: the samples cover the floor inside the box at the
+    spacing, and their number is that part's, not the floor's (5e9 points unsplit)."""
+    floor = trimesh.Trimesh([[-1e3, -1e3, 0.0], [1e3, -1e3, 0.0], [1e3, 1e3, 0.0], [-1e3, 1e3, 0.0]],
+                            [[0, 1, 2], [0, 2, 3]], process=False)
+    g = D.ColliderGeometry(D.prepare_collider(ColliderModel("/Floor", floor.vertices, floor.faces)), np.eye(4))
+    bounds = np.array([[0.3, -0.1, -0.1], [0.5, 0.1, 0.1]])
+    t = time.perf_counter()
+    s = D.face_samples(g, bounds, 0.01)
+    assert time.perf_counter() - t < 5.0
+    assert np.all((s >= bounds[0]) & (s <= bounds[1])) and np.all(s[:, 2] == 0.0)
+    assert 21 * 21 <= len(s) < 20 * 21 * 21
+    rng = np.random.default_rng(5)
+    probe = np.column_stack([rng.uniform(0.3, 0.5, 400), rng.uniform(-0.1, 0.1, 400), np.zeros(400)])
+    assert np.linalg.norm(probe[:, None] - s[None], axis=2).min(axis=1).max() <= 0.01
