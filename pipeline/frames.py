@@ -132,6 +132,9 @@ def data_points_for(
     settled : float
         See ``region_depth``.
 
+    Against a collider, an open surface's patches at the region's rim take `rim_points` instead of
+    their middles (bug A: a C2 surface pinned only inside a box's outline curls up inside it).
+
     Returns
     -------
     DataPoints (object space of ``ga``), the world targets ``(K, 3)`` and the world points
@@ -408,7 +411,8 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
         return empty
     mids, _, inv = R._patch_groups(hs, cross, level)
     g = len(mids)
-    plane = np.stack([np.bincount(inv, s_hit[hit, c], g) for c in range(3)], axis=1) / np.bincount(inv, minlength=g)[:, None]
+    plane = np.stack([np.bincount(inv, s_hit[hit, c], g) for c in range(3)], axis=1)
+    plane /= np.bincount(inv, minlength=g)[:, None]  # mean hit of each patch's rim samples
     points = world(mids)
     ahead = (plane - points) @ unit
     keep = ahead > 0
