@@ -132,7 +132,7 @@ def data_points_for(
     settled : float
         See ``region_depth``.
 
-    Against a collider, an open surface's patches at the region's rim take `rim_points` instead of
+    Against a collider, the patches at the region's rim take `rim_points` instead of
     their middles (bug A: a C2 surface pinned only inside a box's outline curls up inside it).
 
     Returns
@@ -159,7 +159,7 @@ def data_points_for(
                 use = stalled[d_valid]
                 mids[use], a_world[use], hits[use] = deep[use], d_world[d_valid], d_hits[d_valid]
         wanted = R.additional_targets(a_world, hits, share)
-        if isinstance(gb, D.ColliderGeometry) and not ga.closed:
+        if isinstance(gb, D.ColliderGeometry):
             r_uv, r_world, r_goal = rim_points(ga, gb, region_uv, direction, group_level)
             if len(r_uv):  # a rim patch's point is its rim point, not its middle
                 valid &= ~np.isin(_patch_keys(ga.surface, mids, group_level), _patch_keys(ga.surface, r_uv, group_level))
