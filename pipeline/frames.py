@@ -27,7 +27,7 @@ from pipeline import shape as S
 from pipeline import usdio
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
-__all__ = ["FrameStats", "RunOptions", "run_frames", "data_points_for", "collider_points_for"]
+__all__ = ["FrameStats", "RunOptions", "run_frames", "data_points_for", "collider_points_for", "rim_points"]
 
 
 @dataclass(frozen=True)
@@ -132,6 +132,9 @@ def data_points_for(
     settled : float
         See ``region_depth``.
 
+    Against a collider, the patches at the region's rim take `rim_points` instead of
+    their middles (bug A: a C2 surface pinned only inside a box's outline curls up inside it).
+
     Returns
     -------
     DataPoints (object space of ``ga``), the world targets ``(K, 3)`` and the world points
@@ -155,10 +158,18 @@ def data_points_for(
                 d_hits, d_valid = D.cast(gb, d_world, np.broadcast_to(direction, d_world.shape))
                 use = stalled[d_valid]
                 mids[use], a_world[use], hits[use] = deep[use], d_world[d_valid], d_hits[d_valid]
+        wanted = R.additional_targets(a_world, hits, share)
+        if isinstance(gb, D.ColliderGeometry):
+            r_uv, r_world, r_goal = rim_points(ga, gb, region_uv, direction, group_level)
+            if len(r_uv):  # a rim patch's point is its rim point, not its middle
+                valid &= ~np.isin(_patch_keys(ga.surface, mids, group_level), _patch_keys(ga.surface, r_uv, group_level))
+                mids, a_world = np.concatenate([mids, r_uv]), np.concatenate([a_world, r_world])
+                wanted = np.concatenate([wanted, R.additional_targets(r_world, r_goal, share)])
+                valid = np.concatenate([valid, np.ones(len(r_uv), bool)])
         valid &= _spread(a_world, np.asarray(p_self, float), MEET * size)
         if np.any(valid):
             uvs.append(mids[valid])
-            targets.append(R.additional_targets(a_world[valid], hits[valid], share))
+            targets.append(wanted[valid])
             origins.append(a_world[valid])
     uv_all = np.concatenate(uvs)
     world = np.concatenate(targets)
@@ -299,6 +310,113 @@ def collider_points_for(
     go = move > 0
     b = a[go] + (move[go, None] + clear) * unit
     return mid[go], R.additional_targets(a[go], b, share), a[go]
+
+
+RIM_STEEP = 0.5  # |n·d| at most this: a collider face the surface must drop along (a box's side)
+RIM_FACING = 0.95  # |n·d| at least this: the face the region is pushed onto (a later round's sliver)
+RIM_BISECT = 6  # bisection steps locating a crossing between two samples (1/64 of the step)
+
+
+def _patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
+    """Level-``level`` patch of each of ``uv (k, 2) float64`` as one key ``(k,) int64``."""
+    su, _ = locate(hs.u, uv[:, 0], level)
+    sv, _ = locate(hs.v, uv[:, 1], level)
+    return su * hs.v.patches(level) + sv
+
+
+def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
+               level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Additional points at the rim of a surface's region in a collider, one sample step outside it
+    (an interpretation of thesis eq. 4.16, bug A in docs/hard-cases.md).
+
+    Eq. 4.16 pins the middle of each finest-level patch's inside part. Under a box the surface
+    must drop to the face it is pushed onto and rise again outside the box's outline; a C2 spline
+    pinned at patch middles inside the outline starts rising before it, so it curls up inside
+    the box between the last middle and the side face (case 2a: 2.85e-3 of the size deep between
+    detection's samples while they report 5.3e-4). These points move that transition outside.
+
+    Rim samples are region samples ``region_uv`` whose neighbour one grid step away (the
+    detection density of their level-0 patch, `detect.patch_density`) lies outside the collider;
+    the crossing on that step is found by bisection, and the point is the crossing moved one more
+    step outward. Its goal is on the plane through the rim samples' cast hits (along
+    ``direction``, as for the middles) normal to ``direction``: the face the region is pushed
+    onto, extended past the outline. Only crossings through a face steep to the push (a box's
+    side face, ``|n·d| <= RIM_STEEP``) or facing it (``>= RIM_FACING``: a later round's sliver on
+    that face, whose points hold the surface there) count: past a curved collider's flank the
+    extended plane lies inside what the collider needs (measured: `elbow_contact`'s dent 1.34
+    times the ball's depth, bound 1.3). Points already past the plane ask nothing and are
+    dropped. The points are grouped per level-``level`` patch (mean parameters and hits).
+
+    Parameters
+    ----------
+    region_uv : (k, 2) float64
+        Parameters of ``ga``'s samples inside ``gb``.
+    direction : (3,) float64
+        The push direction (world).
+
+    Returns
+    -------
+    uv : (r, 2) float64
+        One rim point per patch that holds crossings.
+    points : (r, 3) float64
+        Their world positions on the surface now.
+    goals : (r, 3) float64
+        World goals, to blend by eq. 4.15's share like the middles' hits.
+    """
+    hs = ga.surface
+    region_uv = np.asarray(region_uv, float).reshape(-1, 2)
+    empty = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3))
+    unit = np.asarray(direction, float) / np.linalg.norm(direction)
+    if not len(region_uv):
+        return empty
+    dens = D.patch_density(ga)
+    pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
+    pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
+    h = 1.0 / dens[pu, pv]
+    tree = cKDTree(D._wrap_uv(hs, region_uv))
+    src, out = [], []
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        n = region_uv + np.stack([du * h, dv * h], axis=1)
+        ok = np.ones(len(n), bool)
+        for c, d in enumerate((hs.u, hs.v)):
+            if not d.periodic:  # no neighbour past an open edge of the domain
+                ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
+        dist, _ = tree.query(D._wrap_uv(hs, n))
+        miss = ok & (dist > 1e-3 * h)
+        src.append(np.nonzero(miss)[0])
+        out.append(n[miss])
+    src, hi = np.concatenate(src), np.concatenate(out)
+    if not len(src):
+        return empty
+
+    def world(uv):
+        return apply_xform(ga.xform, H.evaluate(hs, *D._wrap_uv(hs, uv).T, det=ga.details).points)
+
+    outside = ~D.inside(gb, world(hi))  # a neighbour missing from the region may just be untessellated
+    src, hi = src[outside], hi[outside]
+    lo = region_uv[src]
+    if not len(src):
+        return empty
+    step = hi - lo
+    for _ in range(RIM_BISECT):
+        mid = 0.5 * (lo + hi)
+        m_in = D.inside(gb, world(mid))[:, None]
+        lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
+    face = gb.static.index.query(apply_inverse(gb.xform, world(hi)))[2]
+    nd = np.abs(D._world_normals(gb, gb.static.mesh.face_normals[face]) @ unit)
+    use = (nd <= RIM_STEEP) | (nd >= RIM_FACING)
+    s_hit, hit = D.cast(gb, world(region_uv[src[use]]), np.broadcast_to(unit, (int(use.sum()), 3)))
+    cross = D._wrap_uv(hs, (hi + step)[use][hit])
+    if not len(cross):
+        return empty
+    mids, _, inv = R._patch_groups(hs, cross, level)
+    g = len(mids)
+    plane = np.stack([np.bincount(inv, s_hit[hit, c], g) for c in range(3)], axis=1)
+    plane /= np.bincount(inv, minlength=g)[:, None]  # mean hit of each patch's rim samples
+    points = world(mids)
+    ahead = (plane - points) @ unit
+    keep = ahead > 0
+    return mids[keep], points[keep], points[keep] + ahead[keep, None] * unit
 
 
 def _spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarray:

@@ -274,3 +274,42 @@ def test_a_box_through_a_sphere_wall_takes_both_regions_to_its_inner_face():
     assert np.all(target[:, 0] <= 0.85 - 0.004 + 1e-12)
     # a patch centre moves by the largest lag of its samples: at most the wall's bulge past 0.85
     assert np.all(origin[:, 0] - target[:, 0] <= 1.0 - 0.85 + 0.004 + 1e-9)
+
+
+def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
+    """Bug A (docs/hard-cases.md): eq. 4.16's middles pin the surface only inside a box's outline,
+    and the C2 surface curls back up inside the box before the side face. `frames.rim_points`
+    puts a point one detection step outside each side-face crossing, aimed at the bottom face's
+    plane, so the rise happens outside. A curved collider's flank gives none (its plane extended
+    past the outline would cut into what the ball needs: `elbow_contact`)."""
+    import trimesh
+
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    cvs, _, _ = shapes.sheet(12, 12, width=4.0, depth=4.0)
+    sheet = D.SurfaceGeometry(H.from_grid(cvs, depth=3), np.eye(4), "/sheet")
+    lo, hi = np.array([-0.7, -0.9, -0.5]), np.array([0.9, 0.7, 0.5])
+    mesh = trimesh.creation.box(bounds=np.stack([lo, hi]))
+    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), np.eye(4))
+    region, _ = D.regions(sheet, box)
+    down = np.array([0.0, 0.0, -1.0])
+    uv, points, goals = F.rim_points(sheet, box, region.uv, down, 2)
+    step = 4.0 / 9 / 8  # one detection step (8 per level-0 patch edge) in world units
+    x, y = points[:, 0], points[:, 1]
+    beyond = np.maximum.reduce([lo[0] - x, x - hi[0], lo[1] - y, y - hi[1]])
+    assert len(uv) >= 4 * 3  # every side of the outline has rim points
+    # outside, one step past the crossing (bisected to 1/64 of the step): measured 0.022 to 0.0561
+    assert np.all(beyond > 0) and np.all(beyond <= step * (1 + 2.0**-F.RIM_BISECT) + 1e-9), beyond
+    np.testing.assert_allclose(goals[:, :2], points[:, :2], atol=1e-12)  # moved along the push
+    np.testing.assert_allclose(goals[:, 2], lo[2], atol=1e-9)  # onto the bottom face's plane
+    for side in (x < lo[0], x > hi[0], y < lo[1], y > hi[1]):
+        assert side.any()
+
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.45)
+    ball.apply_translation([0.1, -0.1, 0.3])  # 0.15 into the sheet
+    ball_geom = D.ColliderGeometry(D.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces)), np.eye(4))
+    region, _ = D.regions(sheet, ball_geom)
+    assert len(region.uv) and len(F.rim_points(sheet, ball_geom, region.uv, down, 2)[0]) == 0

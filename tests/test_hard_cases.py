@@ -262,10 +262,6 @@ def test_flat_box_half_deep_from_the_first_frame_clears_to_one_side(flat_half):
         assert p[under, 2].max() <= -0.5 + TOL * size or p[under, 2].min() >= 0.5 - TOL * size
 
 
-@pytest.mark.xfail(strict=True, reason="residual is measured only at detection's tessellation (8 steps per level-0 patch "
-                   "edge, 2 per level-2 patch): reported 5.3e-4 of the size, but the surface between those samples is "
-                   "still 2.85e-3 inside the box near its rim (64 steps); density=64 with 8 rounds clears it to 8.3e-4; "
-                   "finer detection grids alone make other cases report what they hide (docs/hard-cases.md bug A)")
 def test_flat_box_half_deep_is_cleared_between_detection_samples(flat_half):
     r, box, size = flat_half
     fr = r.frames["/World/Sheet"][1]
