@@ -20,6 +20,7 @@ import time
 
 from acra import hspline as H
 from acra import respond as R
+from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import frames as F
 from pipeline import shape as S
@@ -43,8 +44,10 @@ def _timed(label: str, f):
 
 def instrument() -> None:
     """Wrap the functions named in the table (module attributes, so internal calls are seen)."""
-    for name in ("intersect", "regions", "rewind", "touching", "cast", "project", "deepest_contact", "tessellate"):
+    for name in ("intersect", "regions", "touching", "cast", "project", "tessellate"):
         setattr(D, name, _timed(f"detect.{name}", getattr(D, name)))
+    for name in ("rewind", "deepest_contact"):
+        setattr(C, name, _timed(f"contact.{name}", getattr(C, name)))
     F.data_points_for = _timed("frames.data_points_for", F.data_points_for)
     F.grid_samples = _timed("display: tessellate.grid_samples", F.grid_samples)
     R.respond = _timed("respond.respond", R.respond)

@@ -22,6 +22,7 @@ from acra import hspline as H
 from acra import respond as R
 from acra.basis import locate
 from acra.tessellate import grid_samples, pole_normals
+from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import shape as S
 from pipeline import usdio
@@ -403,7 +404,7 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
         m_in = D.inside(gb, world(mid))[:, None]
         lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
     face = gb.static.index.query(apply_inverse(gb.xform, world(hi)))[2]
-    nd = np.abs(D._world_normals(gb, gb.static.mesh.face_normals[face]) @ unit)
+    nd = np.abs(D.world_normals(gb, gb.static.mesh.face_normals[face]) @ unit)
     use = (nd <= RIM_STEEP) | (nd >= RIM_FACING)
     s_hit, hit = D.cast(gb, world(region_uv[src[use]]), np.broadcast_to(unit, (int(use.sum()), 3)))
     cross = D._wrap_uv(hs, (hi + step)[use][hit])
@@ -442,10 +443,10 @@ def _spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarra
 MEET = 1e-3  # rewound contact points this close (fraction of the size) meet, whatever the run's tolerance
 
 
-def _deepest_instead(ga: D.SurfaceGeometry, gb: D.Geometry, c: D.PairContact) -> D.PairContact:
+def _deepest_instead(ga: D.SurfaceGeometry, gb: D.Geometry, c: C.PairContact) -> C.PairContact:
     """The contact of a later round between two deformables whose rewound contact points
     already meet while only one side has vertices inside the other: the deepest region vertex
-    and its closest point on the other surface (`detect.deepest_contact`).
+    and its closest point on the other surface (`contact.deepest_contact`).
 
     The first round moves the first-touch points onto a common target (eq. 4.15); once they
     meet (closer than the larger of the run's tolerance and `MEET`, so a run asked for 1e-9
@@ -456,7 +457,7 @@ def _deepest_instead(ga: D.SurfaceGeometry, gb: D.Geometry, c: D.PairContact) ->
     points of both sides carry the rest, and the first-touch pair keeps the rigidity split; a
     collider does not move, so the deformable's own additional points carry the rest (measured:
     the deepest pair there pushes sheets toward a box's side faces and slows convergence)."""
-    uv_a, uv_b, local_b, pa, pb = D.deepest_contact(ga, gb, c.region_a, c.region_b, c.intersections)
+    uv_a, uv_b, local_b, pa, pb = C.deepest_contact(ga, gb, c.region_a, c.region_b, c.intersections)
     return replace(c, uv_a=uv_a, uv_b=uv_b, local_b=local_b, point_a=pa, point_b=pb)
 
 
@@ -565,11 +566,11 @@ def _run_frames(stage, scene, frames, options, on_frame):
                     continue
                 gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
                 key = (i, other)
-                cache = caches.setdefault(key, D.RewindCache())
+                cache = caches.setdefault(key, C.RewindCache())
                 at = lambda t, i=i, other=other: (geometry(("d", i), t), geometry(other, t))  # noqa: E731
                 # without motion to rewind, the first round picks the way out the whole region
                 # needs least; later rounds clear what the response left, each vertex its nearest way
-                c = D.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache, whole=it == 0)
+                c = C.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache, whole=it == 0)
                 if c is None:
                     continue
                 # the contract's "object size": the deformable's own (the smaller one of two deformables)

@@ -7,6 +7,8 @@ import pytest
 
 from acra import hspline as H
 from acra import shapes
+from pipeline import detect as D
+from pipeline.model import ColliderModel
 
 
 def wavy_sheet(nu=8, nv=7, depth=4, seed=0):
@@ -40,6 +42,47 @@ def nudged(hs, level, rng, cv=None, scale=0.05):
 @pytest.fixture
 def sheet4():
     return wavy_sheet()
+
+
+# --- detection: a box collider, transforms, a sphere and a sheet, finite contacts ---------------
+
+# A box: vertex 4x + 2y + z has coordinate -1/+1 per bit; 12 triangles wound outward.
+BOX_VERTICES = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+BOX_TRIANGLES = np.array([
+    [0, 1, 3], [0, 3, 2],  # -x
+    [4, 6, 7], [4, 7, 5],  # +x
+    [0, 4, 5], [0, 5, 1],  # -y
+    [2, 3, 7], [2, 7, 6],  # +y
+    [0, 2, 6], [0, 6, 4],  # -z
+    [1, 5, 7], [1, 7, 3],  # +z
+])
+
+
+def box(half, path="/box"):
+    return D.prepare_collider(ColliderModel(path, BOX_VERTICES * half, BOX_TRIANGLES))
+
+
+def move(x=0.0, y=0.0, z=0.0):
+    m = np.eye(4)
+    m[:3, 3] = (x, y, z)
+    return m
+
+
+def sphere_geom(xform=None, name="/sphere"):
+    return D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14)), move() if xform is None else xform, name)
+
+
+def sheet_geom(n=10, width=7.0):
+    return D.SurfaceGeometry(H.from_grid(*shapes.sheet(n, n, width=width, depth=width)), move(), "/sheet")
+
+
+def assert_finite(contact):
+    for name in ("uv_a", "uv_b", "local_b", "point_a", "point_b"):
+        x = getattr(contact, name)
+        assert x is None or np.all(np.isfinite(x)), name
+    for reg in (contact.region_a, contact.region_b):
+        assert np.all(np.isfinite(reg.points)) and np.all(np.isfinite(reg.depth))
+    assert np.isfinite(contact.depth) and np.isfinite(contact.t_contact)
 
 
 # --- scenes: each scene file runs once per test session, through the same code as `acra run` ----

@@ -1,4 +1,4 @@
-"""Collision detection: broad phase, inside tests, rewound contacts, ray casts, residuals.
+"""Collision detection: broad phase, inside tests, ray casts, residuals, face samples.
 
 Run ``python tests/test_detect.py`` for the timings quoted in docs/detection.md.
 """
@@ -11,40 +11,11 @@ import trimesh
 
 from acra import hspline as H
 from acra import shapes
+from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import shape as S
 from pipeline.model import ColliderModel, apply_inverse
-from conftest import wavy_sheet, with_random_offsets
-
-# A box: vertex 4x + 2y + z has coordinate -1/+1 per bit; 12 triangles wound outward.
-BOX_VERTICES = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
-BOX_TRIANGLES = np.array([
-    [0, 1, 3], [0, 3, 2],  # -x
-    [4, 6, 7], [4, 7, 5],  # +x
-    [0, 4, 5], [0, 5, 1],  # -y
-    [2, 3, 7], [2, 7, 6],  # +y
-    [0, 2, 6], [0, 6, 4],  # -z
-    [1, 5, 7], [1, 7, 3],  # +z
-])
-
-
-def box(half, path="/box"):
-    return D.prepare_collider(ColliderModel(path, BOX_VERTICES * half, BOX_TRIANGLES))
-
-
-def move(x=0.0, y=0.0, z=0.0):
-    m = np.eye(4)
-    m[:3, 3] = (x, y, z)
-    return m
-
-
-def sphere_geom(xform=None, name="/sphere"):
-    return D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14)), move() if xform is None else xform, name)
-
-
-def sheet_geom(n=10, width=7.0):
-    return D.SurfaceGeometry(H.from_grid(*shapes.sheet(n, n, width=width, depth=width)), move(), "/sheet")
-
+from conftest import BOX_TRIANGLES, BOX_VERTICES, assert_finite, box, move, sheet_geom, sphere_geom, wavy_sheet, with_random_offsets
 
 def every_patch(hs):
     """All level-0 patches ``(P, 2) int64`` of ``hs``."""
@@ -77,15 +48,6 @@ def parity_inside(geom, points):
 def inradius(geom, centre):
     """Smallest distance from ``centre`` to ``geom``'s collision grids (brute force)."""
     return float(brute_closest(geom, np.asarray(centre, float)[None])[0])
-
-
-def assert_finite(contact):
-    for name in ("uv_a", "uv_b", "local_b", "point_a", "point_b"):
-        x = getattr(contact, name)
-        assert x is None or np.all(np.isfinite(x)), name
-    for reg in (contact.region_a, contact.region_b):
-        assert np.all(np.isfinite(reg.points)) and np.all(np.isfinite(reg.depth))
-    assert np.isfinite(contact.depth) and np.isfinite(contact.t_contact)
 
 
 def test_box_mesh_is_closed_and_outward():
@@ -180,7 +142,7 @@ def test_broad_phase_tessellates_only_patches_near_the_box():
     # [x0 + (p - 1), x0 + (p + 2)]: a box of half-size 0.1 at the corner x0 meets patches 0, 1.
     g = sheet_geom(n=20, width=17.0)
     b = D.ColliderGeometry(box(0.1), move(-8.5, -8.5, 0.0))
-    c = D.detect_pair(g, b)
+    c = C.detect_pair(g, b)
     assert c is not None and c.region_a.points.shape == (1, 3)  # the sheet's corner vertex
     np.testing.assert_allclose(c.region_a.points[0], [-8.5, -8.5, 0.0], atol=1e-12)
     assert c.depth == pytest.approx(0.1, abs=1e-12)
@@ -188,7 +150,7 @@ def test_broad_phase_tessellates_only_patches_near_the_box():
     assert "full" not in g.shape.__dict__  # the open sheet's full grid was never built
     # two spheres far apart: nothing is tessellated at all
     s1, s2 = sphere_geom(), sphere_geom(move(2.5, 0.3, 0.0), "/s2")
-    assert D.detect_pair(s1, s2) is None
+    assert C.detect_pair(s1, s2) is None
     assert D.tessellated(s1).size == 0 and D.tessellated(s2).size == 0
 
 
@@ -197,7 +159,7 @@ def test_box_wholly_inside_sphere_is_detected_without_fcl_contact():
     b = D.ColliderGeometry(box(0.2), move(0.1, -0.05, 0.08))
     assert D.intersect(s, b).count == 0  # fcl sees no crossing surfaces
     assert D.touching(s, b)
-    c = D.detect_pair(s, b)
+    c = C.detect_pair(s, b)
     assert c is not None and c.region_a.empty and c.region_b.points.shape == (8, 3)
     corners = BOX_VERTICES * 0.2 + [0.1, -0.05, 0.08]
     r = np.linalg.norm(c.region_b.points, axis=1)
@@ -222,7 +184,7 @@ def test_sphere_wholly_inside_a_rotated_scaled_collider_has_exact_depths():
     s = D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14, radii=(0.3, 0.3, 0.3), center=(0.1, 0.0, 0.0))), m)
     b = D.ColliderGeometry(box(1.0), m)
     assert D.intersect(s, b).count == 0
-    c = D.detect_pair(s, b)
+    c = C.detect_pair(s, b)
     assert c is not None and c.region_b.empty
     # every vertex is inside; a point inside a box is as deep as its nearest face plane
     all_uv = D.tessellate(s, np.argwhere(np.ones((16, 11), bool))).uv
@@ -244,7 +206,7 @@ def test_random_box_placements_give_consistent_finite_results(seed):
     rot = trimesh.transformations.random_rotation_matrix(rng.uniform(size=3))
     m = move(*rng.uniform(-1.2, 1.2, size=3)) @ rot
     b = D.ColliderGeometry(box(rng.uniform(0.05, 0.6)), m)
-    c = D.detect_pair(s, b)
+    c = C.detect_pair(s, b)
     res = D.residual(s, b)
     if c is None:
         assert res == D.Residual(0.0, 0.0, 0) and not D.touching(s, b)
@@ -257,160 +219,6 @@ def test_random_box_placements_give_consistent_finite_results(seed):
     assert np.all(np.abs(local) <= half + 1e-9)
     assert np.all(np.linalg.norm(c.region_b.points, axis=1) <= 1.0 + 1e-9)
     assert np.all(c.region_a.depth <= half + 1e-12) and np.all(c.region_b.depth >= 0.0)
-
-
-def jump_motion(sheet, collider):
-    """Box above the sheet until t = 10, 70 % through it from t = 11 on, linear in between."""
-
-    def geometry_at(t):
-        z = 0.7 + (-0.2 - 0.7) * float(np.clip(t - 10.0, 0.0, 1.0))
-        return sheet, D.ColliderGeometry(collider, move(0.3, 0.2, z))
-
-    return geometry_at
-
-
-def test_deep_jump_is_pushed_back_the_way_it_came():
-    sheet, collider = sheet_geom(), box(0.5)
-    geometry_at = jump_motion(sheet, collider)
-    cache = D.RewindCache()
-    results = {}
-    for t in (11.0, 14.0):
-        ga, gb = geometry_at(t)
-        c = D.detect_pair(ga, gb, t, geometry_at, start=0.0, cache=cache)
-        assert c is not None and c.rewound and c.region_b.empty  # the open sheet has no inside
-        # first touch when the bottom face (z = 0.2 - 0.9 (t - 10)) reaches the sheet
-        assert 10.0 + 2.0 / 9.0 - 1e-12 <= c.t_contact <= 10.0 + 2.0 / 9.0 + 2.0**-12
-        # the contact is on the box's bottom face, near its centre, the side it came from
-        assert c.local_b[2] == pytest.approx(-0.5, abs=1e-9)
-        assert np.abs(c.local_b[:2]).max() < 0.1
-        np.testing.assert_allclose(c.point_a, [0.3 + c.local_b[0], 0.2 + c.local_b[1], 0.0], atol=1e-9)
-        np.testing.assert_allclose(c.point_b, [0.3 + c.local_b[0], 0.2 + c.local_b[1], -0.7], atol=1e-9)
-        # the sheet must move with the box's motion (-z), to its bottom face, not through it
-        push = (c.point_b - c.point_a) / np.linalg.norm(c.point_b - c.point_a)
-        assert push @ [0.0, 0.0, -1.0] > 1.0 - 1e-9
-        hits, valid = D.cast(gb, c.region_a.points, np.broadcast_to(push, c.region_a.points.shape))
-        assert valid.all()
-        np.testing.assert_allclose(hits[:, 2], -0.7, atol=1e-9)
-        assert np.all(hits[:, 2] < c.region_a.points[:, 2])
-        results[t] = c
-    assert results[11.0].t_contact == results[14.0].t_contact
-    np.testing.assert_array_equal(results[11.0].local_b, results[14.0].local_b)
-    assert len(cache.anchors) == 1  # frame 14 reused the search of frame 11
-    # without rewinding, the deepest point's nearest face is the top one: it would push through
-    c = D.detect_pair(*geometry_at(11.0), 11.0)
-    assert not c.rewound and c.depth == pytest.approx(0.3, abs=1e-12)
-    assert c.point_b[2] - c.point_a[2] == pytest.approx(0.3, abs=1e-12)
-
-
-def test_a_box_through_up_to_its_far_face_is_deep_along_the_motion():
-    """A box that went through the sheet until its top face lies on it (bug D, docs/hard-cases.md):
-    depth 0 to the nearest face, but the motion since the first touch carried the sheet's contact
-    point a whole box height behind the bottom face it came in by. The sheet's vertices on the top
-    face join the region, and their casts along the push leave by the bottom face, not the top."""
-    sheet, collider = sheet_geom(), box(0.5)
-
-    def geometry_at(t):  # above until t = 10, top face on the sheet (z = -0.5) from t = 11 on
-        return sheet, D.ColliderGeometry(collider, move(0.3, 0.2, 0.7 - 1.2 * float(np.clip(t - 10.0, 0.0, 1.0))))
-
-    ga, gb = geometry_at(11.0)
-    assert not D.detect_pair(ga, gb, 11.0).region_a.points.size  # unrewound: nothing inside
-    c = D.detect_pair(ga, gb, 11.0, geometry_at, start=0.0)
-    assert c.rewound and c.depth == 0.0 and c.local_b[2] == pytest.approx(-0.5, abs=1e-9)
-    assert c.depth_along == pytest.approx(1.0, abs=1e-9) and c.penetration == c.depth_along
-    assert len(c.region_a.points) == 64 and np.all(c.region_a.depth == 0.0)  # the 8 x 8 under the face
-    np.testing.assert_allclose(c.region_a.points[:, 2], 0.0, atol=1e-12)
-    hits, valid = D.cast(gb, c.region_a.points, np.broadcast_to(c.point_b - c.point_a, c.region_a.points.shape))
-    inner = np.all(np.abs(c.region_a.points[:, :2] - [0.3, 0.2]) < 0.5 - 1e-6, axis=1)
-    assert valid[inner].all() and inner.sum() == 64
-    np.testing.assert_allclose(hits[inner, 2], -1.0, atol=1e-6)
-    # the same box pressed only 0.3 in: the motion and the nearest face agree, nothing added
-    c = D.detect_pair(*geometry_at(10.5), 10.5, geometry_at, start=0.0)
-    assert c.depth_along == pytest.approx(c.depth, abs=1e-9) and np.all(c.region_a.depth > 0.0)
-
-
-def test_collision_at_the_first_frame_falls_back_to_the_deepest_point():
-    sheet, collider = sheet_geom(), box(0.5)
-    geometry_at = jump_motion(sheet, collider)
-    c = D.detect_pair(*geometry_at(11.0), 11.0, geometry_at, start=11.0)
-    assert not c.rewound and c.t_contact == 11.0
-    assert c.point_a[2] == pytest.approx(0.0, abs=1e-12) and c.point_b[2] == pytest.approx(0.3, abs=1e-12)
-
-
-def test_the_whole_region_fallback_takes_the_way_out_it_needs_least():
-    """A unit cube centred on a sheet (bug E, docs/hard-cases.md): every sheet vertex inside is
-    nearer a side face than the top or bottom (0.5 away), so the deepest vertex's nearest way out
-    is sideways, where the far side of the region must travel up to 1.0. The whole region leaves
-    by the top or the bottom at 0.5. A 0.3 box inside a sphere leaves along one of its face
-    normals (1.127 for its far corners) rather than through a corner (1.26)."""
-    sheet = D.SurfaceGeometry(H.from_grid(*shapes.sheet(12, 12, width=4.0, depth=4.0)), move(), "/sheet")
-    cube = D.ColliderGeometry(box(0.5), move(0.1, -0.1, 0.0))
-    near = D.detect_pair(sheet, cube)
-    assert abs(near.point_b[2] - near.point_a[2]) < 1e-12  # the old rule: a side face
-    c = D.detect_pair(sheet, cube, whole=True)
-    assert not c.rewound and c.region_a.max_depth < 0.5 - 1e-3
-    push = c.point_b - c.point_a
-    np.testing.assert_allclose(np.abs(push), [0.0, 0.0, 0.5], atol=1e-12)
-    assert np.all(np.abs(c.point_a[:2] - [0.1, -0.1]) < 0.1)  # central among the tied vertices
-    assert D.detect_pair(sheet, cube, whole=True).point_b.tolist() == c.point_b.tolist()  # deterministic
-    s, inner = sphere_geom(), D.ColliderGeometry(box(0.15), move())
-    c = D.detect_pair(s, inner, whole=True)
-    push = (c.point_b - c.point_a) / np.linalg.norm(c.point_b - c.point_a)  # the sphere's wall moves in
-    assert np.sort(np.abs(push))[-1] > 1.0 - 1e-9
-    # a far corner's travel to the wall along an axis (the unit sphere's, tessellated: within 2e-3)
-    assert np.linalg.norm(c.point_b - c.point_a) == pytest.approx(np.sqrt(1.0 - 2 * 0.15**2) + 0.15, abs=2e-3)
-
-
-def test_two_spheres_rewound_to_the_poles_that_met():
-    hs = H.from_grid(*shapes.sphere(16, 14))
-    a = D.SurfaceGeometry(hs, move(), "/a")
-
-    def geometry_at(t):  # B falls from z = 2.3 to 1.9 between frames 10 and 11
-        return a, D.SurfaceGeometry(hs, move(0.0, 0.0, 2.3 - 0.4 * float(np.clip(t - 10.0, 0.0, 1.0))), "/b")
-
-    c = D.detect_pair(*geometry_at(11.0), 11.0, geometry_at, start=0.0)
-    assert c is not None and c.rewound and c.a == "/a" and c.b == "/b"
-    # the pole vertices are the tessellations' extreme points: they meet when B's centre is at z = 2
-    assert 10.75 <= c.t_contact <= 10.75 + 2.0**-12
-    assert c.uv_a[1] == pytest.approx(11.0, abs=1e-3) and c.uv_b[1] == pytest.approx(0.0, abs=1e-3)
-    np.testing.assert_allclose(c.point_a, [0.0, 0.0, 1.0], atol=1e-6)
-    np.testing.assert_allclose(c.point_b, [0.0, 0.0, 0.9], atol=1e-6)  # B's south pole, now 0.1 deep
-    assert c.depth == pytest.approx(0.1, abs=1e-3) and not c.region_a.empty and not c.region_b.empty
-    # A's inside points cast along P_A -> P_B reach B's surface below them
-    hits, valid = D.cast(geometry_at(11.0)[1], c.region_a.points, np.broadcast_to(c.point_b - c.point_a, c.region_a.points.shape))
-    assert valid.all() and np.all(hits[:, 2] < c.region_a.points[:, 2])
-
-
-@pytest.mark.parametrize("rewind", [False, True])
-def test_grazing_contact(rewind):
-    s, collider = sphere_geom(), box(1.0)
-    depth = 1e-6 * 2.0  # of the sphere's diameter
-
-    def geometry_at(t):
-        z = 3.0 + (2.0 - depth - 3.0) * float(np.clip(t - 10.0, 0.0, 1.0))
-        return s, D.ColliderGeometry(collider, move(0.0, 0.0, z))
-
-    c = D.detect_pair(*geometry_at(11.0), 11.0, geometry_at if rewind else None, start=0.0)
-    assert c is not None  # the pole vertex is exactly at z = 1
-    assert_finite(c)
-    assert c.depth == pytest.approx(depth, abs=1e-12)
-    np.testing.assert_allclose(c.point_a, [0.0, 0.0, 1.0], atol=1e-9)
-    if rewind:
-        assert c.rewound and 11.0 - 2.0**-12 <= c.t_contact <= 11.0
-        assert abs(c.local_b[2] + 1.0) < 1e-9
-    else:
-        assert c.point_b[2] == pytest.approx(1.0 - depth, abs=1e-12)
-
-
-@pytest.mark.parametrize("rewind", [False, True])
-def test_coplanar_face_on_the_sheet_gives_finite_output(rewind):
-    sheet, collider = sheet_geom(), box(0.5)
-    gb = D.ColliderGeometry(collider, move(0.3, 0.2, 0.5))  # bottom face lies on the sheet
-    assert D.touching(sheet, gb)
-    c = D.detect_pair(sheet, gb, 5.0, (lambda t: (sheet, gb)) if rewind else None, start=0.0)
-    assert c is not None and not c.rewound  # always touching: no earlier free time
-    assert_finite(c)
-    assert c.depth <= 1e-12 and c.intersections.count > 0
-    assert abs(c.point_a[2]) < 1e-12 and abs(c.point_b[2]) < 1e-12
 
 
 def analytic_hits(origins, dirs, radius):
@@ -520,12 +328,12 @@ def benchmark():
         def geometry_at(t, pair=pair, a=start_z, b=end_z):
             return pair(a + (b - a) * float(np.clip(t - 10.0, 0.0, 1.0)))
 
-        warm = D.RewindCache()
-        D.detect_pair(*pair(), 11.0, geometry_at, start=0.0, cache=warm)
+        warm = C.RewindCache()
+        C.detect_pair(*pair(), 11.0, geometry_at, start=0.0, cache=warm)
         rows = {
-            "detect_pair (fallback, fresh geometry)": lambda: D.detect_pair(*pair(), 11.0),
-            "detect_pair (rewound, fresh cache)": lambda: D.detect_pair(*pair(), 11.0, geometry_at, start=0.0),
-            "detect_pair (rewound, warm cache)": lambda: D.detect_pair(*pair(), 11.0, geometry_at, start=0.0, cache=warm),
+            "detect_pair (fallback, fresh geometry)": lambda: C.detect_pair(*pair(), 11.0),
+            "detect_pair (rewound, fresh cache)": lambda: C.detect_pair(*pair(), 11.0, geometry_at, start=0.0),
+            "detect_pair (rewound, warm cache)": lambda: C.detect_pair(*pair(), 11.0, geometry_at, start=0.0, cache=warm),
             "residual (fresh geometry)": lambda: D.residual(*pair()),
             "cast 100 rays onto B (fresh geometry)": lambda: D.cast(pair()[1], rays * 0.1 + [0, 0, 1.0], rays),
             "touching (fresh geometry)": lambda: D.touching(*pair()),
