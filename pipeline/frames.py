@@ -374,6 +374,7 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
     pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
     pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
     h = 1.0 / dens[pu, pv]
+    off = (1.0 / ga.shape.rim_density_map[pu, pv])[:, None]  # outward offset, independent of PER_FINEST
     tree = cKDTree(D._wrap_uv(hs, region_uv))
     src, out = [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
@@ -398,7 +399,7 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
     lo = region_uv[src]
     if not len(src):
         return empty
-    step = hi - lo
+    step = (hi - lo) / h[src][:, None] * off[src]
     for _ in range(RIM_BISECT):
         mid = 0.5 * (lo + hi)
         m_in = D.inside(gb, world(mid))[:, None]
