@@ -353,8 +353,8 @@ def _edge_on_outline(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: n
 
 def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
                level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Additional points at the rim of a surface's region in a collider, one sample step outside it
-    (an interpretation of thesis eq. 4.16, bug A in docs/hard-cases.md).
+    """Additional points at the rim of a surface's region in a collider, half a finest-level patch
+    outside it (an interpretation of thesis eq. 4.16, bug A in docs/hard-cases.md).
 
     Eq. 4.16 pins the middle of each finest-level patch's inside part. Under a box the surface
     must drop to the face it is pushed onto and rise again outside the box's outline; a C2 spline
@@ -364,8 +364,10 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
 
     Rim samples are region samples ``region_uv`` whose neighbour one grid step away (the
     detection density of their level-0 patch, `detect.patch_density`) lies outside the collider;
-    the crossing on that step is found by bisection, and the point is the crossing moved one more
-    step outward. Its goal is on the plane through the rim samples' cast hits (along
+    the crossing on that step is found by bisection, and the point is the crossing moved outward
+    by one step of `Shape.rim_density_map` (``2 * 2**k`` per level-0 patch edge: half a finest
+    patch, the detection step before detection went to ``4 * 2**k``; half that offset left the
+    curl, docs/hard-cases.md). Its goal is on the plane through the rim samples' cast hits (along
     ``direction``, as for the middles) normal to ``direction``: the face the region is pushed
     onto, extended past the outline. Only crossings through a face steep to the push (a box's
     side face, ``|n·d| <= RIM_STEEP``) or facing it (``>= RIM_FACING``: a later round's sliver on
