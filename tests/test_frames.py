@@ -313,3 +313,75 @@ def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
     ball_geom = D.ColliderGeometry(D.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces)), np.eye(4))
     region, _ = D.regions(sheet, ball_geom)
     assert len(region.uv) and len(F.rim_points(sheet, ball_geom, region.uv, down, 2)[0]) == 0
+
+
+def _box_geom(lo, hi):
+    import trimesh
+
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    mesh = trimesh.creation.box(bounds=np.stack([lo, hi]))
+    return D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), np.eye(4))
+
+
+def test_rim_points_keep_half_a_finest_patch_outside_whatever_the_detection_step():
+    """Detection samples 4 steps per finest active patch edge (`shape.PER_FINEST`, bug A's
+    second half); the rim points stay half a finest patch outside the crossing
+    (`Shape.rim_density_map`), not one detection step: one step of the finer grid is the
+    "0.5 step" of docs/hard-cases.md that left the curl (measured: case 2d then reported 1.05e-3
+    and case 9b 1.14e-3 after 4 rounds)."""
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+
+    cvs, _, _ = shapes.sheet(12, 12, width=4.0, depth=4.0)
+    hs = H.refine(H.from_grid(cvs, depth=3), 2, [[i, j] for i in range(8, 28) for j in range(8, 28)])
+    sheet = D.SurfaceGeometry(hs, np.eye(4), "/sheet")
+    lo, hi = np.array([-0.7, -0.9, -0.5]), np.array([0.9, 0.7, 0.5])
+    box = _box_geom(lo, hi)
+    patch = 4.0 / 9  # a level-0 patch edge in world units (the sheet is linear in u, v)
+    assert D.patch_density(sheet).max() == 16 and sheet.shape.rim_density_map.max() == 8
+    region, _ = D.regions(sheet, box)
+    uv, points, goals = F.rim_points(sheet, box, region.uv, np.array([0.0, 0.0, -1.0]), 2)
+    x, y = points[:, 0], points[:, 1]
+    sides = np.stack([lo[0] - x, x - hi[0], lo[1] - y, y - hi[1]])
+    beyond = sides.max(axis=0)[(sides > 0).sum(axis=0) == 1]  # not a corner patch's mean of two sides
+    assert len(beyond) >= 4 * 3
+    # the crossing (outside, bisected to 1/64 of the 1/16 step) plus 1/8 of a patch
+    assert np.all(beyond >= patch / 8 - 1e-9) and np.all(beyond <= patch / 8 + patch / 16 * 2.0**-F.RIM_BISECT + 1e-9), beyond
+    np.testing.assert_allclose(goals[:, 2], lo[2], atol=1e-9)
+
+
+def test_rim_points_hold_a_collapsed_edge_lying_on_a_side_face():
+    """Case 10a: a fan's apex (its v = 0 edge collapsed to one point) lies on a box's side face
+    y = -1.5. No neighbour step crosses the outline there, so before `frames._edge_on_outline`
+    the apex had no rim point and the middles left it above the bottom face (1.43e-3 of the size
+    deep beside it between the samples). Now the apex samples give a point at the apex aimed at
+    the bottom face; an apex deep inside the box gives none (left to the middles, as at a pole)."""
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+
+    n = 8
+    cvs, _, _ = shapes.sheet(n, n, width=3.0, depth=3.0)
+    cvs[:, :, 0] *= ((np.arange(n) - 1.0) / (n - 3))[None, :]
+    cvs[:, 0, 0] = -cvs[:, 2, 0]
+    fan = D.SurfaceGeometry(H.from_grid(cvs, depth=3), np.eye(4), "/fan")
+    apex = H.evaluate(fan.surface, np.array([2.0]), np.array([0.0])).points[0]
+    np.testing.assert_allclose(apex[:2], [0.0, -1.5], atol=1e-12)
+    down = np.array([0.0, 0.0, -1.0])
+    # the box's face 1e-8 past the apex, as the float32 corners of case 10a put it (on the face
+    # exactly, the apex is outside and the neighbouring samples' crossing already lands on it)
+    for y0, expect in ((-1.5 - 1e-8, True), (-1.6, False)):
+        lo, hi = np.array([-0.3, y0, -0.1]), np.array([0.3, y0 + 0.6, 0.5])
+        box = _box_geom(lo, hi)
+        region, _ = D.regions(fan, box)
+        on_apex = np.abs(region.uv[:, 1]) <= 1e-9
+        assert on_apex.any()
+        rows = F._edge_on_outline(fan, box, region.uv)
+        assert (len(rows) > 0) == expect and np.all(on_apex[rows])
+        uv, points, goals = F.rim_points(fan, box, region.uv, down, 2)
+        at_apex = np.linalg.norm(points - apex, axis=1) <= 1e-9
+        assert at_apex.any() == expect, (y0, uv)
+        np.testing.assert_allclose(goals[at_apex, 2], lo[2], atol=1e-9)
