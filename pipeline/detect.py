@@ -155,8 +155,8 @@ Geometry = Union[SurfaceGeometry, ColliderGeometry]
 
 
 def patch_density(geom: SurfaceGeometry) -> np.ndarray:
-    """Steps per edge of each level-0 patch ``(P0u, P0v) int64``: ``max(density, PER_FINEST * 2**k)``, ``k``
-    the finest level with an active patch inside it (`shape.PER_FINEST` = 4), capped at ``max_density``."""
+    """Steps per edge of each level-0 patch ``(P0u, P0v) int64``: ``max(density, 2 * 2**k)``, ``k``
+    the finest level with an active patch inside it, capped at ``max_density``."""
     return geom.shape.density_map
 
 

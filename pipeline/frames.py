@@ -325,36 +325,10 @@ def _patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
     return su * hs.v.patches(level) + sv
 
 
-def _edge_on_outline(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray) -> np.ndarray:
-    """Rows ``(e,) int64`` of ``region_uv (k, 2) float64`` that lie on an open edge of the
-    surface's domain and within `MEET` of the size from the collider's surface.
-
-    Such a sample is where the surface itself ends on the collider's outline: case 10a's apex (a
-    collapsed edge, one point) lies on the box's side face y = -1.5. No neighbour step crosses
-    the outline there (the step would leave the domain), so `rim_points` had no point for it and
-    the middles, half a finest patch away, left the apex above the face the region is pushed
-    onto: between detection's samples 1.43e-3 of the size deep beside it, 1.04e-3 seen at 4
-    steps per finest patch edge after 4 rounds (8.38e-4 with these points, 8.60e-4 at 64 steps).
-    An edge sample deeper inside the collider (a pole pushed into a box, case 5) is left to the
-    middles (measured with every edge sample: case 5a 1.02e-3 at 64 steps against 5.40e-4,
-    case 10b 1.06e-3 reported)."""
-    hs = ga.surface
-    edge = np.zeros(len(region_uv), bool)
-    for c, d in enumerate((hs.u, hs.v)):
-        if not d.periodic:
-            edge |= (np.abs(region_uv[:, c]) <= 1e-9) | (np.abs(region_uv[:, c] - d.patches0) <= 1e-9)
-    rows = np.nonzero(edge)[0]
-    if not len(rows):
-        return rows
-    p = apply_xform(ga.xform, H.evaluate(hs, *D._wrap_uv(hs, region_uv[rows]).T, det=ga.details).points)
-    close = apply_xform(gb.xform, gb.static.index.query(apply_inverse(gb.xform, p))[1])
-    return rows[np.linalg.norm(close - p, axis=1) <= MEET * ga.size]
-
-
 def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
                level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Additional points at the rim of a surface's region in a collider, half a finest-level patch
-    outside it (an interpretation of thesis eq. 4.16, bug A in docs/hard-cases.md).
+    """Additional points at the rim of a surface's region in a collider, one sample step outside it
+    (an interpretation of thesis eq. 4.16, bug A in docs/hard-cases.md).
 
     Eq. 4.16 pins the middle of each finest-level patch's inside part. Under a box the surface
     must drop to the face it is pushed onto and rise again outside the box's outline; a C2 spline
@@ -364,19 +338,15 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
 
     Rim samples are region samples ``region_uv`` whose neighbour one grid step away (the
     detection density of their level-0 patch, `detect.patch_density`) lies outside the collider;
-    the crossing on that step is found by bisection, and the point is the crossing moved outward
-    by one step of `Shape.rim_density_map` (``2 * 2**k`` per level-0 patch edge: half a finest
-    patch, the detection step before detection went to ``4 * 2**k``; half that offset left the
-    curl, docs/hard-cases.md). Its goal is on the plane through the rim samples' cast hits (along
+    the crossing on that step is found by bisection, and the point is the crossing moved one more
+    step outward. Its goal is on the plane through the rim samples' cast hits (along
     ``direction``, as for the middles) normal to ``direction``: the face the region is pushed
     onto, extended past the outline. Only crossings through a face steep to the push (a box's
     side face, ``|n·d| <= RIM_STEEP``) or facing it (``>= RIM_FACING``: a later round's sliver on
     that face, whose points hold the surface there) count: past a curved collider's flank the
     extended plane lies inside what the collider needs (measured: `elbow_contact`'s dent 1.34
     times the ball's depth, bound 1.3). Points already past the plane ask nothing and are
-    dropped. A region sample on an open edge of the domain that lies on the collider's outline
-    (`_edge_on_outline`) counts as a crossing itself, with no step outward. The points are
-    grouped per level-``level`` patch (mean parameters and hits).
+    dropped. The points are grouped per level-``level`` patch (mean parameters and hits).
 
     Parameters
     ----------
@@ -404,7 +374,6 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
     pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
     pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
     h = 1.0 / dens[pu, pv]
-    off = (1.0 / ga.shape.rim_density_map[pu, pv])[:, None]  # outward offset, independent of PER_FINEST
     tree = cKDTree(D._wrap_uv(hs, region_uv))
     src, out = [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
@@ -418,28 +387,22 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
         src.append(np.nonzero(miss)[0])
         out.append(n[miss])
     src, hi = np.concatenate(src), np.concatenate(out)
+    if not len(src):
+        return empty
 
     def world(uv):
         return apply_xform(ga.xform, H.evaluate(hs, *D._wrap_uv(hs, uv).T, det=ga.details).points)
 
-    e_src = _edge_on_outline(ga, gb, region_uv)
-    if not len(src) and not len(e_src):
-        return empty
-    if len(src):
-        outside = ~D.inside(gb, world(hi))  # a neighbour missing from the region may just be untessellated
-        src, hi = src[outside], hi[outside]
+    outside = ~D.inside(gb, world(hi))  # a neighbour missing from the region may just be untessellated
+    src, hi = src[outside], hi[outside]
     lo = region_uv[src]
-    step = (hi - lo) / h[src][:, None] * off[src]
-    for _ in range(RIM_BISECT if len(src) else 0):
+    if not len(src):
+        return empty
+    step = hi - lo
+    for _ in range(RIM_BISECT):
         mid = 0.5 * (lo + hi)
         m_in = D.inside(gb, world(mid))[:, None]
         lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
-    # an open edge of the domain on the outline is a crossing of its own, with no step outward
-    src = np.concatenate([src, e_src]).astype(np.int64)
-    hi = np.concatenate([hi.reshape(-1, 2), region_uv[e_src]])
-    step = np.concatenate([step.reshape(-1, 2), np.zeros((len(e_src), 2))])
-    if not len(src):
-        return empty
     face = gb.static.index.query(apply_inverse(gb.xform, world(hi)))[2]
     nd = np.abs(D.world_normals(gb, gb.static.mesh.face_normals[face]) @ unit)
     use = (nd <= RIM_STEEP) | (nd >= RIM_FACING)

@@ -33,7 +33,6 @@ from acra.tessellate import patch_grids, patch_hulls
 __all__ = ["PatchGrid", "GridSet", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh", "overlap"]
 
 COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
-PER_FINEST = 4  # detection steps per finest active patch edge (`Shape.density_map`; bug A: 2 hid the curl between samples)
 _US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see Closest
 
 
@@ -242,27 +241,16 @@ class Shape:
         return lo, hi
 
     @cached_property
-    def finest_map(self) -> np.ndarray:
-        """Finest level ``k`` with an active patch inside each level-0 patch ``(P0u, P0v) int64``."""
+    def density_map(self) -> np.ndarray:
+        """Steps per edge of each level-0 patch ``(P0u, P0v) int64``: ``max(density, 2 * 2**k)``,
+        ``k`` the finest level with an active patch inside it, capped at ``max_density``."""
         hs = self.surface
         finest = np.zeros((hs.u.patches0, hs.v.patches0), np.int64)
         for lev in hs.fine:
             if lev.patches.size:
                 npv = hs.v.patches(lev.k)
                 finest[(lev.patches // npv) >> lev.k, (lev.patches % npv) >> lev.k] = lev.k
-        return finest
-
-    @cached_property
-    def density_map(self) -> np.ndarray:
-        """Steps per edge of each level-0 patch ``(P0u, P0v) int64``: ``max(density, PER_FINEST * 2**k)``,
-        ``k`` the finest level with an active patch inside it (`finest_map`), capped at ``max_density``."""
-        return np.minimum(np.maximum(self.density, PER_FINEST * (1 << self.finest_map)), self.max_density)
-
-    @cached_property
-    def rim_density_map(self) -> np.ndarray:
-        """Steps per edge of each level-0 patch ``(P0u, P0v) int64`` that set the outward offset of
-        rim points (`frames.rim_points`): ``max(density, 2 * 2**k)``, capped at ``max_density``."""
-        return np.minimum(np.maximum(self.density, 2 * (1 << self.finest_map)), self.max_density)
+        return np.minimum(np.maximum(self.density, 2 * (1 << finest)), self.max_density)
 
     @cached_property
     def closed(self) -> bool:

@@ -115,9 +115,9 @@ def test_a_reversed_surface_still_has_its_inside_inside():
 
 def test_grids_of_a_refined_sphere_lie_on_it():
     hs = H.from_grid(*shapes.sphere(8, 8), depth=4)
-    hs = H.make_movable(hs, 3, [[20, 20]])  # level-0 patch (2, 2) and its neighbours get 4 * 2**3 steps
+    hs = H.make_movable(hs, 3, [[20, 20]])  # level-0 patch (2, 2) and its neighbours get 16 steps
     g = D.SurfaceGeometry(with_random_offsets(hs), move(5.0, -2.0, 1.0))
-    assert D.patch_density(g).max() == 32
+    assert D.patch_density(g).max() == 16
     tess = D.tessellate(g, every_patch(g.surface))
     np.testing.assert_allclose(D.surface_points(g, tess.uv).points, tess.points, atol=1e-12)
     assert len(tess.points) == sum((s + 1) ** 2 for s in D.patch_density(g).reshape(-1))
@@ -131,9 +131,9 @@ def test_patch_density_follows_refinement():
     hs = H.refine(hs, 3, [[10, 10]])  # inside level-0 patch (1, 1)
     g = D.SurfaceGeometry(hs, move())
     dens = D.patch_density(g)
-    assert dens[1, 1] == 4 * 2**3 and dens.sum() == 8 * (dens.size - 1) + 32  # 4 steps per level-3 patch edge
+    assert dens[1, 1] == 16 and dens.sum() == 8 * (dens.size - 1) + 16
     tess = D.tessellate(g, [[1, 1], [0, 0]])
-    assert tess.points.shape == (33 * 33 + 9 * 9, 3) and tess.triangles.shape == (2 * 1024 + 2 * 64, 3)
+    assert tess.points.shape == (17 * 17 + 9 * 9, 3) and tess.triangles.shape == (2 * 256 + 2 * 64, 3)
     np.testing.assert_allclose(tess.points, H.evaluate(hs, tess.uv[:, 0], tess.uv[:, 1]).points, atol=1e-14)
 
 
