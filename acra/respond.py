@@ -32,6 +32,8 @@ __all__ = [
     "check_controls",
     "DataPoints",
     "rigidity_share",
+    "patch_keys",
+    "patch_groups",
     "contact_targets",
     "additional_targets",
     "region_midpoints",
@@ -176,7 +178,7 @@ def region_midpoints(hs: H.HSpline, uv_inside: np.ndarray, level: int) -> tuple[
     patches : (g, 2) int64
         The patch of each point.
     """
-    mids, patches, _ = _patch_groups(hs, uv_inside, level)
+    mids, patches, _ = patch_groups(hs, uv_inside, level)
     return mids, patches
 
 
@@ -203,20 +205,26 @@ def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, leve
     """
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     depth = np.asarray(depth, np.float64).reshape(-1)
-    _, _, inv = _patch_groups(hs, uv_inside, level)
+    _, _, inv = patch_groups(hs, uv_inside, level)
     order = np.lexsort((depth, inv))  # by patch, deepest last
     last = np.r_[inv[order][1:] != inv[order][:-1], True] if order.size else np.zeros(0, bool)
     return uv_inside[order[last]], depth[order[last]]
 
 
-def _patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int):
+def patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
+    """Level-``level`` patch of each of ``uv (n, 2) float64`` as one key ``(n,) int64``
+    (``su * patches_v + sv``)."""
+    su, _ = locate(hs.u, uv[:, 0], level)
+    sv, _ = locate(hs.v, uv[:, 1], level)
+    return su * hs.v.patches(level) + sv
+
+
+def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int):
     """`region_midpoints` plus the group of each input point: ``inv (n,) int64``."""
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     if uv_inside.shape[0] == 0:
         return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    su, _ = locate(hs.u, uv_inside[:, 0], level)
-    sv, _ = locate(hs.v, uv_inside[:, 1], level)
-    keys = su * hs.v.patches(level) + sv
+    keys = patch_keys(hs, uv_inside, level)
     uniq, inv = np.unique(keys, return_inverse=True)
     mids = np.zeros((uniq.size, 2))
     for col, d in ((0, hs.u), (1, hs.v)):
@@ -535,7 +543,7 @@ def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarra
     extra = ~is_contact
     if not np.any(extra):
         return uv, want
-    mids, _, inv = _patch_groups(hs, uv[extra], level)
+    mids, _, inv = patch_groups(hs, uv[extra], level)
     g = mids.shape[0]
     moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
     moves /= np.bincount(inv, minlength=g)[:, None]

@@ -30,7 +30,7 @@ __all__ = [
     "Tessellation", "Intersections", "Region", "Projection", "Residual", "patch_density",
     "candidate_patches", "tessellate", "tessellated", "is_closed", "intersect", "inside",
     "surface_distance", "surface_points", "project", "regions", "touching", "with_on_surface",
-    "pair_pad", "world_normals", "residual", "cast", "default_tolerance", "face_samples",
+    "pair_pad", "world_normals", "wrap_uv", "residual", "cast", "default_tolerance", "face_samples",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -330,7 +330,9 @@ class Projection:
     local: np.ndarray | None
 
 
-def _wrap_uv(hs: HSpline, uv: np.ndarray) -> np.ndarray:
+def wrap_uv(hs: HSpline, uv: np.ndarray) -> np.ndarray:
+    """Parameters ``uv (k, 2) float64`` into the domain: wrapped in a periodic direction,
+    clamped in an open one."""
     out = uv.copy()
     for c, d in enumerate((hs.u, hs.v)):
         out[:, c] = np.mod(out[:, c], d.patches0) if d.periodic else np.clip(out[:, c], 0.0, d.patches0)
@@ -349,7 +351,7 @@ def _newton(geom: SurfaceGeometry, targets: np.ndarray, uv: np.ndarray, iters: i
     """Newton on ``|S(u, v) - target|^2 / 2`` with the full Hessian ``J^T J + r . S''`` (Gauss–Newton
     is only linear, rate depth / curvature radius, deep on the concave side), shifted positive; a
     step is kept if it gets closer or, the distance flat to rounding, shrinks the gradient."""
-    hs, uv = geom.surface, _wrap_uv(geom.surface, uv)
+    hs, uv = geom.surface, wrap_uv(geom.surface, uv)
     ev = surface_points(geom, uv, order=2)
     r = ev.points - targets
     dist = np.linalg.norm(r, axis=1)
@@ -368,7 +370,7 @@ def _newton(geom: SurfaceGeometry, targets: np.ndarray, uv: np.ndarray, iters: i
         Hs += np.maximum(1e-9 * np.trace(Hs, axis1=1, axis2=2) + 1e-300 - lo, 0.0)[:, None, None] * np.eye(2)
         step = -np.linalg.solve(Hs, g[..., None])[..., 0]
         step *= np.minimum(1.0, cap / np.maximum(np.linalg.norm(step, axis=1), 1e-300))[:, None]
-        cand = _wrap_uv(hs, uv + step)
+        cand = wrap_uv(hs, uv + step)
         ec = surface_points(geom, cand, order=2)
         rc = ec.points - targets
         dc, gc = np.linalg.norm(rc, axis=1), grad(ec, rc)
@@ -419,7 +421,7 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
         pts, uv = geom.vertices, None
     else:
         tess = tessellate(geom, candidate_patches(geom, bounds, pad))
-        _, first = np.unique(_wrap_uv(geom.surface, tess.uv), axis=0, return_index=True)
+        _, first = np.unique(wrap_uv(geom.surface, tess.uv), axis=0, return_index=True)
         pts, uv = tess.points[first], tess.uv[first]
     keep = np.all((pts >= bounds[0] - pad) & (pts <= bounds[1] + pad), axis=1)
     return pts[keep], None if uv is None else uv[keep]

@@ -15,12 +15,12 @@ from typing import Callable
 
 import numpy as np
 from pxr import Usd
+from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from acra import hspline as H
 from acra import respond as R
-from acra.basis import locate
 from acra.tessellate import grid_samples, pole_normals
 from pipeline import contact as C
 from pipeline import detect as D
@@ -163,7 +163,7 @@ def data_points_for(
         if isinstance(gb, D.ColliderGeometry):
             r_uv, r_world, r_goal = rim_points(ga, gb, region_uv, direction, group_level)
             if len(r_uv):  # a rim patch's point is its rim point, not its middle
-                valid &= ~np.isin(_patch_keys(ga.surface, mids, group_level), _patch_keys(ga.surface, r_uv, group_level))
+                valid &= ~np.isin(R.patch_keys(ga.surface, mids, group_level), R.patch_keys(ga.surface, r_uv, group_level))
                 mids, a_world = np.concatenate([mids, r_uv]), np.concatenate([a_world, r_world])
                 wanted = np.concatenate([wanted, R.additional_targets(r_world, r_goal, share)])
                 valid = np.concatenate([valid, np.ones(len(r_uv), bool)])
@@ -180,24 +180,6 @@ def data_points_for(
 
 
 WRAP_RING = 1  # patches around the ones a collider's outline covers that a new pocket pushes too
-
-
-def _grow(a: np.ndarray, u_periodic: bool, v_periodic: bool, width: int) -> np.ndarray:
-    """``a (m, n) float64`` with each cell the largest of its ``(2 width + 1)^2`` neighbourhood
-    (``-inf`` beyond an open edge; a periodic direction wraps)."""
-    out = a.copy()
-    for axis, periodic in ((0, u_periodic), (1, v_periodic)):
-        src, out = out, out.copy()
-        m = src.shape[axis]
-        for k in range(1, width + 1):
-            for sh in (k, -k):
-                moved = np.roll(src, sh, axis=axis)
-                if not periodic:
-                    idx = np.arange(m)
-                    bad = (idx < sh) if sh > 0 else (idx >= m + sh)
-                    moved = np.where(bad[:, None] if axis == 0 else bad[None, :], -np.inf, moved)
-                out = np.maximum(out, moved)
-    return out
 
 
 def collider_points_for(
@@ -295,13 +277,15 @@ def collider_points_for(
     if not ok.any():
         return none
     uv, lag, plane = uv[ok], lag[ok], far[ok] @ unit
-    su, _ = locate(hs.u, uv[:, 0], group_level)
-    sv, _ = locate(hs.v, uv[:, 1], group_level)
+    su, sv = np.divmod(R.patch_keys(hs, uv, group_level), hs.v.patches(group_level))
     shape = (hs.u.patches(group_level), hs.v.patches(group_level))
     most, need = np.full(shape, -np.inf), np.full(shape, -np.inf)
     np.maximum.at(most, (su, sv), lag)
     np.maximum.at(need, (su, sv), plane)
-    need = _grow(need, hs.u.periodic, hs.v.periodic, WRAP_RING if first else 0)
+    # each patch takes the farthest plane within WRAP_RING of it (a periodic direction wraps,
+    # nothing lies past an open edge)
+    need = maximum_filter(need, size=2 * (WRAP_RING if first else 0) + 1, cval=-np.inf,
+                          mode=["wrap" if d.periodic else "constant" for d in (hs.u, hs.v)])
     pp = np.argwhere(np.isfinite(need))
     mid = (pp + 0.5) / (1 << group_level)
     a = apply_xform(ga.xform, H.evaluate(hs, mid[:, 0], mid[:, 1], det=ga.details).points)
@@ -316,13 +300,6 @@ def collider_points_for(
 RIM_STEEP = 0.5  # |n·d| at most this: a collider face the surface must drop along (a box's side)
 RIM_FACING = 0.95  # |n·d| at least this: the face the region is pushed onto (a later round's sliver)
 RIM_BISECT = 6  # bisection steps locating a crossing between two samples (1/64 of the step)
-
-
-def _patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
-    """Level-``level`` patch of each of ``uv (k, 2) float64`` as one key ``(k,) int64``."""
-    su, _ = locate(hs.u, uv[:, 0], level)
-    sv, _ = locate(hs.v, uv[:, 1], level)
-    return su * hs.v.patches(level) + sv
 
 
 def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
@@ -374,7 +351,7 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
     pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
     pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
     h = 1.0 / dens[pu, pv]
-    tree = cKDTree(D._wrap_uv(hs, region_uv))
+    tree = cKDTree(D.wrap_uv(hs, region_uv))
     src, out = [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         n = region_uv + np.stack([du * h, dv * h], axis=1)
@@ -382,7 +359,7 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
         for c, d in enumerate((hs.u, hs.v)):
             if not d.periodic:  # no neighbour past an open edge of the domain
                 ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
-        dist, _ = tree.query(D._wrap_uv(hs, n))
+        dist, _ = tree.query(D.wrap_uv(hs, n))
         miss = ok & (dist > 1e-3 * h)
         src.append(np.nonzero(miss)[0])
         out.append(n[miss])
@@ -391,7 +368,7 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
         return empty
 
     def world(uv):
-        return apply_xform(ga.xform, H.evaluate(hs, *D._wrap_uv(hs, uv).T, det=ga.details).points)
+        return apply_xform(ga.xform, H.evaluate(hs, *D.wrap_uv(hs, uv).T, det=ga.details).points)
 
     outside = ~D.inside(gb, world(hi))  # a neighbour missing from the region may just be untessellated
     src, hi = src[outside], hi[outside]
@@ -407,10 +384,10 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
     nd = np.abs(D.world_normals(gb, gb.static.mesh.face_normals[face]) @ unit)
     use = (nd <= RIM_STEEP) | (nd >= RIM_FACING)
     s_hit, hit = D.cast(gb, world(region_uv[src[use]]), np.broadcast_to(unit, (int(use.sum()), 3)))
-    cross = D._wrap_uv(hs, (hi + step)[use][hit])
+    cross = D.wrap_uv(hs, (hi + step)[use][hit])
     if not len(cross):
         return empty
-    mids, _, inv = R._patch_groups(hs, cross, level)
+    mids, _, inv = R.patch_groups(hs, cross, level)
     g = len(mids)
     plane = np.stack([np.bincount(inv, s_hit[hit, c], g) for c in range(3)], axis=1)
     plane /= np.bincount(inv, minlength=g)[:, None]  # mean hit of each patch's rim samples

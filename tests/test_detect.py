@@ -188,7 +188,7 @@ def test_sphere_wholly_inside_a_rotated_scaled_collider_has_exact_depths():
     assert c is not None and c.region_b.empty
     # every vertex is inside; a point inside a box is as deep as its nearest face plane
     all_uv = D.tessellate(s, np.argwhere(np.ones((16, 11), bool))).uv
-    assert len(c.region_a.points) == len(np.unique(D._wrap_uv(s.surface, all_uv), axis=0))
+    assert len(c.region_a.points) == len(np.unique(D.wrap_uv(s.surface, all_uv), axis=0))
     local = apply_inverse(m, c.region_a.points)
     np.testing.assert_allclose(c.region_a.depth, 1.5 * (1.0 - np.abs(local)).min(axis=1), atol=1e-12)
     # fallback: P_B is the deepest vertex's foot on the nearest face
