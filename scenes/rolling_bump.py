@@ -11,9 +11,7 @@ create the bump"). The rotation turns the bump's detail about its base on the le
 
 from pathlib import Path
 
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
-from scenes._spikes import feature_sheet
+from pipeline.authoring import add_collider, add_spike, add_surface, add_xform, box, key_translate, new_stage, save, sheet
 
 #: the slab's underside (z) and the x of its leading face at the first and last frame (the
 #: bump's crest is at z = 0.405, x = 0; the face first touches it between frames 4 and 5 and is
@@ -23,17 +21,17 @@ SLAB_X = (-0.6, 0.76)
 
 
 def build():
-    stage = A.new_stage(1, 11, fps=24, up_axis="Z")
-    cvs, hs = feature_sheet(tip=0.5, spread=0.7)
-    A.add_deformable(stage, "/World/Sheet", cvs, levels=3, absorption=[0, 0, 1], deform=[1, 1, 0],
-                     rotate=[0, 0, 1], rigidity=10, samples=8, hierarchy=hs)
-    slab = A.add_xform(stage, "/World/Mover")
+    stage = new_stage(1, 11, fps=24, up_axis="Z")
+    bump = add_spike(sheet(7, 7, width=3.0, depth=3.0, levels=3), level=2, height=0.5, spread=0.7)
+    add_surface(stage, "/World/Sheet", bump, absorption=[0, 0, 1], deform=[1, 1, 0], rotate=[0, 0, 1],
+                rigidity=10, samples=8)
+    slab = add_xform(stage, "/World/Mover")
     # the slab's leading face is at local x = 0, its underside at local z = 0
-    A.add_collider(stage, "/World/Mover/Slab", *A.box((1.2, 1.2, 0.3), center=(-0.6, 0.0, 0.15)))
-    K.key_translate(slab, "z", [1, 11], [SLAB_Z, SLAB_Z])
-    K.key_translate(slab, "x", [1, 11], list(SLAB_X))
+    add_collider(stage, "/World/Mover/Slab", *box((1.2, 1.2, 0.3), center=(-0.6, 0.0, 0.15)))
+    key_translate(slab, "z", [1, 11], [SLAB_Z, SLAB_Z])
+    key_translate(slab, "x", [1, 11], list(SLAB_X))
     return stage
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))
