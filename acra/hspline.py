@@ -724,7 +724,9 @@ def details(hs: HSpline, upto: int | None = None,
     The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
     parameter centre, so moving a coarse CV carries finer detail along (thesis Fig. 3.10); the
     CVs of a pole ring at a closed end all take the end's one normal (`_end_normal`), since the
-    normals there swing with bumps far below the tolerance (docs/hard-cases.md bug J).
+    one tangent vanishes at a closed end, so per-CV normals there turn by tens of degrees under
+    coarse bumps far below the tolerance and would turn the ring's detail with them
+    (docs/algorithm.md, Closed ends).
     ``since = (old, old_details, stale)``: ``hs`` differs from ``old`` only on the level-0
     patches ``stale (P0u, P0v) bool`` (`changed_patches`, whose margin covers the frames that
     follow a moved surface) and by refinement. A CV ``old`` had movable keeps its frame if its
