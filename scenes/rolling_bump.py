@@ -20,17 +20,23 @@ SLAB_Z = 0.2
 SLAB_X = (-0.6, 0.76)
 
 
-def build():
-    stage = new_stage(1, 11, fps=24, up_axis="Z")
+def bump_under_slab(last_frame: int, absorption, slab_z, slab_x):
+    """The stage: a bump on level 2 of a 3-level sheet, level 2 rotational, and a slab keyed
+    linearly from frame 1 to ``last_frame`` through ``slab_z`` (underside) and ``slab_x`` (leading face)."""
+    stage = new_stage(1, last_frame, fps=24, up_axis="Z")
     bump = add_spike(sheet(7, 7, width=3.0, depth=3.0, levels=3), level=2, height=0.5, spread=0.7)
-    add_surface(stage, "/World/Sheet", bump, absorption=[0, 0, 1], deform=[1, 1, 0], rotate=[0, 0, 1],
+    add_surface(stage, "/World/Sheet", bump, absorption=absorption, deform=[1, 1, 0], rotate=[0, 0, 1],
                 rigidity=10, samples=8)
     slab = add_xform(stage, "/World/Mover")
     # the slab's leading face is at local x = 0, its underside at local z = 0
     add_collider(stage, "/World/Mover/Slab", *box((1.2, 1.2, 0.3), center=(-0.6, 0.0, 0.15)))
-    key_translate(slab, "z", [1, 11], [SLAB_Z, SLAB_Z])
-    key_translate(slab, "x", [1, 11], list(SLAB_X))
+    key_translate(slab, "z", [1, last_frame], list(slab_z))
+    key_translate(slab, "x", [1, last_frame], list(slab_x))
     return stage
+
+
+def build():
+    return bump_under_slab(11, absorption=[0, 0, 1], slab_z=(SLAB_Z, SLAB_Z), slab_x=SLAB_X)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ rotation: the bump's detail turns over in the direction of the motion.
 
 from pathlib import Path
 
-from pipeline.authoring import add_collider, add_spike, add_surface, add_xform, box, key_translate, new_stage, save, sheet
+from pipeline.authoring import save
+from scenes.rolling_bump import bump_under_slab
 
 #: the slab's underside (z) and the x of its leading face at the first and last frame (the crest
 #: is at z = 0.405, x = 0, first touched between frames 4 and 5)
@@ -21,16 +22,7 @@ SLAB_X = (0.1, 0.4)
 
 
 def build():
-    stage = new_stage(1, 12, fps=24, up_axis="Z")
-    bump = add_spike(sheet(7, 7, width=3.0, depth=3.0, levels=3), level=2, height=0.5, spread=0.7)
-    add_surface(stage, "/World/Sheet", bump, absorption=[0, 0.5, 0.5], deform=[1, 1, 0], rotate=[0, 0, 1],
-                rigidity=10, samples=8)
-    slab = add_xform(stage, "/World/Mover")
-    # the slab's leading face is at local x = 0, its underside at local z = 0
-    add_collider(stage, "/World/Mover/Slab", *box((1.2, 1.2, 0.3), center=(-0.6, 0.0, 0.15)))
-    key_translate(slab, "z", [1, 12], list(SLAB_Z))
-    key_translate(slab, "x", [1, 12], list(SLAB_X))
-    return stage
+    return bump_under_slab(12, absorption=[0, 0.5, 0.5], slab_z=SLAB_Z, slab_x=SLAB_X)
 
 
 if __name__ == "__main__":
