@@ -367,8 +367,9 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
     """Close again every fine level's pole ring in ``rings`` (`_closed_rings` before a response).
 
     The fine-level analogue of `_closed_ends`: a move of some ring columns, or a coarser move that
-    turns the frames of their details, opens the pole into a ring of points (a hole, bug F in
-    docs/hard-cases.md). Each column takes the minimum-norm change of its three CVs,
+    turns the frames of their details, opens the pole into a ring of points: the column sums
+    ``D0 + 4 D1 + D2`` that place the pole (``(R0 + 4 R1 + R2) / 6`` per column) stop agreeing,
+    and the surface has a hole. Each column takes the minimum-norm change of its three CVs,
     ``-off_j (1, 4, 1) / 18``, that brings its sum to the common value: their mean when the whole
     ring is movable (refined so under ``refine``), else zero, the absent CVs' value; under
     ``obey`` a column not wholly movable stays open. The deformational step already keeps the
@@ -634,11 +635,14 @@ def respond(
     rings = _closed_rings(hs, det)
     # A collapsed edge of an open grid (a fan's apex) is closed after the finest absorbing
     # level's solve (`_close_rings`), not within it (`_ring_constraints`); coarser levels keep it
-    # in the solve. Measured, not derived (docs/hard-cases.md bug J): over 18 variations of hard
-    # case 10 (box offsets and depths), level 2 alone cleared within 4 rounds in 6 with the ring
-    # in the solve and in 18 closed after (levels 0-2: 13 and 15; without level 1's ring in the
-    # solve, 0). A periodic pole keeps it: dog_head_spike's spike tip then needs a third round
-    # at frame 15.
+    # in the solve. Why: every data point on the apex weighs the same ring (eq. 4.10 weights
+    # averaged over u), so in the finest solve the ring constraints hold the samples beside the
+    # apex at their targets while the patch's middle asks only part of what its corner needs;
+    # closing the ring after the solve lets the finest level fit its points freely. The rule is
+    # chosen by measurement, not derived: `python3 benchmarks/fan_sweep.py` (18 variations of
+    # hard case 10) clears 18 of 18 within 4 rounds this way, 6 of 18 with the ring in the solve.
+    # A periodic pole keeps its ring in the solve: there the ring is the spike tip's whole
+    # closed end, and without it dog_head_spike's frame 15 needs a third round.
     fan = {(axis, end): not (hs.v if axis == 0 else hs.u).periodic for axis, end in H.closed_ends(hs)}
     finest = int(np.nonzero(controls.absorption > 0)[0].max()) if np.any(controls.absorption > 0) else -1
     q0 = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points

@@ -7,7 +7,7 @@ x in {0, 0.02, 0.05}, y in {-1.22, -1.2, -1.18} and pressed to z = 0.2/0.15 or 0
 2/3, and prints per run the largest residual (fraction of the size), the lowest display normal z
 and the apex's spread (33 values of u at v = 0, fraction of the size), then how many runs meet
 both the residual (<= 1e-3) and the fold (normal z >= -0.1) checks. One case sits at the edge of
-4 rounds, so a single run says little about a change; docs/hard-cases.md bug J.
+4 rounds, so a single run says little about a change (docs/algorithm.md, "a fan's apex").
 """
 
 from __future__ import annotations

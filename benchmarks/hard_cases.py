@@ -9,8 +9,8 @@ deformable's size), the largest display-point move over its bound ``2 d + tol ·
 outcome and the test's wall time. Tests that assert without `check` (a documented remainder,
 exact equalities) show only their outcome and time. For a box collider (`box_case`) the column
 "between samples" is the responded surface's largest depth in the box on a grid of `FINE` steps
-per level-0 patch edge, 8 times detection's: what the frame loop cannot see (bug A of
-docs/hard-cases.md).
+per level-0 patch edge, 8 times detection's: what the frame loop cannot see (docs/hard-cases.md,
+Known limits).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@
 Runs the frames once per factor, with additional points kept at least ``factor × MEET`` of the
 deformable's size apart (0: no thinning), and prints per factor the wall-clock time and, per
 frame, the rounds and the residual as a fraction of the size. Default: `dog_head_spike`, whose
-spike tip is a pole where patch midpoints crowd (docs/hard-cases.md, bug F).
+spike tip is a pole where patch midpoints crowd (docs/algorithm.md, eq. 4.16 spacing).
 """
 
 from __future__ import annotations

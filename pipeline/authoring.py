@@ -3,21 +3,30 @@
 A scene file defines ``build() -> Usd.Stage`` composed of these helpers and can be run on its own::
 
     from pathlib import Path
-    from acra import shapes
-    from pipeline.authoring import new_stage, add_deformable, key_transform, add_collider, box, save
+    from pipeline.authoring import add_bump, add_collider, add_surface, box, key_transform, new_stage, save, sphere
 
     def build():
         stage = new_stage(1, 24)
-        cvs, up, vp = shapes.sphere(8, 8)
-        ball = add_deformable(stage, "/World/ball", cvs, u_wrap="periodic", levels=3,
-                              absorption=[0.2, 0.3, 0.5])
-        key_transform(ball, 1, translate=(0, 0, 3))
-        key_transform(ball, 24, translate=(0, 0, 0.5))
+        ball = add_bump(sphere(8, 8, levels=3), level=2, centre=(4.0, 2.5), radius=0.5, height=0.1)
+        prim = add_surface(stage, "/World/ball", ball, absorption=[0.2, 0.3, 0.5])
+        key_transform(prim, 1, translate=(0, 0, 3))
+        key_transform(prim, 24, translate=(0, 0, 0.5))
         add_collider(stage, "/World/floor", *box((10, 10, 1)))
         return stage
 
     if __name__ == "__main__":
         save(build(), Path(__file__).with_suffix(".usda"))
+
+Three layers, each usable alone:
+
+* **shapes** (`sheet`, `sphere`, `cone`, `torus`, `tube`) return an `acra.hspline.HSpline` with
+  ``levels`` levels and no detail yet; `moved` and `turned` place it;
+* **detail** (`refine_region`, `add_bump`, `add_spike`) refines the levels under a region given
+  in level-0 parameter units (patch ``p`` of level 0 spans ``[p, p + 1)``) and offsets the
+  CVs there along their local normals, so an animator never handles CV indices or Greville
+  abscissae; `spike_offsets` and `spike_positions` read a spike back;
+* **stage** (`new_stage`, `add_surface` / `add_deformable`, `add_collider`, `key_transform`,
+  `key_translate`, `key_cvs`, `key_enabled`, `save`) authors the contract's prims and keys.
 
 Every deformable gets its rest display tessellation (points, normals, topology) so the stage is
 viewable before any response; `key_cvs` keys that preview along with the CVs. No ``extent`` is
@@ -35,13 +44,30 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, Vt
 
+from acra import hspline, shapes
 from acra.hspline import HSpline, from_arrays, from_grid, to_arrays
 from acra.tessellate import GridTopology, display_topology, evaluate_grid
 
+from .animation.usdkeys import key_translate
 from .usdio import WRAPS, cvs_to_flat, export_layer, read_hierarchy
 
 __all__ = [
+    "sheet",
+    "sphere",
+    "cone",
+    "torus",
+    "tube",
+    "moved",
+    "turned",
+    "refine_region",
+    "add_bump",
+    "add_spike",
+    "spike_cvs",
+    "spike_offsets",
+    "spike_positions",
     "new_stage",
+    "add_surface",
+    "key_translate",
     "add_xform",
     "add_deformable",
     "key_cvs",
@@ -55,6 +81,203 @@ __all__ = [
 
 T = Sdf.ValueTypeNames
 _OP_ORDER = ("xformOp:translate", "xformOp:rotateXYZ", "xformOp:scale")
+
+
+# --------------------------------------------------------------------------------------------
+# shapes: level-0 grids of `acra.shapes` as H-splines with room for detail
+
+
+def _surface(grid: tuple[np.ndarray, bool, bool], levels: int) -> HSpline:
+    cvs, u_periodic, v_periodic = grid
+    return from_grid(cvs, u_periodic, v_periodic, depth=levels)
+
+
+def sheet(nu: int, nv: int, width: float = 1.0, depth: float = 1.0, levels: int = 1) -> HSpline:
+    """An open sheet of ``nu × nv`` CVs in the xy-plane, centred at the origin, facing +z.
+
+    The surface (not the control net) spans ``width × depth``: ``nu - 3`` by ``nv - 3`` level-0
+    patches (`acra.shapes.sheet`).
+    """
+    return _surface(shapes.sheet(nu, nv, width=width, depth=depth), levels)
+
+
+def sphere(nu: int = 8, nv: int = 8, radii=(1.0, 1.0, 1.0), center=(0.0, 0.0, 0.0), levels: int = 1) -> HSpline:
+    """A closed ellipsoid with semi-axes ``radii``: periodic in u (``nu`` CVs around z, even),
+    open in v (``nv`` CVs from the pole at −z to the pole at +z; `acra.shapes.sphere`).
+    Level-0 parameters: u in ``[0, nu)`` (u = 0 faces +x), v in ``[0, nv - 3]`` (v = 0 the
+    south pole)."""
+    return _surface(shapes.sphere(nu, nv, radii=radii, center=center), levels)
+
+
+def cone(nu: int = 8, nv: int = 8, radius: float = 0.5, height: float = 1.0, levels: int = 1) -> HSpline:
+    """A closed cone along z, centred at the origin, tip at ``z = height / 2``.
+
+    It is the ellipsoid ``sphere(nu, nv, radii=(radius, radius, height / 2))`` with each CV's
+    distance from the axis scaled by ``(height / 2 - z) / height``: 1 at the base pole, 0 at
+    the tip, so the surface tapers linearly to a point while both ends stay closed poles.
+    """
+    cvs, u_periodic, v_periodic = shapes.sphere(nu, nv, radii=(radius, radius, height / 2.0))
+    cvs[..., :2] *= np.clip(height / 2.0 - cvs[..., 2:3], 0.0, None) / height
+    return from_grid(cvs, u_periodic, v_periodic, depth=levels)
+
+
+def torus(nu: int = 12, nv: int = 8, major: float = 1.0, minor: float = 0.35, levels: int = 1) -> HSpline:
+    """A torus around z (`acra.shapes.torus`): u runs around the major circle, v around the
+    tube, both periodic."""
+    return _surface(shapes.torus(nu, nv, major=major, minor=minor), levels)
+
+
+def tube(nu: int = 8, nv: int = 8, radius: float = 0.5, length: float = 2.0, levels: int = 1) -> HSpline:
+    """An open-ended cylinder along z (`acra.shapes.tube`): periodic around (u), open along (v)."""
+    return _surface(shapes.tube(nu, nv, radius=radius, length=length), levels)
+
+
+def moved(surface: HSpline, offset) -> HSpline:
+    """``surface`` with its level-0 CVs moved by ``offset (3,) float64``.
+
+    Detail offsets live in each CV's local frame (thesis eq. 3.2), so they move with it.
+    """
+    return replace(surface, cvs=surface.cvs + np.asarray(offset, dtype=np.float64))
+
+
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def turned(surface: HSpline, axis: str, quarter_turns: int = 1) -> HSpline:
+    """``surface`` turned by ``quarter_turns × 90°`` about the ``axis`` (``"x"``, ``"y"`` or
+    ``"z"``) through the origin, right-handed.
+
+    Quarter turns only: each coordinate is another one, possibly negated, so the CVs are exact
+    (no ``cos 90° ≈ 6e-17`` residue) and a pole stays exactly collapsed.
+    """
+    a = _AXES[axis]
+    b, c = (a + 1) % 3, (a + 2) % 3
+    cvs = surface.cvs
+    for _ in range(int(quarter_turns) % 4):
+        # +90° about a: b' = −c, c' = b
+        turned_cvs = cvs.copy()
+        turned_cvs[..., b] = -cvs[..., c]
+        turned_cvs[..., c] = cvs[..., b]
+        cvs = turned_cvs
+    return replace(surface, cvs=cvs)
+
+
+# --------------------------------------------------------------------------------------------
+# detail: regions in level-0 parameter units, offsets along the local normal
+
+
+def _patch_span(lo: float, hi: float, level: int) -> np.ndarray:
+    """Level-``level`` patches meeting the level-0 parameter interval ``[lo, hi)``:
+    ``(m,) int64``. Patch ``p`` of level ``k`` spans ``[p, p + 1) / 2^k``."""
+    n = 2**level
+    return np.arange(int(np.floor(lo * n)), int(np.ceil(hi * n)), dtype=np.int64)
+
+
+def _grid(pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
+    return np.stack(np.meshgrid(pu, pv, indexing="ij"), -1).reshape(-1, 2)
+
+
+def refine_region(surface: HSpline, level: int, u, v) -> HSpline:
+    """Refine ``level`` (and the levels above it) over the parameter box ``u × v``.
+
+    ``u = (u0, u1)`` and ``v = (v0, v1)`` are level-0 parameters; every level-``level`` patch
+    meeting ``[u0, u1) × [v0, v1)`` is activated with zero offsets, so the surface is unchanged
+    (thesis §3.3): the region is where a response on ``level`` can later put detail. Patches
+    past an open border are ignored; a periodic direction wraps.
+    """
+    patches = _grid(_patch_span(*u, level), _patch_span(*v, level))
+    return hspline.refine(surface, level, patches)
+
+
+def add_bump(surface: HSpline, level: int, centre, radius, height: float) -> HSpline:
+    """Add a smooth bump of ``height`` on ``level``, along the normal of level ``level - 1``.
+
+    Parameters
+    ----------
+    centre : (2,) float64
+        ``(u, v)`` in level-0 parameter units.
+    radius : float or (2,) float64
+        Radii ``(ru, rv)`` in level-0 parameter units.
+
+    Each level-``level`` CV at parameter centre ``(u, v)`` (its Greville abscissa) is offset by
+    ``height · (1 − d²)²`` with ``d² = ((u − uc)/ru)² + ((v − vc)/rv)²``, zero outside the
+    ellipse: the profile is C1 at its rim and its peak is ``height`` when a CV sits at the
+    centre. Only the patches under the bump are refined, with the 7×7 blocks that make their
+    CVs movable (the C2 rule of `acra.hspline.make_movable`). Offsets add to any already there,
+    so bumps overlap.
+    """
+    n = 2**level
+    uc, vc = (float(x) for x in centre)
+    ru, rv = np.broadcast_to(np.asarray(radius, dtype=np.float64), (2,))
+    pu = np.arange(int(np.floor((uc - ru) * n)) - 1, int(np.ceil((uc + ru) * n)) + 1)
+    pv = np.arange(int(np.floor((vc - rv) * n)) - 1, int(np.ceil((vc + rv) * n)) + 1)
+    surface = hspline.make_movable(surface, level, _grid(pu, pv))
+    idx, _ = hspline.offsets_of(surface, level)
+    du = surface.u.greville(idx[:, 0], level) - uc
+    if surface.u.periodic:  # the nearer way round
+        du = (du + surface.u.patches0 / 2) % surface.u.patches0 - surface.u.patches0 / 2
+    dv = surface.v.greville(idx[:, 1], level) - vc
+    weight = np.clip(1.0 - (du / ru) ** 2 - (dv / rv) ** 2, 0.0, None) ** 2
+    inside = weight > 0
+    offsets = np.zeros((int(inside.sum()), 3))
+    offsets[:, 2] = height * weight[inside]
+    return hspline.set_offsets(surface, level, idx[inside], offsets, add=True)
+
+
+def spike_cvs(surface: HSpline, level: int, centre=None) -> np.ndarray:
+    """Indices ``(9, 2) int64`` of the 3×3 level-``level`` CVs of a spike at ``centre``
+    (level-0 ``(u, v)``, default the middle of the domain), row-major, the middle one at [4].
+
+    Level-``k`` CV ``j`` is centred at ``(j − 1) / 2^k``, so the CV nearest ``u`` is
+    ``1 + round(u · 2^k)``.
+    """
+    u, v = (surface.u.patches0 / 2, surface.v.patches0 / 2) if centre is None else centre
+    cu, cv = (1 + int(round(x * 2**level)) for x in (u, v))
+    return np.array([(cu + a, cv + b) for a in (-1, 0, 1) for b in (-1, 0, 1)], np.int64)
+
+
+def add_spike(surface: HSpline, level: int, height: float, spread: float, centre=None) -> HSpline:
+    """Add a spike (small ``spread``) or a round bump (``spread`` near 1) on ``level``.
+
+    The 3×3 level-``level`` CVs of `spike_cvs` are offset along their normal by
+    ``height · w_a · w_b`` with ``w = (spread, 1, spread)``: a separable, so nearly round,
+    profile whose tip offset is exactly ``height``. The four patches around the middle CV are
+    made fully movable (C2 rule), so a contact at the tip reaches all nine CVs and a response
+    on ``level`` moves or turns the spike as a whole (thesis Fig. 5.7–5.11).
+    """
+    idx = spike_cvs(surface, level, centre)
+    # patches (cu − 2 .. cu − 1) × (cv − 2 .. cv − 1): those whose 4×4 CV blocks hold the middle CV
+    surface = hspline.make_movable(surface, level, idx[[0, 1, 3, 4]] - 1)
+    weight = np.array([spread, 1.0, spread])
+    offsets = np.zeros((9, 3))
+    offsets[:, 2] = height * np.outer(weight, weight).reshape(-1)
+    return hspline.set_offsets(surface, level, idx, offsets, add=True)
+
+
+def _spike_rows(surface: HSpline, level: int, centre=None) -> np.ndarray:
+    """Rows ``(9,) int64`` of the spike's CVs among the level's movable CVs (`offsets_of`)."""
+    idx = spike_cvs(surface, level, centre)
+    movable, _ = hspline.offsets_of(surface, level)
+    match = np.all(movable[None, :, :] == idx[:, None, :], axis=2)
+    if not match.any(axis=1).all():
+        raise ValueError(f"level {level}: the spike's CVs are not refined and movable")
+    return np.argmax(match, axis=1)
+
+
+def spike_offsets(surface: HSpline, level: int, centre=None) -> np.ndarray:
+    """Local-frame offsets ``(9, 3) float64`` of a spike's CVs (order of `spike_cvs`)."""
+    return hspline.offsets_of(surface, level)[1][_spike_rows(surface, level, centre)]
+
+
+def spike_positions(surface: HSpline, level: int, centre=None) -> np.ndarray:
+    """Object-space positions ``(9, 3) float64`` of a spike's CVs (derived + offset)."""
+    lev = surface.level(level)
+    positions = hspline.cv_positions(surface, level)[lev.movable]
+    return positions[_spike_rows(surface, level, centre)]
+
+
+# --------------------------------------------------------------------------------------------
+# stage: prims, controls and keys
 
 
 def new_stage(start: int, end: int, fps: float = 24, up_axis: str = "Z", meters_per_unit: float = 1.0) -> Usd.Stage:
@@ -183,6 +406,20 @@ def add_deformable(
     mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
     _set_display(mesh, points, normals)
     return prim
+
+
+def add_surface(stage: Usd.Stage, path: str, surface: HSpline, **controls) -> Usd.Prim:
+    """A deformable for ``surface`` (a shape of this module with its detail).
+
+    Its level-0 CVs, wraps and number of levels come from ``surface``; its refined patches and
+    offsets are stored in ``acra:hierarchy:*`` when it has any. ``controls`` are the keyword
+    arguments of `add_deformable` (``absorption``, ``deform``, ``translate``, ``rotate``,
+    ``rigidity``, ``refine``, ``samples``, ``enabled``).
+    """
+    wrap = lambda periodic: "periodic" if periodic else "open"  # noqa: E731
+    detailed = any(lev.patches.size for lev in surface.fine)
+    return add_deformable(stage, path, surface.cvs, u_wrap=wrap(surface.u.periodic), v_wrap=wrap(surface.v.periodic),
+                          levels=surface.depth, hierarchy=surface if detailed else None, **controls)
 
 
 def _structure(prim: Usd.Prim) -> tuple[HSpline, GridTopology]:

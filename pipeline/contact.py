@@ -288,7 +288,7 @@ def depth_along(ga: D.SurfaceGeometry, gb: D.Geometry, anchor: Anchor, pa: np.nd
     nearest surface, so a collider that went through up to its far face (a box whose top face
     lands on the sheet it entered by its bottom) has region depth 0 although the motion carried
     the sheet's contact point a whole box height behind the entry face: this is the depth the
-    response must undo (docs/detection.md, bug D of docs/hard-cases.md)."""
+    response must undo, and the frame loop's stop test uses it (docs/detection.md)."""
     out = 0.0
     nb = _outward(gb, anchor.uv_b, anchor.local_b)
     if nb is not None:

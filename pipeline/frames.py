@@ -134,7 +134,9 @@ def data_points_for(
         See ``region_depth``.
 
     Against a collider, the patches at the region's rim take `rim_points` instead of
-    their middles (bug A: a C2 surface pinned only inside a box's outline curls up inside it).
+    their middles: eq. 4.16's middles all lie inside the region's outline, and a C2 surface
+    pinned only there begins to rise back inside a box's outline and curls up inside the box
+    between detection's samples.
 
     Returns
     -------
@@ -198,9 +200,9 @@ def collider_points_for(
 
     Eq. 4.16 takes additional points from a surface's own region, its samples inside the other
     object. A collider wholly inside a closed surface leaves that region empty (no sample of a
-    sphere lies inside a box inside it), so the wall got the contact point alone, which pulled a
-    thin finger that neither wrapped the box nor cleared it (docs/hard-cases.md, G and H). Here
-    both sides give the wall's samples:
+    sphere lies inside a box inside it), so the wall would get the contact point alone, which
+    pulls a thin finger that neither wraps the box nor clears it (docs/hard-cases.md, case 3).
+    Here both sides give the wall's samples:
 
     * the collider's faces inside ``ga`` (`detect.face_samples`, at most half a group-level
       patch's size apart, near the regions), cast along ``-direction`` onto the wall in front of them
@@ -305,7 +307,7 @@ RIM_BISECT = 6  # bisection steps locating a crossing between two samples (1/64 
 def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
                level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Additional points at the rim of a surface's region in a collider, one sample step outside it
-    (an interpretation of thesis eq. 4.16, bug A in docs/hard-cases.md).
+    (an interpretation of thesis eq. 4.16, docs/algorithm.md).
 
     Eq. 4.16 pins the middle of each finest-level patch's inside part. Under a box the surface
     must drop to the face it is pushed onto and rise again outside the box's outline; a C2 spline

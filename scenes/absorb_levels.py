@@ -18,9 +18,7 @@ ball: a smaller moved area, a lower rim and a faster fall-off.
 
 from pathlib import Path
 
-from acra import shapes
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
+from pipeline.authoring import add_collider, add_surface, add_xform, key_translate, moved, new_stage, save, sheet, uv_sphere
 
 SHEETS = {  # name: (x of the sheet's centre, absorption per level 0..3)
     "Levels123": (-2.0, [0.0, 1 / 3, 1 / 3, 1 / 3]),
@@ -31,20 +29,20 @@ DEEPEST = (12, 14)  # frames the balls are lowest
 
 
 def build():
-    stage = A.new_stage(1, 20, fps=24, up_axis="Z")
-    cvs, _, _ = shapes.sheet(10, 10, width=3.5, depth=3.5)  # 7×7 patches of 0.5
-    verts, faces = A.uv_sphere(RADIUS, 48, 24)
+    stage = new_stage(1, 20, fps=24, up_axis="Z")
+    flat = sheet(10, 10, width=3.5, depth=3.5, levels=4)  # 7×7 patches of 0.5
+    verts, faces = uv_sphere(RADIUS, 48, 24)
     for name, (x, absorption) in SHEETS.items():
-        A.add_deformable(stage, f"/World/{name}/Sheet", cvs + [x, 0.0, 0.0], levels=4, absorption=absorption, samples=8)
-        mover = A.add_xform(stage, f"/World/{name}/Mover")
-        A.add_collider(stage, f"/World/{name}/Mover/Ball", verts, faces)
+        add_surface(stage, f"/World/{name}/Sheet", moved(flat, (x, 0.0, 0.0)), absorption=absorption, samples=8)
+        mover = add_xform(stage, f"/World/{name}/Mover")
+        add_collider(stage, f"/World/{name}/Mover/Ball", verts, faces)
         # identical keys, off the knot lines (native USD splines, linear knots)
-        K.key_translate(mover, "x", [1, 20], [x + 0.05, x + 0.05])
-        K.key_translate(mover, "y", [1, 20], [0.03, 0.03])
-        K.key_translate(mover, "z", [1, 8, *DEEPEST, 19], [RADIUS + 0.3, RADIUS - 0.01, RADIUS - DEPTH, RADIUS - DEPTH, RADIUS + 0.3],
+        key_translate(mover, "x", [1, 20], [x + 0.05, x + 0.05])
+        key_translate(mover, "y", [1, 20], [0.03, 0.03])
+        key_translate(mover, "z", [1, 8, *DEEPEST, 19], [RADIUS + 0.3, RADIUS - 0.01, RADIUS - DEPTH, RADIUS - DEPTH, RADIUS + 0.3],
                         interp="linear")
     return stage
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))

@@ -14,27 +14,22 @@ each response, which moves the ball's CVs next to its poles: the poles must stay
 
 from pathlib import Path
 
-from acra import shapes
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
+from pipeline.authoring import add_surface, add_xform, key_translate, new_stage, save, sphere, torus
 
 CARRIER_KEYS = ([1.0, 5.0, 7.0, 11.0], [2.9, 2.2, 2.2, 2.7])  # frame, x of the torus's centre
 RIGIDITY = {"ball": 20.0, "torus": 60.0}
 
 
 def build():
-    stage = A.new_stage(1, 11, fps=24, up_axis="Z")
-    levels = dict(levels=3, absorption=[0.2, 0.3, 0.5], samples=4)
-    cvs, _, _ = shapes.sphere(8, 8)
-    A.add_deformable(stage, "/World/Ball", cvs, u_wrap="periodic", v_wrap="open", rigidity=RIGIDITY["ball"], **levels)
-    cvs, _, _ = shapes.torus(12, 8, major=1.0, minor=0.35)
-    carrier = A.add_xform(stage, "/World/Carrier")
-    A.add_deformable(
-        stage, "/World/Carrier/Torus", cvs, u_wrap="periodic", v_wrap="periodic", rigidity=RIGIDITY["torus"], **levels,
-    )
-    K.key_translate(carrier, "x", *CARRIER_KEYS, interp="catmull_rom")
+    stage = new_stage(1, 11, fps=24, up_axis="Z")
+    controls = dict(absorption=[0.2, 0.3, 0.5], samples=4)
+    add_surface(stage, "/World/Ball", sphere(8, 8, levels=3), rigidity=RIGIDITY["ball"], **controls)
+    carrier = add_xform(stage, "/World/Carrier")
+    add_surface(stage, "/World/Carrier/Torus", torus(12, 8, major=1.0, minor=0.35, levels=3), rigidity=RIGIDITY["torus"],
+                **controls)
+    key_translate(carrier, "x", *CARRIER_KEYS, interp="catmull_rom")
     return stage
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))

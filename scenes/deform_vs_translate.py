@@ -12,9 +12,7 @@ thicker (0.3) than the spikes reach into them (0.15), so a tip never pokes out o
 
 from pathlib import Path
 
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
-from scenes._spikes import feature_sheet
+from pipeline.authoring import add_collider, add_spike, add_surface, add_xform, box, key_transform, key_translate, new_stage, save, sheet
 
 #: x of the two spikes' centres (deform, translate)
 SPIKES = {"Deform": -2.0, "Translate": 2.0}
@@ -23,20 +21,19 @@ PLANE_Z = (0.56, 0.32)
 
 
 def build():
-    stage = A.new_stage(1, 12, fps=24, up_axis="Z")
-    cvs, hs = feature_sheet(tip=0.8, spread=0.3)
+    stage = new_stage(1, 12, fps=24, up_axis="Z")
+    spiked = add_spike(sheet(7, 7, width=3.0, depth=3.0, levels=3), level=2, height=0.8, spread=0.3)
     for name, x in SPIKES.items():
-        group = A.add_xform(stage, f"/World/{name}")
-        A.key_transform(group, 1, translate=(x, 0.0, 0.0))
+        group = add_xform(stage, f"/World/{name}")
+        key_transform(group, 1, translate=(x, 0.0, 0.0))
         mix = {"deform": [1, 1, 1]} if name == "Deform" else {"deform": [1, 1, 0], "translate": [0, 0, 1]}
-        A.add_deformable(stage, f"/World/{name}/Sheet", cvs, levels=3, absorption=[0, 0, 1], rigidity=10,
-                         samples=8, hierarchy=hs, **mix)
-        plane = A.add_xform(stage, f"/World/{name}/Mover")
-        A.add_collider(stage, f"/World/{name}/Mover/Plane", *A.box((1.2, 1.2, 0.3), center=(0.0, 0.0, 0.15)))
+        add_surface(stage, f"/World/{name}/Sheet", spiked, absorption=[0, 0, 1], rigidity=10, samples=8, **mix)
+        plane = add_xform(stage, f"/World/{name}/Mover")
+        add_collider(stage, f"/World/{name}/Mover/Plane", *box((1.2, 1.2, 0.3), center=(0.0, 0.0, 0.15)))
         # native USD spline, linear: the plane (underside at local z = 0) comes down 0.022 per frame
-        K.key_translate(plane, "z", [1, 12], list(PLANE_Z))
+        key_translate(plane, "z", [1, 12], list(PLANE_Z))
     return stage
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))

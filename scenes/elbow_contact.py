@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import authoring as A
-from pipeline.animation import curves as C
+from pipeline.animation import curves
+from pipeline.authoring import add_collider, add_deformable, new_stage, save, uv_sphere
 from pipeline.animation.skinning import arm_pose, arm_rig, bent_arm
 from pipeline.animation.usdrig import write_cvs_samples, write_skeleton
 
@@ -29,7 +29,7 @@ BALL_FROM_ELBOW = (4.0, 132.0)  # distance and direction (degrees from +x) of th
 
 def elbow_angles() -> np.ndarray:
     """Elbow angle at each of `FRAMES`, radians ``(F,) float64``: the keys eased out (cubic)."""
-    curve = C.make(*ELBOW_KEYS, "cubic", mode="out")
+    curve = curves.make(*ELBOW_KEYS, "cubic", mode="out")
     return np.radians(curve.evaluate(FRAMES.astype(np.float64))[:, 0])
 
 
@@ -40,18 +40,18 @@ def ball_center(rig) -> np.ndarray:
 
 
 def build():
-    stage = A.new_stage(int(FRAMES[0]), int(FRAMES[-1]), fps=24, up_axis="Z")
+    stage = new_stage(int(FRAMES[0]), int(FRAMES[-1]), fps=24, up_axis="Z")
     rig = arm_rig()
     angles = elbow_angles()
     write_skeleton(stage, "/World/Arm/Skel", rig.skeleton, arm_pose(rig, angles), FRAMES)  # /World/Arm: SkelRoot
-    arm = A.add_deformable(
+    arm = add_deformable(
         stage, "/World/Arm/Skin", rig.rest, u_wrap="periodic", v_wrap="open",
         levels=3, absorption=[0.0, 0.4, 0.6], samples=4,
     )
     write_cvs_samples(arm, FRAMES, bent_arm(angles, "ccm", rig))
-    A.add_collider(stage, "/World/Ball", *A.uv_sphere(BALL_RADIUS, 24, 12, center=ball_center(rig)))
+    add_collider(stage, "/World/Ball", *uv_sphere(BALL_RADIUS, 24, 12, center=ball_center(rig)))
     return stage
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))

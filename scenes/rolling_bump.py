@@ -11,9 +11,7 @@ create the bump"). The rotation turns the bump's detail about its base on the le
 
 from pathlib import Path
 
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
-from scenes._spikes import feature_sheet
+from pipeline.authoring import add_collider, add_spike, add_surface, add_xform, box, key_translate, new_stage, save, sheet
 
 #: the slab's underside (z) and the x of its leading face at the first and last frame (the
 #: bump's crest is at z = 0.405, x = 0; the face first touches it between frames 4 and 5 and is
@@ -22,18 +20,24 @@ SLAB_Z = 0.2
 SLAB_X = (-0.6, 0.76)
 
 
-def build():
-    stage = A.new_stage(1, 11, fps=24, up_axis="Z")
-    cvs, hs = feature_sheet(tip=0.5, spread=0.7)
-    A.add_deformable(stage, "/World/Sheet", cvs, levels=3, absorption=[0, 0, 1], deform=[1, 1, 0],
-                     rotate=[0, 0, 1], rigidity=10, samples=8, hierarchy=hs)
-    slab = A.add_xform(stage, "/World/Mover")
+def bump_under_slab(last_frame: int, absorption, slab_z, slab_x):
+    """The stage: a bump on level 2 of a 3-level sheet, level 2 rotational, and a slab keyed
+    linearly from frame 1 to ``last_frame`` through ``slab_z`` (underside) and ``slab_x`` (leading face)."""
+    stage = new_stage(1, last_frame, fps=24, up_axis="Z")
+    bump = add_spike(sheet(7, 7, width=3.0, depth=3.0, levels=3), level=2, height=0.5, spread=0.7)
+    add_surface(stage, "/World/Sheet", bump, absorption=absorption, deform=[1, 1, 0], rotate=[0, 0, 1],
+                rigidity=10, samples=8)
+    slab = add_xform(stage, "/World/Mover")
     # the slab's leading face is at local x = 0, its underside at local z = 0
-    A.add_collider(stage, "/World/Mover/Slab", *A.box((1.2, 1.2, 0.3), center=(-0.6, 0.0, 0.15)))
-    K.key_translate(slab, "z", [1, 11], [SLAB_Z, SLAB_Z])
-    K.key_translate(slab, "x", [1, 11], list(SLAB_X))
+    add_collider(stage, "/World/Mover/Slab", *box((1.2, 1.2, 0.3), center=(-0.6, 0.0, 0.15)))
+    key_translate(slab, "z", [1, last_frame], list(slab_z))
+    key_translate(slab, "x", [1, last_frame], list(slab_x))
     return stage
 
 
+def build():
+    return bump_under_slab(11, absorption=[0, 0, 1], slab_z=(SLAB_Z, SLAB_Z), slab_x=SLAB_X)
+
+
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))

@@ -12,9 +12,8 @@ rotation: the bump's detail turns over in the direction of the motion.
 
 from pathlib import Path
 
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
-from scenes._spikes import feature_sheet
+from pipeline.authoring import save
+from scenes.rolling_bump import bump_under_slab
 
 #: the slab's underside (z) and the x of its leading face at the first and last frame (the crest
 #: is at z = 0.405, x = 0, first touched between frames 4 and 5)
@@ -23,17 +22,8 @@ SLAB_X = (0.1, 0.4)
 
 
 def build():
-    stage = A.new_stage(1, 12, fps=24, up_axis="Z")
-    cvs, hs = feature_sheet(tip=0.5, spread=0.7)
-    A.add_deformable(stage, "/World/Sheet", cvs, levels=3, absorption=[0, 0.5, 0.5], deform=[1, 1, 0],
-                     rotate=[0, 0, 1], rigidity=10, samples=8, hierarchy=hs)
-    slab = A.add_xform(stage, "/World/Mover")
-    # the slab's leading face is at local x = 0, its underside at local z = 0
-    A.add_collider(stage, "/World/Mover/Slab", *A.box((1.2, 1.2, 0.3), center=(-0.6, 0.0, 0.15)))
-    K.key_translate(slab, "z", [1, 12], list(SLAB_Z))
-    K.key_translate(slab, "x", [1, 12], list(SLAB_X))
-    return stage
+    return bump_under_slab(12, absorption=[0, 0.5, 0.5], slab_z=SLAB_Z, slab_x=SLAB_X)
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))

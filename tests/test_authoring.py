@@ -192,3 +192,128 @@ def test_scene_file_runs_on_its_own(tmp_path):
     (tmp_path / "drop.usda").unlink()
     assert U.load_scene_file(py).read_bytes() == standalone
     assert Sdf.Layer.OpenAsAnonymous(str(tmp_path / "drop.usda")).GetPrimAtPath("/World/s")
+
+
+# --------------------------------------------------------------------------------------------
+# shapes and detail at the animator's level
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from acra import hspline  # noqa: E402
+from pipeline import authoring  # noqa: E402
+
+
+def test_shapes_are_the_acra_grids_with_room_for_levels():
+    for made, (cvs, u_periodic, v_periodic) in [
+        (authoring.sheet(6, 5, width=2.0, depth=1.5, levels=3), shapes.sheet(6, 5, width=2.0, depth=1.5)),
+        (authoring.sphere(8, 7, radii=(1, 2, 3), levels=2), shapes.sphere(8, 7, radii=(1, 2, 3))),
+        (authoring.torus(12, 8, major=2.0, minor=0.5, levels=4), shapes.torus(12, 8, major=2.0, minor=0.5)),
+        (authoring.tube(8, 6, radius=0.3, length=1.0, levels=2), shapes.tube(8, 6, radius=0.3, length=1.0)),
+    ]:
+        np.testing.assert_array_equal(made.cvs, cvs)
+        assert (made.u.periodic, made.v.periodic) == (u_periodic, v_periodic)
+        assert all(lev.patches.size == 0 for lev in made.fine)  # no detail yet
+    assert authoring.sheet(6, 5, levels=3).depth == 3
+
+
+def test_cone_tapers_linearly_from_base_to_a_closed_tip():
+    radius, height = 0.3, 1.2
+    cone = authoring.cone(8, 8, radius=radius, height=height, levels=2)
+    egg, _, _ = shapes.sphere(8, 8, radii=(radius, radius, height / 2))
+    np.testing.assert_array_equal(cone.cvs[..., 2], egg[..., 2])
+    scale = np.clip(height / 2 - egg[..., 2], 0.0, None) / height  # 1 at the base, 0 at the tip
+    np.testing.assert_allclose(cone.cvs[..., :2], egg[..., :2] * scale[..., None], rtol=0, atol=1e-15)
+    tip = hspline.evaluate(cone, np.array([0.0, 3.0]), np.array([float(cone.v.patches0)] * 2)).points
+    np.testing.assert_allclose(tip, [[0, 0, height / 2]] * 2, atol=1e-12)  # both meridians meet at the tip
+
+
+def test_turned_quarter_turns_are_exact_and_right_handed():
+    ball = authoring.sphere(8, 8, radii=(1.0, 2.0, 3.0))
+    x, y, z = (ball.cvs[..., i] for i in range(3))
+    np.testing.assert_array_equal(authoring.turned(ball, "x").cvs, np.stack([x, -z, y], -1))  # +z -> -y
+    np.testing.assert_array_equal(authoring.turned(ball, "y").cvs, np.stack([z, y, -x], -1))  # +z -> +x
+    np.testing.assert_array_equal(authoring.turned(ball, "z").cvs, np.stack([-y, x, z], -1))  # +x -> +y
+    np.testing.assert_array_equal(authoring.turned(ball, "y", 4).cvs, ball.cvs)
+    np.testing.assert_array_equal(authoring.turned(authoring.turned(ball, "z", 3), "z").cvs, ball.cvs)
+
+
+def test_moved_shifts_level_zero_and_keeps_the_detail():
+    bumped = authoring.add_bump(authoring.sheet(7, 7, levels=2), 1, (2.0, 2.0), 1.0, 0.3)
+    shifted = authoring.moved(bumped, (1.0, -2.0, 0.5))
+    np.testing.assert_array_equal(shifted.cvs, bumped.cvs + [1.0, -2.0, 0.5])
+    np.testing.assert_array_equal(hspline.offsets_of(shifted, 1)[1], hspline.offsets_of(bumped, 1)[1])
+
+
+def test_refine_region_activates_the_patches_under_the_box_and_leaves_the_surface():
+    flat = authoring.sheet(7, 7, levels=3)
+    refined = authoring.refine_region(flat, 2, u=(1.0, 1.5), v=(2.0, 2.25))
+    pu, pv = np.divmod(refined.level(2).patches, refined.u.patches(2))
+    assert sorted(zip(pu.tolist(), pv.tolist())) == [(4, 8), (5, 8)]  # [1, 1.5) x [2, 2.25) at 1/4
+    assert refined.level(1).patches.size == 1  # its ancestor, level-1 patch (2, 4)
+    u, v = np.meshgrid(np.linspace(0, 4, 9), np.linspace(0, 4, 9))
+    np.testing.assert_array_equal(hspline.evaluate(refined, u.ravel(), v.ravel()).points,
+                                  hspline.evaluate(flat, u.ravel(), v.ravel()).points)
+
+
+def test_add_bump_peaks_at_its_centre_with_the_profile_one_minus_d_squared_squared():
+    bumped = authoring.add_bump(authoring.sheet(7, 7, levels=3), 2, centre=(2.0, 2.0), radius=1.0, height=0.4)
+    idx, offsets = hspline.offsets_of(bumped, 2)
+    by_cv = {tuple(i): o for i, o in zip(idx.tolist(), offsets)}
+    # level-2 CV j sits at u = (j - 1) / 4: CV 9 at the centre, CV 10 a quarter away, CV 13 on the rim
+    assert by_cv[(9, 9)].tolist() == [0.0, 0.0, 0.4]
+    assert by_cv[(10, 9)][2] == 0.4 * (1 - 0.25**2) ** 2
+    assert by_cv[(10, 10)][2] == 0.4 * (1 - 2 * 0.25**2) ** 2
+    assert by_cv[(13, 9)][2] == 0.0 and by_cv[(9, 5)][2] == 0.0
+    assert np.all(offsets[:, :2] == 0.0)
+    twice = authoring.add_bump(bumped, 2, centre=(2.0, 2.0), radius=1.0, height=0.4)
+    np.testing.assert_array_equal(hspline.offsets_of(twice, 2)[1], 2 * offsets)  # bumps add
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-0.6, 0.6), st.floats(0.3, 1.2))
+def test_add_bump_wraps_the_nearer_way_round_a_periodic_direction(u_centre, radius):
+    """On a sphere (periodic u, 8 patches) a bump at u_centre is the same bump at u_centre + 8."""
+    near = authoring.add_bump(authoring.sphere(8, 9, levels=2), 1, (u_centre, 3.0), (radius, 0.8), 0.2)
+    far = authoring.add_bump(authoring.sphere(8, 9, levels=2), 1, (u_centre + 8.0, 3.0), (radius, 0.8), 0.2)
+    # compared where raised by more than rounding: at the rim (1 − d²)² vanishes and a CV there
+    # may get 1e-30 one way round and 0 (outside the refined margin) the other
+    raised = [{tuple(i): o[2] for i, o in zip(*hspline.offsets_of(s, 1)) if o[2] > 1e-12} for s in (near, far)]
+    assert raised[0].keys() == raised[1].keys() and raised[0]
+    np.testing.assert_allclose([raised[1][key] for key in raised[0]], list(raised[0].values()), rtol=0, atol=1e-12)
+
+
+def test_add_spike_offsets_and_reads_back():
+    spiked = authoring.add_spike(authoring.sheet(7, 7, width=3.0, depth=3.0, levels=3), 2, height=0.8, spread=0.3)
+    idx = authoring.spike_cvs(spiked, 2)
+    assert idx[4].tolist() == [9, 9]  # the middle of 4 level-0 patches: u = 2 = (9 - 1) / 4
+    offsets = authoring.spike_offsets(spiked, 2)
+    np.testing.assert_array_equal(offsets[:, 2], 0.8 * np.outer([0.3, 1, 0.3], [0.3, 1, 0.3]).ravel())
+    assert offsets[4, 2] == 0.8 and np.all(offsets[:, :2] == 0.0)
+    tip = authoring.spike_positions(spiked, 2)[4]
+    np.testing.assert_allclose(tip, [0.0, 0.0, 0.8], atol=1e-12)  # a flat sheet: derived (0, 0, 0), normal +z
+    with pytest.raises(ValueError, match="not refined"):
+        authoring.spike_offsets(authoring.sheet(7, 7, levels=3), 2)
+
+
+def test_add_surface_takes_wraps_levels_and_detail_from_the_surface():
+    stage = authoring.new_stage(1, 1)
+    plain = authoring.add_surface(stage, "/World/ball", authoring.sphere(8, 8, levels=3), absorption=[0.2, 0.3, 0.5])
+    assert (plain.GetAttribute("acra:uWrap").Get(), plain.GetAttribute("acra:vWrap").Get()) == ("periodic", "open")
+    assert plain.GetAttribute("acra:levels").Get() == 3
+    assert not plain.GetAttribute("acra:hierarchy:offsets").HasAuthoredValue()  # no detail, nothing stored
+    bumped = authoring.add_bump(authoring.sphere(8, 8, levels=3), 2, (4.0, 2.5), 0.5, 0.1)
+    prim = authoring.add_surface(stage, "/World/bumped", bumped, rigidity=5.0)
+    (_, model) = U.read_scene(stage).deformables
+    assert model.path == "/World/bumped" and prim.GetAttribute("acra:rigidity").Get() == 5.0
+    assert model.depth == 3
+    np.testing.assert_array_equal(model.hierarchy.offsets, hspline.to_arrays(bumped).offsets)
+
+
+def test_the_module_docstring_example_builds_a_valid_stage():
+    namespace: dict = {}
+    example = authoring.__doc__.split("::")[1].split("Three layers")[0]
+    exec(compile("\n".join(line[4:] for line in example.splitlines()), "example", "exec"), namespace)
+    stage = namespace["build"]()
+    scene = U.read_scene(stage)
+    assert [m.path for m in scene.deformables] == ["/World/ball"] and len(scene.colliders) == 1

@@ -55,7 +55,7 @@ def test_deep_jump_is_pushed_back_the_way_it_came():
 
 
 def test_a_box_through_up_to_its_far_face_is_deep_along_the_motion():
-    """A box that went through the sheet until its top face lies on it (bug D, docs/hard-cases.md):
+    """A box that went through the sheet until its top face lies on it (hard case 9b):
     depth 0 to the nearest face, but the motion since the first touch carried the sheet's contact
     point a whole box height behind the bottom face it came in by. The sheet's vertices on the top
     face join the region, and their casts along the push leave by the bottom face, not the top."""
@@ -89,7 +89,7 @@ def test_collision_at_the_first_frame_falls_back_to_the_deepest_point():
 
 
 def test_the_whole_region_fallback_takes_the_way_out_it_needs_least():
-    """A unit cube centred on a sheet (bug E, docs/hard-cases.md): every sheet vertex inside is
+    """A unit cube centred on a sheet (hard case 2c): every sheet vertex inside is
     nearer a side face than the top or bottom (0.5 away), so the deepest vertex's nearest way out
     is sideways, where the far side of the region must travel up to 1.0. The whole region leaves
     by the top or the bottom at 0.5. A 0.3 box inside a sphere leaves along one of its face

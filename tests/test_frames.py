@@ -226,7 +226,7 @@ def _ball_and_box(lo, hi):
 
 
 def test_a_box_inside_a_sphere_gets_the_wall_in_front_pushed_past_it():
-    """`frames.collider_points_for` (docs/hard-cases.md G, H): a 0.3 box wholly inside the unit
+    """`frames.collider_points_for` (docs/hard-cases.md, case 3): a 0.3 box wholly inside the unit
     sphere has no sphere vertex inside it, so eq. 4.16's own-region points are none; the box's
     faces give them instead. Pushed along -x, the wall in front (x near 1) gets one point per
     level-2 patch, at the patch centre, moved along -x only, past the box's far face by the
@@ -277,7 +277,7 @@ def test_a_box_through_a_sphere_wall_takes_both_regions_to_its_inner_face():
 
 
 def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
-    """Bug A (docs/hard-cases.md): eq. 4.16's middles pin the surface only inside a box's outline,
+    """Eq. 4.16's middles pin the surface only inside a box's outline,
     and the C2 surface curls back up inside the box before the side face. `frames.rim_points`
     puts a point one detection step outside each side-face crossing, aimed at the bottom face's
     plane, so the rise happens outside. A curved collider's flank gives none (its plane extended

@@ -348,8 +348,8 @@ def test_box_jumping_wholly_inside_a_sphere_is_found_and_pushed_the_way_it_came(
     """fcl sees no crossing once the box is inside; detection still finds it, rewinds to where it
     entered (+x), and the sphere's +x wall is pushed in along -x (it must reach the box's far
     face, x = -0.15, a move of 1.15 = 0.30 of the size): after the default 4 rounds the wall in
-    the box's shadow is past the box's centre (measured x <= -0.152, past the far face; -0.086
-    before bug H's fix) and the far side of the sphere (x = -1) has not moved toward +x. The
+    the box's shadow is past the box's centre (measured x <= -0.152, past the far face) and the far
+    side of the sphere (x = -1) has not moved toward +x. The
     residual is the next test."""
     r, box, size, depth = _inside_jump(tmp_path, "inside_jump", 4)
     assert not _fcl_sees_contact(r, box, 2)
@@ -382,7 +382,7 @@ def test_box_wholly_inside_a_sphere_from_the_first_frame_is_cleared(tmp_path):
 
 
 def test_box_wholly_inside_a_sphere_is_wrapped_by_a_pocket_along_one_axis(tmp_path):
-    """Case 3c's mechanism (`frames.collider_points_for`, docs/hard-cases.md G): the wall in
+    """Case 3c's mechanism (`frames.collider_points_for`, docs/hard-cases.md case 3): the wall in
     front of the box is pushed along the way out the fallback chose, one of the box's axes, past
     its far face, and wraps it: every sphere point in the box's shadow on that side ends at or
     past the far face (the thin finger of the contact point alone left most of them short), and
@@ -465,8 +465,8 @@ def test_box_into_a_pole_is_resolved(pole3):
 
 
 def test_box_into_a_pole_keeps_it_closed_on_every_level(pole3):
-    """Bug F: levels 1-2 used to open the pole into a ring 1.3e-3 of the size wide (a hole, through
-    which detection saw the sphere as open); `respond` now keeps every fine level's pole ring
+    """Moves on levels 1-2 near the pole must not open it into a ring of points (a hole, through
+    which detection would see the sphere as open): `respond` keeps every fine level's pole ring
     closed (`_ring_constraints`, `_close_rings`)."""
     r, _, size = pole3
     _assert_pole_closed(r, size)
@@ -653,16 +653,14 @@ def _fan(tmp_path, name, absorption) -> None:
 
 
 def test_collapsed_edge_dented_on_the_fine_level(tmp_path):
-    """All absorption on level 2 at the apex of a sheet with a collapsed edge. The apex used to
-    open (spread 4.9e-3 of the size, not asserted then); kept closed by the solve's ring
-    constraints the case needed 5 rounds (1.22e-3 after 4), closed after the finest level's solve
-    it clears in 4 (docs/hard-cases.md bug J)."""
+    """All absorption on level 2 at the apex of a sheet with a collapsed edge: the apex stays one
+    point and, closed after the finest level's solve rather than within it, the case clears in 4
+    rounds (docs/algorithm.md, "a fan's apex")."""
     _fan(tmp_path, "fan_fine", (0.0, 0.0, 1.0))
 
 
 def test_collapsed_edge_dented_on_every_level(tmp_path):
-    """Levels 0-2 (0.2, 0.3, 0.5). Bug J: no level kept the apex one point and the fan folded
-    (normal z -0.64), 2.0e-3 / 2.9e-3 left; the apex is now a closed end (`H.closed_ends`), every
-    fine ring frames its detail with the end's one normal (`H.details`), and the finest level's
-    ring is closed after its solve (`respond.respond`)."""
+    """Levels 0-2 (0.2, 0.3, 0.5): the apex is a closed end (`H.closed_ends`), every fine ring
+    frames its detail with the end's one normal (`H.details`) so coarse moves do not fold the fan,
+    and the finest level's ring is closed after its solve (`respond.respond`)."""
     _fan(tmp_path, "fan_levels", (0.2, 0.3, 0.5))

@@ -358,8 +358,8 @@ def test_a_pole_rings_detail_turns_as_one_under_a_small_coarse_wiggle():
     with any bump across the short direction: here a level-1 wiggle of 1e-4 of the size (alternate
     columns up and down, four rows from the pole) turned level-2 ring detail by up to 180 degrees
     with per-CV normals (spread 2.0 between the ring's normals); with one normal per ring, which
-    the symmetric wiggle leaves where it was, the detail does not turn (docs/hard-cases.md bug J:
-    the turning folded a fan's apex)."""
+    the symmetric wiggle leaves where it was, the detail does not turn (turned detail folds a
+    fan's apex, hard case 10)."""
     hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
     axis, end = H.closed_ends(hs)[1]
     for k in (1, 2):

@@ -319,8 +319,8 @@ def test_a_contact_on_a_pole_moves_it_as_one_point_whatever_its_u(level):
 
 @pytest.mark.parametrize("t", [0.0, 0.5], ids=["deform", "half_translate"])
 def test_points_near_a_pole_keep_it_one_point_on_every_level(t):
-    """Bug F: data points near a pole, not on it, move some columns of a fine level's pole ring
-    and used to open the pole into a ring of points (1e-2 of the size here without the fix). Every
+    """Data points near a pole, not on it, move some columns of a fine level's pole ring, which
+    opens the pole into a ring of points unless closed (1e-2 of the size here without it). Every
     level's ring stays closed, and under pure deformation the points still reach their targets
     exactly (the closure is part of the minimum-norm solve, `_ring_constraints`); a translational
     share is closed afterwards (`_close_rings`)."""
