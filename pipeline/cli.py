@@ -242,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
         print("acra: interrupted; nothing written", file=sys.stderr)
         return report.EXIT_INTERRUPTED
     except guard.Terminated:
-        print("acra: interrupted (SIGTERM); nothing written", file=sys.stderr)
+        print("acra: interrupted; nothing written", file=sys.stderr)
         return report.EXIT_TERMINATED
     finally:
         if as_program:
