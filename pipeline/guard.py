@@ -233,9 +233,11 @@ def predict_deformable(path: str, nu: int, nv: int, u_periodic: bool, v_periodic
     pv = nv if v_periodic else nv - 3
     parts = []
     top = levels - 1
-    keys = sum(pu * 2**k * pv * 2**k for k in range(levels))
+    # 4^k patches per level-0 patch on level k: past 32 levels no grid fits 64-bit keys, so the
+    # sums below stop there (a levels value of 2^31 must not loop 2^31 times)
+    keys = sum(pu * 2**k * pv * 2**k for k in range(min(levels, 33)))
     if keys > MAX_KEY:
-        need = sum(_grid_cvs(pu, u_periodic, k) * _grid_cvs(pv, v_periodic, k) for k in range(1, levels)) * BYTES_PER_CV
+        need = float(_grid_cvs(pu, u_periodic, top) * _grid_cvs(pv, v_periodic, top)) * BYTES_PER_CV if top < 512 else math.inf
         parts.append((path, "acra:levels", math.inf,
                       f"{levels} levels would need {format_size(need)} refined everywhere, and level {top} has "
                       f"more patches than the hierarchy's 64-bit keys can index"))
@@ -246,8 +248,8 @@ def predict_deformable(path: str, nu: int, nv: int, u_periodic: bool, v_periodic
     # CVs per refined patch, so detail that is local costs its area only.
     shares = [float(a) for a in absorption]
     absorbing = [k for k, a in enumerate(shares) if a > 0]
-    reach = absorbing[-1] if (absorbing and refine) else 0
-    authored_levels = [int(k) for k in hierarchy_levels]
+    reach = min(absorbing[-1], top) if (absorbing and refine) else 0
+    authored_levels = [int(k) for k in hierarchy_levels if 0 <= int(k) <= top]  # others: validation names them
     finest = max([reach] + authored_levels)
     grid = {k: _grid_cvs(pu, u_periodic, k) * _grid_cvs(pv, v_periodic, k) for k in range(1, reach + 1)}
     cvs = sum(grid.values()) + 16 * len(authored_levels)
@@ -318,7 +320,12 @@ def _prim_parts(prim, frames: int) -> list:
         vper = str(_value(prim, "acra:vWrap", "open")) == "periodic"
         refine = str(_value(prim, "acra:refine", "refine")) != "obey"
         absorption = _value(prim, "acra:absorption", None)
-        absorption = [0.0] * (levels - 1) + [1.0] if absorption is None else [float(a) for a in absorption]
+        if levels > 32:  # refused by key range whatever the shares (`predict_deformable`)
+            absorption = [1.0]
+        elif absorption is None:
+            absorption = [0.0] * (levels - 1) + [1.0]
+        else:
+            absorption = [float(a) for a in absorption]
         hierarchy = _value(prim, "acra:hierarchy:patchLevel", [])
         hierarchy = [int(k) for k in hierarchy]
     except (TypeError, ValueError, OverflowError):
