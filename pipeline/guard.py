@@ -341,6 +341,8 @@ def check_budget(estimate: Estimate, budget: int) -> None:
     if estimate.nbytes <= budget:
         return
     prim, attr, nbytes, text = max(estimate.parts, key=lambda p: p[2]) if estimate.parts else ("stage", None, 0, "")
+    if not math.isfinite(estimate.nbytes):
+        raise InputError(prim, attr, f"{text}; refused whatever the memory budget")
     raise InputError(prim, attr, f"{text}; the run's predicted peak {format_size(estimate.nbytes)} is over the memory "
                                  f"budget of {format_size(budget)} (--memory-budget or ACRA_MEMORY_BUDGET)")
 
@@ -350,14 +352,19 @@ def check_budget(estimate: Estimate, budget: int) -> None:
 
 
 def _singular(m) -> str | None:
-    """Why a ``(4, 4)`` transform cannot carry an object: ``"not finite"``, ``"singular"`` (a
+    """Why a ``(4, 4)`` transform cannot carry an object: ``"not finite"``, beyond
+    `usdio.MAX_COORDINATE`, ``"singular"`` (a
     determinant of its 3x3 part below 1e-9 of the product of its row lengths: a scale of 0 or a
     collapse onto a plane), or None. Mirrored transforms (negative determinant) are fine."""
     import numpy as np
 
+    from pipeline.usdio import MAX_COORDINATE
+
     a = np.asarray(m, dtype=np.float64)
     if not np.all(np.isfinite(a)):
         return "not finite"
+    if np.max(np.abs(a)) > MAX_COORDINATE:
+        return f"beyond {MAX_COORDINATE:g} (too far or too large to compute with)"
     lin = a[:3, :3]
     scale = float(np.prod(np.linalg.norm(lin, axis=1)))
     if scale == 0.0 or abs(float(np.linalg.det(lin))) <= 1e-9 * scale:

@@ -587,3 +587,19 @@ def test_other_usd_diagnostics_still_reach_the_user(capfd):
     with pytest.raises(Tf.ErrorException, match="a real USD error"):
         with U.quiet_spline_deprecation():
             Tf.RaiseRuntimeError("a real USD error")
+
+
+def test_coordinates_too_far_to_compute_with_are_refused(tmp_path):
+    """A CV at 1e30 is finite float32 but leaves float64 no digit of a unit-sized feature
+    (fuzzing found detection's barycentric solve returning NaN there): refused, named."""
+    cvs, _, _ = shapes.sheet(4, 4, width=2.0, depth=2.0)
+    for value, ok in ((1e15, True), (1.01e15, False), (1e30, False)):
+        stage = A.new_stage(1, 2)
+        bad = cvs.copy()
+        bad[1, 0, 2] = value
+        A.add_deformable(stage, "/World/Sheet", bad)
+        if ok:
+            U.read_scene(stage)
+        else:
+            with pytest.raises(InputError, match=r"^/World/Sheet\.acra:cvs: coordinate beyond 1e\+15 at the default time at index 1: "):
+                U.read_scene(stage)
