@@ -120,13 +120,14 @@ def protected_paths(src: Path, stage_path: Path | None = None) -> list[Path]:
     return paths
 
 
-def refuse_overwrite(option: str, path: Path | None, protected: list[Path], role: str = "an input") -> None:
-    """Raise `InputError` naming ``option`` when ``path`` is one of ``protected``."""
+def refuse_overwrite(option: str, path: Path | None, protected: list[Path]) -> None:
+    """Raise `InputError` naming ``option`` when ``path`` is one of ``protected`` (the input
+    first, as `protected_paths` lists them)."""
     if path is None:
         return
     for p in protected:
         if same_file(path, p):
-            what = "the input" if same_file(p, protected[0]) else f"{p}, which the run reads" if role == "an input" else f"{p}, {role}"
+            what = "the input" if same_file(p, protected[0]) else f"a file the run reads ({p})"
             raise InputError(option, None, f"{path} is {what}; refusing to overwrite it (choose another path)")
 
 
@@ -200,8 +201,9 @@ BYTES_PER_CV = 8192
 BYTES_PER_DISPLAY_VERTEX = 400
 # a collision-grid vertex (`shape.Shape.grids_for`, at most max_density steps per patch edge)
 BYTES_PER_COLLISION_VERTEX = 200
-# a collider triangle: the mesh, its fcl BVH (OBBRSS) and trimesh's ray structures
-BYTES_PER_COLLIDER_TRIANGLE = 600
+# a collider triangle: the mesh, its fcl BVH (OBBRSS) and trimesh's ray structures (a 2,000,000-
+# triangle collider peaked at 2.8 GB, benchmarks/stress.py)
+BYTES_PER_COLLIDER_TRIANGLE = 1400
 # a processed frame's statistics and Vt arrays besides the display arrays
 BYTES_PER_FRAME = 4096
 # the interpreter with numpy, scipy, pxr, trimesh and fcl imported

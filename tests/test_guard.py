@@ -112,7 +112,7 @@ def test_sublayers_and_references_of_the_input_are_refused(tiny_stage, tmp_path,
     files = {p: p.read_bytes() for p in (shot, base, prop)}
     code, err = _run(["run", str(shot), "-o", str(target), "--quiet"], capsys)
     assert code == 2
-    assert "which the run reads" in _one_error_line(err)
+    assert "a file the run reads (" in _one_error_line(err)
     assert {p: p.read_bytes() for p in files} == files
     assert guard.same_file(target, [p for p in guard.protected_paths(shot) if guard.same_file(p, target)][0])
 
@@ -123,7 +123,7 @@ def test_a_scene_file_and_the_stage_it_exports_are_refused(tmp_path, capsys):
     code, err = _run(["run", str(scene), "-o", str(scene), "--quiet"], capsys)
     assert code == 2 and "is the input" in _one_error_line(err)
     code, err = _run(["run", str(scene), "-o", str(scene.with_suffix(".usda")), "--quiet"], capsys)
-    assert code == 2 and "which the run reads" in _one_error_line(err)
+    assert code == 2 and "a file the run reads (" in _one_error_line(err)
     assert sorted(p.name for p in tmp_path.iterdir()) == [scene.name]  # refused before the export
 
 
