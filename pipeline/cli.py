@@ -15,7 +15,7 @@ import gc
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +79,8 @@ class RunReport:
 
     ``stage_path`` is the USD input read (the exported ``.usda`` of a scene file) and ``result`` the
     `usdio.FramesResult` written, so a caller can write it again (``acra bench`` times ``.usdc``).
+    ``over`` lists ``(frame, residual_rel)`` of the frames over tolerance
+    (`report.frames_over_tolerance`) and ``status`` is the exit status they give (0 or 3).
     """
 
     output: Path
@@ -88,6 +90,8 @@ class RunReport:
     scene: object = None
     stage_path: Path | None = None
     result: object = None
+    over: list = field(default_factory=list)
+    status: int = 0
 
     def summary(self) -> str:
         return report.summary_line(self.stats, self.ms_write, self.seconds, self.output)
@@ -106,10 +110,12 @@ def run_file(
     density: int = 8,
     report_path: Path | None = None,
     memory_budget: str | None = None,
+    over_tolerance: str = "fail",
 ) -> RunReport:
-    """Everything `acra run` does up to the output layer, as a function (the tests and `acra bench`
-    call it). ``report_path`` is only checked here (refused if it is an input or another output);
-    `run` writes it once the exit status is known."""
+    """Everything `acra run` does but printing, as a function (the tests and `acra bench` call
+    it): checks, the frames, and the output layer, ``rrd`` recording and ``report_path`` JSON
+    written together at the end. ``over_tolerance`` (``fail`` or ``warn``) sets
+    ``RunReport.status`` when frames stay over ``tolerance``."""
     from pipeline import frames as F
     from pipeline import usdio
 
@@ -124,6 +130,7 @@ def run_file(
     stage_path = src.with_suffix(".usda") if is_scene else src
     out = Path(output) if output else stage_path.with_name(stage_path.stem + ".acra.usda")
     outputs = [("-o", out), ("--rrd", rrd), ("--report", report_path)]
+    _refuse_outputs(outputs, [src, stage_path])  # before reading even the input's layer list
     _refuse_outputs(outputs, guard.protected_paths(src))
     if is_scene:  # the exported stage may reference further layers
         stage_path = usdio.load_scene_file(src)
@@ -139,9 +146,12 @@ def run_file(
     if rrd or spawn:
         from pipeline import preview as P
 
-        # the recording goes to a temporary sibling, renamed over --rrd at the end (atomic)
         rrd_tmp = guard.temporary_sibling(rrd) if rrd else None
         preview = P.Preview(scene, stage_path.stem, rrd=rrd_tmp, spawn=spawn)
+    # every file goes to a hidden temporary sibling first; all are renamed over their targets at
+    # the end with SIGINT/SIGTERM held (`guard.signals_held`), so a run either writes every file
+    # or none, and an interruption removes the temporaries
+    pending: list[tuple[Path, Path]] = []
     try:
         bar = report.Progress(len(frame_list)) if progress and len(frame_list) > 1 else None
 
@@ -154,18 +164,31 @@ def run_file(
         result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance, method, density), on_frame)
         if bar is not None:
             bar.close()
+        over = report.frames_over_tolerance(stats, tolerance)
+        status = report.EXIT_OVER_TOLERANCE if over and over_tolerance == "fail" else report.EXIT_OK
         tw = time.perf_counter()
-        usdio.write_output(stage_path, out, scene, result)
+        out_tmp = guard.temporary_sibling(out)
+        pending.append((out_tmp, out))
+        usdio.write_output(stage_path, out_tmp, scene, result)
         ms_write = 1e3 * (time.perf_counter() - tw)
         if preview is not None:
             preview.close()
             if rrd_tmp is not None:
                 guard.flush_recording(preview)
-                os.replace(rrd_tmp, rrd)
+                pending.append((rrd_tmp, rrd))
+        run_report = RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path, result, over, status)
+        if report_path is not None:
+            pending.append((guard.temporary_sibling(report_path), report_path))
+            report.write_json(pending[-1][0], report.report_dict(run_report, tolerance, over, status))
+        with guard.signals_held():
+            for tmp, final in pending:
+                os.replace(tmp, final)
+            pending.clear()
     finally:
-        if rrd_tmp is not None and rrd_tmp.exists():
-            rrd_tmp.unlink()
-    return RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path, result)
+        for tmp in [t for t, _ in pending] + [rrd_tmp]:
+            if tmp is not None and tmp.exists():
+                tmp.unlink()
+    return run_report
 
 
 def _refuse_outputs(outputs: list, protected: list[Path]) -> None:
@@ -179,21 +202,17 @@ def _refuse_outputs(outputs: list, protected: list[Path]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """`acra run`: the summary line, the frames over tolerance, the report; the exit status."""
-    progress = not args.quiet
+    """`acra run`: the summary line and the frames over tolerance; the exit status."""
     run_report = run_file(
         args.input, args.output, args.frames, args.iterations, args.tolerance,
-        rrd=args.rrd, spawn=args.spawn, progress=progress,
-        report_path=args.report, memory_budget=args.memory_budget,
+        rrd=args.rrd, spawn=args.spawn, progress=not args.quiet,
+        report_path=args.report, memory_budget=args.memory_budget, over_tolerance=args.over_tolerance,
     )
-    over = report.frames_over_tolerance(run_report.stats, args.tolerance)
-    status = report.EXIT_OVER_TOLERANCE if over and args.over_tolerance == "fail" else report.EXIT_OK
-    if args.report is not None:
-        report.write_json(args.report, report.report_dict(run_report, args.tolerance, over, status))
     print(run_report.summary())
-    if over:
-        print(report.over_tolerance_line(over, args.tolerance), file=sys.stderr if status else sys.stdout)
-    return status
+    if run_report.over:
+        line = report.over_tolerance_line(run_report.over, args.tolerance)
+        print(line, file=sys.stderr if run_report.status else sys.stdout)
+    return run_report.status
 
 
 def bench(args: argparse.Namespace) -> int:

@@ -39,6 +39,7 @@ from pipeline.model import InputError
 __all__ = [
     "Terminated",
     "terminate_raises",
+    "signals_held",
     "same_file",
     "protected_paths",
     "refuse_overwrite",
@@ -77,6 +78,24 @@ def terminate_raises():
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def signals_held():
+    """SIGINT and SIGTERM do nothing inside the block (the final renames of a run's files, a few
+    microseconds): a run that gets there completes and has written everything, so a signal then
+    is dropped rather than reported as "nothing written" (main thread; elsewhere a no-op)."""
+    held = (signal.SIGINT, signal.SIGTERM)
+    try:
+        previous = {sig: signal.signal(sig, lambda signum, frame: None) for sig in held}
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 # --------------------------------------------------------------------------------------------

@@ -309,3 +309,13 @@ def test_sigterm_raises_inside_the_block_only():
             os.kill(os.getpid(), signal.SIGTERM)
             time.sleep(5)  # the handler raises at the next bytecode: the sleep is interrupted
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_signals_during_the_final_renames_are_dropped():
+    """The run's files are renamed into place together with SIGINT/SIGTERM held: a signal then
+    neither interrupts the renames nor is reported afterwards as an interruption."""
+    before = signal.getsignal(signal.SIGINT)
+    with guard.signals_held():
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+    assert signal.getsignal(signal.SIGINT) is before
