@@ -35,9 +35,9 @@ from acra import shapes  # noqa: E402
 from pipeline import authoring  # noqa: E402
 
 
-def _stage(frames: int, top: float = 1.0, depth: float = 0.1):
-    stage = authoring.new_stage(1, frames, fps=24, up_axis="Z")
-    return stage
+def _stage(frames: int):
+    """An empty stage of frames ``1..frames`` with a ``/World`` Xform."""
+    return authoring.new_stage(1, frames, fps=24, up_axis="Z")
 
 
 def _sheet(stage, path: str, offset=(0.0, 0.0, 0.0)):

@@ -13,13 +13,13 @@ paths are equal.
 
 Memory
 ------
-`predict_memory` estimates, from the validated inputs alone (level-0 grid, ``acra:levels``,
+`predict_memory` estimates, from attribute values alone (level-0 grid, ``acra:levels``,
 ``acra:absorption``, ``acra:refine``, ``acra:samples``, the animator's hierarchy, collider
 triangle counts and the frame count), the peak memory of a run, and `check_budget` refuses a stage
 whose estimate exceeds the budget (`memory_budget`: half the physical memory unless
 ``--memory-budget`` or ``ACRA_MEMORY_BUDGET`` says otherwise) with one line naming the prim, the
-attribute that drives the estimate and the predicted size. Nothing large is allocated before the
-check: it runs on the prims' attribute values.
+attribute that drives the estimate and the predicted size. It runs before `usdio.read_scene`
+builds anything, so nothing large is allocated before the check.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ import signal
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from pxr import Usd, UsdGeom, UsdPhysics, UsdUtils
 
 from pipeline.model import InputError
@@ -302,7 +303,8 @@ def predict_memory(stage, frames: int) -> Estimate:
     contact covered the whole surface (the hierarchy is sparse, so a local contact costs its area
     only, but the inputs alone cannot bound the contact); the display mesh; the collision grids.
     Per collider: its triangles. Plus the interpreter's imports and a per-frame record. Reads
-    only scalar attributes and array lengths (values were validated by `usdio.read_scene`).
+    only scalar attributes and array lengths, before `usdio.read_scene` validates them: values the
+    validation rejects predict nothing, so its message names them.
     """
     from pipeline import usdio
 
@@ -312,7 +314,10 @@ def predict_memory(stage, frames: int) -> Estimate:
             parts.extend(_prim_parts(prim, frames))
         elif prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdPhysics.CollisionAPI):
             counts = prim.GetAttribute("faceVertexCounts").Get()
-            ntri = sum(max(int(c) - 2, 0) for c in counts) if counts is not None else 0
+            try:
+                ntri = int(np.maximum(np.asarray(counts, dtype=np.int64) - 2, 0).sum()) if counts is not None else 0
+            except (TypeError, ValueError):
+                ntri = 0
             nbytes = float(ntri) * BYTES_PER_COLLIDER_TRIANGLE
             parts.append((str(prim.GetPath()), "faceVertexCounts", nbytes, f"{ntri:,} triangles need {format_size(nbytes)}"))
     total = BASELINE + frames * BYTES_PER_FRAME + sum(p[2] for p in parts)
@@ -373,12 +378,10 @@ def check_budget(estimate: Estimate, budget: int) -> None:
 
 
 def _singular(m) -> str | None:
-    """Why a ``(4, 4)`` transform cannot carry an object: ``"not finite"``, beyond
-    `usdio.MAX_COORDINATE`, ``"singular"`` (a
-    determinant of its 3x3 part below 1e-9 of the product of its row lengths: a scale of 0 or a
-    collapse onto a plane), or None. Mirrored transforms (negative determinant) are fine."""
-    import numpy as np
-
+    """Why a ``(4, 4)`` transform cannot carry an object: ``"not finite"``, an entry beyond
+    `usdio.MAX_COORDINATE`, ``"singular"`` (a determinant of its 3x3 part below 1e-9 of the
+    product of its row lengths: a scale of 0 or a collapse onto a plane), or None. Mirrored
+    transforms (negative determinant) are fine."""
     from pipeline.usdio import MAX_COORDINATE
 
     a = np.asarray(m, dtype=np.float64)

@@ -5,7 +5,6 @@ import io
 import json
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
