@@ -1,20 +1,26 @@
-"""`acra run INPUT [-o OUTPUT] [--frames START:END] [--rrd FILE | --spawn] [--iterations N] [--tolerance T]`.
+"""`acra run INPUT [-o OUTPUT] [--frames START:END] [--rrd FILE | --spawn] [--iterations N] [--tolerance T]
+[--over-tolerance fail|warn] [--report FILE.json] [--memory-budget SIZE] [--quiet]`, `acra --version`.
 
-Contract §3. User errors (bad input, unreadable files) print one line on stderr and exit 2 with
-nothing written; the output layer is written atomically at the end.
+Contract §3 and docs/cli.md. Before anything is read, an output path (``-o``, ``--rrd``,
+``--report``) that is an input is refused (`pipeline.guard`); before anything large is built, a
+stage whose predicted memory exceeds the budget is refused. User errors print one line on stderr
+and exit 2 with nothing written; every file is written atomically at the end; SIGINT and SIGTERM
+stop the run with nothing written (130, 143); frames over tolerance exit 3 (`pipeline.report`).
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from pipeline import guard, report
 from pipeline.model import InputError
 
 __all__ = ["main", "build_parser", "run_file", "RunReport"]
@@ -22,6 +28,7 @@ __all__ = ["main", "build_parser", "run_file", "RunReport"]
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="acra", description="Automatic collision response for key-framed H-spline objects.")
+    p.add_argument("--version", action="version", version=f"acra {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="process a USD stage or a scene file and write the response layer")
     run.add_argument("input", type=Path, help="a USD stage (.usda/.usdc/.usd) or a scene file (.py)")
@@ -32,11 +39,26 @@ def build_parser() -> argparse.ArgumentParser:
     group.add_argument("--spawn", action="store_true", help="open the Rerun viewer live")
     run.add_argument("--iterations", type=int, default=4, help="cap on detect/respond rounds per frame (default 4)")
     run.add_argument("--tolerance", type=float, default=1e-3, help="accepted residual penetration, fraction of object size (default 1e-3)")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--over-tolerance", choices=("fail", "warn"), default="fail",
+                     help="frames whose residual stays over --tolerance: exit 3 (fail, default) or only list them (warn)")
+    run.add_argument("--report", type=Path, help="write the summary and per-frame figures as JSON to FILE")
+    run.add_argument("--memory-budget", help="refuse stages predicted to need more memory (e.g. 8G; default half the "
+                     "physical memory, or ACRA_MEMORY_BUDGET)")
+    run.add_argument("--quiet", action="store_true", help="no progress")
     bench = sub.add_parser("bench", help="time the thesis's Fig. 5.2 stages on a scene (default: dog_head_spike)")
     bench.add_argument("scene", nargs="?", type=Path, help="scene file or stage (default scenes/dog_head_spike.py)")
     bench.add_argument("--repeat", type=int, default=3, help="cold runs to take medians over (default 3)")
     return p
+
+
+def _version() -> str:
+    """The installed package's version (package metadata), or ``unknown`` in a bare checkout."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("acra")
+    except metadata.PackageNotFoundError:
+        return "unknown"
 
 
 def _frames(arg: str | None, start: int, end: int) -> list[int]:
@@ -57,6 +79,8 @@ class RunReport:
 
     ``stage_path`` is the USD input read (the exported ``.usda`` of a scene file) and ``result`` the
     `usdio.FramesResult` written, so a caller can write it again (``acra bench`` times ``.usdc``).
+    ``over`` lists ``(frame, residual_rel)`` of the frames over tolerance
+    (`report.frames_over_tolerance`) and ``status`` is the exit status they give (0 or 3).
     """
 
     output: Path
@@ -66,18 +90,11 @@ class RunReport:
     scene: object = None
     stage_path: Path | None = None
     result: object = None
+    over: list = field(default_factory=list)
+    status: int = 0
 
     def summary(self) -> str:
-        hit = [s for s in self.stats if s.in_collision]
-        worst = max((s.residual_rel for s in self.stats), default=0.0)
-        med = lambda xs: float(np.median(xs)) if xs else 0.0  # noqa: E731
-        n = len(self.stats)
-        return (
-            f"acra: {n} frames, {len(hit)} in collision; largest residual penetration "
-            f"{worst:.2e} of object size; median ms per frame: detection {med([s.ms_detect for s in self.stats]):.1f}, "
-            f"response {med([s.ms_respond for s in self.stats]):.1f}, writing {self.ms_write / max(1, n):.1f}; "
-            f"total {self.seconds:.2f} s -> {self.output}"
-        )
+        return report.summary_line(self.stats, self.ms_write, self.seconds, self.output)
 
 
 def run_file(
@@ -91,8 +108,14 @@ def run_file(
     progress: bool = False,
     method: str = "direct",
     density: int = 8,
+    report_path: Path | None = None,
+    memory_budget: str | None = None,
+    over_tolerance: str = "fail",
 ) -> RunReport:
-    """Everything `acra run` does, as a function (the tests and `acra bench` call it)."""
+    """Everything `acra run` does but printing, as a function (the tests and `acra bench` call
+    it): checks, the frames, and the output layer, ``rrd`` recording and ``report_path`` JSON
+    written together at the end. ``over_tolerance`` (``fail`` or ``warn``) sets
+    ``RunReport.status`` when frames stay over ``tolerance``."""
     from pipeline import frames as F
     from pipeline import usdio
 
@@ -102,48 +125,94 @@ def run_file(
         raise InputError("--iterations", None, f"must be at least 1, got {iterations}")
     if not np.isfinite(tolerance) or tolerance <= 0:
         raise InputError("--tolerance", None, f"must be a positive number, got {tolerance}")
-    stage_path = usdio.load_scene_file(src) if src.suffix == ".py" else src
+    budget = guard.memory_budget(memory_budget)
+    is_scene = src.suffix == ".py"
+    stage_path = src.with_suffix(".usda") if is_scene else src
     out = Path(output) if output else stage_path.with_name(stage_path.stem + ".acra.usda")
+    outputs = [("-o", out), ("--rrd", rrd), ("--report", report_path)]
+    _refuse_outputs(outputs, [src, stage_path])  # before reading even the input's layer list
+    _refuse_outputs(outputs, guard.protected_paths(src))
+    if is_scene:  # the exported stage may reference further layers
+        stage_path = usdio.load_scene_file(src)
+        _refuse_outputs(outputs, guard.protected_paths(src, stage_path))
     stage = usdio.open_input(stage_path)
+    start, end = usdio.frame_range(stage)
+    frame_list = _frames(frames, start, end)
+    guard.check_budget(guard.predict_memory(stage, len(frame_list)), budget)
     scene = usdio.read_scene(stage)
-    frame_list = _frames(frames, scene.start, scene.end)
+    guard.check_transforms(stage, scene, frame_list)
 
-    preview = None
+    preview = rrd_tmp = None
     if rrd or spawn:
         from pipeline import preview as P
 
-        preview = P.Preview(scene, stage_path.stem, rrd=rrd, spawn=spawn)
+        rrd_tmp = guard.temporary_sibling(rrd) if rrd else None
+        preview = P.Preview(scene, stage_path.stem, rrd=rrd_tmp, spawn=spawn)
+    # every file goes to a hidden temporary sibling first; all are renamed over their targets at
+    # the end with SIGINT/SIGTERM held (`guard.signals_held`), so a run either writes every file
+    # or none, and an interruption removes the temporaries
+    pending: list[tuple[Path, Path]] = []
+    try:
+        bar = report.Progress(len(frame_list)) if progress and len(frame_list) > 1 else None
 
-    bar = None
-    if progress and len(frame_list) > 1:
-        from tqdm import tqdm
+        def on_frame(st, result):
+            if preview is not None:
+                preview.log_frame(st, result)
+            if bar is not None:
+                bar.update(st.frame)
 
-        bar = tqdm(total=len(frame_list), unit="frame", file=sys.stderr, leave=False)
-
-    def on_frame(st, result):
-        if preview is not None:
-            preview.log_frame(st, result)
+        result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance, method, density), on_frame)
         if bar is not None:
-            bar.update(1)
+            bar.close()
+        over = report.frames_over_tolerance(stats, tolerance)
+        status = report.EXIT_OVER_TOLERANCE if over and over_tolerance == "fail" else report.EXIT_OK
+        tw = time.perf_counter()
+        out_tmp = guard.temporary_sibling(out)
+        pending.append((out_tmp, out))
+        usdio.write_output(stage_path, out_tmp, scene, result)
+        ms_write = 1e3 * (time.perf_counter() - tw)
+        if preview is not None:
+            preview.close()
+            if rrd_tmp is not None:
+                guard.flush_recording(preview)
+                pending.append((rrd_tmp, rrd))
+        run_report = RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path, result, over, status)
+        if report_path is not None:
+            pending.append((guard.temporary_sibling(report_path), report_path))
+            report.write_json(pending[-1][0], report.report_dict(run_report, tolerance, over, status))
+        with guard.signals_held():
+            for tmp, final in pending:
+                os.replace(tmp, final)
+            pending.clear()
+    finally:
+        for tmp in [t for t, _ in pending] + [rrd_tmp]:
+            if tmp is not None and tmp.exists():
+                tmp.unlink()
+    return run_report
 
-    result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance, method, density), on_frame)
-    if bar is not None:
-        bar.close()
-    tw = time.perf_counter()
-    usdio.write_output(stage_path, out, scene, result)
-    ms_write = 1e3 * (time.perf_counter() - tw)
-    if preview is not None:
-        preview.close()
-    return RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path, result)
+
+def _refuse_outputs(outputs: list, protected: list[Path]) -> None:
+    """Refuse an output that is an input (`guard.refuse_overwrite`) or the same file as another
+    output (one would overwrite the other)."""
+    for i, (option, path) in enumerate(outputs):
+        guard.refuse_overwrite(option, path, protected)
+        for other, earlier in outputs[:i]:
+            if path is not None and earlier is not None and guard.same_file(path, earlier):
+                raise InputError(option, None, f"{path} is also the {other} file; choose another path")
 
 
 def run(args: argparse.Namespace) -> int:
-    report = run_file(
+    """`acra run`: the summary line and the frames over tolerance; the exit status."""
+    run_report = run_file(
         args.input, args.output, args.frames, args.iterations, args.tolerance,
         rrd=args.rrd, spawn=args.spawn, progress=not args.quiet,
+        report_path=args.report, memory_budget=args.memory_budget, over_tolerance=args.over_tolerance,
     )
-    print(report.summary())
-    return 0
+    print(run_report.summary())
+    if run_report.over:
+        line = report.over_tolerance_line(run_report.over, args.tolerance)
+        print(line, file=sys.stderr if run_report.status else sys.stdout)
+    return run_report.status
 
 
 def bench(args: argparse.Namespace) -> int:
@@ -178,15 +247,22 @@ def main(argv: list[str] | None = None) -> int:
     as_program = argv is None
     args = build_parser().parse_args(argv)
     try:
-        if as_program:
-            _settle_imports(args.command)
-        return bench(args) if args.command == "bench" else run(args)
+        with guard.terminate_raises():
+            if as_program:
+                _settle_imports(args.command)
+            return bench(args) if args.command == "bench" else run(args)
     except InputError as err:
         print(f"acra: error: {err}", file=sys.stderr)
-        return 2
+        return report.EXIT_INPUT
+    except OSError as err:  # an output directory that is missing or read-only, a full disk
+        print(f"acra: error: {err.filename or 'file system'}: {err.strerror or err}; nothing written", file=sys.stderr)
+        return report.EXIT_INPUT
     except KeyboardInterrupt:
         print("acra: interrupted; nothing written", file=sys.stderr)
-        return 130
+        return report.EXIT_INTERRUPTED
+    except guard.Terminated:
+        print("acra: interrupted; nothing written", file=sys.stderr)
+        return report.EXIT_TERMINATED
     finally:
         if as_program:
             gc.freeze()

@@ -115,3 +115,35 @@ def run_scene(tmp_path_factory):
         return _scene_runs[name]
 
     return run
+
+
+# --- a tiny stage for command-line tests: a 4x4 sheet and a box that presses into it -----------
+
+
+def write_tiny_stage(path, frames=3, n=4, levels=1, samples=2, depth=0.1, top=1.0, **deformable):
+    """Save a stage to ``path``: ``/World/Sheet`` (an ``n`` x ``n`` open sheet, 2 units wide, at
+    z = 0) and ``/World/Mover/Box`` (a 1-unit collider box keyed from its centre at z = ``top``
+    at frame 1 down to ``depth`` into the sheet at frame ``frames``). Returns the path."""
+    from acra import shapes
+    from pipeline import authoring
+
+    stage = authoring.new_stage(1, frames, fps=24, up_axis="Z")
+    cvs, _, _ = shapes.sheet(n, n, width=2.0, depth=2.0)
+    deformable.setdefault("absorption", [0.0] * (levels - 1) + [1.0])
+    authoring.add_deformable(stage, "/World/Sheet", cvs, levels=levels, samples=samples, **deformable)
+    verts, faces = authoring.box(1.0)
+    mover = authoring.add_xform(stage, "/World/Mover")
+    authoring.add_collider(stage, "/World/Mover/Box", verts, faces)
+    authoring.key_transform(mover, 1, translate=(0.0, 0.0, top))
+    authoring.key_transform(mover, frames, translate=(0.0, 0.0, 0.5 - depth))
+    return authoring.save(stage, path)
+
+
+@pytest.fixture
+def tiny_stage(tmp_path):
+    """``tiny_stage(name="tiny.usda", **kw)`` → path of a `write_tiny_stage` stage in ``tmp_path``."""
+
+    def make(name="tiny.usda", **kw):
+        return write_tiny_stage(tmp_path / name, **kw)
+
+    return make

@@ -4,6 +4,7 @@ import gc
 import shutil
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 from pxr import Usd
@@ -46,3 +47,84 @@ def test_program_run_freezes_and_still_runs_exit_handlers(tmp_path):
     stage = Usd.Stage.Open(str(out))
     assert stage.GetPrimAtPath("/World/Sheet").GetAttribute("points").GetTimeSamples() == [1.0, 2.0]
     assert "/world/World/Sheet" in {c.entity_path for c in RrdReader(str(rrd)).stream()}
+
+
+# --- a command line a TD can script --------------------------------------------------------------
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _env():
+    import os
+
+    return {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def test_version_comes_from_the_package_metadata(capsys):
+    """Issue 18, row 6: `acra --version` was no such option."""
+    from importlib import metadata
+
+    import pytest
+
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    assert capsys.readouterr().out.strip() == f"acra {metadata.version('acra')}"
+
+
+def test_progress_in_a_log_is_plain_lines(tiny_stage, tmp_path):
+    """Issue 18, row 7: with stderr not a terminal the bar wrote carriage-return frames into the log."""
+    src = tiny_stage(frames=4)
+    done = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", str(src), "-o", str(tmp_path / "o.usdc")],
+                          capture_output=True, text=True, env=_env(), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "\r" not in done.stderr and "\x1b" not in done.stderr
+    assert done.stderr.splitlines()[0] == "acra: frame 1 done (1/4)"
+    assert done.stderr.splitlines()[-1] == "acra: frame 4 done (4/4)"
+
+
+def _interrupt(tiny_stage, tmp_path, sig):
+    """Start a 400-frame run (every frame in contact) as a real process, send ``sig`` once it has
+    reported its first frame, and return (exit status, stderr, files left in ``tmp_path``)."""
+    src = tiny_stage(frames=400, top=0.4, depth=0.2)
+    out, rrd, rep = tmp_path / "o.usda", tmp_path / "o.rrd", tmp_path / "o.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "run", str(src), "-o", str(out), "--rrd", str(rrd), "--report", str(rep)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path)
+    lines, started = [], threading.Event()
+
+    def read():
+        for line in proc.stderr:
+            lines.append(line)
+            if line.startswith("acra: frame 1 done"):
+                started.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        assert started.wait(timeout=120), "".join(lines)
+        proc.send_signal(sig)
+        proc.wait(timeout=120)
+        reader.join(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, "".join(lines), sorted(p.name for p in tmp_path.iterdir())
+
+
+def test_sigint_half_way_writes_nothing_and_leaves_no_temporary_file(tiny_stage, tmp_path):
+    import signal
+
+    code, err, files = _interrupt(tiny_stage, tmp_path, signal.SIGINT)
+    assert code == 130
+    assert err.strip().splitlines()[-1] == "acra: interrupted; nothing written" and "Traceback" not in err
+    assert files == ["tiny.usda"]
+
+
+def test_sigterm_half_way_writes_nothing_and_leaves_no_temporary_file(tiny_stage, tmp_path):
+    import signal
+
+    code, err, files = _interrupt(tiny_stage, tmp_path, signal.SIGTERM)
+    assert code == 143
+    assert err.strip().splitlines()[-1] == "acra: interrupted; nothing written" and "Traceback" not in err
+    assert files == ["tiny.usda"]
