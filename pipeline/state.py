@@ -1,0 +1,196 @@
+"""State across frames for the frame loop: each stateful deformable starts a frame from the
+animator's shape plus the offsets carried from the previous frame (`acra.relax`), and the output
+layer records what it carries (``acra:state:*``, docs/usd-schema.md §4).
+
+A deformable is *stateful* when its ``acra:relax`` is below 1 at some sample or its
+``acra:plasticity`` is above 0 (`pipeline.model.Controls.stateful`); any other deformable is
+processed exactly as by the stateless loop, and nothing of this module touches it.
+
+Frames of a stateful run go in order. A run that starts after the stage's first frame gets the
+state carried into its first frame by `carried_at` (the frames from the stage's start recomputed,
+the default) or from a previous run's output layer (`read_carried`), handed to
+`pipeline.frames.run_frames` as ``initial``; both give, at every frame, what a whole run gives.
+A farm chunk does the same with the previous chunk's last carried state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pxr import Usd, Vt
+
+from acra import hspline as H
+from acra import relax
+from pipeline import usdio
+from pipeline.model import DeformableModel, SceneModel
+
+__all__ = ["Carry", "for_run", "carried_at", "carried_values", "read_carried", "zero_carried"]
+
+
+def zero_carried(scene: SceneModel, model: DeformableModel) -> relax.Carried:
+    """Nothing carried: zero fields shaped like the deformable."""
+    z = relax.zero_field(usdio.surface_template(scene, model))
+    return relax.Carried(z, z)
+
+
+class Carry:
+    """The carried state of a run's deformables, frame by frame (the frame loop's hooks).
+
+    ``begin(frame, surfaces)`` gives the surfaces the frame starts from (`acra.relax.begin`);
+    ``at(i, surface)`` applies the frame's carried offsets to the animator's surface of object
+    ``i`` at another time code (the contact rewinding's geometry); ``end(frame, surfaces)``
+    absorbs the frame's responses and returns what each object carries out of it.
+    """
+
+    def __init__(self, scene: SceneModel, initial: list | None = None):
+        self.models = scene.deformables
+        self.on = [m.controls.stateful for m in self.models]
+        if initial is None:
+            initial = [None] * len(self.models)
+        self.carried = [
+            (c if c is not None else zero_carried(scene, m)) if on else None
+            for m, on, c in zip(self.models, self.on, initial)
+        ]
+        self.released: list = [None] * len(self.models)
+        self.started: list = [None] * len(self.models)
+        self._memo: dict = {}
+
+    @property
+    def active(self) -> bool:
+        """Whether any object carries state."""
+        return any(self.on)
+
+    @property
+    def moving(self) -> bool:
+        """Whether this frame starts any object off the animator's shape (then rewinding must see
+        the carried offsets, and nothing detected at another frame can be reused)."""
+        return any(r is not None and not (relax.is_zero(r.elastic) and relax.is_zero(r.plastic)) for r in self.released)
+
+    def begin(self, frame: int, surfaces: list[H.HSpline]) -> list[H.HSpline]:
+        """``S_f`` of every object from the animator's ``A_f`` (``surfaces``, scene order)."""
+        out = list(surfaces)
+        self._memo = {}
+        for i, on in enumerate(self.on):
+            if on:
+                rates = self.models[i].controls.relax_at(float(frame))
+                out[i], self.released[i] = relax.begin(surfaces[i], self.carried[i], rates)
+                self.started[i] = out[i]
+        return out
+
+    def at(self, i: int, surface: H.HSpline) -> H.HSpline:
+        """The animator's surface of object ``i`` at some time code plus this frame's carried
+        (released) offsets."""
+        r = self.released[i]
+        if r is None:
+            return surface
+        hit = self._memo.get((i, id(surface)))
+        if hit is None or hit[0] is not surface:
+            hit = self._memo[(i, id(surface))] = (surface, relax.added(surface, r.plastic, r.elastic))
+        return hit[1]
+
+    def end(self, frame: int, surfaces: list[H.HSpline]) -> list:
+        """What every object carries out of the frame (``None`` for a stateless one), given the
+        frame's final surfaces ``R_f``."""
+        for i, on in enumerate(self.on):
+            if on:
+                p = self.models[i].controls.plasticity
+                p = np.zeros(surfaces[i].depth) if p is None else p
+                self.carried[i] = relax.absorb(self.released[i], self.started[i], surfaces[i], p)
+        return list(self.carried)
+
+
+def for_run(stage: Usd.Stage, scene: SceneModel, frames: list[int], options, initial: list | None = None) -> Carry:
+    """The `Carry` of a run over ``frames``: from ``initial`` if given, else recomputed from the
+    stage's start (`carried_at`) when the run starts after it. Raises ``ValueError`` when a
+    stateful run's frames are not consecutive and increasing (the state would skip frames)."""
+    carry = Carry(scene, initial)
+    if not carry.active or not frames:
+        return carry
+    if any(b != a + 1 for a, b in zip(frames, frames[1:])):
+        raise ValueError("a run with state across frames needs consecutive increasing frames")
+    if initial is None and frames[0] > scene.start:
+        carry = Carry(scene, carried_at(stage, scene, frames[0] - 1, options))
+    return carry
+
+
+def carried_at(stage: Usd.Stage, scene: SceneModel, frame: int, options=None) -> list:
+    """What every deformable carries out of ``frame`` (``None`` for a stateless one), recomputed
+    by running the frames from the stage's start to ``frame``."""
+    from pipeline import frames as F
+
+    if frame < scene.start:
+        return [zero_carried(scene, m) if m.controls.stateful else None for m in scene.deformables]
+    options = F.RunOptions() if options is None else options
+    result, _ = F.run_frames(stage, scene, list(range(scene.start, frame + 1)), options)
+    return [result.frames[frame][m.path].carried for m in scene.deformables]
+
+
+def _per_level_rows(hs: H.HSpline, keep: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(ju, jv)`` of the level-``k`` CVs selected by ``keep`` and their rows."""
+    lev = hs.level(k)
+    rows = np.nonzero(keep)[0]
+    ncv = hs.v.cvs(k)
+    keys = lev.cv_keys[rows]
+    return np.stack([keys // ncv, keys % ncv], axis=1), rows
+
+
+def carried_values(model: DeformableModel, carried: relax.Carried) -> dict:
+    """The ``acra:state:*`` Vt values of one object's carried state (float64: exact round trip)."""
+    e, p = relax.aligned(carried.elastic, carried.plastic)
+    arrays = H.to_arrays(e)
+    levels, cvs, eo, po = [], [], [], []
+    for k in range(1, e.depth):
+        keep = np.any(e.level(k).offsets != 0.0, axis=1) | np.any(p.level(k).offsets != 0.0, axis=1)
+        idx, rows = _per_level_rows(e, keep, k)
+        levels.append(np.full(len(rows), k, np.int32))
+        cvs.append(idx)
+        eo.append(e.level(k).offsets[rows])
+        po.append(p.level(k).offsets[rows])
+
+    def cat(xs: list, shape: tuple, dt) -> np.ndarray:
+        return np.ascontiguousarray(np.concatenate(xs) if xs else np.zeros(shape), dtype=dt).reshape((-1,) + shape[1:])
+
+    return {
+        "acra:state:patchLevel": Vt.IntArray.FromNumpy(np.ascontiguousarray(arrays.patch_level, dtype=np.int32)),
+        "acra:state:patches": Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(arrays.patches, dtype=np.int32).reshape(-1, 2)),
+        "acra:state:elasticCvs": Vt.Vec3dArray.FromNumpy(usdio.cvs_to_flat(np.asarray(e.cvs, dtype=np.float64))),
+        "acra:state:plasticCvs": Vt.Vec3dArray.FromNumpy(usdio.cvs_to_flat(np.asarray(p.cvs, dtype=np.float64))),
+        "acra:state:offsetLevel": Vt.IntArray.FromNumpy(cat(levels, (0,), np.int32)),
+        "acra:state:offsetCvs": Vt.Vec2iArray.FromNumpy(cat(cvs, (0, 2), np.int32)),
+        "acra:state:elasticOffsets": Vt.Vec3dArray.FromNumpy(cat(eo, (0, 3), np.float64)),
+        "acra:state:plasticOffsets": Vt.Vec3dArray.FromNumpy(cat(po, (0, 3), np.float64)),
+    }
+
+
+def read_carried(output: Usd.Stage, scene: SceneModel, frame: int) -> list:
+    """What every deformable carries out of ``frame`` as a previous run's output layer recorded it
+    (``output`` opened on that layer; ``None`` for a stateless deformable).
+
+    Raises ``ValueError`` naming the prim when the layer does not fit ``scene`` (no state recorded
+    at ``frame``, or arrays that do not match the object's grid and levels).
+    """
+    out = []
+    for m in scene.deformables:
+        if not m.controls.stateful:
+            out.append(None)
+            continue
+        prim = output.GetPrimAtPath(m.path)
+        attr = prim.GetAttribute("acra:state:elasticCvs") if prim else None
+        if not attr or float(frame) not in attr.GetTimeSamples():
+            raise ValueError(f"{m.path}: no acra:state recorded at frame {frame} in {output.GetRootLayer().identifier}")
+        get = lambda n, dt, shape: np.array(prim.GetAttribute(n).Get(float(frame)), dtype=dt).reshape(shape)  # noqa: E731
+        zero = zero_carried(scene, m).elastic
+        ecvs, pcvs = get("acra:state:elasticCvs", np.float64, (-1, 3)), get("acra:state:plasticCvs", np.float64, (-1, 3))
+        if len(ecvs) != m.nu * m.nv or len(pcvs) != m.nu * m.nv:
+            raise ValueError(f"{m.path}: acra:state CVs at frame {frame} do not match the grid {m.nu}x{m.nv}")
+        structure = H.from_arrays(zero, H.HierarchyArrays(
+            get("acra:state:patchLevel", np.int32, (-1,)), get("acra:state:patches", np.int32, (-1, 2)),
+            np.zeros(0, np.int32), np.zeros((0, 2), np.int32), np.zeros((0, 3))))
+        levels = get("acra:state:offsetLevel", np.int32, (-1,))
+        cvs = get("acra:state:offsetCvs", np.int32, (-1, 2))
+        fields = []
+        for grid, name in ((ecvs, "acra:state:elasticOffsets"), (pcvs, "acra:state:plasticOffsets")):
+            hs = H.from_arrays(structure, H.HierarchyArrays(np.zeros(0, np.int32), np.zeros((0, 2), np.int32),
+                                                            levels, cvs, get(name, np.float64, (-1, 3))))
+            fields.append(H.HSpline(usdio.flat_to_cvs(grid, m.nu, m.nv), hs.u, hs.v, hs.depth, hs.fine))
+        out.append(relax.Carried(*fields))
+    return out
