@@ -630,6 +630,7 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
                 surfaces[i], rep = R.respond(parent, dp, controls[i], method=options.method,
                                              det=S.shape_of(parent, options.density).details)
                 S.seed_details(surfaces[i], rep.details, options.density, parent=parent)
+                surfaces[i] = carry.after_response(i, parent, surfaces[i])
                 if it == 0:
                     st.data_points[defs[i].path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))
                 ms = 1e3 * (time.perf_counter() - t_i)

@@ -11,6 +11,9 @@ state carried into its first frame by `carried_at` (the frames from the stage's 
 the default) or from a previous run's output layer (`read_carried`), handed to
 `pipeline.frames.run_frames` as ``initial``; both give, at every frame, what a whole run gives.
 A farm chunk does the same with the previous chunk's last carried state.
+
+Volume preservation (``acra:preserveVolume``) is applied here too, after every response of the
+frame (`Carry.after_response`, `acra.volume.bulge`); it carries nothing across frames.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from pxr import Usd, Vt
 
 from acra import hspline as H
 from acra import relax
+from acra import volume
 from pipeline import usdio
 from pipeline.model import DeformableModel, SceneModel
 
@@ -53,6 +57,9 @@ class Carry:
         self.released: list = [None] * len(self.models)
         self.started: list = [None] * len(self.models)
         self._memo: dict = {}
+        self.keeps_volume = [m.controls.preserve_volume > 0.0 for m in self.models]
+        self.targets: list = [None] * len(self.models)  # the animator's display volume at the frame
+        self.dents: list = [None] * len(self.models)  # display samples the frame's responses moved
 
     @property
     def active(self) -> bool:
@@ -69,6 +76,11 @@ class Carry:
         """``S_f`` of every object from the animator's ``A_f`` (``surfaces``, scene order)."""
         out = list(surfaces)
         self._memo = {}
+        for i, keep in enumerate(self.keeps_volume):
+            if keep:
+                topo = self.models[i].topology
+                self.targets[i] = volume.enclosed_volume(H.evaluate(surfaces[i], topo.u, topo.v).points, volume.triangles(topo))
+                self.dents[i] = np.zeros(topo.u.size, bool)
         for i, on in enumerate(self.on):
             if on:
                 rates = self.models[i].controls.relax_at(float(frame))
@@ -86,6 +98,27 @@ class Carry:
         if hit is None or hit[0] is not surface:
             hit = self._memo[(i, id(surface))] = (surface, relax.added(surface, r.plastic, r.elastic))
         return hit[1]
+
+    def after_response(self, i: int, parent: H.HSpline, responded: H.HSpline) -> H.HSpline:
+        """Object ``i``'s responded surface with its volume restored (``acra:preserveVolume``):
+        the display samples the response moved join the frame's dent, and the bulge level's CVs
+        move around it (`acra.volume.bulge`) until the display mesh encloses
+        ``V + s (V_animator - V)`` (strength ``s``). The frame loop's next round detects again,
+        so a bulge that touched something is answered like any other penetration, and the
+        residual the run reports is measured after it."""
+        if not self.keeps_volume[i]:
+            return responded
+        c = self.models[i].controls
+        topo = self.models[i].topology
+        before = H.evaluate(parent, topo.u, topo.v).points
+        after = H.evaluate(responded, topo.u, topo.v).points
+        size = responded.size()
+        self.dents[i] |= np.linalg.norm(after - before, axis=1) > 1e-6 * size
+        weights = volume.bulge_weights(after, self.dents[i], c.bulge_falloff * size)
+        now = volume.enclosed_volume(after, volume.triangles(topo))
+        goal = now + c.preserve_volume * (self.targets[i] - now)
+        out, _ = volume.bulge(responded, topo, goal, c.bulge_level, weights)
+        return out
 
     def end(self, frame: int, surfaces: list[H.HSpline]) -> list:
         """What every object carries out of the frame (``None`` for a stateless one), given the
