@@ -86,6 +86,7 @@ class FrameStats:
     xforms: dict = field(default_factory=dict)  # path -> (4, 4) object-to-world, every object
     regions: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
+    volume_targets: dict = field(default_factory=dict)  # path -> the animator's display volume (acra:preserveVolume)
 
 
 def _group_level(controls: R.Controls, depth: int) -> int:
@@ -639,6 +640,7 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
             st.iterations = it + 1
         surfaces = best[1]
         carried = carry.end(frame, surfaces)
+        st.volume_targets = carry.volume_targets()
         to = time.perf_counter()
         for i, model in enumerate(defs):
             pts, nrm = tessellation(i, surfaces[i])

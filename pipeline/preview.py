@@ -26,7 +26,7 @@ import rerun.blueprint as rrb
 
 from pipeline.model import SceneModel
 
-__all__ = ["Preview", "blueprint"]
+__all__ = ["Preview", "blueprint", "log_state"]
 
 
 def _entity(path: str) -> str:
@@ -53,6 +53,25 @@ def blueprint() -> rrb.Blueprint:
 
 def _transform(m: np.ndarray) -> rr.Transform3D:
     return rr.Transform3D(translation=m[:3, 3], mat3x3=m[:3, :3])
+
+
+def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result) -> None:
+    """Plots of what each deformable carries across frames and of its volume (`pipeline.state`):
+    ``metrics/state/<path>/{elastic,plastic}/level_<k>`` the largest carried vector per level,
+    ``metrics/volume/<path>`` the display mesh's volume over the animator's (objects with
+    ``acra:preserveVolume``). Objects without either log nothing."""
+    from acra import relax, volume
+
+    for model in scene.deformables:
+        r = frame_result[model.path]
+        if r.carried is not None:
+            for part in ("elastic", "plastic"):
+                for k, m in enumerate(relax.level_magnitudes(getattr(r.carried, part))):
+                    rec.log(f"metrics/state{model.path}/{part}/level_{k}", rr.Scalars(m))
+        target = st.volume_targets.get(model.path)
+        if target:
+            v = volume.enclosed_volume(np.asarray(r.points, dtype=np.float64), volume.triangles(model.topology))
+            rec.log(f"metrics/volume{model.path}", rr.Scalars(v / target))
 
 
 class Preview:
@@ -111,6 +130,7 @@ class Preview:
         self.rec.log("metrics/rounds", rr.Scalars(st.iterations))
         for name in ("setup", "detect", "convert", "respond", "output", "total"):
             self.rec.log(f"metrics/ms/{name}", rr.Scalars(getattr(st, f"ms_{name}")))
+        log_state(self.rec, self.scene, st, frame_result)
         if st.in_collision:
             self.rec.log("log", rr.TextLog(
                 f"frame {st.frame}: collision, {st.iterations} rounds, residual {st.residual_rel:.2e} of size, "

@@ -120,6 +120,10 @@ class Carry:
         out, _ = volume.bulge(responded, topo, goal, c.bulge_level, weights)
         return out
 
+    def volume_targets(self) -> dict:
+        """``{path: the animator's display volume at the frame}`` of the objects keeping theirs."""
+        return {m.path: self.targets[i] for i, m in enumerate(self.models) if self.keeps_volume[i]}
+
     def end(self, frame: int, surfaces: list[H.HSpline]) -> list:
         """What every object carries out of the frame (``None`` for a stateless one), given the
         frame's final surfaces ``R_f``."""

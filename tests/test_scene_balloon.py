@@ -56,3 +56,11 @@ def test_the_bulge_does_not_penetrate_the_finger(ratios):
     """The residual the run reports is measured after the bulge (the frame loop detects again)."""
     _, report = ratios
     assert max(s.residual_rel for s in report.stats) <= 1e-3
+
+
+def test_the_preview_plots_the_volume_ratio(ratios):
+    from rerun.chunk import RrdReader
+
+    _, report = ratios
+    entities = {c.entity_path for c in RrdReader(str(report.output.with_name("balloon.rrd"))).stream()}
+    assert f"/metrics/volume{BALLOON}" in entities and f"/metrics/volume{BALL}" not in entities

@@ -71,3 +71,14 @@ def test_the_displayed_ball_returns_to_the_animators_shape(run):
     assert max(ratios) <= 1 - RELAX[0]
     assert ratios[-1] == pytest.approx(1 - RELAX[0], abs=0.01)
     assert dev[LAST_HIT] > 0.15 and dev[last] <= (1 - RELAX[0]) ** (last - LAST_HIT) * dev[LAST_HIT]
+
+
+def test_the_preview_plots_the_carried_offsets_per_level(run):
+    from rerun.chunk import RrdReader
+
+    report, _, _ = run
+    rrd = report.output.with_name("soft_ball.rrd")
+    entities = {c.entity_path for c in RrdReader(str(rrd)).stream()}
+    for part in ("elastic", "plastic"):
+        for k in (0, 1):
+            assert f"/metrics/state{BALL}/{part}/level_{k}" in entities, sorted(e for e in entities if "metrics" in e)
