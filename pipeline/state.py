@@ -198,12 +198,17 @@ def carried_values(model: DeformableModel, carried: relax.Carried) -> dict:
     }
 
 
-def read_carried(output: Usd.Stage, scene: SceneModel, frame: int) -> list:
+def read_carried(output: Usd.Stage, scene: SceneModel, frame: int, stage: Usd.Stage | None = None) -> list:
     """What every deformable carries out of ``frame`` as a previous run's output layer recorded it
     (``output`` opened on that layer; ``None`` for a stateless deformable).
 
+    With ``stage`` (the input this run reads), the layer must match it: the surface it wrote at
+    ``frame`` (``acra:response:*``) must be the input's animator surface there plus the carried
+    fields (``R_f = A_f ⊕ P_f ⊕ E_f``, `acra.relax`) to 1e-9 of the object's size, else the input
+    changed since that run and its state cannot be resumed.
+
     Raises ``ValueError`` naming the prim when the layer does not fit ``scene`` (no state recorded
-    at ``frame``, or arrays that do not match the object's grid and levels).
+    at ``frame``, arrays that do not match the object's grid and levels, or a mismatch as above).
     """
     out = []
     for m in scene.deformables:
@@ -229,5 +234,13 @@ def read_carried(output: Usd.Stage, scene: SceneModel, frame: int) -> list:
             hs = H.from_arrays(structure, H.HierarchyArrays(np.zeros(0, np.int32), np.zeros((0, 2), np.int32),
                                                             levels, cvs, get(name, np.float64, (-1, 3))))
             fields.append(H.HSpline(usdio.flat_to_cvs(grid, m.nu, m.nv), hs.u, hs.v, hs.depth, hs.fine))
-        out.append(relax.Carried(*fields))
+        carried = relax.Carried(*fields)
+        if stage is not None:
+            animator = usdio.state_at(stage, scene, float(frame))[0][scene.deformables.index(m)].surface
+            written = usdio.read_output_hierarchy(output, m.path, float(frame))
+            gap = relax.level_magnitudes(relax.difference(written, relax.added(animator, carried.plastic, carried.elastic)))
+            if gap.max() > 1e-9 * animator.size():
+                raise ValueError(f"{m.path}: the acra:state recorded at frame {frame} does not match the input "
+                                 f"(response off the input plus the carried state by {gap.max():.3g}): run from the start")
+        out.append(carried)
     return out

@@ -115,3 +115,27 @@ def test_collisions_stack():
     r2 = relax.added(s2, relax.scaled(relax.difference(refined(14), a), [0.1, 0.1, 0.1]))
     c2 = relax.absorb(rel, s2, r2, keep)
     assert_same_surface(relax.added(a, c2.elastic), r2)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 10_000))
+def test_the_output_is_always_the_animators_surface_plus_both_fields(seed):
+    """Over random frames (animator surfaces, rates, plasticity, responses or none): ``R_f = A_f ⊕
+    P_f ⊕ E_f``, and the plastic field only ever grows by ``p ΔV``."""
+    rng = np.random.default_rng(seed)
+    base = refined(seed)
+    z = relax.zero_field(base)
+    carried = relax.Carried(z, z)
+    p = rng.uniform(0, 1, base.depth)
+    for f in range(6):
+        animator = H.HSpline(base.cvs + 0.1 * rng.normal(size=base.cvs.shape), base.u, base.v, base.depth, base.fine)
+        s, released = relax.begin(animator, carried, rng.uniform(0, 1, base.depth))
+        if rng.uniform() < 0.6:
+            move = relax.difference(refined(seed + 100 + f), relax.zero_field(base))
+            r = relax.added(s, relax.scaled(move, rng.uniform(0, 0.2, base.depth)))
+        else:
+            r = s
+        new = relax.absorb(released, s, r, p)
+        assert_same_surface(relax.added(animator, new.plastic, new.elastic), r, 1e-11)
+        assert_same_surface(new.plastic, relax.added(carried.plastic, relax.scaled(relax.difference(r, s), p)), 1e-12)
+        carried = new

@@ -66,7 +66,7 @@ def test_a_run_resumes_from_a_previous_output_layer(whole):
     """The state read back from the whole run's output at frame 4 (`state.read_carried`) equals
     what the run carried, and a run of frames 5-8 from it gives what the whole run gives."""
     stage, scene = _stage(whole)
-    carried = state.read_carried(Usd.Stage.Open(str(whole.output)), scene, 4)
+    carried = state.read_carried(Usd.Stage.Open(str(whole.output)), scene, 4, stage)
     ref = whole.result.frames[4][BALL].carried
     got = carried[0]
     for fa, fb in ((got.elastic, ref.elastic), (got.plastic, ref.plastic)):
@@ -77,6 +77,21 @@ def test_a_run_resumes_from_a_previous_output_layer(whole):
     result, _ = F.run_frames(stage, scene, [5, 6, 7, 8], initial=carried)
     for f in range(5, 9):
         assert_same_frame(result.frames[f][BALL], whole.result.frames[f][BALL])
+
+
+def test_a_layer_written_from_another_input_is_refused(whole, tmp_path):
+    """The input's animator surface changed since the output was written: the recorded state
+    does not add up to the recorded response any more."""
+    from pxr import Vt
+
+    stage, scene = _stage(whole)
+    edited = Usd.Stage.Open(str(whole.stage_path))
+    edited.GetRootLayer().Export(str(tmp_path / "edited.usda"))
+    edited = Usd.Stage.Open(str(tmp_path / "edited.usda"))
+    attr = edited.GetPrimAtPath(BALL).GetAttribute("acra:cvs")
+    attr.Set(Vt.Vec3fArray.FromNumpy(np.asarray(attr.Get(), dtype=np.float32) * np.float32(1.01)))
+    with pytest.raises(ValueError, match=f"{BALL}: the acra:state recorded at frame 4 does not match the input"):
+        state.read_carried(Usd.Stage.Open(str(whole.output)), scene, 4, edited)
 
 
 def test_carried_at_gives_the_state_a_chunk_starts_from(whole):
