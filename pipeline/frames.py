@@ -526,7 +526,7 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
         dstates, cstates = states(t)
         kind, j = kind_j
         if kind == "d":
-            return D.SurfaceGeometry(carry.at(j, dstates[j].surface), dstates[j].xform, name=defs[j].path, density=options.density)
+            return D.SurfaceGeometry(dstates[j].surface, dstates[j].xform, name=defs[j].path, density=options.density)
         return D.ColliderGeometry(statics[j], cstates[j].xform)
 
     for frame in frames:
@@ -536,8 +536,6 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
         st.xforms = {m.path: s.xform for m, s in zip(defs, dstates)}
         st.xforms.update({c.path: s.xform for c, s in zip(scene.colliders, cstates)})
         surfaces = carry.begin(frame, [s.surface for s in dstates])
-        if carry.moving:  # touching times and anchors found with other carried offsets are stale
-            caches.clear()
         enabled = [s.enabled for s in dstates]
         directions: dict = {}
         wrapping: set = set()  # collider pairs pushed by `collider_points_for` this frame

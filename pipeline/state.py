@@ -40,9 +40,10 @@ class Carry:
     """The carried state of a run's deformables, frame by frame (the frame loop's hooks).
 
     ``begin(frame, surfaces)`` gives the surfaces the frame starts from (`acra.relax.begin`);
-    ``at(i, surface)`` applies the frame's carried offsets to the animator's surface of object
-    ``i`` at another time code (the contact rewinding's geometry); ``end(frame, surfaces)``
-    absorbs the frame's responses and returns what each object carries out of it.
+    ``after_response`` keeps an object's volume after each response; ``end(frame, surfaces)``
+    absorbs the frame's responses and returns what each object carries out of it. The contact
+    rewinding keeps following the animator's motion without the carried offsets (see
+    docs/algorithm.md, "State across frames").
     """
 
     def __init__(self, scene: SceneModel, initial: list | None = None):
@@ -56,7 +57,6 @@ class Carry:
         ]
         self.released: list = [None] * len(self.models)
         self.started: list = [None] * len(self.models)
-        self._memo: dict = {}
         self.keeps_volume = [m.controls.preserve_volume > 0.0 for m in self.models]
         self.targets: list = [None] * len(self.models)  # the animator's display volume at the frame
         self.dents: list = [None] * len(self.models)  # display samples the frame's responses moved
@@ -66,16 +66,9 @@ class Carry:
         """Whether any object carries state."""
         return any(self.on)
 
-    @property
-    def moving(self) -> bool:
-        """Whether this frame starts any object off the animator's shape (then rewinding must see
-        the carried offsets, and nothing detected at another frame can be reused)."""
-        return any(r is not None and not (relax.is_zero(r.elastic) and relax.is_zero(r.plastic)) for r in self.released)
-
     def begin(self, frame: int, surfaces: list[H.HSpline]) -> list[H.HSpline]:
         """``S_f`` of every object from the animator's ``A_f`` (``surfaces``, scene order)."""
         out = list(surfaces)
-        self._memo = {}
         for i, keep in enumerate(self.keeps_volume):
             if keep:
                 topo = self.models[i].topology
@@ -87,17 +80,6 @@ class Carry:
                 out[i], self.released[i] = relax.begin(surfaces[i], self.carried[i], rates)
                 self.started[i] = out[i]
         return out
-
-    def at(self, i: int, surface: H.HSpline) -> H.HSpline:
-        """The animator's surface of object ``i`` at some time code plus this frame's carried
-        (released) offsets."""
-        r = self.released[i]
-        if r is None:
-            return surface
-        hit = self._memo.get((i, id(surface)))
-        if hit is None or hit[0] is not surface:
-            hit = self._memo[(i, id(surface))] = (surface, relax.added(surface, r.plastic, r.elastic))
-        return hit[1]
 
     def after_response(self, i: int, parent: H.HSpline, responded: H.HSpline) -> H.HSpline:
         """Object ``i``'s responded surface with its volume restored (``acra:preserveVolume``):

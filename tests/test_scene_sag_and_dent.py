@@ -29,8 +29,8 @@ def test_both_levels_carry_the_press(run):
     report, _, out = run
     assert [s.frame for s in report.stats if s.in_collision] == [2, LAST_HIT]
     sag, dent = _fields(out, LAST_HIT)
-    # measured: 0.065 on level 0, 0.220 on level 1
-    assert np.linalg.norm(sag, axis=1).max() > 0.05 and np.linalg.norm(dent, axis=1).max() > 0.2
+    # measured: 0.172 on level 0, 0.131 on level 1
+    assert np.linalg.norm(sag, axis=1).max() > 0.15 and np.linalg.norm(dent, axis=1).max() > 0.12
 
 
 def test_each_level_follows_its_rate(run):
@@ -50,7 +50,7 @@ def test_each_level_follows_its_rate(run):
 
 def test_the_displayed_sheet_eases_back(run):
     """The display points' distance from the animator's shrinks at every free frame, by a factor
-    that tends to the sag's 0.9 once the dent has gone (measured 0.62, 0.73, ... 0.897)."""
+    that tends to the sag's 0.9 once the dent has gone (measured 0.842, 0.885, ... 0.8998)."""
     report, inp, out = run
     rest = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(SHEET)).GetPointsAttr().Get())
     last = report.stats[-1].frame
@@ -58,4 +58,4 @@ def test_the_displayed_sheet_eases_back(run):
            for f in range(LAST_HIT, last + 1)]
     ratios = np.array(dev[1:]) / np.array(dev[:-1])
     assert np.all(ratios < 1.0)
-    assert ratios[0] < 0.7 and ratios[-1] == pytest.approx(0.9, abs=0.01)
+    assert ratios[0] < 0.86 and ratios[-1] == pytest.approx(0.9, abs=0.001)
