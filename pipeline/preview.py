@@ -55,12 +55,20 @@ def _transform(m: np.ndarray) -> rr.Transform3D:
     return rr.Transform3D(translation=m[:3, 3], mat3x3=m[:3, :3])
 
 
+CARRIED_FULL = 0.05  # a carried displacement of this fraction of the object's size shows full red
+_REST_COLOUR, _CARRIED_COLOUR = np.array([217.0, 199.0, 178.0]), np.array([230.0, 50.0, 40.0])
+
+
 def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result) -> None:
     """Plots of what each deformable carries across frames and of its volume (`pipeline.state`):
     ``metrics/state/<path>/{elastic,plastic}/level_<k>`` the largest carried vector per level,
     ``metrics/volume/<path>`` the display mesh's volume over the animator's (objects with
-    ``acra:preserveVolume``). Objects without either log nothing."""
+    ``acra:preserveVolume``); and the carried displacement as colour on the mesh (from the base
+    colour to red at `CARRIED_FULL` of the object's size): each display point's distance from
+    where the animator's surface puts it (the output's surface less both carried fields).
+    Objects without either log nothing."""
     from acra import relax, volume
+    from acra.tessellate import evaluate_grid
 
     for model in scene.deformables:
         r = frame_result[model.path]
@@ -68,6 +76,12 @@ def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result) -> N
             for part in ("elastic", "plastic"):
                 for k, m in enumerate(relax.level_magnitudes(getattr(r.carried, part))):
                     rec.log(f"metrics/state{model.path}/{part}/level_{k}", rr.Scalars(m))
+            minus = np.full(r.surface.depth, -1.0)
+            animator = relax.added(r.surface, relax.scaled(r.carried.plastic, minus), relax.scaled(r.carried.elastic, minus))
+            rest, _ = evaluate_grid(animator, model.topology)
+            t = np.clip(np.linalg.norm(r.points - rest, axis=1) / (CARRIED_FULL * r.surface.size()), 0.0, 1.0)
+            colours = (_REST_COLOUR + t[:, None] * (_CARRIED_COLOUR - _REST_COLOUR)).astype(np.uint8)
+            rec.log(_entity(model.path), rr.Mesh3D.from_fields(vertex_colors=colours))
         target = st.volume_targets.get(model.path)
         if target:
             v = volume.enclosed_volume(np.asarray(r.points, dtype=np.float64), volume.triangles(model.topology))

@@ -82,3 +82,23 @@ def test_the_preview_plots_the_carried_offsets_per_level(run):
     for part in ("elastic", "plastic"):
         for k in (0, 1):
             assert f"/metrics/state{BALL}/{part}/level_{k}" in entities, sorted(e for e in entities if "metrics" in e)
+
+
+def test_the_preview_colours_the_carried_dent(run):
+    """Vertex colours on the ball (RGBA packed in a uint32): all the base colour before the press,
+    near red at the deepest frame (the dent carries more than 5 % of the size), fading after."""
+    from rerun.chunk import RrdReader
+
+    report, _, _ = run
+    green = {}  # frame -> the smallest green channel over the vertices (base 199, red 50)
+    for c in RrdReader(str(report.output.with_name("soft_ball.rrd"))).stream():
+        if c.entity_path != f"/world{BALL}":
+            continue
+        b = c.to_record_batch()
+        if "Mesh3D:vertex_colors" not in b.schema.names:
+            continue
+        for f, v in zip(b.column("frame").to_pylist(), b.column("Mesh3D:vertex_colors").to_pylist()):
+            green[f] = int(((np.array(v, dtype=np.uint32) >> 16) & 0xFF).min())
+    assert sorted(green) == list(range(1, 13))
+    assert green[1] == 199 and green[4] <= 90
+    assert all(green[f + 1] >= green[f] for f in range(4, 12)) and green[12] >= 195
