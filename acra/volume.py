@@ -25,7 +25,19 @@ from .interpolate import point_weights
 from .respond import move_level
 from .tessellate import GridTopology
 
-__all__ = ["triangles", "enclosed_volume", "volume_gradient", "bulge_weights", "bulge"]
+__all__ = ["encloses", "triangles", "enclosed_volume", "volume_gradient", "surface_area", "area_gradient", "MEASURES",
+           "bulge_weights", "bulge"]
+
+
+def encloses(hs: H.HSpline) -> bool:
+    """Whether ``hs`` encloses a volume: periodic both ways, or periodic one way with both ends of
+    the open direction closed to a point (`acra.hspline.closed_ends`, poles)."""
+    if hs.u.periodic and hs.v.periodic:
+        return True
+    if hs.u.periodic == hs.v.periodic:
+        return False
+    axis = 1 if hs.u.periodic else 0
+    return {(axis, 0), (axis, 1)} <= set(H.closed_ends(hs))
 
 
 def triangles(topo: GridTopology) -> np.ndarray:
@@ -50,6 +62,29 @@ def volume_gradient(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
     return g / 6.0
 
 
+def surface_area(points: np.ndarray, tris: np.ndarray) -> float:
+    """Area of triangles ``tris (t, 3)`` over ``points (n, 3)``."""
+    a, b, c = (points[tris[:, k]] for k in range(3))
+    return float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+
+
+def area_gradient(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """``∂A/∂p`` for every point: ``(n, 3) float64``; per triangle with unit normal ``n``,
+    ``∂A/∂a = n × (c − b) / 2`` and cyclically (zero for a degenerate triangle)."""
+    a, b, c = (points[tris[:, k]] for k in range(3))
+    n = np.cross(b - a, c - a)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    g = np.zeros_like(points, dtype=np.float64)
+    np.add.at(g, tris[:, 0], np.cross(n, c - b))
+    np.add.at(g, tris[:, 1], np.cross(n, a - c))
+    np.add.at(g, tris[:, 2], np.cross(n, b - a))
+    return g / 2.0
+
+
+MEASURES = {"volume": (enclosed_volume, volume_gradient), "area": (surface_area, area_gradient)}
+
+
 def bulge_weights(points: np.ndarray, dent: np.ndarray, falloff: float) -> np.ndarray:
     """How much each display sample may move to make the bulge: ``(n,) float64``.
 
@@ -68,15 +103,16 @@ def bulge_weights(points: np.ndarray, dent: np.ndarray, falloff: float) -> np.nd
 
 
 def bulge(hs: H.HSpline, topo: GridTopology, target: float, level: int, weights: np.ndarray,
-          steps: int = 4, rtol: float = 1e-4) -> tuple[H.HSpline, float]:
-    """``hs`` with its level-``level`` CVs moved so the display mesh encloses ``target``.
+          steps: int = 4, rtol: float = 1e-4, measure: str = "volume") -> tuple[H.HSpline, float]:
+    """``hs`` with its level-``level`` CVs moved so the display mesh's ``measure`` (``"volume"``
+    enclosed, or ``"area"`` for an open sheet) is ``target``.
 
     Parameters
     ----------
     topo : GridTopology
         The display tessellation the volume is measured on.
     target : float
-        The wanted (signed) volume.
+        The wanted (signed) volume or area.
     weights : (n,) float64
         Per display sample, how much it may move (`bulge_weights`).
     steps : int
@@ -84,23 +120,24 @@ def bulge(hs: H.HSpline, topo: GridTopology, target: float, level: int, weights:
 
     Returns
     -------
-    The surface and its volume. Each step moves CV ``j`` by ``λ c_j h_j`` with
+    The surface and its measure. Each step moves CV ``j`` by ``λ c_j h_j`` with
     ``h_j = Σ_i B_ij w_i ∂V/∂p_i`` (the gradient seen through the weights), ``c_j`` the CV's
     mean sample weight, and ``λ`` making the linearised change ``Σ_j g_j · δ_j`` equal to the
     volume missing: the minimum of ``Σ_j |δ_j|² / c_j`` under the masked constraint.
     """
+    size, gradient = MEASURES[measure]
     tris = triangles(topo)
     pw = point_weights(hs, level, topo.u, topo.v)
     n_cv = pw.cv_rows.size
     mean_w = np.bincount(pw.col, pw.w * weights[pw.point], n_cv) / np.maximum(np.bincount(pw.col, pw.w, n_cv), 1e-300)
     det = H.details(hs) if hs.depth > 1 else None
     pts = H.evaluate(hs, topo.u, topo.v, det=det).points
-    vol = enclosed_volume(pts, tris)
+    vol = size(pts, tris)
     for _ in range(steps):
         missing = target - vol
         if abs(missing) <= rtol * abs(target):
             break
-        grad = volume_gradient(pts, tris)
+        grad = gradient(pts, tris)
         g = np.stack([np.bincount(pw.col, pw.w * grad[pw.point, c], n_cv) for c in range(3)], axis=1)
         h = np.stack([np.bincount(pw.col, pw.w * weights[pw.point] * grad[pw.point, c], n_cv) for c in range(3)], axis=1)
         direction = mean_w[:, None] * h
@@ -110,5 +147,5 @@ def bulge(hs: H.HSpline, topo: GridTopology, target: float, level: int, weights:
         hs = move_level(hs, level, pw.cv_rows, (missing / rate) * direction, det)
         det = H.details(hs) if hs.depth > 1 else None
         pts = H.evaluate(hs, topo.u, topo.v, det=det).points
-        vol = enclosed_volume(pts, tris)
+        vol = size(pts, tris)
     return hs, vol

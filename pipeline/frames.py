@@ -86,7 +86,7 @@ class FrameStats:
     xforms: dict = field(default_factory=dict)  # path -> (4, 4) object-to-world, every object
     regions: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
-    volume_targets: dict = field(default_factory=dict)  # path -> the animator's display volume (acra:preserveVolume)
+    volume_targets: dict = field(default_factory=dict)  # path -> ("volume" | "area", the animator's display measure)
 
 
 def _group_level(controls: R.Controls, depth: int) -> int:

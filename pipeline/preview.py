@@ -62,8 +62,8 @@ _REST_COLOUR, _CARRIED_COLOUR = np.array([217.0, 199.0, 178.0]), np.array([230.0
 def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result) -> None:
     """Plots of what each deformable carries across frames and of its volume (`pipeline.state`):
     ``metrics/state/<path>/{elastic,plastic}/level_<k>`` the largest carried vector per level,
-    ``metrics/volume/<path>`` the display mesh's volume over the animator's (objects with
-    ``acra:preserveVolume``); and the carried displacement as colour on the mesh (from the base
+    ``metrics/volume/<path>`` (``metrics/area/<path>`` for an open sheet) the display mesh's
+    volume over the animator's (objects with ``acra:preserveVolume``); and the carried displacement as colour on the mesh (from the base
     colour to red at `CARRIED_FULL` of the object's size): each display point's distance from
     where the animator's surface puts it (the output's surface less both carried fields).
     Objects without either log nothing."""
@@ -82,10 +82,10 @@ def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result) -> N
             t = np.clip(np.linalg.norm(r.points - rest, axis=1) / (CARRIED_FULL * r.surface.size()), 0.0, 1.0)
             colours = (_REST_COLOUR + t[:, None] * (_CARRIED_COLOUR - _REST_COLOUR)).astype(np.uint8)
             rec.log(_entity(model.path), rr.Mesh3D.from_fields(vertex_colors=colours))
-        target = st.volume_targets.get(model.path)
-        if target:
-            v = volume.enclosed_volume(np.asarray(r.points, dtype=np.float64), volume.triangles(model.topology))
-            rec.log(f"metrics/volume{model.path}", rr.Scalars(v / target))
+        if model.path in st.volume_targets:
+            measure, target = st.volume_targets[model.path]
+            v = volume.MEASURES[measure][0](np.asarray(r.points, dtype=np.float64), volume.triangles(model.topology))
+            rec.log(f"metrics/{measure}{model.path}", rr.Scalars(v / target))
 
 
 class Preview:

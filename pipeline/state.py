@@ -24,6 +24,7 @@ from pxr import Usd, Vt
 from acra import hspline as H
 from acra import relax
 from acra import volume
+from pipeline import shape as S
 from pipeline import usdio
 from pipeline.model import DeformableModel, SceneModel
 
@@ -46,8 +47,10 @@ class Carry:
     docs/algorithm.md, "State across frames").
     """
 
-    def __init__(self, scene: SceneModel, initial: list | None = None):
+    def __init__(self, scene: SceneModel, initial: list | None = None, density: int = 8):
         self.models = scene.deformables
+        self.density = density
+        self.previous: list = [None] * len(self.models)  # each object's final surface of the last frame
         self.on = [m.controls.stateful for m in self.models]
         if initial is None:
             initial = [None] * len(self.models)
@@ -59,6 +62,7 @@ class Carry:
         self.started: list = [None] * len(self.models)
         self.keeps_volume = [m.controls.preserve_volume > 0.0 for m in self.models]
         self.targets: list = [None] * len(self.models)  # the animator's display volume at the frame
+        self.measures: list = [None] * len(self.models)  # "volume" (closed) or "area" (open sheet)
         self.dents: list = [None] * len(self.models)  # display samples the frame's responses moved
 
     @property
@@ -72,20 +76,32 @@ class Carry:
         for i, keep in enumerate(self.keeps_volume):
             if keep:
                 topo = self.models[i].topology
-                self.targets[i] = volume.enclosed_volume(H.evaluate(surfaces[i], topo.u, topo.v).points, volume.triangles(topo))
+                self.measures[i] = "volume" if volume.encloses(surfaces[i]) else "area"
+                size = volume.MEASURES[self.measures[i]][0]
+                self.targets[i] = size(H.evaluate(surfaces[i], topo.u, topo.v).points, volume.triangles(topo))
                 self.dents[i] = np.zeros(topo.u.size, bool)
         for i, on in enumerate(self.on):
             if on:
                 rates = self.models[i].controls.relax_at(float(frame))
                 out[i], self.released[i] = relax.begin(surfaces[i], self.carried[i], rates)
                 self.started[i] = out[i]
+                if out[i] is not surfaces[i] and self.previous[i] is not None:
+                    # the last frame's surface differs from this start only where the carried
+                    # offsets live (and where the animator's CVs moved): its collision grids,
+                    # hull boxes and display samples serve everywhere else (`shape.Shape`)
+                    prev = self.previous[i]
+                    det = None
+                    if prev.depth > 1:
+                        det = H.details(out[i], since=(prev, S.shape_of(prev, self.density).details,
+                                                       H.changed_patches(prev, out[i])))
+                    S.seed_details(out[i], det, self.density, parent=prev)
         return out
 
     def after_response(self, i: int, parent: H.HSpline, responded: H.HSpline) -> H.HSpline:
-        """Object ``i``'s responded surface with its volume restored (``acra:preserveVolume``):
-        the display samples the response moved join the frame's dent, and the bulge level's CVs
-        move around it (`acra.volume.bulge`) until the display mesh encloses
-        ``V + s (V_animator - V)`` (strength ``s``). The frame loop's next round detects again,
+        """Object ``i``'s responded surface with its volume (a closed object) or area (an open
+        sheet) restored (``acra:preserveVolume``): the display samples the response moved join
+        the frame's dent, and the bulge level's CVs move around it (`acra.volume.bulge`) until
+        the display mesh's measure is ``V + s (V_animator - V)`` (strength ``s``). The frame loop's next round detects again,
         so a bulge that touched something is answered like any other penetration, and the
         residual the run reports is measured after it."""
         if not self.keeps_volume[i]:
@@ -95,16 +111,21 @@ class Carry:
         before = H.evaluate(parent, topo.u, topo.v).points
         after = H.evaluate(responded, topo.u, topo.v).points
         size = responded.size()
-        self.dents[i] |= np.linalg.norm(after - before, axis=1) > 1e-6 * size
+        moved = np.linalg.norm(after - before, axis=1)
+        # the dent: what this response moved by more than a tenth of its largest move (and more
+        # than 1e-3 of the size); a coarse level's response moves the whole object a little,
+        # and a dent that took everything would leave nothing to bulge
+        self.dents[i] |= moved > max(1e-3 * size, 0.1 * moved.max(initial=0.0))
         weights = volume.bulge_weights(after, self.dents[i], c.bulge_falloff * size)
-        now = volume.enclosed_volume(after, volume.triangles(topo))
+        now = volume.MEASURES[self.measures[i]][0](after, volume.triangles(topo))
         goal = now + c.preserve_volume * (self.targets[i] - now)
-        out, _ = volume.bulge(responded, topo, goal, c.bulge_level, weights)
+        out, _ = volume.bulge(responded, topo, goal, c.bulge_level, weights, measure=self.measures[i])
         return out
 
     def volume_targets(self) -> dict:
-        """``{path: the animator's display volume at the frame}`` of the objects keeping theirs."""
-        return {m.path: self.targets[i] for i, m in enumerate(self.models) if self.keeps_volume[i]}
+        """``{path: (measure, the animator's display volume or area at the frame)}`` of the
+        objects keeping theirs (``measure`` is ``"volume"`` or ``"area"``)."""
+        return {m.path: (self.measures[i], self.targets[i]) for i, m in enumerate(self.models) if self.keeps_volume[i]}
 
     def end(self, frame: int, surfaces: list[H.HSpline]) -> list:
         """What every object carries out of the frame (``None`` for a stateless one), given the
@@ -114,6 +135,7 @@ class Carry:
                 p = self.models[i].controls.plasticity
                 p = np.zeros(surfaces[i].depth) if p is None else p
                 self.carried[i] = relax.absorb(self.released[i], self.started[i], surfaces[i], p)
+                self.previous[i] = surfaces[i]
         return list(self.carried)
 
 
@@ -121,13 +143,13 @@ def for_run(stage: Usd.Stage, scene: SceneModel, frames: list[int], options, ini
     """The `Carry` of a run over ``frames``: from ``initial`` if given, else recomputed from the
     stage's start (`carried_at`) when the run starts after it. Raises ``ValueError`` when a
     stateful run's frames are not consecutive and increasing (the state would skip frames)."""
-    carry = Carry(scene, initial)
+    carry = Carry(scene, initial, options.density)
     if not carry.active or not frames:
         return carry
     if any(b != a + 1 for a, b in zip(frames, frames[1:])):
         raise ValueError("a run with state across frames needs consecutive increasing frames")
     if initial is None and frames[0] > scene.start:
-        carry = Carry(scene, carried_at(stage, scene, frames[0] - 1, options))
+        carry = Carry(scene, carried_at(stage, scene, frames[0] - 1, options), options.density)
     return carry
 
 

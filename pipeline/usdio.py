@@ -28,7 +28,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdPhysics, Vt
 
 from acra.basis import Direction
-from acra.hspline import HierarchyArrays, HSpline, closed_ends, from_arrays, from_grid, to_arrays
+from acra.hspline import HierarchyArrays, HSpline, from_arrays, from_grid, to_arrays
 from acra.tessellate import display_topology
 
 from .model import (
@@ -481,23 +481,9 @@ def read_deformable(prim: Usd.Prim) -> tuple[DeformableModel, HSpline]:
             else:
                 name = "acra:hierarchy:patches" if stage_ == "patch" else "acra:hierarchy:offsetCvs"
             raise InputError(path, name, msg) from exc
-    if controls.preserve_volume > 0.0 and not _encloses(surface):
-        raise InputError(path, "acra:preserveVolume", "needs a closed surface (periodic both ways, or periodic one "
-                         "way with both ends of the other closed to a point); open sheets keep no area")
     topology = display_topology(Direction(nu, uper), Direction(nv, vper), controls.samples)
     model = DeformableModel(path, uper, vper, nu, nv, levels, controls, hierarchy, topology)
     return model, surface
-
-
-def _encloses(hs: HSpline) -> bool:
-    """Whether ``hs`` encloses a volume: periodic both ways, or periodic one way with both ends of
-    the open direction closed to a point (`acra.hspline.closed_ends`, poles)."""
-    if hs.u.periodic and hs.v.periodic:
-        return True
-    if hs.u.periodic == hs.v.periodic:
-        return False
-    axis = 1 if hs.u.periodic else 0
-    return {(axis, 0), (axis, 1)} <= set(closed_ends(hs))
 
 
 def _read_collider(prim: Usd.Prim, time: Usd.TimeCode) -> ColliderModel:

@@ -498,7 +498,6 @@ BAD.update({
     "plasticity animated": (_both(_new("acra:plasticity", N.Float, 0.1, 1.0), _new("acra:plasticity", N.Float, 0.2, 2.0)), "acra:plasticity", "is not animatable"),
     "preserveVolume 2": (_new("acra:preserveVolume", N.Float, 2.0), "acra:preserveVolume", "2 outside [0, 1]"),
     "bulgeLevel 3": (_new("acra:bulgeLevel", N.Int, 3), "acra:bulgeLevel", "3 outside 0..2"),
-    "preserveVolume on a sheet": (_new("acra:preserveVolume", N.Float, 1.0), "acra:preserveVolume", "needs a closed surface"),
     "bulgeFalloff 0": (_new("acra:bulgeFalloff", N.Float, 0.0), "acra:bulgeFalloff", "0 is not positive"),
     "bulgeFalloff inf": (_new("acra:bulgeFalloff", N.Float, float("inf")), "acra:bulgeFalloff", "inf is not finite"),
 })
@@ -515,7 +514,7 @@ def test_state_controls_are_read_and_relax_interpolates_between_samples(tmp_path
     prim = stage.GetPrimAtPath(SHEET)
     A.key_relax(prim, 1, [1.0, 0.5, 0.2])
     A.key_relax(prim, 3, [0.0, 0.5, 0.6])
-    A.set_state_controls(prim, plasticity=0.25, preserve_volume=0.0, bulge_level=1, bulge_falloff=0.3)  # a sheet keeps no volume
+    A.set_state_controls(prim, plasticity=0.25, preserve_volume=0.5, bulge_level=1, bulge_falloff=0.3)
     A.save(stage, tmp_path / "s.usda")
     st = U.open_input(tmp_path / "s.usda")
     c = U.read_scene(st).deformables[0].controls
@@ -526,7 +525,7 @@ def test_state_controls_are_read_and_relax_interpolates_between_samples(tmp_path
     mid = (np.float32([1.0, 0.5, 0.2]).astype(np.float64) + np.float32([0.0, 0.5, 0.6])) / 2
     np.testing.assert_array_equal(c.relax_at(2.0), mid)
     np.testing.assert_array_equal(c.plasticity, [0.25] * 3)
-    assert (c.preserve_volume, c.bulge_level, c.bulge_falloff) == (0.0, 1, np.float32(0.3))
+    assert (c.preserve_volume, c.bulge_level, c.bulge_falloff) == (0.5, 1, np.float32(0.3))
 
 
 @pytest.mark.parametrize("case", sorted(BAD))
