@@ -155,7 +155,7 @@ def begin(animator: H.HSpline, carried: Carried, relax: np.ndarray) -> tuple[H.H
     ``Carried((1 - r) E_{f-1}, P_{f-1})``.
     """
     keep = 1.0 - np.asarray(relax, dtype=np.float64)
-    elastic = carried.elastic if np.all(keep == 1.0) else scaled(carried.elastic, keep)
+    elastic = carried.elastic if np.all(keep == 1.0) or is_zero(carried.elastic) else scaled(carried.elastic, keep)
     released = Carried(elastic, carried.plastic)
     return added(animator, carried.plastic, elastic), released
 

@@ -31,6 +31,9 @@ from pipeline.model import DeformableModel, SceneModel
 __all__ = ["Carry", "for_run", "carried_at", "carried_values", "read_carried", "zero_carried"]
 
 
+NEGLIGIBLE = 1e-9  # an elastic field below this fraction of the object's size is released in full
+
+
 def zero_carried(scene: SceneModel, model: DeformableModel) -> relax.Carried:
     """Nothing carried: zero fields shaped like the deformable."""
     z = relax.zero_field(usdio.surface_template(scene, model))
@@ -51,6 +54,7 @@ class Carry:
         self.models = scene.deformables
         self.density = density
         self.previous: list = [None] * len(self.models)  # each object's final surface of the last frame
+        self.last_start: list = [None] * len(self.models)  # (animator surface, plastic field, start)
         self.on = [m.controls.stateful for m in self.models]
         if initial is None:
             initial = [None] * len(self.models)
@@ -83,9 +87,23 @@ class Carry:
         for i, on in enumerate(self.on):
             if on:
                 rates = self.models[i].controls.relax_at(float(frame))
-                out[i], self.released[i] = relax.begin(surfaces[i], self.carried[i], rates)
+                carried = self.carried[i]
+                if not relax.is_zero(carried.elastic) and (
+                        relax.level_magnitudes(carried.elastic).max() <= NEGLIGIBLE * surfaces[i].size()):
+                    # released to below anything float32 display points can show: it is gone
+                    carried = relax.Carried(relax.zero_field(carried.elastic), carried.plastic)
+                last = self.last_start[i]
+                if (last is not None and last[0] is surfaces[i] and last[1] is carried.plastic
+                        and relax.is_zero(carried.elastic)):
+                    # nothing changed since the last frame's start (the same animator surface, the
+                    # same kept offsets, nothing left to release): the same surface object, so
+                    # its shape data and display are reused as in the stateless loop
+                    out[i], self.released[i] = last[2], carried
+                else:
+                    out[i], self.released[i] = relax.begin(surfaces[i], carried, rates)
+                self.last_start[i] = (surfaces[i], carried.plastic, out[i])
                 self.started[i] = out[i]
-                if out[i] is not surfaces[i] and self.previous[i] is not None:
+                if out[i] is not surfaces[i] and self.previous[i] is not None and out[i] is not self.previous[i]:
                     # the last frame's surface differs from this start only where the carried
                     # offsets live (and where the animator's CVs moved): its collision grids,
                     # hull boxes and display samples serve everywhere else (`shape.Shape`)

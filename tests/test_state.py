@@ -125,3 +125,21 @@ def test_stateless_objects_write_no_state(run_scene):
     for m in report.scene.deformables:
         assert not any(stage.GetPrimAtPath(m.path).GetAttribute(n) for n in U.STATE_TYPES), m.path
         assert all(r[m.path].carried is None for r in report.result.frames.values())
+
+
+def test_a_kept_dent_with_nothing_to_release_reuses_its_surface(run_scene):
+    """clay: once the balls have gone, the fully plastic sheet starts every frame from the same
+    surface object (same animator surface, same kept field), so nothing is evaluated again."""
+    report = run_scene("clay")
+    surfaces = [report.result.frames[f]["/World/Full/Sheet"].surface for f in (6, 7, 8)]
+    assert surfaces[0] is surfaces[1] is surfaces[2]
+
+
+def test_an_elastic_field_below_the_negligible_size_is_released_in_full(whole):
+    stage, scene = _stage(whole)
+    carried = whole.result.frames[4][BALL].carried
+    animator = U.state_at(stage, scene, 5.0)[0][0].surface
+    tiny = relax.scaled(carried.elastic, np.full(2, 0.5 * state.NEGLIGIBLE * animator.size() / relax.level_magnitudes(carried.elastic).max()))
+    carry = state.Carry(scene, [relax.Carried(tiny, carried.plastic)])
+    started = carry.begin(5, [animator])[0]
+    assert started is animator and relax.is_zero(carry.released[0].elastic)
