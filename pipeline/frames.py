@@ -3,8 +3,8 @@
 Each frame starts from the animator's input at that time code (`usdio.state_at`), so frames are
 independent and the run is stateless (thesis §2.5 "animator override"), except for a deformable
 that carries state across frames (``acra:relax``, ``acra:plasticity``): it starts from the
-animator's shape plus what it carried out of the previous frame (`pipeline.state`). Within a frame the loop
-iterates: detect every pair, turn each contact into data points (thesis eq. 4.15–4.16), respond
+animator's shape plus what it carried out of the previous frame (`pipeline.state`). Within a
+frame the loop iterates: detect every pair, turn each contact into data points (thesis eq. 4.15–4.16), respond
 every deformable (`acra.respond.respond`), and detect again, until the residual penetration of
 every pair is within tolerance or the iteration cap is reached. Transforms are only read.
 """

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 
-from acra import hspline as H
 from acra import relax
 from pipeline import usdio as U
 
