@@ -39,6 +39,7 @@ __all__ = [
     "region_midpoints",
     "region_deepest",
     "respond",
+    "move_level",
     "quat_from_axis_angle",
     "quat_rotate",
     "slerp_mean",
@@ -296,6 +297,13 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     fine = list(hs.fine)
     fine[level - 1] = replace(lev, offsets=offsets)
     return replace(hs, fine=tuple(fine))
+
+
+def move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
+    """Add object-space moves ``dv (P, 3)`` to the level-``level`` CVs ``cv_rows (P,)`` (rows as in
+    `acra.interpolate.PointWeights.cv_rows`), keeping closed ends closed; ``det`` is
+    ``H.details(hs)`` (needed for ``level >= 1``)."""
+    return _move_level(hs, level, cv_rows, dv, det)
 
 
 def _closed_ends(hs: H.HSpline, cvs: np.ndarray) -> np.ndarray:

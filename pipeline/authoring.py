@@ -76,6 +76,8 @@ __all__ = [
     "uv_sphere",
     "key_transform",
     "key_enabled",
+    "set_state_controls",
+    "key_relax",
     "save",
 ]
 
@@ -549,6 +551,35 @@ def key_enabled(prim: Usd.Prim, frame: float, value: bool) -> None:
     before it): key ``True`` where the response should start as well as ``False`` where it stops.
     """
     _set(prim, "acra:enabled", T.Bool, bool(value), frame)
+
+
+def set_state_controls(prim: Usd.Prim, relax=None, plasticity=None, preserve_volume=None, bulge_level=None,
+                       bulge_falloff=None) -> None:
+    """Author the state-across-frames controls (docs/usd-schema.md §2a) that are given.
+
+    ``relax`` is a ``float[]`` per level (its default value; `key_relax` keys it); ``plasticity``
+    a float for the object or a sequence per level; ``preserve_volume`` a float strength;
+    ``bulge_level`` an int; ``bulge_falloff`` a float. Values are written as given:
+    `pipeline.usdio.read_scene` validates them.
+    """
+    if relax is not None:
+        _set(prim, "acra:relax", T.FloatArray, Vt.FloatArray([float(x) for x in np.ravel(relax)]))
+    if plasticity is not None:
+        if np.ndim(plasticity) == 0:
+            _set(prim, "acra:plasticity", T.Float, float(plasticity))
+        else:
+            _set(prim, "acra:plasticity", T.FloatArray, Vt.FloatArray([float(x) for x in np.ravel(plasticity)]))
+    if preserve_volume is not None:
+        _set(prim, "acra:preserveVolume", T.Float, float(preserve_volume))
+    if bulge_level is not None:
+        _set(prim, "acra:bulgeLevel", T.Int, int(bulge_level))
+    if bulge_falloff is not None:
+        _set(prim, "acra:bulgeFalloff", T.Float, float(bulge_falloff))
+
+
+def key_relax(prim: Usd.Prim, frame: float, relax) -> None:
+    """Key ``acra:relax`` (one rate per level) at ``frame``; USD interpolates linearly between keys."""
+    _set(prim, "acra:relax", T.FloatArray, Vt.FloatArray([float(x) for x in np.ravel(relax)]), frame)
 
 
 def save(stage: Usd.Stage, path: str | os.PathLike) -> Path:

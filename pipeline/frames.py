@@ -1,8 +1,10 @@
 """The frame loop: detect → respond → detect again, per frame, from the animator's shape.
 
 Each frame starts from the animator's input at that time code (`usdio.state_at`), so frames are
-independent and the run is stateless (thesis §2.5 "animator override"). Within a frame the loop
-iterates: detect every pair, turn each contact into data points (thesis eq. 4.15–4.16), respond
+independent and the run is stateless (thesis §2.5 "animator override"), except for a deformable
+that carries state across frames (``acra:relax``, ``acra:plasticity``): it starts from the
+animator's shape plus what it carried out of the previous frame (`pipeline.state`). Within a
+frame the loop iterates: detect every pair, turn each contact into data points (thesis eq. 4.15–4.16), respond
 every deformable (`acra.respond.respond`), and detect again, until the residual penetration of
 every pair is within tolerance or the iteration cap is reached. Transforms are only read.
 """
@@ -25,6 +27,7 @@ from acra.tessellate import grid_samples, pole_normals
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import shape as S
+from pipeline import state
 from pipeline import usdio
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
@@ -83,6 +86,7 @@ class FrameStats:
     xforms: dict = field(default_factory=dict)  # path -> (4, 4) object-to-world, every object
     regions: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
+    volume_targets: dict = field(default_factory=dict)  # path -> ("volume" | "area", the animator's display measure)
 
 
 def _group_level(controls: R.Controls, depth: int) -> int:
@@ -455,18 +459,24 @@ def run_frames(
     frames: list[int],
     options: RunOptions = RunOptions(),
     on_frame: Callable[[FrameStats, usdio.FramesResult], None] | None = None,
+    initial: list | None = None,
 ) -> tuple[usdio.FramesResult, list[FrameStats]]:
     """Process ``frames`` and return the per-frame results to write and their statistics.
+
+    A deformable that carries state across frames (`pipeline.state`) starts each frame from the
+    animator's shape plus what it carried out of the previous one: ``initial`` (per deformable,
+    `acra.relax.Carried` or ``None``) is what it carries into ``frames[0]``; without it, that is
+    recomputed from the stage's start (`state.carried_at`).
 
     BLAS runs single-threaded here: ACRA's systems are small (a Gram matrix per object, K ≲ a few
     hundred), and a threaded OpenBLAS on a busy 2-core machine made a 100×100 ``eigh`` take
     272 ms instead of 1.8 ms (measured; `docs/performance.md`).
     """
     with threadpool_limits(limits=1, user_api="blas"):
-        return _run_frames(stage, scene, frames, options, on_frame)
+        return _run_frames(stage, scene, frames, options, on_frame, initial)
 
 
-def _run_frames(stage, scene, frames, options, on_frame):
+def _run_frames(stage, scene, frames, options, on_frame, initial=None):
     statics = [D.prepare_collider(c) for c in scene.colliders]
     defs = scene.deformables
     controls = [m.controls for m in defs]
@@ -474,6 +484,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
     stats: list[FrameStats] = []
     caches: dict = {}
     state_memo: dict = {}
+    carry = state.for_run(stage, scene, frames, options, initial)
 
     canonical: list = [None] * len(defs)  # last input surface of each deformable
     display: dict = {}  # id(surface) -> (surface, points, normals, limit normals), most recent last
@@ -526,7 +537,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
         dstates, cstates = states(float(frame))
         st.xforms = {m.path: s.xform for m, s in zip(defs, dstates)}
         st.xforms.update({c.path: s.xform for c, s in zip(scene.colliders, cstates)})
-        surfaces = [s.surface for s in dstates]
+        surfaces = carry.begin(frame, [s.surface for s in dstates])
         enabled = [s.enabled for s in dstates]
         directions: dict = {}
         wrapping: set = set()  # collider pairs pushed by `collider_points_for` this frame
@@ -620,6 +631,7 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 surfaces[i], rep = R.respond(parent, dp, controls[i], method=options.method,
                                              det=S.shape_of(parent, options.density).details)
                 S.seed_details(surfaces[i], rep.details, options.density, parent=parent)
+                surfaces[i] = carry.after_response(i, parent, surfaces[i])
                 if it == 0:
                     st.data_points[defs[i].path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))
                 ms = 1e3 * (time.perf_counter() - t_i)
@@ -627,10 +639,12 @@ def _run_frames(stage, scene, frames, options, on_frame):
                 st.ms_respond_by[defs[i].path] = st.ms_respond_by.get(defs[i].path, 0.0) + ms
             st.iterations = it + 1
         surfaces = best[1]
+        carried = carry.end(frame, surfaces)
+        st.volume_targets = carry.volume_targets()
         to = time.perf_counter()
         for i, model in enumerate(defs):
             pts, nrm = tessellation(i, surfaces[i])
-            result.add(frame, model.path, usdio.DeformableResult(pts, nrm, surfaces[i], st.residual, st.in_collision))
+            result.add(frame, model.path, usdio.DeformableResult(pts, nrm, surfaces[i], st.residual, st.in_collision, carried[i]))
         st.ms_output = 1e3 * (time.perf_counter() - to)
         st.ms_total = 1e3 * (time.perf_counter() - t0)
         stats.append(st)

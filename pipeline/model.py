@@ -38,9 +38,47 @@ class Controls(AcraControls):
     ----------
     samples : int
         Display samples per level-0 patch edge (``acra:samples``).
+    relax_times : (n,) float64
+        Time codes of ``acra:relax``'s samples (one entry, ``nan``, for a default value; none
+        when unauthored).
+    relax_values : (n, L) float64
+        ``acra:relax`` at those times: the fraction of the carried elastic offset each level
+        releases per frame (`relax_at`); unauthored, every level releases all of it (1).
+    plasticity : (L,) float64 or None
+        ``acra:plasticity`` per level (a scalar is spread over every level); ``None`` when
+        unauthored (0: nothing kept).
+    preserve_volume : float
+        ``acra:preserveVolume`` strength in [0, 1] (0: off).
+    bulge_level : int
+        ``acra:bulgeLevel``: the level whose CVs make the volume-preserving bulge.
+    bulge_falloff : float
+        ``acra:bulgeFalloff``: distance (fraction of the object's size) over which the bulge's
+        weight falls off from the dent.
     """
 
     samples: int = 4
+    relax_times: np.ndarray | None = None
+    relax_values: np.ndarray | None = None
+    plasticity: np.ndarray | None = None
+    preserve_volume: float = 0.0
+    bulge_level: int = 0
+    bulge_falloff: float = 0.25
+
+    def relax_at(self, t: float) -> np.ndarray:
+        """``acra:relax`` at time code ``t``, ``(L,) float64``: linear between samples, held past
+        the first and last (USD's interpolation of a ``float[]``)."""
+        L = self.absorption.size
+        if self.relax_values is None or not len(self.relax_values):
+            return np.ones(L)
+        if len(self.relax_values) == 1:
+            return self.relax_values[0].copy()
+        return np.array([np.interp(float(t), self.relax_times, self.relax_values[:, l]) for l in range(L)])
+
+    @property
+    def stateful(self) -> bool:
+        """Whether anything is carried across frames (a release rate below 1 or plasticity)."""
+        slow = self.relax_values is not None and bool(np.any(self.relax_values < 1.0))
+        return slow or (self.plasticity is not None and bool(np.any(self.plasticity > 0.0)))
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ import rerun.blueprint as rrb
 
 from pipeline.model import SceneModel
 
-__all__ = ["Preview", "blueprint"]
+__all__ = ["Preview", "blueprint", "log_state"]
 
 
 def _entity(path: str) -> str:
@@ -53,6 +53,39 @@ def blueprint() -> rrb.Blueprint:
 
 def _transform(m: np.ndarray) -> rr.Transform3D:
     return rr.Transform3D(translation=m[:3, 3], mat3x3=m[:3, :3])
+
+
+CARRIED_FULL = 0.05  # a carried displacement of this fraction of the object's size shows full red
+_REST_COLOUR, _CARRIED_COLOUR = np.array([217.0, 199.0, 178.0]), np.array([230.0, 50.0, 40.0])
+
+
+def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result) -> None:
+    """Plots of what each deformable carries across frames and of its volume (`pipeline.state`):
+    ``metrics/state/<path>/{elastic,plastic}/level_<k>`` the largest carried vector per level,
+    ``metrics/volume/<path>`` (``metrics/area/<path>`` for an open sheet) the display mesh's
+    volume over the animator's (objects with ``acra:preserveVolume``); and the carried displacement as colour on the mesh (from the base
+    colour to red at `CARRIED_FULL` of the object's size): each display point's distance from
+    where the animator's surface puts it (the output's surface less both carried fields).
+    Objects without either log nothing."""
+    from acra import relax, volume
+    from acra.tessellate import evaluate_grid
+
+    for model in scene.deformables:
+        r = frame_result[model.path]
+        if r.carried is not None:
+            for part in ("elastic", "plastic"):
+                for k, m in enumerate(relax.level_magnitudes(getattr(r.carried, part))):
+                    rec.log(f"metrics/state{model.path}/{part}/level_{k}", rr.Scalars(m))
+            minus = np.full(r.surface.depth, -1.0)
+            animator = relax.added(r.surface, relax.scaled(r.carried.plastic, minus), relax.scaled(r.carried.elastic, minus))
+            rest, _ = evaluate_grid(animator, model.topology)
+            t = np.clip(np.linalg.norm(r.points - rest, axis=1) / (CARRIED_FULL * r.surface.size()), 0.0, 1.0)
+            colours = (_REST_COLOUR + t[:, None] * (_CARRIED_COLOUR - _REST_COLOUR)).astype(np.uint8)
+            rec.log(_entity(model.path), rr.Mesh3D.from_fields(vertex_colors=colours))
+        if model.path in st.volume_targets:
+            measure, target = st.volume_targets[model.path]
+            v = volume.MEASURES[measure][0](np.asarray(r.points, dtype=np.float64), volume.triangles(model.topology))
+            rec.log(f"metrics/{measure}{model.path}", rr.Scalars(v / target))
 
 
 class Preview:
@@ -111,6 +144,7 @@ class Preview:
         self.rec.log("metrics/rounds", rr.Scalars(st.iterations))
         for name in ("setup", "detect", "convert", "respond", "output", "total"):
             self.rec.log(f"metrics/ms/{name}", rr.Scalars(getattr(st, f"ms_{name}")))
+        log_state(self.rec, self.scene, st, frame_result)
         if st.in_collision:
             self.rec.log("log", rr.TextLog(
                 f"frame {st.frame}: collision, {st.iterations} rounds, residual {st.residual_rel:.2e} of size, "

@@ -108,7 +108,26 @@ RESPONSE_TYPES = {
     "acra:response:residual": T.Double,
     "acra:response:inCollision": T.Bool,
 }
-INPUT_ATTRIBUTES = tuple(CONTRACT_TYPES) + tuple(HIERARCHY_TYPES)
+# state across frames (docs/usd-schema.md §2a); acra:plasticity may also be a float[] per level
+STATE_CONTROL_TYPES = {
+    "acra:relax": T.FloatArray,
+    "acra:plasticity": T.Float,
+    "acra:preserveVolume": T.Float,
+    "acra:bulgeLevel": T.Int,
+    "acra:bulgeFalloff": T.Float,
+}
+# the carried state written per frame when a deformable carries state (docs/usd-schema.md §4)
+STATE_TYPES = {
+    "acra:state:patchLevel": T.IntArray,
+    "acra:state:patches": T.Int2Array,
+    "acra:state:elasticCvs": T.Double3Array,
+    "acra:state:plasticCvs": T.Double3Array,
+    "acra:state:offsetLevel": T.IntArray,
+    "acra:state:offsetCvs": T.Int2Array,
+    "acra:state:elasticOffsets": T.Double3Array,
+    "acra:state:plasticOffsets": T.Double3Array,
+}
+INPUT_ATTRIBUTES = tuple(CONTRACT_TYPES) + tuple(HIERARCHY_TYPES) + tuple(STATE_CONTROL_TYPES)
 WRAPS = {"open": False, "periodic": True}
 REFINE_POLICIES = {"refine": True, "obey": False}
 _REQUIRED = object()
@@ -313,7 +332,67 @@ def _read_controls(prim: Usd.Prim, levels: int) -> Controls:
     samples = int(_static(prim, "acra:samples", T.Int, 4))
     if samples < 1:
         raise InputError(path, "acra:samples", f"{samples} is less than 1")
-    return Controls(absorption, mix["deform"], mix["translate"], mix["rotate"], rigidity, refine, samples)
+    return Controls(absorption, mix["deform"], mix["translate"], mix["rotate"], rigidity, refine, samples,
+                    **_read_state_controls(prim, levels))
+
+
+def _unit_interval(path: str, name: str, a: np.ndarray, when: str = "") -> None:
+    """Every value of ``a`` finite and in [0, 1], else an `InputError` naming the first bad one."""
+    a = np.asarray(a, dtype=np.float64).reshape(-1)
+    bad = ~(np.isfinite(a) & (a >= 0.0) & (a <= 1.0))
+    if np.any(bad):
+        i = int(np.nonzero(bad)[0][0])
+        where = f" at level {i}" if a.size > 1 else ""
+        raise InputError(path, name, f"{a[i]:g}{where}{when} outside [0, 1]")
+
+
+def _read_state_controls(prim: Usd.Prim, levels: int) -> dict:
+    """``acra:relax`` (animatable, every sample checked), ``acra:plasticity``, ``acra:preserveVolume``,
+    ``acra:bulgeLevel``, ``acra:bulgeFalloff`` as `Controls` fields; unauthored ones keep the
+    defaults that carry nothing (docs/usd-schema.md §2a)."""
+    path = str(prim.GetPath())
+    out: dict = {}
+    attr = _typed(prim, "acra:relax", T.FloatArray)
+    if attr is not None and attr.HasAuthoredValue():
+        times = attr.GetTimeSamples() or [Usd.TimeCode.Default()]
+        values = []
+        for t in times:
+            when = " at the default time" if isinstance(t, Usd.TimeCode) else f" at time {t:g}"
+            a = np.asarray(attr.Get(t), dtype=np.float64).reshape(-1)
+            if a.size != levels:
+                raise InputError(path, "acra:relax", f"has {a.size} values{when}, expected acra:levels = {levels}")
+            _unit_interval(path, "acra:relax", a, when)
+            values.append(a)
+        out["relax_times"] = np.array([np.nan if isinstance(t, Usd.TimeCode) else float(t) for t in times])
+        out["relax_values"] = np.stack(values)
+    plast = prim.GetAttribute("acra:plasticity")
+    if plast and plast.IsAuthored():
+        tname = plast.GetTypeName()
+        if tname not in (T.Float, T.FloatArray):
+            raise InputError(path, "acra:plasticity", f"has type {tname}, expected {T.Float} or {T.FloatArray}")
+        value = _static(prim, "acra:plasticity", tname, None)
+        if value is not None:
+            a = np.asarray(value, dtype=np.float64).reshape(-1)
+            if tname == T.FloatArray and a.size != levels:
+                raise InputError(path, "acra:plasticity", f"has {a.size} values, expected acra:levels = {levels}")
+            _unit_interval(path, "acra:plasticity", a)
+            out["plasticity"] = np.broadcast_to(a, (levels,)).copy()
+    strength = _static(prim, "acra:preserveVolume", T.Float, None)
+    if strength is not None:
+        _unit_interval(path, "acra:preserveVolume", np.array([strength]))
+        out["preserve_volume"] = float(strength)
+    level = _static(prim, "acra:bulgeLevel", T.Int, None)
+    if level is not None:
+        if not 0 <= int(level) < levels:
+            raise InputError(path, "acra:bulgeLevel", f"{int(level)} outside 0..{levels - 1}")
+        out["bulge_level"] = int(level)
+    falloff = _static(prim, "acra:bulgeFalloff", T.Float, None)
+    if falloff is not None:
+        falloff = _finite_scalar(path, "acra:bulgeFalloff", falloff)
+        if falloff <= 0.0:
+            raise InputError(path, "acra:bulgeFalloff", f"{falloff:g} is not positive")
+        out["bulge_falloff"] = falloff
+    return out
 
 
 def read_hierarchy(prim: Usd.Prim) -> HierarchyArrays:
@@ -609,6 +688,9 @@ class DeformableResult:
         Remaining penetration depth after the response (scene units).
     in_collision : bool
         Whether detection found the object in collision at this frame.
+    carried : acra.relax.Carried or None
+        The offsets carried out of this frame (`pipeline.state`), written as ``acra:state:*``;
+        ``None`` for an object that carries nothing (no ``acra:state:*`` attribute is written).
     """
 
     points: np.ndarray
@@ -616,6 +698,7 @@ class DeformableResult:
     surface: HSpline
     residual: float = 0.0
     in_collision: bool = False
+    carried: object = None
 
 
 @dataclass
@@ -764,6 +847,10 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 "acra:response:residual": float(r.residual),
                 "acra:response:inCollision": bool(r.in_collision),
             }
+            if r.carried is not None:
+                from pipeline import state
+
+                values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
 
     layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
     with Sdf.ChangeBlock():
@@ -785,6 +872,8 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 "normals": normals.path,
                 **{n: _spec(prim, n, tn, True).path for n, tn in RESPONSE_TYPES.items()},
             }
+            if any(frames_result.frames[f][m.path].carried is not None for f in frames):
+                specs.update({n: _spec(prim, n, tn, True).path for n, tn in STATE_TYPES.items()})
             for f in frames:
                 for name, value in values[f, m.path].items():
                     layer.SetTimeSample(specs[name], float(f), value)

@@ -470,6 +470,64 @@ BAD = {
 }
 
 
+
+def _new(name, tname, value, time=None):
+    """An edit authoring a (state-control) attribute the sheet does not have yet."""
+    def edit(prim):
+        attr = prim.CreateAttribute(name, tname)
+        attr.Set(value) if time is None else attr.Set(value, time)
+
+    return edit
+
+
+def _both(*edits):
+    return lambda prim: [e(prim) for e in edits]
+
+
+N = Sdf.ValueTypeNames
+BAD.update({
+    "relax length": (_new("acra:relax", N.FloatArray, F([0.5, 0.5])), "acra:relax", "has 2 values at the default time, expected acra:levels = 3"),
+    "relax above 1 at a sample": (_both(_new("acra:relax", N.FloatArray, F([1, 1, 1]), 1.0), _new("acra:relax", N.FloatArray, F([0.5, 1.5, 1]), 2.0)),
+                                  "acra:relax", "1.5 at level 1 at time 2 outside [0, 1]"),
+    "relax NaN": (_new("acra:relax", N.FloatArray, F([0.5, float("nan"), 1])), "acra:relax", "nan at level 1 at the default time outside [0, 1]"),
+    "relax double[]": (_new("acra:relax", N.DoubleArray, Vt.DoubleArray([1.0, 1.0, 1.0])), "acra:relax", "has type double[], expected float[]"),
+    "plasticity negative": (_new("acra:plasticity", N.Float, -0.1), "acra:plasticity", "-0.1 outside [0, 1]"),
+    "plasticity per level": (_new("acra:plasticity", N.FloatArray, F([0.0, 2.0, 0.0])), "acra:plasticity", "2 at level 1 outside [0, 1]"),
+    "plasticity length": (_new("acra:plasticity", N.FloatArray, F([0.5])), "acra:plasticity", "has 1 values, expected acra:levels = 3"),
+    "plasticity double": (_new("acra:plasticity", N.Double, 0.5), "acra:plasticity", "has type double, expected float or float[]"),
+    "plasticity animated": (_both(_new("acra:plasticity", N.Float, 0.1, 1.0), _new("acra:plasticity", N.Float, 0.2, 2.0)), "acra:plasticity", "is not animatable"),
+    "preserveVolume 2": (_new("acra:preserveVolume", N.Float, 2.0), "acra:preserveVolume", "2 outside [0, 1]"),
+    "bulgeLevel 3": (_new("acra:bulgeLevel", N.Int, 3), "acra:bulgeLevel", "3 outside 0..2"),
+    "bulgeFalloff 0": (_new("acra:bulgeFalloff", N.Float, 0.0), "acra:bulgeFalloff", "0 is not positive"),
+    "bulgeFalloff inf": (_new("acra:bulgeFalloff", N.Float, float("inf")), "acra:bulgeFalloff", "inf is not finite"),
+})
+
+
+def test_state_controls_default_to_carrying_nothing(scene_file):
+    c = U.read_scene(U.open_input(scene_file)).deformables[0].controls
+    assert not c.stateful and c.plasticity is None and c.preserve_volume == 0.0
+    np.testing.assert_array_equal(c.relax_at(2.0), [1.0, 1.0, 1.0])
+
+
+def test_state_controls_are_read_and_relax_interpolates_between_samples(tmp_path):
+    stage = build_stage()
+    prim = stage.GetPrimAtPath(SHEET)
+    A.key_relax(prim, 1, [1.0, 0.5, 0.2])
+    A.key_relax(prim, 3, [0.0, 0.5, 0.6])
+    A.set_state_controls(prim, plasticity=0.25, preserve_volume=0.5, bulge_level=1, bulge_falloff=0.3)
+    A.save(stage, tmp_path / "s.usda")
+    st = U.open_input(tmp_path / "s.usda")
+    c = U.read_scene(st).deformables[0].controls
+    assert c.stateful
+    for t in (0.0, 1.0, 1.5, 2.0, 2.75, 3.0, 7.0):  # as USD interpolates the float[] (held past the ends);
+        want = np.asarray(st.GetPrimAtPath(SHEET).GetAttribute("acra:relax").Get(t), dtype=np.float64)
+        np.testing.assert_allclose(c.relax_at(t), want, rtol=2e-7, atol=0)  # USD rounds to float32, ACRA does not
+    mid = (np.float32([1.0, 0.5, 0.2]).astype(np.float64) + np.float32([0.0, 0.5, 0.6])) / 2
+    np.testing.assert_array_equal(c.relax_at(2.0), mid)
+    np.testing.assert_array_equal(c.plasticity, [0.25] * 3)
+    assert (c.preserve_volume, c.bulge_level, c.bulge_falloff) == (0.5, 1, np.float32(0.3))
+
+
 @pytest.mark.parametrize("case", sorted(BAD))
 def test_invalid_input_names_prim_and_attribute(case, tmp_path):
     edit, attribute, problem = BAD[case]

@@ -1,0 +1,104 @@
+"""Scene soft_ball: a ball dented by a finger at frames 2-4 recovers at its per-level rates.
+
+Read from the output layer as a USD client sees it: the carried elastic field (``acra:state:*``)
+and the display points against the animator's.
+"""
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom
+
+BALL = "/World/Ball"
+RELAX = np.array([0.5, 0.7])  # the scene's acra:relax
+LAST_HIT = 4
+
+
+@pytest.fixture(scope="module")
+def run(run_scene):
+    report = run_scene("soft_ball")
+    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
+    return report, Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+
+
+def _carried(out, frame):
+    """Largest elastic vector per level at ``frame``, read from the output layer: ``(2,) float64``."""
+    prim = out.GetPrimAtPath(BALL)
+    cvs = np.asarray(prim.GetAttribute("acra:state:elasticCvs").Get(frame))
+    offs = np.asarray(prim.GetAttribute("acra:state:elasticOffsets").Get(frame)).reshape(-1, 3)
+    lev = np.asarray(prim.GetAttribute("acra:state:offsetLevel").Get(frame))
+    return np.array([np.linalg.norm(cvs, axis=1).max(), np.linalg.norm(offs[lev == 1], axis=1).max(initial=0.0)])
+
+
+def _fields(out, frame):
+    prim = out.GetPrimAtPath(BALL)
+    return (np.asarray(prim.GetAttribute("acra:state:elasticCvs").Get(frame)),
+            np.asarray(prim.GetAttribute("acra:state:elasticOffsets").Get(frame)).reshape(-1, 3))
+
+
+def test_the_finger_dents_the_ball_at_frames_2_to_4(run):
+    report, _, out = run
+    assert [s.frame for s in report.stats if s.in_collision] == [2, 3, 4]
+    # both levels carry a dent at the last pressed frame (measured 0.128 and 0.148)
+    assert np.all(_carried(out, LAST_HIT) > 0.1)
+
+
+def test_each_level_recovers_at_its_own_rate(run):
+    """After the finger leaves, every carried coefficient of level l is (1 - r_l)^n of what it was
+    at the last pressed frame, n frames later (to 1e-6 of the dent)."""
+    report, _, out = run
+    cvs0, offs0 = _fields(out, LAST_HIT)
+    scale = max(np.abs(cvs0).max(), np.abs(offs0).max())
+    for n, f in enumerate(range(LAST_HIT + 1, report.stats[-1].frame + 1), start=1):
+        cvs, offs = _fields(out, f)
+        assert np.abs(cvs - (1 - RELAX[0]) ** n * cvs0).max() <= 1e-6 * scale, f
+        assert offs.shape == offs0.shape
+        assert np.abs(offs - (1 - RELAX[1]) ** n * offs0).max() <= 1e-6 * scale, f
+        np.testing.assert_allclose(_carried(out, f), (1 - RELAX) ** n * _carried(out, LAST_HIT), rtol=1e-6)
+
+
+def test_the_displayed_ball_returns_to_the_animators_shape(run):
+    """The display points' largest distance from the animator's (the input's rest points) shrinks
+    at every frame after the finger leaves by at most the slower level's factor 1 - 0.5, and the
+    factor tends to it as level 1's faster part dies out (measured: 0.378, 0.407, ... 0.493;
+    0.156 at frame 4, 2.6e-4 at frame 12)."""
+    report, inp, out = run
+    rest = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(BALL)).GetPointsAttr().Get())
+    last = report.stats[-1].frame
+    dev = {f: np.linalg.norm(np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(BALL)).GetPointsAttr().Get(f)) - rest, axis=1).max()
+           for f in range(1, last + 1)}
+    assert dev[1] < 1e-6  # before the press: the animator's shape (float32 display points)
+    ratios = [dev[f + 1] / dev[f] for f in range(LAST_HIT, last)]
+    assert max(ratios) <= 1 - RELAX[0]
+    assert ratios[-1] == pytest.approx(1 - RELAX[0], abs=0.01)
+    assert dev[LAST_HIT] > 0.15 and dev[last] <= (1 - RELAX[0]) ** (last - LAST_HIT) * dev[LAST_HIT]
+
+
+def test_the_preview_plots_the_carried_offsets_per_level(run):
+    from rerun.chunk import RrdReader
+
+    report, _, _ = run
+    rrd = report.output.with_name("soft_ball.rrd")
+    entities = {c.entity_path for c in RrdReader(str(rrd)).stream()}
+    for part in ("elastic", "plastic"):
+        for k in (0, 1):
+            assert f"/metrics/state{BALL}/{part}/level_{k}" in entities, sorted(e for e in entities if "metrics" in e)
+
+
+def test_the_preview_colours_the_carried_dent(run):
+    """Vertex colours on the ball (RGBA packed in a uint32): all the base colour before the press,
+    near red at the deepest frame (the dent carries more than 5 % of the size), fading after."""
+    from rerun.chunk import RrdReader
+
+    report, _, _ = run
+    green = {}  # frame -> the smallest green channel over the vertices (base 199, red 50)
+    for c in RrdReader(str(report.output.with_name("soft_ball.rrd"))).stream():
+        if c.entity_path != f"/world{BALL}":
+            continue
+        b = c.to_record_batch()
+        if "Mesh3D:vertex_colors" not in b.schema.names:
+            continue
+        for f, v in zip(b.column("frame").to_pylist(), b.column("Mesh3D:vertex_colors").to_pylist()):
+            green[f] = int(((np.array(v, dtype=np.uint32) >> 16) & 0xFF).min())
+    assert sorted(green) == list(range(1, 13))
+    assert green[1] == 199 and green[4] <= 90
+    assert all(green[f + 1] >= green[f] for f in range(4, 12)) and green[12] >= 195
