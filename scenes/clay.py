@@ -13,32 +13,32 @@ frame 5 on it keeps exactly half of the dent, coefficient by coefficient.
 
 from pathlib import Path
 
-from acra import shapes
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
+from pipeline.authoring import (
+    add_collider, add_surface, add_xform, key_relax, key_translate, moved, new_stage, save,
+    set_state_controls, sheet, uv_sphere,
+)
 
 SHEETS = {"Full": (-2.0, 1.0), "Half": (2.0, 0.5)}  # name: (x of the centre, plasticity)
 RADIUS, DEPTH = 0.45, 0.12
 
 
 def build():
-    stage = A.new_stage(1, 8, fps=24, up_axis="Z")
-    cvs, _, _ = shapes.sheet(8, 8, width=2.5, depth=2.5)  # 5x5 patches of 0.5
-    verts, faces = A.uv_sphere(RADIUS, 48, 24)
+    stage = new_stage(1, 8, fps=24, up_axis="Z")
+    clay = sheet(8, 8, width=2.5, depth=2.5, levels=2)  # 5x5 patches of 0.5
+    ball = uv_sphere(RADIUS, 48, 24)
     for name, (x, plasticity) in SHEETS.items():
-        sheet = A.add_deformable(stage, f"/World/{name}/Sheet", cvs + [x, 0.0, 0.0], levels=2, absorption=[0.0, 1.0],
-                                 samples=8)
-        A.set_state_controls(sheet, plasticity=plasticity)
+        prim = add_surface(stage, f"/World/{name}/Sheet", moved(clay, (x, 0.0, 0.0)), absorption=[0.0, 1.0], samples=8)
+        set_state_controls(prim, plasticity=plasticity)
         if plasticity < 1.0:
-            A.key_relax(sheet, 4, [0.0, 0.0])
-            A.key_relax(sheet, 5, [1.0, 1.0])
-        mover = A.add_xform(stage, f"/World/{name}/Mover")
-        A.add_collider(stage, f"/World/{name}/Mover/Ball", verts, faces)
-        K.key_translate(mover, "x", [1], [x + 0.05])
-        K.key_translate(mover, "y", [1], [0.03])
-        K.key_translate(mover, "z", [1, 4, 6], [RADIUS + 0.05, RADIUS - DEPTH, RADIUS + 0.4], interp="linear")
+            key_relax(prim, 4, [0.0, 0.0])
+            key_relax(prim, 5, [1.0, 1.0])
+        mover = add_xform(stage, f"/World/{name}/Mover")
+        add_collider(stage, f"/World/{name}/Mover/Ball", *ball)
+        key_translate(mover, "x", [1], [x + 0.05])
+        key_translate(mover, "y", [1], [0.03])
+        key_translate(mover, "z", [1, 4, 6], [RADIUS + 0.05, RADIUS - DEPTH, RADIUS + 0.4], interp="linear")
     return stage
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))

@@ -12,29 +12,30 @@ ball at frames 2-5; the balls are gone at frame 6. An open surface encloses no v
 
 from pathlib import Path
 
-from acra import shapes
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
+from pipeline.authoring import (
+    add_collider, add_surface, add_xform, key_translate, moved, new_stage, save,
+    set_state_controls, sheet, uv_sphere,
+)
 
 SHEETS = {"Drum": (0.0, True), "Cloth": (4.0, False)}  # name: (y of the centre, keeps its area)
 RADIUS, DEPTH = 0.45, 0.25
 
 
 def build():
-    stage = A.new_stage(1, 6, fps=24, up_axis="Z")
-    cvs, _, _ = shapes.sheet(8, 8, width=2.5, depth=2.5)
-    verts, faces = A.uv_sphere(RADIUS, 48, 24)
+    stage = new_stage(1, 6, fps=24, up_axis="Z")
+    cloth = sheet(8, 8, width=2.5, depth=2.5, levels=2)
+    ball = uv_sphere(RADIUS, 48, 24)
     for name, (y, keep) in SHEETS.items():
-        sheet = A.add_deformable(stage, f"/World/{name}", cvs + [0.0, y, 0.0], levels=2, absorption=[0.3, 0.7], samples=4)
+        prim = add_surface(stage, f"/World/{name}", moved(cloth, (0.0, y, 0.0)), absorption=[0.3, 0.7], samples=4)
         if keep:
-            A.set_state_controls(sheet, preserve_volume=1.0, bulge_level=0, bulge_falloff=0.5)
-        mover = A.add_xform(stage, f"/World/{name}Mover")
-        A.add_collider(stage, f"/World/{name}Mover/Ball", verts, faces)
-        K.key_translate(mover, "x", [1], [0.04])
-        K.key_translate(mover, "y", [1], [y + 0.03])
-        K.key_translate(mover, "z", [1, 5, 6], [RADIUS + 0.05, RADIUS - DEPTH, RADIUS + 0.4], interp="linear")
+            set_state_controls(prim, preserve_volume=1.0, bulge_level=0, bulge_falloff=0.5)
+        mover = add_xform(stage, f"/World/{name}Mover")
+        add_collider(stage, f"/World/{name}Mover/Ball", *ball)
+        key_translate(mover, "x", [1], [0.04])
+        key_translate(mover, "y", [1], [y + 0.03])
+        key_translate(mover, "z", [1, 5, 6], [RADIUS + 0.05, RADIUS - DEPTH, RADIUS + 0.4], interp="linear")
     return stage
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))

@@ -12,26 +12,26 @@ there, easing back over many frames.
 
 from pathlib import Path
 
-from acra import shapes
-from pipeline import authoring as A
-from pipeline.animation import usdkeys as K
+from pipeline.authoring import (
+    add_collider, add_surface, add_xform, key_translate, new_stage, save, set_state_controls,
+    sheet, uv_sphere,
+)
 
 RELAX = [0.1, 0.6]
 RADIUS, DEPTH = 0.6, 0.1
 
 
 def build():
-    stage = A.new_stage(1, 10, fps=24, up_axis="Z")
-    cvs, _, _ = shapes.sheet(8, 8, width=2.5, depth=2.5)
-    sheet = A.add_deformable(stage, "/World/Sheet", cvs, levels=2, absorption=[0.3, 0.7], samples=8)
-    A.set_state_controls(sheet, relax=RELAX)
-    mover = A.add_xform(stage, "/World/Mover")
-    A.add_collider(stage, "/World/Mover/Ball", *A.uv_sphere(RADIUS, 48, 24))
-    K.key_translate(mover, "x", [1], [0.04])
-    K.key_translate(mover, "y", [1], [0.03])
-    K.key_translate(mover, "z", [1, 3, 5], [RADIUS + 0.02, RADIUS - DEPTH, RADIUS + 0.5], interp="linear")
+    stage = new_stage(1, 10, fps=24, up_axis="Z")
+    prim = add_surface(stage, "/World/Sheet", sheet(8, 8, width=2.5, depth=2.5, levels=2), absorption=[0.3, 0.7], samples=8)
+    set_state_controls(prim, relax=RELAX)
+    mover = add_xform(stage, "/World/Mover")
+    add_collider(stage, "/World/Mover/Ball", *uv_sphere(RADIUS, 48, 24))
+    key_translate(mover, "x", [1], [0.04])
+    key_translate(mover, "y", [1], [0.03])
+    key_translate(mover, "z", [1, 3, 5], [RADIUS + 0.02, RADIUS - DEPTH, RADIUS + 0.5], interp="linear")
     return stage
 
 
 if __name__ == "__main__":
-    A.save(build(), Path(__file__).with_suffix(".usda"))
+    save(build(), Path(__file__).with_suffix(".usda"))
