@@ -24,6 +24,8 @@ from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_
 
 __all__ = [
     "PointWeights",
+    "SystemTooLarge",
+    "dense_bytes",
     "point_weights",
     "bartels_beatty",
     "blend_update",
@@ -205,7 +207,30 @@ def iterate_blend(pw: PointWeights, dq: np.ndarray, iterations: int = 5, tol: fl
     return dv, np.array(history)
 
 
-def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4) -> np.ndarray:
+class SystemTooLarge(MemoryError):
+    """A direct solve whose dense arrays would exceed the caller's memory bound.
+
+    Attributes
+    ----------
+    points, cvs : int
+        ``K`` active data points and ``P`` movable CVs of the solve.
+    nbytes, limit : int
+        `dense_bytes` of the solve and the bound it exceeds.
+    """
+
+    def __init__(self, points: int, cvs: int, nbytes: int, limit: int):
+        self.points, self.cvs, self.nbytes, self.limit = points, cvs, nbytes, limit
+        super().__init__(f"a direct solve of {points} points on {cvs} CVs needs ~{nbytes} bytes (bound {limit})")
+
+
+def dense_bytes(k: int, p: int) -> int:
+    """Bytes `min_norm_solve` holds at once for ``k`` active points on ``p`` CVs: the dense weights
+    ``W (k, p)`` and ``Wᵀ`` products of the same size, and the Gram matrix ``W Wᵀ (k, k)`` with
+    its eigenvectors and LAPACK's workspace, all float64."""
+    return 8 * (2 * k * p + 3 * k * k)
+
+
+def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_bytes: int | None = None) -> np.ndarray:
     """Exact minimum-norm CV moves ``W^T (W W^T)^+ dQ`` for the active points.
 
     The ``K × K`` Gram matrix is inverted through its eigen-decomposition with eigenvalues
@@ -217,6 +242,10 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4) -> np.
     inconsistent target moved a 7-wide sheet by 14) and 1e-6 (targets with 1.3% noise moved a
     dent 1.9 times its depth); the next eigenvalue in those solves was 1.2e-3 to 1.7e-2.
 
+    ``max_bytes`` bounds the dense arrays (`dense_bytes`): a solve over it raises `SystemTooLarge`
+    before anything is allocated, since a contact's extent, and so ``K`` and ``P``, is known only
+    once it is found.
+
     Returns
     -------
     (P, 3) float64
@@ -224,6 +253,8 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4) -> np.
     act = np.nonzero(pw.active)[0]
     if act.size == 0:
         return np.zeros((pw.cv_rows.size, 3))
+    if max_bytes is not None and dense_bytes(act.size, pw.cv_rows.size) > max_bytes:
+        raise SystemTooLarge(int(act.size), int(pw.cv_rows.size), dense_bytes(act.size, pw.cv_rows.size), int(max_bytes))
     W = pw.dense()[act]
     lam, vec = np.linalg.eigh(W @ W.T)
     keep = lam > rcond * lam[-1]
@@ -231,10 +262,12 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4) -> np.
     return W.T @ (vec[:, keep] @ coef)
 
 
-def solve(pw: PointWeights, dq: np.ndarray, method: str = "direct", iterations: int = 5, tol: float = 0.0) -> np.ndarray:
-    """CV moves for wanted point moves, by ``"direct"`` (`min_norm_solve`) or ``"blend"``."""
+def solve(pw: PointWeights, dq: np.ndarray, method: str = "direct", iterations: int = 5, tol: float = 0.0,
+          max_bytes: int | None = None) -> np.ndarray:
+    """CV moves for wanted point moves, by ``"direct"`` (`min_norm_solve`, its dense arrays bounded by
+    ``max_bytes``) or ``"blend"`` (memory linear in the weights)."""
     if method == "direct":
-        return min_norm_solve(pw, dq)
+        return min_norm_solve(pw, dq, max_bytes=max_bytes)
     if method == "blend":
         return iterate_blend(pw, dq, iterations, tol)[0]
     raise ValueError(f"unknown interpolation method {method!r} (use 'direct' or 'blend')")

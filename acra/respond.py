@@ -608,6 +608,7 @@ def respond(
     method: str = "direct",
     iterations: int = 5,
     det: H.Details | None = None,
+    max_bytes: int | None = None,
 ) -> tuple[H.HSpline, ResponseReport]:
     """Move a surface so it passes through its data points (thesis §4.3.4 prolongation).
 
@@ -624,6 +625,8 @@ def respond(
         deformational step; ``iterations`` caps the latter.
     det : Details, optional
         ``H.details(hs)`` if the caller has it already (details are most of a response's cost).
+    max_bytes : int, optional
+        Bound on each direct solve's dense arrays (`interpolate.SystemTooLarge` past it).
 
     Returns
     -------
@@ -684,7 +687,7 @@ def respond(
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
-            dv = solve(lpw, lwant, method=method, iterations=iterations)
+            dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes)
             hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det))
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:
@@ -700,7 +703,7 @@ def respond(
                 hs, det = _redetail(hs, det, _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det))
             if rest.size:  # points without detail take the share as deformation
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
-                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations)
+                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes)
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det))
         applied = applied + np.where(present, a, 0.0)
     hs, det = _close_rings(hs, det, rings, controls.refine)

@@ -161,7 +161,7 @@ def run_file(
             if bar is not None:
                 bar.update(st.frame)
 
-        result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance, method, density), on_frame)
+        result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance, method, density, budget), on_frame)
         if bar is not None:
             bar.close()
         over = report.frames_over_tolerance(stats, tolerance)

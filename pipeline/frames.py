@@ -23,13 +23,15 @@ from threadpoolctl import threadpool_limits
 
 from acra import hspline as H
 from acra import respond as R
+from acra.interpolate import SystemTooLarge
 from acra.tessellate import grid_samples, pole_normals
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import shape as S
 from pipeline import state
 from pipeline import usdio
-from pipeline.model import SceneModel, apply_inverse, apply_xform
+from pipeline.guard import format_size
+from pipeline.model import InputError, SceneModel, apply_inverse, apply_xform
 
 __all__ = ["FrameStats", "RunOptions", "run_frames", "data_points_for", "collider_points_for", "rim_points"]
 
@@ -48,12 +50,15 @@ class RunOptions:
         Interpolation solver, ``"direct"`` or ``"blend"`` (iterated Bartels–Beatty).
     density : int
         Collision tessellation: least steps per level-0 patch edge (`detect.patch_density`).
+    memory_budget : int, optional
+        Bytes a response's direct solve may hold (`interpolate.dense_bytes`); ``None``: unbounded.
     """
 
     iterations: int = 4
     tolerance: float = 1e-3
     method: str = "direct"
     density: int = 8
+    memory_budget: int | None = None
 
 
 @dataclass
@@ -444,6 +449,24 @@ def _deepest_instead(ga: D.SurfaceGeometry, gb: D.Geometry, c: C.PairContact) ->
     return replace(c, uv_a=uv_a, uv_b=uv_b, local_b=local_b, point_a=pa, point_b=pb)
 
 
+def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints, controls: R.Controls,
+                     options: RunOptions):
+    """`respond.respond` with each direct solve's dense arrays bounded by the run's memory budget.
+
+    How many CVs a contact moves on an absorbing level is known only once the contact is found
+    (a fine absorbing level under a wide contact gives thousands), so this bound is checked at the
+    solve, before it allocates; going over it refuses the deformable's absorption in one line.
+    """
+    try:
+        return R.respond(parent, dp, controls, method=options.method,
+                         det=S.shape_of(parent, options.density).details, max_bytes=options.memory_budget)
+    except SystemTooLarge as err:
+        raise InputError(path, "acra:absorption", (
+            f"at frame {frame} the response's solve of {err.points} data points on {err.cvs} CVs would need "
+            f"{format_size(err.nbytes)}, over the memory budget of {format_size(err.limit)}; absorb on a coarser "
+            f"level or raise --memory-budget")) from None
+
+
 def _pairs(n_def: int, n_col: int):
     """Every deformable–deformable pair once and every deformable–collider pair."""
     for i in range(n_def):
@@ -628,8 +651,7 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
                     np.concatenate([d.is_contact for d, _, _ in lst]),
                 )
                 parent = surfaces[i]
-                surfaces[i], rep = R.respond(parent, dp, controls[i], method=options.method,
-                                             det=S.shape_of(parent, options.density).details)
+                surfaces[i], rep = _respond_bounded(defs[i].path, frame, parent, dp, controls[i], options)
                 S.seed_details(surfaces[i], rep.details, options.density, parent=parent)
                 surfaces[i] = carry.after_response(i, parent, surfaces[i])
                 if it == 0:

@@ -214,7 +214,7 @@ MAX_KEY = 2**62
 # blocks built for it: ~8 kB each on a sheet pressed all over with up to ~400 CVs moved. The
 # response's dense systems add ~39 N^2 bytes for N CVs moved by one contact (1,225 CVs +58 MB,
 # 4,489 CVs +794 MB); that term depends on the contact's extent, which the inputs do not bound,
-# so it is not part of the prediction (docs/cli.md says what this leaves open).
+# so each solve checks it against the budget itself (`acra.interpolate.dense_bytes`).
 BYTES_PER_CV = 8192
 # a display vertex: its (u, v), quad and patch indices, points, limit normals and normals per
 # distinct frame, and their float32 copies in the output layer

@@ -230,6 +230,22 @@ def test_a_small_budget_refuses_an_ordinary_scene(tiny_stage, tmp_path, capsys, 
     assert code == 0 and out.exists()
 
 
+def test_a_response_solve_over_the_budget_is_refused_at_the_solve(tiny_stage, tmp_path, capsys, monkeypatch):
+    """A contact's extent, and so the size of its direct solve, is known only once it is found: with
+    the prediction passed (here: bypassed), the solve itself refuses to allocate past the budget."""
+    src = tiny_stage(n=6, levels=3)  # frame 3's level-2 solve: 61 points on 117 CVs, ~199 kB
+    out = tmp_path / "out.usda"
+    monkeypatch.setattr(guard, "check_budget", lambda estimate, budget: None)
+    code, err = _run(["run", str(src), "-o", str(out), "--quiet", "--memory-budget", "100k"], capsys)
+    line = _one_error_line(err)
+    assert code == 2 and not out.exists(), err
+    assert line == ("acra: error: /World/Sheet.acra:absorption: at frame 3 the response's solve of 61 data points "
+                    "on 117 CVs would need ~199 kB, over the memory budget of ~100 kB; absorb on a coarser level or "
+                    "raise --memory-budget"), line
+    code, _ = _run(["run", str(src), "-o", str(out), "--quiet", "--memory-budget", "200k"], capsys)
+    assert code == 0 and out.exists()
+
+
 def _deep_local_detail(path: Path, levels: int = 12) -> Path:
     """An 8 x 8 sheet with ``levels`` levels whose authored detail is one patch's CVs on the finest
     level (`hspline.make_movable`), absorbing on levels 0 and 1, pressed by the box elsewhere."""

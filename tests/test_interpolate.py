@@ -1,12 +1,15 @@
 """Bartels–Beatty interpolation, its multi-point blend and the direct minimum-norm solve (§4.1)."""
 
 import numpy as np
+import pytest
 from hypothesis import example, given, settings, strategies as st
 
 from acra import hspline as H
 from acra import shapes
 from acra.basis import basis, locate, Direction
-from acra.interpolate import PointWeights, bartels_beatty, blend_update, iterate_blend, min_norm_solve, point_weights
+from acra.interpolate import (
+    PointWeights, SystemTooLarge, bartels_beatty, blend_update, dense_bytes, iterate_blend, min_norm_solve, point_weights,
+)
 
 
 def curve_weights(n_cvs, params):
@@ -81,6 +84,20 @@ def test_min_norm_is_exact_and_minimal_for_random_points(k, seed):
         assert np.linalg.norm(dv) <= np.linalg.norm(full) * (1 + 1e-9)
         np.testing.assert_allclose(np.linalg.pinv(W) @ (W @ dv), dv, atol=1e-7)
     assert np.all(np.isfinite(dv))
+
+
+def test_a_direct_solve_over_its_memory_bound_is_refused_before_it_allocates():
+    rng = np.random.default_rng(3)
+    hs = H.from_grid(*shapes.sheet(9, 9), depth=1)
+    pw = point_weights(hs, 0, rng.uniform(0, 6, 5), rng.uniform(0, 6, 5))
+    dq = rng.normal(size=(5, 3))
+    k, p = 5, pw.cv_rows.size
+    assert dense_bytes(k, p) == 8 * (2 * k * p + 3 * k * k)
+    with pytest.raises(SystemTooLarge) as err:
+        min_norm_solve(pw, dq, max_bytes=dense_bytes(k, p) - 1)
+    assert (err.value.points, err.value.cvs, err.value.nbytes) == (k, p, dense_bytes(k, p))
+    # at the bound the solve runs and is the unbounded one, bit for bit
+    np.testing.assert_array_equal(min_norm_solve(pw, dq, max_bytes=dense_bytes(k, p)), min_norm_solve(pw, dq))
 
 
 def test_coincident_points_with_different_targets_stay_finite():
