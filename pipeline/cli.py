@@ -33,6 +33,15 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--iterations", type=int, default=4, help="cap on detect/respond rounds per frame (default 4)")
     run.add_argument("--tolerance", type=float, default=1e-3, help="accepted residual penetration, fraction of object size (default 1e-3)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    farm = run.add_mutually_exclusive_group()  # docs/farm.md
+    farm.add_argument("--workers", type=int, help="run chunks of frames on a local Dask cluster of N worker processes (needs acra[farm])")
+    farm.add_argument("--scheduler", help="run chunks of frames on the Dask cluster at ADDRESS, e.g. tcp://10.0.0.5:8786")
+    farm.add_argument("--part", type=Path, help="write this frame range's results as a part file in DIR for `acra merge` (no output layer)")
+    run.add_argument("--chunk", type=int, help="frames per Dask task (default: about 3 tasks per worker)")
+    merge = sub.add_parser("merge", help="assemble the part files in DIR (from `acra run --part`) into the output layer")
+    merge.add_argument("parts", type=Path, help="directory of .acrapart.npz files")
+    merge.add_argument("-o", "--output", type=Path, help="output layer (default: <input stem>.acra.usda beside the input)")
+    merge.add_argument("--frames", help="START:END the parts must cover (default: the stage's time codes)")
     bench = sub.add_parser("bench", help="time the thesis's Fig. 5.2 stages on a scene (default: dog_head_spike)")
     bench.add_argument("scene", nargs="?", type=Path, help="scene file or stage (default scenes/dog_head_spike.py)")
     bench.add_argument("--repeat", type=int, default=3, help="cold runs to take medians over (default 3)")
@@ -91,8 +100,16 @@ def run_file(
     progress: bool = False,
     method: str = "direct",
     density: int = 8,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    chunk: int | None = None,
+    part: Path | None = None,
 ) -> RunReport:
-    """Everything `acra run` does, as a function (the tests and `acra bench` call it)."""
+    """Everything `acra run` does, as a function (the tests and `acra bench` call it).
+
+    ``workers``/``scheduler``/``chunk`` run the frames on Dask (`pipeline.farm`); ``part`` writes
+    a part file into that directory instead of the output layer (`pipeline.parts`).
+    """
     from pipeline import frames as F
     from pipeline import usdio
 
@@ -102,10 +119,22 @@ def run_file(
         raise InputError("--iterations", None, f"must be at least 1, got {iterations}")
     if not np.isfinite(tolerance) or tolerance <= 0:
         raise InputError("--tolerance", None, f"must be a positive number, got {tolerance}")
+    if part is not None and output is not None:
+        raise InputError("--part", None, "writes a part file, not an output layer: drop -o (acra merge writes the layer)")
+    if workers is not None or scheduler is not None:
+        from pipeline import farm
+
+        farm.require("--scheduler" if scheduler else "--workers")
+    elif chunk is not None:
+        raise InputError("--chunk", None, "sets frames per Dask task: it needs --workers or --scheduler")
     stage_path = usdio.load_scene_file(src) if src.suffix == ".py" else src
     out = Path(output) if output else stage_path.with_name(stage_path.stem + ".acra.usda")
     stage = usdio.open_input(stage_path)
     scene = usdio.read_scene(stage)
+    if workers is not None or scheduler is not None or part is not None:
+        from pipeline import farm, parts
+
+        identity = parts.input_identity(stage)  # as read now: workers and merges check they see the same
     frame_list = _frames(frames, scene.start, scene.end)
 
     preview = None
@@ -126,11 +155,21 @@ def run_file(
         if bar is not None:
             bar.update(1)
 
-    result, stats = F.run_frames(stage, scene, frame_list, F.RunOptions(iterations, tolerance, method, density), on_frame)
+    options = F.RunOptions(iterations, tolerance, method, density)
+    if workers is not None or scheduler is not None:
+        result, stats = farm.run_frames(stage_path, identity, scene, frame_list, options,
+                                        workers, scheduler, chunk, bar.update if bar is not None else None)
+        for st in stats if preview is not None else ():
+            preview.log_frame(st, result)
+    else:
+        result, stats = F.run_frames(stage, scene, frame_list, options, on_frame)
     if bar is not None:
         bar.close()
     tw = time.perf_counter()
-    usdio.write_output(stage_path, out, scene, result)
+    if part is not None:
+        out = parts.write_part(part, stage_path, identity, options, parts.records_from_result(result), stats)
+    else:
+        usdio.write_output(stage_path, out, scene, result)
     ms_write = 1e3 * (time.perf_counter() - tw)
     if preview is not None:
         preview.close()
@@ -141,8 +180,20 @@ def run(args: argparse.Namespace) -> int:
     report = run_file(
         args.input, args.output, args.frames, args.iterations, args.tolerance,
         rrd=args.rrd, spawn=args.spawn, progress=not args.quiet,
+        workers=args.workers, scheduler=args.scheduler, chunk=args.chunk, part=args.part,
     )
     print(report.summary())
+    return 0
+
+
+def merge(args: argparse.Namespace) -> int:
+    """`acra merge DIR [-o OUT] [--frames START:END]` (docs/farm.md)."""
+    from pipeline import parts
+
+    t_start = time.perf_counter()
+    expected = None if args.frames is None else _frames(args.frames, 0, 0)
+    out, stats, ms_write, scene, stage_path = parts.merge_parts(args.parts, args.output, expected)
+    print(RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path).summary())
     return 0
 
 
@@ -180,10 +231,17 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if as_program:
             _settle_imports(args.command)
-        return bench(args) if args.command == "bench" else run(args)
+        return {"bench": bench, "merge": merge}.get(args.command, run)(args)
     except InputError as err:
         print(f"acra: error: {err}", file=sys.stderr)
         return 2
+    except RuntimeError as err:
+        from pipeline.farm import FarmError
+
+        if not isinstance(err, FarmError):
+            raise
+        print(f"acra: error: {err}; nothing written", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("acra: interrupted; nothing written", file=sys.stderr)
         return 130
