@@ -201,6 +201,11 @@ def frame_spans(frames) -> str:
     return ", ".join(spans)
 
 
+def _frames_are(frames) -> str:
+    """``"frame 4 is"`` or ``"frames 2-3, 5 are"``, for the merge's messages."""
+    return f"frame {frame_spans(frames)} is" if len(set(frames)) == 1 else f"frames {frame_spans(frames)} are"
+
+
 # --------------------------------------------------------------------------------------------
 # part files
 
@@ -321,14 +326,14 @@ def check_parts(parts: list[Part], expected: list[int]) -> None:
         if twice:
             other = owner[twice[0]]
             both = [f for f in twice if owner[f] is other]
-            raise InputError(str(p.path), None, f"frames {frame_spans(both)} are also in {other.path.name}")
+            raise InputError(str(p.path), None, f"{_frames_are(both)} also in {other.path.name}")
         owner.update({f: p for f in p.meta["frames"]})
     outside = sorted(set(owner) - set(expected))
     if outside:
-        raise InputError(str(owner[outside[0]].path), None, f"frames {frame_spans(outside)} are outside the expected {min(expected)}:{max(expected)}")
+        raise InputError(str(owner[outside[0]].path), None, f"{_frames_are(outside)} outside the expected {min(expected)}:{max(expected)}")
     missing = sorted(set(expected) - set(owner))
     if missing:
-        raise InputError(str(first.path.parent), None, f"frames {frame_spans(missing)} missing: no part holds them")
+        raise InputError(str(first.path.parent), None, f"{_frames_are(missing)} missing: no part holds them")
 
 
 def merge_parts(directory, output=None, frames: list[int] | None = None) -> tuple:
