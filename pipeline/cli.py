@@ -125,6 +125,9 @@ def run_file(
         from pipeline import farm
 
         farm.require("--scheduler" if scheduler else "--workers")
+        for name, value in (("--workers", workers), ("--chunk", chunk)):
+            if value is not None and value < 1:
+                raise InputError(name, None, f"must be at least 1, got {value}")
     elif chunk is not None:
         raise InputError("--chunk", None, "sets frames per Dask task: it needs --workers or --scheduler")
     stage_path = usdio.load_scene_file(src) if src.suffix == ".py" else src

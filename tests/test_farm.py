@@ -259,3 +259,11 @@ def test_plan_chunks_cuts_only_where_allowed_and_as_soon_as_allowed(start, n, si
         assert c[0] in starts
     for c in chunks[:-1]:
         assert len(c) >= size and not any(f in starts for f in c[size:])
+
+
+@pytest.mark.parametrize("option", [["--workers", "0"], ["--workers", "2", "--chunk", "0"], ["--chunk", "3"]])
+def test_bad_farm_options_are_one_line_before_anything_is_read(tmp_path, capsys, option):
+    missing = tmp_path / "no_such_shot.usda"  # never opened: the options are refused first
+    assert cli.main(["run", str(missing), *option]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"acra: error: {option[-2]}: ") and "no_such_shot" not in err
