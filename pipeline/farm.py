@@ -144,6 +144,11 @@ def connect(workers: int | None = None, scheduler: str | None = None):
             client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError("--scheduler", None, f"cannot reach a Dask scheduler at {scheduler}: {' '.join(str(exc).split())}") from None
+        try:  # a scheduler without workers would hold the chunks forever
+            client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
+        except TimeoutError:
+            client.close()
+            raise InputError("--scheduler", None, f"the Dask scheduler at {scheduler} has no workers (waited {CONNECT_TIMEOUT})") from None
     else:
         if workers is None or workers < 1:
             raise InputError("--workers", None, f"must be at least 1, got {workers}")

@@ -267,3 +267,13 @@ def test_bad_farm_options_are_one_line_before_anything_is_read(tmp_path, capsys,
     assert cli.main(["run", str(missing), *option]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"acra: error: {option[-2]}: ") and "no_such_shot" not in err
+
+
+def test_scheduler_without_workers_is_one_line(shots, tmp_path, capsys, monkeypatch):
+    stage, _, _, _, _ = shots["rolling_bump"]
+    monkeypatch.setattr(farm, "CONNECT_TIMEOUT", "1s")
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as empty:
+        assert cli.main(["run", str(stage), "-o", str(tmp_path / "out.usda"), "--scheduler", empty.scheduler_address, "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"acra: error: --scheduler: the Dask scheduler at {empty.scheduler_address} has no workers (waited 1s)"
+    assert not (tmp_path / "out.usda").exists()
