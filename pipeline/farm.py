@@ -68,12 +68,16 @@ class FarmTimings:
         Rebuilding the results from the chunks' arrays (`parts.assemble`).
     chunks : list of list of int
         The frames of each chunk, as planned.
+    cpu : dict
+        Worker address -> CPU seconds its chunks took (`time.process_time` of the worker
+        process around `run_chunk`): the work done, whatever else the machine runs.
     """
 
     startup: float = 0.0
     frames: float = 0.0
     assemble: float = 0.0
     chunks: list = field(default_factory=list)
+    cpu: dict = field(default_factory=dict)
 
 
 def plan_chunks(frames: list[int], size: int, can_start: Callable[[int], bool] | None = None) -> list[list[int]]:
@@ -97,14 +101,15 @@ def plan_chunks(frames: list[int], size: int, can_start: Callable[[int], bool] |
 def run_chunk(stage_path: str, identity: str, frames: list[int], options) -> dict:
     """One task: open the stage, run ``frames`` with `frames.run_frames`, return plain data.
 
-    Runs on a worker. Returns ``{"frames", "records", "stats", "error"}``: the records of
-    `parts.records_from_result`, the `frames.FrameStats` list, and ``error``, an `InputError`
-    (bad or changed input) or ``None``. Bad input is returned, not raised, so Dask does not
-    retry it.
+    Runs on a worker. Returns ``{"frames", "records", "stats", "error", "worker", "cpu"}``: the
+    records of `parts.records_from_result`, the `frames.FrameStats` list, ``error``, an
+    `InputError` (bad or changed input) or ``None``, the worker's address and the CPU seconds
+    the chunk took. Bad input is returned, not raised, so Dask does not retry it.
     """
     from pipeline import frames as frame_loop
     from pipeline import parts, usdio
 
+    cpu0 = time.process_time()
     try:
         stage = usdio.open_input(stage_path)
         scene = usdio.read_scene(stage)  # first: input made bad meanwhile gets a single process's line
@@ -113,8 +118,19 @@ def run_chunk(stage_path: str, identity: str, frames: list[int], options) -> dic
             raise InputError(stage_path, None, f"changed during the run (identity {found[:12]} on this worker, {identity[:12]} when the run started)")
         result, stats = frame_loop.run_frames(stage, scene, list(frames), options)
     except InputError as err:
-        return {"frames": list(frames), "records": {}, "stats": [], "error": err}
-    return {"frames": list(frames), "records": parts.records_from_result(result), "stats": stats, "error": None}
+        return {"frames": list(frames), "records": {}, "stats": [], "error": err, "worker": _worker_address(), "cpu": 0.0}
+    records = parts.records_from_result(result)
+    return {"frames": list(frames), "records": records, "stats": stats, "error": None,
+            "worker": _worker_address(), "cpu": time.process_time() - cpu0}
+
+
+def _worker_address() -> str:
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):  # called outside a Dask worker
+        return "local"
 
 
 def _warm() -> None:
@@ -223,6 +239,7 @@ def run_frames(
                 if out["error"] is not None:
                     raise out["error"]
                 records.update(out["records"])
+                timings.cpu[out["worker"]] = timings.cpu.get(out["worker"], 0.0) + out["cpu"]
                 stats.extend(out["stats"])
                 if on_chunk is not None:
                     on_chunk(len(out["frames"]))
