@@ -170,7 +170,7 @@ def connect(workers: int | None = None, scheduler: str | None = None):
             raise InputError("--workers", None, f"must be at least 1, got {workers}")
         cluster = distributed.LocalCluster(
             n_workers=workers, processes=True, threads_per_worker=1,
-            dashboard_address=":0", silence_logs=logging.ERROR,  # any free port: runs side by side
+            dashboard_address=":0", silence_logs=logging.CRITICAL,  # a chunk's failure reaches the client; worker logs would only repeat it
         )
         client = distributed.Client(cluster, set_as_default=False)
     try:

@@ -84,6 +84,7 @@ RECORD_FIELDS = {
     "residual": np.float64,
     "in_collision": np.bool_,
 }
+_SHAPE_FIELDS = ("cvs", "patch_level", "patches", "offset_level", "offset_cvs", "offsets", "points", "normals")
 # the `pipeline.frames.FrameStats` fields a part keeps: what the summary and a report read
 STAT_FIELDS = {
     "frame": np.int64,
@@ -166,12 +167,22 @@ def assemble(scene: SceneModel, records: dict):
 
     models = {m.path: m for m in scene.deformables}
     result = usdio.FramesResult()
+    previous: dict = {}  # path -> (record, DeformableResult) of the frame before
     for frame in sorted(records):
         for path in sorted(records[frame]):
             r, m = records[frame][path], models[path]
-            arrays = HierarchyArrays(r["patch_level"], r["patches"], r["offset_level"], r["offset_cvs"], r["offsets"])
-            surface = from_arrays(from_grid(r["cvs"], m.u_periodic, m.v_periodic, depth=m.depth), arrays)
-            result.add(frame, path, usdio.DeformableResult(r["points"], r["normals"], surface, float(r["residual"]), bool(r["in_collision"])))
+            last = previous.get(path)
+            if last is not None and all(np.array_equal(r[n], last[0][n]) for n in _SHAPE_FIELDS):
+                # a free frame repeating the frame before: hand back the same objects, as the frame
+                # loop does, so the writer converts them once (`usdio._Converted`)
+                done = last[1]
+                out = usdio.DeformableResult(done.points, done.normals, done.surface, float(r["residual"]), bool(r["in_collision"]))
+            else:
+                arrays = HierarchyArrays(r["patch_level"], r["patches"], r["offset_level"], r["offset_cvs"], r["offsets"])
+                surface = from_arrays(from_grid(r["cvs"], m.u_periodic, m.v_periodic, depth=m.depth), arrays)
+                out = usdio.DeformableResult(r["points"], r["normals"], surface, float(r["residual"]), bool(r["in_collision"]))
+            previous[path] = (r, out)
+            result.add(frame, path, out)
     return result
 
 
