@@ -20,7 +20,7 @@ in the float32 ``acra:cvs``; the benchmark stops unless the stages' surfaces agr
 4000 random parameters, and reports how far the written responses are from ×1's after one
 round and after the default four.
 
-Per run it processes the whole 30-frame scene with `pipeline.cli.run_file` and reports median
+Per run it processes the whole 30-frame scene with `pipeline.run.run_file` and reports median
 ms (``FrameStats``: set-up, detection, conversion, response, display tessellation, total) over
 the collision frames, the median total over the free frames, and the time to compute the head's
 world patch boxes (the broad phase every frame pays); then profiles (cProfile) the frame loop
@@ -48,7 +48,7 @@ from pipeline import authoring as A
 from pipeline import detect as D
 from pipeline import frames as F
 from pipeline import usdio
-from pipeline.cli import run_file
+from pipeline.run import run_file
 from scenes import dog_head_spike as dog
 
 ROOT = Path(__file__).resolve().parents[1]

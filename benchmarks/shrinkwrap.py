@@ -14,7 +14,7 @@ mode *Outside*, offset 0) on the soft object, targeting the collider. Per frame 
    edge) and every target's mesh and keyed matrix;
 2. runs Blender (``bpy``, in its own venv ``.venv-blender/``: the wheel pins numpy < 2) on them
    and times only the modifiers (``Modifier.execution_time``, median of ``--repeats``);
-3. runs ACRA on the same stage and frames (`pipeline.cli.run_file`) and reads its output points
+3. runs ACRA on the same stage and frames (`pipeline.run.run_file`) and reads its output points
    (with ``--samples``, its response surfaces evaluated on that grid);
 4. measures both results the same way (`pair_residual`, `displacement`): how deep a vertex of one
    object still lies inside the other (trimesh ``contains`` + ``signed_distance``), also between
@@ -440,7 +440,7 @@ def run_acra(stage_path: Path, keyed: Keyed, work: Path, repeats: int) -> tuple[
     from acra import hspline as H
     from acra.tessellate import evaluate_grid
     from pipeline import usdio
-    from pipeline.cli import run_file
+    from pipeline.run import run_file
     from pipeline.model import apply_xform
 
     span = f"{keyed.frames[0]}:{keyed.frames[-1]}"

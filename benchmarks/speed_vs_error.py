@@ -8,7 +8,7 @@ The scene runs once at the defaults (cap 4, ``direct``, density 8) to find its c
 then every configuration -- cap ``N`` on detect -> respond rounds per frame, solver (``direct``
 minimum-norm or ``blend`` iterated Bartels-Beatty, thesis §4.3.1) and collision density ``D``
 (least tessellation steps per level-0 patch edge, `pipeline.detect.patch_density`) -- runs
-`pipeline.cli.run_file` on the range of those frames. Two sweeps: caps 1-8 x both solvers x
+`pipeline.run.run_file` on the range of those frames. Two sweeps: caps 1-8 x both solvers x
 densities 4, 8, 16 at the contract tolerance 1e-3 (the loop stops at the first round that meets
 it, so a cap only matters where rounds do not), and caps 1, 2, 4, 8 x both solvers at density 8
 with tolerance 1e-9, so that every run uses its whole cap (what more rounds buy). Each
@@ -44,7 +44,7 @@ from pxr import Usd
 
 from pipeline import detect as D
 from pipeline import usdio
-from pipeline.cli import run_file
+from pipeline.run import run_file
 
 ROOT = Path(__file__).resolve().parents[1]
 _RESPONSE = ("cvs", "patchLevel", "patches", "offsetLevel", "offsetCvs", "offsets")

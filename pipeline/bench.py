@@ -71,7 +71,7 @@ def _median(xs) -> float:
 def run_bench(scene: Path | None = None, repeat: int = 3) -> Bench:
     """Measure the Fig. 5.2 table on ``scene`` (see the module docstring)."""
     from pipeline import usdio
-    from pipeline.cli import run_file
+    from pipeline.run import run_file
     from pipeline.shape import _SHAPES as shape_cache
 
     scene = Path(scene or default_scene()).resolve()

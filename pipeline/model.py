@@ -27,6 +27,10 @@ class InputError(ValueError):
         where = f"{prim}.{attribute}" if attribute else prim
         super().__init__(f"{where}: {problem}")
 
+    def __reduce__(self):
+        # rebuilt from its three parts, so the error a farm worker raises reaches the client whole
+        return type(self), (self.prim, self.attribute, self.problem)
+
 
 @dataclass(frozen=True)
 class Controls(AcraControls):

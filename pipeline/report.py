@@ -1,7 +1,8 @@
 """What `acra run` tells the user and a script: the summary line, the frames over tolerance, the
 exit status, progress, and the ``--report FILE.json`` record.
 
-Exit statuses (docs/cli.md): `EXIT_OK` 0, `EXIT_INPUT` 2 (invalid input, refused output path,
+Exit statuses (docs/cli.md): `EXIT_OK` 0, `EXIT_FARM` 1 (chunks that kept failing on a Dask
+cluster, `pipeline.farm.FarmError`; nothing written), `EXIT_INPUT` 2 (invalid input, refused output path,
 over the memory budget), `EXIT_OVER_TOLERANCE` 3 (a frame's residual penetration stays over
 ``--tolerance``; ``--over-tolerance warn`` makes it 0), `EXIT_INTERRUPTED` 130 (SIGINT) and
 `EXIT_TERMINATED` 143 (SIGTERM).
@@ -24,6 +25,7 @@ import numpy as np
 
 __all__ = [
     "EXIT_OK",
+    "EXIT_FARM",
     "EXIT_INPUT",
     "EXIT_OVER_TOLERANCE",
     "EXIT_INTERRUPTED",
@@ -38,6 +40,7 @@ __all__ = [
 ]
 
 EXIT_OK = 0
+EXIT_FARM = 1
 EXIT_INPUT = 2
 EXIT_OVER_TOLERANCE = 3
 EXIT_INTERRUPTED = 130
@@ -90,7 +93,7 @@ def _finite_or_none(x: float):
 
 
 def report_dict(run, tolerance: float, over: list[tuple[int, float]], status: int) -> dict:
-    """The ``--report`` record of a finished run (``run``: `pipeline.cli.RunReport`).
+    """The ``--report`` record of a finished run (``run``: `pipeline.run.RunReport`).
 
     Keys: ``version``, ``input``, ``output``, ``status``, ``tolerance``, ``frames`` (count),
     ``in_collision`` (count), ``largest_residual``, ``seconds``, ``ms_write``,
@@ -162,15 +165,18 @@ class Progress:
 
             self.bar = tqdm(total=total, unit="frame", file=self.stream, leave=False)
 
-    def update(self, frame: int) -> None:
-        self.done += 1
+    def update(self, frame: int | None, count: int = 1) -> None:
+        """``count`` more frames done, the last of them ``frame`` (``None``: a chunk of frames
+        finished on a Dask worker, `pipeline.farm`)."""
+        self.done += count
         if self.bar is not None:
-            self.bar.update(1)
+            self.bar.update(count)
             return
         now = time.monotonic()
-        if self.done == 1 or self.done == self.total or now - self.last >= self.every:
+        if self.done == count or self.done == self.total or now - self.last >= self.every:
             self.last = now
-            print(f"acra: frame {frame} done ({self.done}/{self.total})", file=self.stream, flush=True)
+            what = f"frame {frame} done" if frame is not None else f"{count} frames done"
+            print(f"acra: {what} ({self.done}/{self.total})", file=self.stream, flush=True)
 
     def close(self) -> None:
         if self.bar is not None:

@@ -105,7 +105,7 @@ def run_scene(tmp_path_factory):
     """
     import shutil
 
-    from pipeline.cli import run_file
+    from pipeline.run import run_file
 
     def run(name: str):
         if name not in _scene_runs:

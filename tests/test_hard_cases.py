@@ -1,4 +1,4 @@
-"""Issue #6's hard cases, each run end to end through `pipeline.cli.run_file` (docs/hard-cases.md).
+"""Issue #6's hard cases, each run end to end through `pipeline.run.run_file` (docs/hard-cases.md).
 
 Every case builds a small stage with `pipeline.authoring`, saves it into ``tmp_path`` and runs it
 as ``acra run`` does. Each asserts, at every frame:
@@ -35,7 +35,7 @@ from acra.tessellate import evaluate_grid
 from pipeline import authoring as A
 from pipeline import usdio
 from pipeline.animation import usdkeys as K
-from pipeline.cli import run_file
+from pipeline.run import run_file
 
 TOL = 1e-3  # the contract's residual, fraction of the deformable's size
 STEPS = 8  # detection's tessellation: steps per level-0 patch edge (RunOptions.density, levels <= 3)

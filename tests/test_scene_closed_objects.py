@@ -17,7 +17,7 @@ from acra import shapes
 from pipeline import detect as D
 from pipeline import usdio
 from pipeline.animation import curves as C
-from pipeline.cli import run_file
+from pipeline.run import run_file
 from pipeline.model import apply_xform
 from scenes import closed_objects as S
 

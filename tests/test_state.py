@@ -12,7 +12,7 @@ from acra import relax
 from pipeline import frames as F
 from pipeline import state
 from pipeline import usdio as U
-from pipeline.cli import run_file
+from pipeline.run import run_file
 
 BALL = "/World/Ball"
 
