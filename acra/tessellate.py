@@ -1,9 +1,12 @@
-"""Tessellations of an H-spline: the fixed-topology display grid and per-patch collision grids.
+"""Tessellations of an H-spline: the adaptive display mesh and per-patch collision grids.
 
-Both are uniform ``(u, v)`` grids, so every vertex carries its parameters and every face its
-level-0 patch. The display grid's topology depends only on the level-0 grid size, the wraps and
-``samples`` (contract §1), never on the hierarchy or the frame; collision grids are built per
-level-0 patch so detection can tessellate only the patches whose control hulls can touch.
+The display mesh (contract §1) shows every level the object uses: each place is sampled with
+``samples`` steps per edge of the finest patch present there (`finest_levels`), on a quadtree of
+patches (`adaptive_topology`), crack-free where the density changes, every vertex an exact surface
+point, and one topology for a whole run (`run_topology`, a pure function of the run's surfaces).
+Collision grids are uniform and built per level-0 patch so detection can tessellate only the
+patches whose control hulls can touch. `display_topology`, the uniform grid of ``samples`` steps
+per level-0 patch edge, is the adaptive mesh of a surface without finer levels.
 """
 
 from __future__ import annotations
@@ -17,7 +20,11 @@ from .hspline import Details, HSpline, details, evaluate, surface_normals
 
 __all__ = [
     "GridTopology",
+    "MeshTopology",
+    "adaptive_topology",
     "display_topology",
+    "finest_levels",
+    "run_topology",
     "evaluate_grid",
     "grid_samples",
     "pole_normals",
@@ -53,6 +60,16 @@ class GridTopology:
         q = self.quads
         return np.stack([q[:, [0, 1, 2]], q[:, [0, 2, 3]]], axis=1).reshape(-1, 3)
 
+    @property
+    def counts(self) -> np.ndarray:
+        """Vertices per face ``(f,) int64`` (all 4), as USD's ``faceVertexCounts``."""
+        return np.full(len(self.quads), 4, np.int64)
+
+    @property
+    def indices(self) -> np.ndarray:
+        """Face vertex indices ``(4 f,) int64``, as USD's ``faceVertexIndices``."""
+        return self.quads.reshape(-1)
+
 
 def _axis(d: Direction, samples: int) -> np.ndarray:
     """Vertex parameters along one direction: ``P0 * samples (+1 if open)`` values."""
@@ -82,6 +99,191 @@ def display_topology(u: Direction, v: Direction, samples: int) -> GridTopology:
     face_patch = np.stack(np.broadcast_arrays(i // samples, j // samples), axis=-1).reshape(-1, 2)
     uu, vv = np.meshgrid(us, vs, indexing="ij")
     return GridTopology(uu.reshape(-1), vv.reshape(-1), (nu, nv), quads.astype(np.int64), face_patch.astype(np.int64))
+
+
+@dataclass(frozen=True)
+class MeshTopology:
+    """A display mesh over the parameter domain: quads where the density is even, triangle fans
+    where a coarse patch meets finer ones.
+
+    Attributes
+    ----------
+    u, v : (n,) float64
+        Parameters of every vertex (level-0 units), sorted by ``(u, v)``; a periodic seam and
+        every shared patch border hold one vertex.
+    counts : (f,) int64
+        Vertices per face (4 or 3), USD's ``faceVertexCounts``.
+    indices : (sum counts,) int64
+        USD's ``faceVertexIndices``; every face counter-clockwise seen from the side ``du × dv``
+        points to.
+    """
+
+    u: np.ndarray
+    v: np.ndarray
+    counts: np.ndarray
+    indices: np.ndarray
+
+    @property
+    def quads(self) -> np.ndarray:
+        """The faces ``(f, 4) int64`` of a mesh of quads only (a surface without finer levels)."""
+        if np.any(self.counts != 4):
+            raise ValueError("the display has triangles where its density changes: use counts and indices")
+        return self.indices.reshape(-1, 4)
+
+    def triangles(self) -> np.ndarray:
+        """Every face as triangles, a fan from its first vertex: ``(t, 3) int64``."""
+        starts = np.r_[0, np.cumsum(self.counts)[:-1]]
+        rows = [np.stack([starts[self.counts > k + 1], starts[self.counts > k + 1] + k, starts[self.counts > k + 1] + k + 1], axis=1)
+                for k in range(1, int(self.counts.max(initial=3)) - 1)]
+        return self.indices[np.concatenate(rows)] if rows else np.zeros((0, 3), np.int64)
+
+
+def finest_levels(hs: HSpline) -> np.ndarray:
+    """The finest level present at each place: ``(P0u << (depth-1), P0v << (depth-1)) int64``,
+    one entry per patch of the finest level the object may use, holding the finest ``k`` whose
+    active (refined) patches cover it (0 where only level 0 is). A level's detail lives on its
+    active patches (a movable CV's support is all active, the C2 rule), so sampling each place
+    for its finest active level shows every level."""
+    top = hs.depth - 1
+    out = np.zeros((hs.u.patches(top), hs.v.patches(top)), np.int64)
+    for k in range(1, hs.depth):
+        keys = hs.level(k).patches
+        if not keys.size:
+            continue
+        pu, pv = np.divmod(keys, hs.v.patches(k))
+        r = 1 << (top - k)
+        du, dv = np.meshgrid(np.arange(r), np.arange(r), indexing="ij")
+        iu = (pu[:, None] * r + du.reshape(1, -1)).reshape(-1)
+        iv = (pv[:, None] * r + dv.reshape(1, -1)).reshape(-1)
+        out[iu, iv] = np.maximum(out[iu, iv], k)
+    return out
+
+
+def run_topology(surfaces, samples: int) -> MeshTopology:
+    """The display topology of a run: `adaptive_topology` of the union (the finest level at each
+    place) of every surface's `finest_levels`. A pure function of the surfaces (all of one object,
+    same grid and depth), so a run that responds to all frames first, or a merge of chunks of
+    frames, chooses it after the responses."""
+    surfaces = list(surfaces)
+    levels = finest_levels(surfaces[0])
+    for hs in surfaces[1:]:
+        levels = np.maximum(levels, finest_levels(hs))
+    return adaptive_topology(surfaces[0].u, surfaces[0].v, samples, levels)
+
+
+def _leaves(levels: np.ndarray, top: int) -> list[tuple[int, np.ndarray]]:
+    """Quadtree leaves over the level-0 patches: per level ``k``, the level-``k`` patches
+    ``(m, 2) int64`` whose whole area needs no level finer than ``k`` (``levels`` is given per
+    level-``top`` patch) while their parent's needs a finer one than ``k - 1``."""
+    out = []
+    open_ = np.ones((levels.shape[0] >> top, levels.shape[1] >> top), bool)  # level-0 roots
+    for k in range(top + 1):
+        r = 1 << (top - k)
+        need = levels.reshape(levels.shape[0] // r, r, levels.shape[1] // r, r).max(axis=(1, 3))
+        here = open_ & (need <= k)
+        out.append((k, np.argwhere(here)))
+        open_ = np.repeat(np.repeat(open_ & ~here, 2, axis=0), 2, axis=1)
+    return out
+
+
+def adaptive_topology(u: Direction, v: Direction, samples: int, levels: np.ndarray) -> MeshTopology:
+    """The display mesh: ``samples`` steps per edge of the finest patch present at each place.
+
+    Parameters
+    ----------
+    levels : (P0u << L, P0v << L) int64
+        Finest level needed at each patch of some level ``L`` (`finest_levels`, or their union over
+        a run); all zero gives the uniform grid of `display_topology`, vertex for vertex.
+
+    The domain is split as a quadtree of patches: a level-``k`` patch is a leaf where nothing
+    finer than ``k`` is needed in it, and each leaf gets a grid of ``samples`` steps per edge.
+    Dyadic nesting puts every vertex on a lattice of ``samples << L`` steps per level-0 patch, and
+    a coarse leaf's edge vertices are a subset of a finer neighbour's, so a coarse cell whose edge
+    a finer leaf shares takes all of that neighbour's vertices on it and is split into a fan of
+    triangles about a vertex at its centre: no T-junction, no crack. Periodic seams share their
+    lattice vertices (a closed object welds by index), collapsed ends (poles) by position.
+    """
+    if samples < 1:
+        raise ValueError(f"samples must be at least 1, got {samples}")
+    levels = np.asarray(levels, np.int64)
+    top = int(round(np.log2(levels.shape[0] // u.patches0))) if levels.size else 0
+    if levels.shape != (u.patches(top), v.patches(top)):
+        raise ValueError(f"levels has shape {levels.shape}, expected a power-of-two refinement of {(u.patches0, v.patches0)}")
+    finest = int(levels.max(initial=0))
+    if finest < top:  # coarsen the map to the finest level present: a smaller lattice
+        r = 1 << (top - finest)
+        levels = levels.reshape(levels.shape[0] // r, r, levels.shape[1] // r, r).max(axis=(1, 3))
+        top = finest
+    s = int(samples)
+    nu_l, nv_l = u.patches0 * (s << top), v.patches0 * (s << top)  # lattice steps along u, v
+    wrap_u = (lambda x: np.mod(x, nu_l)) if u.periodic else (lambda x: x)
+    wrap_v = (lambda x: np.mod(x, nv_l)) if v.periodic else (lambda x: x)
+    key = lambda a, b: wrap_u(a) * (nv_l + 1) + wrap_v(b)  # noqa: E731
+
+    # every cell of every leaf: lower corner and step on the lattice
+    cu, cv, ch = [], [], []
+    t = np.arange(s)
+    for k, patches in _leaves(levels, top):
+        if not len(patches):
+            continue
+        h = 1 << (top - k)
+        gu = (patches[:, 0, None, None] * s + t[None, :, None]) * h
+        gv = (patches[:, 1, None, None] * s + t[None, None, :]) * h
+        gu, gv = np.broadcast_arrays(gu, gv)
+        cu.append(gu.reshape(-1))
+        cv.append(gv.reshape(-1))
+        ch.append(np.full(gu.size, h, np.int64))
+    cu, cv, ch = np.concatenate(cu), np.concatenate(cv), np.concatenate(ch)
+    order = np.lexsort((cv, cu))
+    cu, cv, ch = cu[order], cv[order], ch[order]
+    corners = [(cu, cv), (cu + ch, cv), (cu + ch, cv + ch), (cu, cv + ch)]  # counter-clockwise
+    lattice = np.unique(np.concatenate([key(a, b) for a, b in corners]))
+
+    # vertices strictly inside each cell edge: a finer neighbour's
+    by_v = np.sort(wrap_v(lattice % (nv_l + 1)) * (nu_l + 1) + lattice // (nv_l + 1))  # rows: v-major keys
+
+    def inner_u(a, b, vv):  # vertices on the line v = vv strictly between u = a and u = b (a < b)
+        kv = wrap_v(vv) * (nu_l + 1)
+        return np.searchsorted(by_v, kv + a, side="right"), np.searchsorted(by_v, kv + b, side="left")
+
+    def inner_v(a, b, uu):  # vertices on the line u = uu strictly between v = a and v = b
+        ku = wrap_u(uu) * (nv_l + 1)
+        return np.searchsorted(lattice, ku + a, side="right"), np.searchsorted(lattice, ku + b, side="left")
+
+    spans = [inner_u(cu, cu + ch, cv), inner_v(cv, cv + ch, cu + ch), inner_u(cu, cu + ch, cv + ch), inner_v(cv, cv + ch, cu)]
+    extra = np.zeros(len(cu), bool)
+    for lo, hi in spans:
+        extra |= hi > lo
+    centre_keys = []
+    corner_keys = [key(a, b) for a, b in corners]
+    plain = np.nonzero(~extra)[0]
+    quads = np.stack([ck[plain] for ck in corner_keys], axis=1)
+    fans = []
+    for c in np.nonzero(extra)[0]:
+        ring = []
+        for side, (lo, hi) in enumerate(spans):
+            ring.append(corner_keys[side][c])
+            mid = np.arange(lo[c], hi[c])
+            if side == 0:
+                ring.extend(key(by_v[mid] % (nu_l + 1), cv[c]))
+            elif side == 1:
+                ring.extend(lattice[mid])
+            elif side == 2:
+                ring.extend(key(by_v[mid] % (nu_l + 1), cv[c] + ch[c])[::-1])
+            else:
+                ring.extend(lattice[mid][::-1])
+        centre = key(cu[c] + ch[c] // 2, cv[c] + ch[c] // 2)
+        centre_keys.append(centre)
+        ring = np.asarray(ring, np.int64)
+        fans.append(np.stack([np.full(len(ring), centre), ring, np.roll(ring, -1)], axis=1))
+    lattice = np.unique(np.concatenate([lattice, np.asarray(centre_keys, np.int64)]))
+    index = lambda keys: np.searchsorted(lattice, keys)  # noqa: E731
+    tris = index(np.concatenate(fans)) if fans else np.zeros((0, 3), np.int64)
+    counts = np.r_[np.full(len(quads), 4, np.int64), np.full(len(tris), 3, np.int64)]
+    indices = np.r_[index(quads).reshape(-1), tris.reshape(-1)].astype(np.int64)
+    lu, lv = np.divmod(lattice, nv_l + 1)
+    step = float(s << top)
+    return MeshTopology(lu / step, lv / step, counts, indices)
 
 
 def evaluate_grid(hs: HSpline, topo: GridTopology, det: Details | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -132,22 +334,24 @@ def _cells(d: Direction, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.clip(cell, 0, d.patches0 - 1), np.clip(before, 0, d.patches0 - 1)
 
 
-def pole_normals(hs: HSpline, topo: GridTopology, points: np.ndarray, limit: np.ndarray) -> np.ndarray:
-    """Display normals ``(n, 3)``: the limit normals, except that every grid line collapsed to
-    one point (a pole) shares the mean of its limit normals, so shading at a pole is smooth."""
-    nu, nv = topo.shape
+def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """Display normals ``(n, 3)``: the limit normals, except that the vertices of every domain
+    edge collapsed to one point (a pole) share the mean of their limit normals, so shading at a
+    pole is smooth. ``topo`` is a `GridTopology` or a `MeshTopology` (its ``u``, ``v``)."""
     scale = hs.size()
-    grid_p = points.reshape(nu, nv, 3)
-    grid_n = limit.reshape(nu, nv, 3).copy()
-    for axis in (0, 1):
-        spread = np.ptp(grid_p, axis=axis).max(axis=-1)  # per line across the other index
-        for line in np.nonzero(spread <= 1e-12 * scale)[0]:
-            sl = (slice(None), line) if axis == 0 else (line, slice(None))
-            m = grid_n[sl].mean(axis=0)
+    out = limit.copy()
+    for x, d in ((topo.u, hs.u), (topo.v, hs.v)):
+        if d.periodic:
+            continue
+        for end in (0.0, float(d.patches0)):
+            line = np.nonzero(x == end)[0]
+            if line.size < 2 or np.ptp(points[line], axis=0).max() > 1e-12 * scale:
+                continue
+            m = limit[line].mean(axis=0)
             norm = np.linalg.norm(m)
             if norm > 1e-12:
-                grid_n[sl] = m / norm
-    return grid_n.reshape(-1, 3)
+                out[line] = m / norm
+    return out
 
 
 def patch_grids(hs: HSpline, patches: np.ndarray, samples: int, det: Details | None = None):

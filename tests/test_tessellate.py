@@ -91,3 +91,95 @@ def test_display_samples_since_a_local_move_equal_a_full_evaluation(seed, level)
         np.testing.assert_array_equal(a, b)
     assert np.any(fast[0] != old[0])
     np.testing.assert_array_equal(T.pole_normals(moved, topo, *fast), T.evaluate_grid(moved, topo)[1])
+
+
+# --- the adaptive display (contract §1) ----------------------------------------------------------
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+def _random_levels(hs, seed, blobs=3):
+    """A finest-level map of ``hs`` (depth 4) with a few rectangles refined to levels 1..3."""
+    rng = np.random.default_rng(seed)
+    top = hs.depth - 1
+    levels = np.zeros((hs.u.patches(top), hs.v.patches(top)), np.int64)
+    for _ in range(blobs):
+        k = int(rng.integers(1, top + 1))
+        a, b = (int(rng.integers(0, n)) for n in levels.shape)
+        w, h = (int(rng.integers(1, n // 2 + 1)) for n in levels.shape)
+        iu, iv = np.arange(a, a + w) % levels.shape[0], np.arange(b, b + h) % levels.shape[1]
+        levels[np.ix_(iu, iv)] = np.maximum(levels[np.ix_(iu, iv)], k)
+    return levels
+
+
+def test_adaptive_topology_without_fine_levels_is_the_uniform_grid():
+    hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
+    grid = T.display_topology(hs.u, hs.v, 4)
+    mesh = T.adaptive_topology(hs.u, hs.v, 4, T.finest_levels(hs))
+    np.testing.assert_array_equal(mesh.u, grid.u)
+    np.testing.assert_array_equal(mesh.v, grid.v)
+    np.testing.assert_array_equal(mesh.indices, grid.quads.reshape(-1))
+    assert set(mesh.counts) == {4}
+
+
+def test_finest_levels_marks_each_refined_patch_with_its_level():
+    hs = H.from_grid(*shapes.sheet(8, 7), depth=3)  # 5 x 4 patches
+    hs = H.refine(hs, 1, np.array([[2, 3]]))
+    hs = H.refine(hs, 2, np.array([[0, 0], [9, 7]]))
+    levels = T.finest_levels(hs)
+    assert levels.shape == (20, 16)  # one entry per level-2 patch
+    expected = np.zeros((20, 16), np.int64)
+    for k in (1, 2):
+        r = 1 << (2 - k)
+        for key in hs.level(k).patches:  # refining may activate neighbours too (C2 rule)
+            pu, pv = divmod(int(key), hs.v.patches(k))
+            expected[pu * r:(pu + 1) * r, pv * r:(pv + 1) * r] = k
+    assert expected[4:6, 6:8].min() >= 1 and expected[0, 0] == expected[9, 7] == 2
+    np.testing.assert_array_equal(levels, expected)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10_000), samples=st.integers(1, 4), shape=st.sampled_from(["sphere", "torus", "sheet"]))
+def test_adaptive_display_is_crack_free_and_shows_every_level(seed, samples, shape):
+    """Closed objects weld to a watertight, outward mesh; an open one has boundary edges only on
+    the domain's border (no T-junction gap inside); every place gets ``samples`` steps per edge of
+    the finest patch there; every vertex is the surface point of its parameters."""
+    maker = {"sphere": shapes.sphere, "torus": shapes.torus, "sheet": shapes.sheet}[shape]
+    cvs, pu, pv = maker(8, 7)
+    hs = H.from_grid(cvs, pu, pv, depth=4)
+    levels = _random_levels(hs, seed)
+    topo = T.adaptive_topology(hs.u, hs.v, samples, levels)
+    pts = H.evaluate(hs, topo.u, topo.v).points
+    mesh = trimesh.Trimesh(pts, topo.triangles(), process=False)
+    mesh.merge_vertices(digits_vertex=9)
+    mesh.update_faces(mesh.nondegenerate_faces())
+    if shape != "sheet":
+        assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    else:
+        flat = trimesh.Trimesh(np.stack([topo.u, topo.v, 0 * topo.u], axis=1), topo.triangles(), process=False)
+        edges = flat.edges_sorted[trimesh.grouping.group_rows(flat.edges_sorted, require_count=1)]
+        ends = flat.vertices[edges.reshape(-1)]
+        on_border = np.isin(ends[:, 0], [0.0, hs.u.patches0]) | np.isin(ends[:, 1], [0.0, hs.v.patches0])
+        assert on_border.reshape(-1, 2).all(axis=1).all()
+        assert np.all(flat.area_faces > 0)  # counter-clockwise in (u, v)... every face has area
+    # every place holds the grid of `samples` steps per edge of the finest patch there: in units
+    # of 1 / (samples << 8) of a level-0 patch, level k's vertices are the multiples of 2^(8 - k)
+    top, q = hs.depth - 1, samples << 8
+    nu, nv = hs.u.patches0 * q, hs.v.patches0 * q
+    have = set(zip(np.round(topo.u * q).astype(int) % nu, np.round(topo.v * q).astype(int) % nv))
+    for (i, j), k in np.ndenumerate(levels):
+        step = 1 << (8 - k)
+        a = [x for x in range(i * q >> top, ((i + 1) * q >> top) + 1) if x % step == 0]
+        b = [y for y in range(j * q >> top, ((j + 1) * q >> top) + 1) if y % step == 0]
+        missing = [(x, y) for x in a for y in b if (x % nu, y % nv) not in have]
+        assert not missing, ((i, j), k, missing[:3])
+
+
+def test_run_topology_holds_every_surface_s_vertices():
+    hs = with_random_offsets(H.make_movable(wavy_sheet(depth=3), 2, [[6, 6]]))
+    other = H.make_movable(wavy_sheet(depth=3), 1, [[1, 1]])
+    run = T.run_topology([hs, other], 3)
+    have = set(zip(run.u, run.v))
+    for s in (hs, other):
+        one = T.adaptive_topology(s.u, s.v, 3, T.finest_levels(s))
+        assert set(zip(one.u, one.v)) <= have
