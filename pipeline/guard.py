@@ -51,6 +51,8 @@ __all__ = [
     "predict_memory",
     "check_budget",
     "MAX_KEY",
+    "atomic_file",
+    "temporary_sibling",
 ]
 
 
@@ -431,6 +433,21 @@ def check_transforms(stage, scene, frames: list[int]) -> None:
 
 # --------------------------------------------------------------------------------------------
 # temporary files
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike):
+    """Yield a hidden temporary sibling of ``path`` to write; when the block ends normally it is
+    renamed over ``path`` (`os.replace`, atomic on one file system), otherwise removed, so ``path``
+    is afterwards either the whole new file or as it was. The sibling keeps ``path``'s suffix, which
+    picks USD's file format."""
+    out = Path(path)
+    tmp = temporary_sibling(out)
+    try:
+        yield tmp
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def temporary_sibling(path: str | os.PathLike) -> Path:

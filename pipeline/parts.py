@@ -44,13 +44,13 @@ import hashlib
 import io
 import json
 import os
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from acra.hspline import HierarchyArrays, from_arrays, from_grid, to_arrays
+from pipeline import guard
 from pipeline.model import InputError, SceneModel
 
 __all__ = [
@@ -303,15 +303,10 @@ def write_part(directory, stage_path, identity: str, options, records: dict, sta
         arrays[f"stat_{name}"] = column
     directory.mkdir(parents=True, exist_ok=True)
     out = directory / part_name(stage_path, frames)
-    tmp = directory / f".{out.name}.{uuid.uuid4().hex}.tmp"
-    try:
-        buf = io.BytesIO()
-        np.savez(buf, **arrays)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    with guard.atomic_file(out) as tmp:
         tmp.write_bytes(buf.getvalue())
-        os.replace(tmp, out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return out
 
 

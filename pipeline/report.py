@@ -18,7 +18,6 @@ import math
 import os
 import sys
 import time
-import uuid
 from pathlib import Path
 
 import numpy as np
@@ -130,21 +129,14 @@ def report_dict(run, tolerance: float, over: list[tuple[int, float]], status: in
 
 
 def write_json(path: str | os.PathLike, data: dict) -> Path:
-    """Write ``data`` as JSON to ``path`` atomically (a temporary sibling renamed over it; removed
-    on any error or interruption)."""
+    """Write ``data`` as JSON to ``path`` atomically (`guard.atomic_file`)."""
+    from pipeline import guard
+
     out = Path(path)
-    tmp = out.parent / f".{out.name}.{uuid.uuid4().hex}.tmp"
-    try:
+    with guard.atomic_file(out) as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:
             json.dump(data, fh, indent=1, allow_nan=False)
             fh.write("\n")
-        os.replace(tmp, out)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
     return out
 
 

@@ -21,7 +21,6 @@ import os
 import re
 import runpy
 import sys
-import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -723,21 +722,13 @@ def _export(layer: Sdf.Layer, path: str) -> None:
 
 
 def export_layer(layer: Sdf.Layer, path: str | os.PathLike) -> Path:
-    """Write ``layer`` to ``path`` atomically: a temporary sibling renamed over it.
+    """Write ``layer`` to ``path`` atomically (`guard.atomic_file`): on any error or interruption
+    the temporary file is removed and ``path`` is untouched."""
+    from pipeline import guard
 
-    On any error (or interruption) the temporary file is removed and ``path`` is untouched.
-    """
     out = Path(path)
-    tmp = out.parent / f".{out.name}.{uuid.uuid4().hex}.tmp{out.suffix}"
-    try:
+    with guard.atomic_file(out) as tmp:
         _export(layer, str(tmp))
-        os.replace(tmp, out)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
     return out
 
 
