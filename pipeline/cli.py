@@ -36,7 +36,22 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="time the thesis's Fig. 5.2 stages on a scene (default: dog_head_spike)")
     bench.add_argument("scene", nargs="?", type=Path, help="scene file or stage (default scenes/dog_head_spike.py)")
     bench.add_argument("--repeat", type=int, default=3, help="cold runs to take medians over (default 3)")
+    view = sub.add_parser("preview", help="build the Rerun recording of an output layer alone (no ACRA run)")
+    view.add_argument("output", type=Path, help="an ACRA output layer (.acra.usda)")
+    shown = view.add_mutually_exclusive_group()
+    shown.add_argument("--rrd", type=Path, help="save the recording to FILE")
+    shown.add_argument("--web", action="store_true", help="serve it to the browser (Rerun web viewer) until Ctrl-C")
+    shown.add_argument("--spawn", action="store_true", help="open the Rerun native viewer")
     return p
+
+
+def preview(args: argparse.Namespace) -> int:
+    from pipeline import preview_usd
+
+    if not (args.rrd or args.web or args.spawn):
+        raise InputError("acra preview", None, "say where the recording goes: --rrd FILE, --web or --spawn")
+    print(preview_usd.preview_file(args.output, rrd=args.rrd, web=args.web, spawn=args.spawn))
+    return 0
 
 
 def _frames(arg: str | None, start: int, end: int) -> list[int]:
@@ -112,7 +127,7 @@ def run_file(
     if rrd or spawn:
         from pipeline import preview as P
 
-        preview = P.Preview(scene, stage_path.stem, rrd=rrd, spawn=spawn)
+        preview = P.Preview(scene, stage_path.stem, rrd=rrd, spawn=spawn, stage=stage, tolerance=tolerance)
 
     bar = None
     if progress and len(frame_list) > 1:
@@ -180,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if as_program:
             _settle_imports(args.command)
-        return bench(args) if args.command == "bench" else run(args)
+        return {"bench": bench, "preview": preview}.get(args.command, run)(args)
     except InputError as err:
         print(f"acra: error: {err}", file=sys.stderr)
         return 2
