@@ -200,6 +200,8 @@ class Deepest:
         World radius around ``target`` of the vertices that moved at least a tenth as far.
     size : float
         The object's bounding-box diagonal (world) at that frame.
+    region : (m, 3) float64
+        Those vertices (world), at most 200 of them: what the view must show.
     """
 
     frame: int
@@ -209,22 +211,71 @@ class Deepest:
     normal: np.ndarray
     radius: float
     size: float
+    region: np.ndarray | None = None
 
-    def eye(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(position, look target)``, each ``(3,) float64``: on the outward normal, far enough that
-        a sphere of radius ``max(1.5 radius, 0.2 size)`` around the dent fills the view (Rerun's
-        default vertical field of view is about 55 degrees: distance 2.2 radii)."""
-        reach = max(1.5 * self.radius, 0.2 * self.size)
-        return self.target + 2.2 * reach * self.normal, self.target
+    def distance(self) -> float:
+        """Eye distance: a sphere of radius ``max(1.5 radius, 0.2 size)`` around the dent fills the
+        view (Rerun's default vertical field of view is about 55 degrees: 2.2 radii)."""
+        return 2.2 * max(1.5 * self.radius, 0.2 * self.size)
+
+    def directions(self, up: np.ndarray) -> np.ndarray:
+        """Candidate view directions ``(25, 3) float64``, unit, from the dent toward the eye: the
+        outward normal, then tilted 30, 55 and 75 degrees from it at 8 azimuths (azimuth 0 toward
+        ``up``)."""
+        n = self.normal
+        a = up if abs(float(up @ n)) < 0.9 else np.roll(up, 1)
+        t1 = a - (a @ n) * n
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(n, t1)
+        out = [n]
+        for tilt in np.radians([30.0, 55.0, 75.0]):
+            for az in np.radians(np.arange(0.0, 360.0, 45.0)):
+                out.append(np.cos(tilt) * n + np.sin(tilt) * (np.cos(az) * t1 + np.sin(az) * t2))
+        return np.array(out)
+
+    def eye(self, meshes: list[tuple[np.ndarray, np.ndarray]] | None = None, up: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(position, look target)``, each ``(3,) float64``, `distance` from the dent.
+
+        Without ``meshes``: along the outward normal. With ``meshes`` (every object at that frame,
+        world ``(points (n, 3), triangles (f, 3))``): along the first of `directions` from which the
+        most of ``region`` is seen unoccluded (rays from each region vertex to the eye that hit no
+        triangle before it), so an object resting on the dent (a slab over a bump) does not hide it.
+        """
+        dist = self.distance()
+        if not meshes or self.region is None or not len(self.region):
+            return self.target + dist * self.normal, self.target
+        import trimesh
+
+        offsets = np.cumsum([0] + [len(p) for p, _ in meshes[:-1]])
+        scene = trimesh.Trimesh(np.concatenate([p for p, _ in meshes]),
+                                np.concatenate([t + o for (_, t), o in zip(meshes, offsets)]), process=False)
+        best, best_seen = self.normal, -1
+        for d in self.directions(np.asarray(up if up is not None else [0.0, 0.0, 1.0], np.float64)):
+            eye = self.target + dist * d
+            ray = eye - self.region
+            length = np.linalg.norm(ray, axis=1)
+            ray /= length[:, None]
+            start = self.region + 1e-4 * self.size * ray  # off the surface the ray leaves
+            hits, index, _ = scene.ray.intersects_location(start, ray, multiple_hits=False)
+            blocked = np.zeros(len(start), bool)
+            near = np.linalg.norm(hits - start[index], axis=1) < length[index]
+            blocked[index[near]] = True
+            seen = int(np.count_nonzero(~blocked))
+            if seen > best_seen:
+                best, best_seen = d, seen
+            if seen == len(start):
+                break
+        return self.target + dist * best, self.target
 
 
-def blueprint(deepest: Deepest | None = None, up_axis: str = "Z", collision_frames: list[int] | None = None) -> rrb.Blueprint:
-    """Large 3D view on the deepest collision (eye from `Deepest.eye`, the up axis up) over a small
-    whole-scene view and the legend | plots of residual and absorption over the event log; the time
-    panel selects the collision frames."""
+def blueprint(deepest: Deepest | None = None, up_axis: str = "Z", collision_frames: list[int] | None = None,
+              meshes: list | None = None) -> rrb.Blueprint:
+    """Large 3D view on the deepest collision (eye from `Deepest.eye` with ``meshes``, the up axis
+    up) over a small whole-scene view and the legend | plots of residual and absorption over the
+    event log; the time panel selects the collision frames."""
     eye = None
     if deepest is not None:
-        position, target = deepest.eye()
+        position, target = deepest.eye(meshes, up_vector(up_axis))
         eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=position, look_target=target, eye_up=up_vector(up_axis))
     title = f"collision, deepest at frame {deepest.frame}" if deepest is not None else "scene"
     selection = None
@@ -277,6 +328,8 @@ class Recording:
         if spawn:
             self.rec.spawn(default_blueprint=blueprint(up_axis=scene.up_axis))
         self.deepest: Deepest | None = None
+        self._deepest_meshes: list = []  # every object at the deepest frame, world (points, triangles)
+        self._triangles = triangles
         self.collision_frames: list[int] = []
         self.rec.log(ROOT, view_coordinates(scene.up_axis), static=True)
         self.rec.log(ROOT, rr.Transform3D(scale=float(scene.meters_per_unit)), static=True)
@@ -292,6 +345,7 @@ class Recording:
         self.rec.set_time("frame", sequence=frame)
         for path, m in collider_xforms.items():
             self.rec.log(entity(path), _transform(np.asarray(m)))
+        deeper = False
         for o in objects:
             moved = np.linalg.norm(o.points.astype(np.float64) - o.keyframed.astype(np.float64), axis=1)
             world = apply_xform(o.xform, o.points.astype(np.float64))
@@ -306,9 +360,15 @@ class Recording:
             if peak > 0 and (self.deepest is None or peak > self.deepest.moved):
                 at = int(np.argmax(moved))
                 normal = o.xform[:3, :3] @ o.normals[at].astype(np.float64)
-                near = moved >= 0.1 * peak
+                near = np.nonzero(moved >= 0.1 * peak)[0]
+                region = world[near[:: max(1, len(near) // 200)]]
                 self.deepest = Deepest(int(frame), o.path, peak, world[at], normal / max(np.linalg.norm(normal), 1e-300),
-                                       float(np.linalg.norm(world[near] - world[at], axis=1).max()), size)
+                                       float(np.linalg.norm(world[near] - world[at], axis=1).max()), size, region)
+                deeper = True
+        if deeper:
+            self._deepest_meshes = [(apply_xform(o.xform, o.points.astype(np.float64)), self._triangles[o.path]) for o in objects]
+            self._deepest_meshes += [(apply_xform(np.asarray(collider_xforms[c.path]), c.vertices), c.triangles)
+                                     for c in self.scene.colliders]
         if any(o.in_collision for o in objects):
             self.collision_frames.append(int(frame))
         if line:
@@ -323,8 +383,7 @@ class Recording:
                 f"DEEPEST collision: frame {d.frame}, ACRA moved {d.path} up to {d.moved:.3g} "
                 f"({d.moved / max(d.size, 1e-300):.2%} of its size); click this row to go there",
                 level=rr.TextLogLevel.WARN))
-        bp = blueprint(d, self.scene.up_axis, self.collision_frames)
-        return bp
+        return blueprint(d, self.scene.up_axis, self.collision_frames, self._deepest_meshes)
 
 
 def save_atomically(rec: rr.RecordingStream, path: Path, bp: rrb.Blueprint) -> Path:

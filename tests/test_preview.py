@@ -181,3 +181,25 @@ def test_bad_input_gets_one_line_and_nothing_written(tmp_path, demo):
     _one_line_exit_2(acra("preview", out, "--rrd", tmp_path), "--rrd", "is a directory")
     _one_line_exit_2(acra("preview", out), "--rrd FILE, --web or --spawn")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_eye_leaves_the_normal_when_an_object_rests_on_the_dent():
+    """A slab right over the dent hides it from the normal: the eye tilts until every region vertex
+    is seen; with nothing in the way it stays on the normal."""
+    from tests.conftest import BOX_TRIANGLES, BOX_VERTICES
+
+    g = np.linspace(-0.2, 0.2, 5)
+    region = np.array([[x, y, 0.0] for x in g for y in g])
+    d = preview.Deepest(3, "/Sheet", 0.1, np.zeros(3), np.array([0.0, 0.0, 1.0]), radius=0.2, size=4.0, region=region)
+    slab = (BOX_VERTICES * [0.4, 0.4, 0.025] + [0.0, 0.0, 0.275], BOX_TRIANGLES)  # z 0.25..0.3, x, y -0.4..0.4
+    floor = (np.array([[-2, -2, -0.01], [2, -2, -0.01], [2, 2, -0.01], [-2, 2, -0.01]], float), np.array([[0, 1, 2], [0, 2, 3]]))
+    up = np.array([0.0, 0.0, 1.0])
+    position, target = d.eye([floor], up)
+    assert position == pytest.approx([0.0, 0.0, d.distance()])  # nothing in the way: on the normal
+    position, target = d.eye([floor, slab], up)
+    direction = (position - target) / d.distance()
+    assert np.degrees(np.arccos(direction[2])) == pytest.approx(75.0)  # 30 and 55 degrees: under the slab
+    ray = position - region
+    for s in np.linspace(0.02, 0.98, 50):  # every region vertex sees the eye past the slab
+        p = region + s * ray
+        assert not np.any((np.abs(p[:, 0]) < 0.4) & (np.abs(p[:, 1]) < 0.4) & (p[:, 2] > 0.25) & (p[:, 2] < 0.3))
