@@ -23,7 +23,9 @@ A run (`Preview`) also logs what only the run knows (`RUN_ONLY`): the rewound co
 ``world/acra/contacts``, the data points as arrows ``world/acra/data_points<prim path>``, the
 tessellation vertices inside the other object ``world/acra/region<prim path>`` (their sizes scale
 with the smallest deformable), and the plots ``metrics/residual_rel`` (fraction of object size),
-``metrics/over_tolerance`` (1 on a frame left over the tolerance, with a warning in ``log``),
+``metrics/pairs<path>/vs<other path>`` (the same per pair of objects: a deformable and another
+deformable or a collider; 0 where they do not touch), ``metrics/over_tolerance`` (1 on a frame
+left over the tolerance, with an error row in ``log``),
 ``metrics/rounds`` and ``metrics/ms/*``. An output layer read back (`pipeline.preview_usd`) gives
 the same entities and frames minus those.
 
@@ -54,7 +56,7 @@ __all__ = [
 
 ROOT = "world"
 #: entity prefixes a run logs that an output layer cannot give back (`pipeline.preview_usd`)
-RUN_ONLY = ("world/acra", "metrics/residual_rel", "metrics/over_tolerance", "metrics/rounds", "metrics/ms")
+RUN_ONLY = ("world/acra", "metrics/residual_rel", "metrics/pairs", "metrics/over_tolerance", "metrics/rounds", "metrics/ms")
 
 #: viridis (matplotlib's data) at 9 even stops, RGB 0-255: perceptually uniform, dark to bright
 VIRIDIS = np.array([
@@ -295,7 +297,8 @@ def blueprint(deepest: Deepest | None = None, up_axis: str = "Z", collision_fram
             rrb.Vertical(
                 rrb.TimeSeriesView(name="residual penetration (scene units)", origin="metrics/residual"),
                 rrb.TimeSeriesView(name="absorbed per level (largest offset change)", origin="metrics/absorbed"),
-                rrb.TimeSeriesView(name="residual / size, over tolerance", contents=["metrics/residual_rel", "metrics/over_tolerance"]),
+                rrb.TimeSeriesView(name="residual / size: worst, per pair; over tolerance",
+                                   contents=["metrics/residual_rel", "metrics/pairs/**", "metrics/over_tolerance"]),
                 rrb.TimeSeriesView(name="ms per frame", origin="metrics/ms"),
                 rrb.TextLogView(name="events", origin="log"),
                 row_shares=[2, 2, 2, 2, 3],
@@ -425,6 +428,8 @@ class Preview:
         self._marked: set = set()
         self._keyframed: dict = {}  # path -> (level-0 CVs, points): a shape keyed once is evaluated once
         self._marker = None
+        defs = [m.path for m in scene.deformables]
+        self._pairs = [(a, b) for i, a in enumerate(defs) for b in defs[i + 1:] + [c.path for c in scene.colliders]]
 
     def _keyframed_surfaces(self, frame: int) -> dict[str, HSpline]:
         dstates, _ = usdio.state_at(self.stage, self.scene, float(frame))
@@ -478,6 +483,8 @@ class Preview:
         self._marked = now
         over = st.residual_rel > self.tolerance
         self.rec.log("metrics/residual_rel", rr.Scalars(st.residual_rel))
+        for a, b in self._pairs:
+            self.rec.log(f"metrics/pairs{a}/vs{b}", rr.Scalars(float(st.pair_residual_rel.get((a, b), 0.0))))
         self.rec.log("metrics/over_tolerance", rr.Scalars(1.0 if over else 0.0))
         if over:
             self.rec.log("log", rr.TextLog(

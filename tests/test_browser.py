@@ -30,7 +30,7 @@ ROOT = Path(__file__).parents[1]
 CHROMIUM = "/usr/bin/chromium"
 SCREENSHOT = ROOT / "docs" / "img" / "preview_frame15.png"
 VIEWPORT = (1600, 1000)
-LOAD_SECONDS = 240  # the page needs ~35-45 s on 2 idle cores; much more on a busy machine
+LOAD_SECONDS = 420  # the page needs ~35-45 s on 2 idle cores; minutes on a busy machine
 
 
 def _missing() -> str | None:
@@ -67,6 +67,20 @@ def highlight_mask(rgb: np.ndarray) -> np.ndarray:
     hi, lo = x.max(axis=-1), x.min(axis=-1)
     sat = np.where(hi > 0, (hi - lo) / np.maximum(hi, 1e-12), 0.0)
     return (sat >= 0.45) & (hi >= 0.2)
+
+
+EVENTS = (0.61, 0.99, 0.76, 0.97)  # the events log (fractions of the screenshot, see COLLISION_VIEW)
+
+
+def deepest_row_shown(rgb: np.ndarray) -> bool:
+    """Whether the events log shows an orange ``WARN`` level: the *DEEPEST collision* row, the last
+    thing a recording logs, so the viewer has received the whole recording (while data streams
+    in, the viewer follows the newest frame and shows an earlier one)."""
+    h, w = rgb.shape[:2]
+    x0, x1, y0, y1 = EVENTS
+    ev = rgb[int(y0 * h):int(y1 * h), int(x0 * w):int(x1 * w)].astype(np.int64)
+    r, g, b = ev[..., 0], ev[..., 1], ev[..., 2]
+    return int(np.count_nonzero((r > 200) & (g > 90) & (g < 190) & (b < 90))) >= 40
 
 
 def run_acra(args: list[str]) -> None:
@@ -108,28 +122,25 @@ class Server:
 
 
 def screenshot(browser, rrd: Path, png: Path) -> np.ndarray:
-    """Serve ``rrd``, open it, wait until the 3D view has drawn and settled, save ``png``; returns
-    the screenshot ``(h, w, 3) uint8``."""
+    """Serve ``rrd``, open it, wait until the whole recording has arrived (`deepest_row_shown`) and
+    two screenshots 4 s apart agree, save ``png``; returns the screenshot ``(h, w, 3) uint8``."""
     from PIL import Image
 
     server = Server(rrd)
     page = browser.new_page(viewport={"width": VIEWPORT[0], "height": VIEWPORT[1]})
     try:
         page.goto(server.url, timeout=120_000)
-        deadline, last, stable = time.time() + LOAD_SECONDS, None, 0
+        deadline, last = time.time() + LOAD_SECONDS, None
         while time.time() < deadline:
             page.wait_for_timeout(4000)
             page.screenshot(path=str(png), timeout=180_000)
             img = np.asarray(Image.open(png).convert("RGB"))
-            # settled: two consecutive shots nearly equal and something saturated on screen
-            if last is not None and np.mean(np.abs(img.astype(int) - last.astype(int))) < 0.5 and highlight_mask(img).mean() > 1e-4:
-                stable += 1
-                if stable >= 2:
-                    return img
-            else:
-                stable = 0
+            if not deepest_row_shown(img):
+                continue
+            if last is not None and np.mean(np.abs(img.astype(np.int64) - last.astype(np.int64))) < 0.5:
+                return img
             last = img
-        return img
+        raise AssertionError(f"{rrd.name}: the viewer did not show the whole recording within {LOAD_SECONDS} s")
     finally:
         page.close()
         server.close()

@@ -158,6 +158,10 @@ def test_the_recording_shows_the_dent_and_what_it_means(demo):
     assert max(absorbed[k][15][0][0] for k in (2, 3, 4)) > 0.01  # the head absorbs on levels 2-4
     assert absorbed[0][15] == [[0.0]] and absorbed[1][15] == [[0.0]]
     assert run["/metrics/over_tolerance"]["Scalars:scalars"][15] == [[0.0]]  # 9.72e-4 <= 1e-3
+    pair = run["/metrics/pairs/World/Head/vs/World/Jab/Spike"]["Scalars:scalars"]  # the scene's one pair
+    worst = run["/metrics/residual_rel"]["Scalars:scalars"]
+    assert set(pair) == set(range(1, 16)) and all(pair[f] == worst[f] for f in pair)
+    assert 9e-4 < worst[15][0][0] <= 1e-3
 
 
 # --- bad input ------------------------------------------------------------------------------------
