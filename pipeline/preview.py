@@ -17,7 +17,7 @@ Entities (all temporal data on the ``frame`` sequence timeline):
   (scene units); ``metrics/absorbed<prim path>/level<k>`` — how much each level absorbed: the
   largest change ACRA made to a level-k offset (level 0: CV) from the key-framed hierarchy;
 * ``log`` — one line per collision frame and, at the deepest collision, a row saying so (a click on
-  it moves the viewer's time cursor there).
+  its frame cell, ``#N``, moves the viewer's time cursor there).
 
 A run (`Preview`) also logs what only the run knows (`RUN_ONLY`): the rewound contact points
 ``world/acra/contacts``, the data points as arrows ``world/acra/data_points<prim path>``, the
@@ -84,7 +84,7 @@ LEGEND = f"""# What the colours mean
 * **Orange dots** (a run only): display vertices found inside the other object before the response.
 
 Views: the large 3D view opens on the deepest collision (the frame where ACRA moved a vertex
-farthest); click its row in *events* to move the time cursor there. The small view shows the whole
+farthest); click #N at the left of its row in *events* to move the time cursor there. The small view shows the whole
 scene. Plots: residual penetration per object (scene units), how much each level absorbed.
 """
 
@@ -384,7 +384,7 @@ class Recording:
             self.rec.set_time("frame", sequence=d.frame)
             self.rec.log("log", rr.TextLog(
                 f"DEEPEST collision: frame {d.frame}, ACRA moved {d.path} up to {d.moved:.3g} "
-                f"({d.moved / max(d.size, 1e-300):.2%} of its size); click this row to go there",
+                f"({d.moved / max(d.size, 1e-300):.2%} of its size); click #{d.frame} at the left of this row to go there",
                 level=rr.TextLogLevel.WARN))
         return blueprint(d, self.scene.up_axis, self.collision_frames, self._deepest_meshes)
 

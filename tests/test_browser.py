@@ -9,7 +9,9 @@ moved vertices and the markers, all saturated, where the objects' own colours, t
 the UI are grey). The plots must carry data (coloured curve pixels in the plot panels).
 
 Skips when Chromium or playwright is absent, with the reason; ``ACRA_REQUIRE_BROWSER=1`` (set by
-``.ci/run``) turns that skip into a failure. Writes ``docs/img/preview_frame15.png``.
+``.ci/run``) turns that skip into a failure. Writes ``docs/img/preview_frame15.png``. Cost: 187 s
+for both recordings at a load average of 5-9 on 2 cores (most of it the viewer loading in
+software WebGL), plus ~10 s of ACRA runs to make them.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ ROOT = Path(__file__).parents[1]
 CHROMIUM = "/usr/bin/chromium"
 SCREENSHOT = ROOT / "docs" / "img" / "preview_frame15.png"
 VIEWPORT = (1600, 1000)
-LOAD_SECONDS = 420  # the page needs ~35-45 s on 2 idle cores; minutes on a busy machine
+LOAD_SECONDS = 600  # per recording: ~35-45 s on 2 idle cores, 5-7 minutes at a load average of 15
 
 
 def _missing() -> str | None:
