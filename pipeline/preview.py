@@ -301,7 +301,7 @@ def blueprint(deepest: Deepest | None = None, up_axis: str = "Z", collision_fram
                                    contents=["metrics/residual_rel", "metrics/pairs/**", "metrics/over_tolerance"]),
                 rrb.TimeSeriesView(name="ms per frame", origin="metrics/ms"),
                 rrb.TextLogView(name="events", origin="log"),
-                row_shares=[2, 2, 2, 2, 3],
+                row_shares=[2, 2, 2, 2, 4],  # events: room for a dozen rows, the deepest one among them
             ),
             column_shares=[3, 2],
         ),

@@ -9,7 +9,7 @@ moved vertices and the markers, all saturated, where the objects' own colours, t
 the UI are grey). The plots must carry data (coloured curve pixels in the plot panels).
 
 Skips when Chromium or playwright is absent, with the reason; ``ACRA_REQUIRE_BROWSER=1`` (set by
-``.ci/run``) turns that skip into a failure. Writes ``docs/img/preview_frame15.png``. Cost: 187 s
+``.ci/run``) turns that skip into a failure. Writes ``docs/img/preview_frame15.png``. Cost: 187-258 s
 for both recordings at a load average of 5-9 on 2 cores (most of it the viewer loading in
 software WebGL), plus ~10 s of ACRA runs to make them.
 """
@@ -71,7 +71,7 @@ def highlight_mask(rgb: np.ndarray) -> np.ndarray:
     return (sat >= 0.45) & (hi >= 0.2)
 
 
-EVENTS = (0.61, 0.99, 0.76, 0.97)  # the events log (fractions of the screenshot, see COLLISION_VIEW)
+EVENTS = (0.61, 0.99, 0.66, 0.97)  # the events log (fractions of the screenshot, see COLLISION_VIEW)
 
 
 def deepest_row_shown(rgb: np.ndarray) -> bool:
@@ -152,8 +152,8 @@ def screenshot(browser, rrd: Path, png: Path) -> np.ndarray:
 # shares (3D views | plots as 3 : 2; collision view over whole scene and legend as 3 : 1), inset a
 # little so no panel border or title bar is counted.
 COLLISION_VIEW = (0.005, 0.59, 0.065, 0.73)
-PLOTS = {"residual": (0.70, 0.99, 0.063, 0.19), "absorbed": (0.70, 0.99, 0.23, 0.36),
-         "residual_rel": (0.70, 0.99, 0.40, 0.53), "ms": (0.70, 0.99, 0.57, 0.70)}
+PLOTS = {"residual": (0.70, 0.99, 0.07, 0.18), "absorbed": (0.70, 0.99, 0.225, 0.335),
+         "residual_rel": (0.70, 0.99, 0.38, 0.49), "ms": (0.70, 0.99, 0.535, 0.645)}  # plots : events 2 : 2 : 2 : 2 : 4
 
 
 def crop(img: np.ndarray, box: tuple) -> np.ndarray:
@@ -204,7 +204,8 @@ def test_the_default_view_shows_the_collision_and_the_plots_carry_data(recording
     print(f"browser test: {time.perf_counter() - t0:.0f} s for {len(recordings)} recordings; {seen}")
     for name, (fraction, plots) in seen.items():
         assert fraction >= 0.005, f"{name}: {fraction:.3%} of the 3D view in highlight colours"
-        assert plots["absorbed"] >= 200 and sum(plots.values()) >= 1000, f"{name}: plot pixels {plots}"
+        # curves are saturated pixels right of the plot legends; a plot with no data has none
+        assert plots["absorbed"] >= 100 and plots["ms"] >= 100, f"{name}: plot pixels {plots}"
 
 
 def test_highlight_colours_are_the_maps_and_markers_not_the_objects():
