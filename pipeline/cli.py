@@ -1,15 +1,16 @@
-"""The command line (contract §3, docs/cli.md): ``acra run``, ``acra merge``, ``acra bench``,
-``acra --version``.
+"""The command line (contract §3, docs/cli.md): ``acra run``, ``acra merge``, ``acra preview``,
+``acra bench``, ``acra --version``.
 
     acra run INPUT [-o OUTPUT] [--frames START:END] [--rrd FILE | --spawn] [--iterations N]
              [--tolerance T] [--over-tolerance fail|warn] [--report FILE.json]
              [--memory-budget SIZE] [--quiet] [--workers N | --scheduler ADDRESS | --part DIR]
              [--chunk FRAMES]
     acra merge DIR [-o OUTPUT] [--frames START:END]
+    acra preview OUTPUT [--rrd FILE | --web | --spawn]
     acra bench [SCENE] [--repeat N]
 
-A thin layer over `pipeline.run` (what a run does), `pipeline.parts` (the merge) and
-`pipeline.bench`: it parses, prints the summary, and maps outcomes to exit statuses
+A thin layer over `pipeline.run` (what a run does), `pipeline.parts` (the merge),
+`pipeline.preview_usd` (a recording from an output layer) and `pipeline.bench`: it parses, prints the summary, and maps outcomes to exit statuses
 (`pipeline.report`): 0 ok, 1 chunks that kept failing on a Dask cluster, 2 bad input (one line
 naming the prim, the attribute and the problem; nothing written), 3 frames over tolerance, 130 and
 143 interrupted by SIGINT and SIGTERM (nothing written).
@@ -26,7 +27,7 @@ from pathlib import Path
 from pipeline import guard, report
 from pipeline.farm import FarmError
 from pipeline.model import InputError
-from pipeline.run import RunReport, frame_list, run_file
+from pipeline.run import RunReport, frame_list, refuse_outputs, run_file
 
 __all__ = ["main", "build_parser", "run_file", "RunReport"]
 
@@ -62,6 +63,12 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="time the thesis's Fig. 5.2 stages on a scene (default: dog_head_spike)")
     bench.add_argument("scene", nargs="?", type=Path, help="scene file or stage (default scenes/dog_head_spike.py)")
     bench.add_argument("--repeat", type=int, default=3, help="cold runs to take medians over (default 3)")
+    view = sub.add_parser("preview", help="build the Rerun recording of an output layer alone (no ACRA run)")
+    view.add_argument("output", type=Path, help="an ACRA output layer (.acra.usda)")
+    shown = view.add_mutually_exclusive_group()
+    shown.add_argument("--rrd", type=Path, help="save the recording to FILE")
+    shown.add_argument("--web", action="store_true", help="serve it to the browser (Rerun web viewer) until Ctrl-C")
+    shown.add_argument("--spawn", action="store_true", help="open the Rerun native viewer")
     return p
 
 
@@ -101,6 +108,18 @@ def merge(args: argparse.Namespace) -> int:
     return 0
 
 
+def preview(args: argparse.Namespace) -> int:
+    """`acra preview OUTPUT [--rrd FILE | --web | --spawn]` (docs/preview.md)."""
+    from pipeline import preview_usd
+
+    if not (args.rrd or args.web or args.spawn):
+        raise InputError("acra preview", None, "say where the recording goes: --rrd FILE, --web or --spawn")
+    if args.rrd is not None and Path(args.output).is_file():
+        refuse_outputs([("--rrd", args.rrd)], guard.protected_paths(Path(args.output)))
+    print(preview_usd.preview_file(args.output, rrd=args.rrd, web=args.web, spawn=args.spawn))
+    return 0
+
+
 def bench(args: argparse.Namespace) -> int:
     from pipeline.bench import format_report, run_bench
 
@@ -136,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         with guard.terminate_raises():
             if as_program:
                 _settle_imports(args.command)
-            return {"bench": bench, "merge": merge}.get(args.command, run)(args)
+            return {"bench": bench, "merge": merge, "preview": preview}.get(args.command, run)(args)
     except InputError as err:
         print(f"acra: error: {err}", file=sys.stderr)
         return report.EXIT_INPUT

@@ -92,6 +92,7 @@ class FrameStats:
     regions: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
     volume_targets: dict = field(default_factory=dict)  # path -> ("volume" | "area", the animator's display measure)
+    pair_residual_rel: dict = field(default_factory=dict)  # (path, other path) -> residual_rel of that pair
 
 
 def _group_level(controls: R.Controls, depth: int) -> int:
@@ -573,6 +574,7 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
                 sizes = [g.size for g in geoms]
             td, setup0 = time.perf_counter(), S.SetupClock.ms
             found, settled = [], {}  # settled: a move this short (world) counts as done
+            pair_rel: dict = {}
             worst, worst_rel = 0.0, 0.0
             for i, other in _pairs(len(defs), len(statics)):
                 if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
@@ -590,6 +592,7 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
                 size = sizes[i] if other[0] == "c" else min(sizes[i], sizes[other[1]])
                 worst = max(worst, c.penetration)
                 worst_rel = max(worst_rel, c.penetration / size)
+                pair_rel[defs[i].path, defs[other[1]].path if other[0] == "d" else scene.colliders[other[1]].path] = c.penetration / size
                 meet = settled[key] = max(options.tolerance, MEET) * size
                 if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
                     c = _deepest_instead(geoms[i], gb, c)
@@ -604,6 +607,7 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
             if worst_rel < best[0]:
                 best = (worst_rel, list(surfaces))
                 st.residual, st.residual_rel = worst, worst_rel
+                st.pair_residual_rel = pair_rel
             if not found or worst_rel <= options.tolerance or it == rounds:
                 break
             tr, setup0 = time.perf_counter(), S.SetupClock.ms

@@ -156,7 +156,7 @@ def run_file(
         from pipeline import preview as rerun_preview
 
         rrd_tmp = guard.temporary_sibling(rrd) if rrd else None
-        preview = rerun_preview.Preview(scene, stage_path.stem, rrd=rrd_tmp, spawn=spawn)
+        preview = rerun_preview.Preview(scene, stage_path.stem, rrd=rrd_tmp, spawn=spawn, stage=stage, tolerance=tolerance)
     # every file goes to a hidden temporary sibling first; all are renamed over their targets at
     # the end with SIGINT/SIGTERM held (`guard.signals_held`), so a run either writes every file
     # or none, and an interruption removes the temporaries

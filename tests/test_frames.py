@@ -76,12 +76,13 @@ def test_rrd_reads_back_with_meshes_on_the_frame_timeline(tmp_path):
     box = [c for c in chunks if c.entity_path == "/world/World/Mover/Box" and not c.is_static]
     names = " ".join(str(n) for c in box for n in c.to_record_batch().schema.names)
     assert "Transform3D" in names or "translation" in names.lower()
-    # the default blueprint travels with the recording: the 3D view, three plots and the event log
+    # the default blueprint travels with the recording: the collision and whole-scene 3D views, the
+    # legend, four plots and the event log
     reader = RrdReader(str(rrd))
     stores = reader.blueprints()
     assert stores
     views = {c.entity_path.split("/")[2] for c in reader.stream(store=stores[0]).to_chunks() if c.entity_path.startswith("/view/")}
-    assert len(views) == 5
+    assert len(views) == 8
 
 
 def test_preview_clears_markers_of_a_free_frame(tmp_path):
@@ -100,7 +101,7 @@ def test_preview_clears_markers_of_a_free_frame(tmp_path):
     result, stats = F.run_frames(stage, scene, [10, 11])
     assert not stats[0].in_collision and stats[1].in_collision
     rrd = tmp_path / "p.rrd"
-    preview = P.Preview(scene, "p", rrd=rrd)
+    preview = P.Preview(scene, "p", rrd=rrd, stage=stage)
     preview.log_frame(stats[1], result)  # collision first, then the free frame
     preview.log_frame(stats[0], result)
     preview.close()

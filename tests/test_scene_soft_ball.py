@@ -85,12 +85,18 @@ def test_the_preview_plots_the_carried_offsets_per_level(run):
 
 
 def test_the_preview_colours_the_carried_dent(run):
-    """Vertex colours on the ball (RGBA packed in a uint32): all the base colour before the press,
-    near red at the deepest frame (the dent carries more than 5 % of the size), fading after."""
+    """Vertex colours on the ball (RGBA packed in a uint32, `preview.moved_colours`: the ball's own
+    colour where the output equals the key-framed shape, viridis by log distance otherwise). The
+    key-framed shape is the animator's, so the carried dent shows: no vertex coloured before the
+    press, the brightest at the deepest frame, and the brightest colour fading frame by frame as
+    the dent relaxes (viridis' green channel rises with the distance)."""
     from rerun.chunk import RrdReader
 
+    from pipeline.preview import DEFORMABLE_COLOUR
+
     report, _, _ = run
-    green = {}  # frame -> the smallest green channel over the vertices (base 199, red 50)
+    own = np.array(DEFORMABLE_COLOUR, dtype=np.int64)
+    brightest = {}  # frame -> (coloured vertices, the largest green channel among them)
     for c in RrdReader(str(report.output.with_name("soft_ball.rrd"))).stream():
         if c.entity_path != f"/world{BALL}":
             continue
@@ -98,7 +104,14 @@ def test_the_preview_colours_the_carried_dent(run):
         if "Mesh3D:vertex_colors" not in b.schema.names:
             continue
         for f, v in zip(b.column("frame").to_pylist(), b.column("Mesh3D:vertex_colors").to_pylist()):
-            green[f] = int(((np.array(v, dtype=np.uint32) >> 16) & 0xFF).min())
-    assert sorted(green) == list(range(1, 13))
-    assert green[1] == 199 and green[4] <= 90
-    assert all(green[f + 1] >= green[f] for f in range(4, 12)) and green[12] >= 195
+            rgba = np.array(v, dtype=np.uint32)
+            rgb = np.stack([(rgba >> 24) & 0xFF, (rgba >> 16) & 0xFF, (rgba >> 8) & 0xFF], axis=1).astype(np.int64)
+            coloured = np.any(rgb != own, axis=1)
+            brightest[f] = (int(coloured.sum()), int(rgb[coloured, 1].max(initial=0)))
+    assert sorted(brightest) == list(range(1, 13))
+    assert brightest[1] == (0, 0)
+    # the deepest frame: 0.156 of a 3.4-size ball, log10 -1.3, near viridis' bright end (G 220-231)
+    assert brightest[4][0] > 0 and brightest[4][1] >= 200
+    assert all(brightest[f + 1][1] <= brightest[f][1] for f in range(4, 12))
+    # frame 12 carries 2.6e-4 (7.7e-5 of the size): below the map's 1e-4 end, the darkest colour
+    assert brightest[12][0] > 0 and brightest[12][1] <= 45
