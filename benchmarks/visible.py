@@ -28,7 +28,7 @@ def _measure_module():
 
 
 def main(names: list[str]) -> None:
-    from pipeline.cli import run_file
+    from pipeline.run import run_file
 
     measure = _measure_module()
     names = names or [p.stem for p in sorted((ROOT / "scenes").glob("*.py")) if not p.stem.startswith("_")]
