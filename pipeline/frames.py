@@ -500,68 +500,193 @@ def run_frames(
         return _run_frames(stage, scene, frames, options, on_frame, initial)
 
 
-def _run_frames(stage, scene, frames, options, on_frame, initial=None):
-    statics = [D.prepare_collider(c) for c in scene.colliders]
-    defs = scene.deformables
-    controls = [m.controls for m in defs]
-    result = usdio.FramesResult()
-    stats: list[FrameStats] = []
-    caches: dict = {}
-    state_memo: dict = {}
-    carry = state.for_run(stage, scene, frames, options, initial)
+@dataclass
+class _Round:
+    """One detection pass over every pair (`_Run.detect`).
 
-    canonical: list = [None] * len(defs)  # last input surface of each deformable
-    display: dict = {}  # id(surface) -> (surface, points, normals, limit normals), most recent last
+    ``found`` holds ``(i, other, PairContact)`` of the pairs to respond to, ``settled`` per pair the
+    world move that counts as done (the tolerance or `MEET` times the pair's size), ``pair_rel``
+    each pair's residual over its size, ``worst`` and ``worst_rel`` the largest residual in world
+    units and over size."""
 
-    def states(t: float):
-        if t not in state_memo:
-            if len(state_memo) > 64:
-                state_memo.clear()
-            dstates, cstates = usdio.state_at(stage, scene, t)
+    found: list
+    settled: dict
+    pair_rel: dict
+    worst: float
+    worst_rel: float
+
+
+class _Run:
+    """What a run keeps across frames and the steps of one frame.
+
+    Kept across frames: each collider's prepared mesh, the input states by time code (an
+    unchanged input surface handed back as the same object, so its object-space `shape.Shape` is
+    reused), the display of each distinct surface, each pair's rewinding cache, and the carried
+    state (`pipeline.state`). A frame (`frame`) is rounds of `detect` → `data_points` (eq.
+    4.15–4.16) → `respond` until the residual is within tolerance or the cap is reached; the
+    round with the least residual is kept and tessellated for display (`tessellation`).
+    """
+
+    def __init__(self, stage: Usd.Stage, scene: SceneModel, options: RunOptions, carry) -> None:
+        self.stage, self.scene, self.options, self.carry = stage, scene, options, carry
+        self.statics = [D.prepare_collider(c) for c in scene.colliders]
+        self.defs = scene.deformables
+        self.controls = [m.controls for m in self.defs]
+        self.caches: dict = {}  # (i, other) -> contact.RewindCache
+        self.state_memo: dict = {}
+        self.canonical: list = [None] * len(self.defs)  # last input surface of each deformable
+        self.display: dict = {}  # id(surface) -> (surface, points, normals, limit normals), most recent last
+
+    def states(self, t: float):
+        """``(deformable states, collider states)`` at time code ``t`` (`usdio.state_at`)."""
+        if t not in self.state_memo:
+            if len(self.state_memo) > 64:
+                self.state_memo.clear()
+            dstates, cstates = usdio.state_at(self.stage, self.scene, t)
             for i, s in enumerate(dstates):  # unchanged input CVs: hand back the same surface, so
-                c = canonical[i]             # its object-space Shape (shape.shape_of) is reused
+                c = self.canonical[i]        # its object-space Shape (shape.shape_of) is reused
                 if c is not None and np.array_equal(c.cvs, s.surface.cvs):
                     dstates[i] = replace(s, surface=c)
                 else:
-                    canonical[i] = s.surface
-            state_memo[t] = (dstates, cstates)
-        return state_memo[t]
+                    self.canonical[i] = s.surface
+            self.state_memo[t] = (dstates, cstates)
+        return self.state_memo[t]
 
-    def tessellation(i: int, surface: H.HSpline):
+    def tessellation(self, i: int, surface: H.HSpline):
         """Display points and normals of a deformable's surface, once per distinct surface; a
         responded surface re-evaluates only the patches changed since its nearest displayed
         ancestor (the input surface, as a rule)."""
+        display = self.display
         hit = display.pop(id(surface), None)
         if hit is None or hit[0] is not surface:
-            shape = S.shape_of(surface, options.density)
+            shape = S.shape_of(surface, self.options.density)
             since, up, stale = None, shape, np.zeros(shape.density_map.shape, bool)
             while since is None and up.parent is not None:
                 stale, up = stale | up._stale, up.parent
                 old = display.get(id(up.surface))
                 if old is not None and old[0] is up.surface:
                     since = (old[1], old[3], stale)
-            topo = defs[i].topology
+            topo = self.defs[i].topology
             pts, limit = grid_samples(surface, topo, shape.details, since)
             hit = (surface, pts, pole_normals(surface, topo, pts, limit), limit)
         display[id(surface)] = hit  # most recent last
-        while len(display) > 4 * len(defs):
+        while len(display) > 4 * len(self.defs):
             del display[next(iter(display))]
         return hit[1], hit[2]
 
-    def geometry(kind_j, t):
-        dstates, cstates = states(t)
+    def geometry(self, kind_j, t):
+        """The input geometry of a deformable (``("d", j)``) or a collider (``("c", j)``) at ``t``,
+        for rewinding the motion."""
+        dstates, cstates = self.states(t)
         kind, j = kind_j
         if kind == "d":
-            return D.SurfaceGeometry(dstates[j].surface, dstates[j].xform, name=defs[j].path, density=options.density)
-        return D.ColliderGeometry(statics[j], cstates[j].xform)
+            return D.SurfaceGeometry(dstates[j].surface, dstates[j].xform, name=self.defs[j].path, density=self.options.density)
+        return D.ColliderGeometry(self.statics[j], cstates[j].xform)
 
-    for frame in frames:
+    def detect(self, frame: int, it: int, geoms: list, cgeoms: list, sizes: list, enabled: list) -> _Round:
+        """Detect every pair with an enabled deformable (round ``it`` of ``frame``)."""
+        defs, options = self.defs, self.options
+        rnd = _Round([], {}, {}, 0.0, 0.0)
+        for i, other in _pairs(len(defs), len(self.statics)):
+            if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
+                continue
+            gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
+            key = (i, other)
+            cache = self.caches.setdefault(key, C.RewindCache())
+            at = lambda t, i=i, other=other: (self.geometry(("d", i), t), self.geometry(other, t))  # noqa: E731
+            # without motion to rewind, the first round picks the way out the whole region
+            # needs least; later rounds clear what the response left, each vertex its nearest way
+            c = C.detect_pair(geoms[i], gb, float(frame), at, start=float(self.scene.start), cache=cache, whole=it == 0)
+            if c is None:
+                continue
+            # the contract's "object size": the deformable's own (the smaller one of two deformables)
+            size = sizes[i] if other[0] == "c" else min(sizes[i], sizes[other[1]])
+            rnd.worst = max(rnd.worst, c.penetration)
+            rnd.worst_rel = max(rnd.worst_rel, c.penetration / size)
+            other_path = defs[other[1]].path if other[0] == "d" else self.scene.colliders[other[1]].path
+            rnd.pair_rel[defs[i].path, other_path] = c.penetration / size
+            meet = rnd.settled[key] = max(options.tolerance, MEET) * size
+            if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
+                c = _deepest_instead(geoms[i], gb, c)
+            if c.penetration > options.tolerance * size or it == 0:
+                rnd.found.append((i, other, c))
+        return rnd
+
+    def data_points(self, rnd: _Round, geoms: list, cgeoms: list, sizes: list, enabled: list, surfaces: list,
+                    directions: dict, wrapping: set) -> dict:
+        """Eq. 4.15–4.16: each responding deformable's data points for this round's contacts, as
+        ``{i: [(DataPoints, world targets (k, 3), world starts (k, 3)), ...]}``. ``directions`` keeps
+        each pair's first push of the frame, ``wrapping`` the collider pairs pushed by
+        `collider_points_for` (both updated)."""
+        controls = self.controls
+        points: dict[int, list] = {}
+        for i, other, c in rnd.found:
+            gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
+            r_other = None if other[0] == "c" or not enabled[other[1]] else controls[other[1]].rigidity
+            if enabled[i]:
+                share = R.rigidity_share(controls[i].rigidity, r_other)
+                push = directions.setdefault((i, other), c.point_b - c.point_a)
+                # a collider with vertices inside a closed surface: the wall in front of it is pushed
+                # past it along the push, its own region included (`collider_points_for`); every
+                # later round of the frame does the same, so the pocket keeps its direction
+                wrap = other[0] == "c" and (not c.region_b.empty or (i, other) in wrapping)
+                clear = rnd.settled[(i, other)] if wrap else 0.0
+                p_other = c.point_b + clear * push / max(np.linalg.norm(push), 1e-300)
+                dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, p_other, None if wrap else c.region_a.uv,
+                                                   share, _group_level(controls[i], surfaces[i].depth), push,
+                                                   c.region_a.depth, rnd.settled[(i, other)])
+                points.setdefault(i, []).append((dp, world, start))
+                if wrap:
+                    uv, world, start = collider_points_for(geoms[i], gb, c.region_a, c.region_b, push, share,
+                                                           _group_level(controls[i], surfaces[i].depth), clear,
+                                                           (i, other) not in wrapping)
+                    wrapping.add((i, other))
+                    keep = _spread(start, c.point_a, MEET * sizes[i])
+                    if keep.any():
+                        dp = R.DataPoints(uv[keep], apply_inverse(geoms[i].xform, world[keep]), np.zeros(int(keep.sum()), bool))
+                        points[i].append((dp, world[keep], start[keep]))
+            if other[0] == "d" and enabled[other[1]]:
+                j = other[1]
+                share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
+                push = -directions.setdefault((i, other), c.point_b - c.point_a)
+                dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a, c.region_b.uv, share,
+                                                   _group_level(controls[j], surfaces[j].depth), push,
+                                                   c.region_b.depth, rnd.settled[(i, other)])
+                points.setdefault(j, []).append((dp, world, start))
+        return points
+
+    def respond(self, frame: int, it: int, st: FrameStats, points: dict, surfaces: list) -> None:
+        """Respond every deformable with data points (thesis §4.3), replacing its surface in
+        ``surfaces``; the first round's data points go to ``st`` for the preview."""
+        for i, lst in points.items():
+            t_i = time.perf_counter()
+            dp = R.DataPoints(
+                np.concatenate([d.uv for d, _, _ in lst]),
+                np.concatenate([d.target for d, _, _ in lst]),
+                np.concatenate([d.is_contact for d, _, _ in lst]),
+            )
+            parent = surfaces[i]
+            path = self.defs[i].path
+            surfaces[i], rep = _respond_bounded(path, frame, parent, dp, self.controls[i], self.options)
+            S.seed_details(surfaces[i], rep.details, self.options.density, parent=parent)
+            surfaces[i] = self.carry.after_response(i, parent, surfaces[i])
+            if it == 0:
+                st.data_points[path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))
+            ms = 1e3 * (time.perf_counter() - t_i)
+            st.ms_respond += ms
+            st.ms_respond_by[path] = st.ms_respond_by.get(path, 0.0) + ms
+
+    def frame(self, frame: int, result: usdio.FramesResult) -> FrameStats:
+        """Process ``frame``: rounds of detect → data points → respond from the animator's shape
+        (plus what is carried), keep the round with the least residual, add its display to
+        ``result``; return the frame's statistics."""
+        defs, options = self.defs, self.options
         t0 = time.perf_counter()
         st = FrameStats(frame)
-        dstates, cstates = states(float(frame))
+        dstates, cstates = self.states(float(frame))
         st.xforms = {m.path: s.xform for m, s in zip(defs, dstates)}
-        st.xforms.update({c.path: s.xform for c, s in zip(scene.colliders, cstates)})
-        surfaces = carry.begin(frame, [s.surface for s in dstates])
+        st.xforms.update({c.path: s.xform for c, s in zip(self.scene.colliders, cstates)})
+        surfaces = self.carry.begin(frame, [s.surface for s in dstates])
         enabled = [s.enabled for s in dstates]
         directions: dict = {}
         wrapping: set = set()  # collider pairs pushed by `collider_points_for` this frame
@@ -569,111 +694,47 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
         rounds = max(1, options.iterations)
         for it in range(rounds + 1):
             geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
-            cgeoms = [D.ColliderGeometry(statics[j], cstates[j].xform) for j in range(len(statics))]
+            cgeoms = [D.ColliderGeometry(self.statics[j], cstates[j].xform) for j in range(len(self.statics))]
             if it == 0:  # the animator's surfaces: the residual's scale stays fixed while rounds reshape them
                 sizes = [g.size for g in geoms]
             td, setup0 = time.perf_counter(), S.SetupClock.ms
-            found, settled = [], {}  # settled: a move this short (world) counts as done
-            pair_rel: dict = {}
-            worst, worst_rel = 0.0, 0.0
-            for i, other in _pairs(len(defs), len(statics)):
-                if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
-                    continue
-                gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
-                key = (i, other)
-                cache = caches.setdefault(key, C.RewindCache())
-                at = lambda t, i=i, other=other: (geometry(("d", i), t), geometry(other, t))  # noqa: E731
-                # without motion to rewind, the first round picks the way out the whole region
-                # needs least; later rounds clear what the response left, each vertex its nearest way
-                c = C.detect_pair(geoms[i], gb, float(frame), at, start=float(scene.start), cache=cache, whole=it == 0)
-                if c is None:
-                    continue
-                # the contract's "object size": the deformable's own (the smaller one of two deformables)
-                size = sizes[i] if other[0] == "c" else min(sizes[i], sizes[other[1]])
-                worst = max(worst, c.penetration)
-                worst_rel = max(worst_rel, c.penetration / size)
-                pair_rel[defs[i].path, defs[other[1]].path if other[0] == "d" else scene.colliders[other[1]].path] = c.penetration / size
-                meet = settled[key] = max(options.tolerance, MEET) * size
-                if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
-                    c = _deepest_instead(geoms[i], gb, c)
-                if c.penetration > options.tolerance * size or it == 0:
-                    found.append((i, other, c))
+            rnd = self.detect(frame, it, geoms, cgeoms, sizes, enabled)
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_detect += 1e3 * (time.perf_counter() - td) - (S.SetupClock.ms - setup0)
             if it == 0:
-                st.in_collision = bool(found)
-                st.contacts = [(c.point_a, c.point_b) for _, _, c in found]
-                st.regions = {defs[i].path: c.region_a.points for i, _, c in found}
-            if worst_rel < best[0]:
-                best = (worst_rel, list(surfaces))
-                st.residual, st.residual_rel = worst, worst_rel
-                st.pair_residual_rel = pair_rel
-            if not found or worst_rel <= options.tolerance or it == rounds:
+                st.in_collision = bool(rnd.found)
+                st.contacts = [(c.point_a, c.point_b) for _, _, c in rnd.found]
+                st.regions = {defs[i].path: c.region_a.points for i, _, c in rnd.found}
+            if rnd.worst_rel < best[0]:
+                best = (rnd.worst_rel, list(surfaces))
+                st.residual, st.residual_rel = rnd.worst, rnd.worst_rel
+                st.pair_residual_rel = rnd.pair_rel
+            if not rnd.found or rnd.worst_rel <= options.tolerance or it == rounds:
                 break
             tr, setup0 = time.perf_counter(), S.SetupClock.ms
-            points: dict[int, list] = {}
-            for i, other, c in found:
-                gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
-                r_other = None if other[0] == "c" or not enabled[other[1]] else controls[other[1]].rigidity
-                if enabled[i]:
-                    share = R.rigidity_share(controls[i].rigidity, r_other)
-                    push = directions.setdefault((i, other), c.point_b - c.point_a)
-                    # a collider with vertices inside a closed surface: the wall in front of it is pushed
-                    # past it along the push, its own region included (`collider_points_for`); every
-                    # later round of the frame does the same, so the pocket keeps its direction
-                    wrap = other[0] == "c" and (not c.region_b.empty or (i, other) in wrapping)
-                    clear = settled[(i, other)] if wrap else 0.0
-                    p_other = c.point_b + clear * push / max(np.linalg.norm(push), 1e-300)
-                    dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, p_other, None if wrap else c.region_a.uv,
-                                                       share, _group_level(controls[i], surfaces[i].depth), push,
-                                                       c.region_a.depth, settled[(i, other)])
-                    points.setdefault(i, []).append((dp, world, start))
-                    if wrap:
-                        uv, world, start = collider_points_for(geoms[i], gb, c.region_a, c.region_b, push, share,
-                                                               _group_level(controls[i], surfaces[i].depth), clear,
-                                                               (i, other) not in wrapping)
-                        wrapping.add((i, other))
-                        keep = _spread(start, c.point_a, MEET * sizes[i])
-                        if keep.any():
-                            dp = R.DataPoints(uv[keep], apply_inverse(geoms[i].xform, world[keep]), np.zeros(int(keep.sum()), bool))
-                            points[i].append((dp, world[keep], start[keep]))
-                if other[0] == "d" and enabled[other[1]]:
-                    j = other[1]
-                    share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
-                    push = -directions.setdefault((i, other), c.point_b - c.point_a)
-                    dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a, c.region_b.uv, share,
-                                                       _group_level(controls[j], surfaces[j].depth), push,
-                                                       c.region_b.depth, settled[(i, other)])
-                    points.setdefault(j, []).append((dp, world, start))
+            points = self.data_points(rnd, geoms, cgeoms, sizes, enabled, surfaces, directions, wrapping)
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_convert += 1e3 * (time.perf_counter() - tr) - (S.SetupClock.ms - setup0)
-            for i, lst in points.items():
-                t_i = time.perf_counter()
-                dp = R.DataPoints(
-                    np.concatenate([d.uv for d, _, _ in lst]),
-                    np.concatenate([d.target for d, _, _ in lst]),
-                    np.concatenate([d.is_contact for d, _, _ in lst]),
-                )
-                parent = surfaces[i]
-                surfaces[i], rep = _respond_bounded(defs[i].path, frame, parent, dp, controls[i], options)
-                S.seed_details(surfaces[i], rep.details, options.density, parent=parent)
-                surfaces[i] = carry.after_response(i, parent, surfaces[i])
-                if it == 0:
-                    st.data_points[defs[i].path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))
-                ms = 1e3 * (time.perf_counter() - t_i)
-                st.ms_respond += ms
-                st.ms_respond_by[defs[i].path] = st.ms_respond_by.get(defs[i].path, 0.0) + ms
+            self.respond(frame, it, st, points, surfaces)
             st.iterations = it + 1
         surfaces = best[1]
-        carried = carry.end(frame, surfaces)
-        st.volume_targets = carry.volume_targets()
+        carried = self.carry.end(frame, surfaces)
+        st.volume_targets = self.carry.volume_targets()
         to = time.perf_counter()
         for i, model in enumerate(defs):
-            pts, nrm = tessellation(i, surfaces[i])
+            pts, nrm = self.tessellation(i, surfaces[i])
             result.add(frame, model.path, usdio.DeformableResult(pts, nrm, surfaces[i], st.residual, st.in_collision, carried[i]))
         st.ms_output = 1e3 * (time.perf_counter() - to)
         st.ms_total = 1e3 * (time.perf_counter() - t0)
-        stats.append(st)
+        return st
+
+
+def _run_frames(stage, scene, frames, options, on_frame, initial=None):
+    run = _Run(stage, scene, options, state.for_run(stage, scene, frames, options, initial))
+    result = usdio.FramesResult()
+    stats: list[FrameStats] = []
+    for frame in frames:
+        stats.append(run.frame(frame, result))
         if on_frame is not None:
-            on_frame(st, result)
+            on_frame(stats[-1], result)
     return result, stats
