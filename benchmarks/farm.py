@@ -6,7 +6,7 @@ The shot is the demo (`scenes/dog_head_spike.py`: a spike jabs a 7-level head) w
 repeated ``--jabs`` times, 30 frames each (keys at 30k + 1, 12, 15, 18, 30), so 240 frames of
 which 40 are in collision. Each repeat runs, in this order: one process (`cli.run_file`, no
 Dask); then for each ``--workers`` N a fresh `LocalCluster` of N processes (`farm.run_frames`)
-and `usdio.write_output`; then the one-process run's records cut into parts of 30 frames
+and `output_layer.write_output`; then the one-process run's records cut into parts of 30 frames
 (`parts.write_part`) and `parts.merge_parts`. Every output must be byte-identical to the
 one-process output (checked). Reported: medians over the repeats of wall seconds (end to end,
 including writing the layer), cluster start-up (processes started and the pipeline imported on
@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from pipeline import authoring, cli, farm, parts, usdio
+from pipeline import output_layer
 from pipeline.animation import usdkeys
 from pipeline.frames import RunOptions
 from scenes import dog_head_spike
@@ -84,7 +85,7 @@ def main() -> None:
             t = time.perf_counter()
             result, _ = farm.run_frames(stage_path, identity, scene, frames, RunOptions(), workers=n, timings=timings)
             tw = time.perf_counter()
-            out = usdio.write_output(stage_path, work / f"workers{n}.usda", scene, result)
+            out = output_layer.write_output(stage_path, work / f"workers{n}.usda", scene, result)
             end = time.perf_counter()
             assert out.read_bytes() == reference, f"{n} workers: output differs from one process"
             rows.setdefault(f"{n} workers", []).append({"wall": end - t, "startup": timings.startup, "frames": timings.frames,

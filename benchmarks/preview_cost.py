@@ -44,6 +44,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import scale_curve  # noqa: E402
 from pipeline import authoring, frames, preview, preview_usd, usdio  # noqa: E402
+from pipeline import output_layer
 
 PROBE = """
 import json, sys, time
@@ -82,7 +83,7 @@ def logging_cost(src: Path, tmp: Path) -> dict:
     view.close()
     close_ms = 1e3 * (time.perf_counter() - t)
     out = tmp / f"{src.stem}.acra.usda"
-    usdio.write_output(src, out, scene, result)
+    output_layer.write_output(src, out, scene, result)
     t = time.perf_counter()
     rec = preview_usd.build(out)
     preview.save_atomically(rec.rec, tmp / f"{src.stem}_preview.rrd", rec.finish())

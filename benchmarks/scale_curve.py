@@ -48,6 +48,7 @@ from pipeline import authoring as A
 from pipeline import detect as D
 from pipeline import frames as F
 from pipeline import usdio
+from pipeline import output_layer
 from pipeline.run import run_file
 from scenes import dog_head_spike as dog
 
@@ -102,7 +103,7 @@ def head_points(stage: Usd.Stage, scene, scale: int, u: np.ndarray, v: np.ndarra
     """World points ``(m, 3)`` of the head at ×1 parameters ``(u, v)``: the input's, or the
     response written in ``output`` (a stage) at ``frame``."""
     (head, _), _ = usdio.state_at(stage, scene, float(frame))
-    hs = head.surface if output is None else usdio.read_output_hierarchy(output, HEAD, frame)
+    hs = head.surface if output is None else output_layer.read_output_hierarchy(output, HEAD, frame)
     pts = H.evaluate(hs, u * (1 << scale), v * (1 << scale)).points
     return pts @ head.xform[:3, :3].T + head.xform[:3, 3]
 

@@ -439,7 +439,7 @@ def run_acra(stage_path: Path, keyed: Keyed, work: Path, repeats: int) -> tuple[
 
     from acra import hspline as H
     from acra.tessellate import evaluate_grid
-    from pipeline import usdio
+    from pipeline import output_layer
     from pipeline.run import run_file
     from pipeline.model import apply_xform
 
@@ -458,7 +458,7 @@ def run_acra(stage_path: Path, keyed: Keyed, work: Path, repeats: int) -> tuple[
         else:
             local = []
             for fr in keyed.frames:
-                hs = usdio.read_output_hierarchy(stage, path, float(fr))
+                hs = output_layer.read_output_hierarchy(stage, path, float(fr))
                 local.append(evaluate_grid(hs, keyed.def_topology[i], H.details(hs) if hs.depth > 1 else None)[0])
         points.append(np.stack([apply_xform(keyed.def_xform[i][f], p) for f, p in enumerate(local)]))
     return report.stats, np.median(np.array(times), axis=0), points

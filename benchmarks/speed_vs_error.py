@@ -19,7 +19,7 @@ configuration is reported over the collision frames:
   the plot's x axis);
 * the loop's residual, ``FrameStats.residual_rel``: the kept round's detection *at ``D``*;
 * the reference residual: the written response (``acra:response:*`` read back with
-  `pipeline.usdio.read_output_hierarchy`) measured by `pipeline.detect.residual` at density
+  `pipeline.output_layer.read_output_hierarchy`) measured by `pipeline.detect.residual` at density
   ``--reference`` (32) for every configuration, over the pair's size (the smaller deformable's),
   so coarse densities cannot look good by measuring coarsely.
 
@@ -44,6 +44,7 @@ from pxr import Usd
 
 from pipeline import detect as D
 from pipeline import usdio
+from pipeline import output_layer
 from pipeline.run import run_file
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,7 +99,7 @@ def reference(output: Path, scene, statics, frames: list[int], density: int, mem
                 h.update(np.asarray(prim.GetAttribute(f"acra:response:{name}").Get(Usd.TimeCode(f))).tobytes())
         key = (f, h.hexdigest())
         if key not in memo:
-            surfaces = [usdio.read_output_hierarchy(out, m.path, f) for m in scene.deformables]
+            surfaces = [output_layer.read_output_hierarchy(out, m.path, f) for m in scene.deformables]
             memo[key] = pair_residual(out, scene, statics, f, density, surfaces)
         res.append(memo[key])
     return np.array(res)

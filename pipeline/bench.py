@@ -71,6 +71,7 @@ def _median(xs) -> float:
 def run_bench(scene: Path | None = None, repeat: int = 3) -> Bench:
     """Measure the Fig. 5.2 table on ``scene`` (see the module docstring)."""
     from pipeline import usdio
+    from pipeline import output_layer
     from pipeline.run import run_file
     from pipeline.shape import _SHAPES as shape_cache
 
@@ -91,7 +92,7 @@ def run_bench(scene: Path | None = None, repeat: int = 3) -> Bench:
             write = report.ms_write / max(1, len(report.stats))
             stage = usdio.open_input(report.stage_path)  # the input layer open, as in the run
             tw = time.perf_counter()
-            usdio.write_output(report.stage_path, Path(tmp) / "out.acra.usdc", report.scene, report.result)
+            output_layer.write_output(report.stage_path, Path(tmp) / "out.acra.usdc", report.scene, report.result)
             del stage
             write_usdc = 1e3 * (time.perf_counter() - tw) / max(1, len(report.stats))
             for s in report.stats:

@@ -134,7 +134,7 @@ def _worker_address() -> str:
 
 def _warm() -> None:
     """Import the frame loop on a worker before the first task (counted as start-up)."""
-    from pipeline import frames, parts, usdio  # noqa: F401
+    from pipeline import frames, output_layer, parts, usdio  # noqa: F401
 
 
 def require(option: str):
@@ -198,7 +198,7 @@ def run_frames(
     on_chunk: Callable[[int], None] | None = None,
     timings: FarmTimings | None = None,
 ):
-    """`frames.run_frames` on Dask; returns ``(usdio.FramesResult, list of FrameStats)``.
+    """`frames.run_frames` on Dask; returns ``(output_layer.FramesResult, list of FrameStats)``.
 
     ``stage_path`` is the USD stage (a scene file is exported by the caller first) and
     ``identity`` its `parts.input_identity` as the client read it; ``scene`` its `SceneModel`.

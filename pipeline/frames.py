@@ -30,6 +30,7 @@ from pipeline import detect as D
 from pipeline import shape as S
 from pipeline import state
 from pipeline import usdio
+from pipeline import output_layer
 from pipeline.guard import format_size
 from pipeline.model import InputError, SceneModel, apply_inverse, apply_xform
 
@@ -482,9 +483,9 @@ def run_frames(
     scene: SceneModel,
     frames: list[int],
     options: RunOptions = RunOptions(),
-    on_frame: Callable[[FrameStats, usdio.FramesResult], None] | None = None,
+    on_frame: Callable[[FrameStats, output_layer.FramesResult], None] | None = None,
     initial: list | None = None,
-) -> tuple[usdio.FramesResult, list[FrameStats]]:
+) -> tuple[output_layer.FramesResult, list[FrameStats]]:
     """Process ``frames`` and return the per-frame results to write and their statistics.
 
     A deformable that carries state across frames (`pipeline.state`) starts each frame from the
@@ -676,7 +677,7 @@ class _Run:
             st.ms_respond += ms
             st.ms_respond_by[path] = st.ms_respond_by.get(path, 0.0) + ms
 
-    def frame(self, frame: int, result: usdio.FramesResult) -> FrameStats:
+    def frame(self, frame: int, result: output_layer.FramesResult) -> FrameStats:
         """Process ``frame``: rounds of detect → data points → respond from the animator's shape
         (plus what is carried), keep the round with the least residual, add its display to
         ``result``; return the frame's statistics."""
@@ -723,7 +724,7 @@ class _Run:
         to = time.perf_counter()
         for i, model in enumerate(defs):
             pts, nrm = self.tessellation(i, surfaces[i])
-            result.add(frame, model.path, usdio.DeformableResult(pts, nrm, surfaces[i], st.residual, st.in_collision, carried[i]))
+            result.add(frame, model.path, output_layer.DeformableResult(pts, nrm, surfaces[i], st.residual, st.in_collision, carried[i]))
         st.ms_output = 1e3 * (time.perf_counter() - to)
         st.ms_total = 1e3 * (time.perf_counter() - t0)
         return st
@@ -731,7 +732,7 @@ class _Run:
 
 def _run_frames(stage, scene, frames, options, on_frame, initial=None):
     run = _Run(stage, scene, options, state.for_run(stage, scene, frames, options, initial))
-    result = usdio.FramesResult()
+    result = output_layer.FramesResult()
     stats: list[FrameStats] = []
     for frame in frames:
         stats.append(run.frame(frame, result))

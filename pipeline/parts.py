@@ -6,7 +6,7 @@ travels between the pieces:
 
 * **records**: one frame's results as plain NumPy arrays (`records_from_result`), what a Dask
   task returns (`pipeline.farm`) and what a part file stores. They carry the *responded H-spline*
-  (level-0 CVs and the full hierarchy, what `usdio.write_output` writes as ``acra:response:*``),
+  (level-0 CVs and the full hierarchy, what `output_layer.write_output` writes as ``acra:response:*``),
   not only display points, so the assembly can recompute anything that depends on the whole run
   (a display topology chosen from the union of all frames' refinements) from the surfaces.
 * **part files** (`write_part`, `read_part`): the records of one frame range plus what they came
@@ -15,7 +15,7 @@ travels between the pieces:
   with ``allow_pickle=False``: data, never code.
 * **the merge** (`merge_parts`): checks that the parts form one run of one input (same identity
   and options, no frame twice, no frame missing) and writes the one output layer of contract §2
-  through `assemble` and `usdio.write_output`, the same bytes as a single-process run.
+  through `assemble` and `output_layer.write_output`, the same bytes as a single-process run.
 
 Record layout, per frame and deformable (``records[frame][prim path][field]``):
 
@@ -162,7 +162,7 @@ def _hierarchy_from(r: dict, model, prefix: str = ""):
 
 
 def records_from_result(result) -> dict:
-    """`usdio.FramesResult` to records (module docstring): plain arrays, picklable, no USD."""
+    """`output_layer.FramesResult` to records (module docstring): plain arrays, picklable, no USD."""
     records: dict = {}
     for frame, per in result.frames.items():
         out = records.setdefault(int(frame), {})
@@ -182,17 +182,17 @@ def records_from_result(result) -> dict:
 
 
 def assemble(scene: SceneModel, records: dict):
-    """Records of all frames to the `usdio.FramesResult` that `usdio.write_output` writes.
+    """Records of all frames to the `output_layer.FramesResult` that `output_layer.write_output` writes.
 
     Each responded surface is rebuilt from its arrays on the deformable's own grid
     (`acra.hspline.from_arrays`, lossless), so whatever the output derives from the surfaces is
     derived here from all frames at once. Records are not modified.
     """
     from acra.relax import Carried
-    from pipeline import usdio
+    from pipeline import output_layer
 
     models = {m.path: m for m in scene.deformables}
-    result = usdio.FramesResult()
+    result = output_layer.FramesResult()
     previous: dict = {}  # path -> (record, DeformableResult) of the frame before
     for frame in sorted(records):
         for path in sorted(records[frame]):
@@ -200,13 +200,13 @@ def assemble(scene: SceneModel, records: dict):
             last = previous.get(path)
             if last is not None and all(np.array_equal(r[n], last[0][n]) for n in _SHAPE_FIELDS):
                 # a free frame repeating the frame before: hand back the same objects, as the frame
-                # loop does, so the writer converts them once (`usdio._Converted`)
+                # loop does, so the writer converts them once (`output_layer._Converted`)
                 done = last[1]
                 points, normals, surface = done.points, done.normals, done.surface
             else:
                 points, normals, surface = r["points"], r["normals"], _hierarchy_from(r, m)
             carried = Carried(_hierarchy_from(r, m, "elastic_"), _hierarchy_from(r, m, "plastic_")) if r["stateful"] else None
-            out = usdio.DeformableResult(points, normals, surface, float(r["residual"]), bool(r["in_collision"]), carried)
+            out = output_layer.DeformableResult(points, normals, surface, float(r["residual"]), bool(r["in_collision"]), carried)
             previous[path] = (r, out)
             result.add(frame, path, out)
     return result
@@ -381,7 +381,7 @@ def merge_parts(directory, output=None, frames: list[int] | None = None) -> tupl
     """
     import time
 
-    from pipeline import usdio
+    from pipeline import output_layer, usdio
 
     directory = Path(directory)
     if not directory.is_dir():
@@ -408,5 +408,5 @@ def merge_parts(directory, output=None, frames: list[int] | None = None) -> tupl
     records = {f: r for p in parts for f, r in p.records.items()}
     stats = sorted((s for p in parts for s in stats_from_table(p.stats)), key=lambda s: s.frame)
     tw = time.perf_counter()
-    usdio.write_output(stage_path, out, scene, assemble(scene, records))
+    output_layer.write_output(stage_path, out, scene, assemble(scene, records))
     return out, stats, 1e3 * (time.perf_counter() - tw), scene, stage_path

@@ -25,6 +25,7 @@ import numpy as np
 from pxr import Usd, UsdGeom
 
 from pipeline import preview, usdio
+from pipeline import output_layer
 from pipeline.model import InputError
 
 __all__ = ["triangulate", "output_frames", "build", "check_rrd_path", "preview_file"]
@@ -92,7 +93,7 @@ def build(output: Path, spawn: bool = False) -> preview.Recording:
             hit = keyed_cache.get(m.path)
             if hit is None or not np.array_equal(hit[0], s.surface.cvs):
                 hit = keyed_cache[m.path] = (s.surface.cvs, preview.keyframed_points(s.surface, m))
-            responded = usdio.read_output_hierarchy(stage, m.path, float(f))
+            responded = output_layer.read_output_hierarchy(stage, m.path, float(f))
             objects.append(preview.ObjectFrame(
                 m.path, np.asarray(mesh.GetPointsAttr().Get(tc), np.float32), np.asarray(mesh.GetNormalsAttr().Get(tc), np.float32),
                 hit[1], s.xform, float(prim.GetAttribute("acra:response:residual").Get(tc)),

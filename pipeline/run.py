@@ -47,7 +47,7 @@ class RunReport:
     """What a run did: the output path, per-frame statistics, the write time, what was written.
 
     ``stage_path`` is the USD input read (the exported ``.usda`` of a scene file) and ``result`` the
-    `usdio.FramesResult` written, so a caller can write it again (``acra bench`` times ``.usdc``).
+    `output_layer.FramesResult` written, so a caller can write it again (``acra bench`` times ``.usdc``).
     ``over`` lists ``(frame, residual_rel)`` of the frames over tolerance
     (`report.frames_over_tolerance`) and ``status`` is the exit status they give (0 or 3).
     """
@@ -120,6 +120,7 @@ def run_file(
     """
     from pipeline import frames as frame_loop
     from pipeline import usdio
+    from pipeline import output_layer
 
     t_start = time.perf_counter()
     src = Path(src)
@@ -189,7 +190,7 @@ def run_file(
         else:
             out_tmp = guard.temporary_sibling(out)
             pending.append((out_tmp, out))
-            usdio.write_output(stage_path, out_tmp, scene, result)
+            output_layer.write_output(stage_path, out_tmp, scene, result)
         ms_write = 1e3 * (time.perf_counter() - tw)
         if preview is not None:
             preview.close()

@@ -26,6 +26,7 @@ from acra import relax
 from acra import volume
 from pipeline import shape as S
 from pipeline import usdio
+from pipeline import output_layer
 from pipeline.model import DeformableModel, SceneModel
 
 __all__ = ["Carry", "for_run", "carried_at", "carried_values", "read_carried", "zero_carried"]
@@ -259,7 +260,7 @@ def read_carried(output: Usd.Stage, scene: SceneModel, frame: int, stage: Usd.St
         carried = relax.Carried(*fields)
         if stage is not None:
             animator = usdio.state_at(stage, scene, float(frame))[0][scene.deformables.index(m)].surface
-            written = usdio.read_output_hierarchy(output, m.path, float(frame))
+            written = output_layer.read_output_hierarchy(output, m.path, float(frame))
             gap = relax.level_magnitudes(relax.difference(written, relax.added(animator, carried.plastic, carried.elastic)))
             if gap.max() > 1e-9 * animator.size():
                 raise ValueError(f"{m.path}: the acra:state recorded at frame {frame} does not match the input "

@@ -34,6 +34,7 @@ from acra import shapes
 from acra.tessellate import evaluate_grid
 from pipeline import authoring as A
 from pipeline import usdio
+from pipeline import output_layer
 from pipeline.animation import usdkeys as K
 from pipeline.run import run_file
 
@@ -89,7 +90,7 @@ def run(stage: Usd.Stage, tmp_path: Path, name: str, **options) -> Run:
             det = H.details(state.surface) if state.surface.depth > 1 else None
             p_in = evaluate_grid(state.surface, model.topology, det)[0]
             p_out = np.asarray(UsdGeom.Mesh(sout.GetPrimAtPath(model.path)).GetPointsAttr().Get(st.frame), np.float64)
-            hs_out = usdio.read_output_hierarchy(sout, model.path, st.frame)
+            hs_out = output_layer.read_output_hierarchy(sout, model.path, st.frame)
             per[st.frame] = Frame(p_in, p_out, state.surface, hs_out, state.xform)
         frames[model.path] = per
     return Run(report, src, frames)

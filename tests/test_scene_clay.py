@@ -1,7 +1,7 @@
 """Scene clay: plasticity 1 keeps the dent exactly, plasticity 0.5 keeps exactly half of it.
 
 Read from the output layer as a USD client sees it: the responded hierarchy
-(``acra:response:*``, `usdio.read_output_hierarchy`) and the display points.
+(``acra:response:*``, `output_layer.read_output_hierarchy`) and the display points.
 """
 
 import numpy as np
@@ -9,7 +9,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from acra import relax
-from pipeline import usdio as U
+from pipeline import output_layer
 
 FULL, HALF = "/World/Full/Sheet", "/World/Half/Sheet"
 LAST_HIT, LAST = 4, 8
@@ -31,7 +31,7 @@ def _dent(inp, out, path, frame):
 
 def _field(out, path, frame, rest):
     """The written surface at ``frame`` less the animator's ``rest``, as an offset field."""
-    return relax.difference(U.read_output_hierarchy(out, path, frame), rest)
+    return relax.difference(output_layer.read_output_hierarchy(out, path, frame), rest)
 
 
 def _max(field):
@@ -49,7 +49,7 @@ def test_the_balls_press_both_sheets_to_their_depth(run):
 
 def test_plasticity_1_keeps_the_dent_exactly(run):
     report, inp, out = run
-    rest = U.read_output_hierarchy(out, FULL, 1)  # nothing yet: the animator's surface
+    rest = output_layer.read_output_hierarchy(out, FULL, 1)  # nothing yet: the animator's surface
     kept = _field(out, FULL, LAST_HIT, rest)
     assert _max(kept) > 0.15
     for f in range(LAST_HIT + 1, LAST + 1):
@@ -62,9 +62,9 @@ def test_plasticity_half_keeps_half_of_the_dent(run):
     plus half of the pressed field from then on, coefficient by coefficient; the response is on
     level 1 over a level 0 that does not move, so the display's dent is exactly half too."""
     report, inp, out = run
-    rest = U.read_output_hierarchy(out, HALF, 1)
+    rest = output_layer.read_output_hierarchy(out, HALF, 1)
     pressed = _field(out, HALF, LAST_HIT, rest)
-    np.testing.assert_array_equal(U.read_output_hierarchy(out, HALF, LAST_HIT).cvs, rest.cvs)  # level 0 untouched
+    np.testing.assert_array_equal(output_layer.read_output_hierarchy(out, HALF, LAST_HIT).cvs, rest.cvs)  # level 0 untouched
     for f in range(LAST_HIT + 1, LAST + 1):
         kept = _field(out, HALF, f, rest)
         assert _max(relax.difference(kept, relax.scaled(pressed, [0.5, 0.5]))) <= 1e-15, f

@@ -16,6 +16,7 @@ from acra import respond as R
 from acra import shapes
 from pipeline import detect as D
 from pipeline import usdio
+from pipeline import output_layer
 from pipeline.animation import curves as C
 from pipeline.run import run_file
 from pipeline.model import apply_xform
@@ -45,7 +46,7 @@ def _contact_moves(report, st):
     for m, state, p in zip(scene.deformables, states, (p_a, p_b)):
         proj = D.project(D.SurfaceGeometry(state.surface, state.xform), p[None])
         assert proj.distance[0] <= 1e-9, m.path  # the contact point is a material point of the input
-        hs = usdio.read_output_hierarchy(out, m.path, st.frame)
+        hs = output_layer.read_output_hierarchy(out, m.path, st.frame)
         q = H.evaluate(hs, proj.uv[:, 0], proj.uv[:, 1], det=H.details(hs)).points
         moved.append(apply_xform(state.xform, q)[0])
     return np.array([p_a, p_b, *moved])
@@ -112,7 +113,7 @@ def test_ball_poles_stay_closed(run_scene):
     _, out, scene = _stages(report)
     prim = out.GetPrimAtPath(BALL)
     for st in report.stats:
-        hs = usdio.read_output_hierarchy(out, BALL, st.frame)
+        hs = output_layer.read_output_hierarchy(out, BALL, st.frame)
         size = hs.size()
         for row in (1, hs.v.n - 2):
             assert np.ptp(hs.cvs[:, row], axis=0).max() <= 1e-12 * size, (st.frame, row)

@@ -10,7 +10,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from acra import hspline as H
-from pipeline import usdio
+from pipeline import output_layer
 from scenes._spikes import feature_positions
 
 NAME = "deform_vs_translate"
@@ -41,7 +41,7 @@ def spikes(run_scene):
     res = {}
     for name in ("Deform", "Translate"):
         path = f"/World/{name}/Sheet"
-        rest = usdio.read_output_hierarchy(out, path, f0)
+        rest = output_layer.read_output_hierarchy(out, path, f0)
         pts = np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(path)).GetPointsAttr().Get(f0))
         size = float(np.linalg.norm(pts.max(0) - pts.min(0)))
         tip0 = _world(out, path, f0, H.evaluate(rest, np.array([TIP[0]]), np.array([TIP[1]])).points)[0, 2]
@@ -49,7 +49,7 @@ def spikes(run_scene):
         corners = np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(plane)).GetPointsAttr().Get(), float)
         rows = []
         for f in hit:
-            hs = usdio.read_output_hierarchy(out, path, f)
+            hs = output_layer.read_output_hierarchy(out, path, f)
             delta = tip0 - _world(out, plane, f, corners)[:, 2].min()
             tip = _world(out, path, f, H.evaluate(hs, np.array([TIP[0]]), np.array([TIP[1]])).points)[0]
             rows.append((f, delta, _world(out, path, f, feature_positions(hs)), tip, _sharpness(hs)))

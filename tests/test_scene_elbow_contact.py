@@ -14,6 +14,7 @@ from pxr import Usd
 from acra.tessellate import evaluate_grid
 from pipeline import detect as D
 from pipeline import usdio
+from pipeline import output_layer
 from pipeline.animation.skinning import arm_rig, bent_arm
 from scenes import elbow_contact as S
 
@@ -57,7 +58,7 @@ def frames(run_scene):
     for st in report.stats:
         (state,), _ = usdio.state_at(src, scene, st.frame)
         p_in, _ = evaluate_grid(state.surface, model.topology)
-        p_out, _ = evaluate_grid(usdio.read_output_hierarchy(out, ARM, st.frame), model.topology)
+        p_out, _ = evaluate_grid(output_layer.read_output_hierarchy(out, ARM, st.frame), model.topology)
         depth_in, depth_out = (np.zeros(len(p)) for p in (p_in, p_out))
         for p, depth in ((p_in, depth_in), (p_out, depth_out)):
             inside = D.inside(ball_geom, p)

@@ -10,7 +10,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from acra import hspline as H
-from pipeline import usdio
+from pipeline import output_layer
 from scenes._spikes import feature_offsets
 
 NAME = "rolling_bump"
@@ -27,7 +27,7 @@ def bump(run_scene):
     for st in report.stats:
         m = np.array(UsdGeom.Xformable(slab).ComputeLocalToWorldTransform(st.frame)).T
         world = corners @ m[:3, :3].T + m[:3, 3]
-        hs = usdio.read_output_hierarchy(out, "/World/Sheet", st.frame)
+        hs = output_layer.read_output_hierarchy(out, "/World/Sheet", st.frame)
         pts = np.asarray(UsdGeom.Mesh(sheet).GetPointsAttr().Get(st.frame), float)
         frames.append(dict(st=st, face=world[:, 0].max(), under=world[:, 2].min(), hs=hs, off=feature_offsets(hs),
                            points=pts))

@@ -16,7 +16,7 @@ from pxr import Usd, UsdGeom
 
 from acra import hspline as H
 from acra import respond as R
-from pipeline import usdio
+from pipeline import output_layer
 from scenes._spikes import feature_offsets
 
 NAME = "rotate_and_deform"
@@ -32,7 +32,7 @@ def run(run_scene):
     frames = []
     for st in report.stats:
         m = np.array(UsdGeom.Xformable(slab).ComputeLocalToWorldTransform(st.frame)).T
-        hs = usdio.read_output_hierarchy(out, "/World/Sheet", st.frame)
+        hs = output_layer.read_output_hierarchy(out, "/World/Sheet", st.frame)
         frames.append(dict(st=st, under=(corners @ m[:3, :3].T + m[:3, 3])[:, 2].min(), hs=hs))
     return report, frames
 

@@ -11,6 +11,7 @@ from pxr import Usd
 from acra import relax
 from pipeline import frames as F
 from pipeline import state
+from pipeline import output_layer
 from pipeline import usdio as U
 from pipeline.run import run_file
 
@@ -98,7 +99,7 @@ def test_carried_at_gives_the_state_a_chunk_starts_from(whole):
     stage, scene = _stage(whole)
     got = state.carried_at(stage, scene, 3)[0]
     assert_same_frame(
-        U.DeformableResult(whole.result.frames[3][BALL].points, None, whole.result.frames[3][BALL].surface, carried=got),
+        output_layer.DeformableResult(whole.result.frames[3][BALL].points, None, whole.result.frames[3][BALL].surface, carried=got),
         whole.result.frames[3][BALL],
     )
     z = state.carried_at(stage, scene, 0)[0]  # before the stage's start nothing is carried

@@ -10,6 +10,7 @@ from acra import hspline as H
 from acra import shapes
 from acra.tessellate import evaluate_grid
 from pipeline import authoring as A
+from pipeline import output_layer
 from pipeline import usdio as U
 from pipeline.model import InputError
 
@@ -53,13 +54,13 @@ def scene_file(tmp_path):
 
 def run_identity(stage, scene, frames=None, perturb=None):
     """Frame results holding the animator's shape (optionally with a perturbed hierarchy)."""
-    res = U.FramesResult()
+    res = output_layer.FramesResult()
     for f in frames or range(scene.start, scene.end + 1):
         ds, _ = U.state_at(stage, scene, f)
         for m, d in zip(scene.deformables, ds):
             surface = d.surface if perturb is None else perturb(d.surface, f)
             p, n = evaluate_grid(surface, m.topology)
-            res.add(f, m.path, U.DeformableResult(p, n, surface, residual=0.01 * f, in_collision=f % 2 == 0))
+            res.add(f, m.path, output_layer.DeformableResult(p, n, surface, residual=0.01 * f, in_collision=f % 2 == 0))
     return res
 
 
@@ -207,11 +208,11 @@ def test_hierarchy_round_trip_bit_for_bit(scene_file, tmp_path):
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
     res = run_identity(stage, scene, perturb=perturbed)
-    out = U.write_output(scene_file, tmp_path / "out.usda", scene, res)
+    out = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, res)
     ostage = Usd.Stage.Open(str(out))
     for f, per in res.frames.items():
         written = per[SHEET].surface
-        back = U.read_output_hierarchy(ostage, SHEET, f)
+        back = output_layer.read_output_hierarchy(ostage, SHEET, f)
         assert back.cvs.dtype == np.float64
         np.testing.assert_array_equal(back.cvs, written.cvs)
         a, b = H.to_arrays(back), H.to_arrays(written)
@@ -232,7 +233,7 @@ def test_output_composes_validates_and_holds_only_overs(scene_file, tmp_path):
     res = run_identity(stage, scene, perturb=perturbed)
     out_dir = tmp_path / "renders"
     out_dir.mkdir()
-    out = U.write_output(scene_file, out_dir / "shot.acra.usda", scene, res)
+    out = output_layer.write_output(scene_file, out_dir / "shot.acra.usda", scene, res)
     assert scene_file.read_bytes() == before
 
     layer = Sdf.Layer.OpenAsAnonymous(str(out))
@@ -278,7 +279,7 @@ def test_output_bounds_follow_written_points(scene_file, tmp_path):
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
     res = run_identity(stage, scene, perturb=perturbed)
-    ostage = Usd.Stage.Open(str(U.write_output(scene_file, tmp_path / "out.usda", scene, res)))
+    ostage = Usd.Stage.Open(str(output_layer.write_output(scene_file, tmp_path / "out.usda", scene, res)))
     for f in (1, 3):
         box = UsdGeom.BBoxCache(f, [UsdGeom.Tokens.default_]).ComputeLocalBound(ostage.GetPrimAtPath(SHEET))
         rng = box.ComputeAlignedRange()
@@ -290,8 +291,8 @@ def test_output_is_deterministic(scene_file, tmp_path):
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
     res = run_identity(stage, scene, perturb=perturbed)
-    a = U.write_output(scene_file, tmp_path / "a.usda", scene, res)
-    b = U.write_output(scene_file, tmp_path / "b.usda", scene, run_identity(stage, U.read_scene(stage), perturb=perturbed))
+    a = output_layer.write_output(scene_file, tmp_path / "a.usda", scene, res)
+    b = output_layer.write_output(scene_file, tmp_path / "b.usda", scene, run_identity(stage, U.read_scene(stage), perturb=perturbed))
     assert a.read_bytes() == b.read_bytes()
 
 
@@ -312,7 +313,7 @@ def test_write_is_atomic(scene_file, tmp_path, monkeypatch, where):
     else:
         monkeypatch.setattr(U.os, "replace", lambda *a: (_ for _ in ()).throw(OSError("disk full")))
     with pytest.raises((KeyboardInterrupt, OSError)):
-        U.write_output(scene_file, out, scene, res)
+        output_layer.write_output(scene_file, out, scene, res)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.usda"]
 
 
@@ -322,12 +323,12 @@ def test_write_rejects_incomplete_results(scene_file, tmp_path):
     res = run_identity(stage, scene)
     del res.frames[2][SHEET]
     with pytest.raises(ValueError, match=f"frame 2: no result for {SHEET}"):
-        U.write_output(scene_file, tmp_path / "out.usda", scene, res)
+        output_layer.write_output(scene_file, tmp_path / "out.usda", scene, res)
     res = run_identity(stage, scene)
     r = res.frames[3][SHEET]
-    res.frames[3][SHEET] = U.DeformableResult(r.points[:-1], r.normals[:-1], r.surface)
+    res.frames[3][SHEET] = output_layer.DeformableResult(r.points[:-1], r.normals[:-1], r.surface)
     with pytest.raises(ValueError, match="points has shape"):
-        U.write_output(scene_file, tmp_path / "out.usda", scene, res)
+        output_layer.write_output(scene_file, tmp_path / "out.usda", scene, res)
     assert not (tmp_path / "out.usda").exists()
 
 
@@ -336,11 +337,11 @@ def _shared_and_copied(stage, scene):
     """Results whose frames 1-3 hold the very same objects (as the frame loop gives free frames), and
     the same results with every frame's arrays and surface copied."""
     one = run_identity(stage, scene, frames=[1], perturb=perturbed).frames[1][SHEET]
-    shared, copied = U.FramesResult(), U.FramesResult()
+    shared, copied = output_layer.FramesResult(), output_layer.FramesResult()
     for f in (1, 2, 3):
-        shared.add(f, SHEET, U.DeformableResult(one.points, one.normals, one.surface, 0.01 * f, f == 2))
+        shared.add(f, SHEET, output_layer.DeformableResult(one.points, one.normals, one.surface, 0.01 * f, f == 2))
         surface = H.from_arrays(H.from_grid(one.surface.cvs.copy(), depth=one.surface.depth), H.to_arrays(one.surface))
-        copied.add(f, SHEET, U.DeformableResult(one.points.copy(), one.normals.copy(), surface, 0.01 * f, f == 2))
+        copied.add(f, SHEET, output_layer.DeformableResult(one.points.copy(), one.normals.copy(), surface, 0.01 * f, f == 2))
     return one, shared, copied
 
 
@@ -349,14 +350,14 @@ def test_shared_results_are_written_as_their_copies(scene_file, tmp_path):
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
     one, shared, copied = _shared_and_copied(stage, scene)
-    a = U.write_output(scene_file, tmp_path / "shared.usda", scene, shared)
-    b = U.write_output(scene_file, tmp_path / "copied.usda", scene, copied)
+    a = output_layer.write_output(scene_file, tmp_path / "shared.usda", scene, shared)
+    b = output_layer.write_output(scene_file, tmp_path / "copied.usda", scene, copied)
     assert a.read_bytes() == b.read_bytes()
     ostage = Usd.Stage.Open(str(a))
     prim = ostage.GetPrimAtPath(SHEET)
     for f in (1, 2, 3):
         np.testing.assert_array_equal(np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(f)), one.points.astype(np.float32))
-        np.testing.assert_array_equal(U.read_output_hierarchy(ostage, SHEET, f).cvs, one.surface.cvs)
+        np.testing.assert_array_equal(output_layer.read_output_hierarchy(ostage, SHEET, f).cvs, one.surface.cvs)
         assert prim.GetAttribute("acra:response:residual").Get(f) == pytest.approx(0.01 * f, abs=0)
         assert prim.GetAttribute("acra:response:inCollision").Get(f) == (f == 2)
 
@@ -367,12 +368,12 @@ def test_shared_invalid_values_are_rejected_at_their_first_frame(scene_file, tmp
     one, shared, _ = _shared_and_copied(stage, scene)
     one.normals[5, 1] = np.nan  # the array every frame holds
     with pytest.raises(ValueError, match=f"frame 1, {SHEET}: normals hold NaN"):
-        U.write_output(scene_file, tmp_path / "out.usda", scene, shared)
+        output_layer.write_output(scene_file, tmp_path / "out.usda", scene, shared)
     _, shared, _ = _shared_and_copied(stage, scene)
     r = shared.frames[3][SHEET]
-    shared.frames[3][SHEET] = U.DeformableResult(r.points, r.normals, r.surface, float("inf"))
+    shared.frames[3][SHEET] = output_layer.DeformableResult(r.points, r.normals, r.surface, float("inf"))
     with pytest.raises(ValueError, match=f"frame 3, {SHEET}: residual is not finite"):
-        U.write_output(scene_file, tmp_path / "out.usda", scene, shared)
+        output_layer.write_output(scene_file, tmp_path / "out.usda", scene, shared)
     assert not (tmp_path / "out.usda").exists()
 
 
@@ -383,8 +384,8 @@ def test_binary_output_round_trips_and_is_deterministic(scene_file, tmp_path, su
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
     res = run_identity(stage, scene, perturb=perturbed)
-    out = U.write_output(scene_file, tmp_path / f"out{suffix}", scene, res)
-    again = U.write_output(scene_file, tmp_path / f"again{suffix}", scene, run_identity(stage, U.read_scene(stage), perturb=perturbed))
+    out = output_layer.write_output(scene_file, tmp_path / f"out{suffix}", scene, res)
+    again = output_layer.write_output(scene_file, tmp_path / f"again{suffix}", scene, run_identity(stage, U.read_scene(stage), perturb=perturbed))
     assert out.read_bytes()[:8] == b"PXR-USDC"
     assert out.read_bytes() == again.read_bytes()
     ostage = Usd.Stage.Open(str(out))
@@ -392,7 +393,7 @@ def test_binary_output_round_trips_and_is_deterministic(scene_file, tmp_path, su
     mesh = UsdGeom.Mesh(ostage.GetPrimAtPath(SHEET))
     for f, per in res.frames.items():
         np.testing.assert_array_equal(np.asarray(mesh.GetPointsAttr().Get(f)), per[SHEET].points.astype(np.float32))
-        back, written = U.read_output_hierarchy(ostage, SHEET, f), per[SHEET].surface
+        back, written = output_layer.read_output_hierarchy(ostage, SHEET, f), per[SHEET].surface
         np.testing.assert_array_equal(back.cvs, written.cvs)
         a, b = H.to_arrays(back), H.to_arrays(written)
         for name in ("patch_level", "patches", "offset_level", "offset_cvs", "offsets"):

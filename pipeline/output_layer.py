@@ -1,0 +1,231 @@
+"""The output layer of a run (contract §2, docs/usd-schema.md): per-frame results in, one layer
+out, and the response state read back.
+
+`write_output` writes one layer that sublayers the input by a relative path and holds only
+``over`` opinions: the display topology once, time-sampled ``points`` and ``normals`` of every
+deformable at every processed frame, the response state in ``acra:response:*`` and, for objects
+that carry state across frames, ``acra:state:*``; the input's stage metadata; nothing else. It is
+written atomically (`usdio.export_layer`) and deterministically (sorted paths and frames).
+`read_output_hierarchy` reads a frame's responded surface back. Reading the input lives in
+`pipeline.usdio`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, Vt
+
+from acra.hspline import HierarchyArrays, HSpline, from_arrays, from_grid, to_arrays
+from pipeline.model import DeformableModel, SceneModel
+from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs
+
+__all__ = ["DeformableResult", "FramesResult", "write_output", "read_output_hierarchy"]
+
+
+@dataclass(frozen=True)
+class DeformableResult:
+    """One deformable at one processed frame, after the response (object space).
+
+    Attributes
+    ----------
+    points, normals : (n, 3) float64
+        Display tessellation (the model's topology) and its unit normals.
+    surface : HSpline
+        The surface after the response: level-0 CVs and the full hierarchy.
+    residual : float
+        Remaining penetration depth after the response (scene units).
+    in_collision : bool
+        Whether detection found the object in collision at this frame.
+    carried : acra.relax.Carried or None
+        The offsets carried out of this frame (`pipeline.state`), written as ``acra:state:*``;
+        ``None`` for an object that carries nothing (no ``acra:state:*`` attribute is written).
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    surface: HSpline
+    residual: float = 0.0
+    in_collision: bool = False
+    carried: object = None
+
+
+@dataclass
+class FramesResult:
+    """Results of a run: ``frames[frame][prim path] -> DeformableResult``."""
+
+    frames: dict[int, dict[str, DeformableResult]] = field(default_factory=dict)
+
+    def add(self, frame: int, path: str, result: DeformableResult) -> None:
+        self.frames.setdefault(int(frame), {})[str(path)] = result
+
+
+def _relative_asset(target: Path, anchor_dir: Path) -> str:
+    rel = Path(os.path.relpath(target.resolve(), anchor_dir.resolve())).as_posix()
+    return rel if rel.startswith("../") else f"./{rel}"
+
+
+def _stage_metadata(input_path: Path, scene: SceneModel) -> dict:
+    """The input's effective stage metadata, so the output opens as a complete stage.
+
+    Values the input leaves unauthored are written as USD resolves them (fallbacks), and the
+    frame range as `read_scene` resolved it, so the output means exactly what the input meant.
+    """
+    root = Sdf.Layer.FindOrOpen(str(input_path.resolve()))
+    src = Usd.Stage.OpenMasked(root, Usd.StagePopulationMask(), Usd.Stage.LoadNone)
+    return {
+        "startTimeCode": float(root.startTimeCode) if root.HasStartTimeCode() else float(scene.start),
+        "endTimeCode": float(root.endTimeCode) if root.HasEndTimeCode() else float(scene.end),
+        "timeCodesPerSecond": float(src.GetTimeCodesPerSecond()),
+        "framesPerSecond": float(src.GetFramesPerSecond()),
+        "upAxis": str(UsdGeom.GetStageUpAxis(src)),
+        "metersPerUnit": float(UsdGeom.GetStageMetersPerUnit(src)),
+        "defaultPrim": root.defaultPrim if root.HasDefaultPrim() else None,
+    }
+
+
+def _spec(prim_spec: Sdf.PrimSpec, name: str, tname: Sdf.ValueTypeName, custom: bool) -> Sdf.AttributeSpec:
+    spec = prim_spec.attributes.get(name)
+    return spec if spec is not None else Sdf.AttributeSpec(prim_spec, name, tname, Sdf.VariabilityVarying, custom)
+
+
+def _checked_vec3f(model: DeformableModel, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
+    """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
+    n = model.topology.u.size
+    a = np.asarray(a)
+    if a.shape != (n, 3):
+        raise ValueError(f"frame {frame}, {model.path}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"frame {frame}, {model.path}: {name} hold NaN or inf")
+    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(a, dtype=np.float32))
+
+
+def _response_values(model: DeformableModel, frame: int, surface: HSpline) -> dict:
+    """The ``acra:response:*`` arrays of a checked surface as Vt values (float64: exact round trip)."""
+    if surface.cvs.shape != (model.nu, model.nv, 3) or surface.depth != model.depth:
+        raise ValueError(f"frame {frame}, {model.path}: surface does not match the model's grid or levels")
+    if not np.all(np.isfinite(surface.cvs)):
+        raise ValueError(f"frame {frame}, {model.path}: surface CVs are not finite")
+    a = to_arrays(surface)
+    return {
+        "acra:response:cvs": Vt.Vec3dArray.FromNumpy(cvs_to_flat(np.asarray(surface.cvs, dtype=np.float64))),
+        "acra:response:patchLevel": Vt.IntArray.FromNumpy(np.ascontiguousarray(a.patch_level, dtype=np.int32)),
+        "acra:response:patches": Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(a.patches, dtype=np.int32)),
+        "acra:response:offsetLevel": Vt.IntArray.FromNumpy(np.ascontiguousarray(a.offset_level, dtype=np.int32)),
+        "acra:response:offsetCvs": Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(a.offset_cvs, dtype=np.int32)),
+        "acra:response:offsets": Vt.Vec3dArray.FromNumpy(np.ascontiguousarray(a.offsets, dtype=np.float64)),
+    }
+
+
+class _Converted:
+    """Vt values of the objects of a run's results, built once per distinct object.
+
+    The frame loop hands back the same surface and the same display arrays at every frame whose
+    result is unchanged (the free frames), so each is checked and converted once and the time
+    samples share one Vt array (copy-on-write, so sharing is safe). Objects are kept alive here
+    while their ``id`` is a key.
+    """
+
+    def __init__(self) -> None:
+        self._memo: dict = {}
+
+    def __call__(self, kind: tuple, obj, make):
+        """``make()``'s value for ``obj``, made at the first call with this ``kind`` and object."""
+        hit = self._memo.get((kind, id(obj)))
+        if hit is None or hit[0] is not obj:
+            hit = self._memo[(kind, id(obj))] = (obj, make())
+        return hit[1]
+
+
+def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, scene: SceneModel, frames_result: FramesResult) -> Path:
+    """Write the output layer: overs of points, normals, topology and response state per frame.
+
+    The layer sublayers ``input_path`` by a path relative to the output's directory, copies the
+    input's stage metadata, and holds nothing else (no transform, no ``acra:`` input attribute).
+    Every frame must hold a result for every deformable of ``scene``. The file is written
+    atomically and deterministically (sorted paths and frames, no timestamps); its format follows
+    the suffix (``.usda`` text, ``.usdc``/``.usd`` binary crate, see docs/cli.md for the cost).
+    Results that repeat an earlier frame's objects are checked and converted once (`_Converted`).
+    """
+    inp, out = Path(input_path), Path(output_path)
+    meta = _stage_metadata(inp, scene)
+    frames = sorted(frames_result.frames)
+    models = sorted(scene.deformables, key=lambda m: m.path)
+    convert = _Converted()
+    values: dict = {}  # (frame, path) -> {attribute name: value}
+    for f in frames:
+        per = frames_result.frames[f]
+        extra = sorted(set(per) - {m.path for m in models})
+        if extra:
+            raise ValueError(f"frame {f}: result for {extra[0]}, which is not a deformable of the scene")
+        for m in models:
+            if m.path not in per:
+                raise ValueError(f"frame {f}: no result for {m.path}")
+            r = per[m.path]
+            if not math.isfinite(float(r.residual)):
+                raise ValueError(f"frame {f}, {m.path}: residual is not finite")
+            values[f, m.path] = {
+                "points": convert((m.path, "points"), r.points, lambda: _checked_vec3f(m, f, "points", r.points)),
+                "normals": convert((m.path, "normals"), r.normals, lambda: _checked_vec3f(m, f, "normals", r.normals)),
+                **convert((m.path, "state"), r.surface, lambda: _response_values(m, f, r.surface)),
+                "acra:response:residual": float(r.residual),
+                "acra:response:inCollision": bool(r.in_collision),
+            }
+            if r.carried is not None:
+                from pipeline import state
+
+                values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
+
+    layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
+    with Sdf.ChangeBlock():
+        layer.subLayerPaths.append(_relative_asset(inp, out.parent))
+        for key, value in meta.items():
+            if value is not None:
+                layer.pseudoRoot.SetInfo(key, value)
+        for m in models:
+            prim = Sdf.CreatePrimInLayer(layer, m.path)
+            topo = m.topology
+            counts = _spec(prim, "faceVertexCounts", T.IntArray, False)
+            counts.default = Vt.IntArray.FromNumpy(np.full(len(topo.quads), 4, np.int32))
+            indices = _spec(prim, "faceVertexIndices", T.IntArray, False)
+            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.quads.reshape(-1), dtype=np.int32))
+            normals = _spec(prim, "normals", T.Normal3fArray, False)
+            normals.SetInfo("interpolation", UsdGeom.Tokens.vertex)
+            specs = {
+                "points": _spec(prim, "points", T.Point3fArray, False).path,
+                "normals": normals.path,
+                **{n: _spec(prim, n, tn, True).path for n, tn in RESPONSE_TYPES.items()},
+            }
+            if any(frames_result.frames[f][m.path].carried is not None for f in frames):
+                specs.update({n: _spec(prim, n, tn, True).path for n, tn in STATE_TYPES.items()})
+            for f in frames:
+                for name, value in values[f, m.path].items():
+                    layer.SetTimeSample(specs[name], float(f), value)
+    return export_layer(layer, out)
+
+
+def read_output_hierarchy(stage: Usd.Stage, prim_path: str, t: float) -> HSpline:
+    """The response state written at time code ``t``: level-0 CVs plus the full hierarchy."""
+    prim = stage.GetPrimAtPath(prim_path)
+    if not prim:
+        raise KeyError(f"no prim at {prim_path}")
+    tc = Usd.TimeCode(float(t))
+    nu = int(prim.GetAttribute("acra:uCount").Get())
+    nv = int(prim.GetAttribute("acra:vCount").Get())
+    wrap = lambda n: WRAPS[str(prim.GetAttribute(n).Get() or "open")]  # noqa: E731
+    levels_attr = prim.GetAttribute("acra:levels")
+    levels = int(levels_attr.Get()) if levels_attr and levels_attr.HasAuthoredValue() else 1
+    get = lambda n, dt, shape: np.array(prim.GetAttribute(n).Get(tc), dtype=dt).reshape(shape)  # noqa: E731
+    cvs = flat_to_cvs(get("acra:response:cvs", np.float64, (-1, 3)), nu, nv)
+    arrays = HierarchyArrays(
+        patch_level=get("acra:response:patchLevel", np.int32, (-1,)),
+        patches=get("acra:response:patches", np.int32, (-1, 2)),
+        offset_level=get("acra:response:offsetLevel", np.int32, (-1,)),
+        offset_cvs=get("acra:response:offsetCvs", np.int32, (-1, 2)),
+        offsets=get("acra:response:offsets", np.float64, (-1, 3)),
+    )
+    return from_arrays(from_grid(cvs, wrap("acra:uWrap"), wrap("acra:vWrap"), depth=levels), arrays)
