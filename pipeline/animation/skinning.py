@@ -471,12 +471,9 @@ def _arm_psd(rig: ArmRig, vertices) -> PSDModel:
 def bent_arm(angles, method="ccm", rig: ArmRig | None = None) -> np.ndarray:
     """Per-frame deformed control grids ``(F, nu, nv, 3) float64`` of the arm bent to
     ``angles : (F,)`` radians by ``method`` in {"lbs", "dqs", "psd", "ccm"}.  ``rig`` defaults
-    to :func:`arm_rig`.  A scene (e.g. ``elbow_contact``) needs only::
-
-        rig = arm_rig()
-        angles = np.radians(np.linspace(0.0, 120.0, n_frames))
-        write_cvs_samples(mesh_prim, frames, bent_arm(angles, "ccm", rig))
-        write_skeleton(stage, "/Arm/Skel", rig.skeleton, arm_pose(rig, angles), frames)"""
+    to :func:`arm_rig`.  A scene authors the skinned arm with
+    `pipeline.authoring.add_skinned_arm`, which writes these grids as ``acra:cvs`` time samples
+    beside the UsdSkel skeleton posed by :func:`arm_pose`."""
     rig = arm_rig() if rig is None else rig
     if method not in ("lbs", "dqs", "psd", "ccm"):
         raise ValueError(f"unknown method {method!r}")
