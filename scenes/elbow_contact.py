@@ -1,4 +1,4 @@
-"""A skinned arm bends at the elbow and its forearm swings into a rigid ball (issue #8).
+"""A skinned arm bends at the elbow and its forearm swings into a rigid ball.
 
     python scenes/elbow_contact.py          # writes elbow_contact.usda beside this file
     acra run scenes/elbow_contact.py --rrd elbow_contact.rrd
