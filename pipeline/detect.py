@@ -53,6 +53,25 @@ class ColliderStatic:
     def index(self) -> Closest:
         return Closest(self.mesh.vertices, self.mesh.faces, self.bvh)
 
+    @cached_property
+    def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Object-space boxes ``lo, hi (f, 3)`` of the mesh's faces, built once per run: the mesh is
+        rigid, so a query maps its box into object space (`faces_near`) instead of taking the
+        box of every face again."""
+        tri = self.mesh.vertices[self.mesh.faces]
+        return tri.min(axis=1), tri.max(axis=1)
+
+    def faces_near(self, xform: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+        """Rows ``(m,) int64`` of ``mesh.faces`` (ascending) whose object-space box meets the
+        world box ``bounds (2, 3)`` under ``xform (4, 4)``, widened by 1e-9 of the box and its
+        coordinates, so the set holds every face whose world box meets ``bounds`` (an affine map
+        keeps a point of both boxes in both)."""
+        corners = np.array([[bounds[a, 0], bounds[b, 1], bounds[c, 2]] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+        local = apply_inverse(xform, corners)
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        slack = 1e-9 * (float(np.abs(local).max()) + float(np.ptp(local, axis=0).max()))
+        return np.nonzero(_overlap(*self.face_boxes, lo, hi, slack))[0]
+
 
 def prepare_collider(model: ColliderModel) -> ColliderStatic:
     """Build a collider's BVH, ray intersector and closest-point index once per run."""
@@ -226,10 +245,17 @@ def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
     return bool(_overlap(ga.bounds[0], ga.bounds[1], gb.bounds[0], gb.bounds[1], pad))
 
 
-def _triangles_near(pa: np.ndarray, fa: np.ndarray, pb: np.ndarray, fb: np.ndarray, pad: float, rounds: int = 2):
-    """Rows of ``fa``/``fb`` whose triangle boxes overlap the box of the other side's kept ones."""
-    boxes = [(p[f].min(axis=1), p[f].max(axis=1)) for p, f in ((pa, fa), (pb, fb))]
-    keep = [np.ones(len(fa), bool), np.ones(len(fb), bool)]
+def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``."""
+    tri = points[faces]
+    return tri.min(axis=1), tri.max(axis=1)
+
+
+def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray, np.ndarray], pad: float, rounds: int = 2):
+    """Rows of side ``a``'s and side ``b``'s triangles, given by their boxes ``lo, hi (f, 3)``,
+    whose boxes overlap the box of the other side's kept ones."""
+    boxes = [box_a, box_b]
+    keep = [np.ones(len(box_a[0]), bool), np.ones(len(box_b[0]), bool)]
     for _ in range(rounds):
         for me, other in ((0, 1), (1, 0)):
             if keep[other].any():
@@ -260,12 +286,13 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     if not len(ca):
         return none
     ta = tessellate(ga, ca)
-    if collider:
-        pa, pb, fb_all, ob = apply_inverse(gb.xform, ta.points), gb.static.mesh.vertices, gb.static.mesh.faces, gb.static.bvh
+    if collider:  # the collider's face boxes are the run's (`ColliderStatic.face_boxes`)
+        pa, ob = apply_inverse(gb.xform, ta.points), gb.static.bvh
+        ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), gb.static.face_boxes, pad)
     else:
         tb = tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
-    ka, kb = _triangles_near(pa, ta.triangles, pb, fb_all, pad)
+        ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), _face_boxes(pb, fb_all), pad)
     if not len(ka):
         return none
     oa = _bvh(pa, ta.triangles[ka])
@@ -421,8 +448,9 @@ class Region:
 
 def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray | None]:
     """Distinct tessellation vertices of ``geom`` within ``bounds``: world ``(k, 3)``, uv or None."""
-    if isinstance(geom, ColliderGeometry):
-        pts, uv = geom.vertices, None
+    if isinstance(geom, ColliderGeometry):  # the vertices of the faces near the box, in order
+        used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([bounds[0] - pad, bounds[1] + pad]))])
+        pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
     else:
         tess = tessellate(geom, candidate_patches(geom, bounds, pad))
         _, first = np.unique(wrap_uv(geom.surface, tess.uv), axis=0, return_index=True)
@@ -502,7 +530,8 @@ def face_samples(geom: ColliderGeometry, bounds: np.ndarray, spacing: float) -> 
     pieces whose box meets ``bounds``: the samples then cost the area inside the box, not the
     triangle's (a floor 1e3 across at a spacing of 1e-2 would be 5e9 points)."""
     mesh = geom.static.mesh
-    tri = apply_xform(geom.xform, mesh.vertices[mesh.faces].reshape(-1, 3)).reshape(-1, 3, 3)
+    rows = geom.static.faces_near(geom.xform, bounds)  # a superset of the faces met below, in order
+    tri = apply_xform(geom.xform, mesh.vertices[mesh.faces[rows]].reshape(-1, 3)).reshape(-1, 3, 3)
     limit = max(float(np.linalg.norm(bounds[1] - bounds[0])), spacing)
     while True:
         tri = tri[_overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0)]
