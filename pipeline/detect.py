@@ -55,22 +55,27 @@ class ColliderStatic:
 
     @cached_property
     def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """Object-space boxes ``lo, hi (f, 3)`` of the mesh's faces, built once per run: the mesh is
-        rigid, so a query maps its box into object space (`faces_near`) instead of taking the
-        box of every face again."""
+        """Object-space boxes ``lo, hi (f, 3)`` of the mesh's faces, built once per run (the mesh
+        is rigid)."""
         tri = self.mesh.vertices[self.mesh.faces]
         return tri.min(axis=1), tri.max(axis=1)
 
+    @cached_property
+    def _face_centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centres and half-extents ``(f, 3)`` of `face_boxes`."""
+        lo, hi = self.face_boxes
+        return 0.5 * (lo + hi), 0.5 * (hi - lo)
+
     def faces_near(self, xform: np.ndarray, bounds: np.ndarray) -> np.ndarray:
-        """Rows ``(m,) int64`` of ``mesh.faces`` (ascending) whose object-space box meets the
-        world box ``bounds (2, 3)`` under ``xform (4, 4)``, widened by 1e-9 of the box and its
-        coordinates, so the set holds every face whose world box meets ``bounds`` (an affine map
-        keeps a point of both boxes in both)."""
-        corners = np.array([[bounds[a, 0], bounds[b, 1], bounds[c, 2]] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
-        local = apply_inverse(xform, corners)
-        lo, hi = local.min(axis=0), local.max(axis=0)
-        slack = 1e-9 * (float(np.abs(local).max()) + float(np.ptp(local, axis=0).max()))
-        return np.nonzero(_overlap(*self.face_boxes, lo, hi, slack))[0]
+        """Rows ``(m,) int64`` of ``mesh.faces``, ascending, that hold every face whose world box
+        meets the world box ``bounds (2, 3)`` under ``xform (4, 4)``: a face's world box lies in
+        the world box of its object-space box mapped (``M c + t ± |M| h``), which costs two small
+        products per face instead of gathering and reducing its corners (widened by 1e-9 of the
+        query's coordinates for the rounding of the two)."""
+        centre, half = self._face_centres
+        world, reach = apply_xform(xform, centre), half @ np.abs(xform[:3, :3]).T
+        slack = 1e-9 * (float(np.abs(bounds).max()) + float(np.ptp(bounds, axis=0).max()))
+        return np.nonzero(_overlap(world - reach, world + reach, bounds[0], bounds[1], slack))[0]
 
 
 def prepare_collider(model: ColliderModel) -> ColliderStatic:
