@@ -101,14 +101,14 @@ class Closest:
             lists = self.ctree.query_ball_point(points[near], radius[near])
             lens = np.fromiter(map(len, lists), np.int64, len(near))
             idx = np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))
-            owner = np.repeat(np.arange(len(near)), lens)
         if len(near) and len(idx):
-            cp = self.unit * trimesh.triangles.closest_point(self.tri[idx] / self.unit, points[near][owner] / self.unit)
-            d = np.linalg.norm(cp - points[near][owner], axis=1)
-            order = np.lexsort((d, owner))  # per owner, nearest first
-            first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
-            hit = near[owner[first]]
-            dist[hit], close[hit], face[hit] = d[first], cp[first], idx[first]
+            # one compiled pass over the (point, triangle) pairs keeps each point's nearest; loaded
+            # on the first contact, so a run without one never imports the compiler
+            from acra import closest
+
+            d, cp, f = closest.nearest_in_lists(self.tri, points[near], np.r_[0, np.cumsum(lens)], idx, self.unit)
+            hit = np.nonzero(lens)[0]
+            dist[near[hit]], close[near[hit]], face[near[hit]] = d[hit], cp[hit], f[hit]
         probe, req = fcl.Sphere(0.0), fcl.DistanceRequest(enable_nearest_points=True)
         for i in np.nonzero(~ball)[0]:
             res = fcl.DistanceResult()  # mesh first: b1 is its face, nearest_points[0] on it
