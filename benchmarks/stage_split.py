@@ -23,6 +23,7 @@ from acra import respond as R
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import frames as F
+from pipeline import grids
 from pipeline import shape as S
 from pipeline import usdio
 
@@ -53,8 +54,9 @@ def instrument() -> None:
     R.respond = _timed("respond.respond", R.respond)
     H.details = _timed("hspline.details", H.details)
     H.evaluate = _timed("hspline.evaluate", H.evaluate)
-    for name in ("nearest", "cast", "_build"):
+    for name in ("nearest", "cast"):
         setattr(S.Shape, name, _timed(f"Shape.{name}", getattr(S.Shape, name)))
+    grids.GridCache.build = _timed("GridCache.build", grids.GridCache.build)
     for name in ("hulls", "_coarse"):
         prop = getattr(S.Shape, name)
         prop.func = _timed(f"Shape.{name}", prop.func)

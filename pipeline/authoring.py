@@ -26,7 +26,9 @@ Three layers, each usable alone:
   CVs there along their local normals, so an animator never handles CV indices or Greville
   abscissae; `spike_offsets` and `spike_positions` read a spike back;
 * **stage** (`new_stage`, `add_surface` / `add_deformable`, `add_collider`, `key_transform`,
-  `key_translate`, `key_cvs`, `key_enabled`, `save`) authors the contract's prims and keys.
+  `key_translate`, `key_cvs`, `key_enabled`, `save`) authors the contract's prims and keys;
+  `add_skinned_arm` authors a skinned two-bone arm whose elbow follows per-frame angles, and
+  `keyed_values` samples keys through an interpolation or easing curve at given frames.
 
 Every deformable gets its rest display tessellation (points, normals, topology) so the stage is
 viewable before any response; `key_cvs` keys that preview along with the CVs. No ``extent`` is
@@ -48,7 +50,10 @@ from acra import hspline, shapes
 from acra.hspline import HSpline, from_arrays, from_grid, to_arrays
 from acra.tessellate import GridTopology, display_topology, evaluate_grid
 
+from .animation import curves
+from .animation.skinning import ArmRig, arm_pose, arm_rig, bent_arm
 from .animation.usdkeys import key_translate
+from .animation.usdrig import write_cvs_samples, write_skeleton
 from .usdio import WRAPS, cvs_to_flat, export_layer, read_hierarchy
 
 __all__ = [
@@ -71,6 +76,8 @@ __all__ = [
     "add_xform",
     "add_deformable",
     "key_cvs",
+    "keyed_values",
+    "add_skinned_arm",
     "add_collider",
     "box",
     "uv_sphere",
@@ -451,6 +458,33 @@ def key_cvs(prim: Usd.Prim, frame: float, cvs: np.ndarray) -> None:
     _set(prim, "acra:cvs", T.Point3fArray, Vt.Vec3fArray.FromNumpy(cvs_to_flat(cvs).astype(np.float32)), frame)
     points, normals = evaluate_grid(replace(template, cvs=np.ascontiguousarray(cvs)), topology)
     _set_display(UsdGeom.Mesh(prim), points, normals, frame)
+
+
+def keyed_values(times, values, frames, interp: str = "linear", **params) -> np.ndarray:
+    """Keys ``values (k,)`` (or ``(k, d)``) at ``times (k,)`` sampled at ``frames (F,)`` through
+    the curve `pipeline.animation.curves.make` builds for ``interp`` and ``params`` (e.g.
+    ``"cubic"`` with ``mode="out"``): ``(F,)`` (or ``(F, d)``) float64."""
+    sampled = curves.make(times, values, interp, **params).evaluate(np.asarray(frames, dtype=np.float64))
+    return sampled[:, 0] if np.ndim(values) == 1 else sampled
+
+
+def add_skinned_arm(stage: Usd.Stage, path: str, frames, elbow_angles, method: str = "ccm",
+                    **controls) -> ArmRig:
+    """A skinned two-bone arm under ``path`` (a ``UsdSkel.Root``, defined if absent): its skeleton at ``path/Skel`` (a
+    ``UsdSkel.Skeleton`` with the elbow keyed, so clients show the rig) and its skin at
+    ``path/Skin``, a deformable H-spline tube (`pipeline.animation.skinning.arm_rig`: 8 CVs
+    around, periodic u; 12 along +x, open v) whose level-0 CVs are skinned by ``method``
+    (``"lbs"``, ``"dqs"``, ``"psd"`` or ``"ccm"``, `pipeline.animation.skinning.bent_arm`) at
+    each of ``frames (F,)`` with the elbow at ``elbow_angles (F,)`` radians (bent toward +y), and
+    written as ``acra:cvs`` time samples. ``controls`` are the keyword arguments of
+    `add_deformable` (``levels``, ``absorption``, ``samples`` ...). Returns the rig (its
+    ``elbow`` is the elbow joint's x).
+    """
+    rig = arm_rig()
+    write_skeleton(stage, f"{path}/Skel", rig.skeleton, arm_pose(rig, elbow_angles), frames)
+    skin = add_deformable(stage, f"{path}/Skin", rig.rest, u_wrap="periodic", v_wrap="open", **controls)
+    write_cvs_samples(skin, frames, bent_arm(elbow_angles, method, rig))
+    return rig
 
 
 def _faces(faces) -> tuple[np.ndarray, np.ndarray]:

@@ -117,6 +117,33 @@ def run_scene(tmp_path_factory):
     return run
 
 
+def scene_stages(report):
+    """The input stage a scene run read and the output layer it wrote, opened as a USD client
+    opens them: ``(input, output)`` ``Usd.Stage``s."""
+    from pxr import Usd
+
+    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
+    return Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+
+
+def display_points(stage, path, frame=None) -> np.ndarray:
+    """``points (n, 3) float64`` of the Mesh at ``path`` at ``frame`` (its default value if None)."""
+    from pxr import Usd, UsdGeom
+
+    attr = UsdGeom.Mesh(stage.GetPrimAtPath(path)).GetPointsAttr()
+    return np.asarray(attr.Get(Usd.TimeCode.Default() if frame is None else frame), dtype=np.float64)
+
+
+def elastic_state(stage, path, frame):
+    """The carried elastic field of the deformable at ``path`` as the output layer holds it at
+    ``frame``: level-0 vectors ``(nu*nv, 3) float32``, offsets ``(c, 3) float32`` and each
+    offset's level ``(c,) int``."""
+    prim = stage.GetPrimAtPath(path)
+    cvs = np.asarray(prim.GetAttribute("acra:state:elasticCvs").Get(frame))
+    offsets = np.asarray(prim.GetAttribute("acra:state:elasticOffsets").Get(frame)).reshape(-1, 3)
+    return cvs, offsets, np.asarray(prim.GetAttribute("acra:state:offsetLevel").Get(frame))
+
+
 # --- a tiny stage for command-line tests: a 4x4 sheet and a box that presses into it -----------
 
 

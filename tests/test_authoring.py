@@ -317,3 +317,38 @@ def test_the_module_docstring_example_builds_a_valid_stage():
     stage = namespace["build"]()
     scene = U.read_scene(stage)
     assert [m.path for m in scene.deformables] == ["/World/ball"] and len(scene.colliders) == 1
+
+
+def test_every_bundled_scene_fits_a_screen_and_uses_only_the_authoring_api():
+    """A scene file reads like a Blender script: at most 60 lines, importing only
+    `pipeline.authoring` (besides pathlib, numpy and another scene), and ``scenes/`` holds no
+    helper modules beside the scenes."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "scenes"
+    files = sorted(p for p in root.glob("*.py") if p.name != "__init__.py")
+    assert len(files) >= 15 and not [p.name for p in files if p.name.startswith("_")]
+    for path in files:
+        text = path.read_text()
+        assert len(text.splitlines()) <= 60, path.name
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module]
+            elif isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            else:
+                continue
+            for name in names:
+                assert name in ("pathlib", "numpy", "pipeline.authoring") or name.startswith("scenes."), (path.name, name)
+
+
+def test_keyed_values_samples_keys_through_the_named_curve():
+    """Linear keys interpolate linearly; a cubic ease-out is ``1 − (1 − t)³`` of the key change;
+    vector keys keep their width."""
+    frames = np.arange(1, 6)
+    np.testing.assert_allclose(A.keyed_values([1, 5], [0.0, 8.0], frames), [0, 2, 4, 6, 8], rtol=0, atol=1e-12)
+    eased = A.keyed_values([1, 5], [0.0, 8.0], frames, "cubic", mode="out")
+    np.testing.assert_allclose(eased, 8 * (1 - (1 - np.linspace(0, 1, 5)) ** 3), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(A.keyed_values([1, 5], [[0, 0], [4, 8]], frames), np.outer(np.arange(5), [1, 2]),
+                               rtol=0, atol=1e-12)

@@ -4,7 +4,6 @@ progress that writes no carriage return into a log."""
 import io
 import json
 import math
-from dataclasses import dataclass
 
 import pytest
 from hypothesis import given, settings
@@ -12,25 +11,17 @@ from hypothesis import strategies as st
 
 from pipeline import report
 from pipeline.cli import main
+from pipeline.frames import FrameStats
 
 
-@dataclass
-class Stat:
-    frame: int
-    residual_rel: float
-    in_collision: bool = True
-    residual: float = 0.0
-    iterations: int = 1
-    ms_setup: float = 0.0
-    ms_detect: float = 1.0
-    ms_convert: float = 0.0
-    ms_respond: float = 2.0
-    ms_output: float = 0.0
-    ms_total: float = 3.0
+def _frame(frame: int, residual_rel: float) -> FrameStats:
+    """A collision frame's figures: ``residual_rel`` of the pair's size after one round."""
+    return FrameStats(frame, in_collision=True, iterations=1, residual_rel=residual_rel, ms_detect=1.0, ms_respond=2.0,
+                      ms_total=3.0)
 
 
 def test_frames_over_tolerance_lists_frames_above_it_and_unmeasurable_ones():
-    stats = [Stat(4, 2e-3), Stat(1, 1e-3), Stat(2, 1.0000001e-3), Stat(3, math.nan), Stat(5, math.inf), Stat(6, 0.0)]
+    stats = [_frame(f, r) for f, r in [(4, 2e-3), (1, 1e-3), (2, 1.0000001e-3), (3, math.nan), (5, math.inf), (6, 0.0)]]
     over = report.frames_over_tolerance(stats, 1e-3)
     assert [f for f, _ in over] == [2, 3, 4, 5]  # exactly at the tolerance passes; NaN never does
     assert over[0] == (2, 1.0000001e-3) and math.isnan(over[1][1])
@@ -40,7 +31,7 @@ def test_frames_over_tolerance_lists_frames_above_it_and_unmeasurable_ones():
 @given(st.lists(st.floats(min_value=0.0, max_value=1.0, allow_nan=False), max_size=20),
        st.floats(min_value=1e-9, max_value=1.0))
 def test_the_rule_splits_frames_exactly_at_the_tolerance(residuals, tolerance):
-    stats = [Stat(i, r) for i, r in enumerate(residuals)]
+    stats = [_frame(i, r) for i, r in enumerate(residuals)]
     over = {f for f, _ in report.frames_over_tolerance(stats, tolerance)}
     assert over == {i for i, r in enumerate(residuals) if r > tolerance}
 

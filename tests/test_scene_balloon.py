@@ -5,11 +5,10 @@ Volumes are the display meshes' (`acra.volume.enclosed_volume`) read from the ou
 USD client sees it, against the input's rest display mesh.
 """
 
-import numpy as np
 import pytest
-from pxr import Usd, UsdGeom
 
 from acra import volume
+from conftest import display_points, scene_stages
 
 BALLOON, BALL = "/World/Balloon", "/World/Ball"
 
@@ -18,15 +17,13 @@ BALLOON, BALL = "/World/Balloon", "/World/Ball"
 def ratios(run_scene):
     """Per object, ``{frame: output volume / input volume}``; and the report."""
     report = run_scene("balloon")
-    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
-    inp, out = Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+    inp, out = scene_stages(report)
     got = {}
     for m in report.scene.deformables:
         tris = volume.triangles(m.topology)
-        pts = lambda stage, f=None: np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath(m.path)).GetPointsAttr().Get(  # noqa: E731
-            Usd.TimeCode.Default() if f is None else f), dtype=np.float64)
-        rest = volume.enclosed_volume(pts(inp), tris)
-        got[m.path] = {s.frame: volume.enclosed_volume(pts(out, s.frame), tris) / rest for s in report.stats}
+        rest = volume.enclosed_volume(display_points(inp, m.path), tris)
+        got[m.path] = {s.frame: volume.enclosed_volume(display_points(out, m.path, s.frame), tris) / rest
+                       for s in report.stats}
     return got, report
 
 

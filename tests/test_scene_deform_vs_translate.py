@@ -11,7 +11,7 @@ from pxr import Usd, UsdGeom
 
 from acra import hspline as H
 from pipeline import output_layer
-from scenes._spikes import feature_positions
+from pipeline.authoring import spike_positions
 
 NAME = "deform_vs_translate"
 TIP = (2.0, 2.0)  # the spike's tip in (u, v): the centre of the sheet's 4×4 level-0 patches
@@ -52,8 +52,8 @@ def spikes(run_scene):
             hs = output_layer.read_output_hierarchy(out, path, f)
             delta = tip0 - _world(out, plane, f, corners)[:, 2].min()
             tip = _world(out, path, f, H.evaluate(hs, np.array([TIP[0]]), np.array([TIP[1]])).points)[0]
-            rows.append((f, delta, _world(out, path, f, feature_positions(hs)), tip, _sharpness(hs)))
-        res[name] = dict(size=size, rest=_world(out, path, f0, feature_positions(rest)), sharp0=_sharpness(rest),
+            rows.append((f, delta, _world(out, path, f, spike_positions(hs, level=2)), tip, _sharpness(hs)))
+        res[name] = dict(size=size, rest=_world(out, path, f0, spike_positions(rest, level=2)), sharp0=_sharpness(rest),
                          tip0=tip0, frames=rows)
     return res
 

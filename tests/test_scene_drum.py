@@ -4,9 +4,9 @@ layer as a USD client sees it."""
 
 import numpy as np
 import pytest
-from pxr import Usd, UsdGeom
 
 from acra import volume
+from conftest import display_points, scene_stages
 
 DRUM, CLOTH = "/World/Drum", "/World/Cloth"
 
@@ -14,14 +14,12 @@ DRUM, CLOTH = "/World/Drum", "/World/Cloth"
 @pytest.fixture(scope="module")
 def run(run_scene):
     report = run_scene("drum")
-    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
-    inp, out = Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+    inp, out = scene_stages(report)
     ratios, moves = {}, {}
     for m in report.scene.deformables:
         tris = volume.triangles(m.topology)
-        rest = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(m.path)).GetPointsAttr().Get(), dtype=np.float64)
-        pts = {s.frame: np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(m.path)).GetPointsAttr().Get(s.frame), dtype=np.float64)
-               for s in report.stats}
+        rest = display_points(inp, m.path)
+        pts = {s.frame: display_points(out, m.path, s.frame) for s in report.stats}
         ratios[m.path] = {f: volume.surface_area(p, tris) / volume.surface_area(rest, tris) for f, p in pts.items()}
         moves[m.path] = {f: p - rest for f, p in pts.items()}
     return report, ratios, moves

@@ -11,7 +11,7 @@ from pxr import Usd, UsdGeom
 
 from acra import hspline as H
 from pipeline import output_layer
-from scenes._spikes import feature_offsets
+from pipeline.authoring import spike_offsets
 
 NAME = "rolling_bump"
 
@@ -29,7 +29,7 @@ def bump(run_scene):
         world = corners @ m[:3, :3].T + m[:3, 3]
         hs = output_layer.read_output_hierarchy(out, "/World/Sheet", st.frame)
         pts = np.asarray(UsdGeom.Mesh(sheet).GetPointsAttr().Get(st.frame), float)
-        frames.append(dict(st=st, face=world[:, 0].max(), under=world[:, 2].min(), hs=hs, off=feature_offsets(hs),
+        frames.append(dict(st=st, face=world[:, 0].max(), under=world[:, 2].min(), hs=hs, off=spike_offsets(hs, level=2),
                            points=pts))
     rest = frames[0]
     size = float(np.linalg.norm(rest["points"].max(0) - rest["points"].min(0)))

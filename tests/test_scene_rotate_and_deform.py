@@ -17,7 +17,7 @@ from pxr import Usd, UsdGeom
 from acra import hspline as H
 from acra import respond as R
 from pipeline import output_layer
-from scenes._spikes import feature_offsets
+from pipeline.authoring import spike_offsets
 
 NAME = "rotate_and_deform"
 TOP = (np.array([2.0]), np.array([2.0]))  # (u, v) of the bump's crest
@@ -46,7 +46,7 @@ def test_level1_is_dented_and_level2_is_turned(run):
     rest = frames[0]["hs"]
     base0 = H.evaluate(rest, *TOP, upto=1).points[0]
     crest0 = H.evaluate(rest, *TOP).points[0, 2]
-    off0 = feature_offsets(rest)
+    off0 = spike_offsets(rest, level=2)
     responded = [f for f in frames if f["st"].iterations > 0]
     assert len(responded) >= 5
     dents = []
@@ -60,12 +60,12 @@ def test_level1_is_dented_and_level2_is_turned(run):
         assert 0.3 * descent <= dent <= descent, (frame, dent, descent)
         dents.append(dent)
         # level 2: a pure turn of the bump's detail (lengths kept, only its 9 CVs hold detail)
-        off = feature_offsets(hs)
+        off = spike_offsets(hs, level=2)
         np.testing.assert_allclose(np.linalg.norm(off, axis=1), np.linalg.norm(off0, axis=1), atol=1e-9)
         assert np.abs(H.offsets_of(hs, 2)[1]).sum(axis=1).astype(bool).sum() == 9
         assert _turn(off)[4] > 0.0, frame  # toward the slab's motion (measured 0.2° .. 14°)
     assert np.all(np.diff(dents) > 0), dents  # deeper every frame (measured 0.003 .. 0.124)
-    assert _turn(feature_offsets(responded[-1]["hs"]))[4] >= 10.0
+    assert _turn(spike_offsets(responded[-1]["hs"], level=2))[4] >= 10.0
 
 
 def test_the_level1_half_is_the_all_deform_response_and_level2_turns_instead(run):
@@ -91,7 +91,7 @@ def test_the_level1_half_is_the_all_deform_response_and_level2_turns_instead(run
     # shortens to 0.78 of its length, the others to 0.87..0.97); the scene's controls turn it
     # instead: lengths kept, every CV turned toward +x (measured 17.5° .. 17.7°)
     assert np.abs(rep_b.remaining).max() <= 1e-9
-    n0 = np.linalg.norm(feature_offsets(rest), axis=1)
-    assert np.abs(np.linalg.norm(feature_offsets(b), axis=1) / n0 - 1).max() > 0.1
-    np.testing.assert_allclose(np.linalg.norm(feature_offsets(a), axis=1), n0, atol=1e-9)
-    assert _turn(feature_offsets(a)).min() > 10.0
+    n0 = np.linalg.norm(spike_offsets(rest, level=2), axis=1)
+    assert np.abs(np.linalg.norm(spike_offsets(b, level=2), axis=1) / n0 - 1).max() > 0.1
+    np.testing.assert_allclose(np.linalg.norm(spike_offsets(a, level=2), axis=1), n0, atol=1e-9)
+    assert _turn(spike_offsets(a, level=2)).min() > 10.0

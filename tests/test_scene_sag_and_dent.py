@@ -3,7 +3,9 @@ relax 0.1) slowly; each follows its rate to 1e-6, read from the output layer."""
 
 import numpy as np
 import pytest
-from pxr import Usd, UsdGeom
+from pxr import UsdGeom
+
+from conftest import elastic_state, scene_stages
 
 SHEET = "/World/Sheet"
 RELAX = np.array([0.1, 0.6])
@@ -13,16 +15,13 @@ LAST_HIT = 3
 @pytest.fixture(scope="module")
 def run(run_scene):
     report = run_scene("sag_and_dent")
-    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
-    return report, Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+    return (report, *scene_stages(report))
 
 
 def _fields(out, frame):
     """The carried elastic level-0 vectors ``(nu*nv, 3)`` and level-1 offsets ``(c, 3)``."""
-    prim = out.GetPrimAtPath(SHEET)
-    lev = np.asarray(prim.GetAttribute("acra:state:offsetLevel").Get(frame))
-    offs = np.asarray(prim.GetAttribute("acra:state:elasticOffsets").Get(frame)).reshape(-1, 3)
-    return np.asarray(prim.GetAttribute("acra:state:elasticCvs").Get(frame)), offs[lev == 1]
+    cvs, offs, lev = elastic_state(out, SHEET, frame)
+    return cvs, offs[lev == 1]
 
 
 def test_both_levels_carry_the_press(run):

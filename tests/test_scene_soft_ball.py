@@ -6,7 +6,9 @@ and the display points against the animator's.
 
 import numpy as np
 import pytest
-from pxr import Usd, UsdGeom
+from pxr import UsdGeom
+
+from conftest import elastic_state, scene_stages
 
 BALL = "/World/Ball"
 RELAX = np.array([0.5, 0.7])  # the scene's acra:relax
@@ -16,23 +18,18 @@ LAST_HIT = 4
 @pytest.fixture(scope="module")
 def run(run_scene):
     report = run_scene("soft_ball")
-    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
-    return report, Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+    return (report, *scene_stages(report))
 
 
 def _carried(out, frame):
     """Largest elastic vector per level at ``frame``, read from the output layer: ``(2,) float64``."""
-    prim = out.GetPrimAtPath(BALL)
-    cvs = np.asarray(prim.GetAttribute("acra:state:elasticCvs").Get(frame))
-    offs = np.asarray(prim.GetAttribute("acra:state:elasticOffsets").Get(frame)).reshape(-1, 3)
-    lev = np.asarray(prim.GetAttribute("acra:state:offsetLevel").Get(frame))
+    cvs, offs, lev = elastic_state(out, BALL, frame)
     return np.array([np.linalg.norm(cvs, axis=1).max(), np.linalg.norm(offs[lev == 1], axis=1).max(initial=0.0)])
 
 
 def _fields(out, frame):
-    prim = out.GetPrimAtPath(BALL)
-    return (np.asarray(prim.GetAttribute("acra:state:elasticCvs").Get(frame)),
-            np.asarray(prim.GetAttribute("acra:state:elasticOffsets").Get(frame)).reshape(-1, 3))
+    cvs, offs, _ = elastic_state(out, BALL, frame)
+    return cvs, offs
 
 
 def test_the_finger_dents_the_ball_at_frames_2_to_4(run):

@@ -30,7 +30,7 @@ import numpy as np
 
 from . import curves as _curves
 from . import easing as _easing
-from .skinning import matrix_to_quat as _matrix_to_quat
+from .quaternions import matrix_to_quat as _matrix_to_quat
 
 __all__ = [
     "ParametricCurve", "ArcLengthTable", "path_through",
@@ -339,7 +339,7 @@ def sample_path(curve, t, timing: "_easing.DistanceTime | None" = None,
 
 def quaternions_from_matrices(R: np.ndarray) -> np.ndarray:
     """Unit quaternions ``(n, 4)`` as (w, x, y, z), ``w >= 0``, from proper rotations ``R : (n, 3, 3)``
-    (Shepperd's method, shared with skinning: `skinning.matrix_to_quat`)."""
+    (Shepperd's method, shared with skinning: `quaternions.matrix_to_quat`)."""
     return _matrix_to_quat(R).reshape(-1, 4)
 
 

@@ -1,5 +1,8 @@
-"""Skeletons and skinning: LBS, dual-quaternion skinning, pose-space deformation and the
-Control Cluster Method (CCM), plus the two-bone "arm" of the CCM paper.
+"""Skeletons and skinning: LBS, dual-quaternion skinning and pose-space deformation, and the
+two-bone "arm" of the CCM paper on which they and the Control Cluster Method are compared.
+Quaternions are in :mod:`pipeline.animation.quaternions`, the Control Cluster Method in
+:mod:`pipeline.animation.ccm`; both are re-exported here, so every skinning name imports from
+this module.
 
 Conventions
 -----------
@@ -21,6 +24,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .ccm import CCMPlan, cardinal_segment, ccm_free_vertices, ccm_plan, procedural_bulge
+from .ccm import _kabsch  # noqa: F401  (re-exported with the rest of the CCM)
+from .quaternions import (dq_from_matrix, dq_to_matrix, matrix_to_quat, quat_conjugate, quat_from_axis_angle,
+                          quat_multiply, quat_normalize, quat_slerp, quat_to_matrix, quat_to_rotvec)
+
 __all__ = [
     # quaternions, dual quaternions
     "quat_multiply", "quat_conjugate", "quat_normalize", "quat_from_axis_angle", "quat_to_matrix",
@@ -36,141 +44,6 @@ __all__ = [
     "tube_mesh", "grid_volume", "ArmRig", "arm_grid", "arm_rig", "arm_pose", "arm_sample",
     "bent_arm", "LABEL_FREE", "LABEL_LBS", "LABEL_SAMPLE", "LABEL_BULGE",
 ]
-
-_EPS = 1e-12
-
-
-# ---------------------------------------------------------------------------------------------
-# Quaternions and dual quaternions
-# ---------------------------------------------------------------------------------------------
-
-def quat_multiply(a, b):
-    """Hamilton product ``a ⊗ b`` of ``(..., 4)`` quaternions (w, x, y, z); broadcasts."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ], axis=-1)
-
-
-def quat_conjugate(q):
-    """Conjugate ``(w, -x, -y, -z)`` of ``(..., 4)`` quaternions (the inverse of a unit one)."""
-    q = np.asarray(q, dtype=np.float64)
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def quat_normalize(q):
-    """``(..., 4)`` quaternions scaled to unit length."""
-    q = np.asarray(q, dtype=np.float64)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def quat_from_axis_angle(axis, angle):
-    """Unit quaternion of a rotation by ``angle : (...)`` radians about ``axis : (..., 3)``."""
-    axis = np.asarray(axis, dtype=np.float64)
-    axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
-    half = 0.5 * np.asarray(angle, dtype=np.float64)[..., None]
-    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
-
-
-def quat_to_matrix(q):
-    """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``(..., 4)``."""
-    w, x, y, z = np.moveaxis(quat_normalize(q), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
-
-
-def matrix_to_quat(R):
-    """Unit quaternions ``(..., 4)`` with ``w >= 0`` of rotation matrices ``R : (..., 3, 3)``.
-
-    Shepperd's method: take the largest of ``4w², 4x², 4y², 4z²`` as the pivot (stable)."""
-    R = np.asarray(R, dtype=np.float64)
-    m = R.reshape(-1, 3, 3)
-    tr = np.trace(m, axis1=1, axis2=2)
-    diag = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
-    piv = np.argmax(diag, axis=1)
-    q = np.empty((len(m), 4))
-    for k in range(4):
-        s = piv == k
-        if not np.any(s):
-            continue
-        a = m[s]
-        if k == 0:
-            r = np.sqrt(1.0 + tr[s]) * 2.0
-            q[s] = np.stack([0.25 * r, (a[:, 2, 1] - a[:, 1, 2]) / r,
-                             (a[:, 0, 2] - a[:, 2, 0]) / r, (a[:, 1, 0] - a[:, 0, 1]) / r], 1)
-        else:
-            i = k - 1
-            j, l = (i + 1) % 3, (i + 2) % 3
-            r = np.sqrt(1.0 + a[:, i, i] - a[:, j, j] - a[:, l, l]) * 2.0
-            v = np.empty((len(a), 4))
-            v[:, 0] = (a[:, l, j] - a[:, j, l]) / r
-            v[:, 1 + i] = 0.25 * r
-            v[:, 1 + j] = (a[:, j, i] + a[:, i, j]) / r
-            v[:, 1 + l] = (a[:, l, i] + a[:, i, l]) / r
-            q[s] = v
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    return quat_normalize(q).reshape(R.shape[:-2] + (4,))
-
-
-def quat_to_rotvec(q):
-    """Rotation vectors ``(..., 3)`` (axis × angle, angle in [0, π]) of quaternions ``(..., 4)``:
-    the logarithm map, used as pose-space coordinates ("joint angles") by PSD."""
-    q = quat_normalize(q)
-    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
-    v = q[..., 1:]
-    s = np.linalg.norm(v, axis=-1)
-    angle = 2.0 * np.arctan2(s, q[..., 0])
-    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-300), 2.0)
-    return v * scale[..., None]
-
-
-def quat_slerp(a, b, t):
-    """Spherical linear interpolation from ``a`` to ``b`` (``(..., 4)``) at ``t : (...)``, along the
-    shorter arc (``b`` is negated when ``a·b < 0``)."""
-    a = quat_normalize(a)
-    b = quat_normalize(b)
-    t = np.asarray(t, dtype=np.float64)[..., None]
-    d = np.sum(a * b, axis=-1, keepdims=True)
-    b = np.where(d < 0, -b, b)
-    d = np.abs(d)
-    theta = np.arccos(np.clip(d, -1.0, 1.0))
-    s = np.sin(theta)
-    small = s < 1e-9
-    wa = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / np.where(small, 1.0, s))
-    wb = np.where(small, t, np.sin(t * theta) / np.where(small, 1.0, s))
-    return quat_normalize(wa * a + wb * b)
-
-
-def dq_from_matrix(M):
-    """Unit dual quaternions ``(..., 8)`` = (real, dual) of rigid transforms ``M : (..., 4, 4)``:
-    ``q0 = quat(R)``, ``qε = ½ (0, t) ⊗ q0`` (Kavan et al. 2007, §3)."""
-    M = np.asarray(M, dtype=np.float64)
-    q0 = matrix_to_quat(M[..., :3, :3])
-    t = np.concatenate([np.zeros(M.shape[:-2] + (1,)), M[..., :3, 3]], axis=-1)
-    return np.concatenate([q0, 0.5 * quat_multiply(t, q0)], axis=-1)
-
-
-def dq_to_matrix(dq):
-    """Rigid transforms ``(..., 4, 4)`` of dual quaternions ``(..., 8)``, normalised first as in
-    Kavan et al. 2007 (divide by ``|q0|``; the translation ``2 qε ⊗ q0*`` drops the part of
-    ``qε`` that is not orthogonal to ``q0``)."""
-    dq = np.asarray(dq, dtype=np.float64)
-    n = np.linalg.norm(dq[..., :4], axis=-1, keepdims=True)
-    q0, qe = dq[..., :4] / n, dq[..., 4:] / n
-    M = np.zeros(dq.shape[:-1] + (4, 4))
-    M[..., :3, :3] = quat_to_matrix(q0)
-    M[..., :3, 3] = 2.0 * quat_multiply(qe, quat_conjugate(q0))[..., 1:]
-    M[..., 3, 3] = 1.0
-    return M
 
 
 # ---------------------------------------------------------------------------------------------
@@ -405,207 +278,6 @@ def psd_deform(model: PSDModel, skeleton: Skeleton, rest_points, weights, rotati
 
 
 # ---------------------------------------------------------------------------------------------
-# Control Cluster Method (Bukatov, Gridchina & Zastavnoy 2014)
-# ---------------------------------------------------------------------------------------------
-
-def cardinal_segment(p, t, s, tension=-0.5) -> np.ndarray:
-    """Point of the cardinal spline segment between ``p[..., 1, :]`` and ``p[..., 2, :]``.
-
-    ``p : (..., 4, 3)`` control points ``p_{k-1}, p_k, p_{k+1}, p_{k+2}``, ``t : (..., 4)`` their
-    (increasing) parameters, ``s : (...)`` in ``[t_k, t_{k+1}]``.  Tangents (CCM paper eq. 1)
-    ``m_k = (1 − q)(p_{k+1} − p_{k−1}) / (t_{k+1} − t_{k−1})``, then the cubic Hermite segment
-    over ``h = t_{k+1} − t_k``: ``h00 p_k + h10 h m_k + h01 p_{k+1} + h11 h m_{k+1}``.
-    ``q = 0`` with uniform ``t`` is Catmull–Rom; ``q = −0.5`` (the paper's default) gives 1.5×
-    longer tangents, so the curve swings wider round a bend and keeps volume."""
-    p = np.asarray(p, dtype=np.float64)
-    t = np.asarray(t, dtype=np.float64)
-    s = np.asarray(s, dtype=np.float64)
-    f = 1.0 - tension
-    m1 = f * (p[..., 2, :] - p[..., 0, :]) / np.maximum(t[..., 2] - t[..., 0], _EPS)[..., None]
-    m2 = f * (p[..., 3, :] - p[..., 1, :]) / np.maximum(t[..., 3] - t[..., 1], _EPS)[..., None]
-    h = t[..., 2] - t[..., 1]
-    u = ((s - t[..., 1]) / np.maximum(h, _EPS))[..., None]
-    h = h[..., None]
-    u2, u3 = u * u, u * u * u
-    return ((2 * u3 - 3 * u2 + 1) * p[..., 1, :] + (u3 - 2 * u2 + u) * h * m1
-            + (-2 * u3 + 3 * u2) * p[..., 2, :] + (u3 - u2) * h * m2)
-
-
-@dataclass(frozen=True)
-class CCMPlan:
-    """Static part of the CCM on a grid (from :func:`ccm_plan`).
-
-    One row per (free vertex, usable grid direction): ``target : (r,) int64`` the free vertex;
-    ``ctrl : (r, 4) int64`` its four cluster control vertices ``p_{k-1}, p_k, p_{k+1}, p_{k+2}``
-    along the grid line (flat C-order indices into the ``(nu, nv)`` grid; ``-1`` = no cluster
-    vertex beyond an open end, replaced by the reflection ``2 p_k − p_{k+1}``);
-    ``alpha : (r,)`` the free vertex's rest arc-length fraction between ``p_k`` and ``p_{k+1}``;
-    ``weight : (r,)`` the direction's share (1, or 1/2 where two directions tie);
-    ``offset : (r, 3)`` the rest vertex minus the rest spline point (zero on a straight line),
-    carried along so that the rest pose is reproduced exactly; ``rest_controls : (r, 4, 3)`` the
-    rest control points; ``mask : (nu, nv) bool`` marks cluster vertices; ``tension`` is ``q``."""
-
-    shape: tuple
-    mask: np.ndarray
-    target: np.ndarray
-    ctrl: np.ndarray
-    alpha: np.ndarray
-    weight: np.ndarray
-    offset: np.ndarray
-    rest_controls: np.ndarray
-    tension: float
-
-
-def ccm_plan(rest_cvs, cluster_mask, wrap=(False, False), tension=-0.5) -> CCMPlan:
-    """Find, for every free vertex and each grid direction, its nearest cluster vertices along
-    that grid line (respecting wrap): the bracketing pair ``p_k, p_{k+1}`` and the next cluster
-    vertex beyond each (for the tangents).  ``rest_cvs : (nu, nv, 3)``,
-    ``cluster_mask : (nu, nv) bool``.  A direction with no cluster vertex on one side of the
-    free vertex is skipped; of the usable ones only the direction whose bracketing cluster
-    vertices are *nearest* (fewest edges ``d_a + d_b`` between them) is used, ties averaged.  A
-    spline across a wide gap cuts the corner of a bent joint (its tangent at ``p_k`` points at
-    ``p_{k+1}`` across the gap), so it is not blended in.  Raises if a free vertex has no usable
-    direction."""
-    P = np.asarray(rest_cvs, dtype=np.float64)
-    mask = np.asarray(cluster_mask, dtype=bool)
-    nu, nv = mask.shape
-    if P.shape != (nu, nv, 3):
-        raise ValueError(f"rest_cvs {P.shape} and cluster_mask {mask.shape} disagree")
-    rows = {"target": [], "ctrl": [], "alpha": [], "gap": []}
-    for axis in (0, 1):
-        n, periodic = (nu, nv)[axis], bool(wrap[axis])
-        for other in range((nv, nu)[axis]):
-            flat = np.arange(n) * nv + other if axis == 0 else other * nv + np.arange(n)
-            line_mask = mask.ravel()[flat]
-            pts = P.reshape(-1, 3)[flat]
-            seg = np.linalg.norm(np.roll(pts, -1, 0) - pts, axis=1)   # seg[i] = |p[i+1] - p[i]|
-            clusters = np.flatnonzero(line_mask)
-            if len(clusters) < 2:
-                continue
-            for k in np.flatnonzero(~line_mask):
-                before, after = clusters[clusters < k], clusters[clusters > k]
-                if periodic:
-                    back = np.concatenate([before[::-1], after[::-1]])  # nearest first, wrapping
-                    fwd = np.concatenate([after, before])
-                    a, a2, b, b2 = back[0], back[1], fwd[0], fwd[1]
-                    da, db = (k - a) % n, (b - k) % n
-                else:
-                    if len(before) == 0 or len(after) == 0:
-                        continue
-                    a, b = before[-1], after[0]
-                    a2 = before[-2] if len(before) > 1 else -1
-                    b2 = after[1] if len(after) > 1 else -1
-                    da, db = k - a, b - k
-                run_ak = seg[np.arange(a, a + da) % n].sum()
-                run_ab = seg[np.arange(a, a + da + db) % n].sum()
-                rows["target"].append(flat[k])
-                rows["ctrl"].append([flat[a2] if a2 >= 0 else -1, flat[a], flat[b],
-                                     flat[b2] if b2 >= 0 else -1])
-                rows["alpha"].append(run_ak / max(run_ab, _EPS))
-                rows["gap"].append(da + db)
-    target = np.array(rows["target"], dtype=np.int64)
-    gap = np.array(rows["gap"], dtype=np.int64)
-    best = np.full(nu * nv, np.iinfo(np.int64).max)
-    np.minimum.at(best, target, gap)
-    keep = gap == best[target]
-    missing = np.setdiff1d(np.flatnonzero(~mask.ravel()), target)
-    if len(missing):
-        bad = [divmod(int(m), nv) for m in missing[:5]]
-        raise ValueError(f"free vertices without cluster vertices on both sides of any grid "
-                         f"line: {bad}{' ...' if len(missing) > 5 else ''}")
-    target = target[keep]
-    ctrl = np.array(rows["ctrl"], dtype=np.int64).reshape(-1, 4)[keep]
-    alpha = np.array(rows["alpha"])[keep]
-    flat_rest = P.reshape(-1, 3)
-    offset = flat_rest[target] - _ccm_spline_points(flat_rest, ctrl, alpha, tension)
-    weight = 1.0 / np.bincount(target, minlength=nu * nv)[target]
-    return CCMPlan((nu, nv), mask, target, ctrl, alpha, weight, offset,
-                   _ccm_controls(flat_rest, ctrl), float(tension))
-
-
-def _ccm_controls(flat, ctrl):
-    p1, p2 = flat[ctrl[:, 1]], flat[ctrl[:, 2]]
-    p0 = np.where((ctrl[:, 0] < 0)[:, None], 2 * p1 - p2, flat[np.maximum(ctrl[:, 0], 0)])
-    p3 = np.where((ctrl[:, 3] < 0)[:, None], 2 * p2 - p1, flat[np.maximum(ctrl[:, 3], 0)])
-    return np.stack([p0, p1, p2, p3], axis=1)
-
-
-def _ccm_spline_points(flat, ctrl, alpha, tension):
-    """Chord-length parameterised cardinal spline through each row's 4 controls, at ``alpha``."""
-    p = _ccm_controls(flat, ctrl)
-    t = np.concatenate([np.zeros((len(p), 1)),
-                        np.cumsum(np.linalg.norm(np.diff(p, axis=1), axis=2), axis=1)], axis=1)
-    return cardinal_segment(p, t, t[:, 1] + alpha * (t[:, 2] - t[:, 1]), tension)
-
-
-def _kabsch(A, B):
-    """Rotations ``(r, 3, 3)`` best mapping centred point sets ``A`` onto ``B`` (both (r, k, 3))."""
-    A = A - A.mean(axis=1, keepdims=True)
-    B = B - B.mean(axis=1, keepdims=True)
-    U, _, Vt = np.linalg.svd(np.einsum("rki,rkj->rij", A, B))
-    d = np.sign(np.linalg.det(np.einsum("rij,rjk->rik", U, Vt)))
-    D = np.broadcast_to(np.eye(3), U.shape).copy()
-    D[:, 2, 2] = d
-    return np.einsum("rji,rjk,rkl->ril", Vt, D, np.swapaxes(U, 1, 2))
-
-
-def ccm_free_vertices(plan: CCMPlan, cluster_positions) -> np.ndarray:
-    """Place the free vertices of a grid from its deformed cluster vertices (CCM §3.3).
-
-    ``cluster_positions : (nu, nv, 3)`` — only entries under ``plan.mask`` are read.  Along each
-    usable grid line the four cluster control points get chord-length parameters
-    ``t_{i+1} − t_i = |p_{i+1} − p_i|`` and the free vertex the parameter
-    ``t_k + α (t_{k+1} − t_k)``; its position is the :func:`cardinal_segment` there (tension
-    ``plan.tension``) plus its rest offset from the rest spline, turned by the best-fit rotation
-    of the four controls (Kabsch), averaged over directions with ``plan.weight``.  Returns the
-    full grid ``(nu, nv, 3)``: cluster vertices as given, free vertices placed."""
-    X = np.asarray(cluster_positions, dtype=np.float64)
-    nu, nv = plan.shape
-    if X.shape != (nu, nv, 3):
-        raise ValueError(f"cluster_positions must be {(nu, nv, 3)}, got {X.shape}")
-    flat = X.reshape(-1, 3)
-    out = flat.copy()
-    if len(plan.target) == 0:
-        return out.reshape(nu, nv, 3)
-    pos = _ccm_spline_points(flat, plan.ctrl, plan.alpha, plan.tension)
-    if np.any(plan.offset):
-        R = _kabsch(plan.rest_controls, _ccm_controls(flat, plan.ctrl))
-        pos = pos + np.einsum("rij,rj->ri", R, plan.offset)
-    acc = np.zeros_like(flat)
-    wsum = np.zeros(len(flat))
-    np.add.at(acc, plan.target, plan.weight[:, None] * pos)
-    np.add.at(wsum, plan.target, plan.weight)
-    free = wsum > 0
-    out[free] = acc[free] / wsum[free, None]
-    return out.reshape(nu, nv, 3)
-
-
-def procedural_bulge(rest_points, axis_origin, axis_dir, angle, gain, center, half_width,
-                     side=None) -> np.ndarray:
-    """Bind-space displacements ``(..., 3)`` of a muscle bulge driven by a joint angle (CCM §4.1,
-    "biceps bulging ... depending on the angle between upper arm and lower arm bones").
-
-    Each point moves radially away from the bone axis (``axis_origin``, ``axis_dir : (3,)``) by
-    ``gain · (1 − cos angle)/2 · window(s) · facing``: ``window`` is the cosine bump
-    ``½(1 + cos(π (s − center)/half_width))`` of the point's axial coordinate ``s`` (zero beyond
-    ``half_width``), ``facing = max(0, r̂ · side)`` restricts it to one side (or 1 if no side)."""
-    P = np.asarray(rest_points, dtype=np.float64)
-    o = np.asarray(axis_origin, dtype=np.float64)
-    a = np.asarray(axis_dir, dtype=np.float64)
-    a = a / np.linalg.norm(a)
-    rel = P - o
-    s = rel @ a
-    radial = rel - s[..., None] * a
-    rn = np.linalg.norm(radial, axis=-1, keepdims=True)
-    rhat = np.where(rn > _EPS, radial / np.maximum(rn, _EPS), 0.0)
-    x = (s - center) / half_width
-    window = np.where(np.abs(x) < 1.0, 0.5 * (1.0 + np.cos(np.pi * x)), 0.0)
-    facing = np.ones_like(s) if side is None else np.maximum(0.0, rhat @ np.asarray(side, float))
-    amp = gain * 0.5 * (1.0 - np.cos(angle)) * window * facing
-    return amp[..., None] * rhat
-
-
-# ---------------------------------------------------------------------------------------------
 # Volume of a closed grid (for the arm experiment)
 # ---------------------------------------------------------------------------------------------
 
@@ -799,12 +471,9 @@ def _arm_psd(rig: ArmRig, vertices) -> PSDModel:
 def bent_arm(angles, method="ccm", rig: ArmRig | None = None) -> np.ndarray:
     """Per-frame deformed control grids ``(F, nu, nv, 3) float64`` of the arm bent to
     ``angles : (F,)`` radians by ``method`` in {"lbs", "dqs", "psd", "ccm"}.  ``rig`` defaults
-    to :func:`arm_rig`.  A scene (e.g. ``elbow_contact``) needs only::
-
-        rig = arm_rig()
-        angles = np.radians(np.linspace(0.0, 120.0, n_frames))
-        write_cvs_samples(mesh_prim, frames, bent_arm(angles, "ccm", rig))
-        write_skeleton(stage, "/Arm/Skel", rig.skeleton, arm_pose(rig, angles), frames)"""
+    to :func:`arm_rig`.  A scene authors the skinned arm with
+    `pipeline.authoring.add_skinned_arm`, which writes these grids as ``acra:cvs`` time samples
+    beside the UsdSkel skeleton posed by :func:`arm_pose`."""
     rig = arm_rig() if rig is None else rig
     if method not in ("lbs", "dqs", "psd", "ccm"):
         raise ValueError(f"unknown method {method!r}")

@@ -17,7 +17,8 @@ import numpy as np
 from pxr import Gf, Sdf, UsdGeom, UsdSkel, Vt
 
 from ..usdio import cvs_to_flat, flat_to_cvs  # the contract's grid order, defined once
-from .skinning import Skeleton, matrix_to_quat, quat_multiply, quat_normalize, bind_transforms
+from .quaternions import matrix_to_quat, quat_multiply, quat_normalize
+from .skinning import Skeleton, bind_transforms
 
 __all__ = ["cvs_to_flat", "flat_to_cvs", "write_cvs_samples", "read_cvs_samples",
            "joint_paths", "write_skeleton"]

@@ -1,0 +1,255 @@
+"""Collision grids and exact closest points on them, in object space.
+
+A deformable is collided as triangle grids over its level-0 patches (`PatchGrid`), one per patch
+at the density its finest level needs, built lazily per patch and cached per shape (`GridCache`).
+Closest points on a triangle set are exact (`Closest`); several patch grids near a contact are
+queried as one set (`GridSet`). Set-up time spent building them is counted on `SetupClock`, the
+analogue of RAPID's initial set-up in the thesis's Fig. 5.2. Arrays are float64 unless stated.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from functools import cached_property
+from itertools import chain
+from typing import TYPE_CHECKING
+
+import fcl
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from acra.tessellate import patch_grids
+
+if TYPE_CHECKING:
+    from pipeline.shape import Shape
+
+__all__ = ["PatchGrid", "GridSet", "GridCache", "Nearest", "Closest", "SetupClock", "timed", "bvh", "overlap", "COLLAPSE"]
+
+COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
+_US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see Closest
+
+
+# --- closest points on a triangle set ---------------------------------------------------------
+def overlap(lo_a, hi_a, lo_b, hi_b, pad: float) -> np.ndarray:
+    """Whether boxes overlap (broadcast over leading axes)."""
+    return np.all((lo_a <= hi_b + pad) & (lo_b <= hi_a + pad), axis=-1)
+
+
+def bvh(vertices: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:
+    """An fcl BVH of a triangle set at the identity transform; face rows are kept, so fcl's
+    ``b1``/``b2`` are rows of ``faces``. Only the vertices the faces use go in: fcl's build costs
+    per vertex too (3,009 vertices for 39 faces: 2.4 ms, compacted 0.2 ms)."""
+    used, tri = np.unique(faces, return_inverse=True)
+    model = fcl.BVHModel()
+    model.beginModel(len(used), len(faces))
+    model.addSubModel(np.ascontiguousarray(vertices[used], np.float64), np.ascontiguousarray(tri.reshape(-1, 3), np.int32))
+    model.endModel()
+    return fcl.CollisionObject(model, fcl.Transform())
+
+
+class Closest:
+    """Exact closest points on triangles. The closest point is no farther than the nearest vertex
+    (``d_v``), so its triangle's centroid is within ``d_v + reach`` (the largest centroid-corner
+    distance): near points test that ball's triangles (kd-trees); deep points, whose ball covers
+    much of a curved surface, query an fcl BVH of the triangles within ``d_v``, if cheaper."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh_: fcl.CollisionObject | None = None) -> None:
+        self.vertices, self.faces, self.bvh = vertices, faces, bvh_
+        self.tri = vertices[faces]  # (f, 3, 3)
+        # the closest-point tolerance (`acra.closest.ZERO`, 1e-13) is absolute: work in units of the mesh's size
+        self.unit = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
+        self.unit = self.unit if self.unit > 0 else 1.0
+        self._cen = self.tri.mean(axis=1)
+        self.reach = float(np.linalg.norm(self.tri - self._cen[:, None], axis=2).max()) if len(faces) else 0.0
+        self.vtree = cKDTree(vertices[np.unique(faces)])
+
+    @cached_property
+    def ctree(self) -> cKDTree:
+        return cKDTree(self._cen)
+
+    def query(self, points: np.ndarray, bound: np.ndarray | None = None):
+        """Distances ``(k,)``, closest points ``(k, 3)`` and face rows ``(k,) int64``. With
+        ``bound (k,)``, only closest points nearer than it are sought (else distance ``inf``)."""
+        k = points.shape[0]
+        dist, close, face = np.full(k, np.inf), np.zeros((k, 3)), np.zeros(k, np.int64)
+        if k == 0:
+            return dist, close, face
+        dv, _ = self.vtree.query(points)
+        if bound is not None:
+            dv = np.minimum(dv, bound)
+        radius = dv + self.reach * (1 + 1e-9) + 1e-300
+        ball = dv <= 2.0 * self.reach
+        deep = np.nonzero(~ball)[0]
+        tree, rows = self.bvh, None
+        if len(deep) and tree is None:  # a BVH of the triangles in reach, if cheaper than balls
+            grow = dv[deep].max() * (1 + 1e-9)
+            lo, hi = points[deep].min(axis=0) - grow, points[deep].max(axis=0) + grow
+            rows = np.nonzero(overlap(self.tri.min(axis=1), self.tri.max(axis=1), lo, hi, 0.0))[0]
+            pairs = self.ctree.query_ball_point(points[deep], radius[deep], return_length=True).sum()
+            ball[deep] = pairs * _US_PAIR < _US_BVH_FACE * len(rows) + _US_FCL_QUERY * len(deep)
+            if not ball[deep].all():
+                tree = bvh(self.vertices, self.faces[rows])
+        near = np.nonzero(ball)[0]
+        if len(near):
+            lists = self.ctree.query_ball_point(points[near], radius[near])
+            lens = np.fromiter(map(len, lists), np.int64, len(near))
+            idx = np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))
+        if len(near) and len(idx):
+            # one compiled pass over the (point, triangle) pairs keeps each point's nearest; loaded
+            # on the first contact, so a run without one never imports the compiler
+            from acra import closest
+
+            d, cp, f = closest.nearest_in_lists(self.tri, points[near], np.r_[0, np.cumsum(lens)], idx, self.unit)
+            hit = np.nonzero(lens)[0]
+            dist[near[hit]], close[near[hit]], face[near[hit]] = d[hit], cp[hit], f[hit]
+        probe, req = fcl.Sphere(0.0), fcl.DistanceRequest(enable_nearest_points=True)
+        for i in np.nonzero(~ball)[0]:
+            res = fcl.DistanceResult()  # mesh first: b1 is its face, nearest_points[0] on it
+            dist[i] = fcl.distance(tree, fcl.CollisionObject(probe, fcl.Transform(points[i])), req, res)
+            close[i], face[i] = res.nearest_points[0], res.b1 if rows is None else rows[res.b1]
+        return dist, close, face
+
+
+# --- set-up time ---------------------------------------------------------------------------------
+class SetupClock:
+    """Milliseconds spent building `Shape` data (the thesis's "initial setup" of RAPID, Fig. 5.2):
+    the frame loop reads it around detection to report set-up apart from the queries."""
+
+    ms: float = 0.0
+
+
+def timed(build):
+    """Decorate a `Shape` builder so its time goes to `SetupClock`."""
+
+    def clocked(*args, **kwargs):
+        t = time.perf_counter()
+        try:
+            return build(*args, **kwargs)
+        finally:
+            SetupClock.ms += 1e3 * (time.perf_counter() - t)
+
+    clocked.__name__, clocked.__doc__ = build.__name__, build.__doc__
+    return clocked
+
+
+# --- per-patch collision grids --------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class PatchGrid:
+    """One level-0 patch's collision grid in object space: ``points (n, 3)``, their parameters
+    ``uv (n, 2)`` (level-0 units, continuous within the patch), ``triangles (f, 3) int64`` wound
+    so that their normals follow ``du × dv``."""
+
+    points: np.ndarray
+    uv: np.ndarray
+    triangles: np.ndarray
+
+    @cached_property
+    def solid(self) -> np.ndarray:
+        """Rows of ``triangles`` with three distinct corners (a pole row's slivers dropped)."""
+        tri = self.points[self.triangles]
+        tol = COLLAPSE * max(float(np.ptp(self.points, axis=0).max()), 1e-300)
+        edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2)
+        return np.nonzero(edges.min(axis=1) > tol)[0]
+
+
+
+class GridSet:
+    """Several patch grids as one triangle set, so a batch of queries near a contact is answered
+    by one kd-tree pass and one exact closest-point call per grid density instead of one of each
+    per patch grid. Grids of one density share a `Closest` index (its search radius grows with
+    the largest triangle, so a coarse grid must not widen a fine one's). ``face_lo, face_hi
+    (f, 2)``: the parameter box of each solid face's patch (closest points' parameters are kept
+    inside their patch)."""
+
+    def __init__(self, grids: list[PatchGrid]) -> None:
+        grids = sorted(grids, key=lambda g: len(g.points), reverse=True)  # finest first
+        base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+        self.points = np.concatenate([g.points for g in grids])
+        self.uv = np.concatenate([g.uv for g in grids])
+        self.triangles = np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)])
+        count = np.array([len(g.solid) for g in grids])
+        self.face_lo = np.repeat(np.array([g.uv[0] for g in grids]), count, axis=0)
+        self.face_hi = np.repeat(np.array([g.uv[-1] for g in grids]), count, axis=0)
+        size = np.array([len(g.points) for g in grids])
+        first = np.cumsum(np.r_[0, count])
+        self.indices = []  # (first face row, Closest) per density
+        for n in np.unique(size)[::-1]:
+            a, b = np.nonzero(size == n)[0][[0, -1]]
+            self.indices.append((first[a], Closest(self.points, self.triangles[first[a]:first[b + 1]])))
+
+    def nearest(self, q: np.ndarray) -> Nearest:
+        """Closest points to ``q (k, 3)`` and their parameters, interpolated from the face
+        corners."""
+        dist, close, face = np.full(len(q), np.inf), np.zeros((len(q), 3)), np.zeros(len(q), np.int64)
+        for start, index in self.indices:
+            d, cp, f = index.query(q, dist * (1 + 1e-9) + 1e-300)  # only what beats a finer density's
+            better = d < dist
+            dist[better], close[better], face[better] = d[better], cp[better], f[better] + start
+        tri = self.triangles[face]
+        bary = trimesh.triangles.points_to_barycentric(self.points[tri], close)
+        uv = np.clip(np.einsum("kj,kjc->kc", bary, self.uv[tri]), self.face_lo[face], self.face_hi[face])
+        return Nearest(dist, close, uv)
+
+
+@dataclass(frozen=True, eq=False)
+class Nearest:
+    """Closest points on a shape's collision grids: ``distance (k,)``, object-space ``points
+    (k, 3)``, parameters ``uv (k, 2)``."""
+
+    distance: np.ndarray
+    points: np.ndarray
+    uv: np.ndarray
+
+
+class GridCache:
+    """The collision grids of one `Shape`, built on demand per level-0 patch at the patch's
+    `Shape.density_map` steps, and the last few `GridSet`s asked for. A responded shape takes its
+    parent's grid objects for patches the response did not reach (`Shape._stale`), so a local
+    response re-tessellates only where it changed the surface."""
+
+    def __init__(self, shape: Shape) -> None:
+        self.shape = shape
+        self.grids: dict[tuple[int, int], PatchGrid] = {}
+        self._gridsets: dict[tuple[int, ...], GridSet] = {}
+
+    @timed
+    def build(self, missing: list[tuple[int, int]]) -> None:
+        """Grids of the level-0 patches ``missing`` (row, column), the parent's where it serves."""
+        shape = self.shape
+        stale = shape._stale
+        todo = []
+        for key in missing:
+            old = None if stale is None or stale[key] else shape.parent.grids.get(key)
+            if old is not None:
+                self.grids[key] = old
+            else:
+                todo.append(key)
+        todo_arr = np.array(todo, np.int64).reshape(-1, 2)
+        steps = shape.density_map[todo_arr[:, 0], todo_arr[:, 1]]
+        for s in np.unique(steps):
+            sel, n = todo_arr[steps == s], (int(s) + 1) ** 2
+            pts, uv, tris, _ = patch_grids(shape.surface, sel, int(s), det=shape.details)
+            tri = tris[: 2 * int(s) ** 2]
+            for r, p in enumerate(sel):
+                self.grids[(int(p[0]), int(p[1]))] = PatchGrid(pts[r * n:(r + 1) * n], uv[r * n:(r + 1) * n], tri)
+
+    def grids_for(self, patches: np.ndarray) -> list[PatchGrid]:
+        """Collision grids of level-0 ``patches (m, 2) int64`` at their density (cached)."""
+        keys = [(int(a), int(b)) for a, b in np.asarray(patches, np.int64).reshape(-1, 2)]
+        missing = list(dict.fromkeys(k for k in keys if k not in self.grids))
+        if missing:
+            self.build(missing)
+        return [self.grids[k] for k in keys]
+
+    def gridset(self, found: tuple[int, ...]) -> GridSet:
+        """The `GridSet` of flattened patch rows ``found`` (the last few are kept: consecutive
+        rounds and frames query the same contact)."""
+        hit = self._gridsets.pop(found, None)
+        if hit is None:
+            hit = GridSet(self.grids_for(self.shape._boxes[2][list(found)]))
+        self._gridsets[found] = hit
+        while len(self._gridsets) > 16:
+            del self._gridsets[next(iter(self._gridsets))]
+        return hit
