@@ -23,47 +23,50 @@ ZERO = 1e-13  # a dot product below this (scaled units) is zero: trimesh's `tol.
 
 
 @numba.njit(cache=True, inline="always")
+def _dots(ab0, ab1, ab2, ac0, ac1, ac2, q0, q1, q2, p0, p1, p2):
+    """``(AB · (p − q), AC · (p − q))`` for a corner ``q``: where ``p`` lies along the two edges."""
+    e0, e1, e2 = p0 - q0, p1 - q1, p2 - q2
+    return ab0 * e0 + ab1 * e1 + ab2 * e2, ac0 * e0 + ac1 * e1 + ac2 * e2
+
+
+@numba.njit(cache=True, inline="always")
+def _along(q0, q1, q2, t, e0, e1, e2):
+    """The point ``q + t e``."""
+    return q0 + t * e0, q1 + t * e1, q2 + t * e2
+
+
+@numba.njit(cache=True, inline="always")
 def _closest_on_triangle(tri, f, p0, p1, p2, scale):
     """Closest point ``(x, y, z)`` on triangle ``f`` of ``tri (F, 3, 3)`` to ``p``, all divided by
-    ``scale`` (the caller's unit, so the tolerance is relative)."""
+    ``scale`` (the caller's unit, so the tolerance is relative). ``d1 .. d6`` are Ericson's: the
+    projections of ``p`` relative to corners A, B and C on the edges AB and AC, from which the
+    Voronoi region of ``p`` (a corner, an edge or the face) follows."""
     a0, a1, a2 = tri[f, 0, 0] / scale, tri[f, 0, 1] / scale, tri[f, 0, 2] / scale
     b0, b1, b2 = tri[f, 1, 0] / scale, tri[f, 1, 1] / scale, tri[f, 1, 2] / scale
     c0, c1, c2 = tri[f, 2, 0] / scale, tri[f, 2, 1] / scale, tri[f, 2, 2] / scale
     ab0, ab1, ab2 = b0 - a0, b1 - a1, b2 - a2
     ac0, ac1, ac2 = c0 - a0, c1 - a1, c2 - a2
-    ap0, ap1, ap2 = p0 - a0, p1 - a1, p2 - a2
-    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
-    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
-    if d1 < ZERO and d2 < ZERO:  # vertex region of A
+    d1, d2 = _dots(ab0, ab1, ab2, ac0, ac1, ac2, a0, a1, a2, p0, p1, p2)
+    if d1 < ZERO and d2 < ZERO:  # corner A
         return a0, a1, a2
     if ab0 == 0.0 and ab1 == 0.0 and ab2 == 0.0:  # A = B: the segment AC (or a point)
         length = ac0 * ac0 + ac1 * ac1 + ac2 * ac2
-        t = (ap0 * ac0 + ap1 * ac1 + ap2 * ac2) / length if length > 0.0 else 0.0
-        t = min(max(t, 0.0), 1.0)
-        return a0 + t * ac0, a1 + t * ac1, a2 + t * ac2
-    bp0, bp1, bp2 = p0 - b0, p1 - b1, p2 - b2
-    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
-    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
-    if d3 > -ZERO and d4 <= d3:  # vertex region of B
+        t = d2 / length if length > 0.0 else 0.0
+        return _along(a0, a1, a2, min(max(t, 0.0), 1.0), ac0, ac1, ac2)
+    d3, d4 = _dots(ab0, ab1, ab2, ac0, ac1, ac2, b0, b1, b2, p0, p1, p2)
+    d5, d6 = _dots(ab0, ab1, ab2, ac0, ac1, ac2, c0, c1, c2, p0, p1, p2)
+    vc, vb = d1 * d4 - d3 * d2, d5 * d2 - d1 * d6
+    if d3 > -ZERO and d4 <= d3:  # corner B
         return b0, b1, b2
-    vc = d1 * d4 - d3 * d2
     if vc < ZERO and d1 > -ZERO and d3 < ZERO:  # edge AB
-        v = d1 / (d1 - d3)
-        return a0 + v * ab0, a1 + v * ab1, a2 + v * ab2
-    cp0, cp1, cp2 = p0 - c0, p1 - c1, p2 - c2
-    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
-    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
-    if d6 > -ZERO and d5 <= d6:  # vertex region of C
+        return _along(a0, a1, a2, d1 / (d1 - d3), ab0, ab1, ab2)
+    if d6 > -ZERO and d5 <= d6:  # corner C
         return c0, c1, c2
-    vb = d5 * d2 - d1 * d6
     if vb < ZERO and d2 > -ZERO and d6 < ZERO:  # edge AC
-        w = d2 / (d2 - d6)
-        return a0 + w * ac0, a1 + w * ac1, a2 + w * ac2
+        return _along(a0, a1, a2, d2 / (d2 - d6), ac0, ac1, ac2)
     va = d3 * d6 - d5 * d4
     if va < ZERO and (d4 - d3) > -ZERO and (d5 - d6) > -ZERO:  # edge BC
-        d43 = d4 - d3
-        w = d43 / (d43 + (d5 - d6))
-        return b0 + w * (c0 - b0), b1 + w * (c1 - b1), b2 + w * (c2 - b2)
+        return _along(b0, b1, b2, (d4 - d3) / ((d4 - d3) + (d5 - d6)), c0 - b0, c1 - b1, c2 - b2)
     denom = 1.0 / (va + vb + vc)  # the face
     v, w = vb * denom, vc * denom
     return a0 + ab0 * v + ac0 * w, a1 + ab1 * v + ac1 * w, a2 + ab2 * v + ac2 * w
