@@ -295,6 +295,12 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         pa, ob = apply_inverse(gb.xform, ta.points), gb.static.bvh
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), gb.static.face_boxes, pad)
     else:
+        # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
+        # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
+        # meet and B is not tessellated
+        rows = (cb[:, 0], cb[:, 1])  # lb, hb: B's world patch boxes, above
+        if not len(cb) or not _overlap(ta.points.min(axis=0), ta.points.max(axis=0), lb[rows].min(axis=0), hb[rows].max(axis=0), pad):
+            return none
         tb = tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), _face_boxes(pb, fb_all), pad)
