@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
+import timeit
 from pathlib import Path
 
 import numpy as np
@@ -40,12 +40,7 @@ from pipeline.model import ColliderModel, apply_xform  # noqa: E402
 
 
 def median_ms(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return 1e3 * float(np.median(times))
+    return 1e3 * float(np.median(timeit.repeat(fn, number=1, repeat=repeat)))
 
 
 def corner_boxes(geom: detect.SurfaceGeometry) -> tuple[np.ndarray, np.ndarray]:
