@@ -53,6 +53,30 @@ class ColliderStatic:
     def index(self) -> Closest:
         return Closest(self.mesh.vertices, self.mesh.faces, self.bvh)
 
+    @cached_property
+    def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Object-space boxes ``lo, hi (f, 3)`` of the mesh's faces, built once per run (the mesh
+        is rigid)."""
+        tri = self.mesh.vertices[self.mesh.faces]
+        return tri.min(axis=1), tri.max(axis=1)
+
+    @cached_property
+    def _face_centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centres and half-extents ``(f, 3)`` of `face_boxes`."""
+        lo, hi = self.face_boxes
+        return 0.5 * (lo + hi), 0.5 * (hi - lo)
+
+    def faces_near(self, xform: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+        """Rows ``(m,) int64`` of ``mesh.faces``, ascending, that hold every face whose world box
+        meets the world box ``bounds (2, 3)`` under ``xform (4, 4)``: a face's world box lies in
+        the world box of its object-space box mapped (``M c + t ± |M| h``), which costs two small
+        products per face instead of gathering and reducing its corners (widened by 1e-9 of the
+        query's coordinates for the rounding of the two)."""
+        centre, half = self._face_centres
+        world, reach = apply_xform(xform, centre), half @ np.abs(xform[:3, :3]).T
+        slack = 1e-9 * (float(np.abs(bounds).max()) + float(np.ptp(bounds, axis=0).max()))
+        return np.nonzero(_overlap(world - reach, world + reach, bounds[0], bounds[1], slack))[0]
+
 
 def prepare_collider(model: ColliderModel) -> ColliderStatic:
     """Build a collider's BVH, ray intersector and closest-point index once per run."""
@@ -125,12 +149,16 @@ class SurfaceGeometry:
 
     @cached_property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """World boxes ``lo, hi`` ``(P0u, P0v, 3)`` of the level-0 patches: hull boxes' 8 corners mapped."""
+        """World boxes ``lo, hi`` ``(P0u, P0v, 3)`` of the level-0 patches: the box of each hull
+        box's 8 mapped corners, from its centre ``c`` and half-extents ``h`` as ``M c + t ± |M| h``
+        (``|M|`` entrywise): the same box as mapping the corners, to rounding (2e-15 of the
+        coordinates), at 1/50 of the cost (4 ms against 0.08 ms for 2,496 patches), so the broad
+        phase every frame pays stays small on a large model."""
         lo, hi = self.shape.hulls
-        sel = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], bool)  # (8, 3)
-        corners = np.where(sel, hi[..., None, :], lo[..., None, :])  # (P0u, P0v, 8, 3)
-        world = apply_xform(self.xform, corners.reshape(-1, 3)).reshape(corners.shape)
-        return world.min(axis=-2), world.max(axis=-2)
+        linear = self.xform[:3, :3]
+        centre = apply_xform(self.xform, (0.5 * (lo + hi)).reshape(-1, 3)).reshape(lo.shape)
+        half = ((0.5 * (hi - lo)).reshape(-1, 3) @ np.abs(linear).T).reshape(lo.shape)
+        return centre - half, centre + half
 
     @cached_property
     def bounds(self) -> np.ndarray:
@@ -222,10 +250,17 @@ def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
     return bool(_overlap(ga.bounds[0], ga.bounds[1], gb.bounds[0], gb.bounds[1], pad))
 
 
-def _triangles_near(pa: np.ndarray, fa: np.ndarray, pb: np.ndarray, fb: np.ndarray, pad: float, rounds: int = 2):
-    """Rows of ``fa``/``fb`` whose triangle boxes overlap the box of the other side's kept ones."""
-    boxes = [(p[f].min(axis=1), p[f].max(axis=1)) for p, f in ((pa, fa), (pb, fb))]
-    keep = [np.ones(len(fa), bool), np.ones(len(fb), bool)]
+def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``."""
+    tri = points[faces]
+    return tri.min(axis=1), tri.max(axis=1)
+
+
+def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray, np.ndarray], pad: float, rounds: int = 2):
+    """Rows of side ``a``'s and side ``b``'s triangles, given by their boxes ``lo, hi (f, 3)``,
+    whose boxes overlap the box of the other side's kept ones."""
+    boxes = [box_a, box_b]
+    keep = [np.ones(len(box_a[0]), bool), np.ones(len(box_b[0]), bool)]
     for _ in range(rounds):
         for me, other in ((0, 1), (1, 0)):
             if keep[other].any():
@@ -256,12 +291,19 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     if not len(ca):
         return none
     ta = tessellate(ga, ca)
-    if collider:
-        pa, pb, fb_all, ob = apply_inverse(gb.xform, ta.points), gb.static.mesh.vertices, gb.static.mesh.faces, gb.static.bvh
+    if collider:  # the collider's face boxes are the run's (`ColliderStatic.face_boxes`)
+        pa, ob = apply_inverse(gb.xform, ta.points), gb.static.bvh
+        ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), gb.static.face_boxes, pad)
     else:
+        # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
+        # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
+        # meet and B is not tessellated
+        rows = (cb[:, 0], cb[:, 1])  # lb, hb: B's world patch boxes, above
+        if not len(cb) or not _overlap(ta.points.min(axis=0), ta.points.max(axis=0), lb[rows].min(axis=0), hb[rows].max(axis=0), pad):
+            return none
         tb = tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
-    ka, kb = _triangles_near(pa, ta.triangles, pb, fb_all, pad)
+        ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), _face_boxes(pb, fb_all), pad)
     if not len(ka):
         return none
     oa = _bvh(pa, ta.triangles[ka])
@@ -417,8 +459,9 @@ class Region:
 
 def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray | None]:
     """Distinct tessellation vertices of ``geom`` within ``bounds``: world ``(k, 3)``, uv or None."""
-    if isinstance(geom, ColliderGeometry):
-        pts, uv = geom.vertices, None
+    if isinstance(geom, ColliderGeometry):  # the vertices of the faces near the box, in order
+        used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([bounds[0] - pad, bounds[1] + pad]))])
+        pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
     else:
         tess = tessellate(geom, candidate_patches(geom, bounds, pad))
         _, first = np.unique(wrap_uv(geom.surface, tess.uv), axis=0, return_index=True)
@@ -498,7 +541,8 @@ def face_samples(geom: ColliderGeometry, bounds: np.ndarray, spacing: float) -> 
     pieces whose box meets ``bounds``: the samples then cost the area inside the box, not the
     triangle's (a floor 1e3 across at a spacing of 1e-2 would be 5e9 points)."""
     mesh = geom.static.mesh
-    tri = apply_xform(geom.xform, mesh.vertices[mesh.faces].reshape(-1, 3)).reshape(-1, 3, 3)
+    rows = geom.static.faces_near(geom.xform, bounds)  # a superset of the faces met below, in order
+    tri = apply_xform(geom.xform, mesh.vertices[mesh.faces[rows]].reshape(-1, 3)).reshape(-1, 3, 3)
     limit = max(float(np.linalg.norm(bounds[1] - bounds[0])), spacing)
     while True:
         tri = tri[_overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0)]

@@ -502,3 +502,52 @@ def test_face_samples_of_a_huge_face_cost_only_the_part_in_the_bounds():
     rng = np.random.default_rng(5)
     probe = np.column_stack([rng.uniform(0.3, 0.5, 400), rng.uniform(-0.1, 0.1, 400), np.zeros(400)])
     assert np.linalg.norm(probe[:, None] - s[None], axis=2).min(axis=1).max() <= 0.01
+
+
+def _rotated_scaled(seed):
+    """A seeded matrix ``(4, 4)``: rotation, non-uniform scale and a translation."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    m = np.eye(4)
+    m[:3, :3] = q @ np.diag(rng.uniform(0.3, 3.0, 3))
+    m[:3, 3] = rng.normal(size=3) * 5
+    return m
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_world_patch_boxes_are_the_boxes_of_the_mapped_hull_corners(seed):
+    """`SurfaceGeometry.boxes` (centre and half-extents mapped) equals the box of each hull box's
+    8 corners mapped by the matrix, to rounding."""
+    geom = sphere_geom(_rotated_scaled(seed))
+    lo, hi = geom.shape.hulls
+    corners = np.stack([np.where(np.array([a, b, c], bool), hi, lo) for a in (0, 1) for b in (0, 1) for c in (0, 1)], axis=-2)
+    world = (corners.reshape(-1, 3) @ geom.xform[:3, :3].T + geom.xform[:3, 3]).reshape(corners.shape)
+    wlo, whi = geom.boxes
+    scale = np.abs(world).max()
+    assert np.allclose(wlo, world.min(axis=-2), rtol=0, atol=1e-14 * scale)
+    assert np.allclose(whi, world.max(axis=-2), rtol=0, atol=1e-14 * scale)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_faces_near_holds_every_face_whose_world_box_meets_the_query(seed):
+    """`ColliderStatic.faces_near` (object-space face boxes built once) holds every face whose
+    world box meets a world box, in ascending order, and on an axis-aligned box collider under
+    a translation exactly those."""
+    rng = np.random.default_rng(seed)
+    mesh = trimesh.creation.icosphere(3)
+    static = D.prepare_collider(ColliderModel("/ball", mesh.vertices, mesh.faces))
+    xform = _rotated_scaled(seed)
+    tri = (static.mesh.vertices[static.mesh.faces].reshape(-1, 3) @ xform[:3, :3].T + xform[:3, 3]).reshape(-1, 3, 3)
+    for _ in range(10):
+        c, h = xform[:3, 3] + rng.normal(size=3) * 2, rng.uniform(0.05, 1.5, 3)
+        bounds = np.stack([c - h, c + h])
+        want = np.nonzero(S.overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0))[0]
+        got = static.faces_near(xform, bounds)
+        assert np.all(np.diff(got) > 0) and np.isin(want, got).all()
+    b, bounds = box(1.0), np.array([[4.5, -2.0, -2.0], [5.0, 0.5, 2.0]])  # object-space x = 1 only at world x = 4
+    tri = b.mesh.vertices[b.mesh.faces] + [3.0, 0.0, 0.0]
+    want = np.nonzero(S.overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0))[0]
+    assert np.array_equal(b.faces_near(move(3.0, 0, 0), bounds), want) and len(want) == 0
+    bounds[0, 0] = 3.9  # now the +x face and the faces along it with y below 0.5
+    want = np.nonzero(S.overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0))[0]
+    assert np.array_equal(b.faces_near(move(3.0, 0, 0), bounds), want) and 0 < len(want) < len(tri)
