@@ -58,7 +58,7 @@ class Closest:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh_: fcl.CollisionObject | None = None) -> None:
         self.vertices, self.faces, self.bvh = vertices, faces, bvh_
         self.tri = vertices[faces]  # (f, 3, 3)
-        # the closest-point tolerance (`acra.closest.ZERO`, 1e-13) is absolute: work in units of the mesh's size
+        # trimesh's closest_point has absolute tolerances (1e-13): work in units of the mesh's size
         self.unit = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
         self.unit = self.unit if self.unit > 0 else 1.0
         self._cen = self.tri.mean(axis=1)
@@ -96,14 +96,14 @@ class Closest:
             lists = self.ctree.query_ball_point(points[near], radius[near])
             lens = np.fromiter(map(len, lists), np.int64, len(near))
             idx = np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))
+            owner = np.repeat(np.arange(len(near)), lens)
         if len(near) and len(idx):
-            # one compiled pass over the (point, triangle) pairs keeps each point's nearest; loaded
-            # on the first contact, so a run without one never imports the compiler
-            from acra import closest
-
-            d, cp, f = closest.nearest_in_lists(self.tri, points[near], np.r_[0, np.cumsum(lens)], idx, self.unit)
-            hit = np.nonzero(lens)[0]
-            dist[near[hit]], close[near[hit]], face[near[hit]] = d[hit], cp[hit], f[hit]
+            cp = self.unit * trimesh.triangles.closest_point(self.tri[idx] / self.unit, points[near][owner] / self.unit)
+            d = np.linalg.norm(cp - points[near][owner], axis=1)
+            order = np.lexsort((d, owner))  # per owner, nearest first
+            first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+            hit = near[owner[first]]
+            dist[hit], close[hit], face[hit] = d[first], cp[first], idx[first]
         probe, req = fcl.Sphere(0.0), fcl.DistanceRequest(enable_nearest_points=True)
         for i in np.nonzero(~ball)[0]:
             res = fcl.DistanceResult()  # mesh first: b1 is its face, nearest_points[0] on it
