@@ -49,7 +49,12 @@ def layer_data(path: Path) -> dict:
 
     def visit(spec_path):
         spec = layer.GetObjectAtPath(spec_path)
-        fields = {key: spec.GetInfo(key) for key in spec.ListInfoKeys()}
+        fields = {}
+        for key in spec.ListInfoKeys():
+            if key == "subLayerOffsets":  # no Python converter for the field: read it from the layer
+                fields[key] = [(o.offset, o.scale) for o in layer.subLayerOffsets]
+            else:
+                fields[key] = spec.GetInfo(key)
         if layer.GetNumTimeSamplesForPath(spec_path):
             fields["timeSamples"] = {t: layer.QueryTimeSample(spec_path, t) for t in layer.ListTimeSamplesForPath(spec_path)}
         data[str(spec_path)] = fields
