@@ -18,18 +18,29 @@ naming the prim, the attribute and the problem; nothing written), 3 frames over 
 
 from __future__ import annotations
 
-import argparse
-import gc
-import sys
 import time
-from pathlib import Path
 
-from pipeline import guard, report
-from pipeline.farm import FarmError
-from pipeline.model import InputError
-from pipeline.run import RunReport, frame_list, refuse_outputs, run_file
+_LOADED = time.perf_counter()  # start of this module: the command line's imports are timed from here
+
+import argparse  # noqa: E402
+import gc  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 __all__ = ["main", "build_parser", "run_file", "RunReport"]
+
+# What a command needs is imported when it runs, not here: `acra --version` and `acra --help`
+# import argparse alone, `acra run` without --rrd or --workers never imports rerun or dask, and
+# nothing the run path uses imports matplotlib (docs/cli.md, *Start-up*).
+
+
+def __getattr__(name: str):
+    """``run_file`` and ``RunReport`` of `pipeline.run`, kept importable from here."""
+    if name in ("run_file", "RunReport"):
+        from pipeline import run as run_module
+
+        return getattr(run_module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -82,13 +93,17 @@ def _version() -> str:
         return "unknown"
 
 
-def run(args: argparse.Namespace) -> int:
-    """`acra run`: the summary line and the frames over tolerance; the exit status."""
+def run(args: argparse.Namespace, imports_s: float | None = None) -> int:
+    """`acra run`: the summary line and the frames over tolerance; the exit status. ``imports_s``:
+    the seconds this process spent importing before the run (`RunReport.phases`)."""
+    from pipeline import report
+    from pipeline.run import run_file
+
     run_report = run_file(
         args.input, args.output, args.frames, args.iterations, args.tolerance,
         rrd=args.rrd, spawn=args.spawn, progress=not args.quiet,
         report_path=args.report, memory_budget=args.memory_budget, over_tolerance=args.over_tolerance,
-        workers=args.workers, scheduler=args.scheduler, chunk=args.chunk, part=args.part,
+        workers=args.workers, scheduler=args.scheduler, chunk=args.chunk, part=args.part, imports_s=imports_s,
     )
     print(run_report.summary())
     if run_report.over:
@@ -100,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
 def merge(args: argparse.Namespace) -> int:
     """`acra merge DIR [-o OUT] [--frames START:END]` (docs/farm.md)."""
     from pipeline import parts
+    from pipeline.run import RunReport, frame_list
 
     t_start = time.perf_counter()
     expected = None if args.frames is None else frame_list(args.frames, 0, 0)
@@ -110,7 +126,9 @@ def merge(args: argparse.Namespace) -> int:
 
 def preview(args: argparse.Namespace) -> int:
     """`acra preview OUTPUT [--rrd FILE | --web | --spawn]` (docs/preview.md)."""
-    from pipeline import preview_usd
+    from pipeline import guard, preview_usd
+    from pipeline.model import InputError
+    from pipeline.run import refuse_outputs
 
     if not (args.rrd or args.web or args.spawn):
         raise InputError("acra preview", None, "say where the recording goes: --rrd FILE, --web or --spawn")
@@ -122,6 +140,7 @@ def preview(args: argparse.Namespace) -> int:
 
 def bench(args: argparse.Namespace) -> int:
     from pipeline.bench import format_report, run_bench
+    from pipeline.model import InputError
 
     if args.repeat < 1:
         raise InputError("--repeat", None, f"must be at least 1, got {args.repeat}")
@@ -151,11 +170,17 @@ def main(argv: list[str] | None = None) -> int:
     """
     as_program = argv is None
     args = build_parser().parse_args(argv)
+    from pipeline import guard, report
+    from pipeline.farm import FarmError
+    from pipeline.model import InputError
+
     try:
         with guard.terminate_raises():
             if as_program:
                 _settle_imports(args.command)
-            return {"bench": bench, "merge": merge, "preview": preview}.get(args.command, run)(args)
+            if args.command == "run":  # as a program, the imports since this module started
+                return run(args, time.perf_counter() - _LOADED if as_program else None)
+            return {"bench": bench, "merge": merge, "preview": preview}[args.command](args)
     except InputError as err:
         print(f"acra: error: {err}", file=sys.stderr)
         return report.EXIT_INPUT

@@ -113,6 +113,7 @@ def report_dict(run, tolerance: float, over: list[tuple[int, float]], status: in
         "largest_residual": _finite_or_none(max((float(s.residual_rel) for s in stats), default=0.0)),
         "seconds": round(float(run.seconds), 4),
         "ms_write": round(float(run.ms_write), 3),
+        "phases": {name: round(float(sec), 4) for name, sec in getattr(run, "phases", {}).items()},
         "over_tolerance": [{"frame": f, "residual": _finite_or_none(r)} for f, r in over],
         "per_frame": [
             {

@@ -50,6 +50,7 @@ class RunReport:
     `output_layer.FramesResult` written, so a caller can write it again (``acra bench`` times ``.usdc``).
     ``over`` lists ``(frame, residual_rel)`` of the frames over tolerance
     (`report.frames_over_tolerance`) and ``status`` is the exit status they give (0 or 3).
+    ``phases`` is the wall-clock seconds of the run's start-up and work, in order (`run_file`).
     """
 
     output: Path
@@ -61,6 +62,7 @@ class RunReport:
     result: object = None
     over: list = field(default_factory=list)
     status: int = 0
+    phases: dict = field(default_factory=dict)
 
     def summary(self) -> str:
         return report.summary_line(self.stats, self.ms_write, self.seconds, self.output)
@@ -74,6 +76,20 @@ def refuse_outputs(outputs: list, protected: list[Path]) -> None:
         for other, earlier in outputs[:i]:
             if path is not None and earlier is not None and guard.same_file(path, earlier):
                 raise InputError(option, None, f"{path} is also the {other} file; choose another path")
+
+
+class _PhaseClock:
+    """Wall-clock seconds per phase of a run, ``phases[name]``, in the order first reached; a
+    phase named again adds the time since the last lap to its figure."""
+
+    def __init__(self, t_start: float, imports_s: float | None) -> None:
+        self.last = t_start
+        self.phases: dict[str, float] = {"imports": float(imports_s or 0.0)}
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.phases[name] = self.phases.get(name, 0.0) + now - self.last
+        self.last = now
 
 
 def _check_farm_options(output, workers, scheduler, chunk, part) -> None:
@@ -110,6 +126,7 @@ def run_file(
     scheduler: str | None = None,
     chunk: int | None = None,
     part: Path | None = None,
+    imports_s: float | None = None,
 ) -> RunReport:
     """Everything `acra run` does but printing (docs/cli.md, docs/farm.md).
 
@@ -117,12 +134,19 @@ def run_file(
     ``tolerance``; ``workers``/``scheduler``/``chunk`` run the frames on Dask (`pipeline.farm`);
     ``part`` writes a part file into that directory instead of the output layer
     (`pipeline.parts`, assembled by ``acra merge``).
+
+    ``RunReport.phases`` splits the wall clock: ``imports`` (``imports_s``, what the command line
+    spent importing before it called this, plus the frame loop's modules if not yet imported),
+    ``scene`` (running a scene file and exporting its stage), ``read`` (opening, checking and
+    reading the stage, the preview's set-up), ``frames`` (the frame loop, first frame included)
+    and ``write`` (the output layer or part file, the recording and the report, renamed into place).
     """
+    t_start = time.perf_counter()
     from pipeline import frames as frame_loop
     from pipeline import usdio
     from pipeline import output_layer
 
-    t_start = time.perf_counter()
+    clock = _PhaseClock(t_start, imports_s)
     src = Path(src)
     if iterations < 1:
         raise InputError("--iterations", None, f"must be at least 1, got {iterations}")
@@ -137,9 +161,11 @@ def run_file(
     outputs = ([("-o", out)] if part is None else []) + [("--rrd", rrd), ("--report", report_path)]
     refuse_outputs(outputs, [src, stage_path])  # before reading even the input's layer list
     refuse_outputs(outputs, guard.protected_paths(src))
+    clock.lap("imports")
     if is_scene:  # the exported stage may reference further layers
         stage_path = usdio.load_scene_file(src)
         refuse_outputs(outputs, guard.protected_paths(src, stage_path))
+    clock.lap("scene")
     stage = usdio.open_input(stage_path)
     start, end = usdio.frame_range(stage)
     frames_run = frame_list(frames, start, end)
@@ -163,6 +189,7 @@ def run_file(
     # or none, and an interruption removes the temporaries
     pending: list[tuple[Path, Path]] = []
     try:
+        clock.lap("read")
         bar = report.Progress(len(frames_run)) if progress and len(frames_run) > 1 else None
         options = frame_loop.RunOptions(iterations, tolerance, method, density, budget)
         if on_farm:
@@ -184,6 +211,7 @@ def run_file(
             bar.close()
         over = report.frames_over_tolerance(stats, tolerance)
         status = report.EXIT_OVER_TOLERANCE if over and over_tolerance == "fail" else report.EXIT_OK
+        clock.lap("frames")
         tw = time.perf_counter()
         if part is not None:  # written atomically by parts itself
             out = parts.write_part(part, stage_path, identity, options, parts.records_from_result(result), stats)
@@ -197,14 +225,17 @@ def run_file(
             if rrd_tmp is not None:
                 guard.flush_recording(preview)
                 pending.append((rrd_tmp, rrd))
-        run_report = RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path, result, over, status)
+        run_report = RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path, result, over, status,
+                               clock.phases)
         if report_path is not None:
             pending.append((guard.temporary_sibling(report_path), report_path))
+            clock.lap("write")  # the report holds the write up to here: its own few ms are left out
             report.write_json(pending[-1][0], report.report_dict(run_report, tolerance, over, status))
         with guard.signals_held():
             for tmp, final in pending:
                 os.replace(tmp, final)
             pending.clear()
+        clock.lap("write")
     finally:
         for tmp in [t for t, _ in pending] + [rrd_tmp]:
             if tmp is not None and tmp.exists():

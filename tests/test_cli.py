@@ -128,3 +128,44 @@ def test_sigterm_half_way_writes_nothing_and_leaves_no_temporary_file(tiny_stage
     assert code == 143
     assert err.strip().splitlines()[-1] == "acra: interrupted; nothing written" and "Traceback" not in err
     assert files == ["tiny.usda"]
+
+
+# --- start-up: a command imports what it needs ---------------------------------------------------
+
+def _program(tmp_path, argv: list[str]) -> tuple[subprocess.CompletedProcess, set]:
+    """Run ``acra ARGV`` as the process's command; its exit and the modules it imported."""
+    code = (
+        "import json, sys\n"
+        "from pipeline.cli import main\n"
+        f"sys.argv = ['acra'] + {argv!r}\n"
+        "try:\n    status = main()\nexcept SystemExit as done:\n    status = done.code\n"
+        "print(json.dumps(sorted(sys.modules)))\n"
+        "sys.exit(status)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env(), cwd=tmp_path)
+    import json
+
+    return done, set(json.loads(done.stdout.splitlines()[-1]))
+
+
+def test_version_imports_neither_numpy_nor_usd(tmp_path):
+    done, modules = _program(tmp_path, ["--version"])
+    assert done.returncode == 0 and done.stdout.startswith("acra ")
+    assert not modules & {"numpy", "pxr", "scipy", "trimesh", "fcl", "rerun", "dask"}
+
+
+def test_a_run_imports_no_preview_farm_or_plotting_and_reports_its_phases(tiny_stage, tmp_path):
+    """Without --rrd, --workers or a plot, `acra run` imports neither rerun, dask nor matplotlib;
+    its --report splits the wall clock into the run's phases, in order."""
+    import json
+
+    src, rep = tiny_stage(frames=2), tmp_path / "r.json"
+    done, modules = _program(tmp_path, ["run", str(src), "-o", str(tmp_path / "o.usdc"), "--quiet", "--report", str(rep)])
+    assert done.returncode == 0, done.stderr
+    tops = {m.split(".")[0] for m in modules}
+    assert not tops & {"rerun", "dask", "distributed", "matplotlib"}
+    data = json.loads(rep.read_text())
+    assert list(data["phases"]) == ["imports", "scene", "read", "frames", "write"]
+    assert data["phases"]["imports"] > 0 and data["phases"]["scene"] == 0  # a stage, not a scene file
+    assert all(s >= 0 for s in data["phases"].values())
+    assert sum(data["phases"].values()) - data["phases"]["imports"] <= data["seconds"]

@@ -1,0 +1,117 @@
+"""Start-up and the whole process of `acra run`: wall clock, CPU time, phases, imports by package.
+
+    python3 benchmarks/startup.py                                   # scenes/dog_head_spike.py, 5 runs
+    python3 benchmarks/startup.py scenes/box_into_sheet.py --repeat 3
+
+Each figure is from fresh processes of this checkout (``PYTHONPATH`` set to it), the scene file
+copied into a temporary directory:
+
+* ``acra --version``: the command line alone (median wall and CPU seconds);
+* ``acra run SCENE -o OUT.usda --quiet`` and ``-o OUT.usdc``, one warm-up each and then ``repeat``
+  runs interleaved: median wall seconds (as ``/usr/bin/time`` gives them) and median CPU seconds
+  (user + system of the child, which a busy machine inflates far less than the wall clock), and the
+  median of each phase of the run's ``--report`` (`pipeline.run.run_file`; the interpreter's start
+  and exit is the wall clock less the phases);
+* one more ``.usda`` run under ``python -X importtime``: the imports' own time summed by top-level
+  package (``-X importtime`` adds its own overhead, so compare the packages' shares, not the sum
+  with the table above).
+
+Prints markdown tables (docs/performance.md, *Start-up and the whole process*).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parents[1]
+PHASES = ("interpreter", "imports", "scene", "read", "frames", "write")
+PACKAGES = ("numpy", "pxr", "scipy", "trimesh", "networkx", "fcl", "acra", "pipeline")
+
+
+def timed(argv: list[str], cwd: Path, env: dict) -> tuple[float, float, subprocess.CompletedProcess]:
+    """Wall and CPU (user + system) seconds of the child process ``argv``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    done = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode not in (0, 3):
+        raise RuntimeError(f"{' '.join(argv)} failed:\n{done.stderr}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), done
+
+
+def imports_by_package(stderr: str) -> dict[str, float]:
+    """Seconds of each top-level package's own import time in ``-X importtime`` output."""
+    total: dict[str, float] = defaultdict(float)
+    for line in stderr.splitlines():
+        if not line.startswith("import time:") or "self [us]" in line:
+            continue
+        own, _, name = line[len("import time:"):].split("|")
+        top = name.strip().split(".")[0]
+        total[top if top in PACKAGES else "other"] += int(own) / 1e6
+    return dict(total)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("scene", nargs="?", type=Path, default=HERE / "scenes" / "dog_head_spike.py")
+    parser.add_argument("--repeat", type=int, default=5)
+    args = parser.parse_args()
+    env = dict(os.environ, PYTHONPATH=str(HERE))
+    cli = [sys.executable, "-m", "pipeline.cli"]
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        src = work / args.scene.name
+        shutil.copy(args.scene, src)
+        version = [timed(cli + ["--version"], work, env)[:2] for _ in range(args.repeat)]
+        wall: dict = {"usda": [], "usdc": []}
+        cpu: dict = {"usda": [], "usdc": []}
+        phases: dict = {fmt: defaultdict(list) for fmt in wall}
+        for k in range(args.repeat + 1):  # the first is a warm-up
+            for fmt in wall:
+                report = work / f"r.{fmt}.json"
+                w, c, _ = timed(cli + ["run", str(src), "-o", str(work / f"out.acra.{fmt}"), "--quiet", "--over-tolerance", "warn",
+                                       "--report", str(report)], work, env)
+                if k == 0:
+                    continue
+                wall[fmt].append(w)
+                cpu[fmt].append(c)
+                split = json.loads(report.read_text())["phases"]
+                phases[fmt]["interpreter"].append(w - sum(split.values()))
+                for name, sec in split.items():
+                    phases[fmt][name].append(sec)
+        _, _, traced = timed([sys.executable, "-X", "importtime", "-m", "pipeline.cli", "run", str(src), "-o",
+                              str(work / "traced.acra.usda"), "--quiet", "--over-tolerance", "warn"], work, env)
+    med = lambda xs: float(np.median(xs))  # noqa: E731
+    load = os.getloadavg()
+    print(f"`python3 benchmarks/startup.py {args.scene.name} --repeat {args.repeat}`: medians of {args.repeat} "
+          f"after a warm-up; load average at the end {load[0]:.1f} (1 min), {load[1]:.1f} (5 min)\n")
+    print("| process | wall s | CPU s |\n|---|---:|---:|")
+    print(f"| `acra --version` | {med([w for w, _ in version]):.3f} | {med([c for _, c in version]):.3f} |")
+    for fmt in wall:
+        print(f"| `acra run {args.scene.name} -o OUT.{fmt} --quiet` | {med(wall[fmt]):.3f} | {med(cpu[fmt]):.3f} |")
+    print("\n| phase (wall s) | `.usda` | `.usdc` |\n|---|---:|---:|")
+    for name in PHASES:
+        print(f"| {name} | {med(phases['usda'][name]):.3f} | {med(phases['usdc'][name]):.3f} |")
+    own = imports_by_package(traced.stderr)
+    print("\n| imports of `acra run`, by package (`-X importtime`, own time) | s |\n|---|---:|")
+    for name in sorted(own, key=own.get, reverse=True):
+        print(f"| {name} | {own[name]:.3f} |")
+    print(f"| **all** | **{sum(own.values()):.3f}** |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
