@@ -9,6 +9,7 @@ import pytest
 
 from acra import volume
 from conftest import display_points, scene_stages
+from pipeline import output_layer
 
 BALLOON, BALL = "/World/Balloon", "/World/Ball"
 
@@ -17,11 +18,11 @@ BALLOON, BALL = "/World/Balloon", "/World/Ball"
 def ratios(run_scene):
     """Per object, ``{frame: output volume / input volume}``; and the report."""
     report = run_scene("balloon")
-    inp, out = scene_stages(report)
+    _, out = scene_stages(report)  # the input shows through the output layer
     got = {}
     for m in report.scene.deformables:
-        tris = volume.triangles(m.topology)
-        rest = volume.enclosed_volume(display_points(inp, m.path), tris)
+        tris = volume.triangles(output_layer.read_display_topology(out, m.path))  # what the user sees
+        rest = volume.enclosed_volume(output_layer.input_points(out, m.path), tris)  # the animator's, same vertices
         got[m.path] = {s.frame: volume.enclosed_volume(display_points(out, m.path, s.frame), tris) / rest
                        for s in report.stats}
     return got, report

@@ -7,6 +7,7 @@ import pytest
 
 from acra import volume
 from conftest import display_points, scene_stages
+from pipeline import output_layer
 
 DRUM, CLOTH = "/World/Drum", "/World/Cloth"
 
@@ -14,11 +15,11 @@ DRUM, CLOTH = "/World/Drum", "/World/Cloth"
 @pytest.fixture(scope="module")
 def run(run_scene):
     report = run_scene("drum")
-    inp, out = scene_stages(report)
+    _, out = scene_stages(report)  # the input shows through the output layer
     ratios, moves = {}, {}
     for m in report.scene.deformables:
-        tris = volume.triangles(m.topology)
-        rest = display_points(inp, m.path)
+        tris = volume.triangles(output_layer.read_display_topology(out, m.path))  # what the user sees
+        rest = output_layer.input_points(out, m.path)  # the animator's surface at the same vertices
         pts = {s.frame: display_points(out, m.path, s.frame) for s in report.stats}
         ratios[m.path] = {f: volume.surface_area(p, tris) / volume.surface_area(rest, tris) for f, p in pts.items()}
         moves[m.path] = {f: p - rest for f, p in pts.items()}
