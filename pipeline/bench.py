@@ -197,7 +197,10 @@ def format_report(b: Bench) -> str:
         unit = "s" if name.startswith("end to end") else "ms"
         verdict = "met" if got <= goal else f"missed by {got / goal:.1f}×"
         lines.append(f"| {name} | {got:.2f} {unit} | ≤ {goal:g} {unit} | {verdict} |")
-    lines.append(f"| residual penetration | {b.residual_rel:.2e} of size | ≤ 1e-3 | {'met' if b.residual_rel <= 1e-3 else 'missed'} |")
+    # the frame loop's residual is measured at detection's samples; the display a USD client shows
+    # can be deeper between them (README, "Known limit"), so the row says which it is
+    lines.append(f"| residual penetration at detection's samples (not the display) | {b.residual_rel:.2e} of size | ≤ 1e-3 | "
+                 f"{'met' if b.residual_rel <= 1e-3 else 'missed'} |")
     return "\n".join(lines)
 
 
