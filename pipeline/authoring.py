@@ -26,7 +26,7 @@ Three layers, each usable alone:
   CVs there along their local normals, so an animator never handles CV indices or Greville
   abscissae; `spike_offsets` and `spike_positions` read a spike back;
 * **stage** (`new_stage`, `add_surface` / `add_deformable`, `add_collider`, `key_transform`,
-  `key_translate`, `key_cvs`, `key_enabled`, `save`) authors the contract's prims and keys.
+  `key_translate`, `key_rotate`, `key_cvs`, `key_enabled`, `save`) authors the contract's prims and keys.
 
 Every deformable gets its rest display tessellation (points, normals, topology) so the stage is
 viewable before any response; `key_cvs` keys that preview along with the CVs. No ``extent`` is
@@ -48,7 +48,7 @@ from acra import hspline, shapes
 from acra.hspline import HSpline, from_arrays, from_grid, to_arrays
 from acra.tessellate import GridTopology, display_topology, evaluate_grid
 
-from .animation.usdkeys import key_translate
+from .animation.usdkeys import key_rotate, key_translate
 from .usdio import WRAPS, cvs_to_flat, export_layer, read_hierarchy
 
 __all__ = [
@@ -68,6 +68,7 @@ __all__ = [
     "new_stage",
     "add_surface",
     "key_translate",
+    "key_rotate",
     "add_xform",
     "add_deformable",
     "key_cvs",
