@@ -103,16 +103,20 @@ class Body:
         self.size = float(np.linalg.norm(np.ptp(self.mesh.vertices, axis=0)))
 
 
+def _objects(stage: Usd.Stage):
+    """``(prim, deformable)`` of every Mesh the contract names: a deformable carries ``acra:cvs``,
+    a collider has ``PhysicsCollisionAPI``."""
+    for prim in stage.Traverse():
+        deformable = prim.HasAttribute("acra:cvs")
+        if prim.IsA(UsdGeom.Mesh) and (deformable or prim.HasAPI(UsdPhysics.CollisionAPI)):
+            yield prim, deformable
+
+
 def bodies_at(stage: Usd.Stage, frame: float) -> list[Body]:
     """Every deformable (a Mesh with ``acra:cvs``) and collider (``PhysicsCollisionAPI``) at
     ``frame``, as composed by USD; raises if a closed one is not watertight."""
     out = []
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
-        deformable = prim.HasAttribute("acra:cvs")
-        if not deformable and not prim.HasAPI(UsdPhysics.CollisionAPI):
-            continue
+    for prim, deformable in _objects(stage):
         mesh = UsdGeom.Mesh(prim)
         pts = np.asarray(mesh.GetPointsAttr().Get(Usd.TimeCode(frame)), np.float64)
         counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(Usd.TimeCode(frame)), np.int64)

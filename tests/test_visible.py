@@ -1,6 +1,12 @@
-"""The independent measure of what the user sees (`acceptance.visible`), checked on stages whose
-answer is known exactly. Nothing here imports `pipeline` or `acra`: the measure must not share a
-bug with what it measures.
+"""The independent measure of what the user sees (`acceptance.visible`): checked on stages whose
+answer is known exactly, then applied to every frame of every scene in ``scenes/``.
+
+Nothing here imports `pipeline` or `acra` (the scene runs come from the session fixture
+``run_scene`` of ``conftest.py``, which runs each scene once as ``acra run`` does): the measure
+must not share a bug with what it measures. Each scene's output layer is measured at every frame
+and compared with the residual the run reported (`acceptance.visible.disagreements`: the measure
+within 1e-3 of the object's own size, the report never under it and at most 3 times it, or within
+the tolerance). The hard cases are measured the same way in ``tests/test_hard_cases.py``.
 """
 
 from __future__ import annotations
@@ -12,7 +18,8 @@ import pytest
 import trimesh
 from pxr import Sdf, Usd, UsdGeom, UsdPhysics
 
-from acceptance.visible import Body, bodies_at, depth_inside, measure_layer, triangle_samples
+from acceptance.visible import Body, bodies_at, depth_inside, disagreements, measure_layer, triangle_samples, worst_by_frame
+from conftest import scene_names
 
 
 # --- the measure itself, on stages whose answer is known exactly ---------------------------------
@@ -79,3 +86,48 @@ def test_a_closed_display_with_a_crack_is_an_error(tmp_path):
     with pytest.raises(AssertionError, match="not watertight"):
         bodies_at(stage, 0)
 
+
+# --- every scene, as the user opens it ------------------------------------------------------------
+def test_disagreements_name_each_kind_of_fault():
+    """Over tolerance, under the measure, far over it; and what passes: a touching frame reported
+    at the tolerance, a frame reported between the measure and 3 times it."""
+    assert disagreements({1: 2e-3}, {1: 2e-3}) == ["frame 1: measured 2.00e-03 of size, over 1e-03"]
+    assert disagreements({1: 4e-4}, {1: 5e-4}) == ["frame 1: reported 4.00e-04 under the measured 5.00e-04"]
+    assert disagreements({1: 3e-3}, {1: 9e-4}) == ["frame 1: reported 3.00e-03 over 3 x the measured 9.00e-04 (and over 1e-03)"]
+    assert disagreements({1: float("nan")}, {1: 0.0}) == ["frame 1: reported nan under the measured 0.00e+00"]
+    assert disagreements({1: 1e-3, 2: 8e-4, 3: 5e-4 - 1e-7}, {1: 0.0, 2: 3e-4, 3: 5e-4}) == []
+
+
+#: scenes whose output the measure does not pass while the display is the uniform grid of
+#: ``acra:samples`` steps per level-0 patch and the residual is measured at detection's samples
+#: (issue 17: the display that shows every level and the residual as the user sees it come from
+#: the ``vis2`` work): the first fault and how many frames' faults, measured
+NOT_YET = {
+    "absorb_levels": "frame 8: reported 3.35e-04 under the measured 5.59e-04 (12 faults)",
+    "box_into_sheet": "frame 11: measured 1.13e-03 of size, over 1e-03 (12 faults)",
+    "clay": "frame 2: reported 1.29e-17 under the measured 8.05e-05 (5 faults)",
+    "closed_objects": "frame 5: measured 1.76e-03 of size, over 1e-03 (6 faults)",
+    "dog_head_spike": "frame 13: measured 1.12e-03 of size, over 1e-03 (9 faults)",
+    "drum": "frame 2: measured 2.13e-03 of size, over 1e-03 (8 faults)",
+    "elbow_contact": "frame 15: measured 1.54e-03 of size, over 1e-03 (12 faults)",
+    "off_centre_press": "frame 6: measured 1.10e-03 of size, over 1e-03 (13 faults)",
+    "rigid_top": "frame 8: measured 1.65e-03 of size, over 1e-03 (16 faults)",
+    "rolling_bump": "frame 4: measured 5.32e-03 of size, over 1e-03 (4 faults)",
+    "rotate_and_deform": "frame 5: reported 5.31e-04 under the measured 7.95e-04 (4 faults)",
+    "sag_and_dent": "frame 2: reported 5.27e-04 under the measured 9.57e-04 (2 faults)",
+    "sliding_tori": "frame 5: reported 7.84e-04 under the measured 8.62e-04 (3 faults)",
+    "turning_press": "frame 6: reported 1.76e-04 under the measured 3.27e-04 (9 faults)",
+}
+
+
+@pytest.mark.parametrize("name", [
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=f"uniform display grid, residual at detection samples: {NOT_YET[n]}"))
+    if n in NOT_YET else n for n in scene_names()])
+def test_scene_is_clear_where_the_user_looks(run_scene, name):
+    """Every frame of the scene's output layer: display vertices and triangle samples at most 1e-3
+    of the object's own size inside any other object, and the run's reported residual at least
+    that and at most 3 times it (or within the tolerance)."""
+    report = run_scene(name)
+    measured = worst_by_frame(measure_layer(report.output, [s.frame for s in report.stats]))
+    reported = {s.frame: float(s.residual_rel) for s in report.stats}
+    assert disagreements(reported, measured) == []
