@@ -131,11 +131,15 @@ class MeshTopology:
         return self.indices.reshape(-1, 4)
 
     def triangles(self) -> np.ndarray:
-        """Every face as triangles, a fan from its first vertex: ``(t, 3) int64``."""
-        starts = np.r_[0, np.cumsum(self.counts)[:-1]]
-        rows = [np.stack([starts[self.counts > k + 1], starts[self.counts > k + 1] + k, starts[self.counts > k + 1] + k + 1], axis=1)
-                for k in range(1, int(self.counts.max(initial=3)) - 1)]
-        return self.indices[np.concatenate(rows)] if rows else np.zeros((0, 3), np.int64)
+        """Every face as triangles, a fan from its first vertex, face by face (a quad ``a b c d``
+        gives ``a b c``, ``a c d``, as `GridTopology.triangles` and a USD client's fan):
+        ``(t, 3) int64``."""
+        counts = np.asarray(self.counts, np.int64)
+        starts = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64)
+        fans = np.maximum(counts - 2, 0)
+        first = np.repeat(starts, fans)
+        within = np.arange(fans.sum()) - np.repeat(np.cumsum(fans) - fans, fans) + 1
+        return np.stack([self.indices[first], self.indices[first + within], self.indices[first + within + 1]], axis=1)
 
 
 def finest_levels(hs: HSpline) -> np.ndarray:
@@ -161,28 +165,39 @@ def finest_levels(hs: HSpline) -> np.ndarray:
 
 def run_topology(surfaces, samples: int) -> MeshTopology:
     """The display topology of a run: `adaptive_topology` of the union (the finest level at each
-    place) of every surface's `finest_levels`. A pure function of the surfaces (all of one object,
-    same grid and depth), so a run that responds to all frames first, or a merge of chunks of
-    frames, chooses it after the responses."""
+    place) of every surface's `finest_levels`, built from the active patches alone (no dense map
+    of the finest level: a 12-level object with local detail costs its refined area). A pure
+    function of the surfaces (all of one object, same grid and depth), so a run that responds to
+    all frames first, or a merge of chunks of frames, chooses it after the responses."""
     surfaces = list(surfaces)
-    levels = finest_levels(surfaces[0])
-    for hs in surfaces[1:]:
-        levels = np.maximum(levels, finest_levels(hs))
-    return adaptive_topology(surfaces[0].u, surfaces[0].v, samples, levels)
+    present: dict[int, list] = {}
+    for hs in surfaces:
+        for k in range(1, hs.depth):
+            keys = hs.level(k).patches
+            if keys.size:
+                present.setdefault(k, []).append(np.stack(np.divmod(keys, hs.v.patches(k)), axis=1))
+    present = {k: np.unique(np.concatenate(rows), axis=0) for k, rows in present.items()}
+    return _adaptive(surfaces[0].u, surfaces[0].v, samples, present)
 
 
-def _leaves(levels: np.ndarray, top: int) -> list[tuple[int, np.ndarray]]:
-    """Quadtree leaves over the level-0 patches: per level ``k``, the level-``k`` patches
-    ``(m, 2) int64`` whose whole area needs no level finer than ``k`` (``levels`` is given per
-    level-``top`` patch) while their parent's needs a finer one than ``k - 1``."""
+def _leaves(p0u: int, p0v: int, present: dict[int, np.ndarray], top: int) -> list[tuple[int, np.ndarray]]:
+    """Quadtree leaves over the ``(p0u, p0v)`` level-0 patches: per level ``k``, the level-``k``
+    patches ``(m, 2) int64`` that hold no patch of a finer level present (``present[j]``, the
+    level-``j`` patches ``(m_j, 2) int64`` where level ``j`` is present) while their parent holds
+    one. Only the patches on the way to a present one are visited, so the cost follows the
+    refined area, not the finest level's whole grid."""
     out = []
-    open_ = np.ones((levels.shape[0] >> top, levels.shape[1] >> top), bool)  # level-0 roots
+    open_ = np.argwhere(np.ones((p0u, p0v), bool)).astype(np.int64)  # level-0 roots
+    children = np.array([[0, 0], [0, 1], [1, 0], [1, 1]], np.int64)
     for k in range(top + 1):
-        r = 1 << (top - k)
-        need = levels.reshape(levels.shape[0] // r, r, levels.shape[1] // r, r).max(axis=(1, 3))
-        here = open_ & (need <= k)
-        out.append((k, np.argwhere(here)))
-        open_ = np.repeat(np.repeat(open_ & ~here, 2, axis=0), 2, axis=1)
+        finer = [present[j] >> (j - k) for j in present if j > k and len(present[j])]
+        busy = np.zeros(len(open_), bool)
+        if finer:
+            width = (p0v << k) + 1
+            f = np.concatenate(finer)
+            busy = np.isin(open_[:, 0] * width + open_[:, 1], f[:, 0] * width + f[:, 1])
+        out.append((k, open_[~busy]))
+        open_ = (open_[busy][:, None, :] * 2 + children[None]).reshape(-1, 2)
     return out
 
 
@@ -203,17 +218,21 @@ def adaptive_topology(u: Direction, v: Direction, samples: int, levels: np.ndarr
     triangles about a vertex at its centre: no T-junction, no crack. Periodic seams share their
     lattice vertices (a closed object welds by index), collapsed ends (poles) by position.
     """
-    if samples < 1:
-        raise ValueError(f"samples must be at least 1, got {samples}")
     levels = np.asarray(levels, np.int64)
     top = int(round(np.log2(levels.shape[0] // u.patches0))) if levels.size else 0
     if levels.shape != (u.patches(top), v.patches(top)):
         raise ValueError(f"levels has shape {levels.shape}, expected a power-of-two refinement of {(u.patches0, v.patches0)}")
-    finest = int(levels.max(initial=0))
-    if finest < top:  # coarsen the map to the finest level present: a smaller lattice
-        r = 1 << (top - finest)
-        levels = levels.reshape(levels.shape[0] // r, r, levels.shape[1] // r, r).max(axis=(1, 3))
-        top = finest
+    present = {j: np.unique(np.argwhere(levels >= j) >> (top - j), axis=0) for j in range(1, top + 1)}
+    return _adaptive(u, v, samples, present)
+
+
+def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.ndarray]) -> MeshTopology:
+    """`adaptive_topology` of the levels ``present`` (level ``j`` -> its patches ``(m_j, 2) int64``
+    where it is present; `_leaves`)."""
+    if samples < 1:
+        raise ValueError(f"samples must be at least 1, got {samples}")
+    present = {j: np.asarray(p, np.int64).reshape(-1, 2) for j, p in present.items() if len(p)}
+    top = max(present, default=0)  # the lattice of the finest level present
     s = int(samples)
     nu_l, nv_l = u.patches0 * (s << top), v.patches0 * (s << top)  # lattice steps along u, v
     wrap_u = (lambda x: np.mod(x, nu_l)) if u.periodic else (lambda x: x)
@@ -223,7 +242,7 @@ def adaptive_topology(u: Direction, v: Direction, samples: int, levels: np.ndarr
     # every cell of every leaf: lower corner and step on the lattice
     cu, cv, ch = [], [], []
     t = np.arange(s)
-    for k, patches in _leaves(levels, top):
+    for k, patches in _leaves(u.patches0, v.patches0, present, top):
         if not len(patches):
             continue
         h = 1 << (top - k)

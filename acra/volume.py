@@ -40,9 +40,14 @@ def encloses(hs: H.HSpline) -> bool:
     return {(axis, 0), (axis, 1)} <= set(H.closed_ends(hs))
 
 
-def triangles(topo: GridTopology) -> np.ndarray:
-    """The display quads split into triangles: ``(2q, 3) int64``."""
-    q = np.asarray(topo.quads, dtype=np.int64)
+def triangles(topo) -> np.ndarray:
+    """The display faces as triangles ``(t, 3) int64`` of a `GridTopology` or a
+    `MeshTopology`: quads split in two (all first halves, then all second halves), a mesh with
+    triangles where its density changes fanned face by face (`MeshTopology.triangles`)."""
+    counts = np.asarray(topo.counts)
+    if counts.size and np.any(counts != 4):
+        return topo.triangles()
+    q = np.asarray(topo.indices, dtype=np.int64).reshape(-1, 4)
     return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
 
 

@@ -20,11 +20,14 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from acra.hspline import HierarchyArrays, HSpline, from_arrays, from_grid, to_arrays
+from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
+from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
-from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs
+from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy
 
-__all__ = ["DeformableResult", "FramesResult", "write_output", "read_output_hierarchy"]
+__all__ = ["DISPLAY_UV", "DeformableResult", "FramesResult", "write_output", "read_output_hierarchy", "read_display_uv", "read_display_topology", "input_points"]
+
+DISPLAY_UV = "acra:display:uv"  # double2[], uniform: each display vertex's (u, v), level-0 units
 
 
 @dataclass(frozen=True)
@@ -56,9 +59,17 @@ class DeformableResult:
 
 @dataclass
 class FramesResult:
-    """Results of a run: ``frames[frame][prim path] -> DeformableResult``."""
+    """Results of a run: ``frames[frame][prim path] -> DeformableResult``, and the display
+    topology of each deformable for the whole run (``topologies[prim path]``, a
+    `acra.tessellate.GridTopology` or `MeshTopology`; where absent, the model's), which every
+    frame's ``points`` follow."""
 
     frames: dict[int, dict[str, DeformableResult]] = field(default_factory=dict)
+    topologies: dict = field(default_factory=dict)
+
+    def topology(self, model: DeformableModel):
+        """The display topology ``model``'s points follow in this run."""
+        return self.topologies.get(model.path, model.topology)
 
     def add(self, frame: int, path: str, result: DeformableResult) -> None:
         self.frames.setdefault(int(frame), {})[str(path)] = result
@@ -93,9 +104,9 @@ def _spec(prim_spec: Sdf.PrimSpec, name: str, tname: Sdf.ValueTypeName, custom: 
     return spec if spec is not None else Sdf.AttributeSpec(prim_spec, name, tname, Sdf.VariabilityVarying, custom)
 
 
-def _checked_vec3f(model: DeformableModel, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
+def _checked_vec3f(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
     """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
-    n = model.topology.u.size
+    n = topology.u.size
     a = np.asarray(a)
     if a.shape != (n, 3):
         raise ValueError(f"frame {frame}, {model.path}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
@@ -165,12 +176,12 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
         for m in models:
             if m.path not in per:
                 raise ValueError(f"frame {f}: no result for {m.path}")
-            r = per[m.path]
+            r, topo = per[m.path], frames_result.topology(m)
             if not math.isfinite(float(r.residual)):
                 raise ValueError(f"frame {f}, {m.path}: residual is not finite")
             values[f, m.path] = {
-                "points": convert((m.path, "points"), r.points, lambda: _checked_vec3f(m, f, "points", r.points)),
-                "normals": convert((m.path, "normals"), r.normals, lambda: _checked_vec3f(m, f, "normals", r.normals)),
+                "points": convert((m.path, "points"), r.points, lambda: _checked_vec3f(m, topo, f, "points", r.points)),
+                "normals": convert((m.path, "normals"), r.normals, lambda: _checked_vec3f(m, topo, f, "normals", r.normals)),
                 **convert((m.path, "state"), r.surface, lambda: _response_values(m, f, r.surface)),
                 "acra:response:residual": float(r.residual),
                 "acra:response:inCollision": bool(r.in_collision),
@@ -188,11 +199,15 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 layer.pseudoRoot.SetInfo(key, value)
         for m in models:
             prim = Sdf.CreatePrimInLayer(layer, m.path)
-            topo = m.topology
+            topo = frames_result.topology(m)
             counts = _spec(prim, "faceVertexCounts", T.IntArray, False)
-            counts.default = Vt.IntArray.FromNumpy(np.full(len(topo.quads), 4, np.int32))
+            counts.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.counts, dtype=np.int32))
             indices = _spec(prim, "faceVertexIndices", T.IntArray, False)
-            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.quads.reshape(-1), dtype=np.int32))
+            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.indices, dtype=np.int32))
+            # each display vertex's surface parameter (level-0 units), so a client evaluates any
+            # other surface of the object (the input's) at the same sites
+            sites = Sdf.AttributeSpec(prim, DISPLAY_UV, T.Double2Array, Sdf.VariabilityUniform, True)
+            sites.default = Vt.Vec2dArray.FromNumpy(np.ascontiguousarray(np.stack([topo.u, topo.v], axis=1), dtype=np.float64))
             normals = _spec(prim, "normals", T.Normal3fArray, False)
             normals.SetInfo("interpolation", UsdGeom.Tokens.vertex)
             specs = {
@@ -214,11 +229,7 @@ def read_output_hierarchy(stage: Usd.Stage, prim_path: str, t: float) -> HSpline
     if not prim:
         raise KeyError(f"no prim at {prim_path}")
     tc = Usd.TimeCode(float(t))
-    nu = int(prim.GetAttribute("acra:uCount").Get())
-    nv = int(prim.GetAttribute("acra:vCount").Get())
-    wrap = lambda n: WRAPS[str(prim.GetAttribute(n).Get() or "open")]  # noqa: E731
-    levels_attr = prim.GetAttribute("acra:levels")
-    levels = int(levels_attr.Get()) if levels_attr and levels_attr.HasAuthoredValue() else 1
+    nu, nv = _grid_size(prim)
     get = lambda n, dt, shape: np.array(prim.GetAttribute(n).Get(tc), dtype=dt).reshape(shape)  # noqa: E731
     cvs = flat_to_cvs(get("acra:response:cvs", np.float64, (-1, 3)), nu, nv)
     arrays = HierarchyArrays(
@@ -228,4 +239,52 @@ def read_output_hierarchy(stage: Usd.Stage, prim_path: str, t: float) -> HSpline
         offset_cvs=get("acra:response:offsetCvs", np.int32, (-1, 2)),
         offsets=get("acra:response:offsets", np.float64, (-1, 3)),
     )
-    return from_arrays(from_grid(cvs, wrap("acra:uWrap"), wrap("acra:vWrap"), depth=levels), arrays)
+    return from_arrays(_base(prim, cvs), arrays)
+
+
+def _grid_size(prim: Usd.Prim) -> tuple[int, int]:
+    """A deformable's level-0 grid size ``(nu, nv)``."""
+    return int(prim.GetAttribute("acra:uCount").Get()), int(prim.GetAttribute("acra:vCount").Get())
+
+
+def _base(prim: Usd.Prim, cvs: np.ndarray) -> HSpline:
+    """The level-0 surface of level-0 ``cvs (nu, nv, 3)`` on the deformable's wraps and levels."""
+    wrap = lambda n: WRAPS[str(prim.GetAttribute(n).Get() or "open")]  # noqa: E731
+    levels_attr = prim.GetAttribute("acra:levels")
+    levels = int(levels_attr.Get()) if levels_attr and levels_attr.HasAuthoredValue() else 1
+    return from_grid(cvs, wrap("acra:uWrap"), wrap("acra:vWrap"), depth=levels)
+
+
+def read_display_uv(stage: Usd.Stage, prim_path: str) -> np.ndarray:
+    """Each output display vertex's surface parameter ``(n, 2) float64`` (level-0 units), as
+    written in ``acra:display:uv``: evaluating any surface of the object there gives points on the
+    output's topology, vertex for vertex."""
+    attr = stage.GetPrimAtPath(prim_path).GetAttribute(DISPLAY_UV)
+    if not attr or not attr.HasAuthoredValue():
+        raise KeyError(f"{prim_path}: no {DISPLAY_UV}")
+    return np.asarray(attr.Get(), dtype=np.float64).reshape(-1, 2)
+
+
+def read_display_topology(stage: Usd.Stage, prim_path: str) -> MeshTopology:
+    """The output's display topology of a deformable: its ``faceVertexCounts``,
+    ``faceVertexIndices`` and each vertex's surface parameter (`read_display_uv`)."""
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath(prim_path))
+    uv = read_display_uv(stage, prim_path)
+    return MeshTopology(uv[:, 0], uv[:, 1], np.asarray(mesh.GetFaceVertexCountsAttr().Get(), np.int64),
+                        np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), np.int64))
+
+
+def input_points(stage: Usd.Stage, prim_path: str, t: float | None = None) -> np.ndarray:
+    """The animator's surface (``acra:cvs`` at time code ``t``, the default value if ``None``,
+    with the ``acra:hierarchy:*`` offsets) at the output's display vertices (`read_display_uv`),
+    rounded to float32 as a layer stores points: ``(n, 3) float64``, vertex for vertex comparable
+    with the output's ``points`` however the run refined the display. ``stage`` is the output
+    layer's stage (the input shows through it)."""
+    prim = stage.GetPrimAtPath(prim_path)
+    topology = read_display_topology(stage, prim_path)
+    tc = Usd.TimeCode.Default() if t is None else Usd.TimeCode(float(t))
+    cvs = flat_to_cvs(np.asarray(prim.GetAttribute("acra:cvs").Get(tc), np.float64), *_grid_size(prim))
+    surface = from_arrays(_base(prim, cvs), read_hierarchy(prim))
+    det = details(surface) if surface.depth > 1 else None
+    points, _ = grid_samples(surface, topology, det)
+    return points.astype(np.float32).astype(np.float64)

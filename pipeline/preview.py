@@ -125,13 +125,14 @@ def moved_colours(moved: np.ndarray, size: float, own=DEFORMABLE_COLOUR) -> np.n
     return out
 
 
-def keyframed_points(surface: HSpline, model: DeformableModel) -> np.ndarray:
-    """The key-framed surface on the run's display tessellation, ``(n, 3) float32`` object space.
+def keyframed_points(surface: HSpline, model: DeformableModel, topology=None) -> np.ndarray:
+    """The key-framed surface on the run's display tessellation ``topology`` (default: the
+    model's), ``(n, 3) float32`` object space.
 
-    The same evaluation (`acra.tessellate.grid_samples` on ``model.topology``) that gives the
-    output's points, so an untouched vertex compares equal bit for bit.
+    The same evaluation (`acra.tessellate.grid_samples`) that gives the output's points, so an
+    untouched vertex compares equal bit for bit.
     """
-    return np.asarray(grid_samples(surface, model.topology)[0], dtype=np.float32)
+    return np.asarray(grid_samples(surface, model.topology if topology is None else topology)[0], dtype=np.float32)
 
 
 def absorbed_by_level(keyframed: HSpline, responded: HSpline) -> np.ndarray:

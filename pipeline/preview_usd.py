@@ -6,8 +6,8 @@ recording shows is what the user opens: at every frame that holds ``acra:respons
 samples, each deformable's composed ``points`` and ``normals`` on the layer's own topology
 (``faceVertexCounts``/``faceVertexIndices``, fan-triangulated), the world transforms, the
 ``acra:response:*`` state (residual, in-collision, and the hierarchy for `preview.absorbed_by_level`)
-and the key-framed shape evaluated from the input's ``acra:`` attributes on the run's display
-tessellation (`preview.keyframed_points`). The entities and frames equal those a run logs with
+and the key-framed shape evaluated from the input's ``acra:`` attributes at the run's display
+vertices (``acra:display:uv``, `preview.keyframed_points`). The entities and frames equal those a run logs with
 ``--rrd``, minus `preview.RUN_ONLY` (contacts, data points, region, rounds, timings, residual as a
 fraction of size), which only a run knows.
 
@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdGeom
 
+from acra.tessellate import MeshTopology
 from pipeline import preview, usdio
 from pipeline import output_layer
 from pipeline.model import InputError
@@ -34,12 +35,8 @@ __all__ = ["triangulate", "output_frames", "build", "check_rrd_path", "preview_f
 def triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
     """Fan triangles ``(f, 3) int64`` of polygons ``counts (p,)`` over ``indices (sum counts,)``
     (a quad ``a b c d`` gives ``a b c``, ``a c d``, as `acra.tessellate.GridTopology.triangles`)."""
-    counts = np.asarray(counts, np.int64)
-    indices = np.asarray(indices, np.int64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    firsts = np.repeat(starts, np.maximum(counts - 2, 0))
-    within = np.concatenate([np.arange(1, c - 1) for c in counts]) if len(counts) else np.zeros(0, np.int64)
-    return np.stack([indices[firsts], indices[firsts + within], indices[firsts + within + 1]], axis=1)
+    empty = np.zeros(0, np.float64)
+    return MeshTopology(empty, empty, np.asarray(counts, np.int64), np.asarray(indices, np.int64)).triangles()
 
 
 def output_frames(stage: Usd.Stage, paths: list[str], where: str) -> list[int]:
@@ -77,10 +74,13 @@ def build(output: Path, spawn: bool = False) -> preview.Recording:
     if not scene.deformables:
         raise InputError(str(output), None, "holds no deformable object (a Mesh with acra:cvs)")
     frames = output_frames(stage, [m.path for m in scene.deformables], str(output))
-    triangles = {}
+    triangles, topologies = {}, {}
     for m in scene.deformables:
-        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(m.path))
-        triangles[m.path] = triangulate(mesh.GetFaceVertexCountsAttr().Get(), mesh.GetFaceVertexIndicesAttr().Get())
+        try:
+            topologies[m.path] = output_layer.read_display_topology(stage, m.path)  # the run's display sites
+        except KeyError:
+            raise InputError(m.path, output_layer.DISPLAY_UV, "is missing: the layer was not written by this version of `acra run`") from None
+        triangles[m.path] = topologies[m.path].triangles()
     recording = preview.Recording(scene, output.name.split(".")[0], triangles, spawn)
     keyed_cache: dict = {}
     for f in frames:
@@ -92,7 +92,7 @@ def build(output: Path, spawn: bool = False) -> preview.Recording:
             mesh = UsdGeom.Mesh(prim)
             hit = keyed_cache.get(m.path)
             if hit is None or not np.array_equal(hit[0], s.surface.cvs):
-                hit = keyed_cache[m.path] = (s.surface.cvs, preview.keyframed_points(s.surface, m))
+                hit = keyed_cache[m.path] = (s.surface.cvs, preview.keyframed_points(s.surface, m, topologies[m.path]))
             responded = output_layer.read_output_hierarchy(stage, m.path, float(f))
             objects.append(preview.ObjectFrame(
                 m.path, np.asarray(mesh.GetPointsAttr().Get(tc), np.float32), np.asarray(mesh.GetNormalsAttr().Get(tc), np.float32),

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdGeom, UsdPhysics
 
+from pipeline import output_layer
+
 __all__ = ["World", "world_meshes", "deepest_frame", "render", "main"]
 
 
@@ -37,14 +39,9 @@ def _triangles(mesh: UsdGeom.Mesh) -> np.ndarray:
     return np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)
 
 
-def _input_stage(output: Path) -> Usd.Stage:
-    layer = Usd.Stage.Open(str(output)).GetRootLayer()
-    return Usd.Stage.Open(layer.ComputeAbsolutePath(layer.subLayerPaths[0]))
-
-
 def world_meshes(output: Path, frame: float) -> list[World]:
     """Every deformable (``acra:cvs``) and collider (``PhysicsCollisionAPI``) Mesh at ``frame``."""
-    out, inp = Usd.Stage.Open(str(output)), _input_stage(output)
+    out = Usd.Stage.Open(str(output))
     tc, meshes = Usd.TimeCode(frame), []
     for prim in out.Traverse():
         if not prim.IsA(UsdGeom.Mesh):
@@ -54,10 +51,11 @@ def world_meshes(output: Path, frame: float) -> list[World]:
             continue
         mesh = UsdGeom.Mesh(prim)
         local = np.asarray(mesh.GetPointsAttr().Get(tc), np.float64)
-        before = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(prim.GetPath())).GetPointsAttr().Get(tc), np.float64)
         m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc), np.float64).T  # column convention
         world = local @ m[:3, :3].T + m[:3, 3]
-        moved = np.linalg.norm(local - before, axis=1) if deformable and before.shape == local.shape else np.zeros(len(local))
+        moved = np.zeros(len(local))
+        if deformable:  # the animator's surface at the same display vertices (`output_layer.input_points`)
+            moved = np.linalg.norm(local - output_layer.input_points(out, str(prim.GetPath()), frame), axis=1)
         meshes.append(World(str(prim.GetPath()), world, _triangles(mesh), moved, deformable))
     return meshes
 

@@ -87,10 +87,11 @@ def run(stage: Usd.Stage, tmp_path: Path, name: str, **options) -> Run:
     frames = {}
     for k, model in enumerate(report.scene.deformables):
         per = {}
+        shown = output_layer.read_display_topology(sout, model.path)
         for st in report.stats:
             state = usdio.state_at(sin, report.scene, st.frame)[0][k]
             det = H.details(state.surface) if state.surface.depth > 1 else None
-            p_in = evaluate_grid(state.surface, model.topology, det)[0]
+            p_in = evaluate_grid(state.surface, shown, det)[0]  # the animator's at the output's vertices
             p_out = np.asarray(UsdGeom.Mesh(sout.GetPrimAtPath(model.path)).GetPointsAttr().Get(st.frame), np.float64)
             hs_out = output_layer.read_output_hierarchy(sout, model.path, st.frame)
             per[st.frame] = Frame(p_in, p_out, state.surface, hs_out, state.xform)

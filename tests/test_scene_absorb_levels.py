@@ -9,6 +9,7 @@ far the disturbance spreads beyond it.
 import numpy as np
 import pytest
 from pxr import Gf, Usd, UsdGeom
+from pipeline import output_layer
 
 FINE, COARSE = "Levels123", "Levels12"
 RADIUS = 0.45  # the scene's balls
@@ -32,7 +33,7 @@ def _dents(report):
     dents = {}
     for name in (FINE, COARSE):
         mesh = f"/World/{name}/Sheet"
-        p0 = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(mesh)).GetPointsAttr().Get())
+        p0 = output_layer.input_points(out, mesh)  # the animator's rest surface at the output's display vertices
         p1 = np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(mesh)).GetPointsAttr().Get(deepest))
         r = np.linalg.norm(p0[:, :2] - _ball(inp, name, deepest)[:2], axis=1)
         dents[name] = (r, p1 - p0)

@@ -10,6 +10,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from acra import volume
+from pipeline import output_layer
 
 BALLOON, BALL = "/World/Balloon", "/World/Ball"
 
@@ -18,15 +19,13 @@ BALLOON, BALL = "/World/Balloon", "/World/Ball"
 def ratios(run_scene):
     """Per object, ``{frame: output volume / input volume}``; and the report."""
     report = run_scene("balloon")
-    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
-    inp, out = Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+    out = Usd.Stage.Open(str(report.output))  # the input shows through it
     got = {}
     for m in report.scene.deformables:
-        tris = volume.triangles(m.topology)
-        pts = lambda stage, f=None: np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath(m.path)).GetPointsAttr().Get(  # noqa: E731
-            Usd.TimeCode.Default() if f is None else f), dtype=np.float64)
-        rest = volume.enclosed_volume(pts(inp), tris)
-        got[m.path] = {s.frame: volume.enclosed_volume(pts(out, s.frame), tris) / rest for s in report.stats}
+        tris = volume.triangles(output_layer.read_display_topology(out, m.path))  # what the user sees
+        rest = volume.enclosed_volume(output_layer.input_points(out, m.path), tris)  # the animator's, same vertices
+        pts = lambda f: np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(m.path)).GetPointsAttr().Get(f), dtype=np.float64)  # noqa: E731
+        got[m.path] = {s.frame: volume.enclosed_volume(pts(s.frame), tris) / rest for s in report.stats}
     return got, report
 
 

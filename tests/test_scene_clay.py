@@ -25,7 +25,7 @@ def run(run_scene):
 
 def _dent(inp, out, path, frame):
     """Display points less the animator's: ``(n, 3) float64``."""
-    rest = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(path)).GetPointsAttr().Get(), dtype=np.float64)
+    rest = output_layer.input_points(out, path)  # the animator's surface at the output's display vertices
     return np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(path)).GetPointsAttr().Get(frame), dtype=np.float64) - rest
 
 

@@ -7,6 +7,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from acra import volume
+from pipeline import output_layer
 
 DRUM, CLOTH = "/World/Drum", "/World/Cloth"
 
@@ -14,12 +15,11 @@ DRUM, CLOTH = "/World/Drum", "/World/Cloth"
 @pytest.fixture(scope="module")
 def run(run_scene):
     report = run_scene("drum")
-    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
-    inp, out = Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+    out = Usd.Stage.Open(str(report.output))  # the input shows through it
     ratios, moves = {}, {}
     for m in report.scene.deformables:
-        tris = volume.triangles(m.topology)
-        rest = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(m.path)).GetPointsAttr().Get(), dtype=np.float64)
+        tris = volume.triangles(output_layer.read_display_topology(out, m.path))  # what the user sees
+        rest = output_layer.input_points(out, m.path)  # the animator's surface at the same vertices
         pts = {s.frame: np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(m.path)).GetPointsAttr().Get(s.frame), dtype=np.float64)
                for s in report.stats}
         ratios[m.path] = {f: volume.surface_area(p, tris) / volume.surface_area(rest, tris) for f, p in pts.items()}

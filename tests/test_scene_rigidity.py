@@ -8,6 +8,7 @@ their displacements are in the ratio ``R2 : R1``, and they add up to the gap.
 import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
+from pipeline import output_layer
 
 FLOOR, PILLOW = "/World/Floor", "/World/Mover/Pillow"
 
@@ -26,7 +27,7 @@ def _deepest(report):
 
 def _max_move(inp, out, path, frame) -> float:
     """Largest distance of an output display point (object space) from the input's rest point."""
-    p0 = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(path)).GetPointsAttr().Get())
+    p0 = output_layer.input_points(out, path)  # the animator's rest surface at the output's display vertices
     p1 = np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(path)).GetPointsAttr().Get(frame))
     return float(np.linalg.norm(p1 - p0, axis=1).max())
 

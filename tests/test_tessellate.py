@@ -183,3 +183,26 @@ def test_run_topology_holds_every_surface_s_vertices():
     for s in (hs, other):
         one = T.adaptive_topology(s.u, s.v, 3, T.finest_levels(s))
         assert set(zip(one.u, one.v)) <= have
+
+
+def test_run_topology_equals_the_dense_map_and_scales_with_the_refined_area():
+    """`run_topology` builds from the active patches alone: the same mesh, vertex for vertex and
+    face for face, as `adaptive_topology` of the union of the surfaces' `finest_levels`; and a
+    12-level sheet refined about one CV (a dense level-11 map would hold 5.2e7 entries) gets a
+    mesh of a few hundred vertices."""
+    hs = with_random_offsets(H.make_movable(wavy_sheet(depth=3), 2, [[6, 6]]))
+    other = H.make_movable(wavy_sheet(depth=3), 1, [[1, 1]])
+    run = T.run_topology([hs, other], 3)
+    dense = T.adaptive_topology(hs.u, hs.v, 3, np.maximum(T.finest_levels(hs), T.finest_levels(other)))
+    for name in ("u", "v", "counts", "indices"):
+        np.testing.assert_array_equal(getattr(run, name), getattr(dense, name))
+    deep = H.make_movable(wavy_sheet(depth=12), 11, [[3, 3]])
+    topo = T.run_topology([deep], 2)
+    assert topo.u.max() == deep.u.patches0 and topo.u.size < 1000, topo.u.size  # measured 543
+
+
+def test_mesh_triangles_fan_face_by_face_as_a_usd_client():
+    """Each face's triangles are consecutive, fanned from its first vertex (``a b c``, ``a c d``
+    for a quad), as a USD client triangulates ``faceVertexCounts``/``faceVertexIndices``."""
+    topo = T.MeshTopology(np.zeros(7), np.zeros(7), np.array([4, 3, 5]), np.array([0, 1, 2, 3, 4, 5, 6, 0, 2, 4, 6, 1]))
+    np.testing.assert_array_equal(topo.triangles(), [[0, 1, 2], [0, 2, 3], [4, 5, 6], [0, 2, 4], [0, 4, 6], [0, 6, 1]])

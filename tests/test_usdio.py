@@ -240,7 +240,7 @@ def test_output_composes_validates_and_holds_only_overs(scene_file, tmp_path):
     assert list(layer.subLayerPaths) == ["../in.usda"]
     specs = []
     layer.Traverse(layer.pseudoRoot.path, specs.append)
-    allowed = {"points", "normals", "faceVertexCounts", "faceVertexIndices", *U.RESPONSE_TYPES}
+    allowed = {"points", "normals", "faceVertexCounts", "faceVertexIndices", output_layer.DISPLAY_UV, *U.RESPONSE_TYPES}
     for path in specs:
         if path.IsPrimPath():
             assert layer.GetPrimAtPath(path).specifier == Sdf.SpecifierOver, path
@@ -260,6 +260,21 @@ def test_output_composes_validates_and_holds_only_overs(scene_file, tmp_path):
         np.testing.assert_array_equal(np.asarray(mesh.GetNormalsAttr().Get(f)), res.frames[f][SHEET].normals.astype(np.float32))
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get())
     assert counts.sum() == np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).size
+    # each display vertex's surface parameter, written once: the input surface evaluated there is
+    # the input's display on the output's topology, vertex for vertex
+    (m,) = scene.deformables
+    uv = output_layer.read_display_uv(ostage, SHEET)
+    np.testing.assert_array_equal(uv, np.stack([m.topology.u, m.topology.v], axis=1))
+    assert ostage.GetPrimAtPath(SHEET).GetAttribute(output_layer.DISPLAY_UV).GetVariability() == Sdf.VariabilityUniform
+    assert not ostage.GetPrimAtPath(SHEET).GetAttribute(output_layer.DISPLAY_UV).GetNumTimeSamples()
+    surface = U.state_at(stage, scene, 2)[0][0].surface
+    at_sites, _ = evaluate_grid(surface, output_layer.FramesResult().topology(m))
+    np.testing.assert_allclose(H.evaluate(surface, uv[:, 0], uv[:, 1], det=H.details(surface)).points, at_sites, rtol=0, atol=1e-14)
+    # the animator's rest surface at the output's vertices is the input's rest display (authored
+    # from the CVs before they were stored as float32: the same to float32 precision)
+    rest = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath(SHEET)).GetPointsAttr().Get(), np.float64)
+    np.testing.assert_allclose(output_layer.input_points(ostage, SHEET), rest, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(output_layer.read_display_topology(ostage, SHEET).indices, m.topology.indices)
     # transforms are untouched at every frame and between frames
     for prim in stage.Traverse():
         if prim.IsA(UsdGeom.Xformable):
