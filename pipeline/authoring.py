@@ -26,9 +26,9 @@ Three layers, each usable alone:
   CVs there along their local normals, so an animator never handles CV indices or Greville
   abscissae; `spike_offsets` and `spike_positions` read a spike back;
 * **stage** (`new_stage`, `add_surface` / `add_deformable`, `add_collider`, `key_transform`,
-  `key_translate`, `key_cvs`, `key_enabled`, `save`) authors the contract's prims and keys;
-  `add_skinned_arm` authors a skinned two-bone arm whose elbow follows per-frame angles, and
-  `keyed_values` samples keys through an interpolation or easing curve at given frames.
+  `key_translate`, `key_rotate`, `key_cvs`, `key_enabled`, `save`) authors the contract's prims
+  and keys; `add_skinned_arm` authors a skinned two-bone arm whose elbow follows per-frame angles,
+  and `keyed_values` samples keys through an interpolation or easing curve at given frames.
 
 Every deformable gets its rest display tessellation (points, normals, topology) so the stage is
 viewable before any response; `key_cvs` keys that preview along with the CVs. No ``extent`` is
@@ -52,7 +52,7 @@ from acra.tessellate import GridTopology, display_topology, evaluate_grid
 
 from .animation import curves
 from .animation.skinning import ArmRig, arm_pose, arm_rig, bent_arm
-from .animation.usdkeys import key_translate
+from .animation.usdkeys import key_rotate, key_translate
 from .animation.usdrig import write_cvs_samples, write_skeleton
 from .usdio import WRAPS, cvs_to_flat, export_layer, read_hierarchy
 
@@ -73,6 +73,7 @@ __all__ = [
     "new_stage",
     "add_surface",
     "key_translate",
+    "key_rotate",
     "add_xform",
     "add_deformable",
     "key_cvs",

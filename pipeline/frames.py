@@ -630,7 +630,7 @@ class _Run:
             other_path = defs[other[1]].path if other[0] == "d" else self.scene.colliders[other[1]].path
             rnd.pair_rel[defs[i].path, other_path] = c.penetration / size
             meet = rnd.settled[key] = max(options.tolerance, MEET) * size
-            if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.point_b - c.point_a) <= meet:
+            if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.push) <= meet:
                 c = _deepest_instead(geoms[i], gb, c)
             if c.penetration > options.tolerance * size or it == 0:
                 rnd.found.append((i, other, c))
@@ -649,13 +649,13 @@ class _Run:
             r_other = None if other[0] == "c" or not enabled[other[1]] else controls[other[1]].rigidity
             if enabled[i]:
                 share = R.rigidity_share(controls[i].rigidity, r_other)
-                push = directions.setdefault((i, other), c.point_b - c.point_a)
+                push = directions.setdefault((i, other), c.push)
                 # a collider with vertices inside a closed surface: the wall in front of it is pushed
                 # past it along the push, its own region included (`collider_points_for`); every
                 # later round of the frame does the same, so the pocket keeps its direction
                 wrap = other[0] == "c" and (not c.region_b.empty or (i, other) in wrapping)
                 clear = rnd.settled[(i, other)] if wrap else 0.0
-                p_other = c.point_b + clear * push / max(np.linalg.norm(push), 1e-300)
+                p_other = (c.point_b + c.slide) + clear * push / max(np.linalg.norm(push), 1e-300)
                 dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, p_other, None if wrap else c.region_a.uv,
                                                    share, _group_level(controls[i], surfaces[i].depth), push,
                                                    c.region_a.depth, rnd.settled[(i, other)])
@@ -672,8 +672,8 @@ class _Run:
             if other[0] == "d" and enabled[other[1]]:
                 j = other[1]
                 share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
-                push = -directions.setdefault((i, other), c.point_b - c.point_a)
-                dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a, c.region_b.uv, share,
+                push = -directions.setdefault((i, other), c.push)
+                dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a - c.slide, c.region_b.uv, share,
                                                    _group_level(controls[j], surfaces[j].depth), push,
                                                    c.region_b.depth, rnd.settled[(i, other)])
                 points.setdefault(j, []).append((dp, world, start))

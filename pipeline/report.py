@@ -65,14 +65,16 @@ def _median(xs) -> float:
 
 
 def summary_line(stats, ms_write: float, seconds: float, output) -> str:
-    """One line: frames, frames in collision, the largest residual, median ms per frame per stage,
-    writing time per frame, total seconds and the output path."""
+    """One line: frames, frames in collision, the largest residual, the most detect → respond
+    rounds any frame took, median ms per frame per stage, writing time per frame, total seconds
+    and the output path."""
     hit = [s for s in stats if s.in_collision]
     worst = max((float(s.residual_rel) for s in stats), default=0.0, key=lambda r: math.inf if math.isnan(r) else r)
+    rounds = max((int(s.iterations) for s in stats), default=0)
     n = len(stats)
     return (
         f"acra: {n} frames, {len(hit)} in collision; largest residual penetration "
-        f"{worst:.2e} of object size; median ms per frame: detection {_median([s.ms_detect for s in stats]):.1f}, "
+        f"{worst:.2e} of object size; at most {rounds} round{'s' if rounds != 1 else ''} a frame; median ms per frame: detection {_median([s.ms_detect for s in stats]):.1f}, "
         f"response {_median([s.ms_respond for s in stats]):.1f}, writing {ms_write / max(1, n):.1f}; "
         f"total {seconds:.2f} s -> {output}"
     )

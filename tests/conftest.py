@@ -174,3 +174,38 @@ def tiny_stage(tmp_path):
         return write_tiny_stage(tmp_path / name, **kw)
 
     return make
+
+
+# --- what a response moved: the animator's surface against the output layer's --------------------
+
+
+def surface_moves(report, path: str, frame: int, steps: int = 8):
+    """The deformable ``path`` at ``frame`` of a finished run: world points ``(m, 3) float64`` of
+    the animator's surface on a grid of ``steps`` per level-0 patch edge, their parameters
+    ``(m, 2) float64``, and each one's world move ``(m, 3) float64`` to the responded surface (the
+    output layer's ``acra:response:*``, double precision) at the same parameters."""
+    from pxr import Usd
+
+    from acra import hspline
+    from pipeline import output_layer, usdio
+    from pipeline.model import apply_xform
+
+    src, out = Usd.Stage.Open(str(report.stage_path)), Usd.Stage.Open(str(report.output))
+    k = [m.path for m in report.scene.deformables].index(path)
+    state = usdio.state_at(src, report.scene, frame)[0][k]
+    after = output_layer.read_output_hierarchy(out, path, frame)
+    axes = [np.arange(d.patches0 * steps + (0 if d.periodic else 1)) / steps for d in (after.u, after.v)]
+    uv = np.stack([a.ravel() for a in np.meshgrid(*axes, indexing="ij")], axis=1)
+    world = [apply_xform(state.xform, hspline.evaluate(hs, uv[:, 0], uv[:, 1], det=hspline.details(hs)).points)
+             for hs in (state.surface, after)]
+    return world[0], uv, world[1] - world[0]
+
+
+def deepest_move(report, path: str, frame: int):
+    """Where a response moved the deformable ``path`` most at ``frame`` (`surface_moves`): that
+    point's world position ``(3,)`` and parameters ``(2,)``, its move's length, and the largest
+    move along world x or y of any point (0 for a press straight down)."""
+    p, uv, d = surface_moves(report, path, frame)
+    move = np.linalg.norm(d, axis=1)
+    k = int(np.argmax(move))
+    return p[k], uv[k], float(move[k]), float(np.abs(d[:, :2]).max())

@@ -163,3 +163,45 @@ def test_coplanar_face_on_the_sheet_gives_finite_output(rewind):
     assert_finite(c)
     assert c.depth <= 1e-12 and c.intersections.count > 0
     assert abs(c.point_a[2]) < 1e-12 and abs(c.point_b[2]) < 1e-12
+
+
+def _turning_sheet(turn_per_frame: float, sink_per_frame: float):
+    """A 7-unit sheet that turns about z by ``turn_per_frame`` radians a frame from t = 10 and a
+    box (half size 0.5) over (1.5, 0) whose bottom face, 0.01 above the sheet at t = 9, sinks
+    ``sink_per_frame`` a frame."""
+    hs = H.from_grid(*shapes.sheet(10, 10, width=7.0, depth=7.0))
+    collider = box(0.5)
+
+    def geometry_at(t):
+        a = turn_per_frame * max(t - 10.0, 0.0)
+        turn = np.eye(4)
+        turn[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+        z = 0.5 + 0.01 - sink_per_frame * (t - 9.0)
+        return D.SurfaceGeometry(hs, turn, "/sheet"), D.ColliderGeometry(collider, move(1.5, 0.0, z))
+
+    return geometry_at
+
+
+def test_a_contact_that_slides_along_the_sheet_pushes_along_the_press():
+    """The sheet turns 0.1 rad a frame under a box that sinks 0.05 a frame, first touching at
+    t = 9.2: by t = 12 the sheet's first-touch point has turned about 0.3 along the sheet (0.2 rad
+    on a circle of radius ~1.5) while the box went 0.14 in. That slide is the sheet's own motion along itself: `PairContact.slide` takes it
+    out of ``P_B - P_A``, so the push is the press alone, straight down by the depth along."""
+    geometry_at = _turning_sheet(0.1, 0.05)
+    c = C.detect_pair(*geometry_at(12.0), 12.0, geometry_at, start=0.0)
+    assert c is not None and c.rewound
+    assert np.linalg.norm((c.point_b - c.point_a)[:2]) > 0.25
+    assert abs(c.slide[2]) < 1e-12 and np.linalg.norm(c.slide) > 2.0 * c.depth_along
+    np.testing.assert_allclose(c.push, [0.0, 0.0, -c.depth_along], atol=1e-9)
+    assert c.depth_along == pytest.approx(0.05 * 3.0 - 0.01, abs=1e-12)  # the bottom face 0.14 under the sheet
+
+
+def test_a_contact_that_goes_in_farther_than_it_slides_keeps_the_first_touch_pair():
+    """The same sheet turning 0.01 rad a frame under a box sinking 0.1: the slide (about 0.03) is
+    less than the press (about 0.2), so the first-touch points are paired as they are (slide
+    exactly 0, push exactly ``P_B - P_A``)."""
+    geometry_at = _turning_sheet(0.01, 0.1)
+    c = C.detect_pair(*geometry_at(12.0), 12.0, geometry_at, start=0.0)
+    assert c is not None and c.rewound and c.depth_along > 0.1
+    assert not np.any(c.slide)
+    np.testing.assert_array_equal(c.push, c.point_b - c.point_a)

@@ -20,6 +20,7 @@ repros are in docs/hard-cases.md.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +30,7 @@ import pytest
 import trimesh
 from pxr import Usd, UsdGeom
 
+from acceptance import visible
 from acra import hspline as H
 from acra import shapes
 from acra.tessellate import evaluate_grid
@@ -94,7 +96,56 @@ def run(stage: Usd.Stage, tmp_path: Path, name: str, **options) -> Run:
             hs_out = output_layer.read_output_hierarchy(sout, model.path, st.frame)
             per[st.frame] = Frame(p_in, p_out, state.surface, hs_out, state.xform)
         frames[model.path] = per
+    _check_visible(name, report, options.get("tolerance", TOL))
     return Run(report, src, frames)
+
+
+# --- the independent measure of every run (acceptance.visible) -----------------------------------
+#: runs whose output the measure does not pass, with the first fault and the count: a strict
+#: expected failure that lets the case's own assertions run (a run listed here that passes fails
+#: its test, so the entry goes when the cause is fixed). All but ``obey`` fail while the display
+#: is the uniform grid of ``acra:samples`` steps per level-0 patch and the residual is measured at
+#: detection's samples (issue 17: the display that shows every level and the residual as the user
+#: sees it come from the ``vis2`` work).
+VISIBLE_KNOWN: dict[str, str] = {
+    "grazing_0.001": "frame 2: reported 1.00e-06 under the measured 1.40e-06 (2 faults)",
+    "half_flat": "frame 1: reported 2.54e-04 under the measured 9.47e-04 (1 fault)",
+    "half_cube": "frame 1: measured 2.68e-03 of size, over 1e-03 (2 faults)",
+    "half_ball": "frame 2: measured 1.09e-03 of size, over 1e-03 (2 faults)",
+    "rigidity_1_100": "frame 3: reported 6.61e-04 under the measured 7.37e-04 (1 fault)",
+    "rigidity_100_100": "frame 3: reported 6.47e-04 under the measured 7.20e-04 (1 fault)",
+    "obey": "the documented remainder (absorption left on an unrefined level): frame 2: measured 1.18e-02 of size, over 1e-03 (4 faults)",
+    "refine": "frame 2: measured 1.48e-03 of size, over 1e-03 (4 faults)",
+    "scale_1": "frame 2: reported 3.27e-04 under the measured 4.46e-04 (2 faults)",
+    "scale_1000": "frame 2: reported 3.27e-04 under the measured 4.46e-04 (2 faults)",
+    "scale_0.001": "frame 2: reported 3.27e-04 under the measured 4.46e-04 (2 faults)",
+    "jumps": "frame 3: measured 2.39e-03 of size, over 1e-03 (4 faults)",
+    "jumps_through": "frame 3: measured 2.39e-03 of size, over 1e-03 (4 faults)",
+    "fan_fine": "frame 2: measured 2.38e-03 of size, over 1e-03 (4 faults)",
+    "fan_levels": "frame 2: reported 2.37e-04 under the measured 3.66e-04 (2 faults)",
+}
+
+
+def _check_visible(name: str, report, tol: float) -> None:
+    """Measure the run's output layer where the user looks (`acceptance.visible`: display vertices
+    and triangle samples inside other objects, no code of `pipeline` or `acra`) at every frame
+    and hold it against the reported residual (`acceptance.visible.disagreements`). With
+    ``ACRA_VISIBLE_TABLE=FILE`` set, each run adds a Markdown row to ``FILE``."""
+    measures = visible.measure_layer(report.output, [s.frame for s in report.stats])
+    measured = visible.worst_by_frame(measures)
+    reported = {s.frame: float(s.residual_rel) for s in report.stats}
+    problems = visible.disagreements(reported, measured, tol)
+    table = os.environ.get("ACRA_VISIBLE_TABLE")
+    if table:
+        frame = max(measured, key=lambda f: (measured[f], -f))
+        vert = max(m.vertices for m in measures if m.frame == frame) if measures else 0.0
+        with open(table, "a", encoding="utf-8") as fh:
+            fh.write(f"| {name} | {frame} | {reported[frame]:.2e} | {vert:.2e} | {measured[frame]:.2e} | "
+                     f"{max(s.iterations for s in report.stats)} | {len(problems)} |\n")
+    if name in VISIBLE_KNOWN:
+        assert problems, f"{name} is now clear where the user looks: remove it from VISIBLE_KNOWN"
+    else:
+        assert problems == [], f"{name}: " + "; ".join(problems)
 
 
 def _grid(hs: H.HSpline, per: int) -> tuple[np.ndarray, tuple[int, int]]:

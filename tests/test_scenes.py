@@ -10,6 +10,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from conftest import scene_names
+from pipeline.frames import RunOptions
 
 
 @pytest.mark.parametrize("name", scene_names())
@@ -19,6 +20,15 @@ def test_scene_is_cleared_at_every_frame(run_scene, name):
     worst = max(report.stats, key=lambda s: s.residual_rel)
     assert worst.residual_rel <= 1e-3, f"frame {worst.frame}: residual {worst.residual_rel:.2e} of size"
     assert any(s.in_collision for s in report.stats), "the scene never collides"
+
+
+@pytest.mark.parametrize("name", scene_names())
+def test_scene_clears_within_the_round_cap_and_exits_0(run_scene, name):
+    """No frame over tolerance after at most the default cap of detect → respond rounds, so
+    `acra run` exits 0 (contract §3: a frame left over tolerance exits 3)."""
+    report = run_scene(name)
+    assert max(s.iterations for s in report.stats) <= RunOptions().iterations
+    assert report.over == [] and report.status == 0
 
 
 @pytest.mark.parametrize("name", scene_names())

@@ -1,220 +1,25 @@
-"""What the user sees: each output layer read back with USD and measured with trimesh alone.
+"""The independent measure of what the user sees (`acceptance.visible`): checked on stages whose
+answer is known exactly, then applied to every frame of every scene in ``scenes/``.
 
-Nothing here imports `pipeline` or `acra` (the scene runs come from the session fixtures of
-``conftest.py``, which run ``acra run``): the measure must not share a bug with what it measures.
-Per frame, each deformable's composed display mesh (its ``points`` and face arrays as a USD client
-reads them, in world space through ``UsdGeom.Xformable.ComputeLocalToWorldTransform``) is welded,
-its zero-area faces dropped, and, for a closed object (every direction periodic or collapsed at
-both ends), checked watertight; a closed object that is not is an error, never "nothing inside".
-The depth of its display vertices and of points on a barycentric grid inside each triangle
-(`STEPS` steps per edge) inside every other closed object (other deformables' display meshes,
-colliders' meshes) is taken as the exact distance to that object's surface (fcl), as a fraction of
-the diagonal of the bounding box of the object's own display mesh at that frame.
-
-``python benchmarks/visible.py`` prints the same measure as a table.
+Nothing here imports `pipeline` or `acra` (the scene runs come from the session fixture
+``run_scene`` of ``conftest.py``, which runs each scene once as ``acra run`` does): the measure
+must not share a bug with what it measures. Each scene's output layer is measured at every frame
+and compared with the residual the run reported (`acceptance.visible.disagreements`: the measure
+within 1e-3 of the object's own size, the report never under it and at most 3 times it, or within
+the tolerance). The hard cases are measured the same way in ``tests/test_hard_cases.py``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import fcl
 import numpy as np
 import pytest
 import trimesh
-from pxr import Usd, UsdGeom, UsdPhysics
+from pxr import Sdf, Usd, UsdGeom, UsdPhysics
 
-STEPS = 4  # barycentric steps per triangle edge (the issue asks at least 4)
-TOL = 1e-3  # contract §3: residual penetration as a fraction of the object's own size
-
-
-# --- reading what a USD client reads ------------------------------------------------------------
-def _world_matrix(prim: Usd.Prim, frame: float) -> np.ndarray:
-    """Object-to-world ``(4, 4) float64`` in column-vector convention (USD stores row vectors)."""
-    return np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode(frame)), np.float64).T
-
-
-def _triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Faces ``counts (f,) int`` over ``indices (sum counts,) int`` as a fan from each face's
-    first vertex, as USD's own triangulation does: ``(t, 3) int64``."""
-    tris = []
-    for n in np.unique(counts):
-        starts = np.cumsum(np.r_[0, counts[:-1]])[counts == n]
-        for k in range(1, n - 1):
-            tris.append((starts, starts + k, starts + k + 1))
-    if not tris:
-        return np.zeros((0, 3), np.int64)
-    rows = np.concatenate([np.stack(t, axis=1) for t in tris])
-    return indices[rows].astype(np.int64)
-
-
-def _weld(points: np.ndarray, triangles: np.ndarray, scale: float) -> trimesh.Trimesh:
-    """A trimesh of ``points (n, 3)`` / ``triangles (t, 3)``, vertices closer than ``1e-7 scale``
-    welded (float32 output points of one surface point evaluated at two parameters, a seam or a
-    pole, differ in the last bits), zero-area faces dropped."""
-    q = np.round(points / max(scale * 1e-7, 1e-300)).astype(np.int64)
-    _, first, inverse = np.unique(q, axis=0, return_index=True, return_inverse=True)
-    tri = inverse.reshape(-1)[triangles]
-    mesh = trimesh.Trimesh(points[first], tri, process=False)
-    mesh.update_faces(mesh.nondegenerate_faces(height=1e-9 * scale))
-    mesh.update_faces(mesh.unique_faces())
-    mesh.remove_unreferenced_vertices()
-    return mesh
-
-
-def _closed_by_cvs(prim: Usd.Prim, frame: float, cvs_attr: str) -> bool:
-    """Whether the H-spline is closed: each direction periodic or with both end curves collapsed
-    to a point (a pole), at least one periodic. A uniform cubic B-spline's end curve at an open
-    end is the spline of ``(P0 + 4 P1 + P2) / 6`` over the first three rows."""
-    nu = int(prim.GetAttribute("acra:uCount").Get())
-    nv = int(prim.GetAttribute("acra:vCount").Get())
-    wrap = [str(prim.GetAttribute(n).Get() or "open") == "periodic" for n in ("acra:uWrap", "acra:vWrap")]
-    if not any(wrap):
-        return False
-    attr = prim.GetAttribute(cvs_attr)
-    if not attr or not attr.HasValue():
-        attr = prim.GetAttribute("acra:cvs")
-    cvs = np.asarray(attr.Get(Usd.TimeCode(frame)), np.float64).reshape(nv, nu, 3).transpose(1, 0, 2)
-    size = np.linalg.norm(np.ptp(cvs.reshape(-1, 3), axis=0))
-    for axis, periodic in enumerate(wrap):
-        if periodic:
-            continue
-        rows = np.moveaxis(cvs, axis, 0)
-        for end in (rows[:3], rows[::-1][:3]):
-            curve = (end[0] + 4 * end[1] + end[2]) / 6
-            if np.ptp(curve, axis=0).max() > 1e-9 * size:
-                return False
-    return True
-
-
-@dataclass
-class Body:
-    """One object at one frame: world mesh (welded), whether it is closed, and its size."""
-
-    path: str
-    mesh: trimesh.Trimesh
-    closed: bool
-    deformable: bool
-    size: float = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.size = float(np.linalg.norm(np.ptp(self.mesh.vertices, axis=0)))
-
-
-def bodies_at(stage: Usd.Stage, frame: float) -> list[Body]:
-    """Every deformable (a Mesh with ``acra:cvs``) and collider (``PhysicsCollisionAPI``) at
-    ``frame``, as composed by USD; raises if a closed one is not watertight."""
-    out = []
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
-        deformable = prim.HasAttribute("acra:cvs")
-        if not deformable and not prim.HasAPI(UsdPhysics.CollisionAPI):
-            continue
-        mesh = UsdGeom.Mesh(prim)
-        pts = np.asarray(mesh.GetPointsAttr().Get(Usd.TimeCode(frame)), np.float64)
-        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(Usd.TimeCode(frame)), np.int64)
-        idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(Usd.TimeCode(frame)), np.int64)
-        m = _world_matrix(prim, frame)
-        world = pts @ m[:3, :3].T + m[:3, 3]
-        scale = float(np.linalg.norm(np.ptp(world, axis=0)))
-        tm = _weld(world, _triangulate(counts, idx), scale)
-        closed = _closed_by_cvs(prim, frame, "acra:response:cvs") if deformable else True
-        if closed and not tm.is_watertight:
-            raise AssertionError(f"{prim.GetPath()} at frame {frame}: a closed object's display mesh is not watertight "
-                                 f"({len(trimesh.grouping.group_rows(tm.edges_sorted, require_count=1))} boundary edges)")
-        out.append(Body(str(prim.GetPath()), tm, closed, deformable))
-    return out
-
-
-def triangle_samples(mesh: trimesh.Trimesh, steps: int = STEPS) -> np.ndarray:
-    """Points on a barycentric grid of ``steps`` steps per edge in every triangle (vertices
-    included): ``(t * (steps+1)(steps+2)/2, 3) float64``."""
-    w = np.array([(i, j, steps - i - j) for i in range(steps + 1) for j in range(steps + 1 - i)], np.float64) / steps
-    tri = mesh.vertices[mesh.faces]  # (t, 3, 3)
-    return np.einsum("wk,tkc->twc", w, tri).reshape(-1, 3)
-
-
-def depth_inside(points: np.ndarray, other: Body) -> np.ndarray:
-    """Depth ``(k,) float64`` of ``points (k, 3)`` inside the closed ``other`` (distance to its
-    surface; 0 outside). Ray-parity ``contains`` (embree) for inside, `surface_distance` for depth."""
-    depth = np.zeros(len(points))
-    if not other.closed or not len(points):
-        return depth
-    lo, hi = other.mesh.bounds
-    near = np.nonzero(np.all((points >= lo) & (points <= hi), axis=1))[0]
-    if not near.size:
-        return depth
-    inside = near[other.mesh.contains(points[near])]
-    if inside.size:
-        depth[inside] = surface_distance(other.mesh, points[inside])
-    return depth
-
-
-def surface_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Exact distances ``(k,)`` from ``points (k, 3)`` to ``mesh``'s triangles: fcl's distance
-    from a point (a sphere of radius 0) to the mesh's BVH. (trimesh's ``proximity.closest_point``
-    picks its candidate triangles heuristically and was measured to miss the nearest one by 1e-4
-    of the distance, which would make this measure over-state a depth.)"""
-    bvh = fcl.BVHModel()
-    bvh.beginModel(len(mesh.vertices), len(mesh.faces))
-    bvh.addSubModel(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int32))
-    bvh.endModel()
-    body = fcl.CollisionObject(bvh, fcl.Transform())
-    return np.array([fcl.distance(body, fcl.CollisionObject(fcl.Sphere(0.0), fcl.Transform(p)),
-                                  fcl.DistanceRequest(), fcl.DistanceResult()) for p in points])
-
-
-@dataclass
-class Measure:
-    """One deformable at one frame: largest depth of its display vertices and of all its
-    triangle samples inside any other object, as fractions of its own display diagonal."""
-
-    frame: int
-    path: str
-    vertices: float
-    samples: float
-    count: int  # vertices inside
-
-
-def measure_frame(stage: Usd.Stage, frame: int, steps: int = STEPS) -> list[Measure]:
-    """`Measure` of every deformable of ``stage`` at ``frame``."""
-    bodies = bodies_at(stage, frame)
-    out = []
-    for a in bodies:
-        if not a.deformable:
-            continue
-        v_depth, s_depth, count = 0.0, 0.0, 0
-        samples = None
-        for b in bodies:
-            if b is a or not b.closed:
-                continue
-            if np.any(a.mesh.bounds[1] < b.mesh.bounds[0]) or np.any(b.mesh.bounds[1] < a.mesh.bounds[0]):
-                continue
-            dv = depth_inside(a.mesh.vertices, b)
-            samples = triangle_samples(a.mesh, steps) if samples is None else samples
-            ds = depth_inside(samples, b)
-            v_depth, s_depth = max(v_depth, dv.max(initial=0.0)), max(s_depth, ds.max(initial=0.0))
-            count += int(np.count_nonzero(dv > 0))
-        out.append(Measure(frame, a.path, v_depth / a.size, max(s_depth, v_depth) / a.size, count))
-    return out
-
-
-def measure_layer(path: str | Path, frames=None, steps: int = STEPS) -> list[Measure]:
-    """`measure_frame` at every frame of the output layer ``path`` (its start..end time codes)."""
-    stage = Usd.Stage.Open(str(path))
-    if frames is None:
-        frames = range(int(stage.GetStartTimeCode()), int(stage.GetEndTimeCode()) + 1)
-    return [m for f in frames for m in measure_frame(stage, f, steps)]
-
-
-def worst_by_frame(measures: list[Measure]) -> dict[int, float]:
-    """Per frame, the largest sampled depth of any deformable (fraction of its own size)."""
-    out: dict[int, float] = {}
-    for m in measures:
-        out[m.frame] = max(out.get(m.frame, 0.0), m.samples)
-    return out
+from acceptance.visible import Body, bodies_at, depth_inside, disagreements, measure_layer, triangle_samples, worst_by_frame
+from conftest import scene_names
 
 
 # --- the measure itself, on stages whose answer is known exactly ---------------------------------
@@ -233,9 +38,9 @@ def _cube_stage(tmp_path: Path, z: float) -> Path:
     sheet.CreateFaceVertexCountsAttr([4] * len(quads))
     sheet.CreateFaceVertexIndicesAttr([k for q in quads for k in q])
     prim = sheet.GetPrim()
-    prim.CreateAttribute("acra:cvs", __import__("pxr").Sdf.ValueTypeNames.Point3fArray).Set([(0, 0, 0)] * 16)
-    prim.CreateAttribute("acra:uCount", __import__("pxr").Sdf.ValueTypeNames.Int).Set(4)
-    prim.CreateAttribute("acra:vCount", __import__("pxr").Sdf.ValueTypeNames.Int).Set(4)
+    prim.CreateAttribute("acra:cvs", Sdf.ValueTypeNames.Point3fArray).Set([(0, 0, 0)] * 16)
+    prim.CreateAttribute("acra:uCount", Sdf.ValueTypeNames.Int).Set(4)
+    prim.CreateAttribute("acra:vCount", Sdf.ValueTypeNames.Int).Set(4)
     box = UsdGeom.Mesh.Define(stage, "/Box")
     box.AddTranslateOp().Set((0.5, 0.0, 0.0))
     c = [(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
@@ -280,3 +85,49 @@ def test_a_closed_display_with_a_crack_is_an_error(tmp_path):
     UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
     with pytest.raises(AssertionError, match="not watertight"):
         bodies_at(stage, 0)
+
+
+# --- every scene, as the user opens it ------------------------------------------------------------
+def test_disagreements_name_each_kind_of_fault():
+    """Over tolerance, under the measure, far over it; and what passes: a touching frame reported
+    at the tolerance, a frame reported between the measure and 3 times it."""
+    assert disagreements({1: 2e-3}, {1: 2e-3}) == ["frame 1: measured 2.00e-03 of size, over 1e-03"]
+    assert disagreements({1: 4e-4}, {1: 5e-4}) == ["frame 1: reported 4.00e-04 under the measured 5.00e-04"]
+    assert disagreements({1: 3e-3}, {1: 9e-4}) == ["frame 1: reported 3.00e-03 over 3 x the measured 9.00e-04 (and over 1e-03)"]
+    assert disagreements({1: float("nan")}, {1: 0.0}) == ["frame 1: reported nan under the measured 0.00e+00"]
+    assert disagreements({1: 1e-3, 2: 8e-4, 3: 5e-4 - 1e-7}, {1: 0.0, 2: 3e-4, 3: 5e-4}) == []
+
+
+#: scenes whose output the measure does not pass while the display is the uniform grid of
+#: ``acra:samples`` steps per level-0 patch and the residual is measured at detection's samples
+#: (issue 17: the display that shows every level and the residual as the user sees it come from
+#: the ``vis2`` work): the first fault and how many frames' faults, measured
+NOT_YET = {
+    "absorb_levels": "frame 8: reported 3.35e-04 under the measured 5.59e-04 (12 faults)",
+    "box_into_sheet": "frame 11: measured 1.13e-03 of size, over 1e-03 (12 faults)",
+    "clay": "frame 2: reported 1.29e-17 under the measured 8.05e-05 (5 faults)",
+    "closed_objects": "frame 5: measured 1.76e-03 of size, over 1e-03 (6 faults)",
+    "dog_head_spike": "frame 13: measured 1.12e-03 of size, over 1e-03 (9 faults)",
+    "drum": "frame 2: measured 2.13e-03 of size, over 1e-03 (8 faults)",
+    "elbow_contact": "frame 15: measured 1.54e-03 of size, over 1e-03 (12 faults)",
+    "off_centre_press": "frame 6: measured 1.10e-03 of size, over 1e-03 (13 faults)",
+    "rigid_top": "frame 8: measured 1.65e-03 of size, over 1e-03 (16 faults)",
+    "rolling_bump": "frame 4: measured 5.32e-03 of size, over 1e-03 (4 faults)",
+    "rotate_and_deform": "frame 5: reported 5.31e-04 under the measured 7.95e-04 (4 faults)",
+    "sag_and_dent": "frame 2: reported 5.27e-04 under the measured 9.57e-04 (2 faults)",
+    "sliding_tori": "frame 5: reported 7.84e-04 under the measured 8.62e-04 (3 faults)",
+    "turning_press": "frame 6: reported 1.76e-04 under the measured 3.27e-04 (9 faults)",
+}
+
+
+@pytest.mark.parametrize("name", [
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=f"uniform display grid, residual at detection samples: {NOT_YET[n]}"))
+    if n in NOT_YET else n for n in scene_names()])
+def test_scene_is_clear_where_the_user_looks(run_scene, name):
+    """Every frame of the scene's output layer: display vertices and triangle samples at most 1e-3
+    of the object's own size inside any other object, and the run's reported residual at least
+    that and at most 3 times it (or within the tolerance)."""
+    report = run_scene(name)
+    measured = worst_by_frame(measure_layer(report.output, [s.frame for s in report.stats]))
+    reported = {s.frame: float(s.residual_rel) for s in report.stats}
+    assert disagreements(reported, measured) == []
