@@ -126,6 +126,12 @@ def scene_stages(report):
     return Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
 
 
+def scene_run(run_scene, name):
+    """``(report, input stage, output stage)`` of scene ``name``'s session run (`scene_stages`)."""
+    report = run_scene(name)
+    return (report, *scene_stages(report))
+
+
 def display_points(stage, path, frame=None) -> np.ndarray:
     """``points (n, 3) float64`` of the Mesh at ``path`` at ``frame`` (its default value if None)."""
     from pxr import Usd, UsdGeom
@@ -142,6 +148,13 @@ def elastic_state(stage, path, frame):
     cvs = np.asarray(prim.GetAttribute("acra:state:elasticCvs").Get(frame))
     offsets = np.asarray(prim.GetAttribute("acra:state:elasticOffsets").Get(frame)).reshape(-1, 3)
     return cvs, offsets, np.asarray(prim.GetAttribute("acra:state:offsetLevel").Get(frame))
+
+
+def elastic_levels(stage, path, frame):
+    """The carried elastic field of a two-level deformable by level: level-0 vectors ``(nu*nv, 3)``
+    and level-1 offsets ``(c, 3)`` (`elastic_state`)."""
+    cvs, offsets, level = elastic_state(stage, path, frame)
+    return cvs, offsets[level == 1]
 
 
 # --- a tiny stage for command-line tests: a 4x4 sheet and a box that presses into it -----------

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from pxr import UsdGeom
 
-from conftest import elastic_state, scene_stages
+from conftest import elastic_levels, scene_run
 from pipeline import output_layer
 
 SHEET = "/World/Sheet"
@@ -15,14 +15,11 @@ LAST_HIT = 3
 
 @pytest.fixture(scope="module")
 def run(run_scene):
-    report = run_scene("sag_and_dent")
-    return (report, *scene_stages(report))
+    return scene_run(run_scene, "sag_and_dent")
 
 
 def _fields(out, frame):
-    """The carried elastic level-0 vectors ``(nu*nv, 3)`` and level-1 offsets ``(c, 3)``."""
-    cvs, offs, lev = elastic_state(out, SHEET, frame)
-    return cvs, offs[lev == 1]
+    return elastic_levels(out, SHEET, frame)
 
 
 def test_both_levels_carry_the_press(run):

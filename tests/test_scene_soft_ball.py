@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pxr import UsdGeom
 
-from conftest import elastic_state, scene_stages
+from conftest import elastic_levels, scene_run
 from pipeline import output_layer
 
 BALL = "/World/Ball"
@@ -18,19 +18,17 @@ LAST_HIT = 4
 
 @pytest.fixture(scope="module")
 def run(run_scene):
-    report = run_scene("soft_ball")
-    return (report, *scene_stages(report))
+    return scene_run(run_scene, "soft_ball")
 
 
 def _carried(out, frame):
     """Largest elastic vector per level at ``frame``, read from the output layer: ``(2,) float64``."""
-    cvs, offs, lev = elastic_state(out, BALL, frame)
-    return np.array([np.linalg.norm(cvs, axis=1).max(), np.linalg.norm(offs[lev == 1], axis=1).max(initial=0.0)])
+    cvs, offs = elastic_levels(out, BALL, frame)
+    return np.array([np.linalg.norm(cvs, axis=1).max(), np.linalg.norm(offs, axis=1).max(initial=0.0)])
 
 
 def _fields(out, frame):
-    cvs, offs, _ = elastic_state(out, BALL, frame)
-    return cvs, offs
+    return elastic_levels(out, BALL, frame)
 
 
 def test_the_finger_dents_the_ball_at_frames_2_to_4(run):
