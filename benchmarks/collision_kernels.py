@@ -9,7 +9,12 @@ Prints a Markdown table (docs/performance.md, "Kernels"): median ms over ``--rep
   `detect.SurfaceGeometry.boxes` (centre and half-extents mapped);
 * **a collider's faces near a box**, a 200,000-triangle box collider under a rotation: every
   face's world box from its gathered corners (the numpy route) against
-  `detect.ColliderStatic.faces_near` (object-space face boxes built once).
+  `detect.ColliderStatic.faces_near` (object-space face boxes built once);
+* **closest points on collision grids**: the 84 `grids.Closest.query` calls of `dog_head_spike`'s
+  collision frames 13–17 (recorded from one `run_frames`, answered by indexes built beforehand),
+  per collision frame: every (point, triangle) pair of the kd-tree ball tested exactly (the
+  triangle boxes made infinite, so none is dropped) against the pairs whose triangle box lies
+  within the nearest vertex's distance (`Closest.query`), the two routes alternating.
 
 Each pair of rows times the same inputs and checks the two give the same answer. One invocation
 on a shared machine: compare the ratios within it.
@@ -18,6 +23,7 @@ on a shared machine: compare the ratios within it.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import timeit
 from pathlib import Path
@@ -90,12 +96,55 @@ def collider_faces(repeat: int) -> list[tuple[str, float, str]]:
             ("collider faces near a box: `ColliderStatic.faces_near`", median_ms(lambda: static.faces_near(xform, bounds), repeat), note)]
 
 
+def closest_points(repeat: int) -> list[tuple[str, float, str]]:
+    from pipeline import frames
+
+    calls = []
+    record = grids.Closest.query
+
+    def recorded(index, points, bound=None):
+        calls.append((index.vertices, index.faces, points, bound))
+        return record(index, points, bound)
+
+    stage = usdio.open_input(usdio.load_scene_file(ROOT / "scenes" / "dog_head_spike.py"))
+    scene = usdio.read_scene(stage)
+    frames.run_frames(stage, scene, [5])
+    grids.Closest.query = recorded
+    try:
+        frames.run_frames(stage, scene, list(range(13, 18)))
+    finally:
+        grids.Closest.query = record
+
+    class EveryPair(grids.Closest):
+        """`grids.Closest` whose triangle boxes hold everything: no pair is dropped."""
+
+        @functools.cached_property
+        def boxes(self):
+            return np.full((len(self.faces), 3), -np.inf), np.full((len(self.faces), 3), np.inf)
+
+    def answers(kind):
+        indexes = [kind(vertices, faces) for vertices, faces, _, _ in calls]
+        for index, (_, _, points, bound) in zip(indexes, calls):
+            index.query(points, bound)  # kd-trees and boxes are built once per index
+        return lambda: [index.query(points, bound) for index, (_, _, points, bound) in zip(indexes, calls)]
+
+    every, pruned = answers(EveryPair), answers(grids.Closest)
+    same = all(np.array_equal(a, b) for x, y in zip(every(), pruned()) for a, b in zip(x, y))
+    # the two routes alternate, so a change in the shared machine's load reaches both alike
+    times = np.array([[timeit.timeit(route, number=1) for route in (every, pruned)] for _ in range(repeat)])
+    ms = 1e3 / 5 * np.median(times, axis=0)
+    return [(f"closest points on grids, {len(calls)} queries of 5 collision frames, per frame: every ball pair tested",
+             float(ms[0]), ""),
+            ("closest points on grids: pairs within the nearest vertex's distance by box (`Closest.query`)",
+             float(ms[1]), f"bit-identical answers: {same}")]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=9)
     args = ap.parse_args()
     with threadpoolctl.threadpool_limits(1):  # as the frame loop runs: BLAS on one thread
-        rows = patch_boxes(args.repeat) + collider_faces(args.repeat)
+        rows = patch_boxes(args.repeat) + collider_faces(args.repeat) + closest_points(args.repeat)
     print("| kernel | median ms | |\n|---|---:|---|")
     for name, ms, note in rows:
         print(f"| {name} | {ms:.3f} | {note} |")

@@ -102,6 +102,31 @@ def test_closest_points_over_grids_of_mixed_density_match_brute_force(seed):
     assert np.max(np.linalg.norm(ev - near.points, axis=1)) < 4 * step**2 * g.size
 
 
+@pytest.mark.parametrize("seed", range(2))
+def test_closest_picks_the_same_triangle_as_testing_every_triangle(seed):
+    """`Closest.query` tests only the triangles whose boxes lie within the nearest vertex's
+    distance: its answer is bit for bit the one of the exact test on every triangle with the
+    query's rule (nearest first, the lowest face row among equal distances), for points off the
+    surface, on grid vertices (shared by several triangles) and on edge midpoints."""
+    rng = np.random.default_rng(seed)
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(8, 6), depth=3), 2, [[4, 6]]), 0.02, seed)
+    shape = S.Shape(hs)
+    grids = shape.grids_for(every_patch(hs))
+    sets = S.GridSet(grids)
+    vertices, faces = sets.points, sets.triangles
+    index = S.Closest(vertices, faces)
+    pts = np.concatenate([0.8 * rng.normal(size=(60, 3)), vertices[rng.integers(0, len(vertices), 20)],
+                          vertices[faces[:20, :2]].mean(axis=1)])
+    dist, close, face = index.query(pts)
+    unit = index.unit
+    for i, p in enumerate(pts):
+        cp = unit * trimesh.triangles.closest_point(vertices[faces] / unit, np.tile(p / unit, (len(faces), 1)))
+        d = np.linalg.norm(cp - p, axis=1)
+        best = int(np.lexsort((np.arange(len(d)), d))[0])
+        assert (dist[i], face[i]) == (d[best], best)
+        assert np.array_equal(close[i], cp[best])
+
+
 def test_a_reversed_surface_still_has_its_inside_inside():
     """Swapping u's direction turns ``du × dv`` inward; `Shape.outward` finds it."""
     cvs, pu, pv = shapes.sphere(8, 8)
