@@ -88,7 +88,7 @@ def main() -> int:
                             spec = Sdf.AttributeSpec(prim, attr, Sdf.ValueTypeNames.Point3fArray)
                             for f in free:
                                 r = part.frames[f][m.path]
-                                layer.SetTimeSample(spec.path, float(f), output_layer._checked_vec3f(m, f, attr, getattr(r, attr)))
+                                layer.SetTimeSample(spec.path, float(f), output_layer._checked_vec3f(m, part.topology(m), f, attr, getattr(r, attr)))
                 rows[name].append(cpu_ms(layer.ExportToString, 1) / len(free))
     load = os.getloadavg()
     print(f"`python3 benchmarks/free_frame.py {args.scene.name} --repeat {args.repeat}`: {len(free)} free frames, "
