@@ -43,10 +43,12 @@ class Anchor:
 @dataclass
 class RewindCache:
     """Per pair and run, so frames share the search: `touching` of the input by time
-    (``dict[float, bool]``) and the `Anchor` of each ``(free frame, touching frame)`` interval."""
+    (``dict[float, bool]``), the `Anchor` of each ``(free frame, touching frame)`` interval, and
+    each frame's `slide_since` (it reads the input alone, so every round of a frame shares it)."""
 
     touching: dict = field(default_factory=dict)
     anchors: dict = field(default_factory=dict)
+    slides: dict = field(default_factory=dict)
 
 
 GeometryAt = Callable[[float], "tuple[D.SurfaceGeometry, D.Geometry]"]
@@ -353,6 +355,16 @@ def slide_since(geometry_at: GeometryAt, anchor: Anchor, t: float) -> np.ndarray
     return slide if np.linalg.norm(slide) > depth_along(ga_now, gb_now, anchor, pa, pb) else np.zeros(3)
 
 
+def _slide(geometry_at: GeometryAt, anchor: Anchor, t: float, cache: RewindCache | None) -> np.ndarray:
+    """`slide_since`, once per frame and anchor when a ``cache`` is kept."""
+    if cache is None:
+        return slide_since(geometry_at, anchor, t)
+    key = (t, anchor.t_contact, *(None if x is None else np.asarray(x).tobytes() for x in (anchor.uv_a, anchor.uv_b, anchor.local_b)))
+    if key not in cache.slides:
+        cache.slides[key] = slide_since(geometry_at, anchor, t)
+    return cache.slides[key]
+
+
 def detect_pair(ga: D.SurfaceGeometry, gb: D.Geometry, t: float = 0.0, geometry_at: GeometryAt | None = None, *,
                 start: float | None = None, cache: RewindCache | None = None, max_back: int = 10_000,
                 steps: int = 12, whole: bool = False) -> PairContact | None:
@@ -383,6 +395,6 @@ def detect_pair(ga: D.SurfaceGeometry, gb: D.Geometry, t: float = 0.0, geometry_
     if along > depth + D.default_tolerance(ga, gb):
         pad = D.pair_pad(ga, gb)
         ra, rb = D.with_on_surface(ga, gb, ra, pad), D.with_on_surface(gb, ga, rb, pad)
-    slide = np.zeros(3) if anchor is None else slide_since(geometry_at, anchor, float(t))
+    slide = np.zeros(3) if anchor is None else _slide(geometry_at, anchor, float(t), cache)
     return PairContact(ga.name, gb.name, float(t), t_c, anchor is not None, uv_a, uv_b, local_b, pa, pb, ra, rb, depth, inter,
                        along, slide)
