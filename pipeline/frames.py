@@ -17,6 +17,7 @@ from typing import Callable
 
 import numpy as np
 from pxr import Usd
+from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
@@ -194,31 +195,6 @@ def data_points_for(
 WRAP_RING = 1  # patches around the ones a collider's outline covers that a new pocket pushes too
 
 
-def ring_maximum(grid: np.ndarray, ring: int, periodic: tuple[bool, bool]) -> np.ndarray:
-    """Each cell of ``grid (nu, nv) float64`` replaced by the largest value within ``ring`` cells
-    of it in both directions (a ``(2 ring + 1)²`` window): a periodic direction wraps, nothing
-    lies past an open edge. The window's maximum is the maximum along u of the maxima along v,
-    so two passes of shifted copies give it exactly: scipy.ndimage's ``maximum_filter`` with
-    ``cval=-inf`` and ``wrap``/``constant`` modes, without the frame loop importing scipy.ndimage."""
-    out = np.array(grid, dtype=np.float64)
-    for axis, wraps in enumerate(periodic):
-        passed = out.copy()
-        for k in range(1, ring + 1):
-            for step in (k, -k):
-                if wraps:
-                    shifted = np.roll(passed, step, axis=axis)
-                else:
-                    shifted = np.full_like(passed, -np.inf)
-                    if k < passed.shape[axis]:
-                        src = [slice(None)] * 2
-                        dst = [slice(None)] * 2
-                        src[axis] = slice(0, -k) if step > 0 else slice(k, None)
-                        dst[axis] = slice(k, None) if step > 0 else slice(0, -k)
-                        shifted[tuple(dst)] = passed[tuple(src)]
-                np.maximum(out, shifted, out=out)
-    return out
-
-
 def collider_points_for(
     ga: D.SurfaceGeometry,
     gb: D.ColliderGeometry,
@@ -321,7 +297,8 @@ def collider_points_for(
     np.maximum.at(need, (su, sv), plane)
     # each patch takes the farthest plane within WRAP_RING of it (a periodic direction wraps,
     # nothing lies past an open edge)
-    need = ring_maximum(need, WRAP_RING if first else 0, (hs.u.periodic, hs.v.periodic))
+    need = maximum_filter(need, size=2 * (WRAP_RING if first else 0) + 1, cval=-np.inf,
+                          mode=["wrap" if d.periodic else "constant" for d in (hs.u, hs.v)])
     pp = np.argwhere(np.isfinite(need))
     mid = (pp + 0.5) / (1 << group_level)
     a = apply_xform(ga.xform, H.evaluate(hs, mid[:, 0], mid[:, 1], det=ga.details).points)

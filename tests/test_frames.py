@@ -315,33 +315,3 @@ def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
     region, _ = D.regions(sheet, ball_geom)
     assert len(region.uv) and len(F.rim_points(sheet, ball_geom, region.uv, down, 2)[0]) == 0
 
-
-# --- the ring maximum of collider_points_for (numpy in place of scipy.ndimage) ----------------
-
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
-
-@settings(max_examples=60, deadline=None)
-@given(nu=st.integers(1, 7), nv=st.integers(1, 7), ring=st.integers(0, 3), wrap_u=st.booleans(), wrap_v=st.booleans(),
-       seed=st.integers(0, 2**31 - 1), holes=st.floats(0.0, 1.0))
-def test_ring_maximum_is_scipys_maximum_filter(nu, nv, ring, wrap_u, wrap_v, seed, holes):
-    from scipy.ndimage import maximum_filter
-
-    rng = np.random.default_rng(seed)
-    grid = rng.normal(size=(nu, nv))
-    grid[rng.random((nu, nv)) < holes] = -np.inf  # cells no plane reached
-    want = maximum_filter(grid, size=2 * ring + 1, cval=-np.inf,
-                          mode=["wrap" if w else "constant" for w in (wrap_u, wrap_v)])
-    got = F.ring_maximum(grid, ring, (wrap_u, wrap_v))
-    assert np.array_equal(got, want)
-
-
-def test_ring_maximum_by_hand():
-    grid = np.full((4, 3), -np.inf)
-    grid[0, 0] = 2.0
-    grid[2, 2] = 1.0
-    open_ = F.ring_maximum(grid, 1, (False, False))
-    assert open_[1, 1] == 2.0 and open_[3, 1] == 1.0 and open_[3, 0] == -np.inf and open_[0, 2] == -np.inf
-    wrapped = F.ring_maximum(grid, 1, (True, True))  # (0, 0) and (3, 2) are neighbours across both seams
-    assert wrapped[3, 2] == 2.0 and wrapped[0, 2] == 2.0 and wrapped[3, 0] == 2.0
