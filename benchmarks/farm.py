@@ -4,7 +4,7 @@
 
 The shot is the demo (`scenes/dog_head_spike.py`: a spike jabs a 7-level head) with the jab
 repeated ``--jabs`` times, 30 frames each (keys at 30k + 1, 12, 15, 18, 30), so 240 frames of
-which 40 are in collision. Each repeat runs, in this order: one process (`cli.run_file`, no
+which 40 are in collision. Each repeat runs, in this order: one process (`run.run_file`, no
 Dask); then for each ``--workers`` N a fresh `LocalCluster` of N processes (`farm.run_frames`)
 and `output_layer.write_output`; then the one-process run's records cut into parts of 30 frames
 (`parts.write_part`) and `parts.merge_parts`. Every output must be byte-identical to the
@@ -26,7 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from pipeline import authoring, cli, farm, parts, usdio
+from pipeline import authoring, farm, parts, usdio
+from pipeline.run import run_file
 from pipeline import output_layer
 from pipeline.animation import usdkeys
 from pipeline.frames import RunOptions
@@ -74,7 +75,7 @@ def main() -> None:
     rows: dict = {}
     for r in range(args.repeat):
         t, cpu = time.perf_counter(), time.process_time()
-        report = cli.run_file(stage_path, work / "single.usda")
+        report = run_file(stage_path, work / "single.usda")
         rows.setdefault("one process", []).append({"wall": time.perf_counter() - t, "write": report.ms_write / 1e3,
                                                    "cpu": time.process_time() - cpu, "busiest": time.process_time() - cpu})
         reference = report.output.read_bytes()

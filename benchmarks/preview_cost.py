@@ -49,7 +49,7 @@ from pipeline import output_layer
 PROBE = """
 import json, sys, time
 t = time.perf_counter()
-from pipeline.cli import run_file
+from pipeline.run import run_file
 rep = run_file(sys.argv[1], output=sys.argv[2], rrd=sys.argv[3] if len(sys.argv) > 3 else None)
 print(json.dumps({"seconds": time.perf_counter() - t, "rerun": "rerun" in sys.modules,
                   "preview": "pipeline.preview" in sys.modules}))

@@ -27,20 +27,11 @@ import gc  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-__all__ = ["main", "build_parser", "run_file", "RunReport"]
+__all__ = ["main", "build_parser"]
 
 # What a command needs is imported when it runs, not here: `acra --version` and `acra --help`
 # import argparse alone, `acra run` without --rrd or --workers never imports rerun or dask, and
 # nothing the run path uses imports matplotlib (docs/cli.md, *Start-up*).
-
-
-def __getattr__(name: str):
-    """``run_file`` and ``RunReport`` of `pipeline.run`, kept importable from here."""
-    if name in ("run_file", "RunReport"):
-        from pipeline import run as run_module
-
-        return getattr(run_module, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def build_parser() -> argparse.ArgumentParser:

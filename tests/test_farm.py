@@ -25,6 +25,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipeline import cli, farm, parts, usdio
+from pipeline.run import run_file
 from pipeline.frames import RunOptions
 from pipeline.model import InputError
 
@@ -57,7 +58,7 @@ def shots(tmp_path_factory):
     for name, (frames, chunk, ranges) in SHOTS.items():
         d = tmp_path_factory.mktemp(name)
         stage = _export(name, d)
-        report = cli.run_file(stage, d / "single.usda", frames)
+        report = run_file(stage, d / "single.usda", frames)
         assert any(s.in_collision for s in report.stats) and not all(s.in_collision for s in report.stats)
         out[name] = (stage, frames, chunk, ranges, report.output.read_bytes())
     return out
@@ -116,14 +117,14 @@ def loopback():
 @pytest.mark.parametrize("name", SHOTS)
 def test_local_cluster_output_is_byte_identical(shots, local_cluster, name):
     stage, frames, chunk, _, single = shots[name]
-    out = cli.run_file(stage, stage.parent / "local.usda", frames, scheduler=local_cluster.scheduler_address, chunk=chunk).output
+    out = run_file(stage, stage.parent / "local.usda", frames, scheduler=local_cluster.scheduler_address, chunk=chunk).output
     assert out.read_bytes() == single
 
 
 @pytest.mark.parametrize("name", SHOTS)
 def test_loopback_cluster_output_is_byte_identical(shots, loopback, name):
     stage, frames, _, _, single = shots[name]
-    out = cli.run_file(stage, stage.parent / "loopback.usda", frames, scheduler=loopback[0]).output  # default chunking
+    out = run_file(stage, stage.parent / "loopback.usda", frames, scheduler=loopback[0]).output  # default chunking
     assert out.read_bytes() == single
 
 
@@ -142,17 +143,17 @@ def test_parts_merged_are_byte_identical(shots, tmp_path, capsys, name):
 
 def test_workers_option_starts_a_local_cluster_and_reports_the_same_figures(shots):
     stage, frames, _, _, single = shots["rolling_bump"]
-    farmed = cli.run_file(stage, stage.parent / "workers.usda", frames, workers=2)
+    farmed = run_file(stage, stage.parent / "workers.usda", frames, workers=2)
     assert farmed.output.read_bytes() == single
-    one = cli.run_file(stage, stage.parent / "again.usda", frames)
+    one = run_file(stage, stage.parent / "again.usda", frames)
     key = lambda r: [(s.frame, s.in_collision, s.iterations, s.residual, s.residual_rel) for s in r.stats]  # noqa: E731
     assert key(farmed) == key(one)
 
 
 def test_usdc_output_is_byte_identical(shots, local_cluster):
     stage, frames, chunk, _, _ = shots["closed_objects"]
-    single = cli.run_file(stage, stage.parent / "single.usdc", frames).output.read_bytes()
-    farmed = cli.run_file(stage, stage.parent / "farmed.usdc", frames, scheduler=local_cluster.scheduler_address, chunk=chunk)
+    single = run_file(stage, stage.parent / "single.usdc", frames).output.read_bytes()
+    farmed = run_file(stage, stage.parent / "farmed.usdc", frames, scheduler=local_cluster.scheduler_address, chunk=chunk)
     assert farmed.output.read_bytes() == single
 
 
@@ -182,7 +183,7 @@ def test_worker_killed_mid_chunk_is_retried_and_output_is_complete(shots, loopba
 
             killer = threading.Thread(target=kill_when_busy)
             killer.start()
-            report = cli.run_file(stage, stage.parent / "killed.usda", frames, scheduler=address, chunk=1)
+            report = run_file(stage, stage.parent / "killed.usda", frames, scheduler=address, chunk=1)
             killer.join()
     finally:
         _kill(victim)

@@ -14,7 +14,8 @@ import pytest
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from pipeline import guard
-from pipeline.cli import main, run_file
+from pipeline.cli import main
+from pipeline.run import run_file
 from pipeline.model import InputError
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from pipeline import cli, parts, usdio
+from pipeline.run import run_file
 from pipeline.model import InputError
 
 ROOT = Path(__file__).parents[1]
@@ -62,7 +63,7 @@ def test_part_is_self_describing(shot, tmp_path):
 
 
 def test_records_round_trip_through_assemble_exactly(shot):
-    report = cli.run_file(shot, shot.parent / "round.usda", "4:5")
+    report = run_file(shot, shot.parent / "round.usda", "4:5")
     records = parts.records_from_result(report.result)
     again = parts.records_from_result(parts.assemble(report.scene, records))
     for f in records:
