@@ -26,7 +26,7 @@ from functools import cached_property
 import numpy as np
 
 from . import hierarchy
-from .basis import Direction, basis_all, locate, refine_rows
+from .basis import Direction, basis_rows, locate, refine_rows
 from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used by interpolate, respond, tessellate and tests)
     _I4,
     HierarchyArrays,
@@ -115,7 +115,7 @@ def _segments(d: Direction, x: np.ndarray, k: int, side: int) -> tuple[np.ndarra
 def _rows(t: np.ndarray, scale: np.ndarray, order: int) -> np.ndarray:
     """Basis rows of derivative orders ``0..order`` w.r.t. level-0 units: ``(m, order+1, 4)``;
     ``scale (m,)`` is ``2**k`` of each point's level (d/dx = 2**k d/dt)."""
-    rows = basis_all(t, order).transpose(1, 0, 2)
+    rows = basis_rows(t, order)
     for o in range(1, order + 1):
         rows[:, o] *= (scale**o)[:, None]
     return rows
@@ -182,14 +182,25 @@ def evaluate(
     else:
         pts = np.zeros(0, np.int64)
         tus, tvs, scale, rows, table = tu[0], tv[0], np.ones(m), rows0, hs.cvs.reshape(-1, 3)
-    ru = _rows(tus, scale, order)  # (n, o, 4)
-    rv = _rows(tvs, scale, order)
-    block = np.take(table, rows, axis=0)  # (n, 4 a, 4 b, 3 c)
-
-    # tensor products as batched matrix products: sum_b rv[o, b] block[a, b, c] -> (n, a, o, c),
-    # then sum_a ru[p, a] (...) -> (n, p, o, c)
-    n, o = block.shape[0], order + 1
-    half = rv[:, None] @ block
+    # basis rows of u and v in one call: ``(n, o, 4)`` each, derivatives w.r.t. level-0 units
+    n, o = rows.shape[0], order + 1
+    if n > 1:
+        ruv = _rows(np.concatenate([tus, tvs]), np.concatenate([scale, scale]), order)
+        ru, rv = ruv[:n], ruv[n:]
+    else:  # one term: each direction's row alone, as `basis_rows` rounds a single row
+        ru, rv = _rows(tus, scale, order), _rows(tvs, scale, order)
+    if order:
+        # tensor products as batched matrix products: sum_b rv[o, b] block[a, b, c] for every
+        # (a, c) in one (o × 4)(4 × 12) product per term, the CV block gathered b-major, then
+        # sum_a ru[p, a] (...) -> (n, p, o, c). Each output entry is the same dot of length 4 as
+        # a product per row a would give, so this equals that form bit for bit at a third of
+        # the products.
+        block = np.take(table, rows.transpose(0, 2, 1), axis=0).reshape(n, 4, 12)  # (n, 4 b, 4 a · 3 c)
+        half = (rv @ block).reshape(n, o, 4, 3).transpose(0, 2, 1, 3)  # (n, a, o, c)
+    else:
+        # points alone: a (1 × 4)(4 × 3) product per row a (a vector-matrix product, which
+        # BLAS sums in another order than a matrix product)
+        half = rv[:, None] @ np.take(table, rows, axis=0)  # (n, 4 a, 1, 3 c)
     terms = (ru @ half.reshape(n, 4, 3 * o)).reshape(n, o, o, 3)
 
     # level 0 plus each fine term, added in level order (the terms are sorted by level)
