@@ -306,9 +306,9 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), _face_boxes(pb, fb_all), pad)
     if not len(ka):
         return none
-    oa = _bvh(pa, ta.triangles[ka])
+    oa = ga.shape.bvhs.get(pa, ta.triangles[ka])
     if not collider:
-        ob = _bvh(pb, fb_all[kb])
+        ob = gb.shape.bvhs.get(pb, fb_all[kb])
     res = fcl.CollisionResult()
     fcl.collide(oa, ob, fcl.CollisionRequest(num_max_contacts=_MAX_CONTACTS, enable_contact=True), res)
     n = len(res.contacts)
