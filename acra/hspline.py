@@ -333,12 +333,11 @@ def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
             continue
         # (j - 3 + d) >> k for d = 0..3 covers every level-0 patch of j's support; the interval
         # always meets the domain, so clipping (open) or wrapping (periodic) loses nothing
+        wrap = lambda q, d: np.mod(q, d.patches0) if d.periodic else np.clip(q, 0, d.patches0 - 1)  # noqa: E731
+        qvs = [wrap((jv - 3 + dv) >> k, new.v) for dv in range(4)]
         for du in range(4):
-            qu = (ju - 3 + du) >> k
-            qu = np.mod(qu, new.u.patches0) if new.u.periodic else np.clip(qu, 0, new.u.patches0 - 1)
-            for dv in range(4):
-                qv = (jv - 3 + dv) >> k
-                qv = np.mod(qv, new.v.patches0) if new.v.periodic else np.clip(qv, 0, new.v.patches0 - 1)
+            qu = wrap((ju - 3 + du) >> k, new.u)
+            for qv in qvs:
                 mask[qu, qv] = True
     for axis, d in ((0, new.u), (1, new.v)):
         mask = _dilate(mask, margin, axis, d.periodic)
@@ -431,7 +430,8 @@ def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: 
     ju, jv = _split_cv(hs, k, hs.level(k).cv_keys[rows])
     for i, (axis, end) in enumerate(ends):
         j, d = (ju, hs.u) if axis == 0 else (jv, hs.v)
-        out[np.isin(j, _end_rows(d.cvs(k), end))] = i
+        first, last = _end_rows(d.cvs(k), end)[[0, 2]]  # the three rows at the end, a run
+        out[(j >= min(first, last)) & (j <= max(first, last))] = i
     return out
 
 
