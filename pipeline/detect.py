@@ -23,6 +23,7 @@ import trimesh
 from acra import hspline as H
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
+from pipeline.grids import triangle_boxes
 from pipeline.shape import Closest, Shape, bvh as _bvh, overlap as _overlap, shape_of
 
 __all__ = [
@@ -252,8 +253,7 @@ def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
 
 def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``."""
-    tri = points[faces]
-    return tri.min(axis=1), tri.max(axis=1)
+    return triangle_boxes(points[faces])
 
 
 def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray, np.ndarray], pad: float, rounds: int = 2):

@@ -26,13 +26,20 @@ from acra.tessellate import patch_grids
 if TYPE_CHECKING:
     from pipeline.shape import Shape
 
-__all__ = ["PatchGrid", "solid_rows", "GridSet", "GridCache", "Nearest", "Closest", "SetupClock", "timed", "bvh", "BvhCache", "overlap", "COLLAPSE"]
+__all__ = ["PatchGrid", "solid_rows", "GridSet", "GridCache", "Nearest", "Closest", "SetupClock", "timed", "bvh", "BvhCache", "triangle_boxes", "overlap", "COLLAPSE"]
 
 COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
 _US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see Closest
 
 
 # --- closest points on a triangle set ---------------------------------------------------------
+def triangle_boxes(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes ``lo, hi (f, 3)`` of triangles ``tri (f, 3, 3)``: the corners' minima and maxima
+    pairwise (exact, as ``tri.min(axis=1)`` is, at a third of its time)."""
+    return (np.minimum(np.minimum(tri[:, 0], tri[:, 1]), tri[:, 2]),
+            np.maximum(np.maximum(tri[:, 0], tri[:, 1]), tri[:, 2]))
+
+
 def overlap(lo_a, hi_a, lo_b, hi_b, pad: float) -> np.ndarray:
     """Whether boxes overlap (broadcast over leading axes)."""
     return np.all((lo_a <= hi_b + pad) & (lo_b <= hi_a + pad), axis=-1)
@@ -114,7 +121,7 @@ class Closest:
     @cached_property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Each triangle's box ``lo, hi (f, 3)``: its distance from a point bounds the triangle's from below."""
-        return self.tri.min(axis=1), self.tri.max(axis=1)
+        return triangle_boxes(self.tri)
 
     def query(self, points: np.ndarray, bound: np.ndarray | None = None):
         """Distances ``(k,)``, closest points ``(k, 3)`` and face rows ``(k,) int64``. With
@@ -133,7 +140,7 @@ class Closest:
         if len(deep) and tree is None:  # a BVH of the triangles in reach, if cheaper than balls
             grow = dv[deep].max() * (1 + 1e-9)
             lo, hi = points[deep].min(axis=0) - grow, points[deep].max(axis=0) + grow
-            rows = np.nonzero(overlap(self.tri.min(axis=1), self.tri.max(axis=1), lo, hi, 0.0))[0]
+            rows = np.nonzero(overlap(*self.boxes, lo, hi, 0.0))[0]
             pairs = self.ctree.query_ball_point(points[deep], radius[deep], return_length=True).sum()
             ball[deep] = pairs * _US_PAIR < _US_BVH_FACE * len(rows) + _US_FCL_QUERY * len(deep)
             if not ball[deep].all():
