@@ -147,7 +147,9 @@ class Closest:
                 tree = bvh(self.vertices, self.faces[rows])
         near = np.nonzero(ball)[0]
         if len(near):
-            lists = self.ctree.query_ball_point(points[near], radius[near])
+            # unsorted balls (sorting each list costs the kd-tree search again): the nearest
+            # pair below breaks ties by face row itself, so the answer does not depend on order
+            lists = self.ctree.query_ball_point(points[near], radius[near], return_sorted=False)
             lens = np.fromiter(map(len, lists), np.int64, len(near))
             idx = np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))
             owner = np.repeat(np.arange(len(near)), lens)
@@ -167,7 +169,7 @@ class Closest:
         if len(near) and len(idx):
             cp = self.unit * trimesh.triangles.closest_point(self.tri[idx] / self.unit, at / self.unit)
             d = np.linalg.norm(cp - at, axis=1)
-            order = np.lexsort((d, owner))  # per owner, nearest first
+            order = np.lexsort((idx, d, owner))  # per owner, nearest first, lowest face row among equals
             first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
             hit = near[owner[first]]
             dist[hit], close[hit], face[hit] = d[first], cp[first], idx[first]
