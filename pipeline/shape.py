@@ -39,6 +39,7 @@ class Shape:
         self.cache = GridCache(self)
         self.parent = parent
         self.bvhs = BvhCache()  # fcl BVHs of the narrow phase's world triangle sets, by content
+        self.ray_meshes: dict[bytes, object] = {}  # merged grids that rays were cast on (`queries.cast`)
 
     @property
     def grids(self) -> dict[tuple[int, int], PatchGrid]:
