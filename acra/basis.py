@@ -23,6 +23,7 @@ __all__ = [
     "Direction",
     "basis",
     "basis_all",
+    "basis_rows",
     "locate",
     "refine_rows",
 ]
@@ -55,27 +56,60 @@ def basis(t: np.ndarray, order: int = 0) -> np.ndarray:
         the rows are non-negative and sum to 1 (partition of unity, thesis Fig. 3.3).
     """
     t = np.asarray(t, dtype=np.float64)
+    if not 0 <= order <= 3:
+        raise ValueError(f"derivative order must be 0..3, got {order}")
     if order == 0:
-        # factored forms: no cancellation, so values stay non-negative to the last bit
-        s = 1.0 - t
-        return np.stack(
-            [s * s * s, (3.0 * t - 6.0) * t * t + 4.0, (3.0 * s - 6.0) * s * s + 4.0, t * t * t], axis=-1
-        ) / 6.0
+        out = np.empty(t.shape + (4,))
+        _blending(out, t)
+        return out
+    powers = np.empty(t.shape + (4,))
+    _derivative_powers(powers, t, order)
+    return powers @ _COEF.T
+
+
+def _blending(out: np.ndarray, t: np.ndarray) -> None:
+    """Write ``B_0..B_3`` at ``t (...)`` into ``out (..., 4)``: the factored forms, with no
+    cancellation, so values stay non-negative to the last bit."""
+    s = 1.0 - t
+    out[..., 0], out[..., 1] = s * s * s, (3.0 * t - 6.0) * t * t + 4.0
+    out[..., 2], out[..., 3] = (3.0 * s - 6.0) * s * s + 4.0, t * t * t
+    out /= 6.0
+
+
+def _derivative_powers(out: np.ndarray, t: np.ndarray, order: int) -> None:
+    """Write into ``out (..., 4)`` the ``order``-th derivative (1..3) of the powers ``1, t, t², t³``
+    at ``t (...)``: the row that `_COEF` maps to that derivative of the blending functions."""
     if order == 1:
-        powers = np.stack([np.zeros_like(t), np.ones_like(t), 2.0 * t, 3.0 * t * t], axis=-1)
-        return powers @ _COEF.T
-    if order == 2:
-        powers = np.stack([np.zeros_like(t), np.zeros_like(t), 2.0 * np.ones_like(t), 6.0 * t], axis=-1)
-        return powers @ _COEF.T
-    if order == 3:
-        powers = np.stack([np.zeros_like(t)] * 3 + [6.0 * np.ones_like(t)], axis=-1)
-        return powers @ _COEF.T
-    raise ValueError(f"derivative order must be 0..3, got {order}")
+        out[..., 0], out[..., 1], out[..., 2], out[..., 3] = 0.0, 1.0, 2.0 * t, 3.0 * t * t
+    elif order == 2:
+        out[..., 0], out[..., 1], out[..., 2], out[..., 3] = 0.0, 0.0, 2.0, 6.0 * t
+    else:
+        out[..., :3], out[..., 3] = 0.0, 6.0
 
 
 def basis_all(t: np.ndarray, max_order: int) -> np.ndarray:
     """Blending functions and derivatives up to ``max_order``: ``(max_order + 1, m, 4)``."""
     return np.stack([basis(t, d) for d in range(max_order + 1)])
+
+
+def basis_rows(t: np.ndarray, max_order: int) -> np.ndarray:
+    """`basis_all` point by point, ``(m, max_order + 1, 4)`` float64 for ``t (m,)``, equal to it bit
+    for bit: the derivative rows of every order go through one product with `_COEF` (each row's
+    product is its own dot of length 4, so batching them changes no bit), which is what an
+    evaluation of a few dozen points pays for, rather than the arithmetic. A single ``t`` takes
+    `basis_all`'s own route: numpy multiplies one row as a vector (BLAS ``gemv``), which rounds
+    differently from a product of several rows (``gemm``, fused multiply-adds)."""
+    t = np.asarray(t, dtype=np.float64)
+    if t.size == 1:
+        return basis_all(t.reshape(1), max_order).transpose(1, 0, 2).copy()
+    out = np.empty((t.size, max_order + 1, 4))
+    _blending(out[:, 0], t)
+    if max_order:
+        powers = np.empty((t.size, max_order, 4))
+        for d in range(1, max_order + 1):
+            _derivative_powers(powers[:, d - 1], t, d)
+        out[:, 1:] = (powers.reshape(-1, 4) @ _COEF.T).reshape(t.size, max_order, 4)
+    return out
 
 
 @dataclass(frozen=True)

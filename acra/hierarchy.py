@@ -140,8 +140,27 @@ class HSpline:
 
     def size(self) -> float:
         """Object size: the diagonal of the level-0 control net's bounding box."""
+        return self._size
+
+    @cached_property
+    def _size(self) -> float:
+        # once per surface: every tolerance of a query on it is relative to this
         pts = self.cvs.reshape(-1, 3)
         return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+
+    @cached_property
+    def _closed_ends(self) -> tuple[tuple[int, int], ...]:
+        """`closed_ends`, found once per surface (they depend on level 0 alone)."""
+        out, tol = [], 1e-6 * self.size()
+        for axis, d in ((0, self.u), (1, self.v)):
+            if d.periodic:
+                continue
+            grid = self.cvs if axis == 1 else self.cvs.transpose(1, 0, 2)  # (other, this, 3)
+            m = grid.shape[1]
+            for end, (e0, e1, e2) in enumerate(((0, 1, 2), (m - 1, m - 2, m - 3))):
+                if m >= 5 and np.ptp(grid[:, e0] + 4.0 * grid[:, e1] + grid[:, e2], axis=0).max() <= tol:
+                    out.append((axis, end))
+        return tuple(out)
 
 
 
@@ -358,16 +377,7 @@ def closed_ends(hs: HSpline) -> tuple[tuple[int, int], ...]:
     same point, and a response must keep it one point. Returns ``(axis, end)`` pairs: axis 0 = u,
     1 = v; end 0 at parameter 0, 1 at ``P0``.
     """
-    out, tol = [], 1e-6 * hs.size()
-    for axis, d in ((0, hs.u), (1, hs.v)):
-        if d.periodic:
-            continue
-        grid = hs.cvs if axis == 1 else hs.cvs.transpose(1, 0, 2)  # (other, this, 3)
-        m = grid.shape[1]
-        for end, (e0, e1, e2) in enumerate(((0, 1, 2), (m - 1, m - 2, m - 3))):
-            if m >= 5 and np.ptp(grid[:, e0] + 4.0 * grid[:, e1] + grid[:, e2], axis=0).max() <= tol:
-                out.append((axis, end))
-    return tuple(out)
+    return hs._closed_ends
 
 
 def pole_of(hs: HSpline, u: np.ndarray, v: np.ndarray) -> np.ndarray:

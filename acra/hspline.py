@@ -26,7 +26,7 @@ from functools import cached_property
 import numpy as np
 
 from . import hierarchy
-from .basis import Direction, basis_all, locate, refine_rows
+from .basis import Direction, basis_rows, locate, refine_rows
 from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used by interpolate, respond, tessellate and tests)
     _I4,
     HierarchyArrays,
@@ -115,7 +115,7 @@ def _segments(d: Direction, x: np.ndarray, k: int, side: int) -> tuple[np.ndarra
 def _rows(t: np.ndarray, scale: np.ndarray, order: int) -> np.ndarray:
     """Basis rows of derivative orders ``0..order`` w.r.t. level-0 units: ``(m, order+1, 4)``;
     ``scale (m,)`` is ``2**k`` of each point's level (d/dx = 2**k d/dt)."""
-    rows = basis_all(t, order).transpose(1, 0, 2)
+    rows = basis_rows(t, order)
     for o in range(1, order + 1):
         rows[:, o] *= (scale**o)[:, None]
     return rows
@@ -182,14 +182,25 @@ def evaluate(
     else:
         pts = np.zeros(0, np.int64)
         tus, tvs, scale, rows, table = tu[0], tv[0], np.ones(m), rows0, hs.cvs.reshape(-1, 3)
-    ru = _rows(tus, scale, order)  # (n, o, 4)
-    rv = _rows(tvs, scale, order)
-    block = np.take(table, rows, axis=0)  # (n, 4 a, 4 b, 3 c)
-
-    # tensor products as batched matrix products: sum_b rv[o, b] block[a, b, c] -> (n, a, o, c),
-    # then sum_a ru[p, a] (...) -> (n, p, o, c)
-    n, o = block.shape[0], order + 1
-    half = rv[:, None] @ block
+    # basis rows of u and v in one call: ``(n, o, 4)`` each, derivatives w.r.t. level-0 units
+    n, o = rows.shape[0], order + 1
+    if n > 1:
+        ruv = _rows(np.concatenate([tus, tvs]), np.concatenate([scale, scale]), order)
+        ru, rv = ruv[:n], ruv[n:]
+    else:  # one term: each direction's row alone, as `basis_rows` rounds a single row
+        ru, rv = _rows(tus, scale, order), _rows(tvs, scale, order)
+    if order:
+        # tensor products as batched matrix products: sum_b rv[o, b] block[a, b, c] for every
+        # (a, c) in one (o × 4)(4 × 12) product per term, the CV block gathered b-major, then
+        # sum_a ru[p, a] (...) -> (n, p, o, c). Each output entry is the same dot of length 4 as
+        # a product per row a would give, so this equals that form bit for bit at a third of
+        # the products.
+        block = np.take(table, rows.transpose(0, 2, 1), axis=0).reshape(n, 4, 12)  # (n, 4 b, 4 a · 3 c)
+        half = (rv @ block).reshape(n, o, 4, 3).transpose(0, 2, 1, 3)  # (n, a, o, c)
+    else:
+        # points alone: a (1 × 4)(4 × 3) product per row a (a vector-matrix product, which
+        # BLAS sums in another order than a matrix product)
+        half = rv[:, None] @ np.take(table, rows, axis=0)  # (n, 4 a, 1, 3 c)
     terms = (ru @ half.reshape(n, 4, 3 * o)).reshape(n, o, o, 3)
 
     # level 0 plus each fine term, added in level order (the terms are sorted by level)
@@ -216,11 +227,22 @@ def _segments_all(d: Direction, x: np.ndarray, levels: np.ndarray, side: int) ->
     return seg, t
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise ``a × b`` of ``(m, 3)`` arrays: `numpy.cross`'s products and differences (so the
+    same bits) without its general-shape set-up, which costs more than the arithmetic on the
+    few dozen rows an evaluation near a contact has."""
+    out = np.empty(a.shape)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 def _degenerate(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Cross products ``du × dv`` and where they are too small to give a direction: where a
     tangent (times the sine between them) is under 1e-6 of the object's size, the resolution at
     which float32 ``acra:cvs`` keep a pole one point; there ``du × dv`` is rounding noise."""
-    n = np.cross(ev.du, ev.dv)
+    n = _cross(ev.du, ev.dv)
     longest = np.maximum(np.linalg.norm(ev.du, axis=1), np.linalg.norm(ev.dv, axis=1))
     return n, np.linalg.norm(n, axis=1) <= 1e-6 * max(scale, 1e-300) * longest + 1e-12 * max(scale, 1e-300) ** 2
 
@@ -266,8 +288,8 @@ def surface_normals(
         e2 = evaluate(hs, u[idx], v[idx], order=2, det=det, upto=upto)
         su = np.sign(0.5 - locate(hs.u, u[idx], 0)[1])[:, None]
         sv = np.sign(0.5 - locate(hs.v, v[idx], 0)[1])[:, None]
-        c_u = np.cross(e2.duu, e2.dv) + np.cross(e2.du, e2.duv)
-        c_v = np.cross(e2.duv, e2.dv) + np.cross(e2.du, e2.dvv)
+        c_u = _cross(e2.duu, e2.dv) + _cross(e2.du, e2.duv)
+        c_v = _cross(e2.duv, e2.dv) + _cross(e2.du, e2.dvv)
         nf = su * c_u + sv * c_v
         ok = np.linalg.norm(nf, axis=1) > 1e-9 * scale**2
         n[idx[ok]] = nf[ok]
@@ -291,7 +313,7 @@ def _frames(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
     tl = np.linalg.norm(t, axis=1)
     weak = tl <= 1e-12 * (np.linalg.norm(ev.du, axis=1) + np.linalg.norm(ev.dv, axis=1) + 1e-300)
     if np.any(weak):  # du vanishes (pole): take the direction perpendicular to dv instead
-        alt = np.cross(ev.dv[weak], n[weak])
+        alt = _cross(ev.dv[weak], n[weak])
         t[weak] = alt
         tl[weak] = np.linalg.norm(alt, axis=1)
     still = tl <= 1e-300
@@ -301,7 +323,7 @@ def _frames(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
         t[still] = alt
         tl[still] = np.linalg.norm(alt, axis=1)
     e_u = t / tl[:, None]
-    e_v = np.cross(n, e_u)
+    e_v = _cross(n, e_u)
     return np.stack([e_u, e_v, n], axis=2)
 
 
@@ -322,12 +344,11 @@ def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
             continue
         # (j - 3 + d) >> k for d = 0..3 covers every level-0 patch of j's support; the interval
         # always meets the domain, so clipping (open) or wrapping (periodic) loses nothing
+        wrap = lambda q, d: np.mod(q, d.patches0) if d.periodic else np.clip(q, 0, d.patches0 - 1)  # noqa: E731
+        qvs = [wrap((jv - 3 + dv) >> k, new.v) for dv in range(4)]
         for du in range(4):
-            qu = (ju - 3 + du) >> k
-            qu = np.mod(qu, new.u.patches0) if new.u.periodic else np.clip(qu, 0, new.u.patches0 - 1)
-            for dv in range(4):
-                qv = (jv - 3 + dv) >> k
-                qv = np.mod(qv, new.v.patches0) if new.v.periodic else np.clip(qv, 0, new.v.patches0 - 1)
+            qu = wrap((ju - 3 + du) >> k, new.u)
+            for qv in qvs:
                 mask[qu, qv] = True
     for axis, d in ((0, new.u), (1, new.v)):
         mask = _dilate(mask, margin, axis, d.periodic)
@@ -420,7 +441,8 @@ def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: 
     ju, jv = _split_cv(hs, k, hs.level(k).cv_keys[rows])
     for i, (axis, end) in enumerate(ends):
         j, d = (ju, hs.u) if axis == 0 else (jv, hs.v)
-        out[np.isin(j, _end_rows(d.cvs(k), end))] = i
+        first, last = _end_rows(d.cvs(k), end)[[0, 2]]  # the three rows at the end, a run
+        out[(j >= min(first, last)) & (j <= max(first, last))] = i
     return out
 
 

@@ -57,6 +57,8 @@ def instrument() -> None:
     for name in ("nearest", "cast"):
         setattr(S.Shape, name, _timed(f"Shape.{name}", getattr(S.Shape, name)))
     grids.GridCache.build = _timed("GridCache.build", grids.GridCache.build)
+    grids.BvhCache.get = _timed("BvhCache.get (fcl BVHs asked for)", grids.BvhCache.get)
+    grids._build = _timed("grids._build (fcl BVHs built)", grids._build)
     for name in ("hulls", "_coarse"):
         prop = getattr(S.Shape, name)
         prop.func = _timed(f"Shape.{name}", prop.func)

@@ -23,6 +23,7 @@ import trimesh
 from acra import hspline as H
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
+from pipeline.grids import triangle_boxes
 from pipeline.shape import Closest, Shape, bvh as _bvh, overlap as _overlap, shape_of
 
 __all__ = [
@@ -252,8 +253,7 @@ def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
 
 def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``."""
-    tri = points[faces]
-    return tri.min(axis=1), tri.max(axis=1)
+    return triangle_boxes(points[faces])
 
 
 def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray, np.ndarray], pad: float, rounds: int = 2):
@@ -306,9 +306,9 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), _face_boxes(pb, fb_all), pad)
     if not len(ka):
         return none
-    oa = _bvh(pa, ta.triangles[ka])
+    oa = ga.shape.bvhs.get(pa, ta.triangles[ka])
     if not collider:
-        ob = _bvh(pb, fb_all[kb])
+        ob = gb.shape.bvhs.get(pb, fb_all[kb])
     res = fcl.CollisionResult()
     fcl.collide(oa, ob, fcl.CollisionRequest(num_max_contacts=_MAX_CONTACTS, enable_contact=True), res)
     n = len(res.contacts)

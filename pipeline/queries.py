@@ -66,6 +66,26 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     return inside, Nearest(near.distance[side], near.points[side], near.uv[side])
 
 
+def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> trimesh.Trimesh:
+    """The merged mesh of the collision grids of flattened patch rows ``hit (m,) int64``
+    (``patches (P, 2) int64``: their (row, column)), with its embree scene once a ray is cast;
+    the last few are kept on ``shape`` (`Shape.ray_meshes`): the rays of a frame's data points
+    and of the next round's often meet the same patches of the same surface, and a kept mesh
+    answers as the same mesh built again would."""
+    key = hit.tobytes()
+    mesh = shape.ray_meshes.pop(key, None)
+    if mesh is None:
+        grids = shape.grids_for(patches[hit])
+        base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+        mesh = trimesh.Trimesh(np.concatenate([g.points for g in grids]),
+                               np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)]), process=False)
+        mesh.merge_vertices()  # patch borders are evaluated twice: share them, or rays slip through float32 cracks
+    shape.ray_meshes[key] = mesh
+    while len(shape.ray_meshes) > 4:
+        del shape.ray_meshes[next(iter(shape.ray_meshes))]
+    return mesh
+
+
 def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First hits ``(m, 3)`` of object-space rays ``origins, directions (n, 3)`` on the
     collision grids, the row of each hit ray ``(m,) int64``, and its distance along the
@@ -81,11 +101,7 @@ def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.
     empty = np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
     if not len(hit):
         return empty
-    grids = shape.grids_for(patches[hit])
-    base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
-    mesh = trimesh.Trimesh(np.concatenate([g.points for g in grids]),
-                           np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)]), process=False)
-    mesh.merge_vertices()  # patch borders are evaluated twice: share them, or rays slip through float32 cracks
+    mesh = _ray_mesh(shape, patches, hit)
     loc, ray, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
     # embree works in float32 and can let a ray through an edge it meets exactly: retry the
     # rays that met a box but no triangle in float64 (rare, so the slower intersector is fine)

@@ -20,7 +20,7 @@ from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.tessellate import patch_grids, patch_hulls
 from pipeline import queries
-from pipeline.grids import (COLLAPSE, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
+from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
                             timed)
 
 __all__ = ["PatchGrid", "GridSet", "GridCache", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh",
@@ -38,6 +38,8 @@ class Shape:
         self.surface, self.density, self.max_density = surface, density, max_density
         self.cache = GridCache(self)
         self.parent = parent
+        self.bvhs = BvhCache()  # fcl BVHs of the narrow phase's world triangle sets, by content
+        self.ray_meshes: dict[bytes, object] = {}  # merged grids that rays were cast on (`queries.cast`)
 
     @property
     def grids(self) -> dict[tuple[int, int], PatchGrid]:

@@ -127,6 +127,34 @@ def test_closest_picks_the_same_triangle_as_testing_every_triangle(seed):
         assert np.array_equal(close[i], cp[best])
 
 
+def test_bvh_cache_answers_equal_triangle_sets_with_one_tree():
+    """`grids.BvhCache` finds a BVH by the content it is built from: equal arrays (another copy,
+    unused vertices aside) give the same tree, a vertex moved by one ulp a new one, and a found
+    tree collides exactly as a rebuilt one; the oldest entries go past ``kept``."""
+    import fcl
+
+    from pipeline import grids
+
+    cache = grids.BvhCache(kept=2)
+    vertices, faces = BOX_VERTICES.astype(np.float64), np.asarray(BOX_TRIANGLES, np.int64)
+    first = cache.get(vertices, faces)
+    padded = np.concatenate([vertices, [[9.0, 9.0, 9.0]]])  # a vertex no face uses
+    assert cache.get(padded.copy(), faces.copy()) is first
+    moved = vertices.copy()
+    moved[0, 0] = np.nextafter(moved[0, 0], np.inf)
+    assert cache.get(moved, faces) is not first
+    other = grids.bvh(vertices + 0.5, faces)
+    request = fcl.CollisionRequest(num_max_contacts=1000, enable_contact=True)
+    found, rebuilt = fcl.CollisionResult(), fcl.CollisionResult()
+    fcl.collide(cache.get(vertices, faces), other, request, found)
+    fcl.collide(grids.bvh(vertices, faces), other, request, rebuilt)
+    assert [(c.b1, c.b2, tuple(c.pos)) for c in found.contacts] == [(c.b1, c.b2, tuple(c.pos)) for c in rebuilt.contacts]
+    assert len(found.contacts) > 0
+    cache.get(vertices * 2.0, faces)
+    cache.get(vertices * 3.0, faces)
+    assert cache.get(moved, faces) is not None and len(cache._built) == 2
+
+
 def test_a_reversed_surface_still_has_its_inside_inside():
     """Swapping u's direction turns ``du × dv`` inward; `Shape.outward` finds it."""
     cvs, pu, pv = shapes.sphere(8, 8)
