@@ -1,0 +1,398 @@
+"""Certified residual penetration (`pipeline.clearance`): signed depths by pseudo-normals, the
+covering radius, the branch and bound of triangle depths, and the object/world conversion.
+
+Truth comes from elsewhere: the exact depth of an interior point of a convex polytope (the
+smallest distance to a face plane), a linear programme for a plane through a box, and
+`acceptance.visible.surface_distance` (fcl) with trimesh's ray-parity ``contains`` on a dense
+barycentric grid of 64 steps per edge.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import linprog
+
+from acceptance.visible import surface_distance
+from pipeline import clearance as C
+
+STEPS = 64  # dense grid steps per triangle edge (2^max_split: the evaluated lattice is a subset)
+PROPERTY = settings(max_examples=25, derandomize=True, deadline=None)
+
+
+def unit_cube():
+    m = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    return trimesh.Trimesh(m.vertices + 0.5, m.faces, process=False)  # [0, 1]^3
+
+
+def box2():
+    return trimesh.creation.box(extents=(2.0, 2.0, 2.0))  # [-1, 1]^3
+
+
+def icosphere():
+    return trimesh.creation.icosphere(subdivisions=2)
+
+
+def torus():
+    return trimesh.creation.torus(1.0, 0.35, major_sections=32, minor_sections=16)
+
+
+def plane_depth(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """Exact depth ``(k,)`` of points inside a convex ``mesh``: the smallest distance to a face
+    plane (positive inside)."""
+    n = mesh.face_normals
+    a = mesh.vertices[mesh.faces[:, 0]]
+    return (np.einsum("fc,fc->f", n, a)[None, :] - points @ n.T).min(axis=1)
+
+
+def dense_depth(mesh: trimesh.Trimesh, tri: np.ndarray, steps: int = STEPS) -> float:
+    """Largest depth inside ``mesh`` over a barycentric grid of ``steps`` per edge on each of
+    ``tri (t, 3, 3)``: trimesh ``contains`` for inside, fcl for the distance."""
+    w = np.array([(i, j, steps - i - j) for i in range(steps + 1) for j in range(steps + 1 - i)], np.float64) / steps
+    pts = np.einsum("wk,tkc->twc", w, tri).reshape(-1, 3)
+    inside = pts[mesh.contains(pts)]
+    return float(surface_distance(mesh, inside).max()) if len(inside) else 0.0
+
+
+def uv_sphere(rows: int = 12, cols: int = 20, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A unit sphere as an unwelded ``(rows + 1) x (cols + 1)`` grid: pole rows of ``cols + 1``
+    copies of one point (each off by ~1e-12, as float output of one point at several parameters
+    is) and a periodic seam column repeated. Quads split in two, wound outward."""
+    rng = np.random.default_rng(seed)
+    th = np.linspace(0.0, np.pi, rows + 1)[:, None]
+    ph = np.linspace(0.0, 2 * np.pi, cols + 1)[None, :]
+    v = np.stack(np.broadcast_arrays(np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)), axis=-1).reshape(-1, 3)
+    v += 1e-12 * rng.normal(size=v.shape)
+    idx = np.arange((rows + 1) * (cols + 1)).reshape(rows + 1, cols + 1)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]
+    faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
+    return v, faces
+
+
+# --- signed depth ---------------------------------------------------------------------------------
+def test_cube_exact_signed_depths():
+    s = C.solid(*(lambda m: (m.vertices, m.faces))(unit_cube()))
+    pts = np.array([
+        [0.5, 0.5, 0.5],  # centre
+        [0.5, 0.5, 0.9],  # inside under a face
+        [0.5, 0.5, 1.0],  # on a face
+        [2.0, 0.5, 0.5],  # outside a face
+        [1.1, 1.1, 0.5],  # outside an edge: the closest point is on the edge
+        [1.1, 1.2, 1.3],  # outside a vertex
+        [0.9, 0.95, 0.99],  # inside, near a vertex
+        [0.99, 0.99, 0.5],  # inside, near an edge (two faces tie)
+        [1.0, 1.0, 1.0],  # a vertex
+        [-1e-3, 0.5, 1 + 1e-3],  # outside, just past an edge
+    ])
+    want = [0.5, 0.1, 0.0, -1.0, -np.sqrt(0.02), -np.sqrt(0.14), 0.01, 0.01, 0.0, -np.sqrt(2e-6)]
+    sd, close = C.signed_depth(s, pts)
+    np.testing.assert_allclose(sd, want, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(close[4], [1.0, 1.0, 0.5], atol=1e-15)
+    np.testing.assert_allclose(close[5], [1.0, 1.0, 1.0], atol=1e-15)
+
+
+def test_cube_agrees_with_exact_box_distance_on_random_points():
+    s = C.solid(unit_cube().vertices, unit_cube().faces)
+    p = np.random.default_rng(1).uniform(-0.5, 1.5, size=(4000, 3))
+    outside = np.linalg.norm(np.maximum(np.abs(p - 0.5) - 0.5, 0.0), axis=1)
+    inside = np.min(np.concatenate([p, 1 - p], axis=1), axis=1)
+    want = np.where(outside > 0, -outside, inside)
+    np.testing.assert_allclose(C.signed_depth(s, p)[0], want, rtol=0, atol=1e-14)
+
+
+def test_icosphere_exact_inside_and_at_its_five_fold_vertices():
+    m = icosphere()
+    s = C.solid(m.vertices, m.faces)
+    rng = np.random.default_rng(2)
+    p = rng.normal(size=(2000, 3))
+    p *= (rng.uniform(0, 0.9, size=2000) / np.linalg.norm(p, axis=1))[:, None]
+    np.testing.assert_allclose(C.signed_depth(s, p)[0], plane_depth(m, p), rtol=0, atol=1e-14)
+    assert C.signed_depth(s, [[0, 0, 0]])[0][0] == pytest.approx(plane_depth(m, np.zeros((1, 3)))[0], abs=1e-15)
+    five = np.nonzero(np.bincount(m.faces.ravel()) == 5)[0]  # the icosahedron's corners: radial symmetry axes
+    assert len(five) == 12
+    sd, close = C.signed_depth(s, 1.5 * m.vertices[five])
+    np.testing.assert_allclose(sd, -0.5, atol=1e-14)  # the closest point is the vertex
+    np.testing.assert_allclose(close, m.vertices[five], atol=1e-14)
+
+
+@pytest.mark.parametrize("make", [icosphere, torus], ids=["icosphere", "torus"])
+def test_random_points_agree_with_trimesh_and_fcl(make):
+    m = make()
+    s = C.solid(m.vertices, m.faces)
+    lo, hi = m.bounds
+    p = np.random.default_rng(3).uniform(lo - 0.2, hi + 0.2, size=(3000, 3))
+    sd, _ = C.signed_depth(s, p)
+    dist = surface_distance(m, p)
+    np.testing.assert_allclose(np.abs(sd), dist, rtol=0, atol=1e-12)
+    clear = dist > 1e-6  # ray parity is unreliable at the surface
+    np.testing.assert_array_equal(sd[clear] > 0, m.contains(p[clear]))
+
+
+@pytest.mark.parametrize("make", [icosphere, torus], ids=["icosphere", "torus"])
+def test_points_off_vertices_and_edges_get_the_right_sign(make):
+    """Points just off every vertex and edge midpoint along the feature's normal either way: the
+    closest feature is the vertex or edge itself, where eq. (1) needs the pseudo-normal."""
+    m = make()
+    s = C.solid(m.vertices, m.faces)
+    eps = 1e-3
+    edges = m.edges_unique
+    mid = m.vertices[edges].mean(axis=1)
+    edge_n = trimesh.unitize(m.face_normals[m.face_adjacency].sum(axis=1))
+    # face_adjacency_edges and edges_unique list the same edges: match them by sorted pair
+    key_adj = {tuple(e): i for i, e in enumerate(np.sort(m.face_adjacency_edges, axis=1))}
+    mid_n = edge_n[[key_adj[tuple(e)] for e in np.sort(edges, axis=1)]]
+    base = np.concatenate([m.vertices, mid])
+    normal = np.concatenate([m.vertex_normals, mid_n])
+    for side, inside in ((1.0, False), (-1.0, True)):
+        p = base + side * eps * normal
+        sd, _ = C.signed_depth(s, p)
+        np.testing.assert_array_equal(sd > 0, inside)
+        np.testing.assert_array_equal(m.contains(p), inside)
+
+
+def test_uv_sphere_pole_rows_and_seam_are_welded_watertight():
+    rows, cols = 12, 20
+    v, f = uv_sphere(rows, cols)
+    assert not trimesh.Trimesh(v, f, process=False).is_watertight
+    s = C.solid(v, f)
+    assert len(s.vertices) == (rows - 1) * cols + 2
+    assert len(s.faces) == 2 * cols * (rows - 1)  # each pole row's quads lose their sliver
+    welded = trimesh.Trimesh(s.vertices, s.faces, process=False)
+    assert welded.is_watertight and welded.is_winding_consistent and welded.volume > 0
+    p = np.random.default_rng(4).uniform(-0.6, 0.6, size=(500, 3))  # inside (the poles' noise makes it not quite convex)
+    np.testing.assert_allclose(C.signed_depth(s, p)[0], surface_distance(welded, p), rtol=0, atol=1e-12)
+
+
+def test_inward_faces_are_flipped():
+    m = icosphere()
+    s = C.solid(m.vertices, m.faces[:, ::-1])
+    assert C.signed_depth(s, [[0.0, 0.0, 0.0]])[0][0] > 0.9
+    assert trimesh.Trimesh(s.vertices, s.faces, process=False).volume > 0
+
+
+def test_defects_raise():
+    m = icosphere()
+    with pytest.raises(ValueError, match="3 boundary edges"):
+        C.solid(m.vertices, m.faces[1:])
+    flipped = m.faces.copy()
+    flipped[0] = flipped[0, ::-1]
+    with pytest.raises(ValueError, match="inconsistently oriented"):
+        C.solid(m.vertices, flipped)
+    with pytest.raises(ValueError, match="non-manifold"):
+        C.solid(np.concatenate([m.vertices, [[2.0, 0, 0], [0, 2.0, 0]]]), _fin(m))
+
+
+def _fin(m: trimesh.Trimesh) -> np.ndarray:
+    """``m``'s faces with a closed tetrahedron glued to one of its edges: that edge in 4 faces."""
+    a, b = m.edges_unique[0]
+    n = len(m.vertices)
+    return np.concatenate([m.faces, [[a, b, n], [b, a, n + 1], [a, n + 1, n], [b, n, n + 1]]])
+
+
+# --- covering radius -----------------------------------------------------------------------------
+def test_covering_radius_exact():
+    tri = np.array([
+        [[0, 0, 0], [1, 0, 0], [0.5, np.sqrt(3) / 2, 0]],  # equilateral: circumradius 1/sqrt(3)
+        [[0, 0, 0], [3, 0, 0], [0, 4, 0]],  # right: half the hypotenuse
+        [[0, 0, 0], [2, 0, 0], [1, 0.1, 0]],  # obtuse: |AC| / (2 cos A) = 1.01 x 2 / (2 x 2)
+        [[0, 0, 0], [2, 0, 0], [0.5, 0.3, 0]],  # obtuse, lopsided: |BC|^2 |AB| / (2 BC . BA)
+        [[0, 0, 0], [2, 0, 0], [1, 0, 0]],  # collinear: half of the longer piece
+        [[0, 0, 0], [2, 0, 0], [0, 0, 0]],  # two corners at one point: half the edge
+        [[1, 1, 1], [1, 1, 1], [1, 1, 1]],  # a point
+    ], np.float64)
+    want = [1 / np.sqrt(3), 2.5, 0.505, 2.34 * 2 / (2 * 3.0), 0.5, 1.0, 0.0]
+    np.testing.assert_allclose(C.covering_radius(tri), want, rtol=1e-15, atol=0)
+    assert C.covering_radius(tri)[2] < 1.0  # below half the longest edge
+
+
+@PROPERTY
+@given(st.integers(0, 2**31))
+def test_covering_radius_covers_and_is_attained(seed):
+    """Against the largest distance to the nearest corner over a barycentric grid of 200 steps:
+    covered, and attained to within the grid's spacing (random triangles: acute and obtuse)."""
+    tri = np.random.default_rng(seed).normal(size=(1, 3, 3))
+    w = np.array([(i, j, 200 - i - j) for i in range(201) for j in range(201 - i)], np.float64) / 200
+    pts = w @ tri[0]
+    worst = np.linalg.norm(pts[:, None] - tri[0][None], axis=2).min(axis=1).max()
+    rho = C.covering_radius(tri)[0]
+    edge = np.linalg.norm(tri[0] - tri[0][[1, 2, 0]], axis=1).max()
+    assert worst <= rho * (1 + 1e-12)
+    assert rho <= worst + edge / 200  # the grid's spacing
+
+
+# --- triangle depth ------------------------------------------------------------------------------
+def box_solid():
+    m = box2()
+    return m, C.solid(m.vertices, m.faces)
+
+
+def test_plane_through_box_peaks_between_outside_corners():
+    """z = 0 through [-1, 1]^3: the depth min(1 - |x|, 1 - |y|, 1) peaks at 1 at the origin, inside
+    the triangle, while its corners are outside."""
+    m, s = box_solid()
+    tri = np.array([[[-3.1, -2.9, 0.0], [6.3, -3.2, 0.0], [-2.7, 6.1, 0.0]]])
+    assert np.all(C.signed_depth(s, tri[0])[0] < 0)
+    for target in (0.0, 0.01, 0.2, 1.2):
+        d = C.triangle_depth(s, tri, target)
+        assert d.complete
+        assert d.lower <= 1.0 <= d.bound <= max(target, 1.25 * d.lower) <= max(target, 1.25)
+        assert 0 < d.split < 6 and d.evaluated < (STEPS + 1) * (STEPS + 2) // 2
+
+
+def test_tilted_plane_through_box_matches_linear_programme():
+    """The depth in [-1, 1]^3 is min(1 - |x_i|): its maximum over a triangle is a linear programme."""
+    _, s = box_solid()
+    tri = np.array([[[-2.5, -1.7, -1.2], [3.1, -0.8, 0.9], [0.2, 3.3, 0.4]]])
+    # maximise t: t <= 1 -+ x_i, x = sum_k w_k c_k, w >= 0, sum w = 1
+    a, rows = tri[0].T, []  # a: (3 coords, 3 corners)
+    for sign in (1, -1):
+        for i in range(3):
+            rows.append(np.r_[sign * a[i], 1.0])
+    res = linprog(np.r_[0, 0, 0, -1.0], A_ub=np.array(rows), b_ub=np.ones(6), A_eq=[[1, 1, 1, 0]], b_eq=[1],
+                  bounds=[(0, None)] * 3 + [(None, None)], method="highs")
+    exact = -res.fun
+    assert 0.3 < exact < 1
+    for target in (0.0, 0.02):
+        d = C.triangle_depth(s, tri, target)
+        assert d.lower <= exact + 1e-12 and d.bound >= exact - 1e-12
+        if d.complete:
+            assert d.bound <= max(target, 1.25 * exact) + 1e-12
+
+
+def test_outside_triangles_bound_zero():
+    _, s = box_solid()
+    far = np.array([[[3.0, 0, 0], [4, 1, 0], [3, 2, 1]]])
+    d = C.triangle_depth(s, far, 0.0)
+    assert (d.bound, d.lower, d.complete, d.evaluated, len(d.depth)) == (0.0, 0.0, True, 0, 0)
+    m = icosphere()  # inside the sphere's box, outside the sphere: queried, certified 0
+    corner = np.array([[[0.9, 0.9, 0.7], [0.7, 0.9, 0.9], [0.9, 0.7, 0.9]]])
+    d = C.triangle_depth(C.solid(m.vertices, m.faces), corner, 0.0)
+    assert (d.bound, d.complete, d.split) == (0.0, True, 0) and d.evaluated == 3
+
+
+def test_tiny_deep_triangle_is_its_corner_plus_rho():
+    _, s = box_solid()
+    tri = np.array([[[0.1, 0.0, 0.0], [0.0, 0.13, 0.0], [0.0, 0.0, 0.07]]])
+    d = C.triangle_depth(s, tri, 0.0)
+    assert (d.complete, d.split, d.evaluated) == (True, 0, 3)  # U <= 1.25 L at once
+    assert d.bound == pytest.approx(0.93 + C.covering_radius(tri)[0], abs=1e-15)  # the corner on z
+    assert d.lower == pytest.approx(0.93, abs=1e-15)
+    np.testing.assert_allclose(np.sort(d.depth), [0.87, 0.9, 0.93], atol=1e-15)
+    np.testing.assert_array_equal(d.tri, 0)
+    np.testing.assert_allclose(np.einsum("mk,mkc->mc", d.bary, tri[d.tri]), d.points, atol=1e-15)
+
+
+def test_found_points_are_consistent_and_shared_corners_evaluated_once():
+    _, s = box_solid()
+    fan = np.array([[0, 0, 0.5], [2, 0, 0.5], [0, 2, 0.5], [-2, 0, 0.5], [0, -2, 0.5]], np.float64)
+    tri = fan[[[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]]]
+    d = C.triangle_depth(s, tri, 10.0)  # target above any bound: corners only
+    assert (d.evaluated, d.split, d.complete) == (5, 0, True)
+    d = C.triangle_depth(s, tri, 0.01)
+    assert d.complete and d.lower == pytest.approx(0.5, abs=1e-15) and 0.5 <= d.bound <= 0.625
+    assert np.all(d.depth > 0) and np.all((d.tri >= 0) & (d.tri < 4))
+    np.testing.assert_allclose(d.bary.sum(axis=1), 1.0, atol=1e-15)
+    np.testing.assert_allclose(np.einsum("mk,mkc->mc", d.bary, tri[d.tri]), d.points, atol=1e-15)
+    np.testing.assert_allclose(C.signed_depth(s, d.points)[0], d.depth, atol=1e-15)
+    assert len(np.unique(d.points, axis=0)) == len(d.points)  # a point of two triangles' shared edge once
+
+
+def test_cap_and_budget_stop_early_but_still_bound():
+    _, s = box_solid()
+    tri = np.array([[[-3.1, -2.9, 0.0], [6.3, -3.2, 0.0], [-2.7, 6.1, 0.0]]])
+    d0 = C.triangle_depth(s, tri, 0.01, max_split=0)
+    corners = C.signed_depth(s, tri[0])[0]
+    assert not d0.complete and d0.bound == pytest.approx(corners.max() + C.covering_radius(tri)[0], abs=1e-14)
+    for budget in (10, 30, 60):
+        d = C.triangle_depth(s, tri, 0.01, budget=budget)
+        assert not d.complete and d.evaluated <= budget and d.bound >= 1.0
+
+
+# --- the bound against a dense grid ------------------------------------------------------------------
+SHAPES = {"box": box2, "icosphere": icosphere, "torus": torus}
+CACHE: dict = {}
+
+
+def shape(name):
+    if name not in CACHE:
+        m = SHAPES[name]()
+        CACHE[name] = (m, C.solid(m.vertices, m.faces))
+    return CACHE[name]
+
+
+def check_against_dense(m, s, tri, target):
+    d = C.triangle_depth(s, tri, target)
+    truth = dense_depth(m, tri)
+    assert d.bound >= truth - 1e-12
+    assert d.lower <= truth + 1e-12  # the evaluated points are on the dense grid
+    if d.complete:
+        assert d.bound <= max(target, 1.25 * truth) + 1e-12
+
+
+@settings(max_examples=60, derandomize=True, deadline=None)
+@given(name=st.sampled_from(sorted(SHAPES)), seed=st.integers(0, 2**31), size=st.floats(0.05, 1.5),
+       target=st.sampled_from([0.0, 1e-3, 0.02, 0.1]), pair=st.booleans())
+def test_bound_covers_dense_grid(name, seed, size, target, pair):
+    """Random triangles through the shape, alone or two sharing an edge."""
+    m, s = shape(name)
+    rng = np.random.default_rng(seed)
+    at = m.vertices[rng.integers(len(m.vertices))] + 0.2 * rng.normal(size=3)
+    a, b, c, e = at + size * rng.normal(size=(4, 3))
+    check_against_dense(m, s, np.array([[a, b, c], [b, a, e]] if pair else [[a, b, c]]), target)
+
+
+@PROPERTY
+@given(name=st.sampled_from(sorted(SHAPES)), seed=st.integers(0, 2**31), target=st.sampled_from([0.0, 1e-3, 5e-3]))
+def test_bound_covers_dense_grid_in_light_contact(name, seed, target):
+    """Small triangles hugging the surface, corners within 0.01 of it on either side: depths near
+    the tolerance, where the sign of points close to the surface decides."""
+    m, s = shape(name)
+    rng = np.random.default_rng(seed)
+    f = rng.integers(len(m.faces))
+    centre, normal = m.triangles_center[f], m.face_normals[f]
+    tangent = trimesh.unitize(np.cross(normal, rng.normal(size=3)))
+    base = centre + 0.1 * rng.normal(size=(3, 1)) * tangent + 0.1 * rng.normal(size=(3, 1)) * np.cross(normal, tangent)
+    tri = (base + rng.uniform(-0.01, 0.01, size=(3, 1)) * normal)[None]
+    check_against_dense(m, s, tri, target)
+
+
+# --- object space and world space --------------------------------------------------------------------
+def rotation(seed: int) -> np.ndarray:
+    q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    return q * np.sign(np.diag(r))
+
+
+def affine(linear: np.ndarray, shift) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = linear, shift
+    return m
+
+
+def test_similarity_gives_world_depth_exactly():
+    box, s = box_solid()
+    mat = affine(2.5 * rotation(5), [0.3, -1.0, 2.0])
+    assert C.sigma_max(mat) == pytest.approx(2.5, rel=1e-14)
+    world = box.vertices @ mat[:3, :3].T + mat[:3, 3]
+    sw = C.solid(world, box.faces)
+    p = np.random.default_rng(6).uniform(-4, 4, size=(2000, 3)) + mat[:3, 3]
+    np.testing.assert_allclose(2.5 * C.signed_depth(s, C.to_object(mat, p))[0], C.signed_depth(sw, p)[0], atol=1e-12)
+    tri = np.array([[[-3.1, -2.9, 0.0], [6.3, -3.2, 0.0], [-2.7, 6.1, 0.0]]])
+    tw = tri @ mat[:3, :3].T + mat[:3, 3]
+    d = C.triangle_depth(s, C.to_object(mat, tw), C.object_target(mat, 0.05))
+    assert d.complete
+    assert 2.5 <= C.world_bound(mat, d.bound) <= max(0.05, 1.25 * 2.5)  # world truth: 2.5 x 1
+    assert C.world_bound(mat, d.bound) == pytest.approx(C.triangle_depth(sw, tw, 0.05).bound, rel=1e-12)
+
+
+def test_non_uniform_scale_bound_covers_world_truth():
+    box, s = box_solid()
+    mat = affine(rotation(7) @ np.diag([1.0, 2.0, 0.5]) @ rotation(8), [1.0, 0.0, -0.5])
+    world = trimesh.Trimesh(box.vertices @ mat[:3, :3].T + mat[:3, 3], box.faces, process=False)
+    rng = np.random.default_rng(9)
+    for _ in range(6):
+        tw = mat[:3, 3] + rng.normal(size=(1, 3, 3))
+        d = C.triangle_depth(s, C.to_object(mat, tw), C.object_target(mat, 0.01))
+        assert C.world_bound(mat, d.bound) >= dense_depth(world, tw) - 1e-12
