@@ -2,8 +2,10 @@
 inside a closed triangle mesh.
 
 The residual a user sees is the depth of the continuous display triangles of one object inside
-another closed object, not the depth at sample points. This module bounds it from above, cheaply
-enough for every detect/respond round.
+another closed object, not the depth at sample points. This module bounds it from above, to run
+every detect/respond round. Its cost grows as ``(triangle size / target)^2`` where triangles lie
+along the other surface within the target (``python3 benchmarks/clearance_cost.py``): eq. (4) only
+knows distances at corners.
 
 **Signed depth** (`signed_depth`). For a closed, watertight, outward-oriented triangle mesh ``B``,
 ``|sd(p)|`` is the exact distance from ``p`` to ``B``'s triangles, positive inside, negative outside.
@@ -28,11 +30,13 @@ with ``n_f`` unless a face folds back onto its neighbour.
     rho(t) = max_{p in t} min_i |p - c_i|                                                 (3)
 
 the covering radius of ``t`` by its corners (`covering_radius`): the circumradius if ``t`` is acute
-or right, else half its longest edge. Depth is ``max(0, sd)``, so a cell's bound is
+or right; for an obtuse ``t`` the farthest point lies on its longest edge, below half that edge's
+length. Depth is ``max(0, sd)``, so a cell's bound is
 
     U(t) = max(0, max_i sd(c_i) + rho(t))                                                 (4)
 
-and ``U(t) = 0`` certifies ``t`` wholly outside.
+and ``U(t) = 0`` certifies ``t`` wholly outside. So does a box apart from ``B``'s box (``B`` lies
+in its box): such triangles are not queried.
 
 **Branch and bound.** Cells start as the given triangles. ``L``, the largest ``sd`` at any evaluated
 point, bounds the true maximum from below. A cell with ``U(t) > max(target, 1.25 L)`` is split into
@@ -100,8 +104,8 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _weld(vertices: np.ndarray, radius: float) -> np.ndarray:
-    """Label ``(n,) int64`` of each of ``vertices (n, 3)``: vertices chained by distances
-    ``<= radius`` share one label; labels number the groups by their first vertex."""
+    """Label ``(n,) int64`` in ``0 .. g-1`` of each of ``vertices (n, 3)``: vertices chained by
+    distances ``<= radius`` share one."""
     n = len(vertices)
     pairs = cKDTree(vertices).query_pairs(radius, output_type="ndarray") if radius > 0 else np.zeros((0, 2), np.int64)
     if not len(pairs):
