@@ -36,6 +36,7 @@ __all__ = [
 
 _MAX_CONTACTS = 1_000_000
 _PAD = 1e-7  # box padding, fraction of the pair's size: exactly touching boxes still overlap
+ON_MESH = 1e-9  # a point this close to a collider's mesh (fraction of the mesh's size) lies on it: not inside
 
 
 # --- static collider data (once per run) and per-time geometry --------------------------------
@@ -321,21 +322,51 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
 
 
 # --- inside tests, distances, projections -------------------------------------------------------
+def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = False):
+    """`inside` of a collider ``(k,) bool`` and, with ``depth``, the world distances ``(m,)`` of
+    the points inside to its mesh.
+
+    Ray parity (trimesh ``contains``, embree) has no answer for a point on the mesh: whether a
+    ray from it meets the face it sits on depends on the last bits of its coordinates, and
+    trimesh re-casts the rays of a point whose two directions disagree in a random direction.
+    Those bits are rounding, and rounding does not scale with the scene: a rim bisection's
+    midpoint exactly on a box's side face at one scale lies a rounding error inside it at
+    another, and the two runs then bisect to different crossings. So a point within `ON_MESH`
+    of the mesh's size (object space, where the parity test runs) lies on the mesh and is not
+    inside, whatever the parity says: its depth would be rounding, and `with_on_surface` is what
+    adds on-surface points to a region. Farther points keep the parity answer. Only points the
+    parity calls inside need the distance, which `regions` needs for their depth anyway."""
+    static = geom.static
+    local = apply_inverse(geom.xform, points)
+    # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
+    # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
+    if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
+        trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
+    m = static.mesh.contains(local)
+    rows = np.nonzero(m)[0]
+    if not len(rows):
+        return (m, np.zeros(0)) if depth else m
+    band = ON_MESH * static.mesh.scale
+    if not depth:
+        m[rows[static.index.within(local[rows], band)]] = False
+        return m
+    dist, close, _ = static.index.query(local[rows])
+    on = dist <= band
+    m[rows[on]] = False
+    return m, np.linalg.norm(points[rows[~on]] - apply_xform(geom.xform, close[~on]), axis=1)
+
+
 def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
     """Which world ``points (k, 3)`` lie inside ``geom``: ``(k,) bool``, all False if it is open.
-    A collider: ray parity on its watertight mesh (embree); a deformable: behind the outward
-    normal at the closest point of its collision grids (`Shape.signed`). Points on the surface
-    may go either way."""
+    A collider: ray parity on its watertight mesh (embree), a point within `ON_MESH` of the
+    mesh's size from it lying on it, not inside (`_collider_inside`); a deformable: behind the
+    outward normal at the closest point of its collision grids (`Shape.signed`)."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if not len(points) or not is_closed(geom):
         return np.zeros(len(points), bool)
     if isinstance(geom, SurfaceGeometry):
         return geom.shape.signed(geom.to_object(points))[0]
-    # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
-    # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
-    if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
-        trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
-    return geom.static.mesh.contains(apply_inverse(geom.xform, points))
+    return _collider_inside(geom, points)
 
 
 def surface_distance(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -356,6 +387,8 @@ def _inside_depth(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.nd
     if isinstance(geom, SurfaceGeometry) and len(points) and geom.closed:
         m, near = geom.shape.signed(geom.to_object(points))
         return m, np.linalg.norm(points[m] - apply_xform(geom.xform, near.points), axis=1)
+    if isinstance(geom, ColliderGeometry) and len(points) and geom.static.closed:
+        return _collider_inside(geom, points, depth=True)
     m = inside(geom, points)
     return m, surface_distance(geom, points[m])[0]
 

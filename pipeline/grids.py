@@ -30,6 +30,7 @@ __all__ = ["PatchGrid", "solid_rows", "GridSet", "GridCache", "Nearest", "Closes
 
 COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
 _US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see Closest
+_WITHIN_ALL = 64  # `Closest.within` tests a set of at most this many triangles against every point
 
 
 # --- closest points on a triangle set ---------------------------------------------------------
@@ -179,6 +180,47 @@ class Closest:
             dist[i] = fcl.distance(tree, fcl.CollisionObject(probe, fcl.Transform(points[i])), req, res)
             close[i], face[i] = res.nearest_points[0], res.b1 if rows is None else rows[res.b1]
         return dist, close, face
+
+    def within(self, points: np.ndarray, dist: float) -> np.ndarray:
+        """Which ``points (k, 3)`` lie within ``dist`` of a triangle, ``(k,) bool``, for a ``dist``
+        far below the triangles' size. A triangle that near a point has its centroid within
+        ``reach + dist`` of it, its box within ``dist`` and its plane within ``dist``: only pairs
+        passing all three get the exact test, which leaves a point off the surface none."""
+        k = len(points)
+        out = np.zeros(k, bool)
+        if not k or not len(self.faces):
+            return out
+        f = len(self.faces)
+        if f <= _WITHIN_ALL:  # a box: every pair costs less than the kd-tree's lists
+            owner, idx = np.divmod(np.arange(k * f), f)
+        else:
+            lists = self.ctree.query_ball_point(points, self.reach * (1 + 1e-9) + dist, return_sorted=False)
+            lens = np.fromiter(map(len, lists), np.int64, k)
+            idx = np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))
+            owner = np.repeat(np.arange(k), lens)
+        lo, hi = self.boxes
+        at = points[owner]
+        keep = np.nonzero(np.all((lo[idx] - dist <= at) & (at <= hi[idx] + dist), axis=1))[0]
+        idx, owner, at = idx[keep], owner[keep], at[keep]
+        normal, offset = self._planes
+        # the plane test only drops pairs: its rounding (1e-16 of the coordinates) is far below the slack
+        slack = dist + 1e-12 * (self.unit + np.abs(at).max(axis=1))
+        keep = np.nonzero(np.abs(np.einsum("ij,ij->i", at, normal[idx]) - offset[idx]) <= slack)[0]
+        if len(keep):
+            idx, owner, at = idx[keep], owner[keep], at[keep]
+            cp = self.unit * trimesh.triangles.closest_point(np.asarray(self.tri)[idx] / self.unit, at / self.unit)
+            out[owner[np.linalg.norm(cp - at, axis=1) <= dist]] = True
+        return out
+
+    @cached_property
+    def _planes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each triangle's unit normal ``(f, 3)`` and plane offset ``(f,)`` (``n · x = offset`` on it);
+        a degenerate triangle's normal is 0, so its plane test passes and the exact test decides."""
+        tri = np.asarray(self.tri)
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(n, axis=1)
+        n = np.divide(n, length[:, None], out=np.zeros_like(n), where=length[:, None] > 0)
+        return n, np.einsum("ij,ij->i", n, tri[:, 0])
 
 
 # --- set-up time ---------------------------------------------------------------------------------

@@ -491,6 +491,44 @@ def test_inside_is_reproducible_for_points_on_the_surface():
         np.testing.assert_array_equal(D.inside(g, mid), first)
 
 
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
+def test_points_on_a_collider_face_are_not_inside_at_any_scale(scale):
+    """A point on a collider's face, or a rounding error off it on either side, is on the mesh
+    (`detect.ON_MESH` of its size) and not inside, whatever ray parity makes of it; a point
+    1e-7 of the size in is inside. The answers are the same at every scale of the scene."""
+    half = 0.48828125 * scale
+    g = D.ColliderGeometry(box(half), move(0.25 * scale, -0.125 * scale, 0.5 * scale))
+    rng = np.random.default_rng(5)
+    local = rng.uniform(-0.9, 0.9, size=(64, 3)) * half
+    local[:, 1] = -half  # on the face y = -half, the box's lowest plane
+    size = g.static.mesh.scale
+    for off, expect in ((0.0, False), (1e-15, False), (-1e-15, False), (1e-7, True)):
+        pts = local + np.array([0.0, off * size, 0.0])
+        world = pts + g.xform[:3, 3]
+        assert D.inside(g, world).tolist() == [expect] * len(pts), (off, scale)
+        m, depth = D._inside_depth(g, world)
+        assert m.tolist() == [expect] * len(pts) and len(depth) == int(m.sum())
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_closest_within_agrees_with_the_closest_distance(seed):
+    """`Closest.within` answers what `Closest.query`'s distance does, for points on the faces of a
+    ball, a rounding error and 1e-9 of its size off them, and farther."""
+    from pipeline.authoring import uv_sphere
+
+    v, f = uv_sphere(0.45, 24, 12)
+    st = D.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f)))
+    rng = np.random.default_rng(seed)
+    tri = st.mesh.triangles[rng.integers(0, len(st.mesh.faces), 200)]
+    on = np.einsum("ij,ijk->ik", rng.dirichlet([1.0, 1.0, 1.0], 200), tri)
+    size = st.mesh.scale
+    pts = np.concatenate([on + rng.normal(size=on.shape) * e * size for e in (0.0, 1e-15, 5e-10, 2e-9, 1e-6, 1e-2)])
+    band = 1e-9 * size
+    got = st.index.within(pts, band)
+    np.testing.assert_array_equal(got, st.index.query(pts)[0] <= band)
+    assert got[:400].all() and not got[-400:].any()
+
+
 def test_points_outside_the_cv_hull_are_outside_without_a_search():
     """`Shape.signed` skips the closest-point search for points outside the convex hull of every
     level's CVs (the surface and what it encloses lie inside it). On a thin spindle with detail,
