@@ -201,7 +201,7 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
                 rows0[a, b] = iu * nv + iv
         for s in range(nslot):
             for c in range(3):
-                sum_[s, c] = 0.0
+                sum_[s, c] = -0.0  # -0.0 + x is x, the sign of a zero included
         _basis(tu, 1.0, order, ru)
         _basis(tv, 1.0, order, rv)
         _add_term(ru, rv, order, cvs, rows0, 0, sum_, half)
