@@ -155,8 +155,7 @@ def evaluate(
     """
     if order not in (0, 1, 2):
         raise ValueError(f"derivative order must be 0, 1 or 2, got {order}")
-    u = np.ascontiguousarray(u, dtype=np.float64).reshape(-1)
-    v = np.ascontiguousarray(v, dtype=np.float64).reshape(-1)
+    u, v = _plain(u).reshape(-1), _plain(v).reshape(-1)
     if u.size != v.size:
         raise ValueError(f"u and v must have the same size, got {u.size} and {v.size}")
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
@@ -164,7 +163,7 @@ def evaluate(
         raise ValueError(f"upto must be at least 0, got {upto}")
     levels, keys, shifts, ends, patch_rows = hs._terms_index
     if levels.size > 1 and levels[1] <= top:  # a fine level with detail is summed
-        table = (det if det is not None else details(hs, upto=top)).table
+        table = _plain((det if det is not None else details(hs, upto=top)).table)
     else:
         table = _NO_DETAILS
     out = np.empty((_NSLOTS[order], u.size, 3))
@@ -172,13 +171,20 @@ def evaluate(
     kernels.eval_points(
         u, v, int(order), int(side), int(top),
         int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-        np.ascontiguousarray(hs.cvs, dtype=np.float64).reshape(-1, 3),
+        _plain(hs.cvs).reshape(-1, 3),
         levels, keys, shifts, ends, patch_rows, hs._table_rows, table, out,
     )
     return SurfaceEval(*[out[s] for s in range(out.shape[0])])
 
 
 _NO_DETAILS = np.zeros((0, 3))
+
+
+def _plain(x) -> np.ndarray:
+    """``x`` as a C-contiguous, writeable float64 array (a copy only where it is not one): the
+    kernel reads its arrays alone, but numba compiles another signature for a read-only one."""
+    a = np.ascontiguousarray(x, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
 
 
 def _evaluate_numpy(

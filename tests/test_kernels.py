@@ -2,6 +2,8 @@
 (`hspline._evaluate_numpy`): the same sum on random multi-level surfaces, open and closed, at
 random parameters, on knots and at the domain's ends, for every derivative order and side."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -159,8 +161,8 @@ def test_a_detail_table_too_short_raises():
 
 
 def test_one_compiled_signature_serves_every_call():
-    """Lists, float32, strided and scalar parameters, numpy integer arguments: all reach the
-    kernel as the one signature, so no call compiles again."""
+    """Lists, float32, strided, scalar and read-only parameters, read-only CVs, numpy integer
+    arguments: all reach the kernel as the one signature, so no call compiles again."""
     hs = _surface("torus", 3, 2)
     det = H.details(hs)
     H.evaluate(hs, np.zeros(3), np.zeros(3), det=det)
@@ -170,4 +172,9 @@ def test_one_compiled_signature_serves_every_call():
     H.evaluate(hs, uv[:, 0].astype(np.float32), uv[:, 1], order=np.int64(1), det=det)
     H.evaluate(hs, uv[::2, 0], uv[::2, 1], order=2, side=np.int64(-1), upto=np.int64(2), det=det)
     H.evaluate(hs, 0.5, 0.25)
+    ro = uv.copy()
+    ro.setflags(write=False)
+    cvs = hs.cvs.copy()
+    cvs.setflags(write=False)
+    H.evaluate(replace(hs, cvs=cvs), ro[:, 0], ro[:, 1], order=1, det=det)
     assert len(kernels.eval_points.signatures) == before
