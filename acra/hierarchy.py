@@ -128,6 +128,13 @@ class HSpline:
         ints = lambda xs: np.array(xs, np.int64)  # noqa: E731
         return ints(levels), cat(keys, (0,)), ints(shifts), ints(ends), cat(rows, (0, 4, 4))
 
+    @cached_property
+    def _table_rows(self) -> np.ndarray:
+        """Rows of the table ``[level-0 CVs; level-1 detail vectors; ...; level-k ones]`` that
+        `_terms_index`'s ``patch_rows`` index, for each ``k`` in ``0 .. depth-1``:
+        ``(depth,) int64``."""
+        return np.cumsum([self.u.n * self.v.n] + [lev.cv_keys.size for lev in self.fine], dtype=np.int64)
+
     def level(self, k: int) -> Level:
         if not 1 <= k < self.depth:
             raise IndexError(f"level {k} outside 1..{self.depth - 1}")

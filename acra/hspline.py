@@ -25,7 +25,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import hierarchy
+from . import hierarchy, kernels
 from .basis import Direction, basis_rows, locate, refine_rows
 from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used by interpolate, respond, tessellate and tests)
     _I4,
@@ -133,9 +133,9 @@ def evaluate(
     """Points (and partial derivatives) of the surface at parameters ``(u, v)``.
 
     The sum over levels of the module docstring: each point takes level 0's patch and every
-    finer level's active patch under it; all those (point, level) terms are gathered first and
-    contracted with their 4×4 CV blocks in one batch, so the cost is a few array operations per
-    level plus one tensor product per term.
+    finer level's active patch under it (`HSpline._terms_index`), summed point by point in
+    compiled code (`acra.kernels.eval_points`; `_evaluate_numpy` is the same sum as array
+    operations).
 
     Parameters
     ----------
@@ -150,7 +150,55 @@ def evaluate(
     side : int
         ``-1`` evaluates points on an interior knot from the segment on their left (one-sided
         derivatives); ``0`` from the right.
+
+    A point with a NaN parameter (or an infinite one along a periodic direction) gets NaN.
     """
+    if order not in (0, 1, 2):
+        raise ValueError(f"derivative order must be 0, 1 or 2, got {order}")
+    u, v = _plain(u).reshape(-1), _plain(v).reshape(-1)
+    if u.size != v.size:
+        raise ValueError(f"u and v must have the same size, got {u.size} and {v.size}")
+    top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
+    if top < 0:
+        raise ValueError(f"upto must be at least 0, got {upto}")
+    levels, keys, shifts, ends, patch_rows = hs._terms_index
+    if levels.size > 1 and levels[1] <= top:  # a fine level with detail is summed
+        table = _plain((det if det is not None else details(hs, upto=top)).table)
+    else:
+        table = _NO_DETAILS
+    out = np.empty((_NSLOTS[order], u.size, 3))
+    # plain ints, bools and C-contiguous arrays: one compiled signature serves every call
+    kernels.eval_points(
+        u, v, int(order), int(side), int(top),
+        int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
+        _plain(hs.cvs).reshape(-1, 3),
+        levels, keys, shifts, ends, patch_rows, hs._table_rows, table, out,
+    )
+    return SurfaceEval(*[out[s] for s in range(out.shape[0])])
+
+
+_NO_DETAILS = np.zeros((0, 3))
+
+
+def _plain(x) -> np.ndarray:
+    """``x`` as a C-contiguous, writeable float64 array (a copy only where it is not one): the
+    kernel reads its arrays alone, but numba compiles another signature for a read-only one."""
+    a = np.ascontiguousarray(x, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
+
+
+def _evaluate_numpy(
+    hs: HSpline,
+    u: np.ndarray,
+    v: np.ndarray,
+    order: int = 0,
+    det: Details | None = None,
+    upto: int | None = None,
+    side: int = 0,
+) -> SurfaceEval:
+    """`evaluate` as array operations: every (point, level) term gathered first and contracted
+    with its 4×4 CV block in one batch. The reference the compiled kernel (`acra.kernels`) is
+    tested against; same parameters and result."""
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     v = np.atleast_1d(np.asarray(v, dtype=np.float64))
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)

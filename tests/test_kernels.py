@@ -1,0 +1,180 @@
+"""The compiled evaluator (`acra.kernels`, behind `hspline.evaluate`) against the array form
+(`hspline._evaluate_numpy`): the same sum on random multi-level surfaces, open and closed, at
+random parameters, on knots and at the domain's ends, for every derivative order and side."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from acra import hspline as H
+from acra import kernels, shapes
+from conftest import wavy_sheet, with_random_offsets
+
+FIELDS = ("points", "du", "dv", "duu", "duv", "dvv")
+
+
+def _surface(kind: str, depth: int, seed: int) -> H.HSpline:
+    """A ``kind`` surface of ``depth`` levels: on each fine level a random block of patches made
+    movable (so coarser levels are refined under it), sometimes one refined without movable CVs
+    (a level the evaluator skips), then random offsets on every movable CV."""
+    rng = np.random.default_rng(seed)
+    if kind == "sheet":
+        hs = wavy_sheet(nu=7, nv=8, depth=depth, seed=seed)
+    elif kind == "sphere":  # periodic in u, poles at both ends of v
+        hs = H.from_grid(*shapes.sphere(8, 7), depth=depth)
+    elif kind == "torus":  # periodic both ways
+        hs = H.from_grid(*shapes.torus(7, 6), depth=depth)
+    else:  # open in v: a tube
+        hs = H.from_grid(*shapes.tube(6, 7), depth=depth)
+    for k in range(1, depth):
+        n = hs.u.patches(k), hs.v.patches(k)
+        size = rng.integers(1, 4, 2)
+        corner = rng.integers(-2, n, 2)  # across a periodic seam or an open border too
+        block = np.stack(np.meshgrid(corner[0] + np.arange(size[0]), corner[1] + np.arange(size[1]), indexing="ij"), -1).reshape(-1, 2)
+        if rng.random() < 0.2:
+            hs = H.refine(hs, k, block)  # active patches, no movable CV
+        else:
+            block = block[(block >= 0).all(1) & (block < n).all(1)]
+            hs = H.make_movable(hs, k, block) if block.size else hs
+    return with_random_offsets(hs, scale=0.1, seed=seed + 1)
+
+
+def _parameters(hs: H.HSpline, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``4 n + 4`` parameter pairs: a knot of a random level along u and a random parameter
+    (over a little more than the domain) along v, the other way round, knots both ways, points
+    in random active patches of random levels (on a knot of the next level in a third of the
+    cases), and the domain's four corners."""
+    free, knots = [], []
+    for d in (hs.u, hs.v):
+        p0 = d.patches0
+        free.append(rng.uniform(-0.25 * p0, 1.25 * p0, n))
+        k = rng.integers(0, hs.depth, n)
+        knots.append(rng.integers(0, (p0 << k) + 1) / np.ldexp(1.0, k))  # the domain's ends among them
+    fine = [lev for lev in hs.fine if lev.patches.size]
+    if fine:
+        lev = [fine[i] for i in rng.integers(0, len(fine), n)]
+        key = np.array([lv.patches[rng.integers(0, lv.patches.size)] for lv in lev])
+        k = np.array([lv.k for lv in lev])
+        pu, pv = np.divmod(key, hs.v.patches0 << k)
+        t = rng.uniform(0, 1, (2, n))
+        t = np.where(rng.random((2, n)) < 1 / 3, rng.integers(0, 3, (2, n)) / 2.0, t)
+        inside = [(pu + t[0]) / np.ldexp(1.0, k), (pv + t[1]) / np.ldexp(1.0, k)]
+    else:
+        inside = free
+    pu, pv = float(hs.u.patches0), float(hs.v.patches0)
+    u = np.concatenate([knots[0], free[0], knots[0], inside[0], [0.0, 0.0, pu, pu]])
+    v = np.concatenate([free[1], knots[1], knots[1], inside[1], [0.0, pv, 0.0, pv]])
+    return u, v
+
+
+def _assert_same(hs, u, v, order, det, upto, side):
+    fast = H.evaluate(hs, u, v, order=order, det=det, upto=upto, side=side)
+    ref = H._evaluate_numpy(hs, u, v, order=order, det=det, upto=upto, side=side)
+    size = hs.size()
+    for name in FIELDS[: kernels.NSLOTS[order]]:
+        a, b = getattr(fast, name), getattr(ref, name)
+        assert a.shape == b.shape == (u.size, 3), name
+        err = np.abs(a - b).max(initial=0.0)
+        assert err <= 1e-12 * size, f"{name}: {err:.3e} of size {size:.3e}"
+    for name in FIELDS[kernels.NSLOTS[order]:]:
+        assert getattr(fast, name) is None
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(
+    kind=st.sampled_from(["sheet", "sphere", "torus", "tube"]),
+    depth=st.integers(1, 5),
+    seed=st.integers(0, 2**16),
+    order=st.integers(0, 2),
+    side=st.sampled_from([0, -1]),
+    upto=st.one_of(st.none(), st.integers(0, 4)),
+    det_kind=st.sampled_from(["computed", "given", "rough"]),
+)
+def test_kernel_equals_the_array_form(kind, depth, seed, order, side, upto, det_kind):
+    """``rough``: random detail vectors on every CV, movable or not, so the sum jumps across
+    the borders of active patches and a point on a knot there takes the side ``side`` picks."""
+    hs = _surface(kind, depth, seed)
+    rng = np.random.default_rng(seed + 2)
+    u, v = _parameters(hs, 40, rng)
+    if det_kind == "computed" or hs.depth == 1:
+        det = None
+    elif det_kind == "given":
+        det = H.details(hs)
+    else:
+        det = H.Details(tuple(rng.normal(size=(lev.cv_keys.size, 3)) for lev in hs.fine), ())
+    _assert_same(hs, u, v, order, det, upto, side)
+
+
+@pytest.mark.parametrize("n", [1, 2, 50])
+@pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])
+def test_small_calls_and_strided_parameters(kind, n):
+    """Calls of a point or a few (numpy's single-row route in the array form) and parameters
+    taken as a column of an ``(m, 2)`` array."""
+    hs = _surface(kind, 4, 11)
+    det = H.details(hs)
+    uv = np.stack(_parameters(hs, 30, np.random.default_rng(3)), axis=1)[:n]
+    for order in (0, 1, 2):
+        for side in (0, -1):
+            _assert_same(hs, uv[:, 0], uv[:, 1], order, det, None, side)
+
+
+def test_the_demo_head_display():
+    """The shape of the display case (7 levels, periodic u): a sphere with detail on a spot."""
+    hs = H.from_grid(*shapes.sphere(16, 14), depth=7)
+    rng = np.random.default_rng(0)
+    for k, c in ((2, 18), (4, 74), (6, 300)):
+        hs = H.make_movable(hs, k, np.array([[c, c], [c + 1, c + 1]]))
+    hs = with_random_offsets(hs, scale=0.01, seed=4)
+    det = H.details(hs)
+    u = np.repeat(np.linspace(0, 16, 161), 3)
+    v = np.tile(np.linspace(0, 11, 3 * 161) % 11, 1)[: u.size]
+    for order in (0, 1, 2):
+        _assert_same(hs, u, v, order, det, None, 0)
+        _assert_same(hs, rng.uniform(0, 16, 500), rng.uniform(0, 11, 500), order, det, None, -1)
+
+
+def test_non_finite_parameters_give_nan_and_bad_arguments_raise():
+    hs = _surface("sphere", 3, 5)  # periodic u, open v
+    ev = H.evaluate(hs, [np.nan, 1.0, np.inf, 1.0, 1.0], [1.0, np.nan, 1.0, np.inf, -np.inf], order=1)
+    assert np.isnan(ev.points[:3]).all() and np.isnan(ev.du[:3]).all()
+    # an infinite open parameter is clamped to the domain's end, as np.clip does
+    np.testing.assert_array_equal(ev.points[3:], H.evaluate(hs, [1.0, 1.0], [hs.v.patches0, 0.0], order=1).points)
+    with pytest.raises(ValueError):
+        H.evaluate(hs, [1.0], [1.0], order=3)
+    with pytest.raises(ValueError):
+        H.evaluate(hs, [1.0, 2.0], [1.0])
+    with pytest.raises(ValueError):
+        H.evaluate(hs, [1.0], [1.0], upto=-1)
+
+
+def test_a_detail_table_too_short_raises():
+    """Details of fewer levels than are evaluated: the kernel refuses rather than read past the
+    table; with ``upto`` at the levels the details cover it agrees with the array form."""
+    hs = with_random_offsets(H.make_movable(wavy_sheet(depth=4), 3, [[10, 9], [11, 9]]))
+    short = H.details(hs, upto=2)
+    with pytest.raises(ValueError, match="detail table"):
+        H.evaluate(hs, [1.5], [1.5], det=short)
+    u, v = _parameters(hs, 40, np.random.default_rng(1))
+    _assert_same(hs, u, v, 1, short, 2, 0)
+
+
+def test_one_compiled_signature_serves_every_call():
+    """Lists, float32, strided, scalar and read-only parameters, read-only CVs, numpy integer
+    arguments: all reach the kernel as the one signature, so no call compiles again."""
+    hs = _surface("torus", 3, 2)
+    det = H.details(hs)
+    H.evaluate(hs, np.zeros(3), np.zeros(3), det=det)
+    before = len(kernels.eval_points.signatures)
+    uv = np.random.default_rng(0).uniform(0, 5, (20, 2))
+    H.evaluate(hs, list(uv[:, 0]), list(uv[:, 1]), det=det)
+    H.evaluate(hs, uv[:, 0].astype(np.float32), uv[:, 1], order=np.int64(1), det=det)
+    H.evaluate(hs, uv[::2, 0], uv[::2, 1], order=2, side=np.int64(-1), upto=np.int64(2), det=det)
+    H.evaluate(hs, 0.5, 0.25)
+    ro = uv.copy()
+    ro.setflags(write=False)
+    cvs = hs.cvs.copy()
+    cvs.setflags(write=False)
+    H.evaluate(replace(hs, cvs=cvs), ro[:, 0], ro[:, 1], order=1, det=det)
+    assert len(kernels.eval_points.signatures) == before
