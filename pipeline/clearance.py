@@ -35,7 +35,24 @@ length. Depth is ``max(0, sd)``, so a cell's bound is
 
     U(t) = max(0, max_i sd(c_i) + rho(t))                                                 (4)
 
-and ``U(t) = 0`` certifies ``t`` wholly outside. So does a box apart from ``B``'s box (``B`` lies
+and ``U(t) = 0`` certifies ``t`` wholly outside. Depth is the distance to the nearest point of
+``B``'s surface, so for any one face ``F`` of ``B`` and every ``p``, ``depth(p) <= dist(p, F)``; the
+distance to a triangle is convex, so over ``t`` it peaks at a corner, and with ``F_j`` the face
+closest to corner ``c_j``
+
+    depth(p) <= min_j max_i dist(c_i, F_j)    for every p in t,                             (6)
+
+exact where the corners' closest points share a face (a cell on one face of a box), so a cell
+lying along a large face needs no splitting however close it is; ``F_j`` may be the whole convex
+planar facet of its face (a box's side), which is part of the surface as well. Inside a convex
+solid the depth is the least distance to a face's plane, so for any face ``F`` with corner ``a``
+and outward normal ``n``, ``depth(p) <= max(0, (a - p) . n)``, convex in ``p``:
+
+    depth(p) <= min_j max_i max(0, (a_j - c_i) . n_j)    on a convex solid,                 (7)
+
+0 for a cell lying on or outside one face's plane (a sheet resting on a box) and exact for a
+cell under one face, however it crosses the face's outline. A cell's bound is the smallest of
+(4), (6) and (7). So does a box apart from ``B``'s box (``B`` lies
 in its box): such triangles are not queried.
 
 **Branch and bound.** Cells start as the given triangles. ``L``, the largest ``sd`` at any evaluated
@@ -61,14 +78,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from pipeline.grids import Closest, extent, overlap, triangle_boxes
+from acra import bvh
+from pipeline.grids import overlap, triangle_boxes
 
-__all__ = ["Solid", "solid", "signed_depth", "covering_radius", "Depth", "triangle_depth",
+__all__ = ["Solid", "solid", "signed_depth", "covering_radius", "Depth", "triangle_depth", "Unresolved",
            "sigma_max", "to_object", "object_target", "world_bound", "FEATURE"]
 
 FEATURE = 1e-9  # a closest point this close (x the mesh extent) to an edge line lies on it, eq. (1)
@@ -85,7 +102,12 @@ class Solid:
         corner k+1 (mod 3): the sum of the two adjacent faces' normals, unit length
     vertex_normals : (n, 3) float64, angle-weighted sums of incident face normals, unit length
     bounds : (2, 3) float64, the vertices' box (min, max)
-    closest : `pipeline.grids.Closest` over ``vertices`` / ``faces``
+    tree : `acra.bvh.Tree` over the faces (exact closest points)
+    facet : (f,) int64, the convex planar facet of each face (`_facets`): its faces are
+        ``facet_faces[facet_start[k] : facet_start[k + 1]]`` for facet ``k``
+    facet_start : (g + 1,) int64
+    facet_faces : (f,) int64
+    convex : bool, whether the solid is convex (eq. (7) then bounds cells)
     """
 
     vertices: np.ndarray
@@ -94,7 +116,49 @@ class Solid:
     edge_normals: np.ndarray
     vertex_normals: np.ndarray
     bounds: np.ndarray
-    closest: Closest
+    tree: bvh.Tree
+    facet: np.ndarray
+    facet_start: np.ndarray
+    facet_faces: np.ndarray
+    convex: bool = False
+
+
+def _facets(v: np.ndarray, f: np.ndarray, normals: np.ndarray, other: np.ndarray, scale: float):
+    """Faces grouped into convex planar facets: ``(facet (f,) int64, start (g + 1,) int64, faces
+    (f,) int64)`` (CSR: facet ``k`` holds ``faces[start[k] : start[k + 1]]``).
+
+    Two faces sharing an edge join when their normals agree and the other's far corner lies in
+    the plane (to 1e-12 of the mesh's size); a group is kept whole only if its faces tile a
+    convex polygon (its area equals that of the convex hull of its corners in its plane), else
+    its faces stand alone. A box's side is one facet of its two triangles: eq. (6) against the
+    facet is exact for a cell over the whole side, where against one triangle it sees the
+    diagonal."""
+    n = len(f)
+    across = other // 3
+    me = np.repeat(np.arange(n), 3)
+    far = v[f[across, (other % 3 + 2) % 3]]  # the corner of the face across, off the shared edge
+    same = (np.einsum("ij,ij->i", normals[me], normals[across]) > 1.0 - 1e-12) & (across != me)
+    same &= np.abs(np.einsum("ij,ij->i", far - v[f[me, 0]], normals[me])) <= 1e-12 * scale
+    graph = coo_matrix((np.ones(int(same.sum())), (me[same], across[same])), shape=(n, n))
+    label = connected_components(graph, directed=False)[1].astype(np.int64)
+    sizes = np.bincount(label)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    for k in np.nonzero(sizes > 1)[0]:
+        rows = np.nonzero(label == k)[0]
+        corners = v[np.unique(f[rows])]
+        nrm = normals[rows[0]]
+        e1 = _unit(np.cross(nrm, [1.0, 0.0, 0.0] if abs(nrm[0]) < 0.9 else [0.0, 1.0, 0.0]))
+        flat = np.stack([corners @ e1, corners @ np.cross(nrm, e1)], axis=1)
+        try:
+            hull = ConvexHull(flat).volume  # the area of a 2-d hull
+        except QhullError:
+            hull = np.inf
+        if abs(hull - area[rows].sum()) > 1e-9 * max(hull, 1e-300):
+            label[rows] = n + rows  # not convex: each face its own facet
+    _, label = np.unique(label, return_inverse=True)
+    order = np.argsort(label, kind="stable")
+    start = np.r_[0, np.cumsum(np.bincount(label))]
+    return label.astype(np.int64), start.astype(np.int64), order.astype(np.int64)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -114,23 +178,31 @@ def _weld(vertices: np.ndarray, radius: float) -> np.ndarray:
     return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
-def solid(vertices, faces, weld: float = 1e-7) -> Solid:
+def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: float | None = None,
+          scale: float | None = None) -> Solid:
     """A `Solid` from ``vertices (n, 3) float`` and ``faces (f, 3) int``.
 
-    Vertices closer than ``weld`` x the bounding-box diagonal are welded (a closed H-spline's
-    display mesh repeats its pole rows' point and its periodic seam); faces narrower than that
-    distance (height over their longest edge, which includes faces with two welded corners) and
-    repeated faces are dropped. Raises ValueError naming the defect if the rest is not a closed
-    2-manifold: an edge used by one face (a hole) or by more than two, an edge two faces traverse
-    the same way (inconsistent winding), or no enclosed volume. Faces are flipped if the enclosed
-    signed volume is negative.
+    Vertices closer than ``weld`` x ``scale`` (default: the bounding-box diagonal) are welded (a
+    closed H-spline's display mesh repeats its pole rows' point and its periodic seam); faces
+    narrower than that distance (height over their longest edge, which includes faces with two
+    welded corners) and repeated faces are dropped. Raises ValueError naming the defect if the
+    rest is not a closed 2-manifold: an edge used by one face (a hole) or by more than two, an
+    edge two faces traverse the same way (inconsistent winding), or no enclosed volume. Faces are
+    flipped if the enclosed signed volume is negative.
+
+    ``part``: the faces are the part of a closed mesh near where the queries are (`part_of`), so
+    edges on the part's rim have one face (their pseudo-normal is that face's) and the
+    orientation is not read from a volume: ``outward`` is ``+1`` if the faces' winding gives
+    outward normals, ``-1`` if inward.
     """
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     if not len(f):
         raise ValueError("solid: no faces")
     used = np.unique(f)
-    radius = weld * float(np.linalg.norm(np.ptp(v[used], axis=0)))
+    if scale is None:
+        scale = float(np.linalg.norm(np.ptp(v[used], axis=0)))
+    radius = weld * scale
     label = _weld(v[used], radius)
     first = np.unique(label, return_index=True)[1]  # first member of each group
     v = v[used][first]
@@ -153,26 +225,33 @@ def solid(vertices, faces, weld: float = 1e-7) -> Solid:
     head, tail = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)  # slot 3r+k: face r's edge from corner k to k+1
     undirected = np.minimum(head, tail) * n + np.maximum(head, tail)
     order = np.argsort(undirected, kind="stable")
-    _, start, count = np.unique(undirected[order], return_index=True, return_counts=True)
-    if np.any(count != 2):
+    keys = undirected[order]
+    _, start, count = np.unique(keys, return_index=True, return_counts=True)
+    if np.any(count > 2) or (not part and np.any(count != 2)):
         raise ValueError(f"solid: not watertight: {int((count == 1).sum())} boundary edges (one face), "
                          f"{int((count > 2).sum())} non-manifold edges (more than two faces)")
     if len(np.unique(head * n + tail)) != len(head):
         raise ValueError("solid: faces inconsistently oriented (an edge traversed the same way by both its faces)")
-    base = v[f[:, 0]]  # volume: sum of det(v0 - c, v1 - c, v2 - c) / 6 about the centroid c
-    volume = np.einsum("ij,ij->", base - v.mean(axis=0), np.cross(v[f[:, 1]] - base, v[f[:, 2]] - base)) / 6.0
-    scale = float(np.linalg.norm(np.ptp(v, axis=0)))
-    if abs(volume) <= 1e-12 * scale ** 3:
-        raise ValueError("solid: the mesh encloses no volume")
-    if volume < 0:
+    if part:
+        flip = outward is not None and outward < 0
+    else:
+        base = v[f[:, 0]]  # volume: sum of det(v0 - c, v1 - c, v2 - c) / 6 about the centroid c
+        volume = np.einsum("ij,ij->", base - v.mean(axis=0), np.cross(v[f[:, 1]] - base, v[f[:, 2]] - base)) / 6.0
+        size = float(np.linalg.norm(np.ptp(v, axis=0)))
+        if abs(volume) <= 1e-12 * size ** 3:
+            raise ValueError("solid: the mesh encloses no volume")
+        flip = volume < 0
+    if flip:
         f = f[:, ::-1].copy()
         head, tail = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
         undirected = np.minimum(head, tail) * n + np.maximum(head, tail)
         order = np.argsort(undirected, kind="stable")
+        keys = undirected[order]
     tri = v[f]
     normals = _unit(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
-    other = np.empty(len(head), np.int64)  # the slot across each edge
-    other[order[0::2]], other[order[1::2]] = order[1::2], order[0::2]
+    other = np.arange(len(head))  # the slot across each edge (itself on a part's rim)
+    pair = np.nonzero(keys[1:] == keys[:-1])[0]
+    other[order[pair]], other[order[pair + 1]] = order[pair + 1], order[pair]
     edge_normals = _unit(np.repeat(normals, 3, axis=0) + normals[other // 3]).reshape(-1, 3, 3)
     # corner angles, atan2(|e1 x e2|, e1 . e2), weight the vertex pseudo-normals
     e1, e2 = tri[:, [1, 2, 0]] - tri, tri[:, [2, 0, 1]] - tri
@@ -180,23 +259,45 @@ def solid(vertices, faces, weld: float = 1e-7) -> Solid:
     weighted = (angle[:, :, None] * normals[:, None, :]).reshape(-1, 3)
     vertex_normals = _unit(np.stack([np.bincount(head, weighted[:, c], minlength=n) for c in range(3)], axis=1))
     bounds = np.stack([v.min(axis=0), v.max(axis=0)])
-    return Solid(v, f, normals, edge_normals, vertex_normals, bounds, Closest(v, f, unit=extent(v)))
+    convex = False
+    if part:  # a deformable's display: curved, no two faces share a plane
+        facet, start, members = np.arange(len(f)), np.arange(len(f) + 1), np.arange(len(f))
+    else:
+        size = float(np.linalg.norm(np.ptp(v, axis=0)))
+        facet, start, members = _facets(v, f, normals, other, size)
+        try:  # convex: the hull of the corners encloses no more than the mesh
+            convex = ConvexHull(v).volume <= abs(volume) * (1 + 1e-9) + 1e-12 * size ** 3
+        except QhullError:
+            convex = False
+    return Solid(v, f, normals, edge_normals, vertex_normals, bounds, bvh.build(v[f]), facet, start, members, convex)
 
 
 def signed_depth(s: Solid, points) -> tuple[np.ndarray, np.ndarray]:
     """Signed depths ``sd (k,) float64`` (positive inside) of ``points (k, 3) float`` in ``s``'s
     object space, and their closest points ``(k, 3) float64`` on ``s``: eq. (1)."""
+    sd, close, _ = _signed(s, points)
+    return sd, close
+
+
+class Unresolved(Exception):
+    """A point's closest point on a part of a solid lies farther than the part answers for."""
+
+
+def _signed(s: Solid, points, reach: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`signed_depth` plus the face row ``(k,) int64`` of each closest point. Raises `Unresolved`
+    if a point is farther than ``reach`` from every face."""
     p = np.asarray(points, np.float64).reshape(-1, 3)
     if not len(p):
-        return np.zeros(0), np.zeros((0, 3))
-    dist, close, face = s.closest.query(p)
+        return np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)
+    dist, close, face, bary = bvh.closest(s.tree, p, None if not np.isfinite(reach) else np.full(len(p), reach))
+    if np.any(face < 0):
+        raise Unresolved
     corners = s.faces[face]  # (k, 3)
     tri = s.vertices[corners]  # (k, 3, 3)
-    bary = trimesh.triangles.points_to_barycentric(tri, close)
     # distance of q from the line of the edge opposite corner i: b_i x twice the area / that edge
     twice_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     opposite = np.linalg.norm(tri[:, [2, 0, 1]] - tri[:, [1, 2, 0]], axis=2)
-    on = bary * (twice_area[:, None] / opposite) <= FEATURE * s.closest.unit  # (k, 3) bool
+    on = bary * (twice_area[:, None] / opposite) <= FEATURE * _extent(s)  # (k, 3) bool
     zeros = on.sum(axis=1)
     normal = s.normals[face]
     edge = zeros == 1  # on the edge opposite the zero corner i, slot (i + 1) mod 3
@@ -204,7 +305,7 @@ def signed_depth(s: Solid, points) -> tuple[np.ndarray, np.ndarray]:
     vertex = zeros >= 2  # at the corner with the largest coordinate
     normal[vertex] = s.vertex_normals[corners[vertex, np.argmax(bary[vertex], axis=1)]]
     inside = np.einsum("kc,kc->k", p - close, normal) < 0
-    return np.where(inside, dist, -dist), close
+    return np.where(inside, dist, -dist), close, face
 
 
 def covering_radius(tri) -> np.ndarray:
@@ -271,12 +372,77 @@ def _distinct(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return points[first], first, inverse.reshape(-1)
 
 
-def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget: int = 200_000) -> Depth:
+def _at_cells(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, steps: int) -> np.ndarray:
+    """Corners ``(c, 3, 3)`` of cells given by their source triangles ``tri[owner]`` and integer
+    barycentric ``lattice (c, 3, 3)`` (per corner, its weights times ``steps``)."""
+    return _at(np.repeat(tri[owner], 3, axis=0), lattice.reshape(-1, 3) / steps).reshape(-1, 3, 3)
+
+
+ALL_PLANES = 64  # a convex solid with at most this many facets is bounded by every facet's plane
+
+
+def _plane_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Eq. (7) for cells ``(c, 3, 3)`` of a convex solid whose corners' closest faces are ``faces
+    (c, 3) int64``: ``min_j max_i max(0, (a_j - c_i) . n_j)``, ``(c,) float64``, with ``a_j``,
+    ``n_j`` a corner and the outward normal of ``F_j``. A solid of at most `ALL_PLANES` facets
+    (a box) takes every facet's plane as an ``F_j``: a cell in a box's corner, its corners on two
+    sides, is bounded by the bottom it lies along."""
+    if len(s.facet_start) - 1 <= ALL_PLANES:
+        rows = s.facet_faces[s.facet_start[:-1]]
+        a, n = s.vertices[s.faces[rows, 0]], s.normals[rows]  # (g, 3) one face of each facet
+        inner = (np.einsum("gk,gk->g", a, n)[None, :, None] - np.einsum("cik,gk->cgi", cells, n))  # (c, g, i)
+    else:
+        a, n = s.vertices[s.faces[faces, 0]], s.normals[faces]  # (c, 3 j, 3)
+        inner = np.einsum("cjk,cjk->cj", a, n)[:, :, None] - np.einsum("cik,cjk->cji", cells, n)  # (c, j, i)
+    return np.maximum(inner, 0.0).max(axis=2).min(axis=1)
+
+
+def _face_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Eq. (6) for cells ``(c, 3, 3)`` whose corners' closest faces are ``faces (c, 3) int64``:
+    ``min_j max_i dist(c_i, P_j)``, ``(c,) float64``, with ``P_j`` the convex facet of ``F_j``
+    (`_facets`; the distance to a convex set is convex too, and the facet is part of the
+    surface): ``dist(c_i, P_j)`` is the least distance to the facet's faces."""
+    c = len(cells)
+    facet = s.facet[faces.reshape(-1)]  # (3 c,) facet of corner j's face, row 3 k + j
+    count = s.facet_start[facet + 1] - s.facet_start[facet]
+    pair = np.repeat(np.arange(3 * c), count)  # (cell, j) of each (cell, j, member face)
+    member = s.facet_faces[np.repeat(s.facet_start[facet], count) + np.arange(len(pair)) - np.repeat(np.cumsum(count) - count, count)]
+    tri = np.repeat(s.vertices[s.faces[member]], 3, axis=0)  # each member face against the 3 corners
+    at = cells[pair // 3].reshape(-1, 3)
+    d = bvh.distances(at, tri).reshape(-1, 3)  # (pairs, corner i)
+    least = np.full((3 * c, 3), np.inf)
+    np.minimum.at(least, pair, d)
+    return least.reshape(c, 3, 3).max(axis=2).min(axis=1)
+
+
+def _cell_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The tighter of eq. (6) and, on a convex solid, eq. (7): ``(c,) float64``."""
+    out = _face_bound(s, cells, faces)
+    return np.minimum(out, _plane_bound(s, cells, faces)) if s.convex else out
+
+
+def _extent(s: Solid) -> float:
+    """The largest side of the solid's box (the scale of eq. (1)'s feature tolerance)."""
+    return float(np.ptp(s.bounds, axis=0).max()) or 1.0
+
+
+def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget: int = 200_000,
+                   reach: float = np.inf) -> Depth | None:
     """`Depth` of triangles ``corners (t, 3, 3) float`` (in ``s``'s object space) inside ``s``,
     refined until every cell's ``U <= max(target, 1.25 L)``, ``max_split`` levels, or ``budget``
     evaluated points (the given triangles' corners are always evaluated). A triangle whose box
     does not meet ``s.bounds`` has no point inside and is not queried.
+
+    ``reach``: ``s`` is a part of a solid that answers exactly for points within this distance of
+    it (`solid` with ``part``); ``None`` is returned if an evaluated point lies farther.
     """
+    try:
+        return _triangle_depth(s, corners, target, max_split, budget, reach)
+    except Unresolved:
+        return None
+
+
+def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: int, reach: float) -> Depth:
     if not 0 <= max_split <= 30:
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.asarray(corners, np.float64).reshape(-1, 3, 3)
@@ -292,20 +458,24 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
 
     # level 0: each distinct corner once
     pts, first, inverse = _distinct(tri[src].reshape(-1, 3))
-    sd_pts = signed_depth(s, pts)[0]
+    sd_pts, _, face_pts = _signed(s, pts, reach)
     evaluated = len(pts)
     lattice = np.broadcast_to(steps * np.eye(3, dtype=np.int64), (len(src), 3, 3))  # (c, 3 corners, 3 weights)
     keep(src[first // 3], lattice[first // 3, first % 3], pts, sd_pts)
     sd = sd_pts[inverse.reshape(-1)].reshape(-1, 3)
-    rows, rho = np.arange(len(src)), rho0  # cells: row into src, lattice, corner sd, rho
+    fc = face_pts[inverse.reshape(-1)].reshape(-1, 3)
+    rows, rho = np.arange(len(src)), rho0  # cells: row into src, lattice, corner sd, corner faces, rho
     low = float(sd_pts.max()) if len(pts) else -np.inf
     retired, level, complete = 0.0, 0, True
     while len(rows):
         now = max(target, 1.25 * max(low, 0.0))
         bound = np.maximum(sd.max(axis=1) + rho, 0.0)  # eq. (4)
+        over = np.nonzero(bound > 0.0)[0]
+        if len(over):  # eq. (6): the faces nearest the corners bound the cell too
+            bound[over] = np.minimum(bound[over], _cell_bound(s, _at_cells(tri, src[rows[over]], lattice[over], steps), fc[over]))
         need = bound > now
         retired = max(retired, float(bound[~need].max(initial=0.0)))
-        rows, lattice, sd, rho, bound = rows[need], lattice[need], sd[need], rho[need], bound[need]
+        rows, lattice, sd, fc, rho, bound = rows[need], lattice[need], sd[need], fc[need], rho[need], bound[need]
         room = (budget - evaluated) // 3
         if not len(rows) or level == max_split or room <= 0:
             complete = not len(rows)
@@ -315,26 +485,30 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
             top = np.argsort(-bound, kind="stable")[:room]
             retired = max(retired, float(np.delete(bound, top).max(initial=0.0)))
             complete = False
-            rows, lattice, sd, rho = rows[top], lattice[top], sd[top], rho[top]
+            rows, lattice, sd, fc, rho = rows[top], lattice[top], sd[top], fc[top], rho[top]
         # midpoints of edges (0,1), (1,2), (2,0); lattice steps at this level are even
         mid = (lattice + lattice[:, [1, 2, 0]]) // 2  # (c, 3, 3)
         owner = np.repeat(rows, 3)
         pts, first, inverse = _distinct(_at(tri[src[owner]], mid.reshape(-1, 3) / steps))
         wts = mid.reshape(-1, 3)[first]
-        sd_mid = signed_depth(s, pts)[0]
+        sd_mid, _, face_mid = _signed(s, pts, reach)
         evaluated += len(pts)
         keep(src[owner[first]], wts, pts, sd_mid)
         low = max(low, float(sd_mid.max(initial=-np.inf)))
-        sm = sd_mid[inverse].reshape(-1, 3)
+        sm, fm = sd_mid[inverse].reshape(-1, 3), face_mid[inverse].reshape(-1, 3)
         # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20)
         pick = [(0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)]
         all_lat, all_sd = np.concatenate([lattice, mid], axis=1), np.concatenate([sd, sm], axis=1)
+        all_fc = np.concatenate([fc, fm], axis=1)
         lattice = np.concatenate([all_lat[:, list(p)] for p in pick])
         sd = np.concatenate([all_sd[:, list(p)] for p in pick])
+        fc = np.concatenate([all_fc[:, list(p)] for p in pick])
         rows, rho = np.tile(rows, 4), np.tile(0.5 * rho, 4)
         level += 1
         if not complete:  # the budget's last pass: bound the children and stop
-            retired = max(retired, float(np.maximum(sd.max(axis=1) + rho, 0.0).max()))
+            last = np.maximum(sd.max(axis=1) + rho, 0.0)
+            last = np.minimum(last, _cell_bound(s, _at_cells(tri, src[rows], lattice, steps), fc))
+            retired = max(retired, float(last.max()))
             complete = retired <= max(target, 1.25 * max(low, 0.0))
             break
     t, b, p, d = (np.concatenate(x) for x in zip(*found))

@@ -23,7 +23,7 @@ import trimesh
 from acra import hspline as H
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
-from pipeline.grids import triangle_boxes
+from pipeline.grids import boxes_near, triangle_boxes
 from pipeline.shape import Closest, Shape, bvh as _bvh, overlap as _overlap, shape_of
 
 __all__ = [
@@ -70,14 +70,8 @@ class ColliderStatic:
 
     def faces_near(self, xform: np.ndarray, bounds: np.ndarray) -> np.ndarray:
         """Rows ``(m,) int64`` of ``mesh.faces``, ascending, that hold every face whose world box
-        meets the world box ``bounds (2, 3)`` under ``xform (4, 4)``: a face's world box lies in
-        the world box of its object-space box mapped (``M c + t ± |M| h``), which costs two small
-        products per face instead of gathering and reducing its corners (widened by 1e-9 of the
-        query's coordinates for the rounding of the two)."""
-        centre, half = self._face_centres
-        world, reach = apply_xform(xform, centre), half @ np.abs(xform[:3, :3]).T
-        slack = 1e-9 * (float(np.abs(bounds).max()) + float(np.ptp(bounds, axis=0).max()))
-        return np.nonzero(_overlap(world - reach, world + reach, bounds[0], bounds[1], slack))[0]
+        meets the world box ``bounds (2, 3)`` under ``xform (4, 4)`` (`grids.boxes_near`)."""
+        return boxes_near(*self._face_centres, xform, bounds)
 
 
 def prepare_collider(model: ColliderModel) -> ColliderStatic:

@@ -26,7 +26,7 @@ from acra.tessellate import patch_grids
 if TYPE_CHECKING:
     from pipeline.shape import Shape
 
-__all__ = ["PatchGrid", "solid_rows", "GridSet", "GridCache", "Nearest", "Closest", "SetupClock", "timed", "bvh", "BvhCache", "triangle_boxes", "overlap", "COLLAPSE"]
+__all__ = ["PatchGrid", "solid_rows", "GridSet", "GridCache", "Nearest", "Closest", "SetupClock", "timed", "bvh", "BvhCache", "triangle_boxes", "overlap", "boxes_near", "COLLAPSE"]
 
 COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
 _US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see Closest
@@ -44,6 +44,18 @@ def triangle_boxes(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def overlap(lo_a, hi_a, lo_b, hi_b, pad: float) -> np.ndarray:
     """Whether boxes overlap (broadcast over leading axes)."""
     return np.all((lo_a <= hi_b + pad) & (lo_b <= hi_a + pad), axis=-1)
+
+
+def boxes_near(centre: np.ndarray, half: np.ndarray, xform: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Rows ``(m,) int64``, ascending, of object-space boxes (centres and half-extents ``(f, 3)``)
+    whose world box under ``xform (4, 4)`` meets the world box ``bounds (2, 3)``: a box's world box
+    lies in the world box of its mapped centre and extents (``M c + t ± |M| h``), two small products
+    per box instead of gathering and reducing its corners (widened by 1e-9 of the query's
+    coordinates for the rounding of the two)."""
+    world = centre @ xform[:3, :3].T + xform[:3, 3]
+    reach = half @ np.abs(xform[:3, :3]).T
+    slack = 1e-9 * (float(np.abs(bounds).max()) + float(np.ptp(bounds, axis=0).max()))
+    return np.nonzero(overlap(world - reach, world + reach, bounds[0], bounds[1], slack))[0]
 
 
 def _compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

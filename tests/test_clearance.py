@@ -231,15 +231,17 @@ def box_solid():
 
 def test_plane_through_box_peaks_between_outside_corners():
     """z = 0 through [-1, 1]^3: the depth min(1 - |x|, 1 - |y|, 1) peaks at 1 at the origin, inside
-    the triangle, while its corners are outside."""
+    the triangle, while its corners are outside. Every cell lies 1 above the bottom's plane, so
+    eq. (7) bounds it by exactly 1; the cells split until the deepest point found is within
+    1.25 of that (1 needs no split at a target of 1.2)."""
     m, s = box_solid()
     tri = np.array([[[-3.1, -2.9, 0.0], [6.3, -3.2, 0.0], [-2.7, 6.1, 0.0]]])
     assert np.all(C.signed_depth(s, tri[0])[0] < 0)
     for target in (0.0, 0.01, 0.2, 1.2):
         d = C.triangle_depth(s, tri, target)
-        assert d.complete
-        assert d.lower <= 1.0 <= d.bound <= max(target, 1.25 * d.lower) <= max(target, 1.25)
-        assert 0 < d.split < 6 and d.evaluated < (STEPS + 1) * (STEPS + 2) // 2
+        assert d.complete and d.bound == 1.0
+        assert d.lower <= 1.0 <= max(target, 1.25 * d.lower)
+        assert (0 < d.split < 6) == (target < 1.0) and d.evaluated < (STEPS + 1) * (STEPS + 2) // 2
 
 
 def test_tilted_plane_through_box_matches_linear_programme():
@@ -273,12 +275,19 @@ def test_outside_triangles_bound_zero():
     assert (d.bound, d.complete, d.split) == (0.0, True, 0) and d.evaluated == 3
 
 
-def test_tiny_deep_triangle_is_its_corner_plus_rho():
+def test_tiny_deep_triangle_is_bounded_by_a_face_plane():
+    """Deep in [-1, 1]^3 the corners' closest faces are +x, +y and +z; eq. (4) gives the deepest
+    corner plus rho (0.93 + 0.085), eq. (7) the plane of any one of them, 1 - min coordinate over
+    the corners = 1.0 for each: the bound is 1.0, above the exact maximum 1 - 1/31.98 (where
+    0.1 l1 = 0.13 l2 = 0.07 l3)."""
     _, s = box_solid()
     tri = np.array([[[0.1, 0.0, 0.0], [0.0, 0.13, 0.0], [0.0, 0.0, 0.07]]])
     d = C.triangle_depth(s, tri, 0.0)
+    assert s.convex
     assert (d.complete, d.split, d.evaluated) == (True, 0, 3)  # U <= 1.25 L at once
-    assert d.bound == pytest.approx(0.93 + C.covering_radius(tri)[0], abs=1e-15)  # the corner on z
+    assert 0.93 + C.covering_radius(tri)[0] > 1.0
+    assert d.bound == pytest.approx(1.0, abs=1e-15)
+    assert d.bound >= 1.0 - 1.0 / (1 / 0.1 + 1 / 0.13 + 1 / 0.07)
     assert d.lower == pytest.approx(0.93, abs=1e-15)
     np.testing.assert_allclose(np.sort(d.depth), [0.87, 0.9, 0.93], atol=1e-15)
     np.testing.assert_array_equal(d.tri, 0)
@@ -301,14 +310,16 @@ def test_found_points_are_consistent_and_shared_corners_evaluated_once():
 
 
 def test_cap_and_budget_stop_early_but_still_bound():
-    _, s = box_solid()
-    tri = np.array([[[-3.1, -2.9, 0.0], [6.3, -3.2, 0.0], [-2.7, 6.1, 0.0]]])
+    """A triangle through a torus's tube (not convex, so eq. (7) does not apply): the tube's depth
+    peaks at its radius 0.35 on the core circle, between corners that are outside."""
+    m, s = shape("torus")
+    assert not s.convex
+    tri = np.array([[[0.6, -0.3, 0.0], [1.6, -0.3, 0.0], [1.1, 0.6, 0.0]]])
     d0 = C.triangle_depth(s, tri, 0.01, max_split=0)
-    corners = C.signed_depth(s, tri[0])[0]
-    assert not d0.complete and d0.bound == pytest.approx(corners.max() + C.covering_radius(tri)[0], abs=1e-14)
-    for budget in (10, 30, 60):
+    assert not d0.complete and d0.bound >= dense_depth(m, tri)
+    for budget in (7, 13, 21):  # the refinement completes with 23 points
         d = C.triangle_depth(s, tri, 0.01, budget=budget)
-        assert not d.complete and d.evaluated <= budget and d.bound >= 1.0
+        assert not d.complete and d.evaluated <= budget and d.bound >= dense_depth(m, tri) - 1e-12
 
 
 # --- the bound against a dense grid ------------------------------------------------------------------

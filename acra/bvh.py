@@ -1,0 +1,253 @@
+"""Exact closest points on a triangle set through a bounding volume hierarchy, compiled.
+
+The residual a user sees is measured by signed distances from display points to another
+object's display mesh (`pipeline.clearance`): one exact closest point per query. Over a mesh of
+10^4–10^5 triangles whose sizes differ by the hierarchy's levels, kd-tree balls over triangle
+centroids hold hundreds of candidates per query; a BVH visits the few boxes nearer than the best
+triangle found so far, and a compiled loop makes each visit cost nanoseconds instead of a numpy
+call's microseconds.
+
+The tree (`build`) splits each node's triangles at the median of their centroids along the
+longest side of the centroids' box, down to at most `LEAF` triangles per leaf (compiled). `closest` walks it depth first, nearer child first, pruning a
+box whose distance is not below the best found; the triangle test is Ericson's
+*ClosestPtPointTriangle* (Real-Time Collision Detection §5.1.5), which also gives the closest
+point's barycentric coordinates, exactly 0 off the face's interior (on an edge or at a corner),
+for the sign by pseudo-normals. Among triangles at equal distance the lowest row wins, so the
+answer does not depend on the tree.
+
+Arrays are float64 unless stated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+__all__ = ["LEAF", "Tree", "build", "closest", "distances"]
+
+LEAF = 4  # triangles per leaf
+
+
+@dataclass(frozen=True, eq=False)
+class Tree:
+    """A BVH over triangles ``tri (f, 3, 3)``.
+
+    Attributes
+    ----------
+    tri : (f, 3, 3) float64
+        The triangles, in their given rows.
+    order : (f,) int64
+        Triangle rows in leaf order: a leaf holds ``order[start : start + count]``.
+    lo, hi : (n, 3) float64
+        Node boxes; node 0 is the root.
+    left, right : (n,) int64
+        Children of an inner node; ``-1`` at a leaf.
+    start, count : (n,) int64
+        A leaf's range in ``order``.
+    """
+
+    tri: np.ndarray
+    order: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    start: np.ndarray
+    count: np.ndarray
+
+
+@njit(cache=True, nogil=True)
+def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
+    """Median splits along the longest side of each node's centroid box; returns the node count."""
+    stack = np.empty((128, 3), np.int64)  # (node, first, end)
+    stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, order.shape[0]
+    top, nodes = 1, 1
+    clo = np.empty(3)
+    chi = np.empty(3)
+    while top > 0:
+        top -= 1
+        node, a, b = stack[top, 0], stack[top, 1], stack[top, 2]
+        for k in range(3):
+            lo[node, k], hi[node, k] = np.inf, -np.inf
+            clo[k], chi[k] = np.inf, -np.inf
+        for s in range(a, b):
+            f = order[s]
+            for k in range(3):
+                lo[node, k] = min(lo[node, k], tlo[f, k])
+                hi[node, k] = max(hi[node, k], thi[f, k])
+                clo[k] = min(clo[k], cen[f, k])
+                chi[k] = max(chi[k], cen[f, k])
+        if b - a <= LEAF:
+            left[node], right[node], start[node], count[node] = -1, -1, a, b - a
+            continue
+        axis = 0
+        for k in range(1, 3):
+            if chi[k] - clo[k] > chi[axis] - clo[axis]:
+                axis = k
+        key = np.empty(b - a)
+        for s in range(a, b):
+            key[s - a] = cen[order[s], axis]
+        order[a:b] = order[a:b][np.argsort(key, kind="mergesort")]
+        mid = (a + b) // 2
+        left[node], right[node], start[node], count[node] = nodes, nodes + 1, a, 0
+        stack[top, 0], stack[top, 1], stack[top, 2] = nodes, a, mid
+        stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
+        top += 2
+        nodes += 2
+    return nodes
+
+
+def build(tri: np.ndarray) -> Tree:
+    """The `Tree` of triangles ``tri (f, 3, 3)`` (``f >= 1``)."""
+    tri = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
+    f = len(tri)
+    if not f:
+        raise ValueError("a BVH needs at least one triangle")
+    n = 2 * f + 1
+    lo, hi = np.empty((n, 3)), np.empty((n, 3))
+    left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
+    order = np.arange(f, dtype=np.int64)
+    used = _build(np.ascontiguousarray(tri.min(axis=1)), np.ascontiguousarray(tri.max(axis=1)),
+                  np.ascontiguousarray(tri.mean(axis=1)), order, lo, hi, left, right, start, count)
+    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used])
+
+
+@njit(cache=True, nogil=True)
+def _point_triangle(p, a, b, c):
+    """Closest point of triangle ``abc`` to ``p`` and its barycentric weights (Ericson 5.1.5):
+    ``(x, y, z, wa, wb, wc)``."""
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    ap0, ap1, ap2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    if d1 <= 0.0 and d2 <= 0.0:
+        return a[0], a[1], a[2], 1.0, 0.0, 0.0
+    bp0, bp1, bp2 = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    if d3 >= 0.0 and d4 <= d3:
+        return b[0], b[1], b[2], 0.0, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        t = d1 / (d1 - d3)
+        return a[0] + t * ab0, a[1] + t * ab1, a[2] + t * ab2, 1.0 - t, t, 0.0
+    cp0, cp1, cp2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    if d6 >= 0.0 and d5 <= d6:
+        return c[0], c[1], c[2], 0.0, 0.0, 1.0
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        t = d2 / (d2 - d6)
+        return a[0] + t * ac0, a[1] + t * ac1, a[2] + t * ac2, 1.0 - t, 0.0, t
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return b[0] + t * (c[0] - b[0]), b[1] + t * (c[1] - b[1]), b[2] + t * (c[2] - b[2]), 0.0, 1.0 - t, t
+    denom = va + vb + vc
+    if denom == 0.0:  # a degenerate triangle: its closest corner
+        best, x, y, z, wa, wb, wc = np.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        for k in range(3):
+            q = a if k == 0 else (b if k == 1 else c)
+            d = (p[0] - q[0]) ** 2 + (p[1] - q[1]) ** 2 + (p[2] - q[2]) ** 2
+            if d < best:
+                best, x, y, z = d, q[0], q[1], q[2]
+                wa, wb, wc = (1.0, 0.0, 0.0) if k == 0 else ((0.0, 1.0, 0.0) if k == 1 else (0.0, 0.0, 1.0))
+        return x, y, z, wa, wb, wc
+    v = vb / denom
+    w = vc / denom
+    return a[0] + ab0 * v + ac0 * w, a[1] + ab1 * v + ac1 * w, a[2] + ab2 * v + ac2 * w, 1.0 - v - w, v, w
+
+
+@njit(cache=True, nogil=True)
+def _box_distance(p, lo, hi, node):
+    d = 0.0
+    for k in range(3):
+        if p[k] < lo[node, k]:
+            d += (lo[node, k] - p[k]) ** 2
+        elif p[k] > hi[node, k]:
+            d += (p[k] - hi[node, k]) ** 2
+    return d
+
+
+@njit(cache=True, nogil=True)
+def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist, close, face, bary):
+    stack = np.empty(256, np.int64)
+    for i in range(points.shape[0]):
+        p = points[i]
+        best = bound[i] * bound[i]
+        best_face = -1
+        bx, by, bz, ba, bb, bc = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        stack[0] = 0
+        top = 1
+        while top > 0:
+            top -= 1
+            node = stack[top]
+            if _box_distance(p, lo, hi, node) > best:
+                continue
+            if left[node] < 0:
+                for s in range(start[node], start[node] + count[node]):
+                    f = order[s]
+                    x, y, z, wa, wb, wc = _point_triangle(p, tri[f, 0], tri[f, 1], tri[f, 2])
+                    dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
+                    if dd < best or (dd == best and (best_face < 0 or f < best_face)):
+                        best, best_face = dd, f
+                        bx, by, bz, ba, bb, bc = x, y, z, wa, wb, wc
+                continue
+            a, b = left[node], right[node]
+            # the nearer child last on the stack, so it is visited first
+            if _box_distance(p, lo, hi, a) <= _box_distance(p, lo, hi, b):
+                stack[top], stack[top + 1] = b, a
+            else:
+                stack[top], stack[top + 1] = a, b
+            top += 2
+        if best_face >= 0:
+            dist[i] = np.sqrt(best)
+            close[i, 0], close[i, 1], close[i, 2] = bx, by, bz
+            face[i] = best_face
+            bary[i, 0], bary[i, 1], bary[i, 2] = ba, bb, bc
+
+
+def closest(tree: Tree, points: np.ndarray, bound: np.ndarray | None = None):
+    """Exact closest points on ``tree``'s triangles to ``points (k, 3)``.
+
+    Returns
+    -------
+    dist : (k,) float64
+        ``inf`` where nothing is nearer than ``bound (k,)`` (if given).
+    close : (k, 3) float64
+    face : (k,) int64
+        Row of the triangle (lowest among equally near ones); ``-1`` where none.
+    bary : (k, 3) float64
+        Barycentric weights of the closest point in that triangle; a weight is exactly 0 when the
+        point lies on the opposite edge's line segment (an edge or a corner).
+    """
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    k = len(p)
+    dist, close = np.full(k, np.inf), np.zeros((k, 3))
+    face, bary = np.full(k, -1, np.int64), np.zeros((k, 3))
+    b = np.full(k, np.inf) if bound is None else np.ascontiguousarray(bound, np.float64).reshape(k)
+    if k:
+        _closest(tree.tri, tree.order, tree.lo, tree.hi, tree.left, tree.right, tree.start, tree.count, p, b, dist, close,
+                 face, bary)
+    return dist, close, face, bary
+
+
+@njit(cache=True, nogil=True)
+def _distances(points, tri, out):
+    for i in range(points.shape[0]):
+        x, y, z, _, _, _ = _point_triangle(points[i], tri[i, 0], tri[i, 1], tri[i, 2])
+        out[i] = np.sqrt((points[i, 0] - x) ** 2 + (points[i, 1] - y) ** 2 + (points[i, 2] - z) ** 2)
+
+
+def distances(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Distance ``(k,) float64`` from each of ``points (k, 3)`` to its triangle ``tri (k, 3, 3)``."""
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    t = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
+    out = np.empty(len(p))
+    if len(p):
+        _distances(p, t, out)
+    return out
