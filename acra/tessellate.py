@@ -321,18 +321,34 @@ def evaluate_grid(hs: HSpline, topo: GridTopology, det: Details | None = None) -
 
 
 def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
-                 since: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 since: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Points ``(n, 3)`` and limit unit normals ``(n, 3)`` (`surface_normals`) at a grid's
-    vertices. ``since = (points, limit, stale)``: those of a surface that differs from ``hs``
-    only on the level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`); only vertices on
-    a stale patch (or its border) are evaluated, the others are copied. Each vertex is evaluated
-    on its own, so the result equals a full evaluation bit for bit."""
+    vertices (``topo``: a `GridTopology` or `MeshTopology`).
+
+    ``since = (points, limit, stale)``: those of a surface that differs from ``hs`` only on the
+    level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`), on the same topology; only
+    vertices on a stale patch (or its border) are evaluated, the others are copied. ``since =
+    (old_topo, points, limit, stale)``: the same on another topology of the object; a vertex at a
+    parameter ``old_topo`` has, on no stale patch, is copied (adaptive topologies of one object
+    put their vertices on nested dyadic lattices, so away from where a response refined, the
+    old vertices are the new). Each vertex is evaluated on its own, so the result equals a full
+    evaluation bit for bit."""
     det = details(hs) if det is None and hs.depth > 1 else det
     if since is None:
         ev, n = surface_normals(hs, topo.u, topo.v, det=det)
         return ev.points, n
-    points, limit, stale = (x.copy() for x in since)
-    on = np.zeros(topo.u.size, bool)
+    if len(since) == 4:
+        old, old_points, old_limit, stale = since
+        key, old_key = topo.u + 1j * topo.v, old.u + 1j * old.v  # complex values sort by (u, v)
+        order = np.argsort(old_key, kind="stable")
+        src = order[np.minimum(np.searchsorted(old_key[order], key), max(len(order) - 1, 0))]
+        found = old_key[src] == key if len(order) else np.zeros(key.size, bool)
+        points, limit = np.empty((key.size, 3)), np.empty((key.size, 3))
+        points[found], limit[found] = old_points[src[found]], old_limit[src[found]]
+        on = ~found
+    else:
+        points, limit, stale = (x.copy() for x in since)
+        on = np.zeros(topo.u.size, bool)
     for cu in _cells(hs.u, topo.u):
         for cv in _cells(hs.v, topo.v):
             on |= stale[cu, cv]

@@ -48,7 +48,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, Vt
 
 from acra import hspline, shapes
 from acra.hspline import HSpline, from_arrays, from_grid, to_arrays
-from acra.tessellate import GridTopology, display_topology, evaluate_grid
+from acra.tessellate import MeshTopology, evaluate_grid, run_topology
 
 from .animation import curves
 from .animation.skinning import ArmRig, arm_pose, arm_rig, bent_arm
@@ -409,9 +409,8 @@ def add_deformable(
 
     template, topology = _structure(prim)
     points, normals = evaluate_grid(replace(template, cvs=np.ascontiguousarray(cvs)), topology)
-    quads = topology.quads
-    mesh.CreateFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(quads), 4, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(quads.reshape(-1).astype(np.int32)))
+    mesh.CreateFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.asarray(topology.counts, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(np.asarray(topology.indices, np.int32)))
     mesh.CreateSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
     mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
     _set_display(mesh, points, normals)
@@ -432,8 +431,9 @@ def add_surface(stage: Usd.Stage, path: str, surface: HSpline, **controls) -> Us
                           levels=surface.depth, hierarchy=surface if detailed else None, **controls)
 
 
-def _structure(prim: Usd.Prim) -> tuple[HSpline, GridTopology]:
-    """The deformable's refinement structure (zero CVs) and display topology, as authored.
+def _structure(prim: Usd.Prim) -> tuple[HSpline, MeshTopology]:
+    """The deformable's refinement structure (zero CVs) and rest display topology: the adaptive
+    tessellation of the animator's hierarchy (`acra.tessellate.run_topology`), as authored.
 
     Controls are not validated here (scenes may author bad values on purpose; `read_scene`
     reports them), only what the preview tessellation needs.
@@ -442,8 +442,8 @@ def _structure(prim: Usd.Prim) -> tuple[HSpline, GridTopology]:
     nu, nv = int(get("acra:uCount", 0)), int(get("acra:vCount", 0))
     uper, vper = WRAPS.get(str(get("acra:uWrap", "open")), False), WRAPS.get(str(get("acra:vWrap", "open")), False)
     base = from_grid(np.zeros((nu, nv, 3)), uper, vper, depth=int(get("acra:levels", 1)))
-    topology = display_topology(base.u, base.v, int(get("acra:samples", 4)))
-    return from_arrays(base, read_hierarchy(prim)), topology
+    template = from_arrays(base, read_hierarchy(prim))
+    return template, run_topology([template], int(get("acra:samples", 4)))
 
 
 def key_cvs(prim: Usd.Prim, frame: float, cvs: np.ndarray) -> None:

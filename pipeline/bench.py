@@ -151,7 +151,7 @@ def _write_ms(output_layer, report, col: int, path: Path) -> float:
     kind = {s.frame for s in report.stats if (0 if s.in_collision else 1) == col}
     if not kind:
         return float("nan")
-    part = output_layer.FramesResult({f: r for f, r in report.result.frames.items() if f in kind})
+    part = output_layer.FramesResult({f: r for f, r in report.result.frames.items() if f in kind}, report.result.topologies)
     t = time.perf_counter()
     output_layer.write_output(report.stage_path, path, report.scene, part)
     return 1e3 * (time.perf_counter() - t) / len(kind)

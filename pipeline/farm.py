@@ -98,7 +98,8 @@ def plan_chunks(frames: list[int], size: int, can_start: Callable[[int], bool] |
 
 
 def run_chunk(stage_path: str, identity: str, frames: list[int], options) -> dict:
-    """One task: open the stage, run ``frames`` with `frames.run_frames`, return plain data.
+    """One task: open the stage, respond ``frames`` with `frames.respond_frames`, return plain data
+    (the display is the whole run's: the client chooses it, `display.finish`).
 
     Runs on a worker. Returns ``{"frames", "records", "stats", "error", "worker", "cpu"}``: the
     records of `parts.records_from_result`, the `frames.FrameStats` list, ``error``, an
@@ -115,7 +116,7 @@ def run_chunk(stage_path: str, identity: str, frames: list[int], options) -> dic
         found = parts.input_identity(stage)
         if found != identity:
             raise InputError(stage_path, None, f"changed during the run (identity {found[:12]} on this worker, {identity[:12]} when the run started)")
-        result, stats = frame_loop.run_frames(stage, scene, list(frames), options)
+        result, stats = frame_loop.respond_frames(stage, scene, list(frames), options)
     except InputError as err:
         return {"frames": list(frames), "records": {}, "stats": [], "error": err, "worker": _worker_address(), "cpu": 0.0}
     records = parts.records_from_result(result)
@@ -198,7 +199,9 @@ def run_frames(
     on_chunk: Callable[[int], None] | None = None,
     timings: FarmTimings | None = None,
 ):
-    """`frames.run_frames` on Dask; returns ``(output_layer.FramesResult, list of FrameStats)``.
+    """`frames.run_frames` on Dask: chunks of frames responded on the workers, the run's display
+    chosen and evaluated on the client (`display.finish`); returns ``(output_layer.FramesResult,
+    list of FrameStats)``.
 
     ``stage_path`` is the USD stage (a scene file is exported by the caller first) and
     ``identity`` its `parts.input_identity` as the client read it; ``scene`` its `SceneModel`.
@@ -252,6 +255,9 @@ def run_frames(
     if missing:  # every chunk was gathered, so this is a defect, never a partial output
         raise FarmError(f"frames {parts.frame_spans(missing)} came back from no chunk")
     t2 = time.perf_counter()
-    result = parts.assemble(scene, records)
+    from pipeline import display, usdio
+
+    result, stats = parts.assemble(scene, records), sorted(stats, key=lambda s: s.frame)
+    display.finish(usdio.open_input(stage_path), scene, result, stats, options)
     timings.assemble = time.perf_counter() - t2
-    return result, sorted(stats, key=lambda s: s.frame)
+    return result, stats

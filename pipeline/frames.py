@@ -24,9 +24,10 @@ from threadpoolctl import threadpool_limits
 from acra import hspline as H
 from acra import respond as R
 from acra.interpolate import SystemTooLarge
-from acra.tessellate import grid_samples, pole_normals
 from pipeline import contact as C
 from pipeline import detect as D
+from pipeline import display
+from pipeline import residual
 from pipeline import shape as S
 from pipeline import state
 from pipeline import usdio
@@ -34,7 +35,8 @@ from pipeline import output_layer
 from pipeline.guard import format_size
 from pipeline.model import InputError, SceneModel, apply_inverse, apply_xform
 
-__all__ = ["FrameStats", "RunOptions", "run_frames", "data_points_for", "collider_points_for", "rim_points"]
+__all__ = ["FrameStats", "RunOptions", "run_frames", "respond_frames", "data_points_for", "collider_points_for", "rim_points",
+           "visible_points"]
 
 
 @dataclass(frozen=True)
@@ -86,6 +88,7 @@ class FrameStats:
     ms_respond: float = 0.0
     ms_respond_by: dict = field(default_factory=dict)
     ms_output: float = 0.0
+    ms_visible: float = 0.0
     ms_total: float = 0.0
     contacts: list = field(default_factory=list)
     data_points: dict = field(default_factory=dict)  # path -> (from (K, 3), target (K, 3)), world
@@ -410,6 +413,66 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
     return mids[keep], points[keep], points[keep] + ahead[keep, None] * unit
 
 
+def visible_points(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside, direction: np.ndarray | None,
+                   share: float, group_level: int, clear: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Additional points (eq. 4.16) from what the user sees: the display's own points inside the
+    other object (`residual.Inside`), where the limit surface may already be clear.
+
+    A display triangle is a chord of the surface: where a response wraps a convex part of the
+    other object (a dent around a tip), the chords lie on the concave side, inside the other
+    object, while the limit surface on detection's samples is out. Eq. 4.16 on the display's
+    samples: per patch of the finest absorbing level, the deepest display point inside is cast
+    along ``direction`` (the pair's push; ``None``: its nearest way out) to where it leaves the
+    other object, and the surface point at the same parameters is asked to move as far, plus
+    ``clear`` (a world length: what counts as done), so the chord that holds the display point
+    moves out with its corners.
+
+    Returns
+    -------
+    uv : (g, 2) float64
+        Parameters on ``ga`` (level-0 units).
+    target : (g, 3) float64
+        World targets, ``R A + (1 - R) B`` of eq. 4.16 with ``B`` the surface point moved as above.
+    origin : (g, 3) float64
+        World surface points before the move.
+    """
+    empty = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3))
+    if inside.uv is None or not len(inside.uv):
+        return empty
+    hs = ga.surface
+    uv = D.wrap_uv(hs, inside.uv)
+    keys = R.patch_keys(hs, uv, group_level)
+    order = np.lexsort((inside.deep, keys))  # by patch, deepest last
+    rows = order[np.r_[keys[order][1:] != keys[order][:-1], True]]
+    uv, shown = uv[rows], inside.points[rows]
+    if direction is None or np.linalg.norm(direction) <= 1e-12 * ga.size:
+        unit = D.surface_distance(gb, shown)[1] - shown
+        length = np.linalg.norm(unit, axis=1)
+        ok = length > 0
+        uv, shown, unit = uv[ok], shown[ok], unit[ok] / length[ok, None]
+    else:
+        unit = np.broadcast_to(np.asarray(direction, float) / np.linalg.norm(direction), shown.shape)
+    if not len(uv):
+        return empty
+    hits, valid = D.cast(gb, shown, unit, within=np.ones(len(shown), bool))
+    move = np.einsum("ij,ij->i", hits - shown, unit) + clear
+    valid &= move > 0
+    origin = D.surface_points(ga, uv[valid]).points
+    goal = origin + move[valid, None] * unit[valid]
+    return uv[valid], R.additional_targets(origin, goal, share), origin
+
+
+def _with_shown(region: D.Region, shown) -> tuple[np.ndarray | None, np.ndarray]:
+    """A region's parameters ``(k, 2)`` and depths ``(k,)`` joined by the display's own points
+    inside the other object (``shown``, a `residual.PairDepth` or ``None``): eq. 4.16's region as
+    detection's samples of the limit surface and the user's display see it together, so a part
+    that sinks between detection's samples still gets its patch's point."""
+    if shown is None or shown.inside.uv is None or not len(shown.inside.uv):
+        return region.uv, region.depth
+    return (np.concatenate([region.uv.reshape(-1, 2), shown.inside.uv]),
+            np.concatenate([region.depth, shown.inside.deep]))
+
+
 def _spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarray:
     """Which additional points ``points (g, 3)`` to keep so no two kept points, and no kept point
     and the contact point ``contact (3,)``, are within ``radius`` (greedy, in order).
@@ -486,7 +549,26 @@ def run_frames(
     on_frame: Callable[[FrameStats, output_layer.FramesResult], None] | None = None,
     initial: list | None = None,
 ) -> tuple[output_layer.FramesResult, list[FrameStats]]:
-    """Process ``frames`` and return the per-frame results to write and their statistics.
+    """Process ``frames`` and return the per-frame results to write and their statistics:
+    `respond_frames`, then the run's display and every frame's residual on it
+    (`display.finish`). ``on_frame(stats, result)`` is called as each frame's responses are done
+    (its display and final residual come after the last frame)."""
+    result, stats = respond_frames(stage, scene, frames, options, on_frame, initial)
+    display.finish(stage, scene, result, stats, options)
+    return result, stats
+
+
+def respond_frames(
+    stage: Usd.Stage,
+    scene: SceneModel,
+    frames: list[int],
+    options: RunOptions = RunOptions(),
+    on_frame: Callable[[FrameStats, output_layer.FramesResult], None] | None = None,
+    initial: list | None = None,
+) -> tuple[output_layer.FramesResult, list[FrameStats]]:
+    """Respond every frame of ``frames``: the results' surfaces (points left ``None``, the display
+    is chosen from all of them, `display.finish`) and their statistics, whose residual is measured
+    on each surface's own display.
 
     A deformable that carries state across frames (`pipeline.state`) starts each frame from the
     animator's shape plus what it carried out of the previous one: ``initial`` (per deformable,
@@ -525,7 +607,7 @@ class _Run:
     reused), the display of each distinct surface, each pair's rewinding cache, and the carried
     state (`pipeline.state`). A frame (`frame`) is rounds of `detect` → `data_points` (eq.
     4.15–4.16) → `respond` until the residual is within tolerance or the cap is reached; the
-    round with the least residual is kept and tessellated for display (`tessellation`).
+    round with the least residual where the user looks (`visible`) is kept.
     """
 
     def __init__(self, stage: Usd.Stage, scene: SceneModel, options: RunOptions, carry) -> None:
@@ -536,7 +618,8 @@ class _Run:
         self.caches: dict = {}  # (i, other) -> contact.RewindCache
         self.state_memo: dict = {}
         self.canonical: list = [None] * len(self.defs)  # last input surface of each deformable
-        self.display: dict = {}  # id(surface) -> (surface, points, normals, limit normals), most recent last
+        self.displays = display.Displays(options.density, 4 * len(self.defs) + 4)
+        self._collider_solids: dict = {}  # collider row -> its inside (`residual.collider_solid`)
 
     def states(self, t: float):
         """``(deformable states, collider states)`` at time code ``t`` (`usdio.state_at`)."""
@@ -552,28 +635,6 @@ class _Run:
                     self.canonical[i] = s.surface
             self.state_memo[t] = (dstates, cstates)
         return self.state_memo[t]
-
-    def tessellation(self, i: int, surface: H.HSpline):
-        """Display points and normals of a deformable's surface, once per distinct surface; a
-        responded surface re-evaluates only the patches changed since its nearest displayed
-        ancestor (the input surface, as a rule)."""
-        display = self.display
-        hit = display.pop(id(surface), None)
-        if hit is None or hit[0] is not surface:
-            shape = S.shape_of(surface, self.options.density)
-            since, up, stale = None, shape, np.zeros(shape.density_map.shape, bool)
-            while since is None and up.parent is not None:
-                stale, up = stale | up._stale, up.parent
-                old = display.get(id(up.surface))
-                if old is not None and old[0] is up.surface:
-                    since = (old[1], old[3], stale)
-            topo = self.defs[i].topology
-            pts, limit = grid_samples(surface, topo, shape.details, since)
-            hit = (surface, pts, pole_normals(surface, topo, pts, limit), limit)
-        display[id(surface)] = hit  # most recent last
-        while len(display) > 4 * len(self.defs):
-            del display[next(iter(display))]
-        return hit[1], hit[2]
 
     def geometry(self, kind_j, t):
         """The input geometry of a deformable (``("d", j)``) or a collider (``("c", j)``) at ``t``,
@@ -613,14 +674,71 @@ class _Run:
                 rnd.found.append((i, other, c))
         return rnd
 
+    def collider_solid(self, j: int):
+        """Collider ``j``'s inside in its object space, built on first use (`residual.collider_solid`)."""
+        if j not in self._collider_solids:
+            c = self.scene.colliders[j]
+            self._collider_solids[j] = residual.collider_solid(c.vertices, c.triangles)
+        return self._collider_solids[j]
+
+
+
+    def visible(self, geoms: list, cgeoms: list, enabled: list) -> tuple[residual.FrameResidual, dict]:
+        """The round's residual where the user looks (`pipeline.residual`): each deformable's own
+        adaptive display (`display.Displays`) in every other closed object whose box meets its
+        own, for the pairs `detect` tests. Returns it and, per pair ``(i, other)``, the
+        `residual.Inside` of ``i`` in ``other`` and (a deformable ``other``) of ``other`` in ``i``."""
+        shown: dict = {}
+
+        def obj(kind: str, j: int) -> residual.Shown:
+            if (kind, j) not in shown:
+                if kind == "d":
+                    g, m = geoms[j], self.defs[j]
+                    sd = self.displays.of(g.surface, m.controls.samples)
+                    shown[kind, j] = residual.shown(m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
+                                                    g.shape.outward if g.closed else 1.0, sd.solid)
+                else:
+                    g = cgeoms[j]
+                    shown[kind, j] = residual.collider_shown(g.name, g.bounds, g.size, self.collider_solid(j), g.xform)
+            return shown[kind, j]
+
+        objects, index, pairs, keys = [], {}, [], []
+        for i, other in _pairs(len(self.defs), len(self.statics)):
+            if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
+                continue
+            ga, gb = geoms[i], (geoms[other[1]] if other[0] == "d" else cgeoms[other[1]])
+            if not D._boxes_overlap(ga, gb, D.pair_pad(ga, gb)):
+                continue
+            for kind_j in (("d", i), other):
+                if kind_j not in index:
+                    index[kind_j] = len(objects)
+                    objects.append(obj(*kind_j))
+            pairs.append((index["d", i], index[other]))
+            keys.append(((i, other), "a"))
+            if other[0] == "d":
+                pairs.append((index[other], index["d", i]))
+                keys.append(((i, other), "b"))
+        fr = residual.measure_frame(objects, self.options.tolerance, pairs)
+        by_pair: dict = {}
+        measured = {(p.a, p.b): p for p in fr.pairs}
+        for (ia, ib), (key, side) in zip(pairs, keys):
+            p = measured.get((objects[ia].path, objects[ib].path))
+            if p is not None:
+                by_pair.setdefault(key, {})[side] = p
+        return fr, by_pair
+
     def data_points(self, rnd: _Round, geoms: list, cgeoms: list, sizes: list, enabled: list, surfaces: list,
-                    directions: dict, wrapping: set) -> dict:
+                    directions: dict, wrapping: set, over: dict | None = None, seen: dict | None = None) -> dict:
         """Eq. 4.15–4.16: each responding deformable's data points for this round's contacts, as
         ``{i: [(DataPoints, world targets (k, 3), world starts (k, 3)), ...]}``. ``directions`` keeps
         each pair's first push of the frame, ``wrapping`` the collider pairs pushed by
-        `collider_points_for` (both updated)."""
+        `collider_points_for` (both updated). ``over`` holds, per pair whose display is still over
+        the tolerance where the user looks, its `residual.PairDepth` per side (``"a"``: the
+        deformable in the other, ``"b"``: the other deformable in it): those sides get
+        `visible_points` too."""
         controls = self.controls
         points: dict[int, list] = {}
+        seen = {} if seen is None else seen
         for i, other, c in rnd.found:
             gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
             r_other = None if other[0] == "c" or not enabled[other[1]] else controls[other[1]].rigidity
@@ -633,9 +751,10 @@ class _Run:
                 wrap = other[0] == "c" and (not c.region_b.empty or (i, other) in wrapping)
                 clear = rnd.settled[(i, other)] if wrap else 0.0
                 p_other = (c.point_b + c.slide) + clear * push / max(np.linalg.norm(push), 1e-300)
-                dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, p_other, None if wrap else c.region_a.uv,
+                r_uv, r_depth = _with_shown(c.region_a, seen.get((i, other), {}).get("a"))
+                dp, world, start = data_points_for(geoms[i], gb, c.uv_a, c.point_a, p_other, None if wrap else r_uv,
                                                    share, _group_level(controls[i], surfaces[i].depth), push,
-                                                   c.region_a.depth, rnd.settled[(i, other)])
+                                                   r_depth, rnd.settled[(i, other)])
                 points.setdefault(i, []).append((dp, world, start))
                 if wrap:
                     uv, world, start = collider_points_for(geoms[i], gb, c.region_a, c.region_b, push, share,
@@ -650,10 +769,36 @@ class _Run:
                 j = other[1]
                 share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
                 push = -directions.setdefault((i, other), c.push)
-                dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a - c.slide, c.region_b.uv, share,
+                r_uv, r_depth = _with_shown(c.region_b, seen.get((i, other), {}).get("b"))
+                dp, world, start = data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a - c.slide, r_uv, share,
                                                    _group_level(controls[j], surfaces[j].depth), push,
-                                                   c.region_b.depth, rnd.settled[(i, other)])
+                                                   r_depth, rnd.settled[(i, other)])
                 points.setdefault(j, []).append((dp, world, start))
+        for (i, other), sides in (over or {}).items():
+            for side, pd in sides.items():
+                me, them = (("d", i), other) if side == "a" else (other, ("d", i))
+                j = me[1]
+                if not enabled[j]:
+                    continue
+                gm, gt = geoms[j], (geoms[them[1]] if them[0] == "d" else cgeoms[them[1]])
+                r_them = controls[them[1]].rigidity if them[0] == "d" and enabled[them[1]] else None
+                push = directions.get((i, other))
+                push = None if push is None else (push if side == "a" else -push)
+                clear = max(self.options.tolerance, MEET) * gm.size
+                uv, world, start = visible_points(gm, gt, pd.inside, push, R.rigidity_share(controls[j].rigidity, r_them),
+                                                  _group_level(controls[j], surfaces[j].depth), clear)
+                if not len(uv):
+                    continue
+                # eq. 4.16 gives a patch of the finest absorbing level one point: a patch already
+                # holding one of detection's keeps it (two targets in one patch fight in the
+                # interpolation, and the surface swings between them from round to round)
+                level = _group_level(controls[j], surfaces[j].depth)
+                taken = np.concatenate([d.uv for d, _, _ in points.get(j, [])] or [np.zeros((0, 2))])
+                keep = ~np.isin(R.patch_keys(gm.surface, uv, level), R.patch_keys(gm.surface, taken, level))
+                keep &= _spread(start, np.full(3, np.inf), MEET * gm.size)
+                if keep.any():
+                    dp = R.DataPoints(uv[keep], apply_inverse(gm.xform, world[keep]), np.zeros(int(keep.sum()), bool))
+                    points.setdefault(j, []).append((dp, world[keep], start[keep]))
         return points
 
     def respond(self, frame: int, it: int, st: FrameStats, points: dict, surfaces: list) -> None:
@@ -696,24 +841,43 @@ class _Run:
         for it in range(rounds + 1):
             geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
             cgeoms = [D.ColliderGeometry(self.statics[j], cstates[j].xform) for j in range(len(self.statics))]
-            if it == 0:  # the animator's surfaces: the residual's scale stays fixed while rounds reshape them
+            if it == 0:  # the animator's surfaces: detection's scale stays fixed while rounds reshape them
                 sizes = [g.size for g in geoms]
             td, setup0 = time.perf_counter(), S.SetupClock.ms
             rnd = self.detect(frame, it, geoms, cgeoms, sizes, enabled)
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_detect += 1e3 * (time.perf_counter() - td) - (S.SetupClock.ms - setup0)
+            tv = time.perf_counter()
+            vis, by_pair = self.visible(geoms, cgeoms, enabled)
+            st.ms_visible += 1e3 * (time.perf_counter() - tv)
             if it == 0:
-                st.in_collision = bool(rnd.found)
+                st.in_collision = bool(rnd.found) or vis.worst_rel > options.tolerance  # a pair to respond to
                 st.contacts = [(c.point_a, c.point_b) for _, _, c in rnd.found]
                 st.regions = {defs[i].path: c.region_a.points for i, _, c in rnd.found}
-            if rnd.worst_rel < best[0]:
-                best = (rnd.worst_rel, list(surfaces))
-                st.residual, st.residual_rel = rnd.worst, rnd.worst_rel
-                st.pair_residual_rel = rnd.pair_rel
-            if not rnd.found or rnd.worst_rel <= options.tolerance or it == rounds:
+            # a round is judged by what the user sees and by what detection still finds (a
+            # collider wholly inside a closed deformable shows nothing of itself, yet is inside)
+            score = max(vis.worst_rel, rnd.worst_rel)
+            if score < best[0]:
+                best = (score, list(surfaces))
+                st.residual, st.residual_rel = vis.worst, vis.worst_rel
+                st.pair_residual_rel = {(defs[i].path, self._name(other)): vis.pair_rel(defs[i].path, self._name(other))
+                                        for i, other in _pairs(len(defs), len(self.statics))}
+            # what the user would see still over the tolerance, per pair and side
+            over = {key: {side: p for side, p in sides.items() if p.rel > options.tolerance}
+                    for key, sides in by_pair.items()}
+            over = {key: sides for key, sides in over.items() if sides}
+            if (not rnd.found and not over) or score <= options.tolerance or it == rounds:
                 break
             tr, setup0 = time.perf_counter(), S.SetupClock.ms
-            points = self.data_points(rnd, geoms, cgeoms, sizes, enabled, surfaces, directions, wrapping)
+            # The first round is eq. 4.15-4.16 on detection's regions alone: it gives the
+            # response its look. Where the display is still over the tolerance afterwards, a
+            # later round joins the display's own points inside the other object to the pair's
+            # regions (`_with_shown`); a pair detection finds clear, or misses, while its display
+            # is over gets points from the display alone (`visible_points`).
+            found = {(i, other) for i, other, _ in rnd.found}
+            seen = {key: by_pair[key] for key in over if it > 0 and key in found}
+            over = {key: sides for key, sides in over.items() if key not in found}
+            points = self.data_points(rnd, geoms, cgeoms, sizes, enabled, surfaces, directions, wrapping, over, seen)
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_convert += 1e3 * (time.perf_counter() - tr) - (S.SetupClock.ms - setup0)
             self.respond(frame, it, st, points, surfaces)
@@ -721,13 +885,14 @@ class _Run:
         surfaces = best[1]
         carried = self.carry.end(frame, surfaces)
         st.volume_targets = self.carry.volume_targets()
-        to = time.perf_counter()
-        for i, model in enumerate(defs):
-            pts, nrm = self.tessellation(i, surfaces[i])
-            result.add(frame, model.path, output_layer.DeformableResult(pts, nrm, surfaces[i], st.residual, st.in_collision, carried[i]))
-        st.ms_output = 1e3 * (time.perf_counter() - to)
+        for i, model in enumerate(defs):  # the display is the run's, chosen after every frame (`display.finish`)
+            result.add(frame, model.path, output_layer.DeformableResult(None, None, surfaces[i], st.residual, st.in_collision, carried[i]))
         st.ms_total = 1e3 * (time.perf_counter() - t0)
         return st
+
+    def _name(self, other: tuple) -> str:
+        """Prim path of ``("d", j)`` or ``("c", j)``."""
+        return self.defs[other[1]].path if other[0] == "d" else self.scene.colliders[other[1]].path
 
 
 def _run_frames(stage, scene, frames, options, on_frame, initial=None):

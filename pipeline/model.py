@@ -14,7 +14,7 @@ import numpy as np
 
 from acra.hspline import HierarchyArrays, HSpline
 from acra.respond import Controls as AcraControls
-from acra.tessellate import GridTopology
+from acra.tessellate import MeshTopology
 
 __all__ = ["Controls", "DeformableModel", "ColliderModel", "SceneModel", "DeformableState", "ColliderState", "InputError"]
 
@@ -101,8 +101,9 @@ class DeformableModel:
     controls : Controls
     hierarchy : HierarchyArrays
         The animator's refined patches and offsets (input, not time-varying).
-    topology : GridTopology
-        Display tessellation (fixed for the run).
+    topology : MeshTopology
+        Rest display tessellation: the adaptive tessellation of the animator's hierarchy
+        (`acra.tessellate.run_topology`); a run's output has its own (`display.run_topologies`).
     """
 
     path: str
@@ -113,7 +114,7 @@ class DeformableModel:
     depth: int
     controls: Controls
     hierarchy: HierarchyArrays
-    topology: GridTopology
+    topology: MeshTopology
 
 
 @dataclass(frozen=True)

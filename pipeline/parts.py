@@ -169,8 +169,8 @@ def records_from_result(result) -> dict:
         for path, r in per.items():
             carried = r.carried
             out[str(path)] = {
-                "points": np.asarray(r.points, dtype=np.float64),
-                "normals": np.asarray(r.normals, dtype=np.float64),
+                "points": np.zeros((0, 3)) if r.points is None else np.asarray(r.points, dtype=np.float64),
+                "normals": np.zeros((0, 3)) if r.normals is None else np.asarray(r.normals, dtype=np.float64),
                 **_hierarchy_fields(r.surface),
                 "residual": np.float64(r.residual),
                 "in_collision": np.bool_(r.in_collision),
@@ -203,8 +203,9 @@ def assemble(scene: SceneModel, records: dict):
                 # loop does, so the writer converts them once (`output_layer._Converted`)
                 done = last[1]
                 points, normals, surface = done.points, done.normals, done.surface
-            else:
+            else:  # a frame responded but not yet displayed has no points (`display.finish`)
                 points, normals, surface = r["points"], r["normals"], _hierarchy_from(r, m)
+                points, normals = (None, None) if not len(points) else (points, normals)
             carried = Carried(_hierarchy_from(r, m, "elastic_"), _hierarchy_from(r, m, "plastic_")) if r["stateful"] else None
             out = output_layer.DeformableResult(points, normals, surface, float(r["residual"]), bool(r["in_collision"]), carried)
             previous[path] = (r, out)
@@ -407,6 +408,11 @@ def merge_parts(directory, output=None, frames: list[int] | None = None) -> tupl
             raise InputError(str(p.path), None, f"holds deformables {', '.join(p.meta['deformables'])}; the input has {', '.join(names)}")
     records = {f: r for p in parts for f, r in p.records.items()}
     stats = sorted((s for p in parts for s in stats_from_table(p.stats)), key=lambda s: s.frame)
+    from pipeline import display, frames as frame_loop
+
+    result = assemble(scene, records)
+    options = frame_loop.RunOptions(**parts[0].meta["options"])
+    display.finish(stage, scene, result, stats, options)  # the run's display and residuals, from all parts
     tw = time.perf_counter()
-    output_layer.write_output(stage_path, out, scene, assemble(scene, records))
+    output_layer.write_output(stage_path, out, scene, result)
     return out, stats, 1e3 * (time.perf_counter() - tw), scene, stage_path

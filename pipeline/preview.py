@@ -320,7 +320,7 @@ def _diagonal(points: np.ndarray) -> float:
     return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) if len(points) else 0.0
 
 
-def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result) -> None:
+def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result, topologies: dict) -> None:
     """Plots of what each deformable carries across frames and of its volume (`pipeline.state`):
     ``metrics/state/<path>/{elastic,plastic}/level_<k>`` the largest carried vector per level,
     ``metrics/volume/<path>`` (``metrics/area/<path>`` for an open sheet) the display mesh's
@@ -338,7 +338,7 @@ def log_state(rec: rr.RecordingStream, scene: SceneModel, st, frame_result) -> N
                     rec.log(f"metrics/state{model.path}/{part}/level_{k}", rr.Scalars(m))
         if model.path in st.volume_targets:
             measure, target = st.volume_targets[model.path]
-            v = volume.MEASURES[measure][0](np.asarray(r.points, dtype=np.float64), volume.triangles(model.topology))
+            v = volume.MEASURES[measure][0](np.asarray(r.points, dtype=np.float64), volume.triangles(topologies[model.path]))
             rec.log(f"metrics/{measure}{model.path}", rr.Scalars(v / target))
 
 
@@ -355,16 +355,22 @@ class Recording:
             self.rec.spawn(default_blueprint=blueprint(up_axis=scene.up_axis))
         self.deepest: Deepest | None = None
         self._deepest_meshes: list = []  # every object at the deepest frame, world (points, triangles)
-        self._triangles = triangles
+        self._triangles = None
         self.collision_frames: list[int] = []
         self.rec.log(ROOT, view_coordinates(scene.up_axis), static=True)
         self.rec.log(ROOT, rr.Transform3D(scale=float(scene.meters_per_unit)), static=True)
         self.rec.log("legend", rr.TextDocument(LEGEND, media_type=rr.MediaType.MARKDOWN), static=True)
-        for model in scene.deformables:
-            self.rec.log(entity(model.path), rr.Mesh3D.from_fields(triangle_indices=triangles[model.path]), static=True)
+        if triangles is not None:
+            self.set_triangles(triangles)
         for c in scene.colliders:
             self.rec.log(entity(c.path), rr.Mesh3D(vertex_positions=c.vertices, triangle_indices=c.triangles,
                                                    vertex_colors=np.tile(COLLIDER_COLOUR, (len(c.vertices), 1))), static=True)
+
+    def set_triangles(self, triangles: dict[str, np.ndarray]) -> None:
+        """Log each deformable's display triangles ``(f, 3) int64`` (static: one topology per run)."""
+        self._triangles = triangles
+        for model in self.scene.deformables:
+            self.rec.log(entity(model.path), rr.Mesh3D.from_fields(triangle_indices=triangles[model.path]), static=True)
 
     def log_frame(self, frame: int, objects: list[ObjectFrame], collider_xforms: dict[str, np.ndarray], line: str | None) -> None:
         """Transforms, coloured meshes and the shared plots of one frame; ``line`` goes to ``log``."""
@@ -434,7 +440,7 @@ class Preview:
         self.scene = scene
         self.stage = stage
         self.tolerance = tolerance
-        self.recording = Recording(scene, name, {m.path: m.topology.triangles() for m in scene.deformables}, spawn)
+        self.recording = Recording(scene, name, None, spawn)  # the run's display topology comes with its first frame
         self.rec = self.recording.rec
         self.spawn = spawn
         self.rrd = rrd
@@ -448,10 +454,10 @@ class Preview:
         dstates, _ = usdio.state_at(self.stage, self.scene, float(frame))
         return {m.path: s.surface for m, s in zip(self.scene.deformables, dstates)}
 
-    def _keyframed_points(self, model: DeformableModel, surface: HSpline) -> np.ndarray:
+    def _keyframed_points(self, model: DeformableModel, surface: HSpline, topology) -> np.ndarray:
         hit = self._keyframed.get(model.path)
         if hit is None or not np.array_equal(hit[0], surface.cvs):
-            hit = self._keyframed[model.path] = (surface.cvs, keyframed_points(surface, model))
+            hit = self._keyframed[model.path] = (surface.cvs, keyframed_points(surface, model, topology))
         return hit[1]
 
     def _mark(self, entity_path: str, archetype) -> None:
@@ -459,6 +465,8 @@ class Preview:
         self._marked.add(entity_path)
 
     def log_frame(self, st, result) -> None:
+        if self.recording._triangles is None:
+            self.recording.set_triangles({m.path: result.topology(m).triangles() for m in self.scene.deformables})
         frame_result = result.frames[st.frame]
         keyed = self._keyframed_surfaces(st.frame)
         objects = []
@@ -466,7 +474,7 @@ class Preview:
             r = frame_result[model.path]
             objects.append(ObjectFrame(
                 model.path, np.asarray(r.points, np.float32), np.asarray(r.normals, np.float32),
-                self._keyframed_points(model, keyed[model.path]), np.asarray(st.xforms[model.path], np.float64),
+                self._keyframed_points(model, keyed[model.path], result.topology(model)), np.asarray(st.xforms[model.path], np.float64),
                 float(r.residual), bool(r.in_collision), absorbed_by_level(keyed[model.path], r.surface)))
         colliders = {c.path: st.xforms[c.path] for c in self.scene.colliders}
         line = None
@@ -474,7 +482,7 @@ class Preview:
             line = (f"frame {st.frame}: collision, {st.iterations} rounds, residual {st.residual_rel:.2e} of size, "
                     f"{st.ms_total:.0f} ms")
         self.recording.log_frame(st.frame, objects, colliders, line)
-        log_state(self.rec, self.scene, st, frame_result)
+        log_state(self.rec, self.scene, st, frame_result, {m.path: result.topology(m) for m in self.scene.deformables})
         if self._marker is None:  # markers scale with the smallest deformable, as first seen
             sizes = [_diagonal(apply_xform(o.xform, o.points.astype(np.float64))) for o in objects]
             self._marker = min(sizes, default=1.0) or 1.0

@@ -197,18 +197,13 @@ def run_file(
 
             result, stats = farm.run_frames(stage_path, identity, scene, frames_run, options, workers, scheduler, chunk,
                                             (lambda n: bar.update(None, n)) if bar is not None else None)
-            for st in stats if preview is not None else ():
-                preview.log_frame(st, result)
         else:
-            def on_frame(st, result):
-                if preview is not None:
-                    preview.log_frame(st, result)
-                if bar is not None:
-                    bar.update(st.frame)
-
+            on_frame = (lambda st, result: bar.update(st.frame)) if bar is not None else None
             result, stats = frame_loop.run_frames(stage, scene, frames_run, options, on_frame)
         if bar is not None:
             bar.close()
+        for st in stats if preview is not None else ():  # the display is the run's: known after every frame
+            preview.log_frame(st, result)
         over = report.frames_over_tolerance(stats, tolerance)
         status = report.EXIT_OVER_TOLERANCE if over and over_tolerance == "fail" else report.EXIT_OK
         clock.lap("frames")

@@ -180,7 +180,7 @@ def carried_at(stage: Usd.Stage, scene: SceneModel, frame: int, options=None) ->
     if frame < scene.start:
         return [zero_carried(scene, m) if m.controls.stateful else None for m in scene.deformables]
     options = F.RunOptions() if options is None else options
-    result, _ = F.run_frames(stage, scene, list(range(scene.start, frame + 1)), options)
+    result, _ = F.respond_frames(stage, scene, list(range(scene.start, frame + 1)), options)
     return [result.frames[frame][m.path].carried for m in scene.deformables]
 
 

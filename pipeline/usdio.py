@@ -30,7 +30,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdPhysics, Vt
 
 from acra.basis import Direction
 from acra.hspline import HierarchyArrays, HSpline, from_arrays, from_grid
-from acra.tessellate import display_topology
+from acra.tessellate import run_topology
 
 from .model import (
     ColliderModel,
@@ -514,7 +514,7 @@ def read_deformable(prim: Usd.Prim) -> tuple[DeformableModel, HSpline]:
             else:
                 name = "acra:hierarchy:patches" if stage_ == "patch" else "acra:hierarchy:offsetCvs"
             raise InputError(path, name, msg) from exc
-    topology = display_topology(Direction(nu, uper), Direction(nv, vper), controls.samples)
+    topology = run_topology([surface], controls.samples)  # the rest display: every level the animator used
     model = DeformableModel(path, uper, vper, nu, nv, levels, controls, hierarchy, topology)
     return model, surface
 

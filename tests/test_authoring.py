@@ -11,7 +11,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdPhysics, UsdValidation
 
 from acra import hspline as H
 from acra import shapes
-from acra.tessellate import display_topology, evaluate_grid
+from acra.tessellate import display_topology, evaluate_grid, run_topology
 from pipeline import authoring as A
 from pipeline import usdio as U
 
@@ -70,11 +70,18 @@ def test_hierarchy_is_stored_and_shapes_the_rest_preview():
     stage = A.new_stage(1, 1)
     prim = A.add_deformable(stage, "/World/s", cvs, hierarchy=hs, samples=2)
     assert prim.GetAttribute("acra:levels").Get() == 3
-    points, _ = evaluate_grid(hs, display_topology(hs.u, hs.v, 2))
-    flat, _ = evaluate_grid(H.from_grid(cvs, up, vp), display_topology(hs.u, hs.v, 2))
-    got = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get())
+    # the rest display shows every level the animator used: 2 steps per edge of the finest patch
+    # present at each place (`run_topology`), so the level-2 offsets get level-2 density
+    topo = run_topology([hs], 2)
+    points, _ = evaluate_grid(hs, topo)
+    flat, _ = evaluate_grid(H.from_grid(cvs, up, vp), topo)
+    mesh = UsdGeom.Mesh(prim)
+    got = np.asarray(mesh.GetPointsAttr().Get())
     np.testing.assert_array_equal(got, points.astype(np.float32))
+    np.testing.assert_array_equal(mesh.GetFaceVertexCountsAttr().Get(), topo.counts)
+    np.testing.assert_array_equal(mesh.GetFaceVertexIndicesAttr().Get(), topo.indices)
     assert np.abs(got - flat).max() > 1e-3  # the offsets show in the preview
+    assert len(got) > display_topology(hs.u, hs.v, 2).u.size  # denser than level 0's grid where the detail is
     scene = U.read_scene(stage)
     template = U.surface_template(scene, scene.deformables[0])
     a, b = H.to_arrays(template), H.to_arrays(hs)

@@ -103,26 +103,9 @@ def run(stage: Usd.Stage, tmp_path: Path, name: str, **options) -> Run:
 # --- the independent measure of every run (acceptance.visible) -----------------------------------
 #: runs whose output the measure does not pass, with the first fault and the count: a strict
 #: expected failure that lets the case's own assertions run (a run listed here that passes fails
-#: its test, so the entry goes when the cause is fixed). All but ``obey`` fail while the display
-#: is the uniform grid of ``acra:samples`` steps per level-0 patch and the residual is measured at
-#: detection's samples (issue 17: the display that shows every level and the residual as the user
-#: sees it come from the ``vis2`` work).
+#: its test, so the entry goes when the cause is fixed).
 VISIBLE_KNOWN: dict[str, str] = {
-    "grazing_0.001": "frame 2: reported 1.00e-06 under the measured 1.40e-06 (2 faults)",
-    "half_flat": "frame 1: reported 2.54e-04 under the measured 9.47e-04 (1 fault)",
-    "half_cube": "frame 1: measured 2.68e-03 of size, over 1e-03 (2 faults)",
-    "half_ball": "frame 2: measured 1.09e-03 of size, over 1e-03 (2 faults)",
-    "rigidity_1_100": "frame 3: reported 6.61e-04 under the measured 7.37e-04 (1 fault)",
-    "rigidity_100_100": "frame 3: reported 6.47e-04 under the measured 7.20e-04 (1 fault)",
     "obey": "the documented remainder (absorption left on an unrefined level): frame 2: measured 1.18e-02 of size, over 1e-03 (4 faults)",
-    "refine": "frame 2: measured 1.48e-03 of size, over 1e-03 (4 faults)",
-    "scale_1": "frame 2: reported 3.27e-04 under the measured 4.46e-04 (2 faults)",
-    "scale_1000": "frame 2: reported 3.27e-04 under the measured 4.46e-04 (2 faults)",
-    "scale_0.001": "frame 2: reported 3.27e-04 under the measured 4.46e-04 (2 faults)",
-    "jumps": "frame 3: measured 2.39e-03 of size, over 1e-03 (4 faults)",
-    "jumps_through": "frame 3: measured 2.39e-03 of size, over 1e-03 (4 faults)",
-    "fan_fine": "frame 2: measured 2.38e-03 of size, over 1e-03 (4 faults)",
-    "fan_levels": "frame 2: reported 2.37e-04 under the measured 3.66e-04 (2 faults)",
 }
 
 
@@ -288,8 +271,9 @@ def test_grazing_contact_is_found_and_left_within_tolerance(tmp_path):
         assert [s.in_collision for s in r.stats] == [False, True, True]
         box_case(r, "/World/Sheet", box, size, along=(2, -1), tol=tol)
         for st in r.stats[1:]:
+            shown = np.linalg.norm(np.ptp(r.frames["/World/Sheet"][st.frame].p_out, axis=0))  # the display's diagonal
             if tol == TOL:  # found with its depth (float32 box corners: 1%), nothing done
-                assert st.iterations == 0 and st.residual_rel == pytest.approx(1e-6, rel=1e-2)
+                assert st.iterations == 0 and st.residual_rel == pytest.approx(depth / shown, rel=1e-2)
             else:
                 assert st.iterations >= 1
             assert r.frames["/World/Sheet"][st.frame].p_out[:, 2].max() <= F32 * size

@@ -8,7 +8,7 @@ from pxr import Gf, Sdf, Ts, Usd, UsdGeom, UsdValidation, Vt
 
 from acra import hspline as H
 from acra import shapes
-from acra.tessellate import evaluate_grid
+from acra.tessellate import evaluate_grid, run_topology
 from pipeline import authoring as A
 from pipeline import output_layer
 from pipeline import usdio as U
@@ -87,7 +87,10 @@ def test_read_scene_models(scene_file):
     expected = H.to_arrays(sheet_hierarchy())
     for name in ("patch_level", "patches", "offset_level", "offset_cvs", "offsets"):
         np.testing.assert_array_equal(getattr(m.hierarchy, name), getattr(expected, name))
-    assert m.topology.u.size == (3 * 2 + 1) * (2 * 2 + 1)
+    # the rest display: 2 steps per edge of the finest patch the animator's hierarchy has there
+    rest = run_topology([sheet_hierarchy()], 2)
+    np.testing.assert_array_equal(m.topology.u, rest.u)
+    np.testing.assert_array_equal(m.topology.indices, rest.indices)
     assert c.path == FLOOR and c.vertices.shape == (8, 3) and c.triangles.shape == (12, 3)
 
 

@@ -1,0 +1,156 @@
+"""The display a USD client shows: one tessellation per deformable for the whole run, and every
+frame's points and normals on it (contract §1).
+
+A response refines a surface where it dents it, so the levels an object uses differ from frame to
+frame. The display must show every level at every frame with one topology for the run, so it is
+chosen after the responses: `run_topologies` takes, per deformable, the adaptive tessellation
+(`acra.tessellate.run_topology`) of the union of every frame's refinement, ``acra:samples`` steps
+per edge of the finest patch present at each place. `evaluate_run` then evaluates each distinct
+surface of the run on it: the first in full, each later one only on the level-0 patches where it
+differs from the surface evaluated before it (`acra.hspline.changed_patches`), which a response
+keeps local. Every vertex is evaluated on its own, so an incremental evaluation equals a full one
+bit for bit.
+
+The frame loop (`pipeline.frames`) leaves the results' points empty; the run (`pipeline.run`),
+the farm's client (`pipeline.farm`) and a merge of part files (`pipeline.parts`) call
+`finish`, which evaluates the display and measures every frame's residual on it
+(`pipeline.residual`), the figure the summary, the report, the preview and the exit status use.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from acra import hspline
+from acra.tessellate import MeshTopology, grid_samples, pole_normals, run_topology
+from pipeline.model import SceneModel
+
+__all__ = ["run_topologies", "evaluate_run", "finish", "surface_details", "SurfaceDisplay", "Displays"]
+
+
+def surface_details(surface: hspline.HSpline, density: int = 8) -> hspline.Details | None:
+    """The level details of ``surface`` (``None`` for one level): its `pipeline.shape.Shape`'s,
+    which a response seeds, so a responded surface's are not computed again."""
+    from pipeline.shape import shape_of
+
+    return shape_of(surface, density).details
+
+
+def _distinct(result, path: str) -> list[hspline.HSpline]:
+    """The distinct surface objects of deformable ``path`` over the run's frames, in frame order."""
+    seen: dict = {}
+    for f in sorted(result.frames):
+        s = result.frames[f][path].surface
+        seen.setdefault(id(s), s)
+    return list(seen.values())
+
+
+def run_topologies(scene: SceneModel, result) -> dict[str, MeshTopology]:
+    """Per deformable path, the display topology of the run: `run_topology` of every frame's
+    surface at the deformable's ``acra:samples``."""
+    return {m.path: run_topology(_distinct(result, m.path), m.controls.samples) for m in scene.deformables}
+
+
+def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology], density: int = 8) -> dict[int, float]:
+    """Evaluate every frame's surfaces on ``topologies`` into ``result`` (its points and normals,
+    object space), and set ``result.topologies``. Returns the milliseconds spent per frame (a
+    surface's evaluation is charged to the first frame that shows it)."""
+    ms: dict[int, float] = {f: 0.0 for f in result.frames}
+    for model in scene.deformables:
+        topo = topologies[model.path]
+        done: dict = {}  # id(surface) -> (surface, points, normals, limit normals)
+        last = None
+        for f in sorted(result.frames):
+            r = result.frames[f][model.path]
+            hit = done.get(id(r.surface))
+            if hit is None or hit[0] is not r.surface:
+                t0 = time.perf_counter()
+                since = None if last is None else (last[1], last[3], hspline.changed_patches(last[0], r.surface))
+                if since is not None and since[2].all():
+                    since = None
+                pts, limit = grid_samples(r.surface, topo, surface_details(r.surface, density), since)
+                hit = done[id(r.surface)] = (r.surface, pts, pole_normals(r.surface, topo, pts, limit), limit)
+                ms[f] += 1e3 * (time.perf_counter() - t0)
+            last = hit
+            result.frames[f][model.path] = replace(r, points=hit[1], normals=hit[2])
+    result.topologies = dict(topologies)
+    return ms
+
+
+def finish(stage, scene: SceneModel, result, stats: list, options) -> None:
+    """Choose the run's display topology, evaluate every frame on it, and measure every frame's
+    residual where the user looks (`pipeline.residual.measure_run`): ``stats`` (the frames'
+    `frames.FrameStats`, in any order) and the results' residuals are set to what the output
+    shows. ``options`` is the run's `frames.RunOptions` (its tolerance)."""
+    from pipeline import residual
+
+    ms = evaluate_run(scene, result, run_topologies(scene, result), options.density)
+    residual.measure_run(stage, scene, result, stats, options)
+    for st in stats:
+        st.ms_output += ms.get(st.frame, 0.0)
+        st.ms_total += ms.get(st.frame, 0.0)
+
+
+class SurfaceDisplay:
+    """One surface's own adaptive display (`acra.tessellate.run_topology` of the surface alone):
+    ``topology``, object-space ``points (n, 3)`` and limit normals ``limit (n, 3)``, and, built on
+    first use, its fan ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
+
+    def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, limit: np.ndarray):
+        self.surface, self.topology, self.points, self.limit = surface, topology, points, limit
+        self._triangles = self._solid = None
+
+    @property
+    def triangles(self) -> np.ndarray:
+        if self._triangles is None:
+            self._triangles = self.topology.triangles()
+        return self._triangles
+
+    @property
+    def uv(self) -> np.ndarray:
+        """Parameters ``(n, 2) float64`` of the vertices."""
+        return np.stack([self.topology.u, self.topology.v], axis=1)
+
+    def solid(self):
+        """The inside of the display as the output stores it (float32 points), for a closed surface."""
+        if self._solid is None:
+            from pipeline import clearance
+
+            self._solid = clearance.solid(np.asarray(self.points, np.float32).astype(np.float64), self.triangles)
+        return self._solid
+
+
+class Displays:
+    """The displays the frame loop measures the residual on, one per surface (`SurfaceDisplay`), kept for
+    the last ``kept`` surfaces. A responded surface is evaluated only where it differs from its
+    nearest displayed ancestor (the surface it was responded from, through
+    `pipeline.shape.Shape.parent`): the response's own patches, on the topology its refinement
+    gives (`acra.tessellate.grid_samples` with another topology)."""
+
+    def __init__(self, density: int = 8, kept: int = 16) -> None:
+        self.density, self.kept = density, kept
+        self._shown: dict = {}  # id(surface) -> SurfaceDisplay, most recent last
+
+    def of(self, surface: hspline.HSpline, samples: int) -> SurfaceDisplay:
+        """`SurfaceDisplay` of ``surface`` at ``samples`` steps per finest patch edge."""
+        from pipeline.shape import shape_of
+
+        hit = self._shown.pop(id(surface), None)
+        if hit is None or hit.surface is not surface:
+            topo = run_topology([surface], samples)
+            shape = shape_of(surface, self.density)
+            since, up, stale = None, shape, np.zeros((surface.u.patches0, surface.v.patches0), bool)
+            while since is None and up.parent is not None:
+                stale, up = stale | up._stale, up.parent
+                old = self._shown.get(id(up.surface))
+                if old is not None and old.surface is up.surface:
+                    since = (old.topology, old.points, old.limit, stale)
+            pts, limit = grid_samples(surface, topo, shape.details, since)
+            hit = SurfaceDisplay(surface, topo, pts, limit)
+        self._shown[id(surface)] = hit
+        while len(self._shown) > self.kept:
+            del self._shown[next(iter(self._shown))]
+        return hit

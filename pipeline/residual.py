@@ -1,0 +1,280 @@
+"""Residual penetration as the user sees it (contract §3): the largest depth of any point of a
+deformable's display mesh inside another object, as a fraction of the diagonal of the bounding
+box of that deformable's own display at that frame.
+
+"Display mesh" is what a USD client draws: the output's float32 ``points`` under the prim's world
+matrix, its faces split into triangles as a fan from each face's first vertex. "Another object"
+is every other closed object: a closed deformable's display mesh (welded at poles and seams) or
+a closed collider's mesh; an open object has no inside. Depths come from
+`pipeline.clearance.triangle_depth`, a certified upper bound over the whole of each triangle, not
+only at samples, so the figure never under-states what the user sees; it is refined until it is
+within 1.25 times the deepest point found, or within half the tolerance.
+
+The queries run in the other object's object space (its `clearance.Solid` is built once per
+distinct surface, or once per run for a collider); a distance there is at most the largest
+singular value of the world matrix's linear part times the world distance's object-space
+counterpart, so the bound is mapped back by that factor (exact for rotations, translations and
+uniform scales, an upper bound otherwise).
+
+`measure_frame` is what both the frame loop (every round, on each surface's own adaptive display
+near the other objects) and `measure_run` (every frame of a finished run, on the run's display)
+call. World units unless stated; arrays are float64.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline import clearance
+from pipeline.grids import overlap
+from pipeline.model import SceneModel, apply_inverse, apply_xform
+
+__all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "stretch", "pair_depth",
+           "measure_frame", "measure_run", "TARGET"]
+
+TARGET = 0.5  # a bound within this fraction of the tolerance needs no refining (clearance.triangle_depth)
+
+
+@dataclass(frozen=True, eq=False)
+class Shown:
+    """One object as the user sees it at one frame.
+
+    Attributes
+    ----------
+    path : str
+    corners : (t, 3, 3) float64
+        World triangles (float32 points as stored, mapped by the world matrix).
+    uv : (t, 3, 2) float64 or None
+        Surface parameters of each triangle's corners (a deformable), else ``None``.
+    size : float
+        Diagonal of the bounding box of the object's whole display (world).
+    box : (2, 3) float64
+        World box of the whole object (min and max corner).
+    xform : (4, 4) float64
+        Object-to-world matrix.
+    closed : bool
+        Whether the object has an inside.
+    local : (n, 3) float64 or None
+        A deformable's display points in object space (float32 values), for its `part`.
+    triangles : (t, 3) int64 or None
+        Its triangles (rows of ``local``), the rows of ``corners``.
+    outward : float
+        ``+1`` if the triangles' winding gives outward normals, ``-1`` if inward.
+    whole : callable or None
+        Builds (or returns a kept) `clearance.Solid` of the whole object in object space.
+    deformable : bool
+    """
+
+    path: str
+    corners: np.ndarray
+    uv: np.ndarray | None
+    size: float
+    box: np.ndarray
+    xform: np.ndarray
+    closed: bool
+    local: np.ndarray | None = None
+    triangles: np.ndarray | None = None
+    outward: float = 1.0
+    whole: object = None
+    deformable: bool = True
+
+    def near(self, box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World triangles ``(m, 3, 3)`` whose boxes meet the world ``box (2, 3)`` and their rows
+        in ``corners``."""
+        lo, hi = self.corners.min(axis=1), self.corners.max(axis=1)
+        rows = np.nonzero(overlap(lo, hi, box[0], box[1], 0.0))[0]
+        return self.corners[rows], rows
+
+
+def stretch(xform: np.ndarray) -> float:
+    """The largest singular value of ``xform``'s linear part: how much longer a world length can
+    be than its object-space counterpart."""
+    return float(np.linalg.svd(np.asarray(xform, np.float64)[:3, :3], compute_uv=False)[0])
+
+
+def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
+          closed: bool = False, outward: float = 1.0, whole=None) -> Shown:
+    """A deformable's display as the user sees it: object-space ``points (n, 3)`` (rounded to
+    float32, as the output stores them), ``triangles (t, 3) int64``, world matrix ``xform (4, 4)``,
+    vertex parameters ``uv (n, 2)``; ``closed`` with the winding's ``outward`` sign; ``whole()``
+    gives its whole `clearance.Solid` (default: built from the points)."""
+    p32 = np.asarray(points, np.float32).astype(np.float64)
+    world = apply_xform(xform, p32)
+    box = np.stack([world.min(axis=0), world.max(axis=0)])
+    if whole is None and closed:
+        whole = _Once(lambda: clearance.solid(p32, triangles))
+    return Shown(path, world[triangles], None if uv is None else np.asarray(uv, np.float64)[triangles],
+                 float(np.linalg.norm(box[1] - box[0])), box, np.asarray(xform, np.float64), closed, p32,
+                 np.asarray(triangles, np.int64), float(outward), whole)
+
+
+def collider_shown(path: str, box: np.ndarray, size: float, solid: clearance.Solid | None, xform: np.ndarray) -> Shown:
+    """A collider as the other object of a pair: its world ``box (2, 3)``, ``size``, inside and
+    world matrix. It is never the inner object (the residual is measured on the deformables'
+    output), so it holds no triangles."""
+    return Shown(path, np.zeros((0, 3, 3)), None, float(size), np.asarray(box, np.float64), np.asarray(xform, np.float64),
+                 solid is not None, whole=(lambda: solid), deformable=False)
+
+
+class _Once:
+    """A value built on the first call and kept."""
+
+    def __init__(self, make) -> None:
+        self.make, self.value = make, None
+
+    def __call__(self):
+        if self.value is None:
+            self.value = self.make()
+        return self.value
+
+
+def collider_solid(vertices: np.ndarray, triangles: np.ndarray) -> clearance.Solid | None:
+    """A collider's inside in its object space, or ``None`` if its mesh is not closed."""
+    try:
+        return clearance.solid(np.asarray(vertices, np.float64), np.asarray(triangles, np.int64))
+    except ValueError:
+        return None
+
+
+@dataclass
+class Inside:
+    """What of ``a`` lies inside ``b``: the certified ``depth`` bound (world), the deepest point
+    found ``lower``, and the points found inside: world ``points (m, 3)``, parameters on ``a``
+    ``uv (m, 2)`` (``None`` if ``a`` is not a deformable), ``deep (m,)``."""
+
+    depth: float
+    lower: float
+    points: np.ndarray
+    uv: np.ndarray | None
+    deep: np.ndarray
+    complete: bool = True
+
+
+def pair_depth(a: Shown, b: Shown, target: float) -> Inside:
+    """How deep ``a``'s triangles go inside ``b`` (`clearance.triangle_depth` in ``b``'s object
+    space), with ``target`` the world depth below which the bound need not be refined.
+
+    A deformable ``b`` is queried through the part of its display near ``a``'s triangles in its
+    box: its faces whose world boxes come within ``P`` (the diagonal of those triangles' box) of
+    it. A point within ``P`` of that part has its closest point, and every face around it, in
+    the part, so the part answers exactly; a point farther (``a`` deep inside a large ``b``) is
+    answered by ``b``'s whole solid."""
+    none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.uv is None else np.zeros((0, 2)), np.zeros(0))
+    if not b.closed:
+        return none
+    corners, near = a.near(b.box)
+    if not len(corners):
+        return none
+    k = stretch(b.xform)
+    local = apply_inverse(b.xform, corners.reshape(-1, 3)).reshape(-1, 3, 3)
+    d = None
+    if b.deformable:
+        region = np.stack([corners.min(axis=(0, 1)), corners.max(axis=(0, 1))])
+        pad = float(np.linalg.norm(region[1] - region[0]))
+        rows = np.nonzero(overlap(b.corners.min(axis=1), b.corners.max(axis=1), region[0], region[1], pad))[0]
+        if rows.size:
+            part = clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=_diagonal(b.local))
+            d = clearance.triangle_depth(part, local, target / k, reach=pad / k)
+    if d is None:
+        d = clearance.triangle_depth(b.whole(), local, target / k)
+    points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
+    uv = None if a.uv is None else np.einsum("mk,mkc->mc", d.bary, a.uv[near[d.tri]])
+    return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
+
+
+def _diagonal(points: np.ndarray) -> float:
+    """Diagonal of the box of ``points (n, 3)``."""
+    return float(np.linalg.norm(np.ptp(points, axis=0)))
+
+
+@dataclass
+class PairDepth:
+    """One ordered pair at one frame: ``inside`` (`Inside` of ``a`` in ``b``) and its ``rel``,
+    the depth over ``a``'s size."""
+
+    a: str
+    b: str
+    inside: Inside
+    rel: float
+
+
+@dataclass
+class FrameResidual:
+    """A frame's residual: ``pairs`` (every ordered pair measured), ``worst`` (world) and
+    ``worst_rel`` (over the inner object's size), and per deformable path its own worst depth
+    ``by_object`` (world) and ``rel_by_object``."""
+
+    pairs: list = field(default_factory=list)
+    worst: float = 0.0
+    worst_rel: float = 0.0
+    by_object: dict = field(default_factory=dict)
+    rel_by_object: dict = field(default_factory=dict)
+
+    def pair_rel(self, a: str, b: str) -> float:
+        """The larger of ``a`` in ``b`` and ``b`` in ``a``, each over its own object's size."""
+        return max((p.rel for p in self.pairs if {p.a, p.b} == {a, b}), default=0.0)
+
+
+def measure_frame(objects: list[Shown], tolerance: float, pairs=None) -> FrameResidual:
+    """`pair_depth` of every deformable of ``objects`` in every other closed one (or the ordered
+    ``pairs`` of indices given), refined to ``TARGET * tolerance`` of the inner object's size."""
+    out = FrameResidual()
+    if pairs is None:  # every deformable's display in every other object
+        pairs = [(i, j) for i, a in enumerate(objects) if a.deformable for j in range(len(objects)) if j != i]
+    for i, j in pairs:
+        a, b = objects[i], objects[j]
+        if not b.closed:
+            continue
+        size = max(a.size, 1e-300)
+        ins = pair_depth(a, b, TARGET * tolerance * size)
+        rel = ins.depth / size
+        out.pairs.append(PairDepth(a.path, b.path, ins, rel))
+        out.worst = max(out.worst, ins.depth)
+        out.worst_rel = max(out.worst_rel, rel)
+        out.by_object[a.path] = max(out.by_object.get(a.path, 0.0), ins.depth)
+        out.rel_by_object[a.path] = max(out.rel_by_object.get(a.path, 0.0), rel)
+    return out
+
+
+def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
+    """Measure every frame of a finished run on its display (``result``'s points and topologies,
+    `pipeline.display.evaluate_run`): each `frames.FrameStats` gets ``residual``, ``residual_rel``
+    and ``pair_residual_rel`` from what the output shows, and each deformable's result its own
+    ``residual`` (world). World matrices come from the stats (``xforms``) or, where a frame's
+    statistics do not carry them (a merge of part files), from the stage."""
+    from dataclasses import replace
+
+    from pipeline import usdio
+    from pipeline.shape import shape_of
+
+    colliders = [collider_solid(c.vertices, c.triangles) for c in scene.colliders]
+    tris = {m.path: result.topology(m).triangles() for m in scene.deformables}
+    uvs = {m.path: np.stack([result.topology(m).u, result.topology(m).v], axis=1) for m in scene.deformables}
+    for st in stats:
+        xforms = st.xforms
+        if not xforms:
+            dstates, cstates = usdio.state_at(stage, scene, float(st.frame))
+            xforms = {m.path: s.xform for m, s in zip(scene.deformables, dstates)}
+            xforms.update({c.path: s.xform for c, s in zip(scene.colliders, cstates)})
+        per = result.frames[st.frame]
+        objects = []
+        for m in scene.deformables:
+            r = per[m.path]
+            shape = shape_of(r.surface, options.density)
+            objects.append(shown(m.path, r.points, tris[m.path], xforms[m.path], uvs[m.path], shape.closed, shape.outward))
+        for c, s in zip(scene.colliders, colliders):
+            v = apply_xform(xforms[c.path], c.vertices)
+            box = np.stack([v.min(axis=0), v.max(axis=0)])
+            objects.append(collider_shown(c.path, box, float(np.linalg.norm(box[1] - box[0])), s, xforms[c.path]))
+        fr = measure_frame(objects, options.tolerance)
+        st.residual, st.residual_rel = fr.worst, fr.worst_rel
+        st.pair_residual_rel = {}
+        names = [m.path for m in scene.deformables]
+        others = names + [c.path for c in scene.colliders]
+        for i, a in enumerate(names):
+            for b in others[i + 1:]:
+                st.pair_residual_rel[a, b] = fr.pair_rel(a, b)
+        for m in scene.deformables:
+            per[m.path] = replace(per[m.path], residual=float(fr.by_object.get(m.path, 0.0)))
