@@ -493,6 +493,7 @@ def _spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarra
     return keep
 
 
+CLEAR = 0.25  # display points are moved this fraction of the tolerance past the other surface (`visible_points`)
 MEET = 1e-3  # rewound contact points this close (fraction of the size) meet, whatever the run's tolerance
 
 
@@ -784,7 +785,7 @@ class _Run:
                 r_them = controls[them[1]].rigidity if them[0] == "d" and enabled[them[1]] else None
                 push = directions.get((i, other))
                 push = None if push is None else (push if side == "a" else -push)
-                clear = max(self.options.tolerance, MEET) * gm.size
+                clear = CLEAR * self.options.tolerance * gm.size
                 uv, world, start = visible_points(gm, gt, pd.inside, push, R.rigidity_share(controls[j].rigidity, r_them),
                                                   _group_level(controls[j], surfaces[j].depth), clear)
                 if not len(uv):
