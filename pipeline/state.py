@@ -24,6 +24,8 @@ from pxr import Usd, Vt
 from acra import hspline as H
 from acra import relax
 from acra import volume
+from acra.basis import Direction
+from acra.tessellate import GridTopology, display_topology
 from pipeline import shape as S
 from pipeline import usdio
 from pipeline import output_layer
@@ -69,6 +71,7 @@ class Carry:
         self.targets: list = [None] * len(self.models)  # the animator's display volume at the frame
         self.measures: list = [None] * len(self.models)  # "volume" (closed) or "area" (open sheet)
         self.dents: list = [None] * len(self.models)  # display samples the frame's responses moved
+        self._topologies: list = [None] * len(self.models)  # `topology`, built on first use
 
     @property
     def active(self) -> bool:
@@ -80,7 +83,7 @@ class Carry:
         out = list(surfaces)
         for i, keep in enumerate(self.keeps_volume):
             if keep:
-                topo = self.models[i].topology
+                topo = self.topology(i)
                 self.measures[i] = "volume" if volume.encloses(surfaces[i]) else "area"
                 size = volume.MEASURES[self.measures[i]][0]
                 self.targets[i] = size(H.evaluate(surfaces[i], topo.u, topo.v).points, volume.triangles(topo))
@@ -116,6 +119,19 @@ class Carry:
                     S.seed_details(out[i], det, self.density, parent=prev)
         return out
 
+    def topology(self, i: int) -> GridTopology:
+        """The tessellation object ``i``'s volume (or area) is kept on: ``acra:samples`` steps
+        per edge of a patch of its finest absorbing level, everywhere. A response's dent lives on
+        that level, where the run's display (`pipeline.display`) has that density too, so the
+        measure kept here is the measure the output shows to the tessellation's error outside
+        the dent, which the animator's surface and the responded one share."""
+        if self._topologies[i] is None:
+            m = self.models[i]
+            level = int(np.nonzero(m.controls.absorption > 0)[0].max(initial=0))
+            u, v = Direction(m.nu, m.u_periodic), Direction(m.nv, m.v_periodic)
+            self._topologies[i] = display_topology(u, v, m.controls.samples << level)
+        return self._topologies[i]
+
     def after_response(self, i: int, parent: H.HSpline, responded: H.HSpline) -> H.HSpline:
         """Object ``i``'s responded surface with its volume (a closed object) or area (an open
         sheet) restored (``acra:preserveVolume``): the display samples the response moved join
@@ -126,7 +142,7 @@ class Carry:
         if not self.keeps_volume[i]:
             return responded
         c = self.models[i].controls
-        topo = self.models[i].topology
+        topo = self.topology(i)
         before = H.evaluate(parent, topo.u, topo.v).points
         after = H.evaluate(responded, topo.u, topo.v).points
         size = responded.size()
