@@ -62,7 +62,7 @@ def main() -> int:
         run.frame(scene.start, output_layer.FramesResult())  # the first frame builds the shapes
         rows: dict[str, list[float]] = {k: [] for k in ("whole free frame", "state_at", "world boxes and size", "write .usda",
                                                         "write .usdc", "text writer, points", "text writer, points + normals")}
-        part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(free)})
+        part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(free)}, result.topologies)
         for _ in range(args.repeat):
             sink = output_layer.FramesResult()
             frame_iter = iter(free * 3)

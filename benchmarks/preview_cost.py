@@ -88,7 +88,7 @@ def logging_cost(src: Path, tmp: Path) -> dict:
     rec = preview_usd.build(out)
     preview.save_atomically(rec.rec, tmp / f"{src.stem}_preview.rrd", rec.finish())
     rebuild = time.perf_counter() - t
-    vertices = sum(len(m.topology.u) for m in scene.deformables)
+    vertices = sum(len(result.topology(m).u) for m in scene.deformables)
     return dict(frames=len(stats), collision=len(hit), vertices=vertices, log_ms=float(np.median(per)),
                 log_hit_ms=float(np.median(hit)) if hit else 0.0, close_ms=close_ms, bytes=rrd.stat().st_size,
                 preview_s=rebuild, output=out)

@@ -29,6 +29,7 @@ from pxr import Usd, UsdGeom
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from acra import volume  # noqa: E402
+from acra.tessellate import evaluate_grid  # noqa: E402
 from pipeline import frames as F  # noqa: E402
 from pipeline import usdio  # noqa: E402
 
@@ -81,7 +82,6 @@ def parts(tmp: Path, repeat: int = 200) -> None:
     import time
 
     from acra import relax
-    from acra.tessellate import evaluate_grid
 
     path = exported("soft_ball", tmp)
     stage = usdio.open_input(path)
@@ -124,8 +124,9 @@ def drift(tmp: Path, name: str = "balloon", measure: str = "volume") -> None:
     for s in stats:
         row = []
         for m in scene.deformables:
-            tris = volume.triangles(m.topology)
-            rest = np.asarray(UsdGeom.Mesh(inp.GetPrimAtPath(m.path)).GetPointsAttr().Get(), dtype=np.float64)
+            topo = result.topology(m)  # the run's display; the animator's surface on it, as a USD client compares
+            tris = volume.triangles(topo)
+            rest = evaluate_grid(usdio.state_at(stage, scene, float(s.frame))[0][scene.deformables.index(m)].surface, topo)[0]
             size = volume.MEASURES[measure][0]
             row.append(size(result.frames[s.frame][m.path].points, tris) / size(rest, tris))
         print(f"| {s.frame} | {'yes' if s.in_collision else ''} | " + " | ".join(f"{r:.5f}" for r in row) + " |")

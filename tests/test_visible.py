@@ -98,31 +98,7 @@ def test_disagreements_name_each_kind_of_fault():
     assert disagreements({1: 1e-3, 2: 8e-4, 3: 5e-4 - 1e-7}, {1: 0.0, 2: 3e-4, 3: 5e-4}) == []
 
 
-#: scenes whose output the measure does not pass while the display is the uniform grid of
-#: ``acra:samples`` steps per level-0 patch and the residual is measured at detection's samples
-#: (issue 17: the display that shows every level and the residual as the user sees it come from
-#: the ``vis2`` work): the first fault and how many frames' faults, measured
-NOT_YET = {
-    "absorb_levels": "frame 8: reported 3.35e-04 under the measured 5.59e-04 (12 faults)",
-    "box_into_sheet": "frame 11: measured 1.13e-03 of size, over 1e-03 (12 faults)",
-    "clay": "frame 2: reported 1.29e-17 under the measured 8.05e-05 (5 faults)",
-    "closed_objects": "frame 5: measured 1.76e-03 of size, over 1e-03 (6 faults)",
-    "dog_head_spike": "frame 13: measured 1.12e-03 of size, over 1e-03 (9 faults)",
-    "drum": "frame 2: measured 2.13e-03 of size, over 1e-03 (8 faults)",
-    "elbow_contact": "frame 15: measured 1.54e-03 of size, over 1e-03 (12 faults)",
-    "off_centre_press": "frame 6: measured 1.10e-03 of size, over 1e-03 (13 faults)",
-    "rigid_top": "frame 8: measured 1.65e-03 of size, over 1e-03 (16 faults)",
-    "rolling_bump": "frame 4: measured 5.32e-03 of size, over 1e-03 (4 faults)",
-    "rotate_and_deform": "frame 5: reported 5.31e-04 under the measured 7.95e-04 (4 faults)",
-    "sag_and_dent": "frame 2: reported 5.27e-04 under the measured 9.57e-04 (2 faults)",
-    "sliding_tori": "frame 5: reported 7.84e-04 under the measured 8.62e-04 (3 faults)",
-    "turning_press": "frame 6: reported 1.76e-04 under the measured 3.27e-04 (9 faults)",
-}
-
-
-@pytest.mark.parametrize("name", [
-    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=f"uniform display grid, residual at detection samples: {NOT_YET[n]}"))
-    if n in NOT_YET else n for n in scene_names()])
+@pytest.mark.parametrize("name", scene_names())
 def test_scene_is_clear_where_the_user_looks(run_scene, name):
     """Every frame of the scene's output layer: display vertices and triangle samples at most 1e-3
     of the object's own size inside any other object, and the run's reported residual at least
