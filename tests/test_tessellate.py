@@ -112,6 +112,26 @@ def _random_levels(hs, seed, blobs=3):
     return levels
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_samples_since_an_evaluation_on_another_topology_equal_a_full_evaluation(seed):
+    """A response that refines a new place changes the adaptive topology; `grid_samples` with
+    ``since = (old topology, points, limit, stale)`` copies every vertex the old topology has
+    off the stale patches and evaluates the rest, bit for bit a full evaluation."""
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=3)
+    hs = with_random_offsets(H.make_movable(hs, 2, [[4 * int(rng.integers(0, 12)) + 2, 14]]), 0.02, seed)
+    old_topo = T.run_topology([hs], 4)
+    old = T.grid_samples(hs, old_topo)
+    moved = with_random_offsets(H.make_movable(hs, 2, [[4 * int(rng.integers(0, 12)) + 2, 22]]), 0.02, seed + 7)
+    topo = T.run_topology([moved], 4)
+    assert topo.u.size > old_topo.u.size  # the new detail refines the display where it is
+    stale = H.changed_patches(hs, moved)
+    fast = T.grid_samples(moved, topo, since=(old_topo, *old, stale))
+    full = T.grid_samples(moved, topo)
+    for a, b in zip(fast, full):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_adaptive_topology_without_fine_levels_is_the_uniform_grid():
     hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
     grid = T.display_topology(hs.u, hs.v, 4)

@@ -1,0 +1,71 @@
+"""acra.bvh: exact closest points on triangle sets, against a brute force over every triangle."""
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from acra import bvh
+
+
+def brute(tri: np.ndarray, points: np.ndarray):
+    """Distances ``(k,)`` and the lowest row among the nearest triangles ``(k,)``, over all of ``tri``."""
+    t = np.repeat(tri[None], len(points), axis=0).reshape(-1, 3, 3)
+    p = np.repeat(points, len(tri), axis=0)
+    d = np.linalg.norm(trimesh.triangles.closest_point(t, p) - p, axis=1).reshape(len(points), len(tri))
+    return d.min(axis=1), d.argmin(axis=1)
+
+
+def soup(seed: int, n: int) -> np.ndarray:
+    """``n`` random triangles of random sizes (a few long slivers among them)."""
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform(-1, 1, (n, 1, 3))
+    return centre + rng.normal(size=(n, 3, 3)) * rng.choice([0.01, 0.1, 0.5], size=(n, 1, 1))
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(st.integers(0, 10_000), st.integers(1, 60))
+def test_closest_equals_the_brute_force(seed, n):
+    tri = soup(seed, n)
+    points = np.random.default_rng(seed + 1).uniform(-2, 2, (50, 3))
+    dist, close, face, bary = bvh.closest(bvh.build(tri), points)
+    d_ref, _ = brute(tri, points)
+    np.testing.assert_allclose(dist, d_ref, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(close - points, axis=1), dist, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(np.einsum("kj,kjc->kc", bary, tri[face]), close, atol=1e-12)
+    np.testing.assert_allclose(bary.sum(axis=1), 1.0, atol=1e-12)
+    assert np.all(bary >= -1e-12)
+
+
+def test_ties_go_to_the_lowest_row_and_corners_have_exact_weights():
+    """Two copies of one triangle: the lower row wins. A point beyond a corner gets weights
+    exactly (1, 0, 0); one beside an edge exactly 0 on the opposite corner."""
+    t = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    tri = np.stack([t + [5, 5, 5], t, t])  # rows 1 and 2 equal
+    dist, close, face, bary = bvh.closest(bvh.build(tri), np.array([[-1.0, -1, 0.3], [0.5, -1, 0.0], [0.2, 0.2, 1.0]]))
+    assert list(face) == [1, 1, 1]
+    np.testing.assert_array_equal(bary[0], [1.0, 0.0, 0.0])
+    assert bary[1][2] == 0.0 and bary[1][0] == pytest.approx(0.5)
+    assert np.all(bary[2] > 0) and dist[2] == pytest.approx(1.0)
+
+
+def test_a_bound_leaves_farther_points_unanswered():
+    tri = soup(3, 20)
+    points = np.array([[0.0, 0.0, 0.0], [50.0, 0.0, 0.0]])
+    d_ref, _ = brute(tri, points)
+    dist, _, face, _ = bvh.closest(bvh.build(tri), points, np.array([np.inf, 10.0]))
+    assert dist[0] == pytest.approx(d_ref[0], rel=1e-12) and face[0] >= 0
+    assert dist[1] == np.inf and face[1] == -1
+
+
+def test_distances_to_given_triangles():
+    tri = soup(7, 30)
+    points = np.random.default_rng(8).uniform(-2, 2, (30, 3))
+    expected = np.linalg.norm(trimesh.triangles.closest_point(tri, points) - points, axis=1)
+    np.testing.assert_allclose(bvh.distances(points, tri), expected, rtol=1e-12, atol=1e-14)
+
+
+def test_an_empty_set_is_refused():
+    with pytest.raises(ValueError, match="at least one triangle"):
+        bvh.build(np.zeros((0, 3, 3)))

@@ -1,0 +1,91 @@
+"""pipeline.display: the run's display topology from every frame's refinement, every frame's points
+on it, and the frame loop's per-surface displays."""
+
+import numpy as np
+import pytest
+
+from acra import hspline as H
+from acra import shapes
+from acra.tessellate import grid_samples, run_topology
+from conftest import with_random_offsets
+from pipeline import display, usdio
+from pipeline import frames as F
+
+
+@pytest.fixture
+def pressed(tiny_stage):
+    """A 3-level sheet pressed by a box over 4 frames (responses refine it on level 2), the
+    frames responded but not yet displayed."""
+    path = tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2)
+    stage = usdio.open_input(path)
+    scene = usdio.read_scene(stage)
+    result, stats = F.respond_frames(stage, scene, [1, 2, 3, 4])
+    return stage, scene, result, stats
+
+
+def test_the_frame_loop_leaves_the_display_to_the_run(pressed):
+    _, scene, result, _ = pressed
+    assert all(r.points is None for per in result.frames.values() for r in per.values())
+
+
+def test_the_run_topology_holds_every_frame_s_own_and_shows_the_refinement(pressed):
+    """The union's vertices hold each frame's own adaptive vertices; a responded frame refines
+    the sheet where the box pressed, so the run's display is denser than the rest display."""
+    _, scene, result, _ = pressed
+    (model,) = scene.deformables
+    topo = display.run_topologies(scene, result)[model.path]
+    sites = set(zip(topo.u, topo.v))
+    for per in result.frames.values():
+        own = run_topology([per[model.path].surface], model.controls.samples)
+        assert set(zip(own.u, own.v)) <= sites
+    assert topo.u.size > model.topology.u.size
+    assert topo.u.size == run_topology([r[model.path].surface for r in result.frames.values()], 2).u.size
+
+
+def test_every_frame_is_evaluated_on_the_run_topology_as_a_full_evaluation(pressed):
+    """Each distinct surface is evaluated where it differs from the one before it; the points
+    equal a full evaluation bit for bit, and unchanged frames share one array."""
+    _, scene, result, _ = pressed
+    (model,) = scene.deformables
+    topologies = display.run_topologies(scene, result)
+    ms = display.evaluate_run(scene, result, topologies)
+    topo = topologies[model.path]
+    assert result.topology(model) is topo and set(ms) == set(result.frames)
+    for f, per in result.frames.items():
+        r = per[model.path]
+        full = grid_samples(r.surface, topo, H.details(r.surface))[0]
+        np.testing.assert_array_equal(r.points, full)
+        assert r.normals.shape == r.points.shape and np.allclose(np.linalg.norm(r.normals, axis=1), 1.0)
+    surfaces = [result.frames[f][model.path].surface for f in sorted(result.frames)]
+    for f, g in zip(sorted(result.frames), sorted(result.frames)[1:]):
+        if surfaces[f - 1] is surfaces[g - 1]:
+            assert result.frames[f][model.path].points is result.frames[g][model.path].points
+
+
+def test_finish_measures_every_frame_on_the_display(pressed):
+    stage, scene, result, stats = pressed
+    display.finish(stage, scene, result, stats, F.RunOptions())
+    for st in stats:
+        assert st.residual_rel <= 1e-3 and st.ms_output >= 0.0
+        assert result.frames[st.frame]["/World/Sheet"].residual == st.residual
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(seed):
+    """`Displays.of` evaluates a surface responded from a displayed one only where the response
+    changed it (through the shapes' parent chain), and equals a full evaluation."""
+    from pipeline import shape as S
+
+    rng = np.random.default_rng(seed)
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[10, 14]]), 0.02, seed)
+    shown = display.Displays(density=8)
+    first = shown.of(hs, 4)
+    idx, off = H.offsets_of(hs, 2)
+    moved = H.set_offsets(hs, 2, idx, off + rng.normal(scale=0.01, size=off.shape))
+    S.seed_details(moved, None, 8, parent=hs)
+    second = shown.of(moved, 4)
+    full = grid_samples(moved, second.topology, H.details(moved))
+    np.testing.assert_array_equal(second.points, full[0])
+    np.testing.assert_array_equal(second.limit, full[1])
+    assert shown.of(moved, 4) is second and shown.of(hs, 4) is first
+    assert second.solid().faces.shape[1] == 3  # a closed sphere's display welds to a solid

@@ -1,0 +1,110 @@
+"""pipeline.residual: the residual as the user sees it, on exact cases and against the independent
+measure (acceptance.visible)."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from acra import hspline as H
+from acra import shapes
+from acra.tessellate import grid_samples, run_topology
+from acceptance import visible
+from pipeline import clearance, residual
+from pipeline.model import apply_xform
+
+
+def box_collider(half: float = 0.5, xform=None) -> residual.Shown:
+    m = trimesh.creation.box(extents=(2 * half,) * 3)
+    xform = np.eye(4) if xform is None else xform
+    v = apply_xform(xform, m.vertices)
+    box = np.stack([v.min(axis=0), v.max(axis=0)])
+    return residual.collider_shown("/box", box, float(np.linalg.norm(box[1] - box[0])),
+                                   residual.collider_solid(m.vertices, m.faces), xform)
+
+
+def sheet(z: float, n: int = 6, width: float = 2.0):
+    """A flat open sheet at height ``z``: its surface, display points, triangles and parameters."""
+    cvs, up, vp = shapes.sheet(n, n, width=width, depth=width)
+    cvs[..., 2] = z
+    hs = H.from_grid(cvs, up, vp)
+    topo = run_topology([hs], 4)
+    return hs, grid_samples(hs, topo)[0], topo.triangles(), np.stack([topo.u, topo.v], axis=1)
+
+
+def test_shown_is_what_the_output_stores():
+    """float32 points under the world matrix; the size is the diagonal of their world box."""
+    _, pts, tris, uv = sheet(0.1)
+    m = np.diag([2.0, 2.0, 2.0, 1.0])
+    m[:3, 3] = (1.0, 0.0, 0.0)
+    s = residual.shown("/sheet", pts + 1e-9, tris, m, uv)
+    world = apply_xform(m, np.asarray(pts + 1e-9, np.float32).astype(np.float64))
+    np.testing.assert_array_equal(s.corners, world[tris])
+    assert s.size == pytest.approx(np.linalg.norm(np.ptp(world, axis=0)), rel=1e-15)
+    assert not s.closed
+
+
+@pytest.mark.parametrize("z", [0.25, -0.4999, 0.6])
+def test_a_sheet_in_a_box_is_as_deep_as_its_distance_to_the_nearest_face(z):
+    """A flat sheet through [-0.5, 0.5]^3 at height z, wider than the box: the deepest point is on
+    the box's vertical axis, 0.5 - |z| from the top or bottom; outside the box nothing. Exact
+    (eq. (7) on the convex box), and never under the independent measure."""
+    _, pts, tris, uv = sheet(z)
+    a = residual.shown("/sheet", pts, tris, np.eye(4), uv)
+    ins = residual.pair_depth(a, box_collider(), 1e-4)
+    truth = max(0.0, 0.5 - abs(np.float32(z)))
+    assert ins.depth == pytest.approx(truth, abs=1e-12)
+    assert ins.lower <= ins.depth and (truth == 0) == (len(ins.points) == 0)
+    if len(ins.points):  # the points found inside carry the sheet's parameters
+        hs = sheet(z)[0]
+        np.testing.assert_allclose(H.evaluate(hs, ins.uv[:, 0], ins.uv[:, 1]).points[:, :2], ins.points[:, :2], atol=1e-12)
+
+
+def test_a_uniformly_scaled_collider_scales_the_depth():
+    """The box in object space [-0.5, 0.5]^3 under a scale of 3 (and a turn): the sheet at z = 0.3
+    is 1.5 - 0.3 deep in world units, found in the box's object space and mapped back."""
+    c, s = np.cos(0.3), np.sin(0.3)
+    m = np.eye(4)
+    m[:3, :3] = 3.0 * np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    _, pts, tris, uv = sheet(0.3, width=8.0)
+    ins = residual.pair_depth(residual.shown("/sheet", pts, tris, np.eye(4), uv), box_collider(xform=m), 1e-4)
+    assert residual.stretch(m) == pytest.approx(3.0)
+    assert ins.depth == pytest.approx(1.5 - np.float32(0.3), rel=1e-9)
+
+
+def test_a_deformable_s_part_answers_as_its_whole_solid():
+    """A sheet through a closed deformable's display: the part of the ball near the sheet gives
+    the bound the whole ball's solid gives (exact closest points and pseudo-normals within the
+    part's reach), and never less than the independent measure."""
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    pts = grid_samples(ball, topo)[0]
+    b = residual.shown("/ball", pts, topo.triangles(), np.eye(4), None, closed=True, outward=1.0)
+    _, spts, stris, suv = sheet(0.2, width=3.0)
+    a = residual.shown("/sheet", spts, stris, np.eye(4), suv)
+    target = 5e-4 * a.size
+    part = residual.pair_depth(a, b, target)
+    whole = clearance.triangle_depth(b.whole(), a.corners, target)
+    assert part.depth == pytest.approx(whole.bound, rel=1e-12)
+    ball_body = visible.Body("/ball", trimesh.Trimesh(b.local, b.triangles), True, True)
+    samples = visible.triangle_samples(trimesh.Trimesh(apply_xform(np.eye(4), np.asarray(spts, np.float32).astype(np.float64)), stris))
+    assert part.depth >= visible.depth_inside(samples, ball_body).max() - 1e-12
+
+
+def test_a_frame_measures_every_deformable_in_every_other_closed_object():
+    """Two overlapping balls and an open sheet: each ball's display in the other, the sheet in
+    both, nothing in the sheet (it has no inside); the frame's worst is over the inner object's
+    own size."""
+    objects = []
+    for name, x in (("/a", 0.0), ("/b", 1.8)):
+        ball = H.from_grid(*shapes.sphere(10, 8))
+        topo = run_topology([ball], 4)
+        m = np.eye(4)
+        m[0, 3] = x
+        objects.append(residual.shown(name, grid_samples(ball, topo)[0], topo.triangles(), m, None, True, 1.0))
+    _, spts, stris, suv = sheet(0.0, width=5.0)
+    objects.append(residual.shown("/sheet", spts, stris, np.eye(4), suv))
+    fr = residual.measure_frame(objects, 1e-3)
+    pairs = {(p.a, p.b) for p in fr.pairs}
+    assert pairs == {("/a", "/b"), ("/b", "/a"), ("/sheet", "/a"), ("/sheet", "/b")}
+    assert fr.worst_rel == max(p.rel for p in fr.pairs) and fr.worst_rel > 0.01
+    assert fr.pair_rel("/a", "/b") == max(p.rel for p in fr.pairs if {p.a, p.b} == {"/a", "/b"})
