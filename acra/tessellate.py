@@ -273,28 +273,40 @@ def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.nd
     extra = np.zeros(len(cu), bool)
     for lo, hi in spans:
         extra |= hi > lo
-    centre_keys = []
     corner_keys = [key(a, b) for a, b in corners]
     plain = np.nonzero(~extra)[0]
     quads = np.stack([ck[plain] for ck in corner_keys], axis=1)
-    fans = []
-    for c in np.nonzero(extra)[0]:
-        ring = []
-        for side, (lo, hi) in enumerate(spans):
-            ring.append(corner_keys[side][c])
-            mid = np.arange(lo[c], hi[c])
-            if side == 0:
-                ring.extend(key(by_v[mid] % (nu_l + 1), cv[c]))
-            elif side == 1:
-                ring.extend(lattice[mid])
-            elif side == 2:
-                ring.extend(key(by_v[mid] % (nu_l + 1), cv[c] + ch[c])[::-1])
-            else:
-                ring.extend(lattice[mid][::-1])
-        centre = key(cu[c] + ch[c] // 2, cv[c] + ch[c] // 2)
-        centre_keys.append(centre)
-        ring = np.asarray(ring, np.int64)
-        fans.append(np.stack([np.full(len(ring), centre), ring, np.roll(ring, -1)], axis=1))
+    # each split cell's ring, counter-clockwise: per side its corner, then the vertices strictly
+    # inside the side (a finer neighbour's), sides 2 and 3 walked backwards; all cells at once,
+    # as (cell, side, position) rows sorted into rings
+    cells = np.nonzero(extra)[0]
+    owner, order, keys = [], [], []
+    for side, (lo, hi) in enumerate(spans):
+        owner.append(cells)
+        order.append(np.full(len(cells), 2 * side))  # the corner before the side's inner vertices
+        keys.append(corner_keys[side][cells])
+        n = (hi - lo)[cells]
+        own = np.repeat(cells, n)
+        step = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)  # 0..n-1 within each cell
+        at = np.repeat(lo[cells], n) + step if side in (0, 1) else np.repeat(hi[cells], n) - 1 - step
+        if side == 0:
+            inner = key(by_v[at] % (nu_l + 1), cv[own])
+        elif side == 2:
+            inner = key(by_v[at] % (nu_l + 1), cv[own] + ch[own])
+        else:
+            inner = lattice[at]
+        owner.append(own)
+        order.append(2 * side + 1 + step / max(1, int(n.max(initial=0)) + 1))
+        keys.append(inner)
+    owner, order, keys = np.concatenate(owner), np.concatenate(order), np.concatenate(keys)
+    rank = np.lexsort((order, owner))
+    owner, ring = owner[rank], keys[rank]
+    first = np.searchsorted(owner, owner, side="left")
+    length = np.searchsorted(owner, owner, side="right") - first
+    following = first + (np.arange(len(ring)) - first + 1) % np.maximum(length, 1)
+    centre_keys = key(cu[cells] + ch[cells] // 2, cv[cells] + ch[cells] // 2)
+    centre = centre_keys[np.searchsorted(cells, owner)]
+    fans = [np.stack([centre, ring, ring[following]], axis=1)] if len(ring) else []
     lattice = np.unique(np.concatenate([lattice, np.asarray(centre_keys, np.int64)]))
     index = lambda keys: np.searchsorted(lattice, keys)  # noqa: E731
     tris = index(np.concatenate(fans)) if fans else np.zeros((0, 3), np.int64)
