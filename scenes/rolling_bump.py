@@ -14,8 +14,8 @@ from pathlib import Path
 from pipeline.authoring import add_collider, add_spike, add_surface, add_xform, box, key_translate, new_stage, save, sheet
 
 #: the slab's underside (z) and the x of its leading face at the first and last frame (the
-#: bump's crest is at z = 0.405, x = 0; the face first touches it between frames 4 and 5 and is
-#: past its far foot, x = 0.48, from frame 9 on)
+#: bump's crest is at z = 0.405, x = 0, and it rises above the underside from x = -0.252: the face
+#: first cuts it between frames 3 and 4, and is past its far foot, x = 0.48, from frame 9 on)
 SLAB_Z = 0.2
 SLAB_X = (-0.6, 0.76)
 

@@ -3,6 +3,9 @@ on level 2, the level of the bump's detail; the bump turns over until the slab s
 
 The bump's turn is read from its 9 detail CVs: their offsets start along the normal, ``(0, 0,
 h)``; the turn about the y axis is ``atan2(o_x, o_z)``, positive toward +x, the slab's motion.
+The coarser levels are a flat sheet of uniform CVs, so level 2's parameters map linearly onto
+world x: a detail CV at ``x`` shapes the patches from ``x - 2 h`` to ``x + 2 h`` (``h``: the
+level-2 CV spacing, cubic B-spline support).
 """
 
 import numpy as np
@@ -11,14 +14,15 @@ from pxr import Usd, UsdGeom
 
 from acra import hspline as H
 from pipeline import output_layer
-from pipeline.authoring import spike_offsets
+from pipeline.authoring import spike_offsets, spike_positions
 
 NAME = "rolling_bump"
 
 
 @pytest.fixture(scope="module")
 def bump(run_scene):
-    """Per frame: slab's leading face x, detail offsets ``(9, 3)``, display points, residual."""
+    """Per frame: slab's leading face x, detail offsets ``(9, 3)``, display points, residual; the
+    bump's feet at the slab's underside and at 1% of its height, its detail CVs' x and spacing."""
     report = run_scene(NAME)
     out = Usd.Stage.Open(str(report.output))
     sheet, slab = out.GetPrimAtPath("/World/Sheet"), out.GetPrimAtPath("/World/Mover/Slab")
@@ -37,7 +41,13 @@ def bump(run_scene):
     u = np.linspace(2.0, 4.0, 801)
     z = H.evaluate(rest["hs"], u, np.full_like(u, 2.0)).points
     foot = z[np.nonzero(z[:, 2] >= 0.01 * z[:, 2].max())[0].max(), 0]
-    return dict(frames=frames, rest=rest, size=size, foot=foot)
+    # the bump's near flank at the slab's underside: the first x along its centre line (where it
+    # is highest) at which the animator's bump rises above the underside
+    u = np.linspace(0.0, 4.0, 1601)
+    z = H.evaluate(rest["hs"], u, np.full_like(u, 2.0)).points
+    flank = z[np.nonzero(z[:, 2] > rest["under"])[0].min(), 0]
+    cv_x = spike_positions(rest["hs"], level=2)[:, 0]
+    return dict(frames=frames, rest=rest, size=size, foot=foot, flank=flank, cv_x=cv_x, h=np.diff(np.unique(cv_x)).min())
 
 
 def _turn(off):
@@ -46,7 +56,14 @@ def _turn(off):
 
 def test_the_bump_turns_and_only_turns(bump):
     """A rotation: each detail CV keeps its length, no other level-2 CV gains detail, the coarser
-    levels do not move, and the turn is about the y axis, toward +x."""
+    levels do not move, and the turn is about the y axis, toward +x.
+
+    The response turns the detail of the patches its points lie in (thesis §4.3.2), and the
+    points lie inside the slab, behind its leading face: a detail CV turns iff its support reaches
+    behind the face, else it keeps its rest offset exactly. At frame 4 the face (x = -0.192) has
+    just cut the bump's near flank, within the patch [-2h, -h]: the 6 CVs at x = -h and 0 turn
+    (14.8°, measured), the 3 at x = +h, whose support starts at -h = -0.1875, do not. From frame 5
+    on the face is past -h and all 9 turn."""
     rest = bump["rest"]
     responded = [f for f in bump["frames"] if f["st"].iterations > 0]
     assert len(responded) >= 5
@@ -56,14 +73,31 @@ def test_the_bump_turns_and_only_turns(bump):
         assert np.abs(offs).sum(axis=1).astype(bool).sum() == 9  # the bump's CVs only
         np.testing.assert_array_equal(f["hs"].cvs, rest["hs"].cvs)
         assert not np.any(H.offsets_of(f["hs"], 1)[1])
-        assert np.all(f["off"][:, 0] > 0), f["st"].frame  # toward the slab's motion
+        reach = bump["cv_x"] - 2.0 * bump["h"] < f["face"]
+        assert np.all(f["off"][reach, 0] > 0), f["st"].frame  # toward the slab's motion
+        np.testing.assert_array_equal(f["off"][~reach], rest["off"][~reach])
         assert np.abs(f["off"][:, 1]).max() <= 0.02 * np.linalg.norm(f["off"], axis=1).min()
+    assert not np.all(bump["cv_x"] - 2.0 * bump["h"] < responded[0]["face"])  # the local turn is seen
+
+
+def test_the_slab_is_responded_to_from_the_frame_it_cuts_the_bump(bump):
+    """Every frame whose slab has its leading face past the bump's near flank (x = -0.252, where
+    the animator's bump rises above the underside z = 0.2) is responded and left within the
+    tolerance; no frame before it is touched. Frame 4 is the first: the face at x = -0.192 cuts
+    the flank 0.0345 deep (measured on the animator's surface, 8.1e-3 of its size), one round
+    leaves 4.8e-4 (measured)."""
+    for f in bump["frames"]:
+        cuts = f["face"] > bump["flank"]
+        assert (f["st"].iterations > 0) == cuts and f["st"].in_collision == cuts, f["st"].frame
+        assert f["st"].residual_rel <= 1e-3, f["st"].frame
+    assert [f["st"].frame for f in bump["frames"] if f["face"] > bump["flank"]][0] == 4
 
 
 def test_the_turn_grows_while_the_slab_pushes_through_the_bump(bump):
     """While the slab's leading face is over the bump (behind its far foot) each frame turns the
-    bump further, as the slab's material point that first touched it moves on: measured 32.7°,
-    43.6°, 51.7°, 62.5° at the centre CV, at least 8.1° more per frame (asserted: 3°)."""
+    bump further, as the slab's material point that first touched it moves on: measured 14.8°,
+    43.9°, 50.0°, 58.2°, 64.4° at the centre CV at frames 4-8, at least 6.2° more per frame
+    (asserted: 3°)."""
     pushing = [f for f in bump["frames"] if f["st"].iterations > 0 and f["face"] < bump["foot"]]
     assert len(pushing) >= 3
     turns = np.array([_turn(f["off"])[4] for f in pushing])  # the centre CV
