@@ -427,7 +427,7 @@ def _extent(s: Solid) -> float:
 
 
 def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget: int = 200_000,
-                   reach: float = np.inf) -> Depth | None:
+                   reach: float = np.inf, decide: float = np.inf) -> Depth | None:
     """`Depth` of triangles ``corners (t, 3, 3) float`` (in ``s``'s object space) inside ``s``,
     refined until every cell's ``U <= max(target, 1.25 L)``, ``max_split`` levels, or ``budget``
     evaluated points (the given triangles' corners are always evaluated). A triangle whose box
@@ -435,14 +435,18 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
 
     ``reach``: ``s`` is a part of a solid that answers exactly for points within this distance of
     it (`solid` with ``part``); ``None`` is returned if an evaluated point lies farther.
+    ``decide``: a depth the caller compares the bound with (a tolerance): while no evaluated point
+    is deeper than it, a cell bounded above it is split too, so a bound within 1.25 of the depth
+    found does not put a clear surface over the tolerance.
     """
     try:
-        return _triangle_depth(s, corners, target, max_split, budget, reach)
+        return _triangle_depth(s, corners, target, max_split, budget, reach, decide)
     except Unresolved:
         return None
 
 
-def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: int, reach: float) -> Depth:
+def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: int, reach: float,
+                    decide: float = np.inf) -> Depth:
     if not 0 <= max_split <= 30:
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.asarray(corners, np.float64).reshape(-1, 3, 3)
@@ -473,7 +477,7 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         over = np.nonzero(bound > 0.0)[0]
         if len(over):  # eq. (6): the faces nearest the corners bound the cell too
             bound[over] = np.minimum(bound[over], _cell_bound(s, _at_cells(tri, src[rows[over]], lattice[over], steps), fc[over]))
-        need = bound > now
+        need = (bound > now) | ((bound > decide) & (low <= decide))
         retired = max(retired, float(bound[~need].max(initial=0.0)))
         rows, lattice, sd, fc, rho, bound = rows[need], lattice[need], sd[need], fc[need], rho[need], bound[need]
         room = (budget - evaluated) // 3
@@ -509,7 +513,7 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
             last = np.maximum(sd.max(axis=1) + rho, 0.0)
             last = np.minimum(last, _cell_bound(s, _at_cells(tri, src[rows], lattice, steps), fc))
             retired = max(retired, float(last.max()))
-            complete = retired <= max(target, 1.25 * max(low, 0.0))
+            complete = retired <= max(target, 1.25 * max(low, 0.0)) and not (decide < retired and low <= decide)
             break
     t, b, p, d = (np.concatenate(x) for x in zip(*found))
     return Depth(retired, max(low, 0.0), complete, t.astype(np.int64), b, p, d, evaluated, level)

@@ -8,7 +8,8 @@ is every other closed object: a closed deformable's display mesh (welded at pole
 a closed collider's mesh; an open object has no inside. Depths come from
 `pipeline.clearance.triangle_depth`, a certified upper bound over the whole of each triangle, not
 only at samples, so the figure never under-states what the user sees; it is refined until it is
-within 1.25 times the deepest point found, or within half the tolerance.
+within 1.25 times the deepest point found, or within half the tolerance, and until it is on the
+same side of the tolerance as the deepest point found.
 
 The queries run in the other object's object space (its `clearance.Solid` is built once per
 distinct surface, or once per run for a collider); a distance there is at most the largest
@@ -152,9 +153,10 @@ class Inside:
     complete: bool = True
 
 
-def pair_depth(a: Shown, b: Shown, target: float) -> Inside:
+def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Inside:
     """How deep ``a``'s triangles go inside ``b`` (`clearance.triangle_depth` in ``b``'s object
-    space), with ``target`` the world depth below which the bound need not be refined.
+    space), with ``target`` the world depth below which the bound need not be refined and
+    ``decide`` the world depth it is held against (the tolerance: refined until on one side).
 
     A deformable ``b`` is queried through the part of its display near ``a``'s triangles in its
     box: its faces whose world boxes come within ``P`` (the diagonal of those triangles' box) of
@@ -176,9 +178,9 @@ def pair_depth(a: Shown, b: Shown, target: float) -> Inside:
         rows = np.nonzero(overlap(b.corners.min(axis=1), b.corners.max(axis=1), region[0], region[1], pad))[0]
         if rows.size:
             part = clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=_diagonal(b.local))
-            d = clearance.triangle_depth(part, local, target / k, reach=pad / k)
+            d = clearance.triangle_depth(part, local, target / k, reach=pad / k, decide=decide / k)
     if d is None:
-        d = clearance.triangle_depth(b.whole(), local, target / k)
+        d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
     points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
     uv = None if a.uv is None else np.einsum("mk,mkc->mc", d.bary, a.uv[near[d.tri]])
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
@@ -228,7 +230,7 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None) -> FrameRe
         if not b.closed:
             continue
         size = max(a.size, 1e-300)
-        ins = pair_depth(a, b, TARGET * tolerance * size)
+        ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size)
         rel = ins.depth / size
         out.pairs.append(PairDepth(a.path, b.path, ins, rel))
         out.worst = max(out.worst, ins.depth)
