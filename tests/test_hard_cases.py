@@ -673,16 +673,28 @@ def _fan_cvs(n: int = 8, width: float = 3.0) -> np.ndarray:
     return cvs
 
 
+FAN_ROUNDS = 12  # the fan's apex needs up to 10 rounds where the user looks (docs/hard-cases.md, case 10)
+
+
 def _fan(tmp_path, name, absorption) -> None:
     """A 0.6 box pressed 0.1, then 0.15 into the fan's apex, which lies inside its footprint.
 
     Besides the common checks, no display normal may point down by more than 0.1 in z: a dent's
     walls are at most vertical (measured -4e-12 on the fine level), a fold turns them over. And
     the apex stays one point, as a pole does (case 5): the responded surface at v = 0 for 33
-    values of u spreads at most 1e-9 of the size, and the collapsed CV row stays one point."""
+    values of u spreads at most 1e-9 of the size, and the collapsed CV row stays one point.
+
+    The residual where the user looks falls slowly at the apex, a sliver on the box's side face
+    at the collapsed edge: the case runs with `FAN_ROUNDS`. At the default cap of 4 the frames
+    that are left over are reported over the tolerance, never under what the output shows."""
     stage, size = sheet_stage(3, cvs=_fan_cvs(), absorption=absorption)
     box = moving_box(stage, 0.6, {"y": [-1.2] * 3, "z": [0.6, 0.2, 0.15]})
-    r = run(stage, tmp_path, name)
+    capped = run_file(A.save(stage, tmp_path / f"{name}_capped.usda"), output=tmp_path / f"{name}_capped.acra.usda")
+    measured = visible.worst_by_frame(visible.measure_layer(capped.output, [s.frame for s in capped.stats]))
+    assert all(s.residual_rel >= measured[s.frame] - visible.SLACK for s in capped.stats)  # never under
+    over = [(s.frame, s.residual_rel) for s in capped.stats if s.residual_rel > TOL]
+    assert capped.over == over and capped.status == (3 if over else 0)
+    r = run(stage, tmp_path, name, iterations=FAN_ROUNDS)
     box_case(r, "/World/Sheet", box, size, along=(2, -1))
     out = Usd.Stage.Open(str(r.report.output))
     normals = UsdGeom.Mesh(out.GetPrimAtPath("/World/Sheet")).GetNormalsAttr()
@@ -698,8 +710,8 @@ def _fan(tmp_path, name, absorption) -> None:
 
 def test_collapsed_edge_dented_on_the_fine_level(tmp_path):
     """All absorption on level 2 at the apex of a sheet with a collapsed edge: the apex stays one
-    point and, closed after the finest level's solve rather than within it, the case clears in 4
-    rounds (docs/algorithm.md, "a fan's apex")."""
+    point and, closed after the finest level's solve rather than within it, the case clears
+    (docs/algorithm.md, "a fan's apex")."""
     _fan(tmp_path, "fan_fine", (0.0, 0.0, 1.0))
 
 
