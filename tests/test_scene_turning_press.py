@@ -43,19 +43,25 @@ def test_acra_run_clears_every_frame_and_exits_0(tmp_path):
 
 
 def test_the_dent_goes_straight_down_under_the_box_while_the_sheet_turns(run_scene):
-    """At every responded frame the deepest move is under the box (world) and every move is
-    straight down: the box presses along z, the turn slides the sheet along itself and asks no
-    move (measured: no horizontal move at all; pairing the first-touch points sheared the sheet
-    sideways under the box). The dent travels across the sheet's material: its deepest point's
-    parameters at the last frame are more than a patch from those at frame 8."""
+    """At every responded frame the deepest move is under the box (world) and every data point
+    asks a move straight down: the box presses along z, the turn slides the sheet along itself
+    and asks no move (pairing the first-touch points sheared the sheet sideways under the box).
+    A frame of one round moves nothing sideways at all. A later round moves the coarser levels
+    too, and the finer levels' detail rides on their frames (normal and tangents), so the dent
+    the first round made tilts with them: at most 2 % of the deepest move sideways (measured 1.0 %
+    at frame 12, its second round asked for by the display; the same second round on detection's
+    residual alone tilts it by the same 2.14e-3). The dent travels across the sheet's material:
+    its deepest point's parameters at the last frame are more than a patch from those at frame 8."""
     report = run_scene(NAME)
-    responded = [s.frame for s in report.stats if s.iterations]
-    assert responded and responded[-1] == 12 and 8 in responded
+    responded = [s for s in report.stats if s.iterations]
+    assert responded and responded[-1].frame == 12 and 8 in [s.frame for s in responded]
     deepest = {}
-    for frame in responded:
-        point, deepest[frame], move, sideways = deepest_move(report, SHEET, frame)
-        assert np.all(point[:2] >= LO) and np.all(point[:2] <= HI), (frame, point)
-        assert sideways <= 1e-9 * move, frame
+    for st in responded:
+        point, deepest[st.frame], move, sideways = deepest_move(report, SHEET, st.frame)
+        assert np.all(point[:2] >= LO) and np.all(point[:2] <= HI), (st.frame, point)
+        assert sideways <= (1e-9 if st.iterations == 1 else 0.02) * move, (st.frame, st.iterations, sideways / move)
+        start, target = st.data_points[SHEET]  # the world moves the frame's first round asked: along z to rounding
+        assert np.abs((target - start)[:, :2]).max() <= 1e-12 * np.abs(target - start).max(), st.frame
     assert np.abs(deepest[12] - deepest[8]).max() > 1.0
 
 
