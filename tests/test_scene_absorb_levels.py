@@ -1,19 +1,25 @@
 """Scene absorb_levels (thesis Fig. 5.5 against 5.6): levels 1–3 dent more locally than levels 1–2.
 
-Both sheets are pressed by identical balls; at the deepest frame every display point's
-displacement is measured against its distance from the ball's axis. Inside the ball's footprint
-(radius ``√(R² − (R − depth)²)``) both sheets follow the ball; what the absorption changes is how
-far the disturbance spreads beyond it.
+Both sheets are pressed by identical balls; at the deepest frame the response's displacement of
+every point of a fixed grid on each sheet (`conftest.surface_moves`: the animator's surface and the
+output's ``acra:response:*`` surface at the same parameters, `STEPS` steps per level-0 patch edge)
+is measured against its distance from the ball's axis. The grid is uniform and the same for both
+sheets, whatever each run's display refines, so counts, ring means and reaches compare alike.
+Inside the ball's footprint (radius ``√(R² − (R − depth)²)``) both sheets follow the ball; what the
+absorption changes is how far the disturbance spreads beyond it.
 """
 
 import numpy as np
 import pytest
 from pxr import Gf, Usd, UsdGeom
-from pipeline import output_layer
+
+from conftest import surface_moves
 
 FINE, COARSE = "Levels123", "Levels12"
 RADIUS = 0.45  # the scene's balls
-CELL = (3.5 / 56) ** 2  # display grid cell area: 7 patches of 0.5, 8 samples per patch
+STEPS = 8  # grid steps per level-0 patch edge
+STEP = 0.5 / STEPS  # grid spacing on the flat sheets: 7 patches of 0.5, 56 steps
+CELL = STEP**2  # area of one grid cell (the sheets are flat, the grid uniform)
 
 
 def _ball(stage, name, frame):
@@ -23,20 +29,17 @@ def _ball(stage, name, frame):
 
 
 def _dents(report):
-    """Per sheet at the deepest frame: distance from the ball's axis ``r (n,)``, displacement
-    ``d (n, 3)`` of each display point; and the ball's depth below the sheets."""
-    src = report.output.with_name(report.output.name.replace(".acra.usda", ".usda"))
-    inp, out = Usd.Stage.Open(str(src)), Usd.Stage.Open(str(report.output))
+    """Per sheet at the deepest frame: distance from the ball's axis ``r (n,)`` and the response's
+    displacement ``d (n, 3)`` of each point of the fixed grid; and the ball's depth below the sheets."""
+    inp = Usd.Stage.Open(str(report.stage_path))
     frames = [s.frame for s in report.stats]
     deepest = min(frames, key=lambda f: _ball(inp, FINE, f)[2])
     depth = RADIUS - _ball(inp, FINE, deepest)[2]  # the sheets lie at z = 0
     dents = {}
     for name in (FINE, COARSE):
-        mesh = f"/World/{name}/Sheet"
-        p0 = output_layer.input_points(out, mesh)  # the animator's rest surface at the output's display vertices
-        p1 = np.asarray(UsdGeom.Mesh(out.GetPrimAtPath(mesh)).GetPointsAttr().Get(deepest))
+        p0, _, d = surface_moves(report, f"/World/{name}/Sheet", deepest, STEPS)
         r = np.linalg.norm(p0[:, :2] - _ball(inp, name, deepest)[:2], axis=1)
-        dents[name] = (r, p1 - p0)
+        dents[name] = (r, d)
     return dents, depth
 
 
@@ -83,9 +86,9 @@ def test_levels_1_to_3_fall_off_faster_beyond_the_ball(dents):
     # levels 1-3 measured 0.055 0.031 0.019 0.010 0.004, levels 1-2 0.086 0.063 0.044 0.023 0.009
     # (ratios 0.64, 0.49, 0.43, 0.43, 0.44)
     assert np.all(profile[FINE] < 0.75 * profile[COARSE]), profile
-    # how far the disturbance reaches (5% of the depth): 0.611 against 0.731, two display samples
+    # how far the disturbance reaches (5% of the depth): 0.611 against 0.731, more than a grid step apart
     reach = {name: r[np.linalg.norm(d, axis=1) > 0.05 * depth].max() for name, (r, d) in dents.items()}
-    assert reach[FINE] + 3.5 / 56 < reach[COARSE], reach
+    assert reach[FINE] + STEP < reach[COARSE], reach
     # the rim the sheet is pulled back into rises 14% of the depth against 25%
     rim = {name: d[:, 2].max() / depth for name, (r, d) in dents.items()}
     assert rim[FINE] < 0.8 * rim[COARSE], rim
