@@ -47,7 +47,7 @@ def spike():
 
 def build():
     stage = new_stage(1, 30, fps=24, up_axis="Z")
-    add_surface(stage, "/World/Head", head()[1], absorption=[0, 0, 0.2, 0.3, 0.5, 0, 0], rigidity=10, samples=6)
+    add_surface(stage, "/World/Head", head()[1], absorption=[0, 0, 0.2, 0.3, 0.5, 0, 0], rigidity=10, samples=4)
     mover = add_xform(stage, "/World/Jab")
     add_surface(stage, "/World/Jab/Spike", spike()[1], absorption=[0, 0.5, 0.5], rigidity=80, samples=4)
     # the tip approaches the cheek (+y side), goes 0.1 deep at frame 15 and pulls back
