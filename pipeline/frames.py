@@ -620,6 +620,7 @@ class _Run:
         self.state_memo: dict = {}
         self.canonical: list = [None] * len(self.defs)  # last input surface of each deformable
         self.displays = display.Displays(options.density, 4 * len(self.defs) + 4)
+        self._shown: dict = {}  # (id(surface), world matrix) -> (surface, residual.Shown), most recent last
         self._collider_solids: dict = {}  # collider row -> its inside (`residual.collider_solid`)
 
     def states(self, t: float):
@@ -695,9 +696,16 @@ class _Run:
             if (kind, j) not in shown:
                 if kind == "d":
                     g, m = geoms[j], self.defs[j]
-                    sd = self.displays.of(g.surface, m.controls.samples)
-                    shown[kind, j] = residual.shown(m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
-                                                    g.shape.outward if g.closed else 1.0, sd.solid)
+                    key = (id(g.surface), g.xform.tobytes())
+                    hit = self._shown.pop(key, None)
+                    if hit is None or hit[0] is not g.surface:  # a surface shown at this place is reused
+                        sd = self.displays.of(g.surface, m.controls.samples)
+                        hit = (g.surface, residual.shown(m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
+                                                         g.shape.outward if g.closed else 1.0, sd.solid))
+                    self._shown[key] = hit
+                    while len(self._shown) > 4 * len(self.defs) + 4:
+                        del self._shown[next(iter(self._shown))]
+                    shown[kind, j] = hit[1]
                 else:
                     g = cgeoms[j]
                     shown[kind, j] = residual.collider_shown(g.name, g.bounds, g.size, self.collider_solid(j), g.xform)

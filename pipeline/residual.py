@@ -25,11 +25,12 @@ call. World units unless stated; arrays are float64.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from pipeline import clearance
-from pipeline.grids import overlap
+from pipeline.grids import overlap, triangle_boxes
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "stretch", "pair_depth",
@@ -81,12 +82,21 @@ class Shown:
     whole: object = None
     deformable: bool = True
 
-    def near(self, box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World triangles ``(m, 3, 3)`` whose boxes meet the world ``box (2, 3)`` and their rows
-        in ``corners``."""
-        lo, hi = self.corners.min(axis=1), self.corners.max(axis=1)
-        rows = np.nonzero(overlap(lo, hi, box[0], box[1], 0.0))[0]
+    @cached_property
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """World boxes ``lo, hi (t, 3)`` of the triangles."""
+        return triangle_boxes(self.corners)
+
+    def near(self, box: np.ndarray, pad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """World triangles ``(m, 3, 3)`` whose boxes come within ``pad`` of the world ``box (2, 3)``
+        and their rows in ``corners``."""
+        rows = np.nonzero(overlap(*self.boxes, box[0], box[1], pad))[0]
         return self.corners[rows], rows
+
+    @cached_property
+    def diagonal_local(self) -> float:
+        """Diagonal of the box of the object-space display points (the scale solids weld at)."""
+        return float(np.linalg.norm(np.ptp(self.local, axis=0)))
 
 
 def stretch(xform: np.ndarray) -> float:
@@ -175,20 +185,15 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     if b.deformable:
         region = np.stack([corners.min(axis=(0, 1)), corners.max(axis=(0, 1))])
         pad = float(np.linalg.norm(region[1] - region[0]))
-        rows = np.nonzero(overlap(b.corners.min(axis=1), b.corners.max(axis=1), region[0], region[1], pad))[0]
+        _, rows = b.near(region, pad)
         if rows.size:
-            part = clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=_diagonal(b.local))
+            part = clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=b.diagonal_local)
             d = clearance.triangle_depth(part, local, target / k, reach=pad / k, decide=decide / k)
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
     points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
     uv = None if a.uv is None else np.einsum("mk,mkc->mc", d.bary, a.uv[near[d.tri]])
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
-
-
-def _diagonal(points: np.ndarray) -> float:
-    """Diagonal of the box of ``points (n, 3)``."""
-    return float(np.linalg.norm(np.ptp(points, axis=0)))
 
 
 @dataclass
