@@ -71,10 +71,12 @@ class FrameStats:
     Times are milliseconds (thesis Fig. 5.2's split): ``ms_setup`` building object-space shape data
     (`shape.Shape`, the analogue of RAPID's initial set-up), ``ms_detect`` detection queries less
     set-up, ``ms_convert`` contacts to data points, ``ms_respond`` the responses (``ms_respond_by``
-    per deformable path), ``ms_output`` the display tessellation; ``residual`` is the largest remaining penetration in world units and
-    ``residual_rel`` the same over the pair's size: the size of the animator's surfaces at this frame
-    (the smaller of two deformables), fixed over the rounds, so a response that grows or shrinks a
-    surface does not rescale its own residual.
+    per deformable path), ``ms_visible`` measuring each round's residual where the user looks
+    (`_Run.visible`), ``ms_output`` the run's display and its residual (`display.finish`);
+    ``residual`` is the largest depth of a deformable's display inside another object in world
+    units and ``residual_rel`` the largest over that deformable's display diagonal (docs/cli.md,
+    *Residual penetration*): the kept round's on its own display during the loop, then the run's
+    display's (`display.finish`).
     """
 
     frame: int

@@ -103,6 +103,7 @@ STAT_FIELDS = {
     "ms_detect": np.float64,
     "ms_convert": np.float64,
     "ms_respond": np.float64,
+    "ms_visible": np.float64,
     "ms_output": np.float64,
     "ms_total": np.float64,
 }

@@ -513,7 +513,7 @@ class Preview:
                 f"frame {st.frame}: OVER TOLERANCE, residual {st.residual_rel:.2e} of size > {self.tolerance:g}",
                 level=rr.TextLogLevel.ERROR))
         self.rec.log("metrics/rounds", rr.Scalars(st.iterations))
-        for name in ("setup", "detect", "convert", "respond", "output", "total"):
+        for name in ("setup", "detect", "convert", "respond", "visible", "output", "total"):
             self.rec.log(f"metrics/ms/{name}", rr.Scalars(getattr(st, f"ms_{name}")))
 
     def close(self) -> None:

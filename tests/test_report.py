@@ -79,7 +79,7 @@ def test_over_tolerance_exits_3_and_lists_frames_and_warn_makes_it_0(tiny_stage,
     per = {p["frame"]: p for p in data["per_frame"]}
     assert sorted(per) == [1, 2, 3]
     assert per[3]["residual"] == data["over_tolerance"][0]["residual"] == data["largest_residual"] > 1e-9
-    assert per[3]["in_collision"] and per[3]["rounds"] == 1 and set(per[3]["ms"]) == {"setup", "detect", "convert", "respond", "output", "total"}
+    assert per[3]["in_collision"] and per[3]["rounds"] == 1 and set(per[3]["ms"]) == {"setup", "detect", "convert", "respond", "visible", "output", "total"}
     assert out.exists()  # the result is written: the status says it is not within tolerance
 
     assert main(argv + ["--over-tolerance", "warn"]) == 0
