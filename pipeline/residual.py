@@ -249,8 +249,9 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
     """Measure every frame of a finished run on its display (``result``'s points and topologies,
     `pipeline.display.evaluate_run`): each `frames.FrameStats` gets ``residual``, ``residual_rel``
     and ``pair_residual_rel`` from what the output shows, and each deformable's result its own
-    ``residual`` (world). World matrices come from the stats (``xforms``) or, where a frame's
-    statistics do not carry them (a merge of part files), from the stage."""
+    ``residual`` (world), and its milliseconds join the frame's ``ms_output`` and ``ms_total``.
+    World matrices come from the stats (``xforms``) or, where a frame's statistics do not carry
+    them (a merge of part files), from the stage."""
     from dataclasses import replace
 
     from pipeline import usdio
@@ -259,7 +260,10 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
     colliders = [collider_solid(c.vertices, c.triangles) for c in scene.colliders]
     tris = {m.path: result.topology(m).triangles() for m in scene.deformables}
     uvs = {m.path: np.stack([result.topology(m).u, result.topology(m).v], axis=1) for m in scene.deformables}
+    import time
+
     for st in stats:
+        t0 = time.perf_counter()
         xforms = st.xforms
         if not xforms:
             dstates, cstates = usdio.state_at(stage, scene, float(st.frame))
@@ -285,3 +289,6 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
                 st.pair_residual_rel[a, b] = fr.pair_rel(a, b)
         for m in scene.deformables:
             per[m.path] = replace(per[m.path], residual=float(fr.by_object.get(m.path, 0.0)))
+        ms = 1e3 * (time.perf_counter() - t0)
+        st.ms_output += ms
+        st.ms_total += ms
