@@ -36,8 +36,9 @@ class DeformableResult:
 
     Attributes
     ----------
-    points, normals : (n, 3) float64
-        Display tessellation (the model's topology) and its unit normals.
+    points, normals : (n, 3) float64 or None
+        Display tessellation (the run's topology, `FramesResult.topology`) and its unit normals;
+        ``None`` until the run's display is evaluated (`pipeline.display.finish`).
     surface : HSpline
         The surface after the response: level-0 CVs and the full hierarchy.
     residual : float

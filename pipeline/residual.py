@@ -11,11 +11,11 @@ only at samples, so the figure never under-states what the user sees; it is refi
 within 1.25 times the deepest point found, or within half the tolerance, and until it is on the
 same side of the tolerance as the deepest point found.
 
-The queries run in the other object's object space (its `clearance.Solid` is built once per
-distinct surface, or once per run for a collider); a distance there is at most the largest
-singular value of the world matrix's linear part times the world distance's object-space
-counterpart, so the bound is mapped back by that factor (exact for rotations, translations and
-uniform scales, an upper bound otherwise).
+The queries run in the other object's object space: a collider's `clearance.Solid` is built once
+per run, a deformable's is the part of its display near the other object's triangles, built per
+pair. An object-space depth times the largest singular value of the world matrix's linear part
+(`clearance.sigma_max`) bounds the world depth from above (exact for rotations, translations and
+uniform scales).
 
 `measure_frame` is what both the frame loop (every round, on each surface's own adaptive display
 near the other objects) and `measure_run` (every frame of a finished run, on the run's display)
@@ -33,7 +33,7 @@ from pipeline import clearance
 from pipeline.grids import overlap, triangle_boxes
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
-__all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "stretch", "pair_depth",
+__all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
            "measure_frame", "measure_run", "TARGET"]
 
 TARGET = 0.5  # a bound within this fraction of the tolerance needs no refining (clearance.triangle_depth)
@@ -97,12 +97,6 @@ class Shown:
     def diagonal_local(self) -> float:
         """Diagonal of the box of the object-space display points (the scale solids weld at)."""
         return float(np.linalg.norm(np.ptp(self.local, axis=0)))
-
-
-def stretch(xform: np.ndarray) -> float:
-    """The largest singular value of ``xform``'s linear part: how much longer a world length can
-    be than its object-space counterpart."""
-    return float(np.linalg.svd(np.asarray(xform, np.float64)[:3, :3], compute_uv=False)[0])
 
 
 def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
@@ -179,7 +173,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     corners, near = a.near(b.box)
     if not len(corners):
         return none
-    k = stretch(b.xform)
+    k = clearance.sigma_max(b.xform)  # eq. (5): world lengths at most k times object-space ones
     local = apply_inverse(b.xform, corners.reshape(-1, 3)).reshape(-1, 3, 3)
     d = None
     if b.deformable:

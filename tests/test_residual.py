@@ -67,7 +67,7 @@ def test_a_uniformly_scaled_collider_scales_the_depth():
     m[:3, :3] = 3.0 * np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
     _, pts, tris, uv = sheet(0.3, width=8.0)
     ins = residual.pair_depth(residual.shown("/sheet", pts, tris, np.eye(4), uv), box_collider(xform=m), 1e-4)
-    assert residual.stretch(m) == pytest.approx(3.0)
+    assert clearance.sigma_max(m) == pytest.approx(3.0)
     assert ins.depth == pytest.approx(1.5 - np.float32(0.3), rel=1e-9)
 
 
