@@ -86,7 +86,7 @@ from acra import bvh
 from pipeline.grids import overlap, triangle_boxes
 
 __all__ = ["Solid", "solid", "signed_depth", "covering_radius", "Depth", "triangle_depth", "Unresolved",
-           "sigma_max", "to_object", "object_target", "world_bound", "FEATURE"]
+           "sigma_max", "FEATURE"]
 
 FEATURE = 1e-9  # a closest point this close (x the mesh extent) to an edge line lies on it, eq. (1)
 
@@ -523,21 +523,3 @@ def sigma_max(matrix) -> float:
     """The largest singular value of the linear part of an affine ``matrix (4, 4) float``
     (column-vector convention): eq. (5)'s factor from object to world distances."""
     return float(np.linalg.svd(np.asarray(matrix, np.float64)[:3, :3], compute_uv=False)[0])
-
-
-def to_object(matrix, points) -> np.ndarray:
-    """World ``points (..., 3) float`` mapped into the object space of ``matrix (4, 4) float``
-    (object to world, column vectors): ``(..., 3) float64``."""
-    m = np.asarray(matrix, np.float64)
-    return (np.asarray(points, np.float64) - m[:3, 3]) @ np.linalg.inv(m[:3, :3]).T
-
-
-def object_target(matrix, target: float) -> float:
-    """A world-space target as an object-space one, eq. (5): an object bound below it is a world
-    bound below ``target``."""
-    return target / sigma_max(matrix)
-
-
-def world_bound(matrix, bound: float) -> float:
-    """An object-space depth bound as a world-space one, eq. (5)."""
-    return sigma_max(matrix) * bound

@@ -18,6 +18,7 @@ from scipy.optimize import linprog
 
 from acceptance.visible import surface_distance
 from pipeline import clearance as C
+from pipeline.model import apply_inverse
 
 STEPS = 64  # dense grid steps per triangle edge (2^max_split: the evaluated lattice is a subset)
 PROPERTY = settings(max_examples=25, derandomize=True, deadline=None)
@@ -389,13 +390,14 @@ def test_similarity_gives_world_depth_exactly():
     world = box.vertices @ mat[:3, :3].T + mat[:3, 3]
     sw = C.solid(world, box.faces)
     p = np.random.default_rng(6).uniform(-4, 4, size=(2000, 3)) + mat[:3, 3]
-    np.testing.assert_allclose(2.5 * C.signed_depth(s, C.to_object(mat, p))[0], C.signed_depth(sw, p)[0], atol=1e-12)
+    np.testing.assert_allclose(2.5 * C.signed_depth(s, apply_inverse(mat, p))[0], C.signed_depth(sw, p)[0], atol=1e-12)
     tri = np.array([[[-3.1, -2.9, 0.0], [6.3, -3.2, 0.0], [-2.7, 6.1, 0.0]]])
     tw = tri @ mat[:3, :3].T + mat[:3, 3]
-    d = C.triangle_depth(s, C.to_object(mat, tw), C.object_target(mat, 0.05))
+    k = C.sigma_max(mat)  # eq. (5), as pipeline.residual maps targets and bounds
+    d = C.triangle_depth(s, apply_inverse(mat, tw.reshape(-1, 3)).reshape(-1, 3, 3), 0.05 / k)
     assert d.complete
-    assert 2.5 <= C.world_bound(mat, d.bound) <= max(0.05, 1.25 * 2.5)  # world truth: 2.5 x 1
-    assert C.world_bound(mat, d.bound) == pytest.approx(C.triangle_depth(sw, tw, 0.05).bound, rel=1e-12)
+    assert 2.5 <= k * d.bound <= max(0.05, 1.25 * 2.5)  # world truth: 2.5 x 1
+    assert k * d.bound == pytest.approx(C.triangle_depth(sw, tw, 0.05).bound, rel=1e-12)
 
 
 def test_non_uniform_scale_bound_covers_world_truth():
@@ -405,5 +407,6 @@ def test_non_uniform_scale_bound_covers_world_truth():
     rng = np.random.default_rng(9)
     for _ in range(6):
         tw = mat[:3, 3] + rng.normal(size=(1, 3, 3))
-        d = C.triangle_depth(s, C.to_object(mat, tw), C.object_target(mat, 0.01))
-        assert C.world_bound(mat, d.bound) >= dense_depth(world, tw) - 1e-12
+        k = C.sigma_max(mat)
+        d = C.triangle_depth(s, apply_inverse(mat, tw.reshape(-1, 3)).reshape(-1, 3, 3), 0.01 / k)
+        assert k * d.bound >= dense_depth(world, tw) - 1e-12
