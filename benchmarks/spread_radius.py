@@ -1,4 +1,4 @@
-"""How the spacing of additional points (`pipeline.frames._spread`) changes a scene's residuals.
+"""How the spacing of additional points (`pipeline.datapoints.spread`) changes a scene's residuals.
 
     python3 benchmarks/spread_radius.py [SCENE.py] [--frames 13:17] [--factors 0,0.25,0.5,1,2,4]
 
@@ -14,6 +14,7 @@ import argparse
 import pathlib
 import time
 
+from pipeline import datapoints as P
 from pipeline import frames as F
 from pipeline import usdio
 
@@ -22,8 +23,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 def run(scene_file: pathlib.Path, frames: list[int], factor: float) -> tuple[float, list]:
     """Seconds and ``(frame, rounds, residual_rel)`` per frame with the spacing scaled by ``factor``."""
-    spread = F._spread
-    F._spread = lambda points, contact, radius: spread(points, contact, radius * factor)
+    spread = P.spread
+    P.spread = lambda points, contact, radius: spread(points, contact, radius * factor)
     try:
         stage = usdio.open_input(usdio.load_scene_file(scene_file))
         scene = usdio.read_scene(stage)
@@ -31,7 +32,7 @@ def run(scene_file: pathlib.Path, frames: list[int], factor: float) -> tuple[flo
         _, stats = F.run_frames(stage, scene, frames, F.RunOptions())
         return time.perf_counter() - t, [(s.frame, s.iterations, s.residual_rel) for s in stats]
     finally:
-        F._spread = spread
+        P.spread = spread
 
 
 def main() -> None:

@@ -22,6 +22,8 @@ from acra import hspline as H
 from acra import respond as R
 from pipeline import contact as C
 from pipeline import detect as D
+from pipeline import display
+from pipeline import datapoints as P
 from pipeline import frames as F
 from pipeline import grids
 from pipeline import shape as S
@@ -49,8 +51,8 @@ def instrument() -> None:
         setattr(D, name, _timed(f"detect.{name}", getattr(D, name)))
     for name in ("rewind", "deepest_contact"):
         setattr(C, name, _timed(f"contact.{name}", getattr(C, name)))
-    F.data_points_for = _timed("frames.data_points_for", F.data_points_for)
-    F.grid_samples = _timed("display: tessellate.grid_samples", F.grid_samples)
+    P.data_points_for = _timed("datapoints.data_points_for", P.data_points_for)
+    display.grid_samples = _timed("display: tessellate.grid_samples", display.grid_samples)
     R.respond = _timed("respond.respond", R.respond)
     H.details = _timed("hspline.details", H.details)
     H.evaluate = _timed("hspline.evaluate", H.evaluate)

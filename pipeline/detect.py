@@ -562,7 +562,7 @@ def face_samples(geom: ColliderGeometry, bounds: np.ndarray, spacing: float) -> 
     on a barycentric grid of each triangle whose box meets it, at most ``spacing`` apart along
     each edge (vertices included). A collider's region holds only its mesh's vertices, 8 for a
     box: too few to say which part of the other surface its faces need cleared
-    (`frames.collider_points_for`).
+    (`datapoints.collider_points_for`).
 
     A triangle longer than the box's diagonal is first split in four, repeatedly, keeping the
     pieces whose box meets ``bounds``: the samples then cost the area inside the box, not the

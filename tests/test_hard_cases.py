@@ -419,7 +419,7 @@ def test_box_wholly_inside_a_sphere_from_the_first_frame_is_cleared(tmp_path):
 
 
 def test_box_wholly_inside_a_sphere_is_wrapped_by_a_pocket_along_one_axis(tmp_path):
-    """Case 3c's mechanism (`frames.collider_points_for`, docs/hard-cases.md case 3): the wall in
+    """Case 3c's mechanism (`datapoints.collider_points_for`, docs/hard-cases.md case 3): the wall in
     front of the box is pushed along the way out the fallback chose, one of the box's axes, past
     its far face, and wraps it: every sphere point in the box's shadow on that side ends at or
     past the far face (the thin finger of the contact point alone left most of them short), and
@@ -596,7 +596,7 @@ def test_obey_leaves_absorption_on_an_unrefined_level_unapplied(tmp_path):
 def test_refine_clears_absorption_on_an_unrefined_level(tmp_path):
     """All absorption on level 2 under ``refine``: the response refines where the box is and
     later rounds act at each rim patch's deepest sample once its middle is on its target
-    (`frames.data_points_for`); before that, 4.5e-3 of the size stayed inside at the box's
+    (`datapoints.data_points_for`); before that, 4.5e-3 of the size stayed inside at the box's
     bottom corners whatever the number of rounds."""
     r, box, size = _level2_only(tmp_path, "refine", iterations=8)
     box_case(r, "/World/Sheet", box, size, along=(2, -1))

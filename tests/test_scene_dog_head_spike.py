@@ -57,8 +57,8 @@ def test_rounds_past_the_tolerance_keep_lowering_the_residual():
     deepest vertex of detection's tessellation of one kept surface inside the other,
     `detect.residual`, over the animator's pair size).
 
-    Detection's needs the later-round rule (`frames._deepest_instead`, once the rewound contact
-    points meet within `frames.MEET`): without it the spike's tip, with no vertex of its own inside
+    Detection's needs the later-round rule (`datapoints.deepest_instead`, once the rewound contact
+    points meet within `datapoints.MEET`): without it the spike's tip, with no vertex of its own inside
     the head, gets no point, and detection's residual stays over the contract at any cap
     (measured without the rule: 1.11e-3, 1.31e-3, 1.09e-3 at cap 4, while the display's own points
     still lower the display to 5.2e-4). Measured with it: detection's worst 1.35e-3 after the

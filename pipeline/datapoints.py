@@ -1,0 +1,446 @@
+"""Data points of a pair's contact (thesis eq. 4.15–4.16) and of what the user sees.
+
+The contact's first-touch points meet on a target placed by relative rigidity (eq. 4.15,
+`data_points_for`); every patch of the finest absorbing level that holds part of an
+interpenetration region gets one additional point, cast along the push to where it leaves the
+other object (eq. 4.16). A collider wholly or partly inside a closed deformable pushes the wall in
+front of it past it (`collider_points_for`); where a surface must drop along a collider's side
+face, points on the crossing keep it there (`rim_points`); where the display the user sees is
+still inside the other object, its deepest point per patch is pushed out (`visible_points`).
+Every function takes the geometry of one round (`pipeline.detect`) and returns parameters,
+world targets and world starts; the frame loop (`pipeline.frames`) assembles them per deformable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.ndimage import maximum_filter
+from scipy.spatial import cKDTree
+
+from acra import hspline as H
+from acra import respond as R
+from pipeline import contact as C
+from pipeline import detect as D
+from pipeline import residual
+from pipeline.model import apply_inverse, apply_xform
+
+__all__ = ["data_points_for", "collider_points_for", "rim_points", "visible_points", "with_shown", "spread",
+           "deepest_instead", "group_level", "CLEAR", "MEET"]
+
+
+def group_level(controls: R.Controls, depth: int) -> int:
+    """Level whose patches get one additional point each: the finest absorbing level."""
+    levels = np.nonzero(controls.absorption > 0)[0]
+    return int(min(levels.max() if levels.size else 0, depth - 1))
+
+
+STALLED = 0.1  # a patch's middle asking a move of at most this fraction of the patch's depth has stalled
+
+
+def data_points_for(
+    ga: D.SurfaceGeometry,
+    gb: D.Geometry,
+    uv: np.ndarray,
+    p_self: np.ndarray,
+    p_other: np.ndarray,
+    region_uv: np.ndarray | None,
+    share: float,
+    group_level: int,
+    direction: np.ndarray | None = None,
+    region_depth: np.ndarray | None = None,
+    settled: float = 0.0,
+) -> tuple[R.DataPoints, np.ndarray]:
+    """Data points of one surface of a pair, in its object space (thesis eq. 4.15–4.16).
+
+    Parameters
+    ----------
+    uv : (2,) float64
+        The contact's parameters on this surface.
+    p_self, p_other : (3,) float64
+        World contact points on this surface and on the other.
+    region_uv : (k, 2) float64 or None
+        Parameters of this surface's vertices inside the other object.
+    share : float
+        ``R`` of eq. 4.15 for this surface (0 moves it all the way to the other).
+    direction : (3,) float64, optional
+        Cast direction for the additional points; default ``p_other - p_self``. Later rounds of a
+        frame pass the first round's direction: once a response has closed the gap between the
+        contact points, their difference no longer says which way is out.
+    region_depth : (k,) float64, optional
+        Depths of the ``region_uv`` samples. With them, a patch whose middle has *stalled* (its
+        cast asks a move of at most `STALLED` of the patch's depth, and that depth is more than
+        ``settled``, a world length that counts as done) takes its deepest sample as its point
+        instead (`respond.region_deepest`). Without this, a later round whose region is a sliver
+        along the other object's edge pins middles already on their targets and moves nothing,
+        however many rounds run (docs/hard-cases.md, case 7).
+    settled : float
+        See ``region_depth``.
+
+    Against a collider, the patches at the region's rim take `rim_points` instead of
+    their middles: eq. 4.16's middles all lie inside the region's outline, and a C2 surface
+    pinned only there begins to rise back inside a box's outline and curls up inside the box
+    between detection's samples.
+
+    Returns
+    -------
+    DataPoints (object space of ``ga``), the world targets ``(K, 3)`` and the world points
+    ``(K, 3)`` they move from (the surface before the response), for the preview's arrows.
+    """
+    target_p = R.contact_targets(p_self, p_other, share)
+    uvs = [np.asarray(uv, float).reshape(1, 2)]
+    targets = [target_p[None]]
+    origins = [np.asarray(p_self, float).reshape(1, 3)]
+    direction = p_other - p_self if direction is None else np.asarray(direction, float)
+    size = ga.size
+    if region_uv is not None and len(region_uv) and np.linalg.norm(direction) > 1e-9 * size:
+        mids, _ = R.region_midpoints(ga.surface, region_uv, group_level)
+        a_world = apply_xform(ga.xform, H.evaluate(ga.surface, mids[:, 0], mids[:, 1], det=ga.details).points)
+        hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
+        if region_depth is not None:
+            deep, depth = R.region_deepest(ga.surface, region_uv, region_depth, group_level)
+            stalled = np.nonzero(valid & (depth > settled) & (np.linalg.norm(hits - a_world, axis=1) <= STALLED * depth))[0]
+            if stalled.size:
+                d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[stalled, 0], deep[stalled, 1], det=ga.details).points)
+                d_hits, d_valid = D.cast(gb, d_world, np.broadcast_to(direction, d_world.shape))
+                use = stalled[d_valid]
+                mids[use], a_world[use], hits[use] = deep[use], d_world[d_valid], d_hits[d_valid]
+        wanted = R.additional_targets(a_world, hits, share)
+        if isinstance(gb, D.ColliderGeometry):
+            r_uv, r_world, r_goal = rim_points(ga, gb, region_uv, direction, group_level)
+            if len(r_uv):  # a rim patch's point is its rim point, not its middle
+                valid &= ~np.isin(R.patch_keys(ga.surface, mids, group_level), R.patch_keys(ga.surface, r_uv, group_level))
+                mids, a_world = np.concatenate([mids, r_uv]), np.concatenate([a_world, r_world])
+                wanted = np.concatenate([wanted, R.additional_targets(r_world, r_goal, share)])
+                valid = np.concatenate([valid, np.ones(len(r_uv), bool)])
+        valid &= spread(a_world, np.asarray(p_self, float), MEET * size)
+        if np.any(valid):
+            uvs.append(mids[valid])
+            targets.append(wanted[valid])
+            origins.append(a_world[valid])
+    uv_all = np.concatenate(uvs)
+    world = np.concatenate(targets)
+    is_contact = np.zeros(len(uv_all), bool)
+    is_contact[0] = True
+    return R.DataPoints(uv_all, apply_inverse(ga.xform, world), is_contact), world, np.concatenate(origins)
+
+
+WRAP_RING = 1  # patches around the ones a collider's outline covers that a new pocket pushes too
+
+
+def collider_points_for(
+    ga: D.SurfaceGeometry,
+    gb: D.ColliderGeometry,
+    region_a: D.Region,
+    region_b: D.Region,
+    direction: np.ndarray,
+    share: float,
+    group_level: int,
+    clear: float = 0.0,
+    first: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Additional points (eq. 4.16) of a closed surface ``ga`` with a collider ``gb`` inside it:
+    the wall in front of the collider, pushed along ``direction`` past it (a pocket).
+
+    Eq. 4.16 takes additional points from a surface's own region, its samples inside the other
+    object. A collider wholly inside a closed surface leaves that region empty (no sample of a
+    sphere lies inside a box inside it), so the wall would get the contact point alone, which
+    pulls a thin finger that neither wraps the box nor clears it (docs/hard-cases.md, case 3).
+    Here both sides give the wall's samples:
+
+    * the collider's faces inside ``ga`` (`detect.face_samples`, at most half a group-level
+      patch's size apart, near the regions), cast along ``-direction`` onto the wall in front of them
+      (`detect.cast`: from inside, the exit ahead); such a wall point must get, along
+      ``direction``, to where the line through the sample leaves the collider (its far side);
+    * ``ga``'s own vertices inside the collider (``region_a``), which must get to where their
+      line along ``direction`` leaves it (eq. 4.16's own cast).
+
+    Each sample's *lag* is how far along ``direction`` it must still go. The points are one per
+    group-level patch holding samples, at the patch's parametric centre, moved along ``direction``
+    by the patch's largest lag plus ``clear`` (a world length; the frame loop passes what counts
+    as done, so a wall between two points that sags by up to that much still clears the collider).
+    Patch centres on a regular grid keep the interpolation well conditioned, where the samples
+    crowd; and the largest lag lets no sample of the patch lag behind the point's move. A first
+    round (``first``, the pocket being made) also pushes the patches within `WRAP_RING` of those,
+    each centre to the farthest plane along ``direction`` its neighbours must reach: a C2
+    surface through points of the covered patches alone falls off before the collider's outline.
+    Later rounds move only patches with lagging samples, by their lag: measured, re-deciding the
+    ring from a pocket's rim made a round push patches outside the box by a third of the size.
+
+    Parameters
+    ----------
+    region_a, region_b : Region
+        ``ga``'s vertices inside the collider and the collider's inside ``ga`` (`detect.regions`).
+    direction : (3,) float64
+        The push: ``ga`` moves along it relative to the collider (the frame's first ``P_B - P_A``).
+    share : float
+        ``R`` of eq. 4.15 (0 against a collider: all the way).
+    group_level : int
+        The finest absorbing level: one point per patch of it.
+    clear : float
+        World length the points go past the collider.
+    first : bool
+        The pair's first round of the frame (the ring).
+
+    Returns
+    -------
+    uv : (g, 2) float64
+        Parameters of the points on ``ga`` (patch centres, level-0 units).
+    target : (g, 3) float64
+        World targets, ``R A + (1 - R) B`` of eq. 4.16 with ``B`` the point moved as above.
+    origin : (g, 3) float64
+        World points before the move.
+    """
+    none = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3))
+    length = np.linalg.norm(direction)
+    pts = np.concatenate([region_a.points, region_b.points])
+    if not len(pts) or not ga.closed or length <= 1e-9 * ga.size:
+        return none
+    unit = np.asarray(direction, float) / length
+    hs = ga.surface
+    spacing = 0.5 * ga.size / (max(hs.u.patches0, hs.v.patches0) << group_level)
+    s = D.face_samples(gb, np.stack([pts.min(axis=0) - spacing, pts.max(axis=0) + spacing]), spacing)
+    s = s[D.inside(ga, s)]
+    wall, ok = D.cast(ga, s, np.broadcast_to(-unit, s.shape), within=np.ones(len(s), bool))
+    # where the line through each sample leaves the collider along the push (the sample itself if
+    # the push takes it straight out)
+    ahead = s + 2.0 * D.ON_SURFACE * max(ga.size, gb.size) * unit
+    far = s.copy()
+    into = D.inside(gb, ahead)
+    if into.any():
+        exit_, got = D.cast(gb, ahead[into], np.broadcast_to(unit, ahead[into].shape), within=np.ones(int(into.sum()), bool))
+        far[np.nonzero(into)[0][got]] = exit_[got]
+    uv = np.full((len(s), 2), np.nan)
+    if ok.any():
+        uv[ok] = D.project(ga, wall[ok]).uv
+    if not region_a.empty:
+        exit_, got = D.cast(gb, region_a.points, np.broadcast_to(unit, region_a.points.shape),
+                            within=np.ones(len(region_a.points), bool))
+        wall, far = np.concatenate([wall, region_a.points]), np.concatenate([far, exit_])
+        uv, ok = np.concatenate([uv, region_a.uv]), np.concatenate([ok, got])
+    lag = (far - wall) @ unit
+    ok &= lag > 0
+    if not ok.any():
+        return none
+    uv, lag, plane = uv[ok], lag[ok], far[ok] @ unit
+    su, sv = np.divmod(R.patch_keys(hs, uv, group_level), hs.v.patches(group_level))
+    shape = (hs.u.patches(group_level), hs.v.patches(group_level))
+    most, need = np.full(shape, -np.inf), np.full(shape, -np.inf)
+    np.maximum.at(most, (su, sv), lag)
+    np.maximum.at(need, (su, sv), plane)
+    # each patch takes the farthest plane within WRAP_RING of it (a periodic direction wraps,
+    # nothing lies past an open edge)
+    need = maximum_filter(need, size=2 * (WRAP_RING if first else 0) + 1, cval=-np.inf,
+                          mode=["wrap" if d.periodic else "constant" for d in (hs.u, hs.v)])
+    pp = np.argwhere(np.isfinite(need))
+    mid = (pp + 0.5) / (1 << group_level)
+    a = apply_xform(ga.xform, H.evaluate(hs, mid[:, 0], mid[:, 1], det=ga.details).points)
+    move = most[pp[:, 0], pp[:, 1]]
+    if first:
+        move = np.maximum(move, need[pp[:, 0], pp[:, 1]] - a @ unit)
+    go = move > 0
+    b = a[go] + (move[go, None] + clear) * unit
+    return mid[go], R.additional_targets(a[go], b, share), a[go]
+
+
+RIM_STEEP = 0.5  # |n·d| at most this: a collider face the surface must drop along (a box's side)
+RIM_FACING = 0.95  # |n·d| at least this: the face the region is pushed onto (a later round's sliver)
+RIM_BISECT = 6  # bisection steps locating a crossing between two samples (1/64 of the step)
+
+
+def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
+               level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Additional points at the rim of a surface's region in a collider, one sample step outside it
+    (an interpretation of thesis eq. 4.16, docs/algorithm.md).
+
+    Eq. 4.16 pins the middle of each finest-level patch's inside part. Under a box the surface
+    must drop to the face it is pushed onto and rise again outside the box's outline; a C2 spline
+    pinned at patch middles inside the outline starts rising before it, so it curls up inside
+    the box between the last middle and the side face (case 2a: 2.85e-3 of the size deep between
+    detection's samples while they report 5.3e-4). These points move that transition outside.
+
+    Rim samples are region samples ``region_uv`` whose neighbour one grid step away (the
+    detection density of their level-0 patch, `detect.patch_density`) lies outside the collider;
+    the crossing on that step is found by bisection, and the point is the crossing moved one more
+    step outward. Its goal is on the plane through the rim samples' cast hits (along
+    ``direction``, as for the middles) normal to ``direction``: the face the region is pushed
+    onto, extended past the outline. Only crossings through a face steep to the push (a box's
+    side face, ``|n·d| <= RIM_STEEP``) or facing it (``>= RIM_FACING``: a later round's sliver on
+    that face, whose points hold the surface there) count: past a curved collider's flank the
+    extended plane lies inside what the collider needs (measured: `elbow_contact`'s dent 1.34
+    times the ball's depth, bound 1.3). Points already past the plane ask nothing and are
+    dropped. The points are grouped per level-``level`` patch (mean parameters and hits).
+
+    Parameters
+    ----------
+    region_uv : (k, 2) float64
+        Parameters of ``ga``'s samples inside ``gb``.
+    direction : (3,) float64
+        The push direction (world).
+
+    Returns
+    -------
+    uv : (r, 2) float64
+        One rim point per patch that holds crossings.
+    points : (r, 3) float64
+        Their world positions on the surface now.
+    goals : (r, 3) float64
+        World goals, to blend by eq. 4.15's share like the middles' hits.
+    """
+    hs = ga.surface
+    region_uv = np.asarray(region_uv, float).reshape(-1, 2)
+    empty = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3))
+    unit = np.asarray(direction, float) / np.linalg.norm(direction)
+    if not len(region_uv):
+        return empty
+    dens = D.patch_density(ga)
+    pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
+    pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
+    h = 1.0 / dens[pu, pv]
+    tree = cKDTree(D.wrap_uv(hs, region_uv))
+    src, out = [], []
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        n = region_uv + np.stack([du * h, dv * h], axis=1)
+        ok = np.ones(len(n), bool)
+        for c, d in enumerate((hs.u, hs.v)):
+            if not d.periodic:  # no neighbour past an open edge of the domain
+                ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
+        dist, _ = tree.query(D.wrap_uv(hs, n))
+        miss = ok & (dist > 1e-3 * h)
+        src.append(np.nonzero(miss)[0])
+        out.append(n[miss])
+    src, hi = np.concatenate(src), np.concatenate(out)
+    if not len(src):
+        return empty
+
+    def world(uv):
+        return apply_xform(ga.xform, H.evaluate(hs, *D.wrap_uv(hs, uv).T, det=ga.details).points)
+
+    outside = ~D.inside(gb, world(hi))  # a neighbour missing from the region may just be untessellated
+    src, hi = src[outside], hi[outside]
+    lo = region_uv[src]
+    if not len(src):
+        return empty
+    step = hi - lo
+    for _ in range(RIM_BISECT):
+        mid = 0.5 * (lo + hi)
+        m_in = D.inside(gb, world(mid))[:, None]
+        lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
+    face = gb.static.index.query(apply_inverse(gb.xform, world(hi)))[2]
+    nd = np.abs(D.world_normals(gb, gb.static.mesh.face_normals[face]) @ unit)
+    use = (nd <= RIM_STEEP) | (nd >= RIM_FACING)
+    s_hit, hit = D.cast(gb, world(region_uv[src[use]]), np.broadcast_to(unit, (int(use.sum()), 3)))
+    cross = D.wrap_uv(hs, (hi + step)[use][hit])
+    if not len(cross):
+        return empty
+    mids, _, inv = R.patch_groups(hs, cross, level)
+    g = len(mids)
+    plane = np.stack([np.bincount(inv, s_hit[hit, c], g) for c in range(3)], axis=1)
+    plane /= np.bincount(inv, minlength=g)[:, None]  # mean hit of each patch's rim samples
+    points = world(mids)
+    ahead = (plane - points) @ unit
+    keep = ahead > 0
+    return mids[keep], points[keep], points[keep] + ahead[keep, None] * unit
+
+
+def visible_points(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside, direction: np.ndarray | None,
+                   share: float, group_level: int, clear: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Additional points (eq. 4.16) from what the user sees: the display's own points inside the
+    other object (`residual.Inside`), where the limit surface may already be clear.
+
+    A display triangle is a chord of the surface: where a response wraps a convex part of the
+    other object (a dent around a tip), the chords lie on the concave side, inside the other
+    object, while the limit surface on detection's samples is out. Eq. 4.16 on the display's
+    samples: per patch of the finest absorbing level, the deepest display point inside is cast
+    along ``direction`` (the pair's push; ``None``: its nearest way out) to where it leaves the
+    other object, and the surface point at the same parameters is asked to move as far, plus
+    ``clear`` (a world length: what counts as done), so the chord that holds the display point
+    moves out with its corners.
+
+    Returns
+    -------
+    uv : (g, 2) float64
+        Parameters on ``ga`` (level-0 units).
+    target : (g, 3) float64
+        World targets, ``R A + (1 - R) B`` of eq. 4.16 with ``B`` the surface point moved as above.
+    origin : (g, 3) float64
+        World surface points before the move.
+    """
+    empty = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3))
+    if inside.uv is None or not len(inside.uv):
+        return empty
+    hs = ga.surface
+    uv = D.wrap_uv(hs, inside.uv)
+    keys = R.patch_keys(hs, uv, group_level)
+    order = np.lexsort((inside.deep, keys))  # by patch, deepest last
+    rows = order[np.r_[keys[order][1:] != keys[order][:-1], True]]
+    uv, shown = uv[rows], inside.points[rows]
+    if direction is None or np.linalg.norm(direction) <= 1e-12 * ga.size:
+        unit = D.surface_distance(gb, shown)[1] - shown
+        length = np.linalg.norm(unit, axis=1)
+        ok = length > 0
+        uv, shown, unit = uv[ok], shown[ok], unit[ok] / length[ok, None]
+    else:
+        unit = np.broadcast_to(np.asarray(direction, float) / np.linalg.norm(direction), shown.shape)
+    if not len(uv):
+        return empty
+    hits, valid = D.cast(gb, shown, unit, within=np.ones(len(shown), bool))
+    move = np.einsum("ij,ij->i", hits - shown, unit) + clear
+    valid &= move > 0
+    origin = D.surface_points(ga, uv[valid]).points
+    goal = origin + move[valid, None] * unit[valid]
+    return uv[valid], R.additional_targets(origin, goal, share), origin
+
+
+def with_shown(region: D.Region, shown) -> tuple[np.ndarray | None, np.ndarray]:
+    """A region's parameters ``(k, 2)`` and depths ``(k,)`` joined by the display's own points
+    inside the other object (``shown``, a `residual.PairDepth` or ``None``): eq. 4.16's region as
+    detection's samples of the limit surface and the user's display see it together, so a part
+    that sinks between detection's samples still gets its patch's point."""
+    if shown is None or shown.inside.uv is None or not len(shown.inside.uv):
+        return region.uv, region.depth
+    return (np.concatenate([region.uv.reshape(-1, 2), shown.inside.uv]),
+            np.concatenate([region.depth, shown.inside.deep]))
+
+
+def spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarray:
+    """Which additional points ``points (g, 3)`` to keep so no two kept points, and no kept point
+    and the contact point ``contact (3,)``, are within ``radius`` (greedy, in order).
+
+    Near a pole or a collapsed edge many patch midpoints crowd into one spot (at a pole, exactly
+    one point under many parameters). Closer than the tolerance they cannot ask the surface for
+    anything the tolerance could see, but their nearly equal rows make the interpolation
+    ill-conditioned: measured on `dog_head_spike`'s spike tip, 46 points within 0.04 of each
+    other moved the tip 2.6e-3 of the size where no point asked more than 4e-4."""
+    keep = np.ones(len(points), bool)
+    if len(points) == 0:
+        return keep
+    keep &= np.linalg.norm(points - contact, axis=1) > radius
+    tree = cKDTree(points)
+    for i, j in sorted(tree.query_pairs(radius)):
+        if keep[i]:
+            keep[j] = False
+    return keep
+
+
+CLEAR = 0.25  # display points are moved this fraction of the tolerance past the other surface (`visible_points`)
+MEET = 1e-3  # rewound contact points this close (fraction of the size) meet, whatever the run's tolerance
+
+
+def deepest_instead(ga: D.SurfaceGeometry, gb: D.Geometry, c: C.PairContact) -> C.PairContact:
+    """The contact of a later round between two deformables whose rewound contact points
+    already meet while only one side has vertices inside the other: the deepest region vertex
+    and its closest point on the other surface (`contact.deepest_contact`).
+
+    The first round moves the first-touch points onto a common target (eq. 4.15); once they
+    meet (closer than the larger of the run's tolerance and `MEET`, so a run asked for 1e-9
+    keeps the rule), their data point only pins the surface there. If the other side has no
+    vertex inside (a sharp tip in a smooth dent: eq. 4.16 gives it no additional point), nothing
+    moves it further and the tip stays inside: measured on `dog_head_spike`, later rounds never lowered
+    the largest residual (docs/speed-vs-error.md). With both regions present the additional
+    points of both sides carry the rest, and the first-touch pair keeps the rigidity split; a
+    collider does not move, so the deformable's own additional points carry the rest (measured:
+    the deepest pair there pushes sheets toward a box's side faces and slows convergence)."""
+    uv_a, uv_b, local_b, pa, pb = C.deepest_contact(ga, gb, c.region_a, c.region_b, c.intersections)
+    return replace(c, uv_a=uv_a, uv_b=uv_b, local_b=local_b, point_a=pa, point_b=pb)

@@ -1,0 +1,171 @@
+"""Data points of a contact and of what the user sees (`pipeline.datapoints`): spacing, stalled
+middles, a collider inside a closed sheet, rim points on a box's side face."""
+
+import numpy as np
+import pytest
+
+from pipeline import datapoints as P
+
+
+def test_spread_keeps_additional_points_apart_and_covers_the_rest():
+    """`datapoints.spread`: kept points are pairwise farther than the radius and farther from the
+    contact; every dropped point is within the radius of a kept one or of the contact, so thinning
+    leaves no part of the region without a point (seeded clusters, as at a pole)."""
+    rng = np.random.default_rng(7)
+    for n in (0, 1, 5, 60):
+        pts = np.concatenate([rng.normal(0, 0.002, (n // 2, 3)), rng.uniform(-0.05, 0.05, (n - n // 2, 3))])
+        contact, radius = np.array([0.001, 0.0, 0.0]), 4e-3
+        keep = P.spread(pts, contact, radius)
+        kept = pts[keep]
+        if len(kept) > 1:
+            d = np.linalg.norm(kept[:, None] - kept[None], axis=2) + np.eye(len(kept))
+            assert d.min() > radius
+        assert np.all(np.linalg.norm(kept - contact, axis=1) > radius)
+        anchors = np.concatenate([kept, contact[None]])
+        for p in pts[~keep]:
+            assert np.linalg.norm(anchors - p, axis=1).min() <= radius
+        if n == 60:
+            assert 0 < keep.sum() < n  # the cluster was thinned, the spread points kept
+
+
+@pytest.mark.parametrize("u_low, settled, took", [
+    (2.14, 0.005, "deepest"),  # middle x = 0.02: 0.002 inside, 1/20 of the patch's depth 0.04
+    (2.3, 0.005, "middle"),  # middle x = 0.1: 0.01 inside, 1/4 of it: not stalled
+    (2.14, 0.05, "middle"),  # the patch's depth 0.04 counts as done
+])
+def test_a_patch_whose_middle_has_stalled_takes_its_deepest_sample(u_low, settled, took):
+    """Eq. 4.16's point of a patch is the middle of its inside part; where that middle asks a
+    move of at most `datapoints.STALLED` of the patch's depth (the stall of docs/hard-cases.md case 7:
+    the middle on the box's face, the patch's corner sample still inside), the sample is taken
+    instead. A sheet tilted as z = 0.1 x, a box whose bottom is z = 0, and two samples of
+    level-0 patch (2, 2): x = 0.4 (0.04 inside) and x = u_low - 2.5 (below the box)."""
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    cvs, _, _ = shapes.sheet(8, 8, width=5.0, depth=5.0)
+    cvs[..., 2] = 0.1 * cvs[..., 0]
+    sheet = D.SurfaceGeometry(H.from_grid(cvs), np.eye(4), "/sheet")
+    corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 2.0)])
+    tris = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", corners, tris)), np.eye(4))
+    region_uv = np.array([[2.9, 2.5], [u_low, 2.5]])
+    contact = np.array([0.3, 0.0, 0.03])  # apart from both samples (`_spread` drops points on the contact)
+    args = (sheet, box, np.array([2.8, 2.5]), contact, contact * [1, 1, 0], region_uv, 0.0, 0, np.array([0.0, 0.0, -1.0]))
+    mid_u = (2.9 + u_low) / 2
+    mean, _, _ = P.data_points_for(*args)  # without depths: the middle, as eq. 4.16 says
+    np.testing.assert_allclose(mean.uv[1], [mid_u, 2.5])
+    np.testing.assert_allclose(mean.target[1], [mid_u - 2.5, 0.0, 0.0], atol=1e-9)
+    dp, _, _ = P.data_points_for(*args, region_depth=np.array([0.04, 0.0]), settled=settled)
+    u = 2.9 if took == "deepest" else mid_u
+    np.testing.assert_allclose(dp.uv[1], [u, 2.5])
+    np.testing.assert_allclose(dp.target[1], [u - 2.5, 0.0, 0.0], atol=1e-9)
+
+
+def _ball_and_box(lo, hi):
+    """The 8 × 8-CV unit sphere with 3 levels (group level 2) and an axis-aligned box collider
+    ``[lo, hi]`` (world ``(3,)`` each), as detection geometry at the identity matrix."""
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    ball = D.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 8), depth=3), np.eye(4), "/ball")
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], float)
+    tris = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", corners, tris)), np.eye(4))
+    return ball, box
+
+
+def test_a_box_inside_a_sphere_gets_the_wall_in_front_pushed_past_it():
+    """`datapoints.collider_points_for` (docs/hard-cases.md, case 3): a 0.3 box wholly inside the unit
+    sphere has no sphere vertex inside it, so eq. 4.16's own-region points are none; the box's
+    faces give them instead. Pushed along -x, the wall in front (x near 1) gets one point per
+    level-2 patch, at the patch centre, moved along -x only, past the box's far face by the
+    clearance; in the pocket's first round the points reach beyond the box's outline on every
+    side (the ring), in a later round only the patches the box covers move, by their lag."""
+    from acra.basis import locate
+    from pipeline import detect as D
+
+    ball, box = _ball_and_box([-0.15] * 3, [0.15] * 3)
+    ra, rb = D.regions(ball, box)
+    assert ra.empty and len(rb.points) == 8
+    push, clear = np.array([-1.15, 0.0, 0.0]), 0.004
+    hs = ball.surface
+    for first in (True, False):
+        uv, target, origin = P.collider_points_for(ball, box, ra, rb, push, 0.0, 2, clear, first)
+        patches = np.stack([locate(hs.u, uv[:, 0], 2)[0], locate(hs.v, uv[:, 1], 2)[0]], axis=1)
+        assert len(np.unique(patches, axis=0)) == len(uv) > 0  # one point per level-2 patch
+        np.testing.assert_allclose(uv, (patches + 0.5) / 4)  # at its centre
+        assert np.all(origin[:, 0] > 0.85)  # on the wall in front
+        np.testing.assert_allclose(target[:, 1:], origin[:, 1:], atol=1e-12)  # along the push only
+        assert np.all(target[:, 0] <= -0.15 - clear + 1e-12)  # past the far face
+        y, z = origin[:, 1], origin[:, 2]
+        if first:  # the ring: beyond the outline on every side
+            assert y.min() < -0.15 and y.max() > 0.15 and z.min() < -0.15 and z.max() > 0.15
+            n_first = len(uv)
+        else:  # the covered patches alone, each by its largest lag (to the far face) + clear
+            assert len(uv) < n_first
+            assert np.all(np.abs(y) < 0.15 + 0.2) and np.all(np.abs(z) < 0.15 + 0.2)
+            assert np.all(origin[:, 0] - target[:, 0] <= 1.15 + clear + 1e-9)
+
+
+def test_a_box_through_a_sphere_wall_takes_both_regions_to_its_inner_face():
+    """A box [0.85, 1.15] × [-0.1, 0.1]² through the +x wall of the unit sphere, pushed along
+    -x: the sphere's vertices inside the box (its own region) and the box's inner corners inside
+    the sphere (the collider's) give one set of points, all aiming at the box's inner face
+    x = 0.85 less the clearance."""
+    from pipeline import detect as D
+
+    ball, box = _ball_and_box([0.85, -0.1, -0.1], [1.15, 0.1, 0.1])
+    ra, rb = D.regions(ball, box)
+    assert not ra.empty and len(rb.points) == 4
+    uv, target, origin = P.collider_points_for(ball, box, ra, rb, np.array([-0.3, 0.0, 0.0]), 0.0, 2, 0.004, False)
+    assert len(uv) > 0
+    np.testing.assert_allclose(target[:, 1:], origin[:, 1:], atol=1e-12)
+    assert np.all(target[:, 0] <= 0.85 - 0.004 + 1e-12)
+    # a patch centre moves by the largest lag of its samples: at most the wall's bulge past 0.85
+    assert np.all(origin[:, 0] - target[:, 0] <= 1.0 - 0.85 + 0.004 + 1e-9)
+
+
+def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
+    """Eq. 4.16's middles pin the surface only inside a box's outline,
+    and the C2 surface curls back up inside the box before the side face. `datapoints.rim_points`
+    puts a point one detection step outside each side-face crossing, aimed at the bottom face's
+    plane, so the rise happens outside. A curved collider's flank gives none (its plane extended
+    past the outline would cut into what the ball needs: `elbow_contact`)."""
+    import trimesh
+
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    cvs, _, _ = shapes.sheet(12, 12, width=4.0, depth=4.0)
+    sheet = D.SurfaceGeometry(H.from_grid(cvs, depth=3), np.eye(4), "/sheet")
+    lo, hi = np.array([-0.7, -0.9, -0.5]), np.array([0.9, 0.7, 0.5])
+    mesh = trimesh.creation.box(bounds=np.stack([lo, hi]))
+    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), np.eye(4))
+    region, _ = D.regions(sheet, box)
+    down = np.array([0.0, 0.0, -1.0])
+    uv, points, goals = P.rim_points(sheet, box, region.uv, down, 2)
+    step = 4.0 / 9 / 8  # one detection step (8 per level-0 patch edge) in world units
+    x, y = points[:, 0], points[:, 1]
+    beyond = np.maximum.reduce([lo[0] - x, x - hi[0], lo[1] - y, y - hi[1]])
+    assert len(uv) >= 4 * 3  # every side of the outline has rim points
+    # outside, one step past the crossing (bisected to 1/64 of the step): measured 0.022 to 0.0561
+    assert np.all(beyond > 0) and np.all(beyond <= step * (1 + 2.0**-P.RIM_BISECT) + 1e-9), beyond
+    np.testing.assert_allclose(goals[:, :2], points[:, :2], atol=1e-12)  # moved along the push
+    np.testing.assert_allclose(goals[:, 2], lo[2], atol=1e-9)  # onto the bottom face's plane
+    for side in (x < lo[0], x > hi[0], y < lo[1], y > hi[1]):
+        assert side.any()
+
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.45)
+    ball.apply_translation([0.1, -0.1, 0.3])  # 0.15 into the sheet
+    ball_geom = D.ColliderGeometry(D.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces)), np.eye(4))
+    region, _ = D.regions(sheet, ball_geom)
+    assert len(region.uv) and len(P.rim_points(sheet, ball_geom, region.uv, down, 2)[0]) == 0
+
