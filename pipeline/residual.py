@@ -67,6 +67,9 @@ class Shown:
     whole : callable or None
         Builds (or returns a kept) `clearance.Solid` of the whole object in object space.
     deformable : bool
+    parts : dict or None
+        Part solids of these ``local`` points and ``triangles`` already built (`pair_depth`), by
+        face rows; shared by every `Shown` of one display (`display.SurfaceDisplay.parts`).
     """
 
     path: str
@@ -81,6 +84,7 @@ class Shown:
     outward: float = 1.0
     whole: object = None
     deformable: bool = True
+    parts: dict | None = None
 
     @cached_property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -100,11 +104,12 @@ class Shown:
 
 
 def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
-          closed: bool = False, outward: float = 1.0, whole=None) -> Shown:
+          closed: bool = False, outward: float = 1.0, whole=None, parts: dict | None = None) -> Shown:
     """A deformable's display as the user sees it: object-space ``points (n, 3)`` (rounded to
     float32, as the output stores them), ``triangles (t, 3) int64``, world matrix ``xform (4, 4)``,
     vertex parameters ``uv (n, 2)``; ``closed`` with the winding's ``outward`` sign; ``whole()``
-    gives its whole `clearance.Solid` (default: built from the points)."""
+    gives its whole `clearance.Solid` (default: built from the points); ``parts`` keeps the part
+    solids built of these points and triangles (a dict shared by every call on one display)."""
     p32 = np.asarray(points, np.float32).astype(np.float64)
     world = apply_xform(xform, p32)
     box = np.stack([world.min(axis=0), world.max(axis=0)])
@@ -112,7 +117,7 @@ def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarra
         whole = _Once(lambda: clearance.solid(p32, triangles))
     return Shown(path, world[triangles], None if uv is None else np.asarray(uv, np.float64)[triangles],
                  float(np.linalg.norm(box[1] - box[0])), box, np.asarray(xform, np.float64), closed, p32,
-                 np.asarray(triangles, np.int64), float(outward), whole)
+                 np.asarray(triangles, np.int64), float(outward), whole, True, parts)
 
 
 def collider_shown(path: str, box: np.ndarray, size: float, solid: clearance.Solid | None, xform: np.ndarray) -> Shown:
@@ -181,13 +186,33 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
         pad = float(np.linalg.norm(region[1] - region[0]))
         _, rows = b.near(region, pad)
         if rows.size:
-            part = clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=b.diagonal_local)
+            part = _part(b, rows)
             d = clearance.triangle_depth(part, local, target / k, reach=pad / k, decide=decide / k)
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
     points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
     uv = None if a.uv is None else np.einsum("mk,mkc->mc", d.bary, a.uv[near[d.tri]])
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
+
+
+PARTS_KEPT = 8  # part solids kept per display
+
+
+def _part(b: Shown, rows: np.ndarray) -> clearance.Solid:
+    """The part solid of ``b``'s faces ``rows`` (`clearance.solid` with ``part``), or the one
+    built before from the same points and rows: the rounds of a frame and the frames of a
+    contact query an unchanged display near the same place."""
+    make = lambda: clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=b.diagonal_local)  # noqa: E731
+    if b.parts is None:
+        return make()
+    key = (b.outward, rows.tobytes())
+    hit = b.parts.pop(key, None)
+    if hit is None:
+        hit = make()
+    b.parts[key] = hit
+    while len(b.parts) > PARTS_KEPT:
+        del b.parts[next(iter(b.parts))]
+    return hit
 
 
 @dataclass
@@ -218,9 +243,11 @@ class FrameResidual:
         return max((p.rel for p in self.pairs if {p.a, p.b} == {a, b}), default=0.0)
 
 
-def measure_frame(objects: list[Shown], tolerance: float, pairs=None) -> FrameResidual:
+def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict | None = None) -> FrameResidual:
     """`pair_depth` of every deformable of ``objects`` in every other closed one (or the ordered
-    ``pairs`` of indices given), refined to ``TARGET * tolerance`` of the inner object's size."""
+    ``pairs`` of indices given), refined to ``TARGET * tolerance`` of the inner object's size.
+    ``memo`` keeps each pair's `Inside` by the two `Shown` objects (which never change): a
+    round whose response left both as they were gets the answer measured before."""
     out = FrameResidual()
     if pairs is None:  # every deformable's display in every other object
         pairs = [(i, j) for i, a in enumerate(objects) if a.deformable for j in range(len(objects)) if j != i]
@@ -229,7 +256,14 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None) -> FrameRe
         if not b.closed:
             continue
         size = max(a.size, 1e-300)
-        ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size)
+        key = (id(a), id(b), tolerance)
+        hit = None if memo is None else memo.get(key)
+        if hit is not None and hit[0] is a and hit[1] is b:
+            ins = hit[2]
+        else:
+            ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size)
+            if memo is not None:
+                memo[key] = (a, b, ins)
         rel = ins.depth / size
         out.pairs.append(PairDepth(a.path, b.path, ins, rel))
         out.worst = max(out.worst, ins.depth)
