@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "Tree", "build", "closest", "distances"]
+__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet"]
 
 LEAF = 4  # triangles per leaf
 
@@ -250,4 +250,28 @@ def distances(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
     out = np.empty(len(p))
     if len(p):
         _distances(p, t, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _boxes_meet(tri, lo, hi, pad, out):
+    for i in range(tri.shape[0]):
+        meet = True
+        for k in range(3):
+            a, b, c = tri[i, 0, k], tri[i, 1, k], tri[i, 2, k]
+            if not (min(min(a, b), c) <= hi[k] + pad and lo[k] <= max(max(a, b), c) + pad):
+                meet = False
+                break
+        out[i] = meet
+
+
+def boxes_meet(tri: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
+    """Whether the box of each of triangles ``tri (f, 3, 3)`` comes within ``pad`` of the box
+    ``lo, hi (3,)``: ``(f,) bool``, the comparisons of ``grids.overlap`` on the corners' minima
+    and maxima, in one pass without the boxes' arrays."""
+    t = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
+    out = np.empty(len(t), np.bool_)
+    if len(t):
+        _boxes_meet(t, np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
+                    float(pad), out)
     return out

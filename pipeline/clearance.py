@@ -83,7 +83,6 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from acra import bvh
-from pipeline.grids import overlap, triangle_boxes
 
 __all__ = ["Solid", "solid", "signed_depth", "covering_radius", "Depth", "triangle_depth", "Unresolved",
            "sigma_max", "FEATURE"]
@@ -451,8 +450,7 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.asarray(corners, np.float64).reshape(-1, 3, 3)
     steps = 1 << max_split  # integer barycentric lattice: weights (i, j, steps - i - j) / steps
-    lo, hi = triangle_boxes(tri)
-    src = np.nonzero(overlap(lo, hi, s.bounds[0], s.bounds[1], 0.0))[0]
+    src = np.nonzero(bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
     rho0 = covering_radius(tri[src])  # (c,) per live source triangle, halved per split level
     found: list[tuple] = []  # (tri, bary, points, sd) of evaluated points with sd > 0
 

@@ -29,8 +29,8 @@ from functools import cached_property
 
 import numpy as np
 
+from acra import bvh
 from pipeline import clearance
-from pipeline.grids import overlap, triangle_boxes
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
@@ -86,15 +86,10 @@ class Shown:
     deformable: bool = True
     parts: dict | None = None
 
-    @cached_property
-    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """World boxes ``lo, hi (t, 3)`` of the triangles."""
-        return triangle_boxes(self.corners)
-
     def near(self, box: np.ndarray, pad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """World triangles ``(m, 3, 3)`` whose boxes come within ``pad`` of the world ``box (2, 3)``
         and their rows in ``corners``."""
-        rows = np.nonzero(overlap(*self.boxes, box[0], box[1], pad))[0]
+        rows = np.nonzero(bvh.boxes_meet(self.corners, box[0], box[1], pad))[0]
         return self.corners[rows], rows
 
     @cached_property
