@@ -99,6 +99,21 @@ def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
     return nodes
 
 
+@njit(cache=True, nogil=True)
+def _boxes_centroids(tri):
+    """Each triangle's box and centroid, as ``tri.min(axis=1)``, ``tri.max(axis=1)`` and
+    ``tri.mean(axis=1)`` give them (the centroid summed corner by corner, then over 3)."""
+    f = tri.shape[0]
+    lo, hi, cen = np.empty((f, 3)), np.empty((f, 3)), np.empty((f, 3))
+    for i in range(f):
+        for k in range(3):
+            a, b, c = tri[i, 0, k], tri[i, 1, k], tri[i, 2, k]
+            lo[i, k] = min(min(a, b), c)
+            hi[i, k] = max(max(a, b), c)
+            cen[i, k] = ((a + b) + c) / 3.0
+    return lo, hi, cen
+
+
 def build(tri: np.ndarray) -> Tree:
     """The `Tree` of triangles ``tri (f, 3, 3)`` (``f >= 1``)."""
     tri = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
@@ -109,8 +124,7 @@ def build(tri: np.ndarray) -> Tree:
     lo, hi = np.empty((n, 3)), np.empty((n, 3))
     left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
     order = np.arange(f, dtype=np.int64)
-    used = _build(np.ascontiguousarray(tri.min(axis=1)), np.ascontiguousarray(tri.max(axis=1)),
-                  np.ascontiguousarray(tri.mean(axis=1)), order, lo, hi, left, right, start, count)
+    used = _build(*_boxes_centroids(tri), order, lo, hi, left, right, start, count)
     return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used])
 
 

@@ -82,7 +82,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from acra import bvh
+from acra import bvh, pseudonormals
 
 __all__ = ["Solid", "solid", "signed_depth", "covering_radius", "Depth", "triangle_depth", "Unresolved",
            "sigma_max", "FEATURE"]
@@ -178,7 +178,7 @@ def _weld(vertices: np.ndarray, radius: float) -> np.ndarray:
 
 
 def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: float | None = None,
-          scale: float | None = None) -> Solid:
+          scale: float | None = None, compiled: bool = True) -> Solid:
     """A `Solid` from ``vertices (n, 3) float`` and ``faces (f, 3) int``.
 
     Vertices closer than ``weld`` x ``scale`` (default: the bounding-box diagonal) are welded (a
@@ -192,7 +192,8 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     ``part``: the faces are the part of a closed mesh near where the queries are (`part_of`), so
     edges on the part's rim have one face (their pseudo-normal is that face's) and the
     orientation is not read from a volume: ``outward`` is ``+1`` if the faces' winding gives
-    outward normals, ``-1`` if inward.
+    outward normals, ``-1`` if inward. A part is built past the weld by compiled loops
+    (`acra.pseudonormals`, the same bits) unless ``compiled`` is false (the array form below).
     """
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
@@ -206,6 +207,16 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     first = np.unique(label, return_index=True)[1]  # first member of each group
     v = v[used][first]
     f = label[np.searchsorted(used, f)]
+    if part and compiled and len(v) < 2_000_000:
+        flip = outward is not None and outward < 0
+        code, v, f, normals, edge_normals, sin, cos = pseudonormals.part_mesh(v, f, radius, flip)
+        if code == 0:
+            vertex_normals = pseudonormals.vertex_normals(len(v), f, normals, np.arctan2(sin, cos))
+            bounds = np.stack([v.min(axis=0), v.max(axis=0)])
+            facet = np.arange(len(f))
+            return Solid(v, f, normals, edge_normals, vertex_normals, bounds, bvh.build(v[f]), facet, np.arange(len(f) + 1),
+                         facet.copy())
+        return solid(vertices, faces, weld, part, outward, scale, compiled=False)  # raises the defect's error
     tri = v[f]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     longest = np.sqrt((np.diff(tri[:, [0, 1, 2, 0]], axis=1) ** 2).sum(axis=2).max(axis=1))
