@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet"]
+__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet"]
 
 LEAF = 4  # triangles per leaf
 
@@ -287,5 +287,28 @@ def boxes_meet(tri: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0
     out = np.empty(len(t), np.bool_)
     if len(t):
         _boxes_meet(t, np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
+                    float(pad), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _faces_meet(points, faces, lo, hi, pad, out):
+    for i in range(faces.shape[0]):
+        meet = True
+        for k in range(3):
+            a, b, c = points[faces[i, 0], k], points[faces[i, 1], k], points[faces[i, 2], k]
+            if not (min(min(a, b), c) <= hi[k] + pad and lo[k] <= max(max(a, b), c) + pad):
+                meet = False
+                break
+        out[i] = meet
+
+
+def faces_meet(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
+    """`boxes_meet` of the triangles ``points[faces]`` (``points (n, 3)``, ``faces (f, 3) int64``)
+    without gathering them."""
+    out = np.empty(len(faces), np.bool_)
+    if len(faces):
+        _faces_meet(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
+                    np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
                     float(pad), out)
     return out

@@ -46,10 +46,10 @@ class Shown:
     Attributes
     ----------
     path : str
-    corners : (t, 3, 3) float64
-        World triangles (float32 points as stored, mapped by the world matrix).
-    uv : (t, 3, 2) float64 or None
-        Surface parameters of each triangle's corners (a deformable), else ``None``.
+    world : (n, 3) float64
+        World points of the display (float32 points as stored, mapped by the world matrix).
+    vertex_uv : (n, 2) float64 or None
+        Surface parameters of each point (a deformable), else ``None``.
     size : float
         Diagonal of the bounding box of the object's whole display (world).
     box : (2, 3) float64
@@ -60,8 +60,8 @@ class Shown:
         Whether the object has an inside.
     local : (n, 3) float64 or None
         A deformable's display points in object space (float32 values), for its `part`.
-    triangles : (t, 3) int64 or None
-        Its triangles (rows of ``local``), the rows of ``corners``.
+    triangles : (t, 3) int64
+        Its triangles (rows of ``world`` and ``local``).
     outward : float
         ``+1`` if the triangles' winding gives outward normals, ``-1`` if inward.
     whole : callable or None
@@ -70,27 +70,40 @@ class Shown:
     parts : dict or None
         Part solids of these ``local`` points and ``triangles`` already built (`pair_depth`), by
         face rows; shared by every `Shown` of one display (`display.SurfaceDisplay.parts`).
+
+    A pair gathers only the triangles near the other object (`near`); ``corners`` and ``uv``
+    gather all of them.
     """
 
     path: str
-    corners: np.ndarray
-    uv: np.ndarray | None
+    world: np.ndarray
+    vertex_uv: np.ndarray | None
     size: float
     box: np.ndarray
     xform: np.ndarray
     closed: bool
     local: np.ndarray | None = None
-    triangles: np.ndarray | None = None
+    triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
     outward: float = 1.0
     whole: object = None
     deformable: bool = True
     parts: dict | None = None
 
+    @cached_property
+    def corners(self) -> np.ndarray:
+        """World triangles ``(t, 3, 3)``."""
+        return self.world[self.triangles]
+
+    @cached_property
+    def uv(self) -> np.ndarray | None:
+        """Surface parameters ``(t, 3, 2)`` of each triangle's corners, or ``None``."""
+        return None if self.vertex_uv is None else self.vertex_uv[self.triangles]
+
     def near(self, box: np.ndarray, pad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """World triangles ``(m, 3, 3)`` whose boxes come within ``pad`` of the world ``box (2, 3)``
-        and their rows in ``corners``."""
-        rows = np.nonzero(bvh.boxes_meet(self.corners, box[0], box[1], pad))[0]
-        return self.corners[rows], rows
+        and their rows in ``triangles``."""
+        rows = np.nonzero(bvh.faces_meet(self.world, self.triangles, box[0], box[1], pad))[0]
+        return self.world[self.triangles[rows]], rows
 
     @cached_property
     def diagonal_local(self) -> float:
@@ -110,7 +123,7 @@ def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarra
     box = np.stack([world.min(axis=0), world.max(axis=0)])
     if whole is None and closed:
         whole = _Once(lambda: clearance.solid(p32, triangles))
-    return Shown(path, world[triangles], None if uv is None else np.asarray(uv, np.float64)[triangles],
+    return Shown(path, world, None if uv is None else np.asarray(uv, np.float64),
                  float(np.linalg.norm(box[1] - box[0])), box, np.asarray(xform, np.float64), closed, p32,
                  np.asarray(triangles, np.int64), float(outward), whole, True, parts)
 
@@ -119,7 +132,7 @@ def collider_shown(path: str, box: np.ndarray, size: float, solid: clearance.Sol
     """A collider as the other object of a pair: its world ``box (2, 3)``, ``size``, inside and
     world matrix. It is never the inner object (the residual is measured on the deformables'
     output), so it holds no triangles."""
-    return Shown(path, np.zeros((0, 3, 3)), None, float(size), np.asarray(box, np.float64), np.asarray(xform, np.float64),
+    return Shown(path, np.zeros((0, 3)), None, float(size), np.asarray(box, np.float64), np.asarray(xform, np.float64),
                  solid is not None, whole=(lambda: solid), deformable=False)
 
 
@@ -167,7 +180,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     it. A point within ``P`` of that part has its closest point, and every face around it, in
     the part, so the part answers exactly; a point farther (``a`` deep inside a large ``b``) is
     answered by ``b``'s whole solid."""
-    none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.uv is None else np.zeros((0, 2)), np.zeros(0))
+    none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.vertex_uv is None else np.zeros((0, 2)), np.zeros(0))
     if not b.closed:
         return none
     corners, near = a.near(b.box)
@@ -186,7 +199,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
     points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
-    uv = None if a.uv is None else np.einsum("mk,mkc->mc", d.bary, a.uv[near[d.tri]])
+    uv = None if a.vertex_uv is None else np.einsum("mk,mkc->mc", d.bary, a.vertex_uv[a.triangles[near[d.tri]]])
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
 
 
