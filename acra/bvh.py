@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet"]
+__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound"]
 
 LEAF = 4  # triangles per leaf
 
@@ -311,4 +311,39 @@ def faces_meet(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.nda
         _faces_meet(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
                     np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
                     float(pad), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _facet_bound(cells, faces, vertices, solid_faces, facet, facet_start, facet_faces, out):
+    tri = np.empty((3, 3))
+    for c in range(cells.shape[0]):
+        best = np.inf
+        for j in range(3):
+            g = facet[faces[c, j]]
+            worst = -np.inf
+            for i in range(3):
+                least = np.inf
+                for s in range(facet_start[g], facet_start[g + 1]):
+                    m = facet_faces[s]
+                    for k in range(3):
+                        tri[k] = vertices[solid_faces[m, k]]
+                    x, y, z, _, _, _ = _point_triangle(cells[c, i], tri[0], tri[1], tri[2])
+                    d = np.sqrt((cells[c, i, 0] - x) ** 2 + (cells[c, i, 1] - y) ** 2 + (cells[c, i, 2] - z) ** 2)
+                    least = min(least, d)
+                worst = max(worst, least)
+            best = min(best, worst)
+        out[c] = best
+
+
+def facet_bound(cells: np.ndarray, faces: np.ndarray, vertices: np.ndarray, solid_faces: np.ndarray, facet: np.ndarray,
+                facet_start: np.ndarray, facet_faces: np.ndarray) -> np.ndarray:
+    """``min_j max_i dist(c_i, P_j)`` ``(c,) float64`` for cells ``(c, 3, 3)`` whose corners' closest
+    faces are ``faces (c, 3) int64``, ``P_j`` the convex facet (faces ``facet_faces[facet_start[g]
+    : facet_start[g + 1]]``, ``g = facet[face]``) of corner ``j``'s face, a distance to a facet
+    the least to its faces (`distances`' arithmetic)."""
+    out = np.empty(len(cells))
+    if len(cells):
+        _facet_bound(np.ascontiguousarray(cells, np.float64), np.ascontiguousarray(faces, np.int64), vertices,
+                     solid_faces, facet, facet_start, facet_faces, out)
     return out

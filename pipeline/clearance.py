@@ -412,17 +412,7 @@ def _face_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
     ``min_j max_i dist(c_i, P_j)``, ``(c,) float64``, with ``P_j`` the convex facet of ``F_j``
     (`_facets`; the distance to a convex set is convex too, and the facet is part of the
     surface): ``dist(c_i, P_j)`` is the least distance to the facet's faces."""
-    c = len(cells)
-    facet = s.facet[faces.reshape(-1)]  # (3 c,) facet of corner j's face, row 3 k + j
-    count = s.facet_start[facet + 1] - s.facet_start[facet]
-    pair = np.repeat(np.arange(3 * c), count)  # (cell, j) of each (cell, j, member face)
-    member = s.facet_faces[np.repeat(s.facet_start[facet], count) + np.arange(len(pair)) - np.repeat(np.cumsum(count) - count, count)]
-    tri = np.repeat(s.vertices[s.faces[member]], 3, axis=0)  # each member face against the 3 corners
-    at = cells[pair // 3].reshape(-1, 3)
-    d = bvh.distances(at, tri).reshape(-1, 3)  # (pairs, corner i)
-    least = np.full((3 * c, 3), np.inf)
-    np.minimum.at(least, pair, d)
-    return least.reshape(c, 3, 3).max(axis=2).min(axis=1)
+    return bvh.facet_bound(cells, faces, s.vertices, s.faces, s.facet, s.facet_start, s.facet_faces)
 
 
 def _cell_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:

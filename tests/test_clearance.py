@@ -216,6 +216,33 @@ def test_compiled_part_raises_the_array_forms_errors():
         C.solid(np.concatenate([m.vertices, [[2.0, 0, 0], [0, 2.0, 0]]]), _fin(m), part=True, outward=1.0)
 
 
+def _face_bound_arrays(s, cells, faces):
+    """Eq. (6) in numpy (`clearance._face_bound` before it was compiled): every (cell, corner j,
+    member face of j's facet) against the 3 corners, the least per (cell, j, corner i)."""
+    from acra import bvh
+
+    c = len(cells)
+    facet = s.facet[faces.reshape(-1)]
+    count = s.facet_start[facet + 1] - s.facet_start[facet]
+    pair = np.repeat(np.arange(3 * c), count)
+    member = s.facet_faces[np.repeat(s.facet_start[facet], count) + np.arange(len(pair)) - np.repeat(np.cumsum(count) - count, count)]
+    tri = np.repeat(s.vertices[s.faces[member]], 3, axis=0)
+    d = bvh.distances(cells[pair // 3].reshape(-1, 3), tri).reshape(-1, 3)
+    least = np.full((3 * c, 3), np.inf)
+    np.minimum.at(least, pair, d)
+    return least.reshape(c, 3, 3).max(axis=2).min(axis=1)
+
+
+@pytest.mark.parametrize("make", [unit_cube, icosphere])
+def test_compiled_face_bound_is_the_array_form(make):
+    m = make()
+    s = C.solid(m.vertices, m.faces)
+    rng = np.random.default_rng(5)
+    cells = rng.uniform(-0.2, 1.2, (400, 3, 3))
+    faces = C._signed(s, cells.reshape(-1, 3))[2].reshape(-1, 3)
+    np.testing.assert_array_equal(C._face_bound(s, cells, faces), _face_bound_arrays(s, cells, faces))
+
+
 def _fin(m: trimesh.Trimesh) -> np.ndarray:
     """``m``'s faces with a closed tetrahedron glued to one of its edges: that edge in 4 faces."""
     a, b = m.edges_unique[0]
