@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["part_mesh", "vertex_normals"]
+__all__ = ["part_mesh", "vertex_normals", "signs"]
 
 
 @njit(cache=True, nogil=True)
@@ -161,3 +161,45 @@ def vertex_normals(n, faces, normals, angle):
             for c in range(3):
                 out[j, c] += angle[i, k] * normals[i, c]
     return _unit_rows(out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _signs(p, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, tol, out):
+    for r in range(p.shape[0]):
+        f = face[r]
+        a, b, c = vertices[faces[f, 0]], vertices[faces[f, 1]], vertices[faces[f, 2]]
+        x0, x1, x2 = _cross(b[0] - a[0], b[1] - a[1], b[2] - a[2], c[0] - a[0], c[1] - a[1], c[2] - a[2])
+        twice_area = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        zeros, first = 0, -1
+        for k in range(3):
+            q, s = vertices[faces[f, (k + 2) % 3]], vertices[faces[f, (k + 1) % 3]]
+            d0, d1, d2 = q[0] - s[0], q[1] - s[1], q[2] - s[2]
+            opposite = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+            if bary[r, k] * (twice_area / opposite) <= tol:
+                zeros += 1
+                if first < 0:
+                    first = k
+        if zeros == 1:
+            n = edge_normals[f, (first + 1) % 3]
+        elif zeros >= 2:
+            k = 0
+            for j in range(1, 3):
+                if bary[r, j] > bary[r, k]:
+                    k = j
+            n = vertex_normals[faces[f, k]]
+        else:
+            n = normals[f]
+        e0, e1, e2 = p[r, 0] - close[r, 0], p[r, 1] - close[r, 1], p[r, 2] - close[r, 2]
+        inside = (e0 * n[0] + e2 * n[2]) + e1 * n[1] < 0
+        out[r] = dist[r] if inside else -dist[r]
+
+
+def signs(points, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, tol: float) -> np.ndarray:
+    """Signed distances ``(k,)`` of ``points (k, 3)`` whose closest points ``close`` on faces
+    ``face`` (barycentric ``bary``) lie at ``dist``: positive where ``(p - q) . n < 0`` with ``n``
+    the pseudo-normal of the feature ``q`` lies on (a barycentric coordinate within ``tol`` of its
+    edge line, scaled by the height over that edge, counts as 0), `pipeline.clearance` eq. (1)."""
+    out = np.empty(len(points))
+    if len(points):
+        _signs(points, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, float(tol), out)
+    return out

@@ -302,20 +302,8 @@ def _signed(s: Solid, points, reach: float = np.inf) -> tuple[np.ndarray, np.nda
     dist, close, face, bary = bvh.closest(s.tree, p, None if not np.isfinite(reach) else np.full(len(p), reach))
     if np.any(face < 0):
         raise Unresolved
-    corners = s.faces[face]  # (k, 3)
-    tri = s.vertices[corners]  # (k, 3, 3)
-    # distance of q from the line of the edge opposite corner i: b_i x twice the area / that edge
-    twice_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    opposite = np.linalg.norm(tri[:, [2, 0, 1]] - tri[:, [1, 2, 0]], axis=2)
-    on = bary * (twice_area[:, None] / opposite) <= FEATURE * _extent(s)  # (k, 3) bool
-    zeros = on.sum(axis=1)
-    normal = s.normals[face]
-    edge = zeros == 1  # on the edge opposite the zero corner i, slot (i + 1) mod 3
-    normal[edge] = s.edge_normals[face[edge], (np.argmax(on[edge], axis=1) + 1) % 3]
-    vertex = zeros >= 2  # at the corner with the largest coordinate
-    normal[vertex] = s.vertex_normals[corners[vertex, np.argmax(bary[vertex], axis=1)]]
-    inside = np.einsum("kc,kc->k", p - close, normal) < 0
-    return np.where(inside, dist, -dist), close, face
+    return pseudonormals.signs(p, dist, close, face, bary, s.vertices, s.faces, s.normals, s.edge_normals,
+                               s.vertex_normals, FEATURE * _extent(s)), close, face
 
 
 def covering_radius(tri) -> np.ndarray:

@@ -243,6 +243,37 @@ def test_compiled_face_bound_is_the_array_form(make):
     np.testing.assert_array_equal(C._face_bound(s, cells, faces), _face_bound_arrays(s, cells, faces))
 
 
+def _signed_arrays(s, p):
+    """Eq. (1) in numpy (`clearance._signed` before its signs were compiled)."""
+    from acra import bvh
+
+    dist, close, face, bary = bvh.closest(s.tree, p)
+    corners = s.faces[face]
+    tri = s.vertices[corners]
+    twice_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    opposite = np.linalg.norm(tri[:, [2, 0, 1]] - tri[:, [1, 2, 0]], axis=2)
+    on = bary * (twice_area[:, None] / opposite) <= C.FEATURE * C._extent(s)
+    zeros = on.sum(axis=1)
+    normal = s.normals[face]
+    edge = zeros == 1
+    normal[edge] = s.edge_normals[face[edge], (np.argmax(on[edge], axis=1) + 1) % 3]
+    vertex = zeros >= 2
+    normal[vertex] = s.vertex_normals[corners[vertex, np.argmax(bary[vertex], axis=1)]]
+    inside = np.einsum("kc,kc->k", p - close, normal) < 0
+    return np.where(inside, dist, -dist)
+
+
+@pytest.mark.parametrize("make", [unit_cube, icosphere])
+def test_compiled_signs_are_the_array_form(make):
+    m = make()
+    s = C.solid(m.vertices, m.faces)
+    rng = np.random.default_rng(6)
+    edge = m.vertices[m.edges_unique[:, 0]] * 0.3 + m.vertices[m.edges_unique[:, 1]] * 0.7
+    p = np.concatenate([rng.uniform(-0.3, 1.3, (2000, 3)), m.vertices * 1.01, m.vertices * 0.99, edge * 1.001,
+                        edge * 0.999, m.vertices + rng.normal(size=m.vertices.shape) * 1e-12])
+    np.testing.assert_array_equal(C.signed_depth(s, p)[0], _signed_arrays(s, p))
+
+
 def _fin(m: trimesh.Trimesh) -> np.ndarray:
     """``m``'s faces with a closed tetrahedron glued to one of its edges: that edge in 4 faces."""
     a, b = m.edges_unique[0]
