@@ -46,6 +46,8 @@ class Tree:
         Children of an inner node; ``-1`` at a leaf.
     start, count : (n,) int64
         A leaf's range in ``order``.
+    leaf_tri : (f, 3, 3) float64
+        ``tri[order]``: a leaf's triangles side by side in memory.
     """
 
     tri: np.ndarray
@@ -56,6 +58,7 @@ class Tree:
     right: np.ndarray
     start: np.ndarray
     count: np.ndarray
+    leaf_tri: np.ndarray
 
 
 @njit(cache=True, nogil=True)
@@ -125,7 +128,7 @@ def build(tri: np.ndarray) -> Tree:
     left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
     order = np.arange(f, dtype=np.int64)
     used = _build(*_boxes_centroids(tri), order, lo, hi, left, right, start, count)
-    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used])
+    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], tri[order])
 
 
 @njit(cache=True, nogil=True)
@@ -189,34 +192,41 @@ def _box_distance(p, lo, hi, node):
 
 @njit(cache=True, nogil=True)
 def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist, close, face, bary):
+    # tri is the tree's leaf_tri; a node's box distance is computed once, when its parent
+    # pushes it, and held against the best distance when it is popped
     stack = np.empty(256, np.int64)
+    near = np.empty(256)
     for i in range(points.shape[0]):
         p = points[i]
         best = bound[i] * bound[i]
         best_face = -1
         bx, by, bz, ba, bb, bc = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         stack[0] = 0
+        near[0] = _box_distance(p, lo, hi, 0)
         top = 1
         while top > 0:
             top -= 1
             node = stack[top]
-            if _box_distance(p, lo, hi, node) > best:
+            if near[top] > best:
                 continue
             if left[node] < 0:
                 for s in range(start[node], start[node] + count[node]):
                     f = order[s]
-                    x, y, z, wa, wb, wc = _point_triangle(p, tri[f, 0], tri[f, 1], tri[f, 2])
+                    x, y, z, wa, wb, wc = _point_triangle(p, tri[s, 0], tri[s, 1], tri[s, 2])
                     dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
                     if dd < best or (dd == best and (best_face < 0 or f < best_face)):
                         best, best_face = dd, f
                         bx, by, bz, ba, bb, bc = x, y, z, wa, wb, wc
                 continue
             a, b = left[node], right[node]
+            da, db = _box_distance(p, lo, hi, a), _box_distance(p, lo, hi, b)
             # the nearer child last on the stack, so it is visited first
-            if _box_distance(p, lo, hi, a) <= _box_distance(p, lo, hi, b):
+            if da <= db:
                 stack[top], stack[top + 1] = b, a
+                near[top], near[top + 1] = db, da
             else:
                 stack[top], stack[top + 1] = a, b
+                near[top], near[top + 1] = da, db
             top += 2
         if best_face >= 0:
             dist[i] = np.sqrt(best)
@@ -245,7 +255,7 @@ def closest(tree: Tree, points: np.ndarray, bound: np.ndarray | None = None):
     face, bary = np.full(k, -1, np.int64), np.zeros((k, 3))
     b = np.full(k, np.inf) if bound is None else np.ascontiguousarray(bound, np.float64).reshape(k)
     if k:
-        _closest(tree.tri, tree.order, tree.lo, tree.hi, tree.left, tree.right, tree.start, tree.count, p, b, dist, close,
+        _closest(tree.leaf_tri, tree.order, tree.lo, tree.hi, tree.left, tree.right, tree.start, tree.count, p, b, dist, close,
                  face, bary)
     return dist, close, face, bary
 
