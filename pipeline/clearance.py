@@ -212,7 +212,7 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
         code, v, f, normals, edge_normals, sin, cos = pseudonormals.part_mesh(v, f, radius, flip)
         if code == 0:
             vertex_normals = pseudonormals.vertex_normals(len(v), f, normals, np.arctan2(sin, cos))
-            bounds = np.stack([v.min(axis=0), v.max(axis=0)])
+            bounds = bvh.bounds(v)
             facet = np.arange(len(f))
             return Solid(v, f, normals, edge_normals, vertex_normals, bounds, bvh.build(v[f]), facet, np.arange(len(f) + 1),
                          facet.copy())

@@ -108,7 +108,8 @@ class Shown:
     @cached_property
     def diagonal_local(self) -> float:
         """Diagonal of the box of the object-space display points (the scale solids weld at)."""
-        return float(np.linalg.norm(np.ptp(self.local, axis=0)))
+        box = bvh.bounds(self.local)
+        return float(np.linalg.norm(box[1] - box[0]))
 
 
 def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
@@ -120,7 +121,7 @@ def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarra
     solids built of these points and triangles (a dict shared by every call on one display)."""
     p32 = np.asarray(points, np.float32).astype(np.float64)
     world = apply_xform(xform, p32)
-    box = np.stack([world.min(axis=0), world.max(axis=0)])
+    box = bvh.bounds(world)
     if whole is None and closed:
         whole = _Once(lambda: clearance.solid(p32, triangles))
     return Shown(path, world, None if uv is None else np.asarray(uv, np.float64),
@@ -190,7 +191,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     local = apply_inverse(b.xform, corners.reshape(-1, 3)).reshape(-1, 3, 3)
     d = None
     if b.deformable:
-        region = np.stack([corners.min(axis=(0, 1)), corners.max(axis=(0, 1))])
+        region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
         _, rows = b.near(region, pad)
         if rows.size:

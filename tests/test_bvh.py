@@ -93,3 +93,11 @@ def test_build_takes_numpys_boxes_and_centroids():
     np.testing.assert_array_equal(lo, tri.min(axis=1))
     np.testing.assert_array_equal(hi, tri.max(axis=1))
     np.testing.assert_array_equal(cen, tri.mean(axis=1))
+
+
+def test_bounds_are_numpys_minima_and_maxima():
+    p = soup(3, 2000).reshape(-1, 3)
+    np.testing.assert_array_equal(bvh.bounds(p), np.stack([p.min(axis=0), p.max(axis=0)]))
+    np.testing.assert_array_equal(bvh.bounds(p[:1]), np.stack([p[0], p[0]]))
+    with pytest.raises(ValueError):
+        bvh.bounds(np.zeros((0, 3)))
