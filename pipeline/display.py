@@ -136,6 +136,7 @@ class Displays:
         self.density, self.kept = density, kept
         self._shown: dict = {}  # id(surface) -> SurfaceDisplay, most recent last
         self._topologies: dict = {}  # refinement key (`_refinement`) -> (topology, its triangles), most recent last
+        self._matches: dict = {}  # `grid_samples`' memo over the kept topologies
 
     def topology(self, surface: hspline.HSpline, samples: int) -> tuple[MeshTopology, np.ndarray]:
         """`run_topology` of ``surface`` alone and its fan triangles. The topology is a function of
@@ -150,6 +151,8 @@ class Displays:
         self._topologies[key] = hit
         while len(self._topologies) > self.kept:
             del self._topologies[next(iter(self._topologies))]
+        if len(self._matches) > 4 * self.kept:
+            self._matches.clear()
         return hit
 
     def of(self, surface: hspline.HSpline, samples: int) -> SurfaceDisplay:
@@ -166,7 +169,7 @@ class Displays:
                 old = self._shown.get(id(up.surface))
                 if old is not None and old.surface is up.surface:
                     since = (old.topology, old.points, old.limit, stale)
-            pts, limit = grid_samples(surface, topo, shape.details, since)
+            pts, limit = grid_samples(surface, topo, shape.details, since, self._matches)
             hit = SurfaceDisplay(surface, topo, pts, limit, triangles)
         self._shown[id(surface)] = hit
         while len(self._shown) > self.kept:
