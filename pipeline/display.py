@@ -96,8 +96,9 @@ def finish(stage, scene: SceneModel, result, stats: list, options) -> None:
 
 class SurfaceDisplay:
     """One surface's own adaptive display (`acra.tessellate.run_topology` of the surface alone):
-    ``topology``, object-space ``points (n, 3)`` and limit normals ``limit (n, 3)``, and, built on
-    first use, its fan ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
+    ``topology``, object-space ``points (n, 3)`` and limit normals ``limit (n, 3)`` (``None``:
+    the frame loop measures the residual on the points alone), and, built on first use, its fan
+    ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
 
     def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, limit: np.ndarray,
                  triangles: np.ndarray | None = None):
@@ -169,7 +170,7 @@ class Displays:
                 old = self._shown.get(id(up.surface))
                 if old is not None and old.surface is up.surface:
                     since = (old.topology, old.points, old.limit, stale)
-            pts, limit = grid_samples(surface, topo, shape.details, since, self._matches)
+            pts, limit = grid_samples(surface, topo, shape.details, since, self._matches, normals=False)
             hit = SurfaceDisplay(surface, topo, pts, limit, triangles)
         self._shown[id(surface)] = hit
         while len(self._shown) > self.kept:
