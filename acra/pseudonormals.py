@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["part_mesh", "vertex_normals", "signs"]
+__all__ = ["weld", "part_mesh", "vertex_normals", "signs"]
 
 
 @njit(cache=True, nogil=True)
@@ -35,6 +35,78 @@ def _unit_rows(x):
 @njit(cache=True, nogil=True)
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@njit(cache=True, nogil=True)
+def _root(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, nogil=True)
+def weld(v, f, radius):
+    """The vertices ``v (n, 3)`` that faces ``f (F, 3) int64`` use, welded: chained by distances
+    within ``radius``, each group one vertex, its lowest row's, groups in the order of their
+    lowest rows (`pipeline.clearance._weld`'s connected components over the used vertices).
+
+    Returns ``(code, vertices (g, 3), faces (F, 3) int64)``; ``code`` 1 (and nothing else) if a
+    pair's distance lies within 1e-9 of ``radius`` relative, where another computation of the
+    distance might decide otherwise (the caller then welds with its kd-tree)."""
+    n = v.shape[0]
+    rank = np.full(n, -1, np.int64)
+    for i in range(f.shape[0]):
+        for k in range(3):
+            rank[f[i, k]] = 0
+    g = 0
+    for j in range(n):
+        if rank[j] == 0:
+            rank[j] = g
+            g += 1
+    vu = np.empty((g, 3))
+    for j in range(n):
+        if rank[j] >= 0:
+            vu[rank[j]] = v[j]
+    parent = np.arange(g)
+    if radius > 0:
+        order = np.argsort(vu[:, 0], kind="mergesort")
+        r2 = radius * radius
+        below, above, reach = r2 * (1.0 - 1e-9), r2 * (1.0 + 1e-9), radius * (1.0 + 1e-6)
+        for a in range(g):
+            i = order[a]
+            for b in range(a + 1, g):
+                j = order[b]
+                dx = vu[j, 0] - vu[i, 0]
+                if dx > reach:
+                    break
+                dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
+                d2 = (dx * dx + dy * dy) + dz * dz
+                if d2 <= below:
+                    ri, rj = _root(parent, i), _root(parent, j)
+                    if ri != rj:
+                        parent[max(ri, rj)] = min(ri, rj)
+                elif d2 <= above:
+                    return 1, np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    label = np.full(g, -1, np.int64)
+    group = np.full(g, -1, np.int64)
+    count = 0
+    first = np.empty(g, np.int64)
+    for i in range(g):
+        r = _root(parent, i)
+        if group[r] < 0:
+            group[r] = count
+            first[count] = i
+            count += 1
+        label[i] = group[r]
+    vw = np.empty((count, 3))
+    for k in range(count):
+        vw[k] = vu[first[k]]
+    fw = np.empty((f.shape[0], 3), np.int64)
+    for i in range(f.shape[0]):
+        for k in range(3):
+            fw[i, k] = label[rank[f[i, k]]]
+    return 0, vw, fw
 
 
 @njit(cache=True, nogil=True)

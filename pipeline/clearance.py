@@ -199,6 +199,10 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     if not len(f):
         raise ValueError("solid: no faces")
+    if part and compiled and scale is not None and len(v) < 2_000_000:
+        code, vw, fw = pseudonormals.weld(np.ascontiguousarray(v), np.ascontiguousarray(f), weld * scale)
+        if code == 0:
+            return _compiled_part(vw, fw, weld * scale, outward, vertices, faces, weld, scale)
     used = np.unique(f)
     if scale is None:
         scale = float(np.linalg.norm(np.ptp(v[used], axis=0)))
@@ -208,15 +212,7 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     v = v[used][first]
     f = label[np.searchsorted(used, f)]
     if part and compiled and len(v) < 2_000_000:
-        flip = outward is not None and outward < 0
-        code, v, f, normals, edge_normals, sin, cos = pseudonormals.part_mesh(v, f, radius, flip)
-        if code == 0:
-            vertex_normals = pseudonormals.vertex_normals(len(v), f, normals, np.arctan2(sin, cos))
-            bounds = bvh.bounds(v)
-            facet = np.arange(len(f))
-            return Solid(v, f, normals, edge_normals, vertex_normals, bounds, bvh.build(v[f]), facet, np.arange(len(f) + 1),
-                         facet.copy())
-        return solid(vertices, faces, weld, part, outward, scale, compiled=False)  # raises the defect's error
+        return _compiled_part(v, f, radius, outward, vertices, faces, weld, scale)
     tri = v[f]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     longest = np.sqrt((np.diff(tri[:, [0, 1, 2, 0]], axis=1) ** 2).sum(axis=2).max(axis=1))
@@ -280,6 +276,19 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
         except QhullError:
             convex = False
     return Solid(v, f, normals, edge_normals, vertex_normals, bounds, bvh.build(v[f]), facet, start, members, convex)
+
+
+def _compiled_part(v, f, radius, outward, vertices, faces, weld, scale) -> Solid:
+    """`solid` of a part past its weld (welded ``v``, relabelled ``f``) by `acra.pseudonormals`;
+    a defect is raised by the array form, from the given ``vertices`` and ``faces``."""
+    flip = outward is not None and outward < 0
+    code, v, f, normals, edge_normals, sin, cos = pseudonormals.part_mesh(v, f, radius, flip)
+    if code:
+        return solid(vertices, faces, weld, True, outward, scale, compiled=False)  # raises the defect's error
+    vertex_normals = pseudonormals.vertex_normals(len(v), f, normals, np.arctan2(sin, cos))
+    facet = np.arange(len(f))
+    return Solid(v, f, normals, edge_normals, vertex_normals, bvh.bounds(v), bvh.build(v[f]), facet, np.arange(len(f) + 1),
+                 facet.copy())
 
 
 def signed_depth(s: Solid, points) -> tuple[np.ndarray, np.ndarray]:

@@ -196,9 +196,18 @@ def test_compiled_part_is_the_array_form_bit_for_bit(seed):
     centre = v[rng.integers(len(v))]
     near = np.linalg.norm(v[f].mean(axis=1) - centre, axis=1) < rng.uniform(0.3, 1.5)
     faces = np.concatenate([f[near], f[near][:1]])  # one face twice
-    for outward in (1.0, -1.0):
-        a = C.solid(v, faces, part=True, outward=outward)
-        b = C.solid(v, faces, part=True, outward=outward, compiled=False)
+    scale = float(np.linalg.norm(np.ptp(v, axis=0)))
+    # copies of some vertices within the weld's radius (1e-7 of the scale) and beyond it
+    copies = rng.choice(np.unique(faces), 6, replace=False)
+    offset = np.array([0.3, 0.3, 0.3, 3.0, 3.0, 3.0])[:, None] * 1e-7 * scale * _unit_rows(rng.normal(size=(6, 3)))
+    v = np.concatenate([v, v[copies] + offset])
+    faces = faces.copy()
+    for target, copy in zip(copies, range(len(v) - 6, len(v))):
+        pick = (faces == target) & (rng.uniform(size=faces.shape) < 0.5)
+        faces[pick] = copy
+    for outward, given in ((1.0, None), (-1.0, None), (1.0, scale), (-1.0, scale)):
+        a = C.solid(v, faces, part=True, outward=outward, scale=given)
+        b = C.solid(v, faces, part=True, outward=outward, scale=given, compiled=False)
         for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds", "facet", "facet_start",
                      "facet_faces"):
             x, y = getattr(a, name), getattr(b, name)
@@ -214,6 +223,10 @@ def test_compiled_part_raises_the_array_forms_errors():
         C.solid(m.vertices, flipped, part=True, outward=1.0)
     with pytest.raises(ValueError, match="non-manifold"):
         C.solid(np.concatenate([m.vertices, [[2.0, 0, 0], [0, 2.0, 0]]]), _fin(m), part=True, outward=1.0)
+
+
+def _unit_rows(x):
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
 
 
 def _face_bound_arrays(s, cells, faces):
