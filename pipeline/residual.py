@@ -13,7 +13,7 @@ same side of the tolerance as the deepest point found.
 
 The queries run in the other object's object space: a collider's `clearance.Solid` is built once
 per run, a deformable's is the part of its display near the other object's triangles, built per
-pair. An object-space depth times the largest singular value of the world matrix's linear part
+pair (and kept on the display by its face rows, `Shown.parts`). An object-space depth times the largest singular value of the world matrix's linear part
 (`clearance.sigma_max`) bounds the world depth from above (exact for rotations, translations and
 uniform scales).
 
