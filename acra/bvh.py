@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "Tree", "build", "closest", "distances"]
+__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds"]
 
 LEAF = 4  # triangles per leaf
 
@@ -46,6 +46,8 @@ class Tree:
         Children of an inner node; ``-1`` at a leaf.
     start, count : (n,) int64
         A leaf's range in ``order``.
+    leaf_tri : (f, 3, 3) float64
+        ``tri[order]``: a leaf's triangles side by side in memory.
     """
 
     tri: np.ndarray
@@ -56,6 +58,7 @@ class Tree:
     right: np.ndarray
     start: np.ndarray
     count: np.ndarray
+    leaf_tri: np.ndarray
 
 
 @njit(cache=True, nogil=True)
@@ -99,6 +102,21 @@ def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
     return nodes
 
 
+@njit(cache=True, nogil=True)
+def _boxes_centroids(tri):
+    """Each triangle's box and centroid, as ``tri.min(axis=1)``, ``tri.max(axis=1)`` and
+    ``tri.mean(axis=1)`` give them (the centroid summed corner by corner, then over 3)."""
+    f = tri.shape[0]
+    lo, hi, cen = np.empty((f, 3)), np.empty((f, 3)), np.empty((f, 3))
+    for i in range(f):
+        for k in range(3):
+            a, b, c = tri[i, 0, k], tri[i, 1, k], tri[i, 2, k]
+            lo[i, k] = min(min(a, b), c)
+            hi[i, k] = max(max(a, b), c)
+            cen[i, k] = ((a + b) + c) / 3.0
+    return lo, hi, cen
+
+
 def build(tri: np.ndarray) -> Tree:
     """The `Tree` of triangles ``tri (f, 3, 3)`` (``f >= 1``)."""
     tri = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
@@ -109,9 +127,8 @@ def build(tri: np.ndarray) -> Tree:
     lo, hi = np.empty((n, 3)), np.empty((n, 3))
     left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
     order = np.arange(f, dtype=np.int64)
-    used = _build(np.ascontiguousarray(tri.min(axis=1)), np.ascontiguousarray(tri.max(axis=1)),
-                  np.ascontiguousarray(tri.mean(axis=1)), order, lo, hi, left, right, start, count)
-    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used])
+    used = _build(*_boxes_centroids(tri), order, lo, hi, left, right, start, count)
+    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], tri[order])
 
 
 @njit(cache=True, nogil=True)
@@ -175,34 +192,41 @@ def _box_distance(p, lo, hi, node):
 
 @njit(cache=True, nogil=True)
 def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist, close, face, bary):
+    # tri is the tree's leaf_tri; a node's box distance is computed once, when its parent
+    # pushes it, and held against the best distance when it is popped
     stack = np.empty(256, np.int64)
+    near = np.empty(256)
     for i in range(points.shape[0]):
         p = points[i]
         best = bound[i] * bound[i]
         best_face = -1
         bx, by, bz, ba, bb, bc = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         stack[0] = 0
+        near[0] = _box_distance(p, lo, hi, 0)
         top = 1
         while top > 0:
             top -= 1
             node = stack[top]
-            if _box_distance(p, lo, hi, node) > best:
+            if near[top] > best:
                 continue
             if left[node] < 0:
                 for s in range(start[node], start[node] + count[node]):
                     f = order[s]
-                    x, y, z, wa, wb, wc = _point_triangle(p, tri[f, 0], tri[f, 1], tri[f, 2])
+                    x, y, z, wa, wb, wc = _point_triangle(p, tri[s, 0], tri[s, 1], tri[s, 2])
                     dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
                     if dd < best or (dd == best and (best_face < 0 or f < best_face)):
                         best, best_face = dd, f
                         bx, by, bz, ba, bb, bc = x, y, z, wa, wb, wc
                 continue
             a, b = left[node], right[node]
+            da, db = _box_distance(p, lo, hi, a), _box_distance(p, lo, hi, b)
             # the nearer child last on the stack, so it is visited first
-            if _box_distance(p, lo, hi, a) <= _box_distance(p, lo, hi, b):
+            if da <= db:
                 stack[top], stack[top + 1] = b, a
+                near[top], near[top + 1] = db, da
             else:
                 stack[top], stack[top + 1] = a, b
+                near[top], near[top + 1] = da, db
             top += 2
         if best_face >= 0:
             dist[i] = np.sqrt(best)
@@ -231,7 +255,7 @@ def closest(tree: Tree, points: np.ndarray, bound: np.ndarray | None = None):
     face, bary = np.full(k, -1, np.int64), np.zeros((k, 3))
     b = np.full(k, np.inf) if bound is None else np.ascontiguousarray(bound, np.float64).reshape(k)
     if k:
-        _closest(tree.tri, tree.order, tree.lo, tree.hi, tree.left, tree.right, tree.start, tree.count, p, b, dist, close,
+        _closest(tree.leaf_tri, tree.order, tree.lo, tree.hi, tree.left, tree.right, tree.start, tree.count, p, b, dist, close,
                  face, bary)
     return dist, close, face, bary
 
@@ -250,4 +274,110 @@ def distances(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
     out = np.empty(len(p))
     if len(p):
         _distances(p, t, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _boxes_meet(tri, lo, hi, pad, out):
+    for i in range(tri.shape[0]):
+        meet = True
+        for k in range(3):
+            a, b, c = tri[i, 0, k], tri[i, 1, k], tri[i, 2, k]
+            if not (min(min(a, b), c) <= hi[k] + pad and lo[k] <= max(max(a, b), c) + pad):
+                meet = False
+                break
+        out[i] = meet
+
+
+def boxes_meet(tri: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
+    """Whether the box of each of triangles ``tri (f, 3, 3)`` comes within ``pad`` of the box
+    ``lo, hi (3,)``: ``(f,) bool``, the comparisons of ``grids.overlap`` on the corners' minima
+    and maxima, in one pass without the boxes' arrays."""
+    t = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
+    out = np.empty(len(t), np.bool_)
+    if len(t):
+        _boxes_meet(t, np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
+                    float(pad), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _faces_meet(points, faces, lo, hi, pad, out):
+    for i in range(faces.shape[0]):
+        meet = True
+        for k in range(3):
+            a, b, c = points[faces[i, 0], k], points[faces[i, 1], k], points[faces[i, 2], k]
+            if not (min(min(a, b), c) <= hi[k] + pad and lo[k] <= max(max(a, b), c) + pad):
+                meet = False
+                break
+        out[i] = meet
+
+
+def faces_meet(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
+    """`boxes_meet` of the triangles ``points[faces]`` (``points (n, 3)``, ``faces (f, 3) int64``)
+    without gathering them."""
+    out = np.empty(len(faces), np.bool_)
+    if len(faces):
+        _faces_meet(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
+                    np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
+                    float(pad), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _facet_bound(cells, faces, vertices, solid_faces, facet, facet_start, facet_faces, out):
+    tri = np.empty((3, 3))
+    for c in range(cells.shape[0]):
+        best = np.inf
+        for j in range(3):
+            g = facet[faces[c, j]]
+            worst = -np.inf
+            for i in range(3):
+                least = np.inf
+                for s in range(facet_start[g], facet_start[g + 1]):
+                    m = facet_faces[s]
+                    for k in range(3):
+                        tri[k] = vertices[solid_faces[m, k]]
+                    x, y, z, _, _, _ = _point_triangle(cells[c, i], tri[0], tri[1], tri[2])
+                    d = np.sqrt((cells[c, i, 0] - x) ** 2 + (cells[c, i, 1] - y) ** 2 + (cells[c, i, 2] - z) ** 2)
+                    least = min(least, d)
+                worst = max(worst, least)
+            best = min(best, worst)
+        out[c] = best
+
+
+def facet_bound(cells: np.ndarray, faces: np.ndarray, vertices: np.ndarray, solid_faces: np.ndarray, facet: np.ndarray,
+                facet_start: np.ndarray, facet_faces: np.ndarray) -> np.ndarray:
+    """``min_j max_i dist(c_i, P_j)`` ``(c,) float64`` for cells ``(c, 3, 3)`` whose corners' closest
+    faces are ``faces (c, 3) int64``, ``P_j`` the convex facet (faces ``facet_faces[facet_start[g]
+    : facet_start[g + 1]]``, ``g = facet[face]``) of corner ``j``'s face, a distance to a facet
+    the least to its faces (`distances`' arithmetic)."""
+    out = np.empty(len(cells))
+    if len(cells):
+        _facet_bound(np.ascontiguousarray(cells, np.float64), np.ascontiguousarray(faces, np.int64), vertices,
+                     solid_faces, facet, facet_start, facet_faces, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _bounds(points, out):
+    for k in range(3):
+        out[0, k], out[1, k] = points[0, k], points[0, k]
+    for i in range(1, points.shape[0]):
+        for k in range(3):
+            x = points[i, k]
+            if x < out[0, k]:
+                out[0, k] = x
+            if x > out[1, k]:
+                out[1, k] = x
+
+
+def bounds(points: np.ndarray) -> np.ndarray:
+    """The box ``(2, 3)`` (min and max corner) of ``points (..., 3)``, as ``min(axis=0)`` and
+    ``max(axis=0)`` give it, in one pass (numpy reduces a short last axis row by row)."""
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    if not len(p):
+        return np.stack([p.min(axis=0), p.max(axis=0)])  # raises, as numpy does
+    out = np.empty((2, 3))
+    _bounds(p, out)
     return out

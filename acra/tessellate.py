@@ -333,7 +333,8 @@ def evaluate_grid(hs: HSpline, topo: GridTopology, det: Details | None = None) -
 
 
 def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
-                 since: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 since: tuple | None = None, memo: dict | None = None,
+                 normals: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Points ``(n, 3)`` and limit unit normals ``(n, 3)`` (`surface_normals`) at a grid's
     vertices (``topo``: a `GridTopology` or `MeshTopology`).
 
@@ -344,31 +345,73 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     parameter ``old_topo`` has, on no stale patch, is copied (adaptive topologies of one object
     put their vertices on nested dyadic lattices, so away from where a response refined, the
     old vertices are the new). Each vertex is evaluated on its own, so the result equals a full
-    evaluation bit for bit."""
+    evaluation bit for bit. ``memo`` (a dict the caller keeps) holds what depends on the
+    topologies alone: which old vertex each new one is, and each vertex's level-0 patches.
+    Without ``normals`` only the points are evaluated (the same bits: a point's sum does not
+    depend on the derivative orders summed beside it) and ``None`` stands for the normals,
+    in ``since`` too."""
     det = details(hs) if det is None and hs.depth > 1 else det
-    if since is None:
-        ev, n = surface_normals(hs, topo.u, topo.v, det=det)
+
+    def sample(u, v):
+        if not normals:
+            return evaluate(hs, u, v, order=0, det=det).points, None
+        ev, n = surface_normals(hs, u, v, det=det)
         return ev.points, n
+
+    if since is None:
+        return sample(topo.u, topo.v)
     if len(since) == 4:
         old, old_points, old_limit, stale = since
-        key, old_key = topo.u + 1j * topo.v, old.u + 1j * old.v  # complex values sort by (u, v)
-        order = np.argsort(old_key, kind="stable")
-        src = order[np.minimum(np.searchsorted(old_key[order], key), max(len(order) - 1, 0))]
-        found = old_key[src] == key if len(order) else np.zeros(key.size, bool)
-        points, limit = np.empty((key.size, 3)), np.empty((key.size, 3))
-        points[found], limit[found] = old_points[src[found]], old_limit[src[found]]
+        src, found = _matched(old, topo, memo)
+        points = np.empty((topo.u.size, 3))
+        points[found] = old_points[src[found]]
+        if normals:
+            limit = np.empty((topo.u.size, 3))
+            limit[found] = old_limit[src[found]]
         on = ~found
     else:
-        points, limit, stale = (x.copy() for x in since)
+        points, limit, stale = (None if x is None else x.copy() for x in since)
         on = np.zeros(topo.u.size, bool)
-    for cu in _cells(hs.u, topo.u):
-        for cv in _cells(hs.v, topo.v):
+    limit = limit if normals else None
+    cells_u, cells_v = _patch_cells(hs, topo, memo)
+    for cu in cells_u:
+        for cv in cells_v:
             on |= stale[cu, cv]
     idx = np.nonzero(on)[0]
     if idx.size:
-        ev, n = surface_normals(hs, topo.u[idx], topo.v[idx], det=det)
-        points[idx], limit[idx] = ev.points, n
+        p, n = sample(topo.u[idx], topo.v[idx])
+        points[idx] = p
+        if normals:
+            limit[idx] = n
     return points, limit
+
+
+def _matched(old, topo, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
+    """The vertex of ``old`` at each vertex's parameters of ``topo`` ``(n,) int64`` and whether
+    there is one ``(n,) bool``."""
+    key = ("matched", id(old), id(topo))
+    hit = None if memo is None else memo.get(key)
+    if hit is not None and hit[0] is old and hit[1] is topo:
+        return hit[2], hit[3]
+    new_key, old_key = topo.u + 1j * topo.v, old.u + 1j * old.v  # complex values sort by (u, v)
+    order = np.argsort(old_key, kind="stable")
+    src = order[np.minimum(np.searchsorted(old_key[order], new_key), max(len(order) - 1, 0))]
+    found = old_key[src] == new_key if len(order) else np.zeros(new_key.size, bool)
+    if memo is not None:
+        memo[key] = (old, topo, src, found)
+    return src, found
+
+
+def _patch_cells(hs: HSpline, topo, memo: dict | None) -> tuple:
+    """`_cells` of ``topo``'s u and v parameters on ``hs``'s grid."""
+    key = ("cells", id(topo), hs.u, hs.v)
+    hit = None if memo is None else memo.get(key)
+    if hit is not None and hit[0] is topo:
+        return hit[1], hit[2]
+    cells = _cells(hs.u, topo.u), _cells(hs.v, topo.v)
+    if memo is not None:
+        memo[key] = (topo,) + cells
+    return cells
 
 
 def _cells(d: Direction, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -2,7 +2,7 @@
 
     python3 benchmarks/stage_split.py [SCENE.py] [--frames 13:17] [--warm 5]
 
-Wraps the detection, response and shape-building functions the frame loop calls with
+Wraps the detection, response, shape-building and residual functions the frame loop calls with
 ``time.perf_counter`` and prints, per function, the calls and the milliseconds per collision frame
 spent inside it (nested: `regions` includes the `Shape.nearest` calls it makes). The scene runs
 the ``--warm`` frame first in the same process, then ``--frames`` in one `run_frames` call, which
@@ -20,12 +20,14 @@ import time
 
 from acra import hspline as H
 from acra import respond as R
+from pipeline import clearance
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import display
 from pipeline import datapoints as P
 from pipeline import frames as F
 from pipeline import grids
+from pipeline import residual
 from pipeline import shape as S
 from pipeline import usdio
 
@@ -64,6 +66,14 @@ def instrument() -> None:
     for name in ("hulls", "_coarse"):
         prop = getattr(S.Shape, name)
         prop.func = _timed(f"Shape.{name}", prop.func)
+    # the residual where the user looks: each round's (`_Run.visible`) and the run's display's
+    # (`display.finish`), whose pairs both go through `residual.pair_depth`
+    F._Run.visible = _timed("frames._Run.visible", F._Run.visible)
+    display.finish = _timed("display.finish", display.finish)
+    display.Displays.of = _timed("display.Displays.of", display.Displays.of)
+    residual.pair_depth = _timed("residual.pair_depth", residual.pair_depth)
+    for name in ("solid", "triangle_depth", "_signed"):
+        setattr(clearance, name, _timed(f"clearance.{name}", getattr(clearance, name)))
 
 
 def main() -> None:

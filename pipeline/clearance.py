@@ -82,8 +82,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from acra import bvh
-from pipeline.grids import overlap, triangle_boxes
+from acra import bvh, pseudonormals
 
 __all__ = ["Solid", "solid", "signed_depth", "covering_radius", "Depth", "triangle_depth", "Unresolved",
            "sigma_max", "FEATURE"]
@@ -179,7 +178,7 @@ def _weld(vertices: np.ndarray, radius: float) -> np.ndarray:
 
 
 def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: float | None = None,
-          scale: float | None = None) -> Solid:
+          scale: float | None = None, compiled: bool = True) -> Solid:
     """A `Solid` from ``vertices (n, 3) float`` and ``faces (f, 3) int``.
 
     Vertices closer than ``weld`` x ``scale`` (default: the bounding-box diagonal) are welded (a
@@ -193,12 +192,17 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     ``part``: the faces are the part of a closed mesh near where the queries are (`part_of`), so
     edges on the part's rim have one face (their pseudo-normal is that face's) and the
     orientation is not read from a volume: ``outward`` is ``+1`` if the faces' winding gives
-    outward normals, ``-1`` if inward.
+    outward normals, ``-1`` if inward. A part is built past the weld by compiled loops
+    (`acra.pseudonormals`, the same bits) unless ``compiled`` is false (the array form below).
     """
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     if not len(f):
         raise ValueError("solid: no faces")
+    if part and compiled and scale is not None and len(v) < 2_000_000:
+        code, vw, fw = pseudonormals.weld(np.ascontiguousarray(v), np.ascontiguousarray(f), weld * scale)
+        if code == 0:
+            return _compiled_part(vw, fw, weld * scale, outward, vertices, faces, weld, scale)
     used = np.unique(f)
     if scale is None:
         scale = float(np.linalg.norm(np.ptp(v[used], axis=0)))
@@ -207,6 +211,8 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     first = np.unique(label, return_index=True)[1]  # first member of each group
     v = v[used][first]
     f = label[np.searchsorted(used, f)]
+    if part and compiled and len(v) < 2_000_000:
+        return _compiled_part(v, f, radius, outward, vertices, faces, weld, scale)
     tri = v[f]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     longest = np.sqrt((np.diff(tri[:, [0, 1, 2, 0]], axis=1) ** 2).sum(axis=2).max(axis=1))
@@ -272,6 +278,19 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     return Solid(v, f, normals, edge_normals, vertex_normals, bounds, bvh.build(v[f]), facet, start, members, convex)
 
 
+def _compiled_part(v, f, radius, outward, vertices, faces, weld, scale) -> Solid:
+    """`solid` of a part past its weld (welded ``v``, relabelled ``f``) by `acra.pseudonormals`;
+    a defect is raised by the array form, from the given ``vertices`` and ``faces``."""
+    flip = outward is not None and outward < 0
+    code, v, f, normals, edge_normals, sin, cos = pseudonormals.part_mesh(v, f, radius, flip)
+    if code:
+        return solid(vertices, faces, weld, True, outward, scale, compiled=False)  # raises the defect's error
+    vertex_normals = pseudonormals.vertex_normals(len(v), f, normals, np.arctan2(sin, cos))
+    facet = np.arange(len(f))
+    return Solid(v, f, normals, edge_normals, vertex_normals, bvh.bounds(v), bvh.build(v[f]), facet, np.arange(len(f) + 1),
+                 facet.copy())
+
+
 def signed_depth(s: Solid, points) -> tuple[np.ndarray, np.ndarray]:
     """Signed depths ``sd (k,) float64`` (positive inside) of ``points (k, 3) float`` in ``s``'s
     object space, and their closest points ``(k, 3) float64`` on ``s``: eq. (1)."""
@@ -292,20 +311,8 @@ def _signed(s: Solid, points, reach: float = np.inf) -> tuple[np.ndarray, np.nda
     dist, close, face, bary = bvh.closest(s.tree, p, None if not np.isfinite(reach) else np.full(len(p), reach))
     if np.any(face < 0):
         raise Unresolved
-    corners = s.faces[face]  # (k, 3)
-    tri = s.vertices[corners]  # (k, 3, 3)
-    # distance of q from the line of the edge opposite corner i: b_i x twice the area / that edge
-    twice_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    opposite = np.linalg.norm(tri[:, [2, 0, 1]] - tri[:, [1, 2, 0]], axis=2)
-    on = bary * (twice_area[:, None] / opposite) <= FEATURE * _extent(s)  # (k, 3) bool
-    zeros = on.sum(axis=1)
-    normal = s.normals[face]
-    edge = zeros == 1  # on the edge opposite the zero corner i, slot (i + 1) mod 3
-    normal[edge] = s.edge_normals[face[edge], (np.argmax(on[edge], axis=1) + 1) % 3]
-    vertex = zeros >= 2  # at the corner with the largest coordinate
-    normal[vertex] = s.vertex_normals[corners[vertex, np.argmax(bary[vertex], axis=1)]]
-    inside = np.einsum("kc,kc->k", p - close, normal) < 0
-    return np.where(inside, dist, -dist), close, face
+    return pseudonormals.signs(p, dist, close, face, bary, s.vertices, s.faces, s.normals, s.edge_normals,
+                               s.vertex_normals, FEATURE * _extent(s)), close, face
 
 
 def covering_radius(tri) -> np.ndarray:
@@ -402,17 +409,7 @@ def _face_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
     ``min_j max_i dist(c_i, P_j)``, ``(c,) float64``, with ``P_j`` the convex facet of ``F_j``
     (`_facets`; the distance to a convex set is convex too, and the facet is part of the
     surface): ``dist(c_i, P_j)`` is the least distance to the facet's faces."""
-    c = len(cells)
-    facet = s.facet[faces.reshape(-1)]  # (3 c,) facet of corner j's face, row 3 k + j
-    count = s.facet_start[facet + 1] - s.facet_start[facet]
-    pair = np.repeat(np.arange(3 * c), count)  # (cell, j) of each (cell, j, member face)
-    member = s.facet_faces[np.repeat(s.facet_start[facet], count) + np.arange(len(pair)) - np.repeat(np.cumsum(count) - count, count)]
-    tri = np.repeat(s.vertices[s.faces[member]], 3, axis=0)  # each member face against the 3 corners
-    at = cells[pair // 3].reshape(-1, 3)
-    d = bvh.distances(at, tri).reshape(-1, 3)  # (pairs, corner i)
-    least = np.full((3 * c, 3), np.inf)
-    np.minimum.at(least, pair, d)
-    return least.reshape(c, 3, 3).max(axis=2).min(axis=1)
+    return bvh.facet_bound(cells, faces, s.vertices, s.faces, s.facet, s.facet_start, s.facet_faces)
 
 
 def _cell_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -451,8 +448,7 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.asarray(corners, np.float64).reshape(-1, 3, 3)
     steps = 1 << max_split  # integer barycentric lattice: weights (i, j, steps - i - j) / steps
-    lo, hi = triangle_boxes(tri)
-    src = np.nonzero(overlap(lo, hi, s.bounds[0], s.bounds[1], 0.0))[0]
+    src = np.nonzero(bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
     rho0 = covering_radius(tri[src])  # (c,) per live source triangle, halved per split level
     found: list[tuple] = []  # (tri, bary, points, sd) of evaluated points with sd > 0
 

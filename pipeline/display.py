@@ -96,12 +96,15 @@ def finish(stage, scene: SceneModel, result, stats: list, options) -> None:
 
 class SurfaceDisplay:
     """One surface's own adaptive display (`acra.tessellate.run_topology` of the surface alone):
-    ``topology``, object-space ``points (n, 3)`` and limit normals ``limit (n, 3)``, and, built on
-    first use, its fan ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
+    ``topology``, object-space ``points (n, 3)`` and limit normals ``limit (n, 3)`` (``None``:
+    the frame loop measures the residual on the points alone), and, built on first use, its fan
+    ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
 
-    def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, limit: np.ndarray):
+    def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, limit: np.ndarray,
+                 triangles: np.ndarray | None = None):
         self.surface, self.topology, self.points, self.limit = surface, topology, points, limit
-        self._triangles = self._solid = None
+        self._triangles, self._solid = triangles, None
+        self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
 
     @property
     def triangles(self) -> np.ndarray:
@@ -133,6 +136,25 @@ class Displays:
     def __init__(self, density: int = 8, kept: int = 16) -> None:
         self.density, self.kept = density, kept
         self._shown: dict = {}  # id(surface) -> SurfaceDisplay, most recent last
+        self._topologies: dict = {}  # refinement key (`_refinement`) -> (topology, its triangles), most recent last
+        self._matches: dict = {}  # `grid_samples`' memo over the kept topologies
+
+    def topology(self, surface: hspline.HSpline, samples: int) -> tuple[MeshTopology, np.ndarray]:
+        """`run_topology` of ``surface`` alone and its fan triangles. The topology is a function of
+        the grid, ``samples`` and each level's active patches alone, so a surface whose
+        response refined the same patches as one shown before (the rounds of a frame, the
+        frames of a contact) gets that one's topology."""
+        key = _refinement(surface, samples)
+        hit = self._topologies.pop(key, None)
+        if hit is None:
+            topo = run_topology([surface], samples)
+            hit = (topo, topo.triangles())
+        self._topologies[key] = hit
+        while len(self._topologies) > self.kept:
+            del self._topologies[next(iter(self._topologies))]
+        if len(self._matches) > 4 * self.kept:
+            self._matches.clear()
+        return hit
 
     def of(self, surface: hspline.HSpline, samples: int) -> SurfaceDisplay:
         """`SurfaceDisplay` of ``surface`` at ``samples`` steps per finest patch edge."""
@@ -140,7 +162,7 @@ class Displays:
 
         hit = self._shown.pop(id(surface), None)
         if hit is None or hit.surface is not surface:
-            topo = run_topology([surface], samples)
+            topo, triangles = self.topology(surface, samples)
             shape = shape_of(surface, self.density)
             since, up, stale = None, shape, np.zeros((surface.u.patches0, surface.v.patches0), bool)
             while since is None and up.parent is not None:
@@ -148,9 +170,16 @@ class Displays:
                 old = self._shown.get(id(up.surface))
                 if old is not None and old.surface is up.surface:
                     since = (old.topology, old.points, old.limit, stale)
-            pts, limit = grid_samples(surface, topo, shape.details, since)
-            hit = SurfaceDisplay(surface, topo, pts, limit)
+            pts, limit = grid_samples(surface, topo, shape.details, since, self._matches, normals=False)
+            hit = SurfaceDisplay(surface, topo, pts, limit, triangles)
         self._shown[id(surface)] = hit
         while len(self._shown) > self.kept:
             del self._shown[next(iter(self._shown))]
         return hit
+
+
+def _refinement(surface: hspline.HSpline, samples: int) -> tuple:
+    """What `run_topology` of ``surface`` alone depends on: its grid, ``samples`` and the sorted
+    active patch keys of each finer level."""
+    return (surface.u, surface.v, surface.depth, int(samples),
+            tuple(np.asarray(surface.level(k).patches, np.int64).tobytes() for k in range(1, surface.depth)))

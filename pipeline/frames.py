@@ -206,6 +206,7 @@ class _Run:
         self.displays = display.Displays(options.density, 4 * len(self.defs) + 4)
         self._shown: dict = {}  # (id(surface), world matrix) -> (surface, residual.Shown), most recent last
         self._collider_solids: dict = {}  # collider row -> its inside (`residual.collider_solid`)
+        self._depths: dict = {}  # `residual.measure_frame`'s answers by pair of shown objects, most recent last
 
     def states(self, t: float):
         """``(deformable states, collider states)`` at time code ``t`` (`usdio.state_at`)."""
@@ -285,7 +286,8 @@ class _Run:
                     if hit is None or hit[0] is not g.surface:  # a surface shown at this place is reused
                         sd = self.displays.of(g.surface, m.controls.samples)
                         hit = (g.surface, residual.shown(m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
-                                                         g.shape.outward if g.closed else 1.0, sd.solid))
+                                                         g.shape.outward if g.closed else 1.0, sd.solid,
+                                                         sd.parts))
                     self._shown[key] = hit
                     while len(self._shown) > 4 * len(self.defs) + 4:
                         del self._shown[next(iter(self._shown))]
@@ -311,7 +313,9 @@ class _Run:
             if other[0] == "d":
                 pairs.append((index[other], index["d", i]))
                 keys.append(((i, other), "b"))
-        fr = residual.measure_frame(objects, self.options.tolerance, pairs)
+        fr = residual.measure_frame(objects, self.options.tolerance, pairs, self._depths)
+        while len(self._depths) > 4 * len(pairs) + 4:
+            del self._depths[next(iter(self._depths))]
         by_pair: dict = {}
         measured = {(p.a, p.b): p for p in fr.pairs}
         for (ia, ib), (key, side) in zip(pairs, keys):

@@ -13,7 +13,7 @@ same side of the tolerance as the deepest point found.
 
 The queries run in the other object's object space: a collider's `clearance.Solid` is built once
 per run, a deformable's is the part of its display near the other object's triangles, built per
-pair. An object-space depth times the largest singular value of the world matrix's linear part
+pair (and kept on the display by its face rows, `Shown.parts`). An object-space depth times the largest singular value of the world matrix's linear part
 (`clearance.sigma_max`) bounds the world depth from above (exact for rotations, translations and
 uniform scales).
 
@@ -29,8 +29,8 @@ from functools import cached_property
 
 import numpy as np
 
+from acra import bvh
 from pipeline import clearance
-from pipeline.grids import overlap, triangle_boxes
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
@@ -46,10 +46,10 @@ class Shown:
     Attributes
     ----------
     path : str
-    corners : (t, 3, 3) float64
-        World triangles (float32 points as stored, mapped by the world matrix).
-    uv : (t, 3, 2) float64 or None
-        Surface parameters of each triangle's corners (a deformable), else ``None``.
+    world : (n, 3) float64
+        World points of the display (float32 points as stored, mapped by the world matrix).
+    vertex_uv : (n, 2) float64 or None
+        Surface parameters of each point (a deformable), else ``None``.
     size : float
         Diagonal of the bounding box of the object's whole display (world).
     box : (2, 3) float64
@@ -60,66 +60,80 @@ class Shown:
         Whether the object has an inside.
     local : (n, 3) float64 or None
         A deformable's display points in object space (float32 values), for its `part`.
-    triangles : (t, 3) int64 or None
-        Its triangles (rows of ``local``), the rows of ``corners``.
+    triangles : (t, 3) int64
+        Its triangles (rows of ``world`` and ``local``).
     outward : float
         ``+1`` if the triangles' winding gives outward normals, ``-1`` if inward.
     whole : callable or None
         Builds (or returns a kept) `clearance.Solid` of the whole object in object space.
     deformable : bool
+    parts : dict or None
+        Part solids of these ``local`` points and ``triangles`` already built (`pair_depth`), by
+        face rows; shared by every `Shown` of one display (`display.SurfaceDisplay.parts`).
+
+    A pair gathers only the triangles near the other object (`near`); ``corners`` and ``uv``
+    gather all of them.
     """
 
     path: str
-    corners: np.ndarray
-    uv: np.ndarray | None
+    world: np.ndarray
+    vertex_uv: np.ndarray | None
     size: float
     box: np.ndarray
     xform: np.ndarray
     closed: bool
     local: np.ndarray | None = None
-    triangles: np.ndarray | None = None
+    triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
     outward: float = 1.0
     whole: object = None
     deformable: bool = True
+    parts: dict | None = None
 
     @cached_property
-    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """World boxes ``lo, hi (t, 3)`` of the triangles."""
-        return triangle_boxes(self.corners)
+    def corners(self) -> np.ndarray:
+        """World triangles ``(t, 3, 3)``."""
+        return self.world[self.triangles]
+
+    @cached_property
+    def uv(self) -> np.ndarray | None:
+        """Surface parameters ``(t, 3, 2)`` of each triangle's corners, or ``None``."""
+        return None if self.vertex_uv is None else self.vertex_uv[self.triangles]
 
     def near(self, box: np.ndarray, pad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """World triangles ``(m, 3, 3)`` whose boxes come within ``pad`` of the world ``box (2, 3)``
-        and their rows in ``corners``."""
-        rows = np.nonzero(overlap(*self.boxes, box[0], box[1], pad))[0]
-        return self.corners[rows], rows
+        and their rows in ``triangles``."""
+        rows = np.nonzero(bvh.faces_meet(self.world, self.triangles, box[0], box[1], pad))[0]
+        return self.world[self.triangles[rows]], rows
 
     @cached_property
     def diagonal_local(self) -> float:
         """Diagonal of the box of the object-space display points (the scale solids weld at)."""
-        return float(np.linalg.norm(np.ptp(self.local, axis=0)))
+        box = bvh.bounds(self.local)
+        return float(np.linalg.norm(box[1] - box[0]))
 
 
 def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
-          closed: bool = False, outward: float = 1.0, whole=None) -> Shown:
+          closed: bool = False, outward: float = 1.0, whole=None, parts: dict | None = None) -> Shown:
     """A deformable's display as the user sees it: object-space ``points (n, 3)`` (rounded to
     float32, as the output stores them), ``triangles (t, 3) int64``, world matrix ``xform (4, 4)``,
     vertex parameters ``uv (n, 2)``; ``closed`` with the winding's ``outward`` sign; ``whole()``
-    gives its whole `clearance.Solid` (default: built from the points)."""
+    gives its whole `clearance.Solid` (default: built from the points); ``parts`` keeps the part
+    solids built of these points and triangles (a dict shared by every call on one display)."""
     p32 = np.asarray(points, np.float32).astype(np.float64)
     world = apply_xform(xform, p32)
-    box = np.stack([world.min(axis=0), world.max(axis=0)])
+    box = bvh.bounds(world)
     if whole is None and closed:
         whole = _Once(lambda: clearance.solid(p32, triangles))
-    return Shown(path, world[triangles], None if uv is None else np.asarray(uv, np.float64)[triangles],
+    return Shown(path, world, None if uv is None else np.asarray(uv, np.float64),
                  float(np.linalg.norm(box[1] - box[0])), box, np.asarray(xform, np.float64), closed, p32,
-                 np.asarray(triangles, np.int64), float(outward), whole)
+                 np.asarray(triangles, np.int64), float(outward), whole, True, parts)
 
 
 def collider_shown(path: str, box: np.ndarray, size: float, solid: clearance.Solid | None, xform: np.ndarray) -> Shown:
     """A collider as the other object of a pair: its world ``box (2, 3)``, ``size``, inside and
     world matrix. It is never the inner object (the residual is measured on the deformables'
     output), so it holds no triangles."""
-    return Shown(path, np.zeros((0, 3, 3)), None, float(size), np.asarray(box, np.float64), np.asarray(xform, np.float64),
+    return Shown(path, np.zeros((0, 3)), None, float(size), np.asarray(box, np.float64), np.asarray(xform, np.float64),
                  solid is not None, whole=(lambda: solid), deformable=False)
 
 
@@ -167,7 +181,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     it. A point within ``P`` of that part has its closest point, and every face around it, in
     the part, so the part answers exactly; a point farther (``a`` deep inside a large ``b``) is
     answered by ``b``'s whole solid."""
-    none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.uv is None else np.zeros((0, 2)), np.zeros(0))
+    none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.vertex_uv is None else np.zeros((0, 2)), np.zeros(0))
     if not b.closed:
         return none
     corners, near = a.near(b.box)
@@ -177,17 +191,37 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     local = apply_inverse(b.xform, corners.reshape(-1, 3)).reshape(-1, 3, 3)
     d = None
     if b.deformable:
-        region = np.stack([corners.min(axis=(0, 1)), corners.max(axis=(0, 1))])
+        region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
         _, rows = b.near(region, pad)
         if rows.size:
-            part = clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=b.diagonal_local)
+            part = _part(b, rows)
             d = clearance.triangle_depth(part, local, target / k, reach=pad / k, decide=decide / k)
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
     points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
-    uv = None if a.uv is None else np.einsum("mk,mkc->mc", d.bary, a.uv[near[d.tri]])
+    uv = None if a.vertex_uv is None else np.einsum("mk,mkc->mc", d.bary, a.vertex_uv[a.triangles[near[d.tri]]])
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
+
+
+PARTS_KEPT = 8  # part solids kept per display
+
+
+def _part(b: Shown, rows: np.ndarray) -> clearance.Solid:
+    """The part solid of ``b``'s faces ``rows`` (`clearance.solid` with ``part``), or the one
+    built before from the same points and rows: the rounds of a frame and the frames of a
+    contact query an unchanged display near the same place."""
+    make = lambda: clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=b.diagonal_local)  # noqa: E731
+    if b.parts is None:
+        return make()
+    key = (b.outward, rows.tobytes())
+    hit = b.parts.pop(key, None)
+    if hit is None:
+        hit = make()
+    b.parts[key] = hit
+    while len(b.parts) > PARTS_KEPT:
+        del b.parts[next(iter(b.parts))]
+    return hit
 
 
 @dataclass
@@ -218,9 +252,11 @@ class FrameResidual:
         return max((p.rel for p in self.pairs if {p.a, p.b} == {a, b}), default=0.0)
 
 
-def measure_frame(objects: list[Shown], tolerance: float, pairs=None) -> FrameResidual:
+def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict | None = None) -> FrameResidual:
     """`pair_depth` of every deformable of ``objects`` in every other closed one (or the ordered
-    ``pairs`` of indices given), refined to ``TARGET * tolerance`` of the inner object's size."""
+    ``pairs`` of indices given), refined to ``TARGET * tolerance`` of the inner object's size.
+    ``memo`` keeps each pair's `Inside` by the two `Shown` objects (which never change): a
+    round whose response left both as they were gets the answer measured before."""
     out = FrameResidual()
     if pairs is None:  # every deformable's display in every other object
         pairs = [(i, j) for i, a in enumerate(objects) if a.deformable for j in range(len(objects)) if j != i]
@@ -229,7 +265,14 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None) -> FrameRe
         if not b.closed:
             continue
         size = max(a.size, 1e-300)
-        ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size)
+        key = (id(a), id(b), tolerance)
+        hit = None if memo is None else memo.get(key)
+        if hit is not None and hit[0] is a and hit[1] is b:
+            ins = hit[2]
+        else:
+            ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size)
+            if memo is not None:
+                memo[key] = (a, b, ins)
         rel = ins.depth / size
         out.pairs.append(PairDepth(a.path, b.path, ins, rel))
         out.worst = max(out.worst, ins.depth)

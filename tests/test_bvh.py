@@ -69,3 +69,35 @@ def test_distances_to_given_triangles():
 def test_an_empty_set_is_refused():
     with pytest.raises(ValueError, match="at least one triangle"):
         bvh.build(np.zeros((0, 3, 3)))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_boxes_meet_is_the_overlap_of_the_triangle_boxes(seed):
+    from pipeline.grids import overlap, triangle_boxes
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1, 1, (300, 3))
+    faces = rng.integers(0, 300, (500, 3))
+    tri = points[faces]
+    lo, hi = np.sort(rng.uniform(-0.5, 0.5, (2, 3)), axis=0)
+    for pad in (0.0, 0.05):
+        want = overlap(*triangle_boxes(tri), lo, hi, pad)
+        np.testing.assert_array_equal(bvh.boxes_meet(tri, lo, hi, pad), want)
+        np.testing.assert_array_equal(bvh.faces_meet(points, faces, lo, hi, pad), want)
+        assert 0 < want.sum() < len(want)
+
+
+def test_build_takes_numpys_boxes_and_centroids():
+    tri = soup(7, 5000) * 10.0 ** np.random.default_rng(7).integers(-4, 4, (5000, 1, 1))
+    lo, hi, cen = bvh._boxes_centroids(np.ascontiguousarray(tri))
+    np.testing.assert_array_equal(lo, tri.min(axis=1))
+    np.testing.assert_array_equal(hi, tri.max(axis=1))
+    np.testing.assert_array_equal(cen, tri.mean(axis=1))
+
+
+def test_bounds_are_numpys_minima_and_maxima():
+    p = soup(3, 2000).reshape(-1, 3)
+    np.testing.assert_array_equal(bvh.bounds(p), np.stack([p.min(axis=0), p.max(axis=0)]))
+    np.testing.assert_array_equal(bvh.bounds(p[:1]), np.stack([p[0], p[0]]))
+    with pytest.raises(ValueError):
+        bvh.bounds(np.zeros((0, 3)))

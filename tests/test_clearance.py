@@ -186,6 +186,107 @@ def test_defects_raise():
         C.solid(np.concatenate([m.vertices, [[2.0, 0, 0], [0, 2.0, 0]]]), _fin(m))
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_part_is_the_array_form_bit_for_bit(seed):
+    """A part (welded pole rows and seam, slivers and a repeated face dropped, a rim) built by
+    `acra.pseudonormals` equals the array form in every array, either winding."""
+    rng = np.random.default_rng(seed)
+    v, f = uv_sphere(14, 24)
+    v = v * rng.uniform(0.5, 2.0, 3) + rng.uniform(-1, 1, 3)
+    centre = v[rng.integers(len(v))]
+    near = np.linalg.norm(v[f].mean(axis=1) - centre, axis=1) < rng.uniform(0.3, 1.5)
+    faces = np.concatenate([f[near], f[near][:1]])  # one face twice
+    scale = float(np.linalg.norm(np.ptp(v, axis=0)))
+    # copies of some vertices within the weld's radius (1e-7 of the scale) and beyond it
+    copies = rng.choice(np.unique(faces), 6, replace=False)
+    offset = np.array([0.3, 0.3, 0.3, 3.0, 3.0, 3.0])[:, None] * 1e-7 * scale * _unit_rows(rng.normal(size=(6, 3)))
+    v = np.concatenate([v, v[copies] + offset])
+    faces = faces.copy()
+    for target, copy in zip(copies, range(len(v) - 6, len(v))):
+        pick = (faces == target) & (rng.uniform(size=faces.shape) < 0.5)
+        faces[pick] = copy
+    for outward, given in ((1.0, None), (-1.0, None), (1.0, scale), (-1.0, scale)):
+        a = C.solid(v, faces, part=True, outward=outward, scale=given)
+        b = C.solid(v, faces, part=True, outward=outward, scale=given, compiled=False)
+        for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds", "facet", "facet_start",
+                     "facet_faces"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), name
+        np.testing.assert_array_equal(a.tree.order, b.tree.order)
+
+
+def test_compiled_part_raises_the_array_forms_errors():
+    m = icosphere()
+    flipped = m.faces.copy()
+    flipped[0] = flipped[0, ::-1]
+    with pytest.raises(ValueError, match="inconsistently oriented"):
+        C.solid(m.vertices, flipped, part=True, outward=1.0)
+    with pytest.raises(ValueError, match="non-manifold"):
+        C.solid(np.concatenate([m.vertices, [[2.0, 0, 0], [0, 2.0, 0]]]), _fin(m), part=True, outward=1.0)
+
+
+def _unit_rows(x):
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def _face_bound_arrays(s, cells, faces):
+    """Eq. (6) in numpy (`clearance._face_bound` before it was compiled): every (cell, corner j,
+    member face of j's facet) against the 3 corners, the least per (cell, j, corner i)."""
+    from acra import bvh
+
+    c = len(cells)
+    facet = s.facet[faces.reshape(-1)]
+    count = s.facet_start[facet + 1] - s.facet_start[facet]
+    pair = np.repeat(np.arange(3 * c), count)
+    member = s.facet_faces[np.repeat(s.facet_start[facet], count) + np.arange(len(pair)) - np.repeat(np.cumsum(count) - count, count)]
+    tri = np.repeat(s.vertices[s.faces[member]], 3, axis=0)
+    d = bvh.distances(cells[pair // 3].reshape(-1, 3), tri).reshape(-1, 3)
+    least = np.full((3 * c, 3), np.inf)
+    np.minimum.at(least, pair, d)
+    return least.reshape(c, 3, 3).max(axis=2).min(axis=1)
+
+
+@pytest.mark.parametrize("make", [unit_cube, icosphere])
+def test_compiled_face_bound_is_the_array_form(make):
+    m = make()
+    s = C.solid(m.vertices, m.faces)
+    rng = np.random.default_rng(5)
+    cells = rng.uniform(-0.2, 1.2, (400, 3, 3))
+    faces = C._signed(s, cells.reshape(-1, 3))[2].reshape(-1, 3)
+    np.testing.assert_array_equal(C._face_bound(s, cells, faces), _face_bound_arrays(s, cells, faces))
+
+
+def _signed_arrays(s, p):
+    """Eq. (1) in numpy (`clearance._signed` before its signs were compiled)."""
+    from acra import bvh
+
+    dist, close, face, bary = bvh.closest(s.tree, p)
+    corners = s.faces[face]
+    tri = s.vertices[corners]
+    twice_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    opposite = np.linalg.norm(tri[:, [2, 0, 1]] - tri[:, [1, 2, 0]], axis=2)
+    on = bary * (twice_area[:, None] / opposite) <= C.FEATURE * C._extent(s)
+    zeros = on.sum(axis=1)
+    normal = s.normals[face]
+    edge = zeros == 1
+    normal[edge] = s.edge_normals[face[edge], (np.argmax(on[edge], axis=1) + 1) % 3]
+    vertex = zeros >= 2
+    normal[vertex] = s.vertex_normals[corners[vertex, np.argmax(bary[vertex], axis=1)]]
+    inside = np.einsum("kc,kc->k", p - close, normal) < 0
+    return np.where(inside, dist, -dist)
+
+
+@pytest.mark.parametrize("make", [unit_cube, icosphere])
+def test_compiled_signs_are_the_array_form(make):
+    m = make()
+    s = C.solid(m.vertices, m.faces)
+    rng = np.random.default_rng(6)
+    edge = m.vertices[m.edges_unique[:, 0]] * 0.3 + m.vertices[m.edges_unique[:, 1]] * 0.7
+    p = np.concatenate([rng.uniform(-0.3, 1.3, (2000, 3)), m.vertices * 1.01, m.vertices * 0.99, edge * 1.001,
+                        edge * 0.999, m.vertices + rng.normal(size=m.vertices.shape) * 1e-12])
+    np.testing.assert_array_equal(C.signed_depth(s, p)[0], _signed_arrays(s, p))
+
+
 def _fin(m: trimesh.Trimesh) -> np.ndarray:
     """``m``'s faces with a closed tetrahedron glued to one of its edges: that edge in 4 faces."""
     a, b = m.edges_unique[0]

@@ -1,0 +1,277 @@
+"""A part of a closed triangle mesh and its pseudo-normals, compiled (`pipeline.clearance.solid`
+with ``part``).
+
+The residual where the user looks builds, every round, the part of the other object's display
+near the inner object's triangles (welded, narrow and repeated faces dropped, its face, edge and
+angle-weighted vertex pseudo-normals): thousands of faces, some thirty numpy calls each paying its
+set-up. `part_mesh` does the same arithmetic in one pass per step, element by element in the
+order numpy's calls take (``np.cross`` as ``a1 b2 - a2 b1``; a norm over 3 components as
+``(x0² + x1²) + x2²``; ``np.einsum`` of 3 products as ``(p0 + p2) + p1``; ``np.bincount``
+summing in input order; stable sorts where rows tie), so it gives the same bits;
+``tests/test_clearance.py`` holds it to the array form. The corner angles' ``arctan2`` stays
+numpy's (a compiled ``atan2`` rounds differently), between `part_mesh` and `vertex_normals`.
+
+Arrays are float64 unless stated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["weld", "part_mesh", "vertex_normals", "signs"]
+
+
+@njit(cache=True, nogil=True)
+def _unit_rows(x):
+    out = np.empty_like(x)
+    for i in range(x.shape[0]):
+        n = np.sqrt((x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1]) + x[i, 2] * x[i, 2])
+        d = n if n > 0 else 1.0
+        out[i, 0], out[i, 1], out[i, 2] = x[i, 0] / d, x[i, 1] / d, x[i, 2] / d
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _cross(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@njit(cache=True, nogil=True)
+def _root(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, nogil=True)
+def weld(v, f, radius):
+    """The vertices ``v (n, 3)`` that faces ``f (F, 3) int64`` use, welded: chained by distances
+    within ``radius``, each group one vertex, its lowest row's, groups in the order of their
+    lowest rows (`pipeline.clearance._weld`'s connected components over the used vertices).
+
+    Returns ``(code, vertices (g, 3), faces (F, 3) int64)``; ``code`` 1 (and nothing else) if a
+    pair's distance lies within 1e-9 of ``radius`` relative, where another computation of the
+    distance might decide otherwise (the caller then welds with its kd-tree)."""
+    n = v.shape[0]
+    rank = np.full(n, -1, np.int64)
+    for i in range(f.shape[0]):
+        for k in range(3):
+            rank[f[i, k]] = 0
+    g = 0
+    for j in range(n):
+        if rank[j] == 0:
+            rank[j] = g
+            g += 1
+    vu = np.empty((g, 3))
+    for j in range(n):
+        if rank[j] >= 0:
+            vu[rank[j]] = v[j]
+    parent = np.arange(g)
+    if radius > 0:
+        order = np.argsort(vu[:, 0], kind="mergesort")
+        r2 = radius * radius
+        below, above, reach = r2 * (1.0 - 1e-9), r2 * (1.0 + 1e-9), radius * (1.0 + 1e-6)
+        for a in range(g):
+            i = order[a]
+            for b in range(a + 1, g):
+                j = order[b]
+                dx = vu[j, 0] - vu[i, 0]
+                if dx > reach:
+                    break
+                dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
+                d2 = (dx * dx + dy * dy) + dz * dz
+                if d2 <= below:
+                    ri, rj = _root(parent, i), _root(parent, j)
+                    if ri != rj:
+                        parent[max(ri, rj)] = min(ri, rj)
+                elif d2 <= above:
+                    return 1, np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    label = np.full(g, -1, np.int64)
+    group = np.full(g, -1, np.int64)
+    count = 0
+    first = np.empty(g, np.int64)
+    for i in range(g):
+        r = _root(parent, i)
+        if group[r] < 0:
+            group[r] = count
+            first[count] = i
+            count += 1
+        label[i] = group[r]
+    vw = np.empty((count, 3))
+    for k in range(count):
+        vw[k] = vu[first[k]]
+    fw = np.empty((f.shape[0], 3), np.int64)
+    for i in range(f.shape[0]):
+        for k in range(3):
+            fw[i, k] = label[rank[f[i, k]]]
+    return 0, vw, fw
+
+
+@njit(cache=True, nogil=True)
+def part_mesh(v, f, radius, flip):
+    """The part's mesh from welded ``v (g, 3)`` and relabelled ``f (F, 3) int64``: drops faces no
+    wider than ``radius`` (twice the area over the longest edge) and repeated faces (the first
+    kept), keeps the vertices used, checks each edge has at most two faces traversing it
+    oppositely, and reverses the winding if ``flip``.
+
+    Returns ``(code, v (n, 3), f (m, 3) int64, normals (m, 3), edge_normals (m, 3, 3), sin
+    (m, 3), cos (m, 3))``: ``code`` 0, or 1 (no face left), 2 (an edge of more than two faces), 3
+    (an edge traversed the same way twice), for the array form to raise its error; ``sin`` and
+    ``cos`` are each corner's ``|e1 x e2|`` and ``e1 . e2``, for its angle."""
+    g = v.shape[0]
+    nf = f.shape[0]
+    keep = np.zeros(nf, np.bool_)
+    for r in range(nf):
+        a, b, c = f[r, 0], f[r, 1], f[r, 2]
+        e10, e11, e12 = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        e20, e21, e22 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        x0, x1, x2 = _cross(e10, e11, e12, e20, e21, e22)
+        area2 = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        longest = -np.inf
+        for k in range(3):
+            p, q = f[r, k], f[r, (k + 1) % 3]
+            d0, d1, d2 = v[q, 0] - v[p, 0], v[q, 1] - v[p, 1], v[q, 2] - v[p, 2]
+            s = (d0 ** 2 + d1 ** 2) + d2 ** 2
+            if s > longest:
+                longest = s
+        keep[r] = area2 > radius * np.sqrt(longest)
+    rows = np.nonzero(keep)[0]
+    m = rows.shape[0]
+    empty = (np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)),
+             np.zeros((0, 3)))
+    if m == 0:
+        return (1,) + empty
+    # repeated faces: the first of each sorted corner triple, in the given order
+    key = np.empty(m, np.int64)
+    for i in range(m):
+        a, b, c = f[rows[i], 0], f[rows[i], 1], f[rows[i], 2]
+        lo, hi = min(a, min(b, c)), max(a, max(b, c))
+        mid = a + b + c - lo - hi
+        key[i] = (lo * g + mid) * g + hi
+    order = np.argsort(key, kind="mergesort")
+    first = np.zeros(m, np.bool_)
+    for i in range(m):
+        first[order[i]] = i == 0 or key[order[i]] != key[order[i - 1]]
+    rows = rows[np.nonzero(first)[0]]
+    m = rows.shape[0]
+    # the vertices used, renumbered in order
+    new = np.full(g, -1, np.int64)
+    for i in range(m):
+        for k in range(3):
+            new[f[rows[i], k]] = 0
+    n = 0
+    for j in range(g):
+        if new[j] == 0:
+            new[j] = n
+            n += 1
+    vo = np.empty((n, 3))
+    for j in range(g):
+        if new[j] >= 0:
+            vo[new[j]] = v[j]
+    fo = np.empty((m, 3), np.int64)
+    for i in range(m):
+        for k in range(3):
+            fo[i, 2 - k if flip else k] = new[f[rows[i], k]]
+    # every undirected edge in at most two faces, traversed oppositely
+    head = fo.reshape(-1)
+    tail = np.empty(3 * m, np.int64)
+    und = np.empty(3 * m, np.int64)
+    for i in range(m):
+        for k in range(3):
+            h, t = fo[i, k], fo[i, (k + 1) % 3]
+            tail[3 * i + k] = t
+            und[3 * i + k] = min(h, t) * n + max(h, t)
+    order = np.argsort(und, kind="mergesort")
+    other = np.arange(3 * m)
+    run = 1
+    for i in range(1, 3 * m + 1):
+        if i < 3 * m and und[order[i]] == und[order[i - 1]]:
+            run += 1
+            continue
+        if run > 2:
+            return (2,) + empty
+        if run == 2:
+            s, t = order[i - 2], order[i - 1]
+            if head[s] == head[t]:  # both faces traverse it from the same corner
+                return (3,) + empty
+            other[s], other[t] = t, s
+        run = 1
+    normals = np.empty((m, 3))
+    for i in range(m):
+        a, b, c = fo[i, 0], fo[i, 1], fo[i, 2]
+        normals[i, 0], normals[i, 1], normals[i, 2] = _cross(vo[b, 0] - vo[a, 0], vo[b, 1] - vo[a, 1], vo[b, 2] - vo[a, 2],
+                                                             vo[c, 0] - vo[a, 0], vo[c, 1] - vo[a, 1], vo[c, 2] - vo[a, 2])
+    normals = _unit_rows(normals)
+    summed = np.empty((3 * m, 3))
+    for s in range(3 * m):
+        o = other[s] // 3
+        for c in range(3):
+            summed[s, c] = normals[s // 3, c] + normals[o, c]
+    edge_normals = _unit_rows(summed).reshape(m, 3, 3)
+    sin, cos = np.empty((m, 3)), np.empty((m, 3))
+    for i in range(m):
+        for k in range(3):
+            p, q, r = fo[i, k], fo[i, (k + 1) % 3], fo[i, (k + 2) % 3]
+            a0, a1, a2 = vo[q, 0] - vo[p, 0], vo[q, 1] - vo[p, 1], vo[q, 2] - vo[p, 2]
+            b0, b1, b2 = vo[r, 0] - vo[p, 0], vo[r, 1] - vo[p, 1], vo[r, 2] - vo[p, 2]
+            x0, x1, x2 = _cross(a0, a1, a2, b0, b1, b2)
+            sin[i, k] = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+            cos[i, k] = (a0 * b0 + a2 * b2) + a1 * b1
+    return 0, vo, fo, normals, edge_normals, sin, cos
+
+
+@njit(cache=True, nogil=True)
+def vertex_normals(n, faces, normals, angle):
+    """Angle-weighted sums of the incident faces' normals at the ``n`` vertices, unit length:
+    ``(n, 3)``, each vertex's terms summed in face order (``np.bincount``)."""
+    out = np.zeros((n, 3))
+    for i in range(faces.shape[0]):
+        for k in range(3):
+            j = faces[i, k]
+            for c in range(3):
+                out[j, c] += angle[i, k] * normals[i, c]
+    return _unit_rows(out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _signs(p, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, tol, out):
+    for r in range(p.shape[0]):
+        f = face[r]
+        a, b, c = vertices[faces[f, 0]], vertices[faces[f, 1]], vertices[faces[f, 2]]
+        x0, x1, x2 = _cross(b[0] - a[0], b[1] - a[1], b[2] - a[2], c[0] - a[0], c[1] - a[1], c[2] - a[2])
+        twice_area = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        zeros, first = 0, -1
+        for k in range(3):
+            q, s = vertices[faces[f, (k + 2) % 3]], vertices[faces[f, (k + 1) % 3]]
+            d0, d1, d2 = q[0] - s[0], q[1] - s[1], q[2] - s[2]
+            opposite = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+            if bary[r, k] * (twice_area / opposite) <= tol:
+                zeros += 1
+                if first < 0:
+                    first = k
+        if zeros == 1:
+            n = edge_normals[f, (first + 1) % 3]
+        elif zeros >= 2:
+            k = 0
+            for j in range(1, 3):
+                if bary[r, j] > bary[r, k]:
+                    k = j
+            n = vertex_normals[faces[f, k]]
+        else:
+            n = normals[f]
+        e0, e1, e2 = p[r, 0] - close[r, 0], p[r, 1] - close[r, 1], p[r, 2] - close[r, 2]
+        inside = (e0 * n[0] + e2 * n[2]) + e1 * n[1] < 0
+        out[r] = dist[r] if inside else -dist[r]
+
+
+def signs(points, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, tol: float) -> np.ndarray:
+    """Signed distances ``(k,)`` of ``points (k, 3)`` whose closest points ``close`` on faces
+    ``face`` (barycentric ``bary``) lie at ``dist``: positive where ``(p - q) . n < 0`` with ``n``
+    the pseudo-normal of the feature ``q`` lies on (a barycentric coordinate within ``tol`` of its
+    edge line, scaled by the height over that edge, counts as 0), `pipeline.clearance` eq. (1)."""
+    out = np.empty(len(points))
+    if len(points):
+        _signs(points, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, float(tol), out)
+    return out
