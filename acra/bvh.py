@@ -9,7 +9,8 @@ call's microseconds.
 
 The tree (`build`) splits each node's triangles at the median of their centroids along the
 longest side of the centroids' box, down to at most `LEAF` triangles per leaf (compiled). `closest` walks it depth first, nearer child first, pruning a
-box whose distance is not below the best found; the triangle test is Ericson's
+box whose distance is not below the best found, the query points in Z-order, each search starting
+from the triangle the one before it found; the triangle test is Ericson's
 *ClosestPtPointTriangle* (Real-Time Collision Detection §5.1.5), which also gives the closest
 point's barycentric coordinates, exactly 0 off the face's interior (on an edge or at a corner),
 for the sign by pseudo-normals. Among triangles at equal distance the lowest row wins, so the

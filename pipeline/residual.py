@@ -270,8 +270,15 @@ class FrameResidual:
 def known(fr: FrameResidual, tolerance: float) -> dict:
     """``fr``'s answers by the content of their pairs (`Shown.fingerprint`) and ``tolerance``, for
     `measure_frame`'s ``known``: the run's display of a frame often shows the surfaces of the
-    round the frame loop kept, on the same topology, as the same points."""
-    return {(a.fingerprint, b.fingerprint, tolerance): ins for a, b, ins in fr.measured}
+    round the frame loop kept, on the same topology, as the same points. Each answer keeps its
+    depths and completeness but not the points found inside (`measure_run` reads the depths
+    alone), so a run's kept answers stay a few numbers a pair."""
+    return {(a.fingerprint, b.fingerprint, tolerance): _depths_only(ins) for a, b, ins in fr.measured}
+
+
+def _depths_only(ins: Inside) -> Inside:
+    """``ins`` without its points."""
+    return Inside(ins.depth, ins.lower, ins.points[:0], None if ins.uv is None else ins.uv[:0], ins.deep[:0], ins.complete)
 
 
 def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict | None = None,
@@ -281,7 +288,7 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict
     ``memo`` keeps each pair's `Inside` by the two `Shown` objects (which never change): a
     round whose response left both as they were gets the answer measured before. ``known``
     (`known`) holds answers by content: a pair whose two objects hold what a measured pair's
-    held gets that answer (`pair_depth` is a function of them)."""
+    held gets that answer's depths (`pair_depth` is a function of them), without its points."""
     out = FrameResidual()
     if pairs is None:  # every deformable's display in every other object
         pairs = [(i, j) for i, a in enumerate(objects) if a.deformable for j in range(len(objects)) if j != i]
