@@ -9,7 +9,8 @@ call's microseconds.
 
 The tree (`build`) splits each node's triangles at the median of their centroids along the
 longest side of the centroids' box, down to at most `LEAF` triangles per leaf (compiled). `closest` walks it depth first, nearer child first, pruning a
-box whose distance is not below the best found; the triangle test is Ericson's
+box whose distance is not below the best found, the query points in Z-order, each search starting
+from the triangle the one before it found; the triangle test is Ericson's
 *ClosestPtPointTriangle* (Real-Time Collision Detection §5.1.5), which also gives the closest
 point's barycentric coordinates, exactly 0 off the face's interior (on an edge or at a corner),
 for the sign by pseudo-normals. Among triangles at equal distance the lowest row wins, so the
@@ -191,16 +192,54 @@ def _box_distance(p, lo, hi, node):
 
 
 @njit(cache=True, nogil=True)
+def _morton_order(points):
+    """Rows of ``points (k, 3)`` along a Z-order curve over their box (10 bits an axis)."""
+    k = points.shape[0]
+    lo = np.empty(3)
+    span = np.empty(3)
+    for a in range(3):
+        lo[a], m = np.inf, -np.inf
+        for i in range(k):
+            lo[a] = min(lo[a], points[i, a])
+            m = max(m, points[i, a])
+        span[a] = m - lo[a]
+    key = np.zeros(k, np.int64)
+    for i in range(k):
+        code = 0
+        for a in range(3):
+            q = 0
+            if span[a] > 0.0:
+                q = int((points[i, a] - lo[a]) / span[a] * 1023.0)
+                q = min(max(q, 0), 1023)
+            for bit in range(10):
+                code |= ((q >> bit) & 1) << (3 * bit + a)
+        key[i] = code
+    return np.argsort(key, kind="mergesort")
+
+
+@njit(cache=True, nogil=True)
 def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist, close, face, bary):
     # tri is the tree's leaf_tri; a node's box distance is computed once, when its parent
-    # pushes it, and held against the best distance when it is popped
+    # pushes it, and held against the best distance when it is popped. The points are visited
+    # along a Z-order curve and each starts from the triangle its predecessor found: a near
+    # first best prunes most boxes at once. The answer is the least distance and, among equal
+    # ones, the lowest row, whichever triangle the search starts from.
     stack = np.empty(256, np.int64)
     near = np.empty(256)
-    for i in range(points.shape[0]):
+    seq = _morton_order(points)
+    seed = -1  # leaf slot of the previous point's closest triangle
+    for j in range(points.shape[0]):
+        i = seq[j]
         p = points[i]
         best = bound[i] * bound[i]
-        best_face = -1
+        best_face, best_slot = -1, -1
         bx, by, bz, ba, bb, bc = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        if seed >= 0:
+            x, y, z, wa, wb, wc = _point_triangle(p, tri[seed, 0], tri[seed, 1], tri[seed, 2])
+            dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
+            if dd <= best:
+                best, best_face, best_slot = dd, order[seed], seed
+                bx, by, bz, ba, bb, bc = x, y, z, wa, wb, wc
         stack[0] = 0
         near[0] = _box_distance(p, lo, hi, 0)
         top = 1
@@ -215,7 +254,7 @@ def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist,
                     x, y, z, wa, wb, wc = _point_triangle(p, tri[s, 0], tri[s, 1], tri[s, 2])
                     dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
                     if dd < best or (dd == best and (best_face < 0 or f < best_face)):
-                        best, best_face = dd, f
+                        best, best_face, best_slot = dd, f, s
                         bx, by, bz, ba, bb, bc = x, y, z, wa, wb, wc
                 continue
             a, b = left[node], right[node]
@@ -229,11 +268,11 @@ def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist,
                 near[top], near[top + 1] = da, db
             top += 2
         if best_face >= 0:
+            seed = best_slot
             dist[i] = np.sqrt(best)
             close[i, 0], close[i, 1], close[i, 2] = bx, by, bz
             face[i] = best_face
             bary[i, 0], bary[i, 1], bary[i, 2] = ba, bb, bc
-
 
 def closest(tree: Tree, points: np.ndarray, bound: np.ndarray | None = None):
     """Exact closest points on ``tree``'s triangles to ``points (k, 3)``.

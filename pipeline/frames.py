@@ -434,6 +434,7 @@ class _Run:
         directions: dict = {}
         wrapping: set = set()  # collider pairs pushed by `collider_points_for` this frame
         best = (np.inf, list(surfaces))
+        kept = None  # the kept round's residual, whose answers `display.finish` takes where it shows the same
         rounds = max(1, options.iterations)
         for it in range(rounds + 1):
             geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
@@ -456,6 +457,7 @@ class _Run:
             score = max(vis.worst_rel, rnd.worst_rel)
             if score < best[0]:
                 best = (score, list(surfaces))
+                kept = vis
                 st.residual, st.residual_rel = vis.worst, vis.worst_rel
                 st.pair_residual_rel = {(defs[i].path, self._name(other)): vis.pair_rel(defs[i].path, self._name(other))
                                         for i, other in _pairs(len(defs), len(self.statics))}
@@ -480,6 +482,8 @@ class _Run:
             self.respond(frame, it, st, points, surfaces)
             st.iterations = it + 1
         surfaces = best[1]
+        if kept is not None:
+            result.residuals[frame] = residual.known(kept, options.tolerance)
         carried = self.carry.end(frame, surfaces)
         st.volume_targets = self.carry.volume_targets()
         for i, model in enumerate(defs):  # the display is the run's, chosen after every frame (`display.finish`)

@@ -63,10 +63,13 @@ class FramesResult:
     """Results of a run: ``frames[frame][prim path] -> DeformableResult``, and the display
     topology of each deformable for the whole run (``topologies[prim path]``, a
     `acra.tessellate.GridTopology` or `MeshTopology`; where absent, the model's), which every
-    frame's ``points`` follow."""
+    frame's ``points`` follow. ``residuals[frame]`` holds the frame loop's residual answers of the
+    kept round by content, which `pipeline.residual.measure_run` takes where the run's display
+    shows the same."""
 
     frames: dict[int, dict[str, DeformableResult]] = field(default_factory=dict)
     topologies: dict = field(default_factory=dict)
+    residuals: dict = field(default_factory=dict)  # frame -> `pipeline.residual.known` of the kept round's display
 
     def topology(self, model: DeformableModel):
         """The display topology ``model``'s points follow in this run."""

@@ -24,6 +24,7 @@ call. World units unless stated; arrays are float64.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -34,7 +35,7 @@ from pipeline import clearance
 from pipeline.model import SceneModel, apply_inverse, apply_xform
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
-           "measure_frame", "measure_run", "TARGET"]
+           "measure_frame", "measure_run", "known", "TARGET"]
 
 TARGET = 0.5  # a bound within this fraction of the tolerance needs no refining (clearance.triangle_depth)
 
@@ -104,6 +105,18 @@ class Shown:
         and their rows in ``triangles``."""
         rows = np.nonzero(bvh.faces_meet(self.world, self.triangles, box[0], box[1], pad))[0]
         return self.world[self.triangles[rows]], rows
+
+    @cached_property
+    def fingerprint(self) -> bytes:
+        """A digest of everything `pair_depth` reads of this object (its path names a
+        collider's solid, which is fixed for a run): two `Shown` with the same digest give the
+        same `pair_depth` answers, as either side of a pair."""
+        h = hashlib.sha1(repr((self.path, self.closed, self.deformable, self.outward, self.size)).encode())
+        for x in (self.box, self.xform, self.world, self.triangles, self.vertex_uv, self.local):
+            h.update(b"-" if x is None else repr((x.dtype.str, x.shape)).encode())
+            if x is not None:
+                h.update(np.ascontiguousarray(x).data)
+        return h.digest()
 
     @cached_property
     def diagonal_local(self) -> float:
@@ -239,9 +252,11 @@ class PairDepth:
 class FrameResidual:
     """A frame's residual: ``pairs`` (every ordered pair measured), ``worst`` (world) and
     ``worst_rel`` (over the inner object's size), and per deformable path its own worst depth
-    ``by_object`` (world) and ``rel_by_object``."""
+    ``by_object`` (world) and ``rel_by_object``; ``measured`` holds ``(a, b, Inside)`` per pair
+    (the two `Shown`), for `known`."""
 
     pairs: list = field(default_factory=list)
+    measured: list = field(default_factory=list)
     worst: float = 0.0
     worst_rel: float = 0.0
     by_object: dict = field(default_factory=dict)
@@ -252,11 +267,28 @@ class FrameResidual:
         return max((p.rel for p in self.pairs if {p.a, p.b} == {a, b}), default=0.0)
 
 
-def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict | None = None) -> FrameResidual:
+def known(fr: FrameResidual, tolerance: float) -> dict:
+    """``fr``'s answers by the content of their pairs (`Shown.fingerprint`) and ``tolerance``, for
+    `measure_frame`'s ``known``: the run's display of a frame often shows the surfaces of the
+    round the frame loop kept, on the same topology, as the same points. Each answer keeps its
+    depths and completeness but not the points found inside (`measure_run` reads the depths
+    alone), so a run's kept answers stay a few numbers a pair."""
+    return {(a.fingerprint, b.fingerprint, tolerance): _depths_only(ins) for a, b, ins in fr.measured}
+
+
+def _depths_only(ins: Inside) -> Inside:
+    """``ins`` without its points."""
+    return Inside(ins.depth, ins.lower, ins.points[:0], None if ins.uv is None else ins.uv[:0], ins.deep[:0], ins.complete)
+
+
+def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict | None = None,
+                  known: dict | None = None) -> FrameResidual:
     """`pair_depth` of every deformable of ``objects`` in every other closed one (or the ordered
     ``pairs`` of indices given), refined to ``TARGET * tolerance`` of the inner object's size.
     ``memo`` keeps each pair's `Inside` by the two `Shown` objects (which never change): a
-    round whose response left both as they were gets the answer measured before."""
+    round whose response left both as they were gets the answer measured before. ``known``
+    (`known`) holds answers by content: a pair whose two objects hold what a measured pair's
+    held gets that answer's depths (`pair_depth` is a function of them), without its points."""
     out = FrameResidual()
     if pairs is None:  # every deformable's display in every other object
         pairs = [(i, j) for i, a in enumerate(objects) if a.deformable for j in range(len(objects)) if j != i]
@@ -269,12 +301,15 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict
         hit = None if memo is None else memo.get(key)
         if hit is not None and hit[0] is a and hit[1] is b:
             ins = hit[2]
+        elif known and (a.fingerprint, b.fingerprint, tolerance) in known:
+            ins = known[a.fingerprint, b.fingerprint, tolerance]
         else:
             ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size)
             if memo is not None:
                 memo[key] = (a, b, ins)
         rel = ins.depth / size
         out.pairs.append(PairDepth(a.path, b.path, ins, rel))
+        out.measured.append((a, b, ins))
         out.worst = max(out.worst, ins.depth)
         out.worst_rel = max(out.worst_rel, rel)
         out.by_object[a.path] = max(out.by_object.get(a.path, 0.0), ins.depth)
@@ -287,7 +322,8 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
     `pipeline.display.evaluate_run`): each `frames.FrameStats` gets ``residual``, ``residual_rel``
     and ``pair_residual_rel`` from what the output shows, and each deformable's result its own
     ``residual`` (world), and its milliseconds join the frame's ``ms_output`` and ``ms_total``.
-    World matrices come from the stats (``xforms``) or, where a frame's statistics do not carry
+    A pair the frame loop measured on the same content (``result.residuals[frame]``, `known`) is
+    not measured again. World matrices come from the stats (``xforms``) or, where a frame's statistics do not carry
     them (a merge of part files), from the stage."""
     from dataclasses import replace
 
@@ -316,7 +352,7 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
             v = apply_xform(xforms[c.path], c.vertices)
             box = np.stack([v.min(axis=0), v.max(axis=0)])
             objects.append(collider_shown(c.path, box, float(np.linalg.norm(box[1] - box[0])), s, xforms[c.path]))
-        fr = measure_frame(objects, options.tolerance)
+        fr = measure_frame(objects, options.tolerance, known=getattr(result, "residuals", {}).get(st.frame))
         st.residual, st.residual_rel = fr.worst, fr.worst_rel
         st.pair_residual_rel = {}
         names = [m.path for m in scene.deformables]

@@ -108,3 +108,33 @@ def test_a_frame_measures_every_deformable_in_every_other_closed_object():
     assert pairs == {("/a", "/b"), ("/b", "/a"), ("/sheet", "/a"), ("/sheet", "/b")}
     assert fr.worst_rel == max(p.rel for p in fr.pairs) and fr.worst_rel > 0.01
     assert fr.pair_rel("/a", "/b") == max(p.rel for p in fr.pairs if {p.a, p.b} == {"/a", "/b"})
+
+
+def test_a_measured_pair_is_taken_by_content_where_the_displays_hold_the_same():
+    """`known` answers a pair whose two displays hold what a measured pair's held (new `Shown`
+    objects of the same points: the run's display showing the kept round's surfaces), with the
+    answer measuring it gives; a display moved by one float32 step is measured again."""
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    pts, tris = grid_samples(ball, topo)[0], topo.triangles()
+    _, spts, stris, suv = sheet(0.2, width=3.0)
+
+    def objects(dz: float = 0.0):
+        return [residual.shown("/sheet", spts + [0.0, 0.0, dz], stris, np.eye(4), suv),
+                residual.shown("/ball", pts, tris, np.eye(4), None, closed=True, outward=1.0)]
+
+    first = residual.measure_frame(objects(), 1e-3)
+    known = residual.known(first, 1e-3)
+    again = objects()
+    assert [o.fingerprint for o in again] == [o.fingerprint for o in objects()]
+    taken = residual.measure_frame(again, 1e-3, known=known)
+    assert len(taken.pairs) == len(first.pairs) == 1 and first.pairs[0].inside.depth > 0
+    got, want = taken.pairs[0].inside, first.pairs[0].inside
+    assert (got.depth, got.lower, got.complete, taken.worst_rel) == (want.depth, want.lower, want.complete, first.worst_rel)
+    assert len(got.points) == 0 and len(want.points) > 0  # the depths alone are kept
+    fresh = residual.measure_frame(objects(), 1e-3)
+    assert [p.inside.depth for p in fresh.pairs] == [p.inside.depth for p in first.pairs]
+    step = float(np.spacing(np.float32(0.2)))
+    moved = residual.measure_frame(objects(2 * step), 1e-3, known=known)
+    assert len(moved.pairs[0].inside.points) > 0  # measured again
+    assert len(residual.measure_frame(again, 2e-3, known=known).pairs[0].inside.points) > 0
