@@ -99,8 +99,82 @@ class FrameStats:
     pair_residual_rel: dict = field(default_factory=dict)  # (path, other path) -> residual_rel of that pair
 
 
+def pinned(hs: H.HSpline, new: R.DataPoints, old: R.DataPoints | None,
+           level: int) -> tuple[R.DataPoints, R.DataPoints | None]:
+    """A later round's data points and the points it holds: ``(new's kept points, held)``.
+
+    ``old`` are the frame's earlier data points; the surface passes through them (the direct
+    solve interpolates), and the round holds each at the target it asked (`respond.respond`'s
+    ``held``), so it corrects what is left without undoing what the earlier rounds placed.
+    Distances are in patches of the finest absorbing level ``level``: two targets closer than
+    `PIN_GAP` fight in the interpolation and the surface rings between them, so the round's
+    additional points are first thinned to that gap (`_thinned`), and an earlier additional point
+    gives way to a point of the round that close. An earlier contact point (eq. 4.15: the
+    first-touch target, the dent's bottom, between two deformables their rigidity split) gives way
+    only to a contact of the round; the round's additional points near it give way instead."""
+    gap = PIN_GAP / 2.0**level
+    new = _thinned(hs, new, gap)
+    if old is None or not len(old.uv):
+        return new, None
+    near = _uv_distance(hs, new.uv, old.uv) < gap  # (new, old)
+    old_contact, new_contact = np.asarray(old.is_contact, bool), np.asarray(new.is_contact, bool)
+    drop = ~new_contact & near[:, old_contact].any(axis=1)
+    keep = np.where(old_contact, ~near[new_contact].any(axis=0), ~near[~drop].any(axis=0))
+    return _take(new, ~drop), _take(old, keep)
+
+
+PIN_GAP = 0.75  # data points of a later round at least this far apart, in patches of the finest absorbing level
+
+
+def _take(dp: R.DataPoints, rows: np.ndarray) -> R.DataPoints:
+    return R.DataPoints(dp.uv[rows], dp.target[rows], np.asarray(dp.is_contact, bool)[rows])
+
+
+def _thinned(hs: H.HSpline, dp: R.DataPoints, gap: float) -> R.DataPoints:
+    """``dp`` without the additional points closer than ``gap`` (level-0 parameters) to a contact
+    point or to an additional point asking a larger move (greedy, largest move first).
+
+    The display's points (`datapoints.visible_points`) are the deepest per patch, often on a
+    patch's edge beside the next patch's: nearly equal rows asking different moves."""
+    contact = np.asarray(dp.is_contact, bool)
+    move = np.linalg.norm(dp.target - H.evaluate(hs, dp.uv[:, 0], dp.uv[:, 1]).points, axis=1)
+    order = np.concatenate([np.nonzero(contact)[0], np.nonzero(~contact)[0][np.argsort(-move[~contact], kind="stable")]])
+    near = _uv_distance(hs, dp.uv, dp.uv) < gap
+    keep = np.zeros(len(dp.uv), bool)
+    for k in order:
+        keep[k] = contact[k] or not (near[k] & keep).any()
+    return _take(dp, keep)
+
+
+def _uv_distance(hs: H.HSpline, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance in level-0 parameters between each of ``a (n, 2)`` and each of ``b (m, 2)``:
+    ``(n, m)``, across the seam of a periodic direction."""
+    d = np.abs(a[:, None, :] - b[None, :, :])
+    for col, dim in ((0, hs.u), (1, hs.v)):
+        if dim.periodic:
+            d[..., col] = np.minimum(d[..., col], dim.patches0 - d[..., col])
+    return np.linalg.norm(d, axis=2)
+
+
+def corrective(controls: R.Controls) -> R.Controls:
+    """The controls of a frame's later rounds: each level's absorption times the deformational
+    part of its mix, renormalised, all deformation (unchanged if no level deforms).
+
+    The first round gives the response its look: each level absorbs its share as the animator
+    mixed it (thesis §4.3). A later round clears what is left while its pins (`pinned`) hold what
+    the earlier rounds placed; a translational or rotational level cannot hold a point (a turn
+    about the level's pivots moves it on a circle, a translation moves the whole patch), so a
+    later round asks the deforming levels alone and each point meets its target."""
+    weight = controls.absorption * controls.deform
+    if not weight.sum() > 0:
+        return controls
+    on = weight > 0
+    return replace(controls, absorption=weight / weight.sum(), deform=np.where(on, 1.0, controls.deform),
+                   translate=np.where(on, 0.0, controls.translate), rotate=np.where(on, 0.0, controls.rotate))
+
+
 def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints, controls: R.Controls,
-                     options: RunOptions):
+                     options: RunOptions, held: R.DataPoints | None = None):
     """`respond.respond` with each direct solve's dense arrays bounded by the run's memory budget.
 
     How many CVs a contact moves on an absorbing level is known only once the contact is found
@@ -109,7 +183,8 @@ def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints,
     """
     try:
         return R.respond(parent, dp, controls, method=options.method,
-                         det=S.shape_of(parent, options.density).details, max_bytes=options.memory_budget)
+                         det=S.shape_of(parent, options.density).details, max_bytes=options.memory_budget,
+                         held=held)
     except SystemTooLarge as err:
         raise InputError(path, "acra:absorption", (
             f"at frame {frame} the response's solve of {err.points} data points on {err.cvs} CVs would need "
@@ -394,9 +469,14 @@ class _Run:
                     points.setdefault(j, []).append((dp, world[keep], start[keep]))
         return points
 
-    def respond(self, frame: int, it: int, st: FrameStats, points: dict, surfaces: list) -> None:
+    def respond(self, frame: int, it: int, st: FrameStats, points: dict, surfaces: list, pins: dict | None = None) -> None:
         """Respond every deformable with data points (thesis §4.3), replacing its surface in
-        ``surfaces``; the first round's data points go to ``st`` for the preview."""
+        ``surfaces``; the first round's data points go to ``st`` for the preview.
+
+        ``pins`` holds, per deformable, the data points of the frame's rounds so far (updated
+        here): a later round holds them at the targets they asked (`pinned`) and deforms only
+        (`corrective`)."""
+        pins = {} if pins is None else pins
         for i, lst in points.items():
             t_i = time.perf_counter()
             dp = R.DataPoints(
@@ -405,8 +485,15 @@ class _Run:
                 np.concatenate([d.is_contact for d, _, _ in lst]),
             )
             parent = surfaces[i]
+            controls = self.controls[i]
+            held = None
+            if it > 0:
+                dp, held = pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth))
+                controls = corrective(controls)
+            pins[i] = dp if held is None else R.DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
+                                                           np.concatenate([dp.is_contact, held.is_contact]))
             path = self.defs[i].path
-            surfaces[i], rep = _respond_bounded(path, frame, parent, dp, self.controls[i], self.options)
+            surfaces[i], rep = _respond_bounded(path, frame, parent, dp, controls, self.options, held)
             S.seed_details(surfaces[i], rep.details, self.options.density, parent=parent)
             surfaces[i] = self.carry.after_response(i, parent, surfaces[i])
             if it == 0:
@@ -429,6 +516,7 @@ class _Run:
         enabled = [s.enabled for s in dstates]
         directions: dict = {}
         wrapping: set = set()  # collider pairs pushed by `collider_points_for` this frame
+        pins: dict = {}  # deformable -> the data points of the frame's responses so far (`respond`)
         best = (np.inf, list(surfaces))
         rounds = max(1, options.iterations)
         for it in range(rounds + 1):
@@ -473,7 +561,7 @@ class _Run:
             points = self.data_points(rnd, geoms, cgeoms, sizes, enabled, surfaces, directions, wrapping, over, seen)
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_convert += 1e3 * (time.perf_counter() - tr) - (S.SetupClock.ms - setup0)
-            self.respond(frame, it, st, points, surfaces)
+            self.respond(frame, it, st, points, surfaces, pins)
             st.iterations = it + 1
         surfaces = best[1]
         carried = self.carry.end(frame, surfaces)
