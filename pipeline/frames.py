@@ -103,29 +103,26 @@ def pinned(hs: H.HSpline, new: R.DataPoints, old: R.DataPoints | None, level: in
            shared: bool = False) -> tuple[R.DataPoints, R.DataPoints | None]:
     """A later round's data points and the points it holds: ``(new's kept points, held)``.
 
-    ``old`` are the frame's earlier data points; the surface passes through them (the direct
-    solve interpolates), and the round holds each at the target it asked (`respond.respond`'s
-    ``held``), so it corrects what is left without undoing what the earlier rounds placed.
-    Distances are in patches of the finest absorbing level ``level`` (of the round's controls,
-    `corrective`): two targets close together fight in the interpolation and the surface rings
-    between them, so the round's additional points are first thinned to `THIN_GAP` (`_thinned`)
-    and an earlier additional point gives way to a point of the round within `PIN_GAP`. An
-    earlier contact point (eq. 4.15's first-touch target: the dent's bottom) gives way only to a
-    contact of the round within `PIN_GAP`; the round's additional points within `HOLD_GAP` of it
-    give way instead. Between two deformables (``shared``) that distance is `THIN_GAP`, so a
-    later round's points near an earlier contact leave eq. 4.15's rigidity split as it was."""
+    ``old`` are the frame's earlier data points. Their contact points (eq. 4.15's first-touch
+    targets: a dent's bottom, between two deformables their rigidity split) are held at the
+    targets they asked (`respond.respond`'s ``held``): the surface passes through them already
+    (the direct solve interpolates), so the round corrects what is left without moving what the
+    first round placed. Distances are in patches of the finest absorbing level ``level``: two
+    targets close together fight in the interpolation and the surface rings between them, so the
+    round's additional points are first thinned to `THIN_GAP` (`_thinned`); an earlier contact
+    gives way to a contact of the round within `PIN_GAP`; the round's additional points within
+    `HOLD_GAP` of a held contact give way to it (within `THIN_GAP` between two deformables,
+    ``shared``, so the split stands)."""
     scale = 2.0**-level  # a patch of the level, in level-0 parameters
-    gap = PIN_GAP * scale
     new = _thinned(hs, new, THIN_GAP * scale)
-    if old is None or not len(old.uv):
+    if old is None or not np.any(old.is_contact):
         return new, None
+    old = _take(old, np.asarray(old.is_contact, bool))
     dist = _uv_distance(hs, new.uv, old.uv)  # (new, old)
-    near = dist < gap
-    old_contact, new_contact = np.asarray(old.is_contact, bool), np.asarray(new.is_contact, bool)
-    holds = old_contact & ~near[new_contact].any(axis=0)
+    new_contact = np.asarray(new.is_contact, bool)
+    holds = ~(dist[new_contact] < PIN_GAP * scale).any(axis=0)
     drop = ~new_contact & (dist[:, holds] < (THIN_GAP if shared else HOLD_GAP) * scale).any(axis=1)
-    keep = holds | (~old_contact & ~near[~drop].any(axis=0))
-    return _take(new, ~drop), _take(old, keep)
+    return _take(new, ~drop), _take(old, holds)
 
 
 # In patches of the finest absorbing level. Measured on the 18 scenes: with a thinning gap of
@@ -133,8 +130,8 @@ def pinned(hs: H.HSpline, new: R.DataPoints, old: R.DataPoints | None, level: in
 # fewer points leave drum frame 5 (2.1e-3) or closed_objects frames 5-7 (1.3e-3) over the
 # tolerance after 4 rounds; 0.25 clears every scene.
 THIN_GAP = 0.25  # a later round's additional points at least this far apart
-PIN_GAP = 0.75  # an earlier point gives way to a later round's point this close
-HOLD_GAP = 0.1  # a later round's additional point this close to an earlier contact gives way to it
+PIN_GAP = 0.75  # an earlier contact gives way to a later round's contact this close
+HOLD_GAP = 0.1  # a later round's additional point this close to a held contact gives way to it
 
 
 def _take(dp: R.DataPoints, rows: np.ndarray) -> R.DataPoints:
@@ -165,23 +162,6 @@ def _uv_distance(hs: H.HSpline, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if dim.periodic:
             d[..., col] = np.minimum(d[..., col], dim.patches0 - d[..., col])
     return np.linalg.norm(d, axis=2)
-
-
-def corrective(controls: R.Controls) -> R.Controls:
-    """The controls of a frame's later rounds: each level's absorption times the deformational
-    part of its mix, renormalised, all deformation (unchanged if no level deforms).
-
-    The first round gives the response its look: each level absorbs its share as the animator
-    mixed it (thesis §4.3). A later round clears what is left while its pins (`pinned`) hold what
-    the earlier rounds placed; a translational or rotational level cannot hold a point (a turn
-    about the level's pivots moves it on a circle, a translation moves the whole patch), so a
-    later round asks the deforming levels alone and each point meets its target."""
-    weight = controls.absorption * controls.deform
-    if not weight.sum() > 0:
-        return controls
-    on = weight > 0
-    return replace(controls, absorption=weight / weight.sum(), deform=np.where(on, 1.0, controls.deform),
-                   translate=np.where(on, 0.0, controls.translate), rotate=np.where(on, 0.0, controls.rotate))
 
 
 def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints, controls: R.Controls,
@@ -486,8 +466,8 @@ class _Run:
         ``surfaces``; the first round's data points go to ``st`` for the preview.
 
         ``pins`` holds, per deformable, the data points of the frame's rounds so far (updated
-        here): a later round holds them at the targets they asked (`pinned`) and deforms only
-        (`corrective`)."""
+        here): a later round holds their contact points at the targets they asked (`pinned`).
+        ``shared`` names the deformables in a pair with another deformable this frame."""
         pins = {} if pins is None else pins
         for i, lst in points.items():
             t_i = time.perf_counter()
@@ -500,7 +480,6 @@ class _Run:
             controls = self.controls[i]
             held = None
             if it > 0:
-                controls = corrective(controls)  # the held points are rows of its finest level's solve
                 dp, held = pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth), i in shared)
             pins[i] = dp if held is None else R.DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
                                                            np.concatenate([dp.is_contact, held.is_contact]))

@@ -156,17 +156,18 @@ def test_demo_motion_is_keyed_with_native_usd_splines(tmp_path):
     assert op.Get(10.5) == pytest.approx(0.175)
 
 
-def test_a_later_round_holds_the_earlier_data_points_while_it_clears_a_display_point():
+def test_a_later_round_holds_the_earlier_contact_while_it_clears_a_display_point():
     """The pin rule (`frames.pinned`, `respond.respond`'s ``held``): a later round asked to move
-    one point leaves the first round's data points where they were asked, to 1e-9 of the
-    sheet's size, and meets its own point; without them the same round moves them."""
+    one point of the display on a dent's flank leaves the first round's contact point (the dent's
+    bottom) where it was asked, to 1e-9 of the sheet's size, and meets its own point; without
+    the pin the same round moves the bottom."""
     from acra import hspline as H
     from acra import respond as R
     from acra import shapes
     from pipeline import datapoints as P
 
     hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=3)
-    controls = R.check_controls(3, [0.0, 0.5, 0.5], deform=[1.0, 1.0, 0.5], translate=[0.0, 0.0, 0.5])
+    controls = R.check_controls(3, [0.0, 0.5, 0.5])
     # the first round: a dent's contact and its additional points, one per level-2 patch around it
     uv = np.array([[3.5, 3.5], [3.125, 3.5], [3.875, 3.5], [3.5, 3.125], [3.5, 3.875]])
     depth = np.array([0.3, 0.2, 0.2, 0.2, 0.2])
@@ -177,26 +178,28 @@ def test_a_later_round_holds_the_earlier_data_points_while_it_clears_a_display_p
     at = np.array([[4.25, 3.5]])
     later = R.DataPoints(at, H.evaluate(one, at[:, 0], at[:, 1]).points - [0.0, 0.0, 0.02], np.array([False]))
     size = one.size()
-    c = F.corrective(controls)
-    new, held = F.pinned(one, later, first, P.group_level(c, one.depth))
-    assert len(new.uv) == 1 and len(held.uv) == len(uv)  # nothing within the gaps: all held
-    two, _ = R.respond(one, new, c, held=held)
-    assert np.abs(H.evaluate(two, uv[:, 0], uv[:, 1]).points - first.target).max() <= 1e-9 * size
+    new, held = F.pinned(one, later, first, P.group_level(controls, one.depth))
+    np.testing.assert_array_equal(held.uv, uv[:1])  # the contact is held, the additional points are not
+    two, _ = R.respond(one, new, controls, held=held)
+    assert np.abs(H.evaluate(two, uv[:1, 0], uv[:1, 1]).points - first.target[:1]).max() <= 1e-9 * size
     assert np.abs(H.evaluate(two, at[:, 0], at[:, 1]).points - later.target).max() <= 1e-9 * size
-    free, _ = R.respond(one, later, c)
-    assert np.abs(H.evaluate(free, uv[:, 0], uv[:, 1]).points - first.target).max() > 1e-4 * size
+    free, _ = R.respond(one, later, controls)
+    assert np.abs(H.evaluate(free, uv[:1, 0], uv[:1, 1]).points - first.target[:1]).max() > 1e-4 * size
 
 
-def test_an_earlier_point_gives_way_to_a_later_one_close_by_and_a_contact_holds():
-    """`frames.pinned`: an earlier additional point within `PIN_GAP` of a later round's point is
-    not held; an earlier contact point is, and a later additional point on it gives way."""
+def test_an_earlier_contact_holds_against_additional_points_and_gives_way_to_a_contact():
+    """`frames.pinned` on level 1 (patches of 0.5): a later additional point within `HOLD_GAP`
+    of an earlier contact gives way to it, one farther stays; a later contact within `PIN_GAP`
+    replaces the earlier contact; additional points are thinned to `THIN_GAP`."""
     from acra import hspline as H
     from acra import respond as R
     from acra import shapes
 
-    hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=2)  # level 1: patches of 0.5
-    old = R.DataPoints(np.array([[2.0, 2.0], [4.0, 4.0]]), np.zeros((2, 3)), np.array([True, False]))
-    new = R.DataPoints(np.array([[2.02, 2.0], [4.1, 4.0], [5.5, 5.5]]), np.ones((3, 3)), np.zeros(3, bool))
+    hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=2)
+    old = R.DataPoints(np.array([[2.0, 2.0], [4.0, 4.0], [5.0, 2.0]]), np.zeros((3, 3)), np.array([True, True, False]))
+    target = np.array([[0, 0, 1], [0, 0, 1], [0, 0, 1], [5.5, 5.5, 0.2], [5.55, 5.5, 0.1]])  # (5.5, 5.5) asks more
+    new = R.DataPoints(np.array([[2.02, 2.0], [2.3, 2.0], [4.1, 4.0], [5.5, 5.5], [5.55, 5.5]]), target,
+                       np.array([False, False, True, False, False]))
     kept, held = F.pinned(hs, new, old, 1)
-    np.testing.assert_array_equal(kept.uv, [[4.1, 4.0], [5.5, 5.5]])  # the one on the contact gave way
-    np.testing.assert_array_equal(held.uv, [[2.0, 2.0]])  # the additional point gave way to (4.1, 4.0)
+    np.testing.assert_array_equal(kept.uv, [[2.3, 2.0], [4.1, 4.0], [5.5, 5.5]])
+    np.testing.assert_array_equal(held.uv, [[2.0, 2.0]])
