@@ -100,7 +100,7 @@ class FrameStats:
 
 
 def pinned(hs: H.HSpline, new: R.DataPoints, old: R.DataPoints | None, level: int,
-           shared: bool = False) -> tuple[R.DataPoints, R.DataPoints | None]:
+           shared: bool = False, slack: float = 0.0) -> tuple[R.DataPoints, R.DataPoints | None]:
     """A later round's data points and the points it holds: ``(new's kept points, held)``.
 
     ``old`` are the frame's earlier data points. Their contact points (eq. 4.15's first-touch
@@ -112,7 +112,19 @@ def pinned(hs: H.HSpline, new: R.DataPoints, old: R.DataPoints | None, level: in
     round's additional points are first thinned to `THIN_GAP` (`_thinned`); an earlier contact
     gives way to a contact of the round within `PIN_GAP`; the round's additional points within
     `HOLD_GAP` of a held contact give way to it (within `THIN_GAP` between two deformables,
-    ``shared``, so the split stands)."""
+    ``shared``, so the split stands).
+
+    An earlier contact is held only where it is a bottom the round's points must not drag past:
+    * Between two deformables (``shared``), a contact of the round anywhere releases every
+      earlier one: detection still finds the pair, and the round's contact asks eq. 4.15's split
+      between the surfaces as they are now; an earlier split held elsewhere on the finest level
+      pulls against it. The earlier split is held only while the pair's later rounds come from
+      the display alone.
+    * An additional point of the round within `PIN_GAP` asking a target at least as deep along
+      its own move as the contact's, to within ``slack`` (object units), releases it: the contact
+      is then one point of a face pressed flat (a tip under a plane), not the bottom of a dent
+      around which the other object's surface rises, and holding it keeps the tip up while the
+      face around it is pushed down."""
     scale = 2.0**-level  # a patch of the level, in level-0 parameters
     new = _thinned(hs, new, THIN_GAP * scale)
     if old is None or not np.any(old.is_contact):
@@ -121,7 +133,15 @@ def pinned(hs: H.HSpline, new: R.DataPoints, old: R.DataPoints | None, level: in
     dist = _uv_distance(hs, new.uv, old.uv)  # (new, old)
     new_contact = np.asarray(new.is_contact, bool)
     holds = ~(dist[new_contact] < PIN_GAP * scale).any(axis=0)
-    drop = ~new_contact & (dist[:, holds] < (THIN_GAP if shared else HOLD_GAP) * scale).any(axis=1)
+    if shared and new_contact.any():
+        holds[:] = False
+    extra = ~new_contact
+    if extra.any() and holds.any():
+        move = new.target[extra] - H.evaluate(hs, new.uv[extra, 0], new.uv[extra, 1]).points
+        move /= np.maximum(np.linalg.norm(move, axis=1, keepdims=True), np.finfo(float).tiny)
+        ahead = np.einsum("nmk,nk->nm", new.target[extra][:, None, :] - old.target[None, :, :], move)  # (extra, old)
+        holds &= ~((ahead >= -slack) & (dist[extra] < PIN_GAP * scale)).any(axis=0)
+    drop = extra & (dist[:, holds] < (THIN_GAP if shared else HOLD_GAP) * scale).any(axis=1)
     return _take(new, ~drop), _take(old, holds)
 
 
@@ -480,7 +500,8 @@ class _Run:
             controls = self.controls[i]
             held = None
             if it > 0:
-                dp, held = pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth), i in shared)
+                slack = self.options.tolerance * float(np.linalg.norm(np.ptp(parent.cvs.reshape(-1, 3), axis=0)))
+                dp, held = pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth), i in shared, slack)
             pins[i] = dp if held is None else R.DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
                                                            np.concatenate([dp.is_contact, held.is_contact]))
             path = self.defs[i].path
@@ -578,3 +599,4 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
         if on_frame is not None:
             on_frame(stats[-1], result)
     return result, stats
+

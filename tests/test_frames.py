@@ -196,10 +196,45 @@ def test_an_earlier_contact_holds_against_additional_points_and_gives_way_to_a_c
     from acra import shapes
 
     hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=2)
-    old = R.DataPoints(np.array([[2.0, 2.0], [4.0, 4.0], [5.0, 2.0]]), np.zeros((3, 3)), np.array([True, True, False]))
-    target = np.array([[0, 0, 1], [0, 0, 1], [0, 0, 1], [5.5, 5.5, 0.2], [5.55, 5.5, 0.1]])  # (5.5, 5.5) asks more
-    new = R.DataPoints(np.array([[2.02, 2.0], [2.3, 2.0], [4.1, 4.0], [5.5, 5.5], [5.55, 5.5]]), target,
-                       np.array([False, False, True, False, False]))
+    down = np.array([0.0, 0.0, -1.0])
+    ouv = np.array([[2.0, 2.0], [4.0, 4.0], [5.0, 2.0]])
+    old = R.DataPoints(ouv, _on(hs, ouv) + 0.3 * down, np.array([True, True, False]))  # dents' bottoms 0.3 deep
+    nuv = np.array([[2.02, 2.0], [2.3, 2.0], [4.1, 4.0], [5.5, 5.5], [5.55, 5.5]])
+    depth = np.array([0.1, 0.1, 0.3, 0.2, 0.1])  # (5.5, 5.5) asks more; the flank's points less than the bottom
+    new = R.DataPoints(nuv, _on(hs, nuv) + depth[:, None] * down, np.array([False, False, True, False, False]))
     kept, held = F.pinned(hs, new, old, 1)
     np.testing.assert_array_equal(kept.uv, [[2.3, 2.0], [4.1, 4.0], [5.5, 5.5]])
     np.testing.assert_array_equal(held.uv, [[2.0, 2.0]])
+
+
+def _on(hs, uv):
+    from acra import hspline as H
+
+    return H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+
+
+def test_an_earlier_contact_gives_way_on_a_flat_face_and_to_a_later_split():
+    """`frames.pinned` releases an earlier contact (a) when an additional point of the round
+    within `PIN_GAP` asks as deep as it along its own move, to within ``slack`` (a tip under a
+    plane: the face around it is pushed down to the same depth), and (b) between two deformables
+    (``shared``) when the round has a contact of its own anywhere; with the flank shallower, or
+    between two deformables with display points alone, the contact is held."""
+    from acra import hspline as H
+    from acra import respond as R
+    from acra import shapes
+
+    hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=2)
+    down = np.array([0.0, 0.0, -1.0])
+    ouv = np.array([[2.0, 2.0]])
+    old = R.DataPoints(ouv, _on(hs, ouv) + 0.3 * down, np.array([True]))
+    nuv = np.array([[2.25, 2.0]])  # half a level-1 patch away
+    for depth, slack, is_held in ((0.3, 0.0, False), (0.31, 0.0, False), (0.29, 0.0, True), (0.29, 0.02, False)):
+        new = R.DataPoints(nuv, _on(hs, nuv) + depth * down, np.array([False]))
+        _, held = F.pinned(hs, new, old, 1, slack=slack)
+        assert (len(held.uv) == 1) == is_held, (depth, slack)
+    far = np.array([[6.0, 6.0], [2.25, 2.0]])  # a contact of the round far away, the flank shallower
+    new = R.DataPoints(far, _on(hs, far) + np.array([[0.3], [0.1]]) * down, np.array([True, False]))
+    assert len(F.pinned(hs, new, old, 1)[1].uv) == 1
+    assert len(F.pinned(hs, new, old, 1, shared=True)[1].uv) == 0
+    flank = R.DataPoints(nuv, _on(hs, nuv) + 0.1 * down, np.array([False]))
+    assert len(F.pinned(hs, flank, old, 1, shared=True)[1].uv) == 1
