@@ -500,6 +500,7 @@ class _Run:
             controls = self.controls[i]
             held = None
             if it > 0:
+                # a flank point this little shallower than an earlier contact reaches it (`pinned`)
                 slack = self.options.tolerance * float(np.linalg.norm(np.ptp(parent.cvs.reshape(-1, 3), axis=0)))
                 dp, held = pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth), i in shared, slack)
             pins[i] = dp if held is None else R.DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
@@ -599,4 +600,3 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None):
         if on_frame is not None:
             on_frame(stats[-1], result)
     return result, stats
-
