@@ -609,6 +609,7 @@ def respond(
     iterations: int = 5,
     det: H.Details | None = None,
     max_bytes: int | None = None,
+    held: DataPoints | None = None,
 ) -> tuple[H.HSpline, ResponseReport]:
     """Move a surface so it passes through its data points (thesis §4.3.4 prolongation).
 
@@ -627,6 +628,13 @@ def respond(
         ``H.details(hs)`` if the caller has it already (details are most of a response's cost).
     max_bytes : int, optional
         Bound on each direct solve's dense arrays (`interpolate.SystemTooLarge` past it).
+    held : DataPoints, optional
+        Points the response must leave at their targets (``is_contact`` unused): rows of the
+        finest absorbing level's deformational solve, one each, not merged per patch; the coarser
+        levels take their shares of ``points`` as without them. A coarse level cannot hold a point
+        a patch away from a moved one (its patches span both), so the finest level, which
+        interpolates, puts each back; solved one each they stay exact where the merged mean of
+        eq. 4.16's per-patch points would move both.
 
     Returns
     -------
@@ -683,6 +691,13 @@ def respond(
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
             luv, lwant = _per_level_points(hs, level, uv, want, np.asarray(points.is_contact, bool))
+            if level == finest and held is not None and len(held.uv):
+                huv = np.asarray(held.uv, dtype=np.float64).reshape(-1, 2)
+                on = point_weights(hs, level, huv[:, 0], huv[:, 1]).active  # a point with no CV of the level here
+                huv, htarget = huv[on], np.asarray(held.target, dtype=np.float64).reshape(-1, 3)[on]
+                hcur = H.evaluate(hs, huv[:, 0], huv[:, 1], det=det).points
+                luv = np.concatenate([luv, huv])
+                lwant = np.concatenate([lwant, htarget - hcur])
             lpw = point_weights(hs, level, luv[:, 0], luv[:, 1])
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
