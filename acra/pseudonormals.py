@@ -46,6 +46,26 @@ def _root(parent, i):
 
 
 @njit(cache=True, nogil=True)
+def _used(v, f, rows):
+    """The vertices of ``v (n, 3)`` that the faces ``f[rows]`` use, renumbered in the order of
+    their rows: ``(new (n,) int64`` (-1 where unused), ``vertices (k, 3))``."""
+    new = np.full(v.shape[0], -1, np.int64)
+    for i in range(rows.shape[0]):
+        for k in range(3):
+            new[f[rows[i], k]] = 0
+    n = 0
+    for j in range(v.shape[0]):
+        if new[j] == 0:
+            new[j] = n
+            n += 1
+    out = np.empty((n, 3))
+    for j in range(v.shape[0]):
+        if new[j] >= 0:
+            out[new[j]] = v[j]
+    return new, out
+
+
+@njit(cache=True, nogil=True)
 def weld(v, f, radius):
     """The vertices ``v (n, 3)`` that faces ``f (F, 3) int64`` use, welded: chained by distances
     within ``radius``, each group one vertex, its lowest row's, groups in the order of their
@@ -54,20 +74,8 @@ def weld(v, f, radius):
     Returns ``(code, vertices (g, 3), faces (F, 3) int64)``; ``code`` 1 (and nothing else) if a
     pair's distance lies within 1e-9 of ``radius`` relative, where another computation of the
     distance might decide otherwise (the caller then welds with its kd-tree)."""
-    n = v.shape[0]
-    rank = np.full(n, -1, np.int64)
-    for i in range(f.shape[0]):
-        for k in range(3):
-            rank[f[i, k]] = 0
-    g = 0
-    for j in range(n):
-        if rank[j] == 0:
-            rank[j] = g
-            g += 1
-    vu = np.empty((g, 3))
-    for j in range(n):
-        if rank[j] >= 0:
-            vu[rank[j]] = v[j]
+    rank, vu = _used(v, f, np.arange(f.shape[0]))
+    g = vu.shape[0]
     parent = np.arange(g)
     if radius > 0:
         order = np.argsort(vu[:, 0], kind="mergesort")
@@ -157,19 +165,8 @@ def part_mesh(v, f, radius, flip):
     rows = rows[np.nonzero(first)[0]]
     m = rows.shape[0]
     # the vertices used, renumbered in order
-    new = np.full(g, -1, np.int64)
-    for i in range(m):
-        for k in range(3):
-            new[f[rows[i], k]] = 0
-    n = 0
-    for j in range(g):
-        if new[j] == 0:
-            new[j] = n
-            n += 1
-    vo = np.empty((n, 3))
-    for j in range(g):
-        if new[j] >= 0:
-            vo[new[j]] = v[j]
+    new, vo = _used(v, f, rows)
+    n = vo.shape[0]
     fo = np.empty((m, 3), np.int64)
     for i in range(m):
         for k in range(3):
