@@ -99,91 +99,6 @@ class FrameStats:
     pair_residual_rel: dict = field(default_factory=dict)  # (path, other path) -> residual_rel of that pair
 
 
-def pinned(hs: H.HSpline, new: R.DataPoints, old: R.DataPoints | None, level: int,
-           shared: bool = False, slack: float = 0.0) -> tuple[R.DataPoints, R.DataPoints | None]:
-    """A later round's data points and the points it holds: ``(new's kept points, held)``.
-
-    ``old`` are the frame's earlier data points. Their contact points (eq. 4.15's first-touch
-    targets: a dent's bottom, between two deformables their rigidity split) are held at the
-    targets they asked (`respond.respond`'s ``held``): the surface passes through them already
-    (the direct solve interpolates), so the round corrects what is left without moving what the
-    first round placed. Distances are in patches of the finest absorbing level ``level``: two
-    targets close together fight in the interpolation and the surface rings between them, so the
-    round's additional points are first thinned to `THIN_GAP` (`_thinned`); an earlier contact
-    gives way to a contact of the round within `PIN_GAP`; the round's additional points within
-    `HOLD_GAP` of a held contact give way to it (within `THIN_GAP` between two deformables,
-    ``shared``, so the split stands).
-
-    An earlier contact is held only where it is a bottom the round's points must not drag past:
-    * Between two deformables (``shared``), a contact of the round anywhere releases every
-      earlier one: detection still finds the pair, and the round's contact asks eq. 4.15's split
-      between the surfaces as they are now; an earlier split held elsewhere on the finest level
-      pulls against it. The earlier split is held only while the pair's later rounds come from
-      the display alone.
-    * An additional point of the round within `PIN_GAP` asking a target at least as deep along
-      its own move as the contact's, to within ``slack`` (object units), releases it: the contact
-      is then one point of a face pressed flat (a tip under a plane), not the bottom of a dent
-      around which the other object's surface rises, and holding it keeps the tip up while the
-      face around it is pushed down."""
-    scale = 2.0**-level  # a patch of the level, in level-0 parameters
-    new = _thinned(hs, new, THIN_GAP * scale)
-    if old is None or not np.any(old.is_contact):
-        return new, None
-    old = _take(old, np.asarray(old.is_contact, bool))
-    dist = _uv_distance(hs, new.uv, old.uv)  # (new, old)
-    new_contact = np.asarray(new.is_contact, bool)
-    holds = ~(dist[new_contact] < PIN_GAP * scale).any(axis=0)
-    if shared and new_contact.any():
-        holds[:] = False
-    extra = ~new_contact
-    if extra.any() and holds.any():
-        move = new.target[extra] - H.evaluate(hs, new.uv[extra, 0], new.uv[extra, 1]).points
-        move /= np.maximum(np.linalg.norm(move, axis=1, keepdims=True), np.finfo(float).tiny)
-        ahead = np.einsum("nmk,nk->nm", new.target[extra][:, None, :] - old.target[None, :, :], move)  # (extra, old)
-        holds &= ~((ahead >= -slack) & (dist[extra] < PIN_GAP * scale)).any(axis=0)
-    drop = extra & (dist[:, holds] < (THIN_GAP if shared else HOLD_GAP) * scale).any(axis=1)
-    return _take(new, ~drop), _take(old, holds)
-
-
-# In patches of the finest absorbing level. Measured on the 18 scenes: with a thinning gap of
-# 0.65 or 0.75 more of the look tests hold (absorb_levels, elbow_contact, drum's area), but the
-# fewer points leave drum frame 5 (2.1e-3) or closed_objects frames 5-7 (1.3e-3) over the
-# tolerance after 4 rounds; 0.25 clears every scene.
-THIN_GAP = 0.25  # a later round's additional points at least this far apart
-PIN_GAP = 0.75  # an earlier contact gives way to a later round's contact this close
-HOLD_GAP = 0.1  # a later round's additional point this close to a held contact gives way to it
-
-
-def _take(dp: R.DataPoints, rows: np.ndarray) -> R.DataPoints:
-    return R.DataPoints(dp.uv[rows], dp.target[rows], np.asarray(dp.is_contact, bool)[rows])
-
-
-def _thinned(hs: H.HSpline, dp: R.DataPoints, gap: float) -> R.DataPoints:
-    """``dp`` without the additional points closer than ``gap`` (level-0 parameters) to a contact
-    point or to an additional point asking a larger move (greedy, largest move first).
-
-    The display's points (`datapoints.visible_points`) are the deepest per patch, often on a
-    patch's edge beside the next patch's: nearly equal rows asking different moves."""
-    contact = np.asarray(dp.is_contact, bool)
-    move = np.linalg.norm(dp.target - H.evaluate(hs, dp.uv[:, 0], dp.uv[:, 1]).points, axis=1)
-    order = np.concatenate([np.nonzero(contact)[0], np.nonzero(~contact)[0][np.argsort(-move[~contact], kind="stable")]])
-    near = _uv_distance(hs, dp.uv, dp.uv) < gap
-    keep = np.zeros(len(dp.uv), bool)
-    for k in order:
-        keep[k] = contact[k] or not (near[k] & keep).any()
-    return _take(dp, keep)
-
-
-def _uv_distance(hs: H.HSpline, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance in level-0 parameters between each of ``a (n, 2)`` and each of ``b (m, 2)``:
-    ``(n, m)``, across the seam of a periodic direction."""
-    d = np.abs(a[:, None, :] - b[None, :, :])
-    for col, dim in ((0, hs.u), (1, hs.v)):
-        if dim.periodic:
-            d[..., col] = np.minimum(d[..., col], dim.patches0 - d[..., col])
-    return np.linalg.norm(d, axis=2)
-
-
 def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints, controls: R.Controls,
                      options: RunOptions, held: R.DataPoints | None = None):
     """`respond.respond` with each direct solve's dense arrays bounded by the run's memory budget.
@@ -490,7 +405,7 @@ class _Run:
         ``surfaces``; the first round's data points go to ``st`` for the preview.
 
         ``pins`` holds, per deformable, the data points of the frame's rounds so far (updated
-        here): a later round holds their contact points at the targets they asked (`pinned`).
+        here): a later round holds their contact points at the targets they asked (`datapoints.pinned`).
         ``shared`` names the deformables in a pair with another deformable this frame."""
         pins = {} if pins is None else pins
         for i, lst in points.items():
@@ -504,9 +419,9 @@ class _Run:
             controls = self.controls[i]
             held = None
             if it > 0:
-                # a flank point this little shallower than an earlier contact reaches it (`pinned`)
+                # a flank point this little shallower than an earlier contact reaches it (`datapoints.pinned`)
                 slack = self.options.tolerance * float(np.linalg.norm(np.ptp(parent.cvs.reshape(-1, 3), axis=0)))
-                dp, held = pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth), i in shared, slack)
+                dp, held = P.pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth), i in shared, slack)
             pins[i] = dp if held is None else R.DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
                                                            np.concatenate([dp.is_contact, held.is_contact]))
             path = self.defs[i].path

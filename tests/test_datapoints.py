@@ -1,5 +1,5 @@
 """Data points of a contact and of what the user sees (`pipeline.datapoints`): spacing, stalled
-middles, a collider inside a closed sheet, rim points on a box's side face."""
+middles, a collider inside a closed sheet, rim points on a box's side face, earlier contacts a later round holds (`pinned`)."""
 
 import numpy as np
 import pytest
@@ -169,3 +169,85 @@ def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
     region, _ = D.regions(sheet, ball_geom)
     assert len(region.uv) and len(P.rim_points(sheet, ball_geom, region.uv, down, 2)[0]) == 0
 
+
+def test_a_later_round_holds_the_earlier_contact_while_it_clears_a_display_point():
+    """The pin rule (`datapoints.pinned`, `respond.respond`'s ``held``): a later round asked to move
+    one point of the display on a dent's flank leaves the first round's contact point (the dent's
+    bottom) where it was asked, to 1e-9 of the sheet's size, and meets its own point; without
+    the pin the same round moves the bottom."""
+    from acra import hspline as H
+    from acra import respond as R
+    from acra import shapes
+
+    hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=3)
+    controls = R.check_controls(3, [0.0, 0.5, 0.5])
+    # the first round: a dent's contact and its additional points, one per level-2 patch around it
+    uv = np.array([[3.5, 3.5], [3.125, 3.5], [3.875, 3.5], [3.5, 3.125], [3.5, 3.875]])
+    depth = np.array([0.3, 0.2, 0.2, 0.2, 0.2])
+    first = R.DataPoints(uv, H.evaluate(hs, uv[:, 0], uv[:, 1]).points - depth[:, None] * [0.0, 0.0, 1.0],
+                         np.array([True, False, False, False, False]))
+    one, _ = R.respond(hs, first, controls)
+    # a later round: one point of the display on the dent's flank, a patch and a half away
+    at = np.array([[4.25, 3.5]])
+    later = R.DataPoints(at, H.evaluate(one, at[:, 0], at[:, 1]).points - [0.0, 0.0, 0.02], np.array([False]))
+    size = one.size()
+    new, held = P.pinned(one, later, first, P.group_level(controls, one.depth))
+    np.testing.assert_array_equal(held.uv, uv[:1])  # the contact is held, the additional points are not
+    two, _ = R.respond(one, new, controls, held=held)
+    assert np.abs(H.evaluate(two, uv[:1, 0], uv[:1, 1]).points - first.target[:1]).max() <= 1e-9 * size
+    assert np.abs(H.evaluate(two, at[:, 0], at[:, 1]).points - later.target).max() <= 1e-9 * size
+    free, _ = R.respond(one, later, controls)
+    assert np.abs(H.evaluate(free, uv[:1, 0], uv[:1, 1]).points - first.target[:1]).max() > 1e-4 * size
+
+
+def test_an_earlier_contact_holds_against_additional_points_and_gives_way_to_a_contact():
+    """`datapoints.pinned` on level 1 (patches of 0.5): a later additional point within `HOLD_GAP`
+    of an earlier contact gives way to it, one farther stays; a later contact within `PIN_GAP`
+    replaces the earlier contact; additional points are thinned to `THIN_GAP`."""
+    from acra import hspline as H
+    from acra import respond as R
+    from acra import shapes
+
+    hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=2)
+    down = np.array([0.0, 0.0, -1.0])
+    ouv = np.array([[2.0, 2.0], [4.0, 4.0], [5.0, 2.0]])
+    old = R.DataPoints(ouv, _on(hs, ouv) + 0.3 * down, np.array([True, True, False]))  # dents' bottoms 0.3 deep
+    nuv = np.array([[2.02, 2.0], [2.3, 2.0], [4.1, 4.0], [5.5, 5.5], [5.55, 5.5]])
+    depth = np.array([0.1, 0.1, 0.3, 0.2, 0.1])  # (5.5, 5.5) asks more; the flank's points less than the bottom
+    new = R.DataPoints(nuv, _on(hs, nuv) + depth[:, None] * down, np.array([False, False, True, False, False]))
+    kept, held = P.pinned(hs, new, old, 1)
+    np.testing.assert_array_equal(kept.uv, [[2.3, 2.0], [4.1, 4.0], [5.5, 5.5]])
+    np.testing.assert_array_equal(held.uv, [[2.0, 2.0]])
+
+
+def _on(hs, uv):
+    from acra import hspline as H
+
+    return H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+
+
+def test_an_earlier_contact_gives_way_on_a_flat_face_and_to_a_later_split():
+    """`datapoints.pinned` releases an earlier contact (a) when an additional point of the round
+    within `PIN_GAP` asks as deep as it along its own move, to within ``slack`` (a tip under a
+    plane: the face around it is pushed down to the same depth), and (b) between two deformables
+    (``shared``) when the round has a contact of its own anywhere; with the flank shallower, or
+    between two deformables with display points alone, the contact is held."""
+    from acra import hspline as H
+    from acra import respond as R
+    from acra import shapes
+
+    hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=2)
+    down = np.array([0.0, 0.0, -1.0])
+    ouv = np.array([[2.0, 2.0]])
+    old = R.DataPoints(ouv, _on(hs, ouv) + 0.3 * down, np.array([True]))
+    nuv = np.array([[2.25, 2.0]])  # half a level-1 patch away
+    for depth, slack, is_held in ((0.3, 0.0, False), (0.31, 0.0, False), (0.29, 0.0, True), (0.29, 0.02, False)):
+        new = R.DataPoints(nuv, _on(hs, nuv) + depth * down, np.array([False]))
+        _, held = P.pinned(hs, new, old, 1, slack=slack)
+        assert (len(held.uv) == 1) == is_held, (depth, slack)
+    far = np.array([[6.0, 6.0], [2.25, 2.0]])  # a contact of the round far away, the flank shallower
+    new = R.DataPoints(far, _on(hs, far) + np.array([[0.3], [0.1]]) * down, np.array([True, False]))
+    assert len(P.pinned(hs, new, old, 1)[1].uv) == 1
+    assert len(P.pinned(hs, new, old, 1, shared=True)[1].uv) == 0
+    flank = R.DataPoints(nuv, _on(hs, nuv) + 0.1 * down, np.array([False]))
+    assert len(P.pinned(hs, flank, old, 1, shared=True)[1].uv) == 1
