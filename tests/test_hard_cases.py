@@ -533,7 +533,7 @@ def _on_surface(hs: H.HSpline, xform: np.ndarray, point: np.ndarray, size: float
 @pytest.mark.parametrize("ra, rb", [
     pytest.param(1, 100, marks=pytest.mark.xfail(strict=True, reason=(
         "frame 3 is over where the user looks after two rounds (1.08e-3); the third round's points are each sphere's "
-        "own display points inside the other, which move the tips off eq. 4.15's split: 0.989976 for 100/101 "
+        "own display points inside the other, which move the tips off eq. 4.15's split: 0.989979 for 100/101 "
         "(docs/hard-cases.md)"))),
     (100, 100)])
 def test_two_deformables_share_the_move_by_rigidity(tmp_path, ra, rb):

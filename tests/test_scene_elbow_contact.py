@@ -80,7 +80,7 @@ def test_residual_cleared_at_every_frame_of_six_in_contact(frames):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "frame 15: the corrective round drags the dent's tip deeper: the largest move is 1.35 x the input depth for 1.3 "
+    "frame 15: the corrective round drags the dent's tip deeper: the largest move is 1.34 x the input depth for 1.3 "
     "(1.45 with the display's deepest point per patch; the result before the display-driven rounds left 1.0e-3 of "
     "the size inside the ball; docs/hard-cases.md)"))
 def test_dent_is_local_and_as_deep_as_the_ball_went_in(frames):
