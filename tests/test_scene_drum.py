@@ -51,8 +51,8 @@ def test_the_same_press_without_it_gains_area(run):
 
 
 def test_the_drum_draws_its_edges_in(run):
-    """The area comes back from the level-0 net drawing in around the dent (measured 0.036 of
-    in-plane move at frame 5, none on the cloth)."""
+    """The area comes back from the level-0 net drawing in around the dent (measured 0.039 of
+    in-plane move at frame 5, 7.6e-4 on the cloth: a corrective round moves level 1 only)."""
     _, _, moves = run
     assert np.abs(moves[DRUM][5][:, :2]).max() > 0.02
     assert np.abs(moves[CLOTH][5][:, :2]).max() < 1e-3
