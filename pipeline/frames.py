@@ -384,7 +384,8 @@ class _Run:
                 push = None if push is None else (push if side == "a" else -push)
                 clear = P.CLEAR * self.options.tolerance * gm.size
                 level = P.group_level(controls[j], surfaces[j].depth)
-                shown = P.visible_points if P.corrects(controls[j], surfaces[j].depth) else P.deepest_shown
+                local = them[0] == "c" and P.corrects(controls[j], surfaces[j].depth)  # a pair of two deformables keeps eq. 4.15's split by its held contacts
+                shown = P.visible_points if local else P.deepest_shown
                 uv, world, start = shown(gm, gt, pd.inside, push, R.rigidity_share(controls[j].rigidity, r_them), level, clear)
                 if not len(uv):
                     continue
@@ -507,7 +508,7 @@ class _Run:
             st.ms_convert += 1e3 * (time.perf_counter() - tr) - (S.SetupClock.ms - setup0)
             # deformables in a pair with another deformable: their earlier contacts hold eq. 4.15's split
             shared = frozenset(k for (i, other) in directions if other[0] == "d" for k in (i, other[1]))
-            self.respond(frame, it, st, points, surfaces, pins, shared, set(points) - detected)
+            self.respond(frame, it, st, points, surfaces, pins, shared, set(points) - detected - shared)
             st.iterations = it + 1
         surfaces = best[1]
         if kept is not None:

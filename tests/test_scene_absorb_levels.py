@@ -50,11 +50,6 @@ def dents(run_scene):
     return _dents(report)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "Levels12, frame 12: 0.1596 deep for 0.15 (Levels123 0.1481): the later rounds' display points a quarter patch "
-    "from the dent's bottom are 2.2-2.4e-3 shallower than it, within the tolerance (6.4e-3), so the bottom is released "
-    "as on a face pressed flat (datapoints.pinned; 0.1538 when held) and the flank points pull the sheet around it: under "
-    "the ball the sheet is 0.0216 off the ball's surface for 0.01 (Levels123: 0.0015; docs/hard-cases.md)"))
 def test_both_sheets_take_the_balls_depth(dents):
     (dents, depth) = dents
     assert depth == pytest.approx(0.15)
