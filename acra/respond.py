@@ -135,11 +135,33 @@ class DataPoints:
         Where the point must go (object space of the surface).
     is_contact : (K,) bool
         Contact point ``P`` (True) or additional point ``A`` (False).
+    per_patch : bool
+        ``True`` (eq. 4.16): each level's solve merges the additional points to one per patch of
+        that level (`_per_level_points`). ``False``: every point is solved as it is, in least
+        squares where they outnumber the CVs (a corrective round's samples, `corrective`).
     """
 
     uv: np.ndarray
     target: np.ndarray
     is_contact: np.ndarray
+    per_patch: bool = True
+
+
+def corrective(controls: Controls, depth: int) -> Controls:
+    """Controls of a corrective response: the whole absorption on the finest absorbing level
+    (of a surface ``depth`` levels deep), with that level's own deform/translate/rotate mix.
+
+    A round that only corrects what an earlier round left (a display a fraction of the
+    tolerance inside the other object) asks moves of a few thousandths of the size. Spread over
+    the levels as the animator's absorption asks, a coarse level's share moves its CVs under the
+    whole contact, so the part already in place (a dent's bottom) moves with the correction;
+    the finest absorbing level's CVs reach least far."""
+    L = controls.absorption.size
+    levels = np.nonzero(controls.absorption > 0)[0]
+    k = int(min(levels.max() if levels.size else L - 1, depth - 1))
+    a = np.zeros(L)
+    a[k] = 1.0
+    return replace(controls, absorption=a)
 
 
 def rigidity_share(r1: float, r2: float | None) -> float:
@@ -690,7 +712,10 @@ def respond(
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
-            luv, lwant = _per_level_points(hs, level, uv, want, np.asarray(points.is_contact, bool))
+            if points.per_patch:
+                luv, lwant = _per_level_points(hs, level, uv, want, np.asarray(points.is_contact, bool))
+            else:
+                luv, lwant = uv, want
             if level == finest and held is not None and len(held.uv):
                 huv = np.asarray(held.uv, dtype=np.float64).reshape(-1, 2)
                 on = point_weights(hs, level, huv[:, 0], huv[:, 1]).active  # a point with no CV of the level here

@@ -6,7 +6,7 @@ interpenetration region gets one additional point, cast along the push to where 
 other object (eq. 4.16). A collider wholly or partly inside a closed deformable pushes the wall in
 front of it past it (`collider_points_for`); where a surface must drop along a collider's side
 face, points on the crossing keep it there (`rim_points`); where the display the user sees is
-still inside the other object, its deepest point per patch is pushed out (`visible_points`); a
+still inside the other object, a corrective round moves a grid of samples out (`visible_points`); a
 frame's later round holds the contact points of its earlier rounds where a dent's bottom must not
 be dragged past the other object (`pinned`).
 Every function takes the geometry of one round (`pipeline.detect`) and returns parameters,
@@ -28,14 +28,24 @@ from pipeline import detect as D
 from pipeline import residual
 from pipeline.model import apply_inverse, apply_xform
 
-__all__ = ["data_points_for", "collider_points_for", "rim_points", "visible_points", "with_shown", "spread",
-           "deepest_instead", "group_level", "pinned", "CLEAR", "MEET", "THIN_GAP", "PIN_GAP", "HOLD_GAP"]
+__all__ = ["data_points_for", "collider_points_for", "rim_points", "visible_points", "deepest_shown", "corrects",
+           "with_shown", "spread", "deepest_instead", "group_level", "pinned", "CLEAR", "MEET", "THIN_GAP", "PIN_GAP",
+           "HOLD_GAP"]
 
 
 def group_level(controls: R.Controls, depth: int) -> int:
     """Level whose patches get one additional point each: the finest absorbing level."""
     levels = np.nonzero(controls.absorption > 0)[0]
     return int(min(levels.max() if levels.size else 0, depth - 1))
+
+
+def corrects(controls: R.Controls, depth: int) -> bool:
+    """Whether a round from the display alone corrects this surface with a fit of samples
+    (`visible_points`, `respond.corrective`): its finest absorbing level only deforms. A
+    translation or a rotation of a patch's detail cannot follow a grid of samples (measured:
+    `rotate_and_deform` frames 7-8 1.29e-3 after 4 rounds), so such a surface keeps the
+    display's deepest point per patch (`deepest_shown`) and the animator's levels."""
+    return bool(controls.deform[group_level(controls, depth)] >= 1.0 - 1e-9)
 
 
 STALLED = 0.1  # a patch's middle asking a move of at most this fraction of the patch's depth has stalled
@@ -348,8 +358,129 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
 
 def visible_points(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside, direction: np.ndarray | None,
                    share: float, group_level: int, clear: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Additional points (eq. 4.16) from what the user sees: the display's own points inside the
-    other object (`residual.Inside`), where the limit surface may already be clear.
+    """The points of a corrective round, from what the user sees: where the display's own points
+    lie inside the other object (`residual.Inside`), samples of the limit surface on a regular
+    grid are moved out of it.
+
+    A display triangle is a chord of the surface: where a response wraps a convex part of the
+    other object (a dent around a tip), the chords lie on the concave side, inside the other
+    object, while the limit surface on detection's samples is out; and between eq. 4.16's
+    points, one per finest patch, the least-change surface sags back toward where it was. The
+    samples are the corners and edge middles of every finest-absorbing-level patch holding a
+    display point inside (`GRID` intervals per patch edge, shared between neighbours). Along
+    ``direction`` (the pair's push; ``None``: each point's nearest way out), a sample's *lag* is
+    how far it must go to leave the other object: its own (the limit surface, measured where it
+    is now), and that of every display point inside whose parameters are nearest to it (the
+    chord it holds), less how far the sample already stands ahead of the limit surface at the
+    chord's parameters (the lesser of that along the push and along the sample's own normal
+    turned to the push; never more than the chord's lag). A sample with a lag is asked to move by
+    its largest lag, at least 0, plus ``clear`` (a world length: what counts as done); the others
+    give no point.
+
+    Why the limit surface at the chord's parameters: where the chords lie on the concave side of
+    a wrapped part, the limit surface there is out and level with the sample, and the sample
+    takes the chord's whole lag (the chord moves out with the surface). Where the limit surface
+    itself bulges in between the samples (a flattened tip, whose display vertices lie on the
+    limit surface), the sample next to the bulge stands ahead of it by the bulge's height;
+    taking the chord's whole lag moved `deform_vs_translate`'s tip sample 5.9e-3 past the plane
+    (its tolerance 4.3e-3). Why the lesser of two measures: along the push alone, a sample on a
+    flank parallel to it (a sheet dropping along a box's side) stands ahead by the flank's drop,
+    not by a bulge (the hard cases' `half_ball` and `jumps_through` stayed 1.09e-3 and 1.23e-3
+    inside after 4 rounds); along the normal alone, a sample on a curved dent stands ahead by
+    the dent's curvature (`clay` frame 4 stayed 2.36e-3 inside). Subtracting how far the sample
+    is ahead of the chord itself (the chord's sag included) left `rotate_and_deform` over the
+    tolerance and moved `turning_press`'s dent.
+
+    Why a grid: the display's deepest points lie on patch edges, so one point per patch at the
+    deepest display point (the rule before) put neighbouring patches' points a few millimetres
+    apart, whose nearly dependent rows in the interpolation moved `absorb_levels`' sheet 0.02
+    past the ball between them; a grid keeps the points apart by half a patch. Holding the
+    samples already out where they are was measured too: it left `box_into_sheet`'s sheet over
+    the tolerance after 4 rounds at frames 11-16 (docs/algorithm.md).
+
+    Returns
+    -------
+    uv : (g, 2) float64
+        Parameters on ``ga`` (level-0 units).
+    target : (g, 3) float64
+        World targets, ``R A + (1 - R) B`` of eq. 4.16 with ``B`` the sample moved as above.
+    origin : (g, 3) float64
+        World surface points before the move.
+    """
+    empty = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3))
+    if inside.uv is None or not len(inside.uv):
+        return empty
+    hs = ga.surface
+    shown_uv = D.wrap_uv(hs, inside.uv)
+    su, sv = np.divmod(np.unique(R.patch_keys(hs, shown_uv, group_level)), hs.v.patches(group_level))
+    steps = np.linspace(0.0, 1.0, GRID + 1)
+    offs = np.stack(np.meshgrid(steps, steps, indexing="ij"), axis=-1).reshape(-1, 2)
+    uv = ((np.stack([su, sv], axis=1)[:, None, :] + offs[None]) / (1 << group_level)).reshape(-1, 2)
+    uv = np.unique(np.round(D.wrap_uv(hs, uv), 9), axis=0)
+    at = D.surface_points(ga, uv).points
+
+    def units(p):
+        if direction is None or np.linalg.norm(direction) <= 1e-12 * ga.size:
+            u = D.surface_distance(gb, p)[1] - p
+            return u / np.maximum(np.linalg.norm(u, axis=1), 1e-300)[:, None]
+        return np.broadcast_to(np.asarray(direction, float) / np.linalg.norm(direction), p.shape)
+
+    unit = np.array(units(at))
+    lag = np.full(len(uv), -np.inf)
+    within = D.inside(gb, at)
+    if within.any():
+        rows = np.nonzero(within)[0]
+        hits, valid = D.cast(gb, at[rows], unit[rows], within=np.ones(len(rows), bool))
+        lag[rows[valid]] = np.einsum("ij,ij->i", hits[valid] - at[rows[valid]], unit[rows[valid]])
+    pu = units(inside.points)
+    hits, valid = D.cast(gb, inside.points, pu, within=np.ones(len(inside.points), bool))
+    shown_lag = np.einsum("ij,ij->i", hits - inside.points, pu)
+    ok = valid & (shown_lag > 0)
+    near = _nearest_uv(hs, uv, shown_uv[ok])
+    # how far the sample stands ahead of the limit surface at the chord's parameters, the lesser
+    # of that along the push and along its normal turned to the push: where the limit surface
+    # itself bulges in between samples (a flattened tip) both are the bulge's height and the
+    # sample asks only the rest of the chord's lag; on a flank parallel to the push (the normal)
+    # or a curved dent (the push) one of them is level
+    q = D.surface_points(ga, shown_uv[ok]).points
+    ev = D.surface_points(ga, uv, order=1)
+    n = np.cross(ev.du, ev.dv)[near]
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    n *= np.sign(np.einsum("ij,ij->i", n, pu[ok]))[:, None]
+    ahead = np.maximum(np.einsum("ij,ij->i", q - at[near], n), np.einsum("ij,ij->i", q - at[near], pu[ok]))
+    np.maximum.at(lag, near, shown_lag[ok] + np.minimum(ahead, 0.0))
+    go = lag > -np.inf
+    goal = at[go] + (np.maximum(lag[go], 0.0) + clear)[:, None] * unit[go]
+    return uv[go], R.additional_targets(at[go], goal, share), at[go]
+
+
+GRID = 2  # intervals per patch edge of `visible_points`' samples: corners and edge middles
+
+
+def _nearest_uv(hs, grid: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Index into ``grid (g, 2)`` of the nearest point to each of ``uv (k, 2)`` in parameter space
+    (across the seam of a periodic direction)."""
+    tiles, base = [grid], np.arange(len(grid))
+    for c, d in enumerate((hs.u, hs.v)):
+        if d.periodic:
+            shifted = []
+            for t in tiles:
+                for k in (-1, 1):
+                    m = t.copy()
+                    m[:, c] += k * d.patches0
+                    shifted.append(m)
+            tiles = tiles + shifted
+    reps = len(tiles)
+    _, idx = cKDTree(np.concatenate(tiles)).query(uv)
+    return np.tile(base, reps)[idx]
+
+
+def deepest_shown(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside, direction: np.ndarray | None,
+                   share: float, group_level: int, clear: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Additional points (eq. 4.16) from what the user sees, for a surface whose finest absorbing
+    level translates or rotates (`visible_points` is a fit, which only a deformation makes): the
+    display's own points inside the other object (`residual.Inside`), where the limit surface may
+    already be clear.
 
     A display triangle is a chord of the surface: where a response wraps a convex part of the
     other object (a dent around a tip), the chords lie on the concave side, inside the other
@@ -504,7 +635,7 @@ HOLD_GAP = 0.1  # a later round's additional point this close to a held contact 
 
 
 def _take(dp: R.DataPoints, rows: np.ndarray) -> R.DataPoints:
-    return R.DataPoints(dp.uv[rows], dp.target[rows], np.asarray(dp.is_contact, bool)[rows])
+    return R.DataPoints(dp.uv[rows], dp.target[rows], np.asarray(dp.is_contact, bool)[rows], per_patch=dp.per_patch)
 
 
 def _thinned(hs: H.HSpline, dp: R.DataPoints, gap: float) -> R.DataPoints:

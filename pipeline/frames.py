@@ -383,14 +383,15 @@ class _Run:
                 push = directions.get((i, other))
                 push = None if push is None else (push if side == "a" else -push)
                 clear = P.CLEAR * self.options.tolerance * gm.size
-                uv, world, start = P.visible_points(gm, gt, pd.inside, push, R.rigidity_share(controls[j].rigidity, r_them),
-                                                  P.group_level(controls[j], surfaces[j].depth), clear)
+                level = P.group_level(controls[j], surfaces[j].depth)
+                local = them[0] == "c" and P.corrects(controls[j], surfaces[j].depth)  # a pair of two deformables keeps eq. 4.15's split by its held contacts
+                shown = P.visible_points if local else P.deepest_shown
+                uv, world, start = shown(gm, gt, pd.inside, push, R.rigidity_share(controls[j].rigidity, r_them), level, clear)
                 if not len(uv):
                     continue
-                # eq. 4.16 gives a patch of the finest absorbing level one point: a patch already
-                # holding one of detection's keeps it (two targets in one patch fight in the
-                # interpolation, and the surface swings between them from round to round)
-                level = P.group_level(controls[j], surfaces[j].depth)
+                # a patch already holding one of detection's points keeps it (two targets in one
+                # patch fight in the interpolation, and the surface swings between them from
+                # round to round)
                 taken = np.concatenate([d.uv for d, _, _ in points.get(j, [])] or [np.zeros((0, 2))])
                 keep = ~np.isin(R.patch_keys(gm.surface, uv, level), R.patch_keys(gm.surface, taken, level))
                 keep &= P.spread(start, np.full(3, np.inf), P.MEET * gm.size)
@@ -400,13 +401,15 @@ class _Run:
         return points
 
     def respond(self, frame: int, it: int, st: FrameStats, points: dict, surfaces: list, pins: dict | None = None,
-                shared: frozenset = frozenset()) -> None:
+                shared: frozenset = frozenset(), corrective: set = frozenset()) -> None:
         """Respond every deformable with data points (thesis §4.3), replacing its surface in
         ``surfaces``; the first round's data points go to ``st`` for the preview.
 
         ``pins`` holds, per deformable, the data points of the frame's rounds so far (updated
         here): a later round holds their contact points at the targets they asked (`datapoints.pinned`).
-        ``shared`` names the deformables in a pair with another deformable this frame."""
+        ``shared`` names the deformables in a pair with another deformable this frame. A deformable
+        in ``corrective`` (its points all from `datapoints.visible_points`) gets a corrective
+        response: its samples solved as they are, on the finest absorbing level (`respond.corrective`)."""
         pins = {} if pins is None else pins
         for i, lst in points.items():
             t_i = time.perf_counter()
@@ -414,6 +417,7 @@ class _Run:
                 np.concatenate([d.uv for d, _, _ in lst]),
                 np.concatenate([d.target for d, _, _ in lst]),
                 np.concatenate([d.is_contact for d, _, _ in lst]),
+                per_patch=i not in corrective,
             )
             parent = surfaces[i]
             controls = self.controls[i]
@@ -425,6 +429,8 @@ class _Run:
             pins[i] = dp if held is None else R.DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
                                                            np.concatenate([dp.is_contact, held.is_contact]))
             path = self.defs[i].path
+            if i in corrective:
+                controls = R.corrective(controls, parent.depth)
             surfaces[i], rep = _respond_bounded(path, frame, parent, dp, controls, self.options, held)
             S.seed_details(surfaces[i], rep.details, self.options.density, parent=parent)
             surfaces[i] = self.carry.after_response(i, parent, surfaces[i])
@@ -488,16 +494,21 @@ class _Run:
             # response its look. Where the display is still over the tolerance afterwards, a
             # later round joins the display's own points inside the other object to the pair's
             # regions (`P.with_shown`); a pair detection finds clear, or misses, while its display
-            # is over gets points from the display alone (`visible_points`).
+            # is over gets points from the display alone (`visible_points`); a deformable whose
+            # points all come from there only corrects what the earlier rounds left, locally
+            # (`respond.corrective`), unless its finest absorbing level translates or rotates
+            # (`P.corrects`: the display's deepest point per patch, `P.deepest_shown`).
             found = {(i, other) for i, other, _ in rnd.found}
             seen = {key: by_pair[key] for key in over if it > 0 and key in found}
             over = {key: sides for key, sides in over.items() if key not in found}
             points = self.data_points(rnd, geoms, cgeoms, sizes, enabled, surfaces, directions, wrapping, over, seen)
+            detected = {i for i, _, _ in rnd.found} | {o[1] for _, o, _ in rnd.found if o[0] == "d"}
+            detected |= {i for i in points if not P.corrects(self.controls[i], surfaces[i].depth)}
             st.ms_setup += S.SetupClock.ms - setup0
             st.ms_convert += 1e3 * (time.perf_counter() - tr) - (S.SetupClock.ms - setup0)
             # deformables in a pair with another deformable: their earlier contacts hold eq. 4.15's split
             shared = frozenset(k for (i, other) in directions if other[0] == "d" for k in (i, other[1]))
-            self.respond(frame, it, st, points, surfaces, pins, shared)
+            self.respond(frame, it, st, points, surfaces, pins, shared, set(points) - detected - shared)
             st.iterations = it + 1
         surfaces = best[1]
         if kept is not None:

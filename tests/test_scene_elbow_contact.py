@@ -81,7 +81,7 @@ def test_residual_cleared_at_every_frame_of_six_in_contact(frames):
 
 @pytest.mark.xfail(strict=True, reason=(
     "frame 15: the later rounds hold the dent's tip, but their display points around it still drag the dent deeper: "
-    "the largest move is 1.34 x the input depth for 1.3 (1.45 before the pins; docs/hard-cases.md)"))
+    "the largest move is 1.34 x the input depth for 1.3 (docs/hard-cases.md)"))
 def test_dent_is_local_and_as_deep_as_the_ball_went_in(frames):
     _, _, _, rows = frames
     for r in rows:
