@@ -424,7 +424,7 @@ class _Run:
             held = None
             if it > 0:
                 # a flank point this little shallower than an earlier contact reaches it (`datapoints.pinned`)
-                slack = self.options.tolerance * float(np.linalg.norm(np.ptp(parent.cvs.reshape(-1, 3), axis=0)))
+                slack = self.options.tolerance * parent.size()
                 dp, held = P.pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth), i in shared, slack)
             pins[i] = dp if held is None else R.DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
                                                            np.concatenate([dp.is_contact, held.is_contact]))
