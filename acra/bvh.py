@@ -365,23 +365,26 @@ def faces_meet(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.nda
 
 @njit(cache=True, nogil=True)
 def _facet_bound(cells, faces, vertices, solid_faces, facet, facet_start, facet_faces, out):
+    # each facet's faces gathered once per cell, all three corners measured against each; a
+    # facet two corners share is measured once (min and max are exact, so the order is free)
     tri = np.empty((3, 3))
+    least = np.empty(3)
     for c in range(cells.shape[0]):
         best = np.inf
         for j in range(3):
             g = facet[faces[c, j]]
-            worst = -np.inf
-            for i in range(3):
-                least = np.inf
-                for s in range(facet_start[g], facet_start[g + 1]):
-                    m = facet_faces[s]
-                    for k in range(3):
-                        tri[k] = vertices[solid_faces[m, k]]
+            if (j > 0 and facet[faces[c, 0]] == g) or (j > 1 and facet[faces[c, 1]] == g):
+                continue
+            least[0], least[1], least[2] = np.inf, np.inf, np.inf
+            for s in range(facet_start[g], facet_start[g + 1]):
+                m = facet_faces[s]
+                for k in range(3):
+                    tri[k] = vertices[solid_faces[m, k]]
+                for i in range(3):
                     x, y, z, _, _, _ = _point_triangle(cells[c, i], tri[0], tri[1], tri[2])
                     d = np.sqrt((cells[c, i, 0] - x) ** 2 + (cells[c, i, 1] - y) ** 2 + (cells[c, i, 2] - z) ** 2)
-                    least = min(least, d)
-                worst = max(worst, least)
-            best = min(best, worst)
+                    least[i] = min(least[i], d)
+            best = min(best, max(max(least[0], least[1]), least[2]))
         out[c] = best
 
 

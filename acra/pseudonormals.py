@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["weld", "part_mesh", "vertex_normals", "signs"]
+__all__ = ["weld", "part_mesh", "vertex_normals", "signs", "links", "flood", "representatives"]
 
 
 @njit(cache=True, nogil=True)
@@ -272,3 +272,88 @@ def signs(points, dist, close, face, bary, vertices, faces, normals, edge_normal
     if len(points):
         _signs(points, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, float(tol), out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def links(points, cells, limit):
+    """The edges of triangles ``cells (c, 3) int64`` (rows of ``points (n, 3)``) shorter than
+    ``limit``, both ways, as a CSR adjacency: ``(start (n + 1,) int64, neighbour (e,) int64,
+    length (e,))``. An edge two triangles share is listed twice."""
+    n = points.shape[0]
+    start = np.zeros(n + 1, np.int64)
+    length = np.empty((cells.shape[0], 3))
+    for t in range(cells.shape[0]):
+        for k in range(3):
+            i, j = cells[t, k], cells[t, (k + 1) % 3]
+            d0, d1, d2 = points[i, 0] - points[j, 0], points[i, 1] - points[j, 1], points[i, 2] - points[j, 2]
+            length[t, k] = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+            if i != j and length[t, k] < limit:
+                start[i + 1] += 1
+                start[j + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    neighbour = np.empty(start[n], np.int64)
+    out = np.empty(start[n])
+    for t in range(cells.shape[0]):
+        for k in range(3):
+            i, j = cells[t, k], cells[t, (k + 1) % 3]
+            if i != j and length[t, k] < limit:
+                neighbour[fill[i]], out[fill[i]] = j, length[t, k]
+                neighbour[fill[j]], out[fill[j]] = i, length[t, k]
+                fill[i] += 1
+                fill[j] += 1
+    return start, neighbour, out
+
+
+@njit(cache=True, nogil=True)
+def flood(start, neighbour, length, seeds, sign, reach):
+    """Breadth first from ``seeds (m,) int64`` over the adjacency (`links`): a point whose
+    ``sign (n,) int8`` is 0 takes the sign of the point it is reached from and ``reach (n,)`` that
+    point's plus the edge's length (an upper bound of its distance to the surface when the
+    seeds' are). Both arrays are updated in place."""
+    queue = np.empty(sign.shape[0], np.int64)
+    tail = 0
+    for s in range(seeds.shape[0]):
+        queue[tail] = seeds[s]
+        tail += 1
+    head = 0
+    while head < tail:
+        u = queue[head]
+        head += 1
+        for e in range(start[u], start[u + 1]):
+            w = neighbour[e]
+            if sign[w] == 0:
+                sign[w] = sign[u]
+                reach[w] = reach[u] + length[e]
+                queue[tail] = w
+                tail += 1
+
+
+@njit(cache=True, nogil=True)
+def representatives(start, neighbour, sign):
+    """The lowest row of each connected part of the points whose ``sign`` is 0 (`links`'
+    adjacency): ``(r,) int64``."""
+    n = sign.shape[0]
+    seen = np.zeros(n, np.bool_)
+    queue = np.empty(n, np.int64)
+    reps = np.empty(n, np.int64)
+    count = 0
+    for i in range(n):
+        if sign[i] != 0 or seen[i]:
+            continue
+        reps[count] = i
+        count += 1
+        seen[i] = True
+        queue[0] = i
+        head, tail = 0, 1
+        while head < tail:
+            u = queue[head]
+            head += 1
+            for e in range(start[u], start[u + 1]):
+                w = neighbour[e]
+                if sign[w] == 0 and not seen[w]:
+                    seen[w] = True
+                    queue[tail] = w
+                    tail += 1
+    return reps[:count]

@@ -472,6 +472,73 @@ def test_bound_covers_dense_grid_in_light_contact(name, seed, target):
     check_against_dense(m, s, tri, target)
 
 
+def _sheet(rng, centre, size, n):
+    """A tilted ``n x n`` grid of triangles ``(2 n^2, 3, 3)`` of side ``size`` about ``centre``,
+    its corners shared (bit for bit) by neighbouring triangles."""
+    axes = np.linalg.qr(rng.normal(size=(3, 3)))[0][:, :2]
+    g = np.linspace(-0.5, 0.5, n + 1) * size
+    pts = centre + g[:, None, None] * axes[:, 0] + g[None, :, None] * axes[:, 1]
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return pts.reshape(-1, 3)[faces]
+
+
+def _same_depth(d, e):
+    if d is None or e is None:
+        assert d is None and e is None
+        return
+    assert (d.bound, d.lower, d.complete, d.evaluated, d.split) == (e.bound, e.lower, e.complete, e.evaluated, e.split)
+    for x, y in ((d.tri, e.tri), (d.bary, e.bary), (d.points, e.points), (d.depth, e.depth)):
+        assert x.shape == y.shape and x.tobytes() == y.tobytes()
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+@pytest.mark.parametrize("seed", range(4))
+def test_far_corners_signed_by_their_neighbours_give_the_same_depth(name, seed, monkeypatch):
+    """`_signed_corners`: corners with no face within FAR x the largest covering radius take their
+    neighbours' sign (outside, or inside and then measured); a sheet wider than the shape with
+    triangles far outside, deep inside and crossing the surface, plus loose triangles no near
+    corner reaches, gives the same `Depth`, bit for bit, as every corner measured."""
+    m, s = shape(name)
+    rng = np.random.default_rng(seed)
+    tri = _sheet(rng, m.vertices[rng.integers(len(m.vertices))] * 0.3, 3.0, 40)
+    loose = rng.uniform(-1.4, 1.4, size=(30, 1, 3)) + 0.05 * rng.normal(size=(30, 3, 3))
+    tri = np.concatenate([tri, loose])
+    for target in (0.0, 1e-3, 0.05):
+        got = C.triangle_depth(s, tri, target, budget=60_000)
+        with monkeypatch.context() as mp:
+            mp.setattr(C, "FAR", 0.0)  # every corner measured
+            want = C.triangle_depth(s, tri, target, budget=60_000)
+        _same_depth(got, want)
+    pts, _, inverse = C._distinct(tri.reshape(-1, 3))
+    sd, face, pending = C._signed_corners(s, pts, inverse.reshape(-1, 3), C.covering_radius(tri), np.inf)
+    assert pending is not None and pending.sum() > len(pending) // 4  # most corners were never measured
+    exact = C.signed_depth(s, pts)[0]
+    assert np.all(exact[pending] < 0) and np.array_equal(sd[~pending], exact[~pending])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_far_corners_of_a_part_give_the_same_depth_or_none(seed, monkeypatch):
+    """On a part of a solid (`solid` with ``part``), a corner beyond ``reach`` gives ``None`` with
+    the far corners signed by their neighbours exactly when it does with every corner measured."""
+    v, f = uv_sphere(24, 40, seed)
+    rng = np.random.default_rng(seed)
+    tri = _sheet(rng, rng.normal(size=3) * 0.4, 1.2, 30)
+    lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+    for pad in (0.05, 0.3, 1.0):
+        rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
+        if not len(rows):
+            continue
+        part = C.solid(v, f[rows], part=True, outward=1.0, scale=2.0)
+        for target in (0.0, 1e-3):
+            got = C.triangle_depth(part, tri, target, reach=pad, budget=40_000)
+            with monkeypatch.context() as mp:
+                mp.setattr(C, "FAR", 0.0)
+                want = C.triangle_depth(part, tri, target, reach=pad, budget=40_000)
+            _same_depth(got, want)
+
+
 # --- object space and world space --------------------------------------------------------------------
 def rotation(seed: int) -> np.ndarray:
     q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
