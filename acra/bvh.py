@@ -63,136 +63,43 @@ class Tree:
 
 
 @njit(cache=True, nogil=True)
-def _stable_sort(key, idx, a, b, tkey, tidx):
-    """``key[a:b]`` sorted in place, ``idx[a:b]`` carried along, rows of equal keys in their
-    order (the one stable order): runs of 16 by insertion, then merged pairwise through ``tkey``,
-    ``tidx``."""
-    run = 16
-    for r in range(a, b, run):
-        e = min(r + run, b)
-        for s in range(r + 1, e):
-            k, v = key[s], idx[s]
-            t = s - 1
-            while t >= r and k < key[t]:
-                key[t + 1], idx[t + 1] = key[t], idx[t]
-                t -= 1
-            key[t + 1], idx[t + 1] = k, v
-    width = run
-    src_k, src_i, dst_k, dst_i = key, idx, tkey, tidx
-    while width < b - a:
-        for r in range(a, b, 2 * width):
-            m, e = min(r + width, b), min(r + 2 * width, b)
-            i, j, o = r, m, r
-            while i < m and j < e:
-                if src_k[j] < src_k[i]:
-                    dst_k[o], dst_i[o] = src_k[j], src_i[j]
-                    j += 1
-                else:
-                    dst_k[o], dst_i[o] = src_k[i], src_i[i]
-                    i += 1
-                o += 1
-            while i < m:
-                dst_k[o], dst_i[o] = src_k[i], src_i[i]
-                i += 1
-                o += 1
-            while j < e:
-                dst_k[o], dst_i[o] = src_k[j], src_i[j]
-                j += 1
-                o += 1
-        src_k, src_i, dst_k, dst_i = dst_k, dst_i, src_k, src_i
-        width *= 2
-    if src_k is not key:
-        for s in range(a, b):
-            key[s], idx[s] = src_k[s], src_i[s]
-
-
-@njit(cache=True, nogil=True)
 def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
-    """Median splits along the longest side of each node's centroid box; returns the node count.
-
-    A node's triangles are ordered by their centroids along the split axis, equal ones in the
-    node's order (a stable sort of ``order[a:b]``), and the halves become the children. Each
-    axis keeps its own list of the node's triangles by centroid (``by[k][a:b]`` with the
-    centroids ``key[k][a:b]``, sorted once at the root and split stably with the node), so a
-    node's centroid box is its lists' ends and its sort is the split axis's list with each run
-    of equal centroids put back in the node's order; a node's box is its leaves' (min and max
-    are exact). O(n log n) in all, the same tree as sorting every node."""
-    n = order.shape[0]
-    by = np.empty((3, n), np.int64)
-    key = np.empty((3, n))
-    for k in range(3):
-        by[k] = np.argsort(cen[:, k], kind="mergesort")
-        for s in range(n):
-            key[k, s] = cen[by[k, s], k]
-    pos = np.arange(n)  # each triangle's place in ``order``
-    side = np.zeros(n, np.bool_)
-    buf = np.empty(n, np.int64)
-    kbuf = np.empty(n)
-    tkey, tidx, tk2, ti2 = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    """Median splits along the longest side of each node's centroid box; returns the node count."""
     stack = np.empty((128, 3), np.int64)  # (node, first, end)
-    stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, n
+    stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, order.shape[0]
     top, nodes = 1, 1
+    clo = np.empty(3)
+    chi = np.empty(3)
     while top > 0:
         top -= 1
         node, a, b = stack[top, 0], stack[top, 1], stack[top, 2]
-        if b - a <= LEAF:
+        for k in range(3):
+            lo[node, k], hi[node, k] = np.inf, -np.inf
+            clo[k], chi[k] = np.inf, -np.inf
+        for s in range(a, b):
+            f = order[s]
             for k in range(3):
-                lo[node, k], hi[node, k] = np.inf, -np.inf
-            for s in range(a, b):
-                f = order[s]
-                for k in range(3):
-                    lo[node, k] = min(lo[node, k], tlo[f, k])
-                    hi[node, k] = max(hi[node, k], thi[f, k])
+                lo[node, k] = min(lo[node, k], tlo[f, k])
+                hi[node, k] = max(hi[node, k], thi[f, k])
+                clo[k] = min(clo[k], cen[f, k])
+                chi[k] = max(chi[k], cen[f, k])
+        if b - a <= LEAF:
             left[node], right[node], start[node], count[node] = -1, -1, a, b - a
             continue
         axis = 0
         for k in range(1, 3):
-            if key[k, b - 1] - key[k, a] > key[axis, b - 1] - key[axis, a]:
+            if chi[k] - clo[k] > chi[axis] - clo[axis]:
                 axis = k
-        # the stable order: runs of equal centroids in the node's order
-        s = a
-        while s < b:
-            e = s + 1
-            while e < b and key[axis, e] == key[axis, s]:
-                e += 1
-            if e - s > 1:
-                for t in range(s, e):
-                    tkey[t], tidx[t] = pos[by[axis, t]], by[axis, t]
-                _stable_sort(tkey, tidx, s, e, tk2, ti2)
-                for t in range(s, e):
-                    by[axis, t] = tidx[t]
-            s = e
-        mid = (a + b) // 2
+        key = np.empty(b - a)
         for s in range(a, b):
-            f = by[axis, s]
-            order[s] = f
-            pos[f] = s
-            side[f] = s >= mid
-        for k in range(3):  # the other axes' lists split stably with the node
-            if k == axis:
-                continue
-            i, j = a, mid
-            for s in range(a, b):
-                f = by[k, s]
-                if side[f]:
-                    buf[j], kbuf[j] = f, key[k, s]
-                    j += 1
-                else:
-                    buf[i], kbuf[i] = f, key[k, s]
-                    i += 1
-            for s in range(a, b):
-                by[k, s], key[k, s] = buf[s], kbuf[s]
+            key[s - a] = cen[order[s], axis]
+        order[a:b] = order[a:b][np.argsort(key, kind="mergesort")]
+        mid = (a + b) // 2
         left[node], right[node], start[node], count[node] = nodes, nodes + 1, a, 0
         stack[top, 0], stack[top, 1], stack[top, 2] = nodes, a, mid
         stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
         top += 2
         nodes += 2
-    for node in range(nodes - 1, -1, -1):  # children are numbered after their parent
-        if left[node] >= 0:
-            l, r = left[node], right[node]
-            for k in range(3):
-                lo[node, k] = min(lo[l, k], lo[r, k])
-                hi[node, k] = max(hi[l, k], hi[r, k])
     return nodes
 
 
