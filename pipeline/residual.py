@@ -112,10 +112,13 @@ class Shown:
         collider's solid, which is fixed for a run): two `Shown` with the same digest give the
         same `pair_depth` answers, as either side of a pair."""
         h = hashlib.sha1(repr((self.path, self.closed, self.deformable, self.outward, self.size)).encode())
-        for x in (self.box, self.xform, self.world, self.triangles, self.vertex_uv, self.local):
+        # ``world`` is ``local`` mapped by ``xform`` (`shown`; a collider's is empty)
+        for x in (self.box, self.xform, self.local):
             h.update(b"-" if x is None else repr((x.dtype.str, x.shape)).encode())
             if x is not None:
                 h.update(np.ascontiguousarray(x).data)
+        for x in (self.triangles, self.vertex_uv):  # a display's, the same arrays every round and frame
+            h.update(b"-" if x is None else _digest(x))
         return h.digest()
 
     @cached_property
@@ -123,6 +126,24 @@ class Shown:
         """Diagonal of the box of the object-space display points (the scale solids weld at)."""
         box = bvh.bounds(self.local)
         return float(np.linalg.norm(box[1] - box[0]))
+
+
+_DIGESTS: dict = {}  # id(array) -> (array, digest), the arrays made read-only
+
+
+def _digest(x: np.ndarray) -> bytes:
+    """A digest of ``x``'s dtype, shape and values, kept per array: the array is made read-only,
+    so the values it was taken of are the values it holds."""
+    hit = _DIGESTS.get(id(x))
+    if hit is not None and hit[0] is x and not x.flags.writeable:
+        return hit[1]
+    x.flags.writeable = False
+    h = hashlib.sha1(repr((x.dtype.str, x.shape)).encode())
+    h.update(np.ascontiguousarray(x).data)
+    if len(_DIGESTS) >= 16:
+        _DIGESTS.pop(next(iter(_DIGESTS)))
+    _DIGESTS[id(x)] = (x, h.digest())
+    return _DIGESTS[id(x)][1]
 
 
 def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
