@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds"]
+__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds",
+           "first_rows"]
 
 LEAF = 4  # triangles per leaf
 
@@ -423,3 +424,42 @@ def bounds(points: np.ndarray) -> np.ndarray:
     out = np.empty((2, 3))
     _bounds(p, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _first_rows(bits, first, label):
+    size = 1
+    while size < 2 * bits.shape[0]:
+        size *= 2
+    table = np.full(size, -1, np.int64)
+    mask = np.uint64(size - 1)
+    u = 0
+    for i in range(bits.shape[0]):
+        h = (bits[i, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[i, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) \
+            ^ (bits[i, 2] * np.uint64(0x165667B19E3779F9))
+        h ^= h >> np.uint64(31)
+        slot = np.int64(h & mask)
+        while True:
+            j = table[slot]
+            if j < 0:
+                table[slot] = u
+                first[u] = i
+                label[i] = u
+                u += 1
+                break
+            r = first[j]
+            if bits[r, 0] == bits[i, 0] and bits[r, 1] == bits[i, 1] and bits[r, 2] == bits[i, 2]:
+                label[i] = j
+                break
+            slot = (slot + 1) & (size - 1)
+    return u
+
+
+def first_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bitwise distinct rows of ``points (k, 3) float64`` by a hash table: the row ``(u,)
+    int64`` of each one's first occurrence, in the order of first occurrence, and each row's
+    index ``(k,) int64`` into them."""
+    bits = np.ascontiguousarray(points, np.float64).reshape(-1, 3).view(np.uint64)
+    first, label = np.empty(len(bits), np.int64), np.empty(len(bits), np.int64)
+    u = _first_rows(bits, first, label) if len(bits) else 0
+    return first[:u], label

@@ -472,6 +472,25 @@ def test_bound_covers_dense_grid_in_light_contact(name, seed, target):
     check_against_dense(m, s, tri, target)
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_distinct_rows_are_numpys_unique_over_the_bytes(seed):
+    """`_distinct` (a hash table, then the distinct rows sorted by their bytes) gives what
+    ``np.unique`` over 24-byte rows gives: the rows, first occurrences and inverse, with -0.0
+    and 0.0 distinct."""
+    rng = np.random.default_rng(seed)
+    base = rng.normal(size=(300, 3))
+    if seed % 2:
+        base = np.round(base, 1)
+    base[::3, 1] = 0.0
+    base[::6, 1] = -0.0
+    pts = base[rng.integers(0, len(base), 2000)]
+    rows = pts.view(np.dtype((np.void, 24))).reshape(-1)
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    got = C._distinct(pts)
+    for x, y in zip(got, (pts[first], first, inverse.reshape(-1))):
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+
+
 def _sheet(rng, centre, size, n):
     """A tilted ``n x n`` grid of triangles ``(2 n^2, 3, 3)`` of side ``size`` about ``centre``,
     its corners shared (bit for bit) by neighbouring triangles."""
