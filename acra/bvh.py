@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds",
-           "first_rows"]
+           "first_rows", "covering_radii"]
 
 LEAF = 4  # triangles per leaf
 
@@ -525,3 +525,43 @@ def first_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     first, label = np.empty(len(bits), np.int64), np.empty(len(bits), np.int64)
     u = _first_rows(bits, first, label) if len(bits) else 0
     return first[:u], label
+
+
+@njit(cache=True, nogil=True)
+def _covering_radii(tri, out):
+    sq = np.empty(3)
+    e = np.empty((3, 3))
+    for i in range(tri.shape[0]):
+        for k in range(3):
+            for c in range(3):
+                e[k, c] = tri[i, (k + 1) % 3, c] - tri[i, k, c]
+            sq[k] = (e[k, 0] ** 2 + e[k, 1] ** 2) + e[k, 2] ** 2
+        k = 0
+        for j in range(1, 3):
+            if sq[j] > sq[k]:
+                k = j
+        ab, bc, ca = sq[k], sq[(k + 1) % 3], sq[(k + 2) % 3]
+        b0, b1, b2 = -e[2, 0], -e[2, 1], -e[2, 2]
+        x0 = e[0, 1] * b2 - e[0, 2] * b1
+        x1 = e[0, 2] * b0 - e[0, 0] * b2
+        x2 = e[0, 0] * b1 - e[0, 1] * b0
+        twice_area = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        if ab > bc + ca or twice_area == 0:
+            dot_a, dot_b = 0.5 * ((ab + ca) - bc), 0.5 * ((ab + bc) - ca)
+            root = np.sqrt(ab)
+            from_a = ca * root / (2 * dot_a) if dot_a > 0 else 0.0
+            from_b = bc * root / (2 * dot_b) if dot_b > 0 else 0.0
+            out[i] = max(from_a, from_b)
+        else:
+            out[i] = np.sqrt(ab * bc * ca) / (2 * twice_area)
+
+
+def covering_radii(tri: np.ndarray) -> np.ndarray:
+    """`pipeline.clearance.covering_radius` of triangles ``tri (t, 3, 3)``, compiled: ``(t,)``, each
+    step in the order of its numpy form (a sum of 3 squares as ``(x0² + x1²) + x2²``, ``np.cross``
+    as ``a1 b2 - a2 b1``)."""
+    t = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
+    out = np.empty(len(t))
+    if len(t):
+        _covering_radii(t, out)
+    return out

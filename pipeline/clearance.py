@@ -457,7 +457,7 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
     tri = np.asarray(corners, np.float64).reshape(-1, 3, 3)
     steps = 1 << max_split  # integer barycentric lattice: weights (i, j, steps - i - j) / steps
     src = np.nonzero(bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
-    rho0 = covering_radius(tri[src])  # (c,) per live source triangle, halved per split level
+    rho0 = bvh.covering_radii(tri[src])  # (c,) per live source triangle (covering_radius compiled), halved per split level
     found: list[tuple] = []  # (tri, bary, points, sd) of evaluated points with sd > 0
 
     def keep(rows, lattice, pts, sd):

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from scipy.optimize import linprog
 
 from acceptance.visible import surface_distance
+from acra import bvh
 from pipeline import clearance as C
 from pipeline.model import apply_inverse
 
@@ -308,6 +309,18 @@ def test_covering_radius_exact():
     want = [1 / np.sqrt(3), 2.5, 0.505, 2.34 * 2 / (2 * 3.0), 0.5, 1.0, 0.0]
     np.testing.assert_allclose(C.covering_radius(tri), want, rtol=1e-15, atol=0)
     assert C.covering_radius(tri)[2] < 1.0  # below half the longest edge
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_covering_radii_are_the_array_form(seed):
+    """`acra.bvh.covering_radii` (what `triangle_depth` uses) gives `covering_radius`'s bits: acute,
+    obtuse, degenerate (a repeated corner) and collinear triangles at several scales."""
+    rng = np.random.default_rng(seed)
+    tri = rng.normal(size=(3000, 3, 3)) * 10.0 ** rng.integers(-6, 3, (3000, 1, 1))
+    tri[::7, 2] = tri[::7, 0]
+    tri[1::7, 2] = 0.5 * (tri[1::7, 0] + tri[1::7, 1])
+    tri[2::7] = np.round(tri[2::7], 1)
+    assert bvh.covering_radii(tri).tobytes() == C.covering_radius(tri).tobytes()
 
 
 @PROPERTY
