@@ -65,7 +65,9 @@ def main() -> None:
     clearance.solid = _timed("part solids (clearance.solid)", clearance.solid)
     bvh.facet_bound = _timed("eq. (6) (acra.bvh.facet_bound)", bvh.facet_bound)
     bvh.faces_meet = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet)
-    clearance.covering_radius = _timed("covering radii (clearance.covering_radius)", clearance.covering_radius)
+    clearance.covering_radius = _timed("covering radii (eq. (3))", clearance.covering_radius)
+    if hasattr(bvh, "covering_radii"):  # its compiled form, where a checkout has it
+        bvh.covering_radii = _timed("covering radii (eq. (3))", bvh.covering_radii)
     best, split, digest = np.inf, {}, None
     for _ in range(args.passes):
         with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs

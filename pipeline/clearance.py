@@ -64,6 +64,15 @@ is spent. ``L`` only grows, so a cell that needs no split never needs one later 
 active set with its ``U``. The result ``bound = max_t U(t)`` over the final cells is an upper bound
 in every case; ``complete`` says whether it is also within ``max(target, 1.25 L)``.
 
+**Far corners** (`_signed_corners`). Most corners of a display near another object lie far
+outside it. A closest-point search bounded by ``Q`` (2.5 times the largest covering radius) opens
+only the boxes within ``Q``; a corner with no face that near is outside by more than ``Q`` or
+inside by more than ``Q``, and the ball of radius ``Q`` about it holds no surface, so it has the
+sign of any corner within ``Q`` along the triangles' edges. An outside one stands at ``-inf`` in
+(4): every other corner's depth is above ``-Q``, so a cell's bound is the same, and 0 for a cell
+of such corners alone (``rho <= Q``); its nearest face, which (6) reads, is found when a cell of
+it has a bound above 0. An inside one is measured.
+
 **Placement.** A mesh may sit under a 4x4 affine matrix with linear part ``M``; queries run in its
 object space. An object-space distance ``d`` is at most ``sigma_max(M) d`` in world space (equal
 for a similarity), so
