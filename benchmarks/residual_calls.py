@@ -6,7 +6,7 @@ Runs the scene's ``--frames`` (after a free frame, as `stage_split.py` does), ke
 `residual.pair_depth` call's arguments (the frame loop's rounds and the run's display), then
 replays them ``--passes`` times, each pass with empty part caches (every part solid built again,
 as the first query of a display builds it), and prints the CPU milliseconds of the fastest pass,
-its split (closest-point searches, part solids, eq. (6)) and a digest of every answer (depths,
+its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box) and a digest of every answer (depths,
 completeness, the points, parameters and depths found inside): two checkouts answer alike when
 their digests agree. Run it with ``PYTHONPATH`` at each checkout, alternating, for a comparison.
 """
