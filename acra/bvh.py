@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds"]
+__all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds",
+           "first_rows", "covering_radii"]
 
 LEAF = 4  # triangles per leaf
 
@@ -63,10 +64,66 @@ class Tree:
 
 
 @njit(cache=True, nogil=True)
+def _before(cen, axis, parent, node, f, g):
+    """Whether triangle ``f`` comes before ``g`` in ``node``'s sorted order: by the centroid along
+    ``node``'s split axis, equal ones by its parent's order, and so on to the root, then by row."""
+    while node >= 0:
+        x, y = cen[f, axis[node]], cen[g, axis[node]]
+        if x < y:
+            return True
+        if y < x:
+            return False
+        node = parent[node]
+    return f < g
+
+
+@njit(cache=True, nogil=True)
+def _select(cen, axis, parent, node, order, a, b, k):
+    """Rearrange ``order[a:b]`` so that ``order[a:k]`` holds the ``k - a`` first triangles of
+    ``node``'s order (`_before`, a strict order: no two triangles tie), ``order[k:b]`` the rest."""
+    lo, hi = a, b - 1
+    while hi > lo:
+        m = (lo + hi) // 2  # median of three as the pivot, moved to ``hi``
+        if _before(cen, axis, parent, node, order[m], order[lo]):
+            order[m], order[lo] = order[lo], order[m]
+        if _before(cen, axis, parent, node, order[hi], order[lo]):
+            order[hi], order[lo] = order[lo], order[hi]
+        if _before(cen, axis, parent, node, order[m], order[hi]):
+            order[m], order[hi] = order[hi], order[m]
+        pivot = order[hi]
+        ax, up = axis[node], parent[node]
+        pk = cen[pivot, ax]
+        i = lo
+        for j in range(lo, hi):
+            f = order[j]
+            x = cen[f, ax]
+            if x < pk or (not pk < x and _before(cen, axis, parent, up, f, pivot)):
+                order[i], order[j] = f, order[i]
+                i += 1
+        order[i], order[hi] = order[hi], order[i]
+        if i == k:
+            return
+        if i < k:
+            lo = i + 1
+        else:
+            hi = i - 1
+
+
+@njit(cache=True, nogil=True)
 def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
-    """Median splits along the longest side of each node's centroid box; returns the node count."""
+    """Median splits along the longest side of each node's centroid box; returns the node count.
+
+    The tree of sorting each node's triangles stably along its split axis (equal centroids in
+    the node's order) and halving the sorted list: a node's order is then the centroids along its
+    axis, then along its parent's, and so on up to the root, then the row (`_before`). A node
+    needs only which triangles make its first half (`_select`, linear), and a leaf its triangles
+    in its parent's order, so the tree, the leaves' order and the boxes are those of sorting
+    every node, in O(n log n) instead of O(n log^2 n)."""
+    n = order.shape[0]
+    axis = np.zeros(2 * n + 1, np.int64)
+    parent = np.full(2 * n + 1, -1, np.int64)
     stack = np.empty((128, 3), np.int64)  # (node, first, end)
-    stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, order.shape[0]
+    stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, n
     top, nodes = 1, 1
     clo = np.empty(3)
     chi = np.empty(3)
@@ -84,17 +141,23 @@ def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
                 clo[k] = min(clo[k], cen[f, k])
                 chi[k] = max(chi[k], cen[f, k])
         if b - a <= LEAF:
+            for s in range(a + 1, b):  # its parent's order (the rows at a leaf root)
+                f = order[s]
+                t = s - 1
+                while t >= a and _before(cen, axis, parent, parent[node], f, order[t]):
+                    order[t + 1] = order[t]
+                    t -= 1
+                order[t + 1] = f
             left[node], right[node], start[node], count[node] = -1, -1, a, b - a
             continue
-        axis = 0
+        ax = 0
         for k in range(1, 3):
-            if chi[k] - clo[k] > chi[axis] - clo[axis]:
-                axis = k
-        key = np.empty(b - a)
-        for s in range(a, b):
-            key[s - a] = cen[order[s], axis]
-        order[a:b] = order[a:b][np.argsort(key, kind="mergesort")]
+            if chi[k] - clo[k] > chi[ax] - clo[ax]:
+                ax = k
+        axis[node] = ax
         mid = (a + b) // 2
+        _select(cen, axis, parent, node, order, a, b, mid)
+        parent[nodes], parent[nodes + 1] = node, node
         left[node], right[node], start[node], count[node] = nodes, nodes + 1, a, 0
         stack[top, 0], stack[top, 1], stack[top, 2] = nodes, a, mid
         stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
@@ -365,23 +428,26 @@ def faces_meet(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.nda
 
 @njit(cache=True, nogil=True)
 def _facet_bound(cells, faces, vertices, solid_faces, facet, facet_start, facet_faces, out):
+    # each facet's faces gathered once per cell, all three corners measured against each; a
+    # facet two corners share is measured once (min and max are exact, so the order is free)
     tri = np.empty((3, 3))
+    least = np.empty(3)
     for c in range(cells.shape[0]):
         best = np.inf
         for j in range(3):
             g = facet[faces[c, j]]
-            worst = -np.inf
-            for i in range(3):
-                least = np.inf
-                for s in range(facet_start[g], facet_start[g + 1]):
-                    m = facet_faces[s]
-                    for k in range(3):
-                        tri[k] = vertices[solid_faces[m, k]]
+            if (j > 0 and facet[faces[c, 0]] == g) or (j > 1 and facet[faces[c, 1]] == g):
+                continue
+            least[0], least[1], least[2] = np.inf, np.inf, np.inf
+            for s in range(facet_start[g], facet_start[g + 1]):
+                m = facet_faces[s]
+                for k in range(3):
+                    tri[k] = vertices[solid_faces[m, k]]
+                for i in range(3):
                     x, y, z, _, _, _ = _point_triangle(cells[c, i], tri[0], tri[1], tri[2])
                     d = np.sqrt((cells[c, i, 0] - x) ** 2 + (cells[c, i, 1] - y) ** 2 + (cells[c, i, 2] - z) ** 2)
-                    least = min(least, d)
-                worst = max(worst, least)
-            best = min(best, worst)
+                    least[i] = min(least[i], d)
+            best = min(best, max(max(least[0], least[1]), least[2]))
         out[c] = best
 
 
@@ -419,4 +485,83 @@ def bounds(points: np.ndarray) -> np.ndarray:
         return np.stack([p.min(axis=0), p.max(axis=0)])  # raises, as numpy does
     out = np.empty((2, 3))
     _bounds(p, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _first_rows(bits, first, label):
+    size = 1
+    while size < 2 * bits.shape[0]:
+        size *= 2
+    table = np.full(size, -1, np.int64)
+    mask = np.uint64(size - 1)
+    u = 0
+    for i in range(bits.shape[0]):
+        h = (bits[i, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[i, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) \
+            ^ (bits[i, 2] * np.uint64(0x165667B19E3779F9))
+        h ^= h >> np.uint64(31)
+        slot = np.int64(h & mask)
+        while True:
+            j = table[slot]
+            if j < 0:
+                table[slot] = u
+                first[u] = i
+                label[i] = u
+                u += 1
+                break
+            r = first[j]
+            if bits[r, 0] == bits[i, 0] and bits[r, 1] == bits[i, 1] and bits[r, 2] == bits[i, 2]:
+                label[i] = j
+                break
+            slot = (slot + 1) & (size - 1)
+    return u
+
+
+def first_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bitwise distinct rows of ``points (k, 3) float64`` by a hash table: the row ``(u,)
+    int64`` of each one's first occurrence, in the order of first occurrence, and each row's
+    index ``(k,) int64`` into them."""
+    bits = np.ascontiguousarray(points, np.float64).reshape(-1, 3).view(np.uint64)
+    first, label = np.empty(len(bits), np.int64), np.empty(len(bits), np.int64)
+    u = _first_rows(bits, first, label) if len(bits) else 0
+    return first[:u], label
+
+
+@njit(cache=True, nogil=True)
+def _covering_radii(tri, out):
+    sq = np.empty(3)
+    e = np.empty((3, 3))
+    for i in range(tri.shape[0]):
+        for k in range(3):
+            for c in range(3):
+                e[k, c] = tri[i, (k + 1) % 3, c] - tri[i, k, c]
+            sq[k] = (e[k, 0] ** 2 + e[k, 1] ** 2) + e[k, 2] ** 2
+        k = 0
+        for j in range(1, 3):
+            if sq[j] > sq[k]:
+                k = j
+        ab, bc, ca = sq[k], sq[(k + 1) % 3], sq[(k + 2) % 3]
+        b0, b1, b2 = -e[2, 0], -e[2, 1], -e[2, 2]
+        x0 = e[0, 1] * b2 - e[0, 2] * b1
+        x1 = e[0, 2] * b0 - e[0, 0] * b2
+        x2 = e[0, 0] * b1 - e[0, 1] * b0
+        twice_area = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        if ab > bc + ca or twice_area == 0:
+            dot_a, dot_b = 0.5 * ((ab + ca) - bc), 0.5 * ((ab + bc) - ca)
+            root = np.sqrt(ab)
+            from_a = ca * root / (2 * dot_a) if dot_a > 0 else 0.0
+            from_b = bc * root / (2 * dot_b) if dot_b > 0 else 0.0
+            out[i] = max(from_a, from_b)
+        else:
+            out[i] = np.sqrt(ab * bc * ca) / (2 * twice_area)
+
+
+def covering_radii(tri: np.ndarray) -> np.ndarray:
+    """`pipeline.clearance.covering_radius` of triangles ``tri (t, 3, 3)``, compiled: ``(t,)``, each
+    step in the order of its numpy form (a sum of 3 squares as ``(x0² + x1²) + x2²``, ``np.cross``
+    as ``a1 b2 - a2 b1``)."""
+    t = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
+    out = np.empty(len(t))
+    if len(t):
+        _covering_radii(t, out)
     return out

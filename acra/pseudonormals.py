@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["weld", "part_mesh", "vertex_normals", "signs"]
+__all__ = ["weld", "part_mesh", "vertex_normals", "signs", "links", "flood", "representatives"]
 
 
 @njit(cache=True, nogil=True)
@@ -118,6 +118,24 @@ def weld(v, f, radius):
 
 
 @njit(cache=True, nogil=True)
+def _buckets(key, n):
+    """Rows of ``key (r,) int64`` (values in ``0 .. n-1``) grouped by value, each group in row
+    order: ``(start (n + 1,) int64, member (r,) int64)``, value ``x``'s rows ``member[start[x] :
+    start[x + 1]]``."""
+    start = np.zeros(n + 1, np.int64)
+    for i in range(key.shape[0]):
+        start[key[i] + 1] += 1
+    for x in range(n):
+        start[x + 1] += start[x]
+    fill = start[:-1].copy()
+    member = np.empty(key.shape[0], np.int64)
+    for i in range(key.shape[0]):
+        member[fill[key[i]]] = i
+        fill[key[i]] += 1
+    return start, member
+
+
+@njit(cache=True, nogil=True)
 def part_mesh(v, f, radius, flip):
     """The part's mesh from welded ``v (g, 3)`` and relabelled ``f (F, 3) int64``: drops faces no
     wider than ``radius`` (twice the area over the longest edge) and repeated faces (the first
@@ -151,17 +169,24 @@ def part_mesh(v, f, radius, flip):
              np.zeros((0, 3)))
     if m == 0:
         return (1,) + empty
-    # repeated faces: the first of each sorted corner triple, in the given order
-    key = np.empty(m, np.int64)
+    # repeated faces: the first of each sorted corner triple, in the given order (faces bucketed
+    # by their lowest corner, in row order, and compared within the bucket)
+    low = np.empty(m, np.int64)
+    rest = np.empty((m, 2), np.int64)
     for i in range(m):
         a, b, c = f[rows[i], 0], f[rows[i], 1], f[rows[i], 2]
         lo, hi = min(a, min(b, c)), max(a, max(b, c))
-        mid = a + b + c - lo - hi
-        key[i] = (lo * g + mid) * g + hi
-    order = np.argsort(key, kind="mergesort")
-    first = np.zeros(m, np.bool_)
-    for i in range(m):
-        first[order[i]] = i == 0 or key[order[i]] != key[order[i - 1]]
+        low[i], rest[i, 0], rest[i, 1] = lo, a + b + c - lo - hi, hi
+    start, member = _buckets(low, g)
+    first = np.ones(m, np.bool_)
+    for x in range(g):
+        for p in range(start[x], start[x + 1]):
+            i = member[p]
+            for q in range(start[x], p):
+                j = member[q]
+                if rest[j, 0] == rest[i, 0] and rest[j, 1] == rest[i, 1]:
+                    first[i] = False
+                    break
     rows = rows[np.nonzero(first)[0]]
     m = rows.shape[0]
     # the vertices used, renumbered in order
@@ -172,29 +197,34 @@ def part_mesh(v, f, radius, flip):
         for k in range(3):
             fo[i, 2 - k if flip else k] = new[f[rows[i], k]]
     # every undirected edge in at most two faces, traversed oppositely
+    # (edges bucketed by their lower end, in slot order, and matched within the bucket)
     head = fo.reshape(-1)
-    tail = np.empty(3 * m, np.int64)
-    und = np.empty(3 * m, np.int64)
+    low = np.empty(3 * m, np.int64)
+    high = np.empty(3 * m, np.int64)
     for i in range(m):
         for k in range(3):
             h, t = fo[i, k], fo[i, (k + 1) % 3]
-            tail[3 * i + k] = t
-            und[3 * i + k] = min(h, t) * n + max(h, t)
-    order = np.argsort(und, kind="mergesort")
+            low[3 * i + k], high[3 * i + k] = min(h, t), max(h, t)
+    start, member = _buckets(low, n)
     other = np.arange(3 * m)
-    run = 1
-    for i in range(1, 3 * m + 1):
-        if i < 3 * m and und[order[i]] == und[order[i - 1]]:
-            run += 1
-            continue
-        if run > 2:
-            return (2,) + empty
-        if run == 2:
-            s, t = order[i - 2], order[i - 1]
-            if head[s] == head[t]:  # both faces traverse it from the same corner
-                return (3,) + empty
-            other[s], other[t] = t, s
-        run = 1
+    matched = np.zeros(3 * m, np.bool_)
+    for x in range(n):
+        for p in range(start[x], start[x + 1]):
+            s = member[p]
+            if matched[s]:
+                continue
+            t = -1
+            for q in range(p + 1, start[x + 1]):
+                r = member[q]
+                if high[r] == high[s]:
+                    if t >= 0:
+                        return (2,) + empty  # more than two faces
+                    t = r
+            if t >= 0:
+                if head[s] == head[t]:  # both faces traverse it from the same corner
+                    return (3,) + empty
+                other[s], other[t] = t, s
+                matched[t] = True
     normals = np.empty((m, 3))
     for i in range(m):
         a, b, c = fo[i, 0], fo[i, 1], fo[i, 2]
@@ -272,3 +302,88 @@ def signs(points, dist, close, face, bary, vertices, faces, normals, edge_normal
     if len(points):
         _signs(points, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, float(tol), out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def links(points, cells, limit):
+    """The edges of triangles ``cells (c, 3) int64`` (rows of ``points (n, 3)``) shorter than
+    ``limit``, both ways, as a CSR adjacency: ``(start (n + 1,) int64, neighbour (e,) int64,
+    length (e,))``. An edge two triangles share is listed twice."""
+    n = points.shape[0]
+    start = np.zeros(n + 1, np.int64)
+    length = np.empty((cells.shape[0], 3))
+    for t in range(cells.shape[0]):
+        for k in range(3):
+            i, j = cells[t, k], cells[t, (k + 1) % 3]
+            d0, d1, d2 = points[i, 0] - points[j, 0], points[i, 1] - points[j, 1], points[i, 2] - points[j, 2]
+            length[t, k] = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+            if i != j and length[t, k] < limit:
+                start[i + 1] += 1
+                start[j + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    neighbour = np.empty(start[n], np.int64)
+    out = np.empty(start[n])
+    for t in range(cells.shape[0]):
+        for k in range(3):
+            i, j = cells[t, k], cells[t, (k + 1) % 3]
+            if i != j and length[t, k] < limit:
+                neighbour[fill[i]], out[fill[i]] = j, length[t, k]
+                neighbour[fill[j]], out[fill[j]] = i, length[t, k]
+                fill[i] += 1
+                fill[j] += 1
+    return start, neighbour, out
+
+
+@njit(cache=True, nogil=True)
+def flood(start, neighbour, length, seeds, sign, reach):
+    """Breadth first from ``seeds (m,) int64`` over the adjacency (`links`): a point whose
+    ``sign (n,) int8`` is 0 takes the sign of the point it is reached from and ``reach (n,)`` that
+    point's plus the edge's length (an upper bound of its distance to the surface when the
+    seeds' are). Both arrays are updated in place."""
+    queue = np.empty(sign.shape[0], np.int64)
+    tail = 0
+    for s in range(seeds.shape[0]):
+        queue[tail] = seeds[s]
+        tail += 1
+    head = 0
+    while head < tail:
+        u = queue[head]
+        head += 1
+        for e in range(start[u], start[u + 1]):
+            w = neighbour[e]
+            if sign[w] == 0:
+                sign[w] = sign[u]
+                reach[w] = reach[u] + length[e]
+                queue[tail] = w
+                tail += 1
+
+
+@njit(cache=True, nogil=True)
+def representatives(start, neighbour, sign):
+    """The lowest row of each connected part of the points whose ``sign`` is 0 (`links`'
+    adjacency): ``(r,) int64``."""
+    n = sign.shape[0]
+    seen = np.zeros(n, np.bool_)
+    queue = np.empty(n, np.int64)
+    reps = np.empty(n, np.int64)
+    count = 0
+    for i in range(n):
+        if sign[i] != 0 or seen[i]:
+            continue
+        reps[count] = i
+        count += 1
+        seen[i] = True
+        queue[0] = i
+        head, tail = 0, 1
+        while head < tail:
+            u = queue[head]
+            head += 1
+            for e in range(start[u], start[u + 1]):
+                w = neighbour[e]
+                if sign[w] == 0 and not seen[w]:
+                    seen[w] = True
+                    queue[tail] = w
+                    tail += 1
+    return reps[:count]

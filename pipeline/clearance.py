@@ -64,6 +64,15 @@ is spent. ``L`` only grows, so a cell that needs no split never needs one later 
 active set with its ``U``. The result ``bound = max_t U(t)`` over the final cells is an upper bound
 in every case; ``complete`` says whether it is also within ``max(target, 1.25 L)``.
 
+**Far corners** (`_signed_corners`). Most corners of a display near another object lie far
+outside it. A closest-point search bounded by ``Q`` (2.5 times the largest covering radius) opens
+only the boxes within ``Q``; a corner with no face that near is outside by more than ``Q`` or
+inside by more than ``Q``, and the ball of radius ``Q`` about it holds no surface, so it has the
+sign of any corner within ``Q`` along the triangles' edges. An outside one stands at ``-inf`` in
+(4): every other corner's depth is above ``-Q``, so a cell's bound is the same, and 0 for a cell
+of such corners alone (``rho <= Q``); its nearest face, which (6) reads, is found when a cell of
+it has a bound above 0. An inside one is measured.
+
 **Placement.** A mesh may sit under a 4x4 affine matrix with linear part ``M``; queries run in its
 object space. An object-space distance ``d`` is at most ``sigma_max(M) d`` in world space (equal
 for a similarity), so
@@ -374,9 +383,17 @@ def _at(tri: np.ndarray, w: np.ndarray) -> np.ndarray:
 def _distinct(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct rows of ``points (k, 3) float64`` (bitwise), the index ``(u,) int64`` of each one's
     first occurrence and the inverse ``(k,) int64``."""
-    rows = np.ascontiguousarray(points).view(np.dtype((np.void, 24))).reshape(-1)
-    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
-    return points[first], first, inverse.reshape(-1)
+    # the distinct rows by a hash table (each one's first occurrence), then in the order of
+    # np.unique over the rows as 24 raw bytes (memcmp): byte 0, the low byte of x, first, so each
+    # coordinate's byte-swapped bits as unsigned keys, x before y before z
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    once, label = bvh.first_rows(p)
+    key = p[once].view(np.uint64).byteswap()
+    order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    first = once[order]
+    return p[first], first, rank[label]
 
 
 def _at_cells(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, steps: int) -> np.ndarray:
@@ -449,16 +466,17 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
     tri = np.asarray(corners, np.float64).reshape(-1, 3, 3)
     steps = 1 << max_split  # integer barycentric lattice: weights (i, j, steps - i - j) / steps
     src = np.nonzero(bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
-    rho0 = covering_radius(tri[src])  # (c,) per live source triangle, halved per split level
+    rho0 = bvh.covering_radii(tri[src])  # (c,) per live source triangle (covering_radius compiled), halved per split level
     found: list[tuple] = []  # (tri, bary, points, sd) of evaluated points with sd > 0
 
     def keep(rows, lattice, pts, sd):
         inside = sd > 0
         found.append((rows[inside], lattice[inside] / steps, pts[inside], sd[inside]))
 
-    # level 0: each distinct corner once
+    # level 0: each distinct corner once; corners far outside get -inf and no face (`_signed_corners`)
     pts, first, inverse = _distinct(tri[src].reshape(-1, 3))
-    sd_pts, _, face_pts = _signed(s, pts, reach)
+    corner_pts = inverse.reshape(-1, 3)
+    sd_pts, face_pts, pending = _signed_corners(s, pts, corner_pts, rho0, reach)
     evaluated = len(pts)
     lattice = np.broadcast_to(steps * np.eye(3, dtype=np.int64), (len(src), 3, 3))  # (c, 3 corners, 3 weights)
     keep(src[first // 3], lattice[first // 3, first % 3], pts, sd_pts)
@@ -471,6 +489,13 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         now = max(target, 1.25 * max(low, 0.0))
         bound = np.maximum(sd.max(axis=1) + rho, 0.0)  # eq. (4)
         over = np.nonzero(bound > 0.0)[0]
+        if pending is not None:  # level 0: eq. (6) needs the nearest faces of these cells' far corners
+            ids = np.unique(corner_pts[over])
+            ids = ids[pending[ids]]
+            if len(ids):
+                sd_pts[ids], _, face_pts[ids] = _signed(s, pts[ids], reach)
+                sd, fc = sd_pts[corner_pts], face_pts[corner_pts]
+            pending = None
         if len(over):  # eq. (6): the faces nearest the corners bound the cell too
             bound[over] = np.minimum(bound[over], _cell_bound(s, _at_cells(tri, src[rows[over]], lattice[over], steps), fc[over]))
         need = (bound > now) | ((bound > decide) & (low <= decide))
@@ -513,6 +538,62 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
             break
     t, b, p, d = (np.concatenate(x) for x in zip(*found))
     return Depth(retired, max(low, 0.0), complete, t.astype(np.int64), b, p, d, evaluated, level)
+
+
+FAR = 2.5  # corners with no face within FAR x the largest covering radius are signed by their neighbours
+LINK = 0.8  # ... along edges shorter than LINK x that distance
+
+
+def _signed_corners(s: Solid, pts: np.ndarray, cells: np.ndarray, rho: np.ndarray, reach: float):
+    """Eq. (1) at the distinct level-0 corners ``pts (n, 3)`` of cells ``cells (c, 3) int64`` (rows of
+    ``pts``) with covering radii ``rho (c,)``: ``(sd (n,), face (n,) int64, pending (n,) bool or
+    None)``, exact (as `_signed`) except at corners ``pending``: outside by more than ``Q``, with
+    ``sd = -inf`` and ``face = -1``.
+
+    ``Q = min(FAR max(rho), reach)``. A closest-point search bounded by ``Q`` opens only the boxes
+    within ``Q``: a corner with no face that near (a display corner far from the other object's
+    part, most of them) costs a few boxes instead of every box nearer than its answer. Its
+    sign is its neighbour's: the ball of radius ``Q`` about it holds no point of the surface (no
+    face of the part, hence none of the whole within ``reach``), so an edge shorter than ``Q``
+    from it does not cross the surface. Signs spread along the cells' edges shorter than ``LINK
+    Q`` from the corners found near, with the sum of the edges' lengths and the near corner's
+    distance bounding each corner's distance; a group of far corners no near one reaches gets
+    one corner queried exactly. A far corner found inside, or not certainly within ``reach``
+    (where `_signed` raises `Unresolved`), is queried exactly.
+
+    A pending corner's depth is below ``-Q``, a non-pending one's is at least ``-Q`` (or exact),
+    so eq. (4)'s ``max_i sd(c_i) + rho`` is the same for a cell with any other corner, and 0 for
+    a cell of pending corners alone (``rho <= Q``); the largest depth found and the points found
+    inside are the same. A cell whose bound is above 0 has its pending corners queried before
+    eq. (6) reads their faces (`_triangle_depth`), so the bound is the same bits."""
+    q = min(FAR * float(rho.max(initial=0.0)), reach)
+    if not len(pts) or not q >= float(rho.max(initial=0.0)) or not q > 0:
+        sd, _, face = _signed(s, pts, reach)
+        return sd, face, None
+    p = np.ascontiguousarray(pts, np.float64)
+    dist, close, face, bary = bvh.closest(s.tree, p, np.full(len(p), q))
+    known = face >= 0
+    sd = np.full(len(p), -np.inf)
+    if known.any():
+        sd[known] = pseudonormals.signs(p[known], dist[known], close[known], face[known], bary[known], s.vertices,
+                                        s.faces, s.normals, s.edge_normals, s.vertex_normals, FEATURE * _extent(s))
+    if known.all():
+        return sd, face, None
+    sign = np.where(known, np.where(sd > 0, 1, -1), 0).astype(np.int8)
+    ub = np.where(known, dist, np.inf)
+    start, neighbour, length = pseudonormals.links(p, np.ascontiguousarray(cells, np.int64), LINK * q)
+    pseudonormals.flood(start, neighbour, length, np.nonzero(known)[0], sign, ub)
+    reps = pseudonormals.representatives(start, neighbour, sign)
+    if len(reps):  # a group of far corners no near corner reaches: one of each exactly
+        sd[reps], _, face[reps] = _signed(s, p[reps], reach)
+        sign[reps] = np.where(sd[reps] > 0, 1, -1)
+        ub[reps] = np.abs(sd[reps])
+        pseudonormals.flood(start, neighbour, length, reps, sign, ub)
+    exact = np.nonzero((face < 0) & ((sign > 0) | (ub > reach)))[0]
+    if len(exact):
+        sd[exact], _, face[exact] = _signed(s, p[exact], reach)
+    pending = face < 0
+    return sd, face, (pending if pending.any() else None)
 
 
 def sigma_max(matrix) -> float:

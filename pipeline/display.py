@@ -103,7 +103,7 @@ class SurfaceDisplay:
     def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, limit: np.ndarray,
                  triangles: np.ndarray | None = None):
         self.surface, self.topology, self.points, self.limit = surface, topology, points, limit
-        self._triangles, self._solid = triangles, None
+        self._triangles, self._solid, self._uv = triangles, None, None
         self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
 
     @property
@@ -114,8 +114,11 @@ class SurfaceDisplay:
 
     @property
     def uv(self) -> np.ndarray:
-        """Parameters ``(n, 2) float64`` of the vertices."""
-        return np.stack([self.topology.u, self.topology.v], axis=1)
+        """Parameters ``(n, 2) float64`` of the vertices (one array per display, so its digest,
+        `pipeline.residual.Shown.fingerprint`, is taken once)."""
+        if self._uv is None:
+            self._uv = np.stack([self.topology.u, self.topology.v], axis=1)
+        return self._uv
 
     def solid(self):
         """The inside of the display as the output stores it (float32 points), for a closed surface."""

@@ -112,10 +112,13 @@ class Shown:
         collider's solid, which is fixed for a run): two `Shown` with the same digest give the
         same `pair_depth` answers, as either side of a pair."""
         h = hashlib.sha1(repr((self.path, self.closed, self.deformable, self.outward, self.size)).encode())
-        for x in (self.box, self.xform, self.world, self.triangles, self.vertex_uv, self.local):
+        # ``world`` is ``local`` mapped by ``xform`` (`shown`; a collider's is empty)
+        for x in (self.box, self.xform, self.local):
             h.update(b"-" if x is None else repr((x.dtype.str, x.shape)).encode())
             if x is not None:
                 h.update(np.ascontiguousarray(x).data)
+        for x in (self.triangles, self.vertex_uv):  # a display's, the same arrays every round and frame
+            h.update(b"-" if x is None else _digest(x))
         return h.digest()
 
     @cached_property
@@ -123,6 +126,24 @@ class Shown:
         """Diagonal of the box of the object-space display points (the scale solids weld at)."""
         box = bvh.bounds(self.local)
         return float(np.linalg.norm(box[1] - box[0]))
+
+
+_DIGESTS: dict = {}  # id(array) -> (array, digest), the arrays made read-only
+
+
+def _digest(x: np.ndarray) -> bytes:
+    """A digest of ``x``'s dtype, shape and values, kept per array: the array is made read-only,
+    so the values it was taken of are the values it holds."""
+    hit = _DIGESTS.get(id(x))
+    if hit is not None and hit[0] is x and not x.flags.writeable:
+        return hit[1]
+    x.flags.writeable = False
+    h = hashlib.sha1(repr((x.dtype.str, x.shape)).encode())
+    h.update(np.ascontiguousarray(x).data)
+    if len(_DIGESTS) >= 16:
+        _DIGESTS.pop(next(iter(_DIGESTS)))
+    _DIGESTS[id(x)] = (x, h.digest())
+    return _DIGESTS[id(x)][1]
 
 
 def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
@@ -335,6 +356,8 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
     uvs = {m.path: np.stack([result.topology(m).u, result.topology(m).v], axis=1) for m in scene.deformables}
     import time
 
+    local_boxes: dict = {}  # id(points) -> (points, object-space box of their float32 values)
+    collider_boxes = [bvh.bounds(np.asarray(c.vertices, np.float64)) for c in scene.colliders]
     for st in stats:
         t0 = time.perf_counter()
         xforms = st.xforms
@@ -343,6 +366,21 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
             xforms = {m.path: s.xform for m, s in zip(scene.deformables, dstates)}
             xforms.update({c.path: s.xform for c, s in zip(scene.colliders, cstates)})
         per = result.frames[st.frame]
+        boxes = [_outer_box(xforms[m.path], _local_box(local_boxes, per[m.path].points)) for m in scene.deformables]
+        boxes += [_outer_box(xforms[c.path], box) for c, box in zip(scene.colliders, collider_boxes)]
+        if not any(_meet(boxes[i], boxes[j]) for i in range(len(scene.deformables)) for j in range(len(boxes)) if j != i):
+            # no deformable's display comes near another object: every pair's depth is 0 (`pair_depth`
+            # finds no triangle of one in the other's box), so nothing is shown or measured
+            st.residual, st.residual_rel = 0.0, 0.0
+            names = [m.path for m in scene.deformables]
+            others = names + [c.path for c in scene.colliders]
+            st.pair_residual_rel = {(a, b): 0.0 for i, a in enumerate(names) for b in others[i + 1:]}
+            for m in scene.deformables:
+                per[m.path] = replace(per[m.path], residual=0.0)
+            ms = 1e3 * (time.perf_counter() - t0)
+            st.ms_output += ms
+            st.ms_total += ms
+            continue
         objects = []
         for m in scene.deformables:
             r = per[m.path]
@@ -365,3 +403,28 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
         ms = 1e3 * (time.perf_counter() - t0)
         st.ms_output += ms
         st.ms_total += ms
+
+
+def _local_box(kept: dict, points: np.ndarray) -> np.ndarray:
+    """The box ``(2, 3)`` of ``points`` rounded to float32 (what `shown` maps), kept by the array
+    (a run's frames share the display points of an unchanged surface)."""
+    hit = kept.get(id(points))
+    if hit is None or hit[0] is not points:
+        hit = kept[id(points)] = (points, bvh.bounds(np.asarray(points, np.float32).astype(np.float64)))
+    return hit[1]
+
+
+def _outer_box(xform: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """A world box ``(2, 3)`` holding every point of the object-space ``box`` mapped by ``xform``
+    (`apply_xform`): its 8 corners' box, widened by 1e-9 of its diagonal and of its largest
+    coordinate for the rounding of each point's own mapping."""
+    corners = np.array([[box[i, 0], box[j, 1], box[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    world = apply_xform(np.asarray(xform, np.float64), corners)
+    lo, hi = world.min(axis=0), world.max(axis=0)
+    pad = 1e-9 * (float(np.linalg.norm(hi - lo)) + float(np.abs(world).max())) + 1e-300
+    return np.stack([lo - pad, hi + pad])
+
+
+def _meet(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether boxes ``a`` and ``b`` ``(2, 3)`` meet (`bvh.faces_meet`'s comparisons)."""
+    return bool(np.all(a[0] <= b[1]) and np.all(b[0] <= a[1]))

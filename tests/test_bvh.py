@@ -101,3 +101,51 @@ def test_bounds_are_numpys_minima_and_maxima():
     np.testing.assert_array_equal(bvh.bounds(p[:1]), np.stack([p[0], p[0]]))
     with pytest.raises(ValueError):
         bvh.bounds(np.zeros((0, 3)))
+
+
+def _tree_sorting_every_node(tri: np.ndarray):
+    """The tree `bvh.build` stands for, in numpy: each node's triangles sorted stably by their
+    centroids along the longest side of its centroid box, split at the median; its box from its
+    triangles. Returns ``(order, lo, hi, left, right, start, count)``."""
+    lo_t, hi_t, cen = tri.min(axis=1), tri.max(axis=1), tri.mean(axis=1)
+    order = np.arange(len(tri))
+    nodes = [None] * (2 * len(tri) + 1)
+    stack, used = [(0, 0, len(tri))], 1
+    while stack:
+        node, a, b = stack.pop()
+        rows = order[a:b]
+        box = (lo_t[rows].min(axis=0), hi_t[rows].max(axis=0))
+        if b - a <= bvh.LEAF:
+            nodes[node] = (*box, -1, -1, a, b - a)
+            continue
+        extent = cen[rows].max(axis=0) - cen[rows].min(axis=0)
+        axis = max(range(3), key=lambda k: (extent[k], -k))
+        order[a:b] = rows[np.argsort(cen[rows, axis], kind="stable")]
+        mid = (a + b) // 2
+        nodes[node] = (*box, used, used + 1, a, 0)
+        stack += [(used, a, mid), (used + 1, mid, b)]
+        used += 2
+    lo, hi, left, right, start, count = (np.array(x) for x in zip(*nodes[:used]))
+    return order, lo, hi, left, right, start, count
+
+
+@pytest.mark.parametrize("case", ["soup", "grid", "ties"])
+def test_build_is_the_tree_that_sorts_every_node(case):
+    """The build selects each node's first half (`bvh._select`) instead of sorting the node; runs
+    of equal centroids (a grid's columns, repeated triangles) are ordered as a stable sort of the
+    node orders them, by the ancestors' axes, then the row (`bvh._before`)."""
+    rng = np.random.default_rng(5)
+    if case == "soup":
+        tri = soup(11, 3000)
+    elif case == "grid":
+        g = np.stack(np.meshgrid(np.arange(40.0), np.arange(30.0), [0.0], indexing="ij"), -1).reshape(-1, 3)
+        tri = np.stack([g, g + [1.0, 0, 0], g + [0, 1.0, 0.5]], axis=1)
+    else:
+        tri = np.round(rng.normal(size=(400, 3, 3)), 1)[rng.integers(0, 400, 2500)]
+    tree = bvh.build(tri)
+    order, lo, hi, left, right, start, count = _tree_sorting_every_node(tri)
+    np.testing.assert_array_equal(tree.order, order)
+    np.testing.assert_array_equal(tree.lo, lo)  # as numbers: a zero's sign may differ
+    np.testing.assert_array_equal(tree.hi, hi)
+    for x, y in ((tree.left, left), (tree.right, right), (tree.start, start), (tree.count, count)):
+        np.testing.assert_array_equal(x, y)

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from scipy.optimize import linprog
 
 from acceptance.visible import surface_distance
+from acra import bvh
 from pipeline import clearance as C
 from pipeline.model import apply_inverse
 
@@ -310,6 +311,18 @@ def test_covering_radius_exact():
     assert C.covering_radius(tri)[2] < 1.0  # below half the longest edge
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_covering_radii_are_the_array_form(seed):
+    """`acra.bvh.covering_radii` (what `triangle_depth` uses) gives `covering_radius`'s bits: acute,
+    obtuse, degenerate (a repeated corner) and collinear triangles at several scales."""
+    rng = np.random.default_rng(seed)
+    tri = rng.normal(size=(3000, 3, 3)) * 10.0 ** rng.integers(-6, 3, (3000, 1, 1))
+    tri[::7, 2] = tri[::7, 0]
+    tri[1::7, 2] = 0.5 * (tri[1::7, 0] + tri[1::7, 1])
+    tri[2::7] = np.round(tri[2::7], 1)
+    assert bvh.covering_radii(tri).tobytes() == C.covering_radius(tri).tobytes()
+
+
 @PROPERTY
 @given(st.integers(0, 2**31))
 def test_covering_radius_covers_and_is_attained(seed):
@@ -470,6 +483,92 @@ def test_bound_covers_dense_grid_in_light_contact(name, seed, target):
     base = centre + 0.1 * rng.normal(size=(3, 1)) * tangent + 0.1 * rng.normal(size=(3, 1)) * np.cross(normal, tangent)
     tri = (base + rng.uniform(-0.01, 0.01, size=(3, 1)) * normal)[None]
     check_against_dense(m, s, tri, target)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_distinct_rows_are_numpys_unique_over_the_bytes(seed):
+    """`_distinct` (a hash table, then the distinct rows sorted by their bytes) gives what
+    ``np.unique`` over 24-byte rows gives: the rows, first occurrences and inverse, with -0.0
+    and 0.0 distinct."""
+    rng = np.random.default_rng(seed)
+    base = rng.normal(size=(300, 3))
+    if seed % 2:
+        base = np.round(base, 1)
+    base[::3, 1] = 0.0
+    base[::6, 1] = -0.0
+    pts = base[rng.integers(0, len(base), 2000)]
+    rows = pts.view(np.dtype((np.void, 24))).reshape(-1)
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    got = C._distinct(pts)
+    for x, y in zip(got, (pts[first], first, inverse.reshape(-1))):
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+
+
+def _sheet(rng, centre, size, n):
+    """A tilted ``n x n`` grid of triangles ``(2 n^2, 3, 3)`` of side ``size`` about ``centre``,
+    its corners shared (bit for bit) by neighbouring triangles."""
+    axes = np.linalg.qr(rng.normal(size=(3, 3)))[0][:, :2]
+    g = np.linspace(-0.5, 0.5, n + 1) * size
+    pts = centre + g[:, None, None] * axes[:, 0] + g[None, :, None] * axes[:, 1]
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return pts.reshape(-1, 3)[faces]
+
+
+def _same_depth(d, e):
+    if d is None or e is None:
+        assert d is None and e is None
+        return
+    assert (d.bound, d.lower, d.complete, d.evaluated, d.split) == (e.bound, e.lower, e.complete, e.evaluated, e.split)
+    for x, y in ((d.tri, e.tri), (d.bary, e.bary), (d.points, e.points), (d.depth, e.depth)):
+        assert x.shape == y.shape and x.tobytes() == y.tobytes()
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+@pytest.mark.parametrize("seed", range(4))
+def test_far_corners_signed_by_their_neighbours_give_the_same_depth(name, seed, monkeypatch):
+    """`_signed_corners`: corners with no face within FAR x the largest covering radius take their
+    neighbours' sign (outside, or inside and then measured); a sheet wider than the shape with
+    triangles far outside, deep inside and crossing the surface, plus loose triangles no near
+    corner reaches, gives the same `Depth`, bit for bit, as every corner measured."""
+    m, s = shape(name)
+    rng = np.random.default_rng(seed)
+    tri = _sheet(rng, m.vertices[rng.integers(len(m.vertices))] * 0.3, 3.0, 40)
+    loose = rng.uniform(-1.4, 1.4, size=(30, 1, 3)) + 0.05 * rng.normal(size=(30, 3, 3))
+    tri = np.concatenate([tri, loose])
+    for target in (0.0, 1e-3, 0.05):
+        got = C.triangle_depth(s, tri, target, budget=60_000)
+        with monkeypatch.context() as mp:
+            mp.setattr(C, "FAR", 0.0)  # every corner measured
+            want = C.triangle_depth(s, tri, target, budget=60_000)
+        _same_depth(got, want)
+    pts, _, inverse = C._distinct(tri.reshape(-1, 3))
+    sd, face, pending = C._signed_corners(s, pts, inverse.reshape(-1, 3), C.covering_radius(tri), np.inf)
+    assert pending is not None and pending.sum() > len(pending) // 4  # most corners were never measured
+    exact = C.signed_depth(s, pts)[0]
+    assert np.all(exact[pending] < 0) and np.array_equal(sd[~pending], exact[~pending])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_far_corners_of_a_part_give_the_same_depth_or_none(seed, monkeypatch):
+    """On a part of a solid (`solid` with ``part``), a corner beyond ``reach`` gives ``None`` with
+    the far corners signed by their neighbours exactly when it does with every corner measured."""
+    v, f = uv_sphere(24, 40, seed)
+    rng = np.random.default_rng(seed)
+    tri = _sheet(rng, rng.normal(size=3) * 0.4, 1.2, 30)
+    lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+    for pad in (0.05, 0.3, 1.0):
+        rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
+        if not len(rows):
+            continue
+        part = C.solid(v, f[rows], part=True, outward=1.0, scale=2.0)
+        for target in (0.0, 1e-3):
+            got = C.triangle_depth(part, tri, target, reach=pad, budget=40_000)
+            with monkeypatch.context() as mp:
+                mp.setattr(C, "FAR", 0.0)
+                want = C.triangle_depth(part, tri, target, reach=pad, budget=40_000)
+            _same_depth(got, want)
 
 
 # --- object space and world space --------------------------------------------------------------------

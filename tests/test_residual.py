@@ -138,3 +138,31 @@ def test_a_measured_pair_is_taken_by_content_where_the_displays_hold_the_same():
     moved = residual.measure_frame(objects(2 * step), 1e-3, known=known)
     assert len(moved.pairs[0].inside.points) > 0  # measured again
     assert len(residual.measure_frame(again, 2e-3, known=known).pairs[0].inside.points) > 0
+
+
+def test_a_run_s_frames_apart_are_not_measured_and_read_zero(monkeypatch):
+    """`measure_run` skips a frame whose objects' boxes (each display's object-space box mapped
+    by its world matrix) all lie apart: its figures are those measuring it gives (every pair 0),
+    and a frame in contact is measured as before."""
+    import pathlib
+
+    from pipeline import frames, usdio
+
+    scene_file = pathlib.Path(__file__).resolve().parents[1] / "scenes" / "dog_head_spike.py"
+    stage = usdio.open_input(usdio.load_scene_file(scene_file))
+    scene = usdio.read_scene(stage)
+
+    def figures():
+        result, stats = frames.run_frames(stage, scene, [0, 5, 14])
+        return ([(st.frame, st.residual, st.residual_rel, st.pair_residual_rel) for st in stats],
+                [(f, p, r.residual) for f in sorted(result.frames) for p, r in sorted(result.frames[f].items())])
+
+    calls = []  # the run's display (its `Shown` keep no parts) measured, per frame
+    real = residual.measure_frame
+    monkeypatch.setattr(residual, "measure_frame", lambda objects, *a, **k: calls.append(
+        bool(objects) and all(o.parts is None for o in objects)) or real(objects, *a, **k))
+    got = figures()
+    skipped = 3 - sum(calls)
+    monkeypatch.setattr(residual, "_meet", lambda a, b: True)
+    assert got == figures()
+    assert skipped == 2 and got[0][2][1] > 0  # the free frames 0 and 5 skipped, frame 14 measured

@@ -1,0 +1,97 @@
+"""The residual's pairs of a run, replayed: what `residual.pair_depth` costs apart from the frame.
+
+    python3 benchmarks/residual_calls.py [SCENE.py] [--frames 13:17] [--passes 7]
+
+Runs the scene's ``--frames`` (after a free frame, as `stage_split.py` does), keeping every
+`residual.pair_depth` call's arguments (the frame loop's rounds and the run's display), then
+replays them ``--passes`` times, each pass with empty part caches (every part solid built again,
+as the first query of a display builds it), and prints the CPU milliseconds of the fastest pass,
+its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box) and a digest of every answer (depths,
+completeness, the points, parameters and depths found inside): two checkouts answer alike when
+their digests agree. Run it with ``PYTHONPATH`` at each checkout, alternating, for a comparison.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import hashlib
+import pathlib
+import time
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from acra import bvh
+from pipeline import clearance, residual, usdio
+from pipeline import frames as F
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SPENT: dict = collections.defaultdict(float)
+
+
+def _timed(label: str, f):
+    def wrapper(*args, **kwargs):
+        t = time.process_time()
+        try:
+            return f(*args, **kwargs)
+        finally:
+            SPENT[label] += time.process_time() - t
+    return wrapper
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
+    ap.add_argument("--frames", default="13:17", help="frames START:END (default 13:17)")
+    ap.add_argument("--passes", type=int, default=7)
+    args = ap.parse_args()
+    a, b = (int(x) for x in args.frames.split(":"))
+    stage = usdio.open_input(usdio.load_scene_file(args.scene))
+    scene = usdio.read_scene(stage)
+    F.run_frames(stage, scene, [5])
+    calls = []
+    real = residual.pair_depth
+
+    def keep(x, y, target, decide=np.inf):
+        calls.append((x, y, target, decide))
+        return real(x, y, target, decide)
+
+    residual.pair_depth = keep
+    F.run_frames(stage, scene, list(range(a, b + 1)))
+    residual.pair_depth = real
+    bvh.closest = _timed("closest-point searches (acra.bvh.closest)", bvh.closest)
+    clearance.solid = _timed("part solids (clearance.solid)", clearance.solid)
+    bvh.facet_bound = _timed("eq. (6) (acra.bvh.facet_bound)", bvh.facet_bound)
+    bvh.faces_meet = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet)
+    clearance.covering_radius = _timed("covering radii (eq. (3))", clearance.covering_radius)
+    if hasattr(bvh, "covering_radii"):  # its compiled form, where a checkout has it
+        bvh.covering_radii = _timed("covering radii (eq. (3))", bvh.covering_radii)
+    best, split, digest = np.inf, {}, None
+    for _ in range(args.passes):
+        with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs
+            parts: dict = {}  # a fresh cache per display, as a new display starts
+            fresh = [tuple(dataclasses.replace(s, parts=None if s.parts is None else parts.setdefault(id(s.parts), {}))
+                           for s in (x, y)) + (t, d) for x, y, t, d in calls]
+            SPENT.clear()
+            h = hashlib.sha1()
+            t0 = time.process_time()
+            for x, y, t, d in fresh:
+                ins = residual.pair_depth(x, y, t, d)
+                h.update(np.float64([ins.depth, ins.lower, ins.complete]).tobytes())
+                for arr in (ins.points, ins.uv, ins.deep):
+                    if arr is not None:
+                        h.update(np.ascontiguousarray(arr).tobytes())
+            spent = time.process_time() - t0
+            if spent < best:
+                best, split, digest = spent, dict(SPENT), h.hexdigest()
+    n = b - a + 1
+    print(f"{args.scene.name}, frames {a}-{b}: {len(calls)} pair_depth calls, fastest of {args.passes} passes "
+          f"{1e3 * best:.1f} ms CPU ({1e3 * best / n:.2f} a frame); answers {digest}")
+    for label, sec in sorted(split.items(), key=lambda kv: -kv[1]):
+        print(f"  {label}: {1e3 * sec:.1f} ms")
+
+
+if __name__ == "__main__":
+    main()
