@@ -1,0 +1,34 @@
+"""`acra.patch_boxes`: the level-0 patch boxes of `acra.tessellate.patch_hulls`, compiled."""
+
+import numpy as np
+import pytest
+
+from acra import hspline as H
+from acra import shapes
+from acra import tessellate as T
+from acra.patch_boxes import patch_boxes
+from conftest import wavy_sheet, with_random_offsets
+
+
+@pytest.mark.parametrize("name", ["sheet", "sphere", "torus", "tube"])
+def test_patch_boxes_equal_patch_hulls(name):
+    """The same boxes bit for bit as the array form, whole and for a subset of patches, on open,
+    periodic and pole-closed surfaces with details on several levels (CVs whose supports wrap
+    and pass the open ends)."""
+    if name == "sheet":
+        hs = H.make_movable(wavy_sheet(), 3, [[10, 9]])
+    else:
+        cvs, pu, pv = getattr(shapes, name)()
+        hs = H.from_grid(cvs, pu, pv, depth=4)
+        hs = H.make_movable(hs, 2, [[1, 1], [hs.u.patches0 - 1, 0]])
+        hs = H.make_movable(hs, 3, [[2, hs.v.patches0 - 1]])
+    hs = with_random_offsets(hs, scale=0.3)
+    det = H.details(hs)
+    every = H.all_cv_positions(hs, det)
+    lo, hi = patch_boxes(hs, every)
+    ref = T.patch_hulls(hs, det)
+    assert np.array_equal(lo, ref[0]) and np.array_equal(hi, ref[1])
+    only = np.random.default_rng(3).random((hs.u.patches0, hs.v.patches0)) < 0.3
+    lo, hi = patch_boxes(hs, every, only=only)
+    ref = T.patch_hulls(hs, det, only=only)
+    assert np.array_equal(lo, ref[0]) and np.array_equal(hi, ref[1])
