@@ -15,7 +15,7 @@ from numba import njit
 
 from acra.hierarchy import HSpline, _split_cv
 
-__all__ = ["patch_boxes"]
+__all__ = ["patch_boxes", "boxes_within"]
 
 
 @njit(cache=True, nogil=True)
@@ -73,3 +73,26 @@ def patch_boxes(hs: HSpline, every: list[np.ndarray], only: np.ndarray | None = 
         _widen(lo, hi, np.ascontiguousarray(ju, np.int64), np.ascontiguousarray(jv, np.int64),
                np.ascontiguousarray(every[k], np.float64), k, pu, pv, hs.u.periodic, hs.v.periodic, mask, only is not None)
     return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _within(lo, hi, q, limit, out):
+    for j in range(lo.shape[0]):
+        for i in range(q.shape[0]):
+            g0 = max(max(lo[j, 0] - q[i, 0], q[i, 0] - hi[j, 0]), 0.0)
+            g1 = max(max(lo[j, 1] - q[i, 1], q[i, 1] - hi[j, 1]), 0.0)
+            g2 = max(max(lo[j, 2] - q[i, 2], q[i, 2] - hi[j, 2]), 0.0)
+            if np.sqrt(g0 * g0 + g1 * g1 + g2 * g2) <= limit[i]:
+                out[j] = True
+                break
+
+
+def boxes_within(lo: np.ndarray, hi: np.ndarray, q: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """Which boxes ``lo, hi (m, 3)`` lie within ``limit (k,)`` of some point of ``q (k, 3)``:
+    ``(m,) bool``, each distance ``np.linalg.norm`` of the gap ``max(lo - q, q - hi, 0)`` as numpy
+    rounds it (the squares summed in order), without the ``(k, m)`` arrays."""
+    out = np.zeros(len(lo), np.bool_)
+    if len(lo) and len(q):
+        _within(np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64),
+                np.ascontiguousarray(q, np.float64), np.ascontiguousarray(limit, np.float64), out)
+    return out

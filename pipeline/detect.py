@@ -190,10 +190,32 @@ def candidate_patches(geom: SurfaceGeometry, bounds: np.ndarray, pad: float = 0.
     return np.argwhere(_overlap(lo, hi, bounds[0], bounds[1], pad)).astype(np.int64)
 
 
+def unique_patches(patches: np.ndarray) -> np.ndarray:
+    """The distinct rows of level-0 ``patches (m, 2) int64`` (non-negative), ascending as
+    ``np.unique(axis=0)`` gives them: one integer key a row instead of its structured sort."""
+    patches = np.asarray(patches, np.int64).reshape(-1, 2)
+    if not len(patches):
+        return patches
+    width = int(patches[:, 1].max()) + 1
+    key = np.unique(patches[:, 0] * width + patches[:, 1])
+    return np.stack([key // width, key % width], axis=1)
+
+
+def unique_rows(x: np.ndarray) -> np.ndarray:
+    """Rows ``(u,) int64`` of the first of each distinct row of ``x (n, 2) float64``, in the order
+    of the distinct rows (the first column, then the second): ``np.unique(x, axis=0,
+    return_index=True)[1]``, from a stable sort of the two columns instead of a structured one."""
+    if not len(x):
+        return np.zeros(0, np.int64)
+    order = np.lexsort((x[:, 1], x[:, 0]))
+    s = x[order]
+    return order[np.r_[True, (s[1:, 0] != s[:-1, 0]) | (s[1:, 1] != s[:-1, 1])]]
+
+
 def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     """Collision grids over level-0 ``patches (m, 2) int64`` at their `patch_density`, cached per
     patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error)."""
-    patches = np.unique(np.asarray(patches, np.int64).reshape(-1, 2), axis=0)
+    patches = unique_patches(patches)
     if not len(patches):
         return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
     cache = geom._patch_cache
@@ -491,7 +513,7 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
         pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
     else:
         tess = tessellate(geom, candidate_patches(geom, bounds, pad))
-        _, first = np.unique(wrap_uv(geom.surface, tess.uv), axis=0, return_index=True)
+        first = unique_rows(wrap_uv(geom.surface, tess.uv))
         pts, uv = tess.points[first], tess.uv[first]
     keep = np.all((pts >= bounds[0] - pad) & (pts <= bounds[1] + pad), axis=1)
     return pts[keep], None if uv is None else uv[keep]

@@ -32,3 +32,19 @@ def test_patch_boxes_equal_patch_hulls(name):
     lo, hi = patch_boxes(hs, every, only=only)
     ref = T.patch_hulls(hs, det, only=only)
     assert np.array_equal(lo, ref[0]) and np.array_equal(hi, ref[1])
+
+
+def test_boxes_within_is_the_array_form():
+    """`boxes_within` keeps the boxes whose gap to some point is within its limit, each gap's
+    norm rounded as numpy's: the same boxes as the (points, boxes) array of norms."""
+    from acra.patch_boxes import boxes_within
+
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        m, k = rng.integers(0, 60), rng.integers(1, 40)
+        c, h = rng.normal(size=(m, 3)), np.abs(rng.normal(size=(m, 3))) * 0.3
+        lo, hi, q = c - h, c + h, rng.normal(size=(k, 3))
+        q[: k // 3] = np.clip(q[: k // 3], -0.1, 0.1)  # inside some boxes
+        limit = np.abs(rng.normal(size=k)) * 0.5 * (1 + 1e-9) + 1e-300
+        gap = np.linalg.norm(np.maximum(np.maximum(lo[None] - q[:, None], q[:, None] - hi[None]), 0.0), axis=2)
+        assert np.array_equal(np.nonzero(boxes_within(lo, hi, q, limit))[0], np.unique(np.nonzero(gap <= limit[:, None])[1]))
