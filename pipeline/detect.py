@@ -21,9 +21,10 @@ import numpy as np
 import trimesh
 
 from acra import hspline as H
+from acra import narrow
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
-from pipeline.grids import boxes_near, triangle_boxes
+from pipeline.grids import boxes_near
 from pipeline.shape import Closest, Shape, bvh as _bvh, overlap as _overlap, shape_of
 
 __all__ = [
@@ -269,23 +270,16 @@ def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
 
 
 def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``."""
-    return triangle_boxes(points[faces])
+    """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``
+    (compiled: `acra.narrow.face_boxes`)."""
+    return narrow.face_boxes(points, faces)
 
 
 def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray, np.ndarray], pad: float, rounds: int = 2):
     """Rows of side ``a``'s and side ``b``'s triangles, given by their boxes ``lo, hi (f, 3)``,
-    whose boxes overlap the box of the other side's kept ones."""
-    boxes = [box_a, box_b]
-    keep = [np.ones(len(box_a[0]), bool), np.ones(len(box_b[0]), bool)]
-    for _ in range(rounds):
-        for me, other in ((0, 1), (1, 0)):
-            if keep[other].any():
-                lo, hi = boxes[other][0][keep[other]].min(axis=0), boxes[other][1][keep[other]].max(axis=0)
-                keep[me] &= _overlap(boxes[me][0], boxes[me][1], lo, hi, pad)
-            else:
-                keep[me][:] = False
-    return np.nonzero(keep[0])[0], np.nonzero(keep[1])[0]
+    whose boxes overlap the box of the other side's kept ones (compiled:
+    `acra.narrow.triangles_near`)."""
+    return narrow.triangles_near(box_a, box_b, pad, rounds)
 
 
 def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
