@@ -135,6 +135,7 @@ class SurfaceGeometry:
     density: int = 8
     max_density: int = 64
     _patch_cache: dict = field(default_factory=dict, init=False, repr=False)
+    _tess_cache: dict = field(default_factory=dict, init=False, repr=False)
 
     @cached_property
     def shape(self) -> Shape:
@@ -215,18 +216,33 @@ def unique_rows(x: np.ndarray) -> np.ndarray:
 
 def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     """Collision grids over level-0 ``patches (m, 2) int64`` at their `patch_density`, cached per
-    patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error)."""
+    patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error);
+    the last few patch sets' tessellations are kept too (the narrow phase, the regions and the
+    on-surface search of a round ask for the same sets)."""
     patches = unique_patches(patches)
     if not len(patches):
         return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
+    kept = geom._tess_cache
+    key = patches.tobytes()
+    hit = kept.pop(key, None)
+    if hit is None:
+        hit = _tessellation(geom, patches)
+    kept[key] = hit
+    while len(kept) > 8:
+        del kept[next(iter(kept))]
+    return hit
+
+
+def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     cache = geom._patch_cache
-    todo = [(int(p[0]), int(p[1])) for p in patches if (p[0], p[1]) not in cache]
+    keys = list(map(tuple, patches.tolist()))
+    todo = [k for k in keys if k not in cache]
     if todo:
         obj = geom.shape.grids_for(np.array(todo, np.int64))
         world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
         for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g.points) for g in obj[:-1]]))):
             cache[p] = (w, g.uv, g.triangles)
-    grids = [cache[(p[0], p[1])] for p in patches]
+    grids = [cache[k] for k in keys]
     base = np.cumsum([0] + [len(g[0]) for g in grids[:-1]])
     return Tessellation(
         np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]),
