@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["face_boxes", "triangles_near"]
+__all__ = ["face_boxes", "triangles_near", "compact"]
 
 
 @njit(cache=True, nogil=True)
@@ -82,3 +82,33 @@ def triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray
           np.ascontiguousarray(box_b[0], np.float64), np.ascontiguousarray(box_b[1], np.float64), float(pad), int(rounds),
           keep_a, keep_b)
     return np.nonzero(keep_a)[0], np.nonzero(keep_b)[0]
+
+
+@njit(cache=True, nogil=True)
+def _compact(n, faces):
+    rank = np.full(n, -1, np.int64)
+    for i in range(faces.shape[0]):
+        for k in range(3):
+            rank[faces[i, k]] = 0
+    used = 0
+    for v in range(n):
+        if rank[v] == 0:
+            rank[v] = used
+            used += 1
+    rows = np.empty(used, np.int64)
+    for v in range(n):
+        if rank[v] >= 0:
+            rows[rank[v]] = v
+    tri = np.empty((faces.shape[0], 3), np.int32)
+    for i in range(faces.shape[0]):
+        for k in range(3):
+            tri[i, k] = rank[faces[i, k]]
+    return rows, tri
+
+
+def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices ``(u, 3) float64`` that ``faces (f, 3)`` use, in ascending row order, and the
+    faces renumbered into them ``(f, 3) int32``, both contiguous: ``np.unique(faces,
+    return_inverse=True)``'s rows and inverse, by marking the used rows instead of sorting."""
+    rows, tri = _compact(len(vertices), np.ascontiguousarray(faces, np.int64).reshape(-1, 3))
+    return np.ascontiguousarray(vertices[rows], np.float64), tri

@@ -20,7 +20,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from acra import nearest
+from acra import narrow, nearest
 from acra.tessellate import patch_grids
 
 if TYPE_CHECKING:
@@ -58,9 +58,8 @@ def boxes_near(centre: np.ndarray, half: np.ndarray, xform: np.ndarray, bounds: 
 
 def _compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The vertices ``(u, 3) float64`` that ``faces (f, 3)`` use and the faces renumbered into
-    them ``(f, 3) int32``, contiguous: what fcl builds a BVH from."""
-    used, tri = np.unique(faces, return_inverse=True)
-    return np.ascontiguousarray(vertices[used], np.float64), np.ascontiguousarray(tri.reshape(-1, 3), np.int32)
+    them ``(f, 3) int32``, contiguous: what fcl builds a BVH from (`acra.narrow.compact`)."""
+    return narrow.compact(vertices, faces)
 
 
 def _build(vertices: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:

@@ -35,3 +35,16 @@ def test_face_boxes_and_culls_are_the_array_form():
         pad = float(rng.choice([0.0, 1e-7, 0.1]))
         got, want = narrow.triangles_near(box_a, box_b, pad), _array_form(box_a, box_b, pad)
         assert all(np.array_equal(g, w) for g, w in zip(got, want)), trial
+
+
+def test_compact_is_numpy_unique():
+    """`compact` gives the used vertices and renumbered faces of ``np.unique(faces,
+    return_inverse=True)``, with unused and repeated vertices."""
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        v = rng.normal(size=(int(rng.integers(3, 200)), 3))
+        f = rng.integers(0, len(v), (int(rng.integers(1, 120)), 3))
+        used, inv = np.unique(f, return_inverse=True)
+        got_v, got_f = narrow.compact(v, f)
+        assert np.array_equal(got_v, v[used]) and np.array_equal(got_f, inv.reshape(-1, 3).astype(np.int32))
+        assert got_f.dtype == np.int32 and got_v.flags.c_contiguous and got_f.flags.c_contiguous
