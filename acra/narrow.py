@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["face_boxes", "triangles_near", "compact"]
+__all__ = ["compact", "face_boxes", "triangles_near"]
 
 
 @njit(cache=True, nogil=True)

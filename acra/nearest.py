@@ -27,7 +27,7 @@ from numba import njit
 
 from acra.bvh import LEAF, Tree, _morton_order
 
-__all__ = ["ZERO", "build", "Index", "index", "query", "closest_points"]
+__all__ = ["ZERO", "Index", "build", "closest_points", "index", "query"]
 
 ZERO = 1e-13  # trimesh.constants.tol.zero: the region tests' tolerance, in units of the mesh
 _REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * unit

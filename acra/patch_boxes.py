@@ -15,7 +15,7 @@ from numba import njit
 
 from acra.hierarchy import HSpline, _split_cv
 
-__all__ = ["patch_boxes", "boxes_within"]
+__all__ = ["boxes_within", "patch_boxes"]
 
 
 @njit(cache=True, nogil=True)

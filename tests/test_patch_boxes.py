@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
+from conftest import wavy_sheet, with_random_offsets
 
 from acra import hspline as H
 from acra import shapes
 from acra import tessellate as T
 from acra.patch_boxes import patch_boxes
-from conftest import wavy_sheet, with_random_offsets
 
 
 @pytest.mark.parametrize("name", ["sheet", "sphere", "torus", "tube"])
