@@ -11,10 +11,11 @@ Prints a Markdown table (docs/performance.md, "Kernels"): median ms over ``--rep
   face's world box from its gathered corners (the numpy route) against
   `detect.ColliderStatic.faces_near` (object-space face boxes built once);
 * **closest points on collision grids**: the 84 `grids.Closest.query` calls of `dog_head_spike`'s
-  collision frames 13–17 (recorded from one `run_frames`, answered by indexes built beforehand),
-  per collision frame: every (point, triangle) pair of the kd-tree ball tested exactly (the
-  triangle boxes made infinite, so none is dropped) against the pairs whose triangle box lies
-  within the nearest vertex's distance (`Closest.query`), the two routes alternating.
+  collision frames 13–17 (recorded from one `run_frames`), per collision frame, each index built
+  with its queries: the kd-tree route `Closest.query` took up to `23b1368` (`KdTreeClosest`:
+  kd-tree balls, a box test, trimesh's ``closest_point`` over the (point, triangle) pairs)
+  against the compiled BVH in trimesh's arithmetic (`Closest.query`, `acra.nearest`), the two
+  routes alternating.
 
 Each pair of rows times the same inputs and checks the two give the same answer. One invocation
 on a shared machine: compare the ratios within it.
