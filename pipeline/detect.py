@@ -21,9 +21,10 @@ import numpy as np
 import trimesh
 
 from acra import hspline as H
+from acra import narrow
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
-from pipeline.grids import boxes_near, triangle_boxes
+from pipeline.grids import boxes_near
 from pipeline.shape import Closest, Shape, bvh as _bvh, overlap as _overlap, shape_of
 
 __all__ = [
@@ -134,6 +135,7 @@ class SurfaceGeometry:
     density: int = 8
     max_density: int = 64
     _patch_cache: dict = field(default_factory=dict, init=False, repr=False)
+    _tess_cache: dict = field(default_factory=dict, init=False, repr=False)
 
     @cached_property
     def shape(self) -> Shape:
@@ -190,20 +192,57 @@ def candidate_patches(geom: SurfaceGeometry, bounds: np.ndarray, pad: float = 0.
     return np.argwhere(_overlap(lo, hi, bounds[0], bounds[1], pad)).astype(np.int64)
 
 
+def unique_patches(patches: np.ndarray) -> np.ndarray:
+    """The distinct rows of level-0 ``patches (m, 2) int64`` (non-negative), ascending as
+    ``np.unique(axis=0)`` gives them: one integer key a row instead of its structured sort."""
+    patches = np.asarray(patches, np.int64).reshape(-1, 2)
+    if not len(patches):
+        return patches
+    width = int(patches[:, 1].max()) + 1
+    key = np.unique(patches[:, 0] * width + patches[:, 1])
+    return np.stack([key // width, key % width], axis=1)
+
+
+def unique_rows(x: np.ndarray) -> np.ndarray:
+    """Rows ``(u,) int64`` of the first of each distinct row of ``x (n, 2) float64``, in the order
+    of the distinct rows (the first column, then the second): ``np.unique(x, axis=0,
+    return_index=True)[1]``, from a stable sort of the two columns instead of a structured one."""
+    if not len(x):
+        return np.zeros(0, np.int64)
+    order = np.lexsort((x[:, 1], x[:, 0]))
+    s = x[order]
+    return order[np.r_[True, (s[1:, 0] != s[:-1, 0]) | (s[1:, 1] != s[:-1, 1])]]
+
+
 def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     """Collision grids over level-0 ``patches (m, 2) int64`` at their `patch_density`, cached per
-    patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error)."""
-    patches = np.unique(np.asarray(patches, np.int64).reshape(-1, 2), axis=0)
+    patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error);
+    the last few patch sets' tessellations are kept too (the narrow phase, the regions and the
+    on-surface search of a round ask for the same sets)."""
+    patches = unique_patches(patches)
     if not len(patches):
         return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
+    kept = geom._tess_cache
+    key = patches.tobytes()
+    hit = kept.pop(key, None)
+    if hit is None:
+        hit = _tessellation(geom, patches)
+    kept[key] = hit
+    while len(kept) > 8:
+        del kept[next(iter(kept))]
+    return hit
+
+
+def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     cache = geom._patch_cache
-    todo = [(int(p[0]), int(p[1])) for p in patches if (p[0], p[1]) not in cache]
+    keys = list(map(tuple, patches.tolist()))
+    todo = [k for k in keys if k not in cache]
     if todo:
         obj = geom.shape.grids_for(np.array(todo, np.int64))
         world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
         for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g.points) for g in obj[:-1]]))):
             cache[p] = (w, g.uv, g.triangles)
-    grids = [cache[(p[0], p[1])] for p in patches]
+    grids = [cache[k] for k in keys]
     base = np.cumsum([0] + [len(g[0]) for g in grids[:-1]])
     return Tessellation(
         np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]),
@@ -247,23 +286,16 @@ def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
 
 
 def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``."""
-    return triangle_boxes(points[faces])
+    """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``
+    (compiled: `acra.narrow.face_boxes`)."""
+    return narrow.face_boxes(points, faces)
 
 
 def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray, np.ndarray], pad: float, rounds: int = 2):
     """Rows of side ``a``'s and side ``b``'s triangles, given by their boxes ``lo, hi (f, 3)``,
-    whose boxes overlap the box of the other side's kept ones."""
-    boxes = [box_a, box_b]
-    keep = [np.ones(len(box_a[0]), bool), np.ones(len(box_b[0]), bool)]
-    for _ in range(rounds):
-        for me, other in ((0, 1), (1, 0)):
-            if keep[other].any():
-                lo, hi = boxes[other][0][keep[other]].min(axis=0), boxes[other][1][keep[other]].max(axis=0)
-                keep[me] &= _overlap(boxes[me][0], boxes[me][1], lo, hi, pad)
-            else:
-                keep[me][:] = False
-    return np.nonzero(keep[0])[0], np.nonzero(keep[1])[0]
+    whose boxes overlap the box of the other side's kept ones (compiled:
+    `acra.narrow.triangles_near`)."""
+    return narrow.triangles_near(box_a, box_b, pad, rounds)
 
 
 def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
@@ -491,7 +523,7 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
         pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
     else:
         tess = tessellate(geom, candidate_patches(geom, bounds, pad))
-        _, first = np.unique(wrap_uv(geom.surface, tess.uv), axis=0, return_index=True)
+        first = unique_rows(wrap_uv(geom.surface, tess.uv))
         pts, uv = tess.points[first], tess.uv[first]
     keep = np.all((pts >= bounds[0] - pad) & (pts <= bounds[1] + pad), axis=1)
     return pts[keep], None if uv is None else uv[keep]

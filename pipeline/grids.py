@@ -13,7 +13,6 @@ import hashlib
 import time
 from dataclasses import dataclass
 from functools import cached_property
-from itertools import chain
 from typing import TYPE_CHECKING
 
 import fcl
@@ -21,6 +20,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from acra import narrow, nearest
 from acra.tessellate import patch_grids
 
 if TYPE_CHECKING:
@@ -29,8 +29,6 @@ if TYPE_CHECKING:
 __all__ = ["PatchGrid", "solid_rows", "GridSet", "GridCache", "Nearest", "Closest", "SetupClock", "timed", "bvh", "BvhCache", "triangle_boxes", "overlap", "boxes_near", "COLLAPSE"]
 
 COLLAPSE = 1e-6  # a grid line within this fraction of the object size is one point (a pole); float32 `acra:cvs` round at ~1e-7
-_US_PAIR, _US_BVH_FACE, _US_FCL_QUERY = 0.8, 3.5, 20.0  # measured costs (µs), see Closest
-_WITHIN_ALL = 64  # `Closest.within` tests a set of at most this many triangles against every point
 
 
 # --- closest points on a triangle set ---------------------------------------------------------
@@ -60,9 +58,8 @@ def boxes_near(centre: np.ndarray, half: np.ndarray, xform: np.ndarray, bounds: 
 
 def _compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The vertices ``(u, 3) float64`` that ``faces (f, 3)`` use and the faces renumbered into
-    them ``(f, 3) int32``, contiguous: what fcl builds a BVH from."""
-    used, tri = np.unique(faces, return_inverse=True)
-    return np.ascontiguousarray(vertices[used], np.float64), np.ascontiguousarray(tri.reshape(-1, 3), np.int32)
+    them ``(f, 3) int32``, contiguous: what fcl builds a BVH from (`acra.narrow.compact`)."""
+    return narrow.compact(vertices, faces)
 
 
 def _build(vertices: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:
@@ -110,129 +107,65 @@ def extent(vertices: np.ndarray) -> float:
 
 
 class Closest:
-    """Exact closest points on triangles. The closest point is no farther than the nearest vertex
-    (``d_v``), so its triangle's centroid is within ``d_v + reach`` (the largest centroid-corner
-    distance): near points test that ball's triangles whose boxes lie within ``d_v`` (kd-trees,
-    then the boxes); deep points, whose ball covers much of a curved surface, query an fcl BVH of
-    the triangles within ``d_v``, if cheaper."""
+    """Exact closest points on triangles: the least distance over the triangles and, among equal
+    ones, the lowest face row, each (point, triangle) distance in trimesh's ``closest_point``
+    arithmetic in units of the mesh's size (its region tests have absolute tolerances, 1e-13),
+    searched through a compiled BVH (`acra.nearest`: the same bits as testing every triangle).
+    A collider's index holds its fcl BVH ``bvh_``: a point farther than twice the largest
+    centroid-corner distance from every vertex (deep inside a coarse mesh) takes fcl's closest
+    point on it, as the collider's queries always have."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh_: fcl.CollisionObject | None = None,
                  unit: float | None = None) -> None:
         self.vertices, self.faces, self.bvh = vertices, faces, bvh_
         self.tri = vertices[faces]  # (f, 3, 3)
-        # trimesh's closest_point has absolute tolerances (1e-13): work in units of the mesh's
-        # size, ``unit`` (`extent` of ``vertices``, passed in by a caller that has it)
+        # ``unit``: `extent` of ``vertices``, passed in by a caller that has it
         self.unit = extent(vertices) if unit is None else unit
-        self._cen = (self.tri[:, 0] + self.tri[:, 1] + self.tri[:, 2]) / 3.0  # `mean(axis=1)`'s sum and division, at 1/3 of its time
-        self.reach = float(np.linalg.norm(self.tri - self._cen[:, None], axis=2).max()) if len(faces) else 0.0
-        self.vtree = cKDTree(vertices[np.unique(faces)])
 
     @cached_property
-    def ctree(self) -> cKDTree:
-        return cKDTree(self._cen)
+    def index(self) -> nearest.Index:
+        return nearest.index(self.tri, self.unit)
 
     @cached_property
-    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each triangle's box ``lo, hi (f, 3)``: its distance from a point bounds the triangle's from below."""
-        return triangle_boxes(self.tri)
+    def _deep(self) -> tuple[cKDTree, float]:
+        """A kd-tree of the vertices the faces use and the largest centroid-corner distance."""
+        cen = (self.tri[:, 0] + self.tri[:, 1] + self.tri[:, 2]) / 3.0
+        return cKDTree(self.vertices[np.unique(self.faces)]), float(np.linalg.norm(self.tri - cen[:, None], axis=2).max())
 
     def query(self, points: np.ndarray, bound: np.ndarray | None = None):
         """Distances ``(k,)``, closest points ``(k, 3)`` and face rows ``(k,) int64``. With
-        ``bound (k,)``, only closest points nearer than it are sought (else distance ``inf``)."""
-        k = points.shape[0]
-        dist, close, face = np.full(k, np.inf), np.zeros((k, 3)), np.zeros(k, np.int64)
-        if k == 0:
-            return dist, close, face
-        dv, _ = self.vtree.query(points)
+        ``bound (k,)``, only closest points within it are sought (else distance ``inf``)."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        k = len(points)
+        if not k or not len(self.faces):
+            return np.full(k, np.inf), np.zeros((k, 3)), np.zeros(k, np.int64)
+        if self.bvh is None:
+            return nearest.query(self.index, points, bound)
+        vtree, reach = self._deep
+        dv, _ = vtree.query(points)
         if bound is not None:
             dv = np.minimum(dv, bound)
-        radius = dv + self.reach * (1 + 1e-9) + 1e-300
-        ball = dv <= 2.0 * self.reach
-        deep = np.nonzero(~ball)[0]
-        tree, rows = self.bvh, None
-        if len(deep) and tree is None:  # a BVH of the triangles in reach, if cheaper than balls
-            grow = dv[deep].max() * (1 + 1e-9)
-            lo, hi = points[deep].min(axis=0) - grow, points[deep].max(axis=0) + grow
-            rows = np.nonzero(overlap(*self.boxes, lo, hi, 0.0))[0]
-            pairs = self.ctree.query_ball_point(points[deep], radius[deep], return_length=True).sum()
-            ball[deep] = pairs * _US_PAIR < _US_BVH_FACE * len(rows) + _US_FCL_QUERY * len(deep)
-            if not ball[deep].all():
-                tree = bvh(self.vertices, self.faces[rows])
-        near = np.nonzero(ball)[0]
+        deep = dv > 2.0 * reach
+        if not deep.any():
+            return nearest.query(self.index, points, bound)
+        dist, close, face = np.full(k, np.inf), np.zeros((k, 3)), np.zeros(k, np.int64)
+        near = np.nonzero(~deep)[0]
         if len(near):
-            # unsorted balls (sorting each list costs the kd-tree search again): the nearest
-            # pair below breaks ties by face row itself, so the answer does not depend on order
-            lists = self.ctree.query_ball_point(points[near], radius[near], return_sorted=False)
-            lens = np.fromiter(map(len, lists), np.int64, len(near))
-            idx = np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))
-            owner = np.repeat(np.arange(len(near)), lens)
-        if len(near) and len(idx):
-            # the distance to a triangle's box bounds the distance to the triangle from below: a
-            # pair whose box lies farther than ``d_v`` (the closest point is no farther; or than
-            # ``bound``, beyond which nothing is sought) by more than a margin far above rounding
-            # cannot hold the closest point nor tie with it, so dropping it before the exact test
-            # leaves every answer bit for bit the same. On dog_head_spike it drops 2/3 of the
-            # ball's pairs; the exact test costs several times the box test per pair.
-            at = points[near][owner]
-            lo, hi = self.boxes
-            gap = np.maximum(np.maximum(lo[idx] - at, at - hi[idx]), 0.0)
-            limit = dv[near][owner] * (1 + 1e-9) + 1e-12 * self.unit
-            keep = np.nonzero(np.einsum("ij,ij->i", gap, gap) <= limit * limit)[0]
-            idx, owner, at = idx[keep], owner[keep], at[keep]
-        if len(near) and len(idx):
-            cp = self.unit * trimesh.triangles.closest_point(self.tri[idx] / self.unit, at / self.unit)
-            d = np.linalg.norm(cp - at, axis=1)
-            order = np.lexsort((idx, d, owner))  # per owner, nearest first, lowest face row among equals
-            first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
-            hit = near[owner[first]]
-            dist[hit], close[hit], face[hit] = d[first], cp[first], idx[first]
+            dist[near], close[near], face[near] = nearest.query(self.index, points[near], None if bound is None else bound[near])
         probe, req = fcl.Sphere(0.0), fcl.DistanceRequest(enable_nearest_points=True)
-        for i in np.nonzero(~ball)[0]:
+        for i in np.nonzero(deep)[0]:
             res = fcl.DistanceResult()  # mesh first: b1 is its face, nearest_points[0] on it
-            dist[i] = fcl.distance(tree, fcl.CollisionObject(probe, fcl.Transform(points[i])), req, res)
-            close[i], face[i] = res.nearest_points[0], res.b1 if rows is None else rows[res.b1]
+            dist[i] = fcl.distance(self.bvh, fcl.CollisionObject(probe, fcl.Transform(points[i])), req, res)
+            close[i], face[i] = res.nearest_points[0], res.b1
         return dist, close, face
 
     def within(self, points: np.ndarray, dist: float) -> np.ndarray:
-        """Which ``points (k, 3)`` lie within ``dist`` of a triangle, ``(k,) bool``, for a ``dist``
-        far below the triangles' size. A triangle that near a point has its centroid within
-        ``reach + dist`` of it, its box within ``dist`` and its plane within ``dist``: only pairs
-        passing all three get the exact test, which leaves a point off the surface none."""
-        k = len(points)
-        out = np.zeros(k, bool)
-        if not k or not len(self.faces):
-            return out
-        f = len(self.faces)
-        if f <= _WITHIN_ALL:  # a box: every pair costs less than the kd-tree's lists
-            owner, idx = np.divmod(np.arange(k * f), f)
-        else:
-            lists = self.ctree.query_ball_point(points, self.reach * (1 + 1e-9) + dist, return_sorted=False)
-            lens = np.fromiter(map(len, lists), np.int64, k)
-            idx = np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))
-            owner = np.repeat(np.arange(k), lens)
-        lo, hi = self.boxes
-        at = points[owner]
-        keep = np.nonzero(np.all((lo[idx] - dist <= at) & (at <= hi[idx] + dist), axis=1))[0]
-        idx, owner, at = idx[keep], owner[keep], at[keep]
-        normal, offset = self._planes
-        # the plane test only drops pairs: its rounding (1e-16 of the coordinates) is far below the slack
-        slack = dist + 1e-12 * (self.unit + np.abs(at).max(axis=1))
-        keep = np.nonzero(np.abs(np.einsum("ij,ij->i", at, normal[idx]) - offset[idx]) <= slack)[0]
-        if len(keep):
-            idx, owner, at = idx[keep], owner[keep], at[keep]
-            cp = self.unit * trimesh.triangles.closest_point(np.asarray(self.tri)[idx] / self.unit, at / self.unit)
-            out[owner[np.linalg.norm(cp - at, axis=1) <= dist]] = True
-        return out
-
-    @cached_property
-    def _planes(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each triangle's unit normal ``(f, 3)`` and plane offset ``(f,)`` (``n · x = offset`` on it);
-        a degenerate triangle's normal is 0, so its plane test passes and the exact test decides."""
-        tri = np.asarray(self.tri)
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        length = np.linalg.norm(n, axis=1)
-        n = np.divide(n, length[:, None], out=np.zeros_like(n), where=length[:, None] > 0)
-        return n, np.einsum("ij,ij->i", n, tri[:, 0])
+        """Which ``points (k, 3)`` lie within ``dist`` of a triangle, ``(k,) bool``: the compiled
+        search bounded by ``dist``, which opens only the boxes within it."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if not len(points) or not len(self.faces):
+            return np.zeros(len(points), bool)
+        return nearest.query(self.index, points, np.full(len(points), float(dist)))[0] <= dist
 
 
 # --- set-up time ---------------------------------------------------------------------------------

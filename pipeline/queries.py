@@ -16,6 +16,7 @@ import trimesh
 from trimesh.ray.ray_triangle import RayMeshIntersector
 
 from acra import hspline as H
+from acra.patch_boxes import boxes_within
 from pipeline.grids import Nearest, overlap
 
 if TYPE_CHECKING:
@@ -37,11 +38,9 @@ def nearest(shape: Shape, q: np.ndarray) -> Nearest:
     upper = shape._coarse[2].query(q)[0]  # a surface point: the closest is no farther
     reach = upper.max() * (1 + 1e-9) + 1e-300
     pre = np.nonzero(overlap(lo, hi, q.min(axis=0) - reach, q.max(axis=0) + reach, 0.0))[0]
-    gap = np.linalg.norm(np.maximum(np.maximum(lo[pre][None] - q[:, None], q[:, None] - hi[pre][None]), 0.0), axis=2)
-    cand = pre[np.nonzero(gap <= upper[:, None] * (1 + 1e-9) + 1e-300)[1]]
-    # one search over the union of every query's candidates: it holds each query's closest
-    # point, and the union's nearest vertex bounds the distance to a grid step
-    return shape.cache.gridset(tuple(int(p) for p in np.unique(cand))).nearest(q)
+    cand = pre[boxes_within(lo[pre], hi[pre], q, upper * (1 + 1e-9) + 1e-300)]
+    # one search over the union of every query's candidates: it holds each query's closest point
+    return shape.cache.gridset(tuple(cand.tolist())).nearest(q)
 
 
 def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:

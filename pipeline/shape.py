@@ -18,7 +18,8 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
-from acra.tessellate import patch_grids, patch_hulls
+from acra.patch_boxes import patch_boxes
+from acra.tessellate import patch_grids
 from pipeline import queries
 from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
                             timed)
@@ -52,16 +53,23 @@ class Shape:
         return H.details(self.surface) if self.surface.depth > 1 else None
 
     @cached_property
+    def cv_positions(self) -> list[np.ndarray]:
+        """Every level's CV positions ``(c_k, 3)`` (`acra.hspline.all_cv_positions`): the patch
+        boxes and the CV hull both bound the surface by them (timed as theirs)."""
+        return H.all_cv_positions(self.surface, self.details)
+
+    @cached_property
     @timed
     def hulls(self) -> tuple[np.ndarray, np.ndarray]:
-        """Object-space boxes ``lo, hi (P0u, P0v, 3)`` of the level-0 patches' control hulls;
-        the parent's where the response did not reach."""
+        """Object-space boxes ``lo, hi (P0u, P0v, 3)`` of the level-0 patches' control hulls
+        (`acra.tessellate.patch_hulls`, compiled: `acra.patch_boxes`); the parent's where the
+        response did not reach."""
         stale = self._stale
         if stale is None or stale.all():
-            return patch_hulls(self.surface, self.details)
+            return patch_boxes(self.surface, self.cv_positions)
         lo, hi = (x.copy() for x in self.parent.hulls)
         if stale.any():
-            new = patch_hulls(self.surface, self.details, only=stale)
+            new = patch_boxes(self.surface, self.cv_positions, only=stale)
             lo[stale], hi[stale] = new[0][stale], new[1][stale]
         return lo, hi
 
@@ -146,7 +154,7 @@ class Shape:
         refined coarser net plus details, and refinement takes convex combinations), so do its
         collision grids and, for a closed surface, everything they enclose."""
         try:
-            return ConvexHull(np.concatenate(H.all_cv_positions(self.surface, self.details))).equations
+            return ConvexHull(np.concatenate(self.cv_positions)).equations
         except QhullError:
             return None
 

@@ -642,3 +642,16 @@ def test_faces_near_holds_every_face_whose_world_box_meets_the_query(seed):
     bounds[0, 0] = 3.9  # now the +x face and the faces along it with y below 0.5
     want = np.nonzero(S.overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0))[0]
     assert np.array_equal(b.faces_near(move(3.0, 0, 0), bounds), want) and 0 < len(want) < len(tri)
+
+
+def test_unique_patches_and_rows_are_numpy_unique():
+    """`detect.unique_patches` and `detect.unique_rows` give `np.unique(axis=0)`'s rows and first
+    indices, in its order, signed zeros and repeated rows included."""
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        n = int(rng.integers(1, 300))
+        x = rng.integers(-3, 6, (n, 2)).astype(float) / rng.choice([1, 3, 7])
+        x = np.where(rng.random((n, 2)) < 0.05, -0.0, x)
+        assert np.array_equal(D.unique_rows(x), np.unique(x, axis=0, return_index=True)[1])
+        p = rng.integers(0, 30, (n, 2))
+        assert np.array_equal(D.unique_patches(p), np.unique(p, axis=0))

@@ -1,0 +1,270 @@
+"""Exact closest points on a triangle set in trimesh's arithmetic, through a compiled BVH.
+
+Detection decides inside and depth by the closest point of a collision grid
+(`pipeline.grids.Closest`): the least distance over the triangles and, among equal ones, the
+lowest triangle row. The triangle test is trimesh's ``triangles.closest_point`` (Ericson's
+*ClosestPtPointTriangle*, Real-Time Collision Detection §5.1.5, with trimesh's tolerance
+``1e-13`` on the region tests and its segment rule for a triangle whose first two corners
+coincide), done on the coordinates divided by a unit of the mesh's size and the answer
+multiplied back, in numpy's operation order: each dot product summed corner term by term, the
+face point ``(a + ab v) + ac w`` with ``v, w`` from one reciprocal, the distance the square root
+of the squares summed in order. So each (point, triangle) distance is the same bits as the
+array form's, and so is the answer.
+
+The search walks `acra.bvh`'s tree (median splits, at most `acra.bvh.LEAF` triangles a leaf)
+depth first, nearer child first, the points along a Z-order curve, each starting from the
+triangle its predecessor found. A box is opened while its distance is within the best
+distance found plus ``1e-9`` of it and ``1e-12`` of the unit: a box's distance bounds its
+triangles' from below, and a computed distance is within rounding (``1e-16`` relative) of the
+true one, so no triangle that could hold or tie the least computed distance is passed over,
+whatever the order of the search. Arrays are float64 unless stated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from acra.bvh import LEAF, Tree, _morton_order
+
+__all__ = ["ZERO", "Index", "build", "closest_points", "index", "query"]
+
+ZERO = 1e-13  # trimesh.constants.tol.zero: the region tests' tolerance, in units of the mesh
+_REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * unit
+
+
+@njit(cache=True, nogil=True)
+def _build(tri, lo, hi, left, right, start, count):
+    """A linear BVH: the triangles sorted once along a Z-order curve over their centroids, each
+    node's range split at its middle; boxes from the leaves up. Returns the leaf order and the
+    node count. Its shape only decides how fast `query` finds the answer, never which one."""
+    f = tri.shape[0]
+    cen = np.empty((f, 3))
+    for i in range(f):
+        for k in range(3):
+            cen[i, k] = (tri[i, 0, k] + tri[i, 1, k] + tri[i, 2, k]) / 3.0
+    order = _morton_order(cen)
+    stack = np.empty((128, 3), np.int64)  # (node, first, end)
+    stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, f
+    top, nodes = 1, 1
+    while top > 0:
+        top -= 1
+        node, a, b = stack[top, 0], stack[top, 1], stack[top, 2]
+        if b - a <= LEAF:
+            left[node], right[node], start[node], count[node] = -1, -1, a, b - a
+            continue
+        mid = (a + b) // 2
+        left[node], right[node], start[node], count[node] = nodes, nodes + 1, a, 0
+        stack[top, 0], stack[top, 1], stack[top, 2] = nodes, a, mid
+        stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
+        top += 2
+        nodes += 2
+    # children are numbered after their parent: boxes in reverse numbering
+    for node in range(nodes - 1, -1, -1):
+        for k in range(3):
+            lo[node, k], hi[node, k] = np.inf, -np.inf
+        if left[node] < 0:
+            for s in range(start[node], start[node] + count[node]):
+                t = order[s]
+                for c in range(3):
+                    for k in range(3):
+                        lo[node, k] = min(lo[node, k], tri[t, c, k])
+                        hi[node, k] = max(hi[node, k], tri[t, c, k])
+        else:
+            for child in (left[node], right[node]):
+                for k in range(3):
+                    lo[node, k] = min(lo[node, k], lo[child, k])
+                    hi[node, k] = max(hi[node, k], hi[child, k])
+    return order, nodes
+
+
+def build(tri: np.ndarray) -> Tree:
+    """The linear BVH (`acra.bvh.Tree`) of triangles ``tri (f, 3, 3)`` (``f >= 1``)."""
+    tri = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
+    if not len(tri):
+        raise ValueError("a BVH needs at least one triangle")
+    n = 2 * len(tri) + 1
+    lo, hi = np.empty((n, 3)), np.empty((n, 3))
+    left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
+    order, used = _build(tri, lo, hi, left, right, start, count)
+    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], tri[order])
+
+
+class Index:
+    """A triangle set ready for `query`: the linear BVH of ``tri (f, 3, 3)`` (`build`) and its
+    leaf triangles divided by ``unit`` (the same bits as dividing the gathered rows)."""
+
+    def __init__(self, tri: np.ndarray, unit: float) -> None:
+        self.tree: Tree = build(tri)
+        self.unit = float(unit)
+        self.leaf_units = self.tree.leaf_tri / self.unit
+
+
+def index(tri: np.ndarray, unit: float) -> Index:
+    """The `Index` of triangles ``tri (f, 3, 3)`` (``f >= 1``) in units of ``unit``."""
+    return Index(tri, unit)
+
+
+@njit(cache=True, nogil=True)
+def _closest_units(p0, p1, p2, t, s, zero):
+    """trimesh's ``closest_point`` of the point ``p`` and triangle ``t[s]`` (both in units)."""
+    a0, a1, a2 = t[s, 0, 0], t[s, 0, 1], t[s, 0, 2]
+    b0, b1, b2 = t[s, 1, 0], t[s, 1, 1], t[s, 1, 2]
+    c0, c1, c2 = t[s, 2, 0], t[s, 2, 1], t[s, 2, 2]
+    ab0, ab1, ab2 = b0 - a0, b1 - a1, b2 - a2
+    ac0, ac1, ac2 = c0 - a0, c1 - a1, c2 - a2
+    ap0, ap1, ap2 = p0 - a0, p1 - a1, p2 - a2
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    if ab0 == 0.0 and ab1 == 0.0 and ab2 == 0.0:
+        # a and b coincide: the segment ac (trimesh handles it before every region but a's,
+        # whose answer it then overwrites)
+        length = ac0 * ac0 + ac1 * ac1 + ac2 * ac2
+        f = 0.0
+        if length > 0.0:
+            f = (ap0 * ac0 + ap1 * ac1 + ap2 * ac2) / length
+        f = min(max(f, 0.0), 1.0)
+        return a0 + f * ac0, a1 + f * ac1, a2 + f * ac2
+    if d1 < zero and d2 < zero:
+        return a0, a1, a2
+    bp0, bp1, bp2 = p0 - b0, p1 - b1, p2 - b2
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    if d3 > -zero and d4 <= d3:
+        return b0, b1, b2
+    vc = d1 * d4 - d3 * d2
+    if vc < zero and d1 > -zero and d3 < zero:
+        v = d1 / (d1 - d3)
+        return a0 + v * ab0, a1 + v * ab1, a2 + v * ab2
+    cp0, cp1, cp2 = p0 - c0, p1 - c1, p2 - c2
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    if d6 > -zero and d5 <= d6:
+        return c0, c1, c2
+    vb = d5 * d2 - d1 * d6
+    if vb < zero and d2 > -zero and d6 < zero:
+        w = d2 / (d2 - d6)
+        return a0 + w * ac0, a1 + w * ac1, a2 + w * ac2
+    va = d3 * d6 - d5 * d4
+    if va < zero and (d4 - d3) > -zero and (d5 - d6) > -zero:
+        d43 = d4 - d3
+        w = d43 / (d43 + (d5 - d6))
+        return b0 + w * (c0 - b0), b1 + w * (c1 - b1), b2 + w * (c2 - b2)
+    denom = 1.0 / (va + vb + vc)
+    v = vb * denom
+    w = vc * denom
+    return a0 + ab0 * v + ac0 * w, a1 + ab1 * v + ac1 * w, a2 + ab2 * v + ac2 * w
+
+
+@njit(cache=True, nogil=True)
+def _distance(points, i, t, s, unit, zero):
+    """Distance, in the caller's units, from ``points[i]`` to triangle ``t[s]`` (in units of
+    ``unit``) and its closest point: ``unit * closest_point(t / unit, p / unit)``, then the norm."""
+    p0, p1, p2 = points[i, 0], points[i, 1], points[i, 2]
+    x, y, z = _closest_units(p0 / unit, p1 / unit, p2 / unit, t, s, zero)
+    x, y, z = unit * x, unit * y, unit * z
+    dx, dy, dz = x - p0, y - p1, z - p2
+    return np.sqrt(dx * dx + dy * dy + dz * dz), x, y, z
+
+
+@njit(cache=True, nogil=True)
+def _box_distance(points, i, lo, hi, node):
+    d = 0.0
+    for k in range(3):
+        p = points[i, k]
+        if p < lo[node, k]:
+            d += (lo[node, k] - p) ** 2
+        elif p > hi[node, k]:
+            d += (p - hi[node, k]) ** 2
+    return np.sqrt(d)
+
+
+@njit(cache=True, nogil=True)
+def _query(t, order, lo, hi, left, right, start, count, unit, zero, points, bound, dist, close, face):
+    # the least (distance, row) pair; a box is opened while its distance is within `reach` of
+    # the best distance, so the answer does not depend on where the search starts
+    stack = np.empty(256, np.int64)
+    near = np.empty(256)
+    seq = _morton_order(points)
+    seed = -1  # leaf slot of the previous point's closest triangle
+    slack = _ABS * unit
+    for j in range(points.shape[0]):
+        i = seq[j]
+        best, best_face = bound[i], -1
+        bx, by, bz = 0.0, 0.0, 0.0
+        if seed >= 0:
+            d, x, y, z = _distance(points, i, t, seed, unit, zero)
+            if d <= best:
+                best, best_face, bx, by, bz = d, order[seed], x, y, z
+        stack[0] = 0
+        near[0] = _box_distance(points, i, lo, hi, 0)
+        top = 1
+        while top > 0:
+            top -= 1
+            node = stack[top]
+            if near[top] > best * (1.0 + _REL) + slack:
+                continue
+            if left[node] < 0:
+                for s in range(start[node], start[node] + count[node]):
+                    f = order[s]
+                    d, x, y, z = _distance(points, i, t, s, unit, zero)
+                    if d < best or (d == best and (best_face < 0 or f < best_face)):
+                        best, best_face, seed, bx, by, bz = d, f, s, x, y, z
+                continue
+            a, b = left[node], right[node]
+            da, db = _box_distance(points, i, lo, hi, a), _box_distance(points, i, lo, hi, b)
+            if da <= db:  # the nearer child last on the stack, so it is visited first
+                stack[top], stack[top + 1] = b, a
+                near[top], near[top + 1] = db, da
+            else:
+                stack[top], stack[top + 1] = a, b
+                near[top], near[top + 1] = da, db
+            top += 2
+        if best_face >= 0:
+            dist[i] = best
+            close[i, 0], close[i, 1], close[i, 2] = bx, by, bz
+            face[i] = best_face
+
+
+def query(idx: Index, points: np.ndarray, bound: np.ndarray | None = None):
+    """Closest points on ``idx``'s triangles to ``points (k, 3)``.
+
+    Returns
+    -------
+    dist : (k,) float64
+        The least distance (trimesh's arithmetic); ``inf`` where no triangle is within
+        ``bound (k,)`` (if given).
+    close : (k, 3) float64
+        The closest points (zeros where none).
+    face : (k,) int64
+        Row of the triangle, the lowest among equally near ones (0 where none).
+    """
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    k = len(p)
+    dist, close, face = np.full(k, np.inf), np.zeros((k, 3)), np.zeros(k, np.int64)
+    b = np.full(k, np.inf) if bound is None else np.ascontiguousarray(bound, np.float64).reshape(k)
+    if k:
+        tr = idx.tree
+        _query(idx.leaf_units, tr.order, tr.lo, tr.hi, tr.left, tr.right, tr.start, tr.count, idx.unit, ZERO, p, b, dist,
+               close, face)
+    return dist, close, face
+
+
+@njit(cache=True, nogil=True)
+def _pairs(tri_units, points, unit, zero, dist, close):
+    for i in range(points.shape[0]):
+        d, x, y, z = _distance(points, i, tri_units, i, unit, zero)
+        dist[i] = d
+        close[i, 0], close[i, 1], close[i, 2] = x, y, z
+
+
+def closest_points(tri: np.ndarray, points: np.ndarray, unit: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Distances ``(k,)`` and closest points ``(k, 3)`` of ``points (k, 3)`` on their own
+    triangles ``tri (k, 3, 3)``: ``unit * trimesh.triangles.closest_point(tri / unit, points /
+    unit)`` and the norm of its offset, the same bits, one pass."""
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    t = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3) / float(unit)
+    dist, close = np.empty(len(p)), np.empty((len(p), 3))
+    if len(p):
+        _pairs(t, p, float(unit), ZERO, dist, close)
+    return dist, close

@@ -1,0 +1,98 @@
+"""Level-0 patch boxes from every level's control points, compiled.
+
+`acra.tessellate.patch_hulls` bounds each level-0 patch by the box of every control point (all
+levels) whose support touches it (the convex-hull property). Its array form sorts every
+(patch, control point) pair, 16 per fine CV, to reduce them per patch; here each fine CV's
+position widens the boxes of the level-0 patches its support touches in one compiled pass.
+Minima and maxima are exact, so the boxes are the same bits in any order. Arrays are float64
+unless stated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from acra.hierarchy import HSpline, _split_cv
+
+__all__ = ["boxes_within", "patch_boxes"]
+
+
+@njit(cache=True, nogil=True)
+def _widen(lo, hi, ju, jv, pts, k, pu, pv, per_u, per_v, only, use_only):
+    """Widen the boxes ``lo, hi (pu, pv, 3)`` by level-``k`` CVs ``(ju, jv)`` at ``pts (c, 3)``:
+    level-``k`` CV ``j`` supports level-``k`` patches ``j-3 .. j``, inside level-0 patches
+    ``(j-3) >> k .. j >> k`` (wrapped in a periodic direction, dropped past an open end)."""
+    for c in range(ju.shape[0]):
+        x, y, z = pts[c, 0], pts[c, 1], pts[c, 2]
+        for du in range(4):
+            qu = (ju[c] - 3 + du) >> k
+            if per_u:
+                qu = qu % pu
+            elif qu < 0 or qu >= pu:
+                continue
+            for dv in range(4):
+                qv = (jv[c] - 3 + dv) >> k
+                if per_v:
+                    qv = qv % pv
+                elif qv < 0 or qv >= pv:
+                    continue
+                if use_only and not only[qu, qv]:
+                    continue
+                if x < lo[qu, qv, 0]:
+                    lo[qu, qv, 0] = x
+                if x > hi[qu, qv, 0]:
+                    hi[qu, qv, 0] = x
+                if y < lo[qu, qv, 1]:
+                    lo[qu, qv, 1] = y
+                if y > hi[qu, qv, 1]:
+                    hi[qu, qv, 1] = y
+                if z < lo[qu, qv, 2]:
+                    lo[qu, qv, 2] = z
+                if z > hi[qu, qv, 2]:
+                    hi[qu, qv, 2] = z
+
+
+def patch_boxes(hs: HSpline, every: list[np.ndarray], only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """`acra.tessellate.patch_hulls` of ``hs`` given every level's CV positions ``every``
+    (`acra.hspline.all_cv_positions`), the same boxes: ``lo, hi (P0u, P0v, 3)``. ``only
+    (P0u, P0v) bool``: widen just these patches' boxes (the others hold level 0's alone)."""
+    pu, pv = hs.u.patches0, hs.v.patches0
+    i4 = np.arange(4)
+    iu = hs.u.wrap_cv(np.arange(pu)[:, None] + i4, 0)
+    iv = hs.v.wrap_cv(np.arange(pv)[:, None] + i4, 0)
+    block = hs.cvs[iu[:, None, :, None], iv[None, :, None, :]]  # (pu, pv, 4, 4, 3)
+    lo = np.ascontiguousarray(block.min(axis=(2, 3)))
+    hi = np.ascontiguousarray(block.max(axis=(2, 3)))
+    mask = np.zeros((1, 1), np.bool_) if only is None else np.ascontiguousarray(only, np.bool_)
+    for k in range(1, hs.depth):
+        keys = hs.level(k).cv_keys
+        if keys.size == 0:
+            continue
+        ju, jv = _split_cv(hs, k, keys)
+        _widen(lo, hi, np.ascontiguousarray(ju, np.int64), np.ascontiguousarray(jv, np.int64),
+               np.ascontiguousarray(every[k], np.float64), k, pu, pv, hs.u.periodic, hs.v.periodic, mask, only is not None)
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _within(lo, hi, q, limit, out):
+    for j in range(lo.shape[0]):
+        for i in range(q.shape[0]):
+            g0 = max(max(lo[j, 0] - q[i, 0], q[i, 0] - hi[j, 0]), 0.0)
+            g1 = max(max(lo[j, 1] - q[i, 1], q[i, 1] - hi[j, 1]), 0.0)
+            g2 = max(max(lo[j, 2] - q[i, 2], q[i, 2] - hi[j, 2]), 0.0)
+            if np.sqrt(g0 * g0 + g1 * g1 + g2 * g2) <= limit[i]:
+                out[j] = True
+                break
+
+
+def boxes_within(lo: np.ndarray, hi: np.ndarray, q: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """Which boxes ``lo, hi (m, 3)`` lie within ``limit (k,)`` of some point of ``q (k, 3)``:
+    ``(m,) bool``, each distance ``np.linalg.norm`` of the gap ``max(lo - q, q - hi, 0)`` as numpy
+    rounds it (the squares summed in order), without the ``(k, m)`` arrays."""
+    out = np.zeros(len(lo), np.bool_)
+    if len(lo) and len(q):
+        _within(np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64),
+                np.ascontiguousarray(q, np.float64), np.ascontiguousarray(limit, np.float64), out)
+    return out

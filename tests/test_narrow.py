@@ -1,0 +1,50 @@
+"""`acra.narrow`: the narrow phase's box culls compiled, against their array form."""
+
+import numpy as np
+
+from acra import narrow
+from pipeline.grids import overlap, triangle_boxes
+
+
+def _array_form(box_a, box_b, pad, rounds=2):
+    boxes = [box_a, box_b]
+    keep = [np.ones(len(box_a[0]), bool), np.ones(len(box_b[0]), bool)]
+    for _ in range(rounds):
+        for me, other in ((0, 1), (1, 0)):
+            if keep[other].any():
+                lo, hi = boxes[other][0][keep[other]].min(axis=0), boxes[other][1][keep[other]].max(axis=0)
+                keep[me] &= overlap(boxes[me][0], boxes[me][1], lo, hi, pad)
+            else:
+                keep[me][:] = False
+    return np.nonzero(keep[0])[0], np.nonzero(keep[1])[0]
+
+
+def test_face_boxes_and_culls_are_the_array_form():
+    """Face boxes are `triangle_boxes` of the gathered corners; the kept rows of both sides are
+    those of the array form, for overlapping, touching (within ``pad``), nested and apart sets."""
+    rng = np.random.default_rng(0)
+    for trial in range(300):
+        na, nb = rng.integers(1, 80, 2)
+        pa = rng.normal(size=(int(na) + 2, 3))
+        pb = rng.normal(size=(int(nb) + 2, 3)) * rng.choice([0.1, 1.0]) + rng.choice([0.0, 1.5, 4.0]) * rng.normal(size=3)
+        fa = rng.integers(0, len(pa), (int(na), 3))
+        fb = rng.integers(0, len(pb), (int(nb), 3))
+        box_a, box_b = narrow.face_boxes(pa, fa), narrow.face_boxes(pb, fb)
+        ref = triangle_boxes(pa[fa])
+        assert np.array_equal(box_a[0], ref[0]) and np.array_equal(box_a[1], ref[1])
+        pad = float(rng.choice([0.0, 1e-7, 0.1]))
+        got, want = narrow.triangles_near(box_a, box_b, pad), _array_form(box_a, box_b, pad)
+        assert all(np.array_equal(g, w) for g, w in zip(got, want)), trial
+
+
+def test_compact_is_numpy_unique():
+    """`compact` gives the used vertices and renumbered faces of ``np.unique(faces,
+    return_inverse=True)``, with unused and repeated vertices."""
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        v = rng.normal(size=(int(rng.integers(3, 200)), 3))
+        f = rng.integers(0, len(v), (int(rng.integers(1, 120)), 3))
+        used, inv = np.unique(f, return_inverse=True)
+        got_v, got_f = narrow.compact(v, f)
+        assert np.array_equal(got_v, v[used]) and np.array_equal(got_f, inv.reshape(-1, 3).astype(np.int32))
+        assert got_f.dtype == np.int32 and got_v.flags.c_contiguous and got_f.flags.c_contiguous

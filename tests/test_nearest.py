@@ -1,0 +1,77 @@
+"""`acra.nearest`: trimesh's closest-point arithmetic compiled, and the BVH search over it."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from acra import nearest as N
+
+
+def _triangles(rng, n):
+    """Random triangles with every degenerate kind trimesh's regions meet, and points near,
+    on the corners of and on the edges of them."""
+    tri = rng.standard_normal((n, 3, 3))
+    q = n // 10
+    tri[:q, 1] = tri[:q, 0]  # a = b: trimesh's segment rule
+    tri[q:2 * q, 2] = tri[q:2 * q, 0]  # a = c
+    tri[2 * q:3 * q, 2] = tri[2 * q:3 * q, 1]  # b = c
+    tri[3 * q:4 * q] = tri[3 * q:4 * q, :1]  # a point
+    tri[4 * q:5 * q] *= 1e-7  # tiny against the tolerance of the region tests
+    pts = rng.standard_normal((n, 3)) * rng.choice([1e-3, 0.3, 1.0, 5.0], (n, 1))
+    pts[5 * q:6 * q] = tri[5 * q:6 * q, 0]
+    pts[6 * q:7 * q] = 0.5 * (tri[6 * q:7 * q, 0] + tri[6 * q:7 * q, 1])
+    pts[7 * q:8 * q] = tri[7 * q:8 * q].mean(axis=1)
+    return tri, pts
+
+
+@pytest.mark.parametrize("unit", [1.0, 0.37, 123.0])
+def test_closest_points_are_trimesh_bits(unit):
+    """`closest_points` gives ``unit * trimesh.triangles.closest_point(tri / unit, p / unit)``
+    and its norm bit for bit, degenerate triangles included."""
+    rng = np.random.default_rng(int(unit * 100))
+    tri, pts = _triangles(rng, 20000)
+    ref = unit * trimesh.triangles.closest_point(tri / unit, pts / unit)
+    dist, close = N.closest_points(tri, pts, unit)
+    assert np.array_equal(close, ref)
+    assert np.array_equal(dist, np.linalg.norm(ref - pts, axis=1))
+
+
+def _every_triangle(tri, pts, unit):
+    """The answer of testing every triangle: least distance, lowest row among equal ones."""
+    out = []
+    for p in pts:
+        cp = unit * trimesh.triangles.closest_point(tri / unit, np.tile(p / unit, (len(tri), 1)))
+        d = np.linalg.norm(cp - p, axis=1)
+        best = int(np.lexsort((np.arange(len(d)), d))[0])
+        out.append((d[best], cp[best], best))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_query_is_every_triangle_s_answer(seed):
+    """`query` on a grid of triangles sharing corners and edges (ties at every grid vertex and
+    edge) answers as testing every triangle does, bit for bit, far, near and on the grid; with a
+    bound, the same where the answer is within it and ``inf`` where it is not."""
+    rng = np.random.default_rng(seed)
+    n = 12
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, n + 1), np.linspace(0.2, np.pi - 0.2, n + 1), indexing="ij")
+    grid = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], -1) * (1 + 0.05 * rng.normal(size=u.shape))[..., None]
+    ids = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = ids[:-1, :-1].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel(), ids[:-1, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    verts = grid.reshape(-1, 3)
+    tri = verts[faces]
+    unit = float(np.ptp(verts, axis=0).max())
+    pts = np.concatenate([1.5 * rng.normal(size=(60, 3)), verts[rng.integers(0, len(verts), 30)],
+                          tri[rng.integers(0, len(tri), 30), :2].mean(axis=1), 0.01 * rng.normal(size=(10, 3))])
+    idx = N.index(tri, unit)
+    dist, close, face = N.query(idx, pts)
+    for i, (d, cp, f) in enumerate(_every_triangle(tri, pts, unit)):
+        assert (dist[i], face[i]) == (d, f)
+        assert np.array_equal(close[i], cp)
+    bound = dist * rng.choice([0.5, 1.0, 2.0], len(dist))
+    bd, bc, bf = N.query(idx, pts, bound)
+    within = dist <= bound
+    assert np.array_equal(bd[within], dist[within]) and np.array_equal(bf[within], face[within])
+    assert np.array_equal(bc[within], close[within])
+    assert np.isinf(bd[~within]).all()

@@ -1,0 +1,50 @@
+"""`acra.patch_boxes`: the level-0 patch boxes of `acra.tessellate.patch_hulls`, compiled."""
+
+import numpy as np
+import pytest
+from conftest import wavy_sheet, with_random_offsets
+
+from acra import hspline as H
+from acra import shapes
+from acra import tessellate as T
+from acra.patch_boxes import patch_boxes
+
+
+@pytest.mark.parametrize("name", ["sheet", "sphere", "torus", "tube"])
+def test_patch_boxes_equal_patch_hulls(name):
+    """The same boxes bit for bit as the array form, whole and for a subset of patches, on open,
+    periodic and pole-closed surfaces with details on several levels (CVs whose supports wrap
+    and pass the open ends)."""
+    if name == "sheet":
+        hs = H.make_movable(wavy_sheet(), 3, [[10, 9]])
+    else:
+        cvs, pu, pv = getattr(shapes, name)()
+        hs = H.from_grid(cvs, pu, pv, depth=4)
+        hs = H.make_movable(hs, 2, [[1, 1], [hs.u.patches0 - 1, 0]])
+        hs = H.make_movable(hs, 3, [[2, hs.v.patches0 - 1]])
+    hs = with_random_offsets(hs, scale=0.3)
+    det = H.details(hs)
+    every = H.all_cv_positions(hs, det)
+    lo, hi = patch_boxes(hs, every)
+    ref = T.patch_hulls(hs, det)
+    assert np.array_equal(lo, ref[0]) and np.array_equal(hi, ref[1])
+    only = np.random.default_rng(3).random((hs.u.patches0, hs.v.patches0)) < 0.3
+    lo, hi = patch_boxes(hs, every, only=only)
+    ref = T.patch_hulls(hs, det, only=only)
+    assert np.array_equal(lo, ref[0]) and np.array_equal(hi, ref[1])
+
+
+def test_boxes_within_is_the_array_form():
+    """`boxes_within` keeps the boxes whose gap to some point is within its limit, each gap's
+    norm rounded as numpy's: the same boxes as the (points, boxes) array of norms."""
+    from acra.patch_boxes import boxes_within
+
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        m, k = rng.integers(0, 60), rng.integers(1, 40)
+        c, h = rng.normal(size=(m, 3)), np.abs(rng.normal(size=(m, 3))) * 0.3
+        lo, hi, q = c - h, c + h, rng.normal(size=(k, 3))
+        q[: k // 3] = np.clip(q[: k // 3], -0.1, 0.1)  # inside some boxes
+        limit = np.abs(rng.normal(size=k)) * 0.5 * (1 + 1e-9) + 1e-300
+        gap = np.linalg.norm(np.maximum(np.maximum(lo[None] - q[:, None], q[:, None] - hi[None]), 0.0), axis=2)
+        assert np.array_equal(np.nonzero(boxes_within(lo, hi, q, limit))[0], np.unique(np.nonzero(gap <= limit[:, None])[1]))
