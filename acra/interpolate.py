@@ -263,11 +263,11 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
 
 
 def solve(pw: PointWeights, dq: np.ndarray, method: str = "direct", iterations: int = 5, tol: float = 0.0,
-          max_bytes: int | None = None) -> np.ndarray:
-    """CV moves for wanted point moves, by ``"direct"`` (`min_norm_solve`, its dense arrays bounded by
-    ``max_bytes``) or ``"blend"`` (memory linear in the weights)."""
+          max_bytes: int | None = None, rcond: float = 1e-4) -> np.ndarray:
+    """CV moves for wanted point moves, by ``"direct"`` (`min_norm_solve` with its eigenvalue cut-off
+    ``rcond``, its dense arrays bounded by ``max_bytes``) or ``"blend"`` (memory linear in the weights)."""
     if method == "direct":
-        return min_norm_solve(pw, dq, max_bytes=max_bytes)
+        return min_norm_solve(pw, dq, rcond=rcond, max_bytes=max_bytes)
     if method == "blend":
         return iterate_blend(pw, dq, iterations, tol)[0]
     raise ValueError(f"unknown interpolation method {method!r} (use 'direct' or 'blend')")

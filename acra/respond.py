@@ -632,6 +632,7 @@ def respond(
     det: H.Details | None = None,
     max_bytes: int | None = None,
     held: DataPoints | None = None,
+    rcond: float = 1e-4,
 ) -> tuple[H.HSpline, ResponseReport]:
     """Move a surface so it passes through its data points (thesis §4.3.4 prolongation).
 
@@ -657,6 +658,10 @@ def respond(
         a patch away from a moved one (its patches span both), so the finest level, which
         interpolates, puts each back; solved one each they stay exact where the merged mean of
         eq. 4.16's per-patch points would move both.
+    rcond : float
+        Eigenvalue cut-off of the direct solves (`interpolate.min_norm_solve`): modes of the
+        points' Gram matrix below ``rcond`` times its largest eigenvalue are dropped. A mode of
+        relative eigenvalue ``λ`` multiplies the points' disagreement along it by ``1/√λ``.
 
     Returns
     -------
@@ -727,7 +732,7 @@ def respond(
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
-            dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes)
+            dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond)
             hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det))
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:
@@ -743,7 +748,7 @@ def respond(
                 hs, det = _redetail(hs, det, _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det))
             if rest.size:  # points without detail take the share as deformation
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
-                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes)
+                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond)
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det))
         applied = applied + np.where(present, a, 0.0)
     hs, det = _close_rings(hs, det, rings, controls.refine)

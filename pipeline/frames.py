@@ -100,7 +100,7 @@ class FrameStats:
 
 
 def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints, controls: R.Controls,
-                     options: RunOptions, held: R.DataPoints | None = None):
+                     options: RunOptions, held: R.DataPoints | None = None, rcond: float = 1e-4):
     """`respond.respond` with each direct solve's dense arrays bounded by the run's memory budget.
 
     How many CVs a contact moves on an absorbing level is known only once the contact is found
@@ -110,7 +110,7 @@ def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints,
     try:
         return R.respond(parent, dp, controls, method=options.method,
                          det=S.shape_of(parent, options.density).details, max_bytes=options.memory_budget,
-                         held=held)
+                         held=held, rcond=rcond)
     except SystemTooLarge as err:
         raise InputError(path, "acra:absorption", (
             f"at frame {frame} the response's solve of {err.points} data points on {err.cvs} CVs would need "
@@ -431,7 +431,11 @@ class _Run:
             path = self.defs[i].path
             if i in corrective:
                 controls = R.corrective(controls, parent.depth)
-            surfaces[i], rep = _respond_bounded(path, frame, parent, dp, controls, self.options, held)
+            # a corrective round's samples, half a finest patch apart, each ask a few millimetres
+            # that differ from the next one's by about as much: its solve drops the weak modes that
+            # would amplify their disagreement (`datapoints.CORRECTIVE_RCOND`)
+            rcond = P.CORRECTIVE_RCOND if i in corrective else 1e-4
+            surfaces[i], rep = _respond_bounded(path, frame, parent, dp, controls, self.options, held, rcond)
             S.seed_details(surfaces[i], rep.details, self.options.density, parent=parent)
             surfaces[i] = self.carry.after_response(i, parent, surfaces[i])
             if it == 0:

@@ -54,12 +54,12 @@ def test_both_sheets_take_the_balls_depth(dents):
     (dents, depth) = dents
     assert depth == pytest.approx(0.15)
     for name, (r, d) in dents.items():
-        # the deepest point goes down by the ball's depth (measured 0.1481 and 0.1511: a round
+        # the deepest point goes down by the ball's depth (measured 0.1481 and 0.1508: a round
         # stops once the overlap is below 1e-3 of the sheet's size, 0.005)
         assert -d[:, 2].min() == pytest.approx(depth, abs=0.005), name
         # under the ball (r < 0.25, inside the 0.335 footprint) the sheet follows the ball's
         # surface: within 0.01 = the 48x24 facets' sag (0.004) + the residual tolerance (0.005);
-        # measured 0.0015 (levels 1-3) and 0.0061 (levels 1-2)
+        # measured 0.0015 (levels 1-3) and 0.0083 (levels 1-2)
         under = r < 0.25
         ball = (RADIUS - depth) - np.sqrt(RADIUS**2 - r[under] ** 2)
         assert np.abs(d[under, 2] - ball).max() < 0.01, name

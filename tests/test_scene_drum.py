@@ -29,7 +29,7 @@ def run(run_scene):
 def test_both_sheets_are_pressed(run):
     report, _, moves = run
     assert [s.frame for s in report.stats if s.in_collision] == [2, 3, 4, 5]
-    for path in (DRUM, CLOTH):  # 0.25 deep, within 1e-3 of the size (0.0035); measured 0.2527, 0.2496
+    for path in (DRUM, CLOTH):  # 0.25 deep, within 1e-3 of the size (0.0035); measured 0.2507, 0.2515
         assert -moves[path][5][:, 2].min() == pytest.approx(0.25, abs=0.0035)
 
 
@@ -41,8 +41,9 @@ def test_the_drum_keeps_its_area_within_1_percent(run):
 
 @pytest.mark.xfail(strict=True, reason=(
     "the figures were measured on a run whose limit surface was 5e-3 of the size inside the ball at frames 3-4; the "
-    "clear run's Cloth gains 1.0013, 1.0260, 1.0495, 1.0376 at frames 2-5 (the later rounds hold the dent's bottom, "
-    "0.2496 deep at frame 5; the area is the flanks', pushed clear of the ball; docs/hard-cases.md)"))
+    "clear run's Cloth gains 1.0013, 1.0262, 1.0476, 1.0358 at frames 2-5: frames 3 and 4 are 0.0026 and 0.0068 over "
+    "the figures asserted. The first round leaves the display 2.4e-3 and 3.6e-3 of the size inside the ball there, and "
+    "the area is the flanks' pushed out to 5e-4 (docs/hard-cases.md)"))
 def test_the_same_press_without_it_gains_area(run):
     _, ratios, _ = run
     # measured 1.0012, 1.0236, 1.0408, 1.0359 at frames 2-5
@@ -51,8 +52,8 @@ def test_the_same_press_without_it_gains_area(run):
 
 
 def test_the_drum_draws_its_edges_in(run):
-    """The area comes back from the level-0 net drawing in around the dent (measured 0.039 of
-    in-plane move at frame 5, 7.6e-4 on the cloth: a corrective round moves level 1 only)."""
+    """The area comes back from the level-0 net drawing in around the dent (measured 0.038 of
+    in-plane move at frame 5, 8e-4 on the cloth: a corrective round moves level 1 only)."""
     _, _, moves = run
     assert np.abs(moves[DRUM][5][:, :2]).max() > 0.02
     assert np.abs(moves[CLOTH][5][:, :2]).max() < 1e-3

@@ -79,9 +79,6 @@ def test_residual_cleared_at_every_frame_of_six_in_contact(frames):
         assert r.depth_out.max() <= 1e-3 * r.size, (r.stats.frame, r.depth_out.max())
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "frame 15: the later rounds hold the dent's tip, but their display points around it still drag the dent deeper: "
-    "the largest move is 1.34 x the input depth for 1.3 (docs/hard-cases.md)"))
 def test_dent_is_local_and_as_deep_as_the_ball_went_in(frames):
     _, _, _, rows = frames
     for r in rows:
@@ -98,7 +95,8 @@ def test_dent_is_local_and_as_deep_as_the_ball_went_in(frames):
         # (measured: short by at most 0.0034, tolerance 0.0097)
         assert np.all(move[inside] >= r.depth_in[inside] - 1e-3 * r.size), f
         # and the dent is not deeper than the ball went in beyond what smoothing adds
-        # (measured: 1.03–1.07 times the depth); ringing would overshoot
+        # (measured: 1.27 times the depth at frame 15, 1.25 after the first round's fit between its
+        # contact and its additional points; 1.06-1.08 at frames 16-20); ringing would overshoot
         assert move.max() <= 1.3 * r.depth_in.max(), (f, move.max(), r.depth_in.max())
 
 
