@@ -23,6 +23,7 @@ sorted, so membership is a `np.searchsorted`.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -36,6 +37,7 @@ __all__ = [
     "from_grid",
     "refine",
     "make_movable",
+    "with_fine",
     "set_offsets",
     "offsets_of",
     "cv_uv",
@@ -175,6 +177,18 @@ class HSpline:
 # construction and refinement
 
 
+def with_fine(hs: HSpline, fine: tuple[Level, ...]) -> HSpline:
+    """``hs`` with other fine levels and the same level 0: what depends on level 0 alone (the
+    size, the closed ends) is carried over, not found again for the new surface object."""
+    out = replace(hs, fine=fine)
+    for name in ("_size", "_closed_ends"):
+        if name in hs.__dict__:
+            out.__dict__[name] = hs.__dict__[name]
+    return out
+
+
+
+
 def _empty_level(k: int) -> Level:
     return Level(
         k=k,
@@ -291,7 +305,7 @@ def refine(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
         if keys.size and not np.all(_lookup(old.patches, keys)[1]):
             fine[level - 1] = _build_level(hs, level, np.concatenate([old.patches, keys]), old)
         pu, pv = wu[ok] >> 1, wv[ok] >> 1
-    return replace(hs, fine=tuple(fine))
+    return with_fine(hs, tuple(fine))
 
 
 def make_movable(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
@@ -344,7 +358,7 @@ def set_offsets(hs: HSpline, k: int, cvs_uv: np.ndarray, offsets: np.ndarray, ad
         new[rows] = offsets
     fine = list(hs.fine)
     fine[k - 1] = replace(lev, offsets=new)
-    return replace(hs, fine=tuple(fine))
+    return with_fine(hs, tuple(fine))
 
 
 def offsets_of(hs: HSpline, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -411,11 +425,20 @@ def pole_ring(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.
     periodic index ``0..N-1``, outermost row first) and ``weights (3,)``, the basis of the three
     rows at the end (1/6, 4/6, 1/6). The pole point is ``sum_j B_j(s) (weights @ rows_j)``, the
     same for every ``s`` iff ``weights @ rows_j`` is the same for every column ``j``."""
-    per, opn = (hs.v, hs.u) if axis == 0 else (hs.u, hs.v)
+    return _pole_ring_keys(hs.u, hs.v, k, axis, end), np.array([1.0, 4.0, 1.0]) / 6.0
+
+
+@functools.lru_cache(maxsize=256)
+def _pole_ring_keys(u: Direction, v: Direction, k: int, axis: int, end: int) -> np.ndarray:
+    """`pole_ring`'s keys, which depend on the grid's directions alone: built once per grid and
+    level (a response asks for each ring several times per level), read-only."""
+    per, opn = (v, u) if axis == 0 else (u, v)
     rows = _end_rows(opn.cvs(k), end)
     j = np.arange(per.cvs(k))[:, None]
     ju, jv = np.broadcast_arrays(rows[None, :], j) if axis == 0 else np.broadcast_arrays(j, rows[None, :])
-    return _cv_keys(hs, k, ju, jv), np.array([1.0, 4.0, 1.0]) / 6.0
+    keys = ju * v.cvs(k) + jv
+    keys.flags.writeable = False
+    return keys
 
 
 def pole_patches(hs: HSpline, k: int, axis: int, end: int) -> np.ndarray:

@@ -20,6 +20,7 @@ surface of levels ``0..k-1`` (`surface_normals`, which evaluates it).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -51,6 +52,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     set_offsets,
     storage_size,
     to_arrays,
+    with_fine,
 )
 
 # this module's own names, then the structure's (`acra.hierarchy`), re-exported
@@ -375,50 +377,57 @@ def _frames(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
     return np.stack([e_u, e_v, n], axis=2)
 
 
-def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
+def changed_patches(old: HSpline, new: HSpline, margin: int = 2, levels: tuple[int, ...] | None = None) -> np.ndarray:
     """Level-0 patches ``(P0u, P0v) bool`` where ``new`` may differ from ``old`` (same grid).
 
     A changed level-``k`` CV ``j`` (level-0 row, or an offset that differs or is new and non-zero)
     moves level-``k`` patches ``j-3 .. j``, i.e. level-0 patches ``(j-3)>>k .. j>>k``; ``margin``
     more patches cover finer details whose frames follow the moved surface (their support reaches
-    less than one level-0 patch beyond) and grid vertices on patch borders."""
+    less than one level-0 patch beyond) and grid vertices on patch borders.
+
+    ``levels``: the only levels whose CVs can differ, when the caller knows them (a response
+    moves one level at a time, a refinement none); the other levels are not compared. ``None``
+    compares every level."""
     mask = np.zeros((new.u.patches0, new.v.patches0), bool)
-    hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))]
+    hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))] if levels is None or 0 in levels else []
     for k in range(1, new.depth):
+        if levels is not None and k not in levels:
+            continue
         b = new.level(k)
         hits.append((k, *_split_cv(new, k, b.cv_keys[_moved_cvs(old, new, k)])))
+    wrap = lambda q, d: np.mod(q, d.patches0) if d.periodic else np.clip(q, 0, d.patches0 - 1)  # noqa: E731
     for k, ju, jv in hits:
         if not len(ju):
             continue
         # (j - 3 + d) >> k for d = 0..3 covers every level-0 patch of j's support; the interval
         # always meets the domain, so clipping (open) or wrapping (periodic) loses nothing
-        wrap = lambda q, d: np.mod(q, d.patches0) if d.periodic else np.clip(q, 0, d.patches0 - 1)  # noqa: E731
-        qvs = [wrap((jv - 3 + dv) >> k, new.v) for dv in range(4)]
-        for du in range(4):
-            qu = wrap((ju - 3 + du) >> k, new.u)
-            for qv in qvs:
-                mask[qu, qv] = True
-    for axis, d in ((0, new.u), (1, new.v)):
-        mask = _dilate(mask, margin, axis, d.periodic)
-    return mask
+        qu = wrap((ju[:, None] - 3 + _I4) >> k, new.u)
+        qv = wrap((jv[:, None] - 3 + _I4) >> k, new.v)
+        mask[qu[:, :, None], qv[:, None, :]] = True
+    if not margin or not mask.any():
+        return mask
+    # grown by ``margin`` both ways along each direction (wrapping where periodic) as one
+    # product with each direction's band of patches within ``margin``: counts of 0/1 entries,
+    # exact in float64
+    return (_band(new.u, margin) @ mask.astype(np.float64) @ _band(new.v, margin)) > 0.0
 
 
-def _dilate(mask: np.ndarray, m: int, axis: int, periodic: bool) -> np.ndarray:
-    """``mask`` grown by ``m`` cells both ways along ``axis`` (wrapping if ``periodic``)."""
-    out = mask.copy()
-    for s in range(1, m + 1):
-        if periodic:
-            out |= np.roll(mask, s, axis) | np.roll(mask, -s, axis)
-            continue
-        a = np.moveaxis(out, axis, 0)
-        b = np.moveaxis(mask, axis, 0)
-        a[s:] |= b[:-s]
-        a[:-s] |= b[s:]
-    return out
+@functools.lru_cache(maxsize=64)
+def _band(d: Direction, m: int) -> np.ndarray:
+    """``(P0, P0) float64``: 1 where two level-0 patches along ``d`` are at most ``m`` apart
+    (across the seam of a periodic direction), else 0; read-only."""
+    i = np.arange(d.patches0)
+    gap = np.abs(i[:, None] - i[None, :])
+    if d.periodic:
+        gap = np.minimum(gap, d.patches0 - gap)
+    band = (gap <= m).astype(np.float64)
+    band.flags.writeable = False
+    return band
 
 
 def details(hs: HSpline, upto: int | None = None,
-            since: "tuple[HSpline, Details, np.ndarray] | None" = None) -> Details:
+            since: "tuple[HSpline, Details, np.ndarray] | None" = None,
+            moved: tuple[int, ...] | None = None) -> Details:
     """World detail vectors of levels ``1..upto``, computed coarse to fine.
 
     The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
@@ -434,14 +443,29 @@ def details(hs: HSpline, upto: int | None = None,
     it is centred off ``stale`` (a ring CV: if its end is off ``stale`` all along); only the
     others, and CVs refinement added, are evaluated. A
     response is local and a refinement moves nothing, so this skips most of the work.
+    ``moved``: with ``since``, the levels whose CVs alone can differ from ``old`` (as
+    `changed_patches` was given them); with at most one, the coarsest level that moved is that
+    level if ``stale`` holds a patch, else none, without comparing the levels again. A level no
+    finer than the coarsest moved one and the same `Level` object as ``old``'s (neither
+    refined nor moved) keeps ``old``'s vectors and frames as they are: its frames' surface and its
+    offsets are ``old``'s, and each vector is its own row's product.
     """
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
-    first = _first_moved(since[0], hs) if since is not None else 0
+    if since is None:
+        first = 0
+    elif moved is not None and len(moved) <= 1:
+        first = moved[0] if moved and since[2].any() else hs.depth
+    else:
+        first = _first_moved(since[0], hs)
     ends = closed_ends(hs) if top >= 1 else ()
     vectors: list[np.ndarray] = []
     frames: list[np.ndarray] = []
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
+        if since is not None and k <= first and k - 1 < len(since[1].frames) and lev is since[0].fine[k - 1]:
+            vectors.append(since[1].vectors[k - 1])
+            frames.append(since[1].frames[k - 1])
+            continue
         c = lev.cv_keys.size
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
