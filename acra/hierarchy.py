@@ -38,6 +38,7 @@ __all__ = [
     "refine",
     "make_movable",
     "with_fine",
+    "with_cvs",
     "set_offsets",
     "offsets_of",
     "cv_uv",
@@ -177,14 +178,29 @@ class HSpline:
 # construction and refinement
 
 
-def with_fine(hs: HSpline, fine: tuple[Level, ...]) -> HSpline:
+_LEVEL0 = ("_size", "_closed_ends")  # cached properties of level 0 alone
+_STRUCTURE = ("_terms_index", "_table_rows")  # of the grid's size and the fine levels' patches and CVs alone
+
+
+def with_fine(hs: HSpline, fine: tuple[Level, ...], same_cvs: bool = False) -> HSpline:
     """``hs`` with other fine levels and the same level 0: what depends on level 0 alone (the
-    size, the closed ends) is carried over, not found again for the new surface object."""
-    out = replace(hs, fine=fine)
-    for name in ("_size", "_closed_ends"):
-        if name in hs.__dict__:
-            out.__dict__[name] = hs.__dict__[name]
-    return out
+    size, the closed ends) is carried over, not found again for the new surface object; with
+    ``same_cvs`` (only offsets changed: every level's patches, CVs and movability as in ``hs``)
+    so is `HSpline._terms_index`."""
+    return _carry(hs, replace(hs, fine=fine), _LEVEL0 + (_STRUCTURE if same_cvs else ()))
+
+
+def with_cvs(hs: HSpline, cvs: np.ndarray) -> HSpline:
+    """``hs`` with other level-0 CVs (the same grid) and the same fine levels: `HSpline._terms_index`
+    is carried over."""
+    return _carry(hs, replace(hs, cvs=cvs), _STRUCTURE)
+
+
+def _carry(old: HSpline, new: HSpline, names: tuple[str, ...]) -> HSpline:
+    for name in names:
+        if name in old.__dict__:
+            new.__dict__[name] = old.__dict__[name]
+    return new
 
 
 

@@ -52,6 +52,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     set_offsets,
     storage_size,
     to_arrays,
+    with_cvs,
     with_fine,
 )
 
@@ -470,23 +471,36 @@ def details(hs: HSpline, upto: int | None = None,
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
         rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
-        ring = _ring_members(hs, k, ends, rows)  # (len(rows),) int64: closed end of each row, or -1
+        ring = None  # (len(rows),) int64: closed end of each row, or -1 (`_ring_members`), where needed
         if rows.size and since is not None and k - 1 < len(since[1].frames):
             old, old_det, stale = since
             was = old.fine[k - 1]
-            orow, found = _lookup(was.cv_keys, lev.cv_keys[rows])
-            found &= was.movable[orow] if was.cv_keys.size else False
+            if lev.cv_keys is was.cv_keys and lev.movable is was.movable:  # a move: only offsets differ
+                if k <= first:  # and the frames' surface is old's: old's frames, vectors of the new offsets
+                    fr = old_det.frames[k - 1]
+                    vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
+                    vectors.append(vec)
+                    frames.append(fr)
+                    continue
+                orow, found = rows, np.ones(rows.size, bool)
+            else:
+                orow, found = _lookup(was.cv_keys, lev.cv_keys[rows])
+                found &= was.movable[orow] if was.cv_keys.size else False
             fr[rows[found]] = old_det.frames[k - 1][orow[found]]
             if k > first:  # the surface under this level's frames moved on the stale patches
+                ring = _ring_members(hs, k, ends, rows)
                 gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
                 pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
                 pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
                 found &= ~stale[pu.astype(np.int64), pv.astype(np.int64)]
                 # a ring's frames depend on the surface all along its end (`_end_normal`)
                 found &= (ring < 0) | ~_ends_stale(hs, ends, stale)[np.maximum(ring, 0)]
+                ring = ring[~found]
             vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
-            rows, ring = rows[~found], ring[~found]
+            rows = rows[~found]
         if rows.size:
+            if ring is None:
+                ring = _ring_members(hs, k, ends, rows)
             gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
             partial = Details(tuple(vectors), tuple(frames))
             ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)

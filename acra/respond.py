@@ -311,7 +311,7 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     if level == 0:
         cvs = hs.cvs.reshape(-1, 3).copy()
         np.add.at(cvs, cv_rows, dv)
-        return replace(hs, cvs=_closed_ends(hs, cvs.reshape(hs.cvs.shape)))
+        return H.with_cvs(hs, _closed_ends(hs, cvs.reshape(hs.cvs.shape)))
     lev = hs.level(level)
     frames = det.frames[level - 1][cv_rows]
     offsets = lev.offsets.copy()
@@ -320,7 +320,7 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     fine[level - 1] = replace(lev, offsets=offsets)
     if "_ring_rows" in lev.__dict__:  # same CVs, other offsets: the same ring rows (`_ring_rows`)
         fine[level - 1].__dict__["_ring_rows"] = lev.__dict__["_ring_rows"]
-    return H.with_fine(hs, tuple(fine))
+    return H.with_fine(hs, tuple(fine), same_cvs=True)
 
 
 def move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
