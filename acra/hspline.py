@@ -57,7 +57,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
 )
 
 # this module's own names, then the structure's (`acra.hierarchy`), re-exported
-__all__ = ["Details", "SurfaceEval", "details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
+__all__ = ["Details", "SurfaceEval", "details", "keep_details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
 
 
 @dataclass(frozen=True)
@@ -166,7 +166,7 @@ def evaluate(
         raise ValueError(f"upto must be at least 0, got {upto}")
     levels, keys, shifts, ends, patch_rows = hs._terms_index
     if levels.size > 1 and levels[1] <= top:  # a fine level with detail is summed
-        table = _plain((det if det is not None else details(hs, upto=top)).table)
+        table = _plain((det if det is not None else _details_for(hs, top)).table)
     else:
         table = _NO_DETAILS
     out = np.empty((_NSLOTS[order], u.size, 3))
@@ -181,6 +181,28 @@ def evaluate(
 
 
 _NO_DETAILS = np.zeros((0, 3))
+
+
+def _details_for(hs: HSpline, top: int) -> Details:
+    """Details of levels ``1..top`` for an `evaluate` not given them: every level's, kept on the
+    surface (`keep_details`), where they are known; else computed, and kept when they are every
+    level's. Levels up to ``top`` are the same either way (each level's frames depend on the
+    coarser levels alone), and `evaluate` sums only those."""
+    known = hs.__dict__.get("_details")
+    if known is not None:
+        return known
+    det = details(hs, upto=top)
+    if top == hs.depth - 1:
+        keep_details(hs, det)
+    return det
+
+
+def keep_details(hs: HSpline, det: Details | None) -> None:
+    """Keep ``det`` (`details(hs)`, every level) on the surface object, for later `evaluate` calls
+    on it without ``det``: a response hands back its surface's details (`acra.respond`), and a
+    frame's later round evaluates its parent (the earlier round's surface) without them."""
+    if det is not None and hs.depth > 1 and len(det.vectors) == hs.depth - 1:
+        hs.__dict__.setdefault("_details", det)
 
 
 def _plain(x) -> np.ndarray:

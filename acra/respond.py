@@ -765,5 +765,6 @@ def respond(
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det), (level,))
         applied = applied + np.where(present, a, 0.0)
     hs, det = _close_rings(hs, det, rings, controls.refine)
+    H.keep_details(hs, det)
     final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)
