@@ -24,7 +24,7 @@ import numpy as np
 
 from . import hspline as H
 from .basis import locate
-from .interpolate import PointWeights, point_weights, solve
+from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
     "Controls",
@@ -723,8 +723,7 @@ def respond(
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
                 hs, det = _redetail(coarse, det, hs, ())
-        pw = point_weights(hs, level, uv[:, 0], uv[:, 1])
-        present = pw.active
+        present = point_active(hs, level, uv[:, 0], uv[:, 1])
         d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
         if d > 0:
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
@@ -736,7 +735,7 @@ def respond(
                 luv, lwant = uv, want
             if level == finest and held is not None and len(held.uv):
                 huv = np.asarray(held.uv, dtype=np.float64).reshape(-1, 2)
-                on = point_weights(hs, level, huv[:, 0], huv[:, 1]).active  # a point with no CV of the level here
+                on = point_active(hs, level, huv[:, 0], huv[:, 1])  # a point with no CV of the level here
                 huv, htarget = huv[on], np.asarray(held.target, dtype=np.float64).reshape(-1, 3)[on]
                 hcur = H.evaluate(hs, huv[:, 0], huv[:, 1], det=det).points
                 luv = np.concatenate([luv, huv])
