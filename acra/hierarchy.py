@@ -275,8 +275,16 @@ def _build_level(hs: HSpline, k: int, patches: np.ndarray, old: Level) -> Level:
     ju = hs.u.wrap_cv(pu[:, None] + _I4[None, :], k)  # (m, 4)
     jv = hs.v.wrap_cv(pv[:, None] + _I4[None, :], k)
     block = _cv_keys(hs, k, ju[:, :, None], jv[:, None, :])  # (m, 4, 4)
-    cv_keys, inverse = np.unique(block.reshape(-1), return_inverse=True)
-    patch_rows = inverse.reshape(-1, 4, 4).astype(np.int64)
+    kept = _lookup(old.patches, patches)[1]
+    if old.patches.size and int(kept.sum()) == old.patches.size:
+        # every old patch stays (a refinement): the old level's CVs (its patches' blocks) plus
+        # the new patches' blocks', each block's rows found by a binary search; `np.unique`'s
+        # sorted keys and inverse without sorting every block key again
+        cv_keys = np.union1d(old.cv_keys, block[~kept].reshape(-1))
+        patch_rows = np.searchsorted(cv_keys, block).astype(np.int64)
+    else:
+        cv_keys, inverse = np.unique(block.reshape(-1), return_inverse=True)
+        patch_rows = inverse.reshape(-1, 4, 4).astype(np.int64)
 
     # movable: all existing support patches (ju-3..ju) x (jv-3..jv) active
     cu, cv = _split_cv(hs, k, cv_keys)
