@@ -26,7 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import hierarchy, kernels
+from . import framekernels, hierarchy, kernels
 from .basis import Direction, basis_rows, locate, refine_rows
 from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used by interpolate, respond, tessellate and tests)
     _I4,
@@ -314,7 +314,17 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _degenerate(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Cross products ``du × dv`` and where they are too small to give a direction: where a
     tangent (times the sine between them) is under 1e-6 of the object's size, the resolution at
-    which float32 ``acra:cvs`` keep a pole one point; there ``du × dv`` is rounding noise."""
+    which float32 ``acra:cvs`` keep a pole one point; there ``du × dv`` is rounding noise.
+    Compiled (`acra.framekernels.degenerate`); `_degenerate_numpy` is the array form."""
+    du, dv = _plain(ev.du), _plain(ev.dv)
+    n, bad = np.empty(du.shape), np.empty(du.shape[0], bool)
+    s = max(scale, 1e-300)
+    framekernels.degenerate(du, dv, 1e-6 * s, 1e-12 * s**2, n, bad)
+    return n, bad
+
+
+def _degenerate_numpy(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """`_degenerate` as array operations (the reference the kernel is tested against)."""
     n = _cross(ev.du, ev.dv)
     longest = np.maximum(np.linalg.norm(ev.du, axis=1), np.linalg.norm(ev.dv, axis=1))
     return n, np.linalg.norm(n, axis=1) <= 1e-6 * max(scale, 1e-300) * longest + 1e-12 * max(scale, 1e-300) ** 2
@@ -376,11 +386,22 @@ def surface_normals(
         n[idx[~still]] = nf[~still]
         bad[idx[~still]] = False
     n[bad] = (0.0, 0.0, 1.0)
-    return ev, n / np.linalg.norm(n, axis=1)[:, None]
+    unit = np.empty(n.shape)
+    framekernels.unit_rows(n, unit)  # n / |n| row by row
+    return ev, unit
 
 
 def _frames(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
-    """Orthonormal frames ``(m, 3, 3)``, columns ``(e_u, e_v, n)``."""
+    """Orthonormal frames ``(m, 3, 3)``, columns ``(e_u, e_v, n)``. Compiled
+    (`acra.framekernels.frames`); `_frames_numpy` is the array form."""
+    du, dv, n = _plain(ev.du), _plain(ev.dv), _plain(normals)
+    out = np.empty((du.shape[0], 3, 3))
+    framekernels.frames(du, dv, n, out)
+    return out
+
+
+def _frames_numpy(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
+    """`_frames` as array operations (the reference the kernel is tested against)."""
     n = normals
     t = ev.du - np.sum(ev.du * n, axis=1)[:, None] * n
     tl = np.linalg.norm(t, axis=1)
