@@ -23,6 +23,7 @@ sorted, so membership is a `np.searchsorted`.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -36,6 +37,8 @@ __all__ = [
     "from_grid",
     "refine",
     "make_movable",
+    "with_fine",
+    "with_cvs",
     "set_offsets",
     "offsets_of",
     "cv_uv",
@@ -175,6 +178,33 @@ class HSpline:
 # construction and refinement
 
 
+_LEVEL0 = ("_size", "_closed_ends")  # cached properties of level 0 alone
+_STRUCTURE = ("_terms_index", "_table_rows")  # of the grid's size and the fine levels' patches and CVs alone
+
+
+def with_fine(hs: HSpline, fine: tuple[Level, ...], same_cvs: bool = False) -> HSpline:
+    """``hs`` with other fine levels and the same level 0: what depends on level 0 alone (the
+    size, the closed ends) is carried over, not found again for the new surface object; with
+    ``same_cvs`` (only offsets changed: every level's patches, CVs and movability as in ``hs``)
+    so is `HSpline._terms_index`."""
+    return _carry(hs, replace(hs, fine=fine), _LEVEL0 + (_STRUCTURE if same_cvs else ()))
+
+
+def with_cvs(hs: HSpline, cvs: np.ndarray) -> HSpline:
+    """``hs`` with other level-0 CVs (the same grid) and the same fine levels: `HSpline._terms_index`
+    is carried over."""
+    return _carry(hs, replace(hs, cvs=cvs), _STRUCTURE)
+
+
+def _carry(old: HSpline, new: HSpline, names: tuple[str, ...]) -> HSpline:
+    for name in names:
+        if name in old.__dict__:
+            new.__dict__[name] = old.__dict__[name]
+    return new
+
+
+
+
 def _empty_level(k: int) -> Level:
     return Level(
         k=k,
@@ -245,8 +275,16 @@ def _build_level(hs: HSpline, k: int, patches: np.ndarray, old: Level) -> Level:
     ju = hs.u.wrap_cv(pu[:, None] + _I4[None, :], k)  # (m, 4)
     jv = hs.v.wrap_cv(pv[:, None] + _I4[None, :], k)
     block = _cv_keys(hs, k, ju[:, :, None], jv[:, None, :])  # (m, 4, 4)
-    cv_keys, inverse = np.unique(block.reshape(-1), return_inverse=True)
-    patch_rows = inverse.reshape(-1, 4, 4).astype(np.int64)
+    kept = _lookup(old.patches, patches)[1]
+    if old.patches.size and int(kept.sum()) == old.patches.size:
+        # every old patch stays (a refinement): the old level's CVs (its patches' blocks) plus
+        # the new patches' blocks', each block's rows found by a binary search; `np.unique`'s
+        # sorted keys and inverse without sorting every block key again
+        cv_keys = np.union1d(old.cv_keys, block[~kept].reshape(-1))
+        patch_rows = np.searchsorted(cv_keys, block).astype(np.int64)
+    else:
+        cv_keys, inverse = np.unique(block.reshape(-1), return_inverse=True)
+        patch_rows = inverse.reshape(-1, 4, 4).astype(np.int64)
 
     # movable: all existing support patches (ju-3..ju) x (jv-3..jv) active
     cu, cv = _split_cv(hs, k, cv_keys)
@@ -291,7 +329,7 @@ def refine(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
         if keys.size and not np.all(_lookup(old.patches, keys)[1]):
             fine[level - 1] = _build_level(hs, level, np.concatenate([old.patches, keys]), old)
         pu, pv = wu[ok] >> 1, wv[ok] >> 1
-    return replace(hs, fine=tuple(fine))
+    return with_fine(hs, tuple(fine))
 
 
 def make_movable(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
@@ -344,7 +382,7 @@ def set_offsets(hs: HSpline, k: int, cvs_uv: np.ndarray, offsets: np.ndarray, ad
         new[rows] = offsets
     fine = list(hs.fine)
     fine[k - 1] = replace(lev, offsets=new)
-    return replace(hs, fine=tuple(fine))
+    return with_fine(hs, tuple(fine))
 
 
 def offsets_of(hs: HSpline, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -411,11 +449,20 @@ def pole_ring(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.
     periodic index ``0..N-1``, outermost row first) and ``weights (3,)``, the basis of the three
     rows at the end (1/6, 4/6, 1/6). The pole point is ``sum_j B_j(s) (weights @ rows_j)``, the
     same for every ``s`` iff ``weights @ rows_j`` is the same for every column ``j``."""
-    per, opn = (hs.v, hs.u) if axis == 0 else (hs.u, hs.v)
+    return _pole_ring_keys(hs.u, hs.v, k, axis, end), np.array([1.0, 4.0, 1.0]) / 6.0
+
+
+@functools.lru_cache(maxsize=256)
+def _pole_ring_keys(u: Direction, v: Direction, k: int, axis: int, end: int) -> np.ndarray:
+    """`pole_ring`'s keys, which depend on the grid's directions alone: built once per grid and
+    level (a response asks for each ring several times per level), read-only."""
+    per, opn = (v, u) if axis == 0 else (u, v)
     rows = _end_rows(opn.cvs(k), end)
     j = np.arange(per.cvs(k))[:, None]
     ju, jv = np.broadcast_arrays(rows[None, :], j) if axis == 0 else np.broadcast_arrays(j, rows[None, :])
-    return _cv_keys(hs, k, ju, jv), np.array([1.0, 4.0, 1.0]) / 6.0
+    keys = ju * v.cvs(k) + jv
+    keys.flags.writeable = False
+    return keys
 
 
 def pole_patches(hs: HSpline, k: int, axis: int, end: int) -> np.ndarray:

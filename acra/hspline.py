@@ -20,12 +20,13 @@ surface of levels ``0..k-1`` (`surface_normals`, which evaluates it).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
-from . import hierarchy, kernels
+from . import framekernels, hierarchy, kernels
 from .basis import Direction, basis_rows, locate, refine_rows
 from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used by interpolate, respond, tessellate and tests)
     _I4,
@@ -51,10 +52,12 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     set_offsets,
     storage_size,
     to_arrays,
+    with_cvs,
+    with_fine,
 )
 
 # this module's own names, then the structure's (`acra.hierarchy`), re-exported
-__all__ = ["Details", "SurfaceEval", "details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
+__all__ = ["Details", "SurfaceEval", "details", "keep_details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
 
 
 @dataclass(frozen=True)
@@ -163,7 +166,7 @@ def evaluate(
         raise ValueError(f"upto must be at least 0, got {upto}")
     levels, keys, shifts, ends, patch_rows = hs._terms_index
     if levels.size > 1 and levels[1] <= top:  # a fine level with detail is summed
-        table = _plain((det if det is not None else details(hs, upto=top)).table)
+        table = _plain((det if det is not None else _details_for(hs, top)).table)
     else:
         table = _NO_DETAILS
     out = np.empty((_NSLOTS[order], u.size, 3))
@@ -178,6 +181,28 @@ def evaluate(
 
 
 _NO_DETAILS = np.zeros((0, 3))
+
+
+def _details_for(hs: HSpline, top: int) -> Details:
+    """Details of levels ``1..top`` for an `evaluate` not given them: every level's, kept on the
+    surface (`keep_details`), where they are known; else computed, and kept when they are every
+    level's. Levels up to ``top`` are the same either way (each level's frames depend on the
+    coarser levels alone), and `evaluate` sums only those."""
+    known = hs.__dict__.get("_details")
+    if known is not None:
+        return known
+    det = details(hs, upto=top)
+    if top == hs.depth - 1:
+        keep_details(hs, det)
+    return det
+
+
+def keep_details(hs: HSpline, det: Details | None) -> None:
+    """Keep ``det`` (`details(hs)`, every level) on the surface object, for later `evaluate` calls
+    on it without ``det``: a response hands back its surface's details (`acra.respond`), and a
+    frame's later round evaluates its parent (the earlier round's surface) without them."""
+    if det is not None and hs.depth > 1 and len(det.vectors) == hs.depth - 1:
+        hs.__dict__.setdefault("_details", det)
 
 
 def _plain(x) -> np.ndarray:
@@ -289,7 +314,17 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _degenerate(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Cross products ``du × dv`` and where they are too small to give a direction: where a
     tangent (times the sine between them) is under 1e-6 of the object's size, the resolution at
-    which float32 ``acra:cvs`` keep a pole one point; there ``du × dv`` is rounding noise."""
+    which float32 ``acra:cvs`` keep a pole one point; there ``du × dv`` is rounding noise.
+    Compiled (`acra.framekernels.degenerate`); `_degenerate_numpy` is the array form."""
+    du, dv = _plain(ev.du), _plain(ev.dv)
+    n, bad = np.empty(du.shape), np.empty(du.shape[0], bool)
+    s = max(scale, 1e-300)
+    framekernels.degenerate(du, dv, 1e-6 * s, 1e-12 * s**2, n, bad)
+    return n, bad
+
+
+def _degenerate_numpy(ev: SurfaceEval, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """`_degenerate` as array operations (the reference the kernel is tested against)."""
     n = _cross(ev.du, ev.dv)
     longest = np.maximum(np.linalg.norm(ev.du, axis=1), np.linalg.norm(ev.dv, axis=1))
     return n, np.linalg.norm(n, axis=1) <= 1e-6 * max(scale, 1e-300) * longest + 1e-12 * max(scale, 1e-300) ** 2
@@ -351,11 +386,22 @@ def surface_normals(
         n[idx[~still]] = nf[~still]
         bad[idx[~still]] = False
     n[bad] = (0.0, 0.0, 1.0)
-    return ev, n / np.linalg.norm(n, axis=1)[:, None]
+    unit = np.empty(n.shape)
+    framekernels.unit_rows(n, unit)  # n / |n| row by row
+    return ev, unit
 
 
 def _frames(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
-    """Orthonormal frames ``(m, 3, 3)``, columns ``(e_u, e_v, n)``."""
+    """Orthonormal frames ``(m, 3, 3)``, columns ``(e_u, e_v, n)``. Compiled
+    (`acra.framekernels.frames`); `_frames_numpy` is the array form."""
+    du, dv, n = _plain(ev.du), _plain(ev.dv), _plain(normals)
+    out = np.empty((du.shape[0], 3, 3))
+    framekernels.frames(du, dv, n, out)
+    return out
+
+
+def _frames_numpy(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
+    """`_frames` as array operations (the reference the kernel is tested against)."""
     n = normals
     t = ev.du - np.sum(ev.du * n, axis=1)[:, None] * n
     tl = np.linalg.norm(t, axis=1)
@@ -375,50 +421,57 @@ def _frames(ev: SurfaceEval, normals: np.ndarray) -> np.ndarray:
     return np.stack([e_u, e_v, n], axis=2)
 
 
-def changed_patches(old: HSpline, new: HSpline, margin: int = 2) -> np.ndarray:
+def changed_patches(old: HSpline, new: HSpline, margin: int = 2, levels: tuple[int, ...] | None = None) -> np.ndarray:
     """Level-0 patches ``(P0u, P0v) bool`` where ``new`` may differ from ``old`` (same grid).
 
     A changed level-``k`` CV ``j`` (level-0 row, or an offset that differs or is new and non-zero)
     moves level-``k`` patches ``j-3 .. j``, i.e. level-0 patches ``(j-3)>>k .. j>>k``; ``margin``
     more patches cover finer details whose frames follow the moved surface (their support reaches
-    less than one level-0 patch beyond) and grid vertices on patch borders."""
+    less than one level-0 patch beyond) and grid vertices on patch borders.
+
+    ``levels``: the only levels whose CVs can differ, when the caller knows them (a response
+    moves one level at a time, a refinement none); the other levels are not compared. ``None``
+    compares every level."""
     mask = np.zeros((new.u.patches0, new.v.patches0), bool)
-    hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))]
+    hits = [(0, *np.nonzero(np.any(old.cvs != new.cvs, axis=-1)))] if levels is None or 0 in levels else []
     for k in range(1, new.depth):
+        if levels is not None and k not in levels:
+            continue
         b = new.level(k)
         hits.append((k, *_split_cv(new, k, b.cv_keys[_moved_cvs(old, new, k)])))
+    wrap = lambda q, d: np.mod(q, d.patches0) if d.periodic else np.clip(q, 0, d.patches0 - 1)  # noqa: E731
     for k, ju, jv in hits:
         if not len(ju):
             continue
         # (j - 3 + d) >> k for d = 0..3 covers every level-0 patch of j's support; the interval
         # always meets the domain, so clipping (open) or wrapping (periodic) loses nothing
-        wrap = lambda q, d: np.mod(q, d.patches0) if d.periodic else np.clip(q, 0, d.patches0 - 1)  # noqa: E731
-        qvs = [wrap((jv - 3 + dv) >> k, new.v) for dv in range(4)]
-        for du in range(4):
-            qu = wrap((ju - 3 + du) >> k, new.u)
-            for qv in qvs:
-                mask[qu, qv] = True
-    for axis, d in ((0, new.u), (1, new.v)):
-        mask = _dilate(mask, margin, axis, d.periodic)
-    return mask
+        qu = wrap((ju[:, None] - 3 + _I4) >> k, new.u)
+        qv = wrap((jv[:, None] - 3 + _I4) >> k, new.v)
+        mask[qu[:, :, None], qv[:, None, :]] = True
+    if not margin or not mask.any():
+        return mask
+    # grown by ``margin`` both ways along each direction (wrapping where periodic) as one
+    # product with each direction's band of patches within ``margin``: counts of 0/1 entries,
+    # exact in float64
+    return (_band(new.u, margin) @ mask.astype(np.float64) @ _band(new.v, margin)) > 0.0
 
 
-def _dilate(mask: np.ndarray, m: int, axis: int, periodic: bool) -> np.ndarray:
-    """``mask`` grown by ``m`` cells both ways along ``axis`` (wrapping if ``periodic``)."""
-    out = mask.copy()
-    for s in range(1, m + 1):
-        if periodic:
-            out |= np.roll(mask, s, axis) | np.roll(mask, -s, axis)
-            continue
-        a = np.moveaxis(out, axis, 0)
-        b = np.moveaxis(mask, axis, 0)
-        a[s:] |= b[:-s]
-        a[:-s] |= b[s:]
-    return out
+@functools.lru_cache(maxsize=64)
+def _band(d: Direction, m: int) -> np.ndarray:
+    """``(P0, P0) float64``: 1 where two level-0 patches along ``d`` are at most ``m`` apart
+    (across the seam of a periodic direction), else 0; read-only."""
+    i = np.arange(d.patches0)
+    gap = np.abs(i[:, None] - i[None, :])
+    if d.periodic:
+        gap = np.minimum(gap, d.patches0 - gap)
+    band = (gap <= m).astype(np.float64)
+    band.flags.writeable = False
+    return band
 
 
 def details(hs: HSpline, upto: int | None = None,
-            since: "tuple[HSpline, Details, np.ndarray] | None" = None) -> Details:
+            since: "tuple[HSpline, Details, np.ndarray] | None" = None,
+            moved: tuple[int, ...] | None = None) -> Details:
     """World detail vectors of levels ``1..upto``, computed coarse to fine.
 
     The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
@@ -434,35 +487,63 @@ def details(hs: HSpline, upto: int | None = None,
     it is centred off ``stale`` (a ring CV: if its end is off ``stale`` all along); only the
     others, and CVs refinement added, are evaluated. A
     response is local and a refinement moves nothing, so this skips most of the work.
+    ``moved``: with ``since``, the levels whose CVs alone can differ from ``old`` (as
+    `changed_patches` was given them); with at most one, the coarsest level that moved is that
+    level if ``stale`` holds a patch, else none, without comparing the levels again. A level no
+    finer than the coarsest moved one and the same `Level` object as ``old``'s (neither
+    refined nor moved) keeps ``old``'s vectors and frames as they are: its frames' surface and its
+    offsets are ``old``'s, and each vector is its own row's product.
     """
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
-    first = _first_moved(since[0], hs) if since is not None else 0
+    if since is None:
+        first = 0
+    elif moved is not None and len(moved) <= 1:
+        first = moved[0] if moved and since[2].any() else hs.depth
+    else:
+        first = _first_moved(since[0], hs)
     ends = closed_ends(hs) if top >= 1 else ()
     vectors: list[np.ndarray] = []
     frames: list[np.ndarray] = []
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
+        if since is not None and k <= first and k - 1 < len(since[1].frames) and lev is since[0].fine[k - 1]:
+            vectors.append(since[1].vectors[k - 1])
+            frames.append(since[1].frames[k - 1])
+            continue
         c = lev.cv_keys.size
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
         rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
-        ring = _ring_members(hs, k, ends, rows)  # (len(rows),) int64: closed end of each row, or -1
+        ring = None  # (len(rows),) int64: closed end of each row, or -1 (`_ring_members`), where needed
         if rows.size and since is not None and k - 1 < len(since[1].frames):
             old, old_det, stale = since
             was = old.fine[k - 1]
-            orow, found = _lookup(was.cv_keys, lev.cv_keys[rows])
-            found &= was.movable[orow] if was.cv_keys.size else False
+            if lev.cv_keys is was.cv_keys and lev.movable is was.movable:  # a move: only offsets differ
+                if k <= first:  # and the frames' surface is old's: old's frames, vectors of the new offsets
+                    fr = old_det.frames[k - 1]
+                    vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
+                    vectors.append(vec)
+                    frames.append(fr)
+                    continue
+                orow, found = rows, np.ones(rows.size, bool)
+            else:
+                orow, found = _lookup(was.cv_keys, lev.cv_keys[rows])
+                found &= was.movable[orow] if was.cv_keys.size else False
             fr[rows[found]] = old_det.frames[k - 1][orow[found]]
             if k > first:  # the surface under this level's frames moved on the stale patches
+                ring = _ring_members(hs, k, ends, rows)
                 gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
                 pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
                 pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
                 found &= ~stale[pu.astype(np.int64), pv.astype(np.int64)]
                 # a ring's frames depend on the surface all along its end (`_end_normal`)
                 found &= (ring < 0) | ~_ends_stale(hs, ends, stale)[np.maximum(ring, 0)]
+                ring = ring[~found]
             vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
-            rows, ring = rows[~found], ring[~found]
+            rows = rows[~found]
         if rows.size:
+            if ring is None:
+                ring = _ring_members(hs, k, ends, rows)
             gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
             partial = Details(tuple(vectors), tuple(frames))
             ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)

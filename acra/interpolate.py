@@ -24,6 +24,7 @@ from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_
 
 __all__ = [
     "PointWeights",
+    "point_active",
     "SystemTooLarge",
     "dense_bytes",
     "point_weights",
@@ -92,6 +93,30 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> Poin
     """
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     v = np.atleast_1d(np.asarray(v, dtype=np.float64))
+    pts, rws, ws = _entries(hs, level, u, v)
+    point, allrows, wts = np.concatenate(pts), np.concatenate(rws), np.concatenate(ws)
+    cv_rows, col = np.unique(allrows, return_inverse=True)
+    return PointWeights(
+        level=level,
+        point=point,
+        col=col.astype(np.int64),
+        w=wts,
+        cv_rows=cv_rows.astype(np.int64),
+        npoints=u.size,
+        active=np.bincount(point, minlength=u.size) > 0,
+    )
+
+
+def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """`point_weights(hs, level, u, v).active` alone: ``(K,) bool``, whether each point weighs
+    some movable CV of ``level``, without gathering the CVs."""
+    u = np.atleast_1d(np.asarray(u, dtype=np.float64))
+    v = np.atleast_1d(np.asarray(v, dtype=np.float64))
+    return np.bincount(np.concatenate(_entries(hs, level, u, v)[0]), minlength=u.size) > 0
+
+
+def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> tuple[list, list, list]:
+    """`point_weights`' nonzero weights as lists of arrays: points, CV rows, weights."""
     su, tu = locate(hs.u, u, level)
     sv, tv = locate(hs.v, v, level)
     bu, bv = basis(tu), basis(tv)
@@ -119,17 +144,7 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> Poin
         pts.append(np.repeat(on, ring.size))
         rws.append(np.tile(rrows.reshape(-1), on.size))
         ws.append(np.tile(np.broadcast_to(rw / ring.shape[0], ring.shape).reshape(-1), on.size))
-    point, allrows, wts = np.concatenate(pts), np.concatenate(rws), np.concatenate(ws)
-    cv_rows, col = np.unique(allrows, return_inverse=True)
-    return PointWeights(
-        level=level,
-        point=point,
-        col=col.astype(np.int64),
-        w=wts,
-        cv_rows=cv_rows.astype(np.int64),
-        npoints=u.size,
-        active=np.bincount(point, minlength=u.size) > 0,
-    )
+    return pts, rws, ws
 
 
 def _movable_rows(hs: HSpline, level: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

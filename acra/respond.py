@@ -24,7 +24,7 @@ import numpy as np
 
 from . import hspline as H
 from .basis import locate
-from .interpolate import PointWeights, point_weights, solve
+from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
     "Controls",
@@ -311,14 +311,16 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     if level == 0:
         cvs = hs.cvs.reshape(-1, 3).copy()
         np.add.at(cvs, cv_rows, dv)
-        return replace(hs, cvs=_closed_ends(hs, cvs.reshape(hs.cvs.shape)))
+        return H.with_cvs(hs, _closed_ends(hs, cvs.reshape(hs.cvs.shape)))
     lev = hs.level(level)
     frames = det.frames[level - 1][cv_rows]
     offsets = lev.offsets.copy()
     np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
     fine = list(hs.fine)
     fine[level - 1] = replace(lev, offsets=offsets)
-    return replace(hs, fine=tuple(fine))
+    if "_ring_rows" in lev.__dict__:  # same CVs, other offsets: the same ring rows (`_ring_rows`)
+        fine[level - 1].__dict__["_ring_rows"] = lev.__dict__["_ring_rows"]
+    return H.with_fine(hs, tuple(fine), same_cvs=True)
 
 
 def move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
@@ -359,13 +361,26 @@ def _ring_sums(hs: H.HSpline, det: H.Details, k: int, axis: int, end: int) -> tu
 
     A fine level adds ``sum_j B_j(s) sums_j / 6`` at the pole, so it keeps the pole one point iff
     ``sums`` is the same for every column (an absent CV's detail is zero)."""
-    ring, _ = H.pole_ring(hs, k, axis, end)
-    lev = hs.level(k)
-    rows, ok = H._lookup(lev.cv_keys, ring)
-    if lev.cv_keys.size:
-        ok &= lev.movable[rows]
-    vec = np.where(ok[..., None], det.vectors[k - 1][rows], 0.0) if ok.any() else np.zeros(ring.shape + (3,))
+    rows, ok = _ring_rows(hs, k, axis, end)
+    vec = np.where(ok[..., None], det.vectors[k - 1][rows], 0.0) if ok.any() else np.zeros(rows.shape + (3,))
     return vec[:, 0] + 4.0 * vec[:, 1] + vec[:, 2], rows, ok
+
+
+def _ring_rows(hs: H.HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_ring_sums`' rows and movability, which depend on the level's CVs alone: looked up once
+    per `Level` object (a response asks for each ring several times while most levels stay as
+    they are), read-only."""
+    lev = hs.level(k)
+    memo = lev.__dict__.setdefault("_ring_rows", {})
+    key = (hs.u, hs.v, axis, end)
+    if key not in memo:
+        ring, _ = H.pole_ring(hs, k, axis, end)
+        rows, ok = H._lookup(lev.cv_keys, ring)
+        if lev.cv_keys.size:
+            ok &= lev.movable[rows]
+        rows.flags.writeable = ok.flags.writeable = False
+        memo[key] = (rows, ok)
+    return memo[key]
 
 
 def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, int]]:
@@ -387,7 +402,7 @@ def _open_ring(hs: H.HSpline, det: H.Details | None, k: int, axis: int, end: int
     around, `H.pole_patches`); returns the surface, its details and whether the ring is movable."""
     ok = _ring_sums(hs, det, k, axis, end)[2].all()
     if not ok and refine:
-        hs, det = _redetail(hs, det, H.refine(hs, k, H.pole_patches(hs, k, axis, end)))
+        hs, det = _redetail(hs, det, H.refine(hs, k, H.pole_patches(hs, k, axis, end)), ())
         ok = _ring_sums(hs, det, k, axis, end)[2].all()
     return hs, det, bool(ok)
 
@@ -418,7 +433,7 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
         fix = ok.all(axis=1) & (np.abs(off).max(axis=1) > tol)
         if fix.any():
             dv = -off[fix, None, :] * (_RING_W / (_RING_W @ _RING_W))[None, :, None]
-            hs, det = _redetail(hs, det, _move_level(hs, k, rows[fix].reshape(-1), dv.reshape(-1, 3), det))
+            hs, det = _redetail(hs, det, _move_level(hs, k, rows[fix].reshape(-1), dv.reshape(-1, 3), det), (k,))
     return hs, det
 
 
@@ -614,13 +629,16 @@ def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     return hs
 
 
-def _redetail(old: H.HSpline, old_det: H.Details | None, new: H.HSpline) -> tuple[H.HSpline, H.Details | None]:
-    """``new`` and its details, recomputed only where it differs from ``old`` (a move is local)."""
+def _redetail(old: H.HSpline, old_det: H.Details | None, new: H.HSpline,
+              moved: tuple[int, ...] | None = None) -> tuple[H.HSpline, H.Details | None]:
+    """``new`` and its details, recomputed only where it differs from ``old`` (a move is local).
+    ``moved``: the levels whose CVs alone can differ (``(level,)`` after `_move_level`, ``()``
+    after a refinement), so the others are not compared; ``None`` compares them all."""
     if new.depth <= 1:
         return new, None
     if old_det is None:
         return new, H.details(new)
-    return new, H.details(new, since=(old, old_det, H.changed_patches(old, new)))
+    return new, H.details(new, since=(old, old_det, H.changed_patches(old, new, levels=moved)), moved=moved)
 
 
 def respond(
@@ -709,9 +727,8 @@ def respond(
             added = sum(lev.patches.size for lev in hs.fine) - before
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
-                hs, det = _redetail(coarse, det, hs)
-        pw = point_weights(hs, level, uv[:, 0], uv[:, 1])
-        present = pw.active
+                hs, det = _redetail(coarse, det, hs, ())
+        present = point_active(hs, level, uv[:, 0], uv[:, 1])
         d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
         if d > 0:
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
@@ -723,7 +740,7 @@ def respond(
                 luv, lwant = uv, want
             if level == finest and held is not None and len(held.uv):
                 huv = np.asarray(held.uv, dtype=np.float64).reshape(-1, 2)
-                on = point_weights(hs, level, huv[:, 0], huv[:, 1]).active  # a point with no CV of the level here
+                on = point_active(hs, level, huv[:, 0], huv[:, 1])  # a point with no CV of the level here
                 huv, htarget = huv[on], np.asarray(held.target, dtype=np.float64).reshape(-1, 3)[on]
                 hcur = H.evaluate(hs, huv[:, 0], huv[:, 1], det=det).points
                 luv = np.concatenate([luv, huv])
@@ -733,10 +750,10 @@ def respond(
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
             dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond)
-            hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det))
+            hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det), (level,))
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:
-            hs, det = _redetail(hs, det, _translate(hs, level, uv[sel], a * t * dq[sel], det))
+            hs, det = _redetail(hs, det, _translate(hs, level, uv[sel], a * t * dq[sel], det), (level,))
         if r > 0 and sel.size:
             # thesis §4.3.2: contacts and additional points alike turn their patch's detail
             cur = H.evaluate(hs, uv[sel, 0], uv[sel, 1], det=det).points
@@ -745,12 +762,13 @@ def respond(
             flat = np.linalg.norm(cur - pivots, axis=1) <= 1e-9 * hs.size()
             rot, rest = sel[~flat], sel[flat]
             if rot.size:
-                hs, det = _redetail(hs, det, _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det))
+                hs, det = _redetail(hs, det, _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det), (level,))
             if rest.size:  # points without detail take the share as deformation
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
                 dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond)
-                hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det))
+                hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det), (level,))
         applied = applied + np.where(present, a, 0.0)
     hs, det = _close_rings(hs, det, rings, controls.refine)
+    H.keep_details(hs, det)
     final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)

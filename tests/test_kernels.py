@@ -1,6 +1,7 @@
 """The compiled evaluator (`acra.kernels`, behind `hspline.evaluate`) against the array form
 (`hspline._evaluate_numpy`): the same sum on random multi-level surfaces, open and closed, at
-random parameters, on knots and at the domain's ends, for every derivative order and side."""
+random parameters, on knots and at the domain's ends, for every derivative order and side; and
+the compiled frames (`acra.framekernels`) against theirs, bit for bit."""
 
 from dataclasses import replace
 
@@ -9,7 +10,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from acra import hspline as H
-from acra import kernels, shapes
+from acra import framekernels, kernels, shapes
 from conftest import wavy_sheet, with_random_offsets
 
 FIELDS = ("points", "du", "dv", "duu", "duv", "dvv")
@@ -178,3 +179,61 @@ def test_one_compiled_signature_serves_every_call():
     cvs.setflags(write=False)
     H.evaluate(replace(hs, cvs=cvs), ro[:, 0], ro[:, 1], order=1, det=det)
     assert len(kernels.eval_points.signatures) == before
+
+
+# --------------------------------------------------------------------------------------------
+# the compiled frames (`acra.framekernels`, behind `hspline._degenerate`, `surface_normals`, `_frames`)
+
+
+def _tangents(rng, m):
+    """Tangent pairs of every kind a surface gives: general, tiny or huge, a vanishing ``du``
+    (a pole), parallel ``du`` and ``dv`` (a collapsed edge), both zero, ``dv`` along z (the
+    fallback normal), and NaN rows."""
+    du = rng.normal(size=(m, 3)) * 10.0 ** rng.uniform(-8, 2, (m, 1))
+    dv = rng.normal(size=(m, 3)) * 10.0 ** rng.uniform(-8, 2, (m, 1))
+    k = rng.integers(0, m, m // 5)
+    du[k] = 0.0
+    k = rng.integers(0, m, m // 7)
+    dv[k] = du[k] * rng.uniform(-2, 2)
+    k = rng.integers(0, m, m // 9)
+    du[k] = dv[k] = 0.0
+    k = rng.integers(0, m, m // 9)
+    du[k], dv[k] = 0.0, [0.0, 0.0, 1.5]
+    k = rng.integers(0, m, m // 20)
+    du[k, 1] = np.nan
+    return du, dv
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_compiled_frames_equal_the_array_form(seed):
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(1, 400))
+    du, dv = _tangents(rng, m)
+    ev = H.SurfaceEval(points=du, du=du, dv=dv)
+    scale = float(10.0 ** rng.uniform(-3, 3))
+    n, bad = H._degenerate(ev, scale)
+    n_ref, bad_ref = H._degenerate_numpy(ev, scale)
+    np.testing.assert_array_equal(n, n_ref)
+    np.testing.assert_array_equal(bad, bad_ref)
+    n[bad] = (0.0, 0.0, 1.0)
+    with np.errstate(invalid="ignore"):
+        unit_ref = n / np.linalg.norm(n, axis=1)[:, None]
+        unit = np.empty(n.shape)
+        framekernels.unit_rows(n, unit)  # surface_normals' last step
+        np.testing.assert_array_equal(unit, unit_ref)
+        np.testing.assert_array_equal(H._frames(ev, unit_ref), H._frames_numpy(ev, unit_ref))
+
+
+def test_frames_of_a_sphere_with_poles_equal_the_array_form():
+    """Every level's frames of a refined sphere (poles at both ends of v), through `details`."""
+    hs = H.from_grid(*shapes.sphere(8, 7), depth=4)
+    for k in (1, 2, 3):
+        hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
+        hs = H.make_movable(hs, k, np.array([[1, 1], [2, 2]]))
+    hs = with_random_offsets(hs, scale=0.01, seed=3)
+    det = H.details(hs)
+    for k in range(1, hs.depth):
+        rows = np.nonzero(hs.level(k).movable)[0]
+        gu, gv = H.cv_uv(hs, k, hs.level(k).cv_keys[rows])
+        ev, n = H.surface_normals(hs, gu, gv, det=det, upto=k - 1)
+        np.testing.assert_array_equal(H._frames(ev, n), H._frames_numpy(ev, n))

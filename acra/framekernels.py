@@ -1,0 +1,81 @@
+"""Compiled local frames of surface points (`acra.hspline.surface_normals`, `_frames`).
+
+The frames of a level's detail CVs are built from a first-order evaluation at each CV's centre:
+``du × dv``, whether it is too small to give a direction, the unit normal, and the tangent frame
+around it. In array form that is some forty numpy calls on a few dozen rows each time a response
+moves a level (`acra.hspline.details`); here it is one pass per call. Each value is computed by
+numpy's operations in numpy's order (a cross product as ``a1 b2 - a2 b1``, a norm over three
+components as ``sqrt((x0² + x1²) + x2²)``, a sum over three as ``(a0 + a1) + a2``), so the frames
+are the same bits as the array form's (`tests/test_kernels.py` holds them to it).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+__all__ = ["degenerate", "unit_rows", "frames"]
+
+
+@njit(cache=True, nogil=True)
+def degenerate(du, dv, c1, c2, n, bad):
+    """``n[i] = du[i] × dv[i]`` and ``bad[i]``: ``|n[i]| <= c1 max(|du[i]|, |dv[i]|) + c2``
+    (`acra.hspline._degenerate`, whose ``c1``, ``c2`` the caller computes)."""
+    for i in range(du.shape[0]):
+        a0, a1, a2 = du[i, 0], du[i, 1], du[i, 2]
+        b0, b1, b2 = dv[i, 0], dv[i, 1], dv[i, 2]
+        n0 = a1 * b2 - a2 * b1
+        n1 = a2 * b0 - a0 * b2
+        n2 = a0 * b1 - a1 * b0
+        n[i, 0], n[i, 1], n[i, 2] = n0, n1, n2
+        la = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+        lb = math.sqrt((b0 * b0 + b1 * b1) + b2 * b2)
+        if la != la or lb != lb:  # np.maximum propagates NaN
+            longest = math.nan
+        else:
+            longest = la if la >= lb else lb
+        bad[i] = math.sqrt((n0 * n0 + n1 * n1) + n2 * n2) <= c1 * longest + c2
+
+
+@njit(cache=True, nogil=True)
+def unit_rows(n, out):
+    """``out[i] = n[i] / |n[i]|``."""
+    for i in range(n.shape[0]):
+        x0, x1, x2 = n[i, 0], n[i, 1], n[i, 2]
+        length = math.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        out[i, 0], out[i, 1], out[i, 2] = x0 / length, x1 / length, x2 / length
+
+
+@njit(cache=True, nogil=True)
+def frames(du, dv, n, out):
+    """Orthonormal frames ``out (m, 3, 3)``, columns ``(e_u, e_v, n)``, of unit normals ``n``
+    and tangents ``du``, ``dv`` (`acra.hspline._frames`)."""
+    for i in range(du.shape[0]):
+        a0, a1, a2 = du[i, 0], du[i, 1], du[i, 2]
+        b0, b1, b2 = dv[i, 0], dv[i, 1], dv[i, 2]
+        n0, n1, n2 = n[i, 0], n[i, 1], n[i, 2]
+        d = (a0 * n0 + a1 * n1) + a2 * n2
+        t0, t1, t2 = a0 - d * n0, a1 - d * n1, a2 - d * n2
+        tl = math.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+        la = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+        lb = math.sqrt((b0 * b0 + b1 * b1) + b2 * b2)
+        if tl <= 1e-12 * ((la + lb) + 1e-300):  # du vanishes (pole): perpendicular to dv instead
+            t0 = b1 * n2 - b2 * n1
+            t1 = b2 * n0 - b0 * n2
+            t2 = b0 * n1 - b1 * n0
+            tl = math.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+        if tl <= 1e-300:  # fully degenerate: any perpendicular of n
+            if abs(n0) < 0.9:
+                p0, p1, p2 = 1.0, 0.0, 0.0
+            else:
+                p0, p1, p2 = 0.0, 1.0, 0.0
+            s = (p0 * n0 + p1 * n1) + p2 * n2
+            t0, t1, t2 = p0 - s * n0, p1 - s * n1, p2 - s * n2
+            tl = math.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+        e0, e1, e2 = t0 / tl, t1 / tl, t2 / tl
+        out[i, 0, 0], out[i, 1, 0], out[i, 2, 0] = e0, e1, e2
+        out[i, 0, 1] = n1 * e2 - n2 * e1
+        out[i, 1, 1] = n2 * e0 - n0 * e2
+        out[i, 2, 1] = n0 * e1 - n1 * e0
+        out[i, 0, 2], out[i, 1, 2], out[i, 2, 2] = n0, n1, n2

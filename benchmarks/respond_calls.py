@@ -1,0 +1,114 @@
+"""The responses of a run's collision frames, replayed and timed.
+
+    python3 benchmarks/respond_calls.py [SCENE.py] [--frames 13:17] [--repeat 5] [--save FILE] [--check FILE]
+
+Runs the scene's ``--frames`` (after a free frame, as `benchmarks/stage_split.py` does) and
+records every `acra.respond.respond` call with its arguments, then calls `respond` again on each
+recorded argument set ``--repeat`` times and prints the calls and the milliseconds (wall and
+CPU) per collision frame of all of them (the least over the repeats of each call, summed). Run it with
+``PYTHONPATH`` set to two checkouts to compare their responses on the same calls. ``--save FILE``
+stores each call's responded surface (level-0 CVs, every level's keys and offsets, the
+details it hands back) and
+``--check FILE`` prints the largest difference from a stored run over the surface's size
+(the calls are the same when both checkouts give the same surfaces up to the recorded frames).
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import pickle
+import time
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from acra import respond as R
+from pipeline import frames, usdio
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def record(scene: pathlib.Path, first: int, last: int, warm: int) -> list[tuple]:
+    """``(args, kwargs)`` of every `respond` call of frames ``first..last``."""
+    calls: list[tuple] = []
+    respond = R.respond
+
+    def recording(*args, **kwargs):
+        calls.append((args, kwargs))
+        return respond(*args, **kwargs)
+
+    stage = usdio.open_input(usdio.load_scene_file(scene))
+    parsed = usdio.read_scene(stage)
+    frames.run_frames(stage, parsed, [warm])
+    R.respond = recording
+    try:
+        frames.run_frames(stage, parsed, list(range(first, last + 1)))
+    finally:
+        R.respond = respond
+    return calls
+
+
+def surface_arrays(hs, report) -> list[np.ndarray]:
+    """A responded surface as plain arrays: level-0 CVs, each fine level's CV keys, offsets,
+    patches, then the details the response hands back (vectors and frames of each level)."""
+    out = [np.asarray(hs.cvs)]
+    for lev in hs.fine:
+        out += [np.asarray(lev.cv_keys), np.asarray(lev.offsets), np.asarray(lev.patches)]
+    if report.details is not None:
+        out += [*report.details.vectors, *report.details.frames]
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("scene", nargs="?", default=str(ROOT / "scenes" / "dog_head_spike.py"))
+    ap.add_argument("--frames", default="13:17")
+    ap.add_argument("--warm", type=int, default=5)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--save")
+    ap.add_argument("--check")
+    args = ap.parse_args()
+    first, last = (int(x) for x in args.frames.split(":"))
+    calls = record(pathlib.Path(args.scene), first, last, args.warm)
+    best = np.full(len(calls), np.inf)
+    cpu = np.full(len(calls), np.inf)
+    results = []
+    with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs: BLAS on one thread
+        _replay(calls, args.repeat, best, cpu, results)
+    nframes = last - first + 1
+    print(f"{len(calls)} respond calls, per collision frame: {1e3 * best.sum() / nframes:.2f} ms wall, "
+          f"{1e3 * cpu.sum() / nframes:.2f} ms CPU (least of {args.repeat} per call, summed)")
+    _check(args, calls, results)
+
+
+def _replay(calls, repeat, best, cpu, results) -> None:
+    for rep in range(repeat):
+        for n, (a, kw) in enumerate(calls):
+            t, c = time.perf_counter(), time.process_time()
+            hs, report = R.respond(*a, **kw)
+            best[n] = min(best[n], time.perf_counter() - t)
+            cpu[n] = min(cpu[n], time.process_time() - c)
+            if rep == 0:
+                results.append(surface_arrays(hs, report))
+
+
+def _check(args, calls, results) -> None:
+    if args.save:
+        pathlib.Path(args.save).write_bytes(pickle.dumps(results))
+    if args.check:
+        ref = pickle.loads(pathlib.Path(args.check).read_bytes())
+        worst, same = 0.0, 0
+        for n, (mine, theirs) in enumerate(zip(results, ref)):
+            size = calls[n][0][0].size()
+            if len(mine) != len(theirs) or any(x.shape != y.shape for x, y in zip(mine, theirs)):
+                print(f"call {n}: the surfaces differ in structure")
+                continue
+            d = max((float(np.abs(x.astype(float) - y.astype(float)).max()) if x.size else 0.0) for x, y in zip(mine, theirs))
+            same += all(np.array_equal(x, y) for x, y in zip(mine, theirs))
+            worst = max(worst, d / size)
+        print(f"against {args.check}: {same} of {len(results)} surfaces the same bits; largest difference {worst:.3g} of the size")
+
+
+if __name__ == "__main__":
+    main()
