@@ -185,8 +185,8 @@ class _SharedText:
 
     USD's text writer formats every float of every time sample; the free frames of a run share
     one display and one surface (`_Converted`), so most samples repeat an earlier one. Each
-    distinct array is authored as a one-element stand-in (`stand_in`); `export` formats every
-    distinct array once through USD's own writer (a scratch layer holding each as a default
+    array held by more than one sample is authored as a one-element stand-in (`stand_in`);
+    `export` formats each such array once through USD's own writer (a scratch layer holding each as a default
     value, the same text a time sample gets), exports the layer of stand-ins and writes its text
     with each stand-in replaced by its array's text: the bytes USD's writer gives for the layer
     of the arrays themselves, written atomically (`usdio.export_layer`). Should any stand-in's
@@ -194,15 +194,21 @@ class _SharedText:
     writes the layer.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, samples) -> None:
+        """``samples``: every value the layer will hold, each sample once (repeats by identity)."""
+        self._uses: dict[int, int] = {}  # id(array) -> samples holding it
+        for value in samples:
+            if type(value) in _STAND_INS and len(value) >= _SHARED_MIN:
+                self._uses[id(value)] = self._uses.get(id(value), 0) + 1
         self._index: dict[int, int] = {}  # id(array) -> k
         self._arrays: list = []  # k -> array (kept alive while its id is a key)
         self._samples: list[tuple[Sdf.Path, float, int]] = []
 
     def stand_in(self, path: Sdf.Path, time: float, value):
-        """What to author at ``path`` and ``time`` for ``value``."""
+        """What to author at ``path`` and ``time`` for ``value``: an array held by one sample
+        alone (a collision frame's) is formatted where it stands, with nothing saved."""
         kind = _STAND_INS.get(type(value))
-        if kind is None or len(value) < _SHARED_MIN:
+        if kind is None or self._uses.get(id(value), 0) < 2:
             return value
         k = self._index.get(id(value))
         if k is None:
@@ -299,7 +305,7 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
 
     layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
-    shared = _SharedText() if out.suffix == ".usda" else _Direct()
+    shared = _SharedText(v for per in values.values() for v in per.values()) if out.suffix == ".usda" else _Direct()
     with Sdf.ChangeBlock():
         layer.subLayerPaths.append(_relative_asset(inp, out.parent))
         for key, value in meta.items():

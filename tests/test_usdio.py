@@ -385,14 +385,15 @@ def _usd_text(path):
     return Sdf.Layer.OpenAsAnonymous(str(path)).ExportToString().encode()
 
 
-@pytest.mark.parametrize("make", ["shared", "copied"])
+@pytest.mark.parametrize("make", ["shared", "copied", "mixed"])
 def test_text_output_is_usds_own_text(scene_file, tmp_path, make):
     """A ``.usda`` layer, whose repeated arrays are formatted once, holds the bytes USD's text
     writer gives for the same layer (the ``.usdc`` written from the same results, exported)."""
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
     one, shared, copied = _shared_and_copied(stage, scene)
-    res = {"shared": shared, "copied": copied}[make]
+    mixed = output_layer.FramesResult({1: shared.frames[1], 2: copied.frames[2], 3: shared.frames[3]})
+    res = {"shared": shared, "copied": copied, "mixed": mixed}[make]
     assert len(one.points) >= output_layer._SHARED_MIN
     text = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, res)
     crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, res)
@@ -404,11 +405,11 @@ def test_text_output_falls_back_to_usds_writer_when_a_stand_in_is_ambiguous(scen
     """Stand-ins whose text cannot tell two arrays apart: the layer is written by USD itself."""
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
-    _, _, copied = _shared_and_copied(stage, scene)
-    crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, copied)
-    tname, _ = output_layer._STAND_INS[Vt.Vec3fArray]
+    _, shared, _ = _shared_and_copied(stage, scene)
+    crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, shared)
+    tname, _ = output_layer._STAND_INS[Vt.Vec3fArray]  # points and normals stand in alike
     monkeypatch.setitem(output_layer._STAND_INS, Vt.Vec3fArray, (tname, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, 0, math.nan)])))
-    text = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, copied)
+    text = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, shared)
     assert text.read_bytes() == _usd_text(crate)
 
 
