@@ -186,12 +186,12 @@ class _SharedText:
     USD's text writer formats every float of every time sample; the free frames of a run share
     one display and one surface (`_Converted`), so most samples repeat an earlier one. Each
     array held by more than one sample is authored as a one-element stand-in (`stand_in`);
-    `export` formats each such array once through USD's own writer (a scratch layer holding each as a default
-    value, the same text a time sample gets), exports the layer of stand-ins and writes its text
-    with each stand-in replaced by its array's text: the bytes USD's writer gives for the layer
-    of the arrays themselves, written atomically (`usdio.export_layer`). Should any stand-in's
-    text be found other than once per sample it stands for, the arrays are authored back and USD
-    writes the layer.
+    `export` formats each such array once through USD's own writer (a scratch layer holding each
+    as a default value, the same text a time sample gets), exports the layer of stand-ins and
+    writes its text with each stand-in replaced by its array's text: the bytes USD's writer gives
+    for the layer of the arrays themselves, written atomically (`usdio.export_layer`). Should any
+    stand-in's text be found other than once per sample it stands for, the arrays are authored
+    back and USD writes the layer.
     """
 
     def __init__(self, samples) -> None:
