@@ -237,30 +237,38 @@ class _SharedText:
         values, stand_ins = self._texts()
         which = {text: k for k, text in enumerate(stand_ins)}
         text = layer.ExportToString()
-        pieces = re.split("(" + "|".join(re.escape(t) for t in stand_ins) + ")", text)
-        found = [which[t] for t in pieces[1::2]]
-        expected = [0] * len(self._arrays)
+        pattern = re.compile("|".join(re.escape(t) for t in stand_ins))
+        found, expected = [0] * len(self._arrays), [0] * len(self._arrays)
         for _, _, k in self._samples:
             expected[k] += 1
-        if None in values or len(which) != len(stand_ins) or np.bincount(found, minlength=len(expected)).tolist() != expected:
+        if None not in values and len(which) == len(stand_ins):
+            for m in pattern.finditer(text):
+                found[which[m.group()]] += 1
+        if found != expected:
+            del text
             with Sdf.ChangeBlock():
                 for path, time, k in self._samples:
                     layer.SetTimeSample(path, time, self._arrays[k])
             return export_layer(layer, out)
-        encoded = [v.encode() for v in values]
-        return export_layer(_Text([encoded[which[p]] if i % 2 else p.encode() for i, p in enumerate(pieces)]), out)
+        return export_layer(_Text(text, pattern, which, [v.encode() for v in values]), out)
 
 
 class _Text:
-    """A ``.usda`` layer's text as its byte pieces, written as `Sdf.Layer.Export` writes a layer
-    (`usdio.export_layer`)."""
+    """A ``.usda`` layer's ``text`` whose stand-ins (``pattern``, ``which`` of them) are written
+    as their arrays' text ``values``, as `Sdf.Layer.Export` writes a layer (`usdio.export_layer`);
+    the text between stand-ins is encoded a piece at a time, so a long run's text is held once."""
 
-    def __init__(self, pieces: list[bytes]) -> None:
-        self.pieces = pieces
+    def __init__(self, text: str, pattern: re.Pattern, which: dict, values: list[bytes]) -> None:
+        self.text, self.pattern, self.which, self.values = text, pattern, which, values
 
     def Export(self, path: str) -> bool:  # noqa: N802 (Sdf.Layer's name)
+        at = 0
         with open(path, "wb") as fh:
-            fh.writelines(self.pieces)
+            for m in self.pattern.finditer(self.text):
+                fh.write(self.text[at:m.start()].encode())
+                fh.write(self.values[self.which[m.group()]])
+                at = m.end()
+            fh.write(self.text[at:].encode())
         return True
 
 
