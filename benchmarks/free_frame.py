@@ -11,6 +11,8 @@ one run of all its frames, medians over ``--repeat`` passes of CPU milliseconds 
 * the whole free frame (`frames._Run.frame` on frames already known to be free), and inside it
   `state_at` and the world boxes and size of the deformables' `SurfaceGeometry`;
 * writing a layer that holds only the free frames, as ``.usda`` and ``.usdc``, over their count;
+  for comparison, a ``.usda`` layer of only the collision frames over theirs, and the run's whole
+  ``.usda`` layer over all frames (`output_layer._SharedText` formats each repeated array once);
 * the ``.usda`` text writer's floor: `Sdf.Layer.ExportToString` of a layer holding only the free
   frames' display ``points`` (then ``points`` and ``normals``) of every deformable.
 """
@@ -61,8 +63,12 @@ def main() -> int:
         run = frames._Run(stage, scene, options, state.for_run(stage, scene, all_frames, options, None))
         run.frame(scene.start, output_layer.FramesResult())  # the first frame builds the shapes
         rows: dict[str, list[float]] = {k: [] for k in ("whole free frame", "state_at", "world boxes and size", "write .usda",
-                                                        "write .usdc", "text writer, points", "text writer, points + normals")}
+                                                        "write .usdc", "write .usda, collision frames (per collision frame)",
+                                                        "write .usda, the run's layer (per frame)", "text writer, points",
+                                                        "text writer, points + normals")}
         part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(free)}, result.topologies)
+        colliding = [s.frame for s in stats if s.in_collision]
+        col_part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(colliding)}, result.topologies)
         for _ in range(args.repeat):
             sink = output_layer.FramesResult()
             frame_iter = iter(free * 3)
@@ -79,6 +85,12 @@ def main() -> int:
             for fmt in ("usda", "usdc"):
                 out = Path(tmp) / f"free.acra.{fmt}"
                 rows[f"write .{fmt}"].append(cpu_ms(lambda: output_layer.write_output(stage_path, out, scene, part), 1) / len(free))
+            out = Path(tmp) / "kind.acra.usda"
+            if colliding:
+                rows["write .usda, collision frames (per collision frame)"].append(
+                    cpu_ms(lambda: output_layer.write_output(stage_path, out, scene, col_part), 1) / len(colliding))
+            rows["write .usda, the run's layer (per frame)"].append(
+                cpu_ms(lambda: output_layer.write_output(stage_path, out, scene, result), 1) / len(all_frames))
             for name, attrs in (("text writer, points", ("points",)), ("text writer, points + normals", ("points", "normals"))):
                 layer = Sdf.Layer.CreateAnonymous("floor.usda")
                 with Sdf.ChangeBlock():
@@ -95,7 +107,7 @@ def main() -> int:
           f"CPU ms per free frame, medians of {args.repeat}; load average {load[0]:.1f} (1 min)\n")
     print("| part | CPU ms per free frame |\n|---|---:|")
     for name, values in rows.items():
-        print(f"| {name} | {np.median(values):.3f} |")
+        print(f"| {name} | {np.median(values) if values else float('nan'):.3f} |")
     return 0
 
 

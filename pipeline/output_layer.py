@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, grid_samples
@@ -156,6 +157,121 @@ class _Converted:
         return hit[1]
 
 
+class _Direct:
+    """Time samples authored as they are (a binary crate stores a repeated array once itself)."""
+
+    def stand_in(self, path: Sdf.Path, time: float, value):
+        return value
+
+    def export(self, layer: Sdf.Layer, out: Path) -> Path:
+        return export_layer(layer, out)
+
+
+# an array value's stand-in in the layer: one element no result holds (points, normals and CVs
+# are finite, levels and indices not negative; `_SharedText.export` counts the stand-ins found),
+# ``k`` telling the stand-ins apart
+_STAND_INS = {
+    Vt.Vec3fArray: (T.Float3Array, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, k, math.nan)])),
+    Vt.Vec3dArray: (T.Double3Array, lambda k: Vt.Vec3dArray([Gf.Vec3d(math.nan, k, math.nan)])),
+    Vt.Vec2iArray: (T.Int2Array, lambda k: Vt.Vec2iArray([Gf.Vec2i(-1000000007, k)])),
+    Vt.IntArray: (T.IntArray, lambda k: Vt.IntArray([-1000000007, k])),
+}
+_SHARED_MIN = 64  # arrays shorter than this are written as they are
+_SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ ([vs])(\d+) = (.*)$", re.M)
+
+
+class _SharedText:
+    """A ``.usda`` layer whose repeated arrays are formatted once.
+
+    USD's text writer formats every float of every time sample; the free frames of a run share
+    one display and one surface (`_Converted`), so most samples repeat an earlier one. Each
+    array held by more than one sample is authored as a one-element stand-in (`stand_in`);
+    `export` formats each such array once through USD's own writer (a scratch layer holding each
+    as a default value, the same text a time sample gets), exports the layer of stand-ins and
+    writes its text with each stand-in replaced by its array's text: the bytes USD's writer gives
+    for the layer of the arrays themselves, written atomically (`usdio.export_layer`). Should any
+    stand-in's text be found other than once per sample it stands for, the arrays are authored
+    back and USD writes the layer.
+    """
+
+    def __init__(self, samples) -> None:
+        """``samples``: every value the layer will hold, each sample once (repeats by identity)."""
+        self._uses: dict[int, int] = {}  # id(array) -> samples holding it
+        for value in samples:
+            if type(value) in _STAND_INS and len(value) >= _SHARED_MIN:
+                self._uses[id(value)] = self._uses.get(id(value), 0) + 1
+        self._index: dict[int, int] = {}  # id(array) -> k
+        self._arrays: list = []  # k -> array (kept alive while its id is a key)
+        self._samples: list[tuple[Sdf.Path, float, int]] = []
+
+    def stand_in(self, path: Sdf.Path, time: float, value):
+        """What to author at ``path`` and ``time`` for ``value``: an array held by one sample
+        alone (a collision frame's) is formatted where it stands, with nothing saved."""
+        kind = _STAND_INS.get(type(value))
+        if kind is None or self._uses.get(id(value), 0) < 2:
+            return value
+        k = self._index.get(id(value))
+        if k is None:
+            k = self._index[id(value)] = len(self._arrays)
+            self._arrays.append(value)
+        self._samples.append((path, time, k))
+        return kind[1](k)
+
+    def _texts(self) -> tuple[list[str], list[str]]:
+        """Each array's text and its stand-in's text, as USD's text writer formats them."""
+        scratch = Sdf.Layer.CreateAnonymous("acra_arrays.usda")
+        with Sdf.ChangeBlock():
+            prim = Sdf.CreatePrimInLayer(scratch, "/A")
+            for k, value in enumerate(self._arrays):
+                tname, make = _STAND_INS[type(value)]
+                Sdf.AttributeSpec(prim, f"v{k}", tname, Sdf.VariabilityVarying, True).default = value
+                Sdf.AttributeSpec(prim, f"s{k}", tname, Sdf.VariabilityVarying, True).default = make(k)
+        texts: dict = {"v": [None] * len(self._arrays), "s": [None] * len(self._arrays)}
+        for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
+            texts[m.group(1)][int(m.group(2))] = m.group(3)
+        return texts["v"], texts["s"]
+
+    def export(self, layer: Sdf.Layer, out: Path) -> Path:
+        if not self._arrays:
+            return export_layer(layer, out)
+        values, stand_ins = self._texts()
+        which = {text: k for k, text in enumerate(stand_ins)}
+        text = layer.ExportToString()
+        pattern = re.compile("|".join(re.escape(t) for t in stand_ins))
+        found, expected = [0] * len(self._arrays), [0] * len(self._arrays)
+        for _, _, k in self._samples:
+            expected[k] += 1
+        if None not in values and len(which) == len(stand_ins):
+            for m in pattern.finditer(text):
+                found[which[m.group()]] += 1
+        if found != expected:
+            del text
+            with Sdf.ChangeBlock():
+                for path, time, k in self._samples:
+                    layer.SetTimeSample(path, time, self._arrays[k])
+            return export_layer(layer, out)
+        return export_layer(_Text(text, pattern, which, [v.encode() for v in values]), out)
+
+
+class _Text:
+    """A ``.usda`` layer's ``text`` whose stand-ins (``pattern``, ``which`` of them) are written
+    as their arrays' text ``values``, as `Sdf.Layer.Export` writes a layer (`usdio.export_layer`);
+    the text between stand-ins is encoded a piece at a time, so a long run's text is held once."""
+
+    def __init__(self, text: str, pattern: re.Pattern, which: dict, values: list[bytes]) -> None:
+        self.text, self.pattern, self.which, self.values = text, pattern, which, values
+
+    def Export(self, path: str) -> bool:  # noqa: N802 (Sdf.Layer's name)
+        at = 0
+        with open(path, "wb") as fh:
+            for m in self.pattern.finditer(self.text):
+                fh.write(self.text[at:m.start()].encode())
+                fh.write(self.values[self.which[m.group()]])
+                at = m.end()
+            fh.write(self.text[at:].encode())
+        return True
+
+
 def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, scene: SceneModel, frames_result: FramesResult) -> Path:
     """Write the output layer: overs of points, normals, topology and response state per frame.
 
@@ -164,7 +280,8 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
     Every frame must hold a result for every deformable of ``scene``. The file is written
     atomically and deterministically (sorted paths and frames, no timestamps); its format follows
     the suffix (``.usda`` text, ``.usdc``/``.usd`` binary crate, see docs/cli.md for the cost).
-    Results that repeat an earlier frame's objects are checked and converted once (`_Converted`).
+    Results that repeat an earlier frame's objects are checked and converted once (`_Converted`),
+    and in a ``.usda`` layer their text is formatted once (`_SharedText`).
     """
     inp, out = Path(input_path), Path(output_path)
     meta = _stage_metadata(inp, scene)
@@ -196,6 +313,7 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
 
     layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
+    shared = _SharedText(v for per in values.values() for v in per.values()) if out.suffix == ".usda" else _Direct()
     with Sdf.ChangeBlock():
         layer.subLayerPaths.append(_relative_asset(inp, out.parent))
         for key, value in meta.items():
@@ -223,8 +341,8 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 specs.update({n: _spec(prim, n, tn, True).path for n, tn in STATE_TYPES.items()})
             for f in frames:
                 for name, value in values[f, m.path].items():
-                    layer.SetTimeSample(specs[name], float(f), value)
-    return export_layer(layer, out)
+                    layer.SetTimeSample(specs[name], float(f), shared.stand_in(specs[name], float(f), value))
+    return shared.export(layer, out)
 
 
 def read_output_hierarchy(stage: Usd.Stage, prim_path: str, t: float) -> HSpline:

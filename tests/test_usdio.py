@@ -380,6 +380,39 @@ def test_shared_results_are_written_as_their_copies(scene_file, tmp_path):
         assert prim.GetAttribute("acra:response:inCollision").Get(f) == (f == 2)
 
 
+def _usd_text(path):
+    """USD's own text of the layer at ``path``: what `Sdf.Layer.Export` writes as ``.usda``."""
+    return Sdf.Layer.OpenAsAnonymous(str(path)).ExportToString().encode()
+
+
+@pytest.mark.parametrize("make", ["shared", "copied", "mixed"])
+def test_text_output_is_usds_own_text(scene_file, tmp_path, make):
+    """A ``.usda`` layer, whose repeated arrays are formatted once, holds the bytes USD's text
+    writer gives for the same layer (the ``.usdc`` written from the same results, exported)."""
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    one, shared, copied = _shared_and_copied(stage, scene)
+    mixed = output_layer.FramesResult({1: shared.frames[1], 2: copied.frames[2], 3: shared.frames[3]})
+    res = {"shared": shared, "copied": copied, "mixed": mixed}[make]
+    assert len(one.points) >= output_layer._SHARED_MIN
+    text = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, res)
+    crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, res)
+    assert text.read_bytes() == _usd_text(crate)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.usda", "out.usda", "out.usdc"]
+
+
+def test_text_output_falls_back_to_usds_writer_when_a_stand_in_is_ambiguous(scene_file, tmp_path, monkeypatch):
+    """Stand-ins whose text cannot tell two arrays apart: the layer is written by USD itself."""
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    _, shared, _ = _shared_and_copied(stage, scene)
+    crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, shared)
+    tname, _ = output_layer._STAND_INS[Vt.Vec3fArray]  # points and normals stand in alike
+    monkeypatch.setitem(output_layer._STAND_INS, Vt.Vec3fArray, (tname, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, 0, math.nan)])))
+    text = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, shared)
+    assert text.read_bytes() == _usd_text(crate)
+
+
 def test_shared_invalid_values_are_rejected_at_their_first_frame(scene_file, tmp_path):
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
