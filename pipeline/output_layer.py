@@ -177,6 +177,12 @@ _STAND_INS = {
     Vt.IntArray: (T.IntArray, lambda k: Vt.IntArray([-1000000007, k])),
 }
 _SHARED_MIN = 64  # arrays shorter than this are written as they are
+# characters of text an element can take at most in USD's writer (float32 and int32 shortest
+# repr, float64 to 17 digits, separators), and the most text `_SharedText` may hold in memory
+# while it writes: a run whose layer would be longer is written by USD's own writer, which
+# streams it to the file
+_CHARS = {Vt.Vec3fArray: 56, Vt.Vec3dArray: 80, Vt.Vec2iArray: 28, Vt.IntArray: 13}
+TEXT_HELD_MAX = 256 * 2**20
 _SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ ([vs])(\d+) = (.*)$", re.M)
 
 
@@ -197,9 +203,12 @@ class _SharedText:
     def __init__(self, samples) -> None:
         """``samples``: every value the layer will hold, each sample once (repeats by identity)."""
         self._uses: dict[int, int] = {}  # id(array) -> samples holding it
+        self.chars = 0  # an upper bound of the text held while writing: each distinct array once
         for value in samples:
             if type(value) in _STAND_INS and len(value) >= _SHARED_MIN:
                 self._uses[id(value)] = self._uses.get(id(value), 0) + 1
+            if type(value) in _CHARS and (self._uses.get(id(value), 0) <= 1):
+                self.chars += _CHARS[type(value)] * len(value)
         self._index: dict[int, int] = {}  # id(array) -> k
         self._arrays: list = []  # k -> array (kept alive while its id is a key)
         self._samples: list[tuple[Sdf.Path, float, int]] = []
@@ -313,7 +322,11 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
 
     layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
-    shared = _SharedText(v for per in values.values() for v in per.values()) if out.suffix == ".usda" else _Direct()
+    shared = _Direct()
+    if out.suffix == ".usda":
+        text = _SharedText(v for per in values.values() for v in per.values())
+        if text.chars <= TEXT_HELD_MAX:
+            shared = text
     with Sdf.ChangeBlock():
         layer.subLayerPaths.append(_relative_asset(inp, out.parent))
         for key, value in meta.items():

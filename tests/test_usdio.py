@@ -401,6 +401,24 @@ def test_text_output_is_usds_own_text(scene_file, tmp_path, make):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.usda", "out.usda", "out.usdc"]
 
 
+def test_a_long_text_output_is_streamed_by_usds_writer(scene_file, tmp_path, monkeypatch):
+    """A layer whose text would exceed `output_layer.TEXT_HELD_MAX` is written by USD itself
+    (streamed to the file), with the same bytes; a short one formats its shared arrays once."""
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    _, shared, _ = _shared_and_copied(stage, scene)
+    crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, shared)
+    used = []
+    export = output_layer._SharedText.export
+    monkeypatch.setattr(output_layer._SharedText, "export", lambda self, *a: used.append(self.chars) or export(self, *a))
+    small = output_layer.write_output(scene_file, tmp_path / "small.usda", scene, shared)
+    assert len(used) == 1 and 0 < used[0] <= output_layer.TEXT_HELD_MAX
+    monkeypatch.setattr(output_layer, "TEXT_HELD_MAX", used[0] - 1)
+    big = output_layer.write_output(scene_file, tmp_path / "big.usda", scene, shared)
+    assert len(used) == 1
+    assert small.read_bytes() == big.read_bytes() == _usd_text(crate)
+
+
 def test_text_output_falls_back_to_usds_writer_when_a_stand_in_is_ambiguous(scene_file, tmp_path, monkeypatch):
     """Stand-ins whose text cannot tell two arrays apart: the layer is written by USD itself."""
     stage = U.open_input(scene_file)
