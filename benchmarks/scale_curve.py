@@ -11,7 +11,10 @@ grid exactly refined once (×4: 32×21 CVs) and twice (×16: 64×39 CVs). Unifor
 ``2n − 3``) leaves the surface unchanged, and level ``k`` of the ×4 model is level ``k + 1`` of
 the ×1 model (same CV centres, same patches), so the spatial settings shift with it: absorption
 moves one level coarser per refinement, and the collision density (least steps per level-0
-patch edge) and display samples halve (8/4/2 and 4/2/1). The spike is refined to level 2
+patch edge) halves (8/4/2). The display keeps 4 samples: they are steps per edge of the finest
+patch present (`acra:samples`), and the responded region's finest patches are the same in space
+at every scale, so the display the residual is measured on is the same there (away from it the
+display of an unrefined level-0 patch is 2x and 4x denser at x4 and x16). The spike is refined to level 2
 everywhere, so its own tessellation is 8 steps per patch edge at any of these densities. A
 fourth run takes ×16 at the default density 8 (4× finer in space), as a user would run it.
 
@@ -90,7 +93,7 @@ def build_stage(scale: int, grid: np.ndarray) -> Usd.Stage:
     stage.RemovePrim(HEAD)
     stage.RemovePrim(SPIKE)
     A.add_deformable(stage, HEAD, grid, u_wrap="periodic", v_wrap="open", levels=7 - scale,
-                     absorption=ABSORPTION[scale:], rigidity=10, samples=4 >> scale)
+                     absorption=ABSORPTION[scale:], rigidity=10, samples=4)
     cvs, hs = dog.spike()
     npu, npv = hs.u.patches(2), hs.v.patches(2)
     hs = H.refine(hs, 2, np.stack(np.meshgrid(np.arange(npu), np.arange(npv), indexing="ij"), -1).reshape(-1, 2))
