@@ -15,7 +15,7 @@ from numba import njit
 
 from acra.hierarchy import HSpline, _split_cv
 
-__all__ = ["boxes_within", "patch_boxes"]
+__all__ = ["boxes_within", "patch_boxes", "rays_meet"]
 
 
 @njit(cache=True, nogil=True)
@@ -96,3 +96,38 @@ def boxes_within(lo: np.ndarray, hi: np.ndarray, q: np.ndarray, limit: np.ndarra
         _within(np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64),
                 np.ascontiguousarray(q, np.float64), np.ascontiguousarray(limit, np.float64), out)
     return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _rays_meet(lo, hi, o, d, box_hit, ray_hit):
+    for i in range(o.shape[0]):
+        inv0, inv1, inv2 = 1.0 / d[i, 0], 1.0 / d[i, 1], 1.0 / d[i, 2]
+        for j in range(lo.shape[0]):
+            near, far = -np.inf, np.inf
+            for a, inv in ((0, inv0), (1, inv1), (2, inv2)):
+                t0, t1 = (lo[j, a] - o[i, a]) * inv, (hi[j, a] - o[i, a]) * inv
+                if np.isnan(t0):
+                    t0 = -np.inf
+                if np.isnan(t1):
+                    t1 = np.inf
+                near = max(near, min(t0, t1))
+                far = min(far, max(t0, t1))
+            if far >= near and far >= 0.0:
+                box_hit[j] = True
+                ray_hit[i] = True
+
+
+def rays_meet(lo: np.ndarray, hi: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Slab test of rays ``origins, directions (n, 3)`` (t >= 0) against boxes ``lo, hi (m, 3)``:
+    which boxes some ray meets ``(m,) bool`` and which rays meet some box ``(n,) bool``.
+
+    Per axis the ray is inside the slab for ``t`` between ``(lo - o) / d`` and ``(hi - o) / d``
+    (``1 / d`` infinite for an axis-parallel ray; ``0 * inf``, a ray on the slab's plane, counts
+    as inside); a ray meets the box where the slabs' intervals overlap at some ``t >= 0``. The
+    numbers are numpy's for the same formula, without its ``(n, m, 3)`` arrays."""
+    box_hit, ray_hit = np.zeros(len(lo), np.bool_), np.zeros(len(origins), np.bool_)
+    if len(lo) and len(origins):
+        _rays_meet(np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64),
+                   np.ascontiguousarray(origins, np.float64), np.ascontiguousarray(directions, np.float64),
+                   box_hit, ray_hit)
+    return box_hit, ray_hit

@@ -16,7 +16,7 @@ import trimesh
 from trimesh.ray.ray_triangle import RayMeshIntersector
 
 from acra import hspline as H
-from acra.patch_boxes import boxes_within
+from acra.patch_boxes import boxes_within, rays_meet
 from pipeline.grids import Nearest, overlap
 
 if TYPE_CHECKING:
@@ -90,13 +90,8 @@ def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.
     collision grids, the row of each hit ray ``(m,) int64``, and its distance along the
     (unnormalised) direction ``(m,)``. Only patches whose boxes the rays meet are tessellated."""
     lo, hi, patches = shape._boxes
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / directions[:, None, :]
-        t0, t1 = (lo[None] - origins[:, None]) * inv, (hi[None] - origins[:, None]) * inv
-    t0, t1 = np.nan_to_num(t0, nan=-np.inf), np.nan_to_num(t1, nan=np.inf)  # 0/0: on the slab's plane
-    near, far = np.minimum(t0, t1).max(axis=2), np.maximum(t0, t1).min(axis=2)
-    meets = (far >= near) & (far >= 0)  # (n, P)
-    hit = np.nonzero(meets.any(axis=0))[0]
+    box_hit, ray_hit = rays_meet(lo, hi, origins, directions)
+    hit = np.nonzero(box_hit)[0]
     empty = np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
     if not len(hit):
         return empty
@@ -104,7 +99,7 @@ def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.
     loc, ray, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
     # embree works in float32 and can let a ray through an edge it meets exactly: retry the
     # rays that met a box but no triangle in float64 (rare, so the slower intersector is fine)
-    miss = np.setdiff1d(np.nonzero(meets.any(axis=1))[0], ray)
+    miss = np.setdiff1d(np.nonzero(ray_hit)[0], ray)
     if len(miss):
         more, row, _ = RayMeshIntersector(mesh).intersects_location(origins[miss], directions[miss], multiple_hits=False)
         loc, ray = np.concatenate([loc, np.reshape(more, (-1, 3))]), np.concatenate([ray, miss[np.asarray(row, np.int64)]])

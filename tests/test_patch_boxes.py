@@ -48,3 +48,38 @@ def test_boxes_within_is_the_array_form():
         limit = np.abs(rng.normal(size=k)) * 0.5 * (1 + 1e-9) + 1e-300
         gap = np.linalg.norm(np.maximum(np.maximum(lo[None] - q[:, None], q[:, None] - hi[None]), 0.0), axis=2)
         assert np.array_equal(np.nonzero(boxes_within(lo, hi, q, limit))[0], np.unique(np.nonzero(gap <= limit[:, None])[1]))
+
+
+def _rays_meet_numpy(lo, hi, origins, directions):
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / directions[:, None, :]
+        t0, t1 = (lo[None] - origins[:, None]) * inv, (hi[None] - origins[:, None]) * inv
+    t0, t1 = np.nan_to_num(t0, nan=-np.inf), np.nan_to_num(t1, nan=np.inf)
+    near, far = np.minimum(t0, t1).max(axis=2), np.maximum(t0, t1).min(axis=2)
+    meets = (far >= near) & (far >= 0)
+    return meets.any(axis=0), meets.any(axis=1)
+
+
+def test_rays_meet_is_the_array_form():
+    """`rays_meet`'s slab test gives numpy's answer for the same formula, also for rays parallel
+    to an axis, starting on a slab's plane or on a box's corner, and behind or inside a box."""
+    from acra.patch_boxes import rays_meet
+
+    rng = np.random.default_rng(2)
+    hits = 0
+    for _ in range(300):
+        m, n = rng.integers(0, 50), rng.integers(0, 30)
+        c = np.round(rng.normal(size=(m, 3)), 1)
+        h = np.round(np.abs(rng.normal(size=(m, 3))) * 0.3, 1)  # some boxes flat along an axis
+        lo, hi = c - h, c + h
+        o = np.round(rng.normal(size=(n, 3)) * 2, 1)  # on many boxes' planes
+        d = rng.normal(size=(n, 3))
+        d[rng.random((n, 3)) < 0.3] = 0.0  # parallel to axes
+        d[rng.random(n) < 0.05] = -0.0
+        if m and n:
+            o[0] = lo[0]  # on a corner
+        box_hit, ray_hit = rays_meet(lo, hi, o, d)
+        want_box, want_ray = _rays_meet_numpy(lo, hi, o, d)
+        assert np.array_equal(box_hit, want_box) and np.array_equal(ray_hit, want_ray)
+        hits += box_hit.sum()
+    assert hits > 100  # the cases meet boxes, not only miss them
