@@ -479,9 +479,9 @@ def run_acra(stage_path: Path, keyed: Keyed, work: Path, repeats: int) -> tuple[
         mesh = UsdGeom.Mesh(stage.GetPrimAtPath(path))
         counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), np.int64)
         indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), np.int64)
-        world = lambda f, p: apply_xform(keyed.def_xform[i][f], p)  # noqa: E731
-        pts = np.stack([world(f, np.asarray(mesh.GetPointsAttr().Get(float(fr)), np.float64)) for f, fr in enumerate(keyed.frames)])
-        ref = np.stack([world(f, output_layer.input_points(stage, path, float(fr))) for f, fr in enumerate(keyed.frames)])
+        xf = keyed.def_xform[i]
+        pts = np.stack([apply_xform(xf[f], np.asarray(mesh.GetPointsAttr().Get(float(fr)), np.float64)) for f, fr in enumerate(keyed.frames)])
+        ref = np.stack([apply_xform(xf[f], output_layer.input_points(stage, path, float(fr))) for f, fr in enumerate(keyed.frames)])
         shown.points.append(pts)
         shown.keyed.append(ref)
         # the layer stores float32: a pole's coincident vertices may differ by a float32 step

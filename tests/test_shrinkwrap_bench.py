@@ -37,8 +37,8 @@ def test_weld_closes_a_display_sphere_with_poles():
     there; welded, it is watertight and its volume is close to the ellipsoid's."""
     from acra import hspline as H
     from acra import shapes
-    from acra.tessellate import display_topology, evaluate_grid
     from acra.basis import Direction
+    from acra.tessellate import display_topology, evaluate_grid
 
     cvs, up, vp = shapes.sphere(8, 8, radii=(1.0, 1.0, 1.0))
     hs = H.from_grid(cvs, up, vp)
