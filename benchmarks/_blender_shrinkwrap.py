@@ -7,8 +7,10 @@ Runs inside the Blender venv's python (``bpy`` + its own numpy, nothing from thi
 IN.npz (written by `shrinkwrap.Keyed.save_npz`; Z up like Blender):
 
 * ``frames (F,) int64``; ``n_deformables``, ``n_targets`` (0-d int64)
-* ``def{i}_faces (f, 4) int64`` display quads; ``def{i}_points (F, n, 3) float64`` keyed shape,
-  world space (the object stays at the origin)
+* ``def{i}_counts (f,) int64`` and ``def{i}_indices (sum counts,) int64`` the display's faces as
+  USD's ``faceVertexCounts``/``faceVertexIndices`` (quads, and triangles where the display's
+  density changes); ``def{i}_points (F, n, 3) float64`` keyed shape, world space (the object
+  stays at the origin)
 * ``def{i}_targets (k,) int64`` which targets deformable ``i`` is shrinkwrapped against
 * ``target{k}_faces (t, 3) int64``; ``target{k}_points (1 or F, m, 3) float64`` object space (one
   sample: the shape never changes); ``target{k}_matrix (F, 4, 4) float64`` object-to-world,
@@ -35,10 +37,16 @@ import numpy as np
 from mathutils import Matrix
 
 
+def polygons(counts, indices):
+    """Faces of ``counts (f,)`` vertices each, read in order from ``indices``: a list of lists."""
+    return [list(map(int, face)) for face in np.split(np.asarray(indices, int), np.cumsum(counts)[:-1])]
+
+
 def new_mesh_object(name, points, faces):
-    """A mesh object at the world origin: ``points (n, 3)``, ``faces (f, k)`` polygons."""
+    """A mesh object at the world origin: ``points (n, 3)``, ``faces`` polygons (``(f, k)`` or a
+    list of vertex lists)."""
     me = bpy.data.meshes.new(name)
-    me.from_pydata(np.asarray(points, float).tolist(), [], np.asarray(faces, int).tolist())
+    me.from_pydata(np.asarray(points, float).tolist(), [], [list(map(int, face)) for face in faces])
     me.update()
     ob = bpy.data.objects.new(name, me)
     bpy.context.scene.collection.objects.link(ob)
@@ -83,7 +91,7 @@ def main():
     defs = []
     for i in range(n_def):
         pts = data[f"def{i}_points"]
-        ob = new_mesh_object(f"def{i}", pts[0], data[f"def{i}_faces"])
+        ob = new_mesh_object(f"def{i}", pts[0], polygons(data[f"def{i}_counts"], data[f"def{i}_indices"]))
         for k in data[f"def{i}_targets"]:
             m = ob.modifiers.new(f"shrinkwrap{k}", "SHRINKWRAP")
             m.target = targets[int(k)][0]

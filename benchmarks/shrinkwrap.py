@@ -10,17 +10,27 @@ What an animator would do without ACRA: put a Shrinkwrap modifier (nearest surfa
 mode *Outside*, offset 0) on the soft object, targeting the collider. Per frame this benchmark
 
 1. exports, in world space, the deformable's display mesh as the animator keyed it (the input
-   H-spline evaluated on its display topology, or on ``--samples`` steps per level-0 patch
-   edge) and every target's mesh and keyed matrix;
+   H-spline evaluated on the input's display topology, `DeformableModel.topology`: ``acra:samples``
+   steps per edge of the finest patch present, triangle fans where the density changes, faces
+   as USD's counts and indices) and every target's mesh and keyed matrix;
 2. runs Blender (``bpy``, in its own venv ``.venv-blender/``: the wheel pins numpy < 2) on them
    and times only the modifiers (``Modifier.execution_time``, median of ``--repeats``);
-3. runs ACRA on the same stage and frames (`pipeline.run.run_file`) and reads its output points
-   (with ``--samples``, its response surfaces evaluated on that grid);
-4. measures both results the same way (`pair_residual`, `displacement`): how deep a vertex of one
-   object still lies inside the other (trimesh ``contains`` + ``signed_distance``), also between
-   vertices (points sampled on the deformable's triangles), relative to the deformable's size
-   (its display mesh's bounding-box diagonal); and how far each method moved the vertices that
-   were NOT inside anything (Shrinkwrap moves only penetrating vertices: a crease; ACRA a dent).
+3. runs ACRA on the same stage and frames (`pipeline.run.run_file`) and reads back, with USD, its
+   output layer's display: ``faceVertexCounts``/``faceVertexIndices`` and the composed
+   ``points``. That topology is the union of the run's refinements, not the input's, so ACRA is
+   measured on its own mesh (its own `weld`), and its moves against the animator's surface on
+   that mesh (`pipeline.output_layer.input_points`);
+4. measures both results the same way (`pair_residual`, `displacement`), each on its own mesh:
+   how deep a vertex of one object still lies inside the other (trimesh ``contains`` +
+   ``signed_distance``), also between vertices (points sampled on the deformable's triangles),
+   relative to the deformable's size (its keyed display mesh's bounding-box diagonal, the same
+   for both); and how far each method moved the vertices that were NOT inside anything
+   (Shrinkwrap moves only penetrating vertices: a crease; ACRA a dent).
+
+``--samples N`` sets every deformable's ``acra:samples`` to N (an override layer over the stage),
+so both methods work on the display an animator with that setting sees: Shrinkwrap on the keyed
+display at N, ACRA on its output display at N. The ratio ACRA ms / Shrinkwrap ms is reported per
+collision frame.
 
 Every deformable is shrinkwrapped against every collider; of two deformables, the softer (lower
 ``acra:rigidity``) is shrinkwrapped against the stiffer one's keyed shape, which stays as keyed
@@ -103,8 +113,6 @@ class Keyed:
     ----------
     frames : (F,) int64
     def_paths : list[str]
-    def_quads : list of (f, 4) int64
-        Display topology of each deformable (fixed for the run).
     def_points : list of (F, n, 3) float64
         Keyed display mesh of each deformable (input H-spline, no response).
     def_xform : list of (F, 4, 4) float64
@@ -125,17 +133,14 @@ class Keyed:
     def_rigidity : list[float]
         ``acra:rigidity`` of each deformable (who is shrinkwrapped against whom).
     def_weld : list of Weld
-        Each deformable's display mesh welded at its poles and seams (from the first frame).
-    def_topology : list of GridTopology
-        The grid the deformables are evaluated on: their display topology, or ``samples`` steps
-        per level-0 patch edge when given.
-    samples : int or None
-        The ``--samples`` override (None: each deformable's ``acra:samples``).
+        Each deformable's keyed display mesh welded at its poles (from the first frame).
+    def_topology : list of MeshTopology
+        Each deformable's input display topology (`DeformableModel.topology`): the faces
+        Shrinkwrap's mesh is built from (``counts``, ``indices``).
     """
 
     frames: np.ndarray
     def_paths: list
-    def_quads: list
     def_points: list
     def_xform: list
     tgt_paths: list
@@ -146,7 +151,6 @@ class Keyed:
     def_rigidity: list
     def_weld: list
     def_topology: list
-    samples: int | None = None
 
     def targets_of(self, i: int) -> list[int]:
         """Shrinkwrap targets of deformable ``i``: every collider, and every other deformable
@@ -169,7 +173,8 @@ class Keyed:
         """The file `_blender_shrinkwrap.py` reads (its docstring lists the arrays)."""
         arrays = {"frames": self.frames, "n_deformables": np.int64(len(self.def_paths)), "n_targets": np.int64(len(self.tgt_paths))}
         for i in range(len(self.def_paths)):
-            arrays[f"def{i}_faces"] = self.def_quads[i]
+            arrays[f"def{i}_counts"] = np.asarray(self.def_topology[i].counts, np.int64)
+            arrays[f"def{i}_indices"] = np.asarray(self.def_topology[i].indices, np.int64)
             arrays[f"def{i}_points"] = self.def_points[i]
             arrays[f"def{i}_targets"] = np.array(self.targets_of(i), np.int64)
         for k in range(len(self.tgt_paths)):
@@ -189,21 +194,28 @@ def parse_frames(arg: str | None, start: int, end: int) -> np.ndarray:
     return np.arange(a, b + 1, dtype=np.int64)
 
 
-def topology_of(model, samples: int | None):
-    """A deformable's display topology, or the same grid with ``samples`` steps per patch edge."""
-    from acra.basis import Direction
-    from acra.tessellate import display_topology
+def with_samples(stage_path: Path, samples: int, work: Path) -> Path:
+    """A layer in ``work`` over ``stage_path`` that sets every deformable's ``acra:samples`` to
+    ``samples``: the display an animator with that setting sees, for both methods."""
+    from pxr import Sdf
 
-    if samples is None:
-        return model.topology
-    return display_topology(Direction(model.nu, model.u_periodic), Direction(model.nv, model.v_periodic), samples)
+    from pipeline import usdio
+
+    scene = usdio.read_scene(usdio.open_input(stage_path))
+    layer = Sdf.Layer.CreateNew(str(work / f"{Path(stage_path).stem}-samples{samples}.usda"))
+    layer.subLayerPaths.append(str(Path(stage_path).resolve()))
+    for m in scene.deformables:
+        prim = Sdf.CreatePrimInLayer(layer, m.path)
+        Sdf.AttributeSpec(prim, "acra:samples", Sdf.ValueTypeNames.Int).default = int(samples)
+    layer.Save()
+    return Path(layer.realPath)
 
 
-def export_keyed(stage_path: Path, frames: str | None = None, samples: int | None = None) -> Keyed:
+def export_keyed(stage_path: Path, frames: str | None = None) -> Keyed:
     """Evaluate the animator's input at every frame (`pipeline.usdio.state_at`), in world space,
-    on each deformable's display grid (or on ``samples`` steps per level-0 patch edge)."""
+    on each deformable's input display topology (`DeformableModel.topology`)."""
     from acra import hspline as H
-    from acra.tessellate import evaluate_grid
+    from acra.tessellate import grid_samples
     from pipeline import usdio
     from pipeline.model import apply_xform
 
@@ -211,7 +223,7 @@ def export_keyed(stage_path: Path, frames: str | None = None, samples: int | Non
     scene = usdio.read_scene(stage)
     fr = parse_frames(frames, scene.start, scene.end)
     nd = len(scene.deformables)
-    topo = [topology_of(m, samples) for m in scene.deformables]
+    topo = [m.topology for m in scene.deformables]
     pts = [np.zeros((len(fr), t.u.size, 3)) for t in topo]
     loc = [np.zeros_like(p) for p in pts]
     dx = [np.zeros((len(fr), 4, 4)) for _ in range(nd)]
@@ -220,7 +232,7 @@ def export_keyed(stage_path: Path, frames: str | None = None, samples: int | Non
         dstates, cstates = usdio.state_at(stage, scene, float(frame))
         for i, s in enumerate(dstates):
             det = H.details(s.surface) if s.surface.depth > 1 else None
-            local, _ = evaluate_grid(s.surface, topo[i], det)
+            local, _ = grid_samples(s.surface, topo[i], det, normals=False)
             pts[i][f], loc[i][f], dx[i][f] = apply_xform(s.xform, local), local, s.xform
         for j, c in enumerate(cstates):
             cx[j][f] = c.xform
@@ -229,7 +241,6 @@ def export_keyed(stage_path: Path, frames: str | None = None, samples: int | Non
     return Keyed(
         frames=fr,
         def_paths=[m.path for m in scene.deformables],
-        def_quads=[t.quads for t in topo],
         def_points=pts,
         def_xform=dx,
         tgt_paths=[c.path for c in scene.colliders] + [m.path for m in scene.deformables],
@@ -241,7 +252,6 @@ def export_keyed(stage_path: Path, frames: str | None = None, samples: int | Non
         def_rigidity=[float(m.controls.rigidity) for m in scene.deformables],
         def_weld=welds,
         def_topology=topo,
-        samples=samples,
     )
 
 
@@ -428,20 +438,34 @@ def run_blender(python: Path, keyed: Keyed, work: Path, repeats: int, wrap_metho
         return {k: z[k] for k in z.files}
 
 
-def run_acra(stage_path: Path, keyed: Keyed, work: Path, repeats: int) -> tuple[list, np.ndarray]:
+@dataclass
+class Shown:
+    """One method's deformables as its user sees them, each on its own mesh: per deformable,
+    ``points (F, n, 3) float64`` world space, the mesh's ``weld`` (`Weld`), and ``keyed
+    (F, n, 3) float64`` the animator's surface at the same vertices (what the method moved from);
+    ``uv`` each vertex's surface parameter ``(n, 2)`` (vertex correspondence between methods)."""
+
+    points: list
+    welds: list
+    keyed: list
+    uv: list
+
+
+def run_acra(stage_path: Path, keyed: Keyed, work: Path, repeats: int) -> tuple[list, np.ndarray, Shown]:
     """ACRA on the same stage and frames, ``repeats`` times.
 
     Returns the last run's per-frame stats, the median over runs of each frame's ``ms_total``
-    ``(F,)``, and its output points in world space: ``list of (F, n, 3) float64`` per deformable
-    (with ``--samples``, the output's response surfaces evaluated on that grid instead).
+    ``(F,)``, and its output display read back with USD (`Shown`): the output's
+    ``faceVertexCounts``/``faceVertexIndices`` (the run's own topology, welded on its own) and
+    composed ``points`` in world space, with the animator's surface on that topology
+    (`pipeline.output_layer.input_points`, float32 as the layer stores points).
     """
     from pxr import Usd, UsdGeom
 
-    from acra import hspline as H
-    from acra.tessellate import evaluate_grid
+    from acra.tessellate import MeshTopology
     from pipeline import output_layer
-    from pipeline.run import run_file
     from pipeline.model import apply_xform
+    from pipeline.run import run_file
 
     span = f"{keyed.frames[0]}:{keyed.frames[-1]}"
     out = work / "acra.usda"
@@ -450,18 +474,20 @@ def run_acra(stage_path: Path, keyed: Keyed, work: Path, repeats: int) -> tuple[
         report = run_file(stage_path, output=out, frames=span)
         times.append([s.ms_total for s in report.stats])
     stage = Usd.Stage.Open(str(out))
-    points = []
+    shown = Shown([], [], [], [])
     for i, path in enumerate(keyed.def_paths):
-        if keyed.samples is None:
-            attr = UsdGeom.Mesh(stage.GetPrimAtPath(path)).GetPointsAttr()
-            local = [np.asarray(attr.Get(float(fr)), np.float64) for fr in keyed.frames]
-        else:
-            local = []
-            for fr in keyed.frames:
-                hs = output_layer.read_output_hierarchy(stage, path, float(fr))
-                local.append(evaluate_grid(hs, keyed.def_topology[i], H.details(hs) if hs.depth > 1 else None)[0])
-        points.append(np.stack([apply_xform(keyed.def_xform[i][f], p) for f, p in enumerate(local)]))
-    return report.stats, np.median(np.array(times), axis=0), points
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(path))
+        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), np.int64)
+        indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), np.int64)
+        xf = keyed.def_xform[i]
+        pts = np.stack([apply_xform(xf[f], np.asarray(mesh.GetPointsAttr().Get(float(fr)), np.float64)) for f, fr in enumerate(keyed.frames)])
+        ref = np.stack([apply_xform(xf[f], output_layer.input_points(stage, path, float(fr))) for f, fr in enumerate(keyed.frames)])
+        shown.points.append(pts)
+        shown.keyed.append(ref)
+        # the layer stores float32: a pole's coincident vertices may differ by a float32 step
+        shown.welds.append(weld(ref[0], MeshTopology(np.zeros(0), np.zeros(0), counts, indices).triangles(), tol=1e-6))
+        shown.uv.append(output_layer.read_display_uv(stage, path))
+    return report.stats, np.median(np.array(times), axis=0), shown
 
 
 # --------------------------------------------------------------------------------------------
@@ -478,24 +504,49 @@ class FrameRow:
     residual: tuple
     moved: tuple
     opposite: int
-    acra_own: float = 0.0  # ACRA's own residual (FrameStats.residual_rel, its collision tessellation)
+    acra_own: float = 0.0  # ACRA's own residual (FrameStats.residual_rel, its certified bound on its display)
+
+    @property
+    def ratio(self) -> float:
+        """ACRA ms over Shrinkwrap ms at this frame (above 1: ACRA is slower)."""
+        return self.ms[0] / self.ms[1] if self.ms[1] > 0 else float("inf")
 
 
-def compare(keyed: Keyed, acra_points: list, sw_points: list, ms_acra: np.ndarray, ms_sw: np.ndarray) -> list[FrameRow]:
-    """Measure the keyed input and both results with the same functions, frame by frame.
+def shrinkwrap_shown(keyed: Keyed, sw: dict) -> Shown:
+    """Shrinkwrap's result (`_blender_shrinkwrap.py`'s OUT.npz) on the keyed display mesh."""
+    points = [sw[f"def{i}_points"] for i in range(len(keyed.def_paths))]
+    uv = [np.column_stack([t.u, t.v]) for t in keyed.def_topology]
+    return Shown(points, list(keyed.def_weld), list(keyed.def_points), uv)
+
+
+def common_vertices(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(ia, ib)`` of the vertices of two display meshes of one object at the same surface
+    parameter (``a (n, 2)``, ``b (m, 2)``, `Shown.uv`): both topologies sit on the same dyadic
+    lattice, so a vertex both have carries the same parameter, bit for bit."""
+    ka = {(float(u), float(v)): k for k, (u, v) in enumerate(a)}
+    pairs = [(ka[(float(u), float(v))], k) for k, (u, v) in enumerate(b) if (float(u), float(v)) in ka]
+    ia, ib = (np.array(x, np.int64) for x in zip(*pairs)) if pairs else (np.zeros(0, np.int64),) * 2
+    return ia, ib
+
+
+def compare(keyed: Keyed, acra: Shown, sw: Shown, ms_acra: np.ndarray, ms_sw: np.ndarray) -> list[FrameRow]:
+    """Measure the keyed input and both results with the same functions, frame by frame, each on
+    its own mesh (ACRA's output display, Shrinkwrap's keyed display).
 
     Pairs are every deformable with every collider and every later deformable, measured between
     the results (for Shrinkwrap: shrinkwrapped meshes and colliders; for the keyed row: input).
-    Per frame, penetrations take the worst pair, displacements add up over deformables.
+    Per frame, penetrations take the worst pair, displacements add up over deformables. Sizes are
+    the keyed display's, the same for both methods.
     """
     rows = []
     nd = len(keyed.def_paths)
     colliders = [k for k, d in enumerate(keyed.tgt_deformable) if d < 0]
+    common = [common_vertices(acra.uv[i], sw.uv[i]) for i in range(nd)]
     for f, frame in enumerate(keyed.frames):
         sizes = [size_of(keyed.def_points[i][f]) for i in range(nd)]
 
-        def meshes(pts):
-            return [(keyed.def_weld[i].apply(pts[i][f]), keyed.def_weld[i].triangles) for i in range(nd)]
+        def meshes(shown, pts):
+            return [(shown.welds[i].apply(pts[i][f]), shown.welds[i].triangles) for i in range(nd)]
 
         def worst(objs):
             best = Penetration(0.0, 0.0, 0, 0.0)
@@ -510,27 +561,26 @@ def compare(keyed: Keyed, acra_points: list, sw_points: list, ms_acra: np.ndarra
                     best = Penetration(max(best.max, p.max), 0.0, best.count + p.count, max(best.faces_max, p.faces_max))
             return Penetration(best.max, float(np.mean(means)) if means else 0.0, best.count, best.faces_max)
 
-        inputs = meshes(keyed.def_points)
-        contact = []
-        for i in range(nd):
-            vertices = keyed.def_points[i][f]
+        def contact(vertices, i):
+            """Vertices of deformable ``i``'s keyed shape ``(n, 3)`` inside any other object."""
             depth = np.zeros(len(vertices))
             for k in (k for k, d in enumerate(keyed.tgt_deformable) if d != i):  # inside anything
                 mesh = closed_mesh(keyed.target_world(k, f), keyed.tgt_tris[k])
                 depth = np.maximum(depth, depth_inside(vertices, mesh))
-            contact.append(depth > 0)
+            return depth > 0
 
-        def moved(pts):
-            ds = [displacement(keyed.def_points[i][f], pts[i][f], contact[i], sizes[i]) for i in range(nd)]
+        def moved(shown):
+            ds = [displacement(shown.keyed[i][f], shown.points[i][f], contact(shown.keyed[i][f], i), sizes[i]) for i in range(nd)]
             return Displacement(sum(d.moved for d in ds), sum(d.free_moved for d in ds), max(d.free_max for d in ds), max(d.max for d in ds))
 
         rows.append(FrameRow(
             int(frame),
-            worst(inputs),
+            worst(meshes(sw, sw.keyed)),
             (float(ms_acra[f]), float(ms_sw[f])),
-            (worst(meshes(acra_points)), worst(meshes(sw_points))),
-            (moved(acra_points), moved(sw_points)),
-            sum(opposite_moves(keyed.def_points[i][f], acra_points[i][f], sw_points[i][f], sizes[i]) for i in range(nd)),
+            (worst(meshes(acra, acra.points)), worst(meshes(sw, sw.points))),
+            (moved(acra), moved(sw)),
+            sum(opposite_moves(sw.keyed[i][f][ib], acra.points[i][f][ia], sw.points[i][f][ib], sizes[i])
+                for i, (ia, ib) in enumerate(common)),
         ))
     return rows
 
@@ -543,20 +593,20 @@ def tables(rows: list[FrameRow]) -> str:
     """Two markdown tables over ``rows`` (the collision frames) with a median row each."""
     med = lambda xs: float(np.median(xs)) if len(xs) else 0.0  # noqa: E731
     t1 = [
-        "| frame | keyed: vertices inside / max depth | ms ACRA | ms Shrinkwrap | residual max ACRA | residual max Shrinkwrap "
+        "| frame | keyed: vertices inside / max depth | ms ACRA | ms Shrinkwrap | ACRA / Shrinkwrap | residual max ACRA | residual max Shrinkwrap "
         "| residual mean ACRA | residual mean Shrinkwrap | between vertices ACRA | between vertices Shrinkwrap | ACRA's own residual |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         a, s = r.residual
         t1.append(
-            f"| {r.frame} | {r.keyed.count} / {_e(r.keyed.max)} | {r.ms[0]:.1f} | {r.ms[1]:.2f} | {_e(a.max)} | {_e(s.max)} "
+            f"| {r.frame} | {r.keyed.count} / {_e(r.keyed.max)} | {r.ms[0]:.1f} | {r.ms[1]:.2f} | {r.ratio:.1f}× | {_e(a.max)} | {_e(s.max)} "
             f"| {_e(a.mean)} | {_e(s.mean)} | {_e(a.faces_max)} | {_e(s.faces_max)} | {_e(r.acra_own)} |"
         )
     col = lambda get: [get(r) for r in rows]  # noqa: E731
     t1.append(
         f"| **median** | {med(col(lambda r: r.keyed.count)):.0f} / {_e(med(col(lambda r: r.keyed.max)))} "
-        f"| {med(col(lambda r: r.ms[0])):.1f} | {med(col(lambda r: r.ms[1])):.2f} "
+        f"| {med(col(lambda r: r.ms[0])):.1f} | {med(col(lambda r: r.ms[1])):.2f} | {med(col(lambda r: r.ratio)):.1f}× "
         + " ".join(f"| {_e(med(col(get)))}" for get in (
             lambda r: r.residual[0].max, lambda r: r.residual[1].max, lambda r: r.residual[0].mean,
             lambda r: r.residual[1].mean, lambda r: r.residual[0].faces_max, lambda r: r.residual[1].faces_max,
@@ -605,9 +655,13 @@ def section(name: str, command: str, rows: list[FrameRow], quiet: list[FrameRow]
         f"collision): {', '.join(str(r.frame) for r in rows) or 'none'}; {notes['vertices']}. "
         f"Residuals and moves are fractions of the deformable's size (bounding-box diagonal of its "
         f"keyed mesh at the frame: {notes['size']}; of two deformables, the smaller); a vertex *moved* when it moved more than "
-        f"{MOVED:g} of it. *Between vertices*: the deepest of {notes['samples']} points sampled "
-        f"inside each of the deformable's triangles. *ACRA's own residual*: what ACRA's detection "
-        f"reported after its response (`FrameStats.residual_rel`, on its collision tessellation).\n\n"
+        f"{MOVED:g} of it. Each method is measured on its own mesh: Shrinkwrap on the keyed display, "
+        f"ACRA on its output layer's display ({notes['acra_vertices']}); *moved opposite ways* counts "
+        f"the vertices both meshes have (same surface parameter). *Between vertices*: the deepest of "
+        f"{notes['samples']} points sampled inside each of the deformable's triangles. *ACRA's own "
+        f"residual*: what ACRA reported for its output (`FrameStats.residual_rel`, its certified bound "
+        f"on its display triangles). *ACRA / Shrinkwrap*: ms ACRA over ms Shrinkwrap at the frame "
+        f"(above 1: ACRA is slower).\n\n"
         f"{tables(rows)}\n{quiet_frames(quiet) if quiet else 'Every frame collides.'}\n<!-- /bench:{name} -->\n"
     )
 
@@ -626,8 +680,9 @@ def update_doc(doc: Path, name: str, text: str) -> None:
 
 def collect(src: Path, frames: str | None, python: Path, repeats: int, acra_repeats: int, samples: int | None = None,
             wrap_method: str = "NEAREST_SURFACEPOINT"):
-    """Both runs on scene file or stage ``src``: ``(keyed, shrinkwrap npz dict, ACRA stats,
-    ACRA median ms per frame (F,), ACRA world points per deformable)``."""
+    """Both runs on scene file or stage ``src`` (with ``samples``, every deformable's
+    ``acra:samples`` set to it, `with_samples`): ``(keyed, shrinkwrap npz dict, ACRA stats, ACRA
+    median ms per frame (F,), ACRA's output display (`Shown`))``."""
     from pipeline import usdio
 
     with tempfile.TemporaryDirectory(prefix="acra-shrinkwrap-") as tmp:
@@ -637,10 +692,12 @@ def collect(src: Path, frames: str | None, python: Path, repeats: int, acra_repe
             stage_path = usdio.load_scene_file(work / src.name)
         else:
             stage_path = src
-        keyed = export_keyed(stage_path, frames, samples)
+        if samples is not None:
+            stage_path = with_samples(stage_path, samples, work)
+        keyed = export_keyed(stage_path, frames)
         sw = run_blender(python, keyed, work, repeats, wrap_method)
-        stats, ms_acra, acra_points = run_acra(stage_path, keyed, work, acra_repeats)
-    return keyed, sw, stats, ms_acra, acra_points
+        stats, ms_acra, acra = run_acra(stage_path, keyed, work, acra_repeats)
+    return keyed, sw, stats, ms_acra, acra
 
 
 def revision() -> str:
@@ -657,7 +714,8 @@ def main(argv=None) -> int:
     ap.add_argument("--venv", type=Path, help="an existing venv with bpy (default: create .venv-blender/ once)")
     ap.add_argument("--repeats", type=int, default=7, help="Shrinkwrap evaluations per frame, median (default 7)")
     ap.add_argument("--acra-repeats", type=int, default=3, help="ACRA runs, median per frame (default 3)")
-    ap.add_argument("--samples", type=int, help="evaluate both on this many steps per level-0 patch edge (default: acra:samples)")
+    ap.add_argument("--samples", type=int, help="set every deformable's acra:samples (steps per edge of the finest patch present) "
+                    "to this for both methods (default: the stage's)")
     ap.add_argument("--wrap-method", default="NEAREST_SURFACEPOINT", choices=("NEAREST_SURFACEPOINT", "PROJECT", "TARGET_PROJECT"),
                     help="Shrinkwrap's wrap method (default %(default)s; PROJECT casts along the vertex normal both ways)")
     ap.add_argument("--no-doc", action="store_true", help="print only; do not update docs/shrinkwrap.md")
@@ -670,10 +728,9 @@ def main(argv=None) -> int:
         return 1
 
     t0 = time.perf_counter()
-    keyed, sw, stats, ms_acra, acra_points = collect(src, args.frames, python, args.repeats, args.acra_repeats, args.samples,
-                                                     args.wrap_method)
-    sw_points = [sw[f"def{i}_points"] for i in range(len(keyed.def_paths))]
-    all_rows = compare(keyed, acra_points, sw_points, ms_acra, sw["ms_modifier"])
+    keyed, sw, stats, ms_acra, acra = collect(src, args.frames, python, args.repeats, args.acra_repeats, args.samples,
+                                              args.wrap_method)
+    all_rows = compare(keyed, acra, shrinkwrap_shown(keyed, sw), ms_acra, sw["ms_modifier"])
     for r, s in zip(all_rows, stats):
         r.acra_own = float(s.residual_rel)
     hit = [bool(r.keyed.count or s.in_collision) for r, s in zip(all_rows, stats)]
@@ -703,6 +760,9 @@ def main(argv=None) -> int:
             for i, p in enumerate(keyed.def_paths)),
         "size": ", ".join(f"{p} {size_of(keyed.def_points[i][0]):.3g}" for i, p in enumerate(keyed.def_paths)) + " units at the first frame",
         "samples": len(face_samples(np.eye(3), np.array([[0, 1, 2]]))),
+        "acra_vertices": ", ".join(f"{p} {len(acra.points[i][0])} vertices, {len(acra.welds[i].triangles)} triangles welded, against "
+                                   f"{len(keyed.def_points[i][0])} and {len(keyed.def_weld[i].triangles)} keyed"
+                                   for i, p in enumerate(keyed.def_paths)),
     }
     name = src.stem + (f"-samples{args.samples}" if args.samples else "") + (f"-frames{args.frames}" if args.frames else "")
     name += "" if args.wrap_method == "NEAREST_SURFACEPOINT" else f"-{args.wrap_method.lower()}"

@@ -37,8 +37,8 @@ def test_weld_closes_a_display_sphere_with_poles():
     there; welded, it is watertight and its volume is close to the ellipsoid's."""
     from acra import hspline as H
     from acra import shapes
-    from acra.tessellate import display_topology, evaluate_grid
     from acra.basis import Direction
+    from acra.tessellate import display_topology, evaluate_grid
 
     cvs, up, vp = shapes.sphere(8, 8, radii=(1.0, 1.0, 1.0))
     hs = H.from_grid(cvs, up, vp)
@@ -115,7 +115,7 @@ def test_opposite_moves_counts_vertices_pushed_different_ways():
 
 
 def test_targets_soft_is_wrapped_around_stiff():
-    k = S.Keyed(np.arange(1), ["/A", "/B"], [], [], [], ["/C", "/A", "/B"], [], [], [], [-1, 0, 1], [10.0, 80.0], [], [])
+    k = S.Keyed(np.arange(1), ["/A", "/B"], [], [], ["/C", "/A", "/B"], [], [], [], [-1, 0, 1], [10.0, 80.0], [], [])
     assert k.targets_of(0) == [0, 2] and k.targets_of(1) == [0]
     k.def_rigidity = [50.0, 50.0]
     assert k.targets_of(0) == [0] and k.targets_of(1) == [0, 1]
@@ -134,7 +134,8 @@ def test_export_is_world_space_and_matches_the_display_topology(keyed_box):
     keyed, _ = keyed_box
     assert list(keyed.frames) == [10, 11] and keyed.def_paths == ["/World/Sheet"]
     sheet = keyed.def_points[0]
-    assert sheet.shape == (2, 37 * 37, 3) and keyed.def_quads[0].shape == (36 * 36, 4)
+    topo = keyed.def_topology[0]  # the input display: no finer level keyed, so a 37 x 37 grid of quads
+    assert sheet.shape == (2, 37 * 37, 3) and topo.counts.shape == (36 * 36,) and np.all(topo.counts == 4)
     np.testing.assert_allclose(sheet[:, :, 2], 0.0, atol=1e-12)  # the flat sheet, as keyed
     box10, box11 = keyed.target_world(0, 0), keyed.target_world(0, 1)
     # the scene's keys: z 0.55 at frame 10, -0.2 at 11, box height 1, x 0.2, y -0.1
@@ -159,6 +160,8 @@ def test_npz_holds_what_the_blender_side_reads(keyed_box):
     assert z["target0_points"].shape == (1, 8, 3) and z["target0_matrix"].shape == (2, 4, 4)
     assert z["target1_points"].shape[0] == 1  # the sheet is not animated: one object-space sample
     np.testing.assert_array_equal(z["def0_targets"], [0])
+    np.testing.assert_array_equal(z["def0_counts"], keyed.def_topology[0].counts)
+    assert z["def0_indices"].shape == (int(z["def0_counts"].sum()),) and z["def0_indices"].max() == 37 * 37 - 1
 
 
 def test_update_doc_replaces_only_its_section(tmp_path):
@@ -182,3 +185,22 @@ def test_tables_have_a_row_per_frame_and_a_median():
 def test_an_explicit_venv_without_python_is_an_error(tmp_path):
     with pytest.raises(RuntimeError, match="no python"):
         S.ensure_venv(tmp_path / "nothing")
+
+
+def test_common_vertices_match_by_surface_parameter():
+    a = np.array([[0.0, 0.0], [0.5, 0.0], [1.0, 0.25], [1.0, 1.0]])
+    b = np.array([[1.0, 1.0], [0.0, 0.0], [0.75, 0.0]])
+    ia, ib = S.common_vertices(a, b)
+    np.testing.assert_array_equal(ia, [3, 0])
+    np.testing.assert_array_equal(ib, [0, 1])
+
+
+def test_with_samples_overrides_every_deformable(keyed_box):
+    from pipeline import usdio
+
+    _, d = keyed_box
+    layer = S.with_samples(d / "box_into_sheet.usda", 2, d)  # the scene's own is 4
+    scene = usdio.read_scene(usdio.open_input(layer))
+    assert [m.controls.samples for m in scene.deformables] == [2]
+    keyed = S.export_keyed(layer, "10:10")
+    assert keyed.def_points[0].shape == (1, 19 * 19, 3)  # 2 steps per edge of its 9 x 9 level-0 patches
