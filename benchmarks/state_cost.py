@@ -24,7 +24,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from pxr import Usd, UsdGeom
+from pxr import Usd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -116,7 +116,6 @@ def drift(tmp: Path, name: str = "balloon", measure: str = "volume") -> None:
     stage = usdio.open_input(path)
     scene = usdio.read_scene(stage)
     result, stats = F.run_frames(stage, scene, list(range(scene.start, scene.end + 1)))
-    inp = Usd.Stage.Open(str(path))
     print(f"\n{name}, display {measure} / the animator's")
     names = [m.path for m in scene.deformables]
     print("| frame | in collision | " + " | ".join(names) + " |")

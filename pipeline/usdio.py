@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdPhysics, Vt
 
-from acra.basis import Direction
 from acra.hspline import HierarchyArrays, HSpline, from_arrays, from_grid
 from acra.tessellate import run_topology
 

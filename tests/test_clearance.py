@@ -206,9 +206,9 @@ def test_compiled_part_is_the_array_form_bit_for_bit(seed):
     for target, copy in zip(copies, range(len(v) - 6, len(v))):
         pick = (faces == target) & (rng.uniform(size=faces.shape) < 0.5)
         faces[pick] = copy
-    for outward, given in ((1.0, None), (-1.0, None), (1.0, scale), (-1.0, scale)):
-        a = C.solid(v, faces, part=True, outward=outward, scale=given)
-        b = C.solid(v, faces, part=True, outward=outward, scale=given, compiled=False)
+    for outward, size in ((1.0, None), (-1.0, None), (1.0, scale), (-1.0, scale)):
+        a = C.solid(v, faces, part=True, outward=outward, scale=size)
+        b = C.solid(v, faces, part=True, outward=outward, scale=size, compiled=False)
         for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds", "facet", "facet_start",
                      "facet_faces"):
             x, y = getattr(a, name), getattr(b, name)

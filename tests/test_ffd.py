@@ -100,7 +100,6 @@ def test_sequential_composition_composes_maps():
 
 
 def test_animation_morph_object_through_lattice_and_lattice_through_object():
-    rng = np.random.default_rng(5)
     lat = F.make_lattice([0, 0, 0], [4, 0, 0], [0, 1, 0], [0, 0, 1], (4, 2, 2))
     ref = F.lattice_points(lat)
     bump = ref.copy()

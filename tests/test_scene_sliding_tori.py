@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from conftest import surface_moves
-from scenes import sliding_tori as S
 
 NAME, LEFT, RIGHT = "sliding_tori", "/World/Left", "/World/Slider/Right"
 MAJOR, MINOR = 1.0, 0.35
