@@ -633,6 +633,7 @@ def respond(
     max_bytes: int | None = None,
     held: DataPoints | None = None,
     rcond: float = 1e-4,
+    amplify: float | None = None,
 ) -> tuple[H.HSpline, ResponseReport]:
     """Move a surface so it passes through its data points (thesis §4.3.4 prolongation).
 
@@ -662,6 +663,9 @@ def respond(
         Eigenvalue cut-off of the direct solves (`interpolate.min_norm_solve`): modes of the
         points' Gram matrix below ``rcond`` times its largest eigenvalue are dropped. A mode of
         relative eigenvalue ``λ`` multiplies the points' disagreement along it by ``1/√λ``.
+    amplify : float or None
+        The direct solves also drop a mode below 1e-3 of the largest eigenvalue whose CV move
+        exceeds ``amplify`` times the largest point move asked (`interpolate.min_norm_solve`).
 
     Returns
     -------
@@ -732,7 +736,7 @@ def respond(
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
-            dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond)
+            dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond, amplify=amplify)
             hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det))
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:
@@ -748,7 +752,7 @@ def respond(
                 hs, det = _redetail(hs, det, _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det))
             if rest.size:  # points without detail take the share as deformation
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
-                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond)
+                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond, amplify=amplify)
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det))
         applied = applied + np.where(present, a, 0.0)
     hs, det = _close_rings(hs, det, rings, controls.refine)
