@@ -245,7 +245,8 @@ def dense_bytes(k: int, p: int) -> int:
     return 8 * (2 * k * p + 3 * k * k)
 
 
-def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_bytes: int | None = None) -> np.ndarray:
+def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_bytes: int | None = None,
+                   amplify: float | None = None, weak: float = 1e-3) -> np.ndarray:
     """Exact minimum-norm CV moves ``W^T (W W^T)^+ dQ`` for the active points.
 
     The ``K × K`` Gram matrix is inverted through its eigen-decomposition with eigenvalues
@@ -261,6 +262,11 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     before anything is allocated, since a contact's extent, and so ``K`` and ``P``, is known only
     once it is found.
 
+    ``amplify`` (None: off) also drops a mode below ``weak`` times the largest eigenvalue whose CV
+    move, ``|v^T dQ| / √λ``, exceeds ``amplify`` times the largest wanted point move: such a mode
+    fits the points' disagreement, not a move any of them asks (one point's exact fit moves a
+    cubic's CVs at most 16/9 of its ask), while a weak mode the asks do need keeps its share.
+
     Returns
     -------
     (P, 3) float64
@@ -273,16 +279,21 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     W = pw.dense()[act]
     lam, vec = np.linalg.eigh(W @ W.T)
     keep = lam > rcond * lam[-1]
+    if amplify is not None:
+        along = vec.T @ dq[act]
+        moves = np.linalg.norm(along, axis=1) / np.sqrt(np.maximum(lam, np.finfo(float).tiny))
+        keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.linalg.norm(dq[act], axis=1).max()))
     coef = vec[:, keep].T @ dq[act] / lam[keep][:, None]
     return W.T @ (vec[:, keep] @ coef)
 
 
 def solve(pw: PointWeights, dq: np.ndarray, method: str = "direct", iterations: int = 5, tol: float = 0.0,
-          max_bytes: int | None = None, rcond: float = 1e-4) -> np.ndarray:
+          max_bytes: int | None = None, rcond: float = 1e-4, amplify: float | None = None) -> np.ndarray:
     """CV moves for wanted point moves, by ``"direct"`` (`min_norm_solve` with its eigenvalue cut-off
-    ``rcond``, its dense arrays bounded by ``max_bytes``) or ``"blend"`` (memory linear in the weights)."""
+    ``rcond`` and its rule for weak modes ``amplify``, its dense arrays bounded by ``max_bytes``) or
+    ``"blend"`` (memory linear in the weights)."""
     if method == "direct":
-        return min_norm_solve(pw, dq, rcond=rcond, max_bytes=max_bytes)
+        return min_norm_solve(pw, dq, rcond=rcond, max_bytes=max_bytes, amplify=amplify)
     if method == "blend":
         return iterate_blend(pw, dq, iterations, tol)[0]
     raise ValueError(f"unknown interpolation method {method!r} (use 'direct' or 'blend')")

@@ -651,6 +651,7 @@ def respond(
     max_bytes: int | None = None,
     held: DataPoints | None = None,
     rcond: float = 1e-4,
+    amplify: float | None = None,
 ) -> tuple[H.HSpline, ResponseReport]:
     """Move a surface so it passes through its data points (thesis §4.3.4 prolongation).
 
@@ -680,6 +681,10 @@ def respond(
         Eigenvalue cut-off of the direct solves (`interpolate.min_norm_solve`): modes of the
         points' Gram matrix below ``rcond`` times its largest eigenvalue are dropped. A mode of
         relative eigenvalue ``λ`` multiplies the points' disagreement along it by ``1/√λ``.
+    amplify : float or None
+        The direct solves also drop a mode below 1e-3 of the largest eigenvalue whose CV move
+        exceeds ``amplify`` times the largest point move asked (`interpolate.min_norm_solve`),
+        except on the last deforming level when finer absorbing levels only turn or translate.
 
     Returns
     -------
@@ -709,6 +714,11 @@ def respond(
     # closed end, and without it dog_head_spike's frame 15 needs a third round.
     fan = {(axis, end): not (hs.v if axis == 0 else hs.u).periodic for axis, end in H.closed_ends(hs)}
     finest = int(np.nonzero(controls.absorption > 0)[0].max()) if np.any(controls.absorption > 0) else -1
+    # the last level that deforms, where finer absorbing levels only turn or translate their
+    # detail, keeps every mode above ``rcond`` (`amplify`): what it leaves unfitted no later level
+    # can reshape
+    shaping = np.nonzero((controls.absorption > 0) & (controls.deform > 0))[0]
+    exact = int(shaping.max()) if shaping.size and shaping.max() < finest else -1
     q0 = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
@@ -749,7 +759,8 @@ def respond(
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
-            dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond)
+            dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
+                       amplify=None if level == exact else amplify)
             hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det), (level,))
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:
@@ -765,7 +776,8 @@ def respond(
                 hs, det = _redetail(hs, det, _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det), (level,))
             if rest.size:  # points without detail take the share as deformation
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
-                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond)
+                dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
+                           amplify=None if level == exact else amplify)
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det), (level,))
         applied = applied + np.where(present, a, 0.0)
     hs, det = _close_rings(hs, det, rings, controls.refine)

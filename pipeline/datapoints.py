@@ -30,7 +30,7 @@ from pipeline.model import apply_inverse, apply_xform
 
 __all__ = ["data_points_for", "collider_points_for", "rim_points", "visible_points", "deepest_shown", "corrects",
            "with_shown", "spread", "deepest_instead", "group_level", "pinned", "CLEAR", "MEET", "THIN_GAP", "PIN_GAP",
-           "HOLD_GAP", "CORRECTIVE_RCOND"]
+           "HOLD_GAP", "CORRECTIVE_RCOND", "LATER_AMPLIFY"]
 
 
 def group_level(controls: R.Controls, depth: int) -> int:
@@ -650,6 +650,18 @@ HOLD_GAP = 0.1  # a later round's additional point this close to a held contact 
 # frame 3); in a surface whose finest level turns (rotate_and_deform) it left frames 10-11 1.48e-3
 # inside; between two deformables it moved the 1:100 rigidity split off 100/101 (0.2011 for 0.1991).
 CORRECTIVE_RCOND = 1e-3
+
+# Every later round's solves (`respond.respond`'s ``amplify``) also drop a Gram mode below 1e-3 of
+# the largest eigenvalue whose CV move exceeds this many times the largest point move asked. An
+# exact fit of one point moves a bicubic's CVs at most 16/9 of its ask (weights 4/9 of a norm² 1/4
+# at a knot), so a weak mode moving them further fits the disagreement of neighbouring asks, not a
+# move any of them asks: a later round asks each level millimetres (what the rounds before left)
+# and that mode swings the level's CVs ten times as far, which the next level has to undo. Weak
+# modes the asks do need stay, unlike with the blanket 1e-3 cut-off (see above). The last level
+# that deforms keeps them where finer absorbing levels only turn or translate (rotate_and_deform:
+# its level-1 solve asked 0.044 and needs the CVs' 1.07 swing, the level-2 turn cannot fit what it
+# leaves; with the rule there frames 10-11 stayed 1.48e-3 inside after 4 rounds).
+LATER_AMPLIFY = 2.0
 
 
 def _take(dp: R.DataPoints, rows: np.ndarray) -> R.DataPoints:

@@ -100,7 +100,8 @@ class FrameStats:
 
 
 def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints, controls: R.Controls,
-                     options: RunOptions, held: R.DataPoints | None = None, rcond: float = 1e-4):
+                     options: RunOptions, held: R.DataPoints | None = None, rcond: float = 1e-4,
+                     amplify: float | None = None):
     """`respond.respond` with each direct solve's dense arrays bounded by the run's memory budget.
 
     How many CVs a contact moves on an absorbing level is known only once the contact is found
@@ -110,7 +111,7 @@ def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints,
     try:
         return R.respond(parent, dp, controls, method=options.method,
                          det=S.shape_of(parent, options.density).details, max_bytes=options.memory_budget,
-                         held=held, rcond=rcond)
+                         held=held, rcond=rcond, amplify=amplify)
     except SystemTooLarge as err:
         raise InputError(path, "acra:absorption", (
             f"at frame {frame} the response's solve of {err.points} data points on {err.cvs} CVs would need "
@@ -435,7 +436,12 @@ class _Run:
             # that differ from the next one's by about as much: its solve drops the weak modes that
             # would amplify their disagreement (`datapoints.CORRECTIVE_RCOND`)
             rcond = P.CORRECTIVE_RCOND if i in corrective else 1e-4
-            surfaces[i], rep = _respond_bounded(path, frame, parent, dp, controls, self.options, held, rcond)
+            # a later round asks millimetres of each level, whose exact fit rings through the weak
+            # modes: those that move CVs further than a lone point would are dropped
+            # (`datapoints.LATER_AMPLIFY`); a pair of two deformables keeps eq. 4.15's split only
+            # with its held contacts fitted exactly
+            amplify = P.LATER_AMPLIFY if it > 0 and i not in shared else None
+            surfaces[i], rep = _respond_bounded(path, frame, parent, dp, controls, self.options, held, rcond, amplify)
             S.seed_details(surfaces[i], rep.details, self.options.density, parent=parent)
             surfaces[i] = self.carry.after_response(i, parent, surfaces[i])
             if it == 0:

@@ -695,7 +695,7 @@ def _fan_cvs(n: int = 8, width: float = 3.0) -> np.ndarray:
     return cvs
 
 
-FAN_ROUNDS = 12  # the fan's apex needs up to 10 rounds where the user looks (docs/hard-cases.md, case 10)
+FAN_ROUNDS = 12  # the fan's apex needs up to 5 rounds where the user looks (docs/hard-cases.md, case 10)
 
 
 def _fan(tmp_path, name, absorption) -> None:

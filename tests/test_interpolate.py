@@ -107,6 +107,22 @@ def test_coincident_points_with_different_targets_stay_finite():
     assert np.all(np.isfinite(dv)) and np.abs(pw.apply(dv)).max() < 1e-6
 
 
+def test_amplify_drops_a_weak_mode_only_where_it_fits_disagreement():
+    """Two points 0.02 apart (relative Gram eigenvalue 1.8e-4): asks that agree to 1% are fitted
+    exactly, the weak mode moving the CVs little; asks of 0.01 and 0 swing the exact fit's CVs 41
+    times the ask, and ``amplify`` drops that mode: both points move the mean, CVs half the ask."""
+    hs = H.from_grid(*shapes.sheet(8, 8), depth=1)
+    pw = point_weights(hs, 0, np.array([2.5, 2.52]), np.array([2.5, 2.5]))
+    near = np.array([[0, 0, 0.01], [0, 0, 0.0099]])
+    np.testing.assert_array_equal(min_norm_solve(pw, near, amplify=2.0), min_norm_solve(pw, near))
+    assert np.abs(pw.apply(min_norm_solve(pw, near, amplify=2.0)) - near).max() <= 1e-12
+    apart = np.array([[0, 0, 0.01], [0, 0, 0.0]])
+    assert np.abs(min_norm_solve(pw, apart)).max() > 0.4
+    dv = min_norm_solve(pw, apart, amplify=2.0)
+    assert np.abs(dv).max() < 0.006
+    np.testing.assert_allclose(pw.apply(dv)[:, 2], 0.005, atol=1e-6)
+
+
 def test_a_point_on_a_pole_weighs_the_ring_all_around():
     """At a pole every u names the same point, so its row is the row averaged over u: each ring
     CV weighs its row's end weight (1/6, 4/6, 1/6) over the ring size, whatever u was given."""
