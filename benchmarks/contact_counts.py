@@ -23,10 +23,9 @@ import time
 
 from acra import bvh, kernels, nearest
 from acra import respond as R
-from pipeline import clearance
+from pipeline import clearance, grids, usdio
 from pipeline import detect as D
 from pipeline import frames as F
-from pipeline import grids, usdio
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEEN: dict = collections.defaultdict(lambda: [0, 0, 0.0])  # label -> [calls, items, CPU seconds]
