@@ -17,7 +17,9 @@ configuration is reported over the collision frames:
 * median ``FrameStats.ms_total`` (wall clock, set-up and display tessellation included), and the
   process CPU time of the whole ``run_file`` call over its frames (steadier on a shared machine;
   the plot's x axis);
-* the loop's residual, ``FrameStats.residual_rel``: the kept round's detection *at ``D``*;
+* the loop's residual, ``FrameStats.residual_rel`` as the run reports it: the run's display's
+  certified bound where the user looks (docs/cli.md, *Residual penetration*), refined against the
+  run's tolerance;
 * the reference residual: the written response (``acra:response:*`` read back with
   `pipeline.output_layer.read_output_hierarchy`) measured by `pipeline.detect.residual` at density
   ``--reference`` (32) for every configuration, over the pair's size (the smaller deformable's),
@@ -124,9 +126,10 @@ def measure(src: Path, tmp: Path, frames: list[int], method: str, density: int, 
 
 
 def sweep(src, tmp, frames, method, density, caps, tolerance, ref_density, scene, statics, memo) -> list[Row]:
-    """Rows for ``caps`` (ascending). Once a run meets the tolerance at every frame, the loop never
-    reaches a larger cap (it stops at the tolerance, and runs are deterministic), so larger caps
-    repeat that run's row, marked ``same_as``, instead of running again."""
+    """Rows for ``caps`` (ascending). Once a run reports the tolerance met at every frame, larger
+    caps repeat that run's row, marked ``same_as``, instead of running again. The loop stops on
+    the larger of that residual and detection's, so a frame whose detection stays over the
+    tolerance would run on at a larger cap: such rows are not runs of their cap."""
     rows: list[Row] = []
     done = None
     for cap in caps:
