@@ -7,7 +7,7 @@
              [--chunk FRAMES]
     acra merge DIR [-o OUTPUT] [--frames START:END]
     acra preview OUTPUT [--rrd FILE | --web | --spawn]
-    acra bench [SCENE] [--repeat N]
+    acra bench [SCENE] [--repeat N] [--no-first-run]
 
 A thin layer over `pipeline.run` (what a run does), `pipeline.parts` (the merge),
 `pipeline.preview_usd` (a recording from an output layer) and `pipeline.bench`: it parses, prints the summary, and maps outcomes to exit statuses
@@ -65,6 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="time the thesis's Fig. 5.2 stages on a scene (default: dog_head_spike)")
     bench.add_argument("scene", nargs="?", type=Path, help="scene file or stage (default scenes/dog_head_spike.py)")
     bench.add_argument("--repeat", type=int, default=3, help="cold runs to take medians over (default 3)")
+    bench.add_argument("--no-first-run", action="store_true",
+                       help="skip timing the first run after a fresh install (numba compiling every kernel, ~20-30 s)")
     view = sub.add_parser("preview", help="build the Rerun recording of an output layer alone (no ACRA run)")
     view.add_argument("output", type=Path, help="an ACRA output layer (.acra.usda)")
     shown = view.add_mutually_exclusive_group()
@@ -135,7 +137,7 @@ def bench(args: argparse.Namespace) -> int:
 
     if args.repeat < 1:
         raise InputError("--repeat", None, f"must be at least 1, got {args.repeat}")
-    print(format_report(run_bench(args.scene, args.repeat)))
+    print(format_report(run_bench(args.scene, args.repeat, first_run=not args.no_first_run)))
     return 0
 
 

@@ -32,6 +32,26 @@ def test_bench_splits_every_stage_over_collision_and_free_frames():
     assert "free frame, `-o NAME.usdc`" in text and "end to end, `-o NAME.usdc`" in text
 
 
+def test_bench_times_a_first_run_with_an_empty_numba_cache(monkeypatch):
+    """The first run after a fresh install: one `acra run` whose numba cache directory is empty."""
+    seen = []
+    real = B.subprocess.run
+
+    def run(cmd, **kw):
+        seen.append(kw.get("env", {}).get("NUMBA_CACHE_DIR"))
+        if seen[-1] is not None:
+            assert Path(seen[-1]).is_dir() and not any(Path(seen[-1]).iterdir())  # empty when it starts
+        return real(cmd, **kw)
+
+    monkeypatch.setattr(B.subprocess, "run", run)
+    b = B.run_bench(BOX, repeat=1, first_run=True)
+    assert sum(d is not None for d in seen) == 1 and seen[-1] is not None  # the last process, alone
+    wall, cpu = b.first_run
+    assert wall > 0 and cpu > 0
+    assert "First run after a fresh install" in B.format_report(b)
+    assert B.run_bench(BOX, repeat=1).first_run is None
+
+
 def test_bench_rejects_a_bad_repeat(capsys):
     assert main(["bench", str(BOX), "--repeat", "0"]) == 2
     assert "--repeat" in capsys.readouterr().err
