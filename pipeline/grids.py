@@ -123,7 +123,7 @@ class Closest:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh_: fcl.CollisionObject | None = None,
                  unit: float | None = None) -> None:
         self.vertices, self.faces, self.bvh = vertices, faces, bvh_
-        self.tri = vertices[faces]  # (f, 3, 3)
+        self.tri = nearest.corners(vertices, faces)  # (f, 3, 3): vertices[faces]
         # ``unit``: `extent` of ``vertices``, passed in by a caller that has it
         self.unit = extent(vertices) if unit is None else unit
 
