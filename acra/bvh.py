@@ -277,7 +277,35 @@ def _morton_order(points):
             for bit in range(10):
                 code |= ((q >> bit) & 1) << (3 * bit + a)
         key[i] = code
-    return np.argsort(key, kind="mergesort")
+    return _stable_order(key)
+
+
+_RADIX_MIN = 64  # fewer keys than this: a merge sort beats the radix passes' bucket tables
+
+
+@njit(cache=True, nogil=True)
+def _stable_order(key):
+    """``np.argsort(key, kind="mergesort")`` of 30-bit keys ``(k,) int64 >= 0``: a stable sort has
+    one answer (equal keys by row), so three stable 10-bit counting passes (least significant
+    first) give the same rows, in linear time."""
+    k = key.shape[0]
+    if k < _RADIX_MIN:
+        return np.argsort(key, kind="mergesort")
+    order, spare = np.arange(k), np.empty(k, np.int64)
+    count = np.empty(1025, np.int64)
+    for shift in range(0, 30, 10):
+        count[:] = 0
+        for i in range(k):
+            count[((key[i] >> shift) & 1023) + 1] += 1
+        for b in range(1024):
+            count[b + 1] += count[b]
+        for i in range(k):
+            r = order[i]
+            d = (key[r] >> shift) & 1023
+            spare[count[d]] = r
+            count[d] += 1
+        order, spare = spare, order
+    return order
 
 
 @njit(cache=True, nogil=True)

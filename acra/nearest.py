@@ -27,7 +27,7 @@ from numba import njit
 
 from acra.bvh import LEAF, Tree, _morton_order
 
-__all__ = ["ZERO", "Index", "build", "closest_points", "index", "query"]
+__all__ = ["ZERO", "Index", "build", "closest_points", "corners", "index", "query"]
 
 ZERO = 1e-13  # trimesh.constants.tol.zero: the region tests' tolerance, in units of the mesh
 _REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * unit
@@ -76,6 +76,30 @@ def _build(tri, lo, hi, left, right, start, count):
                     lo[node, k] = min(lo[node, k], lo[child, k])
                     hi[node, k] = max(hi[node, k], hi[child, k])
     return order, nodes
+
+
+@njit(cache=True, nogil=True)
+def _corners(vertices, faces, out):
+    for i in range(faces.shape[0]):
+        for c in range(3):
+            v = faces[i, c]
+            for k in range(3):
+                out[i, c, k] = vertices[v, k]
+
+
+def corners(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``vertices[faces]``: the corners ``(f, 3, 3) float64`` of ``faces (f, 3)`` (indices in
+    range, non-negative) on ``vertices (n, 3) float64``, copied in one compiled pass (numpy's
+    fancy index copies row by row through its generic iterator)."""
+    vertices = np.asarray(vertices)
+    faces = np.asarray(faces)
+    if (vertices.dtype != np.float64 or vertices.ndim != 2 or vertices.shape[1] != 3 or faces.dtype.kind not in "iu"
+            or faces.ndim != 2 or faces.shape[1] != 3):
+        return vertices[faces]
+    out = np.empty((faces.shape[0], 3, 3))
+    if len(faces):
+        _corners(np.ascontiguousarray(vertices), np.ascontiguousarray(faces, np.int64), out)
+    return out
 
 
 def build(tri: np.ndarray) -> Tree:

@@ -21,6 +21,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from acra import narrow, nearest
+from acra.bvh import bounds
 from acra.tessellate import patch_grids
 
 if TYPE_CHECKING:
@@ -101,8 +102,12 @@ class BvhCache:
 
 
 def extent(vertices: np.ndarray) -> float:
-    """The largest side of the box of ``vertices (n, 3)``, or 1 if it is empty or a point."""
-    side = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
+    """The largest side of the box of ``vertices (n, 3)``, or 1 if it is empty or a point. The box
+    in one compiled pass (`acra.bvh.bounds`: ``np.ptp(axis=0)``'s min and max, exact)."""
+    if not len(vertices):
+        return 1.0
+    box = bounds(vertices)
+    side = float((box[1] - box[0]).max())
     return side if side > 0 else 1.0
 
 
@@ -118,7 +123,7 @@ class Closest:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh_: fcl.CollisionObject | None = None,
                  unit: float | None = None) -> None:
         self.vertices, self.faces, self.bvh = vertices, faces, bvh_
-        self.tri = vertices[faces]  # (f, 3, 3)
+        self.tri = nearest.corners(vertices, faces)  # (f, 3, 3): vertices[faces]
         # ``unit``: `extent` of ``vertices``, passed in by a caller that has it
         self.unit = extent(vertices) if unit is None else unit
 
@@ -228,7 +233,9 @@ class GridSet:
         base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
         self.points = np.concatenate([g.points for g in grids])
         self.uv = np.concatenate([g.uv for g in grids])
-        self.triangles = np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)])
+        # a grid without slivers keeps every row (``solid`` is then ``arange``): no gather
+        self.triangles = np.concatenate([(g.triangles if len(g.solid) == len(g.triangles) else g.triangles[g.solid]) + b
+                                         for g, b in zip(grids, base)])
         count = np.array([len(g.solid) for g in grids])
         self.face_lo = np.repeat(np.array([g.uv[0] for g in grids]), count, axis=0)
         self.face_hi = np.repeat(np.array([g.uv[-1] for g in grids]), count, axis=0)

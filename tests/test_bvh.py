@@ -149,3 +149,12 @@ def test_build_is_the_tree_that_sorts_every_node(case):
     np.testing.assert_array_equal(tree.hi, hi)
     for x, y in ((tree.left, left), (tree.right, right), (tree.start, start), (tree.count, count)):
         np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("k", [0, 1, 63, 64, 1000, 20000])
+def test_stable_order_is_numpys_merge_sort(k):
+    from acra.bvh import _stable_order
+    rng = np.random.default_rng(k)
+    for top in (3, 1 << 30):  # many equal keys, then few
+        key = rng.integers(0, top, k).astype(np.int64)
+        np.testing.assert_array_equal(_stable_order(key), np.argsort(key, kind="mergesort"))

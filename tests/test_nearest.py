@@ -75,3 +75,12 @@ def test_query_is_every_triangle_s_answer(seed):
     assert np.array_equal(bd[within], dist[within]) and np.array_equal(bf[within], face[within])
     assert np.array_equal(bc[within], close[within])
     assert np.isinf(bd[~within]).all()
+
+
+def test_corners_are_numpys_fancy_index():
+    rng = np.random.default_rng(3)
+    v, f = rng.standard_normal((500, 3)), rng.integers(0, 500, (800, 3))
+    for faces in (f, f.astype(np.int32), f[:0]):
+        got = N.corners(v, faces)
+        assert got.shape == v[faces].shape and got.dtype == v[faces].dtype
+        np.testing.assert_array_equal(got, v[faces])
