@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds",
-           "first_rows", "covering_radii"]
+           "first_rows", "covering_radii", "lattice_points"]
 
 LEAF = 4  # triangles per leaf
 
@@ -578,4 +578,25 @@ def covering_radii(tri: np.ndarray) -> np.ndarray:
     out = np.empty(len(t))
     if len(t):
         _covering_radii(t, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _lattice_points(tri, owner, lattice, steps, out):
+    for r in range(lattice.shape[0]):
+        t = owner[r // 3]
+        w0, w1, w2 = lattice[r, 0] / steps, lattice[r, 1] / steps, lattice[r, 2] / steps
+        for c in range(3):
+            out[r, c] = (w0 * tri[t, 0, c] + w1 * tri[t, 1, c]) + w2 * tri[t, 2, c]
+
+
+def lattice_points(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, steps: int) -> np.ndarray:
+    """Points ``(3c, 3)`` at integer barycentric weights ``lattice (c, 3, 3) int64`` (per cell,
+    three rows of weights times ``steps``) in the triangles ``tri[owner] (c, 3, 3)``: each weight
+    ``lattice / steps`` and the point ``w0 a + w1 b + w2 c`` summed corner by corner, as
+    `pipeline.clearance._at` computes them in numpy, without its gathered copies."""
+    lat = np.ascontiguousarray(lattice, np.int64).reshape(-1, 3)
+    out = np.empty((len(lat), 3))
+    if len(lat):
+        _lattice_points(np.ascontiguousarray(tri, np.float64), np.ascontiguousarray(owner, np.int64), lat, steps, out)
     return out
