@@ -487,7 +487,9 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
     retired, level, complete = 0.0, 0, True
     while len(rows):
         now = max(target, 1.25 * max(low, 0.0))
-        bound = np.maximum(sd.max(axis=1) + rho, 0.0)  # eq. (4)
+        # eq. (4); the largest corner as two elementwise maxima: numpy's reduction along an axis
+        # of 3 costs about 40 ns a row, the maxima 2
+        bound = np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)
         over = np.nonzero(bound > 0.0)[0]
         if pending is not None:  # level 0: eq. (6) needs the nearest faces of these cells' far corners
             ids = np.unique(corner_pts[over])
@@ -530,7 +532,7 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         rows, rho = np.tile(rows, 4), np.tile(0.5 * rho, 4)
         level += 1
         if not complete:  # the budget's last pass: bound the children and stop
-            last = np.maximum(sd.max(axis=1) + rho, 0.0)
+            last = np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)
             last = np.minimum(last, _cell_bound(s, _at_cells(tri, src[rows], lattice, steps), fc))
             retired = max(retired, float(last.max()))
             complete = retired <= max(target, 1.25 * max(low, 0.0)) and not (decide < retired and low <= decide)
