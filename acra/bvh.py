@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["LEAF", "Tree", "build", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds",
-           "first_rows", "covering_radii"]
+           "first_rows", "covering_radii", "lattice_points"]
 
 LEAF = 4  # triangles per leaf
 
@@ -78,29 +78,30 @@ def _before(cen, axis, parent, node, f, g):
 
 
 @njit(cache=True, nogil=True)
-def _select(cen, axis, parent, node, order, a, b, k):
+def _select(key, cen, axis, parent, node, order, a, b, k):
     """Rearrange ``order[a:b]`` so that ``order[a:k]`` holds the ``k - a`` first triangles of
-    ``node``'s order (`_before`, a strict order: no two triangles tie), ``order[k:b]`` the rest."""
+    ``node``'s order (`_before`, a strict order: no two triangles tie), ``order[k:b]`` the rest.
+    ``key[a:b]`` holds each one's centroid along ``node``'s axis and moves with it: the
+    comparisons read it side by side in memory, and ``_before`` only for equal keys."""
+    up = parent[node]
     lo, hi = a, b - 1
     while hi > lo:
         m = (lo + hi) // 2  # median of three as the pivot, moved to ``hi``
-        if _before(cen, axis, parent, node, order[m], order[lo]):
-            order[m], order[lo] = order[lo], order[m]
-        if _before(cen, axis, parent, node, order[hi], order[lo]):
-            order[hi], order[lo] = order[lo], order[hi]
-        if _before(cen, axis, parent, node, order[m], order[hi]):
-            order[m], order[hi] = order[hi], order[m]
-        pivot = order[hi]
-        ax, up = axis[node], parent[node]
-        pk = cen[pivot, ax]
+        for x, y in ((m, lo), (hi, lo), (m, hi)):  # swap when ``order[x]`` comes before ``order[y]``
+            kx, ky = key[x], key[y]
+            if kx < ky or (not ky < kx and _before(cen, axis, parent, up, order[x], order[y])):
+                order[x], order[y] = order[y], order[x]
+                key[x], key[y] = ky, kx
+        pivot, pk = order[hi], key[hi]
         i = lo
         for j in range(lo, hi):
-            f = order[j]
-            x = cen[f, ax]
-            if x < pk or (not pk < x and _before(cen, axis, parent, up, f, pivot)):
-                order[i], order[j] = f, order[i]
+            x = key[j]
+            if x < pk or (not pk < x and _before(cen, axis, parent, up, order[j], pivot)):
+                order[i], order[j] = order[j], order[i]
+                key[i], key[j] = x, key[i]
                 i += 1
         order[i], order[hi] = order[hi], order[i]
+        key[i], key[hi] = key[hi], key[i]
         if i == k:
             return
         if i < k:
@@ -118,29 +119,26 @@ def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
     axis, then along its parent's, and so on up to the root, then the row (`_before`). A node
     needs only which triangles make its first half (`_select`, linear), and a leaf its triangles
     in its parent's order, so the tree, the leaves' order and the boxes are those of sorting
-    every node, in O(n log n) instead of O(n log^2 n)."""
+    every node, in O(n log n) instead of O(n log^2 n). A leaf's box is taken from its
+    triangles, an inner node's from its two children's (the same minima and maxima)."""
     n = order.shape[0]
     axis = np.zeros(2 * n + 1, np.int64)
     parent = np.full(2 * n + 1, -1, np.int64)
+    key = np.empty(n)
     stack = np.empty((128, 3), np.int64)  # (node, first, end)
     stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, n
     top, nodes = 1, 1
-    clo = np.empty(3)
-    chi = np.empty(3)
     while top > 0:
         top -= 1
         node, a, b = stack[top, 0], stack[top, 1], stack[top, 2]
-        for k in range(3):
-            lo[node, k], hi[node, k] = np.inf, -np.inf
-            clo[k], chi[k] = np.inf, -np.inf
-        for s in range(a, b):
-            f = order[s]
-            for k in range(3):
-                lo[node, k] = min(lo[node, k], tlo[f, k])
-                hi[node, k] = max(hi[node, k], thi[f, k])
-                clo[k] = min(clo[k], cen[f, k])
-                chi[k] = max(chi[k], cen[f, k])
         if b - a <= LEAF:
+            for k in range(3):
+                lo[node, k], hi[node, k] = np.inf, -np.inf
+            for s in range(a, b):
+                f = order[s]
+                for k in range(3):
+                    lo[node, k] = min(lo[node, k], tlo[f, k])
+                    hi[node, k] = max(hi[node, k], thi[f, k])
             for s in range(a + 1, b):  # its parent's order (the rows at a leaf root)
                 f = order[s]
                 t = s - 1
@@ -150,19 +148,35 @@ def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
                 order[t + 1] = f
             left[node], right[node], start[node], count[node] = -1, -1, a, b - a
             continue
-        ax = 0
-        for k in range(1, 3):
-            if chi[k] - clo[k] > chi[ax] - clo[ax]:
-                ax = k
+        c0, c1, c2 = np.inf, np.inf, np.inf
+        d0, d1, d2 = -np.inf, -np.inf, -np.inf
+        for s in range(a, b):
+            f = order[s]
+            c0, d0 = min(c0, cen[f, 0]), max(d0, cen[f, 0])
+            c1, d1 = min(c1, cen[f, 1]), max(d1, cen[f, 1])
+            c2, d2 = min(c2, cen[f, 2]), max(d2, cen[f, 2])
+        ax, widest = 0, d0 - c0
+        if d1 - c1 > widest:
+            ax, widest = 1, d1 - c1
+        if d2 - c2 > widest:
+            ax = 2
         axis[node] = ax
+        for s in range(a, b):
+            key[s] = cen[order[s], ax]
         mid = (a + b) // 2
-        _select(cen, axis, parent, node, order, a, b, mid)
+        _select(key, cen, axis, parent, node, order, a, b, mid)
         parent[nodes], parent[nodes + 1] = node, node
         left[node], right[node], start[node], count[node] = nodes, nodes + 1, a, 0
         stack[top, 0], stack[top, 1], stack[top, 2] = nodes, a, mid
         stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
         top += 2
         nodes += 2
+    for node in range(nodes - 1, -1, -1):  # children come after their parent
+        l, r = left[node], right[node]
+        if l >= 0:
+            for k in range(3):
+                lo[node, k] = min(lo[l, k], lo[r, k])
+                hi[node, k] = max(hi[l, k], hi[r, k])
     return nodes
 
 
@@ -592,4 +606,25 @@ def covering_radii(tri: np.ndarray) -> np.ndarray:
     out = np.empty(len(t))
     if len(t):
         _covering_radii(t, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _lattice_points(tri, owner, lattice, steps, out):
+    for r in range(lattice.shape[0]):
+        t = owner[r // 3]
+        w0, w1, w2 = lattice[r, 0] / steps, lattice[r, 1] / steps, lattice[r, 2] / steps
+        for c in range(3):
+            out[r, c] = (w0 * tri[t, 0, c] + w1 * tri[t, 1, c]) + w2 * tri[t, 2, c]
+
+
+def lattice_points(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, steps: int) -> np.ndarray:
+    """Points ``(3c, 3)`` at integer barycentric weights ``lattice (c, 3, 3) int64`` (per cell,
+    three rows of weights times ``steps``) in the triangles ``tri[owner] (c, 3, 3)``: each weight
+    ``lattice / steps`` and the point ``w0 a + w1 b + w2 c`` summed corner by corner, as
+    `pipeline.clearance._at` computes them in numpy, without its gathered copies."""
+    lat = np.ascontiguousarray(lattice, np.int64).reshape(-1, 3)
+    out = np.empty((len(lat), 3))
+    if len(lat):
+        _lattice_points(np.ascontiguousarray(tri, np.float64), np.ascontiguousarray(owner, np.int64), lat, steps, out)
     return out

@@ -158,3 +158,21 @@ def test_stable_order_is_numpys_merge_sort(k):
     for top in (3, 1 << 30):  # many equal keys, then few
         key = rng.integers(0, top, k).astype(np.int64)
         np.testing.assert_array_equal(_stable_order(key), np.argsort(key, kind="mergesort"))
+
+
+def test_lattice_points_are_clearances_numpy_points_to_the_bit():
+    """`bvh.lattice_points` is `clearance._at` at the weights ``lattice / steps`` of each cell's
+    triangle: the same products summed in the same order, so a point shared by two cells is
+    bitwise one point (`clearance._distinct`)."""
+    from pipeline import clearance
+    rng = np.random.default_rng(3)
+    tri = soup(5, 300) * 10.0 ** rng.integers(-3, 3, (300, 1, 1))
+    steps = 1 << 6
+    owner = rng.integers(0, 300, 500)
+    i = rng.integers(0, steps + 1, (500, 3))
+    j = rng.integers(0, steps + 1, (500, 3))
+    j = np.minimum(j, steps - i)
+    lattice = np.stack([i, j, steps - i - j], axis=2)  # (c, 3 corners, 3 weights)
+    want = clearance._at(np.repeat(tri[owner], 3, axis=0), lattice.reshape(-1, 3) / steps)
+    got = bvh.lattice_points(tri, owner, lattice, steps)
+    assert got.tobytes() == want.tobytes()
