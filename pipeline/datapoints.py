@@ -642,13 +642,9 @@ HOLD_GAP = 0.1  # a later round's additional point this close to a held contact 
 # fit swung the CVs ten times as far as any sample asked and the surface with them: elbow_contact
 # frame 15's corrective round asked at most 0.011 and moved CVs 0.112, a display point a patch away
 # from every sample 0.045, and the dent's tip from 1.23 to 1.34 times the depth the arm went in
-# (1.3 asserted); at 1e-3, CVs 0.043, that point 0.015 and the tip 1.27. Measured with 1e-3: the
-# 18 scenes clear, every scene and hard-case test passing.
-# The same cut-off in every later round (detection's points joined by the display's too) gave
-# sag_and_dent's levels their asserted shares (0.1997 and 0.1222 of the press) but left the hard
-# case jumps_through 1.18e-3 inside after 4 rounds (frame 4) and folded the fan's apex (case 10b,
-# frame 3); in a surface whose finest level turns (rotate_and_deform) it left frames 10-11 1.48e-3
-# inside; between two deformables it moved the 1:100 rigidity split off 100/101 (0.2011 for 0.1991).
+# (1.3 asserted); at 1e-3, CVs 0.043, that point 0.015 and the tip 1.27. The same cut-off in
+# every later round is too blunt (docs/design-decisions.md): `LATER_AMPLIFY` drops only the weak
+# modes that amplify.
 CORRECTIVE_RCOND = 1e-3
 
 # Every later round's solves (`respond.respond`'s ``amplify``) also drop a Gram mode below 1e-3 of
