@@ -5,6 +5,7 @@ layer as a USD client sees it."""
 import numpy as np
 import pytest
 
+from acceptance.visible import measure_layer
 from acra import volume
 from conftest import display_points, scene_stages
 from pipeline import output_layer
@@ -35,19 +36,19 @@ def test_both_sheets_are_pressed(run):
 
 def test_the_drum_keeps_its_area_within_1_percent(run):
     _, ratios, _ = run
-    # measured: within 6e-5 at every frame
+    # measured: within 5e-7 at every frame (docs/performance.md, *State across frames*)
     assert max(abs(r - 1.0) for r in ratios[DRUM].values()) <= 1e-3
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the figures were measured on a run whose limit surface was 5e-3 of the size inside the ball at frames 3-4; the "
-    "clear run's Cloth gains 1.0013, 1.0262, 1.0437, 1.0355 at frames 2-5: frames 3 and 4 are 0.0026 and 0.0029 over "
-    "the figures asserted. The first round leaves the display 2.4e-3 and 3.6e-3 of the size inside the ball there, and "
-    "the area is the flanks' pushed out to 5e-4 (docs/hard-cases.md)"))
 def test_the_same_press_without_it_gains_area(run):
-    _, ratios, _ = run
-    # measured 1.0012, 1.0236, 1.0408, 1.0359 at frames 2-5
-    np.testing.assert_allclose([ratios[CLOTH][f] for f in (2, 3, 4, 5)], [1.0012, 1.0236, 1.0408, 1.0359], atol=2e-3)
+    """The cloth's area gain is a figure of a run clear where the user looks: its display is
+    measured outside the ball (`acceptance.visible`, trimesh and fcl on the output layer) at the
+    frames whose area is asserted, so the figures cannot come from a surface left inside."""
+    report, ratios, _ = run
+    clear = {m.frame: m.samples for m in measure_layer(report.output, frames=(2, 3, 4, 5)) if m.path == CLOTH}
+    assert max(clear.values()) <= 1e-3, clear
+    # measured 1.0013, 1.0262, 1.0437, 1.0355 at frames 2-5 (the cloth at most 7.8e-4 of its size inside)
+    np.testing.assert_allclose([ratios[CLOTH][f] for f in (2, 3, 4, 5)], [1.0013, 1.0262, 1.0437, 1.0355], atol=2e-3)
     assert ratios[CLOTH][6] == pytest.approx(1.0, abs=1e-6)
 
 
