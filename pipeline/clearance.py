@@ -284,7 +284,8 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
             convex = ConvexHull(v).volume <= abs(volume) * (1 + 1e-9) + 1e-12 * size ** 3
         except QhullError:
             convex = False
-    return Solid(v, f, normals, edge_normals, vertex_normals, bounds, bvh.build(v[f]), facet, start, members, convex)
+    tree = bvh.build_linear(v, f) if part else bvh.build(v[f])  # a part is queried in one round, a whole solid for a run
+    return Solid(v, f, normals, edge_normals, vertex_normals, bounds, tree, facet, start, members, convex)
 
 
 def _compiled_part(v, f, radius, outward, vertices, faces, weld, scale) -> Solid:
@@ -296,7 +297,7 @@ def _compiled_part(v, f, radius, outward, vertices, faces, weld, scale) -> Solid
         return solid(vertices, faces, weld, True, outward, scale, compiled=False)  # raises the defect's error
     vertex_normals = pseudonormals.vertex_normals(len(v), f, normals, np.arctan2(sin, cos))
     facet = np.arange(len(f))
-    return Solid(v, f, normals, edge_normals, vertex_normals, bvh.bounds(v), bvh.build(v[f]), facet, np.arange(len(f) + 1),
+    return Solid(v, f, normals, edge_normals, vertex_normals, bvh.bounds(v), bvh.build_linear(v, f), facet, np.arange(len(f) + 1),
                  facet.copy())
 
 

@@ -176,3 +176,67 @@ def test_lattice_points_are_clearances_numpy_points_to_the_bit():
     want = clearance._at(np.repeat(tri[owner], 3, axis=0), lattice.reshape(-1, 3) / steps)
     got = bvh.lattice_points(tri, owner, lattice, steps)
     assert got.tobytes() == want.tobytes()
+
+
+def _as_mesh(tri: np.ndarray):
+    """``tri (f, 3, 3)`` as vertices ``(3f, 3)`` and faces ``(f, 3)``."""
+    return tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3)
+
+
+def _check_tree(tree: bvh.Tree, tri: np.ndarray) -> None:
+    """Every triangle in one leaf of at most `LEAF`, each box the least holding its triangles or
+    its children's boxes, ``leaf_tri`` the triangles in leaf order."""
+    np.testing.assert_array_equal(np.sort(tree.order), np.arange(len(tri)))
+    np.testing.assert_array_equal(tree.leaf_tri, tri[tree.order])
+    np.testing.assert_array_equal(tree.tri, tri)
+    seen = np.zeros(len(tri), int)
+    for node in range(len(tree.lo)):
+        if tree.left[node] < 0:
+            rows = tree.order[tree.start[node]:tree.start[node] + tree.count[node]]
+            assert 1 <= len(rows) <= bvh.LEAF
+            seen[rows] += 1
+            lo, hi = tri[rows].min(axis=(0, 1)), tri[rows].max(axis=(0, 1))
+        else:
+            kids = [tree.left[node], tree.right[node]]
+            assert min(kids) > node
+            lo, hi = tree.lo[kids].min(axis=0), tree.hi[kids].max(axis=0)
+        np.testing.assert_array_equal(tree.lo[node], lo)
+        np.testing.assert_array_equal(tree.hi[node], hi)
+    np.testing.assert_array_equal(seen, 1)
+
+
+@pytest.mark.parametrize("case", ["soup", "grid", "ties", "one"])
+def test_the_linear_tree_gives_the_median_trees_answers_to_the_bit(case):
+    """`bvh.build_linear`'s tree (Z-order cells) is another tree over the same triangles:
+    `closest` answers the same distances, points, rows and weights, bit for bit, as on `build`'s,
+    with a bound and without, on random points and on points at the triangles (ties between
+    neighbours)."""
+    rng = np.random.default_rng(13)
+    if case == "soup":
+        tri = soup(11, 3000)
+    elif case == "grid":
+        g = np.stack(np.meshgrid(np.arange(40.0), np.arange(30.0), [0.0], indexing="ij"), -1).reshape(-1, 3)
+        tri = np.stack([g, g + [1.0, 0, 0], g + [0, 1.0, 0.5]], axis=1)
+    elif case == "ties":
+        tri = np.round(rng.normal(size=(400, 3, 3)), 1)[rng.integers(0, 400, 2500)]
+    else:
+        tri = soup(2, 1)
+    tree = bvh.build_linear(*_as_mesh(tri))
+    _check_tree(tree, tri)
+    lo, hi = tri.min(axis=(0, 1)), tri.max(axis=(0, 1))
+    points = np.concatenate([rng.uniform(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo), (2000, 3)),
+                             tri.reshape(-1, 3)[rng.integers(0, 3 * len(tri), 500)],
+                             tri.mean(axis=1)[rng.integers(0, len(tri), 500)]])
+    for bound in (None, np.full(len(points), 0.05 * float(np.linalg.norm(hi - lo)))):
+        want = bvh.closest(bvh.build(tri), points, bound)
+        got = bvh.closest(tree, points, bound)
+        for x, y in zip(got, want):
+            np.testing.assert_array_equal(x, y)
+    d_ref, _ = brute(tri, points[:300])
+    dist, _, face, _ = bvh.closest(tree, points[:300])
+    np.testing.assert_allclose(dist, d_ref, rtol=1e-12, atol=1e-14)
+
+
+def test_the_linear_tree_refuses_an_empty_set():
+    with pytest.raises(ValueError, match="at least one triangle"):
+        bvh.build_linear(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
