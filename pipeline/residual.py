@@ -103,8 +103,12 @@ class Shown:
     def near(self, box: np.ndarray, pad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """World triangles ``(m, 3, 3)`` whose boxes come within ``pad`` of the world ``box (2, 3)``
         and their rows in ``triangles``."""
-        rows = np.nonzero(bvh.faces_meet(self.world, self.triangles, box[0], box[1], pad))[0]
+        rows = self.near_rows(box, pad)
         return self.world[self.triangles[rows]], rows
+
+    def near_rows(self, box: np.ndarray, pad: float = 0.0) -> np.ndarray:
+        """The rows of `near`'s triangles, without them."""
+        return np.nonzero(bvh.faces_meet(self.world, self.triangles, box[0], box[1], pad))[0]
 
     @cached_property
     def fingerprint(self) -> bytes:
@@ -227,7 +231,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     if b.deformable:
         region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
-        _, rows = b.near(region, pad)
+        rows = b.near_rows(region, pad)
         if rows.size:
             part = _part(b, rows)
             d = clearance.triangle_depth(part, local, target / k, reach=pad / k, decide=decide / k)
