@@ -441,6 +441,24 @@ def _extent(s: Solid) -> float:
     return float(np.ptp(s.bounds, axis=0).max()) or 1.0
 
 
+def _retired_max(s: Solid, tri, src, steps, retired: float, bound, cells, rows, lattice, fc) -> float:
+    """``max(retired, max of the tighter of eq. (4) ``bound`` and eq. (6) over ``cells``)``, eq. (6)
+    taken only where eq. (4) is above the largest so far: the cells by eq. (4) in decreasing
+    order, in doubling batches, until the next is no higher (a maximum is exact, so the bits are
+    those of bounding every cell)."""
+    cells = cells[bound[cells] > retired]
+    if not len(cells):
+        return retired
+    cells = cells[np.argsort(-bound[cells], kind="stable")]
+    at, size = 0, 16
+    while at < len(cells) and bound[cells[at]] > retired:
+        batch = cells[at:at + size]
+        six = _cell_bound(s, _at_cells(tri, src[rows[batch]], lattice[batch], steps), fc[batch])
+        retired = max(retired, float(np.minimum(bound[batch], six).max()))
+        at, size = at + size, 2 * size
+    return retired
+
+
 def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget: int = 200_000,
                    reach: float = np.inf, decide: float = np.inf) -> Depth | None:
     """`Depth` of triangles ``corners (t, 3, 3) float`` (in ``s``'s object space) inside ``s``,
@@ -499,10 +517,18 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
                 sd_pts[ids], _, face_pts[ids] = _signed(s, pts[ids], reach)
                 sd, fc = sd_pts[corner_pts], face_pts[corner_pts]
             pending = None
-        if len(over):  # eq. (6): the faces nearest the corners bound the cell too
-            bound[over] = np.minimum(bound[over], _cell_bound(s, _at_cells(tri, src[rows[over]], lattice[over], steps), fc[over]))
+        # eq. (6): the faces nearest the corners bound the cell too. It only lowers a bound, so a
+        # cell that eq. (4) already retires is retired with it, and its bound only counts where it
+        # could raise the largest retired bound (`_retired_max`)
+        split = (bound > now) | ((bound > decide) & (low <= decide))
+        if len(over):
+            first = over[split[over]]
+            if len(first):
+                bound[first] = np.minimum(bound[first], _cell_bound(s, _at_cells(tri, src[rows[first]], lattice[first], steps), fc[first]))
         need = (bound > now) | ((bound > decide) & (low <= decide))
-        retired = max(retired, float(bound[~need].max(initial=0.0)))
+        retired = max(retired, float(bound[~need & split].max(initial=0.0)))
+        if len(over):
+            retired = _retired_max(s, tri, src, steps, retired, bound, over[~split[over]], rows, lattice, fc)
         rows, lattice, sd, fc, rho, bound = rows[need], lattice[need], sd[need], fc[need], rho[need], bound[need]
         room = (budget - evaluated) // 3
         if not len(rows) or level == max_split or room <= 0:
