@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet", "facet_bound", "bounds",
+__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet", "faces_meet_rows", "faces_at", "facet_bound", "bounds",
            "first_rows", "covering_radii", "lattice_points"]
 
 LEAF = 4  # triangles per leaf
@@ -566,6 +566,53 @@ def faces_meet(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.nda
         _faces_meet(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
                     np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
                     float(pad), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _faces_meet_rows(points, faces, lo, hi, pad, out):
+    n = 0
+    for i in range(faces.shape[0]):
+        meet = True
+        for k in range(3):
+            a, b, c = points[faces[i, 0], k], points[faces[i, 1], k], points[faces[i, 2], k]
+            if not (min(min(a, b), c) <= hi[k] + pad and lo[k] <= max(max(a, b), c) + pad):
+                meet = False
+                break
+        if meet:
+            out[n] = i
+            n += 1
+    return n
+
+
+def faces_meet_rows(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
+    """``np.nonzero(faces_meet(...))[0]``: the rows ``(m,) int64`` of ``faces`` whose triangles'
+    boxes come within ``pad`` of the box ``lo, hi``, in increasing order, without the mask."""
+    out = np.empty(len(faces), np.int64)
+    n = 0
+    if len(faces):
+        n = _faces_meet_rows(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
+                             np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
+                             float(pad), out)
+    return out[:n].copy()
+
+
+@njit(cache=True, nogil=True)
+def _faces_at(points, faces, rows, out):
+    for i in range(rows.shape[0]):
+        for c in range(3):
+            v = faces[rows[i], c]
+            for k in range(3):
+                out[i, c, k] = points[v, k]
+
+
+def faces_at(points: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``points[faces[rows]]`` ``(m, 3, 3) float64`` (``points (n, 3) float64``, ``faces (f, 3)
+    int64``, ``rows (m,) int64`` in range), copied in one compiled pass."""
+    out = np.empty((len(rows), 3, 3))
+    if len(rows):
+        _faces_at(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
+                  np.ascontiguousarray(rows, np.int64), out)
     return out
 
 

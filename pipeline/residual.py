@@ -104,11 +104,11 @@ class Shown:
         """World triangles ``(m, 3, 3)`` whose boxes come within ``pad`` of the world ``box (2, 3)``
         and their rows in ``triangles``."""
         rows = self.near_rows(box, pad)
-        return self.world[self.triangles[rows]], rows
+        return bvh.faces_at(self.world, self.triangles, rows), rows
 
     def near_rows(self, box: np.ndarray, pad: float = 0.0) -> np.ndarray:
         """The rows of `near`'s triangles, without them."""
-        return np.nonzero(bvh.faces_meet(self.world, self.triangles, box[0], box[1], pad))[0]
+        return bvh.faces_meet_rows(self.world, self.triangles, box[0], box[1], pad)
 
     @cached_property
     def fingerprint(self) -> bytes:

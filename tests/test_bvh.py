@@ -84,7 +84,12 @@ def test_boxes_meet_is_the_overlap_of_the_triangle_boxes(seed):
         want = overlap(*triangle_boxes(tri), lo, hi, pad)
         np.testing.assert_array_equal(bvh.boxes_meet(tri, lo, hi, pad), want)
         np.testing.assert_array_equal(bvh.faces_meet(points, faces, lo, hi, pad), want)
+        rows = bvh.faces_meet_rows(points, faces, lo, hi, pad)
+        assert rows.dtype == np.int64 and np.array_equal(rows, np.nonzero(want)[0])
+        assert bvh.faces_at(points, faces, rows).tobytes() == tri[rows].tobytes()
         assert 0 < want.sum() < len(want)
+    assert bvh.faces_meet_rows(points, faces[:0], lo, hi).shape == (0,)
+    assert bvh.faces_at(points, faces, np.zeros(0, np.int64)).shape == (0, 3, 3)
 
 
 def test_build_takes_numpys_boxes_and_centroids():
