@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet", "faces_meet_rows", "faces_at", "facet_bound", "bounds",
-           "first_rows", "covering_radii", "lattice_points"]
+           "first_rows", "distinct_rows", "covering_radii", "lattice_points"]
 
 LEAF = 4  # triangles per leaf
 
@@ -715,6 +715,62 @@ def first_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     first, label = np.empty(len(bits), np.int64), np.empty(len(bits), np.int64)
     u = _first_rows(bits, first, label) if len(bits) else 0
     return first[:u], label
+
+
+@njit(cache=True, nogil=True)
+def _swapped(x):
+    """The bytes of ``x (uint64)`` in reverse order: a little-endian value's first byte most
+    significant, so unsigned order is the order of the 8 bytes as stored (memcmp's)."""
+    y = np.uint64(0)
+    for _ in range(8):
+        y = (y << np.uint64(8)) | (x & np.uint64(255))
+        x = x >> np.uint64(8)
+    return y
+
+
+@njit(cache=True, nogil=True)
+def _distinct_rows(bits, first, inverse):
+    # the distinct rows in order of first occurrence (`_first_rows`), then sorted by their
+    # 24 bytes as stored: x's bytes, then y's, then z's (no two distinct rows tie)
+    k = bits.shape[0]
+    once, label = np.empty(k, np.int64), np.empty(k, np.int64)
+    u = _first_rows(bits, once, label)
+    key = np.empty((u, 3), np.uint64)
+    for j in range(u):
+        for c in range(3):
+            key[j, c] = _swapped(bits[once[j], c])
+    order = np.argsort(key[:, 0], kind="mergesort")
+    a = 0
+    while a < u:  # a run of equal x: by y, then z (insertion; runs are short)
+        b = a + 1
+        while b < u and key[order[b], 0] == key[order[a], 0]:
+            b += 1
+        for i in range(a + 1, b):
+            r = order[i]
+            t = i - 1
+            while t >= a and (key[order[t], 1] > key[r, 1] or (key[order[t], 1] == key[r, 1] and key[order[t], 2] > key[r, 2])):
+                order[t + 1] = order[t]
+                t -= 1
+            order[t + 1] = r
+        a = b
+    rank = np.empty(u, np.int64)
+    for r in range(u):
+        rank[order[r]] = r
+        first[r] = once[order[r]]
+    for i in range(k):
+        inverse[i] = rank[label[i]]
+    return u
+
+
+def distinct_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bitwise distinct rows of ``points (k, 3) float64`` in the order ``np.unique`` gives
+    rows viewed as 24 raw bytes (memcmp; -0.0 and 0.0 distinct): the row ``(u,) int64`` of each
+    one's first occurrence and each row's index ``(k,) int64`` into them (``np.unique``'s
+    ``return_index`` and ``return_inverse``)."""
+    bits = np.ascontiguousarray(points, np.float64).reshape(-1, 3).view(np.uint64)
+    first, inverse = np.empty(len(bits), np.int64), np.empty(len(bits), np.int64)
+    u = _distinct_rows(bits, first, inverse) if len(bits) else 0
+    return first[:u], inverse
 
 
 @njit(cache=True, nogil=True)

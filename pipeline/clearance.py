@@ -384,17 +384,10 @@ def _at(tri: np.ndarray, w: np.ndarray) -> np.ndarray:
 def _distinct(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct rows of ``points (k, 3) float64`` (bitwise), the index ``(u,) int64`` of each one's
     first occurrence and the inverse ``(k,) int64``."""
-    # the distinct rows by a hash table (each one's first occurrence), then in the order of
-    # np.unique over the rows as 24 raw bytes (memcmp): byte 0, the low byte of x, first, so each
-    # coordinate's byte-swapped bits as unsigned keys, x before y before z
+    # in the order of np.unique over the rows as 24 raw bytes (memcmp), compiled
     p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
-    once, label = bvh.first_rows(p)
-    key = p[once].view(np.uint64).byteswap()
-    order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
-    rank = np.empty(len(order), np.int64)
-    rank[order] = np.arange(len(order))
-    first = once[order]
-    return p[first], first, rank[label]
+    first, inverse = bvh.distinct_rows(p)
+    return p[first], first, inverse
 
 
 def _at_cells(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, steps: int) -> np.ndarray:
