@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet", "faces_meet_rows", "faces_at", "facet_bound", "bounds",
-           "first_rows", "distinct_rows", "covering_radii", "lattice_points"]
+           "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children"]
 
 LEAF = 4  # triangles per leaf
 
@@ -810,6 +810,52 @@ def covering_radii(tri: np.ndarray) -> np.ndarray:
     out = np.empty(len(t))
     if len(t):
         _covering_radii(t, out)
+    return out
+
+
+_CHILDREN = ((0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5))  # of corners c0, c1, c2, m01, m12, m20
+
+
+@njit(cache=True, nogil=True)
+def _children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho, out_lat, out_sd, out_fc, out_rows, out_rho):
+    c = lattice.shape[0]
+    for q in range(4):
+        pick = _CHILDREN[q]
+        for i in range(c):
+            o = q * c + i
+            for j in range(3):
+                k = pick[j]
+                if k < 3:
+                    for w in range(3):
+                        out_lat[o, j, w] = lattice[i, k, w]
+                    out_sd[o, j], out_fc[o, j] = sd[i, k], fc[i, k]
+                else:
+                    for w in range(3):
+                        out_lat[o, j, w] = mid[i, k - 3, w]
+                    u = inverse[3 * i + k - 3]
+                    out_sd[o, j], out_fc[o, j] = sd_mid[u], face_mid[u]
+            out_rows[o], out_rho[o] = rows[i], 0.5 * rho[i]
+
+
+def children(lattice: np.ndarray, mid: np.ndarray, sd: np.ndarray, sd_mid: np.ndarray, fc: np.ndarray,
+             face_mid: np.ndarray, inverse: np.ndarray, rows: np.ndarray, rho: np.ndarray):
+    """The four children of each of ``c`` cells split at their edge midpoints, child by child
+    (all cells' first children, then their second, ...): of corners ``(c0, m01, m20), (m01, c1,
+    m12), (m20, m12, c2), (m01, m12, m20)``, with the cells' ``lattice (c, 3, 3) int64``, corner
+    depths ``sd (c, 3)`` and faces ``fc (c, 3) int64``, the midpoints' ``mid (c, 3, 3) int64``
+    and, for midpoint ``k`` of cell ``i``, depth and face ``sd_mid[u]``, ``face_mid[u]`` with ``u
+    = inverse[3 i + k]``; each child's ``rows`` its parent's and its covering radius half the
+    parent's ``rho``. Returns ``(lattice (4c, 3, 3), sd (4c, 3), fc (4c, 3), rows (4c,), rho
+    (4c,))``."""
+    c = len(lattice)
+    out = (np.empty((4 * c, 3, 3), np.int64), np.empty((4 * c, 3)), np.empty((4 * c, 3), np.int64),
+           np.empty(4 * c, np.int64), np.empty(4 * c))
+    if c:
+        _children(np.ascontiguousarray(lattice, np.int64), np.ascontiguousarray(mid, np.int64),
+                  np.ascontiguousarray(sd, np.float64), np.ascontiguousarray(sd_mid, np.float64),
+                  np.ascontiguousarray(fc, np.int64), np.ascontiguousarray(face_mid, np.int64),
+                  np.ascontiguousarray(inverse, np.int64), np.ascontiguousarray(rows, np.int64),
+                  np.ascontiguousarray(rho, np.float64), *out)
     return out
 
 

@@ -541,15 +541,8 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         evaluated += len(pts)
         keep(src[rows[first // 3]], wts, pts, sd_mid)
         low = max(low, float(sd_mid.max(initial=-np.inf)))
-        sm, fm = sd_mid[inverse].reshape(-1, 3), face_mid[inverse].reshape(-1, 3)
-        # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20)
-        pick = [(0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)]
-        all_lat, all_sd = np.concatenate([lattice, mid], axis=1), np.concatenate([sd, sm], axis=1)
-        all_fc = np.concatenate([fc, fm], axis=1)
-        lattice = np.concatenate([all_lat[:, list(p)] for p in pick])
-        sd = np.concatenate([all_sd[:, list(p)] for p in pick])
-        fc = np.concatenate([all_fc[:, list(p)] for p in pick])
-        rows, rho = np.tile(rows, 4), np.tile(0.5 * rho, 4)
+        # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20), child by child
+        lattice, sd, fc, rows, rho = bvh.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
         level += 1
         if not complete:  # the budget's last pass: bound the children and stop
             last = np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)

@@ -245,3 +245,29 @@ def test_the_linear_tree_gives_the_median_trees_answers_to_the_bit(case):
 def test_the_linear_tree_refuses_an_empty_set():
     with pytest.raises(ValueError, match="at least one triangle"):
         bvh.build_linear(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
+
+
+def test_children_are_the_numpy_concatenations():
+    """`bvh.children` gives the arrays `clearance._triangle_depth` built by concatenating each
+    child's picks of the corners and midpoints, child by child, bit for bit."""
+    rng = np.random.default_rng(3)
+    c = 300
+    lattice = rng.integers(0, 64, (c, 3, 3)) * 2
+    mid = (lattice + lattice[:, [1, 2, 0]]) // 2
+    sd, fc = rng.normal(size=(c, 3)), rng.integers(-1, 500, (c, 3))
+    sd[::7, 1] = -np.inf
+    sd[::5, 0] = -0.0
+    u = 400
+    sd_mid, face_mid, inverse = rng.normal(size=u), rng.integers(0, 500, u), rng.integers(0, u, 3 * c)
+    rows, rho = rng.integers(0, 1000, c), rng.uniform(0, 1, c)
+    sm, fm = sd_mid[inverse].reshape(-1, 3), face_mid[inverse].reshape(-1, 3)
+    pick = [(0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)]
+    all_lat, all_sd = np.concatenate([lattice, mid], axis=1), np.concatenate([sd, sm], axis=1)
+    all_fc = np.concatenate([fc, fm], axis=1)
+    want = (np.concatenate([all_lat[:, list(p)] for p in pick]), np.concatenate([all_sd[:, list(p)] for p in pick]),
+            np.concatenate([all_fc[:, list(p)] for p in pick]), np.tile(rows, 4), np.tile(0.5 * rho, 4))
+    got = bvh.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
+    for x, y in zip(got, want):
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    empty = bvh.children(lattice[:0], mid[:0], sd[:0], sd_mid, fc[:0], face_mid, inverse[:0], rows[:0], rho[:0])
+    assert [x.shape for x in empty] == [(0, 3, 3), (0, 3), (0, 3), (0,), (0,)]
