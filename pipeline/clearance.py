@@ -504,8 +504,9 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         bound = np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)
         over = np.nonzero(bound > 0.0)[0]
         if pending is not None:  # level 0: eq. (6) needs the nearest faces of these cells' far corners
-            ids = np.unique(corner_pts[over])
-            ids = ids[pending[ids]]
+            wanted = np.zeros(len(pts), np.bool_)  # the corners of these cells, once each, in order
+            wanted[corner_pts[over]] = True
+            ids = np.nonzero(wanted & pending)[0]
             if len(ids):
                 sd_pts[ids], _, face_pts[ids] = _signed(s, pts[ids], reach)
                 sd, fc = sd_pts[corner_pts], face_pts[corner_pts]
