@@ -203,6 +203,9 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     orientation is not read from a volume: ``outward`` is ``+1`` if the faces' winding gives
     outward normals, ``-1`` if inward. A part is built past the weld by compiled loops
     (`acra.pseudonormals`, the same bits) unless ``compiled`` is false (the array form below).
+    A part's BVH is `acra.bvh.build_linear`'s (built in linear time: a part is queried in one
+    round), a whole solid's `acra.bvh.build`'s (median splits, queried for a run); the closest
+    points do not depend on the tree.
     """
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
@@ -284,7 +287,7 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
             convex = ConvexHull(v).volume <= abs(volume) * (1 + 1e-9) + 1e-12 * size ** 3
         except QhullError:
             convex = False
-    tree = bvh.build_linear(v, f) if part else bvh.build(v[f])  # a part is queried in one round, a whole solid for a run
+    tree = bvh.build_linear(v, f) if part else bvh.build(v[f])
     return Solid(v, f, normals, edge_normals, vertex_normals, bounds, tree, facet, start, members, convex)
 
 
