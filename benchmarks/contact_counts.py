@@ -8,7 +8,7 @@ vertices of one object inside the other), the closest-point queries on collision
 (`acra.nearest.query`) and their index builds, the rays cast, the fcl BVHs built, the data points
 of each response, the H-spline points evaluated by the compiled kernel (`acra.kernels.eval_points`),
 the display triangles whose depth is bounded (`clearance.triangle_depth`) and the closest-point
-searches of the residual (`acra.bvh.closest`) with its part BVHs (`acra.bvh.build`). Prints per
+searches of the residual (`acra.bvh.closest`) with its part BVHs (`acra.bvh.build_linear`). Prints per
 collision frame each count, the CPU ms spent inside it (``time.process_time``, nested) and the
 CPU µs per item: the measured per-item cost a floor estimate multiplies (`docs/performance.md`).
 """
@@ -65,6 +65,9 @@ def instrument() -> None:
                                         clearance.triangle_depth, lambda a, k, out: len(a[1]))
     bvh.closest = _counted("acra.bvh.closest: residual closest points", bvh.closest, lambda a, k, out: len(a[1]))
     bvh.build = _counted("acra.bvh.build: part triangles in BVHs built", bvh.build, lambda a, k, out: len(a[0]))
+    if hasattr(bvh, "build_linear"):  # the part BVH's linear build, where a checkout has it
+        bvh.build_linear = _counted("acra.bvh.build: part triangles in BVHs built", bvh.build_linear,
+                                    lambda a, k, out: len(a[1]))
 
 
 def main() -> None:

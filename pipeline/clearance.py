@@ -203,6 +203,9 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     orientation is not read from a volume: ``outward`` is ``+1`` if the faces' winding gives
     outward normals, ``-1`` if inward. A part is built past the weld by compiled loops
     (`acra.pseudonormals`, the same bits) unless ``compiled`` is false (the array form below).
+    A part's BVH is `acra.bvh.build_linear`'s (built in linear time: a part is queried in one
+    round), a whole solid's `acra.bvh.build`'s (median splits, queried for a run); the closest
+    points do not depend on the tree.
     """
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
@@ -284,7 +287,8 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
             convex = ConvexHull(v).volume <= abs(volume) * (1 + 1e-9) + 1e-12 * size ** 3
         except QhullError:
             convex = False
-    return Solid(v, f, normals, edge_normals, vertex_normals, bounds, bvh.build(v[f]), facet, start, members, convex)
+    tree = bvh.build_linear(v, f) if part else bvh.build(v[f])
+    return Solid(v, f, normals, edge_normals, vertex_normals, bounds, tree, facet, start, members, convex)
 
 
 def _compiled_part(v, f, radius, outward, vertices, faces, weld, scale) -> Solid:
@@ -296,7 +300,7 @@ def _compiled_part(v, f, radius, outward, vertices, faces, weld, scale) -> Solid
         return solid(vertices, faces, weld, True, outward, scale, compiled=False)  # raises the defect's error
     vertex_normals = pseudonormals.vertex_normals(len(v), f, normals, np.arctan2(sin, cos))
     facet = np.arange(len(f))
-    return Solid(v, f, normals, edge_normals, vertex_normals, bvh.bounds(v), bvh.build(v[f]), facet, np.arange(len(f) + 1),
+    return Solid(v, f, normals, edge_normals, vertex_normals, bvh.bounds(v), bvh.build_linear(v, f), facet, np.arange(len(f) + 1),
                  facet.copy())
 
 
@@ -383,17 +387,10 @@ def _at(tri: np.ndarray, w: np.ndarray) -> np.ndarray:
 def _distinct(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct rows of ``points (k, 3) float64`` (bitwise), the index ``(u,) int64`` of each one's
     first occurrence and the inverse ``(k,) int64``."""
-    # the distinct rows by a hash table (each one's first occurrence), then in the order of
-    # np.unique over the rows as 24 raw bytes (memcmp): byte 0, the low byte of x, first, so each
-    # coordinate's byte-swapped bits as unsigned keys, x before y before z
+    # in the order of np.unique over the rows as 24 raw bytes (memcmp), compiled
     p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
-    once, label = bvh.first_rows(p)
-    key = p[once].view(np.uint64).byteswap()
-    order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
-    rank = np.empty(len(order), np.int64)
-    rank[order] = np.arange(len(order))
-    first = once[order]
-    return p[first], first, rank[label]
+    first, inverse = bvh.distinct_rows(p)
+    return p[first], first, inverse
 
 
 def _at_cells(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, steps: int) -> np.ndarray:
@@ -438,6 +435,24 @@ def _cell_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def _extent(s: Solid) -> float:
     """The largest side of the solid's box (the scale of eq. (1)'s feature tolerance)."""
     return float(np.ptp(s.bounds, axis=0).max()) or 1.0
+
+
+def _retired_max(s: Solid, tri, src, steps, retired: float, bound, cells, rows, lattice, fc) -> float:
+    """``max(retired, max of the tighter of eq. (4) ``bound`` and eq. (6) over ``cells``)``, eq. (6)
+    taken only where eq. (4) is above the largest so far: the cells by eq. (4) in decreasing
+    order, in doubling batches, until the next is no higher (a maximum is exact, so the bits are
+    those of bounding every cell)."""
+    cells = cells[bound[cells] > retired]
+    if not len(cells):
+        return retired
+    cells = cells[np.argsort(-bound[cells], kind="stable")]
+    at, size = 0, 16
+    while at < len(cells) and bound[cells[at]] > retired:
+        batch = cells[at:at + size]
+        six = _cell_bound(s, _at_cells(tri, src[rows[batch]], lattice[batch], steps), fc[batch])
+        retired = max(retired, float(np.minimum(bound[batch], six).max()))
+        at, size = at + size, 2 * size
+    return retired
 
 
 def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget: int = 200_000,
@@ -492,16 +507,25 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         bound = np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)
         over = np.nonzero(bound > 0.0)[0]
         if pending is not None:  # level 0: eq. (6) needs the nearest faces of these cells' far corners
-            ids = np.unique(corner_pts[over])
-            ids = ids[pending[ids]]
+            wanted = np.zeros(len(pts), np.bool_)  # the corners of these cells, once each, in order
+            wanted[corner_pts[over]] = True
+            ids = np.nonzero(wanted & pending)[0]
             if len(ids):
                 sd_pts[ids], _, face_pts[ids] = _signed(s, pts[ids], reach)
                 sd, fc = sd_pts[corner_pts], face_pts[corner_pts]
             pending = None
-        if len(over):  # eq. (6): the faces nearest the corners bound the cell too
-            bound[over] = np.minimum(bound[over], _cell_bound(s, _at_cells(tri, src[rows[over]], lattice[over], steps), fc[over]))
+        # eq. (6): the faces nearest the corners bound the cell too. It only lowers a bound, so a
+        # cell that eq. (4) already retires is retired with it, and its bound only counts where it
+        # could raise the largest retired bound (`_retired_max`)
+        split = (bound > now) | ((bound > decide) & (low <= decide))
+        if len(over):
+            first = over[split[over]]
+            if len(first):
+                bound[first] = np.minimum(bound[first], _cell_bound(s, _at_cells(tri, src[rows[first]], lattice[first], steps), fc[first]))
         need = (bound > now) | ((bound > decide) & (low <= decide))
-        retired = max(retired, float(bound[~need].max(initial=0.0)))
+        retired = max(retired, float(bound[~need & split].max(initial=0.0)))
+        if len(over):
+            retired = _retired_max(s, tri, src, steps, retired, bound, over[~split[over]], rows, lattice, fc)
         rows, lattice, sd, fc, rho, bound = rows[need], lattice[need], sd[need], fc[need], rho[need], bound[need]
         room = (budget - evaluated) // 3
         if not len(rows) or level == max_split or room <= 0:
@@ -521,15 +545,8 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         evaluated += len(pts)
         keep(src[rows[first // 3]], wts, pts, sd_mid)
         low = max(low, float(sd_mid.max(initial=-np.inf)))
-        sm, fm = sd_mid[inverse].reshape(-1, 3), face_mid[inverse].reshape(-1, 3)
-        # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20)
-        pick = [(0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)]
-        all_lat, all_sd = np.concatenate([lattice, mid], axis=1), np.concatenate([sd, sm], axis=1)
-        all_fc = np.concatenate([fc, fm], axis=1)
-        lattice = np.concatenate([all_lat[:, list(p)] for p in pick])
-        sd = np.concatenate([all_sd[:, list(p)] for p in pick])
-        fc = np.concatenate([all_fc[:, list(p)] for p in pick])
-        rows, rho = np.tile(rows, 4), np.tile(0.5 * rho, 4)
+        # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20), child by child
+        lattice, sd, fc, rows, rho = bvh.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
         level += 1
         if not complete:  # the budget's last pass: bound the children and stop
             last = np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)

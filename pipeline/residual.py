@@ -32,7 +32,7 @@ import numpy as np
 
 from acra import bvh
 from pipeline import clearance
-from pipeline.model import SceneModel, apply_inverse, apply_xform
+from pipeline.model import SceneModel, apply_xform
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
            "measure_frame", "measure_run", "known", "TARGET"]
@@ -103,8 +103,12 @@ class Shown:
     def near(self, box: np.ndarray, pad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """World triangles ``(m, 3, 3)`` whose boxes come within ``pad`` of the world ``box (2, 3)``
         and their rows in ``triangles``."""
-        rows = np.nonzero(bvh.faces_meet(self.world, self.triangles, box[0], box[1], pad))[0]
-        return self.world[self.triangles[rows]], rows
+        rows = self.near_rows(box, pad)
+        return bvh.faces_at(self.world, self.triangles, rows), rows
+
+    def near_rows(self, box: np.ndarray, pad: float = 0.0) -> np.ndarray:
+        """The rows of `near`'s triangles, without them."""
+        return bvh.faces_meet_rows(self.world, self.triangles, box[0], box[1], pad)
 
     @cached_property
     def fingerprint(self) -> bytes:
@@ -221,13 +225,13 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     corners, near = a.near(b.box)
     if not len(corners):
         return none
-    k = clearance.sigma_max(b.xform)  # eq. (5): world lengths at most k times object-space ones
-    local = apply_inverse(b.xform, corners.reshape(-1, 3)).reshape(-1, 3, 3)
+    k, inverse = _placement(b.xform)  # eq. (5): world lengths at most k times object-space ones
+    local = ((corners.reshape(-1, 3) - b.xform[:3, 3]) @ inverse.T).reshape(-1, 3, 3)  # `apply_inverse`
     d = None
     if b.deformable:
         region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
-        _, rows = b.near(region, pad)
+        rows = b.near_rows(region, pad)
         if rows.size:
             part = _part(b, rows)
             d = clearance.triangle_depth(part, local, target / k, reach=pad / k, decide=decide / k)
@@ -236,6 +240,22 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
     uv = None if a.vertex_uv is None else np.einsum("mk,mkc->mc", d.bary, a.vertex_uv[a.triangles[near[d.tri]]])
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
+
+
+_PLACEMENTS: dict = {}  # the bytes of a (4, 4) matrix -> (sigma_max, inverse of its linear part)
+
+
+def _placement(xform: np.ndarray) -> tuple[float, np.ndarray]:
+    """`clearance.sigma_max` of ``xform`` and the inverse of its linear part (`apply_inverse`'s),
+    kept by the matrix's bytes: every pair of a frame, and every frame of a still object, asks
+    the same matrix."""
+    key = np.ascontiguousarray(xform, np.float64).tobytes()
+    hit = _PLACEMENTS.get(key)
+    if hit is None:
+        if len(_PLACEMENTS) >= 16:
+            _PLACEMENTS.pop(next(iter(_PLACEMENTS)))
+        hit = _PLACEMENTS[key] = (clearance.sigma_max(xform), np.linalg.inv(np.asarray(xform, np.float64)[:3, :3]))
+    return hit
 
 
 PARTS_KEPT = 8  # part solids kept per display

@@ -84,7 +84,12 @@ def test_boxes_meet_is_the_overlap_of_the_triangle_boxes(seed):
         want = overlap(*triangle_boxes(tri), lo, hi, pad)
         np.testing.assert_array_equal(bvh.boxes_meet(tri, lo, hi, pad), want)
         np.testing.assert_array_equal(bvh.faces_meet(points, faces, lo, hi, pad), want)
+        rows = bvh.faces_meet_rows(points, faces, lo, hi, pad)
+        assert rows.dtype == np.int64 and np.array_equal(rows, np.nonzero(want)[0])
+        assert bvh.faces_at(points, faces, rows).tobytes() == tri[rows].tobytes()
         assert 0 < want.sum() < len(want)
+    assert bvh.faces_meet_rows(points, faces[:0], lo, hi).shape == (0,)
+    assert bvh.faces_at(points, faces, np.zeros(0, np.int64)).shape == (0, 3, 3)
 
 
 def test_build_takes_numpys_boxes_and_centroids():
@@ -176,3 +181,93 @@ def test_lattice_points_are_clearances_numpy_points_to_the_bit():
     want = clearance._at(np.repeat(tri[owner], 3, axis=0), lattice.reshape(-1, 3) / steps)
     got = bvh.lattice_points(tri, owner, lattice, steps)
     assert got.tobytes() == want.tobytes()
+
+
+def _as_mesh(tri: np.ndarray):
+    """``tri (f, 3, 3)`` as vertices ``(3f, 3)`` and faces ``(f, 3)``."""
+    return tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3)
+
+
+def _check_tree(tree: bvh.Tree, tri: np.ndarray) -> None:
+    """Every triangle in one leaf of at most `LEAF`, each box the least holding its triangles or
+    its children's boxes, ``leaf_tri`` the triangles in leaf order."""
+    np.testing.assert_array_equal(np.sort(tree.order), np.arange(len(tri)))
+    np.testing.assert_array_equal(tree.leaf_tri, tri[tree.order])
+    np.testing.assert_array_equal(tree.tri, tri)
+    seen = np.zeros(len(tri), int)
+    for node in range(len(tree.lo)):
+        if tree.left[node] < 0:
+            rows = tree.order[tree.start[node]:tree.start[node] + tree.count[node]]
+            assert 1 <= len(rows) <= bvh.LEAF
+            seen[rows] += 1
+            lo, hi = tri[rows].min(axis=(0, 1)), tri[rows].max(axis=(0, 1))
+        else:
+            kids = [tree.left[node], tree.right[node]]
+            assert min(kids) > node
+            lo, hi = tree.lo[kids].min(axis=0), tree.hi[kids].max(axis=0)
+        np.testing.assert_array_equal(tree.lo[node], lo)
+        np.testing.assert_array_equal(tree.hi[node], hi)
+    np.testing.assert_array_equal(seen, 1)
+
+
+@pytest.mark.parametrize("case", ["soup", "grid", "ties", "one"])
+def test_the_linear_tree_gives_the_median_trees_answers_to_the_bit(case):
+    """`bvh.build_linear`'s tree (Z-order cells) is another tree over the same triangles:
+    `closest` answers the same distances, points, rows and weights, bit for bit, as on `build`'s,
+    with a bound and without, on random points and on points at the triangles (ties between
+    neighbours)."""
+    rng = np.random.default_rng(13)
+    if case == "soup":
+        tri = soup(11, 3000)
+    elif case == "grid":
+        g = np.stack(np.meshgrid(np.arange(40.0), np.arange(30.0), [0.0], indexing="ij"), -1).reshape(-1, 3)
+        tri = np.stack([g, g + [1.0, 0, 0], g + [0, 1.0, 0.5]], axis=1)
+    elif case == "ties":
+        tri = np.round(rng.normal(size=(400, 3, 3)), 1)[rng.integers(0, 400, 2500)]
+    else:
+        tri = soup(2, 1)
+    tree = bvh.build_linear(*_as_mesh(tri))
+    _check_tree(tree, tri)
+    lo, hi = tri.min(axis=(0, 1)), tri.max(axis=(0, 1))
+    points = np.concatenate([rng.uniform(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo), (2000, 3)),
+                             tri.reshape(-1, 3)[rng.integers(0, 3 * len(tri), 500)],
+                             tri.mean(axis=1)[rng.integers(0, len(tri), 500)]])
+    for bound in (None, np.full(len(points), 0.05 * float(np.linalg.norm(hi - lo)))):
+        want = bvh.closest(bvh.build(tri), points, bound)
+        got = bvh.closest(tree, points, bound)
+        for x, y in zip(got, want):
+            np.testing.assert_array_equal(x, y)
+    d_ref, _ = brute(tri, points[:300])
+    dist = bvh.closest(tree, points[:300])[0]
+    np.testing.assert_allclose(dist, d_ref, rtol=1e-12, atol=1e-14)
+
+
+def test_the_linear_tree_refuses_an_empty_set():
+    with pytest.raises(ValueError, match="at least one triangle"):
+        bvh.build_linear(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
+
+
+def test_children_are_the_numpy_concatenations():
+    """`bvh.children` gives the arrays `clearance._triangle_depth` built by concatenating each
+    child's picks of the corners and midpoints, child by child, bit for bit."""
+    rng = np.random.default_rng(3)
+    c = 300
+    lattice = rng.integers(0, 64, (c, 3, 3)) * 2
+    mid = (lattice + lattice[:, [1, 2, 0]]) // 2
+    sd, fc = rng.normal(size=(c, 3)), rng.integers(-1, 500, (c, 3))
+    sd[::7, 1] = -np.inf
+    sd[::5, 0] = -0.0
+    u = 400
+    sd_mid, face_mid, inverse = rng.normal(size=u), rng.integers(0, 500, u), rng.integers(0, u, 3 * c)
+    rows, rho = rng.integers(0, 1000, c), rng.uniform(0, 1, c)
+    sm, fm = sd_mid[inverse].reshape(-1, 3), face_mid[inverse].reshape(-1, 3)
+    pick = [(0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)]
+    all_lat, all_sd = np.concatenate([lattice, mid], axis=1), np.concatenate([sd, sm], axis=1)
+    all_fc = np.concatenate([fc, fm], axis=1)
+    want = (np.concatenate([all_lat[:, list(p)] for p in pick]), np.concatenate([all_sd[:, list(p)] for p in pick]),
+            np.concatenate([all_fc[:, list(p)] for p in pick]), np.tile(rows, 4), np.tile(0.5 * rho, 4))
+    got = bvh.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
+    for x, y in zip(got, want):
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    empty = bvh.children(lattice[:0], mid[:0], sd[:0], sd_mid, fc[:0], face_mid, inverse[:0], rows[:0], rho[:0])
+    assert [x.shape for x in empty] == [(0, 3, 3), (0, 3), (0, 3), (0,), (0,)]
