@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["compact", "face_boxes", "triangles_near"]
+__all__ = ["compact", "face_boxes", "solid_mask", "triangles_near"]
 
 
 @njit(cache=True, nogil=True)
@@ -112,3 +112,44 @@ def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
     return_inverse=True)``'s rows and inverse, by marking the used rows instead of sorting."""
     rows, tri = _compact(len(vertices), np.ascontiguousarray(faces, np.int64).reshape(-1, 3))
     return np.ascontiguousarray(vertices[rows], np.float64), tri
+
+
+@njit(cache=True, nogil=True)
+def _solid_mask(points, triangles, collapse, out):
+    for r in range(points.shape[0]):
+        side, nan = 0.0, False
+        for k in range(3):
+            lo, hi = points[r, 0, k], points[r, 0, k]
+            for i in range(points.shape[1]):
+                x = points[r, i, k]
+                if x != x:
+                    nan = True
+                lo, hi = min(lo, x), max(hi, x)
+            if hi - lo != hi - lo:  # an infinite coordinate: numpy's extent is NaN
+                nan = True
+            side = max(side, hi - lo)
+        tol = np.nan if nan else collapse * max(side, 1e-300)
+        for f in range(triangles.shape[0]):
+            keep = True
+            for e in range(3):
+                a, b = triangles[f, e], triangles[f, (e + 2) % 3]
+                dx = points[r, a, 0] - points[r, b, 0]
+                dy = points[r, a, 1] - points[r, b, 1]
+                dz = points[r, a, 2] - points[r, b, 2]
+                if not np.sqrt(dx * dx + dy * dy + dz * dz) > tol:
+                    keep = False
+                    break
+            out[r, f] = keep
+
+
+def solid_mask(points: np.ndarray, triangles: np.ndarray, collapse: float) -> np.ndarray:
+    """For grids ``points (r, n, 3)`` sharing ``triangles (f, 3) int64``: ``(r, f) bool``, whether
+    each triangle's three edges are longer than ``collapse`` times its grid's extent (the largest
+    side of the grid's box, at least 1e-300; NaN coordinates keep no row). Each edge length is
+    ``np.linalg.norm`` of the corner difference as numpy rounds it (squares summed in order), so
+    the rows are those of the array form (`pipeline.grids.solid_rows`) without its ``(r, f, 3, 3)``
+    gathers."""
+    out = np.zeros((points.shape[0], len(triangles)), np.bool_)
+    if out.size and points.shape[1]:
+        _solid_mask(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(triangles, np.int64), float(collapse), out)
+    return out

@@ -212,12 +212,10 @@ class PatchGrid:
 def solid_rows(points: np.ndarray, triangles: np.ndarray) -> list[np.ndarray]:
     """For grids ``points (r, n, 3)`` sharing ``triangles (f, 3) int64``: per grid, the rows
     ``(s,) int64`` of the triangles whose three edges are longer than `COLLAPSE` times the grid's
-    extent. All grids of one density in one pass; each grid's rows are those it would get alone
-    (the same elementwise operations and length-3 reductions)."""
-    tri = points[:, triangles]  # (r, f, 3, 3)
-    tol = COLLAPSE * np.maximum(np.ptp(points, axis=1).max(axis=1), 1e-300)  # (r,)
-    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=2), axis=3)  # (r, f, 3)
-    return [np.nonzero(row)[0] for row in edges.min(axis=2) > tol[:, None]]
+    extent. All grids of one density in one compiled pass (`acra.narrow.solid_mask`: each edge's
+    length rounded as ``np.linalg.norm`` rounds it, so each grid's rows are those the array form
+    gives it alone)."""
+    return [np.nonzero(row)[0] for row in narrow.solid_mask(points, triangles, COLLAPSE)]
 
 
 class GridSet:

@@ -48,3 +48,44 @@ def test_compact_is_numpy_unique():
         got_v, got_f = narrow.compact(v, f)
         assert np.array_equal(got_v, v[used]) and np.array_equal(got_f, inv.reshape(-1, 3).astype(np.int32))
         assert got_f.dtype == np.int32 and got_v.flags.c_contiguous and got_f.flags.c_contiguous
+
+
+def _solid_rows_array_form(points, triangles, collapse):
+    tri = points[:, triangles]  # (r, f, 3, 3)
+    tol = collapse * np.maximum(np.ptp(points, axis=1).max(axis=1), 1e-300)  # (r,)
+    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=2), axis=3)  # (r, f, 3)
+    return edges.min(axis=2) > tol[:, None]
+
+
+def test_solid_mask_is_the_array_form():
+    """`solid_mask` keeps the rows the array form keeps (edge lengths by ``np.linalg.norm``, the
+    extent by ``np.ptp``), bit for bit at the threshold: grids with collapsed rows (poles), edges
+    exactly at the tolerance, flat and single-point grids, NaN and infinite coordinates."""
+    from pipeline.grids import COLLAPSE
+    rng = np.random.default_rng(2)
+    for trial in range(300):
+        s = int(rng.integers(1, 6))
+        n, r = (s + 1) ** 2, int(rng.integers(1, 5))
+        i, j = np.divmod(np.arange(n), s + 1)
+        q = (i * (s + 1) + j).reshape(s + 1, s + 1)
+        tri = np.concatenate([np.stack([q[:-1, :-1], q[1:, :-1], q[1:, 1:]], -1).reshape(-1, 3),
+                              np.stack([q[:-1, :-1], q[1:, 1:], q[:-1, 1:]], -1).reshape(-1, 3)])
+        pts = rng.normal(size=(r, n, 3)) * rng.choice([1e-3, 1.0, 1e3])
+        kind = trial % 6
+        if kind == 1:  # a pole: the first grid line one point
+            pts[:, : s + 1] = pts[:, :1]
+        elif kind == 2:  # a pole within rounding of one point
+            pts[:, : s + 1] = pts[:, :1] + rng.normal(size=(r, s + 1, 3)) * 1e-7
+        elif kind == 3:  # one edge exactly at the tolerance
+            side = np.ptp(pts, axis=1).max(axis=1)
+            tol = COLLAPSE * side
+            pts[:, 1] = pts[:, 0] + np.array([1.0, 0, 0]) * tol[:, None]
+        elif kind == 4:
+            pts[:, :, 2] = 0.0 if trial % 12 == 4 else pts[:, :1, 2]  # flat, or all one point
+            if trial % 12 == 10:
+                pts[:] = pts[:, :1]
+        elif kind == 5:
+            pts[0, int(rng.integers(n))] = rng.choice([np.nan, np.inf, -np.inf])
+        want = _solid_rows_array_form(pts, tri, COLLAPSE)
+        got = narrow.solid_mask(pts, tri, COLLAPSE)
+        assert np.array_equal(got, want), trial
