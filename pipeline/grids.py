@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import fcl
 import numpy as np
-import trimesh
 from scipy.spatial import cKDTree
 
 from acra import narrow, nearest
@@ -247,16 +246,15 @@ class GridSet:
 
     def nearest(self, q: np.ndarray) -> Nearest:
         """Closest points to ``q (k, 3)`` and their parameters, interpolated from the face
-        corners."""
+        corners (trimesh's barycentric coordinates, `acra.nearest.face_uv`)."""
         dist, close, face = np.full(len(q), np.inf), np.zeros((len(q), 3)), np.zeros(len(q), np.int64)
         for start, index in self.indices:
             d, cp, f = index.query(q, dist * (1 + 1e-9) + 1e-300)  # only what beats a finer density's
             better = d < dist
             dist[better], close[better], face[better] = d[better], cp[better], f[better] + start
-        tri = self.triangles[face]
-        bary = trimesh.triangles.points_to_barycentric(self.points[tri], close)
-        uv = np.clip(np.einsum("kj,kjc->kc", bary, self.uv[tri]), self.face_lo[face], self.face_hi[face])
-        return Nearest(dist, close, uv)
+        # trimesh's barycentric coordinates of the closest points, the corners' parameters mixed by
+        # them and clipped to the face's patch, in one compiled pass (`acra.nearest.face_uv`)
+        return Nearest(dist, close, nearest.face_uv(self.points, self.uv, self.triangles, face, close, self.face_lo, self.face_hi))
 
 
 @dataclass(frozen=True, eq=False)
