@@ -250,11 +250,12 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
         for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g.points) for g in obj[:-1]]))):
             cache[p] = (w, g.uv, g.triangles)
     grids = [cache[k] for k in keys]
-    base = np.cumsum([0] + [len(g[0]) for g in grids[:-1]])
-    return Tessellation(
-        np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]),
-        np.concatenate([g[2] + b for g, b in zip(grids, base)]),
-        np.repeat(patches, [len(g[2]) for g in grids], axis=0))
+    points = np.array([len(g[0]) for g in grids])
+    faces = np.array([len(g[2]) for g in grids])
+    triangles = np.concatenate([g[2] for g in grids])
+    triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
+    return Tessellation(np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]), triangles,
+                        np.repeat(patches, faces, axis=0))
 
 
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:

@@ -227,17 +227,19 @@ class GridSet:
 
     def __init__(self, grids: list[PatchGrid]) -> None:
         grids = sorted(grids, key=lambda g: len(g.points), reverse=True)  # finest first
-        base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+        size = np.array([len(g.points) for g in grids])
+        count = np.array([len(g.solid) for g in grids])
+        base = np.cumsum(size) - size  # each grid's first row in the set's points
         self.points = np.concatenate([g.points for g in grids])
         self.uv = np.concatenate([g.uv for g in grids])
         # a grid without slivers keeps every row (``solid`` is then ``arange``): no gather
-        self.triangles = np.concatenate([(g.triangles if len(g.solid) == len(g.triangles) else g.triangles[g.solid]) + b
-                                         for g, b in zip(grids, base)])
-        count = np.array([len(g.solid) for g in grids])
-        self.face_lo = np.repeat(np.array([g.uv[0] for g in grids]), count, axis=0)
-        self.face_hi = np.repeat(np.array([g.uv[-1] for g in grids]), count, axis=0)
-        size = np.array([len(g.points) for g in grids])
-        first = np.cumsum(np.r_[0, count])
+        self.triangles = np.concatenate([g.triangles if len(g.solid) == len(g.triangles) else g.triangles[g.solid]
+                                         for g in grids])
+        self.triangles += np.repeat(base, count)[:, None]
+        # a grid's first and last points are its patch's parameter corners
+        self.face_lo = np.repeat(self.uv[base], count, axis=0)
+        self.face_hi = np.repeat(self.uv[base + size - 1], count, axis=0)
+        first = np.concatenate(([0], np.cumsum(count)))
         self.indices = []  # (first face row, Closest) per density, all over the set's points
         unit = extent(self.points)
         for n in np.unique(size)[::-1]:
