@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["compact", "face_boxes", "triangles_near"]
+__all__ = ["THIN", "compact", "crossings", "face_boxes", "solid_mask", "thin_faces", "triangles_near"]
 
 
 @njit(cache=True, nogil=True)
@@ -112,3 +112,304 @@ def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
     return_inverse=True)``'s rows and inverse, by marking the used rows instead of sorting."""
     rows, tri = _compact(len(vertices), np.ascontiguousarray(faces, np.int64).reshape(-1, 3))
     return np.ascontiguousarray(vertices[rows], np.float64), tri
+
+
+@njit(cache=True, nogil=True)
+def _solid_mask(points, triangles, collapse, out):
+    for r in range(points.shape[0]):
+        side, nan = 0.0, False
+        for k in range(3):
+            lo, hi = points[r, 0, k], points[r, 0, k]
+            for i in range(points.shape[1]):
+                x = points[r, i, k]
+                if x != x:
+                    nan = True
+                lo, hi = min(lo, x), max(hi, x)
+            if hi - lo != hi - lo:  # an infinite coordinate: numpy's extent is NaN
+                nan = True
+            side = max(side, hi - lo)
+        tol = np.nan if nan else collapse * max(side, 1e-300)
+        for f in range(triangles.shape[0]):
+            keep = True
+            for e in range(3):
+                a, b = triangles[f, e], triangles[f, (e + 2) % 3]
+                dx = points[r, a, 0] - points[r, b, 0]
+                dy = points[r, a, 1] - points[r, b, 1]
+                dz = points[r, a, 2] - points[r, b, 2]
+                if not np.sqrt(dx * dx + dy * dy + dz * dz) > tol:
+                    keep = False
+                    break
+            out[r, f] = keep
+
+
+def solid_mask(points: np.ndarray, triangles: np.ndarray, collapse: float) -> np.ndarray:
+    """For grids ``points (r, n, 3)`` sharing ``triangles (f, 3) int64``: ``(r, f) bool``, whether
+    each triangle's three edges are longer than ``collapse`` times its grid's extent (the largest
+    side of the grid's box, at least 1e-300; NaN coordinates keep no row). Each edge length is
+    ``np.linalg.norm`` of the corner difference as numpy rounds it (squares summed in order), so
+    the rows are those of the array form (`pipeline.grids.solid_rows`) without its ``(r, f, 3, 3)``
+    gathers."""
+    out = np.zeros((points.shape[0], len(triangles)), np.bool_)
+    if out.size and points.shape[1]:
+        _solid_mask(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(triangles, np.int64), float(collapse), out)
+    return out
+
+
+# --- fcl's triangle-pair test, for the count of contacts ---------------------------------------
+THIN = 1e-12  # squared sine of a triangle's sharpest corner below which `crossings` leaves the pair to fcl
+
+
+@njit(inline="always")
+def _lt_min(a, b):  # std::min(a, b)
+    return b if b < a else a
+
+
+@njit(inline="always")
+def _lt_max(a, b):  # std::max(a, b)
+    return b if a < b else a
+
+
+@njit(inline="always")
+def _cross(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@njit(inline="always")
+def _project6(a0, a1, a2, w):
+    """fcl's ``Intersect::project6``: whether the projections of triangle ``w[0:3]`` and triangle
+    ``w[3:6]`` on the axis overlap (each dot product summed as Eigen sums a 3-vector's)."""
+    p1 = a0 * w[0, 0] + a1 * w[0, 1] + a2 * w[0, 2]
+    p2 = a0 * w[1, 0] + a1 * w[1, 1] + a2 * w[1, 2]
+    p3 = a0 * w[2, 0] + a1 * w[2, 1] + a2 * w[2, 2]
+    q1 = a0 * w[3, 0] + a1 * w[3, 1] + a2 * w[3, 2]
+    q2 = a0 * w[4, 0] + a1 * w[4, 1] + a2 * w[4, 2]
+    q3 = a0 * w[5, 0] + a1 * w[5, 1] + a2 * w[5, 2]
+    if _lt_min(p1, _lt_min(p2, p3)) > _lt_max(q1, _lt_max(q2, q3)):
+        return False
+    if _lt_min(q1, _lt_min(q2, q3)) > _lt_max(p1, _lt_max(p2, p3)):
+        return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _sat(P, Q, w):
+    """fcl's ``Intersect::intersect_Triangle`` test (17 axes) of triangles ``P, Q (3, 3)``, in its
+    arithmetic: both moved by ``-P[0]``, edges ``p2 - p1, p3 - p2, p1 - p3``."""
+    for r in range(3):
+        for k in range(3):
+            w[r, k] = P[r, k] - P[0, k]
+            w[3 + r, k] = Q[r, k] - P[0, k]
+    e = np.empty((3, 3))
+    f = np.empty((3, 3))
+    for k in range(3):
+        e[0, k], e[1, k], e[2, k] = w[1, k] - w[0, k], w[2, k] - w[1, k], w[0, k] - w[2, k]
+        f[0, k], f[1, k], f[2, k] = w[4, k] - w[3, k], w[5, k] - w[4, k], w[3, k] - w[5, k]
+    n0, n1, n2 = _cross(e[0, 0], e[0, 1], e[0, 2], e[1, 0], e[1, 1], e[1, 2])
+    if not _project6(n0, n1, n2, w):
+        return False
+    m0, m1, m2 = _cross(f[0, 0], f[0, 1], f[0, 2], f[1, 0], f[1, 1], f[1, 2])
+    if not _project6(m0, m1, m2, w):
+        return False
+    for i in range(3):
+        for j in range(3):
+            a0, a1, a2 = _cross(e[i, 0], e[i, 1], e[i, 2], f[j, 0], f[j, 1], f[j, 2])
+            if not _project6(a0, a1, a2, w):
+                return False
+    for i in range(3):
+        a0, a1, a2 = _cross(e[i, 0], e[i, 1], e[i, 2], n0, n1, n2)
+        if not _project6(a0, a1, a2, w):
+            return False
+    for i in range(3):
+        a0, a1, a2 = _cross(f[i, 0], f[i, 1], f[i, 2], m0, m1, m2)
+        if not _project6(a0, a1, a2, w):
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _plane(T):
+    """fcl's ``buildTrianglePlane``: unit normal of ``(v2 - v1) x (v3 - v1)`` (divided by the root
+    of its squared norm) and its offset ``n . v1``; the squared norm of the cross product, and
+    the squared sine of the triangle's sharpest corner."""
+    u0, u1, u2 = T[1, 0] - T[0, 0], T[1, 1] - T[0, 1], T[1, 2] - T[0, 2]
+    v0, v1, v2 = T[2, 0] - T[0, 0], T[2, 1] - T[0, 1], T[2, 2] - T[0, 2]
+    c0, c1, c2 = _cross(u0, u1, u2, v0, v1, v2)
+    sq = c0 * c0 + c1 * c1 + c2 * c2
+    d0, d1, d2 = T[2, 0] - T[1, 0], T[2, 1] - T[1, 1], T[2, 2] - T[1, 2]
+    lu, lv, ld = u0 * u0 + u1 * u1 + u2 * u2, v0 * v0 + v1 * v1 + v2 * v2, d0 * d0 + d1 * d1 + d2 * d2
+    lens = max(max(lu * lv, lu * ld), lv * ld)  # |n|^2 over it: the squared sine of the sharpest corner
+    if sq > 0:
+        r = np.sqrt(sq)
+        c0, c1, c2 = c0 / r, c1 / r, c2 / r
+    t = c0 * T[0, 0] + c1 * T[0, 1] + c2 * T[0, 2]
+    return c0, c1, c2, t, sq, sq / lens if lens > 0 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _deepest(T, n0, n1, n2, t):
+    """fcl's ``computeDeepestPoints`` of a triangle's corners against a plane: the largest depth
+    and how many points it reports (within 1e-6 of it; none if every corner is clear of the plane
+    by 1e-5 on one side, or the deepest is 1e-5 above it)."""
+    eps = 1e-5
+    best = -1.7976931348623157e308
+    count, pos, neg, zero = 0, 0, 0, 0
+    for i in range(3):
+        dist = -((n0 * T[i, 0] + n1 * T[i, 1] + n2 * T[i, 2]) - t)
+        if dist > eps:
+            pos += 1
+        elif dist < -eps:
+            neg += 1
+        else:
+            zero += 1
+        if dist > best:
+            best = dist
+            count = 1
+        elif dist + 1e-6 >= best:
+            count += 1
+    if best < -eps:
+        count = 0
+    if zero == 0 and (neg == 0 or pos == 0):
+        count = 0
+    return best, count
+
+
+@njit(inline="always")
+def _orient(T, a, b, c, U, d):
+    """Sign of ``((b - a) x (c - a)) . (d - a)`` (rows ``a, b, c`` of ``T``, ``d`` of ``U``): +1 or
+    -1, or 0 unless it exceeds 1e-12 of the product of the three lengths (rounding's bound)."""
+    u0, u1, u2 = T[b, 0] - T[a, 0], T[b, 1] - T[a, 1], T[b, 2] - T[a, 2]
+    v0, v1, v2 = T[c, 0] - T[a, 0], T[c, 1] - T[a, 1], T[c, 2] - T[a, 2]
+    w0, w1, w2 = U[d, 0] - T[a, 0], U[d, 1] - T[a, 1], U[d, 2] - T[a, 2]
+    c0, c1, c2 = _cross(u0, u1, u2, v0, v1, v2)
+    det = c0 * w0 + c1 * w1 + c2 * w2
+    scale = np.sqrt((u0 * u0 + u1 * u1 + u2 * u2) * (v0 * v0 + v1 * v1 + v2 * v2) * (w0 * w0 + w1 * w1 + w2 * w2))
+    if det > 1e-12 * scale:
+        return 1
+    if det < -1e-12 * scale:
+        return -1
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _edge_through(T, U, E):
+    """Whether an edge of ``U`` passes through the inside of triangle ``T``, every sign sure:
+    its ends on both sides of ``T``'s plane, and ``T``'s corners all on one side of it."""
+    for e in range(3):
+        d, f = e, (e + 1) % 3
+        sd, sf = _orient(T, 0, 1, 2, U, d), _orient(T, 0, 1, 2, U, f)
+        if sd == 0 or sf == 0 or sd == sf:
+            continue
+        # the edge's side of T's edges: orient(d, f, corner, next corner) by rows of one array
+        for r in range(3):
+            for k in range(3):
+                E[r, k] = T[r, k]
+            E[3, 0], E[3, 1], E[3, 2] = U[d, 0], U[d, 1], U[d, 2]
+            E[4, 0], E[4, 1], E[4, 2] = U[f, 0], U[f, 1], U[f, 2]
+        s0, s1, s2 = _orient(E, 3, 4, 0, E, 1), _orient(E, 3, 4, 1, E, 2), _orient(E, 3, 4, 2, E, 0)
+        if s0 != 0 and s0 == s1 and s1 == s2:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _side(points, faces, rows, thin, lo, hi, reach, flag):
+    """Per triangle ``faces[rows]``: box ``lo, hi``, diagonal of the box ``reach`` and whether it
+    is degenerate or thin ``flag``."""
+    T = np.empty((3, 3))
+    for i in range(len(rows)):
+        for r in range(3):
+            for k in range(3):
+                T[r, k] = points[faces[rows[i], r], k]
+        d = 0.0
+        for k in range(3):
+            lo[i, k] = min(min(T[0, k], T[1, k]), T[2, k])
+            hi[i, k] = max(max(T[0, k], T[1, k]), T[2, k])
+            d += (hi[i, k] - lo[i, k]) * (hi[i, k] - lo[i, k])
+        reach[i] = np.sqrt(d)
+        flag[i] = not (_plane(T)[5] > thin)
+
+
+@njit(cache=True, nogil=True)
+def _crossings(pa, fa, ka, pb, fb, kb, pad, thin):
+    w, E = np.empty((6, 3)), np.empty((5, 3))
+    P, Q = np.empty((3, 3)), np.empty((3, 3))
+    lo_a, hi_a, lo_b, hi_b = np.empty((len(ka), 3)), np.empty((len(ka), 3)), np.empty((len(kb), 3)), np.empty((len(kb), 3))
+    reach_a, reach_b = np.empty(len(ka)), np.empty(len(kb))
+    thin_a, thin_b = np.empty(len(ka), np.bool_), np.empty(len(kb), np.bool_)
+    _side(pa, fa, ka, thin, lo_a, hi_a, reach_a, thin_a)
+    _side(pb, fb, kb, thin, lo_b, hi_b, reach_b, thin_b)
+    total, unsure = 0, False
+    for i in range(len(ka)):
+        for r in range(3):
+            for k in range(3):
+                P[r, k] = pa[fa[ka[i], r], k]
+        for j in range(len(kb)):
+            odd = thin_a[i] or thin_b[j]
+            # a pair with a degenerate or thin triangle is looked at as far as fcl's leaf boxes
+            # (oriented, around each triangle, within twice its box's diagonal) can meet
+            gap = pad + (2.0 * (reach_a[i] + reach_b[j]) if odd else 0.0)
+            if not (lo_a[i, 0] <= hi_b[j, 0] + gap and lo_b[j, 0] <= hi_a[i, 0] + gap and lo_a[i, 1] <= hi_b[j, 1] + gap
+                    and lo_b[j, 1] <= hi_a[i, 1] + gap and lo_a[i, 2] <= hi_b[j, 2] + gap and lo_b[j, 2] <= hi_a[i, 2] + gap):
+                continue
+            for r in range(3):
+                for k in range(3):
+                    Q[r, k] = pb[fb[kb[j], r], k]
+            if not _sat(P, Q, w):
+                continue  # fcl, testing the pair, finds the same axis apart
+            a0, a1, a2, ta, sqa, _ = _plane(P)
+            b0, b1, b2, tb, sqb, _ = _plane(Q)
+            # its axes may separate nothing: unless it surely crosses (so fcl's BVHs meet it too)
+            # and both planes are set, whether fcl counts it is its BVHs' to say
+            if odd and not (sqa > 0 and sqb > 0 and (_edge_through(P, Q, E) or _edge_through(Q, P, E))):
+                unsure = True
+                continue
+            depth2, count2 = _deepest(Q, a0, a1, a2, ta)
+            depth1, count1 = _deepest(P, b0, b1, b2, tb)
+            total += min(count2, 2) if depth1 > depth2 else min(count1, 2)
+    return total, unsure
+
+
+def crossings(pa: np.ndarray, fa: np.ndarray, ka: np.ndarray, pb: np.ndarray, fb: np.ndarray, kb: np.ndarray,
+              pad: float) -> tuple[int, bool]:
+    """The contacts ``fcl.collide`` reports between side ``a``'s triangles ``fa[ka]`` on points
+    ``pa (n, 3)`` and side ``b``'s ``fb[kb]`` on ``pb (m, 3)``: how many the pairs this count can
+    answer for give, and whether some pair's are left unknown (then fcl reports at least as
+    many).
+
+    fcl tests the triangle pairs its BVHs (oriented boxes) do not separate by the 17 axes of
+    ``Intersect::intersect_Triangle`` and gives a crossing pair the deepest points
+    (``computeDeepestPoints``, at most 2) of the side its planes choose; here the same
+    arithmetic runs on every pair whose boxes overlap within ``pad``. A pair the axes part
+    gives fcl nothing whether it tests it or not. A pair they pass meets (touches, to
+    rounding), so its boxes overlap and fcl's BVHs do not part it: both count the same pairs.
+    That holds for triangles whose axes are true directions. A degenerate triangle (no plane)
+    or a thin one (the squared sine of its sharpest corner at most `THIN`) may pass the axes
+    apart from the other: such a pair passing them, looked for as far as fcl's leaf boxes
+    reach, counts only if an edge of one surely passes through the other (every orientation's
+    sign beyond rounding) and both have planes; else its contacts are unknown (fcl's planes of
+    a degenerate triangle are unset, and whether it tests a pair apart is its BVHs' to say)."""
+    if not len(ka) or not len(kb):
+        return 0, False
+    total, unsure = _crossings(np.ascontiguousarray(pa, np.float64), np.ascontiguousarray(fa, np.int64),
+                               np.ascontiguousarray(ka, np.int64), np.ascontiguousarray(pb, np.float64),
+                               np.ascontiguousarray(fb, np.int64), np.ascontiguousarray(kb, np.int64), float(pad), THIN)
+    return int(total), bool(unsure)
+
+
+@njit(cache=True, nogil=True)
+def _thin_faces(points, faces, thin, out):
+    T = np.empty((3, 3))
+    for i in range(faces.shape[0]):
+        for r in range(3):
+            for k in range(3):
+                T[r, k] = points[faces[i, r], k]
+        out[i] = not (_plane(T)[5] > thin)
+
+
+def thin_faces(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Which ``faces (f, 3) int64`` of ``points (n, 3)`` are degenerate or thin (`crossings`'
+    test, `THIN`): ``(f,) bool``."""
+    out = np.zeros(len(faces), np.bool_)
+    if len(faces):
+        _thin_faces(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64), THIN, out)
+    return out

@@ -27,7 +27,7 @@ from numba import njit
 
 from acra.bvh import LEAF, Tree, _morton_order
 
-__all__ = ["ZERO", "Index", "build", "closest_points", "corners", "index", "query"]
+__all__ = ["ZERO", "Index", "build", "closest_points", "corners", "face_uv", "index", "query"]
 
 ZERO = 1e-13  # trimesh.constants.tol.zero: the region tests' tolerance, in units of the mesh
 _REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * unit
@@ -292,3 +292,47 @@ def closest_points(tri: np.ndarray, points: np.ndarray, unit: float = 1.0) -> tu
     if len(p):
         _pairs(t, p, float(unit), ZERO, dist, close)
     return dist, close
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _face_uv(points, uv, triangles, face, close, lo, hi, out):
+    for k in range(face.shape[0]):
+        f = face[k]
+        a, b, c = triangles[f, 0], triangles[f, 1], triangles[f, 2]
+        e0x, e0y, e0z = points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2]
+        e1x, e1y, e1z = points[c, 0] - points[a, 0], points[c, 1] - points[a, 1], points[c, 2] - points[a, 2]
+        wx, wy, wz = close[k, 0] - points[a, 0], close[k, 1] - points[a, 1], close[k, 2] - points[a, 2]
+        d00 = e0x * e0x + e0y * e0y + e0z * e0z
+        d01 = e0x * e1x + e0y * e1y + e0z * e1z
+        d02 = e0x * wx + e0y * wy + e0z * wz
+        d11 = e1x * e1x + e1y * e1y + e1z * e1z
+        d12 = e1x * wx + e1y * wy + e1z * wz
+        inv = 1.0 / (d00 * d11 - d01 * d01)
+        b2 = (d00 * d12 - d01 * d02) * inv
+        b1 = (d11 * d02 - d01 * d12) * inv
+        b0 = 1 - b1 - b2
+        for j in range(2):
+            v = 0.0 + b0 * uv[a, j]  # the einsum's zeroed sum: -0.0 terms give 0.0
+            v = v + b1 * uv[b, j]
+            v = v + b2 * uv[c, j]
+            if v == v:  # np.clip: maximum then minimum, each keeping its first argument on ties
+                v = v if v >= lo[f, j] else lo[f, j]
+                v = v if v <= hi[f, j] else hi[f, j]
+            out[k, j] = v
+
+
+def face_uv(points: np.ndarray, uv: np.ndarray, triangles: np.ndarray, face: np.ndarray, close: np.ndarray,
+            lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Parameters ``(k, 2)`` of points ``close (k, 3)`` on faces ``face (k,) int64`` (rows of
+    ``triangles (f, 3) int64`` over ``points (n, 3)`` with parameters ``uv (n, 2)``), clipped to
+    each face's box ``lo, hi (f, 2)``: ``np.clip(np.einsum("kj,kjc->kc", bary, uv[tri]), lo[face],
+    hi[face])`` with ``bary`` trimesh's ``points_to_barycentric`` (Cramer's rule), the same bits:
+    each dot product summed term by term as ``trimesh.util.diagonal_dot``'s matrix product and the
+    einsum sum them, one reciprocal of the determinant, ``(1 - b1) - b2``."""
+    out = np.empty((len(face), 2))
+    if len(face):
+        _face_uv(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(uv, np.float64),
+                 np.ascontiguousarray(triangles, np.int64), np.ascontiguousarray(face, np.int64),
+                 np.ascontiguousarray(close, np.float64), np.ascontiguousarray(lo, np.float64),
+                 np.ascontiguousarray(hi, np.float64), out)
+    return out

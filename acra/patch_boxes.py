@@ -53,6 +53,23 @@ def _widen(lo, hi, ju, jv, pts, k, pu, pv, per_u, per_v, only, use_only):
                     hi[qu, qv, 2] = z
 
 
+@njit(cache=True, nogil=True)
+def _level0(cvs, iu, iv, lo, hi):
+    """The box of each level-0 patch's 4 x 4 CVs ``cvs[iu[p], :][:, iv[q]]``, without gathering
+    the ``(pu, pv, 4, 4, 3)`` block (minima and maxima: the same numbers in any order)."""
+    for p in range(iu.shape[0]):
+        for q in range(iv.shape[0]):
+            for k in range(3):
+                a = cvs[iu[p, 0], iv[q, 0], k]
+                b = a
+                for i in range(4):
+                    for j in range(4):
+                        x = cvs[iu[p, i], iv[q, j], k]
+                        a = min(a, x)
+                        b = max(b, x)
+                lo[p, q, k], hi[p, q, k] = a, b
+
+
 def patch_boxes(hs: HSpline, every: list[np.ndarray], only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """`acra.tessellate.patch_hulls` of ``hs`` given every level's CV positions ``every``
     (`acra.hspline.all_cv_positions`), the same boxes: ``lo, hi (P0u, P0v, 3)``. ``only
@@ -61,9 +78,9 @@ def patch_boxes(hs: HSpline, every: list[np.ndarray], only: np.ndarray | None = 
     i4 = np.arange(4)
     iu = hs.u.wrap_cv(np.arange(pu)[:, None] + i4, 0)
     iv = hs.v.wrap_cv(np.arange(pv)[:, None] + i4, 0)
-    block = hs.cvs[iu[:, None, :, None], iv[None, :, None, :]]  # (pu, pv, 4, 4, 3)
-    lo = np.ascontiguousarray(block.min(axis=(2, 3)))
-    hi = np.ascontiguousarray(block.max(axis=(2, 3)))
+    lo, hi = np.empty((pu, pv, 3)), np.empty((pu, pv, 3))
+    _level0(np.ascontiguousarray(hs.cvs, np.float64), np.ascontiguousarray(iu, np.int64), np.ascontiguousarray(iv, np.int64),
+            lo, hi)
     mask = np.zeros((1, 1), np.bool_) if only is None else np.ascontiguousarray(only, np.bool_)
     for k in range(1, hs.depth):
         keys = hs.level(k).cv_keys

@@ -63,7 +63,7 @@ def _anchor_at(ga: D.SurfaceGeometry, gb: D.Geometry, t: float) -> Anchor | None
         centre = deeper.points[_deepest(deeper, 1e-9 * max(ga.size, gb.size))]
     else:
         inter = D.intersect(ga, gb)
-        if not inter.count:
+        if not inter.crosses:
             return None
         centre = inter.points.mean(axis=0)
     pa, pb = D.project(ga, centre[None]), D.project(gb, centre[None])
@@ -378,7 +378,7 @@ def detect_pair(ga: D.SurfaceGeometry, gb: D.Geometry, t: float = 0.0, geometry_
         raise TypeError("A must be a deformable D.SurfaceGeometry (collider–collider pairs are never tested)")
     inter = D.intersect(ga, gb)
     ra, rb = D.regions(ga, gb)
-    if inter.count == 0 and ra.empty and rb.empty:
+    if not inter.crosses and ra.empty and rb.empty:
         return None
     anchor = None if geometry_at is None else rewind(geometry_at, t, start, cache, max_back, steps)
     if anchor is not None:

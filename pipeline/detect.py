@@ -64,6 +64,13 @@ class ColliderStatic:
         return tri.min(axis=1), tri.max(axis=1)
 
     @cached_property
+    def thin(self) -> bool:
+        """Whether a face is degenerate or thin (`acra.narrow.thin_faces`): fcl's BVH of every
+        face may then pair it with triangles `acra.narrow.crossings` never meets, so only fcl
+        counts the contacts."""
+        return bool(narrow.thin_faces(self.mesh.vertices, self.mesh.faces).any())
+
+    @cached_property
     def _face_centres(self) -> tuple[np.ndarray, np.ndarray]:
         """Centres and half-extents ``(f, 3)`` of `face_boxes`."""
         lo, hi = self.face_boxes
@@ -243,11 +250,12 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
         for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g.points) for g in obj[:-1]]))):
             cache[p] = (w, g.uv, g.triangles)
     grids = [cache[k] for k in keys]
-    base = np.cumsum([0] + [len(g[0]) for g in grids[:-1]])
-    return Tessellation(
-        np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]),
-        np.concatenate([g[2] + b for g, b in zip(grids, base)]),
-        np.repeat(patches, [len(g[2]) for g in grids], axis=0))
+    points = np.array([len(g[0]) for g in grids])
+    faces = np.array([len(g[2]) for g in grids])
+    triangles = np.concatenate([g[2] for g in grids])
+    triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
+    return Tessellation(np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]), triangles,
+                        np.repeat(patches, faces, axis=0))
 
 
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:
@@ -261,20 +269,49 @@ def is_closed(geom: Geometry) -> bool:
 
 
 # --- narrow phase -------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
 class Intersections:
     """Crossing triangle pairs (fcl): world contact ``points (k, 3)``; level-0 patch of ``A``'s
     triangle ``patch_a (k, 2) int64`` and of ``B``'s ``patch_b`` (``None`` for a collider); the
-    collider's face ``face_b (k,) int64`` (row of ``ColliderStatic.mesh.faces``, else ``-1``)."""
+    collider's face ``face_b (k,) int64`` (row of ``ColliderStatic.mesh.faces``, else ``-1``);
+    ``count`` of them, ``crosses``: whether there is one.
 
-    points: np.ndarray
-    patch_a: np.ndarray
-    patch_b: np.ndarray | None
-    face_b: np.ndarray
+    Made by `Intersections.later`, the arrays wait until one is read (or ``count`` where it is
+    not known): detection mostly asks only whether a pair crosses, which
+    `acra.narrow.crossings` answers without fcl's BVHs."""
+
+    def __init__(self, points: np.ndarray, patch_a: np.ndarray, patch_b: np.ndarray | None, face_b: np.ndarray) -> None:
+        self._arrays = (points, patch_a, patch_b, face_b)
+        self._count = int(points.shape[0])
+        self._make = None
+
+    @classmethod
+    def later(cls, make, count: int | None, crosses: bool) -> "Intersections":
+        """The arrays from ``make()`` when first read; ``count`` (``None``: not known) and
+        ``crosses`` known now."""
+        out = cls.__new__(cls)
+        out._arrays, out._count, out._make, out._crosses = None, count, make, bool(crosses)
+        return out
+
+    def _get(self, i: int):
+        if self._arrays is None:
+            self._arrays = self._make()
+            self._make = None
+        return self._arrays[i]
+
+    points = property(lambda self: self._get(0))
+    patch_a = property(lambda self: self._get(1))
+    patch_b = property(lambda self: self._get(2))
+    face_b = property(lambda self: self._get(3))
 
     @property
     def count(self) -> int:
-        return int(self.points.shape[0])
+        if self._count is None:
+            self._count = int(self.points.shape[0])
+        return self._count
+
+    @property
+    def crosses(self) -> bool:
+        return self._crosses if self._arrays is None else self.count > 0
 
 
 def pair_pad(ga: Geometry, gb: Geometry) -> float:
@@ -319,7 +356,7 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         return none
     ta = tessellate(ga, ca)
     if collider:  # the collider's face boxes are the run's (`ColliderStatic.face_boxes`)
-        pa, ob = apply_inverse(gb.xform, ta.points), gb.static.bvh
+        pa = apply_inverse(gb.xform, ta.points)
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), gb.static.face_boxes, pad)
     else:
         # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
@@ -333,18 +370,34 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), _face_boxes(pb, fb_all), pad)
     if not len(ka):
         return none
-    oa = ga.shape.bvhs.get(pa, ta.triangles[ka])
-    if not collider:
-        ob = gb.shape.bvhs.get(pb, fb_all[kb])
-    res = fcl.CollisionResult()
-    fcl.collide(oa, ob, fcl.CollisionRequest(num_max_contacts=_MAX_CONTACTS, enable_contact=True), res)
-    n = len(res.contacts)
-    fa = ka[np.fromiter((c.b1 for c in res.contacts), np.int64, n)]
-    fb = np.fromiter((c.b2 for c in res.contacts), np.int64, n)
-    pos = np.array([c.pos for c in res.contacts], np.float64).reshape(-1, 3)
+
+    def contacts():
+        oa = ga.shape.bvhs.get(pa, ta.triangles[ka])
+        ob = gb.static.bvh if collider else gb.shape.bvhs.get(pb, fb_all[kb])
+        res = fcl.CollisionResult()
+        fcl.collide(oa, ob, fcl.CollisionRequest(num_max_contacts=_MAX_CONTACTS, enable_contact=True), res)
+        n = len(res.contacts)
+        fa = ka[np.fromiter((c.b1 for c in res.contacts), np.int64, n)]
+        fb = np.fromiter((c.b2 for c in res.contacts), np.int64, n)
+        pos = np.array([c.pos for c in res.contacts], np.float64).reshape(-1, 3)
+        if collider:
+            return apply_xform(gb.xform, pos), ta.tri_patch[fa], None, fb
+        return pos, ta.tri_patch[fa], tb.tri_patch[kb[fb]], np.full(n, -1, np.int64)
+
+    # fcl's contact count by its own triangle test on the pairs whose boxes overlap, without its
+    # BVHs (`acra.narrow.crossings`); the contacts themselves only when read. Where pairs with a
+    # degenerate or thin triangle leave the count unknown and the others give none, fcl answers
+    # now.
     if collider:
-        return Intersections(apply_xform(gb.xform, pos), ta.tri_patch[fa], None, fb)
-    return Intersections(pos, ta.tri_patch[fa], tb.tri_patch[kb[fb]], np.full(n, -1, np.int64))
+        count, unsure = (0, True) if gb.static.thin else narrow.crossings(pa, ta.triangles, ka, gb.static.mesh.vertices,
+                                                                         gb.static.mesh.faces, kb, pad)
+    else:
+        count, unsure = narrow.crossings(pa, ta.triangles, ka, pb, fb_all, kb, pad)
+    if not unsure:
+        return Intersections.later(contacts, count, count > 0)
+    if count:  # fcl reports these and the unknown pairs' contacts: how many is read from it later
+        return Intersections.later(contacts, None, True)
+    return Intersections(*contacts())
 
 
 # --- inside tests, distances, projections -------------------------------------------------------
@@ -572,7 +625,7 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return False
-    if intersect(ga, gb).count:
+    if intersect(ga, gb).crosses:
         return True
     for x, y in ((ga, gb), (gb, ga)):
         if not is_closed(y):

@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import fcl
 import numpy as np
-import trimesh
 from scipy.spatial import cKDTree
 
 from acra import narrow, nearest
@@ -212,12 +211,10 @@ class PatchGrid:
 def solid_rows(points: np.ndarray, triangles: np.ndarray) -> list[np.ndarray]:
     """For grids ``points (r, n, 3)`` sharing ``triangles (f, 3) int64``: per grid, the rows
     ``(s,) int64`` of the triangles whose three edges are longer than `COLLAPSE` times the grid's
-    extent. All grids of one density in one pass; each grid's rows are those it would get alone
-    (the same elementwise operations and length-3 reductions)."""
-    tri = points[:, triangles]  # (r, f, 3, 3)
-    tol = COLLAPSE * np.maximum(np.ptp(points, axis=1).max(axis=1), 1e-300)  # (r,)
-    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=2), axis=3)  # (r, f, 3)
-    return [np.nonzero(row)[0] for row in edges.min(axis=2) > tol[:, None]]
+    extent. All grids of one density in one compiled pass (`acra.narrow.solid_mask`: each edge's
+    length rounded as ``np.linalg.norm`` rounds it, so each grid's rows are those the array form
+    gives it alone)."""
+    return [np.nonzero(row)[0] for row in narrow.solid_mask(points, triangles, COLLAPSE)]
 
 
 class GridSet:
@@ -230,17 +227,19 @@ class GridSet:
 
     def __init__(self, grids: list[PatchGrid]) -> None:
         grids = sorted(grids, key=lambda g: len(g.points), reverse=True)  # finest first
-        base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+        size = np.array([len(g.points) for g in grids])
+        count = np.array([len(g.solid) for g in grids])
+        base = np.cumsum(size) - size  # each grid's first row in the set's points
         self.points = np.concatenate([g.points for g in grids])
         self.uv = np.concatenate([g.uv for g in grids])
         # a grid without slivers keeps every row (``solid`` is then ``arange``): no gather
-        self.triangles = np.concatenate([(g.triangles if len(g.solid) == len(g.triangles) else g.triangles[g.solid]) + b
-                                         for g, b in zip(grids, base)])
-        count = np.array([len(g.solid) for g in grids])
-        self.face_lo = np.repeat(np.array([g.uv[0] for g in grids]), count, axis=0)
-        self.face_hi = np.repeat(np.array([g.uv[-1] for g in grids]), count, axis=0)
-        size = np.array([len(g.points) for g in grids])
-        first = np.cumsum(np.r_[0, count])
+        self.triangles = np.concatenate([g.triangles if len(g.solid) == len(g.triangles) else g.triangles[g.solid]
+                                         for g in grids])
+        self.triangles += np.repeat(base, count)[:, None]
+        # a grid's first and last points are its patch's parameter corners
+        self.face_lo = np.repeat(self.uv[base], count, axis=0)
+        self.face_hi = np.repeat(self.uv[base + size - 1], count, axis=0)
+        first = np.concatenate(([0], np.cumsum(count)))
         self.indices = []  # (first face row, Closest) per density, all over the set's points
         unit = extent(self.points)
         for n in np.unique(size)[::-1]:
@@ -249,16 +248,15 @@ class GridSet:
 
     def nearest(self, q: np.ndarray) -> Nearest:
         """Closest points to ``q (k, 3)`` and their parameters, interpolated from the face
-        corners."""
+        corners (trimesh's barycentric coordinates, `acra.nearest.face_uv`)."""
         dist, close, face = np.full(len(q), np.inf), np.zeros((len(q), 3)), np.zeros(len(q), np.int64)
         for start, index in self.indices:
             d, cp, f = index.query(q, dist * (1 + 1e-9) + 1e-300)  # only what beats a finer density's
             better = d < dist
             dist[better], close[better], face[better] = d[better], cp[better], f[better] + start
-        tri = self.triangles[face]
-        bary = trimesh.triangles.points_to_barycentric(self.points[tri], close)
-        uv = np.clip(np.einsum("kj,kjc->kc", bary, self.uv[tri]), self.face_lo[face], self.face_hi[face])
-        return Nearest(dist, close, uv)
+        # trimesh's barycentric coordinates of the closest points, the corners' parameters mixed by
+        # them and clipped to the face's patch, in one compiled pass (`acra.nearest.face_uv`)
+        return Nearest(dist, close, nearest.face_uv(self.points, self.uv, self.triangles, face, close, self.face_lo, self.face_hi))
 
 
 @dataclass(frozen=True, eq=False)

@@ -18,6 +18,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
+from acra.orientation import volume_sign
 from acra.patch_boxes import patch_boxes
 from acra.tessellate import patch_grids
 from pipeline import queries
@@ -123,7 +124,11 @@ class Shape:
         """``+1`` if ``du × dv`` points out of a closed surface, else ``-1``: the sign of the
         volume enclosed by the coarse grid (divergence theorem)."""
         pts, tris, _ = self._coarse
-        a, b, c = (pts[tris[:, i]] - pts.mean(axis=0) for i in range(3))
+        centre = pts.mean(axis=0)
+        sure = volume_sign(pts, tris, centre)  # compiled, where no summation order can flip it
+        if sure:
+            return float(sure)
+        a, b, c = (pts[tris[:, i]] - centre for i in range(3))
         return 1.0 if np.einsum("ij,ij->i", a, np.cross(b, c)).sum() >= 0 else -1.0
 
     @cached_property

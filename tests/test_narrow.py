@@ -48,3 +48,101 @@ def test_compact_is_numpy_unique():
         got_v, got_f = narrow.compact(v, f)
         assert np.array_equal(got_v, v[used]) and np.array_equal(got_f, inv.reshape(-1, 3).astype(np.int32))
         assert got_f.dtype == np.int32 and got_v.flags.c_contiguous and got_f.flags.c_contiguous
+
+
+def _solid_rows_array_form(points, triangles, collapse):
+    tri = points[:, triangles]  # (r, f, 3, 3)
+    tol = collapse * np.maximum(np.ptp(points, axis=1).max(axis=1), 1e-300)  # (r,)
+    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=2), axis=3)  # (r, f, 3)
+    return edges.min(axis=2) > tol[:, None]
+
+
+def test_solid_mask_is_the_array_form():
+    """`solid_mask` keeps the rows the array form keeps (edge lengths by ``np.linalg.norm``, the
+    extent by ``np.ptp``), bit for bit at the threshold: grids with collapsed rows (poles), edges
+    exactly at the tolerance, flat and single-point grids, NaN and infinite coordinates."""
+    from pipeline.grids import COLLAPSE
+    rng = np.random.default_rng(2)
+    for trial in range(300):
+        s = int(rng.integers(1, 6))
+        n, r = (s + 1) ** 2, int(rng.integers(1, 5))
+        i, j = np.divmod(np.arange(n), s + 1)
+        q = (i * (s + 1) + j).reshape(s + 1, s + 1)
+        tri = np.concatenate([np.stack([q[:-1, :-1], q[1:, :-1], q[1:, 1:]], -1).reshape(-1, 3),
+                              np.stack([q[:-1, :-1], q[1:, 1:], q[:-1, 1:]], -1).reshape(-1, 3)])
+        pts = rng.normal(size=(r, n, 3)) * rng.choice([1e-3, 1.0, 1e3])
+        kind = trial % 6
+        if kind == 1:  # a pole: the first grid line one point
+            pts[:, : s + 1] = pts[:, :1]
+        elif kind == 2:  # a pole within rounding of one point
+            pts[:, : s + 1] = pts[:, :1] + rng.normal(size=(r, s + 1, 3)) * 1e-7
+        elif kind == 3:  # one edge exactly at the tolerance
+            side = np.ptp(pts, axis=1).max(axis=1)
+            tol = COLLAPSE * side
+            pts[:, 1] = pts[:, 0] + np.array([1.0, 0, 0]) * tol[:, None]
+        elif kind == 4:
+            pts[:, :, 2] = 0.0 if trial % 12 == 4 else pts[:, :1, 2]  # flat, or all one point
+            if trial % 12 == 10:
+                pts[:] = pts[:, :1]
+        elif kind == 5:
+            pts[0, int(rng.integers(n))] = rng.choice([np.nan, np.inf, -np.inf])
+        want = _solid_rows_array_form(pts, tri, COLLAPSE)
+        got = narrow.solid_mask(pts, tri, COLLAPSE)
+        assert np.array_equal(got, want), trial
+
+
+def _fcl_contacts(pa, fa, pb, fb):
+    import fcl
+
+    from pipeline.grids import bvh
+    res = fcl.CollisionResult()
+    fcl.collide(bvh(pa, fa), bvh(pb, fb), fcl.CollisionRequest(num_max_contacts=1_000_000, enable_contact=True), res)
+    return len(res.contacts)
+
+
+def _grid(rng, n, centre, radius):
+    """A bumpy sphere's triangle grid (poles of coincident and nearly coincident points)."""
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, n + 1), np.linspace(0, np.pi, n + 1), indexing="ij")
+    r = radius * (1 + 0.05 * rng.normal(size=u.shape))
+    pts = np.stack([r * np.cos(u) * np.sin(v), r * np.sin(u) * np.sin(v), r * np.cos(v)], -1).reshape(-1, 3) + centre
+    q = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    tri = np.concatenate([np.stack([q[:-1, :-1], q[1:, :-1], q[1:, 1:]], -1).reshape(-1, 3),
+                          np.stack([q[:-1, :-1], q[1:, 1:], q[:-1, 1:]], -1).reshape(-1, 3)])
+    return pts, tri
+
+
+def test_crossings_count_fcl_contacts():
+    """`crossings` counts the contacts ``fcl.collide`` reports on the same triangles wherever it
+    says it knows them all, and never more than fcl where it does not (then fcl reports some if
+    it counted some): random soups (shared coordinates, coplanar sets, slivers, degenerate
+    triangles) and crossing bumpy spheres with poles, at three scales."""
+    rng = np.random.default_rng(3)
+    known = 0
+    for trial in range(900):
+        scale = float(rng.choice([1e-3, 1.0, 100.0]))
+        kind = trial % 6
+        if kind == 5:
+            pa, fa = _grid(rng, int(rng.integers(4, 12)), np.zeros(3), scale)
+            pb, fb = _grid(rng, int(rng.integers(4, 12)), rng.normal(size=3) * scale, scale * rng.choice([0.3, 1.0]))
+        else:
+            n, m = int(rng.integers(3, 50)), int(rng.integers(3, 50))
+            pa = rng.normal(size=(n, 3)) * scale
+            pb = rng.normal(size=(m, 3)) * scale * rng.choice([0.3, 1.0]) + rng.normal(size=3) * scale * rng.choice([0, 0.5, 2])
+            fa = np.array([rng.choice(n, 3, replace=False) for _ in range(int(rng.integers(1, 30)))])
+            fb = np.array([rng.choice(m, 3, replace=False) for _ in range(int(rng.integers(1, 30)))])
+            if kind == 1:  # shared coordinates: touching pairs
+                pa, pb = np.round(pa / scale * 2) * scale / 2, np.round(pb / scale * 2) * scale / 2
+            elif kind == 2:  # coplanar
+                pa[:, 2], pb[:, 2] = 0.0, 0.0
+            elif kind == 3:  # degenerate and thin
+                fa[::3, 1] = fa[::3, 0]
+                pb[1::4] = pb[0::4][: len(pb[1::4])] * (1 + 1e-15)
+        ka, kb = np.arange(len(fa)), np.arange(len(fb))
+        count, unsure = narrow.crossings(pa, fa, ka, pb, fb, kb, 1e-7 * scale)
+        want = _fcl_contacts(pa, fa, pb, fb)
+        if unsure:
+            assert count <= want and (want > 0 or count == 0), trial
+        else:
+            known += 1
+            assert count == want, (trial, count, want)
+    assert known > 500

@@ -84,3 +84,30 @@ def test_corners_are_numpys_fancy_index():
         got = N.corners(v, faces)
         assert got.shape == v[faces].shape and got.dtype == v[faces].dtype
         np.testing.assert_array_equal(got, v[faces])
+
+
+def test_face_uv_is_trimesh_barycentric_einsum_and_clip():
+    """`face_uv` gives ``np.clip(np.einsum("kj,kjc->kc", points_to_barycentric(...), uv[tri]),
+    lo[face], hi[face])`` bit for bit (NaN where trimesh's is): closest points on, near and off
+    the faces, degenerate faces, negative and zero parameters (signed zeros), clipped and not."""
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        tri_pts, pts = _triangles(rng, 400)
+        points = tri_pts.reshape(-1, 3) * rng.choice([1e-3, 1.0, 1e3])
+        faces = np.arange(len(points)).reshape(-1, 3)
+        uv = rng.random((len(points), 2)) * rng.choice([1.0, 16.0])
+        uv[rng.random(len(uv)) < 0.2] = 0.0
+        uv[rng.random(len(uv)) < 0.05] *= -1.0
+        face = rng.integers(0, len(faces), 900)
+        w = rng.random((900, 3))
+        w[rng.random(900) < 0.3, 0] = 0.0
+        w /= w.sum(axis=1, keepdims=True)
+        close = np.einsum("kj,kjc->kc", w, points[faces[face]]) + rng.normal(size=(900, 3)) * rng.choice([0.0, 1e-12, 1e-3])
+        lo = uv[faces].min(axis=1) + rng.choice([0.0, 0.05])
+        hi = np.maximum(uv[faces].max(axis=1) - rng.choice([0.0, 0.05]), lo)
+        with np.errstate(all="ignore"):
+            bary = trimesh.triangles.points_to_barycentric(points[faces[face]], close)
+            want = np.clip(np.einsum("kj,kjc->kc", bary, uv[faces[face]]), lo[face], hi[face])
+        got = N.face_uv(points, uv, faces, face, close, lo, hi)
+        same = (got == want) & (np.signbit(got) == np.signbit(want)) | (np.isnan(got) & np.isnan(want))
+        assert same.all(), trial
