@@ -456,6 +456,68 @@ def changed_patches(old: HSpline, new: HSpline, margin: int = 2, levels: tuple[i
     return (_band(new.u, margin) @ mask.astype(np.float64) @ _band(new.v, margin)) > 0.0
 
 
+def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: Details | None,
+                  level: int) -> np.ndarray:
+    """Level-``level`` cells ``(P0u << level, P0v << level) bool`` (each a level-``level`` patch,
+    closed) holding every point where `evaluate` of ``new`` with ``new_det`` may give other bits
+    than of ``old`` with ``old_det`` (same grid; the details `evaluate` is given, every level's).
+
+    A point's sum reads level 0's 4×4 CV block and, on each level `evaluate` visits
+    (`HSpline._terms_index`), the detail vectors of its active patch's 4×4 block, if the patch
+    is active. So a point can change only on a level-0 patch a changed CV supports, or on a
+    level-``k`` patch whose activity (or its level's visiting) changed or which a level-``k``
+    CV supports whose detail vector is not the same bits (or which only one surface has). The
+    detail vectors are compared, not the offsets, so the frames a coarser move turned are found
+    where they turned, with no margin: on the demo a response's changed cells are a fraction of
+    the 2-patch margin `changed_patches` grows its moved CVs by."""
+    cu, cv = new.u.patches(level), new.v.patches(level)
+    out = np.zeros((cu, cv), bool)
+
+    def mark(k: int, pu: np.ndarray, pv: np.ndarray) -> None:
+        # level-k patches into level-`level` cells: a coarser patch covers a block of cells, a
+        # finer one lies in one cell (its closed box in the cell's)
+        if not pu.size:
+            return
+        if k >= level:
+            out[pu >> (k - level), pv >> (k - level)] = True
+            return
+        r = 1 << (level - k)
+        mk = np.zeros((new.u.patches(k), new.v.patches(k)), bool)
+        mk[pu, pv] = True
+        out[...] |= np.repeat(np.repeat(mk, r, axis=0), r, axis=1)
+
+    def support(k: int, ju: np.ndarray, jv: np.ndarray) -> None:
+        # CV j supports level-k patches j-3 .. j (wrapped where periodic, clipped where open)
+        fit = lambda q, d: np.mod(q, d.patches(k)) if d.periodic else np.clip(q, 0, d.patches(k) - 1)  # noqa: E731
+        qu = fit(ju[:, None] - 3 + _I4, new.u)
+        qv = fit(jv[:, None] - 3 + _I4, new.v)
+        mark(k, *(x.reshape(-1) for x in np.broadcast_arrays(qu[:, :, None], qv[:, None, :])))
+
+    if old.cvs.shape != new.cvs.shape:
+        out[...] = True
+        return out
+    support(0, *np.nonzero(np.any(old.cvs.view(np.int64) != new.cvs.view(np.int64), axis=-1)))
+    old_levels, new_levels = (set(hs._terms_index[0].tolist()) for hs in (old, new))
+    for k in range(1, new.depth):
+        a, b = old.level(k), new.level(k)
+        pa = a.patches if k in old_levels else a.patches[:0]
+        pb = b.patches if k in new_levels else b.patches[:0]
+        if not (pa.size or pb.size):
+            continue
+        flip = np.setxor1d(pa, pb, assume_unique=True)  # active on one surface alone
+        mark(k, *np.divmod(flip, new.v.patches(k)))
+        va = old_det.vectors[k - 1] if old_det is not None and pa.size else np.zeros((a.cv_keys.size, 3))
+        vb = new_det.vectors[k - 1] if new_det is not None and pb.size else np.zeros((b.cv_keys.size, 3))
+        rows, found = _lookup(a.cv_keys, b.cv_keys)
+        same = np.zeros(b.cv_keys.size, bool)
+        same[found] = np.all(np.ascontiguousarray(va[rows[found]]).view(np.int64)
+                             == np.ascontiguousarray(vb[found]).view(np.int64), axis=-1)
+        gone = ~_lookup(b.cv_keys, a.cv_keys)[1]
+        keys = np.concatenate([b.cv_keys[~same], a.cv_keys[gone]])
+        support(k, *_split_cv(new, k, keys))
+    return out
+
+
 @functools.lru_cache(maxsize=64)
 def _band(d: Direction, m: int) -> np.ndarray:
     """``(P0, P0) float64``: 1 where two level-0 patches along ``d`` are at most ``m`` apart

@@ -132,6 +132,64 @@ def test_samples_since_an_evaluation_on_another_topology_equal_a_full_evaluation
         np.testing.assert_array_equal(a, b)
 
 
+def _changed_vertices(old, new, topo):
+    """Which vertices of ``topo`` a full evaluation of ``new`` gives other bits than of ``old``
+    (points or limit normals)."""
+    a, b = T.grid_samples(old, topo), T.grid_samples(new, topo)
+    return np.any(a[0].view(np.int64) != b[0].view(np.int64), axis=1) | np.any(a[1].view(np.int64) != b[1].view(np.int64), axis=1)
+
+
+def _covered(mask, hs, topo, level):
+    """Whether each vertex of ``topo`` is on a marked level-``level`` cell (or its border)."""
+    u, v = T._patch_cells(hs, topo, None, level)
+    return mask[u[0], v[0]] | mask[u[1], v[0]] | mask[u[0], v[1]] | mask[u[1], v[1]]
+
+
+@pytest.mark.parametrize("seed,level,cells,open_", [(0, 0, 2, False), (1, 1, 2, False), (2, 2, 1, False), (3, 2, 3, False),
+                                                     (4, 1, 2, True), (5, 3, 3, True), (6, 2, 0, True)])
+def test_changed_cells_hold_every_changed_vertex(seed, level, cells, open_):
+    """`changed_cells` (detail vectors compared, no margin) marks every cell where a vertex
+    changed bits, fewer cells than `changed_patches`' margin, and `grid_samples` with it equals a
+    full evaluation bit for bit, on the same and on another (refined) topology."""
+    rng = np.random.default_rng(seed)
+    if open_:
+        hs = wavy_sheet()
+        for k, cv in ((1, [3, 3]), (2, [5, 5]), (3, [10, 9])):
+            hs = H.make_movable(hs, k, [cv])
+        hs = with_random_offsets(hs, 0.05, seed)
+    else:
+        hs, at = H.from_grid(*shapes.sphere(12, 10), depth=4), int(rng.integers(0, 12))
+        for k in (1, 2, 3):
+            hs = H.make_movable(hs, k, [[(2 * at + 1) << (k - 1), 4 << k]])
+        hs = with_random_offsets(hs, 0.02, seed)
+    moved = nudged(hs, level, rng)
+    topo = T.run_topology([hs, moved], 4)
+    mask = H.changed_cells(hs, H.details(hs), moved, H.details(moved), cells)
+    assert mask.shape == (hs.u.patches(cells), hs.v.patches(cells))
+    changed = _changed_vertices(hs, moved, topo)
+    assert changed.any() and not np.any(changed & ~_covered(mask, moved, topo, cells))
+    margin = H.changed_patches(hs, moved)
+    assert mask.sum() << (2 * (3 - cells)) <= margin.sum() << 6  # never more area than the margin's
+    old = T.grid_samples(hs, topo)
+    for since in ((*old, mask), (T.run_topology([hs], 4), *T.grid_samples(hs, T.run_topology([hs], 4)), mask)):
+        fast = T.grid_samples(moved, topo, since=since)
+        full = T.grid_samples(moved, topo)
+        for a, b in zip(fast, full):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_changed_cells_of_a_refinement_alone_and_of_the_same_surface():
+    """A refinement (new CVs, zero offsets) marks the patches whose activity changed; the same
+    surface marks nothing."""
+    hs = with_random_offsets(H.make_movable(wavy_sheet(), 2, [[5, 5]]), 0.05, 1)
+    assert not H.changed_cells(hs, H.details(hs), hs, H.details(hs), 2).any()
+    finer = H.make_movable(hs, 2, [[12, 9]])
+    mask = H.changed_cells(hs, H.details(hs), finer, H.details(finer), 2)
+    assert mask.any()
+    topo = T.run_topology([hs, finer], 4)
+    assert not np.any(_changed_vertices(hs, finer, topo) & ~_covered(mask, finer, topo, 2))
+
+
 def test_adaptive_topology_without_fine_levels_is_the_uniform_grid():
     hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
     grid = T.display_topology(hs.u, hs.v, 4)
