@@ -496,7 +496,8 @@ def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: 
     if old.cvs.shape != new.cvs.shape:
         out[...] = True
         return out
-    support(0, *np.nonzero(np.any(old.cvs.view(np.int64) != new.cvs.view(np.int64), axis=-1)))
+    if old.cvs is not new.cvs:
+        support(0, *np.nonzero(np.any(_bits(old.cvs) != _bits(new.cvs), axis=-1)))
     old_levels, new_levels = (set(hs._terms_index[0].tolist()) for hs in (old, new))
     for k in range(1, new.depth):
         a, b = old.level(k), new.level(k)
@@ -504,18 +505,27 @@ def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: 
         pb = b.patches if k in new_levels else b.patches[:0]
         if not (pa.size or pb.size):
             continue
-        flip = np.setxor1d(pa, pb, assume_unique=True)  # active on one surface alone
-        mark(k, *np.divmod(flip, new.v.patches(k)))
         va = old_det.vectors[k - 1] if old_det is not None and pa.size else np.zeros((a.cv_keys.size, 3))
         vb = new_det.vectors[k - 1] if new_det is not None and pb.size else np.zeros((b.cv_keys.size, 3))
-        rows, found = _lookup(a.cv_keys, b.cv_keys)
-        same = np.zeros(b.cv_keys.size, bool)
-        same[found] = np.all(np.ascontiguousarray(va[rows[found]]).view(np.int64)
-                             == np.ascontiguousarray(vb[found]).view(np.int64), axis=-1)
-        gone = ~_lookup(b.cv_keys, a.cv_keys)[1]
-        keys = np.concatenate([b.cv_keys[~same], a.cv_keys[gone]])
+        if a.cv_keys is b.cv_keys and pa is pb:  # one refinement (a move, or the same level): the rows align
+            if va is vb:
+                continue
+            keys = b.cv_keys[np.any(_bits(va) != _bits(vb), axis=-1)]
+        else:
+            flip = np.setxor1d(pa, pb, assume_unique=True)  # active on one surface alone
+            mark(k, *np.divmod(flip, new.v.patches(k)))
+            rows, found = _lookup(a.cv_keys, b.cv_keys)
+            same = np.zeros(b.cv_keys.size, bool)
+            same[found] = np.all(_bits(va[rows[found]]) == _bits(vb[found]), axis=-1)
+            gone = ~_lookup(b.cv_keys, a.cv_keys)[1]
+            keys = np.concatenate([b.cv_keys[~same], a.cv_keys[gone]])
         support(k, *_split_cv(new, k, keys))
     return out
+
+
+def _bits(x: np.ndarray) -> np.ndarray:
+    """``x`` float64 as its bits (int64), so a comparison tells ``-0.0`` from ``0.0``."""
+    return np.ascontiguousarray(x).view(np.int64)
 
 
 @functools.lru_cache(maxsize=64)

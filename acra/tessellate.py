@@ -17,6 +17,7 @@ import numpy as np
 
 from .basis import Direction
 from .hspline import Details, HSpline, details, evaluate, surface_normals
+from .lattice import search, unique_keys
 
 __all__ = [
     "GridTopology",
@@ -226,13 +227,6 @@ def adaptive_topology(u: Direction, v: Direction, samples: int, levels: np.ndarr
     return _adaptive(u, v, samples, present)
 
 
-def _unique(x: np.ndarray) -> np.ndarray:
-    """``np.unique`` of the 1-D ``x``: the sorted distinct values, by one sort (numpy's own
-    takes 3-4 times as long on the lattice's keys, a hash table and then a sort)."""
-    x = np.sort(x)
-    return x[np.r_[True, x[1:] != x[:-1]]] if x.size else x
-
-
 def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.ndarray]) -> MeshTopology:
     """`adaptive_topology` of the levels ``present`` (level ``j`` -> its patches ``(m_j, 2) int64``
     where it is present; `_leaves`)."""
@@ -263,18 +257,20 @@ def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.nd
     order = np.lexsort((cv, cu))
     cu, cv, ch = cu[order], cv[order], ch[order]
     corners = [(cu, cv), (cu + ch, cv), (cu + ch, cv + ch), (cu, cv + ch)]  # counter-clockwise
-    lattice = _unique(np.concatenate([key(a, b) for a, b in corners]))
+    w = nv_l + 1  # a key is u * w + v (`acra.lattice`: sorted keys, searched within their column)
+    lattice, first = unique_keys(np.concatenate([wrap_u(a) for a, _ in corners]),
+                                 np.concatenate([wrap_v(b) for _, b in corners]), nu_l, w)
 
     # vertices strictly inside each cell edge: a finer neighbour's
-    by_v = np.sort(wrap_v(lattice % (nv_l + 1)) * (nu_l + 1) + lattice // (nv_l + 1))  # rows: v-major keys
+    by_v, first_v = unique_keys(lattice % w, lattice // w, nv_l, nu_l + 1)  # rows: v-major keys
 
     def inner_u(a, b, vv):  # vertices on the line v = vv strictly between u = a and u = b (a < b)
         kv = wrap_v(vv) * (nu_l + 1)
-        return np.searchsorted(by_v, kv + a, side="right"), np.searchsorted(by_v, kv + b, side="left")
+        return search(by_v, first_v, nu_l + 1, kv + a, True), search(by_v, first_v, nu_l + 1, kv + b, False)
 
     def inner_v(a, b, uu):  # vertices on the line u = uu strictly between v = a and v = b
-        ku = wrap_u(uu) * (nv_l + 1)
-        return np.searchsorted(lattice, ku + a, side="right"), np.searchsorted(lattice, ku + b, side="left")
+        ku = wrap_u(uu) * w
+        return search(lattice, first, w, ku + a, True), search(lattice, first, w, ku + b, False)
 
     spans = [inner_u(cu, cu + ch, cv), inner_v(cv, cv + ch, cu + ch), inner_u(cu, cu + ch, cv + ch), inner_v(cv, cv + ch, cu)]
     extra = np.zeros(len(cu), bool)
@@ -314,8 +310,9 @@ def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.nd
     centre_keys = key(cu[cells] + ch[cells] // 2, cv[cells] + ch[cells] // 2)
     centre = centre_keys[np.searchsorted(cells, owner)]
     fans = [np.stack([centre, ring, ring[following]], axis=1)] if len(ring) else []
-    lattice = _unique(np.concatenate([lattice, np.asarray(centre_keys, np.int64)]))
-    index = lambda keys: np.searchsorted(lattice, keys)  # noqa: E731
+    every = np.concatenate([lattice, np.asarray(centre_keys, np.int64)])
+    lattice, first = unique_keys(every // w, every % w, nu_l, w)
+    index = lambda keys: search(lattice, first, w, np.ascontiguousarray(keys).reshape(-1), False).reshape(keys.shape)  # noqa: E731
     tris = index(np.concatenate(fans)) if fans else np.zeros((0, 3), np.int64)
     counts = np.r_[np.full(len(quads), 4, np.int64), np.full(len(tris), 3, np.int64)]
     indices = np.r_[index(quads).reshape(-1), tris.reshape(-1)].astype(np.int64)

@@ -128,8 +128,9 @@ class SurfaceDisplay:
     ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
 
     def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, limit: np.ndarray,
-                 triangles: np.ndarray | None = None):
+                 triangles: np.ndarray | None = None, details: hspline.Details | None = None):
         self.surface, self.topology, self.points, self.limit = surface, topology, points, limit
+        self.details = details  # the details the points were evaluated with (`Displays.of`)
         self._triangles, self._solid, self._uv = triangles, None, None
         self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
 
@@ -183,20 +184,35 @@ class Displays:
         if hit is None or hit.surface is not surface:
             topo, triangles = self.topology(surface, samples)
             shape = shape_of(surface, self.density)
-            since, up = None, shape
-            while since is None and up.parent is not None:
-                up = up.parent
-                old = self._shown.get(id(up.surface))
-                if old is not None and old.surface is up.surface:
-                    stale = hspline.changed_cells(up.surface, up.details, surface, shape.details, _cell_level(surface))
-                    since = None if stale.all() else (old.topology, old.points, old.limit, stale)
-                    break
+            old = self._nearest(shape)
+            since = None
+            if old is not None:
+                stale = hspline.changed_cells(old.surface, old.details, surface, shape.details, _cell_level(surface))
+                since = None if stale.all() else (old.topology, old.points, old.limit, stale)
             pts, limit = grid_samples(surface, topo, shape.details, since, self._matches, normals=False)
-            hit = SurfaceDisplay(surface, topo, pts, limit, triangles)
+            hit = SurfaceDisplay(surface, topo, pts, limit, triangles, shape.details)
         self._shown[id(surface)] = hit
         while len(self._shown) > self.kept:
             del self._shown[next(iter(self._shown))]
         return hit
+
+    def _nearest(self, shape) -> SurfaceDisplay | None:
+        """The display to evaluate ``shape``'s surface since: its nearest displayed ancestor
+        (`pipeline.shape.Shape.parent`: the surface a response started from), else the last
+        display of a surface on the same grid (a frame's start that has no parent, the
+        animator's surface after the last frame's response). Any is exact (`changed_cells`
+        compares the two); a near one differs on few cells."""
+        up = shape
+        while up.parent is not None:
+            up = up.parent
+            old = self._shown.get(id(up.surface))
+            if old is not None and old.surface is up.surface:
+                return old
+        hs = shape.surface
+        for old in reversed(self._shown.values()):
+            if (old.surface.u, old.surface.v, old.surface.depth) == (hs.u, hs.v, hs.depth):
+                return old
+        return None
 
 
 CELL_LEVEL = 4  # the finest level whose patches `hspline.changed_cells` tells changed from unchanged

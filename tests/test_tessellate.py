@@ -284,3 +284,24 @@ def test_mesh_triangles_fan_face_by_face_as_a_usd_client():
     for a quad), as a USD client triangulates ``faceVertexCounts``/``faceVertexIndices``."""
     topo = T.MeshTopology(np.zeros(7), np.zeros(7), np.array([4, 3, 5]), np.array([0, 1, 2, 3, 4, 5, 6, 0, 2, 4, 6, 1]))
     np.testing.assert_array_equal(topo.triangles(), [[0, 1, 2], [0, 2, 3], [4, 5, 6], [0, 2, 4], [0, 4, 6], [0, 6, 1]])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_lattice_keys_and_searches_equal_numpy_s(seed):
+    """`acra.lattice` (the adaptive topology's vertex keys, bucketed by column) gives
+    ``np.unique``'s keys and ``np.searchsorted``'s positions, both sides, for keys present and
+    absent, in every column and past the last."""
+    from acra import lattice
+
+    rng = np.random.default_rng(seed)
+    ni, w = int(rng.integers(1, 60)), int(rng.integers(1, 40))
+    n = int(rng.integers(1, 3000))
+    i, j = rng.integers(0, ni + 1, n), rng.integers(0, w, n)
+    keys, first = lattice.unique_keys(i, j, ni, w)
+    np.testing.assert_array_equal(keys, np.unique(i * w + j))
+    assert keys.dtype == np.int64 and first[-1] == keys.size
+    np.testing.assert_array_equal(first[:-1], np.searchsorted(keys, np.arange(ni + 1) * w))
+    q = rng.integers(0, (ni + 2) * w, 5000)
+    for right in (False, True):
+        np.testing.assert_array_equal(lattice.search(keys, first, w, q, right),
+                                      np.searchsorted(keys, q, side="right" if right else "left"))
