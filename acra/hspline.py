@@ -585,8 +585,9 @@ def details(hs: HSpline, upto: int | None = None,
         c = lev.cv_keys.size
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
-        rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
-        ring = None  # (len(rows),) int64: closed end of each row, or -1 (`_ring_members`), where needed
+        places = _movable_places(hs, k, lev, ends)
+        rows = places[0]
+        pos = None  # positions in ``places`` of the rows left to evaluate (``None``: all)
         if rows.size and since is not None and k - 1 < len(since[1].frames):
             old, old_det, stale = since
             was = old.fine[k - 1]
@@ -603,20 +604,15 @@ def details(hs: HSpline, upto: int | None = None,
                 found &= was.movable[orow] if was.cv_keys.size else False
             fr[rows[found]] = old_det.frames[k - 1][orow[found]]
             if k > first:  # the surface under this level's frames moved on the stale patches
-                ring = _ring_members(hs, k, ends, rows)
-                gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
-                pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
-                pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
-                found &= ~stale[pu.astype(np.int64), pv.astype(np.int64)]
+                ring, centre = places[1], places[4]
+                found &= ~stale.reshape(-1)[centre]
                 # a ring's frames depend on the surface all along its end (`_end_normal`)
                 found &= (ring < 0) | ~_ends_stale(hs, ends, stale)[np.maximum(ring, 0)]
-                ring = ring[~found]
             vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
-            rows = rows[~found]
+            pos = np.nonzero(~found)[0]
+            rows = rows[pos]
         if rows.size:
-            if ring is None:
-                ring = _ring_members(hs, k, ends, rows)
-            gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
+            ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
             partial = Details(tuple(vectors), tuple(frames))
             ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)
             for i, (axis, end) in enumerate(ends):
@@ -630,6 +626,32 @@ def details(hs: HSpline, upto: int | None = None,
         vectors.append(vec)
         frames.append(fr)
     return Details(tuple(vectors), tuple(frames))
+
+
+_PLACES: dict = {}  # (id of a level's cv_keys, closed ends) -> `_movable_places`, most recent last
+
+
+def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
+    """What `details` needs of level ``k``'s movable CVs that depends on the level's CVs and
+    movability alone: their ``rows (m,) int64``, pole ring ``(m,) int64`` (`_ring_members`),
+    centres ``gu, gv (m,) float64`` (`cv_uv`) and the level-0 patch ``(m,) int64`` (flat,
+    ``pu * P0v + pv``) each centre is in. Kept per `Level` CV arrays: a move replaces a level's
+    offsets, not its ``cv_keys`` and ``movable``, so the response's steps share them."""
+    key = (id(lev.cv_keys), ends)  # a level's CV keys are of one grid and level
+    hit = _PLACES.pop(key, None)
+    if hit is None or hit[0] is not lev.cv_keys or hit[1] is not lev.movable:
+        c = lev.cv_keys.size
+        rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
+        ring = _ring_members(hs, k, ends, rows)
+        gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
+        pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
+        pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
+        centre = pu.astype(np.int64) * hs.v.patches0 + pv.astype(np.int64)
+        hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
+    _PLACES[key] = hit
+    while len(_PLACES) > 64:
+        del _PLACES[next(iter(_PLACES))]
+    return hit[2]
 
 
 def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray) -> np.ndarray:
