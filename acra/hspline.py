@@ -456,6 +456,78 @@ def changed_patches(old: HSpline, new: HSpline, margin: int = 2, levels: tuple[i
     return (_band(new.u, margin) @ mask.astype(np.float64) @ _band(new.v, margin)) > 0.0
 
 
+def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: Details | None,
+                  level: int) -> np.ndarray:
+    """Level-``level`` cells ``(P0u << level, P0v << level) bool`` (each a level-``level`` patch,
+    closed) holding every point where `evaluate` of ``new`` with ``new_det`` may give other bits
+    than of ``old`` with ``old_det`` (same grid; the details `evaluate` is given, every level's).
+
+    A point's sum reads level 0's 4×4 CV block and, on each level `evaluate` visits
+    (`HSpline._terms_index`), the detail vectors of its active patch's 4×4 block, if the patch
+    is active. So a point can change only on a level-0 patch a changed CV supports, or on a
+    level-``k`` patch whose activity (or its level's visiting) changed or which a level-``k``
+    CV supports whose detail vector is not the same bits (or which only one surface has). The
+    detail vectors are compared, not the offsets, so the frames a coarser move turned are found
+    where they turned, with no margin: on the demo a response's changed cells are a fraction of
+    the 2-patch margin `changed_patches` grows its moved CVs by."""
+    cu, cv = new.u.patches(level), new.v.patches(level)
+    out = np.zeros((cu, cv), bool)
+
+    def mark(k: int, pu: np.ndarray, pv: np.ndarray) -> None:
+        # level-k patches into level-`level` cells: a coarser patch covers a block of cells, a
+        # finer one lies in one cell (its closed box in the cell's)
+        if not pu.size:
+            return
+        if k >= level:
+            out[pu >> (k - level), pv >> (k - level)] = True
+            return
+        r = 1 << (level - k)
+        mk = np.zeros((new.u.patches(k), new.v.patches(k)), bool)
+        mk[pu, pv] = True
+        out[...] |= np.repeat(np.repeat(mk, r, axis=0), r, axis=1)
+
+    def support(k: int, ju: np.ndarray, jv: np.ndarray) -> None:
+        # CV j supports level-k patches j-3 .. j (wrapped where periodic, clipped where open)
+        fit = lambda q, d: np.mod(q, d.patches(k)) if d.periodic else np.clip(q, 0, d.patches(k) - 1)  # noqa: E731
+        qu = fit(ju[:, None] - 3 + _I4, new.u)
+        qv = fit(jv[:, None] - 3 + _I4, new.v)
+        mark(k, *(x.reshape(-1) for x in np.broadcast_arrays(qu[:, :, None], qv[:, None, :])))
+
+    if old.cvs.shape != new.cvs.shape:
+        out[...] = True
+        return out
+    if old.cvs is not new.cvs:
+        support(0, *np.nonzero(np.any(_bits(old.cvs) != _bits(new.cvs), axis=-1)))
+    old_levels, new_levels = (set(hs._terms_index[0].tolist()) for hs in (old, new))
+    for k in range(1, new.depth):
+        a, b = old.level(k), new.level(k)
+        pa = a.patches if k in old_levels else a.patches[:0]
+        pb = b.patches if k in new_levels else b.patches[:0]
+        if not (pa.size or pb.size):
+            continue
+        va = old_det.vectors[k - 1] if old_det is not None and pa.size else np.zeros((a.cv_keys.size, 3))
+        vb = new_det.vectors[k - 1] if new_det is not None and pb.size else np.zeros((b.cv_keys.size, 3))
+        if a.cv_keys is b.cv_keys and pa is pb:  # one refinement (a move, or the same level): the rows align
+            if va is vb:
+                continue
+            keys = b.cv_keys[np.any(_bits(va) != _bits(vb), axis=-1)]
+        else:
+            flip = np.setxor1d(pa, pb, assume_unique=True)  # active on one surface alone
+            mark(k, *np.divmod(flip, new.v.patches(k)))
+            rows, found = _lookup(a.cv_keys, b.cv_keys)
+            same = np.zeros(b.cv_keys.size, bool)
+            same[found] = np.all(_bits(va[rows[found]]) == _bits(vb[found]), axis=-1)
+            gone = ~_lookup(b.cv_keys, a.cv_keys)[1]
+            keys = np.concatenate([b.cv_keys[~same], a.cv_keys[gone]])
+        support(k, *_split_cv(new, k, keys))
+    return out
+
+
+def _bits(x: np.ndarray) -> np.ndarray:
+    """``x`` float64 as its bits (int64), so a comparison tells ``-0.0`` from ``0.0``."""
+    return np.ascontiguousarray(x).view(np.int64)
+
+
 @functools.lru_cache(maxsize=64)
 def _band(d: Direction, m: int) -> np.ndarray:
     """``(P0, P0) float64``: 1 where two level-0 patches along ``d`` are at most ``m`` apart
@@ -513,8 +585,9 @@ def details(hs: HSpline, upto: int | None = None,
         c = lev.cv_keys.size
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
-        rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
-        ring = None  # (len(rows),) int64: closed end of each row, or -1 (`_ring_members`), where needed
+        places = _movable_places(hs, k, lev, ends)
+        rows = places[0]
+        pos = None  # positions in ``places`` of the rows left to evaluate (``None``: all)
         if rows.size and since is not None and k - 1 < len(since[1].frames):
             old, old_det, stale = since
             was = old.fine[k - 1]
@@ -531,20 +604,15 @@ def details(hs: HSpline, upto: int | None = None,
                 found &= was.movable[orow] if was.cv_keys.size else False
             fr[rows[found]] = old_det.frames[k - 1][orow[found]]
             if k > first:  # the surface under this level's frames moved on the stale patches
-                ring = _ring_members(hs, k, ends, rows)
-                gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
-                pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
-                pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
-                found &= ~stale[pu.astype(np.int64), pv.astype(np.int64)]
+                ring, centre = places[1], places[4]
+                found &= ~stale.reshape(-1)[centre]
                 # a ring's frames depend on the surface all along its end (`_end_normal`)
                 found &= (ring < 0) | ~_ends_stale(hs, ends, stale)[np.maximum(ring, 0)]
-                ring = ring[~found]
             vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
-            rows = rows[~found]
+            pos = np.nonzero(~found)[0]
+            rows = rows[pos]
         if rows.size:
-            if ring is None:
-                ring = _ring_members(hs, k, ends, rows)
-            gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
+            ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
             partial = Details(tuple(vectors), tuple(frames))
             ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)
             for i, (axis, end) in enumerate(ends):
@@ -558,6 +626,32 @@ def details(hs: HSpline, upto: int | None = None,
         vectors.append(vec)
         frames.append(fr)
     return Details(tuple(vectors), tuple(frames))
+
+
+_PLACES: dict = {}  # (id of a level's cv_keys, closed ends) -> `_movable_places`, most recent last
+
+
+def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
+    """What `details` needs of level ``k``'s movable CVs that depends on the level's CVs and
+    movability alone: their ``rows (m,) int64``, pole ring ``(m,) int64`` (`_ring_members`),
+    centres ``gu, gv (m,) float64`` (`cv_uv`) and the level-0 patch ``(m,) int64`` (flat,
+    ``pu * P0v + pv``) each centre is in. Kept per `Level` CV arrays: a move replaces a level's
+    offsets, not its ``cv_keys`` and ``movable``, so the response's steps share them."""
+    key = (id(lev.cv_keys), ends)  # a level's CV keys are of one grid and level
+    hit = _PLACES.pop(key, None)
+    if hit is None or hit[0] is not lev.cv_keys or hit[1] is not lev.movable:
+        c = lev.cv_keys.size
+        rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
+        ring = _ring_members(hs, k, ends, rows)
+        gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
+        pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
+        pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
+        centre = pu.astype(np.int64) * hs.v.patches0 + pv.astype(np.int64)
+        hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
+    _PLACES[key] = hit
+    while len(_PLACES) > 64:
+        del _PLACES[next(iter(_PLACES))]
+    return hit[2]
 
 
 def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray) -> np.ndarray:

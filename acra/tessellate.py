@@ -17,6 +17,7 @@ import numpy as np
 
 from .basis import Direction
 from .hspline import Details, HSpline, details, evaluate, surface_normals
+from .lattice import search, unique_keys
 
 __all__ = [
     "GridTopology",
@@ -256,18 +257,20 @@ def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.nd
     order = np.lexsort((cv, cu))
     cu, cv, ch = cu[order], cv[order], ch[order]
     corners = [(cu, cv), (cu + ch, cv), (cu + ch, cv + ch), (cu, cv + ch)]  # counter-clockwise
-    lattice = np.unique(np.concatenate([key(a, b) for a, b in corners]))
+    w = nv_l + 1  # a key is u * w + v (`acra.lattice`: sorted keys, searched within their column)
+    lattice, first = unique_keys(np.concatenate([wrap_u(a) for a, _ in corners]),
+                                 np.concatenate([wrap_v(b) for _, b in corners]), nu_l, w)
 
     # vertices strictly inside each cell edge: a finer neighbour's
-    by_v = np.sort(wrap_v(lattice % (nv_l + 1)) * (nu_l + 1) + lattice // (nv_l + 1))  # rows: v-major keys
+    by_v, first_v = unique_keys(lattice % w, lattice // w, nv_l, nu_l + 1)  # rows: v-major keys
 
     def inner_u(a, b, vv):  # vertices on the line v = vv strictly between u = a and u = b (a < b)
         kv = wrap_v(vv) * (nu_l + 1)
-        return np.searchsorted(by_v, kv + a, side="right"), np.searchsorted(by_v, kv + b, side="left")
+        return search(by_v, first_v, nu_l + 1, kv + a, True), search(by_v, first_v, nu_l + 1, kv + b, False)
 
     def inner_v(a, b, uu):  # vertices on the line u = uu strictly between v = a and v = b
-        ku = wrap_u(uu) * (nv_l + 1)
-        return np.searchsorted(lattice, ku + a, side="right"), np.searchsorted(lattice, ku + b, side="left")
+        ku = wrap_u(uu) * w
+        return search(lattice, first, w, ku + a, True), search(lattice, first, w, ku + b, False)
 
     spans = [inner_u(cu, cu + ch, cv), inner_v(cv, cv + ch, cu + ch), inner_u(cu, cu + ch, cv + ch), inner_v(cv, cv + ch, cu)]
     extra = np.zeros(len(cu), bool)
@@ -307,8 +310,9 @@ def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.nd
     centre_keys = key(cu[cells] + ch[cells] // 2, cv[cells] + ch[cells] // 2)
     centre = centre_keys[np.searchsorted(cells, owner)]
     fans = [np.stack([centre, ring, ring[following]], axis=1)] if len(ring) else []
-    lattice = np.unique(np.concatenate([lattice, np.asarray(centre_keys, np.int64)]))
-    index = lambda keys: np.searchsorted(lattice, keys)  # noqa: E731
+    every = np.concatenate([lattice, np.asarray(centre_keys, np.int64)])
+    lattice, first = unique_keys(every // w, every % w, nu_l, w)
+    index = lambda keys: search(lattice, first, w, np.ascontiguousarray(keys).reshape(-1), False).reshape(keys.shape)  # noqa: E731
     tris = index(np.concatenate(fans)) if fans else np.zeros((0, 3), np.int64)
     counts = np.r_[np.full(len(quads), 4, np.int64), np.full(len(tris), 3, np.int64)]
     indices = np.r_[index(quads).reshape(-1), tris.reshape(-1)].astype(np.int64)
@@ -339,8 +343,9 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     vertices (``topo``: a `GridTopology` or `MeshTopology`).
 
     ``since = (points, limit, stale)``: those of a surface that differs from ``hs`` only on the
-    level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`), on the same topology; only
-    vertices on a stale patch (or its border) are evaluated, the others are copied. ``since =
+    level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`), or the level-``L`` patches
+    ``stale (P0u << L, P0v << L) bool`` (`changed_cells`), on the same topology; only vertices
+    on a stale patch (or its border) are evaluated, the others are copied. ``since =
     (old_topo, points, limit, stale)``: the same on another topology of the object; a vertex at a
     parameter ``old_topo`` has, on no stale patch, is copied (adaptive topologies of one object
     put their vertices on nested dyadic lattices, so away from where a response refined, the
@@ -373,7 +378,7 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         points, limit, stale = (None if x is None else x.copy() for x in since)
         on = np.zeros(topo.u.size, bool)
     limit = limit if normals else None
-    cells_u, cells_v = _patch_cells(hs, topo, memo)
+    cells_u, cells_v = _patch_cells(hs, topo, memo, _level_of(hs, stale))
     for cu in cells_u:
         for cv in cells_v:
             on |= stale[cu, cv]
@@ -402,26 +407,36 @@ def _matched(old, topo, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
     return src, found
 
 
-def _patch_cells(hs: HSpline, topo, memo: dict | None) -> tuple:
-    """`_cells` of ``topo``'s u and v parameters on ``hs``'s grid."""
-    key = ("cells", id(topo), hs.u, hs.v)
+def _level_of(hs: HSpline, stale: np.ndarray) -> int:
+    """The level ``L`` of a stale mask ``(P0u << L, P0v << L) bool``."""
+    level = int(stale.shape[0] // hs.u.patches0).bit_length() - 1
+    if stale.shape != (hs.u.patches(level), hs.v.patches(level)):
+        raise ValueError(f"stale has shape {stale.shape}, not the patches of one level of {(hs.u.patches0, hs.v.patches0)}")
+    return level
+
+
+def _patch_cells(hs: HSpline, topo, memo: dict | None, level: int = 0) -> tuple:
+    """`_cells` of ``topo``'s u and v parameters on ``hs``'s level-``level`` grid."""
+    key = ("cells", id(topo), hs.u, hs.v, level)
     hit = None if memo is None else memo.get(key)
     if hit is not None and hit[0] is topo:
         return hit[1], hit[2]
-    cells = _cells(hs.u, topo.u), _cells(hs.v, topo.v)
+    cells = _cells(hs.u, topo.u, level), _cells(hs.v, topo.v, level)
     if memo is not None:
         memo[key] = (topo,) + cells
     return cells
 
 
-def _cells(d: Direction, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The level-0 patch of each parameter ``x (n,)`` and the one before it where ``x`` is on
-    the border between them (else the same patch), both in range."""
+def _cells(d: Direction, x: np.ndarray, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The level-``level`` patch of each parameter ``x (n,)`` (level-0 units) and the one before
+    it where ``x`` is on the border between them (else the same patch), both in range."""
+    x = x * float(1 << level)  # exact: a power of two
     cell = np.floor(x).astype(np.int64)
     before = np.where(cell == x, cell - 1, cell)
+    n = d.patches(level)
     if d.periodic:
-        return np.mod(cell, d.patches0), np.mod(before, d.patches0)
-    return np.clip(cell, 0, d.patches0 - 1), np.clip(before, 0, d.patches0 - 1)
+        return np.mod(cell, n), np.mod(before, n)
+    return np.clip(cell, 0, n - 1), np.clip(before, 0, n - 1)
 
 
 def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray) -> np.ndarray:

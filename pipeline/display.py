@@ -6,10 +6,10 @@ frame. The display must show every level at every frame with one topology for th
 chosen after the responses: `run_topologies` takes, per deformable, the adaptive tessellation
 (`acra.tessellate.run_topology`) of the union of every frame's refinement, ``acra:samples`` steps
 per edge of the finest patch present at each place. `evaluate_run` then evaluates each distinct
-surface of the run on it: the first in full, each later one only on the level-0 patches where it
-differs from the surface evaluated before it (`acra.hspline.changed_patches`), which a response
-keeps local. Every vertex is evaluated on its own, so an incremental evaluation equals a full one
-bit for bit.
+surface of the run on it: the first in full, each later one only on the cells where it differs
+from the surface evaluated before it (`acra.hspline.changed_cells`: its CVs and detail vectors
+compared), which a response keeps local. Every vertex is evaluated on its own, so an
+incremental evaluation equals a full one bit for bit.
 
 The frame loop (`pipeline.frames`) leaves the results' points empty; the run (`pipeline.run`),
 the farm's client (`pipeline.farm`) and a merge of part files (`pipeline.parts`) call
@@ -50,8 +50,33 @@ def _distinct(result, path: str) -> list[hspline.HSpline]:
 
 def run_topologies(scene: SceneModel, result) -> dict[str, MeshTopology]:
     """Per deformable path, the display topology of the run: `run_topology` of every frame's
-    surface at the deformable's ``acra:samples``."""
-    return {m.path: run_topology(_distinct(result, m.path), m.controls.samples) for m in scene.deformables}
+    surface at the deformable's ``acra:samples`` (the one a round displayed, where the union of
+    the run's refinements is a refinement a round showed: `_topology`)."""
+    out = {}
+    for m in scene.deformables:
+        surfaces = _distinct(result, m.path)
+        out[m.path] = _topology(_refinement(surfaces, m.controls.samples),
+                                lambda: run_topology(surfaces, m.controls.samples))[0]
+    return out
+
+
+_TOPOLOGIES: dict = {}  # `_refinement` key -> (topology, its triangles), most recent last
+KEPT_TOPOLOGIES = 16
+
+
+def _topology(key: tuple, build) -> tuple[MeshTopology, np.ndarray]:
+    """The topology of the refinement ``key`` (`_refinement`) and its fan triangles, ``build()``
+    where none of the last `KEPT_TOPOLOGIES` asked for was of it. `run_topology` is a function
+    of the key alone, so the rounds of a frame, the frames of a contact and the run's display
+    (`run_topologies`) that refine the same patches share one."""
+    hit = _TOPOLOGIES.pop(key, None)
+    if hit is None:
+        topo = build()
+        hit = (topo, topo.triangles())
+    _TOPOLOGIES[key] = hit
+    while len(_TOPOLOGIES) > KEPT_TOPOLOGIES:
+        del _TOPOLOGIES[next(iter(_TOPOLOGIES))]
+    return hit
 
 
 def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology], density: int = 8) -> dict[int, float]:
@@ -68,10 +93,12 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
             hit = done.get(id(r.surface))
             if hit is None or hit[0] is not r.surface:
                 t0 = time.perf_counter()
-                since = None if last is None else (last[1], last[3], hspline.changed_patches(last[0], r.surface))
+                det = surface_details(r.surface, density)
+                since = None if last is None else (last[1], last[3], hspline.changed_cells(
+                    last[0], surface_details(last[0], density), r.surface, det, _cell_level(r.surface)))
                 if since is not None and since[2].all():
                     since = None
-                pts, limit = grid_samples(r.surface, topo, surface_details(r.surface, density), since)
+                pts, limit = grid_samples(r.surface, topo, det, since)
                 hit = done[id(r.surface)] = (r.surface, pts, pole_normals(r.surface, topo, pts, limit), limit)
                 ms[f] += 1e3 * (time.perf_counter() - t0)
             last = hit
@@ -101,8 +128,9 @@ class SurfaceDisplay:
     ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
 
     def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, limit: np.ndarray,
-                 triangles: np.ndarray | None = None):
+                 triangles: np.ndarray | None = None, details: hspline.Details | None = None):
         self.surface, self.topology, self.points, self.limit = surface, topology, points, limit
+        self.details = details  # the details the points were evaluated with (`Displays.of`)
         self._triangles, self._solid, self._uv = triangles, None, None
         self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
 
@@ -133,31 +161,20 @@ class Displays:
     """The displays the frame loop measures the residual on, one per surface (`SurfaceDisplay`), kept for
     the last ``kept`` surfaces. A responded surface is evaluated only where it differs from its
     nearest displayed ancestor (the surface it was responded from, through
-    `pipeline.shape.Shape.parent`): the response's own patches, on the topology its refinement
-    gives (`acra.tessellate.grid_samples` with another topology)."""
+    `pipeline.shape.Shape.parent`): the cells `acra.hspline.changed_cells` finds, on the
+    topology its refinement gives (`acra.tessellate.grid_samples` with another topology)."""
 
     def __init__(self, density: int = 8, kept: int = 16) -> None:
         self.density, self.kept = density, kept
         self._shown: dict = {}  # id(surface) -> SurfaceDisplay, most recent last
-        self._topologies: dict = {}  # refinement key (`_refinement`) -> (topology, its triangles), most recent last
         self._matches: dict = {}  # `grid_samples`' memo over the kept topologies
 
     def topology(self, surface: hspline.HSpline, samples: int) -> tuple[MeshTopology, np.ndarray]:
-        """`run_topology` of ``surface`` alone and its fan triangles. The topology is a function of
-        the grid, ``samples`` and each level's active patches alone, so a surface whose
-        response refined the same patches as one shown before (the rounds of a frame, the
-        frames of a contact) gets that one's topology."""
-        key = _refinement(surface, samples)
-        hit = self._topologies.pop(key, None)
-        if hit is None:
-            topo = run_topology([surface], samples)
-            hit = (topo, topo.triangles())
-        self._topologies[key] = hit
-        while len(self._topologies) > self.kept:
-            del self._topologies[next(iter(self._topologies))]
+        """`run_topology` of ``surface`` alone and its fan triangles (`_topology`: a surface whose
+        response refined the same patches as one shown before gets that one's)."""
         if len(self._matches) > 4 * self.kept:
             self._matches.clear()
-        return hit
+        return _topology(_refinement([surface], samples), lambda: run_topology([surface], samples))
 
     def of(self, surface: hspline.HSpline, samples: int) -> SurfaceDisplay:
         """`SurfaceDisplay` of ``surface`` at ``samples`` steps per finest patch edge."""
@@ -167,22 +184,53 @@ class Displays:
         if hit is None or hit.surface is not surface:
             topo, triangles = self.topology(surface, samples)
             shape = shape_of(surface, self.density)
-            since, up, stale = None, shape, np.zeros((surface.u.patches0, surface.v.patches0), bool)
-            while since is None and up.parent is not None:
-                stale, up = stale | up._stale, up.parent
-                old = self._shown.get(id(up.surface))
-                if old is not None and old.surface is up.surface:
-                    since = (old.topology, old.points, old.limit, stale)
+            old = self._nearest(shape)
+            since = None
+            if old is not None:
+                stale = hspline.changed_cells(old.surface, old.details, surface, shape.details, _cell_level(surface))
+                since = None if stale.all() else (old.topology, old.points, old.limit, stale)
             pts, limit = grid_samples(surface, topo, shape.details, since, self._matches, normals=False)
-            hit = SurfaceDisplay(surface, topo, pts, limit, triangles)
+            hit = SurfaceDisplay(surface, topo, pts, limit, triangles, shape.details)
         self._shown[id(surface)] = hit
         while len(self._shown) > self.kept:
             del self._shown[next(iter(self._shown))]
         return hit
 
+    def _nearest(self, shape) -> SurfaceDisplay | None:
+        """The display to evaluate ``shape``'s surface since: its nearest displayed ancestor
+        (`pipeline.shape.Shape.parent`: the surface a response started from), else the last
+        display of a surface on the same grid (a frame's start that has no parent, the
+        animator's surface after the last frame's response). Any is exact (`changed_cells`
+        compares the two); a near one differs on few cells."""
+        up = shape
+        while up.parent is not None:
+            up = up.parent
+            old = self._shown.get(id(up.surface))
+            if old is not None and old.surface is up.surface:
+                return old
+        hs = shape.surface
+        for old in reversed(self._shown.values()):
+            if (old.surface.u, old.surface.v, old.surface.depth) == (hs.u, hs.v, hs.depth):
+                return old
+        return None
 
-def _refinement(surface: hspline.HSpline, samples: int) -> tuple:
-    """What `run_topology` of ``surface`` alone depends on: its grid, ``samples`` and the sorted
-    active patch keys of each finer level."""
-    return (surface.u, surface.v, surface.depth, int(samples),
-            tuple(np.asarray(surface.level(k).patches, np.int64).tobytes() for k in range(1, surface.depth)))
+
+CELL_LEVEL = 4  # the finest level whose patches `hspline.changed_cells` tells changed from unchanged
+
+
+def _cell_level(surface: hspline.HSpline) -> int:
+    """The level of the cells a changed display is re-evaluated by: its finest, up to `CELL_LEVEL`
+    (a finer changed patch marks its level-`CELL_LEVEL` cell)."""
+    return min(surface.depth - 1, CELL_LEVEL)
+
+
+def _refinement(surfaces: list, samples: int) -> tuple:
+    """What `run_topology` of ``surfaces`` (one object's) depends on: the grid, ``samples`` and
+    the sorted distinct active patch keys of each finer level over the surfaces."""
+    first = surfaces[0]
+
+    def keys(k: int) -> np.ndarray:
+        each = [np.asarray(hs.level(k).patches, np.int64) for hs in surfaces]
+        return each[0] if len(each) == 1 else np.unique(np.concatenate(each))
+
+    return (first.u, first.v, first.depth, int(samples), tuple(keys(k).tobytes() for k in range(1, first.depth)))

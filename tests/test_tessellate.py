@@ -132,6 +132,64 @@ def test_samples_since_an_evaluation_on_another_topology_equal_a_full_evaluation
         np.testing.assert_array_equal(a, b)
 
 
+def _changed_vertices(old, new, topo):
+    """Which vertices of ``topo`` a full evaluation of ``new`` gives other bits than of ``old``
+    (points or limit normals)."""
+    a, b = T.grid_samples(old, topo), T.grid_samples(new, topo)
+    return np.any(a[0].view(np.int64) != b[0].view(np.int64), axis=1) | np.any(a[1].view(np.int64) != b[1].view(np.int64), axis=1)
+
+
+def _covered(mask, hs, topo, level):
+    """Whether each vertex of ``topo`` is on a marked level-``level`` cell (or its border)."""
+    u, v = T._patch_cells(hs, topo, None, level)
+    return mask[u[0], v[0]] | mask[u[1], v[0]] | mask[u[0], v[1]] | mask[u[1], v[1]]
+
+
+@pytest.mark.parametrize("seed,level,cells,open_", [(0, 0, 2, False), (1, 1, 2, False), (2, 2, 1, False), (3, 2, 3, False),
+                                                     (4, 1, 2, True), (5, 3, 3, True), (6, 2, 0, True)])
+def test_changed_cells_hold_every_changed_vertex(seed, level, cells, open_):
+    """`changed_cells` (detail vectors compared, no margin) marks every cell where a vertex
+    changed bits, fewer cells than `changed_patches`' margin, and `grid_samples` with it equals a
+    full evaluation bit for bit, on the same and on another (refined) topology."""
+    rng = np.random.default_rng(seed)
+    if open_:
+        hs = wavy_sheet()
+        for k, cv in ((1, [3, 3]), (2, [5, 5]), (3, [10, 9])):
+            hs = H.make_movable(hs, k, [cv])
+        hs = with_random_offsets(hs, 0.05, seed)
+    else:
+        hs, at = H.from_grid(*shapes.sphere(12, 10), depth=4), int(rng.integers(0, 12))
+        for k in (1, 2, 3):
+            hs = H.make_movable(hs, k, [[(2 * at + 1) << (k - 1), 4 << k]])
+        hs = with_random_offsets(hs, 0.02, seed)
+    moved = nudged(hs, level, rng)
+    topo = T.run_topology([hs, moved], 4)
+    mask = H.changed_cells(hs, H.details(hs), moved, H.details(moved), cells)
+    assert mask.shape == (hs.u.patches(cells), hs.v.patches(cells))
+    changed = _changed_vertices(hs, moved, topo)
+    assert changed.any() and not np.any(changed & ~_covered(mask, moved, topo, cells))
+    margin = H.changed_patches(hs, moved)
+    assert mask.sum() << (2 * (3 - cells)) <= margin.sum() << 6  # never more area than the margin's
+    old = T.grid_samples(hs, topo)
+    for since in ((*old, mask), (T.run_topology([hs], 4), *T.grid_samples(hs, T.run_topology([hs], 4)), mask)):
+        fast = T.grid_samples(moved, topo, since=since)
+        full = T.grid_samples(moved, topo)
+        for a, b in zip(fast, full):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_changed_cells_of_a_refinement_alone_and_of_the_same_surface():
+    """A refinement (new CVs, zero offsets) marks the patches whose activity changed; the same
+    surface marks nothing."""
+    hs = with_random_offsets(H.make_movable(wavy_sheet(), 2, [[5, 5]]), 0.05, 1)
+    assert not H.changed_cells(hs, H.details(hs), hs, H.details(hs), 2).any()
+    finer = H.make_movable(hs, 2, [[12, 9]])
+    mask = H.changed_cells(hs, H.details(hs), finer, H.details(finer), 2)
+    assert mask.any()
+    topo = T.run_topology([hs, finer], 4)
+    assert not np.any(_changed_vertices(hs, finer, topo) & ~_covered(mask, finer, topo, 2))
+
+
 def test_adaptive_topology_without_fine_levels_is_the_uniform_grid():
     hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
     grid = T.display_topology(hs.u, hs.v, 4)
@@ -226,3 +284,24 @@ def test_mesh_triangles_fan_face_by_face_as_a_usd_client():
     for a quad), as a USD client triangulates ``faceVertexCounts``/``faceVertexIndices``."""
     topo = T.MeshTopology(np.zeros(7), np.zeros(7), np.array([4, 3, 5]), np.array([0, 1, 2, 3, 4, 5, 6, 0, 2, 4, 6, 1]))
     np.testing.assert_array_equal(topo.triangles(), [[0, 1, 2], [0, 2, 3], [4, 5, 6], [0, 2, 4], [0, 4, 6], [0, 6, 1]])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_lattice_keys_and_searches_equal_numpy_s(seed):
+    """`acra.lattice` (the adaptive topology's vertex keys, bucketed by column) gives
+    ``np.unique``'s keys and ``np.searchsorted``'s positions, both sides, for keys present and
+    absent, in every column and past the last."""
+    from acra import lattice
+
+    rng = np.random.default_rng(seed)
+    ni, w = int(rng.integers(1, 60)), int(rng.integers(1, 40))
+    n = int(rng.integers(1, 3000))
+    i, j = rng.integers(0, ni + 1, n), rng.integers(0, w, n)
+    keys, first = lattice.unique_keys(i, j, ni, w)
+    np.testing.assert_array_equal(keys, np.unique(i * w + j))
+    assert keys.dtype == np.int64 and first[-1] == keys.size
+    np.testing.assert_array_equal(first[:-1], np.searchsorted(keys, np.arange(ni + 1) * w))
+    q = rng.integers(0, (ni + 2) * w, 5000)
+    for right in (False, True):
+        np.testing.assert_array_equal(lattice.search(keys, first, w, q, right),
+                                      np.searchsorted(keys, q, side="right" if right else "left"))
