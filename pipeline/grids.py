@@ -17,11 +17,11 @@ from typing import TYPE_CHECKING
 
 import fcl
 import numpy as np
-import trimesh
 from scipy.spatial import cKDTree
 
 from acra import narrow, nearest
 from acra.bvh import bounds
+from acra.meshops import barycentric
 from acra.tessellate import patch_grids
 
 if TYPE_CHECKING:
@@ -256,7 +256,7 @@ class GridSet:
             better = d < dist
             dist[better], close[better], face[better] = d[better], cp[better], f[better] + start
         tri = self.triangles[face]
-        bary = trimesh.triangles.points_to_barycentric(self.points[tri], close)
+        bary = barycentric(self.points[tri], close)
         uv = np.clip(np.einsum("kj,kjc->kc", bary, self.uv[tri]), self.face_lo[face], self.face_hi[face])
         return Nearest(dist, close, uv)
 
