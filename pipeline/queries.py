@@ -12,9 +12,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from acra import bvh, meshops
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+
 from acra import hspline as H
-from acra.raycast import first_faces
+from acra import meshops
 from acra.patch_boxes import boxes_within, rays_meet
 from pipeline.grids import Nearest, overlap
 
@@ -65,40 +67,41 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
 
 
 class RayMesh:
-    """A merged triangle mesh that rays are cast on: the vertices merged to 1e-8 as trimesh's
-    ``merge_vertices`` merges them (`acra.meshops.merge_vertices`: patch borders are evaluated
-    twice), a BVH over its triangles built at the first cast (`acra.bvh`), the first triangle a
-    ray meets found exactly in float64 (`acra.raycast.first_faces`), and the hit where the ray
-    meets that triangle's plane (its first corner, unit normal), in trimesh's arithmetic
-    (`acra.meshops.planes_lines`), as trimesh's embree caster computed it from the triangle
-    embree reported."""
-
-    PAD = 1e-9  # box padding, fraction of the mesh's size (`acra.raycast`)
+    """A merged triangle mesh and its embree scene, cast on as trimesh's embree intersector
+    (``trimesh.ray.ray_pyembree``, first hits with locations) casts, without a `trimesh.Trimesh`:
+    the vertices merged to 1e-8 (`acra.meshops.merge_vertices`), moved to the box's low corner
+    and scaled to a diagonal of 100 in float32 for embree, which reports the first triangle a
+    ray meets; the hit is where the float64 ray meets that triangle's plane (its first corner,
+    unit normal). The same bits as trimesh's (tests/test_meshops.py)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         self.vertices, self.faces = meshops.merge_vertices(vertices, faces)
         self.scale = meshops.scale(self.vertices)
-        self._tree = None
+        self._scene = None
 
     @property
-    def tree(self) -> bvh.Tree:
-        """The BVH over the triangles, built at the first cast."""
-        if self._tree is None:
+    def scene(self) -> rtcore_scene.EmbreeScene:
+        """The embree scene, built at the first cast."""
+        if self._scene is None:
+            self.origin = self.vertices.min(axis=0)
+            self.factor = float(100.0 / self.scale)
             self.plane_origins = self.vertices[self.faces[:, 0]]
             self.normals = meshops.face_normals(self.vertices, self.faces)
-            self.usable = (self.normals != 0.0).any(axis=1)  # a triangle without area is never met
-            self._tree = bvh.build(self.vertices[self.faces])
-        return self._tree
+            self._scene = rtcore_scene.EmbreeScene()
+            TriangleMesh(scene=self._scene, vertices=((self.vertices - self.origin) * self.factor).astype(np.float32),
+                         indices=self.faces.astype(np.int32))
+        return self._scene
 
     def first_hits(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """First hits ``(m, 3)`` of rays ``origins, directions (n, 3)`` and the row ``(m,) int64``
-        of each ray that hit, ascending."""
-        tree = self.tree
+        of each ray that hit (trimesh's ``intersects_location(..., multiple_hits=False)``)."""
+        scene = self.scene
         origins = np.array(origins, dtype=np.float64)
         directions = meshops.unitize(np.array(directions, dtype=np.float64))[0]
-        face, _ = first_faces(tree, self.usable, origins, directions, self.PAD * self.scale)
-        rays = np.nonzero(face >= 0)[0]
-        tris = face[rays]
+        scaled = (origins - self.origin) * self.factor
+        query = scene.run(scaled.astype(np.float32), directions.astype(np.float32))
+        rays = np.nonzero(query != -1)[0]
+        tris = query[rays]
         loc, valid = meshops.planes_lines(self.plane_origins[tris], self.normals[tris], origins[rays], directions[rays])
         return loc, rays[valid]
 
@@ -112,7 +115,7 @@ class RayMesh:
 
 def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> RayMesh:
     """The merged mesh of the collision grids of flattened patch rows ``hit (m,) int64``
-    (``patches (P, 2) int64``: their (row, column)), with its BVH once a ray is cast;
+    (``patches (P, 2) int64``: their (row, column)), with its embree scene once a ray is cast;
     the last few are kept on ``shape`` (`Shape.ray_meshes`): the rays of a frame's data points
     and of the next round's often meet the same patches of the same surface, and a kept mesh
     answers as the same mesh built again would."""
@@ -121,8 +124,7 @@ def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> RayMesh:
     if mesh is None:
         grids = shape.grids_for(patches[hit])
         base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
-        # patch borders are evaluated twice: merge them (the hits are the same bits as on the
-        # mesh embree was given, and no ray slips between two copies of a border)
+        # patch borders are evaluated twice: merge them, or rays slip through float32 cracks
         mesh = RayMesh(np.concatenate([g.points for g in grids]),
                        np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)]))
     shape.ray_meshes[key] = mesh
@@ -143,9 +145,8 @@ def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.
         return empty
     mesh = _ray_mesh(shape, patches, hit)
     loc, ray = mesh.first_hits(origins, directions)
-    # rays that met a box but no triangle ahead: trimesh's float64 intersector also takes a hit
-    # up to 1e-6 behind the origin (a ray from a point a rounding error past the surface); rare,
-    # so its import and its slowness are paid only then
+    # embree works in float32 and can let a ray through an edge it meets exactly: retry the
+    # rays that met a box but no triangle in float64 (rare, so the slower intersector is fine)
     miss = np.setdiff1d(np.nonzero(ray_hit)[0], ray)
     if len(miss):
         from trimesh.ray.ray_triangle import RayMeshIntersector
