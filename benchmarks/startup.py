@@ -14,7 +14,10 @@ copied into a temporary directory:
   and exit is the wall clock less the phases);
 * one more ``.usda`` run under ``python -X importtime``: the imports' own time summed by top-level
   package (``-X importtime`` adds its own overhead, so compare the packages' shares, not the sum
-  with the table above).
+  with the table above);
+* one more ``.usda`` run with numba's cache loads timed (``numba.core.caching.Cache.load_overload``
+  wrapped): how many kernels the run loads from the on-disk cache, the first load (which also
+  initialises numba's typing and target contexts) and the rest (wall and CPU seconds).
 
 Prints markdown tables (docs/performance.md, *Start-up and the whole process*).
 """
@@ -64,6 +67,33 @@ def imports_by_package(stderr: str) -> dict[str, float]:
     return dict(total)
 
 
+# a child process: `acra run` with numba's cache loads timed, the figures as JSON on stderr
+NUMBA_LOADS = """
+import json, sys, time
+import numba.core.caching as caching
+loads = []
+load = caching.Cache.load_overload
+def timed(self, sig, target_context):
+    w, c = time.perf_counter(), time.process_time()
+    got = load(self, sig, target_context)
+    loads.append((time.perf_counter() - w, time.process_time() - c, got is not None))
+    return got
+caching.Cache.load_overload = timed
+from pipeline.cli import main
+sys.argv = ["acra"] + sys.argv[1:]
+try:
+    main()
+finally:
+    sys.stderr.write("NUMBA_LOADS " + json.dumps(loads) + "\\n")
+"""
+
+
+def numba_loads(stderr: str) -> list[tuple[float, float, bool]]:
+    """The (wall s, CPU s, found in the cache) of each kernel load `NUMBA_LOADS` reported."""
+    line = [x for x in stderr.splitlines() if x.startswith("NUMBA_LOADS ")][-1]
+    return json.loads(line[len("NUMBA_LOADS "):])
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scene", nargs="?", type=Path, default=HERE / "scenes" / "dog_head_spike.py")
@@ -94,6 +124,8 @@ def main() -> int:
                     phases[fmt][name].append(sec)
         _, _, traced = timed([sys.executable, "-X", "importtime", "-m", "pipeline.cli", "run", str(src), "-o",
                               str(work / "traced.acra.usda"), "--quiet", "--over-tolerance", "warn"], work, env)
+        _, _, counted = timed([sys.executable, "-c", NUMBA_LOADS, "run", str(src), "-o", str(work / "loads.acra.usda"), "--quiet",
+                               "--over-tolerance", "warn"], work, env)
     med = lambda xs: float(np.median(xs))  # noqa: E731
     load = os.getloadavg()
     print(f"`python3 benchmarks/startup.py {args.scene.name} --repeat {args.repeat}`: medians of {args.repeat} "
@@ -110,6 +142,13 @@ def main() -> int:
     for name in sorted(own, key=own.get, reverse=True):
         print(f"| {name} | {own[name]:.3f} |")
     print(f"| **all** | **{sum(own.values()):.3f}** |")
+    loads = numba_loads(counted.stderr)
+    rest = loads[1:]
+    print("\n| numba kernels loaded from its cache (one `.usda` run) | loads | wall s | CPU s |\n|---|---:|---:|---:|")
+    print(f"| first (with numba's typing and target contexts) | 1 | {loads[0][0]:.3f} | {loads[0][1]:.3f} |")
+    print(f"| the rest | {len(rest)} | {sum(x[0] for x in rest):.3f} | {sum(x[1] for x in rest):.3f} |")
+    if not all(x[2] for x in loads):
+        print(f"\n{sum(not x[2] for x in loads)} of the loads missed the cache (compiled in that run)")
     return 0
 
 

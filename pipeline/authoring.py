@@ -42,6 +42,7 @@ from __future__ import annotations
 import os
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, Vt
@@ -51,10 +52,11 @@ from acra.hspline import HSpline, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, evaluate_grid, run_topology
 
 from .animation import curves
-from .animation.skinning import ArmRig, arm_pose, arm_rig, bent_arm
 from .animation.usdkeys import key_rotate, key_translate
-from .animation.usdrig import write_cvs_samples, write_skeleton
 from .usdio import WRAPS, cvs_to_flat, export_layer, read_hierarchy
+
+if TYPE_CHECKING:
+    from .animation.skinning import ArmRig
 
 __all__ = [
     "sheet",
@@ -481,6 +483,10 @@ def add_skinned_arm(stage: Usd.Stage, path: str, frames, elbow_angles, method: s
     `add_deformable` (``levels``, ``absorption``, ``samples`` ...). Returns the rig (its
     ``elbow`` is the elbow joint's x).
     """
+    # here, not at the top: a scene without an arm skips skinning's and UsdSkel's imports
+    from .animation.skinning import arm_pose, arm_rig, bent_arm
+    from .animation.usdrig import write_cvs_samples, write_skeleton
+
     rig = arm_rig()
     write_skeleton(stage, f"{path}/Skel", rig.skeleton, arm_pose(rig, elbow_angles), frames)
     skin = add_deformable(stage, f"{path}/Skin", rig.rest, u_wrap="periodic", v_wrap="open", **controls)

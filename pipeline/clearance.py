@@ -87,8 +87,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from acra import bvh, pseudonormals
@@ -141,6 +139,9 @@ def _facets(v: np.ndarray, f: np.ndarray, normals: np.ndarray, other: np.ndarray
     its faces stand alone. A box's side is one facet of its two triangles: eq. (6) against the
     facet is exact for a cell over the whole side, where against one triangle it sees the
     diagonal."""
+    from scipy.sparse import coo_matrix  # here: the deformables-only run path never needs scipy.sparse.csgraph
+    from scipy.sparse.csgraph import connected_components
+
     n = len(f)
     across = other // 3
     me = np.repeat(np.arange(n), 3)
@@ -178,6 +179,9 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def _weld(vertices: np.ndarray, radius: float) -> np.ndarray:
     """Label ``(n,) int64`` in ``0 .. g-1`` of each of ``vertices (n, 3)``: vertices chained by
     distances ``<= radius`` share one."""
+    from scipy.sparse import coo_matrix  # here: the deformables-only run path never needs scipy.sparse.csgraph
+    from scipy.sparse.csgraph import connected_components
+
     n = len(vertices)
     pairs = cKDTree(vertices).query_pairs(radius, output_type="ndarray") if radius > 0 else np.zeros((0, 2), np.int64)
     if not len(pairs):

@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
 from acra import hspline as H
@@ -204,6 +203,8 @@ def collider_points_for(
     origin : (g, 3) float64
         World points before the move.
     """
+    from scipy.ndimage import maximum_filter  # here: a run that never wraps skips importing scipy.ndimage
+
     none = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3))
     length = np.linalg.norm(direction)
     pts = np.concatenate([region_a.points, region_b.points])

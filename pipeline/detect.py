@@ -14,11 +14,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Union
+from typing import TYPE_CHECKING, Union
 
 import fcl
 import numpy as np
-import trimesh
 
 from acra import hspline as H
 from acra import narrow
@@ -26,6 +25,9 @@ from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
 from pipeline.grids import boxes_near
 from pipeline.shape import Closest, Shape, bvh as _bvh, overlap as _overlap, shape_of
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = [
     "ColliderStatic", "prepare_collider", "SurfaceGeometry", "ColliderGeometry", "Geometry",
@@ -84,6 +86,8 @@ class ColliderStatic:
 
 def prepare_collider(model: ColliderModel) -> ColliderStatic:
     """Build a collider's BVH, ray intersector and closest-point index once per run."""
+    import trimesh  # only rigid colliders need it: a run without one never imports trimesh
+
     mesh = trimesh.Trimesh(np.asarray(model.vertices, np.float64), np.asarray(model.triangles, np.int64), process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
@@ -415,6 +419,8 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     inside, whatever the parity says: its depth would be rounding, and `with_on_surface` is what
     adds on-surface points to a region. Farther points keep the parity answer. Only points the
     parity calls inside need the distance, which `regions` needs for their depth anyway."""
+    import trimesh  # imported by `prepare_collider` already
+
     static = geom.static
     local = apply_inverse(geom.xform, points)
     # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response

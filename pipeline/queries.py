@@ -12,10 +12,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
-from trimesh.ray.ray_triangle import RayMeshIntersector
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
 
 from acra import hspline as H
+from acra import meshops
 from acra.patch_boxes import boxes_within, rays_meet
 from pipeline.grids import Nearest, overlap
 
@@ -65,7 +66,54 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     return inside, Nearest(near.distance[side], near.points[side], near.uv[side])
 
 
-def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> trimesh.Trimesh:
+class RayMesh:
+    """A merged triangle mesh and its embree scene, cast on as trimesh's embree intersector
+    (``trimesh.ray.ray_pyembree``, first hits with locations) casts, without a `trimesh.Trimesh`:
+    the vertices merged to 1e-8 (`acra.meshops.merge_vertices`), moved to the box's low corner
+    and scaled to a diagonal of 100 in float32 for embree, which reports the first triangle a
+    ray meets; the hit is where the float64 ray meets that triangle's plane (its first corner,
+    unit normal). The same bits as trimesh's (tests/test_meshops.py)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.vertices, self.faces = meshops.merge_vertices(vertices, faces)
+        self.scale = meshops.scale(self.vertices)
+        self._scene = None
+
+    @property
+    def scene(self) -> rtcore_scene.EmbreeScene:
+        """The embree scene, built at the first cast."""
+        if self._scene is None:
+            self.origin = self.vertices.min(axis=0)
+            self.factor = float(100.0 / self.scale)
+            self.plane_origins = self.vertices[self.faces[:, 0]]
+            self.normals = meshops.face_normals(self.vertices, self.faces)
+            self._scene = rtcore_scene.EmbreeScene()
+            TriangleMesh(scene=self._scene, vertices=((self.vertices - self.origin) * self.factor).astype(np.float32),
+                         indices=self.faces.astype(np.int32))
+        return self._scene
+
+    def first_hits(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First hits ``(m, 3)`` of rays ``origins, directions (n, 3)`` and the row ``(m,) int64``
+        of each ray that hit (trimesh's ``intersects_location(..., multiple_hits=False)``)."""
+        scene = self.scene
+        origins = np.array(origins, dtype=np.float64)
+        directions = meshops.unitize(np.array(directions, dtype=np.float64))[0]
+        scaled = (origins - self.origin) * self.factor
+        query = scene.run(scaled.astype(np.float32), directions.astype(np.float32))
+        rays = np.nonzero(query != -1)[0]
+        tris = query[rays]
+        loc, valid = meshops.planes_lines(self.plane_origins[tris], self.normals[tris], origins[rays], directions[rays])
+        return loc, rays[valid]
+
+    def trimesh(self):
+        """This mesh as a `trimesh.Trimesh` (imported here: only the rare float64 retry of
+        `cast` needs it)."""
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, process=False)
+
+
+def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> RayMesh:
     """The merged mesh of the collision grids of flattened patch rows ``hit (m,) int64``
     (``patches (P, 2) int64``: their (row, column)), with its embree scene once a ray is cast;
     the last few are kept on ``shape`` (`Shape.ray_meshes`): the rays of a frame's data points
@@ -76,9 +124,9 @@ def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> trimesh.Tri
     if mesh is None:
         grids = shape.grids_for(patches[hit])
         base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
-        mesh = trimesh.Trimesh(np.concatenate([g.points for g in grids]),
-                               np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)]), process=False)
-        mesh.merge_vertices()  # patch borders are evaluated twice: share them, or rays slip through float32 cracks
+        # patch borders are evaluated twice: merge them, or rays slip through float32 cracks
+        mesh = RayMesh(np.concatenate([g.points for g in grids]),
+                       np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)]))
     shape.ray_meshes[key] = mesh
     while len(shape.ray_meshes) > 4:
         del shape.ray_meshes[next(iter(shape.ray_meshes))]
@@ -96,12 +144,14 @@ def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.
     if not len(hit):
         return empty
     mesh = _ray_mesh(shape, patches, hit)
-    loc, ray, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
+    loc, ray = mesh.first_hits(origins, directions)
     # embree works in float32 and can let a ray through an edge it meets exactly: retry the
     # rays that met a box but no triangle in float64 (rare, so the slower intersector is fine)
     miss = np.setdiff1d(np.nonzero(ray_hit)[0], ray)
     if len(miss):
-        more, row, _ = RayMeshIntersector(mesh).intersects_location(origins[miss], directions[miss], multiple_hits=False)
+        from trimesh.ray.ray_triangle import RayMeshIntersector
+
+        more, row, _ = RayMeshIntersector(mesh.trimesh()).intersects_location(origins[miss], directions[miss], multiple_hits=False)
         loc, ray = np.concatenate([loc, np.reshape(more, (-1, 3))]), np.concatenate([ray, miss[np.asarray(row, np.int64)]])
     along = np.einsum("ij,ij->i", loc - origins[ray], directions[ray]) / np.einsum("ij,ij->i", directions[ray], directions[ray])
     return loc, ray, along

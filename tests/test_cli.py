@@ -169,3 +169,18 @@ def test_a_run_imports_no_preview_farm_or_plotting_and_reports_its_phases(tiny_s
     assert data["phases"]["imports"] > 0 and data["phases"]["scene"] == 0  # a stage, not a scene file
     assert all(s >= 0 for s in data["phases"].values())
     assert sum(data["phases"].values()) - data["phases"]["imports"] <= data["seconds"]
+
+
+def test_a_run_on_deformables_alone_imports_no_trimesh(tmp_path):
+    """The demo (two deformables) imports neither trimesh, networkx nor rtree: rays are cast
+    through embreex directly (`queries.RayMesh`), barycentric coordinates and the merged mesh are
+    `acra.meshops`'s, and trimesh is imported only for rigid colliders' meshes
+    (`detect.prepare_collider`) and the rare float64 retry of a ray embree lets through."""
+    scene = tmp_path / "dog_head_spike.py"
+    shutil.copy(Path(__file__).resolve().parents[1] / "scenes" / "dog_head_spike.py", scene)
+    done, modules = _program(tmp_path, ["run", str(scene), "-o", str(tmp_path / "o.usdc"), "--quiet", "--frames", "13:15",
+                                        "--over-tolerance", "warn"])
+    assert done.returncode == 0, done.stderr
+    assert "in collision" in done.stdout and " 0 in collision" not in done.stdout
+    tops = {m.split(".")[0] for m in modules}
+    assert not tops & {"trimesh", "networkx", "rtree"}
