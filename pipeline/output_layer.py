@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
+from acra import floattext
 from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
@@ -184,6 +185,19 @@ _SHARED_MIN = 64  # arrays shorter than this are written as they are
 _CHARS = {Vt.Vec3fArray: 56, Vt.Vec3dArray: 80, Vt.Vec2iArray: 28, Vt.IntArray: 13}
 TEXT_HELD_MAX = 256 * 2**20
 _SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ ([vs])(\d+) = (.*)$", re.M)
+# arrays whose text `acra.floattext` writes (the bytes USD's writer gives, faster): every one
+# stands in, a collision frame's too
+_COMPILED = {Vt.Vec3fArray}
+
+
+def _float_texts(values: np.ndarray) -> list[str]:
+    """USD's text of each float32 of ``values`` (those `acra.floattext` leaves to it)."""
+    scratch = Sdf.Layer.CreateAnonymous("acra_floats.usda")
+    prim = Sdf.CreatePrimInLayer(scratch, "/A")
+    Sdf.AttributeSpec(prim, "f", T.FloatArray, Sdf.VariabilityVarying, True).default = Vt.FloatArray.FromNumpy(
+        np.ascontiguousarray(values, dtype=np.float32))
+    text = re.search(r"^ +custom float\[\] f = \[(.*)\]$", scratch.ExportToString(), re.M).group(1)
+    return text.split(", ")
 
 
 class _SharedText:
@@ -217,7 +231,7 @@ class _SharedText:
         """What to author at ``path`` and ``time`` for ``value``: an array held by one sample
         alone (a collision frame's) is formatted where it stands, with nothing saved."""
         kind = _STAND_INS.get(type(value))
-        if kind is None or self._uses.get(id(value), 0) < 2:
+        if kind is None or self._uses.get(id(value), 0) < (1 if type(value) in _COMPILED else 2):
             return value
         k = self._index.get(id(value))
         if k is None:
@@ -226,18 +240,24 @@ class _SharedText:
         self._samples.append((path, time, k))
         return kind[1](k)
 
-    def _texts(self) -> tuple[list[str], list[str]]:
-        """Each array's text and its stand-in's text, as USD's text writer formats them."""
+    def _texts(self) -> tuple[list[bytes], list[str]]:
+        """Each array's text and its stand-in's text, as USD's text writer formats them: a
+        ``float3[]`` array's by `acra.floattext` (the same bytes, `tests/test_floattext.py`), the
+        others' by USD's writer."""
         scratch = Sdf.Layer.CreateAnonymous("acra_arrays.usda")
         with Sdf.ChangeBlock():
             prim = Sdf.CreatePrimInLayer(scratch, "/A")
             for k, value in enumerate(self._arrays):
                 tname, make = _STAND_INS[type(value)]
-                Sdf.AttributeSpec(prim, f"v{k}", tname, Sdf.VariabilityVarying, True).default = value
+                if type(value) not in _COMPILED:
+                    Sdf.AttributeSpec(prim, f"v{k}", tname, Sdf.VariabilityVarying, True).default = value
                 Sdf.AttributeSpec(prim, f"s{k}", tname, Sdf.VariabilityVarying, True).default = make(k)
         texts: dict = {"v": [None] * len(self._arrays), "s": [None] * len(self._arrays)}
         for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
-            texts[m.group(1)][int(m.group(2))] = m.group(3)
+            texts[m.group(1)][int(m.group(2))] = m.group(3) if m.group(1) == "s" else m.group(3).encode()
+        for k, value in enumerate(self._arrays):
+            if type(value) in _COMPILED:
+                texts["v"][k] = floattext.tuples_text(np.asarray(value), _float_texts)
         return texts["v"], texts["s"]
 
     def export(self, layer: Sdf.Layer, out: Path) -> Path:
@@ -259,7 +279,7 @@ class _SharedText:
                 for path, time, k in self._samples:
                     layer.SetTimeSample(path, time, self._arrays[k])
             return export_layer(layer, out)
-        return export_layer(_Text(text, pattern, which, [v.encode() for v in values]), out)
+        return export_layer(_Text(text, pattern, which, values), out)
 
 
 class _Text:

@@ -1,0 +1,273 @@
+"""float32 tuple arrays as text, compiled: the shortest round-trip decimal of each value.
+
+A ``.usda`` layer writes each float of a ``float3[]`` value as the shortest decimal that reads
+back as the same float32, the closest to it where several are as short, in ECMAScript's layout
+(decimal point notation for decimal exponents -6 to 14, ``1.5e-7`` / ``1e15`` beyond; ``-0`` for
+negative zero) and ``[(x, y, z), ...]`` around them. `tuples_text` writes that text for a
+``(n, m)`` float32 array, with exact integer arithmetic: a value ``M 2^E`` rounds back to itself
+from the interval ``[(4M - 2) 2^(E-2), (4M + 2) 2^(E-2)]`` (``4M - 1`` below a power of two,
+ends included when ``M`` is even); for decimal exponents ``k`` from the largest down, the first
+``k`` whose multiples of ``10^k`` meet the interval gives the shortest digits, the multiple
+closest to the value among them, the even one where the value lies midway between two (as
+double-conversion's exact fallback, which USD's writer uses, rounds). Values whose exact
+comparison would overflow 64 bits (below about 1e-7 or at or above about 2^40 in magnitude,
+and subnormals) are marked, and the caller supplies their text (``hard``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["shortest_digits", "tuples_text"]
+
+# decimal exponents printed in decimal point notation: LOW <= exponent < HIGH
+_LOW, _HIGH = -6, 15
+_POW5 = np.array([5**i for i in range(28)], dtype=np.int64)
+_POW10 = np.array([10**i for i in range(19)], dtype=np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _fits(a, shift):
+    """Whether ``a << shift`` stays below 2^61 (``a`` positive)."""
+    return shift < 61 and a < (np.int64(1) << (61 - shift))
+
+
+@njit(cache=True, nogil=True)
+def _floor_div(a, b):
+    """``a // b`` for positive ``a < 2^61`` and ``b``, by a float quotient corrected exactly."""
+    q = np.int64(np.float64(a) / np.float64(b))
+    r = a - q * b
+    while r < 0:
+        q -= 1
+        r += b
+    while r >= b:
+        q += 1
+        r -= b
+    return q
+
+
+@njit(cache=True, nogil=True)
+def _scaled(v, k, f, pow5):
+    """``(A, B)`` with ``A / B = v 2^f / 10^k`` exactly, or ``(0, 0)`` where 64 bits cannot hold them."""
+    if k >= 28 or -k >= 28:
+        return np.int64(0), np.int64(0)
+    five_a = pow5[-k] if k < 0 else np.int64(1)
+    five_b = pow5[k] if k > 0 else np.int64(1)
+    sh_a = f - k if f > k else 0
+    sh_b = k - f if k > f else 0
+    if five_a >= (np.int64(1) << 35) or not _fits(v * five_a, sh_a) or not _fits(five_b, sh_b):  # v < 2^26
+        return np.int64(0), np.int64(0)
+    return (v * five_a) << sh_a, five_b << sh_b
+
+
+@njit(cache=True, nogil=True)
+def _top(lo, hi, inclusive, k, f, pow5):
+    """The largest multiple of ``10^k`` in the interval, over ``10^k`` (0 if none), or -1 where
+    64 bits cannot decide."""
+    a_hi, b = _scaled(hi, k, f, pow5)
+    a_lo, b2 = _scaled(lo, k, f, pow5)
+    if b == 0 or b2 == 0:
+        return np.int64(-1)
+    q = _floor_div(a_hi, b)
+    if not inclusive and q * b == a_hi:
+        q -= 1
+    t = q * b
+    if t > a_lo or (inclusive and t == a_lo):
+        return q
+    return np.int64(0)
+
+
+@njit(cache=True, nogil=True)
+def _stripped(c, k):
+    """``(c, k, 0)`` with ``c``'s trailing zeros moved to ``k``."""
+    while c % 10 == 0:
+        c //= 10
+        k += 1
+    return c, k, 0
+
+
+@njit(cache=True, nogil=True)
+def _one(bits, pow5):
+    """Shortest digits of the float32 with ``bits`` (sign cleared, finite): ``(c, k, status)``
+    with value ``c 10^k``; status 0 found, 1 zero, 2 the caller formats it."""
+    biased = (bits >> 23) & 0xFF
+    frac = bits & 0x7FFFFF
+    if biased == 0:
+        return np.int64(0), np.int64(0), 1 if frac == 0 else 2
+    m = frac | 0x800000
+    f = biased - 152  # value = m 2^(f + 2); the interval's ends are integers times 2^f
+    lo = 4 * m - 1 if (frac == 0 and biased > 1) else 4 * m - 2
+    hi = 4 * m + 2
+    inclusive = (m & 1) == 0
+    # multiples of 10^k lie in the interval for every k up to the largest, K; the interval's
+    # width (hi - lo) 2^f holds one for 10^k at most the width, so K is near log10 of the width
+    k = np.int64(np.floor(0.6 + f * 0.30102999566398120)) + 1  # log10(hi - lo) is 0.48 or 0.60
+    top = _top(lo, hi, inclusive, k, f, pow5)
+    if top < 0:
+        return np.int64(0), np.int64(0), 2
+    if top > 0:
+        while True:
+            up = _top(lo, hi, inclusive, k + 1, f, pow5)
+            if up < 0:
+                return np.int64(0), np.int64(0), 2
+            if up == 0:
+                break
+            k += 1
+            top = up
+    else:
+        while top == 0:
+            k -= 1
+            top = _top(lo, hi, inclusive, k, f, pow5)
+            if top < 0:
+                return np.int64(0), np.int64(0), 2
+    # at K, the multiple nearest the value (4m 2^f); the interval holds it or its neighbour
+    a_x, b = _scaled(4 * m, k, f, pow5)
+    if b == 0:
+        return np.int64(0), np.int64(0), 2
+    c = _floor_div(a_x, b)
+    r = a_x - c * b
+    if 2 * r > b:
+        c += 1
+    elif 2 * r == b:  # midway between two multiples: the even one where both lie within
+        a_lo, b_lo = _scaled(lo, k, f, pow5)
+        if c + 1 <= top and (c * b_lo > a_lo or (inclusive and c * b_lo == a_lo)):
+            c += c & 1
+            return _stripped(c, k)
+    if c > top:
+        c = top
+    else:
+        a_lo, b = _scaled(lo, k, f, pow5)
+        if c * b < a_lo or (not inclusive and c * b == a_lo):
+            c += 1
+    return _stripped(c, k)
+
+
+@njit(cache=True, nogil=True)
+def shortest_digits(bits):
+    """``(c, k, status)`` per float32 (``bits`` its uint32 pattern): ``|value| = c 10^k`` with
+    status 0, 1 for zero, 2 where the caller formats the value."""
+    n = bits.shape[0]
+    cs = np.zeros(n, np.int64)
+    ks = np.zeros(n, np.int64)
+    st = np.zeros(n, np.int8)
+    for i in range(n):
+        b = np.int64(bits[i]) & 0x7FFFFFFF
+        if (b >> 23) == 0xFF:
+            st[i] = 2
+            continue
+        c, k, s = _one(b, _POW5)
+        cs[i], ks[i], st[i] = c, k, s
+    return cs, ks, st
+
+
+@njit(cache=True, nogil=True)
+def _ndigits(c):
+    """Decimal digits of ``0 <= c < 10^18``."""
+    n = 1
+    while c >= _POW10[n]:
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _put_digits(buf, at, c, nd, point):
+    """The ``nd`` digits of ``c`` from ``buf[at]``, a ``.`` after the first ``point`` of them
+    (none if ``point`` is not within them); the index after them."""
+    end = at + nd + (1 if 0 < point < nd else 0)
+    j = end - 1
+    for d in range(nd - 1, -1, -1):
+        buf[j] = 48 + c % 10
+        c //= 10
+        j -= 1
+        if d == point and 0 < point < nd:
+            buf[j] = 46
+            j -= 1
+    return end
+
+
+@njit(cache=True, nogil=True)
+def _put_value(buf, at, c, k, s, neg):
+    """One value's text from ``buf[at]`` (status 0 or 1); the index after it."""
+    if neg:
+        buf[at] = 45  # '-'
+        at += 1
+    if s == 1:
+        buf[at] = 48
+        return at + 1
+    nd = _ndigits(c)
+    point = nd + k  # the decimal point's place after the first digit
+    exp = point - 1
+    if _LOW <= exp < _HIGH:
+        if point <= 0:
+            buf[at] = 48
+            buf[at + 1] = 46
+            at += 2
+            for _ in range(-point):
+                buf[at] = 48
+                at += 1
+            return _put_digits(buf, at, c, nd, 0)
+        at = _put_digits(buf, at, c, nd, point)
+        for _ in range(point - nd):
+            buf[at] = 48
+            at += 1
+        return at
+    at = _put_digits(buf, at, c, nd, 1)
+    buf[at] = 101  # 'e'
+    at += 1
+    if exp < 0:
+        buf[at] = 45
+        at += 1
+        exp = -exp
+    return _put_digits(buf, at, exp, _ndigits(exp), 0)
+
+
+@njit(cache=True, nogil=True)
+def _tuples_text(n, m, bits, cs, ks, st, hard_bytes, hard_at):
+    """``[(a, b, c), ...]`` of ``n`` tuples of ``m`` values (``bits`` their float32 patterns,
+    flattened) from each value's digits (`shortest_digits`) or, at status 2, the bytes
+    ``hard_bytes[hard_at[i]:hard_at[i + 1]]`` of its rank ``i`` among the status-2 values."""
+    # at most 17 characters a value (sign, "0.", 5 zeros, 9 digits) and 2 of separator
+    buf = np.empty(2 + n * (m * 19 + 4) + hard_bytes.shape[0], np.uint8)
+    buf[0] = 91  # '['
+    at = 1
+    h = 0
+    for t in range(n):
+        if t > 0:
+            buf[at] = 44
+            buf[at + 1] = 32
+            at += 2
+        buf[at] = 40  # '('
+        at += 1
+        for j in range(m):
+            if j > 0:
+                buf[at] = 44
+                buf[at + 1] = 32
+                at += 2
+            i = t * m + j
+            if st[i] == 2:
+                for q in range(hard_at[h], hard_at[h + 1]):
+                    buf[at] = hard_bytes[q]
+                    at += 1
+                h += 1
+            else:
+                at = _put_value(buf, at, cs[i], ks[i], st[i], (bits[i] >> 31) != 0)
+        buf[at] = 41  # ')'
+        at += 1
+    buf[at] = 93  # ']'
+    return buf[:at + 1]
+
+
+def tuples_text(values: np.ndarray, hard) -> bytes:
+    """The text of ``values (n, m)`` (float32, finite) as ``[(a, b, c), ...]``; ``hard(v)`` gives
+    the texts (a list of str) of the float32 values ``v`` this cannot format exactly."""
+    values = np.ascontiguousarray(values, dtype=np.float32)
+    bits = values.reshape(-1).view(np.uint32)
+    cs, ks, st = shortest_digits(bits)
+    odd = np.flatnonzero(st == 2)
+    texts = [t.encode() for t in hard(values.reshape(-1)[odd])] if odd.size else []
+    hard_at = np.zeros(len(texts) + 1, np.int64)
+    if texts:
+        hard_at[1:] = np.cumsum([len(t) for t in texts])
+    hard_bytes = np.frombuffer(b"".join(texts), np.uint8) if texts else np.zeros(0, np.uint8)
+    return _tuples_text(values.shape[0], values.shape[1], bits, cs, ks, st, hard_bytes, hard_at).tobytes()

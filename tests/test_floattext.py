@@ -1,0 +1,59 @@
+"""`acra.floattext` writes a ``float3[]`` value's text as USD's ``.usda`` writer does, byte for byte
+(`pipeline.output_layer._SharedText` writes its text in place of USD's)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pxr import Sdf, Vt
+
+from acra import floattext
+from pipeline.output_layer import _float_texts
+
+
+def usd_text(values: np.ndarray) -> str:
+    layer = Sdf.Layer.CreateAnonymous("t.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    Sdf.AttributeSpec(prim, "v", Sdf.ValueTypeNames.Float3Array, Sdf.VariabilityVarying, True).default = Vt.Vec3fArray.FromNumpy(values)
+    line = next(x for x in layer.ExportToString().splitlines() if "float3[] v = " in x)
+    return line.split(" = ", 1)[1]
+
+
+def _cases() -> dict:
+    rng = np.random.default_rng(19)
+    n = 60000
+    special = [227.140625, 227.140635, 0.0, -0.0, 1.0, -1.0, 0.1, 0.3, 2.5, 100.0, 1e-4, 1e-5, 1e-6, 9.999999e-7, 1.5e-6, 1e-7, 1.234e-7, 1e-8,
+               3e-8, 1e14, 9.99999e14, 1e15, 1e16, 1.5e17, 1e21, 2.0**39, 2.0**40, 16777216.0, 16777217.0, 123456789.0,
+               1.17549435e-38, 1.4e-45, 3.4028235e38, -3.4028235e38]
+    special += [2.0**i for i in range(-149, 128)] + [10.0**i for i in range(-45, 39)]
+    special += list(np.nextafter(np.float32(10.0) ** np.arange(-40, 38, dtype=np.float32), np.float32(np.inf)))
+    return {
+        "any bits": rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32).view(np.float32),
+        "normals": (rng.standard_normal(n) / 3).astype(np.float32),
+        "every scale": (rng.standard_normal(n) * 10.0 ** rng.integers(-12, 16, n)).astype(np.float32),
+        "few digits": (rng.integers(-10**6, 10**6, n) / 10.0 ** rng.integers(0, 9, n)).astype(np.float32),
+        "near powers of two": (2.0 ** rng.integers(-40, 50, n) * (1 + rng.integers(-3, 4, n) * 2.0**-23)).astype(np.float32),
+        "special": np.array(special, dtype=np.float32),
+    }
+
+
+@pytest.mark.parametrize("name", list(_cases()))
+def test_same_text_as_usd(name):
+    values = _cases()[name]
+    values = values[np.isfinite(values)]
+    values = np.ascontiguousarray(values[: values.size // 3 * 3].reshape(-1, 3))
+    assert floattext.tuples_text(values, _float_texts).decode() == usd_text(values)
+
+
+def test_digits_are_found_for_the_usual_range():
+    """Values from 1.03e-7 to 2^40 are formatted by the kernel, not handed back."""
+    rng = np.random.default_rng(3)
+    values = (rng.choice([-1.0, 1.0], 30000) * 10.0 ** rng.uniform(-6.99, 11.9, 30000)).astype(np.float32)
+    _, _, status = floattext.shortest_digits(values.view(np.uint32))
+    assert not np.any(status == 2)
+
+
+def test_tuple_widths():
+    values = np.array([[1.5, -0.0], [1e-9, 2.0]], dtype=np.float32)
+    assert floattext.tuples_text(values, _float_texts).decode() == "[(1.5, -0), (1e-9, 2)]"
+    assert floattext.tuples_text(values.reshape(-1, 1), _float_texts).decode() == "[(1.5), (-0), (1e-9), (2)]"
