@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["shortest_digits", "tuples_text"]
+__all__ = ["ints_text", "shortest_digits", "tuples_text"]
 
 # decimal exponents printed in decimal point notation: LOW <= exponent < HIGH
 _LOW, _HIGH = -6, 15
@@ -62,32 +62,6 @@ def _scaled(v, k, f, pow5):
 
 
 @njit(cache=True, nogil=True)
-def _top(lo, hi, inclusive, k, f, pow5):
-    """The largest multiple of ``10^k`` in the interval, over ``10^k`` (0 if none), or -1 where
-    64 bits cannot decide."""
-    a_hi, b = _scaled(hi, k, f, pow5)
-    a_lo, b2 = _scaled(lo, k, f, pow5)
-    if b == 0 or b2 == 0:
-        return np.int64(-1)
-    q = _floor_div(a_hi, b)
-    if not inclusive and q * b == a_hi:
-        q -= 1
-    t = q * b
-    if t > a_lo or (inclusive and t == a_lo):
-        return q
-    return np.int64(0)
-
-
-@njit(cache=True, nogil=True)
-def _stripped(c, k):
-    """``(c, k, 0)`` with ``c``'s trailing zeros moved to ``k``."""
-    while c % 10 == 0:
-        c //= 10
-        k += 1
-    return c, k, 0
-
-
-@njit(cache=True, nogil=True)
 def _one(bits, pow5):
     """Shortest digits of the float32 with ``bits`` (sign cleared, finite): ``(c, k, status)``
     with value ``c 10^k``; status 0 found, 1 zero, 2 the caller formats it."""
@@ -96,51 +70,57 @@ def _one(bits, pow5):
     if biased == 0:
         return np.int64(0), np.int64(0), 1 if frac == 0 else 2
     m = frac | 0x800000
-    f = biased - 152  # value = m 2^(f + 2); the interval's ends are integers times 2^f
+    f = biased - 152  # value = 4m 2^f; the interval's ends are integers times 2^f
     lo = 4 * m - 1 if (frac == 0 and biased > 1) else 4 * m - 2
     hi = 4 * m + 2
     inclusive = (m & 1) == 0
-    # multiples of 10^k lie in the interval for every k up to the largest, K; the interval's
-    # width (hi - lo) 2^f holds one for 10^k at most the width, so K is near log10 of the width
-    k = np.int64(np.floor(0.6 + f * 0.30102999566398120)) + 1  # log10(hi - lo) is 0.48 or 0.60
-    top = _top(lo, hi, inclusive, k, f, pow5)
-    if top < 0:
-        return np.int64(0), np.int64(0), 2
-    if top > 0:
-        while True:
-            up = _top(lo, hi, inclusive, k + 1, f, pow5)
-            if up < 0:
-                return np.int64(0), np.int64(0), 2
-            if up == 0:
-                break
-            k += 1
-            top = up
-    else:
-        while top == 0:
-            k -= 1
-            top = _top(lo, hi, inclusive, k, f, pow5)
-            if top < 0:
-                return np.int64(0), np.int64(0), 2
-    # at K, the multiple nearest the value (4m 2^f); the interval holds it or its neighbour
-    a_x, b = _scaled(4 * m, k, f, pow5)
-    if b == 0:
-        return np.int64(0), np.int64(0), 2
-    c = _floor_div(a_x, b)
-    r = a_x - c * b
-    if 2 * r > b:
-        c += 1
-    elif 2 * r == b:  # midway between two multiples: the even one where both lie within
+    # multiples of 10^k lie in the interval for every k up to the largest, K, and for every 10^k
+    # at most its width (hi - lo) 2^f; start at the estimate of log10 of the width (lower by
+    # one until the interval holds a multiple) and climb by dropping a digit at a time
+    k = np.int64(np.floor(0.6 + f * 0.30102999566398120))
+    while True:
+        a_hi, b = _scaled(hi, k, f, pow5)
         a_lo, b_lo = _scaled(lo, k, f, pow5)
-        if c + 1 <= top and (c * b_lo > a_lo or (inclusive and c * b_lo == a_lo)):
-            c += c & 1
-            return _stripped(c, k)
+        a_x, b_x = _scaled(4 * m, k, f, pow5)
+        if b == 0 or b_lo == 0 or b_x == 0:
+            return np.int64(0), np.int64(0), 2
+        qh = _floor_div(a_hi, b)
+        ql = _floor_div(a_lo, b)
+        qx = _floor_div(a_x, b)
+        hz = qh * b == a_hi  # the end is a multiple of 10^k
+        lz = ql * b == a_lo
+        rx2 = 2 * (a_x - qx * b)
+        xcmp = 1 if rx2 > b else (0 if rx2 == b else -1)  # the value's fraction against one half
+        xz = rx2 == 0
+        top = qh - 1 if (hz and not inclusive) else qh
+        if top > ql or (top == ql and lz and inclusive):
+            break
+        k -= 1
+    while True:
+        nh, dh = qh // 10, qh % 10
+        nl, dl = ql // 10, ql % 10
+        nhz = hz and dh == 0
+        nlz = lz and dl == 0
+        ntop = nh - 1 if (nhz and not inclusive) else nh
+        if not (ntop > nl or (ntop == nl and nlz and inclusive)):
+            break
+        qh, hz, ql, lz, top = nh, nhz, nl, nlz, ntop
+        d = qx % 10
+        qx //= 10
+        xcmp = 1 if d > 5 else (-1 if d < 5 else (1 if not xz else 0))
+        xz = xz and d == 0
+        k += 1
+    # of the multiples within, the one nearest the value, the even one at a tie
+    c = qx + 1 if xcmp > 0 else (qx + (qx & 1) if xcmp == 0 else qx)
+    bottom = ql if (lz and inclusive) else ql + 1
     if c > top:
         c = top
-    else:
-        a_lo, b = _scaled(lo, k, f, pow5)
-        if c * b < a_lo or (not inclusive and c * b == a_lo):
-            c += 1
-    return _stripped(c, k)
+    if c < bottom:
+        c = bottom
+    while c % 10 == 0:
+        c //= 10
+        k += 1
+    return c, k, 0
 
 
 @njit(cache=True, nogil=True)
@@ -271,3 +251,42 @@ def tuples_text(values: np.ndarray, hard) -> bytes:
         hard_at[1:] = np.cumsum([len(t) for t in texts])
     hard_bytes = np.frombuffer(b"".join(texts), np.uint8) if texts else np.zeros(0, np.uint8)
     return _tuples_text(values.shape[0], values.shape[1], bits, cs, ks, st, hard_bytes, hard_at).tobytes()
+
+
+@njit(cache=True, nogil=True)
+def _ints_text(values, m):
+    """``[a, b, ...]`` (``m`` 0) or ``[(a, b), ...]`` (tuples of ``m``) of int32 ``values``."""
+    n = values.shape[0]
+    buf = np.empty(2 + n * 15, np.uint8)  # sign, 10 digits, ", " and parentheses
+    buf[0] = 91
+    at = 1
+    for i in range(n):
+        first = m == 0 or i % m == 0
+        if i > 0:
+            if first and m > 0:
+                buf[at] = 41  # ')'
+                at += 1
+            buf[at] = 44
+            buf[at + 1] = 32
+            at += 2
+        if first and m > 0:
+            buf[at] = 40  # '('
+            at += 1
+        v = np.int64(values[i])
+        if v < 0:
+            buf[at] = 45
+            at += 1
+            v = -v
+        at = _put_digits(buf, at, v, _ndigits(v), 0)
+    if n > 0 and m > 0:
+        buf[at] = 41
+        at += 1
+    buf[at] = 93
+    return buf[:at + 1]
+
+
+def ints_text(values: np.ndarray) -> bytes:
+    """The text of int32 ``values``: ``[a, b, ...]`` for ``(n,)``, ``[(a, b), ...]`` for ``(n, m)``."""
+    values = np.asarray(values)
+    m = values.shape[1] if values.ndim == 2 else 0
+    return _ints_text(np.ascontiguousarray(values, dtype=np.int32).reshape(-1), m).tobytes()

@@ -161,7 +161,7 @@ class _Converted:
 class _Direct:
     """Time samples authored as they are (a binary crate stores a repeated array once itself)."""
 
-    def stand_in(self, path: Sdf.Path, time: float, value):
+    def stand_in(self, path: Sdf.Path, time: float | None, value):
         return value
 
     def export(self, layer: Sdf.Layer, out: Path) -> Path:
@@ -185,9 +185,13 @@ _SHARED_MIN = 64  # arrays shorter than this are written as they are
 _CHARS = {Vt.Vec3fArray: 56, Vt.Vec3dArray: 80, Vt.Vec2iArray: 28, Vt.IntArray: 13}
 TEXT_HELD_MAX = 256 * 2**20
 _SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ ([vs])(\d+) = (.*)$", re.M)
-# arrays whose text `acra.floattext` writes (the bytes USD's writer gives, faster): every one
-# stands in, a collision frame's too
-_COMPILED = {Vt.Vec3fArray}
+# arrays whose text `acra.floattext` writes (the bytes USD's writer gives, faster,
+# `tests/test_floattext.py`): every one stands in, a collision frame's and a default value too
+_COMPILED = {
+    Vt.Vec3fArray: lambda value: floattext.tuples_text(np.asarray(value), _float_texts),
+    Vt.IntArray: lambda value: floattext.ints_text(np.asarray(value)),
+    Vt.Vec2iArray: lambda value: floattext.ints_text(np.asarray(value)),
+}
 
 
 def _float_texts(values: np.ndarray) -> list[str]:
@@ -227,9 +231,10 @@ class _SharedText:
         self._arrays: list = []  # k -> array (kept alive while its id is a key)
         self._samples: list[tuple[Sdf.Path, float, int]] = []
 
-    def stand_in(self, path: Sdf.Path, time: float, value):
-        """What to author at ``path`` and ``time`` for ``value``: an array held by one sample
-        alone (a collision frame's) is formatted where it stands, with nothing saved."""
+    def stand_in(self, path: Sdf.Path, time: float | None, value):
+        """What to author at ``path`` and ``time`` (``None``: the default value) for ``value``:
+        an array held by one sample alone (a collision frame's) whose text USD's writer formats
+        is formatted where it stands, with nothing saved."""
         kind = _STAND_INS.get(type(value))
         if kind is None or self._uses.get(id(value), 0) < (1 if type(value) in _COMPILED else 2):
             return value
@@ -241,9 +246,8 @@ class _SharedText:
         return kind[1](k)
 
     def _texts(self) -> tuple[list[bytes], list[str]]:
-        """Each array's text and its stand-in's text, as USD's text writer formats them: a
-        ``float3[]`` array's by `acra.floattext` (the same bytes, `tests/test_floattext.py`), the
-        others' by USD's writer."""
+        """Each array's text and its stand-in's text, as USD's text writer formats them: the
+        arrays of `_COMPILED` types by `acra.floattext`, the others' by USD's writer."""
         scratch = Sdf.Layer.CreateAnonymous("acra_arrays.usda")
         with Sdf.ChangeBlock():
             prim = Sdf.CreatePrimInLayer(scratch, "/A")
@@ -257,7 +261,7 @@ class _SharedText:
             texts[m.group(1)][int(m.group(2))] = m.group(3) if m.group(1) == "s" else m.group(3).encode()
         for k, value in enumerate(self._arrays):
             if type(value) in _COMPILED:
-                texts["v"][k] = floattext.tuples_text(np.asarray(value), _float_texts)
+                texts["v"][k] = _COMPILED[type(value)](value)
         return texts["v"], texts["s"]
 
     def export(self, layer: Sdf.Layer, out: Path) -> Path:
@@ -277,7 +281,10 @@ class _SharedText:
             del text
             with Sdf.ChangeBlock():
                 for path, time, k in self._samples:
-                    layer.SetTimeSample(path, time, self._arrays[k])
+                    if time is None:
+                        layer.GetAttributeAtPath(path).default = self._arrays[k]
+                    else:
+                        layer.SetTimeSample(path, time, self._arrays[k])
             return export_layer(layer, out)
         return export_layer(_Text(text, pattern, which, values), out)
 
@@ -341,10 +348,12 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
 
                 values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
 
+    int_array = lambda a: Vt.IntArray.FromNumpy(np.ascontiguousarray(a, dtype=np.int32))  # noqa: E731
+    topologies = {m.path: (int_array(frames_result.topology(m).counts), int_array(frames_result.topology(m).indices)) for m in models}
     layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
     shared = _Direct()
     if out.suffix == ".usda":
-        text = _SharedText(v for per in values.values() for v in per.values())
+        text = _SharedText([v for per in values.values() for v in per.values()] + [a for t in topologies.values() for a in t])
         if text.chars <= TEXT_HELD_MAX:
             shared = text
     with Sdf.ChangeBlock():
@@ -355,10 +364,9 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
         for m in models:
             prim = Sdf.CreatePrimInLayer(layer, m.path)
             topo = frames_result.topology(m)
-            counts = _spec(prim, "faceVertexCounts", T.IntArray, False)
-            counts.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.counts, dtype=np.int32))
-            indices = _spec(prim, "faceVertexIndices", T.IntArray, False)
-            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.indices, dtype=np.int32))
+            for name, value in zip(("faceVertexCounts", "faceVertexIndices"), topologies[m.path]):
+                spec = _spec(prim, name, T.IntArray, False)
+                spec.default = shared.stand_in(spec.path, None, value)
             # each display vertex's surface parameter (level-0 units), so a client evaluates any
             # other surface of the object (the input's) at the same sites
             sites = Sdf.AttributeSpec(prim, DISPLAY_UV, T.Double2Array, Sdf.VariabilityUniform, True)

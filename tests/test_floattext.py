@@ -57,3 +57,22 @@ def test_tuple_widths():
     values = np.array([[1.5, -0.0], [1e-9, 2.0]], dtype=np.float32)
     assert floattext.tuples_text(values, _float_texts).decode() == "[(1.5, -0), (1e-9, 2)]"
     assert floattext.tuples_text(values.reshape(-1, 1), _float_texts).decode() == "[(1.5), (-0), (1e-9), (2)]"
+
+
+def usd_ints(values, tname) -> str:
+    layer = Sdf.Layer.CreateAnonymous("t.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    vt = Vt.IntArray if values.ndim == 1 else Vt.Vec2iArray
+    Sdf.AttributeSpec(prim, "v", tname, Sdf.VariabilityVarying, True).default = vt.FromNumpy(values)
+    line = next(x for x in layer.ExportToString().splitlines() if "[] v = " in x)
+    return line.split(" = ", 1)[1]
+
+
+@pytest.mark.parametrize("shape", [(1,), (7,), (5000,), (1, 2), (2500, 2)])
+def test_ints_same_text_as_usd(shape):
+    rng = np.random.default_rng(7)
+    values = rng.integers(-2**31, 2**31, shape, dtype=np.int64).astype(np.int32)
+    values.reshape(-1)[:4] = [0, -1, 2**31 - 1, -2**31][: values.size]
+    values.reshape(-1)[4:2000] = rng.integers(-1000, 1000, max(0, min(values.size, 2000) - 4))
+    tname = Sdf.ValueTypeNames.IntArray if values.ndim == 1 else Sdf.ValueTypeNames.Int2Array
+    assert floattext.ints_text(values).decode() == usd_ints(values, tname)
