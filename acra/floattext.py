@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["ints_text", "shortest_digits", "tuples_text"]
+__all__ = ["exact_digits", "ints_text", "shortest_digits", "tuples_text"]
 
 # decimal exponents printed in decimal point notation: LOW <= exponent < HIGH
 _LOW, _HIGH = -6, 15
@@ -34,9 +34,10 @@ def _fits(a, shift):
 
 
 @njit(cache=True, nogil=True)
-def _floor_div(a, b):
-    """``a // b`` for positive ``a < 2^61`` and ``b``, by a float quotient corrected exactly."""
-    q = np.int64(np.float64(a) / np.float64(b))
+def _floor_div(a, b, inv):
+    """``a // b`` for positive ``a < 2^61`` and ``b`` (``inv`` about ``1 / b``), by a float
+    quotient corrected exactly."""
+    q = np.int64(np.float64(a) * inv)
     r = a - q * b
     while r < 0:
         q -= 1
@@ -79,14 +80,16 @@ def _one(bits, pow5):
     # one until the interval holds a multiple) and climb by dropping a digit at a time
     k = np.int64(np.floor(0.6 + f * 0.30102999566398120))
     while True:
-        a_hi, b = _scaled(hi, k, f, pow5)
-        a_lo, b_lo = _scaled(lo, k, f, pow5)
-        a_x, b_x = _scaled(4 * m, k, f, pow5)
-        if b == 0 or b_lo == 0 or b_x == 0:
+        fa, b = _scaled(np.int64(1), k, f, pow5)
+        if b == 0 or fa >= (np.int64(1) << 35):  # hi, the largest of the three, is below 2^26
             return np.int64(0), np.int64(0), 2
-        qh = _floor_div(a_hi, b)
-        ql = _floor_div(a_lo, b)
-        qx = _floor_div(a_x, b)
+        a_hi = hi * fa
+        a_lo = lo * fa
+        a_x = 4 * m * fa
+        inv = 1.0 / np.float64(b)
+        qh = _floor_div(a_hi, b, inv)
+        ql = _floor_div(a_lo, b, inv)
+        qx = _floor_div(a_x, b, inv)
         hz = qh * b == a_hi  # the end is a multiple of 10^k
         lz = ql * b == a_lo
         rx2 = 2 * (a_x - qx * b)
@@ -138,6 +141,54 @@ def shortest_digits(bits):
             continue
         c, k, s = _one(b, _POW5)
         cs[i], ks[i], st[i] = c, k, s
+    return cs, ks, st
+
+
+_EXACT_MAX = 10**14  # a float64's exact decimal shorter than this is its shortest (see exact_digits)
+
+
+@njit(cache=True, nogil=True)
+def exact_digits(bits):
+    """``(c, k, status)`` per float64 (``bits`` its uint64 pattern, as int64 arithmetic sees
+    it): ``|value| = c 10^k`` exactly with ``c < 10^14``, status 1 for zero, 2 where the value's
+    exact decimal is longer (the caller formats it). Such a decimal is the shortest that reads
+    back: any shorter one differs from it by at least 10^k, which is more than 10^-14 of the
+    value, while a float64 reads back from within 2^-53 of it."""
+    n = bits.shape[0]
+    cs = np.zeros(n, np.int64)
+    ks = np.zeros(n, np.int64)
+    st = np.zeros(n, np.int8)
+    for i in range(n):
+        b = np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF
+        biased = b >> 52
+        frac = b & 0xFFFFFFFFFFFFF
+        if biased == 0:
+            st[i] = 1 if frac == 0 else 2
+            continue
+        if biased == 0x7FF:
+            st[i] = 2
+            continue
+        m = frac | (np.int64(1) << 52)
+        e = biased - 1075  # value = m 2^e
+        while e < 0 and (m & 1) == 0:
+            m >>= 1
+            e += 1
+        if e >= 0:
+            if e > 47 or m > ((_EXACT_MAX - 1) >> e):
+                st[i] = 2
+                continue
+            c = m << e
+            k = 0
+        else:
+            if -e >= 21 or m > (_EXACT_MAX - 1) // _POW5[-e]:
+                st[i] = 2
+                continue
+            c = m * _POW5[-e]
+            k = e
+        while c % 10 == 0:
+            c //= 10
+            k += 1
+        cs[i], ks[i] = c, k
     return cs, ks, st
 
 
@@ -203,12 +254,12 @@ def _put_value(buf, at, c, k, s, neg):
 
 
 @njit(cache=True, nogil=True)
-def _tuples_text(n, m, bits, cs, ks, st, hard_bytes, hard_at):
-    """``[(a, b, c), ...]`` of ``n`` tuples of ``m`` values (``bits`` their float32 patterns,
-    flattened) from each value's digits (`shortest_digits`) or, at status 2, the bytes
+def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at):
+    """``[(a, b, c), ...]`` of ``n`` tuples of ``m`` values (``neg`` their signs, flattened)
+    from each value's digits (`shortest_digits`, `exact_digits`) or, at status 2, the bytes
     ``hard_bytes[hard_at[i]:hard_at[i + 1]]`` of its rank ``i`` among the status-2 values."""
-    # at most 17 characters a value (sign, "0.", 5 zeros, 9 digits) and 2 of separator
-    buf = np.empty(2 + n * (m * 19 + 4) + hard_bytes.shape[0], np.uint8)
+    # at most 22 characters a value (sign, "0.", 5 zeros, 14 digits) and 2 of separator
+    buf = np.empty(2 + n * (m * 24 + 4) + hard_bytes.shape[0], np.uint8)
     buf[0] = 91  # '['
     at = 1
     h = 0
@@ -231,7 +282,7 @@ def _tuples_text(n, m, bits, cs, ks, st, hard_bytes, hard_at):
                     at += 1
                 h += 1
             else:
-                at = _put_value(buf, at, cs[i], ks[i], st[i], (bits[i] >> 31) != 0)
+                at = _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
         buf[at] = 41  # ')'
         at += 1
     buf[at] = 93  # ']'
@@ -239,18 +290,22 @@ def _tuples_text(n, m, bits, cs, ks, st, hard_bytes, hard_at):
 
 
 def tuples_text(values: np.ndarray, hard) -> bytes:
-    """The text of ``values (n, m)`` (float32, finite) as ``[(a, b, c), ...]``; ``hard(v)`` gives
-    the texts (a list of str) of the float32 values ``v`` this cannot format exactly."""
-    values = np.ascontiguousarray(values, dtype=np.float32)
-    bits = values.reshape(-1).view(np.uint32)
-    cs, ks, st = shortest_digits(bits)
+    """The text of ``values (n, m)`` (float32 or float64, finite) as ``[(a, b, c), ...]``;
+    ``hard(v)`` gives the texts (a list of str) of the values ``v`` (of the same type) this
+    cannot format exactly: float64s whose exact decimal has more than 14 digits."""
+    values = np.ascontiguousarray(values)
+    if values.dtype == np.float64:
+        cs, ks, st = exact_digits(values.reshape(-1).view(np.uint64))
+    else:
+        values = values.astype(np.float32, copy=False)
+        cs, ks, st = shortest_digits(values.reshape(-1).view(np.uint32))
     odd = np.flatnonzero(st == 2)
     texts = [t.encode() for t in hard(values.reshape(-1)[odd])] if odd.size else []
     hard_at = np.zeros(len(texts) + 1, np.int64)
     if texts:
         hard_at[1:] = np.cumsum([len(t) for t in texts])
     hard_bytes = np.frombuffer(b"".join(texts), np.uint8) if texts else np.zeros(0, np.uint8)
-    return _tuples_text(values.shape[0], values.shape[1], bits, cs, ks, st, hard_bytes, hard_at).tobytes()
+    return _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), cs, ks, st, hard_bytes, hard_at).tobytes()
 
 
 @njit(cache=True, nogil=True)

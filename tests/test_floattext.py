@@ -76,3 +76,28 @@ def test_ints_same_text_as_usd(shape):
     values.reshape(-1)[4:2000] = rng.integers(-1000, 1000, max(0, min(values.size, 2000) - 4))
     tname = Sdf.ValueTypeNames.IntArray if values.ndim == 1 else Sdf.ValueTypeNames.Int2Array
     assert floattext.ints_text(values).decode() == usd_ints(values, tname)
+
+
+def usd_double2(values) -> str:
+    layer = Sdf.Layer.CreateAnonymous("t.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    Sdf.AttributeSpec(prim, "v", Sdf.ValueTypeNames.Double2Array, Sdf.VariabilityVarying, True).default = Vt.Vec2dArray.FromNumpy(values)
+    line = next(x for x in layer.ExportToString().splitlines() if "double2[] v = " in x)
+    return line.split(" = ", 1)[1]
+
+
+def test_doubles_same_text_as_usd():
+    """float64 values with a short exact decimal (a display's surface parameters: dyadic) are
+    written by the kernel, the others handed to USD; the text is USD's."""
+    rng = np.random.default_rng(11)
+    n = 40000
+    dyadic = rng.integers(-2**20, 2**20, n) / 2.0 ** rng.integers(0, 30, n)
+    ints = rng.integers(-10**15, 10**15, 2000).astype(np.float64)
+    other = rng.standard_normal(4000) * 10.0 ** rng.integers(-30, 30, 4000)
+    special = np.array([0.0, -0.0, 1.0, 0.5, 2.0**-20, 2.0**-21, 99999999999999.0, 1e14, 1e15, 1e16, 2.0**46, 2.0**47, 2.0**48,
+                        1e-6, 0.000001, 1.5e-6, 2.0**-30, 5e-324, 1.7976931348623157e308, 0.1, 1 / 3])
+    values = np.concatenate([dyadic, ints, other, special])
+    values = np.ascontiguousarray(values[: values.size // 2 * 2].reshape(-1, 2))
+    assert floattext.tuples_text(values, _float_texts).decode() == usd_double2(values)
+    short = rng.integers(-2**12, 2**12, n) / 2.0 ** rng.integers(0, 13, n)  # i 5^s < 10^14
+    assert not np.any(floattext.exact_digits(short.view(np.uint64))[2] == 2)
