@@ -25,6 +25,7 @@ __all__ = ["exact_digits", "ints_text", "shortest_digits", "tuples_text"]
 _LOW, _HIGH = -6, 15
 _POW5 = np.array([5**i for i in range(28)], dtype=np.int64)
 _POW10 = np.array([10**i for i in range(19)], dtype=np.int64)
+_PAIRS = np.frombuffer("".join(f"{i:02d}" for i in range(100)).encode(), np.uint8).copy()  # "00" .. "99"
 
 
 @njit(cache=True, nogil=True)
@@ -195,7 +196,10 @@ def exact_digits(bits):
 @njit(cache=True, nogil=True)
 def _ndigits(c):
     """Decimal digits of ``0 <= c < 10^18``."""
-    n = 1
+    if c < 10**9:
+        return (1 + (c >= 10) + (c >= 100) + (c >= 1000) + (c >= 10**4) + (c >= 10**5) + (c >= 10**6)
+                + (c >= 10**7) + (c >= 10**8))
+    n = 10
     while c >= _POW10[n]:
         n += 1
     return n
@@ -205,16 +209,25 @@ def _ndigits(c):
 def _put_digits(buf, at, c, nd, point):
     """The ``nd`` digits of ``c`` from ``buf[at]``, a ``.`` after the first ``point`` of them
     (none if ``point`` is not within them); the index after them."""
-    end = at + nd + (1 if 0 < point < nd else 0)
-    j = end - 1
-    for d in range(nd - 1, -1, -1):
-        buf[j] = 48 + c % 10
-        c //= 10
-        j -= 1
-        if d == point and 0 < point < nd:
-            buf[j] = 46
-            j -= 1
-    return end
+    inside = 0 < point < nd
+    first = at + 1 if inside else at  # the digits, then the first ``point`` moved left by one
+    j = first + nd
+    while c >= 100:
+        r = c % 100
+        c //= 100
+        buf[j - 1] = _PAIRS[2 * r + 1]
+        buf[j - 2] = _PAIRS[2 * r]
+        j -= 2
+    if c >= 10:
+        buf[j - 1] = _PAIRS[2 * c + 1]
+        buf[j - 2] = _PAIRS[2 * c]
+    else:
+        buf[j - 1] = 48 + c
+    if inside:
+        for q in range(point):
+            buf[at + q] = buf[at + 1 + q]
+        buf[at + point] = 46
+    return first + nd
 
 
 @njit(cache=True, nogil=True)
