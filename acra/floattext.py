@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["exact_digits", "ints_text", "shortest_digits", "tuples_text"]
+__all__ = ["exact_digits", "ints_text", "shortest_digits", "tuples_text", "tuples_texts"]
 
 # decimal exponents printed in decimal point notation: LOW <= exponent < HIGH
 _LOW, _HIGH = -6, 15
@@ -305,20 +305,38 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at):
 def tuples_text(values: np.ndarray, hard) -> bytes:
     """The text of ``values (n, m)`` (float32 or float64, finite) as ``[(a, b, c), ...]``;
     ``hard(v)`` gives the texts (a list of str) of the values ``v`` (of the same type) this
-    cannot format exactly: float64s whose exact decimal has more than 14 digits."""
-    values = np.ascontiguousarray(values)
-    if values.dtype == np.float64:
-        cs, ks, st = exact_digits(values.reshape(-1).view(np.uint64))
-    else:
-        values = values.astype(np.float32, copy=False)
-        cs, ks, st = shortest_digits(values.reshape(-1).view(np.uint32))
-    odd = np.flatnonzero(st == 2)
-    texts = [t.encode() for t in hard(values.reshape(-1)[odd])] if odd.size else []
-    hard_at = np.zeros(len(texts) + 1, np.int64)
-    if texts:
-        hard_at[1:] = np.cumsum([len(t) for t in texts])
-    hard_bytes = np.frombuffer(b"".join(texts), np.uint8) if texts else np.zeros(0, np.uint8)
-    return _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), cs, ks, st, hard_bytes, hard_at).tobytes()
+    cannot format exactly (`shortest_digits`, `exact_digits`: status 2)."""
+    return tuples_texts([values], hard)[0]
+
+
+def tuples_texts(arrays: list, hard) -> list[bytes]:
+    """`tuples_text` of each of ``arrays``, with one call of ``hard`` for each type's values
+    left to it (USD's writer has a fixed cost a call)."""
+    done = []
+    for values in arrays:
+        values = np.ascontiguousarray(values)
+        if values.dtype == np.float64:
+            cs, ks, st = exact_digits(values.reshape(-1).view(np.uint64))
+        else:
+            values = values.astype(np.float32, copy=False)
+            cs, ks, st = shortest_digits(values.reshape(-1).view(np.uint32))
+        done.append((values, cs, ks, st, np.flatnonzero(st == 2)))
+    texts: list = [[] for _ in done]
+    for dtype in (np.float32, np.float64):
+        which = [i for i, d in enumerate(done) if d[0].dtype == dtype and d[4].size]
+        if which:
+            got = iter(hard(np.concatenate([done[i][0].reshape(-1)[done[i][4]] for i in which])))
+            for i in which:
+                texts[i] = [next(got).encode() for _ in range(done[i][4].size)]
+    out = []
+    for (values, cs, ks, st, odd), own in zip(done, texts):
+        hard_at = np.zeros(len(own) + 1, np.int64)
+        if own:
+            hard_at[1:] = np.cumsum([len(t) for t in own])
+        hard_bytes = np.frombuffer(b"".join(own), np.uint8) if own else np.zeros(0, np.uint8)
+        out.append(_tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), cs, ks, st, hard_bytes,
+                                hard_at).tobytes())
+    return out
 
 
 @njit(cache=True, nogil=True)

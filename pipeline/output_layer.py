@@ -194,6 +194,7 @@ _COMPILED = {
     Vt.IntArray: lambda value: floattext.ints_text(np.asarray(value)),
     Vt.Vec2iArray: lambda value: floattext.ints_text(np.asarray(value)),
 }
+_FLOATS = {Vt.Vec3fArray, Vt.Vec2dArray}  # of them, written together (`floattext.tuples_texts`)
 
 
 def _float_texts(values: np.ndarray) -> list[str]:
@@ -264,8 +265,11 @@ class _SharedText:
         texts: dict = {"v": [None] * len(self._arrays), "s": [None] * len(self._arrays)}
         for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
             texts[m.group(1)][int(m.group(2))] = m.group(3) if m.group(1) == "s" else m.group(3).encode()
+        floats = [k for k, value in enumerate(self._arrays) if type(value) in _FLOATS]
+        for k, text in zip(floats, floattext.tuples_texts([np.asarray(self._arrays[k]) for k in floats], _float_texts)):
+            texts["v"][k] = text
         for k, value in enumerate(self._arrays):
-            if type(value) in _COMPILED:
+            if type(value) in _COMPILED and type(value) not in _FLOATS:
                 texts["v"][k] = _COMPILED[type(value)](value)
         return texts["v"], texts["s"]
 

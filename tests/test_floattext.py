@@ -101,3 +101,14 @@ def test_doubles_same_text_as_usd():
     assert floattext.tuples_text(values, _float_texts).decode() == usd_double2(values)
     short = rng.integers(-2**12, 2**12, n) / 2.0 ** rng.integers(0, 13, n)  # i 5^s < 10^14
     assert not np.any(floattext.exact_digits(short.view(np.uint64))[2] == 2)
+
+
+def test_several_arrays_with_one_call_for_their_hard_values():
+    rng = np.random.default_rng(5)
+    arrays = [(rng.standard_normal((500, 3)) * 10.0 ** rng.integers(-40, 30, (500, 3))).astype(np.float32) for _ in range(3)]
+    arrays.append(rng.integers(-2**20, 2**20, (300, 2)) / 2.0 ** rng.integers(0, 60, (300, 2)))
+    calls = []
+    texts = floattext.tuples_texts(arrays, lambda v: calls.append(v.dtype) or _float_texts(v))
+    assert calls == [np.float32, np.float64]
+    assert [t.decode() for t in texts[:3]] == [usd_text(a) for a in arrays[:3]]
+    assert texts[3].decode() == usd_double2(arrays[3])
