@@ -79,7 +79,7 @@ def _one(bits, pow5):
     # multiples of 10^k lie in the interval for every k up to the largest, K, and for every 10^k
     # at most its width (hi - lo) 2^f; start at the estimate of log10 of the width (lower by
     # one until the interval holds a multiple) and climb by dropping a digit at a time
-    k = np.int64(np.floor(0.6 + f * 0.30102999566398120))
+    k = (f * 1262611 + 2516582) >> 22  # floor(0.6 + f log10 2); any start gives the same K
     while True:
         fa, b = _scaled(np.int64(1), k, f, pow5)
         if b == 0 or fa >= (np.int64(1) << 35):  # hi, the largest of the three, is below 2^26
@@ -101,16 +101,17 @@ def _one(bits, pow5):
             break
         k -= 1
     while True:
-        nh, dh = qh // 10, qh % 10
-        nl, dl = ql // 10, ql % 10
-        nhz = hz and dh == 0
-        nlz = lz and dl == 0
+        nh = qh // 10
+        nl = ql // 10
+        nhz = hz and qh == nh * 10
+        nlz = lz and ql == nl * 10
         ntop = nh - 1 if (nhz and not inclusive) else nh
         if not (ntop > nl or (ntop == nl and nlz and inclusive)):
             break
         qh, hz, ql, lz, top = nh, nhz, nl, nlz, ntop
-        d = qx % 10
-        qx //= 10
+        nx = qx // 10
+        d = qx - nx * 10
+        qx = nx
         xcmp = 1 if d > 5 else (-1 if d < 5 else (1 if not xz else 0))
         xz = xz and d == 0
         k += 1
