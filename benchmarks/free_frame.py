@@ -10,7 +10,8 @@ one run of all its frames, medians over ``--repeat`` passes of CPU milliseconds 
 
 * the whole free frame (`frames._Run.frame` on frames already known to be free), and inside it
   `state_at` and the world boxes and size of the deformables' `SurfaceGeometry`;
-* writing a layer that holds only the free frames, as ``.usda`` and ``.usdc``, over their count;
+* writing a layer that holds only the free frames, as ``.usda`` and ``.usdc``, over their count
+  (each layer to a new file, as `acra bench` writes them);
   for comparison, a ``.usda`` layer of only the collision frames over theirs, and the run's whole
   ``.usda`` layer over all frames (`output_layer._SharedText` formats each repeated array once);
 * the ``.usda`` text writer's floor: `Sdf.Layer.ExportToString` of a layer holding only the free
@@ -84,11 +85,14 @@ def main() -> int:
             rows["world boxes and size"].append(cpu_ms(boxes, len(free) * 3))
             for fmt in ("usda", "usdc"):
                 out = Path(tmp) / f"free.acra.{fmt}"
+                out.unlink(missing_ok=True)  # a new file, as `acra bench` writes (no old blocks to free)
                 rows[f"write .{fmt}"].append(cpu_ms(lambda: output_layer.write_output(stage_path, out, scene, part), 1) / len(free))
             out = Path(tmp) / "kind.acra.usda"
             if colliding:
+                out.unlink(missing_ok=True)
                 rows["write .usda, collision frames (per collision frame)"].append(
                     cpu_ms(lambda: output_layer.write_output(stage_path, out, scene, col_part), 1) / len(colliding))
+            out.unlink(missing_ok=True)
             rows["write .usda, the run's layer (per frame)"].append(
                 cpu_ms(lambda: output_layer.write_output(stage_path, out, scene, result), 1) / len(all_frames))
             for name, attrs in (("text writer, points", ("points",)), ("text writer, points + normals", ("points", "normals"))):

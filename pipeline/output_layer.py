@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
+from acra import floattext
 from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
@@ -105,7 +106,7 @@ def _stage_metadata(input_path: Path, scene: SceneModel) -> dict:
 
 
 def _spec(prim_spec: Sdf.PrimSpec, name: str, tname: Sdf.ValueTypeName, custom: bool) -> Sdf.AttributeSpec:
-    spec = prim_spec.attributes.get(name)
+    spec = prim_spec.layer.GetAttributeAtPath(prim_spec.path.AppendProperty(name))
     return spec if spec is not None else Sdf.AttributeSpec(prim_spec, name, tname, Sdf.VariabilityVarying, custom)
 
 
@@ -160,7 +161,7 @@ class _Converted:
 class _Direct:
     """Time samples authored as they are (a binary crate stores a repeated array once itself)."""
 
-    def stand_in(self, path: Sdf.Path, time: float, value):
+    def stand_in(self, path: Sdf.Path, time: float | None, value):
         return value
 
     def export(self, layer: Sdf.Layer, out: Path) -> Path:
@@ -173,6 +174,7 @@ class _Direct:
 _STAND_INS = {
     Vt.Vec3fArray: (T.Float3Array, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, k, math.nan)])),
     Vt.Vec3dArray: (T.Double3Array, lambda k: Vt.Vec3dArray([Gf.Vec3d(math.nan, k, math.nan)])),
+    Vt.Vec2dArray: (T.Double2Array, lambda k: Vt.Vec2dArray([Gf.Vec2d(math.nan, k)])),
     Vt.Vec2iArray: (T.Int2Array, lambda k: Vt.Vec2iArray([Gf.Vec2i(-1000000007, k)])),
     Vt.IntArray: (T.IntArray, lambda k: Vt.IntArray([-1000000007, k])),
 }
@@ -181,9 +183,29 @@ _SHARED_MIN = 64  # arrays shorter than this are written as they are
 # repr, float64 to 17 digits, separators), and the most text `_SharedText` may hold in memory
 # while it writes: a run whose layer would be longer is written by USD's own writer, which
 # streams it to the file
-_CHARS = {Vt.Vec3fArray: 56, Vt.Vec3dArray: 80, Vt.Vec2iArray: 28, Vt.IntArray: 13}
+_CHARS = {Vt.Vec3fArray: 56, Vt.Vec3dArray: 80, Vt.Vec2dArray: 54, Vt.Vec2iArray: 28, Vt.IntArray: 13}
 TEXT_HELD_MAX = 256 * 2**20
 _SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ ([vs])(\d+) = (.*)$", re.M)
+# arrays whose text `acra.floattext` writes (the bytes USD's writer gives, faster,
+# `tests/test_floattext.py`): every one stands in, a collision frame's and a default value too
+_COMPILED = {
+    Vt.Vec3fArray: lambda value: floattext.tuples_text(np.asarray(value), _float_texts),
+    Vt.Vec2dArray: lambda value: floattext.tuples_text(np.asarray(value), _float_texts),
+    Vt.IntArray: lambda value: floattext.ints_text(np.asarray(value)),
+    Vt.Vec2iArray: lambda value: floattext.ints_text(np.asarray(value)),
+}
+_FLOATS = {Vt.Vec3fArray, Vt.Vec2dArray}  # of them, written together (`floattext.tuples_texts`)
+
+
+def _float_texts(values: np.ndarray) -> list[str]:
+    """USD's text of each float32 or float64 of ``values`` (those `acra.floattext` leaves to it)."""
+    double = np.asarray(values).dtype == np.float64
+    scratch = Sdf.Layer.CreateAnonymous("acra_floats.usda")
+    prim = Sdf.CreatePrimInLayer(scratch, "/A")
+    Sdf.AttributeSpec(prim, "f", T.DoubleArray if double else T.FloatArray, Sdf.VariabilityVarying, True).default = (
+        Vt.DoubleArray if double else Vt.FloatArray).FromNumpy(np.ascontiguousarray(values))
+    text = re.search(r"^ +custom \w+\[\] f = \[(.*)\]$", scratch.ExportToString(), re.M).group(1)
+    return text.split(", ")
 
 
 class _SharedText:
@@ -211,33 +233,44 @@ class _SharedText:
                 self.chars += _CHARS[type(value)] * len(value)
         self._index: dict[int, int] = {}  # id(array) -> k
         self._arrays: list = []  # k -> array (kept alive while its id is a key)
+        self._made: list = []  # k -> its stand-in, authored at every sample (Vt values are shared copy-on-write)
         self._samples: list[tuple[Sdf.Path, float, int]] = []
 
-    def stand_in(self, path: Sdf.Path, time: float, value):
-        """What to author at ``path`` and ``time`` for ``value``: an array held by one sample
-        alone (a collision frame's) is formatted where it stands, with nothing saved."""
+    def stand_in(self, path: Sdf.Path, time: float | None, value):
+        """What to author at ``path`` and ``time`` (``None``: the default value) for ``value``:
+        an array held by one sample alone (a collision frame's) whose text USD's writer formats
+        is formatted where it stands, with nothing saved."""
         kind = _STAND_INS.get(type(value))
-        if kind is None or self._uses.get(id(value), 0) < 2:
+        if kind is None or self._uses.get(id(value), 0) < (1 if type(value) in _COMPILED else 2):
             return value
         k = self._index.get(id(value))
         if k is None:
             k = self._index[id(value)] = len(self._arrays)
             self._arrays.append(value)
+            self._made.append(kind[1](k))
         self._samples.append((path, time, k))
-        return kind[1](k)
+        return self._made[k]
 
-    def _texts(self) -> tuple[list[str], list[str]]:
-        """Each array's text and its stand-in's text, as USD's text writer formats them."""
+    def _texts(self) -> tuple[list[bytes], list[str]]:
+        """Each array's text and its stand-in's text, as USD's text writer formats them: the
+        arrays of `_COMPILED` types by `acra.floattext`, the others' by USD's writer."""
         scratch = Sdf.Layer.CreateAnonymous("acra_arrays.usda")
         with Sdf.ChangeBlock():
             prim = Sdf.CreatePrimInLayer(scratch, "/A")
             for k, value in enumerate(self._arrays):
                 tname, make = _STAND_INS[type(value)]
-                Sdf.AttributeSpec(prim, f"v{k}", tname, Sdf.VariabilityVarying, True).default = value
+                if type(value) not in _COMPILED:
+                    Sdf.AttributeSpec(prim, f"v{k}", tname, Sdf.VariabilityVarying, True).default = value
                 Sdf.AttributeSpec(prim, f"s{k}", tname, Sdf.VariabilityVarying, True).default = make(k)
         texts: dict = {"v": [None] * len(self._arrays), "s": [None] * len(self._arrays)}
         for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
-            texts[m.group(1)][int(m.group(2))] = m.group(3)
+            texts[m.group(1)][int(m.group(2))] = m.group(3) if m.group(1) == "s" else m.group(3).encode()
+        floats = [k for k, value in enumerate(self._arrays) if type(value) in _FLOATS]
+        for k, text in zip(floats, floattext.tuples_texts([np.asarray(self._arrays[k]) for k in floats], _float_texts)):
+            texts["v"][k] = text
+        for k, value in enumerate(self._arrays):
+            if type(value) in _COMPILED and type(value) not in _FLOATS:
+                texts["v"][k] = _COMPILED[type(value)](value)
         return texts["v"], texts["s"]
 
     def export(self, layer: Sdf.Layer, out: Path) -> Path:
@@ -257,9 +290,12 @@ class _SharedText:
             del text
             with Sdf.ChangeBlock():
                 for path, time, k in self._samples:
-                    layer.SetTimeSample(path, time, self._arrays[k])
+                    if time is None:
+                        layer.GetAttributeAtPath(path).default = self._arrays[k]
+                    else:
+                        layer.SetTimeSample(path, time, self._arrays[k])
             return export_layer(layer, out)
-        return export_layer(_Text(text, pattern, which, [v.encode() for v in values]), out)
+        return export_layer(_Text(text, pattern, which, values), out)
 
 
 class _Text:
@@ -321,10 +357,16 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
 
                 values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
 
+    int_array = lambda a: Vt.IntArray.FromNumpy(np.ascontiguousarray(a, dtype=np.int32))  # noqa: E731
+    # each display vertex's surface parameter (level-0 units), so a client evaluates any other
+    # surface of the object (the input's) at the same sites
+    sites = {m.path: Vt.Vec2dArray.FromNumpy(np.ascontiguousarray(np.stack([frames_result.topology(m).u, frames_result.topology(m).v], axis=1),
+                                                                   dtype=np.float64)) for m in models}
+    topologies = {m.path: (int_array(frames_result.topology(m).counts), int_array(frames_result.topology(m).indices)) for m in models}
     layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
     shared = _Direct()
     if out.suffix == ".usda":
-        text = _SharedText(v for per in values.values() for v in per.values())
+        text = _SharedText([v for per in values.values() for v in per.values()] + [a for t in topologies.values() for a in t] + list(sites.values()))
         if text.chars <= TEXT_HELD_MAX:
             shared = text
     with Sdf.ChangeBlock():
@@ -334,15 +376,11 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
                 layer.pseudoRoot.SetInfo(key, value)
         for m in models:
             prim = Sdf.CreatePrimInLayer(layer, m.path)
-            topo = frames_result.topology(m)
-            counts = _spec(prim, "faceVertexCounts", T.IntArray, False)
-            counts.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.counts, dtype=np.int32))
-            indices = _spec(prim, "faceVertexIndices", T.IntArray, False)
-            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(topo.indices, dtype=np.int32))
-            # each display vertex's surface parameter (level-0 units), so a client evaluates any
-            # other surface of the object (the input's) at the same sites
-            sites = Sdf.AttributeSpec(prim, DISPLAY_UV, T.Double2Array, Sdf.VariabilityUniform, True)
-            sites.default = Vt.Vec2dArray.FromNumpy(np.ascontiguousarray(np.stack([topo.u, topo.v], axis=1), dtype=np.float64))
+            for name, value in zip(("faceVertexCounts", "faceVertexIndices"), topologies[m.path]):
+                spec = _spec(prim, name, T.IntArray, False)
+                spec.default = shared.stand_in(spec.path, None, value)
+            uv = Sdf.AttributeSpec(prim, DISPLAY_UV, T.Double2Array, Sdf.VariabilityUniform, True)
+            uv.default = shared.stand_in(uv.path, None, sites[m.path])
             normals = _spec(prim, "normals", T.Normal3fArray, False)
             normals.SetInfo("interpolation", UsdGeom.Tokens.vertex)
             specs = {

@@ -1,0 +1,379 @@
+"""float32 tuple arrays as text, compiled: the shortest round-trip decimal of each value.
+
+A ``.usda`` layer writes each float of a ``float3[]`` value as the shortest decimal that reads
+back as the same float32, the closest to it where several are as short, in ECMAScript's layout
+(decimal point notation for decimal exponents -6 to 14, ``1.5e-7`` / ``1e15`` beyond; ``-0`` for
+negative zero) and ``[(x, y, z), ...]`` around them. `tuples_text` writes that text for a
+``(n, m)`` float32 array, with exact integer arithmetic: a value ``M 2^E`` rounds back to itself
+from the interval ``[(4M - 2) 2^(E-2), (4M + 2) 2^(E-2)]`` (``4M - 1`` below a power of two,
+ends included when ``M`` is even); for decimal exponents ``k`` from the largest down, the first
+``k`` whose multiples of ``10^k`` meet the interval gives the shortest digits, the multiple
+closest to the value among them, the even one where the value lies midway between two (as
+double-conversion's exact fallback, which USD's writer uses, rounds). Values whose exact
+comparison would overflow 64 bits (below about 1e-7 or at or above about 2^40 in magnitude,
+and subnormals) are marked, and the caller supplies their text (``hard``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["exact_digits", "ints_text", "shortest_digits", "tuples_text", "tuples_texts"]
+
+# decimal exponents printed in decimal point notation: LOW <= exponent < HIGH
+_LOW, _HIGH = -6, 15
+_POW5 = np.array([5**i for i in range(28)], dtype=np.int64)
+_POW10 = np.array([10**i for i in range(19)], dtype=np.int64)
+_PAIRS = np.frombuffer("".join(f"{i:02d}" for i in range(100)).encode(), np.uint8).copy()  # "00" .. "99"
+
+
+@njit(cache=True, nogil=True)
+def _fits(a, shift):
+    """Whether ``a << shift`` stays below 2^61 (``a`` positive)."""
+    return shift < 61 and a < (np.int64(1) << (61 - shift))
+
+
+@njit(cache=True, nogil=True)
+def _floor_div(a, b, inv):
+    """``a // b`` for positive ``a < 2^61`` and ``b`` (``inv`` about ``1 / b``), by a float
+    quotient corrected exactly."""
+    q = np.int64(np.float64(a) * inv)
+    r = a - q * b
+    while r < 0:
+        q -= 1
+        r += b
+    while r >= b:
+        q += 1
+        r -= b
+    return q
+
+
+@njit(cache=True, nogil=True)
+def _scaled(v, k, f, pow5):
+    """``(A, B)`` with ``A / B = v 2^f / 10^k`` exactly, or ``(0, 0)`` where 64 bits cannot hold them."""
+    if k >= 28 or -k >= 28:
+        return np.int64(0), np.int64(0)
+    five_a = pow5[-k] if k < 0 else np.int64(1)
+    five_b = pow5[k] if k > 0 else np.int64(1)
+    sh_a = f - k if f > k else 0
+    sh_b = k - f if k > f else 0
+    if five_a >= (np.int64(1) << 35) or not _fits(v * five_a, sh_a) or not _fits(five_b, sh_b):  # v < 2^26
+        return np.int64(0), np.int64(0)
+    return (v * five_a) << sh_a, five_b << sh_b
+
+
+@njit(cache=True, nogil=True)
+def _one(bits, pow5):
+    """Shortest digits of the float32 with ``bits`` (sign cleared, finite): ``(c, k, status)``
+    with value ``c 10^k``; status 0 found, 1 zero, 2 the caller formats it."""
+    biased = (bits >> 23) & 0xFF
+    frac = bits & 0x7FFFFF
+    if biased == 0:
+        return np.int64(0), np.int64(0), 1 if frac == 0 else 2
+    m = frac | 0x800000
+    f = biased - 152  # value = 4m 2^f; the interval's ends are integers times 2^f
+    lo = 4 * m - 1 if (frac == 0 and biased > 1) else 4 * m - 2
+    hi = 4 * m + 2
+    inclusive = (m & 1) == 0
+    # multiples of 10^k lie in the interval for every k up to the largest, K, and for every 10^k
+    # at most its width (hi - lo) 2^f; start at the estimate of log10 of the width (lower by
+    # one until the interval holds a multiple) and climb by dropping a digit at a time
+    k = (f * 1262611 + 2516582) >> 22  # floor(0.6 + f log10 2); any start gives the same K
+    while True:
+        fa, b = _scaled(np.int64(1), k, f, pow5)
+        if b == 0 or fa >= (np.int64(1) << 35):  # hi, the largest of the three, is below 2^26
+            return np.int64(0), np.int64(0), 2
+        a_hi = hi * fa
+        a_lo = lo * fa
+        a_x = 4 * m * fa
+        inv = 1.0 / np.float64(b)
+        qh = _floor_div(a_hi, b, inv)
+        ql = _floor_div(a_lo, b, inv)
+        qx = _floor_div(a_x, b, inv)
+        hz = qh * b == a_hi  # the end is a multiple of 10^k
+        lz = ql * b == a_lo
+        rx2 = 2 * (a_x - qx * b)
+        xcmp = 1 if rx2 > b else (0 if rx2 == b else -1)  # the value's fraction against one half
+        xz = rx2 == 0
+        top = qh - 1 if (hz and not inclusive) else qh
+        if top > ql or (top == ql and lz and inclusive):
+            break
+        k -= 1
+    while True:
+        nh = qh // 10
+        nl = ql // 10
+        nhz = hz and qh == nh * 10
+        nlz = lz and ql == nl * 10
+        ntop = nh - 1 if (nhz and not inclusive) else nh
+        if not (ntop > nl or (ntop == nl and nlz and inclusive)):
+            break
+        qh, hz, ql, lz, top = nh, nhz, nl, nlz, ntop
+        nx = qx // 10
+        d = qx - nx * 10
+        qx = nx
+        xcmp = 1 if d > 5 else (-1 if d < 5 else (1 if not xz else 0))
+        xz = xz and d == 0
+        k += 1
+    # of the multiples within, the one nearest the value, the even one at a tie
+    c = qx + 1 if xcmp > 0 else (qx + (qx & 1) if xcmp == 0 else qx)
+    bottom = ql if (lz and inclusive) else ql + 1
+    if c > top:
+        c = top
+    if c < bottom:
+        c = bottom
+    while c % 10 == 0:
+        c //= 10
+        k += 1
+    return c, k, 0
+
+
+@njit(cache=True, nogil=True)
+def shortest_digits(bits):
+    """``(c, k, status)`` per float32 (``bits`` its uint32 pattern): ``|value| = c 10^k`` with
+    status 0, 1 for zero, 2 where the caller formats the value."""
+    n = bits.shape[0]
+    cs = np.zeros(n, np.int64)
+    ks = np.zeros(n, np.int64)
+    st = np.zeros(n, np.int8)
+    for i in range(n):
+        b = np.int64(bits[i]) & 0x7FFFFFFF
+        if (b >> 23) == 0xFF:
+            st[i] = 2
+            continue
+        c, k, s = _one(b, _POW5)
+        cs[i], ks[i], st[i] = c, k, s
+    return cs, ks, st
+
+
+_EXACT_MAX = 10**14  # a float64's exact decimal shorter than this is its shortest (see exact_digits)
+
+
+@njit(cache=True, nogil=True)
+def exact_digits(bits):
+    """``(c, k, status)`` per float64 (``bits`` its uint64 pattern, as int64 arithmetic sees
+    it): ``|value| = c 10^k`` exactly with ``c < 10^14``, status 1 for zero, 2 where the value's
+    exact decimal is longer (the caller formats it). Such a decimal is the shortest that reads
+    back: any shorter one differs from it by at least 10^k, which is more than 10^-14 of the
+    value, while a float64 reads back from within 2^-53 of it."""
+    n = bits.shape[0]
+    cs = np.zeros(n, np.int64)
+    ks = np.zeros(n, np.int64)
+    st = np.zeros(n, np.int8)
+    for i in range(n):
+        b = np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF
+        biased = b >> 52
+        frac = b & 0xFFFFFFFFFFFFF
+        if biased == 0:
+            st[i] = 1 if frac == 0 else 2
+            continue
+        if biased == 0x7FF:
+            st[i] = 2
+            continue
+        m = frac | (np.int64(1) << 52)
+        e = biased - 1075  # value = m 2^e
+        while e < 0 and (m & 1) == 0:
+            m >>= 1
+            e += 1
+        if e >= 0:
+            if e > 47 or m > ((_EXACT_MAX - 1) >> e):
+                st[i] = 2
+                continue
+            c = m << e
+            k = 0
+        else:
+            if -e >= 21 or m > (_EXACT_MAX - 1) // _POW5[-e]:
+                st[i] = 2
+                continue
+            c = m * _POW5[-e]
+            k = e
+        while c % 10 == 0:
+            c //= 10
+            k += 1
+        cs[i], ks[i] = c, k
+    return cs, ks, st
+
+
+@njit(cache=True, nogil=True)
+def _ndigits(c):
+    """Decimal digits of ``0 <= c < 10^18``."""
+    if c < 10**9:
+        return (1 + (c >= 10) + (c >= 100) + (c >= 1000) + (c >= 10**4) + (c >= 10**5) + (c >= 10**6)
+                + (c >= 10**7) + (c >= 10**8))
+    n = 10
+    while c >= _POW10[n]:
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _put_digits(buf, at, c, nd, point):
+    """The ``nd`` digits of ``c`` from ``buf[at]``, a ``.`` after the first ``point`` of them
+    (none if ``point`` is not within them); the index after them."""
+    inside = 0 < point < nd
+    first = at + 1 if inside else at  # the digits, then the first ``point`` moved left by one
+    j = first + nd
+    while c >= 100:
+        r = c % 100
+        c //= 100
+        buf[j - 1] = _PAIRS[2 * r + 1]
+        buf[j - 2] = _PAIRS[2 * r]
+        j -= 2
+    if c >= 10:
+        buf[j - 1] = _PAIRS[2 * c + 1]
+        buf[j - 2] = _PAIRS[2 * c]
+    else:
+        buf[j - 1] = 48 + c
+    if inside:
+        for q in range(point):
+            buf[at + q] = buf[at + 1 + q]
+        buf[at + point] = 46
+    return first + nd
+
+
+@njit(cache=True, nogil=True)
+def _put_value(buf, at, c, k, s, neg):
+    """One value's text from ``buf[at]`` (status 0 or 1); the index after it."""
+    if neg:
+        buf[at] = 45  # '-'
+        at += 1
+    if s == 1:
+        buf[at] = 48
+        return at + 1
+    nd = _ndigits(c)
+    point = nd + k  # the decimal point's place after the first digit
+    exp = point - 1
+    if _LOW <= exp < _HIGH:
+        if point <= 0:
+            buf[at] = 48
+            buf[at + 1] = 46
+            at += 2
+            for _ in range(-point):
+                buf[at] = 48
+                at += 1
+            return _put_digits(buf, at, c, nd, 0)
+        at = _put_digits(buf, at, c, nd, point)
+        for _ in range(point - nd):
+            buf[at] = 48
+            at += 1
+        return at
+    at = _put_digits(buf, at, c, nd, 1)
+    buf[at] = 101  # 'e'
+    at += 1
+    if exp < 0:
+        buf[at] = 45
+        at += 1
+        exp = -exp
+    return _put_digits(buf, at, exp, _ndigits(exp), 0)
+
+
+@njit(cache=True, nogil=True)
+def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at):
+    """``[(a, b, c), ...]`` of ``n`` tuples of ``m`` values (``neg`` their signs, flattened)
+    from each value's digits (`shortest_digits`, `exact_digits`) or, at status 2, the bytes
+    ``hard_bytes[hard_at[i]:hard_at[i + 1]]`` of its rank ``i`` among the status-2 values."""
+    # at most 22 characters a value (sign, "0.", 5 zeros, 14 digits) and 2 of separator
+    buf = np.empty(2 + n * (m * 24 + 4) + hard_bytes.shape[0], np.uint8)
+    buf[0] = 91  # '['
+    at = 1
+    h = 0
+    for t in range(n):
+        if t > 0:
+            buf[at] = 44
+            buf[at + 1] = 32
+            at += 2
+        buf[at] = 40  # '('
+        at += 1
+        for j in range(m):
+            if j > 0:
+                buf[at] = 44
+                buf[at + 1] = 32
+                at += 2
+            i = t * m + j
+            if st[i] == 2:
+                for q in range(hard_at[h], hard_at[h + 1]):
+                    buf[at] = hard_bytes[q]
+                    at += 1
+                h += 1
+            else:
+                at = _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
+        buf[at] = 41  # ')'
+        at += 1
+    buf[at] = 93  # ']'
+    return buf[:at + 1]
+
+
+def tuples_text(values: np.ndarray, hard) -> bytes:
+    """The text of ``values (n, m)`` (float32 or float64, finite) as ``[(a, b, c), ...]``;
+    ``hard(v)`` gives the texts (a list of str) of the values ``v`` (of the same type) this
+    cannot format exactly (`shortest_digits`, `exact_digits`: status 2)."""
+    return tuples_texts([values], hard)[0]
+
+
+def tuples_texts(arrays: list, hard) -> list[bytes]:
+    """`tuples_text` of each of ``arrays``, with one call of ``hard`` for each type's values
+    left to it (USD's writer has a fixed cost a call)."""
+    done = []
+    for values in arrays:
+        values = np.ascontiguousarray(values)
+        if values.dtype == np.float64:
+            cs, ks, st = exact_digits(values.reshape(-1).view(np.uint64))
+        else:
+            values = values.astype(np.float32, copy=False)
+            cs, ks, st = shortest_digits(values.reshape(-1).view(np.uint32))
+        done.append((values, cs, ks, st, np.flatnonzero(st == 2)))
+    texts: list = [[] for _ in done]
+    for dtype in (np.float32, np.float64):
+        which = [i for i, d in enumerate(done) if d[0].dtype == dtype and d[4].size]
+        if which:
+            got = iter(hard(np.concatenate([done[i][0].reshape(-1)[done[i][4]] for i in which])))
+            for i in which:
+                texts[i] = [next(got).encode() for _ in range(done[i][4].size)]
+    out = []
+    for (values, cs, ks, st, odd), own in zip(done, texts):
+        hard_at = np.zeros(len(own) + 1, np.int64)
+        if own:
+            hard_at[1:] = np.cumsum([len(t) for t in own])
+        hard_bytes = np.frombuffer(b"".join(own), np.uint8) if own else np.zeros(0, np.uint8)
+        out.append(_tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), cs, ks, st, hard_bytes,
+                                hard_at).tobytes())
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _ints_text(values, m):
+    """``[a, b, ...]`` (``m`` 0) or ``[(a, b), ...]`` (tuples of ``m``) of int32 ``values``."""
+    n = values.shape[0]
+    buf = np.empty(2 + n * 15, np.uint8)  # sign, 10 digits, ", " and parentheses
+    buf[0] = 91
+    at = 1
+    for i in range(n):
+        first = m == 0 or i % m == 0
+        if i > 0:
+            if first and m > 0:
+                buf[at] = 41  # ')'
+                at += 1
+            buf[at] = 44
+            buf[at + 1] = 32
+            at += 2
+        if first and m > 0:
+            buf[at] = 40  # '('
+            at += 1
+        v = np.int64(values[i])
+        if v < 0:
+            buf[at] = 45
+            at += 1
+            v = -v
+        at = _put_digits(buf, at, v, _ndigits(v), 0)
+    if n > 0 and m > 0:
+        buf[at] = 41
+        at += 1
+    buf[at] = 93
+    return buf[:at + 1]
+
+
+def ints_text(values: np.ndarray) -> bytes:
+    """The text of int32 ``values``: ``[a, b, ...]`` for ``(n,)``, ``[(a, b), ...]`` for ``(n, m)``."""
+    values = np.asarray(values)
+    m = values.shape[1] if values.ndim == 2 else 0
+    return _ints_text(np.ascontiguousarray(values, dtype=np.int32).reshape(-1), m).tobytes()

@@ -1,0 +1,114 @@
+"""`acra.floattext` writes a ``float3[]`` value's text as USD's ``.usda`` writer does, byte for byte
+(`pipeline.output_layer._SharedText` writes its text in place of USD's)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pxr import Sdf, Vt
+
+from acra import floattext
+from pipeline.output_layer import _float_texts
+
+
+def usd_text(values: np.ndarray) -> str:
+    layer = Sdf.Layer.CreateAnonymous("t.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    Sdf.AttributeSpec(prim, "v", Sdf.ValueTypeNames.Float3Array, Sdf.VariabilityVarying, True).default = Vt.Vec3fArray.FromNumpy(values)
+    line = next(x for x in layer.ExportToString().splitlines() if "float3[] v = " in x)
+    return line.split(" = ", 1)[1]
+
+
+def _cases() -> dict:
+    rng = np.random.default_rng(19)
+    n = 60000
+    special = [227.140625, 227.140635, 0.0, -0.0, 1.0, -1.0, 0.1, 0.3, 2.5, 100.0, 1e-4, 1e-5, 1e-6, 9.999999e-7, 1.5e-6, 1e-7, 1.234e-7, 1e-8,
+               3e-8, 1e14, 9.99999e14, 1e15, 1e16, 1.5e17, 1e21, 2.0**39, 2.0**40, 16777216.0, 16777217.0, 123456789.0,
+               1.17549435e-38, 1.4e-45, 3.4028235e38, -3.4028235e38]
+    special += [2.0**i for i in range(-149, 128)] + [10.0**i for i in range(-45, 39)]
+    special += list(np.nextafter(np.float32(10.0) ** np.arange(-40, 38, dtype=np.float32), np.float32(np.inf)))
+    return {
+        "any bits": rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32).view(np.float32),
+        "normals": (rng.standard_normal(n) / 3).astype(np.float32),
+        "every scale": (rng.standard_normal(n) * 10.0 ** rng.integers(-12, 16, n)).astype(np.float32),
+        "few digits": (rng.integers(-10**6, 10**6, n) / 10.0 ** rng.integers(0, 9, n)).astype(np.float32),
+        "near powers of two": (2.0 ** rng.integers(-40, 50, n) * (1 + rng.integers(-3, 4, n) * 2.0**-23)).astype(np.float32),
+        "special": np.array(special, dtype=np.float32),
+    }
+
+
+@pytest.mark.parametrize("name", list(_cases()))
+def test_same_text_as_usd(name):
+    values = _cases()[name]
+    values = values[np.isfinite(values)]
+    values = np.ascontiguousarray(values[: values.size // 3 * 3].reshape(-1, 3))
+    assert floattext.tuples_text(values, _float_texts).decode() == usd_text(values)
+
+
+def test_digits_are_found_for_the_usual_range():
+    """Values from 1.03e-7 to 2^40 are formatted by the kernel, not handed back."""
+    rng = np.random.default_rng(3)
+    values = (rng.choice([-1.0, 1.0], 30000) * 10.0 ** rng.uniform(-6.99, 11.9, 30000)).astype(np.float32)
+    _, _, status = floattext.shortest_digits(values.view(np.uint32))
+    assert not np.any(status == 2)
+
+
+def test_tuple_widths():
+    values = np.array([[1.5, -0.0], [1e-9, 2.0]], dtype=np.float32)
+    assert floattext.tuples_text(values, _float_texts).decode() == "[(1.5, -0), (1e-9, 2)]"
+    assert floattext.tuples_text(values.reshape(-1, 1), _float_texts).decode() == "[(1.5), (-0), (1e-9), (2)]"
+
+
+def usd_ints(values, tname) -> str:
+    layer = Sdf.Layer.CreateAnonymous("t.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    vt = Vt.IntArray if values.ndim == 1 else Vt.Vec2iArray
+    Sdf.AttributeSpec(prim, "v", tname, Sdf.VariabilityVarying, True).default = vt.FromNumpy(values)
+    line = next(x for x in layer.ExportToString().splitlines() if "[] v = " in x)
+    return line.split(" = ", 1)[1]
+
+
+@pytest.mark.parametrize("shape", [(1,), (7,), (5000,), (1, 2), (2500, 2)])
+def test_ints_same_text_as_usd(shape):
+    rng = np.random.default_rng(7)
+    values = rng.integers(-2**31, 2**31, shape, dtype=np.int64).astype(np.int32)
+    values.reshape(-1)[:4] = [0, -1, 2**31 - 1, -2**31][: values.size]
+    values.reshape(-1)[4:2000] = rng.integers(-1000, 1000, max(0, min(values.size, 2000) - 4))
+    tname = Sdf.ValueTypeNames.IntArray if values.ndim == 1 else Sdf.ValueTypeNames.Int2Array
+    assert floattext.ints_text(values).decode() == usd_ints(values, tname)
+
+
+def usd_double2(values) -> str:
+    layer = Sdf.Layer.CreateAnonymous("t.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    Sdf.AttributeSpec(prim, "v", Sdf.ValueTypeNames.Double2Array, Sdf.VariabilityVarying, True).default = Vt.Vec2dArray.FromNumpy(values)
+    line = next(x for x in layer.ExportToString().splitlines() if "double2[] v = " in x)
+    return line.split(" = ", 1)[1]
+
+
+def test_doubles_same_text_as_usd():
+    """float64 values with a short exact decimal (a display's surface parameters: dyadic) are
+    written by the kernel, the others handed to USD; the text is USD's."""
+    rng = np.random.default_rng(11)
+    n = 40000
+    dyadic = rng.integers(-2**20, 2**20, n) / 2.0 ** rng.integers(0, 30, n)
+    ints = rng.integers(-10**15, 10**15, 2000).astype(np.float64)
+    other = rng.standard_normal(4000) * 10.0 ** rng.integers(-30, 30, 4000)
+    special = np.array([0.0, -0.0, 1.0, 0.5, 2.0**-20, 2.0**-21, 99999999999999.0, 1e14, 1e15, 1e16, 2.0**46, 2.0**47, 2.0**48,
+                        1e-6, 0.000001, 1.5e-6, 2.0**-30, 5e-324, 1.7976931348623157e308, 0.1, 1 / 3])
+    values = np.concatenate([dyadic, ints, other, special])
+    values = np.ascontiguousarray(values[: values.size // 2 * 2].reshape(-1, 2))
+    assert floattext.tuples_text(values, _float_texts).decode() == usd_double2(values)
+    short = rng.integers(-2**12, 2**12, n) / 2.0 ** rng.integers(0, 13, n)  # i 5^s < 10^14
+    assert not np.any(floattext.exact_digits(short.view(np.uint64))[2] == 2)
+
+
+def test_several_arrays_with_one_call_for_their_hard_values():
+    rng = np.random.default_rng(5)
+    arrays = [(rng.standard_normal((500, 3)) * 10.0 ** rng.integers(-40, 30, (500, 3))).astype(np.float32) for _ in range(3)]
+    arrays.append(rng.integers(-2**20, 2**20, (300, 2)) / 2.0 ** rng.integers(0, 60, (300, 2)))
+    calls = []
+    texts = floattext.tuples_texts(arrays, lambda v: calls.append(v.dtype) or _float_texts(v))
+    assert calls == [np.float32, np.float64]
+    assert [t.decode() for t in texts[:3]] == [usd_text(a) for a in arrays[:3]]
+    assert texts[3].decode() == usd_double2(arrays[3])
