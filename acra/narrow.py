@@ -159,22 +159,22 @@ def solid_mask(points: np.ndarray, triangles: np.ndarray, collapse: float) -> np
 THIN = 1e-12  # squared sine of a triangle's sharpest corner below which `crossings` leaves the pair to fcl
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _lt_min(a, b):  # std::min(a, b)
     return b if b < a else a
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _lt_max(a, b):  # std::max(a, b)
     return b if a < b else a
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _project6(a0, a1, a2, w):
     """fcl's ``Intersect::project6``: whether the projections of triangle ``w[0:3]`` and triangle
     ``w[3:6]`` on the axis overlap (each dot product summed as Eigen sums a 3-vector's)."""
@@ -273,7 +273,7 @@ def _deepest(T, n0, n1, n2, t):
     return best, count
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _orient(T, a, b, c, U, d):
     """Sign of ``((b - a) x (c - a)) . (d - a)`` (rows ``a, b, c`` of ``T``, ``d`` of ``U``): +1 or
     -1, or 0 unless it exceeds 1e-12 of the product of the three lengths (rounding's bound)."""
