@@ -1,17 +1,21 @@
-"""float32 tuple arrays as text, compiled: the shortest round-trip decimal of each value.
+"""Arrays as ``.usda`` text, compiled: the bytes USD's text writer gives, faster.
 
 A ``.usda`` layer writes each float of a ``float3[]`` value as the shortest decimal that reads
 back as the same float32, the closest to it where several are as short, in ECMAScript's layout
 (decimal point notation for decimal exponents -6 to 14, ``1.5e-7`` / ``1e15`` beyond; ``-0`` for
 negative zero) and ``[(x, y, z), ...]`` around them. `tuples_text` writes that text for a
-``(n, m)`` float32 array, with exact integer arithmetic: a value ``M 2^E`` rounds back to itself
-from the interval ``[(4M - 2) 2^(E-2), (4M + 2) 2^(E-2)]`` (``4M - 1`` below a power of two,
-ends included when ``M`` is even); for decimal exponents ``k`` from the largest down, the first
-``k`` whose multiples of ``10^k`` meet the interval gives the shortest digits, the multiple
-closest to the value among them, the even one where the value lies midway between two (as
+``(n, m)`` float32 array, with exact integer arithmetic (`shortest_digits`): a value ``M 2^E``
+rounds back to itself from the interval ``[(4M - 2) 2^(E-2), (4M + 2) 2^(E-2)]`` (``4M - 1``
+below a power of two, ends included when ``M`` is even); the multiples of ``10^k`` meet the
+interval for every ``k`` up to some largest ``K``, which gives the shortest digits. The ends and
+the value are divided by ``10^k`` once, at ``k`` near log10 of the interval's width, and then a
+digit at a time while the interval still holds a multiple; of the multiples of ``10^K`` within,
+the one closest to the value is taken, the even one where the value lies midway between two (as
 double-conversion's exact fallback, which USD's writer uses, rounds). Values whose exact
 comparison would overflow 64 bits (below about 1e-7 or at or above about 2^40 in magnitude,
-and subnormals) are marked, and the caller supplies their text (``hard``).
+and subnormals) are marked, and the caller supplies their text (``hard``). A float64 array's
+values are written as their exact decimals where those have at most 14 digits (`exact_digits`),
+an int array's as their digits (`ints_text`).
 """
 
 from __future__ import annotations
