@@ -344,8 +344,9 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
 
     ``since = (points, limit, stale)``: those of a surface that differs from ``hs`` only on the
     level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`), or the level-``L`` patches
-    ``stale (P0u << L, P0v << L) bool`` (`changed_cells`), on the same topology; only vertices
-    on a stale patch (or its border) are evaluated, the others are copied. ``since =
+    ``stale (P0u << L, P0v << L) bool`` (`changed_cells`; with ``normals``, the level-0 patches
+    holding one), on the same topology; only vertices on a stale patch (or its border) are
+    evaluated, the others are copied. ``since =
     (old_topo, points, limit, stale)``: the same on another topology of the object; a vertex at a
     parameter ``old_topo`` has, on no stale patch, is copied (adaptive topologies of one object
     put their vertices on nested dyadic lattices, so away from where a response refined, the
@@ -378,7 +379,14 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         points, limit, stale = (None if x is None else x.copy() for x in since)
         on = np.zeros(topo.u.size, bool)
     limit = limit if normals else None
-    cells_u, cells_v = _patch_cells(hs, topo, memo, _level_of(hs, stale))
+    level = _level_of(hs, stale)
+    if normals and level:
+        # a limit normal where du × dv vanishes is taken at points nudged toward the centre of the
+        # vertex's level-0 patch (`surface_normals`), which a finer cell need not hold: with
+        # normals, a vertex is evaluated again on every level-0 patch with a changed cell
+        r = 1 << level
+        stale, level = stale.reshape(hs.u.patches0, r, hs.v.patches0, r).any(axis=(1, 3)), 0
+    cells_u, cells_v = _patch_cells(hs, topo, memo, level)
     for cu in cells_u:
         for cv in cells_v:
             on |= stale[cu, cv]

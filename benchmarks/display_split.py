@@ -1,0 +1,68 @@
+"""The display work of a collision frame in CPU time: a round's displays and the run's.
+
+    PYTHONPATH=$PWD python3 benchmarks/display_split.py [--repeat 5]
+
+Runs `dog_head_spike` frame 5, then frames 13-17 once to warm up and ``--repeat`` more times in
+one process (the topologies kept by refinement, `pipeline.display._topology`, cleared before
+each, as a run starts without them), and prints per function the least over the repeats of its
+CPU milliseconds (``time.process_time``, nested) per collision frame: `display.Displays.of` (a
+round's display, with `run_topology` and `grid_samples` inside it), `display.finish` (the run's
+display and its residual: `evaluate_run`, `run_topologies`), `acra.respond.respond`, and the
+whole `run_frames` call. Run it with ``PYTHONPATH`` set to another checkout to compare.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import pathlib
+import time
+
+from acra import respond as R
+from pipeline import display, frames, usdio
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SPENT: dict = collections.defaultdict(float)
+
+
+def _timed(label: str, f):
+    def wrapper(*args, **kwargs):
+        t = time.process_time()
+        try:
+            return f(*args, **kwargs)
+        finally:
+            SPENT[label] += time.process_time() - t
+    return wrapper
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    display.Displays.of = _timed("display.Displays.of", display.Displays.of)
+    display.evaluate_run = _timed("display.evaluate_run", display.evaluate_run)
+    display.run_topology = _timed("tessellate.run_topology (in display)", display.run_topology)
+    display.grid_samples = _timed("tessellate.grid_samples (in display)", display.grid_samples)
+    R.respond = _timed("respond.respond", R.respond)
+    stage = usdio.open_input(usdio.load_scene_file(ROOT / "scenes" / "dog_head_spike.py"))
+    scene = usdio.read_scene(stage)
+    frames.run_frames(stage, scene, [5])
+    frames.run_frames(stage, scene, list(range(13, 18)))
+    display.finish = _timed("display.finish", display.finish)
+    best: dict = {}
+    for _ in range(args.repeat):
+        SPENT.clear()
+        getattr(display, "_TOPOLOGIES", {}).clear()
+        t = time.process_time()
+        frames.run_frames(stage, scene, list(range(13, 18)))
+        SPENT["frames.run_frames (13-17)"] = time.process_time() - t
+        for label, sec in SPENT.items():
+            best[label] = min(best.get(label, float("inf")), sec)
+    print(f"dog_head_spike frames 13-17, CPU ms per collision frame, least of {args.repeat}\n")
+    print("| function | ms |\n|---|---:|")
+    for label, sec in sorted(best.items(), key=lambda kv: -kv[1]):
+        print(f"| `{label}` | {1e3 * sec / 5:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
