@@ -135,6 +135,9 @@ def _buckets(key, n):
     return start, member
 
 
+_SMALL = 32  # a bucket of more faces or edges than this (a pole's fan) is matched by sorting
+
+
 @njit(cache=True, nogil=True)
 def part_mesh(v, f, radius, flip):
     """The part's mesh from welded ``v (g, 3)`` and relabelled ``f (F, 3) int64``: drops faces no
@@ -180,6 +183,14 @@ def part_mesh(v, f, radius, flip):
     start, member = _buckets(low, g)
     first = np.ones(m, np.bool_)
     for x in range(g):
+        if start[x + 1] - start[x] > _SMALL:  # a pole's fan: sorted, not pair by pair
+            seg = member[start[x]:start[x + 1]]
+            key = rest[seg, 0] * g + rest[seg, 1]
+            order = np.argsort(key, kind="mergesort")  # equal triples in row order
+            for r in range(1, order.shape[0]):
+                if key[order[r]] == key[order[r - 1]]:
+                    first[seg[order[r]]] = False
+            continue
         for p in range(start[x], start[x + 1]):
             i = member[p]
             for q in range(start[x], p):
@@ -209,6 +220,23 @@ def part_mesh(v, f, radius, flip):
     other = np.arange(3 * m)
     matched = np.zeros(3 * m, np.bool_)
     for x in range(n):
+        if start[x + 1] - start[x] > _SMALL:  # a pole's edges: sorted by their other end
+            seg = member[start[x]:start[x + 1]]
+            order = np.argsort(high[seg], kind="mergesort")  # equal ends in slot order
+            a = 0
+            while a < order.shape[0]:
+                b = a + 1
+                while b < order.shape[0] and high[seg[order[b]]] == high[seg[order[a]]]:
+                    b += 1
+                if b - a > 2:
+                    return (2,) + empty  # more than two faces
+                if b - a == 2:
+                    s, t = seg[order[a]], seg[order[a + 1]]
+                    if head[s] == head[t]:
+                        return (3,) + empty
+                    other[s], other[t] = t, s
+                a = b
+            continue
         for p in range(start[x], start[x + 1]):
             s = member[p]
             if matched[s]:

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from scipy.optimize import linprog
 
 from acceptance.visible import surface_distance
-from acra import bvh
+from acra import bvh, pseudonormals
 from pipeline import clearance as C
 from pipeline.model import apply_inverse
 
@@ -214,6 +214,35 @@ def test_compiled_part_is_the_array_form_bit_for_bit(seed):
             x, y = getattr(a, name), getattr(b, name)
             assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), name
         np.testing.assert_array_equal(a.tree.order, b.tree.order)
+
+
+def test_compiled_part_with_a_poles_fan_is_the_array_form():
+    """A part holding a pole of 80 faces (buckets of faces and edges above
+    `pseudonormals._SMALL`, matched by sorting) with a face repeated in the fan equals the array
+    form in every array; a fan face flipped, or a third face on a fan edge, raises its error."""
+    v, f = uv_sphere(10, 80)
+    near = v[f].mean(axis=1)[:, 2] > 0.3  # the top pole's fan and the rings below it
+    fan = np.nonzero(near & np.any(f <= 80, axis=1))[0]
+    faces = np.concatenate([f[near], f[fan[5]][None]])
+    for outward in (1.0, -1.0):
+        a = C.solid(v, faces, part=True, outward=outward, scale=2.0)
+        b = C.solid(v, faces, part=True, outward=outward, scale=2.0, compiled=False)
+        for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), name
+    assert np.bincount(a.faces.reshape(-1)).max() > 2 * 32  # the fan's faces at one vertex
+    code, vw, fw = pseudonormals.weld(v, faces, 2e-7)
+    assert code == 0 and pseudonormals.part_mesh(vw, fw, 2e-7, False)[0] == 0  # built compiled, not by the fallback
+    flipped = f[near].copy()
+    row = int(np.nonzero(np.isin(np.nonzero(near)[0], fan))[0][3])
+    flipped[row] = flipped[row, ::-1]
+    with pytest.raises(ValueError, match="inconsistently oriented"):
+        C.solid(v, flipped, part=True, outward=1.0, scale=2.0)
+    pole, ring = f[fan[3]][f[fan[3]] <= 80][0], f[fan[3]][f[fan[3]] > 80]
+    extra = np.concatenate([v, [[0.0, 0.0, 2.0]]])
+    third = np.concatenate([f[near], [[pole, ring[0], len(v)]]])
+    with pytest.raises(ValueError, match="non-manifold"):
+        C.solid(extra, third, part=True, outward=1.0, scale=2.0)
 
 
 def test_compiled_part_raises_the_array_forms_errors():
