@@ -145,12 +145,13 @@ def _settle_imports(command: str) -> None:
     """Import what ``command`` will run, then move every object so far out of the cyclic GC's reach.
 
     ``gc.freeze`` keeps the collector from re-walking the ~90 000 long-lived objects the imports
-    create (numpy, pxr, scipy, trimesh) at each full collection during the run (measured: 0.11 s of
+    create (numpy, pxr, scipy, numba) at each full collection during the run (measured: 0.11 s of
     GC in a dog_head_spike run, 0.07 s after). For processes that are the command only.
     """
     if command == "run":
         from pipeline import frames, usdio  # noqa: F401
     gc.freeze()
+    gc.enable()  # `main` disabled it for the imports
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -162,6 +163,10 @@ def main(argv: list[str] | None = None) -> int:
     and scipy's object graphs before exiting (0.15-0.2 s measured; atexit handlers still run).
     """
     as_program = argv is None
+    if as_program:
+        # the imports create ~90 000 long-lived objects and no garbage: collecting while they
+        # load only walks them (gen 0-2 collections); `_settle_imports` freezes them, then enables
+        gc.disable()
     args = build_parser().parse_args(argv)
     from pipeline import guard, report
     from pipeline.farm import FarmError
