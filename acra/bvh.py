@@ -111,6 +111,18 @@ def _select(key, cen, axis, parent, node, order, a, b, k):
 
 
 @njit(cache=True, nogil=True)
+def _leaf_box(tlo, thi, order, a, b, lo, hi, node):
+    """A leaf's box: the minima and maxima of its triangles' boxes ``order[a:b]``."""
+    for k in range(3):
+        lo[node, k], hi[node, k] = np.inf, -np.inf
+    for s in range(a, b):
+        t = order[s]
+        for k in range(3):
+            lo[node, k] = min(lo[node, k], tlo[t, k])
+            hi[node, k] = max(hi[node, k], thi[t, k])
+
+
+@njit(cache=True, nogil=True)
 def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
     """Median splits along the longest side of each node's centroid box; returns the node count.
 
@@ -132,13 +144,7 @@ def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
         top -= 1
         node, a, b = stack[top, 0], stack[top, 1], stack[top, 2]
         if b - a <= LEAF:
-            for k in range(3):
-                lo[node, k], hi[node, k] = np.inf, -np.inf
-            for s in range(a, b):
-                f = order[s]
-                for k in range(3):
-                    lo[node, k] = min(lo[node, k], tlo[f, k])
-                    hi[node, k] = max(hi[node, k], thi[f, k])
+            _leaf_box(tlo, thi, order, a, b, lo, hi, node)
             for s in range(a + 1, b):  # its parent's order (the rows at a leaf root)
                 f = order[s]
                 t = s - 1
@@ -234,13 +240,7 @@ def _build_linear(vertices, faces, tri, lo, hi, left, right, start, count):
         top -= 1
         node, a, b = stack[top, 0], stack[top, 1], stack[top, 2]
         if b - a <= LEAF:
-            for k in range(3):
-                lo[node, k], hi[node, k] = np.inf, -np.inf
-            for s in range(a, b):
-                t = order[s]
-                for k in range(3):
-                    lo[node, k] = min(lo[node, k], tlo[t, k])
-                    hi[node, k] = max(hi[node, k], thi[t, k])
+            _leaf_box(tlo, thi, order, a, b, lo, hi, node)
             left[node], right[node], start[node], count[node] = -1, -1, a, b - a
             continue
         first, last = key[order[a]], key[order[b - 1]]
