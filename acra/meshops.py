@@ -1,22 +1,20 @@
 """Triangle-mesh helpers in trimesh's arithmetic, without importing trimesh.
 
-`acra run` needs only a few of trimesh's operations on the demo's path: barycentric coordinates
-of closest points (`pipeline.grids.GridSet.nearest`), and for the ray casts of `pipeline.queries`
-the merged mesh, its face normals and size, and the line-plane hit of a ray on the triangle
-embree reports. Importing trimesh costs about 0.25 s on top of scipy (it pulls in networkx) and
-builds a tracked, cached `Trimesh` per mesh; these are the same numpy expressions in the same
-order as trimesh 5.2's (``triangles.points_to_barycentric`` with ``method="cramer"``,
-``grouping.merge_vertices``, ``Trimesh.face_normals``, ``Parent.scale``, ``util.unitize``,
-``intersections.planes_lines``), so each result is the same bits as trimesh's
-(tests/test_meshops.py holds them to it). Arrays are float64 unless stated.
+`acra run` needs only a few of trimesh's operations on the demo's path: for the ray casts of
+`pipeline.queries`, the merged mesh, its face normals and size, and the line-plane hit of a ray on
+the triangle embree reports (the closest points' barycentric coordinates are trimesh's Cramer rule
+compiled, `acra.nearest.face_uv`). Importing trimesh costs about 0.25 s on top of scipy (it pulls
+in networkx) and builds a tracked, cached `Trimesh` per mesh; these are the same numpy expressions
+in the same order as trimesh 5.2's (``grouping.merge_vertices``, ``Trimesh.face_normals``,
+``Parent.scale``, ``util.unitize``, ``intersections.planes_lines``), so each result is the same
+bits as trimesh's (tests/test_meshops.py holds them to it). Arrays are float64 unless stated.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["TOL_ZERO", "MERGE_DIGITS", "barycentric", "merge_vertices", "face_normals", "scale", "unitize",
-           "planes_lines"]
+__all__ = ["TOL_ZERO", "MERGE_DIGITS", "merge_vertices", "face_normals", "scale", "unitize", "planes_lines"]
 
 TOL_ZERO = float(np.finfo(np.float64).resolution * 100)  # trimesh.util.TOL_ZERO: a zero vector's norm
 MERGE_DIGITS = 8  # trimesh.util.decimal_to_digits(tol.merge = 1e-8): vertices equal to 1e-8 are merged
@@ -26,26 +24,6 @@ _ONES = [1.0, 1.0, 1.0]  # trimesh's row dot is ``np.dot(a * b, [1.0] * 3)``: BL
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row dot products of ``a, b (n, 3)`` (trimesh.util.diagonal_dot)."""
     return np.dot(a * b, _ONES)
-
-
-def barycentric(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates ``(n, 3)`` of ``points (n, 3)`` in ``triangles (n, 3, 3)`` by
-    Cramer's rule (trimesh.triangles.points_to_barycentric)."""
-    triangles = np.asanyarray(triangles, dtype=np.float64)
-    points = np.asanyarray(points, dtype=np.float64)
-    edge = triangles[:, 1:] - triangles[:, :1]
-    w = points - triangles[:, 0].reshape((-1, 3))
-    dot00 = _dot(edge[:, 0], edge[:, 0])
-    dot01 = _dot(edge[:, 0], edge[:, 1])
-    dot02 = _dot(edge[:, 0], w)
-    dot11 = _dot(edge[:, 1], edge[:, 1])
-    dot12 = _dot(edge[:, 1], w)
-    inverse = 1.0 / (dot00 * dot11 - dot01 * dot01)
-    out = np.zeros((len(triangles), 3), dtype=np.float64)
-    out[:, 2] = (dot00 * dot12 - dot01 * dot02) * inverse
-    out[:, 1] = (dot11 * dot02 - dot01 * dot12) * inverse
-    out[:, 0] = 1 - out[:, 1] - out[:, 2]
-    return out
 
 
 def merge_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
