@@ -123,6 +123,18 @@ def _leaf_box(tlo, thi, order, a, b, lo, hi, node):
 
 
 @njit(cache=True, nogil=True)
+def _inner_boxes(left, right, lo, hi, nodes):
+    """Each inner node's box from its two children's (the same minima and maxima as its
+    triangles'); children come after their parent, so a reverse sweep sees them first."""
+    for node in range(nodes - 1, -1, -1):
+        l, r = left[node], right[node]
+        if l >= 0:
+            for k in range(3):
+                lo[node, k] = min(lo[l, k], lo[r, k])
+                hi[node, k] = max(hi[l, k], hi[r, k])
+
+
+@njit(cache=True, nogil=True)
 def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
     """Median splits along the longest side of each node's centroid box; returns the node count.
 
@@ -177,12 +189,7 @@ def _build(tlo, thi, cen, order, lo, hi, left, right, start, count):
         stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
         top += 2
         nodes += 2
-    for node in range(nodes - 1, -1, -1):  # children come after their parent
-        l, r = left[node], right[node]
-        if l >= 0:
-            for k in range(3):
-                lo[node, k] = min(lo[l, k], lo[r, k])
-                hi[node, k] = max(hi[l, k], hi[r, k])
+    _inner_boxes(left, right, lo, hi, nodes)
     return nodes
 
 
@@ -262,12 +269,7 @@ def _build_linear(vertices, faces, tri, lo, hi, left, right, start, count):
         stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
         top += 2
         nodes += 2
-    for node in range(nodes - 1, -1, -1):  # children come after their parent
-        l, r = left[node], right[node]
-        if l >= 0:
-            for k in range(3):
-                lo[node, k] = min(lo[l, k], lo[r, k])
-                hi[node, k] = max(hi[l, k], hi[r, k])
+    _inner_boxes(left, right, lo, hi, nodes)
     return order, nodes
 
 
