@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .basis import Direction
 from .hspline import Details, HSpline, details, evaluate, surface_normals
@@ -369,16 +370,9 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     if len(since) == 4:
         old, old_points, old_limit, stale = since
         src, found = _matched(old, topo, memo)
-        points = np.empty((topo.u.size, 3))
-        points[found] = old_points[src[found]]
-        if normals:
-            limit = np.empty((topo.u.size, 3))
-            limit[found] = old_limit[src[found]]
-        on = ~found
-    else:
-        points, limit, stale = (None if x is None else x.copy() for x in since)
-        on = np.zeros(topo.u.size, bool)
-    limit = limit if normals else None
+    else:  # the same topology: vertex i is the old vertex i
+        old_points, old_limit, stale = since
+        src, found = _NO_INDEX, _NO_FOUND
     level = _level_of(hs, stale)
     if normals and level:
         # a limit normal where du × dv vanishes is taken at points nudged toward the centre of the
@@ -386,17 +380,48 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         # normals, a vertex is evaluated again on every level-0 patch with a changed cell
         r = 1 << level
         stale, level = stale.reshape(hs.u.patches0, r, hs.v.patches0, r).any(axis=(1, 3)), 0
-    cells_u, cells_v = _patch_cells(hs, topo, memo, level)
-    for cu in cells_u:
-        for cv in cells_v:
-            on |= stale[cu, cv]
-    idx = np.nonzero(on)[0]
+    (cu, bu), (cv, bv) = _patch_cells(hs, topo, memo, level)
+    points = np.empty((topo.u.size, 3))
+    limit = np.empty((topo.u.size, 3)) if normals else _NO_POINTS
+    idx = _carry(old_points, old_limit if normals else _NO_POINTS, src, found, np.ascontiguousarray(stale, np.bool_),
+                 cu, bu, cv, bv, points, limit)
     if idx.size:
         p, n = sample(topo.u[idx], topo.v[idx])
         points[idx] = p
         if normals:
             limit[idx] = n
-    return points, limit
+    return points, limit if normals else None
+
+
+_NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros((0, 3))
+
+
+@njit(cache=True, nogil=True)
+def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, limit):
+    """Copy into ``points`` (and ``limit``, unless empty) the old vertex ``src[i]`` of every
+    vertex ``i`` that has one (``found[i]``; empty ``src``: vertex ``i`` itself) and lies on no
+    ``stale`` cell (its cells ``cu[i]``/``bu[i]`` along u, the one before where it is on a border,
+    and ``cv[i]``/``bv[i]`` along v); returns the others' rows ``(m,) int64``, ascending, which the
+    caller evaluates. One pass for numpy's copy of every found vertex, mask of the four cells and
+    ``np.nonzero``, whose results it equals (`tests/test_tessellate.py`)."""
+    n = points.shape[0]
+    same = src.shape[0] == 0
+    normals = limit.shape[0] > 0
+    idx = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if (not same and not found[i]) or stale[cu[i], cv[i]] or stale[cu[i], bv[i]] or stale[bu[i], cv[i]] \
+                or stale[bu[i], bv[i]]:
+            idx[m] = i
+            m += 1
+            continue
+        j = i if same else src[i]
+        for c in range(3):
+            points[i, c] = old_points[j, c]
+        if normals:
+            for c in range(3):
+                limit[i, c] = old_limit[j, c]
+    return idx[:m]
 
 
 def _matched(old, topo, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:

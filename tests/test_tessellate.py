@@ -305,3 +305,33 @@ def test_lattice_keys_and_searches_equal_numpy_s(seed):
     for right in (False, True):
         np.testing.assert_array_equal(lattice.search(keys, first, w, q, right),
                                       np.searchsorted(keys, q, side="right" if right else "left"))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_carry_equals_numpy_s_copy_and_mask(seed):
+    """`tessellate._carry` (an incremental display's copies of unchanged vertices and the rows
+    left to evaluate, one compiled pass) gives the bits and rows of numpy's copy of every found
+    vertex, or of every vertex on the same topology, the mask of each vertex's four cells and
+    ``np.nonzero``; with normals and without."""
+    rng = np.random.default_rng(seed)
+    n, m, cu_n, cv_n = 2000, 2500, 12, 9
+    old_points, old_limit = rng.normal(size=(m, 3)), rng.normal(size=(m, 3))
+    stale = rng.random((cu_n, cv_n)) < 0.2
+    cu, cv = rng.integers(0, cu_n, n), rng.integers(0, cv_n, n)
+    bu, bv = np.where(rng.random(n) < 0.3, (cu - 1) % cu_n, cu), np.where(rng.random(n) < 0.3, (cv - 1) % cv_n, cv)
+    cells = stale[cu, cv] | stale[cu, bv] | stale[bu, cv] | stale[bu, bv]
+    for src, found in ((rng.integers(0, m, n), rng.random(n) < 0.8), (T._NO_INDEX, T._NO_FOUND)):
+        same = not src.size
+        want_idx = np.nonzero(cells if same else ~found | cells)[0]
+        keep = np.ones(n, bool) if same else found
+        for normals in (True, False):
+            points, limit = np.full((n, 3), np.nan), np.full((n, 3), np.nan) if normals else T._NO_POINTS
+            idx = T._carry(old_points[:n] if same else old_points, old_limit[:n] if same else old_limit, src, found, stale,
+                           cu, bu, cv, bv, points, limit)
+            np.testing.assert_array_equal(idx, want_idx)
+            copied = np.setdiff1d(np.nonzero(keep)[0], want_idx)
+            rows = copied if same else src[copied]
+            np.testing.assert_array_equal(points[copied], old_points[rows])
+            assert np.isnan(points[want_idx]).all()
+            if normals:
+                np.testing.assert_array_equal(limit[copied], old_limit[rows])
