@@ -739,20 +739,23 @@ def cv_positions(hs: HSpline, k: int, det: Details | None = None) -> np.ndarray:
     return _cv_positions_from(hs, k, det, cv_positions(hs, k - 1, det))
 
 
-def all_cv_positions(hs: HSpline, det: Details | None = None) -> list[np.ndarray]:
-    """`cv_positions` of every level ``0 .. depth-1``, each level built once from the previous."""
+def all_cv_positions(hs: HSpline, det: Details | None = None, refinement=None) -> list[np.ndarray]:
+    """`cv_positions` of every level ``0 .. depth-1``, each level built once from the previous.
+    ``refinement``: a function ``k -> cv_refinement(hs, k)`` (a caller that keeps them)."""
     det = details(hs) if det is None and hs.depth > 1 else det
+    refinement = refinement or (lambda k: cv_refinement(hs, k))
     out = [hs.cvs.reshape(-1, 3).copy()]
     for k in range(1, hs.depth):
-        out.append(_cv_positions_from(hs, k, det, out[-1]))
+        out.append(_cv_positions_from(hs, k, det, out[-1], refinement(k)))
     return out
 
 
-def _cv_positions_from(hs: HSpline, k: int, det: Details, parent: np.ndarray) -> np.ndarray:
-    """Level-``k`` CV positions from level ``k-1``'s ``parent`` positions (`cv_positions`)."""
+def cv_refinement(hs: HSpline, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """How level ``k``'s derived CVs subdivide level ``k-1``'s (thesis Fig. 3.7): rows ``(c_k, 3,
+    3) int64`` of level ``k-1``'s CVs (`cv_positions` order) and their weights ``(c_k, 3, 3)``. A
+    function of the grid and the two levels' ``cv_keys`` alone."""
     parent_keys = (np.arange(hs.u.n)[:, None] * hs.v.n + np.arange(hs.v.n)[None, :]).reshape(-1) if k == 1 else hs.level(k - 1).cv_keys
-    lev = hs.level(k)
-    ju, jv = _split_cv(hs, k, lev.cv_keys)
+    ju, jv = _split_cv(hs, k, hs.level(k).cv_keys)
     iu, wu = refine_rows(hs.u, k - 1, ju)
     iv, wv = refine_rows(hs.v, k - 1, jv)
     pkeys = _cv_keys(hs, k - 1, iu[:, :, None], iv[:, None, :])  # (c, 3, 3)
@@ -760,5 +763,12 @@ def _cv_positions_from(hs: HSpline, k: int, det: Details, parent: np.ndarray) ->
     rows, found = _lookup(parent_keys, pkeys)
     if not np.all(found | (w == 0.0)):
         raise AssertionError(f"level {k}: a derived CV needs a coarser CV that is not stored")
+    return rows, w
+
+
+def _cv_positions_from(hs: HSpline, k: int, det: Details, parent: np.ndarray,
+                       refinement: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Level-``k`` CV positions from level ``k-1``'s ``parent`` positions (`cv_positions`)."""
+    rows, w = cv_refinement(hs, k) if refinement is None else refinement
     derived = np.einsum("mab,mabc->mc", w, parent[rows])
     return derived + det.vectors[k - 1]
