@@ -57,7 +57,24 @@ class Shape:
     def cv_positions(self) -> list[np.ndarray]:
         """Every level's CV positions ``(c_k, 3)`` (`acra.hspline.all_cv_positions`): the patch
         boxes and the CV hull both bound the surface by them (timed as theirs)."""
-        return H.all_cv_positions(self.surface, self.details)
+        return H.all_cv_positions(self.surface, self.details, self._cv_refinement)
+
+    def _cv_refinement(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """`acra.hspline.cv_refinement` of level ``k``: the parent's where both surfaces hold the
+        same ``cv_keys`` arrays on levels ``k`` and ``k-1`` (it depends on them alone; a response
+        that does not refine a level keeps its arrays), else built."""
+        p, hs = self.parent, self.surface
+        hit = None
+        if p is not None and k < p.surface.depth and all(hs.level(j).cv_keys is p.surface.level(j).cv_keys for j in range(max(k - 1, 1), k + 1)):
+            hit = p._cv_refinements.get(k)
+        if hit is None:
+            hit = H.cv_refinement(hs, k)
+        self._cv_refinements[k] = hit
+        return hit
+
+    @cached_property
+    def _cv_refinements(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        return {}
 
     @cached_property
     @timed

@@ -462,6 +462,14 @@ def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed
     for a, b in zip(child.hulls + child._coarse[:2], fresh.hulls + fresh._coarse[:2]):
         np.testing.assert_array_equal(a, b)
     assert np.any(child._coarse[0] != parent._coarse[0])  # the move reached the coarse grid
+    # every level's CV positions, on the parent's subdivision rows and weights where the response
+    # kept the levels' cv_keys, the same bits as built afresh
+    parent.cv_positions
+    for a, b in zip(child.cv_positions, fresh.cv_positions):
+        np.testing.assert_array_equal(a, b)
+    for k in range(1, out.depth):
+        kept = all(out.level(j).cv_keys is hs.level(j).cv_keys for j in range(max(k - 1, 1), k + 1))
+        assert (child._cv_refinements[k] is parent._cv_refinements[k]) == kept
 
 
 def test_changed_patches_marks_the_support_of_a_moved_cv():
