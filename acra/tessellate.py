@@ -11,6 +11,7 @@ per level-0 patch edge, is the adaptive mesh of a surface without finer levels.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -513,21 +514,33 @@ def patch_grids(hs: HSpline, patches: np.ndarray, samples: int, det: Details | N
     """
     patches = np.asarray(patches, dtype=np.int64).reshape(-1, 2)
     s = int(samples)
-    t = np.arange(s + 1) / s
-    tu, tv = np.meshgrid(t, t, indexing="ij")
-    u = (patches[:, 0, None] + tu.reshape(1, -1)).reshape(-1)
-    v = (patches[:, 1, None] + tv.reshape(1, -1)).reshape(-1)
+    tu, tv, local = _patch_pattern(s)
+    u = (patches[:, 0, None] + tu).reshape(-1)
+    v = (patches[:, 1, None] + tv).reshape(-1)
     det = details(hs) if det is None and hs.depth > 1 else det
     pts = evaluate(hs, u, v, det=det).points
+    base = np.arange(patches.shape[0])[:, None, None] * (s + 1) ** 2
+    tris = (local[None] + base).reshape(-1, 3)
+    tri_patch = np.repeat(np.arange(patches.shape[0]), 2 * s * s)
+    return pts, np.stack([u, v], axis=1), tris, tri_patch
+
+
+@functools.lru_cache(maxsize=32)
+def _patch_pattern(s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What `patch_grids` repeats in every patch at ``s`` steps, a function of ``s`` alone:
+    the offsets ``(1, (s+1)**2)`` of the vertices' u and v within the patch, and the triangles
+    ``(2 s**2, 3) int64`` on the vertex rows; read-only."""
+    t = np.arange(s + 1) / s
+    tu, tv = np.meshgrid(t, t, indexing="ij")
     i = np.arange(s)[:, None]
     j = np.arange(s)[None, :]
     a = i * (s + 1) + j
     b = (i + 1) * (s + 1) + j
     local = np.stack(np.broadcast_arrays(a, b, b + 1, a, b + 1, a + 1), axis=-1).reshape(-1, 2, 3).reshape(-1, 3)
-    base = np.arange(patches.shape[0])[:, None, None] * (s + 1) ** 2
-    tris = (local[None] + base).reshape(-1, 3)
-    tri_patch = np.repeat(np.arange(patches.shape[0]), 2 * s * s)
-    return pts, np.stack([u, v], axis=1), tris, tri_patch
+    out = tu.reshape(1, -1), tv.reshape(1, -1), local
+    for x in out:
+        x.flags.writeable = False
+    return out
 
 
 def patch_hulls(hs: HSpline, det: Details | None = None, only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
