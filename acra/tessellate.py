@@ -349,7 +349,8 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     ``stale (P0u << L, P0v << L) bool`` (`changed_cells`; with ``normals``, the level-0 patches
     holding one), on the same topology; only vertices on a stale patch (or its border) are
     evaluated, the others are copied. ``since =
-    (old_topo, points, limit, stale)``: the same on another topology of the object; a vertex at a
+    (old_topo, points, limit, stale)``: the same on another topology of the object (``old_topo``
+    itself: as without it); a vertex at a
     parameter ``old_topo`` has, on no stale patch, is copied (adaptive topologies of one object
     put their vertices on nested dyadic lattices, so away from where a response refined, the
     old vertices are the new). Each vertex is evaluated on its own, so the result equals a full
@@ -368,12 +369,9 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
 
     if since is None:
         return sample(topo.u, topo.v)
-    if len(since) == 4:
-        old, old_points, old_limit, stale = since
-        src, found = _matched(old, topo, memo)
-    else:  # the same topology: vertex i is the old vertex i
-        old_points, old_limit, stale = since
-        src, found = _NO_INDEX, _NO_FOUND
+    old, (old_points, old_limit, stale) = (since[0] if len(since) == 4 else topo), since[-3:]
+    # on the same topology vertex i is the old vertex i
+    src, found = (_NO_INDEX, _NO_FOUND) if old is topo else _matched(old, topo, memo)
     level = _level_of(hs, stale)
     if normals and level:
         # a limit normal where du × dv vanishes is taken at points nudged toward the centre of the

@@ -171,7 +171,7 @@ def test_changed_cells_hold_every_changed_vertex(seed, level, cells, open_):
     margin = H.changed_patches(hs, moved)
     assert mask.sum() << (2 * (3 - cells)) <= margin.sum() << 6  # never more area than the margin's
     old = T.grid_samples(hs, topo)
-    for since in ((*old, mask), (T.run_topology([hs], 4), *T.grid_samples(hs, T.run_topology([hs], 4)), mask)):
+    for since in ((*old, mask), (topo, *old, mask), (T.run_topology([hs], 4), *T.grid_samples(hs, T.run_topology([hs], 4)), mask)):
         fast = T.grid_samples(moved, topo, since=since)
         full = T.grid_samples(moved, topo)
         for a, b in zip(fast, full):
