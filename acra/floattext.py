@@ -137,15 +137,16 @@ def shortest_digits(bits, ref=None, same=None):
     """``(c, k, status)`` per float32 (``bits`` its uint32 pattern): ``|value| = c 10^k`` with
     status 0, 1 for zero, 2 where the caller formats the value. With ``ref`` (the bits of an
     array of the same size) and ``same`` (one flag per tuple of ``bits.shape[0] // same.shape[0]``
-    values), ``same[t]`` is set where tuple ``t``'s bits are ``ref``'s, whose digits are left
-    zero (their text is the reference's)."""
+    values; empty: every value's digits), ``same[t]`` is set where tuple ``t``'s bits are
+    ``ref``'s, whose digits are left zero (their text is the reference's)."""
     n = bits.shape[0]
     cs = np.zeros(n, np.int64)
     ks = np.zeros(n, np.int64)
     st = np.zeros(n, np.int8)
     m = 1
-    if ref is not None and same is not None:
-        m = n // max(same.shape[0], 1)
+    check = ref is not None and same is not None and same.shape[0] > 0
+    if check:
+        m = n // same.shape[0]
         for t in range(same.shape[0]):
             same[t] = True
             for j in range(t * m, t * m + m):
@@ -153,7 +154,7 @@ def shortest_digits(bits, ref=None, same=None):
                     same[t] = False
                     break
     for i in range(n):
-        if same is not None and same[i // m]:
+        if check and same[i // m]:
             continue
         b = np.int64(bits[i]) & 0x7FFFFFFF
         if (b >> 23) == 0xFF:
@@ -372,10 +373,8 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
         same = np.zeros(values.shape[0] if j is not None else 0, np.bool_)
         if values.dtype == np.float64:
             cs, ks, st = exact_digits(flat)
-        elif j is None:
-            cs, ks, st = shortest_digits(flat)
-        else:
-            cs, ks, st = shortest_digits(flat, done[j][0].reshape(-1).view(np.uint32), same)
+        else:  # one compiled signature, with a reference or without (empty ``same``)
+            cs, ks, st = shortest_digits(flat, done[j][0].reshape(-1).view(np.uint32) if j is not None else flat[:0], same)
         done.append((values, cs, ks, st, np.flatnonzero(st == 2), same))
     texts: list = [[] for _ in done]
     for dtype in (np.float32, np.float64):
