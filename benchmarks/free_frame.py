@@ -9,7 +9,8 @@ one run of all its frames, medians over ``--repeat`` passes of CPU milliseconds 
 (`time.process_time`, which a busy machine inflates far less than the wall clock):
 
 * the whole free frame (`frames._Run.frame` on frames already known to be free), and inside it
-  `state_at` and the world boxes and size of the deformables' `SurfaceGeometry`;
+  `state_at` (with the run's inputs that cannot vary in time, `_Run.held`) and the world boxes and
+  size of the deformables' `SurfaceGeometry`;
 * writing a layer that holds only the free frames, as ``.usda`` and ``.usdc``, over their count
   (each layer to a new file, as `acra bench` writes them);
   for comparison, a ``.usda`` layer of only the collision frames over theirs, and the run's whole
@@ -77,7 +78,7 @@ def main() -> int:
             frame_iter = iter(free * 3)
             rows["whole free frame"].append(cpu_ms(lambda: run.frame(next(frame_iter), sink), len(free) * 3))
             t_iter = iter(free * 3)
-            rows["state_at"].append(cpu_ms(lambda: usdio.state_at(stage, scene, float(next(t_iter))), len(free) * 3))
+            rows["state_at"].append(cpu_ms(lambda: usdio.state_at(stage, scene, float(next(t_iter)), run.held), len(free) * 3))
             dstates, _ = run.states(float(free[0]))
 
             def boxes():
