@@ -133,14 +133,29 @@ def _one(bits, pow5):
 
 
 @njit(cache=True, nogil=True)
-def shortest_digits(bits):
+def shortest_digits(bits, ref=None, same=None):
     """``(c, k, status)`` per float32 (``bits`` its uint32 pattern): ``|value| = c 10^k`` with
-    status 0, 1 for zero, 2 where the caller formats the value."""
+    status 0, 1 for zero, 2 where the caller formats the value. With ``ref`` (the bits of an
+    array of the same size) and ``same`` (one flag per tuple of ``bits.shape[0] // same.shape[0]``
+    values; empty: every value's digits), ``same[t]`` is set where tuple ``t``'s bits are
+    ``ref``'s, whose digits are left zero (their text is the reference's)."""
     n = bits.shape[0]
     cs = np.zeros(n, np.int64)
     ks = np.zeros(n, np.int64)
     st = np.zeros(n, np.int8)
+    m = 1
+    check = ref is not None and same is not None and same.shape[0] > 0
+    if check:
+        m = n // same.shape[0]
+        for t in range(same.shape[0]):
+            same[t] = True
+            for j in range(t * m, t * m + m):
+                if bits[j] != ref[j]:
+                    same[t] = False
+                    break
     for i in range(n):
+        if check and same[i // m]:
+            continue
         b = np.int64(bits[i]) & 0x7FFFFFFF
         if (b >> 23) == 0xFF:
             st[i] = 2
@@ -272,20 +287,43 @@ def _put_value(buf, at, c, k, s, neg):
 
 
 @njit(cache=True, nogil=True)
-def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at):
+def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref_at):
     """``[(a, b, c), ...]`` of ``n`` tuples of ``m`` values (``neg`` their signs, flattened)
     from each value's digits (`shortest_digits`, `exact_digits`) or, at status 2, the bytes
-    ``hard_bytes[hard_at[i]:hard_at[i + 1]]`` of its rank ``i`` among the status-2 values."""
-    # at most 22 characters a value (sign, "0.", 5 zeros, 14 digits) and 2 of separator
-    buf = np.empty(2 + n * (m * 24 + 4) + hard_bytes.shape[0], np.uint8)
+    ``hard_bytes[hard_at[i]:hard_at[i + 1]]`` of its rank ``i`` among the status-2 values; a
+    tuple with ``same[t]`` set is the same values as tuple ``t`` of a reference array, whose text
+    ``ref_text`` holds it from ``ref_at[t]`` up to ``ref_at[t + 1] - 2`` and is copied from there
+    (``same`` empty: none). Returns the text and where each tuple's text starts in it, in the
+    layout of ``ref_at`` (``n + 1`` entries, the last two past the closing ``)``)."""
+    # at most 22 characters a value (sign, "0.", 5 zeros, 14 digits) and 2 of separator; a copied
+    # tuple is at most its reference's text
+    buf = np.empty(2 + n * (m * 24 + 4) + hard_bytes.shape[0] + ref_text.shape[0], np.uint8)
+    starts = np.empty(n + 1, np.int64)
     buf[0] = 91  # '['
     at = 1
     h = 0
-    for t in range(n):
+    t = 0
+    while t < n:
         if t > 0:
             buf[at] = 44
             buf[at + 1] = 32
             at += 2
+        if same.shape[0] > 0 and same[t]:
+            # a run of tuples the reference shares: its text and separators are copied at once
+            e = t + 1
+            while e < n and same[e]:
+                e += 1
+            shift = at - ref_at[t]
+            for q in range(t, e):
+                starts[q] = ref_at[q] + shift
+            size = ref_at[e] - 2 - ref_at[t]
+            into, part = buf[at:], ref_text[ref_at[t]:]  # indices from 0 up: the copy compiles to a block copy
+            for q in range(size):
+                into[q] = part[q]
+            at += size
+            t = e
+            continue
+        starts[t] = at
         buf[at] = 40  # '('
         at += 1
         for j in range(m):
@@ -303,8 +341,10 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at):
                 at = _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
         buf[at] = 41  # ')'
         at += 1
+        t += 1
     buf[at] = 93  # ']'
-    return buf[:at + 1]
+    starts[n] = at + 2
+    return buf[:at + 1], starts
 
 
 def tuples_text(values: np.ndarray, hard) -> bytes:
@@ -314,18 +354,28 @@ def tuples_text(values: np.ndarray, hard) -> bytes:
     return tuples_texts([values], hard)[0]
 
 
-def tuples_texts(arrays: list, hard) -> list[bytes]:
+def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
     """`tuples_text` of each of ``arrays``, with one call of ``hard`` for each type's values
-    left to it (USD's writer has a fixed cost a call)."""
+    left to it (USD's writer has a fixed cost a call). ``refs[i]``, where given, is the index
+    ``j < i`` of an array whose text serves ``arrays[i]``: the tuples of ``arrays[i]`` whose
+    bits equal the same tuple's of ``arrays[j]`` (same shape and type) are copied from ``j``'s
+    text, not formatted again (a response moves a display's points near the contact alone)."""
+    refs = list(refs) if refs is not None else [None] * len(arrays)
     done = []
-    for values in arrays:
+    for i, values in enumerate(arrays):
         values = np.ascontiguousarray(values)
-        if values.dtype == np.float64:
-            cs, ks, st = exact_digits(values.reshape(-1).view(np.uint64))
-        else:
+        j = refs[i]
+        if values.dtype != np.float64:
             values = values.astype(np.float32, copy=False)
-            cs, ks, st = shortest_digits(values.reshape(-1).view(np.uint32))
-        done.append((values, cs, ks, st, np.flatnonzero(st == 2)))
+        if j is not None and not (0 <= j < i and done[j][0].shape == values.shape and values.dtype == done[j][0].dtype == np.float32):
+            j = refs[i] = None
+        flat = values.reshape(-1).view(np.uint64 if values.dtype == np.float64 else np.uint32)
+        same = np.zeros(values.shape[0] if j is not None else 0, np.bool_)
+        if values.dtype == np.float64:
+            cs, ks, st = exact_digits(flat)
+        else:  # one compiled signature, with a reference or without (empty ``same``)
+            cs, ks, st = shortest_digits(flat, done[j][0].reshape(-1).view(np.uint32) if j is not None else flat[:0], same)
+        done.append((values, cs, ks, st, np.flatnonzero(st == 2), same))
     texts: list = [[] for _ in done]
     for dtype in (np.float32, np.float64):
         which = [i for i, d in enumerate(done) if d[0].dtype == dtype and d[4].size]
@@ -333,14 +383,25 @@ def tuples_texts(arrays: list, hard) -> list[bytes]:
             got = iter(hard(np.concatenate([done[i][0].reshape(-1)[done[i][4]] for i in which])))
             for i in which:
                 texts[i] = [next(got).encode() for _ in range(done[i][4].size)]
+    # a text's tuple starts are kept while a later array refers to it
+    last_use = {j: i for i, j in enumerate(refs) if j is not None}
+    starts: dict = {}
     out = []
-    for (values, cs, ks, st, odd), own in zip(done, texts):
+    empty = np.frombuffer(b"", np.uint8), np.zeros(1, np.int64)
+    for i, ((values, cs, ks, st, odd, same), own) in enumerate(zip(done, texts)):
         hard_at = np.zeros(len(own) + 1, np.int64)
         if own:
             hard_at[1:] = np.cumsum([len(t) for t in own])
-        hard_bytes = np.frombuffer(b"".join(own), np.uint8) if own else np.zeros(0, np.uint8)
-        out.append(_tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), cs, ks, st, hard_bytes,
-                                hard_at).tobytes())
+        hard_bytes = np.frombuffer(b"".join(own), np.uint8)
+        j = refs[i]
+        ref_text, ref_at = (np.frombuffer(out[j], np.uint8), starts[j]) if j is not None else empty
+        text, at = _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), cs, ks, st, hard_bytes,
+                                hard_at, same, ref_text, ref_at)
+        out.append(text.tobytes())
+        if last_use.get(i, -1) > i:
+            starts[i] = at
+        if j is not None and last_use[j] == i:
+            del starts[j]
     return out
 
 

@@ -9,13 +9,16 @@ one run of all its frames, medians over ``--repeat`` passes of CPU milliseconds 
 (`time.process_time`, which a busy machine inflates far less than the wall clock):
 
 * the whole free frame (`frames._Run.frame` on frames already known to be free), and inside it
-  `state_at` and the world boxes and size of the deformables' `SurfaceGeometry`;
+  `state_at` (with the run's inputs that cannot vary in time, `_Run.held`) and the world boxes and
+  size of the deformables' `SurfaceGeometry`;
 * writing a layer that holds only the free frames, as ``.usda`` and ``.usdc``, over their count
   (each layer to a new file, as `acra bench` writes them);
   for comparison, a ``.usda`` layer of only the collision frames over theirs, and the run's whole
   ``.usda`` layer over all frames (`output_layer._SharedText` formats each repeated array once);
 * the ``.usda`` text writer's floor: `Sdf.Layer.ExportToString` of a layer holding only the free
-  frames' display ``points`` (then ``points`` and ``normals``) of every deformable.
+  frames' display ``points`` (then ``points`` and ``normals``) of every deformable; and the
+  ``.usdc`` crate's: `Sdf.Layer.Export` of the second to a new ``.usdc`` file (every sample holds
+  the one shared array of its attribute: the crate hashes each sample's array to find repeats).
 """
 
 from __future__ import annotations
@@ -66,7 +69,7 @@ def main() -> int:
         rows: dict[str, list[float]] = {k: [] for k in ("whole free frame", "state_at", "world boxes and size", "write .usda",
                                                         "write .usdc", "write .usda, collision frames (per collision frame)",
                                                         "write .usda, the run's layer (per frame)", "text writer, points",
-                                                        "text writer, points + normals")}
+                                                        "text writer, points + normals", "crate writer, points + normals")}
         part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(free)}, result.topologies)
         colliding = [s.frame for s in stats if s.in_collision]
         col_part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(colliding)}, result.topologies)
@@ -75,7 +78,7 @@ def main() -> int:
             frame_iter = iter(free * 3)
             rows["whole free frame"].append(cpu_ms(lambda: run.frame(next(frame_iter), sink), len(free) * 3))
             t_iter = iter(free * 3)
-            rows["state_at"].append(cpu_ms(lambda: usdio.state_at(stage, scene, float(next(t_iter))), len(free) * 3))
+            rows["state_at"].append(cpu_ms(lambda: usdio.state_at(stage, scene, float(next(t_iter)), run.held), len(free) * 3))
             dstates, _ = run.states(float(free[0]))
 
             def boxes():
@@ -106,6 +109,9 @@ def main() -> int:
                                 r = part.frames[f][m.path]
                                 layer.SetTimeSample(spec.path, float(f), output_layer._checked_vec3f(m, part.topology(m), f, attr, getattr(r, attr)))
                 rows[name].append(cpu_ms(layer.ExportToString, 1) / len(free))
+            crate = Path(tmp) / "floor.usdc"
+            crate.unlink(missing_ok=True)
+            rows["crate writer, points + normals"].append(cpu_ms(lambda: layer.Export(str(crate)), 1) / len(free))
     load = os.getloadavg()
     print(f"`python3 benchmarks/free_frame.py {args.scene.name} --repeat {args.repeat}`: {len(free)} free frames, "
           f"CPU ms per free frame, medians of {args.repeat}; load average {load[0]:.1f} (1 min)\n")

@@ -204,6 +204,7 @@ class _Run:
         self.controls = [m.controls for m in self.defs]
         self.caches: dict = {}  # (i, other) -> contact.RewindCache
         self.state_memo: dict = {}
+        self.held: dict = {}  # inputs that cannot vary in time, read once (`usdio.state_at`)
         self.canonical: list = [None] * len(self.defs)  # last input surface of each deformable
         self.displays = display.Displays(options.density, 4 * len(self.defs) + 4)
         self._shown: dict = {}  # (id(surface), world matrix) -> (surface, residual.Shown), most recent last
@@ -215,9 +216,11 @@ class _Run:
         if t not in self.state_memo:
             if len(self.state_memo) > 64:
                 self.state_memo.clear()
-            dstates, cstates = usdio.state_at(self.stage, self.scene, t)
+            dstates, cstates = usdio.state_at(self.stage, self.scene, t, self.held)
             for i, s in enumerate(dstates):  # unchanged input CVs: hand back the same surface, so
                 c = self.canonical[i]        # its object-space Shape (shape.shape_of) is reused
+                if c is s.surface:
+                    continue
                 if c is not None and np.array_equal(c.cvs, s.surface.cvs):
                     dstates[i] = replace(s, surface=c)
                 else:

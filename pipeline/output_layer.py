@@ -266,7 +266,18 @@ class _SharedText:
         for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
             texts[m.group(1)][int(m.group(2))] = m.group(3) if m.group(1) == "s" else m.group(3).encode()
         floats = [k for k, value in enumerate(self._arrays) if type(value) in _FLOATS]
-        for k, text in zip(floats, floattext.tuples_texts([np.asarray(self._arrays[k]) for k in floats], _float_texts)):
+        # each array's text starts from the one authored before it on the same attribute (the
+        # previous frame's display): a response moves the points near the contact alone
+        place = {k: i for i, k in enumerate(floats)}
+        last: dict = {}  # attribute path -> the array authored there last
+        refs: list = [None] * len(floats)
+        for path, _, k in self._samples:
+            j = last.get(path)
+            if j is not None and j != k and k in place and refs[place[k]] is None and j in place:
+                refs[place[k]] = place[j]
+            last[path] = k
+        arrays = [np.asarray(self._arrays[k]) for k in floats]
+        for k, text in zip(floats, floattext.tuples_texts(arrays, _float_texts, refs)):
             texts["v"][k] = text
         for k, value in enumerate(self._arrays):
             if type(value) in _COMPILED and type(value) not in _FLOATS:

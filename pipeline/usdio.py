@@ -642,25 +642,36 @@ def _matrix(m) -> np.ndarray:
     return np.array(m, dtype=np.float64).T.copy()
 
 
-def state_at(stage: Usd.Stage, scene: SceneModel, t: float) -> tuple[list[DeformableState], list[ColliderState]]:
+def state_at(stage: Usd.Stage, scene: SceneModel, t: float, held: dict | None = None) -> tuple[list[DeformableState], list[ColliderState]]:
     """The animator's scene at time code ``t`` (any real, sub-frames included).
 
     Level-0 CVs come from ``acra:cvs`` at ``t`` (USD interpolates time samples linearly), the
     hierarchy from the model; world transforms resolve time samples, Ts splines and animated
-    ancestors. States are in ``scene`` order.
+    ancestors. States are in ``scene`` order. ``held`` (a dict the caller keeps for one stage
+    left unedited, e.g. a run's) holds each deformable's surface and ``acra:enabled`` where USD
+    says they cannot vary in time (`Usd.Attribute.ValueMightBeTimeVarying`: at most one time
+    sample, no varying clips; these array and bool types take no spline), read at the first call
+    and handed back, the same objects, at every later one.
     """
     tc = Usd.TimeCode(float(t))
     cache = UsdGeom.XformCache(tc)
     dstates = []
     for m in scene.deformables:
         prim = stage.GetPrimAtPath(m.path)
-        flat = np.asarray(prim.GetAttribute("acra:cvs").Get(tc))
-        if len(flat) != m.nu * m.nv:
-            raise InputError(m.path, "acra:cvs", f"has {len(flat)} values at time {float(t):g}, expected {m.nu * m.nv}")
-        surface = replace(surface_template(scene, m), cvs=flat_to_cvs(flat, m.nu, m.nv))
-        enabled_attr = prim.GetAttribute("acra:enabled")
-        enabled = enabled_attr.Get(tc) if enabled_attr and enabled_attr.HasAuthoredValue() else True
-        dstates.append(DeformableState(surface, _matrix(cache.GetLocalToWorldTransform(prim)), bool(enabled)))
+        fixed = held.get(m.path) if held is not None else None
+        if fixed is None:
+            cvs_attr = prim.GetAttribute("acra:cvs")
+            flat = np.asarray(cvs_attr.Get(tc))
+            if len(flat) != m.nu * m.nv:
+                raise InputError(m.path, "acra:cvs", f"has {len(flat)} values at time {float(t):g}, expected {m.nu * m.nv}")
+            surface = replace(surface_template(scene, m), cvs=flat_to_cvs(flat, m.nu, m.nv))
+            enabled_attr = prim.GetAttribute("acra:enabled")
+            enabled = bool(enabled_attr.Get(tc)) if enabled_attr and enabled_attr.HasAuthoredValue() else True
+            if held is not None and not cvs_attr.ValueMightBeTimeVarying() and not (enabled_attr and enabled_attr.ValueMightBeTimeVarying()):
+                held[m.path] = (surface, enabled)
+        else:
+            surface, enabled = fixed
+        dstates.append(DeformableState(surface, _matrix(cache.GetLocalToWorldTransform(prim)), enabled))
     cstates = [ColliderState(_matrix(cache.GetLocalToWorldTransform(stage.GetPrimAtPath(c.path)))) for c in scene.colliders]
     return dstates, cstates
 

@@ -112,3 +112,30 @@ def test_several_arrays_with_one_call_for_their_hard_values():
     assert calls == [np.float32, np.float64]
     assert [t.decode() for t in texts[:3]] == [usd_text(a) for a in arrays[:3]]
     assert texts[3].decode() == usd_double2(arrays[3])
+
+
+def test_text_copied_from_a_reference_array_is_the_text_formatted_afresh():
+    """`tuples_texts` with ``refs``: tuples whose bits equal the reference's are copied from its
+    text (runs of them, signs, zeros and values USD's writer formats among them); the text is the
+    same bytes as formatting every value."""
+    rng = np.random.default_rng(23)
+    n = 4000
+    base = (rng.standard_normal((n, 3)) * 10.0 ** rng.integers(-12, 16, (n, 3))).astype(np.float32)
+    base[rng.random((n, 3)) < 0.02] = -0.0
+    moved = base.copy()
+    for lo in rng.integers(0, n, 12):  # changed runs of tuples, as a response moves the points near a contact
+        moved[lo:lo + rng.integers(1, 200)] += rng.standard_normal(3).astype(np.float32)
+    moved[rng.random(n) < 0.05, 1] *= -1
+    moved[0], moved[-1] = -moved[0], moved[-1] * 1e-30
+    again = moved.copy()
+    again[rng.random(n) < 0.5] = 0.0
+    arrays = [base, moved, again, base.reshape(-1, 2), moved[:-1]]
+    refs = [None, 0, 1, 0, 1]  # the last two differ in shape from their reference: formatted afresh
+    assert floattext.tuples_texts(arrays, _float_texts, refs) == floattext.tuples_texts(arrays, _float_texts)
+    assert [t.decode() for t in floattext.tuples_texts(arrays[:3], _float_texts, refs[:3])] == [usd_text(a) for a in arrays[:3]]
+    same = np.zeros(n, np.bool_)
+    cs, ks, st = floattext.shortest_digits(moved.reshape(-1).view(np.uint32), base.reshape(-1).view(np.uint32), same)
+    assert np.array_equal(same, (moved == base).all(axis=1) & (np.signbit(moved) == np.signbit(base)).all(axis=1))
+    whole = floattext.shortest_digits(moved.reshape(-1).view(np.uint32))
+    changed = ~np.repeat(same, 3)
+    assert all(np.array_equal(a[changed], b[changed]) for a, b in zip((cs, ks, st), whole))

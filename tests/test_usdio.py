@@ -385,15 +385,22 @@ def _usd_text(path):
     return Sdf.Layer.OpenAsAnonymous(str(path)).ExportToString().encode()
 
 
-@pytest.mark.parametrize("make", ["shared", "copied", "mixed"])
+@pytest.mark.parametrize("make", ["shared", "copied", "mixed", "moved"])
 def test_text_output_is_usds_own_text(scene_file, tmp_path, make):
-    """A ``.usda`` layer, whose repeated arrays are formatted once, holds the bytes USD's text
+    """A ``.usda`` layer, whose repeated arrays are formatted once and whose arrays' text is
+    copied from the previous frame's where their values are the same, holds the bytes USD's text
     writer gives for the same layer (the ``.usdc`` written from the same results, exported)."""
     stage = U.open_input(scene_file)
     scene = U.read_scene(stage)
     one, shared, copied = _shared_and_copied(stage, scene)
     mixed = output_layer.FramesResult({1: shared.frames[1], 2: copied.frames[2], 3: shared.frames[3]})
-    res = {"shared": shared, "copied": copied, "mixed": mixed}[make]
+    moved = output_layer.FramesResult()
+    for f, r in copied.frames.items():  # a contact moving some of the points and normals at frames 2 and 3
+        points, normals = r[SHEET].points.copy(), r[SHEET].normals.copy()
+        points[3 * f:len(points) // f] += 0.25 * f
+        normals[f::5] *= -1
+        moved.add(f, SHEET, output_layer.DeformableResult(points, normals, r[SHEET].surface, 0.01 * f, f == 2))
+    res = {"shared": shared, "copied": copied, "mixed": mixed, "moved": moved}[make]
     assert len(one.points) >= output_layer._SHARED_MIN
     text = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, res)
     crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, res)
