@@ -720,6 +720,8 @@ def _moved_cvs(old: HSpline, new: HSpline, k: int) -> np.ndarray:
     """Which of ``new``'s level-``k`` CVs ``(c_k,) bool`` moved from ``old``: an offset that
     differs, or a new CV with a non-zero offset (a new CV with offset zero is a refinement)."""
     a, b = old.level(k), new.level(k)
+    if a.cv_keys is b.cv_keys:  # a move (`with_fine` of new offsets): the rows align, every CV found
+        return ~np.all(a.offsets == b.offsets, axis=-1)
     rows, found = _lookup(a.cv_keys, b.cv_keys)
     same = np.zeros(b.cv_keys.size, bool)
     same[found] = np.all(a.offsets[rows[found]] == b.offsets[found], axis=-1)
