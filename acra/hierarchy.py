@@ -329,6 +329,8 @@ def refine(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
         if keys.size and not np.all(_lookup(old.patches, keys)[1]):
             fine[level - 1] = _build_level(hs, level, np.concatenate([old.patches, keys]), old)
         pu, pv = wu[ok] >> 1, wv[ok] >> 1
+    if all(a is b for a, b in zip(fine, hs.fine)):  # every patch was active: the same surface
+        return hs
     return with_fine(hs, tuple(fine))
 
 

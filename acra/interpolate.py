@@ -50,7 +50,7 @@ class PointWeights:
     w : (e,) float64
         Basis weight ``B_a(u) B_b(v)``.
     cv_rows : (P,) int64
-        For level 0 the flat grid index ``i * nv + j``; for level ``k >= 1`` the row into
+        Sorted, each once. For level 0 the flat grid index ``i * nv + j``; for level ``k >= 1`` the row into
         ``level(k).cv_keys``.
     npoints : int
     active : (K,) bool

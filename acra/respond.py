@@ -449,7 +449,7 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     for k, axis, end in rings:
         if k == pw.level:
             rows, ok = _ring_rows(hs, k, axis, end)
-            if not ok.all() and np.isin(rows[ok], pw.cv_rows).any():
+            if not ok.all() and H._lookup(pw.cv_rows, rows[ok])[1].any():  # cv_rows: sorted
                 hs, det, _ = _open_ring(hs, det, k, axis, end, True)
     if hs is not before:
         pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
@@ -473,7 +473,7 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
         if k != pw.level:
             continue
         sums, rows, ok, _ = _ring_sums(hs, det, k, axis, end)
-        if not ok.all() or not np.isin(rows, pw.cv_rows).any():
+        if not ok.all() or not H._lookup(pw.cv_rows, rows)[1].any():  # cv_rows: sorted
             continue
         N = rows.shape[0]
         # row j: +w_r / 6 on column j's CVs, -w_r / (6 N) on every column's
@@ -742,7 +742,8 @@ def respond(
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
                 hs, det = _redetail(coarse, det, hs, ())
-        present = point_active(hs, level, uv[:, 0], uv[:, 1])
+        pw = point_weights(hs, level, uv[:, 0], uv[:, 1])  # also the solve's, when no points merge
+        present = pw.active
         d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
         if d > 0:
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
@@ -759,7 +760,7 @@ def respond(
                 hcur = H.evaluate(hs, huv[:, 0], huv[:, 1], det=det).points
                 luv = np.concatenate([luv, huv])
                 lwant = np.concatenate([lwant, htarget - hcur])
-            lpw = point_weights(hs, level, luv[:, 0], luv[:, 1])
+            lpw = pw if luv is uv else point_weights(hs, level, luv[:, 0], luv[:, 1])
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
