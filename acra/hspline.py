@@ -614,12 +614,26 @@ def details(hs: HSpline, upto: int | None = None,
         if rows.size:
             ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
             partial = Details(tuple(vectors), tuple(frames))
-            ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)
+            ev = evaluate(hs, gu, gv, order=1, det=partial, upto=k - 1)
+            # a ring's CVs take their end's one normal: their own (at the end, where du x dv
+            # vanishes and the limit normal needs second derivatives) are not computed
+            shared = []
             for i, (axis, end) in enumerate(ends):
-                if np.any(ring == i):
+                on = ring == i
+                if np.any(on):
                     n_end = _end_normal(hs, k, axis, end, partial)
                     if n_end is not None:
-                        n[ring == i] = n_end
+                        shared.append((on, n_end))
+            if not shared:
+                n = surface_normals(hs, gu, gv, det=partial, upto=k - 1, ev=ev)[1]
+            else:
+                own = ~np.logical_or.reduce([on for on, _ in shared])
+                n = np.empty((rows.size, 3))
+                if own.any():  # each row's normal is its own point's: the same on any subset
+                    sub = SurfaceEval(ev.points[own], ev.du[own], ev.dv[own])
+                    n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
+                for on, n_end in shared:
+                    n[on] = n_end
             f = _frames(ev, n)
             fr[rows] = f
             vec[rows] = np.einsum("mij,mj->mi", f, lev.offsets[rows])
