@@ -67,9 +67,9 @@ class PointWeights:
 
     def dense(self) -> np.ndarray:
         """``(K, P)`` dense weight matrix."""
-        out = np.zeros((self.npoints, self.cv_rows.size))
-        np.add.at(out, (self.point, self.col), self.w)
-        return out
+        # np.bincount adds each cell's entries in order from 0.0, as np.add.at does, in one pass
+        P = self.cv_rows.size
+        return np.bincount(self.point * P + self.col, self.w, self.npoints * P).reshape(self.npoints, P)
 
     def apply(self, dv: np.ndarray) -> np.ndarray:
         """Point moves ``W dV``: ``dv (P, 3) -> (K, 3)``."""

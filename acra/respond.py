@@ -467,7 +467,7 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     ``pw`` : PointWeights of the data points; ``want (K, 3)``: their wanted moves. Returns both
     extended by the ``N`` virtual points of each ring.
     """
-    point, col, w = [pw.point], [pw.cv_rows[pw.col]], [pw.w]
+    point, w, ring_rows = [pw.point], [pw.w], []
     targets, n = [want], pw.npoints
     for k, axis, end in rings:
         if k != pw.level:
@@ -479,17 +479,22 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
         # row j: +w_r / 6 on column j's CVs, -w_r / (6 N) on every column's
         own = np.repeat(np.arange(N), 3)
         point += [n + own, np.repeat(n + np.arange(N), 3 * N)]
-        col += [rows.reshape(-1), np.tile(rows.reshape(-1), N)]
+        ring_rows.append(rows.reshape(-1))
         w += [np.tile(_RING_W / 6.0, N), -np.tile(_RING_W / (6.0 * N), N * N)]
         targets.append(-(sums - sums.mean(axis=0)) / 6.0)
         n += N
     if n == pw.npoints:
         return pw, want
-    cvs = np.concatenate(col)
-    cv_rows, inv = np.unique(cvs, return_inverse=True)
+    # the unknowns: the data points' CVs and the rings';
+    # each entry's column is its CV's place among them (np.unique's inverse of every entry)
+    cv_rows = np.unique(np.concatenate([pw.cv_rows[pw.col], *ring_rows]))
+    col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
+    for r in ring_rows:
+        c = np.searchsorted(cv_rows, r)
+        col += [c, np.tile(c, r.size // 3)]
     active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
-    return PointWeights(pw.level, np.concatenate(point), inv.astype(np.int64), np.concatenate(w), cv_rows.astype(np.int64),
-                        n, active), np.concatenate(targets)
+    return PointWeights(pw.level, np.concatenate(point), np.concatenate(col).astype(np.int64), np.concatenate(w),
+                        cv_rows.astype(np.int64), n, active), np.concatenate(targets)
 
 
 def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

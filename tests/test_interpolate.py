@@ -141,3 +141,18 @@ def test_a_point_on_a_pole_weighs_the_ring_all_around():
         np.testing.assert_allclose(np.sort(pw.w), np.sort(np.tile(w / keys.shape[0], keys.shape[0])), rtol=1e-15)
     # level 1's ring is not refined: a pole point gets no weights there (obey leaves it alone)
     assert not point_weights(hs, 1, np.array([0.3]), np.array([0.0])).active[0]
+
+
+def test_dense_weights_add_repeated_entries_as_add_at_does():
+    """`PointWeights.dense` (np.bincount) is np.add.at's matrix bit for bit: repeated
+    (point, CV) entries, as a ring constraint's own and mean terms give, signed zeros."""
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        K, P, e = int(rng.integers(1, 60)), int(rng.integers(1, 120)), int(rng.integers(0, 3000))
+        point, col = rng.integers(0, K, e), rng.integers(0, P, e)
+        w = rng.normal(size=e) * 10.0 ** rng.uniform(-10, 10, e)
+        w[rng.random(e) < 0.1] = -0.0
+        pw = PointWeights(1, point, col, w, np.arange(P), K, np.ones(K, bool))
+        ref = np.zeros((K, P))
+        np.add.at(ref, (point, col), w)
+        assert pw.dense().tobytes() == ref.tobytes()
