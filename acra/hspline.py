@@ -576,6 +576,7 @@ def details(hs: HSpline, upto: int | None = None,
     ends = closed_ends(hs) if top >= 1 else ()
     vectors: list[np.ndarray] = []
     frames: list[np.ndarray] = []
+    ends_stale = None  # `_ends_stale` of ``since``, found once
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
         if since is not None and k <= first and k - 1 < len(since[1].frames) and lev is since[0].fine[k - 1]:
@@ -607,7 +608,9 @@ def details(hs: HSpline, upto: int | None = None,
                 ring, centre = places[1], places[4]
                 found &= ~stale.reshape(-1)[centre]
                 # a ring's frames depend on the surface all along its end (`_end_normal`)
-                found &= (ring < 0) | ~_ends_stale(hs, ends, stale)[np.maximum(ring, 0)]
+                if ends_stale is None:
+                    ends_stale = _ends_stale(hs, ends, stale)
+                found &= (ring < 0) | ~ends_stale[np.maximum(ring, 0)]
             vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
             pos = np.nonzero(~found)[0]
             rows = rows[pos]

@@ -1,4 +1,5 @@
-"""Compiled construction of one hierarchy level (`acra.hierarchy._build_level`).
+"""Compiled bookkeeping of hierarchy levels: building one (`acra.hierarchy._build_level`) and
+the CVs a data point weighs on one (`acra.interpolate._entries`).
 
 A refinement rebuilds the level it adds patches to: the sorted active patch keys, the CV keys
 of their 4×4 blocks, each block's rows, the C2 movability of every CV (all existing patches of
@@ -6,7 +7,9 @@ its support active) and the offsets the old level had. In array form that is som
 calls on a few hundred to a few thousand keys (sorts, `np.unique`, `np.searchsorted` of
 unsorted keys), and a response refines up to three levels a step (`hierarchy.make_movable`);
 here it is one pass. Everything is integer bookkeeping plus a copy of the old offsets, so the
-level is the same as the array form's, key for key (`tests/test_hierarchy.py` holds it to it).
+level is the same as the array form's, key for key (`tests/test_hspline.py` holds it to it).
+A data point's weights are its basis rows' products, each one multiplication as numpy's
+broadcast product, so they too are the array form's bits (`tests/test_interpolate.py`).
 """
 
 from __future__ import annotations
@@ -14,10 +17,25 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["build_level"]
+__all__ = ["build_level", "point_entries"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
+
+
+@njit(inline="always")
+def _find(sorted_keys, key):
+    """``np.searchsorted(sorted_keys, key)`` clipped to the last row, and whether it is ``key``."""
+    lo, hi = 0, sorted_keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if sorted_keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo > sorted_keys.shape[0] - 1:
+        lo = sorted_keys.shape[0] - 1
+    return lo, lo >= 0 and sorted_keys[lo] == key
 
 
 @njit(inline="always")
@@ -138,3 +156,41 @@ def build_level(keys, old_patches, old_cv_keys, old_offsets,
                 if not movable[r] and old_offsets[r_old, d] != 0.0:
                     stranded = True
     return 0, patches, cv_keys, patch_rows, movable, offsets, stranded
+
+
+@njit(cache=True, nogil=True)
+def point_entries(su, sv, bu, bv, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, v_patches,
+                  cv_keys, movable, patches):
+    """`acra.interpolate._entries`' weights of the points off a pole (``pole < 0``): for each
+    point in order, its level-``level`` patch's 16 CVs ``(a, b)`` in row-major order whose
+    weight ``bu[a] * bv[b]`` is positive and that exist and are movable (level 0: every grid CV),
+    on a patch that is active (level 0: every patch). ``su, sv (K,) int64``: the points' level
+    segments; ``bu, bv (K, 4)``: their basis rows. Returns ``point, row, w`` of the entries."""
+    K = su.shape[0]
+    point = np.empty(16 * K, np.int64)
+    rows = np.empty(16 * K, np.int64)
+    w = np.empty(16 * K)
+    n = 0
+    c = cv_keys.shape[0]
+    for i in range(K):
+        if pole[i] >= 0:
+            continue
+        if level and not _find(patches, su[i] * v_patches + sv[i])[1]:
+            continue
+        for a in range(4):
+            ju = _wrap(su[i] + a, u_cvs, u_periodic)
+            for b in range(4):
+                x = bu[i, a] * bv[i, b]
+                if not x > 0.0:
+                    continue
+                q = ju * v_cvs + _wrap(sv[i] + b, v_cvs, v_periodic)
+                if level:
+                    if c == 0:
+                        continue
+                    r, hit = _find(cv_keys, q)
+                    if not (hit and movable[r]):
+                        continue
+                    q = r
+                point[n], rows[n], w[n] = i, q, x
+                n += 1
+    return point[:n], rows[:n], w[:n]

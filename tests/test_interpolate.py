@@ -156,3 +156,33 @@ def test_dense_weights_add_repeated_entries_as_add_at_does():
         ref = np.zeros((K, P))
         np.add.at(ref, (point, col), w)
         assert pw.dense().tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("periodic", [(False, False), (True, False), (True, True)])
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_entries_equal_the_array_form(periodic, seed):
+    """`interpolate._entries` (compiled off the poles, `acra.levelkernels.point_entries`) gives
+    `_entries_numpy`'s points, rows and weights bit for bit on every level: points on knots
+    (zero weights), on patches not refined, beside CVs not movable, and on a sphere's poles."""
+    from acra import interpolate as I
+
+    rng = np.random.default_rng(seed)
+    if periodic == (True, False):
+        hs = H.from_grid(shapes.sphere(8, 7)[0], True, False, depth=4)
+    else:
+        hs = H.from_grid(rng.normal(size=(8, 7, 3)), *periodic, depth=4)
+    for k in (1, 2, 3):
+        n = hs.u.patches(k), hs.v.patches(k)
+        hs = H.make_movable(hs, k, np.stack([rng.integers(0, n[0], 3), rng.integers(0, n[1], 3)], axis=1))
+    m = 200
+    u = rng.uniform(0, hs.u.patches0, m)
+    v = rng.uniform(0, hs.v.patches0, m)
+    u[:20] = np.round(u[:20] * 4) / 4  # on knots of levels 0-2
+    v[20:40] = np.round(v[20:40] * 8) / 8
+    v[40:50] = 0.0  # on the south end (a pole of the sphere)
+    v[50:55] = hs.v.patches0
+    for k in range(hs.depth):
+        got, ref = I._entries(hs, k, u, v), I._entries_numpy(hs, k, u, v)
+        for a, b in zip(got, ref):
+            x, y = np.concatenate(a), np.concatenate(b)
+            assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
