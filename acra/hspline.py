@@ -587,7 +587,7 @@ def details(hs: HSpline, upto: int | None = None,
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
         places = _movable_places(hs, k, lev, ends)
-        rows = places[0]
+        rows = every = places[0]
         pos = None  # positions in ``places`` of the rows left to evaluate (``None``: all)
         if rows.size and since is not None and k - 1 < len(since[1].frames):
             old, old_det, stale = since
@@ -611,7 +611,6 @@ def details(hs: HSpline, upto: int | None = None,
                 if ends_stale is None:
                     ends_stale = _ends_stale(hs, ends, stale)
                 found &= (ring < 0) | ~ends_stale[np.maximum(ring, 0)]
-            vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
             pos = np.nonzero(~found)[0]
             rows = rows[pos]
         if rows.size:
@@ -637,9 +636,10 @@ def details(hs: HSpline, upto: int | None = None,
                     n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
                 for on, n_end in shared:
                     n[on] = n_end
-            f = _frames(ev, n)
-            fr[rows] = f
-            vec[rows] = np.einsum("mij,mj->mi", f, lev.offsets[rows])
+            fr[rows] = _frames(ev, n)
+        # every movable CV's vector from its frame, kept or new (offsets may have moved); each
+        # row's product is its own, so one product serves both
+        vec[every] = np.einsum("mij,mj->mi", fr[every], lev.offsets[every])
         vectors.append(vec)
         frames.append(fr)
     return Details(tuple(vectors), tuple(frames))
