@@ -23,7 +23,7 @@ __all__ = ["build_level", "point_entries"]
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _find(sorted_keys, key):
     """``np.searchsorted(sorted_keys, key)`` clipped to the last row, and whether it is ``key``."""
     lo, hi = 0, sorted_keys.shape[0]
@@ -38,12 +38,12 @@ def _find(sorted_keys, key):
     return lo, lo >= 0 and sorted_keys[lo] == key
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _wrap(j, count, periodic):
     return j % count if periodic else j  # Python's (and np.mod's) sign of the result
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _strictly_increasing(a):
     for i in range(1, a.shape[0]):
         if a[i] <= a[i - 1]:
@@ -51,7 +51,26 @@ def _strictly_increasing(a):
     return True
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
+def _sort(a):
+    """``a`` sorted in place (Shell's sort, Knuth's gaps): a few thousand keys at most, and
+    numba's ``np.sort`` costs seconds to compile."""
+    gap = 1
+    while gap < a.shape[0] // 3:
+        gap = 3 * gap + 1
+    while gap >= 1:
+        for i in range(gap, a.shape[0]):
+            x = a[i]
+            j = i
+            while j >= gap and a[j - gap] > x:
+                a[j] = a[j - gap]
+                j -= gap
+            a[j] = x
+        gap //= 3
+    return a
+
+
+@njit(cache=True, nogil=True)
 def _merge(old, fresh):
     """Sorted union of strictly increasing ``old`` and sorted ``fresh`` that has no key of ``old``."""
     out = np.empty(old.shape[0] + fresh.shape[0], np.int64)
@@ -95,7 +114,7 @@ def build_level(keys, old_patches, old_cv_keys, old_offsets,
             nf += 1
     if nf == 0:
         return 1, none, none, np.zeros((0, 4, 4), np.int64), np.zeros(0, np.bool_), np.zeros((0, 3)), False
-    fresh = np.sort(fresh[:nf])
+    fresh = _sort(fresh[:nf])
     patches = _merge(old_patches, fresh)
     # CVs: the old level's (its patches' blocks) and the new patches' blocks
     present = np.zeros(u_cvs * v_cvs, np.bool_)
@@ -114,7 +133,7 @@ def build_level(keys, old_patches, old_cv_keys, old_offsets,
                     present[q] = True
                     added[na] = q
                     na += 1
-    added = np.sort(added[:na])
+    added = _sort(added[:na])
     cv_keys = _merge(old_cv_keys, added) if old_patches.shape[0] else added
     row = np.empty(u_cvs * v_cvs, np.int64)  # read only where ``present``
     for r in range(cv_keys.shape[0]):
