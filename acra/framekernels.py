@@ -7,6 +7,10 @@ moves a level (`acra.hspline.details`); here it is one pass per call. Each value
 numpy's operations in numpy's order (a cross product as ``a1 b2 - a2 b1``, a norm over three
 components as ``sqrt((x0² + x1²) + x2²)``, a sum over three as ``(a0 + a1) + a2``), so the frames
 are the same bits as the array form's (`tests/test_kernels.py` holds them to it).
+
+`ring_sums` is the pole-ring bookkeeping of a response (`acra.respond._ring_sums`): per ring
+column the sum of its three rows' detail vectors and how far the columns' sums spread, which a
+response reads for every fine level and closed end before and after it moves the surface.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import math
 
 from numba import njit
 
-__all__ = ["degenerate", "unit_rows", "frames"]
+__all__ = ["degenerate", "unit_rows", "frames", "ring_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -79,3 +83,32 @@ def frames(du, dv, n, out):
         out[i, 1, 1] = n2 * e0 - n0 * e2
         out[i, 2, 1] = n0 * e1 - n1 * e0
         out[i, 0, 2], out[i, 1, 2], out[i, 2, 2] = n0, n1, n2
+
+
+@njit(cache=True, nogil=True)
+def ring_sums(vectors, rows, ok, sums):
+    """``sums[j] = D0 + 4 D1 + D2`` of ring column ``j``'s CVs ``rows[j] (3,)`` (``D``: the row of
+    ``vectors``, zero where ``ok[j]`` is False), summed as ``(D0 + 4.0 D1) + D2``; returns the
+    largest over the three coordinates of ``max_j - min_j`` (``np.ptp(sums, axis=0).max()``,
+    NaN if a sum is)."""
+    spread = 0.0
+    for c in range(3):
+        lo, hi, nan = math.inf, -math.inf, False
+        for j in range(rows.shape[0]):
+            d0 = vectors[rows[j, 0], c] if ok[j, 0] else 0.0
+            d1 = vectors[rows[j, 1], c] if ok[j, 1] else 0.0
+            d2 = vectors[rows[j, 2], c] if ok[j, 2] else 0.0
+            x = (d0 + 4.0 * d1) + d2
+            sums[j, c] = x
+            if x != x:
+                nan = True
+            if x < lo:
+                lo = x
+            if x > hi:
+                hi = x
+        width = math.nan if nan else hi - lo
+        if width != width or spread != spread:
+            spread = math.nan
+        elif width > spread:
+            spread = width
+    return spread

@@ -29,6 +29,7 @@ from functools import cached_property
 
 import numpy as np
 
+from . import levelkernels
 from .basis import Direction
 
 __all__ = [
@@ -268,8 +269,29 @@ def _valid_patches(hs: HSpline, k: int, pu: np.ndarray, pv: np.ndarray) -> tuple
     return hs.u.wrap_patch(pu, k), hs.v.wrap_patch(pv, k), ok
 
 
-def _build_level(hs: HSpline, k: int, patches: np.ndarray, old: Level) -> Level:
-    """Level ``k`` with the given active patch keys; keeps the offsets ``old`` had."""
+def _build_level(hs: HSpline, k: int, keys: np.ndarray, old: Level) -> Level | None:
+    """Level ``k`` as ``old`` with the patch keys ``keys`` (in range, any order) also active,
+    keeping the offsets ``old`` had; ``None`` if every key is active already. Compiled
+    (`acra.levelkernels.build_level`); `_build_level_numpy` is the array form, used where the
+    level's grid is too large for the kernel's dense marks or ``old``'s keys are not sorted."""
+    u, v = hs.u, hs.v
+    if max(u.patches(k) * v.patches(k), u.cvs(k) * v.cvs(k)) <= levelkernels._MAX_CELLS:
+        status, patches, cv_keys, patch_rows, movable, offsets, stranded = levelkernels.build_level(
+            np.ascontiguousarray(keys, np.int64), old.patches, old.cv_keys, old.offsets,
+            u.cvs(k), u.patches(k), u.periodic, v.cvs(k), v.patches(k), v.periodic)
+        if status == 1:
+            return None
+        if status == 0:
+            if stranded:
+                raise ValueError(f"level {k}: refinement would leave offsets on CVs that are not free to move")
+            return Level(k=k, patches=patches, cv_keys=cv_keys, offsets=offsets, movable=movable, patch_rows=patch_rows)
+    if np.all(_lookup(old.patches, keys)[1]):
+        return None
+    return _build_level_numpy(hs, k, np.concatenate([old.patches, keys]), old)
+
+
+def _build_level_numpy(hs: HSpline, k: int, patches: np.ndarray, old: Level) -> Level:
+    """`_build_level` as array operations (the reference the kernel is tested against)."""
     patches = np.unique(patches)
     pu, pv = _split_patch(hs, k, patches)
     ju = hs.u.wrap_cv(pu[:, None] + _I4[None, :], k)  # (m, 4)
@@ -325,10 +347,12 @@ def refine(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
     for level in range(k, 0, -1):
         wu, wv, ok = _valid_patches(hs, level, pu, pv)
         keys = _patch_keys(hs, level, wu[ok], wv[ok])
-        old = fine[level - 1]
-        if keys.size and not np.all(_lookup(old.patches, keys)[1]):
-            fine[level - 1] = _build_level(hs, level, np.concatenate([old.patches, keys]), old)
+        built = _build_level(hs, level, keys, fine[level - 1]) if keys.size else None
+        if built is not None:
+            fine[level - 1] = built
         pu, pv = wu[ok] >> 1, wv[ok] >> 1
+    if all(a is b for a, b in zip(fine, hs.fine)):  # every patch was active: the same surface
+        return hs
     return with_fine(hs, tuple(fine))
 
 

@@ -576,6 +576,7 @@ def details(hs: HSpline, upto: int | None = None,
     ends = closed_ends(hs) if top >= 1 else ()
     vectors: list[np.ndarray] = []
     frames: list[np.ndarray] = []
+    ends_stale = None  # `_ends_stale` of ``since``, found once
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
         if since is not None and k <= first and k - 1 < len(since[1].frames) and lev is since[0].fine[k - 1]:
@@ -586,7 +587,7 @@ def details(hs: HSpline, upto: int | None = None,
         vec = np.zeros((c, 3))
         fr = np.zeros((c, 3, 3))
         places = _movable_places(hs, k, lev, ends)
-        rows = places[0]
+        rows = every = places[0]
         pos = None  # positions in ``places`` of the rows left to evaluate (``None``: all)
         if rows.size and since is not None and k - 1 < len(since[1].frames):
             old, old_det, stale = since
@@ -607,22 +608,38 @@ def details(hs: HSpline, upto: int | None = None,
                 ring, centre = places[1], places[4]
                 found &= ~stale.reshape(-1)[centre]
                 # a ring's frames depend on the surface all along its end (`_end_normal`)
-                found &= (ring < 0) | ~_ends_stale(hs, ends, stale)[np.maximum(ring, 0)]
-            vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])  # offsets may have moved
+                if ends_stale is None:
+                    ends_stale = _ends_stale(hs, ends, stale)
+                found &= (ring < 0) | ~ends_stale[np.maximum(ring, 0)]
             pos = np.nonzero(~found)[0]
             rows = rows[pos]
         if rows.size:
             ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
             partial = Details(tuple(vectors), tuple(frames))
-            ev, n = surface_normals(hs, gu, gv, det=partial, upto=k - 1)
+            ev = evaluate(hs, gu, gv, order=1, det=partial, upto=k - 1)
+            # a ring's CVs take their end's one normal: their own (at the end, where du x dv
+            # vanishes and the limit normal needs second derivatives) are not computed
+            shared = []
             for i, (axis, end) in enumerate(ends):
-                if np.any(ring == i):
+                on = ring == i
+                if np.any(on):
                     n_end = _end_normal(hs, k, axis, end, partial)
                     if n_end is not None:
-                        n[ring == i] = n_end
-            f = _frames(ev, n)
-            fr[rows] = f
-            vec[rows] = np.einsum("mij,mj->mi", f, lev.offsets[rows])
+                        shared.append((on, n_end))
+            if not shared:
+                n = surface_normals(hs, gu, gv, det=partial, upto=k - 1, ev=ev)[1]
+            else:
+                own = ~np.logical_or.reduce([on for on, _ in shared])
+                n = np.empty((rows.size, 3))
+                if own.any():  # each row's normal is its own point's: the same on any subset
+                    sub = SurfaceEval(ev.points[own], ev.du[own], ev.dv[own])
+                    n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
+                for on, n_end in shared:
+                    n[on] = n_end
+            fr[rows] = _frames(ev, n)
+        # every movable CV's vector from its frame, kept or new (offsets may have moved); each
+        # row's product is its own, so one product serves both
+        vec[every] = np.einsum("mij,mj->mi", fr[every], lev.offsets[every])
         vectors.append(vec)
         frames.append(fr)
     return Details(tuple(vectors), tuple(frames))
@@ -720,6 +737,8 @@ def _moved_cvs(old: HSpline, new: HSpline, k: int) -> np.ndarray:
     """Which of ``new``'s level-``k`` CVs ``(c_k,) bool`` moved from ``old``: an offset that
     differs, or a new CV with a non-zero offset (a new CV with offset zero is a refinement)."""
     a, b = old.level(k), new.level(k)
+    if a.cv_keys is b.cv_keys:  # a move (`with_fine` of new offsets): the rows align, every CV found
+        return ~np.all(a.offsets == b.offsets, axis=-1)
     rows, found = _lookup(a.cv_keys, b.cv_keys)
     same = np.zeros(b.cv_keys.size, bool)
     same[found] = np.all(a.offsets[rows[found]] == b.offsets[found], axis=-1)

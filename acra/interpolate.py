@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import levelkernels
 from .basis import basis, locate
 from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
@@ -50,7 +51,7 @@ class PointWeights:
     w : (e,) float64
         Basis weight ``B_a(u) B_b(v)``.
     cv_rows : (P,) int64
-        For level 0 the flat grid index ``i * nv + j``; for level ``k >= 1`` the row into
+        Sorted, each once. For level 0 the flat grid index ``i * nv + j``; for level ``k >= 1`` the row into
         ``level(k).cv_keys``.
     npoints : int
     active : (K,) bool
@@ -67,9 +68,9 @@ class PointWeights:
 
     def dense(self) -> np.ndarray:
         """``(K, P)`` dense weight matrix."""
-        out = np.zeros((self.npoints, self.cv_rows.size))
-        np.add.at(out, (self.point, self.col), self.w)
-        return out
+        # np.bincount adds each cell's entries in order from 0.0, as np.add.at does, in one pass
+        P = self.cv_rows.size
+        return np.bincount(self.point * P + self.col, self.w, self.npoints * P).reshape(self.npoints, P)
 
     def apply(self, dv: np.ndarray) -> np.ndarray:
         """Point moves ``W dV``: ``dv (P, 3) -> (K, 3)``."""
@@ -116,7 +117,40 @@ def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> np.nd
 
 
 def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> tuple[list, list, list]:
-    """`point_weights`' nonzero weights as lists of arrays: points, CV rows, weights."""
+    """`point_weights`' nonzero weights as lists of arrays: points, CV rows, weights. The points
+    off a pole are compiled (`acra.levelkernels.point_entries`); `_entries_numpy` is the array
+    form."""
+    su, tu = locate(hs.u, u, level)
+    sv, tv = locate(hs.v, v, level)
+    pole = pole_of(hs, u, v)
+    lev = hs.level(level) if level else None
+    none = np.zeros(0, np.int64)
+    pt, rows, w = levelkernels.point_entries(
+        su, sv, basis(tu), basis(tv), pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level), hs.v.periodic,
+        hs.v.patches(level), none if lev is None else lev.cv_keys, np.zeros(0, bool) if lev is None else lev.movable,
+        none if lev is None else lev.patches)
+    return _pole_entries(hs, level, pole, [pt], [rows], [w])
+
+
+def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: list, ws: list) -> tuple[list, list, list]:
+    """`_entries`' lists with the entries of the points on a pole (`pole_of`) appended: each
+    weighs its level's whole `pole_ring` (if the ring is wholly movable)."""
+    for i, (axis, end) in enumerate(closed_ends(hs)):
+        on = np.nonzero(pole == i)[0]
+        if not on.size:
+            continue
+        ring, rw = pole_ring(hs, level, axis, end)
+        rrows, rok = _movable_rows(hs, level, ring)
+        if not rok.all():
+            continue
+        pts.append(np.repeat(on, ring.size))
+        rws.append(np.tile(rrows.reshape(-1), on.size))
+        ws.append(np.tile(np.broadcast_to(rw / ring.shape[0], ring.shape).reshape(-1), on.size))
+    return pts, rws, ws
+
+
+def _entries_numpy(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> tuple[list, list, list]:
+    """`_entries` as array operations (the reference the kernel is tested against)."""
     su, tu = locate(hs.u, u, level)
     sv, tv = locate(hs.v, v, level)
     bu, bv = basis(tu), basis(tv)
@@ -132,19 +166,7 @@ def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> tuple[lis
     pole = pole_of(hs, u, v)
     ok[pole >= 0] = False
     pt = np.repeat(np.arange(u.size), 16).reshape(-1, 16)
-    pts, rws, ws = [pt[ok]], [rows[ok]], [w[ok]]
-    for i, (axis, end) in enumerate(closed_ends(hs)):
-        on = np.nonzero(pole == i)[0]
-        if not on.size:
-            continue
-        ring, rw = pole_ring(hs, level, axis, end)
-        rrows, rok = _movable_rows(hs, level, ring)
-        if not rok.all():
-            continue
-        pts.append(np.repeat(on, ring.size))
-        rws.append(np.tile(rrows.reshape(-1), on.size))
-        ws.append(np.tile(np.broadcast_to(rw / ring.shape[0], ring.shape).reshape(-1), on.size))
-    return pts, rws, ws
+    return _pole_entries(hs, level, pole, [pt[ok]], [rows[ok]], [w[ok]])
 
 
 def _movable_rows(hs: HSpline, level: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -245,6 +267,9 @@ def dense_bytes(k: int, p: int) -> int:
     return 8 * (2 * k * p + 3 * k * k)
 
 
+_TINY = np.finfo(float).tiny  # np.finfo costs microseconds a call
+
+
 def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_bytes: int | None = None,
                    amplify: float | None = None, weak: float = 1e-3) -> np.ndarray:
     """Exact minimum-norm CV moves ``W^T (W W^T)^+ dQ`` for the active points.
@@ -281,7 +306,7 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     keep = lam > rcond * lam[-1]
     if amplify is not None:
         along = vec.T @ dq[act]
-        moves = np.linalg.norm(along, axis=1) / np.sqrt(np.maximum(lam, np.finfo(float).tiny))
+        moves = np.linalg.norm(along, axis=1) / np.sqrt(np.maximum(lam, _TINY))
         keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.linalg.norm(dq[act], axis=1).max()))
     coef = vec[:, keep].T @ dq[act] / lam[keep][:, None]
     return W.T @ (vec[:, keep] @ coef)

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import framekernels
 from . import hspline as H
 from .basis import locate
 from .interpolate import PointWeights, point_active, point_weights, solve
@@ -354,16 +355,20 @@ def _closed_ends(hs: H.HSpline, cvs: np.ndarray) -> np.ndarray:
     return new
 
 
-def _ring_sums(hs: H.HSpline, det: H.Details, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _ring_sums(hs: H.HSpline, det: H.Details, k: int, axis: int,
+               end: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Level ``k``'s share of one pole (`H.pole_ring`): per ring column ``j`` the sum
     ``D0 + 4 D1 + D2`` of its three rows' detail vectors, ``sums (N, 3) float64``; the rows of
-    those CVs in the level, ``rows (N, 3) int64``; and whether each is movable, ``ok (N, 3) bool``.
+    those CVs in the level, ``rows (N, 3) int64``; whether each is movable, ``ok (N, 3) bool``;
+    and how far the sums spread, ``np.ptp(sums, axis=0).max()`` (compiled,
+    `acra.framekernels.ring_sums`).
 
     A fine level adds ``sum_j B_j(s) sums_j / 6`` at the pole, so it keeps the pole one point iff
     ``sums`` is the same for every column (an absent CV's detail is zero)."""
     rows, ok = _ring_rows(hs, k, axis, end)
-    vec = np.where(ok[..., None], det.vectors[k - 1][rows], 0.0) if ok.any() else np.zeros(rows.shape + (3,))
-    return vec[:, 0] + 4.0 * vec[:, 1] + vec[:, 2], rows, ok
+    sums = np.empty((rows.shape[0], 3))
+    spread = framekernels.ring_sums(det.vectors[k - 1], rows, ok, sums)
+    return sums, rows, ok, spread
 
 
 def _ring_rows(hs: H.HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
@@ -390,7 +395,7 @@ def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, 
         return []
     tol = 1e-9 * hs.size()
     return [(k, axis, end) for k in range(1, hs.depth) for axis, end in H.closed_ends(hs)
-            if np.ptp(_ring_sums(hs, det, k, axis, end)[0], axis=0).max() <= tol]
+            if _ring_sums(hs, det, k, axis, end)[3] <= tol]
 
 
 _RING_W = np.array([1.0, 4.0, 1.0])  # a ring column's three rows in its pole sum (`_ring_sums`)
@@ -400,10 +405,10 @@ def _open_ring(hs: H.HSpline, det: H.Details | None, k: int, axis: int, end: int
                refine: bool) -> tuple[H.HSpline, H.Details | None, bool]:
     """Make level ``k``'s whole pole ring movable under ``refine`` (its three patch rows all
     around, `H.pole_patches`); returns the surface, its details and whether the ring is movable."""
-    ok = _ring_sums(hs, det, k, axis, end)[2].all()
+    ok = _ring_rows(hs, k, axis, end)[1].all()
     if not ok and refine:
         hs, det = _redetail(hs, det, H.refine(hs, k, H.pole_patches(hs, k, axis, end)), ())
-        ok = _ring_sums(hs, det, k, axis, end)[2].all()
+        ok = _ring_rows(hs, k, axis, end)[1].all()
     return hs, det, bool(ok)
 
 
@@ -424,11 +429,10 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
     """
     tol = 1e-12 * hs.size()
     for k, axis, end in rings:
-        sums = _ring_sums(hs, det, k, axis, end)[0]
-        if np.ptp(sums, axis=0).max() <= tol:
+        if _ring_sums(hs, det, k, axis, end)[3] <= tol:
             continue
         hs, det, full = _open_ring(hs, det, k, axis, end, refine)
-        sums, rows, ok = _ring_sums(hs, det, k, axis, end)
+        sums, rows, ok, _ = _ring_sums(hs, det, k, axis, end)
         off = sums - (sums.mean(axis=0) if full else 0.0)
         fix = ok.all(axis=1) & (np.abs(off).max(axis=1) > tol)
         if fix.any():
@@ -444,8 +448,8 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
-            rows, ok = _ring_sums(hs, det, k, axis, end)[1:]
-            if not ok.all() and np.isin(rows[ok], pw.cv_rows).any():
+            rows, ok = _ring_rows(hs, k, axis, end)
+            if not ok.all() and H._lookup(pw.cv_rows, rows[ok])[1].any():  # cv_rows: sorted
                 hs, det, _ = _open_ring(hs, det, k, axis, end, True)
     if hs is not before:
         pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
@@ -463,29 +467,34 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     ``pw`` : PointWeights of the data points; ``want (K, 3)``: their wanted moves. Returns both
     extended by the ``N`` virtual points of each ring.
     """
-    point, col, w = [pw.point], [pw.cv_rows[pw.col]], [pw.w]
+    point, w, ring_rows = [pw.point], [pw.w], []
     targets, n = [want], pw.npoints
     for k, axis, end in rings:
         if k != pw.level:
             continue
-        sums, rows, ok = _ring_sums(hs, det, k, axis, end)
-        if not ok.all() or not np.isin(rows, pw.cv_rows).any():
+        sums, rows, ok, _ = _ring_sums(hs, det, k, axis, end)
+        if not ok.all() or not H._lookup(pw.cv_rows, rows)[1].any():  # cv_rows: sorted
             continue
         N = rows.shape[0]
         # row j: +w_r / 6 on column j's CVs, -w_r / (6 N) on every column's
         own = np.repeat(np.arange(N), 3)
         point += [n + own, np.repeat(n + np.arange(N), 3 * N)]
-        col += [rows.reshape(-1), np.tile(rows.reshape(-1), N)]
+        ring_rows.append(rows.reshape(-1))
         w += [np.tile(_RING_W / 6.0, N), -np.tile(_RING_W / (6.0 * N), N * N)]
         targets.append(-(sums - sums.mean(axis=0)) / 6.0)
         n += N
     if n == pw.npoints:
         return pw, want
-    cvs = np.concatenate(col)
-    cv_rows, inv = np.unique(cvs, return_inverse=True)
+    # the unknowns: the data points' CVs and the rings';
+    # each entry's column is its CV's place among them (np.unique's inverse of every entry)
+    cv_rows = np.unique(np.concatenate([pw.cv_rows[pw.col], *ring_rows]))
+    col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
+    for r in ring_rows:
+        c = np.searchsorted(cv_rows, r)
+        col += [c, np.tile(c, r.size // 3)]
     active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
-    return PointWeights(pw.level, np.concatenate(point), inv.astype(np.int64), np.concatenate(w), cv_rows.astype(np.int64),
-                        n, active), np.concatenate(targets)
+    return PointWeights(pw.level, np.concatenate(point), np.concatenate(col).astype(np.int64), np.concatenate(w),
+                        cv_rows.astype(np.int64), n, active), np.concatenate(targets)
 
 
 def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -738,7 +747,8 @@ def respond(
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
                 hs, det = _redetail(coarse, det, hs, ())
-        present = point_active(hs, level, uv[:, 0], uv[:, 1])
+        pw = point_weights(hs, level, uv[:, 0], uv[:, 1])  # also the solve's, when no points merge
+        present = pw.active
         d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
         if d > 0:
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
@@ -755,7 +765,7 @@ def respond(
                 hcur = H.evaluate(hs, huv[:, 0], huv[:, 1], det=det).points
                 luv = np.concatenate([luv, huv])
                 lwant = np.concatenate([lwant, htarget - hcur])
-            lpw = point_weights(hs, level, luv[:, 0], luv[:, 1])
+            lpw = pw if luv is uv else point_weights(hs, level, luv[:, 0], luv[:, 1])
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])

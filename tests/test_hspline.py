@@ -5,6 +5,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from acra import basis as B
+from acra import hierarchy as Hi
 from acra import hspline as H
 from acra import shapes
 from conftest import nudged, wavy_sheet, with_random_offsets
@@ -380,3 +381,66 @@ def test_a_pole_rings_detail_turns_as_one_under_a_small_coarse_wiggle():
     cos = np.sum(v0 * v1, axis=1) / (np.linalg.norm(v0, axis=1) * np.linalg.norm(v1, axis=1))
     assert np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max() <= 1.0
     assert np.ptp(det2.frames[1][rows][:, :, 2], axis=0).max() <= 1e-12
+
+
+def _same_level(a, b):
+    for f in ("k", "patches", "cv_keys", "patch_rows", "movable", "offsets"):
+        x, y = np.asarray(getattr(a, f)), np.asarray(getattr(b, f))
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), f
+
+
+@pytest.mark.parametrize("periodic", [(False, False), (True, False), (False, True), (True, True)])
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_level_building_equals_the_array_form(periodic, seed):
+    """`hierarchy._build_level` (compiled, `acra.levelkernels.build_level`) gives the array
+    form's level, array for array and bit for bit: refinements from nothing, of levels with
+    offsets, with repeated keys, across a periodic seam, and none where every key is active."""
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(rng.normal(size=(7, 6, 3)), *periodic, depth=4)
+    if seed % 2:  # else the levels start empty
+        hs = with_random_offsets(H.make_movable(hs, 3, np.array([[2, 3], [9, 1]])), seed=seed)
+    built = 0
+    for _ in range(8):
+        k = int(rng.integers(1, hs.depth))
+        old = hs.level(k)
+        n = int(rng.integers(1, 60))
+        keys = rng.integers(0, hs.u.patches(k) * hs.v.patches(k), n)
+        if old.patches.size and rng.random() < 0.3:  # keys already active, some repeated
+            keys = rng.choice(old.patches, n)
+        got = Hi._build_level(hs, k, keys, old)
+        if np.all(H._lookup(old.patches, keys)[1]):
+            assert got is None
+            continue
+        _same_level(got, Hi._build_level_numpy(hs, k, np.concatenate([old.patches, keys]), old))
+        built += 1
+        hs = H.refine(hs, k, np.stack(np.divmod(keys, hs.v.patches(k)), axis=1))
+        assert hs.level(k).patches is got.patches or np.array_equal(hs.level(k).patches, got.patches)
+    assert built >= 3
+
+
+def test_level_building_refuses_to_strand_an_offset():
+    """Activating patches never makes a CV with an offset non-movable; a level whose CV set a
+    caller broke is refused by both forms."""
+    hs = with_random_offsets(H.make_movable(H.from_grid(shapes.sphere(8, 7)[0], True, False, depth=3), 2,
+                                            np.array([[4, 4]])))
+    old = hs.level(2)
+    broken = H.Level(old.k, old.patches[:1], old.cv_keys, old.offsets, old.movable, old.patch_rows[:1])
+    keys = np.array([old.patches[-1] + 1])
+    with pytest.raises(ValueError, match="not free to move"):
+        Hi._build_level(hs, 2, keys, broken)
+    with pytest.raises(ValueError, match="not free to move"):
+        Hi._build_level_numpy(hs, 2, np.concatenate([broken.patches, keys]), broken)
+
+
+def test_level_building_past_the_kernels_grid_is_the_array_form(monkeypatch):
+    """A level grid larger than the kernel's dense marks (`levelkernels._MAX_CELLS`) is built
+    by the array form: the same surface."""
+    from acra import levelkernels
+
+    hs = H.from_grid(shapes.sphere(8, 7)[0], True, False, depth=4)
+    patches = np.array([[3, 5], [17, 2], [30, 40]])
+    compiled = H.make_movable(hs, 3, patches)
+    monkeypatch.setattr(levelkernels, "_MAX_CELLS", 0)
+    plain = H.make_movable(hs, 3, patches)
+    for a, b in zip(compiled.fine, plain.fine):
+        _same_level(a, b)

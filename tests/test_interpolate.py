@@ -141,3 +141,48 @@ def test_a_point_on_a_pole_weighs_the_ring_all_around():
         np.testing.assert_allclose(np.sort(pw.w), np.sort(np.tile(w / keys.shape[0], keys.shape[0])), rtol=1e-15)
     # level 1's ring is not refined: a pole point gets no weights there (obey leaves it alone)
     assert not point_weights(hs, 1, np.array([0.3]), np.array([0.0])).active[0]
+
+
+def test_dense_weights_add_repeated_entries_as_add_at_does():
+    """`PointWeights.dense` (np.bincount) is np.add.at's matrix bit for bit: repeated
+    (point, CV) entries, as a ring constraint's own and mean terms give, signed zeros."""
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        K, P, e = int(rng.integers(1, 60)), int(rng.integers(1, 120)), int(rng.integers(0, 3000))
+        point, col = rng.integers(0, K, e), rng.integers(0, P, e)
+        w = rng.normal(size=e) * 10.0 ** rng.uniform(-10, 10, e)
+        w[rng.random(e) < 0.1] = -0.0
+        pw = PointWeights(1, point, col, w, np.arange(P), K, np.ones(K, bool))
+        ref = np.zeros((K, P))
+        np.add.at(ref, (point, col), w)
+        assert pw.dense().tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("periodic", [(False, False), (True, False), (True, True)])
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_entries_equal_the_array_form(periodic, seed):
+    """`interpolate._entries` (compiled off the poles, `acra.levelkernels.point_entries`) gives
+    `_entries_numpy`'s points, rows and weights bit for bit on every level: points on knots
+    (zero weights), on patches not refined, beside CVs not movable, and on a sphere's poles."""
+    from acra import interpolate as I
+
+    rng = np.random.default_rng(seed)
+    if periodic == (True, False):
+        hs = H.from_grid(shapes.sphere(8, 7)[0], True, False, depth=4)
+    else:
+        hs = H.from_grid(rng.normal(size=(8, 7, 3)), *periodic, depth=4)
+    for k in (1, 2, 3):
+        n = hs.u.patches(k), hs.v.patches(k)
+        hs = H.make_movable(hs, k, np.stack([rng.integers(0, n[0], 3), rng.integers(0, n[1], 3)], axis=1))
+    m = 200
+    u = rng.uniform(0, hs.u.patches0, m)
+    v = rng.uniform(0, hs.v.patches0, m)
+    u[:20] = np.round(u[:20] * 4) / 4  # on knots of levels 0-2
+    v[20:40] = np.round(v[20:40] * 8) / 8
+    v[40:50] = 0.0  # on the south end (a pole of the sphere)
+    v[50:55] = hs.v.patches0
+    for k in range(hs.depth):
+        got, ref = I._entries(hs, k, u, v), I._entries_numpy(hs, k, u, v)
+        for a, b in zip(got, ref):
+            x, y = np.concatenate(a), np.concatenate(b)
+            assert x.dtype == y.dtype and x.tobytes() == y.tobytes()

@@ -237,3 +237,27 @@ def test_frames_of_a_sphere_with_poles_equal_the_array_form():
         gu, gv = H.cv_uv(hs, k, hs.level(k).cv_keys[rows])
         ev, n = H.surface_normals(hs, gu, gv, det=det, upto=k - 1)
         np.testing.assert_array_equal(H._frames(ev, n), H._frames_numpy(ev, n))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_compiled_ring_sums_equal_the_array_form(seed):
+    """`framekernels.ring_sums` (behind `respond._ring_sums`): the column sums and their spread
+    are numpy's ``np.where(ok, D, 0)``, ``D0 + 4 D1 + D2`` and ``np.ptp(sums, axis=0).max()``,
+    bit for bit, with absent CVs, values of every size and NaN."""
+    rng = np.random.default_rng(seed)
+    c, n = int(rng.integers(1, 300)), int(rng.integers(1, 200))
+    vectors = rng.normal(size=(c, 3)) * 10.0 ** rng.uniform(-12, 2, (c, 1))
+    if seed % 3 == 0:
+        vectors[rng.integers(0, c, 2), rng.integers(0, 3)] = np.nan
+    if seed % 4 == 1:  # a closed ring: every column the same sum
+        vectors[:] = 0.0
+    rows = rng.integers(0, c, (n, 3))
+    ok = rng.random((n, 3)) < (1.0 if seed % 2 else 0.7)
+    rows.flags.writeable = ok.flags.writeable = False  # as `respond._ring_rows` keeps them
+    sums = np.empty((n, 3))
+    spread = framekernels.ring_sums(vectors, rows, ok, sums)
+    ref = np.where(ok[..., None], vectors[rows], 0.0)
+    ref = ref[:, 0] + 4.0 * ref[:, 1] + ref[:, 2]
+    np.testing.assert_array_equal(sums, ref)
+    want = np.ptp(ref, axis=0).max()
+    assert (np.isnan(spread) and np.isnan(want)) or np.float64(spread).tobytes() == want.tobytes()

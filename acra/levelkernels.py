@@ -1,0 +1,215 @@
+"""Compiled bookkeeping of hierarchy levels: building one (`acra.hierarchy._build_level`) and
+the CVs a data point weighs on one (`acra.interpolate._entries`).
+
+A refinement rebuilds the level it adds patches to: the sorted active patch keys, the CV keys
+of their 4×4 blocks, each block's rows, the C2 movability of every CV (all existing patches of
+its support active) and the offsets the old level had. In array form that is some thirty numpy
+calls on a few hundred to a few thousand keys (sorts, `np.unique`, `np.searchsorted` of
+unsorted keys), and a response refines up to three levels a step (`hierarchy.make_movable`);
+here it is one pass. Everything is integer bookkeeping plus a copy of the old offsets, so the
+level is the same as the array form's, key for key (`tests/test_hspline.py` holds it to it).
+A data point's weights are its basis rows' products, each one multiplication as numpy's
+broadcast product, so they too are the array form's bits (`tests/test_interpolate.py`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["build_level", "point_entries"]
+
+
+_MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
+
+
+@njit(cache=True, nogil=True)
+def _find(sorted_keys, key):
+    """``np.searchsorted(sorted_keys, key)`` clipped to the last row, and whether it is ``key``."""
+    lo, hi = 0, sorted_keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if sorted_keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo > sorted_keys.shape[0] - 1:
+        lo = sorted_keys.shape[0] - 1
+    return lo, lo >= 0 and sorted_keys[lo] == key
+
+
+@njit(cache=True, nogil=True)
+def _wrap(j, count, periodic):
+    return j % count if periodic else j  # Python's (and np.mod's) sign of the result
+
+
+@njit(cache=True, nogil=True)
+def _strictly_increasing(a):
+    for i in range(1, a.shape[0]):
+        if a[i] <= a[i - 1]:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _sort(a):
+    """``a`` sorted in place (Shell's sort, Knuth's gaps): a few thousand keys at most, and
+    numba's ``np.sort`` costs seconds to compile."""
+    gap = 1
+    while gap < a.shape[0] // 3:
+        gap = 3 * gap + 1
+    while gap >= 1:
+        for i in range(gap, a.shape[0]):
+            x = a[i]
+            j = i
+            while j >= gap and a[j - gap] > x:
+                a[j] = a[j - gap]
+                j -= gap
+            a[j] = x
+        gap //= 3
+    return a
+
+
+@njit(cache=True, nogil=True)
+def _merge(old, fresh):
+    """Sorted union of strictly increasing ``old`` and sorted ``fresh`` that has no key of ``old``."""
+    out = np.empty(old.shape[0] + fresh.shape[0], np.int64)
+    i = j = 0
+    for n in range(out.shape[0]):
+        if j == fresh.shape[0] or (i < old.shape[0] and old[i] < fresh[j]):
+            out[n] = old[i]
+            i += 1
+        else:
+            out[n] = fresh[j]
+            j += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def build_level(keys, old_patches, old_cv_keys, old_offsets,
+                u_cvs, u_patches, u_periodic, v_cvs, v_patches, v_periodic):
+    """Level ``k`` with ``old_patches`` plus the patch keys ``keys (n,) int64`` (in range, any
+    order, repeats) active, from the old level's ``old_patches``, ``old_cv_keys`` (both strictly
+    increasing) and ``old_offsets``; ``*_cvs``, ``*_patches``: the level's CV and patch counts
+    along u and v (at most `_MAX_CELLS` of each).
+
+    Returns ``status`` (0: built; 1: every key already active, nothing built; 2: an old key
+    array not strictly increasing, nothing built), ``patches (m,)``, ``cv_keys (c,)``,
+    ``patch_rows (m, 4, 4)``, ``movable (c,) bool``, ``offsets (c, 3)`` and whether an old
+    offset sits on a CV that is not movable. The arrays are `_build_level_numpy`'s:
+    ``np.unique`` of the patches; the old CVs (if the level had patches) and the new patches'
+    blocks' CVs, sorted; C2 movability; the offsets of the old CVs that stay."""
+    none = np.zeros(0, np.int64)
+    if not (_strictly_increasing(old_patches) and _strictly_increasing(old_cv_keys)):
+        return 2, none, none, np.zeros((0, 4, 4), np.int64), np.zeros(0, np.bool_), np.zeros((0, 3)), False
+    active = np.zeros(u_patches * v_patches, np.bool_)
+    for p in old_patches:
+        active[p] = True
+    fresh = np.empty(keys.shape[0], np.int64)
+    nf = 0
+    for p in keys:
+        if not active[p]:
+            active[p] = True
+            fresh[nf] = p
+            nf += 1
+    if nf == 0:
+        return 1, none, none, np.zeros((0, 4, 4), np.int64), np.zeros(0, np.bool_), np.zeros((0, 3)), False
+    fresh = _sort(fresh[:nf])
+    patches = _merge(old_patches, fresh)
+    # CVs: the old level's (its patches' blocks) and the new patches' blocks
+    present = np.zeros(u_cvs * v_cvs, np.bool_)
+    if old_patches.shape[0]:
+        for q in old_cv_keys:
+            present[q] = True
+    added = np.empty(16 * nf, np.int64)
+    na = 0
+    for i in range(nf):
+        pu, pv = fresh[i] // v_patches, fresh[i] % v_patches
+        for a in range(4):
+            ju = _wrap(pu + a, u_cvs, u_periodic)
+            for b in range(4):
+                q = ju * v_cvs + _wrap(pv + b, v_cvs, v_periodic)
+                if not present[q]:
+                    present[q] = True
+                    added[na] = q
+                    na += 1
+    added = _sort(added[:na])
+    cv_keys = _merge(old_cv_keys, added) if old_patches.shape[0] else added
+    row = np.empty(u_cvs * v_cvs, np.int64)  # read only where ``present``
+    for r in range(cv_keys.shape[0]):
+        row[cv_keys[r]] = r
+    m = patches.shape[0]
+    patch_rows = np.empty((m, 4, 4), np.int64)
+    for i in range(m):
+        pu, pv = patches[i] // v_patches, patches[i] % v_patches
+        for a in range(4):
+            ju = _wrap(pu + a, u_cvs, u_periodic)
+            for b in range(4):
+                patch_rows[i, a, b] = row[ju * v_cvs + _wrap(pv + b, v_cvs, v_periodic)]
+    # movable: every existing patch of the support (ju-3..ju) x (jv-3..jv) active
+    c = cv_keys.shape[0]
+    movable = np.empty(c, np.bool_)
+    for r in range(c):
+        cu, cv = cv_keys[r] // v_cvs, cv_keys[r] % v_cvs
+        ok = True
+        for a in range(4):
+            su = cu - 3 + a
+            if not (u_periodic or (su >= 0 and su < u_patches)):
+                continue
+            su = _wrap(su, u_patches, u_periodic)
+            for b in range(4):
+                sv = cv - 3 + b
+                if not (v_periodic or (sv >= 0 and sv < v_patches)):
+                    continue
+                if not active[su * v_patches + _wrap(sv, v_patches, v_periodic)]:
+                    ok = False
+        movable[r] = ok
+    offsets = np.zeros((c, 3))
+    stranded = False
+    for r_old in range(old_cv_keys.shape[0]):
+        q = old_cv_keys[r_old]
+        if present[q]:
+            r = row[q]
+            for d in range(3):
+                offsets[r, d] = old_offsets[r_old, d]
+                if not movable[r] and old_offsets[r_old, d] != 0.0:
+                    stranded = True
+    return 0, patches, cv_keys, patch_rows, movable, offsets, stranded
+
+
+@njit(cache=True, nogil=True)
+def point_entries(su, sv, bu, bv, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, v_patches,
+                  cv_keys, movable, patches):
+    """`acra.interpolate._entries`' weights of the points off a pole (``pole < 0``): for each
+    point in order, its level-``level`` patch's 16 CVs ``(a, b)`` in row-major order whose
+    weight ``bu[a] * bv[b]`` is positive and that exist and are movable (level 0: every grid CV),
+    on a patch that is active (level 0: every patch). ``su, sv (K,) int64``: the points' level
+    segments; ``bu, bv (K, 4)``: their basis rows. Returns ``point, row, w`` of the entries."""
+    K = su.shape[0]
+    point = np.empty(16 * K, np.int64)
+    rows = np.empty(16 * K, np.int64)
+    w = np.empty(16 * K)
+    n = 0
+    c = cv_keys.shape[0]
+    for i in range(K):
+        if pole[i] >= 0:
+            continue
+        if level and not _find(patches, su[i] * v_patches + sv[i])[1]:
+            continue
+        for a in range(4):
+            ju = _wrap(su[i] + a, u_cvs, u_periodic)
+            for b in range(4):
+                x = bu[i, a] * bv[i, b]
+                if not x > 0.0:
+                    continue
+                q = ju * v_cvs + _wrap(sv[i] + b, v_cvs, v_periodic)
+                if level:
+                    if c == 0:
+                        continue
+                    r, hit = _find(cv_keys, q)
+                    if not (hit and movable[r]):
+                        continue
+                    q = r
+                point[n], rows[n], w[n] = i, q, x
+                n += 1
+    return point[:n], rows[:n], w[:n]
