@@ -439,6 +439,37 @@ def test_a_responded_shape_reuses_its_parents_grids_only_where_it_did_not_change
         np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_responded_shape_s_grid_set_from_its_parents_answers_as_a_new_one(seed):
+    """A responded shape queried near the response, where its parent was, takes the parent's
+    `GridSet` of those patches (faces, parameters, refitted trees): its closest points, distances
+    and parameters are those of a set built anew from the same grids, bit for bit."""
+    from acra import respond as R
+
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(24, 16), depth=3)
+    u0 = int(rng.integers(0, 24))
+    hs = with_random_offsets(H.make_movable(hs, 2, [[4 * u0, 24]]), 0.02, seed)
+    parent = S.shape_of(hs)
+    uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
+    p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+    q = p * rng.uniform(0.8, 1.1, (40, 1)) + 0.05 * rng.normal(size=(40, 3))
+    found = tuple(range(len(parent._boxes[2])))
+    like = parent.cache.gridset(found)
+    like.nearest(q)  # its trees built
+    out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=[0, 0.5, 0.5]))
+    S.seed_details(out, rep.details, parent=hs)
+    child = S.shape_of(out)
+    assert child.parent is parent
+    kept = child.cache.gridset(found)
+    assert kept.triangles is like.triangles and any(a is not b for a, b in zip(kept.grids, like.grids))
+    got = kept.nearest(q)
+    assert all(c.index.tree.order is d.index.tree.order for (_, c), (_, d) in zip(kept.indices, like.indices))
+    ref = S.GridSet(kept.grids).nearest(q)
+    for a, b in zip((got.distance, got.points, got.uv), (ref.distance, ref.points, ref.uv)):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
 def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed, absorption):
     """Hull boxes and the coarse sample grid of a responded shape (the parent's where the
