@@ -251,8 +251,10 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     if todo:
         obj = geom.shape.grids_for(np.array(todo, np.int64))
         world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
-        for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g.points) for g in obj[:-1]]))):
-            cache[p] = (w, g.uv, g.triangles)
+        end = 0
+        for p, g in zip(todo, obj):
+            start, end = end, end + len(g.points)
+            cache[p] = (world[start:end], g.uv, g.triangles)
     grids = [cache[k] for k in keys]
     points = np.array([len(g[0]) for g in grids])
     faces = np.array([len(g[2]) for g in grids])

@@ -326,7 +326,7 @@ class GridCache:
 
     def grids_for(self, patches: np.ndarray) -> list[PatchGrid]:
         """Collision grids of level-0 ``patches (m, 2) int64`` at their density (cached)."""
-        keys = [(int(a), int(b)) for a, b in np.asarray(patches, np.int64).reshape(-1, 2)]
+        keys = list(map(tuple, np.asarray(patches, np.int64).reshape(-1, 2).tolist()))
         missing = list(dict.fromkeys(k for k in keys if k not in self.grids))
         if missing:
             self.build(missing)
