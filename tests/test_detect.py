@@ -470,6 +470,34 @@ def test_a_responded_shape_s_grid_set_from_its_parents_answers_as_a_new_one(seed
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_candidate_vertices_kept_per_patch_set_equal_a_new_search(seed):
+    """`detect._candidate_vertices` keeps each patch set's distinct vertex rows (`_distinct`) and
+    gives a responded surface, moved and turned, what it gives with nothing kept, bit for bit,
+    seams and poles of a closed surface included."""
+    from acra import respond as R
+
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(24, 16), depth=3)
+    u0 = int(rng.integers(0, 24))
+    hs = with_random_offsets(H.make_movable(hs, 2, [[4 * u0, 24]]), 0.02, seed)
+    uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
+    p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+    out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=[0, 0.5, 0.5]))
+    S.seed_details(out, rep.details, parent=hs)
+    xform = move(0.3, -0.1, 0.2)
+    bounds = np.array([[-2.0, -2.0, -0.5], [2.0, 2.0, 2.0]]) + xform[:3, 3]
+    D._DISTINCT.clear()
+    D._candidate_vertices(D.SurfaceGeometry(hs, xform), bounds, 1e-7)
+    got = D._candidate_vertices(D.SurfaceGeometry(out, xform), bounds, 1e-7)
+    assert len(D._DISTINCT) == 1  # the responded surface's set was the parent's
+    D._DISTINCT.clear()
+    ref = D._candidate_vertices(D.SurfaceGeometry(out, xform), bounds, 1e-7)
+    assert len(got[0]) > 100
+    for a, b in zip(got, ref):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
 def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed, absorption):
     """Hull boxes and the coarse sample grid of a responded shape (the parent's where the
