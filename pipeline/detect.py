@@ -256,12 +256,41 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
             start, end = end, end + len(g.points)
             cache[p] = (world[start:end], g.uv, g.triangles)
     grids = [cache[k] for k in keys]
-    points = np.array([len(g[0]) for g in grids])
-    faces = np.array([len(g[2]) for g in grids])
-    triangles = np.concatenate([g[2] for g in grids])
-    triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
-    return Tessellation(np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]), triangles,
-                        np.repeat(patches, faces, axis=0))
+
+    def layout():
+        points = np.array([len(g[0]) for g in grids])
+        faces = np.array([len(g[2]) for g in grids])
+        triangles = np.concatenate([g[2] for g in grids])
+        triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
+        return np.concatenate([g[1] for g in grids]), triangles, np.repeat(patches, faces, axis=0)
+
+    # a grid's parameters and triangles are its patch's and density's alone
+    # (`acra.tessellate.patch_grids`): only the points are the surface's
+    uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), layout)
+    return Tessellation(np.concatenate([g[0] for g in grids]), uv, triangles, tri_patch)
+
+
+_LAYOUTS: dict[tuple, tuple] = {}  # `_tessellation`'s parameters, triangles and their patches, most recent last
+_DISTINCT: dict[tuple, np.ndarray] = {}  # `_distinct`'s answers, most recent last
+
+
+def _patch_set_key(geom: SurfaceGeometry, patches: np.ndarray) -> tuple:
+    """What a tessellation's layout depends on: distinct ascending level-0 ``patches (m, 2)``,
+    their densities and the domain (its wrapping)."""
+    u, v = geom.surface.u, geom.surface.v
+    return (patches.tobytes(), geom.shape.density_map[patches[:, 0], patches[:, 1]].tobytes(),
+            u.periodic, u.patches0, v.periodic, v.patches0)
+
+
+def _kept(store: dict, key: tuple, make, size: int = 32):
+    """``store[key]``, made by ``make()`` if missing; the ``size`` most recently used are kept."""
+    hit = store.pop(key, None)
+    if hit is None:
+        hit = make()
+    store[key] = hit
+    while len(store) > size:
+        del store[next(iter(store))]
+    return hit
 
 
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:
@@ -591,9 +620,6 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
     return pts[keep], None if uv is None else uv[keep]
 
 
-_DISTINCT: dict[tuple, np.ndarray] = {}  # `_distinct`'s answers, most recent last
-
-
 def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) -> np.ndarray:
     """``unique_rows(wrap_uv(geom.surface, tess.uv))`` for ``tess = tessellate(geom, patches)``
     (``patches`` distinct and ascending): the first row of each distinct vertex. A grid's
@@ -601,16 +627,7 @@ def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) ->
     answer is one of the patch set, the patches' densities and the domain's wrapping, whatever
     the surface's shape: the rounds and frames of a contact ask for the same set again (25 of
     28 times over `dog_head_spike`'s frames 13-17), and the last few answers are kept."""
-    u, v = geom.surface.u, geom.surface.v
-    key = (patches.tobytes(), geom.shape.density_map[patches[:, 0], patches[:, 1]].tobytes(),
-           u.periodic, u.patches0, v.periodic, v.patches0)
-    hit = _DISTINCT.pop(key, None)
-    if hit is None:
-        hit = unique_rows(wrap_uv(geom.surface, tess.uv))
-    _DISTINCT[key] = hit
-    while len(_DISTINCT) > 32:
-        del _DISTINCT[next(iter(_DISTINCT))]
-    return hit
+    return _kept(_DISTINCT, _patch_set_key(geom, patches), lambda: unique_rows(wrap_uv(geom.surface, tess.uv)))
 
 
 def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Region, Region]:

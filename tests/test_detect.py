@@ -472,9 +472,10 @@ def test_a_responded_shape_s_grid_set_from_its_parents_answers_as_a_new_one(seed
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_candidate_vertices_kept_per_patch_set_equal_a_new_search(seed):
-    """`detect._candidate_vertices` keeps each patch set's distinct vertex rows (`_distinct`) and
-    gives a responded surface, moved and turned, what it gives with nothing kept, bit for bit,
-    seams and poles of a closed surface included."""
+    """`detect._candidate_vertices` and `detect.tessellate` keep each patch set's distinct vertex
+    rows (`_distinct`) and layout (parameters, triangles, patches) and give a responded surface,
+    moved, what they give with nothing kept, bit for bit, seams and poles of a closed surface
+    included."""
     from acra import respond as R
 
     rng = np.random.default_rng(seed)
@@ -488,14 +489,21 @@ def test_candidate_vertices_kept_per_patch_set_equal_a_new_search(seed):
     xform = move(0.3, -0.1, 0.2)
     bounds = np.array([[-2.0, -2.0, -0.5], [2.0, 2.0, 2.0]]) + xform[:3, 3]
     D._DISTINCT.clear()
+    D._LAYOUTS.clear()
     D._candidate_vertices(D.SurfaceGeometry(hs, xform), bounds, 1e-7)
-    got = D._candidate_vertices(D.SurfaceGeometry(out, xform), bounds, 1e-7)
-    assert len(D._DISTINCT) == 1  # the responded surface's set was the parent's
+    g = D.SurfaceGeometry(out, xform)
+    got = D._candidate_vertices(g, bounds, 1e-7)
+    assert len(D._DISTINCT) == len(D._LAYOUTS) == 1  # the responded surface's set was the parent's
+    kept = D.tessellate(g, D.candidate_patches(g, bounds, 1e-7))
     D._DISTINCT.clear()
-    ref = D._candidate_vertices(D.SurfaceGeometry(out, xform), bounds, 1e-7)
+    D._LAYOUTS.clear()
+    g = D.SurfaceGeometry(out, xform)
+    ref = D._candidate_vertices(g, bounds, 1e-7)
     assert len(got[0]) > 100
     for a, b in zip(got, ref):
         np.testing.assert_array_equal(a, b)
+    for name in ("points", "uv", "triangles", "tri_patch"):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(D.tessellate(g, D.candidate_patches(g, bounds, 1e-7)), name))
 
 
 @pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
