@@ -282,8 +282,10 @@ def _patch_set_key(geom: SurfaceGeometry, patches: np.ndarray) -> tuple:
             u.periodic, u.patches0, v.periodic, v.patches0)
 
 
-def _kept(store: dict, key: tuple, make, size: int = 32):
-    """``store[key]``, made by ``make()`` if missing; the ``size`` most recently used are kept."""
+def _kept(store: dict, key: tuple, make, size: int = 8):
+    """``store[key]``, made by ``make()`` if missing; the ``size`` most recently used are kept (a
+    whole-surface set of a large model holds megabytes; `dog_head_spike`'s 30 frames ask for 5
+    sets)."""
     hit = store.pop(key, None)
     if hit is None:
         hit = make()
