@@ -27,7 +27,7 @@ from numba import njit
 
 from acra.bvh import LEAF, Tree, _morton_order
 
-__all__ = ["ZERO", "Index", "build", "closest_points", "corners", "face_uv", "index", "query"]
+__all__ = ["ZERO", "Index", "build", "closest_points", "corners", "face_uv", "index", "query", "refit"]
 
 ZERO = 1e-13  # trimesh.constants.tol.zero: the region tests' tolerance, in units of the mesh
 _REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * unit
@@ -59,7 +59,15 @@ def _build(tri, lo, hi, left, right, start, count):
         stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
         top += 2
         nodes += 2
-    # children are numbered after their parent: boxes in reverse numbering
+    _boxes(tri, order, lo, hi, left, right, start, count, nodes)
+    return order, nodes
+
+
+@njit(cache=True, nogil=True)
+def _boxes(tri, order, lo, hi, left, right, start, count, nodes):
+    """The node boxes of a tree over ``tri``: a leaf's from its triangles' corners, an inner
+    node's from its children's; children are numbered after their parent, so boxes go in
+    reverse numbering."""
     for node in range(nodes - 1, -1, -1):
         for k in range(3):
             lo[node, k], hi[node, k] = np.inf, -np.inf
@@ -75,7 +83,6 @@ def _build(tri, lo, hi, left, right, start, count):
                 for k in range(3):
                     lo[node, k] = min(lo[node, k], lo[child, k])
                     hi[node, k] = max(hi[node, k], hi[child, k])
-    return order, nodes
 
 
 @njit(cache=True, nogil=True)
@@ -114,19 +121,34 @@ def build(tri: np.ndarray) -> Tree:
     return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], tri[order])
 
 
-class Index:
-    """A triangle set ready for `query`: the linear BVH of ``tri (f, 3, 3)`` (`build`) and its
-    leaf triangles divided by ``unit`` (the same bits as dividing the gathered rows)."""
+def refit(tree: Tree, tri: np.ndarray) -> Tree:
+    """``tree``'s leaves and nodes over new triangles ``tri (f, 3, 3)`` (the same rows, moved),
+    their boxes taken again: the tree `query` walks for ``tri``, without the Z-order sort and
+    splits of `build`. The boxes are exact, so `query` gives the answer it gives on ``build(tri)``
+    (the least distance and, among equal ones, the lowest row, whatever the tree)."""
+    tri = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
+    if len(tri) != len(tree.order):
+        raise ValueError("refit needs the tree's triangle count")
+    lo, hi = np.empty_like(tree.lo), np.empty_like(tree.hi)
+    _boxes(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, len(lo))
+    return Tree(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, tri[tree.order])
 
-    def __init__(self, tri: np.ndarray, unit: float) -> None:
-        self.tree: Tree = build(tri)
+
+class Index:
+    """A triangle set ready for `query`: the linear BVH of ``tri (f, 3, 3)`` (`build`, or with
+    ``like`` an `Index` of as many triangles, its tree `refit`) and its leaf triangles divided by
+    ``unit`` (the same bits as dividing the gathered rows)."""
+
+    def __init__(self, tri: np.ndarray, unit: float, like: "Index | None" = None) -> None:
+        self.tree: Tree = build(tri) if like is None else refit(like.tree, tri)
         self.unit = float(unit)
         self.leaf_units = self.tree.leaf_tri / self.unit
 
 
-def index(tri: np.ndarray, unit: float) -> Index:
-    """The `Index` of triangles ``tri (f, 3, 3)`` (``f >= 1``) in units of ``unit``."""
-    return Index(tri, unit)
+def index(tri: np.ndarray, unit: float, like: Index | None = None) -> Index:
+    """The `Index` of triangles ``tri (f, 3, 3)`` (``f >= 1``) in units of ``unit``; with ``like``
+    (an `Index` of the same rows before they moved), its tree refitted (`refit`)."""
+    return Index(tri, unit, like)
 
 
 @njit(cache=True, nogil=True)

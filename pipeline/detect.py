@@ -251,15 +251,48 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     if todo:
         obj = geom.shape.grids_for(np.array(todo, np.int64))
         world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
-        for p, g, w in zip(todo, obj, np.split(world, np.cumsum([len(g.points) for g in obj[:-1]]))):
-            cache[p] = (w, g.uv, g.triangles)
+        end = 0
+        for p, g in zip(todo, obj):
+            start, end = end, end + len(g.points)
+            cache[p] = (world[start:end], g.uv, g.triangles)
     grids = [cache[k] for k in keys]
-    points = np.array([len(g[0]) for g in grids])
-    faces = np.array([len(g[2]) for g in grids])
-    triangles = np.concatenate([g[2] for g in grids])
-    triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
-    return Tessellation(np.concatenate([g[0] for g in grids]), np.concatenate([g[1] for g in grids]), triangles,
-                        np.repeat(patches, faces, axis=0))
+
+    def layout():
+        points = np.array([len(g[0]) for g in grids])
+        faces = np.array([len(g[2]) for g in grids])
+        triangles = np.concatenate([g[2] for g in grids])
+        triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
+        return np.concatenate([g[1] for g in grids]), triangles, np.repeat(patches, faces, axis=0)
+
+    # a grid's parameters and triangles are its patch's and density's alone
+    # (`acra.tessellate.patch_grids`): only the points are the surface's
+    uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), layout)
+    return Tessellation(np.concatenate([g[0] for g in grids]), uv, triangles, tri_patch)
+
+
+_LAYOUTS: dict[tuple, tuple] = {}  # `_tessellation`'s parameters, triangles and their patches, most recent last
+_DISTINCT: dict[tuple, np.ndarray] = {}  # `_distinct`'s answers, most recent last
+
+
+def _patch_set_key(geom: SurfaceGeometry, patches: np.ndarray) -> tuple:
+    """What a tessellation's layout depends on: distinct ascending level-0 ``patches (m, 2)``,
+    their densities and the domain (its wrapping)."""
+    u, v = geom.surface.u, geom.surface.v
+    return (patches.tobytes(), geom.shape.density_map[patches[:, 0], patches[:, 1]].tobytes(),
+            u.periodic, u.patches0, v.periodic, v.patches0)
+
+
+def _kept(store: dict, key: tuple, make, size: int = 8):
+    """``store[key]``, made by ``make()`` if missing; the ``size`` most recently used are kept (a
+    whole-surface set of a large model holds megabytes; `dog_head_spike`'s 30 frames ask for 5
+    sets)."""
+    hit = store.pop(key, None)
+    if hit is None:
+        hit = make()
+    store[key] = hit
+    while len(store) > size:
+        del store[next(iter(store))]
+    return hit
 
 
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:
@@ -581,11 +614,22 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
         used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([bounds[0] - pad, bounds[1] + pad]))])
         pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
     else:
-        tess = tessellate(geom, candidate_patches(geom, bounds, pad))
-        first = unique_rows(wrap_uv(geom.surface, tess.uv))
+        patches = unique_patches(candidate_patches(geom, bounds, pad))
+        tess = tessellate(geom, patches)
+        first = _distinct(geom, patches, tess)
         pts, uv = tess.points[first], tess.uv[first]
     keep = np.all((pts >= bounds[0] - pad) & (pts <= bounds[1] + pad), axis=1)
     return pts[keep], None if uv is None else uv[keep]
+
+
+def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) -> np.ndarray:
+    """``unique_rows(wrap_uv(geom.surface, tess.uv))`` for ``tess = tessellate(geom, patches)``
+    (``patches`` distinct and ascending): the first row of each distinct vertex. A grid's
+    parameters are its patch's and density's alone (`acra.tessellate.patch_grids`), so the
+    answer is one of the patch set, the patches' densities and the domain's wrapping, whatever
+    the surface's shape: the rounds and frames of a contact ask for the same set again (25 of
+    28 times over `dog_head_spike`'s frames 13-17), and the last few answers are kept."""
+    return _kept(_DISTINCT, _patch_set_key(geom, patches), lambda: unique_rows(wrap_uv(geom.surface, tess.uv)))
 
 
 def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Region, Region]:

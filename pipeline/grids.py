@@ -120,15 +120,20 @@ class Closest:
     point on it, as the collider's queries always have."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, bvh_: fcl.CollisionObject | None = None,
-                 unit: float | None = None) -> None:
+                 unit: float | None = None, like: "Closest | None" = None) -> None:
         self.vertices, self.faces, self.bvh = vertices, faces, bvh_
         self.tri = nearest.corners(vertices, faces)  # (f, 3, 3): vertices[faces]
         # ``unit``: `extent` of ``vertices``, passed in by a caller that has it
         self.unit = extent(vertices) if unit is None else unit
+        # ``like``: the same faces before their vertices moved; its tree, if built, is refitted
+        # (`acra.nearest.refit`) instead of sorted and split again. Only its `Index` is held, so
+        # a chain of moved sets keeps no older one alive.
+        self._like = None if like is None or len(like.faces) != len(faces) else like.__dict__.get("index")
 
     @cached_property
     def index(self) -> nearest.Index:
-        return nearest.index(self.tri, self.unit)
+        like, self._like = self._like, None
+        return nearest.index(self.tri, self.unit, like)
 
     @cached_property
     def _deep(self) -> tuple[cKDTree, float]:
@@ -225,8 +230,17 @@ class GridSet:
     (f, 2)``: the parameter box of each solid face's patch (closest points' parameters are kept
     inside their patch)."""
 
-    def __init__(self, grids: list[PatchGrid]) -> None:
+    def __init__(self, grids: list[PatchGrid], like: "GridSet | None" = None) -> None:
         grids = sorted(grids, key=lambda g: len(g.points), reverse=True)  # finest first
+        self.grids = grids
+        if like is not None and like._same_rows(grids):
+            # the same patches at the same densities and solid rows, moved (a response's new
+            # surface): the parameters and faces are ``like``'s, only the points are new
+            self.points = np.concatenate([g.points for g in grids])
+            self.uv, self.triangles, self.face_lo, self.face_hi = like.uv, like.triangles, like.face_lo, like.face_hi
+            unit = extent(self.points)
+            self.indices = [(start, Closest(self.points, c.faces, unit=unit, like=c)) for start, c in like.indices]
+            return
         size = np.array([len(g.points) for g in grids])
         count = np.array([len(g.solid) for g in grids])
         base = np.cumsum(size) - size  # each grid's first row in the set's points
@@ -245,6 +259,14 @@ class GridSet:
         for n in np.unique(size)[::-1]:
             a, b = np.nonzero(size == n)[0][[0, -1]]
             self.indices.append((first[a], Closest(self.points, self.triangles[first[a]:first[b + 1]], unit=unit)))
+
+    def _same_rows(self, grids: list[PatchGrid]) -> bool:
+        """Whether ``grids`` (finest first) have this set's grids' point counts and solid rows, one
+        by one: a grid's parameters and triangles are those of its patch and density
+        (`acra.tessellate.patch_grids`), so the set's parameters and faces are then this set's."""
+        return len(grids) == len(self.grids) and all(
+            len(g.points) == len(h.points) and (g.solid is h.solid or np.array_equal(g.solid, h.solid))
+            for g, h in zip(grids, self.grids))
 
     def nearest(self, q: np.ndarray) -> Nearest:
         """Closest points to ``q (k, 3)`` and their parameters, interpolated from the face
@@ -304,7 +326,7 @@ class GridCache:
 
     def grids_for(self, patches: np.ndarray) -> list[PatchGrid]:
         """Collision grids of level-0 ``patches (m, 2) int64`` at their density (cached)."""
-        keys = [(int(a), int(b)) for a, b in np.asarray(patches, np.int64).reshape(-1, 2)]
+        keys = list(map(tuple, np.asarray(patches, np.int64).reshape(-1, 2).tolist()))
         missing = list(dict.fromkeys(k for k in keys if k not in self.grids))
         if missing:
             self.build(missing)
@@ -315,7 +337,11 @@ class GridCache:
         rounds and frames query the same contact)."""
         hit = self._gridsets.pop(found, None)
         if hit is None:
-            hit = GridSet(self.grids_for(self.shape._boxes[2][list(found)]))
+            # a response's new surface is queried where its parent was: the parent's set of the
+            # same patches lends its faces and its trees (`GridSet`'s ``like``)
+            parent = self.shape.parent
+            like = None if parent is None else parent.cache._gridsets.get(found)
+            hit = GridSet(self.grids_for(self.shape._boxes[2][list(found)]), like)
         self._gridsets[found] = hit
         while len(self._gridsets) > 16:
             del self._gridsets[next(iter(self._gridsets))]

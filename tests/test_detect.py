@@ -439,22 +439,79 @@ def test_a_responded_shape_reuses_its_parents_grids_only_where_it_did_not_change
         np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
-def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed, absorption):
-    """Hull boxes and the coarse sample grid of a responded shape (the parent's where the
-    response did not reach, recomputed elsewhere) equal a fresh shape's bit for bit, whichever
-    levels moved."""
+def _responded_sphere(seed, absorption=(0, 0.5, 0.5)):
+    """A closed sphere with random offsets, level 2 movable about a random patch, and a response
+    there seeded with it as parent: ``hs``, ``out``, the response's report, the generator and the
+    response's world point ``p (1, 3)``."""
     from acra import respond as R
 
     rng = np.random.default_rng(seed)
     hs = H.from_grid(*shapes.sphere(24, 16), depth=3)
     u0 = int(rng.integers(0, 24))
     hs = with_random_offsets(H.make_movable(hs, 2, [[4 * u0, 24]]), 0.02, seed)
-    parent = S.shape_of(hs)
     uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
     p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=absorption))
+    out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=list(absorption)))
     S.seed_details(out, rep.details, parent=hs)
+    return hs, out, rep, rng, p
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_responded_shape_s_grid_set_from_its_parents_answers_as_a_new_one(seed):
+    """A responded shape queried near the response, where its parent was, takes the parent's
+    `GridSet` of those patches (faces, parameters, refitted trees): its closest points, distances
+    and parameters are those of a set built anew from the same grids, bit for bit."""
+    hs, out, _, rng, p = _responded_sphere(seed)
+    parent = S.shape_of(hs)
+    q = p * rng.uniform(0.8, 1.1, (40, 1)) + 0.05 * rng.normal(size=(40, 3))
+    found = tuple(range(len(parent._boxes[2])))
+    like = parent.cache.gridset(found)
+    like.nearest(q)  # its trees built
+    child = S.shape_of(out)
+    assert child.parent is parent
+    kept = child.cache.gridset(found)
+    assert kept.triangles is like.triangles and any(a is not b for a, b in zip(kept.grids, like.grids))
+    got = kept.nearest(q)
+    assert all(c.index.tree.order is d.index.tree.order for (_, c), (_, d) in zip(kept.indices, like.indices))
+    ref = S.GridSet(kept.grids).nearest(q)
+    for a, b in zip((got.distance, got.points, got.uv), (ref.distance, ref.points, ref.uv)):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_candidate_vertices_kept_per_patch_set_equal_a_new_search(seed):
+    """`detect._candidate_vertices` and `detect.tessellate` keep each patch set's distinct vertex
+    rows (`_distinct`) and layout (parameters, triangles, patches) and give a responded surface,
+    moved, what they give with nothing kept, bit for bit, seams and poles of a closed surface
+    included."""
+    hs, out, _, _, _ = _responded_sphere(seed)
+    xform = move(0.3, -0.1, 0.2)
+    bounds = np.array([[-2.0, -2.0, -0.5], [2.0, 2.0, 2.0]]) + xform[:3, 3]
+    D._DISTINCT.clear()
+    D._LAYOUTS.clear()
+    D._candidate_vertices(D.SurfaceGeometry(hs, xform), bounds, 1e-7)
+    g = D.SurfaceGeometry(out, xform)
+    got = D._candidate_vertices(g, bounds, 1e-7)
+    assert len(D._DISTINCT) == len(D._LAYOUTS) == 1  # the responded surface's set was the parent's
+    kept = D.tessellate(g, D.candidate_patches(g, bounds, 1e-7))
+    D._DISTINCT.clear()
+    D._LAYOUTS.clear()
+    g = D.SurfaceGeometry(out, xform)
+    ref = D._candidate_vertices(g, bounds, 1e-7)
+    assert len(got[0]) > 100
+    for a, b in zip(got, ref):
+        np.testing.assert_array_equal(a, b)
+    for name in ("points", "uv", "triangles", "tri_patch"):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(D.tessellate(g, D.candidate_patches(g, bounds, 1e-7)), name))
+
+
+@pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
+def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed, absorption):
+    """Hull boxes and the coarse sample grid of a responded shape (the parent's where the
+    response did not reach, recomputed elsewhere) equal a fresh shape's bit for bit, whichever
+    levels moved."""
+    hs, out, rep, _, _ = _responded_sphere(seed, absorption)
+    parent = S.shape_of(hs)
     child = S.shape_of(out)
     assert child.parent is parent and 0 < child._stale.sum() < child._stale.size
     fresh = S.Shape(out)

@@ -77,6 +77,28 @@ def test_query_is_every_triangle_s_answer(seed):
     assert np.isinf(bd[~within]).all()
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_refit_answers_as_a_new_build(seed):
+    """An `Index` whose tree is refitted from the triangles before they moved (``like``, part of
+    them moved far, so the old Z-order no longer fits) has the boxes of its leaves' triangles and
+    answers as one built anew, bit for bit, with and without a bound."""
+    rng = np.random.default_rng(seed)
+    tri, pts = _triangles(rng, 3000)
+    old = N.index(tri, 2.0)
+    moved = tri.copy()
+    moved[rng.random(len(tri)) < 0.3] += rng.normal(size=3)
+    moved += 1e-3 * rng.normal(size=moved.shape)
+    fresh, refit = N.index(moved, 2.5), N.index(moved, 2.5, like=old)
+    tree = refit.tree
+    assert np.array_equal(tree.order, old.tree.order) and np.array_equal(tree.leaf_tri, moved[tree.order])
+    for node in np.nonzero(tree.left < 0)[0]:
+        leaf = moved[tree.order[tree.start[node]:tree.start[node] + tree.count[node]]].reshape(-1, 3)
+        assert np.array_equal(tree.lo[node], leaf.min(axis=0)) and np.array_equal(tree.hi[node], leaf.max(axis=0))
+    for bound in (None, rng.uniform(0.0, 1.0, len(pts))):
+        for a, b in zip(N.query(fresh, pts, bound), N.query(refit, pts, bound)):
+            assert np.array_equal(a, b)
+
+
 def test_corners_are_numpys_fancy_index():
     rng = np.random.default_rng(3)
     v, f = rng.standard_normal((500, 3)), rng.integers(0, 500, (800, 3))
