@@ -449,7 +449,7 @@ def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist,
                 best, best_face, best_slot = dd, order[seed], seed
                 bx, by, bz, ba, bb, bc = x, y, z, wa, wb, wc
         stack[0] = 0
-        near[0] = _box_distance(p, lo, hi, 0)
+        near[0] = _box_distance(p, lo, hi, np.int64(0))  # int64: a literal 0 compiles a specialisation of its own
         top = 1
         while top > 0:
             top -= 1
@@ -571,6 +571,17 @@ def faces_meet(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.nda
     return out
 
 
+def _read_only(faces: np.ndarray) -> np.ndarray:
+    """``faces`` as C-contiguous int64, read-only (a view where it is writeable): a display's
+    triangles turn read-only once digested (`pipeline.residual`), and numba compiles a kernel once
+    per writeability, so the kernels that take them see one kind."""
+    f = np.ascontiguousarray(faces, np.int64)
+    if f.flags.writeable:
+        f = f.view()
+        f.flags.writeable = False
+    return f
+
+
 @njit(cache=True, nogil=True)
 def _faces_meet_rows(points, faces, lo, hi, pad, out):
     n = 0
@@ -593,7 +604,7 @@ def faces_meet_rows(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: n
     out = np.empty(len(faces), np.int64)
     n = 0
     if len(faces):
-        n = _faces_meet_rows(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
+        n = _faces_meet_rows(np.ascontiguousarray(points, np.float64), _read_only(faces),
                              np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
                              float(pad), out)
     return out[:n].copy()
@@ -613,7 +624,7 @@ def faces_at(points: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> np.ndar
     int64``, ``rows (m,) int64`` in range), copied in one compiled pass."""
     out = np.empty((len(rows), 3, 3))
     if len(rows):
-        _faces_at(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
+        _faces_at(np.ascontiguousarray(points, np.float64), _read_only(faces),
                   np.ascontiguousarray(rows, np.int64), out)
     return out
 
@@ -634,7 +645,10 @@ def _facet_bound(cells, faces, vertices, solid_faces, facet, facet_start, facet_
             for s in range(facet_start[g], facet_start[g + 1]):
                 m = facet_faces[s]
                 for k in range(3):
-                    tri[k] = vertices[solid_faces[m, k]]
+                    # element by element: a row assigned from an array would compile numba's
+                    # shape-mismatch message (its string formatting) into the first run
+                    for q in range(3):
+                        tri[k, q] = vertices[solid_faces[m, k], q]
                 for i in range(3):
                     x, y, z, _, _, _ = _point_triangle(cells[c, i], tri[0], tri[1], tri[2])
                     d = np.sqrt((cells[c, i, 0] - x) ** 2 + (cells[c, i, 1] - y) ** 2 + (cells[c, i, 2] - z) ** 2)

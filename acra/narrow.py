@@ -294,9 +294,12 @@ def _orient(T, a, b, c, U, d):
 def _edge_through(T, U, E):
     """Whether an edge of ``U`` passes through the inside of triangle ``T``, every sign sure:
     its ends on both sides of ``T``'s plane, and ``T``'s corners all on one side of it."""
+    # rows as int64, not literals: a literal argument compiles a specialisation of `_orient` of
+    # its own (four of them, ~0.3 s each in the first run); these make it one
+    r0, r1, r2, r3, r4 = np.int64(0), np.int64(1), np.int64(2), np.int64(3), np.int64(4)
     for e in range(3):
         d, f = e, (e + 1) % 3
-        sd, sf = _orient(T, 0, 1, 2, U, d), _orient(T, 0, 1, 2, U, f)
+        sd, sf = _orient(T, r0, r1, r2, U, d), _orient(T, r0, r1, r2, U, f)
         if sd == 0 or sf == 0 or sd == sf:
             continue
         # the edge's side of T's edges: orient(d, f, corner, next corner) by rows of one array
@@ -305,7 +308,7 @@ def _edge_through(T, U, E):
                 E[r, k] = T[r, k]
             E[3, 0], E[3, 1], E[3, 2] = U[d, 0], U[d, 1], U[d, 2]
             E[4, 0], E[4, 1], E[4, 2] = U[f, 0], U[f, 1], U[f, 2]
-        s0, s1, s2 = _orient(E, 3, 4, 0, E, 1), _orient(E, 3, 4, 1, E, 2), _orient(E, 3, 4, 2, E, 0)
+        s0, s1, s2 = _orient(E, r3, r4, r0, E, r1), _orient(E, r3, r4, r1, E, r2), _orient(E, r3, r4, r2, E, r0)
         if s0 != 0 and s0 == s1 and s1 == s2:
             return True
     return False

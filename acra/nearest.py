@@ -232,7 +232,9 @@ def _query(t, order, lo, hi, left, right, start, count, unit, zero, points, boun
     stack = np.empty(256, np.int64)
     near = np.empty(256)
     seq = _morton_order(points)
-    seed = -1  # leaf slot of the previous point's closest triangle
+    # int64, not literals (here and the root below): a literal argument compiles a specialisation
+    # of `_distance` and `_box_distance` of its own in the first run
+    seed = np.int64(-1)  # leaf slot of the previous point's closest triangle
     slack = _ABS * unit
     for j in range(points.shape[0]):
         i = seq[j]
@@ -243,7 +245,7 @@ def _query(t, order, lo, hi, left, right, start, count, unit, zero, points, boun
             if d <= best:
                 best, best_face, bx, by, bz = d, order[seed], x, y, z
         stack[0] = 0
-        near[0] = _box_distance(points, i, lo, hi, 0)
+        near[0] = _box_distance(points, i, lo, hi, np.int64(0))
         top = 1
         while top > 0:
             top -= 1

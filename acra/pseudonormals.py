@@ -61,7 +61,10 @@ def _used(v, f, rows):
     out = np.empty((n, 3))
     for j in range(v.shape[0]):
         if new[j] >= 0:
-            out[new[j]] = v[j]
+            # element by element: a row assigned from an array would compile numba's shape-
+            # mismatch message (its string formatting) into the first run
+            for k in range(3):
+                out[new[j], k] = v[j, k]
     return new, out
 
 
@@ -109,7 +112,8 @@ def weld(v, f, radius):
         label[i] = group[r]
     vw = np.empty((count, 3))
     for k in range(count):
-        vw[k] = vu[first[k]]
+        for q in range(3):  # element by element, as in `_used`
+            vw[k, q] = vu[first[k], q]
     fw = np.empty((f.shape[0], 3), np.int64)
     for i in range(f.shape[0]):
         for k in range(3):

@@ -1,0 +1,216 @@
+"""The first run after a fresh install: numba compiling every kernel `acra run` calls.
+
+    python3 benchmarks/first_run.py                       # scenes/dog_head_spike.py -o .usdc, 3 runs
+    python3 benchmarks/first_run.py --repeat 1 --kernels  # and the per-kernel table (one more run)
+    python3 benchmarks/first_run.py --format usda
+    python3 benchmarks/first_run.py --base /tmp/base  # alternating with another checkout
+    python3 benchmarks/first_run.py --precompile both  # without and with the second process
+
+Each run is a fresh ``python -m pipeline.cli run SCENE -o OUT --quiet`` of this checkout
+(``PYTHONPATH`` set to it) whose ``NUMBA_CACHE_DIR`` is a new empty directory, so every kernel the
+run calls is compiled and cached, as on a machine where the package was just installed. Prints the
+median user, system and wall seconds and the number of cached specialisations (``*.nbc`` files),
+with the kernels cached more than once.
+
+``--kernels`` runs the same command once more in-process under numba's event API
+(``numba:compile`` and ``numba:run_pass``, nested, so each figure is exclusive of the kernels the
+kernel's typing compiled): per kernel and specialisation the CPU seconds of type inference, of
+lowering to LLVM IR, of LLVM (optimising and emitting machine code, `CodeLibrary.finalize`) and of
+the rest (bytecode analysis, rewrites, the cache's save), the top ``--top`` by total.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parents[1]
+
+
+def _argv(scene: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "pipeline.cli", "run", str(scene), "-o", str(out), "--quiet",
+            "--over-tolerance", "warn"]
+
+
+def one_run(scene: Path, fmt: str, checkout: Path = HERE, precompile: str = "1") -> tuple[float, float, float, list[str]]:
+    """User, system and wall seconds of one empty-cache run of ``checkout`` (its second compiling
+    process, `pipeline.precompile`, included), and the cached specialisations."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = Path(tmp) / "cache"
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(checkout), "ACRA_PRECOMPILE": precompile}
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t = time.perf_counter()
+        subprocess.run(_argv(scene, Path(tmp) / f"out.{fmt}"), check=True, capture_output=True, env=env, cwd=tmp)
+        wall = time.perf_counter() - t
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        nbc = sorted(p.name for p in cache.rglob("*.nbc"))
+    return after.ru_utime - before.ru_utime, after.ru_stime - before.ru_stime, wall, nbc
+
+
+def _kernel_of(nbc: str) -> str:
+    """``bvh._box_distance`` from ``bvh._box_distance-196.py311.1.nbc``."""
+    return re.sub(r"-\d+\.py\d+\.\d+\.nbc$", "", nbc)
+
+
+def profile(scene: Path, fmt: str) -> None:
+    """Child of ``--kernels``: run in this process, print the per-kernel table's rows as TSV."""
+    from numba.core import codegen, event
+
+    clock = time.process_time
+    stack: list[list] = []  # [key, start, child seconds, {phase: seconds}]
+    rows: dict = defaultdict(lambda: defaultdict(float))
+    phase_stack: list[list] = []  # [phase, start, child seconds]
+    parents: dict = {}  # the kernel whose typing compiled this one
+
+    def phase_of(name: str) -> str:
+        name = name.split(" ")[0]
+        if "type_inference" in name:
+            return "typing"
+        if "lowering" in name:
+            return "lowering"
+        return "other"
+
+    class Compile(event.Listener):
+        def on_start(self, ev):
+            d = ev.data["dispatcher"]
+            key = (f"{d.py_func.__module__.rsplit('.', 1)[-1]}.{d.py_func.__name__}", str(ev.data["args"]))
+            stack.append([key, clock(), 0.0])
+
+        def on_end(self, ev):
+            key, start, child = stack.pop()
+            total = clock() - start
+            rows[key]["total"] += total - child
+            rows[key]["count"] += 1
+            parents.setdefault(key, stack[-1][0][0] if stack else "")
+            if stack:
+                stack[-1][2] += total
+
+    class Pass(event.Listener):
+        def on_start(self, ev):
+            phase_stack.append([phase_of(ev.data["name"]), clock(), 0.0, stack[-1][0] if stack else None])
+
+        def on_end(self, ev):
+            phase, start, child, key = phase_stack.pop()
+            total = clock() - start
+            if key is not None:
+                rows[key][phase] += total - child
+            if phase_stack:
+                phase_stack[-1][2] += total
+
+    finalize = codegen.CPUCodeLibrary.finalize
+
+    def timed_finalize(self):
+        start = clock()
+        try:
+            return finalize(self)
+        finally:
+            spent = clock() - start
+            if stack:
+                rows[stack[-1][0]]["llvm"] += spent
+                if phase_stack:  # LLVM runs inside the lowering pass: take it out of lowering
+                    rows[stack[-1][0]][phase_stack[-1][0]] -= spent
+
+    codegen.CPUCodeLibrary.finalize = timed_finalize
+    event.register("numba:compile", Compile())
+    event.register("numba:run_pass", Pass())
+    from pipeline import cli
+
+    t0 = clock()
+    with tempfile.TemporaryDirectory() as tmp:
+        cli.main(["run", str(scene), "-o", str(Path(tmp) / f"out.{fmt}"), "--quiet", "--over-tolerance", "warn"])
+    print(f"#process\t{clock() - t0:.3f}")
+    for (name, args), r in rows.items():
+        print("\t".join([name, args, str(int(r["count"]))] +
+                        [f"{r[k]:.3f}" for k in ("total", "typing", "lowering", "llvm", "other")] +
+                        [parents.get((name, args), "")]))
+
+
+def kernels(scene: Path, fmt: str, top: int) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp) / "cache"), "PYTHONPATH": str(HERE)}
+        done = subprocess.run([sys.executable, __file__, "--profile", "--format", fmt, str(scene)],
+                              check=True, capture_output=True, text=True, env=env, cwd=tmp)
+    rows, process = [], 0.0
+    for line in done.stdout.splitlines():
+        parts = line.split("\t")
+        if parts[0] == "#process":
+            process = float(parts[1])
+        elif len(parts) == 9:
+            rows.append((parts[0], parts[1], int(parts[2]), *map(float, parts[3:8]), parts[8]))
+    rows.sort(key=lambda r: -r[3])
+    compiled = sum(r[3] for r in rows)
+    per_kernel = Counter(r[0] for r in rows)
+    print(f"\nIn-process run: {process:.1f} s CPU, of which {compiled:.1f} s compiling {len(rows)} "
+          f"specialisations of {len(per_kernel)} kernels (typing {sum(r[4] for r in rows):.1f}, lowering "
+          f"{sum(r[5] for r in rows):.1f}, LLVM {sum(r[6] for r in rows):.1f}, other {sum(r[7] for r in rows):.1f} s).\n")
+    print("| kernel | argument types | CPU s | typing | lowering | LLVM | other |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for name, args, _, total, typing, lowering, llvm, other, _ in rows[:top]:
+        shown = args if len(args) <= 90 else args[:87] + "..."
+        print(f"| `{name}` | `{shown}` | {total:.2f} | {typing:.2f} | {lowering:.2f} | {llvm:.2f} | {other:.2f} |")
+    twice = {k: n for k, n in per_kernel.items() if n > 1}
+    if twice:
+        print("\nKernels compiled for more than one signature: " +
+              ", ".join(f"`{k}` {n}" for k, n in sorted(twice.items(), key=lambda kv: -kv[1])))
+        for name in sorted(twice):
+            for r in rows:
+                if r[0] == name:
+                    print(f"  {name}: {r[1]}  ({r[3]:.2f} s, from {r[8] or 'Python'})")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("scene", nargs="?", type=Path, default=HERE / "scenes" / "dog_head_spike.py")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--format", choices=("usdc", "usda"), default="usdc")
+    ap.add_argument("--kernels", action="store_true", help="also the per-kernel compile table (one more run)")
+    ap.add_argument("--top", type=int, default=15)
+    ap.add_argument("--base", type=Path, help="another checkout: its runs alternate with this one's (ratio of medians)")
+    ap.add_argument("--precompile", choices=("on", "off", "both"), default="on",
+                    help="this checkout's second compiling process (pipeline.precompile); both: alternate off and on")
+    ap.add_argument("--profile", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    scene = args.scene.resolve()
+    if args.profile:
+        profile(scene, args.format)
+        return
+    if args.repeat < 1:
+        kernels(scene, args.format, args.top)
+        return
+    modes = {"on": ["1"], "off": ["0"], "both": ["0", "1"]}[args.precompile]
+    checkouts = ([] if args.base is None else [(args.base.resolve(), "0")]) + [(HERE, m) for m in modes]
+    runs: dict = {c: [] for c in checkouts}
+    for _ in range(args.repeat):
+        for c in checkouts:
+            runs[c].append(one_run(scene, args.format, *c))
+    medians = {}
+    for c in checkouts:
+        rs = runs[c]
+        med = medians[c] = [float(np.median([r[i] for r in rs])) for i in range(3)]
+        print(f"{c[0]} (precompile {'on' if c[1] == '1' else 'off'}): {scene.name} -o .{args.format}, {len(rs)} empty-cache runs: user "
+              + ", ".join(f"{r[0]:.1f}" for r in rs) + f" s (median {med[0]:.1f}), system median {med[1]:.1f} s, wall "
+              + ", ".join(f"{r[2]:.1f}" for r in rs) + f" s (median {med[2]:.1f})")
+        nbc = rs[-1][3]
+        counts = Counter(_kernel_of(n) for n in nbc)
+        print(f"  {len(nbc)} specialisations cached, {len(counts)} kernels; more than one: " +
+              (", ".join(f"{k} {n}" for k, n in counts.most_common() if n > 1) or "none"))
+    for c in checkouts[1:]:
+        b, h = medians[checkouts[0]], medians[c]
+        print(f"{c[0]} precompile {'on' if c[1] == '1' else 'off'} / {checkouts[0][0]} precompile off, medians: "
+              f"user {h[0] / b[0]:.3f}, wall {h[2] / b[2]:.3f}")
+    if args.kernels:
+        kernels(scene, args.format, args.top)
+
+
+if __name__ == "__main__":
+    main()
