@@ -4,7 +4,6 @@
     python3 benchmarks/first_run.py --repeat 1 --kernels  # and the per-kernel table (one more run)
     python3 benchmarks/first_run.py --format usda
     python3 benchmarks/first_run.py --base /tmp/base  # alternating with another checkout
-    python3 benchmarks/first_run.py --precompile both  # without and with the second process
 
 Each run is a fresh ``python -m pipeline.cli run SCENE -o OUT --quiet`` of this checkout
 (``PYTHONPATH`` set to it) whose ``NUMBA_CACHE_DIR`` is a new empty directory, so every kernel the
@@ -42,12 +41,12 @@ def _argv(scene: Path, out: Path) -> list[str]:
             "--over-tolerance", "warn"]
 
 
-def one_run(scene: Path, fmt: str, checkout: Path = HERE, precompile: str = "1") -> tuple[float, float, float, list[str]]:
-    """User, system and wall seconds of one empty-cache run of ``checkout`` (its second compiling
-    process, `pipeline.precompile`, included), and the cached specialisations."""
+def one_run(scene: Path, fmt: str, checkout: Path = HERE) -> tuple[float, float, float, list[str]]:
+    """User, system and wall seconds of one empty-cache run of ``checkout``, and the cached
+    specialisations."""
     with tempfile.TemporaryDirectory() as tmp:
         cache = Path(tmp) / "cache"
-        env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(checkout), "ACRA_PRECOMPILE": precompile}
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(checkout)}
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t = time.perf_counter()
         subprocess.run(_argv(scene, Path(tmp) / f"out.{fmt}"), check=True, capture_output=True, env=env, cwd=tmp)
@@ -176,8 +175,6 @@ def main() -> None:
     ap.add_argument("--kernels", action="store_true", help="also the per-kernel compile table (one more run)")
     ap.add_argument("--top", type=int, default=15)
     ap.add_argument("--base", type=Path, help="another checkout: its runs alternate with this one's (ratio of medians)")
-    ap.add_argument("--precompile", choices=("on", "off", "both"), default="on",
-                    help="this checkout's second compiling process (pipeline.precompile); both: alternate off and on")
     ap.add_argument("--profile", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     scene = args.scene.resolve()
@@ -187,17 +184,16 @@ def main() -> None:
     if args.repeat < 1:
         kernels(scene, args.format, args.top)
         return
-    modes = {"on": ["1"], "off": ["0"], "both": ["0", "1"]}[args.precompile]
-    checkouts = ([] if args.base is None else [(args.base.resolve(), "0")]) + [(HERE, m) for m in modes]
+    checkouts = ([] if args.base is None else [args.base.resolve()]) + [HERE]
     runs: dict = {c: [] for c in checkouts}
     for _ in range(args.repeat):
         for c in checkouts:
-            runs[c].append(one_run(scene, args.format, *c))
+            runs[c].append(one_run(scene, args.format, c))
     medians = {}
     for c in checkouts:
         rs = runs[c]
         med = medians[c] = [float(np.median([r[i] for r in rs])) for i in range(3)]
-        print(f"{c[0]} (precompile {'on' if c[1] == '1' else 'off'}): {scene.name} -o .{args.format}, {len(rs)} empty-cache runs: user "
+        print(f"{c}: {scene.name} -o .{args.format}, {len(rs)} empty-cache runs: user "
               + ", ".join(f"{r[0]:.1f}" for r in rs) + f" s (median {med[0]:.1f}), system median {med[1]:.1f} s, wall "
               + ", ".join(f"{r[2]:.1f}" for r in rs) + f" s (median {med[2]:.1f})")
         nbc = rs[-1][3]
@@ -206,7 +202,7 @@ def main() -> None:
               (", ".join(f"{k} {n}" for k, n in counts.most_common() if n > 1) or "none"))
     for c in checkouts[1:]:
         b, h = medians[checkouts[0]], medians[c]
-        print(f"{c[0]} precompile {'on' if c[1] == '1' else 'off'} / {checkouts[0][0]} precompile off, medians: "
+        print(f"{c} / {checkouts[0]}, medians: "
               f"user {h[0] / b[0]:.3f}, wall {h[2] / b[2]:.3f}")
     if args.kernels:
         kernels(scene, args.format, args.top)
