@@ -458,8 +458,21 @@ def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist,
                 continue
             if left[node] < 0:
                 for s in range(start[node], start[node] + count[node]):
+                    # the triangle's own box first, as a node's: a triangle whose box is farther
+                    # than the best (about half of a leaf's) needs no exact test
+                    t0, t1, t2 = tri[s, 0], tri[s, 1], tri[s, 2]
+                    near_box = 0.0
+                    for k in range(3):
+                        low = min(min(t0[k], t1[k]), t2[k])
+                        high = max(max(t0[k], t1[k]), t2[k])
+                        if p[k] < low:
+                            near_box += (low - p[k]) ** 2
+                        elif p[k] > high:
+                            near_box += (p[k] - high) ** 2
+                    if near_box > best:
+                        continue
                     f = order[s]
-                    x, y, z, wa, wb, wc = _point_triangle(p, tri[s, 0], tri[s, 1], tri[s, 2])
+                    x, y, z, wa, wb, wc = _point_triangle(p, t0, t1, t2)
                     dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
                     if dd < best or (dd == best and (best_face < 0 or f < best_face)):
                         best, best_face, best_slot = dd, f, s
