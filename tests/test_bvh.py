@@ -271,3 +271,18 @@ def test_children_are_the_numpy_concatenations():
         assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
     empty = bvh.children(lattice[:0], mid[:0], sd[:0], sd_mid, fc[:0], face_mid, inverse[:0], rows[:0], rho[:0])
     assert [x.shape for x in empty] == [(0, 3, 3), (0, 3), (0, 3), (0,), (0,)]
+
+
+def test_morton_keys_interleave_each_axis_bit_by_bit():
+    """`_morton_keys`' masked shifts put bit ``b`` of axis ``a``'s 10-bit step at bit ``3 b + a``,
+    as a loop over the bits does."""
+    q = np.arange(1024)
+    loop = np.zeros(1024, np.int64)
+    for bit in range(10):
+        loop |= ((q >> bit) & 1) << (3 * bit)
+    assert [bvh._spread(int(x)) for x in q] == loop.tolist()
+    pts = np.random.default_rng(0).normal(size=(500, 3))
+    lo, span = pts.min(axis=0), np.ptp(pts, axis=0)
+    steps = np.clip((((pts - lo) / span) * 1023.0).astype(np.int64), 0, 1023)
+    want = sum(loop[steps[:, a]] << a for a in range(3))
+    assert np.array_equal(bvh._morton_keys(pts), want)
