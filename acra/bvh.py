@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet", "faces_meet_rows", "faces_at", "facet_bound", "bounds",
+__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "facet_bound", "bounds",
            "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children"]
 
 LEAF = 4  # triangles per leaf
@@ -569,29 +569,6 @@ def boxes_meet(tri: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0
     return out
 
 
-@njit(cache=True, nogil=True)
-def _faces_meet(points, faces, lo, hi, pad, out):
-    for i in range(faces.shape[0]):
-        meet = True
-        for k in range(3):
-            a, b, c = points[faces[i, 0], k], points[faces[i, 1], k], points[faces[i, 2], k]
-            if not (min(min(a, b), c) <= hi[k] + pad and lo[k] <= max(max(a, b), c) + pad):
-                meet = False
-                break
-        out[i] = meet
-
-
-def faces_meet(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
-    """`boxes_meet` of the triangles ``points[faces]`` (``points (n, 3)``, ``faces (f, 3) int64``)
-    without gathering them."""
-    out = np.empty(len(faces), np.bool_)
-    if len(faces):
-        _faces_meet(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(faces, np.int64),
-                    np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
-                    float(pad), out)
-    return out
-
-
 def _read_only(faces: np.ndarray) -> np.ndarray:
     """``faces`` as C-contiguous int64, read-only (a view where it is writeable): a display's
     triangles turn read-only once digested (`pipeline.residual`), and numba compiles a kernel once
@@ -620,8 +597,9 @@ def _faces_meet_rows(points, faces, lo, hi, pad, out):
 
 
 def faces_meet_rows(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
-    """``np.nonzero(faces_meet(...))[0]``: the rows ``(m,) int64`` of ``faces`` whose triangles'
-    boxes come within ``pad`` of the box ``lo, hi``, in increasing order, without the mask."""
+    """The rows ``(m,) int64`` of ``faces`` (``(f, 3) int64`` into ``points (n, 3)``) whose
+    triangles' boxes come within ``pad`` of the box ``lo, hi`` (`boxes_meet`'s comparisons), in
+    increasing order, without gathering the triangles."""
     out = np.empty(len(faces), np.int64)
     n = 0
     if len(faces):

@@ -64,7 +64,8 @@ def main() -> None:
     bvh.closest = _timed("closest-point searches (acra.bvh.closest)", bvh.closest)
     clearance.solid = _timed("part solids (clearance.solid)", clearance.solid)
     bvh.facet_bound = _timed("eq. (6) (acra.bvh.facet_bound)", bvh.facet_bound)
-    bvh.faces_meet = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet)
+    if hasattr(bvh, "faces_meet"):  # its mask form, where a checkout has it
+        bvh.faces_meet = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet)
     if hasattr(bvh, "faces_meet_rows"):  # its form giving the rows, where a checkout has it
         bvh.faces_meet_rows = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet_rows)
     clearance.covering_radius = _timed("covering radii (eq. (3))", clearance.covering_radius)

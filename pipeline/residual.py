@@ -446,5 +446,5 @@ def _outer_box(xform: np.ndarray, box: np.ndarray) -> np.ndarray:
 
 
 def _meet(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether boxes ``a`` and ``b`` ``(2, 3)`` meet (`bvh.faces_meet`'s comparisons)."""
+    """Whether boxes ``a`` and ``b`` ``(2, 3)`` meet (`bvh.faces_meet_rows`' comparisons)."""
     return bool(np.all(a[0] <= b[1]) and np.all(b[0] <= a[1]))

@@ -83,7 +83,6 @@ def test_boxes_meet_is_the_overlap_of_the_triangle_boxes(seed):
     for pad in (0.0, 0.05):
         want = overlap(*triangle_boxes(tri), lo, hi, pad)
         np.testing.assert_array_equal(bvh.boxes_meet(tri, lo, hi, pad), want)
-        np.testing.assert_array_equal(bvh.faces_meet(points, faces, lo, hi, pad), want)
         rows = bvh.faces_meet_rows(points, faces, lo, hi, pad)
         assert rows.dtype == np.int64 and np.array_equal(rows, np.nonzero(want)[0])
         assert bvh.faces_at(points, faces, rows).tobytes() == tri[rows].tobytes()
