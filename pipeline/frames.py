@@ -177,13 +177,17 @@ class _Round:
     ``found`` holds ``(i, other, PairContact)`` of the pairs to respond to, ``settled`` per pair the
     world move that counts as done (the tolerance or `MEET` times the pair's size), ``pair_rel``
     each pair's residual over its size, ``worst`` and ``worst_rel`` the largest residual in world
-    units and over size."""
+    units and over size, ``unseen_rel`` the largest over size of the pairs whose two insides the
+    display measure (`_Run.visible`) does not both take: a pair with a collider (a collider's
+    surface is not measured inside the deformable, so one wholly inside a closed deformable
+    shows nothing of itself, yet is inside) or with an open surface."""
 
     found: list
     settled: dict
     pair_rel: dict
     worst: float
     worst_rel: float
+    unseen_rel: float = 0.0
 
 
 class _Run:
@@ -259,6 +263,8 @@ class _Run:
             rnd.worst_rel = max(rnd.worst_rel, c.penetration / size)
             other_path = defs[other[1]].path if other[0] == "d" else self.scene.colliders[other[1]].path
             rnd.pair_rel[defs[i].path, other_path] = c.penetration / size
+            if other[0] == "c" or not (geoms[i].closed and gb.closed):
+                rnd.unseen_rel = max(rnd.unseen_rel, c.penetration / size)
             meet = rnd.settled[key] = max(options.tolerance, P.MEET) * size
             if it > 0 and other[0] == "d" and c.region_a.empty != c.region_b.empty and np.linalg.norm(c.push) <= meet:
                 c = P.deepest_instead(geoms[i], gb, c)
@@ -487,9 +493,11 @@ class _Run:
                 st.in_collision = bool(rnd.found) or vis.worst_rel > options.tolerance  # a pair to respond to
                 st.contacts = [(c.point_a, c.point_b) for _, _, c in rnd.found]
                 st.regions = {defs[i].path: c.region_a.points for i, _, c in rnd.found}
-            # a round is judged by what the user sees and by what detection still finds (a
+            # a round is judged by what the user sees: the certified depth of each deformable's
+            # display inside the other object of its pair, both ways between two closed
+            # deformables; any other pair is also judged by what detection still finds (a
             # collider wholly inside a closed deformable shows nothing of itself, yet is inside)
-            score = max(vis.worst_rel, rnd.worst_rel)
+            score = max(vis.worst_rel, rnd.unseen_rel)
             if score < best[0]:
                 best = (score, list(surfaces))
                 kept = vis
