@@ -63,6 +63,27 @@ def test_a_frame_stops_at_the_first_round_whose_display_is_within_the_tolerance(
     assert max(s.residual_rel for s in dog.stats) <= 1e-3
 
 
+def test_a_round_the_displays_clear_is_not_detected_again(monkeypatch):
+    """After a response, the displays are measured first; where they are within the tolerance and
+    every pair is two closed deformables, the round ends the frame and detection does not run:
+    frames 14-16 detect once each (round 0), and their residuals are those of
+    `test_a_frame_stops_at_the_first_round_whose_display_is_within_the_tolerance`."""
+    import pathlib
+
+    from conftest import SCENES
+    from pipeline import frames as F, usdio
+
+    stage = usdio.open_input(usdio.load_scene_file(pathlib.Path(SCENES / "dog_head_spike.py")))
+    scene = usdio.read_scene(stage)
+    rounds = []
+    detect = F._Run.detect
+    monkeypatch.setattr(F._Run, "detect", lambda self, frame, it, *a: rounds.append((frame, it)) or detect(self, frame, it, *a))
+    _, stats = F.run_frames(stage, scene, [14, 15, 16], F.RunOptions())
+    assert rounds == [(14, 0), (15, 0), (16, 0)]
+    assert [s.iterations for s in stats] == [1, 1, 1]
+    assert all(9e-4 < s.residual_rel <= 1e-3 for s in stats), [s.residual_rel for s in stats]
+
+
 def test_rounds_past_the_tolerance_keep_lowering_the_residual():
     """At tolerance 1e-9 every round runs, and the later rounds keep lowering both residuals a
     frame stops on: the display's (the run's figure, where the user looks) and detection's (the
