@@ -40,6 +40,7 @@ __all__ = [
 _MAX_CONTACTS = 1_000_000
 _PAD = 1e-7  # box padding, fraction of the pair's size: exactly touching boxes still overlap
 ON_MESH = 1e-9  # a point this close to a collider's mesh (fraction of the mesh's size) lies on it: not inside
+SIDE_SURE = 1e-6  # farther than this from a collider's mesh (fraction of its size), a point's side is its pseudo-normal's
 
 
 # --- static collider data (once per run) and per-time geometry --------------------------------
@@ -57,6 +58,14 @@ class ColliderStatic:
     @cached_property
     def index(self) -> Closest:
         return Closest(self.mesh.vertices, self.mesh.faces, self.bvh)
+
+    @cached_property
+    def solid(self):
+        """The closed mesh as a `pipeline.clearance.Solid` (pseudo-normals, exact closest
+        points), for the side of a point off the mesh (`_collider_inside`)."""
+        from pipeline import clearance
+
+        return clearance.solid(np.asarray(self.mesh.vertices, np.float64), np.asarray(self.mesh.faces, np.int64))
 
     @cached_property
     def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -454,13 +463,22 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     parity calls inside need the distance, which `regions` needs for their depth anyway."""
     import trimesh  # imported by `prepare_collider` already
 
+    from pipeline import clearance
+
     static = geom.static
     local = apply_inverse(geom.xform, points)
-    # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
-    # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
-    if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
-        trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
-    m = static.mesh.contains(local)
+    # A point farther than `SIDE_SURE` of the mesh's size from it takes the side of the
+    # angle-weighted pseudo-normal at its closest point (eq. (1) of `pipeline.clearance`, exact in
+    # float64 off the surface), where embree's float32 parity agrees; nearer points keep the parity.
+    sd = clearance.signed_depth(static.solid, local)[0]
+    near = np.abs(sd) <= SIDE_SURE * static.mesh.scale
+    m = sd > 0
+    if near.any():
+        # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
+        # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
+        if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
+            trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
+        m[near] = static.mesh.contains(local[near])
     rows = np.nonzero(m)[0]
     if not len(rows):
         return (m, np.zeros(0)) if depth else m

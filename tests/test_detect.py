@@ -720,3 +720,34 @@ def test_unique_patches_and_rows_are_numpy_unique():
         assert np.array_equal(D.unique_rows(x), np.unique(x, axis=0, return_index=True)[1])
         p = rng.integers(0, 30, (n, 2))
         assert np.array_equal(D.unique_patches(p), np.unique(p, axis=0))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_collider_inside_agrees_with_ray_parity_near_and_far(seed):
+    """A collider's inside: the pseudo-normal side off the mesh (beyond `detect.SIDE_SURE` of its
+    size) and ray parity nearer, against parity everywhere with the `ON_MESH` band, on points of
+    a ball's faces moved along random directions by rounding up to 1e-2 of its size."""
+    from pipeline.authoring import uv_sphere
+
+    v, f = uv_sphere(0.45, 24, 12)
+    rot = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])
+    g = D.ColliderGeometry(D.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f))), move(0.3, -0.2, 1.1) @ rot)
+    st = g.static
+    rng = np.random.default_rng(seed)
+    tri = st.mesh.triangles[rng.integers(0, len(st.mesh.faces), 150)]
+    on = np.einsum("ij,ijk->ik", rng.dirichlet([1.0, 1.0, 1.0], 150), tri)
+    size = st.mesh.scale
+    local = np.concatenate([on + rng.normal(size=on.shape) * e * size
+                            for e in (0.0, 1e-15, 5e-10, 2e-9, 1e-7, 5e-7, 2e-6, 1e-4, 1e-2)])
+    world = (g.xform[:3, :3] @ local.T).T + g.xform[:3, 3]
+    local = apply_inverse(g.xform, world)
+    trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
+    want = st.mesh.contains(local)
+    want[st.index.query(local)[0] <= D.ON_MESH * size] = False
+    got = D.inside(g, world)
+    np.testing.assert_array_equal(got, want)
+    m, depth = D._inside_depth(g, world)
+    np.testing.assert_array_equal(m, want)
+    assert len(depth) == int(want.sum())
+    far = st.index.query(local)[0] > D.SIDE_SURE * size
+    assert 0.2 < far.mean() < 0.8 and 0 < want[far].sum() < far.sum()  # both rules answer some points
