@@ -67,7 +67,7 @@ def main() -> None:
     if hasattr(bvh, "faces_meet"):  # its mask form, where a checkout has it
         bvh.faces_meet = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet)
     if hasattr(bvh, "faces_meet_rows"):  # its form giving the rows, where a checkout has it
-        bvh.faces_meet_rows = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet_rows)
+        bvh.faces_meet_rows = _timed("triangles near a box (acra.bvh.faces_meet_rows)", bvh.faces_meet_rows)
     clearance.covering_radius = _timed("covering radii (eq. (3))", clearance.covering_radius)
     if hasattr(bvh, "covering_radii"):  # its compiled form, where a checkout has it
         bvh.covering_radii = _timed("covering radii (eq. (3))", bvh.covering_radii)
