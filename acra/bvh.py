@@ -581,31 +581,49 @@ def _read_only(faces: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _faces_meet_rows(points, faces, lo, hi, pad, out):
+def _faces_meet_rows(points, faces, lo, hi, pad, beyond, out):
+    # a face's box misses the padded box on an axis exactly when all three corners lie beyond the
+    # same side: ``min <= hi + pad`` holds iff some corner is ``<= hi + pad``, and ``lo <= max + pad``
+    # iff some corner has ``lo <= x + pad`` (rounding ``x + pad`` is monotone in ``x``, so it
+    # commutes with the max). So each point is compared once, a bit per side per axis, and a face
+    # meets the box unless its corners' bits share one.
+    top0, top1, top2 = hi[0] + pad, hi[1] + pad, hi[2] + pad
+    lo0, lo1, lo2 = lo[0], lo[1], lo[2]
+    for v in range(points.shape[0]):
+        x, y, z = points[v, 0], points[v, 1], points[v, 2]
+        bits = 0
+        if not lo0 <= x + pad:
+            bits |= 1
+        if not x <= top0:
+            bits |= 2
+        if not lo1 <= y + pad:
+            bits |= 4
+        if not y <= top1:
+            bits |= 8
+        if not lo2 <= z + pad:
+            bits |= 16
+        if not z <= top2:
+            bits |= 32
+        beyond[v] = bits
     n = 0
     for i in range(faces.shape[0]):
-        meet = True
-        for k in range(3):
-            a, b, c = points[faces[i, 0], k], points[faces[i, 1], k], points[faces[i, 2], k]
-            if not (min(min(a, b), c) <= hi[k] + pad and lo[k] <= max(max(a, b), c) + pad):
-                meet = False
-                break
-        if meet:
+        if beyond[faces[i, 0]] & beyond[faces[i, 1]] & beyond[faces[i, 2]] == 0:
             out[n] = i
             n += 1
     return n
 
 
 def faces_meet_rows(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
-    """The rows ``(m,) int64`` of ``faces`` (``(f, 3) int64`` into ``points (n, 3)``) whose
-    triangles' boxes come within ``pad`` of the box ``lo, hi`` (`boxes_meet`'s comparisons), in
-    increasing order, without gathering the triangles."""
+    """The rows ``(m,) int64`` of ``faces`` (``(f, 3) int64`` into ``points (n, 3) float64``, finite)
+    whose triangles' boxes come within ``pad`` of the box ``lo, hi`` (`boxes_meet`'s comparisons,
+    the same answers), in increasing order, without gathering the triangles: each point is
+    compared with the box once, however many faces share it."""
     out = np.empty(len(faces), np.int64)
     n = 0
     if len(faces):
-        n = _faces_meet_rows(np.ascontiguousarray(points, np.float64), _read_only(faces),
-                             np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3),
-                             float(pad), out)
+        p = np.ascontiguousarray(points, np.float64)
+        n = _faces_meet_rows(p, _read_only(faces), np.ascontiguousarray(lo, np.float64).reshape(3),
+                             np.ascontiguousarray(hi, np.float64).reshape(3), float(pad), np.empty(len(p), np.uint8), out)
     return out[:n].copy()
 
 

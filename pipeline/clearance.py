@@ -52,8 +52,9 @@ and outward normal ``n``, ``depth(p) <= max(0, (a - p) . n)``, convex in ``p``:
 
 0 for a cell lying on or outside one face's plane (a sheet resting on a box) and exact for a
 cell under one face, however it crosses the face's outline. A cell's bound is the smallest of
-(4), (6) and (7). So does a box apart from ``B``'s box (``B`` lies
-in its box): such triangles are not queried.
+(4), (6) and (7). A triangle whose box is apart from ``B``'s box is outside (``B`` lies in its box)
+and is not queried; this holds for a whole solid only, not for a part of one (a patch of its
+surface, whose box a triangle inside the solid may miss).
 
 **Branch and bound.** Cells start as the given triangles. ``L``, the largest ``sd`` at any evaluated
 point, bounds the true maximum from below. A cell with ``U(t) > max(target, 1.25 L)`` is split into
@@ -463,11 +464,13 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
                    reach: float = np.inf, decide: float = np.inf) -> Depth | None:
     """`Depth` of triangles ``corners (t, 3, 3) float`` (in ``s``'s object space) inside ``s``,
     refined until every cell's ``U <= max(target, 1.25 L)``, ``max_split`` levels, or ``budget``
-    evaluated points (the given triangles' corners are always evaluated). A triangle whose box
-    does not meet ``s.bounds`` has no point inside and is not queried.
+    evaluated points (the given triangles' corners are always evaluated). On a whole solid, a
+    triangle whose box does not meet ``s.bounds`` has no point inside and is not queried.
 
     ``reach``: ``s`` is a part of a solid that answers exactly for points within this distance of
-    it (`solid` with ``part``); ``None`` is returned if an evaluated point lies farther.
+    it (`solid` with ``part``); ``None`` is returned if an evaluated point lies farther, or a
+    triangle's box lies farther than ``reach`` from ``s.bounds``. Every triangle is queried on a
+    part: one missing the part's box may lie inside the solid (a triangle under a curved cap).
     ``decide``: a depth the caller compares the bound with (a tolerance): while no evaluated point
     is deeper than it, a cell bounded above it is split too, so a bound within 1.25 of the depth
     found does not put a clear surface over the tolerance.
@@ -484,7 +487,15 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.ascontiguousarray(corners, np.float64).reshape(-1, 3, 3)
     steps = 1 << max_split  # integer barycentric lattice: weights (i, j, steps - i - j) / steps
-    src = np.nonzero(bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
+    if np.isfinite(reach):
+        # a part is a patch of the surface: a triangle missing its box may still lie inside the
+        # solid (under a curved cap), so none is skipped; one whose box is beyond ``reach`` of the
+        # part's box has every point farther than the part answers for
+        if not bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], reach).all():
+            raise Unresolved
+        src = np.arange(len(tri))
+    else:  # a whole solid lies in its box: a triangle missing it has no point inside
+        src = np.nonzero(bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
     rho0 = bvh.covering_radii(tri[src])  # (c,) per live source triangle (covering_radius compiled), halved per split level
     found: list[tuple] = []  # (tri, bary, points, sd) of evaluated points with sd > 0
 

@@ -91,6 +91,30 @@ def test_boxes_meet_is_the_overlap_of_the_triangle_boxes(seed):
     assert bvh.faces_at(points, faces, np.zeros(0, np.int64)).shape == (0, 3, 3)
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_faces_meet_rows_at_the_box_s_sides_is_the_overlap_of_the_triangle_boxes(seed):
+    """Corners on the padded box's sides, one float step either side of them, on ``lo - pad``
+    rounded (where ``x + pad`` rounds onto ``lo`` or not) and far beyond each side: the rows are `grids.overlap`'s mask of
+    the gathered triangles' boxes, shared corners and faces with repeated corners included."""
+    from pipeline.grids import overlap, triangle_boxes
+
+    rng = np.random.default_rng(seed)
+    lo, hi = np.sort(rng.uniform(-0.5, 0.5, (2, 3)), axis=0)
+    for pad in (0.0, 0.1, float(rng.uniform(0, 0.3)), 1e-300):
+        sides = np.stack([lo, hi, hi + pad, lo - pad, (lo - pad) + pad, lo + pad, 0.5 * (lo + hi)])
+        values = np.concatenate([sides, np.nextafter(sides, np.inf), np.nextafter(sides, -np.inf),
+                                 [lo - pad - 1.0, hi + pad + 1.0]])  # (23, 3), two far apart
+        points = values[rng.integers(0, len(values), (400, 3)), np.arange(3)]
+        faces = rng.integers(0, 400, (3000, 3))
+        faces[:50, 1] = faces[:50, 0]  # a corner repeated
+        tri = points[faces]
+        want = overlap(*triangle_boxes(tri), lo, hi, pad)
+        rows = bvh.faces_meet_rows(points, faces, lo, hi, pad)
+        assert rows.dtype == np.int64 and np.array_equal(rows, np.nonzero(want)[0])
+        np.testing.assert_array_equal(bvh.boxes_meet(tri, lo, hi, pad), want)
+        assert 0 < want.sum() < len(want)
+
+
 def test_build_takes_numpys_boxes_and_centroids():
     tri = soup(7, 5000) * 10.0 ** np.random.default_rng(7).integers(-4, 4, (5000, 1, 1))
     lo, hi, cen = bvh._boxes_centroids(np.ascontiguousarray(tri))

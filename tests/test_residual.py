@@ -90,6 +90,35 @@ def test_a_deformable_s_part_answers_as_its_whole_solid():
     assert part.depth >= visible.depth_inside(samples, ball_body).max() - 1e-12
 
 
+def test_a_triangle_below_a_curved_part_s_box_is_measured():
+    """A small flat triangle 0.05 under the top of a closed ball's display: the part of the ball
+    near it (the faces within its box's diagonal) is a thin cap whose box lies wholly above the
+    triangle, yet the triangle is inside the ball and within the part's reach, so the part is
+    queried on it and gives the whole ball's bound; a triangle beyond the part's reach is
+    answered by the whole solid."""
+    from acra import bvh
+
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    b = residual.shown("/ball", grid_samples(ball, topo)[0], topo.triangles(), np.eye(4), None, closed=True, outward=1.0)
+    z = b.box[1, 2] - 0.05
+    tri = np.array([[-0.05, -0.05, z], [0.05, -0.05, z], [0.0, 0.05, z]])
+    a = residual.shown("/tri", tri, np.array([[0, 1, 2]]), np.eye(4))
+    region = bvh.bounds(a.corners)
+    pad = float(np.linalg.norm(region[1] - region[0]))
+    rows = b.near_rows(region, pad)
+    part = clearance.solid(b.local, b.triangles[rows], part=True, outward=1.0, scale=b.diagonal_local)
+    assert part.bounds[0, 2] > region[1, 2]  # the cap's box lies above the triangle
+    target = 1e-6
+    got = residual.pair_depth(a, b, target)
+    whole = clearance.triangle_depth(b.whole(), a.corners, target)
+    assert whole.bound > 0.05 and whole.complete
+    assert got.depth == pytest.approx(whole.bound, rel=1e-12)
+    assert clearance.triangle_depth(part, a.corners, target, reach=pad).bound == pytest.approx(whole.bound, rel=1e-12)
+    far = a.corners - [0.0, 0.0, 0.5]  # deep in the ball, beyond the cap's reach
+    assert clearance.triangle_depth(part, far, target, reach=pad) is None
+
+
 def test_a_frame_measures_every_deformable_in_every_other_closed_object():
     """Two overlapping balls and an open sheet: each ball's display in the other, the sheet in
     both, nothing in the sheet (it has no inside); the frame's worst is over the inner object's
