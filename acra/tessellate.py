@@ -138,6 +138,13 @@ class MeshTopology:
         gives ``a b c``, ``a c d``, as `GridTopology.triangles` and a USD client's fan):
         ``(t, 3) int64``."""
         counts = np.asarray(self.counts, np.int64)
+        quads = int(np.count_nonzero(counts == 4))
+        if np.all(counts[:quads] == 4) and np.all(counts[quads:] == 3):
+            # the adaptive mesh's layout, its quads then its fans' triangles: two block copies
+            q = np.asarray(self.indices[:4 * quads], np.int64).reshape(-1, 4)
+            fans = np.empty((quads, 2, 3), np.int64)
+            fans[:, 0], fans[:, 1, 0], fans[:, 1, 1:] = q[:, :3], q[:, 0], q[:, 2:]
+            return np.concatenate([fans.reshape(-1, 3), np.asarray(self.indices[4 * quads:], np.int64).reshape(-1, 3)])
         starts = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64)
         fans = np.maximum(counts - 2, 0)
         first = np.repeat(starts, fans)

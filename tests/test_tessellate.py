@@ -286,6 +286,20 @@ def test_mesh_triangles_fan_face_by_face_as_a_usd_client():
     np.testing.assert_array_equal(topo.triangles(), [[0, 1, 2], [0, 2, 3], [4, 5, 6], [0, 2, 4], [0, 4, 6], [0, 6, 1]])
 
 
+def test_adaptive_mesh_triangles_fan_face_by_face():
+    """An adaptive mesh (its quads, then its fans' triangles) splits into the same triangles,
+    face by face, as a fan from each face's first vertex."""
+    hs = H.from_grid(*shapes.torus(8, 7), depth=4)
+    topo = T.adaptive_topology(hs.u, hs.v, 3, _random_levels(hs, 5))
+    assert set(topo.counts) == {3, 4}
+    at = np.r_[0, np.cumsum(topo.counts)]
+    expected = [[topo.indices[a], topo.indices[a + k], topo.indices[a + k + 1]]
+                for a, n in zip(at[:-1], topo.counts) for k in range(1, n - 1)]
+    tris = topo.triangles()
+    assert tris.dtype == np.int64
+    np.testing.assert_array_equal(tris, expected)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_lattice_keys_positions_and_columns_equal_numpy_s(seed):
     """`acra.lattice.unique_keys` (the adaptive topology's vertex keys, bucketed by column) gives
