@@ -19,7 +19,7 @@ from numba import njit
 
 from .basis import Direction
 from .hspline import Details, HSpline, details, evaluate, surface_normals
-from .lattice import search, unique_keys
+from .lattice import unique_keys
 
 __all__ = [
     "GridTopology",
@@ -138,6 +138,13 @@ class MeshTopology:
         gives ``a b c``, ``a c d``, as `GridTopology.triangles` and a USD client's fan):
         ``(t, 3) int64``."""
         counts = np.asarray(self.counts, np.int64)
+        quads = int(np.count_nonzero(counts == 4))
+        if np.all(counts[:quads] == 4) and np.all(counts[quads:] == 3):
+            # the adaptive mesh's layout, its quads then its fans' triangles: two block copies
+            q = np.asarray(self.indices[:4 * quads], np.int64).reshape(-1, 4)
+            fans = np.empty((quads, 2, 3), np.int64)
+            fans[:, 0], fans[:, 1, 0], fans[:, 1, 1:] = q[:, :3], q[:, 0], q[:, 2:]
+            return np.concatenate([fans.reshape(-1, 3), np.asarray(self.indices[4 * quads:], np.int64).reshape(-1, 3)])
         starts = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64)
         fans = np.maximum(counts - 2, 0)
         first = np.repeat(starts, fans)
@@ -258,66 +265,70 @@ def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.nd
     cu, cv, ch = np.concatenate(cu), np.concatenate(cv), np.concatenate(ch)
     order = np.lexsort((cv, cu))
     cu, cv, ch = cu[order], cv[order], ch[order]
-    corners = [(cu, cv), (cu + ch, cv), (cu + ch, cv + ch), (cu, cv + ch)]  # counter-clockwise
-    w = nv_l + 1  # a key is u * w + v (`acra.lattice`: sorted keys, searched within their column)
-    lattice, first = unique_keys(np.concatenate([wrap_u(a) for a, _ in corners]),
-                                 np.concatenate([wrap_v(b) for _, b in corners]), nu_l, w)
+    nc = len(cu)
+    # corners counter-clockwise on the lattice (a lower corner is inside the domain, the upper
+    # one wraps onto a periodic seam)
+    u1, v1 = cu + ch, cv + ch
+    wu1, wv1 = wrap_u(u1), wrap_v(v1)
+    corners = [(cu, cv), (wu1, cv), (wu1, wv1), (cu, wv1)]
+    w = nv_l + 1  # a key is u * w + v (`acra.lattice`: sorted keys, bucketed by column)
+    cu4, cv4 = np.concatenate([a for a, _ in corners]), np.concatenate([b for _, b in corners])
+    lattice, first, at = unique_keys(cu4, cv4, nu_l, w)
+    by_v, first_v, at_v = unique_keys(cv4, cu4, nv_l, nu_l + 1)  # the same vertices, v-major
+    pos, pos_v = at.reshape(4, nc), at_v.reshape(4, nc)  # corner c of every cell: its vertex, u- and v-major
+    v_to_u = np.empty(len(by_v), np.int64)
+    v_to_u[at_v] = at
 
-    # vertices strictly inside each cell edge: a finer neighbour's
-    by_v, first_v = unique_keys(lattice % w, lattice // w, nv_l, nu_l + 1)  # rows: v-major keys
-
-    def inner_u(a, b, vv):  # vertices on the line v = vv strictly between u = a and u = b (a < b)
-        kv = wrap_v(vv) * (nu_l + 1)
-        return search(by_v, first_v, nu_l + 1, kv + a, True), search(by_v, first_v, nu_l + 1, kv + b, False)
-
-    def inner_v(a, b, uu):  # vertices on the line u = uu strictly between v = a and v = b
-        ku = wrap_u(uu) * w
-        return search(lattice, first, w, ku + a, True), search(lattice, first, w, ku + b, False)
-
-    spans = [inner_u(cu, cu + ch, cv), inner_v(cv, cv + ch, cu + ch), inner_u(cu, cu + ch, cv + ch), inner_v(cv, cv + ch, cu)]
-    extra = np.zeros(len(cu), bool)
+    # vertices strictly inside each cell edge (a finer neighbour's): on the edge's line, in the
+    # order along it (v-major for an edge along u, u-major along v), they lie between its two
+    # corners; an edge that ends on a periodic seam runs to its line's end (its far corner wraps
+    # to the line's start)
+    seam_u = u1 == nu_l if u.periodic else np.zeros(nc, bool)
+    seam_v = v1 == nv_l if v.periodic else np.zeros(nc, bool)
+    spans = [(pos_v[0] + 1, np.where(seam_u, first_v[cv + 1], pos_v[1])),
+             (pos[1] + 1, np.where(seam_v, first[wu1 + 1], pos[2])),
+             (pos_v[3] + 1, np.where(seam_u, first_v[wv1 + 1], pos_v[2])),
+             (pos[0] + 1, np.where(seam_v, first[cu + 1], pos[3]))]
+    extra = np.zeros(nc, bool)
     for lo, hi in spans:
         extra |= hi > lo
-    corner_keys = [key(a, b) for a, b in corners]
     plain = np.nonzero(~extra)[0]
-    quads = np.stack([ck[plain] for ck in corner_keys], axis=1)
-    # each split cell's ring, counter-clockwise: per side its corner, then the vertices strictly
-    # inside the side (a finer neighbour's), sides 2 and 3 walked backwards; all cells at once,
-    # as (cell, side, position) rows sorted into rings
+    # each split cell's ring of vertices (rows of ``lattice``), counter-clockwise: per side its
+    # corner, then the vertices strictly inside the side, sides 2 and 3 walked backwards; all
+    # cells at once, as (cell, side, position) rows sorted into rings
     cells = np.nonzero(extra)[0]
-    owner, order, keys = [], [], []
+    owner, order, ring = [], [], []
     for side, (lo, hi) in enumerate(spans):
         owner.append(cells)
         order.append(np.full(len(cells), 2 * side))  # the corner before the side's inner vertices
-        keys.append(corner_keys[side][cells])
+        ring.append(pos[side][cells])
         n = (hi - lo)[cells]
         own = np.repeat(cells, n)
         step = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)  # 0..n-1 within each cell
-        at = np.repeat(lo[cells], n) + step if side in (0, 1) else np.repeat(hi[cells], n) - 1 - step
-        if side == 0:
-            inner = key(by_v[at] % (nu_l + 1), cv[own])
-        elif side == 2:
-            inner = key(by_v[at] % (nu_l + 1), cv[own] + ch[own])
-        else:
-            inner = lattice[at]
+        inner = np.repeat(lo[cells], n) + step if side in (0, 1) else np.repeat(hi[cells], n) - 1 - step
         owner.append(own)
         order.append(2 * side + 1 + step / max(1, int(n.max(initial=0)) + 1))
-        keys.append(inner)
-    owner, order, keys = np.concatenate(owner), np.concatenate(order), np.concatenate(keys)
+        ring.append(v_to_u[inner] if side in (0, 2) else inner)
+    owner, order, ring = np.concatenate(owner), np.concatenate(order), np.concatenate(ring)
     rank = np.lexsort((order, owner))
-    owner, ring = owner[rank], keys[rank]
-    first = np.searchsorted(owner, owner, side="left")
-    length = np.searchsorted(owner, owner, side="right") - first
-    following = first + (np.arange(len(ring)) - first + 1) % np.maximum(length, 1)
-    centre_keys = key(cu[cells] + ch[cells] // 2, cv[cells] + ch[cells] // 2)
-    centre = centre_keys[np.searchsorted(cells, owner)]
-    fans = [np.stack([centre, ring, ring[following]], axis=1)] if len(ring) else []
-    every = np.concatenate([lattice, np.asarray(centre_keys, np.int64)])
-    lattice, first = unique_keys(every // w, every % w, nu_l, w)
-    index = lambda keys: search(lattice, first, w, np.ascontiguousarray(keys).reshape(-1), False).reshape(keys.shape)  # noqa: E731
-    tris = index(np.concatenate(fans)) if fans else np.zeros((0, 3), np.int64)
+    owner, ring = owner[rank], ring[rank]
+    start = np.searchsorted(owner, owner, side="left")
+    length = np.searchsorted(owner, owner, side="right") - start
+    following = start + (np.arange(len(ring)) - start + 1) % np.maximum(length, 1)
+    # a split cell's centre is inside it, so no corner and no other centre: the mesh's vertices
+    # are the corners' and the centres', and one more sort places both
+    if len(cells):
+        centre = key(cu[cells] + ch[cells] // 2, cv[cells] + ch[cells] // 2)
+        every = np.concatenate([lattice, centre])
+        lattice, _, at = unique_keys(every // w, every % w, nu_l, w)
+        row, centre = at[:len(every) - len(cells)], at[len(every) - len(cells):]
+    else:
+        row = np.arange(len(lattice), dtype=np.int64)
+    quads = row[pos[:, plain].T]
+    tris = np.stack([centre[np.searchsorted(cells, owner)], row[ring], row[ring[following]]], axis=1) \
+        if len(ring) else np.zeros((0, 3), np.int64)
     counts = np.r_[np.full(len(quads), 4, np.int64), np.full(len(tris), 3, np.int64)]
-    indices = np.r_[index(quads).reshape(-1), tris.reshape(-1)].astype(np.int64)
+    indices = np.r_[quads.reshape(-1), tris.reshape(-1)].astype(np.int64)
     lu, lv = np.divmod(lattice, nv_l + 1)
     step = float(s << top)
     return MeshTopology(lu / step, lv / step, counts, indices)

@@ -84,6 +84,7 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
     object space), and set ``result.topologies``. Returns the milliseconds spent per frame (a
     surface's evaluation is charged to the first frame that shows it)."""
     ms: dict[int, float] = {f: 0.0 for f in result.frames}
+    memo: dict = {}  # `grid_samples`' memo: each vertex's cells on a topology, shared by its frames
     for model in scene.deformables:
         topo = topologies[model.path]
         done: dict = {}  # id(surface) -> (surface, points, normals, limit normals)
@@ -98,7 +99,7 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
                     last[0], surface_details(last[0], density), r.surface, det, _cell_level(r.surface)))
                 if since is not None and since[2].all():
                     since = None
-                pts, limit = grid_samples(r.surface, topo, det, since)
+                pts, limit = grid_samples(r.surface, topo, det, since, memo)
                 hit = done[id(r.surface)] = (r.surface, pts, pole_normals(r.surface, topo, pts, limit), limit)
                 ms[f] += 1e3 * (time.perf_counter() - t0)
             last = hit

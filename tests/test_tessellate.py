@@ -286,25 +286,38 @@ def test_mesh_triangles_fan_face_by_face_as_a_usd_client():
     np.testing.assert_array_equal(topo.triangles(), [[0, 1, 2], [0, 2, 3], [4, 5, 6], [0, 2, 4], [0, 4, 6], [0, 6, 1]])
 
 
+def test_adaptive_mesh_triangles_fan_face_by_face():
+    """An adaptive mesh (its quads, then its fans' triangles) splits into the same triangles,
+    face by face, as a fan from each face's first vertex."""
+    hs = H.from_grid(*shapes.torus(8, 7), depth=4)
+    topo = T.adaptive_topology(hs.u, hs.v, 3, _random_levels(hs, 5))
+    assert set(topo.counts) == {3, 4}
+    at = np.r_[0, np.cumsum(topo.counts)]
+    expected = [[topo.indices[a], topo.indices[a + k], topo.indices[a + k + 1]]
+                for a, n in zip(at[:-1], topo.counts) for k in range(1, n - 1)]
+    tris = topo.triangles()
+    assert tris.dtype == np.int64
+    np.testing.assert_array_equal(tris, expected)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_lattice_keys_and_searches_equal_numpy_s(seed):
-    """`acra.lattice` (the adaptive topology's vertex keys, bucketed by column) gives
-    ``np.unique``'s keys and ``np.searchsorted``'s positions, both sides, for keys present and
-    absent, in every column and past the last."""
+def test_lattice_keys_positions_and_columns_equal_numpy_s(seed):
+    """`acra.lattice.unique_keys` (the adaptive topology's vertex keys, bucketed by column) gives
+    ``np.unique``'s keys and inverse, and each column's start as ``np.searchsorted`` finds it,
+    for empty columns and past the last."""
     from acra import lattice
 
     rng = np.random.default_rng(seed)
     ni, w = int(rng.integers(1, 60)), int(rng.integers(1, 40))
     n = int(rng.integers(1, 3000))
     i, j = rng.integers(0, ni + 1, n), rng.integers(0, w, n)
-    keys, first = lattice.unique_keys(i, j, ni, w)
-    np.testing.assert_array_equal(keys, np.unique(i * w + j))
-    assert keys.dtype == np.int64 and first[-1] == keys.size
-    np.testing.assert_array_equal(first[:-1], np.searchsorted(keys, np.arange(ni + 1) * w))
-    q = rng.integers(0, (ni + 2) * w, 5000)
-    for right in (False, True):
-        np.testing.assert_array_equal(lattice.search(keys, first, w, q, right),
-                                      np.searchsorted(keys, q, side="right" if right else "left"))
+    i[i == ni // 2] = 0  # an empty column inside
+    keys, first, where = lattice.unique_keys(i, j, ni, w)
+    expected, inverse = np.unique(i * w + j, return_inverse=True)
+    np.testing.assert_array_equal(keys, expected)
+    np.testing.assert_array_equal(where, inverse)
+    assert keys.dtype == where.dtype == np.int64 and first[-1] == keys.size
+    np.testing.assert_array_equal(first, np.searchsorted(keys, np.arange(ni + 2) * w))
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
