@@ -2,6 +2,7 @@
 
     python3 benchmarks/scale_curve.py                # the tables, plot and profiles of docs/scale-curve.md
     python3 benchmarks/scale_curve.py --no-profile   # timings only
+    python3 benchmarks/scale_curve.py --markdown docs/scale-curve.md   # and write them into the page
 
 A collision frame should cost what the contact region costs, not what the model costs. The test:
 `scenes/dog_head_spike.py`'s spike and jab against its head *without* the animator's detail (the
@@ -24,19 +25,30 @@ in the float32 ``acra:cvs``; the benchmark stops unless the stages' surfaces agr
 round and after the default four.
 
 Per run it processes the whole 30-frame scene with `pipeline.run.run_file` and reports median
-ms (``FrameStats``: set-up, detection, conversion, response, display tessellation, total) over
+ms (``FrameStats``: set-up, detection, conversion, response, each round's residual where the
+user looks, the run's display and its residual, total) over
 the collision frames, the median total over the free frames, and the time to compute the head's
-world patch boxes (the broad phase every frame pays); then profiles (cProfile) the frame loop
-on the collision frames at ×1 and at ×16 and lists the functions with the most own time at ×16
-and those whose own time grew most. One invocation on a shared machine: compare the ratios
-within it.
+world patch boxes (the broad phase every frame pays). Each run alternates with the same run on
+the frame loop's clock read as the process's CPU time (`cpu_clock`), which gives the median CPU
+ms per collision frame and per free frame beside the wall-clock medians: on a shared machine
+other processes' load counts far less in it. Each clock's runs are repeated (``--repeat``, 3),
+round robin over the scales: a figure is the median over the repeats of a run's median. The ×16/×1 ratios of both are stated against the goal,
+at most `GOAL` (1.5×) per collision frame and per free frame. Then it profiles (cProfile) the
+frame loop on the collision frames at ×1 and at ×16 and lists the functions with the most own
+time at ×16 and those whose own time grew most. One invocation on a shared machine: compare the
+ratios within it. ``--markdown FILE`` writes the tables between the markers
+``<!-- scale_curve.py: begin -->`` and ``<!-- scale_curve.py: end -->`` of ``FILE``, or to
+``FILE`` alone if it has no markers.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import cProfile
+import os
 import pstats
+import subprocess
 import tempfile
 import time
 from pathlib import Path
@@ -58,7 +70,21 @@ from scenes import dog_head_spike as dog
 ROOT = Path(__file__).resolve().parents[1]
 HEAD, SPIKE = "/World/Head", "/World/Jab/Spike"
 ABSORPTION = [0, 0, 0.2, 0.3, 0.5, 0, 0]  # the dog head's
-STAGES = ("ms_setup", "ms_detect", "ms_convert", "ms_respond", "ms_output", "ms_total")
+STAGES = ("ms_setup", "ms_detect", "ms_convert", "ms_respond", "ms_visible", "ms_output", "ms_total")
+GOAL = 1.5  # ×16 level-0 CVs against ×1: most growth per collision frame and per free frame
+BEGIN, END = "<!-- scale_curve.py: begin -->", "<!-- scale_curve.py: end -->"
+
+
+@contextlib.contextmanager
+def cpu_clock():
+    """Inside, ``time.perf_counter`` (the clock of `FrameStats`'s timings) reads the process's
+    CPU time (``time.process_time``), so a run's per-frame milliseconds are CPU milliseconds."""
+    wall = time.perf_counter
+    time.perf_counter = time.process_time
+    try:
+        yield
+    finally:
+        time.perf_counter = wall
 
 
 def refine_grid(cvs: np.ndarray, u_periodic: bool, v_periodic: bool) -> np.ndarray:
@@ -137,9 +163,16 @@ def boxes_ms(src: Path, density: int, repeat: int = 50) -> float:
 RUNS = ((0, 8), (1, 4), (2, 2), (2, 8))
 
 
-def run_scales(tmp: Path):
-    """Write the three stages, run each of `RUNS` (after one untimed warm-up run) and check
-    that the surfaces and the responses agree; return the rows (one per run) and stage paths."""
+def _medians(runs: list[list], collision: bool, key: str) -> float:
+    """Median over ``runs`` (each a run's `FrameStats` list) of each run's median ``key`` over
+    its collision (or free) frames."""
+    return float(np.median([np.median([getattr(s, key) for s in stats if s.in_collision == collision]) for stats in runs]))
+
+
+def run_scales(tmp: Path, repeat: int = 3):
+    """Write the three stages, run each of `RUNS` ``repeat`` times on the wall clock and as many
+    on the CPU clock, alternating (after one untimed warm-up run), and check that the surfaces
+    and the responses agree; return the rows (one per run of `RUNS`)."""
     rng = np.random.default_rng(0)
     u, v = rng.uniform(0, 16, 4000), rng.uniform(0, 9, 4000)
     srcs = []
@@ -147,18 +180,26 @@ def run_scales(tmp: Path):
         srcs.append(tmp / f"scale{scale}.usda")
         A.save(build_stage(scale, grid), srcs[-1])
     run_file(srcs[0], output=tmp / "warmup.acra.usda")  # imports, caches: not timed
+    reps, walls, cpus = {}, {r: [] for r in RUNS}, {r: [] for r in RUNS}
+    for k in range(repeat):  # round robin over the runs, so that the machine's load falls on every scale alike
+        for scale, density in RUNS:
+            rep = reps[scale, density] = run_file(srcs[scale], output=tmp / f"scale{scale}_{density}_{k}.acra.usda",
+                                                  density=density)
+            walls[scale, density].append(rep.stats)
+            with cpu_clock():  # the same run again, every stage of it on the CPU clock
+                cpus[scale, density].append(run_file(srcs[scale], output=tmp / f"scale{scale}_{density}_cpu.acra.usda",
+                                                     density=density).stats)
     rows = []
     for scale, density in RUNS:
-        src = srcs[scale]
-        rep = run_file(src, output=tmp / f"scale{scale}_{density}.acra.usda", density=density)
+        src, rep = srcs[scale], reps[scale, density]
         hit = [s for s in rep.stats if s.in_collision]
-        free = [s for s in rep.stats if not s.in_collision]
         model = next(m for m in rep.scene.deformables if m.path == HEAD)
         rows.append(dict(
             scale=4**scale, shift=scale, density=density, level0=model.nu * model.nv, dims=(model.nu, model.nv),
             frames=[s.frame for s in hit], seconds=rep.seconds, src=src, output=rep.output, scene=rep.scene,
-            free_ms=float(np.median([s.ms_total for s in free])),
-            **{k: float(np.median([getattr(s, k) for s in hit])) for k in STAGES},
+            free_ms=_medians(walls[scale, density], False, "ms_total"), cpu_ms=_medians(cpus[scale, density], True, "ms_total"),
+            cpu_free_ms=_medians(cpus[scale, density], False, "ms_total"),
+            **{k: _medians(walls[scale, density], True, k) for k in STAGES},
             residual=max(s.residual_rel for s in rep.stats), rounds=float(np.mean([s.iterations for s in hit])),
             points=head_points(Usd.Stage.Open(str(src)), rep.scene, scale, u, v, 1),
             boxes_ms=boxes_ms(src, density),
@@ -177,27 +218,70 @@ def run_scales(tmp: Path):
 
 
 def table(rows) -> str:
-    head = ["×", "head level-0 CVs", "density", "set-up", "detection", "conversion", "response", "display",
-            "**collision frame**", "rounds", "free frame", "head patch boxes", "surface vs ×1",
-            "response vs ×1 (1 round / 4)", "residual"]
+    """Median ms per frame of every run (wall clock by stage, then CPU), and the ×16/×1 ratios."""
+    head = ["×", "head level-0 CVs", "density", "set-up", "detection", "conversion", "response", "rounds' residual", "display",
+            "**collision frame**", "collision frame CPU", "rounds", "free frame", "free frame CPU", "head patch boxes",
+            "surface vs ×1", "response vs ×1 (1 round / 4)", "residual"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---:|" * len(head)]
     for r in rows:
         lines.append(
             f"| {r['scale']} | {r['level0']} ({r['dims'][0]}×{r['dims'][1]}) | {r['density']} | "
             + " | ".join(f"{r[k]:.1f}" for k in STAGES[:-1])
-            + f" | **{r['ms_total']:.1f}** | {r['rounds']:.1f} | {r['free_ms']:.2f} | {r['boxes_ms']:.2f} | {r['surface_diff']:.1e} | "
-            f"{r['response1_diff']:.1e} / {r['response_diff']:.1e} | {r['residual']:.2e} |")
+            + f" | **{r['ms_total']:.1f}** | {r['cpu_ms']:.1f} | {r['rounds']:.1f} | {r['free_ms']:.2f} | {r['cpu_free_ms']:.2f} | "
+            f"{r['boxes_ms']:.2f} | {r['surface_diff']:.1e} | {r['response1_diff']:.1e} / {r['response_diff']:.1e} | "
+            f"{r['residual']:.2e} |")
     base = rows[0]
     for big in rows[2:]:
-        lines.append(f"| ratio ×16 (density {big['density']}) / ×1 | | | " + " | ".join(f"{big[k] / base[k]:.2f}" for k in STAGES[:-1])
-                     + f" | **{big['ms_total'] / base['ms_total']:.2f}** | | {big['free_ms'] / base['free_ms']:.2f} | "
+        lines.append(f"| ratio ×16 (density {big['density']}) / ×1 | | | " + " | ".join(_ratio(big[k], base[k]) for k in STAGES[:-1])
+                     + f" | **{big['ms_total'] / base['ms_total']:.2f}** | {big['cpu_ms'] / base['cpu_ms']:.2f} | | "
+                     f"{big['free_ms'] / base['free_ms']:.2f} | {big['cpu_free_ms'] / base['cpu_free_ms']:.2f} | "
                      f"{big['boxes_ms'] / base['boxes_ms']:.2f} | | | |")
     return "\n".join(lines)
 
 
+def _ratio(a: float, b: float) -> str:
+    """``a / b`` to two decimals, or a dash where ``b`` is 0 (a stage that took no time at ×1)."""
+    return f"{a / b:.2f}" if b > 0 else "–"
+
+
+def goal_table(rows) -> str:
+    """The ×16/×1 ratios per collision frame and per free frame, wall and CPU, against `GOAL`."""
+    base, bigs = rows[0], rows[2:]
+    lines = ["| median ms per | ×1 | " + " | ".join(f"×16, density {b['density']} | ratio" for b in bigs)
+             + f" | ≤ {GOAL}× |", "|---|---:|" + "---:|---:|" * len(bigs) + ":-:|"]
+    for key, name in (("ms_total", "collision frame, wall"), ("cpu_ms", "collision frame, CPU"),
+                      ("free_ms", "free frame, wall"), ("cpu_free_ms", "free frame, CPU")):
+        ratios = [b[key] / base[key] for b in bigs]
+        lines.append(f"| {name} | {base[key]:.2f} | " + " | ".join(f"{b[key]:.2f} | {q:.2f}" for b, q in zip(bigs, ratios))
+                     + f" | {'yes' if max(ratios) <= GOAL else 'no'} |")
+    return "\n".join(lines)
+
+
+def commit_of(root: Path) -> str:
+    """Short commit of the checkout ``root`` (``+`` when it has uncommitted changes), or '?'."""
+    try:
+        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                             check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True).stdout.strip()
+        return sha + ("+" if dirty else "")
+    except (subprocess.CalledProcessError, FileNotFoundError):
+        return "?"
+
+
+def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
+    """``text`` with what lies between the lines ``begin`` and ``end`` replaced by ``block``;
+    ``block`` alone if ``text`` has no such markers."""
+    if begin not in text or end not in text:
+        return block + "\n"
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    return f"{head}{begin}\n{block}\n{end}{tail}"
+
+
 def plot(rows, path: Path) -> None:
-    """Median ms per collision frame (total and per stage) and per free frame against the head's
-    level-0 CV count, log–log, for the spatially equal runs (the first three rows), beside a line
+    """Median ms per collision frame (total and per stage) and per free frame (wall, and the
+    totals' CPU ms) against the head's level-0 CV count, log–log, for the spatially equal runs (the first three rows), beside a line
     proportional to the CV count; further rows are starred points."""
     import matplotlib
 
@@ -212,6 +296,8 @@ def plot(rows, path: Path) -> None:
     for k, name in names.items():
         ax.plot(x, [r[k] for r in rows], "-o", lw=2.5 if k == "ms_total" else 1.2, label=name)
     ax.plot(x, [r["free_ms"] for r in rows], "--s", color="grey", label="free frame (total)")
+    ax.plot(x, [r["cpu_ms"] for r in rows], "-.o", color="C0", lw=1.2, label="collision frame (total), CPU")
+    ax.plot(x, [r["cpu_free_ms"] for r in rows], "-.s", color="dimgrey", lw=1.2, label="free frame (total), CPU")
     ax.plot(x, [r["boxes_ms"] for r in rows], ":^", color="grey", label="head patch boxes (in every frame)")
     for r in extra:
         ax.plot([r["level0"]], [r["ms_total"]], "*", ms=12, color="C0", label=f"collision frame at density {r['density']} (×16)")
@@ -221,7 +307,7 @@ def plot(rows, path: Path) -> None:
     ax.set_xticks(x, [f"×{r['scale']}: {r['level0']} CVs" for r in rows])
     ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
     ax.set_xlabel("head level-0 CVs (same surface, same contact)")
-    ax.set_ylabel("median ms per frame (wall clock, shared machine)")
+    ax.set_ylabel("median ms per frame (wall clock but the CPU lines, shared machine)")
     ax.set_title("dog-head spike jab on the plain head, level-0 grid exactly refined ×1 / ×4 / ×16", fontsize=10)
     ax.grid(True, which="both", lw=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
@@ -265,24 +351,37 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--plot", type=Path, default=ROOT / "docs" / "img" / "scale_curve.png")
     ap.add_argument("--no-profile", action="store_true")
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs per clock and scale (default 3)")
+    ap.add_argument("--markdown", type=Path, help="write the tables between this file's markers (see the docstring)")
     args = ap.parse_args()
-    t0 = time.perf_counter()
+    t0, load, label = time.perf_counter(), os.getloadavg(), commit_of(ROOT)
+    parts = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        rows = run_scales(tmp)
-        print(table(rows))
-        print(f"\ncollision frames: {', '.join(str(r['frames']) for r in rows)}; whole-run s: "
-              + ", ".join(f"{r['seconds']:.1f}" for r in rows))
+        rows = run_scales(tmp, args.repeat)
+        parts += [table(rows), f"Against the goal (×16 at most {GOAL}× ×1):", goal_table(rows),
+                  f"Collision frames: {', '.join(str(r['frames']) for r in rows)}; whole-run s: "
+                  + ", ".join(f"{r['seconds']:.1f}" for r in rows) + "."]
         plot(rows, args.plot)
         if not args.no_profile:
             hit = rows[0]["frames"]
             frames = list(range(hit[0], hit[-1] + 1))
             stats = [profile(r["src"], frames, r["density"]) for r in rows]
             for i in (2, 3):
-                print(f"\ncProfile of the frame loop on the collision frames {frames[0]}–{frames[-1]}: ×1 (density 8) and "
-                      f"×16 (density {rows[i]['density']}); top own time at ×16, then most grown:\n")
-                print(profile_table(stats[0], stats[i]))
-    print(f"\nplot: {args.plot}; benchmark wall time {time.perf_counter() - t0:.0f} s")
+                parts += [f"**cProfile of the frame loop on the collision frames {frames[0]}–{frames[-1]}: ×1 (density 8) "
+                          f"and ×16 (density {rows[i]['density']})**; top own time at ×16, then most grown:",
+                          profile_table(stats[0], stats[i])]
+    wall = time.perf_counter() - t0
+    command = "python3 benchmarks/scale_curve.py" + (" --no-profile" if args.no_profile else "") + (
+        f" --repeat {args.repeat}" if args.repeat != 3 else "")
+    parts.insert(0, f"Generated by `{command}` at `{label}`, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}: "
+                    f"{wall:.0f} s wall, load average {load[0]:.1f} at the start. Times are median ms per frame.")
+    block = "\n\n".join(parts)
+    print(block)
+    if args.markdown:
+        old = args.markdown.read_text(encoding="utf-8") if args.markdown.exists() else ""
+        args.markdown.write_text(replace_block(old, block), encoding="utf-8")
+    print(f"\nplot: {args.plot}; benchmark wall time {wall:.0f} s")
 
 
 if __name__ == "__main__":
