@@ -24,7 +24,7 @@ from acra import narrow
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
 from pipeline.grids import boxes_near
-from pipeline.shape import Closest, Shape, bvh as _bvh, overlap as _overlap, shape_of
+from pipeline.shape import Closest, Shape, bvh as _bvh, content_digest, overlap as _overlap, shape_of
 
 if TYPE_CHECKING:
     import trimesh
@@ -58,6 +58,12 @@ class ColliderStatic:
     @cached_property
     def index(self) -> Closest:
         return Closest(self.mesh.vertices, self.mesh.faces, self.bvh)
+
+    @cached_property
+    def digest(self) -> bytes:
+        """The mesh's content (path, vertices and faces, `shape.content_digest`): what every
+        answer on it depends on besides the matrix."""
+        return content_digest(self.path, self.mesh.vertices, self.mesh.faces)
 
     @cached_property
     def solid(self):
@@ -130,6 +136,12 @@ class ColliderGeometry:
     def size(self) -> float:
         return float(np.linalg.norm(np.ptp(self.vertices, axis=0)))
 
+    @cached_property
+    def content(self) -> tuple:
+        """What detection's answers on this collider depend on: its mesh's digest and the
+        matrix's bytes."""
+        return ("collider", self.static.digest, np.ascontiguousarray(self.xform, np.float64).tobytes())
+
 
 @dataclass(frozen=True, eq=False)
 class Tessellation:
@@ -160,6 +172,13 @@ class SurfaceGeometry:
     @cached_property
     def shape(self) -> Shape:
         return shape_of(self.surface, self.density, self.max_density)
+
+    @cached_property
+    def content(self) -> tuple:
+        """What this geometry's world data and detection's answers depend on: the surface's
+        content (`Shape.digest`), the matrix's bytes and the densities."""
+        return ("surface", self.shape.digest, np.ascontiguousarray(self.xform, np.float64).tobytes(),
+                self.density, self.max_density)
 
     @property
     def details(self) -> H.Details | None:
@@ -381,10 +400,24 @@ def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarra
     return narrow.triangles_near(box_a, box_b, pad, rounds)
 
 
+_ANSWERS: dict[tuple, Intersections] = {}  # `intersect`'s answers by the pair's content, most recent last
+ANSWERS_KEPT = 8
+
+
 def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     """Triangle pairs where the surfaces cross or touch. Tessellates only patches whose boxes meet
     the other object's box; ``A``'s triangles go into a collider's object space (crossing is
-    affine-invariant), where its BVH was built once."""
+    affine-invariant), where its BVH was built once.
+
+    The answer is one of the two geometries' content (`SurfaceGeometry.content`,
+    `ColliderGeometry.content`): a pair asked again with the same surfaces, matrices and
+    densities (a frame's detection and its rewinding at the same time, a still object) gets the
+    kept answer; the `ANSWERS_KEPT` most recent are kept."""
+    return _kept(_ANSWERS, (ga.content, gb.content), lambda: _intersect(ga, gb), ANSWERS_KEPT)
+
+
+def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
+    """`intersect`, computed."""
     collider = isinstance(gb, ColliderGeometry)
     pad = pair_pad(ga, gb)
     empty = np.zeros((0, 2), np.int64)

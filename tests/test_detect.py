@@ -751,3 +751,27 @@ def test_collider_inside_agrees_with_ray_parity_near_and_far(seed):
     assert len(depth) == int(want.sum())
     far = st.index.query(local)[0] > D.SIDE_SURE * size
     assert 0.2 < far.mean() < 0.8 and 0 < want[far].sum() < far.sum()  # both rules answer some points
+
+
+def test_intersect_answers_are_kept_by_content_and_never_served_for_other_content():
+    """`intersect` keeps its answers by the pair's content: the same surface content and matrices
+    in new objects get the kept answer, a moved matrix or changed CVs (one ulp) a new one that
+    says what the new pair does, and at most `ANSWERS_KEPT` answers are kept."""
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    a = D.SurfaceGeometry(hs, move(), "/a")
+    b = D.SurfaceGeometry(hs, move(1.5, 0.0, 0.0), "/b")
+    first = D.intersect(a, b)
+    assert first.crosses
+    again = D.intersect(D.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(), "/a"), D.SurfaceGeometry(hs, move(1.5, 0.0, 0.0), "/b"))
+    assert again is first
+    apart = D.intersect(a, D.SurfaceGeometry(hs, move(3.5, 0.0, 0.0), "/b"))  # the matrix moved b clear
+    assert not apart.crosses
+    shrunk = D.intersect(D.SurfaceGeometry(H.with_cvs(hs, 0.5 * hs.cvs), move(), "/a"), b)  # the CVs changed
+    assert not shrunk.crosses
+    cvs = hs.cvs.copy()
+    cvs[0, 0, 0] = np.nextafter(cvs[0, 0, 0], np.inf)
+    assert D.intersect(D.SurfaceGeometry(H.with_cvs(hs, cvs), move(), "/a"), b) is not first
+    for k in range(2 * D.ANSWERS_KEPT):
+        D.intersect(a, D.SurfaceGeometry(hs, move(1.0 + 0.01 * k, 0.0, 0.0), "/b"))
+    assert len(D._ANSWERS) == D.ANSWERS_KEPT
+    assert D.intersect(a, b) is not first and D.intersect(a, b).count == first.count
