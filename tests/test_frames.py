@@ -187,3 +187,19 @@ def test_set_up_the_display_measure_triggers_is_counted_as_set_up(tiny_stage, mo
     assert st.in_collision and len(calls) == st.iterations + 1
     assert st.ms_setup >= 30.0 * len(calls)
     assert st.ms_visible < sum(calls) + 15.0  # without the 150 ms the measures did not spend
+
+
+def test_each_round_measures_its_displays_once(tiny_stage, monkeypatch):
+    """A round's display measure (`residual.measure_frame`) is taken once, at the round's start:
+    the round's judge, the skip of detection (`_Run._displays_judge`) and the kept round's
+    residual all read that one measure."""
+    from pipeline import residual
+    from pipeline import usdio
+
+    measure = residual.measure_frame
+    calls = []
+    monkeypatch.setattr(residual, "measure_frame", lambda *a, **k: calls.append(1) or measure(*a, **k))
+    stage = usdio.open_input(tiny_stage(frames=3, depth=0.1))
+    scene = usdio.read_scene(stage)
+    _, (st,) = F.respond_frames(stage, scene, [3])
+    assert st.in_collision and len(calls) == st.iterations + 1
