@@ -26,8 +26,8 @@ from pipeline import queries
 from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
                             timed)
 
-__all__ = ["content_digest", "surface_digest", "PatchGrid", "GridSet", "GridCache", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh",
-           "overlap"]
+__all__ = ["PatchGrid", "GridSet", "GridCache", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh",
+           "overlap", "content_digest", "surface_digest"]
 
 
 class Shape:
