@@ -271,6 +271,36 @@ def exit_contact(ga: D.SurfaceGeometry, gb: D.Geometry, ra: D.Region, rb: D.Regi
     return pr.uv[0], None if rb.uv is None else rb.uv[i], local_b, pr.points[0], pb
 
 
+_AT: dict = {}  # `_point_at`, `_normal_at` and `_outward` answers by content, most recent last
+AT_KEPT = 16
+
+
+def _at(kind: str, geom: D.Geometry, where: np.ndarray, make) -> np.ndarray:
+    """``make()``, kept by ``kind``, the geometry's content (`SurfaceGeometry.content`,
+    `ColliderGeometry.content`) and the material point ``where`` (its bytes): a frame's detection
+    and its rewinding at the same time, and every frame's look at the first touch, ask for the
+    same anchor points on the same input (`AT_KEPT` most recent kept). Read-only: callers share it."""
+    def made():
+        out = make()
+        out.setflags(write=False)
+        return out
+    where = np.ascontiguousarray(where, np.float64)
+    return D._kept(_AT, (kind, geom.content, where.tobytes()), made, AT_KEPT)
+
+
+def _point_at(geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
+    """World point ``(3,)`` of a deformable at ``uv (2,)``."""
+    return _at("point", geom, uv, lambda: D.surface_points(geom, uv).points[0])
+
+
+def _normal_at(geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
+    """World unit normal ``(3,)`` along ``du × dv`` of a deformable at ``uv (2,)``."""
+    def make():
+        u = np.asarray(uv, np.float64).reshape(1, 2)
+        return D.world_normals(geom, H.surface_normals(geom.surface, u[:, 0], u[:, 1], det=geom.details)[1])[0]
+    return _at("normal", geom, uv, make)
+
+
 def _outward(geom: D.Geometry, uv: np.ndarray | None, local: np.ndarray | None) -> np.ndarray | None:
     """World outward unit normal ``(3,)`` of a closed ``geom`` at a material point: ``uv (2,)`` on a
     deformable, object-space ``local (3,)`` on a collider (its nearest face's normal); ``None``
@@ -278,13 +308,18 @@ def _outward(geom: D.Geometry, uv: np.ndarray | None, local: np.ndarray | None) 
     if not D.is_closed(geom):
         return None
     if isinstance(geom, D.ColliderGeometry):
-        mesh = geom.static.mesh
-        face = geom.static.index.query(np.asarray(local, np.float64).reshape(1, 3))[2][0]
-        n = mesh.face_normals[face] * (1.0 if mesh.volume >= 0 else -1.0)
-    else:
-        uv = np.asarray(uv, np.float64).reshape(1, 2)
-        n = geom.shape.outward * H.surface_normals(geom.surface, uv[:, 0], uv[:, 1], det=geom.details)[1][0]
-    return D.world_normals(geom, n)[0]
+        def make():
+            mesh = geom.static.mesh
+            face = geom.static.index.query(np.asarray(local, np.float64).reshape(1, 3))[2][0]
+            n = mesh.face_normals[face] * (1.0 if mesh.volume >= 0 else -1.0)
+            return D.world_normals(geom, n)[0]
+        return _at("outward", geom, local, make)
+
+    def make():
+        u = np.asarray(uv, np.float64).reshape(1, 2)
+        n = geom.shape.outward * H.surface_normals(geom.surface, u[:, 0], u[:, 1], det=geom.details)[1][0]
+        return D.world_normals(geom, n)[0]
+    return _at("outward", geom, uv, make)
 
 
 def depth_along(ga: D.SurfaceGeometry, gb: D.Geometry, anchor: Anchor, pa: np.ndarray, pb: np.ndarray) -> float:
@@ -311,11 +346,10 @@ def depth_along(ga: D.SurfaceGeometry, gb: D.Geometry, anchor: Anchor, pa: np.nd
 def _own_slide(now: D.SurfaceGeometry, then: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
     """How far the material point at ``uv (2,)`` of a deformable's input moved from ``then`` to
     ``now`` within its own tangent plane at ``now``: ``(3,) float64``, world."""
-    uv = np.asarray(uv, np.float64).reshape(1, 2)
-    move = D.surface_points(now, uv).points[0] - D.surface_points(then, uv).points[0]
+    move = _point_at(now, uv) - _point_at(then, uv)
     if not np.any(move):
         return np.zeros(3)
-    n = D.world_normals(now, H.surface_normals(now.surface, uv[:, 0], uv[:, 1], det=now.details)[1])[0]
+    n = _normal_at(now, uv)
     return move - (move @ n) * n
 
 
@@ -350,8 +384,8 @@ def slide_since(geometry_at: GeometryAt, anchor: Anchor, t: float) -> np.ndarray
         slide = slide - _own_slide(gb_now, gb_then, anchor.uv_b)
     if not np.any(slide):
         return slide
-    pa = D.surface_points(ga_now, anchor.uv_a).points[0]
-    pb = D.surface_points(gb_now, anchor.uv_b).points[0] if deformable_b else apply_xform(gb_now.xform, anchor.local_b[None])[0]
+    pa = _point_at(ga_now, anchor.uv_a)
+    pb = _point_at(gb_now, anchor.uv_b) if deformable_b else apply_xform(gb_now.xform, anchor.local_b[None])[0]
     return slide if np.linalg.norm(slide) > depth_along(ga_now, gb_now, anchor, pa, pb) else np.zeros(3)
 
 
@@ -383,8 +417,8 @@ def detect_pair(ga: D.SurfaceGeometry, gb: D.Geometry, t: float = 0.0, geometry_
     anchor = None if geometry_at is None else rewind(geometry_at, t, start, cache, max_back, steps)
     if anchor is not None:
         uv_a, uv_b, local_b, t_c = anchor.uv_a, anchor.uv_b, anchor.local_b, anchor.t_contact
-        pa = D.surface_points(ga, uv_a).points[0]
-        pb = apply_xform(gb.xform, local_b[None])[0] if local_b is not None else D.surface_points(gb, uv_b).points[0]
+        pa = _point_at(ga, uv_a)
+        pb = apply_xform(gb.xform, local_b[None])[0] if local_b is not None else _point_at(gb, uv_b)
     else:
         (uv_a, uv_b, local_b, pa, pb), t_c = (exit_contact if whole else deepest_contact)(ga, gb, ra, rb, inter), float(t)
     depth = max(ra.max_depth, rb.max_depth)

@@ -67,10 +67,11 @@ class FrameStats:
     """What one frame did (for the summary, the plots and the benchmark).
 
     Times are milliseconds (thesis Fig. 5.2's split): ``ms_setup`` building object-space shape data
-    (`shape.Shape`, the analogue of RAPID's initial set-up), ``ms_detect`` detection queries less
-    set-up, ``ms_convert`` contacts to data points, ``ms_respond`` the responses (``ms_respond_by``
-    per deformable path), ``ms_visible`` measuring each round's residual where the user looks
-    (`_Run.visible`), ``ms_output`` the run's display and its residual (`display.finish`);
+    (`shape.Shape`, the analogue of RAPID's initial set-up) wherever a round asks for it,
+    ``ms_detect`` detection queries less set-up, ``ms_convert`` contacts to data points less
+    set-up, ``ms_respond`` the responses (``ms_respond_by`` per deformable path), ``ms_visible``
+    measuring each round's residual where the user looks (`_Run.visible`) less set-up,
+    ``ms_output`` the run's display and its residual (`display.finish`);
     ``residual`` is the largest depth of a deformable's display inside another object in world
     units and ``residual_rel`` the largest over that deformable's display diagonal (docs/cli.md,
     *Residual penetration*): the kept round's on its own display during the loop, then the run's
@@ -488,13 +489,17 @@ class _Run:
         kept = None  # the kept round's residual, whose answers `display.finish` takes where it shows the same
         rounds = max(1, options.iterations)
         for it in range(rounds + 1):
+            setup0 = S.SetupClock.ms
             geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
             cgeoms = [D.ColliderGeometry(self.statics[j], cstates[j].xform) for j in range(len(self.statics))]
             if it == 0:  # the animator's surfaces: detection's scale stays fixed while rounds reshape them
                 sizes = [g.size for g in geoms]
-            tv = time.perf_counter()
+            # the sizes and the display measure build the shapes they read (a responded surface's
+            # patch boxes): that is set-up, as it is when detection builds them
+            tv, setup1 = time.perf_counter(), S.SetupClock.ms
             vis, by_pair = self.visible(geoms, cgeoms, enabled)
-            st.ms_visible += 1e3 * (time.perf_counter() - tv)
+            st.ms_setup += S.SetupClock.ms - setup0
+            st.ms_visible += 1e3 * (time.perf_counter() - tv) - (S.SetupClock.ms - setup1)
             if it > 0 and vis.worst_rel <= options.tolerance and self._displays_judge(geoms, enabled):
                 # every pair is judged by its displays alone and they are within the tolerance:
                 # this round ends the frame whatever detection would find

@@ -11,6 +11,7 @@ response, which changes a surface locally, re-tessellates only the patches it ch
 
 from __future__ import annotations
 
+import hashlib
 from functools import cached_property
 
 import numpy as np
@@ -26,7 +27,7 @@ from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nea
                             timed)
 
 __all__ = ["PatchGrid", "GridSet", "GridCache", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh",
-           "overlap"]
+           "overlap", "content_digest", "surface_digest"]
 
 
 class Shape:
@@ -42,6 +43,12 @@ class Shape:
         self.parent = parent
         self.bvhs = BvhCache()  # fcl BVHs of the narrow phase's world triangle sets, by content
         self.ray_meshes: dict[bytes, object] = {}  # merged grids that rays were cast on (`queries.cast`)
+
+    @cached_property
+    def digest(self) -> bytes:
+        """The surface's content (`surface_digest`), found once per surface object: what
+        answers kept by content (`detect.intersect`, a geometry's world data) are kept under."""
+        return surface_digest(self.surface)
 
     @property
     def grids(self) -> dict[tuple[int, int], PatchGrid]:
@@ -193,6 +200,30 @@ class Shape:
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """First hits of object-space rays on the collision grids (`queries.cast`)."""
         return queries.cast(self, origins, directions)
+
+
+def content_digest(*parts) -> bytes:
+    """A 16-byte digest of ``parts`` (arrays by dtype, shape and bytes, anything else by its
+    ``repr``): equal content gives an equal digest whichever objects hold it, and other content
+    another, so an answer kept under it is never served for other data (an ``id()`` can be
+    reused by a new array once the old one is freed)."""
+    h = hashlib.blake2b(digest_size=16)
+    for x in parts:
+        if isinstance(x, np.ndarray):
+            x = np.ascontiguousarray(x)
+            h.update(f"{x.dtype.str}{x.shape}".encode())
+            h.update(x.data)
+        else:
+            h.update(repr(x).encode())
+        h.update(b"|")
+    return h.digest()
+
+
+def surface_digest(hs: HSpline) -> bytes:
+    """`content_digest` of an H-spline: its directions, depth, level-0 CVs and every fine level's
+    active patches, CVs, offsets and movability (all a point of it depends on)."""
+    fine = [x for lev in hs.fine for x in (lev.k, lev.patches, lev.cv_keys, lev.offsets, lev.movable)]
+    return content_digest(hs.u, hs.v, hs.depth, hs.cvs, *fine)
 
 
 _SHAPES: dict = {}  # id(surface) -> (surface, density, max_density, Shape), most recent last

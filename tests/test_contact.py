@@ -205,3 +205,34 @@ def test_a_contact_that_goes_in_farther_than_it_slides_keeps_the_first_touch_pai
     assert c is not None and c.rewound and c.depth_along > 0.1
     assert not np.any(c.slide)
     np.testing.assert_array_equal(c.push, c.point_b - c.point_a)
+
+
+def test_anchor_points_and_normals_are_kept_by_content_and_never_served_for_other_content():
+    """`contact._point_at`, `_normal_at` and `_outward` keep their answers by the geometry's
+    content and the material point: a new geometry with the same surface and matrix gets the
+    kept answer, a moved matrix or changed CVs the answer of the new geometry, and at most
+    `AT_KEPT` answers are kept."""
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    uv = np.array([1.25, 2.5])
+    g = D.SurfaceGeometry(hs, move(0.5, 0.0, 0.0), "/s")
+    p, n, out = C._point_at(g, uv), C._normal_at(g, uv), C._outward(g, uv, None)
+    same = D.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(0.5, 0.0, 0.0), "/s")
+    assert C._point_at(same, uv) is p and C._normal_at(same, uv) is n and C._outward(same, uv, None) is out
+    rot = np.eye(4)
+    rot[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    for other in (D.SurfaceGeometry(hs, rot, "/s"), D.SurfaceGeometry(H.with_cvs(hs, 2.0 * hs.cvs), move(0.5, 0.0, 0.0), "/s")):
+        np.testing.assert_array_equal(C._point_at(other, uv), D.surface_points(other, uv).points[0])
+        ev = D.surface_points(other, uv, order=1)
+        cross = np.cross(ev.du[0], ev.dv[0])
+        np.testing.assert_allclose(C._normal_at(other, uv), cross / np.linalg.norm(cross), atol=1e-12)
+        np.testing.assert_allclose(C._outward(other, uv, None), other.shape.outward * cross / np.linalg.norm(cross), atol=1e-12)
+        assert not np.allclose(C._point_at(other, uv), p)
+    b = box(0.5)
+    local = np.array([0.5, 0.1, 0.2])  # on the box's +x face
+    np.testing.assert_allclose(C._outward(D.ColliderGeometry(b, move()), None, local), [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(C._outward(D.ColliderGeometry(b, rot), None, local), [0.0, 1.0, 0.0], atol=1e-12)
+    for k in range(2 * C.AT_KEPT):
+        C._point_at(g, np.array([0.1 * k, 0.5]))
+    assert len(C._AT) == C.AT_KEPT
+    with pytest.raises(ValueError):
+        p[0] = 0.0  # shared answers are read-only

@@ -751,3 +751,55 @@ def test_collider_inside_agrees_with_ray_parity_near_and_far(seed):
     assert len(depth) == int(want.sum())
     far = st.index.query(local)[0] > D.SIDE_SURE * size
     assert 0.2 < far.mean() < 0.8 and 0 < want[far].sum() < far.sum()  # both rules answer some points
+
+
+def test_intersect_answers_are_kept_by_content_and_never_served_for_other_content():
+    """`intersect` keeps its answers by the pair's content: the same surface content and matrices
+    in new objects get the kept answer, a moved matrix or changed CVs (one ulp) a new one that
+    says what the new pair does, and at most `ANSWERS_KEPT` answers are kept."""
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    a = D.SurfaceGeometry(hs, move(), "/a")
+    b = D.SurfaceGeometry(hs, move(1.5, 0.0, 0.0), "/b")
+    first = D.intersect(a, b)
+    assert first.crosses
+    again = D.intersect(D.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(), "/a"), D.SurfaceGeometry(hs, move(1.5, 0.0, 0.0), "/b"))
+    assert again is first
+    apart = D.intersect(a, D.SurfaceGeometry(hs, move(3.5, 0.0, 0.0), "/b"))  # the matrix moved b clear
+    assert not apart.crosses
+    shrunk = D.intersect(D.SurfaceGeometry(H.with_cvs(hs, 0.5 * hs.cvs), move(), "/a"), b)  # the CVs changed
+    assert not shrunk.crosses
+    cvs = hs.cvs.copy()
+    cvs[0, 0, 0] = np.nextafter(cvs[0, 0, 0], np.inf)
+    assert D.intersect(D.SurfaceGeometry(H.with_cvs(hs, cvs), move(), "/a"), b) is not first
+    for k in range(2 * D.ANSWERS_KEPT):
+        D.intersect(a, D.SurfaceGeometry(hs, move(1.0 + 0.01 * k, 0.0, 0.0), "/b"))
+    assert len(D._ANSWERS) == D.ANSWERS_KEPT
+    assert D.intersect(a, b) is not first and D.intersect(a, b).count == first.count
+
+
+def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
+    """Geometries with the same surface content, matrix and densities share their world grids,
+    tessellations and patch boxes (`detect._World`); a moved matrix or changed CVs get their own,
+    equal to a fresh computation, and at most `WORLDS_KEPT` contents are kept."""
+    from pipeline.model import apply_xform
+
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    patches = np.array([[0, 0], [1, 2], [3, 1]])
+    a = D.SurfaceGeometry(hs, move(0.25, 0.0, 0.0))
+    ta = D.tessellate(a, patches)
+    b = D.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(0.25, 0.0, 0.0))
+    assert b._world is a._world and b.boxes is a.boxes and D.tessellate(b, patches) is ta
+    assert D.tessellated(b).tolist() == patches.tolist()
+    for other in (D.SurfaceGeometry(hs, move(0.5, 0.0, 0.0)), D.SurfaceGeometry(H.with_cvs(hs, 1.5 * hs.cvs), move(0.25, 0.0, 0.0))):
+        assert other._world is not a._world
+        t = D.tessellate(other, patches)
+        np.testing.assert_allclose(t.points, apply_xform(other.xform, H.evaluate(other.surface, t.uv[:, 0], t.uv[:, 1]).points), atol=1e-13)
+        assert not np.allclose(t.points, ta.points)
+        lo, hi = other.shape.hulls  # the world boxes of this surface at this matrix, found afresh
+        centre = apply_xform(other.xform, (0.5 * (lo + hi)).reshape(-1, 3)).reshape(lo.shape)
+        half = ((0.5 * (hi - lo)).reshape(-1, 3) @ np.abs(other.xform[:3, :3]).T).reshape(lo.shape)
+        np.testing.assert_array_equal(other.boxes[0], centre - half)
+        np.testing.assert_array_equal(other.boxes[1], centre + half)
+    for k in range(2 * D.WORLDS_KEPT):
+        D.SurfaceGeometry(hs, move(0.01 * k, 0.0, 0.0)).boxes
+    assert len(D._WORLDS) == D.WORLDS_KEPT

@@ -154,3 +154,52 @@ def test_demo_motion_is_keyed_with_native_usd_splines(tmp_path):
     op = stage.GetPrimAtPath("/World/Mover").GetAttribute("xformOp:translateZ")
     assert op.HasSpline() and not op.GetTimeSamples()
     assert op.Get(10.5) == pytest.approx(0.175)
+
+
+def test_set_up_the_display_measure_triggers_is_counted_as_set_up(tiny_stage, monkeypatch):
+    """Shape data built while a round measures its displays (`_Run.visible`, e.g. a responded
+    surface's patch boxes) counts on ``ms_setup``, not on ``ms_visible``: a set-up of 30 ms made
+    inside every measure moves whole to ``ms_setup``."""
+    import time
+
+    from pipeline import grids
+    from pipeline import usdio
+
+    @grids.timed
+    def build():
+        time.sleep(0.03)
+
+    measured = F._Run.visible
+    calls = []  # each measure's own milliseconds, set-up included
+
+    def visible(self, *args):
+        build()
+        t = time.perf_counter()
+        try:
+            return measured(self, *args)
+        finally:
+            calls.append(1e3 * (time.perf_counter() - t))
+
+    monkeypatch.setattr(F._Run, "visible", visible)
+    stage = usdio.open_input(tiny_stage(frames=3, depth=0.1))
+    scene = usdio.read_scene(stage)
+    _, (st,) = F.respond_frames(stage, scene, [3])
+    assert st.in_collision and len(calls) == st.iterations + 1
+    assert st.ms_setup >= 30.0 * len(calls)
+    assert st.ms_visible < sum(calls) + 15.0  # without the 150 ms the measures did not spend
+
+
+def test_each_round_measures_its_displays_once(tiny_stage, monkeypatch):
+    """A round's display measure (`residual.measure_frame`) is taken once, at the round's start:
+    the round's judge, the skip of detection (`_Run._displays_judge`) and the kept round's
+    residual all read that one measure."""
+    from pipeline import residual
+    from pipeline import usdio
+
+    measure = residual.measure_frame
+    calls = []
+    monkeypatch.setattr(residual, "measure_frame", lambda *a, **k: calls.append(1) or measure(*a, **k))
+    stage = usdio.open_input(tiny_stage(frames=3, depth=0.1))
+    scene = usdio.read_scene(stage)
+    _, (st,) = F.respond_frames(stage, scene, [3])
+    assert st.in_collision and len(calls) == st.iterations + 1
