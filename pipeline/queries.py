@@ -58,7 +58,7 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     cand = np.arange(len(q))
     if shape.cv_hull is not None:
         slack = 1e-9 * shape.surface.size()
-        cand = np.nonzero((q @ shape.cv_hull[:, :3].T + shape.cv_hull[:, 3]).max(axis=1) <= slack)[0]
+        cand = np.nonzero(shape.cv_index.within(q, slack))[0]
     near = shape.nearest(q[cand])
     _, n = H.surface_normals(shape.surface, near.uv[:, 0], near.uv[:, 1], det=shape.details)
     side = shape.outward * np.einsum("ij,ij->i", q[cand] - near.points, n) < 0

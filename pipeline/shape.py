@@ -25,8 +25,65 @@ from pipeline import queries
 from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
                             timed)
 
-__all__ = ["PatchGrid", "GridSet", "GridCache", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh",
+__all__ = ["PatchGrid", "GridSet", "GridCache", "HullIndex", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh",
            "overlap"]
+
+
+class HullIndex:
+    """A convex hull (scipy ``ConvexHull``, triangulated facets) and a test of which points lie
+    within ``slack`` of it that costs what the points cost, not what the hull's facet count costs.
+
+    The hull is the union of the tetrahedra joining an interior point ``c`` (the mean of its
+    vertices) to its facets, so a point in the cone from ``c`` through facet ``f`` is inside iff it
+    is behind ``f``'s plane; a point beyond any facet plane by more than ``slack`` is outside. The
+    facet whose cone holds a point is looked up among those whose centroid direction from ``c`` is
+    nearest the point's (a kd-tree of unit directions); points whose answer this does not settle
+    (no such cone within 1e-12 of the size, or behind their facet by less than ``slack``) take the
+    test against every facet, so the answer is that test's (`within`)."""
+
+    CANDIDATES = 6  # facets tried per point, by centroid direction
+
+    def __init__(self, hull: ConvexHull) -> None:
+        self.hull = hull
+        self.equations = hull.equations
+
+    @cached_property
+    def _cones(self) -> tuple[np.ndarray, np.ndarray, cKDTree, float]:
+        """Centre ``c (3,)``, unit inward normals ``(m, 3, 3)`` of each facet's three cone sides
+        through ``c``, the kd-tree of the facets' unit centroid directions, and 1e-12 of the size."""
+        pts, tri = self.hull.points, self.hull.simplices
+        verts = pts[self.hull.vertices]
+        c = verts.mean(axis=0)
+        a, b, d = (pts[tri[:, i]] - c for i in range(3))
+        sides = np.stack([np.cross(a, b), np.cross(b, d), np.cross(d, a)], axis=1)  # (m, 3, 3)
+        sides *= np.sign(np.einsum("ij,ij->i", sides[:, 0], d))[:, None, None]  # towards the third corner
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sides /= np.linalg.norm(sides, axis=2, keepdims=True)  # a degenerate cone gets NaN: never holds a point
+        mid = a + b + d
+        mid /= np.linalg.norm(mid, axis=1, keepdims=True)
+        return c, sides, cKDTree(mid), 1e-12 * float(np.ptp(verts, axis=0).max())
+
+    def within(self, q: np.ndarray, slack: float) -> np.ndarray:
+        """``(k,) bool``: points ``q (k, 3)`` with ``n · x + d <= slack`` for every facet."""
+        q = np.asarray(q, np.float64).reshape(-1, 3)
+        eq = self.equations
+        if len(q) * len(eq) <= 1 << 16:  # a small hull or few points: every facet at once
+            return (q @ eq[:, :3].T + eq[:, 3]).max(axis=1) <= slack
+        c, sides, tree, tol = self._cones
+        r = q - c
+        size = np.linalg.norm(r, axis=1)
+        _, cand = tree.query(r / np.maximum(size, 1e-300)[:, None], k=min(self.CANDIDATES, len(eq)))
+        cand = cand.reshape(len(q), -1)
+        cone = (np.einsum("nkij,nj->nki", sides[cand], r) >= tol).all(axis=2)  # (k, K)
+        val = np.einsum("nkj,nj->nk", eq[cand, :3], q) + eq[cand, 3]
+        hit = cone.any(axis=1)
+        own = val[np.arange(len(q)), cone.argmax(axis=1)]
+        inside = hit & (own <= 0.0)
+        res = inside.copy()
+        rest = np.nonzero(~inside & ~(val > slack).any(axis=1))[0]
+        if len(rest):
+            res[rest] = (q[rest] @ eq[:, :3].T + eq[:, 3]).max(axis=1) <= slack
+        return res
 
 
 class Shape:
@@ -168,15 +225,47 @@ class Shape:
         return self.cache.grids_for(patches)
 
     @cached_property
-    @timed
     def cv_hull(self) -> np.ndarray | None:
         """Half-spaces ``(m, 4) float64`` of the convex hull of every level's CV positions, a point
         ``x`` within it iff ``n · x + d <= 0`` for every row ``(n, d)``; ``None`` if the CVs are
         flat. The surface lies in it (B-spline convex hull property: a fine level's net is the
         refined coarser net plus details, and refinement takes convex combinations), so do its
-        collision grids and, for a closed surface, everything they enclose."""
+        collision grids and, for a closed surface, everything they enclose (`cv_index`)."""
+        index = self.cv_index
+        return None if index is None else index.equations
+
+    @cached_property
+    def _level0_index(self) -> "HullIndex | None":
+        """`HullIndex` of the level-0 CVs (``None`` if flat); the parent's where the level-0 CVs
+        are the same (a response that leaves level 0 keeps its hull)."""
+        p, cvs = self.parent, self.surface.cvs
+        if p is not None and (p.surface.cvs is cvs or np.array_equal(p.surface.cvs, cvs)):
+            return p._level0_index
         try:
-            return ConvexHull(np.concatenate(self.cv_positions)).equations
+            return HullIndex(ConvexHull(cvs.reshape(-1, 3)))
+        except QhullError:
+            return None
+
+    @cached_property
+    @timed
+    def cv_index(self) -> "HullIndex | None":
+        """`HullIndex` of every level's CV positions (`cv_hull`). A fine CV with a zero detail
+        vector is a convex combination of the coarser level's CVs (refinement weights are
+        non-negative and sum to 1), so by induction the hull of every level is the hull of level 0
+        plus the CVs with detail; of those only the ones outside level 0's hull can add to it. A
+        response that moves the surface inwards therefore keeps level 0's hull, shared, with no
+        new qhull; otherwise the hull of level 0's hull vertices and those CVs."""
+        base = self._level0_index
+        det = self.details
+        moved = [pos[np.any(vec != 0.0, axis=1)] for pos, vec in zip(self.cv_positions[1:], det.vectors)] if det else []
+        moved = np.concatenate(moved) if moved else np.zeros((0, 3))
+        try:
+            if base is None:  # flat level 0: the details alone can give the hull a volume
+                return HullIndex(ConvexHull(np.concatenate(self.cv_positions)))
+            out = moved[~base.within(moved, 0.0)]
+            if not len(out):
+                return base
+            return HullIndex(ConvexHull(np.concatenate([base.hull.points[base.hull.vertices], out])))
         except QhullError:
             return None
 

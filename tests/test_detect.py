@@ -623,6 +623,53 @@ def test_points_outside_the_cv_hull_are_outside_without_a_search():
     assert (p @ hulled.cv_hull[:, :3].T + hulled.cv_hull[:, 3]).max() <= 1e-12
 
 
+def test_hull_index_answers_as_every_facet():
+    """`HullIndex.within` (the facet whose cone from the centre holds a point, every facet only
+    where that does not settle it) answers as the test against every facet: random points in and
+    around a 64x48 ellipsoid net's hull (5,000 facets), the CVs themselves and points within
+    1e-10 of them, at the slack `Shape.signed` uses and at none."""
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(5)
+    cvs = shapes.sphere(64, 48, radii=(1.0, 0.85, 0.9))[0].reshape(-1, 3)
+    index = S.HullIndex(ConvexHull(cvs))
+    eq = index.equations
+    q = np.concatenate([rng.uniform(-1.2, 1.2, (20000, 3)), cvs * (1 + rng.normal(size=(len(cvs), 1)) * 1e-10), cvs])
+    every = q @ eq[:, :3].T + eq[:, 3]
+    np.testing.assert_array_equal(index.within(q, 1e-9), every.max(axis=1) <= 1e-9)
+    got = index.within(q, 0.0)
+    exact = every.max(axis=1)
+    decided = np.abs(exact) > 1e-15  # a point on a facet plane: either answer is the rounding's
+    np.testing.assert_array_equal(got[decided], exact[decided] <= 0.0)
+
+
+@pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
+def test_a_responded_shape_s_cv_hull_is_level_0_s_and_its_moved_cvs(seed, absorption):
+    """`Shape.cv_hull` of a responded shape, built from level 0's hull and the CVs with details
+    alone, is the hull of every level's CVs: each CV within 1e-12 of the size of it, and each of
+    its half-spaces holds a hull of every CV within 1e-12 (no larger). A response that leaves level
+    0 shares its parent's level-0 hull, and where no CV with a detail leaves it, takes it whole."""
+    from scipy.spatial import ConvexHull
+
+    hs, out, rep, _, _ = _responded_sphere(seed, absorption)
+    parent, child = S.shape_of(hs), S.shape_of(out)
+    every = np.concatenate(child.cv_positions)
+    tol = 1e-12 * out.size()
+    assert (every @ child.cv_hull[:, :3].T + child.cv_hull[:, 3]).max() <= tol
+    full = ConvexHull(every)
+    corners = full.points[full.vertices]
+    assert np.abs(corners @ child.cv_hull[:, :3].T + child.cv_hull[:, 3]).min(axis=0).max() <= tol  # every facet touches a CV
+    hull_pts = child.cv_index.hull.points[child.cv_index.hull.vertices]
+    assert (hull_pts @ full.equations[:, :3].T + full.equations[:, 3]).max() <= tol
+    same0 = np.array_equal(out.cvs, hs.cvs)
+    assert (child._level0_index is parent._level0_index) == same0
+    moved = [p[np.any(v != 0, axis=1)] for p, v in zip(child.cv_positions[1:], rep.details.vectors)]
+    moved = np.concatenate(moved)
+    eq0 = child._level0_index.equations
+    if (moved @ eq0[:, :3].T + eq0[:, 3]).max() < -1e-12:
+        assert child.cv_index is child._level0_index
+
+
 def test_face_samples_cover_a_collider_at_the_spacing():
     """`detect.face_samples`: points on the box's faces within the given bounds, the corners
     included, every face point within the spacing of a sample."""
