@@ -238,13 +238,18 @@ class Shape:
     def _level0_index(self) -> "HullIndex | None":
         """`HullIndex` of the level-0 CVs (``None`` if flat); the parent's where the level-0 CVs
         are the same (a response that leaves level 0 keeps its hull)."""
-        p, cvs = self.parent, self.surface.cvs
-        if p is not None and (p.surface.cvs is cvs or np.array_equal(p.surface.cvs, cvs)):
-            return p._level0_index
+        if self._same_level0:
+            return self.parent._level0_index
         try:
-            return HullIndex(ConvexHull(cvs.reshape(-1, 3)))
+            return HullIndex(ConvexHull(self.surface.cvs.reshape(-1, 3)))
         except QhullError:
             return None
+
+    @cached_property
+    def _same_level0(self) -> bool:
+        """Whether the parent's level-0 CVs are this surface's."""
+        p, cvs = self.parent, self.surface.cvs
+        return p is not None and (p.surface.cvs is cvs or np.array_equal(p.surface.cvs, cvs))
 
     @cached_property
     @timed
@@ -252,20 +257,25 @@ class Shape:
         """`HullIndex` of every level's CV positions (`cv_hull`). A fine CV with a zero detail
         vector is a convex combination of the coarser level's CVs (refinement weights are
         non-negative and sum to 1), so by induction the hull of every level is the hull of level 0
-        plus the CVs with detail; of those only the ones outside level 0's hull can add to it. A
-        response that moves the surface inwards therefore keeps level 0's hull, shared, with no
-        new qhull; otherwise the hull of level 0's hull vertices and those CVs."""
-        base = self._level0_index
+        plus the CVs with details. Where level 0 is the parent's, only those outside its hull
+        can add to it: a response that moves the surface inwards keeps level 0's hull, shared,
+        with no new qhull; otherwise the hull of level 0's hull vertices and those CVs."""
         det = self.details
         moved = [pos[np.any(vec != 0.0, axis=1)] for pos, vec in zip(self.cv_positions[1:], det.vectors)] if det else []
         moved = np.concatenate(moved) if moved else np.zeros((0, 3))
+        if not len(moved) or self._same_level0:
+            base = self._level0_index
+            if base is not None:
+                moved = moved[~base.within(moved, 0.0)]
+                if not len(moved):
+                    return base
+                level0 = base.hull.points[base.hull.vertices]
+            else:  # flat level 0: the details alone can give the hull a volume
+                level0 = np.concatenate(self.cv_positions)
+        else:
+            level0 = self.surface.cvs.reshape(-1, 3)
         try:
-            if base is None:  # flat level 0: the details alone can give the hull a volume
-                return HullIndex(ConvexHull(np.concatenate(self.cv_positions)))
-            out = moved[~base.within(moved, 0.0)]
-            if not len(out):
-                return base
-            return HullIndex(ConvexHull(np.concatenate([base.hull.points[base.hull.vertices], out])))
+            return HullIndex(ConvexHull(np.concatenate([level0, moved])))
         except QhullError:
             return None
 
