@@ -36,7 +36,7 @@ def nearest(shape: Shape, q: np.ndarray) -> Nearest:
     if not len(q):
         return Nearest(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)))
     lo, hi, _ = shape._boxes
-    upper = shape._coarse[2].query(q)[0]  # a surface point: the closest is no farther
+    upper = shape.coarse_index.query(q)  # a surface point: the closest is no farther
     reach = upper.max() * (1 + 1e-9) + 1e-300
     pre = np.nonzero(overlap(lo, hi, q.min(axis=0) - reach, q.max(axis=0) + reach, 0.0))[0]
     cand = pre[boxes_within(lo[pre], hi[pre], q, upper * (1 + 1e-9) + 1e-300)]

@@ -29,6 +29,42 @@ __all__ = ["PatchGrid", "GridSet", "GridCache", "HullIndex", "Shape", "SetupCloc
            "overlap"]
 
 
+@timed
+def _kd_tree(points: np.ndarray) -> cKDTree:
+    """A kd-tree of ``points (n, 3)`` (its build timed as set-up)."""
+    return cKDTree(points)
+
+
+class CoarseIndex:
+    """Distances from points to the nearest of a set of points held as a kd-tree ``tree`` of
+    other points, of which the rows ``current (n,) bool`` belong to the set (``None``: all), and
+    a kd-tree ``extra`` of the set's other points. The same distances as a kd-tree of the set:
+    each is the distance of the same nearest point, computed the same way."""
+
+    CANDIDATES = 8  # nearest tree points tried per query before looking farther
+
+    def __init__(self, tree: cKDTree, current: np.ndarray | None = None, extra: cKDTree | None = None) -> None:
+        self.tree, self.current, self.extra = tree, current, extra
+
+    def query(self, q: np.ndarray) -> np.ndarray:
+        """Distances ``(k,)`` from points ``q (k, 3)`` to the nearest point of the set."""
+        if self.current is None:
+            return self.tree.query(q)[0]
+        n = len(self.current)
+        dist, rows = self.tree.query(q, k=min(self.CANDIDATES, n))
+        dist, rows = dist.reshape(len(q), -1), rows.reshape(len(q), -1)
+        ok = self.current[rows]
+        d = np.where(ok.any(axis=1), dist[np.arange(len(q)), ok.argmax(axis=1)], np.inf)
+        far = np.nonzero(~ok.any(axis=1))[0]
+        if len(far):  # every candidate moved: enough more that one of them is current
+            k = min(n, int(n - self.current.sum()) + 1)
+            dist, rows = self.tree.query(q[far], k=k)
+            dist, rows = dist.reshape(len(far), -1), rows.reshape(len(far), -1)
+            ok = self.current[rows]
+            d[far] = dist[np.arange(len(far)), ok.argmax(axis=1)]
+        return np.minimum(d, self.extra.query(q)[0]) if self.extra is not None else d
+
+
 class HullIndex:
     """A convex hull (scipy ``ConvexHull``, triangulated facets) and a test of which points lie
     within ``slack`` of it that costs what the points cost, not what the hull's facet count costs.
@@ -177,27 +213,46 @@ class Shape:
 
     @cached_property
     @timed
-    def _coarse(self) -> tuple[np.ndarray, np.ndarray, cKDTree]:
-        """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)``, ``triangles
-        (8 P, 3) int64`` and a kd-tree of the points (their distance bounds a query's); the
-        parent's points where the response did not reach."""
+    def _coarse(self) -> tuple[np.ndarray, np.ndarray]:
+        """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)`` and ``triangles
+        (8 P, 3) int64``; the parent's points where the response did not reach."""
         stale = self._stale
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
             pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)
-            return pts, tris, cKDTree(pts)
-        pts, tris, _ = self.parent._coarse
+            return pts, tris
+        pts, tris = self.parent._coarse
         pts = pts.copy()
         if stale.any():  # 9 points per patch, patches in row-major order
             new = patch_grids(self.surface, np.argwhere(stale), 2, det=self.details)[0]
             pts.reshape(stale.size, 9, 3)[stale.reshape(-1)] = new.reshape(-1, 9, 3)
-        return pts, tris, cKDTree(pts)
+        return pts, tris
+
+    @cached_property
+    def coarse_index(self) -> "CoarseIndex":
+        """Distances to the nearest `_coarse` point (they bound a closest-point query's). A
+        responded shape takes its parent's kd-tree with the points the response moved masked out,
+        and a tree of the moved points alone, so a response costs what it changed, until the
+        points off the shared tree pass a quarter of them."""
+        pts = self._coarse[0]
+        stale = self._stale
+        if stale is None or stale.all():
+            return CoarseIndex(_kd_tree(pts))
+        par = self.parent.coarse_index
+        moved = np.repeat(stale.reshape(-1), 9)  # 9 points per patch, patches in row-major order
+        if not moved.any():
+            return par
+        current = ~moved if par.current is None else par.current & ~moved
+        off = ~current
+        if off.sum() * 4 > len(pts):
+            return CoarseIndex(_kd_tree(pts))
+        return CoarseIndex(par.tree, current, _kd_tree(pts[off]))
 
     @cached_property
     def outward(self) -> float:
         """``+1`` if ``du × dv`` points out of a closed surface, else ``-1``: the sign of the
         volume enclosed by the coarse grid (divergence theorem)."""
-        pts, tris, _ = self._coarse
+        pts, tris = self._coarse
         centre = pts.mean(axis=0)
         sure = volume_sign(pts, tris, centre)  # compiled, where no summation order can flip it
         if sure:
