@@ -41,28 +41,36 @@ class CoarseIndex:
     a kd-tree ``extra`` of the set's other points. The same distances as a kd-tree of the set:
     each is the distance of the same nearest point, computed the same way."""
 
-    CANDIDATES = 8  # nearest tree points tried per query before looking farther
+    CANDIDATES = 8  # nearest tree points tried first per query
 
     def __init__(self, tree: cKDTree, current: np.ndarray | None = None, extra: cKDTree | None = None) -> None:
         self.tree, self.current, self.extra = tree, current, extra
 
     def query(self, q: np.ndarray) -> np.ndarray:
-        """Distances ``(k,)`` from points ``q (k, 3)`` to the nearest point of the set."""
+        """Distances ``(k,)`` from points ``q (k, 3)`` to the nearest point of the set. A tree
+        point nearer than the nearest ``extra`` point is looked for among the 8 nearest, then
+        among ever more (64, 512, ...) within the largest such distance of the queries left, so
+        a query beside the moved points, whose nearest tree points are mostly masked, visits
+        only the tree points about as near as its nearest moved one."""
         if self.current is None:
             return self.tree.query(q)[0]
-        n = len(self.current)
-        dist, rows = self.tree.query(q, k=min(self.CANDIDATES, n))
-        dist, rows = dist.reshape(len(q), -1), rows.reshape(len(q), -1)
-        ok = self.current[rows]
-        d = np.where(ok.any(axis=1), dist[np.arange(len(q)), ok.argmax(axis=1)], np.inf)
-        far = np.nonzero(~ok.any(axis=1))[0]
-        if len(far):  # every candidate moved: enough more that one of them is current
-            k = min(n, int(n - self.current.sum()) + 1)
-            dist, rows = self.tree.query(q[far], k=k)
-            dist, rows = dist.reshape(len(far), -1), rows.reshape(len(far), -1)
-            ok = self.current[rows]
-            d[far] = dist[np.arange(len(far)), ok.argmax(axis=1)]
-        return np.minimum(d, self.extra.query(q)[0]) if self.extra is not None else d
+        q = np.asarray(q, np.float64).reshape(-1, 3)
+        d = self.extra.query(q)[0]
+        n, k = len(self.current), self.CANDIDATES
+        todo = np.arange(len(q))
+        while len(todo):
+            k = min(k, n)
+            bound = np.inf if k == self.CANDIDATES else float(np.nextafter(d[todo].max(), np.inf))
+            dist, rows = self.tree.query(q[todo], k=k, distance_upper_bound=bound)
+            dist, rows = dist.reshape(len(todo), -1), rows.reshape(len(todo), -1)
+            ok = np.isfinite(dist)
+            ok[ok] = self.current[rows[ok]]
+            found = ok.any(axis=1)
+            d[todo[found]] = np.minimum(d[todo[found]], dist[found, ok[found].argmax(axis=1)])
+            # unsettled: all k candidates within the bound masked, and more may lie within it
+            todo = todo[~found & np.isfinite(dist[:, -1])] if k < n else todo[:0]
+            k *= 8
+        return d
 
 
 class HullIndex:
