@@ -314,29 +314,41 @@ class Shape:
         p, cvs = self.parent, self.surface.cvs
         return p is not None and (p.surface.cvs is cvs or np.array_equal(p.surface.cvs, cvs))
 
+    def _known_level0(self) -> "tuple[bool, HullIndex | None]":
+        """Whether an ancestor with these level-0 CVs (or this shape) has built `_level0_index`,
+        and that index."""
+        s = self
+        while "_level0_index" not in s.__dict__:
+            if not s._same_level0:
+                return False, None
+            s = s.parent
+        return True, s.__dict__["_level0_index"]
+
     @cached_property
     @timed
     def cv_index(self) -> "HullIndex | None":
         """`HullIndex` of every level's CV positions (`cv_hull`). A fine CV with a zero detail
         vector is a convex combination of the coarser level's CVs (refinement weights are
         non-negative and sum to 1), so by induction the hull of every level is the hull of level 0
-        plus the CVs with details. Where level 0 is the parent's, only those outside its hull
-        can add to it: a response that moves the surface inwards keeps level 0's hull, shared,
-        with no new qhull; otherwise the hull of level 0's hull vertices and those CVs."""
+        plus the CVs with details. Where level 0's hull is at hand (the shape's or an ancestor's
+        with the same level-0 CVs), only those outside it can add to it: a response that moves
+        the surface inwards keeps level 0's hull, shared, with no new qhull; otherwise the hull of
+        level 0's hull vertices and those CVs. Else one qhull of level 0 and the CVs with details."""
         det = self.details
         moved = [pos[np.any(vec != 0.0, axis=1)] for pos, vec in zip(self.cv_positions[1:], det.vectors)] if det else []
         moved = np.concatenate(moved) if moved else np.zeros((0, 3))
-        if not len(moved) or self._same_level0:
-            base = self._level0_index
-            if base is not None:
-                moved = moved[~base.within(moved, 0.0)]
-                if not len(moved):
-                    return base
-                level0 = base.hull.points[base.hull.vertices]
-            else:  # flat level 0: the details alone can give the hull a volume
-                level0 = np.concatenate(self.cv_positions)
-        else:
+        known, base = self._known_level0()
+        if not len(moved):
+            known, base = True, self._level0_index
+        if not known:
             level0 = self.surface.cvs.reshape(-1, 3)
+        elif base is None:  # flat level 0: the details alone can give the hull a volume
+            level0 = np.concatenate(self.cv_positions)
+        else:
+            moved = moved[~base.within(moved, 0.0)]
+            if not len(moved):
+                return base
+            level0 = base.hull.points[base.hull.vertices]
         try:
             return HullIndex(ConvexHull(np.concatenate([level0, moved])))
         except QhullError:

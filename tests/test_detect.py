@@ -667,6 +667,7 @@ def test_a_responded_shape_s_cv_hull_is_level_0_s_and_its_moved_cvs(seed, absorp
 
     hs, out, rep, _, _ = _responded_sphere(seed, absorption)
     parent, child = S.shape_of(hs), S.shape_of(out)
+    parent._level0_index  # built, as detection on an input without details builds it before a response
     every = np.concatenate(child.cv_positions)
     tol = 1e-12 * out.size()
     assert (every @ child.cv_hull[:, :3].T + child.cv_hull[:, 3]).max() <= tol
@@ -682,6 +683,11 @@ def test_a_responded_shape_s_cv_hull_is_level_0_s_and_its_moved_cvs(seed, absorp
     eq0 = child._level0_index.equations
     if (moved @ eq0[:, :3].T + eq0[:, 3]).max() < -1e-12:
         assert child.cv_index is child._level0_index
+    # with no level-0 hull at hand, one qhull of level 0 and the CVs with details: none built for level 0
+    lone = S.Shape(out, parent=S.Shape(hs))
+    lone.__dict__["details"] = rep.details
+    assert (every @ lone.cv_hull[:, :3].T + lone.cv_hull[:, 3]).max() <= tol
+    assert "_level0_index" not in lone.__dict__ and "_level0_index" not in lone.parent.__dict__
 
 
 def test_face_samples_cover_a_collider_at_the_spacing():
