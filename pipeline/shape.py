@@ -130,6 +130,10 @@ class HullIndex:
         return res
 
 
+_REFINEMENTS: dict = {}  # (u, v, k, level k-1 and k cv_keys bytes) -> `acra.hspline.cv_refinement`, most recent last
+_REFINEMENTS_KEPT = 64
+
+
 class Shape:
     """Everything about a surface that does not depend on where it is, in object space. A
     deformable's input shape is the same at every time code unless its ``acra:cvs`` are keyed, so
@@ -169,7 +173,15 @@ class Shape:
         if p is not None and k < p.surface.depth and all(hs.level(j).cv_keys is p.surface.level(j).cv_keys for j in range(max(k - 1, 1), k + 1)):
             hit = p._cv_refinements.get(k)
         if hit is None:
-            hit = H.cv_refinement(hs, k)
+            # else the last few built, by content: each frame starts again from the input and
+            # its responses refine the same region, so the same levels' keys come back
+            key = (hs.u, hs.v, k, hs.level(k - 1).cv_keys.tobytes() if k > 1 else b"", hs.level(k).cv_keys.tobytes())
+            hit = _REFINEMENTS.pop(key, None)
+            if hit is None:
+                hit = H.cv_refinement(hs, k)
+            _REFINEMENTS[key] = hit
+            while len(_REFINEMENTS) > _REFINEMENTS_KEPT:
+                del _REFINEMENTS[next(iter(_REFINEMENTS))]
         self._cv_refinements[k] = hit
         return hit
 

@@ -637,6 +637,22 @@ def test_points_outside_the_cv_hull_are_outside_without_a_search():
     assert (p @ hulled.cv_hull[:, :3].T + hulled.cv_hull[:, 3]).max() <= 1e-12
 
 
+def test_cv_refinements_are_kept_by_the_levels_keys():
+    """`Shape._cv_refinement`: a surface without a parent whose levels hold the same ``cv_keys``
+    (other arrays, as a later frame's response refining the same region builds them) takes the
+    subdivision rows and weights built for an earlier one, the same as built afresh."""
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[9, 10]]), 0.02, 3)
+    again = H.with_fine(hs, tuple(H.Level(lev.k, lev.patches.copy(), lev.cv_keys.copy(), lev.offsets, lev.movable, lev.patch_rows)
+                                  for lev in hs.fine))
+    first, second = S.Shape(hs), S.Shape(again)
+    for a, b in zip(first.cv_positions, second.cv_positions):
+        np.testing.assert_array_equal(a, b)
+    for k in (1, 2):
+        assert second._cv_refinements[k] is first._cv_refinements[k]
+        for a, b in zip(second._cv_refinements[k], H.cv_refinement(again, k)):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_hull_index_answers_as_every_facet():
     """`HullIndex.within` (the facet whose cone from the centre holds a point, every facet only
     where that does not settle it) answers as the test against every facet: random points in and
