@@ -481,10 +481,10 @@ def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: 
         if k >= level:
             out[pu >> (k - level), pv >> (k - level)] = True
             return
+        # each patch's r x r block of cells, so the work follows the changed patches, not the grid
         r = 1 << (level - k)
-        mk = np.zeros((new.u.patches(k), new.v.patches(k)), bool)
-        mk[pu, pv] = True
-        out[...] |= np.repeat(np.repeat(mk, r, axis=0), r, axis=1)
+        step = np.arange(r)
+        out[(pu[:, None] * r + step)[:, :, None], (pv[:, None] * r + step)[:, None, :]] = True
 
     def support(k: int, ju: np.ndarray, jv: np.ndarray) -> None:
         # CV j supports level-k patches j-3 .. j (wrapped where periodic, clipped where open)

@@ -36,7 +36,7 @@ def nearest(shape: Shape, q: np.ndarray) -> Nearest:
     if not len(q):
         return Nearest(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)))
     lo, hi, _ = shape._boxes
-    upper = shape._coarse[2].query(q)[0]  # a surface point: the closest is no farther
+    upper = shape.coarse_index.query(q)  # a surface point: the closest is no farther
     reach = upper.max() * (1 + 1e-9) + 1e-300
     pre = np.nonzero(overlap(lo, hi, q.min(axis=0) - reach, q.max(axis=0) + reach, 0.0))[0]
     cand = pre[boxes_within(lo[pre], hi[pre], q, upper * (1 + 1e-9) + 1e-300)]
@@ -58,7 +58,7 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     cand = np.arange(len(q))
     if shape.cv_hull is not None:
         slack = 1e-9 * shape.surface.size()
-        cand = np.nonzero((q @ shape.cv_hull[:, :3].T + shape.cv_hull[:, 3]).max(axis=1) <= slack)[0]
+        cand = np.nonzero(shape.cv_index.within(q, slack))[0]
     near = shape.nearest(q[cand])
     _, n = H.surface_normals(shape.surface, near.uv[:, 0], near.uv[:, 1], det=shape.details)
     side = shape.outward * np.einsum("ij,ij->i", q[cand] - near.points, n) < 0

@@ -26,8 +26,113 @@ from pipeline import queries
 from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
                             timed)
 
-__all__ = ["PatchGrid", "GridSet", "GridCache", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest", "Closest", "bvh",
-           "overlap", "content_digest", "surface_digest"]
+__all__ = ["PatchGrid", "GridSet", "GridCache", "HullIndex", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest",
+           "Closest", "bvh", "overlap", "content_digest", "surface_digest"]
+
+
+@timed
+def _kd_tree(points: np.ndarray) -> cKDTree:
+    """A kd-tree of ``points (n, 3)`` (its build timed as set-up)."""
+    return cKDTree(points)
+
+
+class CoarseIndex:
+    """Distances from points to the nearest of a set of points held as a kd-tree ``tree`` of
+    other points, of which the rows ``current (n,) bool`` belong to the set (``None``: all), and
+    a kd-tree ``extra`` of the set's other points. The same distances as a kd-tree of the set:
+    each is the distance of the same nearest point, computed the same way."""
+
+    CANDIDATES = 8  # nearest tree points tried first per query
+
+    def __init__(self, tree: cKDTree, current: np.ndarray | None = None, extra: cKDTree | None = None) -> None:
+        self.tree, self.current, self.extra = tree, current, extra
+
+    def query(self, q: np.ndarray) -> np.ndarray:
+        """Distances ``(k,)`` from points ``q (k, 3)`` to the nearest point of the set. A tree
+        point nearer than the nearest ``extra`` point is looked for among the 8 nearest, then
+        among ever more (64, 512, ...) within the largest such distance of the queries left, so
+        a query beside the moved points, whose nearest tree points are mostly masked, visits
+        only the tree points about as near as its nearest moved one."""
+        if self.current is None:
+            return self.tree.query(q)[0]
+        q = np.asarray(q, np.float64).reshape(-1, 3)
+        d = self.extra.query(q)[0]
+        n, k = len(self.current), self.CANDIDATES
+        todo = np.arange(len(q))
+        while len(todo):
+            k = min(k, n)
+            bound = np.inf if k == self.CANDIDATES else float(np.nextafter(d[todo].max(), np.inf))
+            dist, rows = self.tree.query(q[todo], k=k, distance_upper_bound=bound)
+            dist, rows = dist.reshape(len(todo), -1), rows.reshape(len(todo), -1)
+            ok = np.isfinite(dist)
+            ok[ok] = self.current[rows[ok]]
+            found = ok.any(axis=1)
+            d[todo[found]] = np.minimum(d[todo[found]], dist[found, ok[found].argmax(axis=1)])
+            # unsettled: all k candidates within the bound masked, and more may lie within it
+            todo = todo[~found & np.isfinite(dist[:, -1])] if k < n else todo[:0]
+            k *= 8
+        return d
+
+
+class HullIndex:
+    """A convex hull (scipy ``ConvexHull``, triangulated facets) and a test of which points lie
+    within ``slack`` of it that costs what the points cost, not what the hull's facet count costs.
+
+    The hull is the union of the tetrahedra joining an interior point ``c`` (the mean of its
+    vertices) to its facets, so a point in the cone from ``c`` through facet ``f`` is inside iff it
+    is behind ``f``'s plane; a point beyond any facet plane by more than ``slack`` is outside. The
+    facet whose cone holds a point is looked up among those whose centroid direction from ``c`` is
+    nearest the point's (a kd-tree of unit directions); points whose answer this does not settle
+    (no such cone within 1e-12 of the size, or behind their facet by less than ``slack``) take the
+    test against every facet, so the answer is that test's (`within`)."""
+
+    CANDIDATES = 6  # facets tried per point, by centroid direction
+
+    def __init__(self, hull: ConvexHull) -> None:
+        self.hull = hull
+        self.equations = hull.equations
+
+    @cached_property
+    def _cones(self) -> tuple[np.ndarray, np.ndarray, cKDTree, float]:
+        """Centre ``c (3,)``, unit inward normals ``(m, 3, 3)`` of each facet's three cone sides
+        through ``c``, the kd-tree of the facets' unit centroid directions, and 1e-12 of the size."""
+        pts, tri = self.hull.points, self.hull.simplices
+        verts = pts[self.hull.vertices]
+        c = verts.mean(axis=0)
+        a, b, d = (pts[tri[:, i]] - c for i in range(3))
+        sides = np.stack([np.cross(a, b), np.cross(b, d), np.cross(d, a)], axis=1)  # (m, 3, 3)
+        sides *= np.sign(np.einsum("ij,ij->i", sides[:, 0], d))[:, None, None]  # towards the third corner
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sides /= np.linalg.norm(sides, axis=2, keepdims=True)  # a degenerate cone gets NaN: never holds a point
+        mid = a + b + d
+        mid /= np.linalg.norm(mid, axis=1, keepdims=True)
+        return c, sides, cKDTree(mid), 1e-12 * float(np.ptp(verts, axis=0).max())
+
+    def within(self, q: np.ndarray, slack: float) -> np.ndarray:
+        """``(k,) bool``: points ``q (k, 3)`` with ``n · x + d <= slack`` for every facet."""
+        q = np.asarray(q, np.float64).reshape(-1, 3)
+        eq = self.equations
+        if len(q) * len(eq) <= 1 << 16:  # a small hull or few points: every facet at once
+            return (q @ eq[:, :3].T + eq[:, 3]).max(axis=1) <= slack
+        c, sides, tree, tol = self._cones
+        r = q - c
+        size = np.linalg.norm(r, axis=1)
+        _, cand = tree.query(r / np.maximum(size, 1e-300)[:, None], k=min(self.CANDIDATES, len(eq)))
+        cand = cand.reshape(len(q), -1)
+        cone = (np.einsum("nkij,nj->nki", sides[cand], r) >= tol).all(axis=2)  # (k, K)
+        val = np.einsum("nkj,nj->nk", eq[cand, :3], q) + eq[cand, 3]
+        hit = cone.any(axis=1)
+        own = val[np.arange(len(q)), cone.argmax(axis=1)]
+        inside = hit & (own <= 0.0)
+        res = inside.copy()
+        rest = np.nonzero(~inside & ~(val > slack).any(axis=1))[0]
+        if len(rest):
+            res[rest] = (q[rest] @ eq[:, :3].T + eq[:, 3]).max(axis=1) <= slack
+        return res
+
+
+_REFINEMENTS: dict = {}  # (u, v, k, level k-1 and k cv_keys bytes) -> `acra.hspline.cv_refinement`, most recent last
+_REFINEMENTS_KEPT = 64
 
 
 class Shape:
@@ -75,7 +180,15 @@ class Shape:
         if p is not None and k < p.surface.depth and all(hs.level(j).cv_keys is p.surface.level(j).cv_keys for j in range(max(k - 1, 1), k + 1)):
             hit = p._cv_refinements.get(k)
         if hit is None:
-            hit = H.cv_refinement(hs, k)
+            # else the last few built, by content: each frame starts again from the input and
+            # its responses refine the same region, so the same levels' keys come back
+            key = (hs.u, hs.v, k, hs.level(k - 1).cv_keys.tobytes() if k > 1 else b"", hs.level(k).cv_keys.tobytes())
+            hit = _REFINEMENTS.pop(key, None)
+            if hit is None:
+                hit = H.cv_refinement(hs, k)
+            _REFINEMENTS[key] = hit
+            while len(_REFINEMENTS) > _REFINEMENTS_KEPT:
+                del _REFINEMENTS[next(iter(_REFINEMENTS))]
         self._cv_refinements[k] = hit
         return hit
 
@@ -127,27 +240,46 @@ class Shape:
 
     @cached_property
     @timed
-    def _coarse(self) -> tuple[np.ndarray, np.ndarray, cKDTree]:
-        """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)``, ``triangles
-        (8 P, 3) int64`` and a kd-tree of the points (their distance bounds a query's); the
-        parent's points where the response did not reach."""
+    def _coarse(self) -> tuple[np.ndarray, np.ndarray]:
+        """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)`` and ``triangles
+        (8 P, 3) int64``; the parent's points where the response did not reach."""
         stale = self._stale
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
             pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)
-            return pts, tris, cKDTree(pts)
-        pts, tris, _ = self.parent._coarse
+            return pts, tris
+        pts, tris = self.parent._coarse
         pts = pts.copy()
         if stale.any():  # 9 points per patch, patches in row-major order
             new = patch_grids(self.surface, np.argwhere(stale), 2, det=self.details)[0]
             pts.reshape(stale.size, 9, 3)[stale.reshape(-1)] = new.reshape(-1, 9, 3)
-        return pts, tris, cKDTree(pts)
+        return pts, tris
+
+    @cached_property
+    def coarse_index(self) -> "CoarseIndex":
+        """Distances to the nearest `_coarse` point (they bound a closest-point query's). A
+        responded shape takes its parent's kd-tree with the points the response moved masked out,
+        and a tree of the moved points alone, so a response costs what it changed, until the
+        points off the shared tree pass a quarter of them."""
+        pts = self._coarse[0]
+        stale = self._stale
+        if stale is None or stale.all():
+            return CoarseIndex(_kd_tree(pts))
+        par = self.parent.coarse_index
+        moved = np.repeat(stale.reshape(-1), 9)  # 9 points per patch, patches in row-major order
+        if not moved.any():
+            return par
+        current = ~moved if par.current is None else par.current & ~moved
+        off = ~current
+        if off.sum() * 4 > len(pts):
+            return CoarseIndex(_kd_tree(pts))
+        return CoarseIndex(par.tree, current, _kd_tree(pts[off]))
 
     @cached_property
     def outward(self) -> float:
         """``+1`` if ``du × dv`` points out of a closed surface, else ``-1``: the sign of the
         volume enclosed by the coarse grid (divergence theorem)."""
-        pts, tris, _ = self._coarse
+        pts, tris = self._coarse
         centre = pts.mean(axis=0)
         sure = volume_sign(pts, tris, centre)  # compiled, where no summation order can flip it
         if sure:
@@ -175,15 +307,69 @@ class Shape:
         return self.cache.grids_for(patches)
 
     @cached_property
-    @timed
     def cv_hull(self) -> np.ndarray | None:
         """Half-spaces ``(m, 4) float64`` of the convex hull of every level's CV positions, a point
         ``x`` within it iff ``n · x + d <= 0`` for every row ``(n, d)``; ``None`` if the CVs are
         flat. The surface lies in it (B-spline convex hull property: a fine level's net is the
         refined coarser net plus details, and refinement takes convex combinations), so do its
-        collision grids and, for a closed surface, everything they enclose."""
+        collision grids and, for a closed surface, everything they enclose (`cv_index`)."""
+        index = self.cv_index
+        return None if index is None else index.equations
+
+    @cached_property
+    def _level0_index(self) -> "HullIndex | None":
+        """`HullIndex` of the level-0 CVs (``None`` if flat); the parent's where the level-0 CVs
+        are the same (a response that leaves level 0 keeps its hull)."""
+        if self._same_level0:
+            return self.parent._level0_index
         try:
-            return ConvexHull(np.concatenate(self.cv_positions)).equations
+            return HullIndex(ConvexHull(self.surface.cvs.reshape(-1, 3)))
+        except QhullError:
+            return None
+
+    @cached_property
+    def _same_level0(self) -> bool:
+        """Whether the parent's level-0 CVs are this surface's."""
+        p, cvs = self.parent, self.surface.cvs
+        return p is not None and (p.surface.cvs is cvs or np.array_equal(p.surface.cvs, cvs))
+
+    def _known_level0(self) -> "tuple[bool, HullIndex | None]":
+        """Whether an ancestor with these level-0 CVs (or this shape) has built `_level0_index`,
+        and that index."""
+        s = self
+        while "_level0_index" not in s.__dict__:
+            if not s._same_level0:
+                return False, None
+            s = s.parent
+        return True, s.__dict__["_level0_index"]
+
+    @cached_property
+    @timed
+    def cv_index(self) -> "HullIndex | None":
+        """`HullIndex` of every level's CV positions (`cv_hull`). A fine CV with a zero detail
+        vector is a convex combination of the coarser level's CVs (refinement weights are
+        non-negative and sum to 1), so by induction the hull of every level is the hull of level 0
+        plus the CVs with details. Where level 0's hull is at hand (the shape's or an ancestor's
+        with the same level-0 CVs), only those outside it can add to it: a response that moves
+        the surface inwards keeps level 0's hull, shared, with no new qhull; otherwise the hull of
+        level 0's hull vertices and those CVs. Else one qhull of level 0 and the CVs with details."""
+        det = self.details
+        moved = [pos[np.any(vec != 0.0, axis=1)] for pos, vec in zip(self.cv_positions[1:], det.vectors)] if det else []
+        moved = np.concatenate(moved) if moved else np.zeros((0, 3))
+        known, base = self._known_level0()
+        if not len(moved):
+            known, base = True, self._level0_index
+        if not known:
+            level0 = self.surface.cvs.reshape(-1, 3)
+        elif base is None:  # flat level 0: the details alone can give the hull a volume
+            level0 = np.concatenate(self.cv_positions)
+        else:
+            moved = moved[~base.within(moved, 0.0)]
+            if not len(moved):
+                return base
+            level0 = base.hull.points[base.hull.vertices]
+        try:
+            return HullIndex(ConvexHull(np.concatenate([level0, moved])))
         except QhullError:
             return None
 

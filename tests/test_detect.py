@@ -519,6 +519,20 @@ def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed
     for a, b in zip(child.hulls + child._coarse[:2], fresh.hulls + fresh._coarse[:2]):
         np.testing.assert_array_equal(a, b)
     assert np.any(child._coarse[0] != parent._coarse[0])  # the move reached the coarse grid
+    # distances to the coarse points: the parent's tree without the moved points and a tree of
+    # those (`CoarseIndex`), the same bits as a tree of the child's points, also where a query's
+    # nearest parent points all moved (one candidate tried before looking farther)
+    from scipy.spatial import cKDTree
+
+    pts = child._coarse[0]
+    moved = np.any(pts != parent._coarse[0], axis=1)
+    rng = np.random.default_rng(seed)
+    q = np.concatenate([rng.uniform(pts.min(axis=0), pts.max(axis=0), (2000, 3)), parent._coarse[0][moved], pts[moved]])
+    shared = 4 * 9 * child._stale.sum() <= len(pts)  # a response that moved a quarter of the points builds anew
+    assert (child.coarse_index.tree is parent.coarse_index.tree) == shared and (child.coarse_index.extra is not None) == shared
+    for candidates in (8, 1):
+        child.coarse_index.CANDIDATES = candidates
+        np.testing.assert_array_equal(child.coarse_index.query(q), cKDTree(pts).query(q)[0])
     # every level's CV positions, on the parent's subdivision rows and weights where the response
     # kept the levels' cv_keys, the same bits as built afresh
     parent.cv_positions
@@ -621,6 +635,75 @@ def test_points_outside_the_cv_hull_are_outside_without_a_search():
     uu, vv = np.meshgrid(np.linspace(0, hs.u.patches0, 40), np.linspace(0, hs.v.patches0, 40))
     p = H.evaluate(hs, uu.ravel(), vv.ravel()).points
     assert (p @ hulled.cv_hull[:, :3].T + hulled.cv_hull[:, 3]).max() <= 1e-12
+
+
+def test_cv_refinements_are_kept_by_the_levels_keys():
+    """`Shape._cv_refinement`: a surface without a parent whose levels hold the same ``cv_keys``
+    (other arrays, as a later frame's response refining the same region builds them) takes the
+    subdivision rows and weights built for an earlier one, the same as built afresh."""
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[9, 10]]), 0.02, 3)
+    again = H.with_fine(hs, tuple(H.Level(lev.k, lev.patches.copy(), lev.cv_keys.copy(), lev.offsets, lev.movable, lev.patch_rows)
+                                  for lev in hs.fine))
+    first, second = S.Shape(hs), S.Shape(again)
+    for a, b in zip(first.cv_positions, second.cv_positions):
+        np.testing.assert_array_equal(a, b)
+    for k in (1, 2):
+        assert second._cv_refinements[k] is first._cv_refinements[k]
+        for a, b in zip(second._cv_refinements[k], H.cv_refinement(again, k)):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_hull_index_answers_as_every_facet():
+    """`HullIndex.within` (the facet whose cone from the centre holds a point, every facet only
+    where that does not settle it) answers as the test against every facet: random points in and
+    around a 64x48 ellipsoid net's hull (5,000 facets), the CVs themselves and points within
+    1e-10 of them, at the slack `Shape.signed` uses and at none."""
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(5)
+    cvs = shapes.sphere(64, 48, radii=(1.0, 0.85, 0.9))[0].reshape(-1, 3)
+    index = S.HullIndex(ConvexHull(cvs))
+    eq = index.equations
+    q = np.concatenate([rng.uniform(-1.2, 1.2, (20000, 3)), cvs * (1 + rng.normal(size=(len(cvs), 1)) * 1e-10), cvs])
+    every = q @ eq[:, :3].T + eq[:, 3]
+    np.testing.assert_array_equal(index.within(q, 1e-9), every.max(axis=1) <= 1e-9)
+    got = index.within(q, 0.0)
+    exact = every.max(axis=1)
+    decided = np.abs(exact) > 1e-15  # a point on a facet plane: either answer is the rounding's
+    np.testing.assert_array_equal(got[decided], exact[decided] <= 0.0)
+
+
+@pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
+def test_a_responded_shape_s_cv_hull_is_level_0_s_and_its_moved_cvs(seed, absorption):
+    """`Shape.cv_hull` of a responded shape, built from level 0's hull and the CVs with details
+    alone, is the hull of every level's CVs: each CV within 1e-12 of the size of it, and each of
+    its half-spaces holds a hull of every CV within 1e-12 (no larger). A response that leaves level
+    0 shares its parent's level-0 hull, and where no CV with a detail leaves it, takes it whole."""
+    from scipy.spatial import ConvexHull
+
+    hs, out, rep, _, _ = _responded_sphere(seed, absorption)
+    parent, child = S.shape_of(hs), S.shape_of(out)
+    parent._level0_index  # built, as detection on an input without details builds it before a response
+    every = np.concatenate(child.cv_positions)
+    tol = 1e-12 * out.size()
+    assert (every @ child.cv_hull[:, :3].T + child.cv_hull[:, 3]).max() <= tol
+    full = ConvexHull(every)
+    corners = full.points[full.vertices]
+    assert np.abs(corners @ child.cv_hull[:, :3].T + child.cv_hull[:, 3]).min(axis=0).max() <= tol  # every facet touches a CV
+    hull_pts = child.cv_index.hull.points[child.cv_index.hull.vertices]
+    assert (hull_pts @ full.equations[:, :3].T + full.equations[:, 3]).max() <= tol
+    same0 = np.array_equal(out.cvs, hs.cvs)
+    assert (child._level0_index is parent._level0_index) == same0
+    moved = [p[np.any(v != 0, axis=1)] for p, v in zip(child.cv_positions[1:], rep.details.vectors)]
+    moved = np.concatenate(moved)
+    eq0 = child._level0_index.equations
+    if (moved @ eq0[:, :3].T + eq0[:, 3]).max() < -1e-12:
+        assert child.cv_index is child._level0_index
+    # with no level-0 hull at hand, one qhull of level 0 and the CVs with details: none built for level 0
+    lone = S.Shape(out, parent=S.Shape(hs))
+    lone.__dict__["details"] = rep.details
+    assert (every @ lone.cv_hull[:, :3].T + lone.cv_hull[:, 3]).max() <= tol
+    assert "_level0_index" not in lone.__dict__ and "_level0_index" not in lone.parent.__dict__
 
 
 def test_face_samples_cover_a_collider_at_the_spacing():
