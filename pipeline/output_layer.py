@@ -110,15 +110,57 @@ def _spec(prim_spec: Sdf.PrimSpec, name: str, tname: Sdf.ValueTypeName, custom: 
     return spec if spec is not None else Sdf.AttributeSpec(prim_spec, name, tname, Sdf.VariabilityVarying, custom)
 
 
-def _checked_vec3f(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
-    """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
+def _checked_floats(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> np.ndarray:
+    """Display points or normals ``(n, 3)`` as ``(n, 3) float32``, after checking shape and values."""
     n = topology.u.size
     a = np.asarray(a)
     if a.shape != (n, 3):
         raise ValueError(f"frame {frame}, {model.path}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
     if not np.all(np.isfinite(a)):
         raise ValueError(f"frame {frame}, {model.path}: {name} hold NaN or inf")
-    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(a, dtype=np.float32))
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _checked_vec3f(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
+    """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
+    return Vt.Vec3fArray.FromNumpy(_checked_floats(model, topology, frame, name, a))
+
+
+class _Pending:
+    """An array the layer holds as a ``vt`` value (a `Vt` array type), kept as numpy until USD
+    needs it: a ``.usda`` layer's `_COMPILED` arrays stand in and have their text written by
+    `acra.floattext` from the numpy array, so converting them to Vt (a copy element by element,
+    about 3 ns each) would be spent on nothing.
+
+    Attributes
+    ----------
+    array : (n,) or (n, m) numpy array
+        The values, of the dtype ``vt`` holds (float32, float64 or int32).
+    vt : type
+        The `Vt` array type USD authors.
+    """
+
+    def __init__(self, vt: type, array: np.ndarray) -> None:
+        self.vt, self.array, self._value = vt, array, None
+
+    def __len__(self) -> int:
+        return len(self.array)
+
+    def value(self):
+        """The array as its `Vt` value, converted at the first call."""
+        if self._value is None:
+            self._value = self.vt.FromNumpy(self.array)
+        return self._value
+
+
+def _vt_type(value) -> type:
+    """The `Vt` type ``value`` is authored as."""
+    return value.vt if type(value) is _Pending else type(value)
+
+
+def _authored(value):
+    """``value`` as USD authors it (a `_Pending` array as its Vt value)."""
+    return value.value() if type(value) is _Pending else value
 
 
 def _response_values(model: DeformableModel, frame: int, surface: HSpline) -> dict:
@@ -162,7 +204,7 @@ class _Direct:
     """Time samples authored as they are (a binary crate stores a repeated array once itself)."""
 
     def stand_in(self, path: Sdf.Path, time: float | None, value):
-        return value
+        return _authored(value)
 
     def export(self, layer: Sdf.Layer, out: Path) -> Path:
         return export_layer(layer, out)
@@ -189,12 +231,17 @@ _SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ ([vs])(\d+) = (.*)$", re.M)
 # arrays whose text `acra.floattext` writes (the bytes USD's writer gives, faster,
 # `tests/test_floattext.py`): every one stands in, a collision frame's and a default value too
 _COMPILED = {
-    Vt.Vec3fArray: lambda value: floattext.tuples_text(np.asarray(value), _float_texts),
-    Vt.Vec2dArray: lambda value: floattext.tuples_text(np.asarray(value), _float_texts),
-    Vt.IntArray: lambda value: floattext.ints_text(np.asarray(value)),
-    Vt.Vec2iArray: lambda value: floattext.ints_text(np.asarray(value)),
+    Vt.Vec3fArray: lambda value: floattext.tuples_text(_numpy(value), _float_texts),
+    Vt.Vec2dArray: lambda value: floattext.tuples_text(_numpy(value), _float_texts),
+    Vt.IntArray: lambda value: floattext.ints_text(_numpy(value)),
+    Vt.Vec2iArray: lambda value: floattext.ints_text(_numpy(value)),
 }
 _FLOATS = {Vt.Vec3fArray, Vt.Vec2dArray}  # of them, written together (`floattext.tuples_texts`)
+
+
+def _numpy(value) -> np.ndarray:
+    """A Vt array's or a `_Pending` array's values as numpy (a view where USD's buffer allows)."""
+    return value.array if type(value) is _Pending else np.asarray(value)
 
 
 def _float_texts(values: np.ndarray) -> list[str]:
@@ -227,10 +274,11 @@ class _SharedText:
         self._uses: dict[int, int] = {}  # id(array) -> samples holding it
         self.chars = 0  # an upper bound of the text held while writing: each distinct array once
         for value in samples:
-            if type(value) in _STAND_INS and len(value) >= _SHARED_MIN:
+            vt = _vt_type(value)
+            if vt in _STAND_INS and len(value) >= _SHARED_MIN:
                 self._uses[id(value)] = self._uses.get(id(value), 0) + 1
-            if type(value) in _CHARS and (self._uses.get(id(value), 0) <= 1):
-                self.chars += _CHARS[type(value)] * len(value)
+            if vt in _CHARS and (self._uses.get(id(value), 0) <= 1):
+                self.chars += _CHARS[vt] * len(value)
         self._index: dict[int, int] = {}  # id(array) -> k
         self._arrays: list = []  # k -> array (kept alive while its id is a key)
         self._made: list = []  # k -> its stand-in, authored at every sample (Vt values are shared copy-on-write)
@@ -240,9 +288,10 @@ class _SharedText:
         """What to author at ``path`` and ``time`` (``None``: the default value) for ``value``:
         an array held by one sample alone (a collision frame's) whose text USD's writer formats
         is formatted where it stands, with nothing saved."""
-        kind = _STAND_INS.get(type(value))
-        if kind is None or self._uses.get(id(value), 0) < (1 if type(value) in _COMPILED else 2):
-            return value
+        vt = _vt_type(value)
+        kind = _STAND_INS.get(vt)
+        if kind is None or self._uses.get(id(value), 0) < (1 if vt in _COMPILED else 2):
+            return _authored(value)
         k = self._index.get(id(value))
         if k is None:
             k = self._index[id(value)] = len(self._arrays)
@@ -258,14 +307,14 @@ class _SharedText:
         with Sdf.ChangeBlock():
             prim = Sdf.CreatePrimInLayer(scratch, "/A")
             for k, value in enumerate(self._arrays):
-                tname, make = _STAND_INS[type(value)]
-                if type(value) not in _COMPILED:
-                    Sdf.AttributeSpec(prim, f"v{k}", tname, Sdf.VariabilityVarying, True).default = value
+                tname, make = _STAND_INS[_vt_type(value)]
+                if _vt_type(value) not in _COMPILED:
+                    Sdf.AttributeSpec(prim, f"v{k}", tname, Sdf.VariabilityVarying, True).default = _authored(value)
                 Sdf.AttributeSpec(prim, f"s{k}", tname, Sdf.VariabilityVarying, True).default = make(k)
         texts: dict = {"v": [None] * len(self._arrays), "s": [None] * len(self._arrays)}
         for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
             texts[m.group(1)][int(m.group(2))] = m.group(3) if m.group(1) == "s" else m.group(3).encode()
-        floats = [k for k, value in enumerate(self._arrays) if type(value) in _FLOATS]
+        floats = [k for k, value in enumerate(self._arrays) if _vt_type(value) in _FLOATS]
         # each array's text starts from the one authored before it on the same attribute (the
         # previous frame's display): a response moves the points near the contact alone
         place = {k: i for i, k in enumerate(floats)}
@@ -276,12 +325,12 @@ class _SharedText:
             if j is not None and j != k and k in place and refs[place[k]] is None and j in place:
                 refs[place[k]] = place[j]
             last[path] = k
-        arrays = [np.asarray(self._arrays[k]) for k in floats]
+        arrays = [_numpy(self._arrays[k]) for k in floats]
         for k, text in zip(floats, floattext.tuples_texts(arrays, _float_texts, refs)):
             texts["v"][k] = text
         for k, value in enumerate(self._arrays):
-            if type(value) in _COMPILED and type(value) not in _FLOATS:
-                texts["v"][k] = _COMPILED[type(value)](value)
+            if _vt_type(value) in _COMPILED and _vt_type(value) not in _FLOATS:
+                texts["v"][k] = _COMPILED[_vt_type(value)](value)
         return texts["v"], texts["s"]
 
     def export(self, layer: Sdf.Layer, out: Path) -> Path:
@@ -302,9 +351,9 @@ class _SharedText:
             with Sdf.ChangeBlock():
                 for path, time, k in self._samples:
                     if time is None:
-                        layer.GetAttributeAtPath(path).default = self._arrays[k]
+                        layer.GetAttributeAtPath(path).default = _authored(self._arrays[k])
                     else:
-                        layer.SetTimeSample(path, time, self._arrays[k])
+                        layer.SetTimeSample(path, time, _authored(self._arrays[k]))
             return export_layer(layer, out)
         return export_layer(_Text(text, pattern, which, values), out)
 
@@ -344,6 +393,9 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
     frames = sorted(frames_result.frames)
     models = sorted(scene.deformables, key=lambda m: m.path)
     convert = _Converted()
+    # a text layer writes its display arrays from numpy (`_Pending`); a crate stores Vt values
+    text_layer = out.suffix == ".usda"
+    vec3f = (lambda *a: _Pending(Vt.Vec3fArray, _checked_floats(*a))) if text_layer else _checked_vec3f
     values: dict = {}  # (frame, path) -> {attribute name: value}
     for f in frames:
         per = frames_result.frames[f]
@@ -357,8 +409,8 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
             if not math.isfinite(float(r.residual)):
                 raise ValueError(f"frame {f}, {m.path}: residual is not finite")
             values[f, m.path] = {
-                "points": convert((m.path, "points"), r.points, lambda: _checked_vec3f(m, topo, f, "points", r.points)),
-                "normals": convert((m.path, "normals"), r.normals, lambda: _checked_vec3f(m, topo, f, "normals", r.normals)),
+                "points": convert((m.path, "points"), r.points, lambda: vec3f(m, topo, f, "points", r.points)),
+                "normals": convert((m.path, "normals"), r.normals, lambda: vec3f(m, topo, f, "normals", r.normals)),
                 **convert((m.path, "state"), r.surface, lambda: _response_values(m, f, r.surface)),
                 "acra:response:residual": float(r.residual),
                 "acra:response:inCollision": bool(r.in_collision),
@@ -368,15 +420,16 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
 
                 values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
 
-    int_array = lambda a: Vt.IntArray.FromNumpy(np.ascontiguousarray(a, dtype=np.int32))  # noqa: E731
+    as_vt = (lambda vt, a: _Pending(vt, a)) if text_layer else (lambda vt, a: vt.FromNumpy(a))  # noqa: E731
+    int_array = lambda a: as_vt(Vt.IntArray, np.ascontiguousarray(a, dtype=np.int32))  # noqa: E731
     # each display vertex's surface parameter (level-0 units), so a client evaluates any other
     # surface of the object (the input's) at the same sites
-    sites = {m.path: Vt.Vec2dArray.FromNumpy(np.ascontiguousarray(np.stack([frames_result.topology(m).u, frames_result.topology(m).v], axis=1),
-                                                                   dtype=np.float64)) for m in models}
+    sites = {m.path: as_vt(Vt.Vec2dArray, np.ascontiguousarray(np.stack([frames_result.topology(m).u, frames_result.topology(m).v], axis=1),
+                                                                dtype=np.float64)) for m in models}
     topologies = {m.path: (int_array(frames_result.topology(m).counts), int_array(frames_result.topology(m).indices)) for m in models}
     layer = Sdf.Layer.CreateAnonymous(f"acra_output{out.suffix or '.usda'}")
     shared = _Direct()
-    if out.suffix == ".usda":
+    if text_layer:
         text = _SharedText([v for per in values.values() for v in per.values()] + [a for t in topologies.values() for a in t] + list(sites.values()))
         if text.chars <= TEXT_HELD_MAX:
             shared = text

@@ -139,3 +139,26 @@ def test_text_copied_from_a_reference_array_is_the_text_formatted_afresh():
     whole = floattext.shortest_digits(moved.reshape(-1).view(np.uint32))
     changed = ~np.repeat(same, 3)
     assert all(np.array_equal(a[changed], b[changed]) for a, b in zip((cs, ks, st), whole))
+
+
+def test_ryu_gives_the_exact_digits_across_its_range():
+    """`floattext._ryu` (the fast path of `shortest_digits`) gives the digits of the exact
+    search `_one` at random float32s of every exponent it formats, at its range's ends and at
+    the powers of two (every float32 of the range was compared once, 101 x 2^23 values)."""
+    from numba import njit
+
+    @njit
+    def mismatches(bits):
+        bad = 0
+        for b in bits:
+            c, k, s = floattext._one(np.int64(b), floattext._POW5)
+            c2, k2 = floattext._ryu(np.int64(b))
+            bad += s != 0 or c != c2 or k != k2
+        return bad
+
+    lo, hi = floattext._RYU_BIASED
+    rng = np.random.default_rng(7)
+    exps = np.arange(lo, hi + 1, dtype=np.int64)
+    bits = (rng.integers(lo, hi + 1, 2_000_000) << 23) | rng.integers(0, 2**23, 2_000_000)
+    edges = np.concatenate([exps << 23, (exps << 23) | 1, (exps << 23) | (2**23 - 1), (exps << 23) | 2**22])
+    assert mismatches(np.concatenate([bits, edges])) == 0

@@ -408,6 +408,25 @@ def test_text_output_is_usds_own_text(scene_file, tmp_path, make):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.usda", "out.usda", "out.usdc"]
 
 
+def test_text_output_formats_display_arrays_without_vt_copies(scene_file, tmp_path, monkeypatch):
+    """A ``.usda`` layer writes the text of its display points and normals from numpy
+    (`acra.floattext`): none is converted to a Vt array (a copy element by element), and the
+    bytes are USD's own text of the same layer."""
+    stage = U.open_input(scene_file)
+    scene = U.read_scene(stage)
+    _, shared, copied = _shared_and_copied(stage, scene)
+    crates = [output_layer.write_output(scene_file, tmp_path / f"{name}.usdc", scene, res)
+              for name, res in (("shared", shared), ("copied", copied))]
+
+    def no_vt(*a):
+        raise AssertionError("a display array converted to Vt for a text layer")
+
+    monkeypatch.setattr(output_layer, "_checked_vec3f", no_vt)
+    for crate, res in zip(crates, (shared, copied)):
+        text = output_layer.write_output(scene_file, tmp_path / f"{crate.stem}.usda", scene, res)
+        assert text.read_bytes() == _usd_text(crate)
+
+
 def test_a_long_text_output_is_streamed_by_usds_writer(scene_file, tmp_path, monkeypatch):
     """A layer whose text would exceed `output_layer.TEXT_HELD_MAX` is written by USD itself
     (streamed to the file), with the same bytes; a short one formats its shared arrays once."""
