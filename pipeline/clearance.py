@@ -493,10 +493,11 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         # part's box has every point farther than the part answers for
         if not bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], reach).all():
             raise Unresolved
-        src = np.arange(len(tri))
+        src, live = np.arange(len(tri)), tri  # every triangle, without a copy
     else:  # a whole solid lies in its box: a triangle missing it has no point inside
         src = np.nonzero(bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
-    rho0 = bvh.covering_radii(tri[src])  # (c,) per live source triangle (covering_radius compiled), halved per split level
+        live = tri[src]
+    rho0 = bvh.covering_radii(live)  # (c,) per live source triangle (covering_radius compiled), halved per split level
     found: list[tuple] = []  # (tri, bary, points, sd) of evaluated points with sd > 0
 
     def keep(rows, lattice, pts, sd):
@@ -504,7 +505,7 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         found.append((rows[inside], lattice[inside] / steps, pts[inside], sd[inside]))
 
     # level 0: each distinct corner once; corners far outside get -inf and no face (`_signed_corners`)
-    pts, first, inverse = _distinct(tri[src].reshape(-1, 3))
+    pts, first, inverse = _distinct(live.reshape(-1, 3))
     corner_pts = inverse.reshape(-1, 3)
     sd_pts, face_pts, pending = _signed_corners(s, pts, corner_pts, rho0, reach)
     evaluated = len(pts)
