@@ -12,6 +12,7 @@ reasons and the timings. World units; arrays are float64 unless stated.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Union
@@ -34,7 +35,7 @@ __all__ = [
     "Tessellation", "Intersections", "Region", "Projection", "Residual", "patch_density",
     "candidate_patches", "tessellate", "tessellated", "is_closed", "intersect", "inside",
     "surface_distance", "surface_points", "project", "regions", "touching", "with_on_surface",
-    "pair_pad", "world_normals", "wrap_uv", "residual", "cast", "default_tolerance", "face_samples",
+    "pair_pad", "world_normals", "wrap_uv", "residual", "cast", "default_tolerance", "face_samples", "apart",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -79,6 +80,12 @@ class ColliderStatic:
         is rigid)."""
         tri = self.mesh.vertices[self.mesh.faces]
         return tri.min(axis=1), tri.max(axis=1)
+
+    @cached_property
+    def local_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """Object-space box ``lo, hi (3,)`` of the mesh's vertices."""
+        v = np.asarray(self.mesh.vertices, np.float64)
+        return v.min(axis=0), v.max(axis=0)
 
     @cached_property
     def thin(self) -> bool:
@@ -135,6 +142,12 @@ class ColliderGeometry:
     @cached_property
     def size(self) -> float:
         return float(np.linalg.norm(np.ptp(self.vertices, axis=0)))
+
+    @cached_property
+    def outer(self) -> np.ndarray:
+        """World box ``(2, 3)`` holding `bounds`: the mesh's object-space box mapped through the
+        matrix (`_mapped_box`), without mapping its vertices."""
+        return _mapped_box(self.xform, *self.static.local_box)
 
     @cached_property
     def content(self) -> tuple:
@@ -238,6 +251,14 @@ class SurfaceGeometry:
     def size(self) -> float:
         return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
 
+    @cached_property
+    def outer(self) -> np.ndarray:
+        """World box ``(2, 3)`` holding `bounds`: the union of the object-space hull boxes, one
+        box per shape (`_object_box`), mapped through the matrix (`_mapped_box`). Three products
+        instead of the world box of every level-0 patch, which a pair whose objects are apart
+        never needs (`apart`)."""
+        return _mapped_box(self.xform, *_object_box(self.shape))
+
     @property
     def closed(self) -> bool:
         return self.shape.closed
@@ -248,6 +269,42 @@ class SurfaceGeometry:
 
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
+
+_OBJECT_BOXES: "weakref.WeakKeyDictionary[Shape, tuple]" = weakref.WeakKeyDictionary()  # `_object_box`'s answers
+
+
+def _object_box(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
+    """Object-space box ``lo, hi (3,)`` of every level-0 hull box of ``shape``, found once per
+    shape (a shape serves every frame of a run, `shape_of`)."""
+    hit = _OBJECT_BOXES.get(shape)
+    if hit is None:
+        lo, hi = shape.hulls
+        hit = _OBJECT_BOXES[shape] = (lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0))
+    return hit
+
+
+def _mapped_box(xform: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """World box ``(2, 3)`` holding the object-space box ``lo, hi (3,)`` under ``xform (4, 4)``
+    and every box inside it however mapped: ``M c + t ± |M| h``, widened by 1e-9 of its terms'
+    size, far beyond the rounding (1e-15 of them) by which a sub-box's own
+    mapped box (`SurfaceGeometry.boxes`, `ColliderGeometry.bounds`) could poke out of it."""
+    linear, mid = xform[:3, :3], 0.5 * (lo + hi)
+    centre = linear @ mid + xform[:3, 3]
+    half = np.abs(linear) @ (0.5 * (hi - lo))
+    # the rounding of ``M c`` and ``+ t`` scales with the terms, which may cancel in ``centre``
+    slack = 1e-9 * float(np.abs(xform[:3, 3]).max() + (np.abs(linear) @ np.abs(mid)).max() + 2.0 * half.max())
+    return np.stack([centre - half - slack, centre + half + slack])
+
+
+def apart(ga: Geometry, gb: Geometry) -> bool:
+    """Whether the pair's world boxes surely miss each other by more than the pair's padding
+    (`pair_pad`), from the object-level boxes (`outer`) alone: their boxes hold the exact ones
+    and their sizes bound the exact sizes from above, so ``apart`` implies that
+    `_boxes_overlap` is False. A free frame's pairs then cost a few products whatever the
+    model's size; pairs not apart take the exact test."""
+    oa, ob = ga.outer, gb.outer
+    pad = _PAD * max(float(np.linalg.norm(oa[1] - oa[0])), float(np.linalg.norm(ob[1] - ob[0])))
+    return not bool(_overlap(oa[0], oa[1], ob[0], ob[1], pad))
 
 
 def patch_density(geom: SurfaceGeometry) -> np.ndarray:
@@ -452,9 +509,11 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
 def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     """`intersect`, computed."""
     collider = isinstance(gb, ColliderGeometry)
-    pad = pair_pad(ga, gb)
     empty = np.zeros((0, 2), np.int64)
     none = Intersections(np.zeros((0, 3)), empty, None if collider else empty, np.zeros(0, np.int64))
+    if apart(ga, gb):
+        return none
+    pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return none
     ca = candidate_patches(ga, gb.bounds, pad)
@@ -716,13 +775,20 @@ def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) ->
     return _kept(_DISTINCT, _patch_set_key(geom, patches), lambda: unique_rows(wrap_uv(geom.surface, tess.uv)))
 
 
+def _empty_region(x: Geometry) -> Region:
+    """No vertices of ``x``."""
+    return Region(None if isinstance(x, ColliderGeometry) else np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0))
+
+
 def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Region, Region]:
     """The interpenetration regions: ``A``'s vertices inside ``B`` and ``B``'s inside ``A`` (empty
     when the other object is open). ``depth=False`` leaves depths at zero."""
+    if apart(ga, gb):
+        return _empty_region(ga), _empty_region(gb)
     pad, out = pair_pad(ga, gb), []
     for x, y in ((ga, gb), (gb, ga)):
         if not is_closed(y) or not _boxes_overlap(x, y, pad):
-            out.append(Region(None if isinstance(x, ColliderGeometry) else np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)))
+            out.append(_empty_region(x))
             continue
         pts, uv = _candidate_vertices(x, y.bounds, pad)
         if depth:
@@ -756,6 +822,8 @@ def with_on_surface(x: Geometry, y: Geometry, region: Region, pad: float) -> Reg
 def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     """Whether the pair touches or interpenetrates. Without crossing triangles each surface is wholly
     inside or outside the other: outside if any of it leaves the other's box, else 5 vertices vote."""
+    if apart(ga, gb):
+        return False
     pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return False
