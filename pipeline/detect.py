@@ -12,6 +12,7 @@ reasons and the timings. World units; arrays are float64 unless stated.
 
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -82,10 +83,10 @@ class ColliderStatic:
         return tri.min(axis=1), tri.max(axis=1)
 
     @cached_property
-    def local_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """Object-space box ``lo, hi (3,)`` of the mesh's vertices."""
+    def local_box(self) -> tuple[tuple, tuple]:
+        """Object-space box of the mesh's vertices: centre and half-extents (`_centre_half`)."""
         v = np.asarray(self.mesh.vertices, np.float64)
-        return v.min(axis=0), v.max(axis=0)
+        return _centre_half(v.min(axis=0), v.max(axis=0))
 
     @cached_property
     def thin(self) -> bool:
@@ -143,11 +144,15 @@ class ColliderGeometry:
     def size(self) -> float:
         return float(np.linalg.norm(np.ptp(self.vertices, axis=0)))
 
-    @cached_property
+    @property
     def outer(self) -> np.ndarray:
         """World box ``(2, 3)`` holding `bounds`: the mesh's object-space box mapped through the
         matrix (`_mapped_box`), without mapping its vertices."""
-        return _mapped_box(self.xform, *self.static.local_box)
+        return np.array(self._outer[:2])
+
+    @cached_property
+    def _outer(self) -> tuple[tuple, tuple, float]:
+        return _mapped_box(self.xform, self.static.local_box)
 
     @cached_property
     def content(self) -> tuple:
@@ -251,13 +256,17 @@ class SurfaceGeometry:
     def size(self) -> float:
         return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
 
-    @cached_property
+    @property
     def outer(self) -> np.ndarray:
         """World box ``(2, 3)`` holding `bounds`: the union of the object-space hull boxes, one
-        box per shape (`_object_box`), mapped through the matrix (`_mapped_box`). Three products
+        box per shape (`_object_box`), mapped through the matrix (`_mapped_box`). A few products
         instead of the world box of every level-0 patch, which a pair whose objects are apart
         never needs (`apart`)."""
-        return _mapped_box(self.xform, *_object_box(self.shape))
+        return np.array(self._outer[:2])
+
+    @cached_property
+    def _outer(self) -> tuple[tuple, tuple, float]:
+        return _mapped_box(self.xform, _object_box(self.shape))
 
     @property
     def closed(self) -> bool:
@@ -273,38 +282,51 @@ Geometry = Union[SurfaceGeometry, ColliderGeometry]
 _OBJECT_BOXES: "weakref.WeakKeyDictionary[Shape, tuple]" = weakref.WeakKeyDictionary()  # `_object_box`'s answers
 
 
-def _object_box(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
-    """Object-space box ``lo, hi (3,)`` of every level-0 hull box of ``shape``, found once per
-    shape (a shape serves every frame of a run, `shape_of`)."""
+def _object_box(shape: Shape) -> tuple[tuple, tuple]:
+    """Object-space box of every level-0 hull box of ``shape`` as its centre and half-extents
+    (3 floats each), found once per shape (a shape serves every frame of a run, `shape_of`)."""
     hit = _OBJECT_BOXES.get(shape)
     if hit is None:
         lo, hi = shape.hulls
-        hit = _OBJECT_BOXES[shape] = (lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0))
+        hit = _OBJECT_BOXES[shape] = _centre_half(lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0))
     return hit
 
 
-def _mapped_box(xform: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """World box ``(2, 3)`` holding the object-space box ``lo, hi (3,)`` under ``xform (4, 4)``
+def _centre_half(lo: np.ndarray, hi: np.ndarray) -> tuple[tuple, tuple]:
+    """Centre and half-extents (3 floats each) of the box ``lo, hi (3,)``."""
+    return tuple((0.5 * (lo + hi)).tolist()), tuple((0.5 * (hi - lo)).tolist())
+
+
+def _mapped_box(xform: np.ndarray, box: tuple[tuple, tuple]) -> tuple[tuple, tuple, float]:
+    """World box holding the object-space box ``box`` (`_centre_half`) under ``xform (4, 4)``
     and every box inside it however mapped: ``M c + t ± |M| h``, widened by 1e-9 of its terms'
-    size, far beyond the rounding (1e-15 of them) by which a sub-box's own
-    mapped box (`SurfaceGeometry.boxes`, `ColliderGeometry.bounds`) could poke out of it."""
-    linear, mid = xform[:3, :3], 0.5 * (lo + hi)
-    centre = linear @ mid + xform[:3, 3]
-    half = np.abs(linear) @ (0.5 * (hi - lo))
-    # the rounding of ``M c`` and ``+ t`` scales with the terms, which may cancel in ``centre``
-    slack = 1e-9 * float(np.abs(xform[:3, 3]).max() + (np.abs(linear) @ np.abs(mid)).max() + 2.0 * half.max())
-    return np.stack([centre - half - slack, centre + half + slack])
+    size, far beyond the rounding (1e-15 of them) by which a sub-box's own mapped box
+    (`SurfaceGeometry.boxes`, `ColliderGeometry.bounds`) could poke out of it. Returns its low
+    and high corners (3 floats each) and its diagonal. In Python floats: on three coordinates
+    numpy's per-call cost is most of the work."""
+    (cx, cy, cz), (hx, hy, hz) = box
+    lo, hi, reach = [], [], 0.0
+    for a, b, c, t in xform.tolist()[:3]:
+        centre = a * cx + b * cy + c * cz + t
+        half = abs(a) * hx + abs(b) * hy + abs(c) * hz
+        # the rounding of ``M c`` and ``+ t`` scales with the terms, which may cancel in ``centre``
+        reach = max(reach, abs(t) + abs(a * cx) + abs(b * cy) + abs(c * cz) + 2.0 * half)
+        lo.append(centre - half)
+        hi.append(centre + half)
+    slack = 1e-9 * reach
+    lo, hi = tuple(x - slack for x in lo), tuple(x + slack for x in hi)
+    return lo, hi, math.sqrt(sum((b - a) ** 2 for a, b in zip(lo, hi)))
 
 
 def apart(ga: Geometry, gb: Geometry) -> bool:
     """Whether the pair's world boxes surely miss each other by more than the pair's padding
     (`pair_pad`), from the object-level boxes (`outer`) alone: their boxes hold the exact ones
-    and their sizes bound the exact sizes from above, so ``apart`` implies that
+    and their diagonals bound the exact sizes from above, so ``apart`` implies that
     `_boxes_overlap` is False. A free frame's pairs then cost a few products whatever the
     model's size; pairs not apart take the exact test."""
-    oa, ob = ga.outer, gb.outer
-    pad = _PAD * max(float(np.linalg.norm(oa[1] - oa[0])), float(np.linalg.norm(ob[1] - ob[0])))
-    return not bool(_overlap(oa[0], oa[1], ob[0], ob[1], pad))
+    (la, ha, da), (lb, hb, db) = ga._outer, gb._outer
+    pad = _PAD * max(da, db)
+    return not all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
 
 
 def patch_density(geom: SurfaceGeometry) -> np.ndarray:
