@@ -12,6 +12,8 @@ reasons and the timings. World units; arrays are float64 unless stated.
 
 from __future__ import annotations
 
+import math
+import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Union
@@ -34,7 +36,7 @@ __all__ = [
     "Tessellation", "Intersections", "Region", "Projection", "Residual", "patch_density",
     "candidate_patches", "tessellate", "tessellated", "is_closed", "intersect", "inside",
     "surface_distance", "surface_points", "project", "regions", "touching", "with_on_surface",
-    "pair_pad", "world_normals", "wrap_uv", "residual", "cast", "default_tolerance", "face_samples",
+    "pair_pad", "world_normals", "wrap_uv", "residual", "cast", "default_tolerance", "face_samples", "apart",
 ]
 
 _MAX_CONTACTS = 1_000_000
@@ -79,6 +81,12 @@ class ColliderStatic:
         is rigid)."""
         tri = self.mesh.vertices[self.mesh.faces]
         return tri.min(axis=1), tri.max(axis=1)
+
+    @cached_property
+    def local_box(self) -> tuple[tuple, tuple]:
+        """Object-space box of the mesh's vertices: centre and half-extents (`_centre_half`)."""
+        v = np.asarray(self.mesh.vertices, np.float64)
+        return _centre_half(v.min(axis=0), v.max(axis=0))
 
     @cached_property
     def thin(self) -> bool:
@@ -135,6 +143,16 @@ class ColliderGeometry:
     @cached_property
     def size(self) -> float:
         return float(np.linalg.norm(np.ptp(self.vertices, axis=0)))
+
+    @property
+    def outer(self) -> np.ndarray:
+        """World box ``(2, 3)`` holding `bounds`: the mesh's object-space box mapped through the
+        matrix (`_mapped_box`), without mapping its vertices."""
+        return np.array(self._outer[:2])
+
+    @cached_property
+    def _outer(self) -> tuple[tuple, tuple, float]:
+        return _mapped_box(self.xform, self.static.local_box)
 
     @cached_property
     def content(self) -> tuple:
@@ -239,6 +257,18 @@ class SurfaceGeometry:
         return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
 
     @property
+    def outer(self) -> np.ndarray:
+        """World box ``(2, 3)`` holding `bounds`: the union of the object-space hull boxes, one
+        box per shape (`_object_box`), mapped through the matrix (`_mapped_box`). A few products
+        instead of the world box of every level-0 patch, which a pair whose objects are apart
+        never needs (`apart`)."""
+        return np.array(self._outer[:2])
+
+    @cached_property
+    def _outer(self) -> tuple[tuple, tuple, float]:
+        return _mapped_box(self.xform, _object_box(self.shape))
+
+    @property
     def closed(self) -> bool:
         return self.shape.closed
 
@@ -248,6 +278,55 @@ class SurfaceGeometry:
 
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
+
+_OBJECT_BOXES: "weakref.WeakKeyDictionary[Shape, tuple]" = weakref.WeakKeyDictionary()  # `_object_box`'s answers
+
+
+def _object_box(shape: Shape) -> tuple[tuple, tuple]:
+    """Object-space box of every level-0 hull box of ``shape`` as its centre and half-extents
+    (3 floats each), found once per shape (a shape serves every frame of a run, `shape_of`)."""
+    hit = _OBJECT_BOXES.get(shape)
+    if hit is None:
+        lo, hi = shape.hulls
+        hit = _OBJECT_BOXES[shape] = _centre_half(lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0))
+    return hit
+
+
+def _centre_half(lo: np.ndarray, hi: np.ndarray) -> tuple[tuple, tuple]:
+    """Centre and half-extents (3 floats each) of the box ``lo, hi (3,)``."""
+    return tuple((0.5 * (lo + hi)).tolist()), tuple((0.5 * (hi - lo)).tolist())
+
+
+def _mapped_box(xform: np.ndarray, box: tuple[tuple, tuple]) -> tuple[tuple, tuple, float]:
+    """World box holding the object-space box ``box`` (`_centre_half`) under ``xform (4, 4)``
+    and every box inside it however mapped: ``M c + t ± |M| h``, widened by 1e-9 of its terms'
+    size, far beyond the rounding (1e-15 of them) by which a sub-box's own mapped box
+    (`SurfaceGeometry.boxes`, `ColliderGeometry.bounds`) could poke out of it. Returns its low
+    and high corners (3 floats each) and its diagonal. In Python floats: on three coordinates
+    numpy's per-call cost is most of the work."""
+    (cx, cy, cz), (hx, hy, hz) = box
+    lo, hi, reach = [], [], 0.0
+    for a, b, c, t in xform.tolist()[:3]:
+        centre = a * cx + b * cy + c * cz + t
+        half = abs(a) * hx + abs(b) * hy + abs(c) * hz
+        # the rounding of ``M c`` and ``+ t`` scales with the terms, which may cancel in ``centre``
+        reach = max(reach, abs(t) + abs(a * cx) + abs(b * cy) + abs(c * cz) + 2.0 * half)
+        lo.append(centre - half)
+        hi.append(centre + half)
+    slack = 1e-9 * reach
+    lo, hi = tuple(x - slack for x in lo), tuple(x + slack for x in hi)
+    return lo, hi, math.sqrt(sum((b - a) ** 2 for a, b in zip(lo, hi)))
+
+
+def apart(ga: Geometry, gb: Geometry) -> bool:
+    """Whether the pair's world boxes surely miss each other by more than the pair's padding
+    (`pair_pad`), from the object-level boxes (`outer`) alone: their boxes hold the exact ones
+    and their diagonals bound the exact sizes from above, so ``apart`` implies that
+    `_boxes_overlap` is False. A free frame's pairs then cost a few products whatever the
+    model's size; pairs not apart take the exact test."""
+    (la, ha, da), (lb, hb, db) = ga._outer, gb._outer
+    pad = _PAD * max(da, db)
+    return not all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
 
 
 def patch_density(geom: SurfaceGeometry) -> np.ndarray:
@@ -452,9 +531,11 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
 def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     """`intersect`, computed."""
     collider = isinstance(gb, ColliderGeometry)
-    pad = pair_pad(ga, gb)
     empty = np.zeros((0, 2), np.int64)
     none = Intersections(np.zeros((0, 3)), empty, None if collider else empty, np.zeros(0, np.int64))
+    if apart(ga, gb):
+        return none
+    pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return none
     ca = candidate_patches(ga, gb.bounds, pad)
@@ -716,13 +797,20 @@ def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) ->
     return _kept(_DISTINCT, _patch_set_key(geom, patches), lambda: unique_rows(wrap_uv(geom.surface, tess.uv)))
 
 
+def _empty_region(x: Geometry) -> Region:
+    """No vertices of ``x``."""
+    return Region(None if isinstance(x, ColliderGeometry) else np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0))
+
+
 def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Region, Region]:
     """The interpenetration regions: ``A``'s vertices inside ``B`` and ``B``'s inside ``A`` (empty
     when the other object is open). ``depth=False`` leaves depths at zero."""
+    if apart(ga, gb):
+        return _empty_region(ga), _empty_region(gb)
     pad, out = pair_pad(ga, gb), []
     for x, y in ((ga, gb), (gb, ga)):
         if not is_closed(y) or not _boxes_overlap(x, y, pad):
-            out.append(Region(None if isinstance(x, ColliderGeometry) else np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)))
+            out.append(_empty_region(x))
             continue
         pts, uv = _candidate_vertices(x, y.bounds, pad)
         if depth:
@@ -756,6 +844,8 @@ def with_on_surface(x: Geometry, y: Geometry, region: Region, pad: float) -> Reg
 def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     """Whether the pair touches or interpenetrates. Without crossing triangles each surface is wholly
     inside or outside the other: outside if any of it leaves the other's box, else 5 vertices vote."""
+    if apart(ga, gb):
+        return False
     pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return False

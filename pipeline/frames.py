@@ -120,6 +120,18 @@ def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints,
             f"level or raise --memory-budget")) from None
 
 
+class _Sizes:
+    """Each deformable's size (`detect.SurfaceGeometry.size`) at the frame's first round, found
+    when a pair in contact first reads it: a size is the box of every level-0 patch, which a
+    frame whose objects are apart never builds (`detect.apart`)."""
+
+    def __init__(self, geoms: list) -> None:
+        self._geoms = list(geoms)
+
+    def __getitem__(self, i: int) -> float:
+        return self._geoms[i].size
+
+
 def _pairs(n_def: int, n_col: int):
     """Every deformable–deformable pair once and every deformable–collider pair."""
     for i in range(n_def):
@@ -324,7 +336,7 @@ class _Run:
             if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
                 continue
             ga, gb = geoms[i], (geoms[other[1]] if other[0] == "d" else cgeoms[other[1]])
-            if not D._boxes_overlap(ga, gb, D.pair_pad(ga, gb)):
+            if D.apart(ga, gb) or not D._boxes_overlap(ga, gb, D.pair_pad(ga, gb)):
                 continue
             for kind_j in (("d", i), other):
                 if kind_j not in index:
@@ -493,9 +505,9 @@ class _Run:
             geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
             cgeoms = [D.ColliderGeometry(self.statics[j], cstates[j].xform) for j in range(len(self.statics))]
             if it == 0:  # the animator's surfaces: detection's scale stays fixed while rounds reshape them
-                sizes = [g.size for g in geoms]
-            # the sizes and the display measure build the shapes they read (a responded surface's
-            # patch boxes): that is set-up, as it is when detection builds them
+                sizes = _Sizes(geoms)
+            # the display measure builds the shapes it reads (a responded surface's patch boxes):
+            # that is set-up, as it is when detection builds them
             tv, setup1 = time.perf_counter(), S.SetupClock.ms
             vis, by_pair = self.visible(geoms, cgeoms, enabled)
             st.ms_setup += S.SetupClock.ms - setup0

@@ -767,6 +767,44 @@ def test_world_patch_boxes_are_the_boxes_of_the_mapped_hull_corners(seed):
     assert np.allclose(whi, world.max(axis=-2), rtol=0, atol=1e-14 * scale)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_object_boxes_hold_the_exact_boxes_and_apart_implies_no_overlap(seed):
+    """`outer` (the object-space box mapped once) holds `bounds` (the union of the world patch
+    boxes, or of a collider's mapped vertices) under rotation, non-uniform scale and a far
+    translation, and `apart` is True only where `_boxes_overlap` with the pair's padding is
+    False; pairs placed near touching are tested both ways."""
+    rng = np.random.default_rng(seed)
+    m = _rotated_scaled(seed)
+    if seed % 2:
+        m[:3, 3] *= 1e4  # far from the origin: the translation's rounding dominates
+    ball = trimesh.creation.icosphere(2)
+    static = D.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces))
+    base = sphere_geom(m)
+    for g in (base, D.ColliderGeometry(static, m)):
+        assert np.all(g.outer[0] <= g.bounds[0]) and np.all(g.outer[1] >= g.bounds[1])
+    seen = set()
+    for _ in range(40):
+        other = m.copy()
+        other[:3, 3] += rng.normal(size=3) * rng.choice([0.5, 2.0, 6.0, 20.0])
+        for gb in (sphere_geom(other, "/other"), D.ColliderGeometry(static, other)):
+            meets = D._boxes_overlap(base, gb, D.pair_pad(base, gb))
+            assert not (D.apart(base, gb) and meets)
+            seen.add((D.apart(base, gb), meets))
+    assert (True, False) in seen and (False, True) in seen
+
+
+def test_a_pair_apart_builds_no_world_patch_boxes():
+    """Detection of two deformables whose objects are apart, and the free frame's sizes, never
+    build the world box of each level-0 patch (`SurfaceGeometry.boxes`): the work of a free frame
+    does not grow with the model."""
+    ga, gb = sphere_geom(move()), sphere_geom(move(10.0, 0, 0), "/far")
+    assert C.detect_pair(ga, gb) is None and not D.touching(ga, gb)
+    assert D.residual(ga, gb).count == 0
+    assert "boxes" not in vars(ga) and "boxes" not in vars(gb)
+    near = sphere_geom(move(1.5, 0, 0), "/near")
+    assert C.detect_pair(ga, near) is not None and "boxes" in vars(ga)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_faces_near_holds_every_face_whose_world_box_meets_the_query(seed):
     """`ColliderStatic.faces_near` (object-space face boxes built once) holds every face whose
