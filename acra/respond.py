@@ -472,9 +472,10 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     for k, axis, end in rings:
         if k != pw.level:
             continue
-        sums, rows, ok, _ = _ring_sums(hs, det, k, axis, end)
+        rows, ok = _ring_rows(hs, k, axis, end)  # a ring the move does not reach needs no sums
         if not ok.all() or not H._lookup(pw.cv_rows, rows)[1].any():  # cv_rows: sorted
             continue
+        sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
         # row j: +w_r / 6 on column j's CVs, -w_r / (6 N) on every column's
         own = np.repeat(np.arange(N), 3)
@@ -747,9 +748,13 @@ def respond(
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
                 hs, det = _redetail(coarse, det, hs, ())
-        pw = point_weights(hs, level, uv[:, 0], uv[:, 1])  # also the solve's, when no points merge
-        present = pw.active
         d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
+        # the points' own weights serve the solve only when it takes them as they are (no points
+        # merged per patch, none held); otherwise which points the level reaches is all it needs
+        own = d > 0 and not (points.per_patch and not np.asarray(points.is_contact, bool).all()) and not (
+            level == finest and held is not None and len(held.uv))
+        pw = point_weights(hs, level, uv[:, 0], uv[:, 1]) if own else None
+        present = pw.active if own else point_active(hs, level, uv[:, 0], uv[:, 1])
         if d > 0:
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
@@ -765,7 +770,7 @@ def respond(
                 hcur = H.evaluate(hs, huv[:, 0], huv[:, 1], det=det).points
                 luv = np.concatenate([luv, huv])
                 lwant = np.concatenate([lwant, htarget - hcur])
-            lpw = pw if luv is uv else point_weights(hs, level, luv[:, 0], luv[:, 1])
+            lpw = pw if luv is uv and own else point_weights(hs, level, luv[:, 0], luv[:, 1])
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
