@@ -629,6 +629,14 @@ class ResponseReport:
     details: H.Details | None = None
 
 
+def _make_movable(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
+    """``hs`` refined so that every CV of the level-``level`` patch of each point ``uv (K, 2)``
+    is movable, with the pole rings the points sit on (`_open_pole_rings`)."""
+    su, _ = locate(hs.u, uv[:, 0], level)
+    sv, _ = locate(hs.v, uv[:, 1], level)
+    return _open_pole_rings(H.make_movable(hs, level, np.stack([su, sv], axis=1)), level, uv)
+
+
 def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     """Refine the whole level-``level`` `H.pole_ring` of every pole a point ``uv (K, 2)`` sits on:
     such a point weighs the ring all around (`point_weights`), so the ring must be movable."""
@@ -733,17 +741,27 @@ def respond(
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
     refined = 0
+    # Refinement depends on the points' parameters alone, not on where the CVs are, and moves
+    # nothing; unless level 0 moves (its ends decide the poles `_open_pole_rings` opens), every
+    # absorbing level is refined before the first solve, so one pass of `H.details` frames all
+    # the new CVs and each later move's pass turns those on its stale patches with the rest.
+    early = controls.refine and controls.absorption[0] <= 0.0
+    if early:
+        coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
+        for level in range(1, L):
+            if controls.absorption[level] > 0.0:
+                hs = _make_movable(hs, level, uv)
+        refined = sum(lev.patches.size for lev in hs.fine) - before
+        if refined:
+            hs, det = _redetail(coarse, det, hs, ())
     for level in range(L):
         a = float(controls.absorption[level])
         if a <= 0.0:
             continue
-        if level >= 1 and controls.refine:
-            su, _ = locate(hs.u, uv[:, 0], level)
-            sv, _ = locate(hs.v, uv[:, 1], level)
+        if level >= 1 and controls.refine and not early:
             before = sum(lev.patches.size for lev in hs.fine)
             coarse = hs
-            hs = H.make_movable(hs, level, np.stack([su, sv], axis=1))
-            hs = _open_pole_rings(hs, level, uv)
+            hs = _make_movable(hs, level, uv)
             added = sum(lev.patches.size for lev in hs.fine) - before
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
