@@ -25,6 +25,7 @@ import numpy as np
 from . import framekernels
 from . import hspline as H
 from .basis import locate
+from .hierarchy import refine_levels
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -637,6 +638,22 @@ def _make_movable(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     return _open_pole_rings(H.make_movable(hs, level, np.stack([su, sv], axis=1)), level, uv)
 
 
+_BLOCK = np.stack(np.meshgrid(np.arange(-3, 4), np.arange(-3, 4), indexing="ij"), axis=-1).reshape(-1, 2)
+
+
+def _movable_patches(hs: H.HSpline, level: int, uv: np.ndarray, pole: np.ndarray) -> np.ndarray:
+    """The level-``level`` patches ``(m, 2) int64`` `_make_movable` activates for the points
+    ``uv (K, 2)``: the 7×7 block about each point's patch (`H.make_movable`) and the whole pole
+    ring of each pole a point sits on (``pole (K,)``, `H.pole_of`)."""
+    su, _ = locate(hs.u, uv[:, 0], level)
+    sv, _ = locate(hs.v, uv[:, 1], level)
+    out = [(np.stack([su, sv], axis=1)[:, None, :] + _BLOCK).reshape(-1, 2)]
+    for i, (axis, end) in enumerate(H.closed_ends(hs)):
+        if np.any(pole == i):
+            out.append(H.pole_patches(hs, level, axis, end))
+    return np.concatenate(out)
+
+
 def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     """Refine the whole level-``level`` `H.pole_ring` of every pole a point ``uv (K, 2)`` sits on:
     such a point weighs the ring all around (`point_weights`), so the ring must be movable."""
@@ -748,9 +765,9 @@ def respond(
     early = controls.refine and controls.absorption[0] <= 0.0
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
-        for level in range(1, L):
-            if controls.absorption[level] > 0.0:
-                hs = _make_movable(hs, level, uv)
+        pole = H.pole_of(hs, uv[:, 0], uv[:, 1])
+        hs = refine_levels(hs, {level: _movable_patches(hs, level, uv, pole) for level in range(1, L)
+                                if controls.absorption[level] > 0.0})
         refined = sum(lev.patches.size for lev in hs.fine) - before
         if refined:
             hs, det = _redetail(coarse, det, hs, ())
