@@ -37,7 +37,6 @@ __all__ = [
     "HSpline",
     "from_grid",
     "refine",
-    "refine_levels",
     "make_movable",
     "with_fine",
     "with_cvs",
