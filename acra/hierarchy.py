@@ -339,12 +339,28 @@ def refine(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
         ``(pu, pv)`` at level ``k``; periodic directions wrap, patches outside an open domain
         are ignored.
     """
-    patches = np.asarray(patches, dtype=np.int64).reshape(-1, 2)
-    if not 1 <= k < hs.depth:
-        raise ValueError(f"cannot refine to level {k}: the object has levels 0..{hs.depth - 1}")
+    return refine_levels(hs, {k: patches})
+
+
+def refine_levels(hs: HSpline, patches: dict[int, np.ndarray]) -> HSpline:
+    """`refine` of several levels at once: ``patches[k] (m_k, 2) int64`` at each level ``k``.
+
+    One sweep from the finest level to level 1 builds each level once, with its own patches
+    and the parents of the finer ones; the surface is the one that refining each level in turn
+    gives (a level's patches and CVs are a set, the same whatever order they are added in).
+    """
+    if not patches:
+        return hs
+    top = max(patches)
+    if not 1 <= min(patches) or not top < hs.depth:
+        bad = top if top >= hs.depth else min(patches)
+        raise ValueError(f"cannot refine to level {bad}: the object has levels 0..{hs.depth - 1}")
     fine = list(hs.fine)
-    pu, pv = patches[:, 0], patches[:, 1]
-    for level in range(k, 0, -1):
+    pu = pv = np.zeros(0, np.int64)
+    for level in range(top, 0, -1):
+        if level in patches:
+            own = np.asarray(patches[level], dtype=np.int64).reshape(-1, 2)
+            pu, pv = (own[:, 0], own[:, 1]) if level == top else (np.concatenate([own[:, 0], pu]), np.concatenate([own[:, 1], pv]))
         wu, wv, ok = _valid_patches(hs, level, pu, pv)
         keys = _patch_keys(hs, level, wu[ok], wv[ok])
         built = _build_level(hs, level, keys, fine[level - 1]) if keys.size else None

@@ -25,6 +25,7 @@ import numpy as np
 from . import framekernels
 from . import hspline as H
 from .basis import locate
+from .hierarchy import refine_levels
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -472,9 +473,10 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     for k, axis, end in rings:
         if k != pw.level:
             continue
-        sums, rows, ok, _ = _ring_sums(hs, det, k, axis, end)
+        rows, ok = _ring_rows(hs, k, axis, end)  # a ring the move does not reach needs no sums
         if not ok.all() or not H._lookup(pw.cv_rows, rows)[1].any():  # cv_rows: sorted
             continue
+        sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
         # row j: +w_r / 6 on column j's CVs, -w_r / (6 N) on every column's
         own = np.repeat(np.arange(N), 3)
@@ -628,6 +630,30 @@ class ResponseReport:
     details: H.Details | None = None
 
 
+def _make_movable(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
+    """``hs`` refined so that every CV of the level-``level`` patch of each point ``uv (K, 2)``
+    is movable, with the pole rings the points sit on (`_open_pole_rings`)."""
+    su, _ = locate(hs.u, uv[:, 0], level)
+    sv, _ = locate(hs.v, uv[:, 1], level)
+    return _open_pole_rings(H.make_movable(hs, level, np.stack([su, sv], axis=1)), level, uv)
+
+
+_BLOCK = np.stack(np.meshgrid(np.arange(-3, 4), np.arange(-3, 4), indexing="ij"), axis=-1).reshape(-1, 2)
+
+
+def _movable_patches(hs: H.HSpline, level: int, uv: np.ndarray, pole: np.ndarray) -> np.ndarray:
+    """The level-``level`` patches ``(m, 2) int64`` `_make_movable` activates for the points
+    ``uv (K, 2)``: the 7×7 block about each point's patch (`H.make_movable`) and the whole pole
+    ring of each pole a point sits on (``pole (K,)``, `H.pole_of`)."""
+    su, _ = locate(hs.u, uv[:, 0], level)
+    sv, _ = locate(hs.v, uv[:, 1], level)
+    out = [(np.stack([su, sv], axis=1)[:, None, :] + _BLOCK).reshape(-1, 2)]
+    for i, (axis, end) in enumerate(H.closed_ends(hs)):
+        if np.any(pole == i):
+            out.append(H.pole_patches(hs, level, axis, end))
+    return np.concatenate(out)
+
+
 def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     """Refine the whole level-``level`` `H.pole_ring` of every pole a point ``uv (K, 2)`` sits on:
     such a point weighs the ring all around (`point_weights`), so the ring must be movable."""
@@ -732,24 +758,38 @@ def respond(
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
     refined = 0
+    # Refinement depends on the points' parameters alone, not on where the CVs are, and moves
+    # nothing; unless level 0 moves (its ends decide the poles `_open_pole_rings` opens), every
+    # absorbing level is refined before the first solve, so one pass of `H.details` frames all
+    # the new CVs and each later move's pass turns those on its stale patches with the rest.
+    early = controls.refine and controls.absorption[0] <= 0.0
+    if early:
+        coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
+        pole = H.pole_of(hs, uv[:, 0], uv[:, 1])
+        hs = refine_levels(hs, {level: _movable_patches(hs, level, uv, pole) for level in range(1, L)
+                                if controls.absorption[level] > 0.0})
+        refined = sum(lev.patches.size for lev in hs.fine) - before
+        if refined:
+            hs, det = _redetail(coarse, det, hs, ())
     for level in range(L):
         a = float(controls.absorption[level])
         if a <= 0.0:
             continue
-        if level >= 1 and controls.refine:
-            su, _ = locate(hs.u, uv[:, 0], level)
-            sv, _ = locate(hs.v, uv[:, 1], level)
+        if level >= 1 and controls.refine and not early:
             before = sum(lev.patches.size for lev in hs.fine)
             coarse = hs
-            hs = H.make_movable(hs, level, np.stack([su, sv], axis=1))
-            hs = _open_pole_rings(hs, level, uv)
+            hs = _make_movable(hs, level, uv)
             added = sum(lev.patches.size for lev in hs.fine) - before
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
                 hs, det = _redetail(coarse, det, hs, ())
-        pw = point_weights(hs, level, uv[:, 0], uv[:, 1])  # also the solve's, when no points merge
-        present = pw.active
         d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
+        # the points' own weights serve the solve only when it takes them as they are (no points
+        # merged per patch, none held); otherwise which points the level reaches is all it needs
+        own = d > 0 and not (points.per_patch and not np.asarray(points.is_contact, bool).all()) and not (
+            level == finest and held is not None and len(held.uv))
+        pw = point_weights(hs, level, uv[:, 0], uv[:, 1]) if own else None
+        present = pw.active if own else point_active(hs, level, uv[:, 0], uv[:, 1])
         if d > 0:
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
@@ -765,7 +805,7 @@ def respond(
                 hcur = H.evaluate(hs, huv[:, 0], huv[:, 1], det=det).points
                 luv = np.concatenate([luv, huv])
                 lwant = np.concatenate([lwant, htarget - hcur])
-            lpw = pw if luv is uv else point_weights(hs, level, luv[:, 0], luv[:, 1])
+            lpw = pw if luv is uv and own else point_weights(hs, level, luv[:, 0], luv[:, 1])
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])

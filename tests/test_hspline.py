@@ -228,6 +228,29 @@ def test_refine_rejects_levels_outside_depth(sheet4):
         H.refine(sheet4, 4, [[0, 0]])
 
 
+@pytest.mark.parametrize("closed", [False, True])
+def test_refine_levels_builds_each_level_once_as_refining_them_in_turn(closed, monkeypatch):
+    """`Hi.refine_levels` of several levels is `H.refine` of each in turn (patches, CVs, rows,
+    movability, offsets), with one `_build_level` per level it touches."""
+    hs = H.from_grid(*(shapes.sphere(10, 8) if closed else shapes.sheet(10, 8, 7.0, 5.0)), depth=4)
+    hs = with_random_offsets(H.refine(hs, 1, [[2, 2]]), 0.05, 0)  # offsets the new levels keep
+    want = {1: np.array([[0, 1], [5, 3]]), 3: np.array([[20, 17], [21, 17], [-1, 3]]), 2: np.array([[9, 2]])}
+    seq = hs
+    for k in (3, 1, 2):
+        seq = H.refine(seq, k, want[k])
+    built = []
+    build = Hi._build_level
+    monkeypatch.setattr(Hi, "_build_level", lambda *a: built.append(a[1]) or build(*a))
+    one = Hi.refine_levels(hs, want)
+    assert built == [3, 2, 1]
+    for a, b in zip(seq.fine, one.fine):
+        for name in ("patches", "cv_keys", "patch_rows", "movable", "offsets"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert Hi.refine_levels(one, want) is one
+    with pytest.raises(ValueError, match="levels 0..3"):
+        Hi.refine_levels(hs, {1: [[0, 0]], 4: [[0, 0]]})
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_details_since_a_local_move_equal_a_full_recomputation(seed):
     """`details(since=...)` recomputes only CVs centred on changed patches: equal to a full pass."""

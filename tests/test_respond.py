@@ -365,3 +365,29 @@ def test_a_level0_response_keeps_a_collapsed_edge_one_point():
         assert np.ptp(apex, axis=0).max() <= 1e-12 * hs.size()
         outs.append(apex[0])
     np.testing.assert_allclose(outs[1:], [outs[0]] * 2, rtol=0, atol=1e-12)
+
+
+def test_every_absorbing_level_is_refined_in_one_pass_before_the_first_move(monkeypatch):
+    """Refinement follows the points' parameters, not the CVs, and moves nothing: the response
+    refines all its absorbing levels up front and frames their new CVs in one `H.details` pass,
+    and ends on the same bits as a response on the surface refined beforehand."""
+    hs = flat_sheet(n=10, depth=4)
+    dp = one_point(hs, [3.3, 3.4], [0.02, -0.01, -0.2])
+    c = R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
+    passes = []
+    redetail = R._redetail
+    monkeypatch.setattr(R, "_redetail", lambda old, det, new, moved=None: passes.append(moved) or redetail(old, det, new, moved))
+    out, rep = R.respond(hs, dp, c)
+    assert rep.refined > 0 and passes.count(()) == 1 and passes[0] == ()
+    monkeypatch.setattr(R, "_redetail", redetail)
+    pre = hs
+    for k in (1, 2, 3):
+        su, _ = R.locate(hs.u, dp.uv[:, 0], k)
+        sv, _ = R.locate(hs.v, dp.uv[:, 1], k)
+        pre = H.make_movable(pre, k, np.stack([su, sv], axis=1))
+    ref, ref_rep = R.respond(pre, dp, c)
+    assert ref_rep.refined == 0
+    np.testing.assert_array_equal(out.cvs, ref.cvs)
+    for a, b in zip(out.fine, ref.fine):
+        np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
+        np.testing.assert_array_equal(a.offsets, b.offsets)
