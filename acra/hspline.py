@@ -346,6 +346,7 @@ def surface_normals(
     det: Details | None = None,
     upto: int | None = None,
     ev: SurfaceEval | None = None,
+    nudged: np.ndarray | None = None,
 ) -> tuple[SurfaceEval, np.ndarray]:
     """First-order evaluation plus unit normals that are finite everywhere.
 
@@ -353,6 +354,9 @@ def surface_normals(
     inside the patch: the derivative of ``du × dv`` toward the patch centre (exact when one
     tangent vanishes linearly); where that vanishes too, the point is nudged toward its patch
     centre by growing amounts until the cross product has a direction (acra-notes §1).
+
+    ``nudged`` ``(m,) bool``, if given, is set True at the points whose normal was taken at nudged
+    points (which read the whole level-0 patch, not only the point's own cells) and False elsewhere.
 
     Returns
     -------
@@ -377,6 +381,8 @@ def surface_normals(
         ok = np.linalg.norm(nf, axis=1) > 1e-9 * scale**2
         n[idx[ok]] = nf[ok]
         bad[idx[ok]] = False
+    if nudged is not None:
+        nudged[:] = bad
     for amount in (1e-3, 1e-2, 1e-1, 0.5):
         if not np.any(bad):
             break

@@ -12,6 +12,7 @@ per level-0 patch edge, is the adaptive mesh of a surface without finer levels.
 from __future__ import annotations
 
 import functools
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -357,9 +358,12 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
 
     ``since = (points, limit, stale)``: those of a surface that differs from ``hs`` only on the
     level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`), or the level-``L`` patches
-    ``stale (P0u << L, P0v << L) bool`` (`changed_cells`; with ``normals``, the level-0 patches
-    holding one), on the same topology; only vertices on a stale patch (or its border) are
-    evaluated, the others are copied. ``since =
+    ``stale (P0u << L, P0v << L) bool`` (`changed_cells`), on the same topology; only vertices
+    on a stale patch (or its border) are evaluated, the others are copied. With ``normals``, a
+    vertex whose old normal was taken at nudged points (`surface_normals`: they read its whole
+    level-0 patch) is evaluated again too; where the old limit normals' nudged rows are not known
+    (`_nudged_rows`: not from `grid_samples`), every vertex of a level-0 patch holding a stale
+    cell is. ``since =
     (old_topo, points, limit, stale)``: the same on another topology of the object (``old_topo``
     itself: as without it); a vertex at a
     parameter ``old_topo`` has, on no stale patch, is copied (adaptive topologies of one object
@@ -374,20 +378,26 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
 
     def sample(u, v):
         if not normals:
-            return evaluate(hs, u, v, order=0, det=det).points, None
-        ev, n = surface_normals(hs, u, v, det=det)
-        return ev.points, n
+            return evaluate(hs, u, v, order=0, det=det).points, None, None
+        nudged = np.empty(u.size, bool)
+        ev, n = surface_normals(hs, u, v, det=det, nudged=nudged)
+        return ev.points, n, np.flatnonzero(nudged)
 
     if since is None:
-        return sample(topo.u, topo.v)
+        points, limit, nudged = sample(topo.u, topo.v)
+        if normals:
+            _note_nudged(limit, nudged)
+        return points, limit
     old, (old_points, old_limit, stale) = (since[0] if len(since) == 4 else topo), since[-3:]
     # on the same topology vertex i is the old vertex i
     src, found = (_NO_INDEX, _NO_FOUND) if old is topo else _matched(old, topo, memo)
     level = _level_of(hs, stale)
-    if normals and level:
+    old_nudged = _nudged_rows(old_limit) if normals else None
+    if normals and level and old_nudged is None:
         # a limit normal where du × dv vanishes is taken at points nudged toward the centre of the
-        # vertex's level-0 patch (`surface_normals`), which a finer cell need not hold: with
-        # normals, a vertex is evaluated again on every level-0 patch with a changed cell
+        # vertex's level-0 patch (`surface_normals`), which a finer cell need not hold: where the
+        # old vertices that took one are not known, a vertex is evaluated again on every level-0
+        # patch with a changed cell
         r = 1 << level
         stale, level = stale.reshape(hs.u.patches0, r, hs.v.patches0, r).any(axis=(1, 3)), 0
     (cu, bu), (cv, bv) = _patch_cells(hs, topo, memo, level)
@@ -395,12 +405,47 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     limit = np.empty((topo.u.size, 3)) if normals else _NO_POINTS
     idx = _carry(old_points, old_limit if normals else _NO_POINTS, src, found, np.ascontiguousarray(stale, np.bool_),
                  cu, bu, cv, bv, points, limit)
+    carried = _NO_INDEX  # copied vertices whose old normal was taken at nudged points
+    if old_nudged is not None and old_nudged.size:
+        took = np.zeros(len(old_points), bool)
+        took[old_nudged] = True
+        took = took if old is topo else took[src] & found
+        if level:
+            # a nudged normal reads points anywhere in its level-0 patch, beyond the vertex's own
+            # cells: such a vertex is evaluated again (they are few: where du × dv and its first
+            # Taylor term both vanish)
+            idx = np.union1d(idx, np.flatnonzero(took))
+        else:
+            copied = np.ones(topo.u.size, bool)
+            copied[idx] = False
+            carried = np.flatnonzero(took & copied)
+    nudged = None
     if idx.size:
-        p, n = sample(topo.u[idx], topo.v[idx])
+        p, n, nudged = sample(topo.u[idx], topo.v[idx])
         points[idx] = p
         if normals:
             limit[idx] = n
+            nudged = idx[nudged]
+    if normals and old_nudged is not None:
+        _note_nudged(limit, np.union1d(carried, nudged) if nudged is not None and nudged.size else carried)
     return points, limit if normals else None
+
+
+_NUDGED: dict = {}  # id(limit normals) -> (a weak reference to them, rows taken at nudged points)
+
+
+def _note_nudged(limit: np.ndarray, rows: np.ndarray) -> None:
+    """Keep, for as long as ``limit`` (a `grid_samples` result) lives, its rows ``(k,) int64``
+    whose normal `surface_normals` took at nudged points, so a later evaluation since it knows
+    which copied vertices read more than their own cells."""
+    key = id(limit)
+    _NUDGED[key] = (weakref.ref(limit, lambda _, key=key: _NUDGED.pop(key, None)), np.asarray(rows, np.int64))
+
+
+def _nudged_rows(limit: np.ndarray) -> np.ndarray | None:
+    """`_note_nudged`'s rows of ``limit`` (``None``: not known)."""
+    hit = _NUDGED.get(id(limit))
+    return hit[1] if hit is not None and hit[0]() is limit else None
 
 
 _NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros((0, 3))
