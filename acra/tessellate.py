@@ -186,8 +186,10 @@ def run_topology(surfaces, samples: int) -> MeshTopology:
         for k in range(1, hs.depth):
             keys = hs.level(k).patches
             if keys.size:
-                present.setdefault(k, []).append(np.stack(np.divmod(keys, hs.v.patches(k)), axis=1))
-    present = {k: np.unique(np.concatenate(rows), axis=0) for k, rows in present.items()}
+                present.setdefault(k, []).append(np.asarray(keys, np.int64))
+    # a key pu * Pv_k + pv sorts as the row (pu, pv): the unique keys give the unique rows, sorted
+    present = {k: np.stack(np.divmod(np.unique(np.concatenate(keys)), surfaces[0].v.patches(k)), axis=1)
+               for k, keys in present.items()}
     return _adaptive(surfaces[0].u, surfaces[0].v, samples, present)
 
 
@@ -197,16 +199,25 @@ def _leaves(p0u: int, p0v: int, present: dict[int, np.ndarray], top: int) -> lis
     level-``j`` patches ``(m_j, 2) int64`` where level ``j`` is present) while their parent holds
     one. Only the patches on the way to a present one are visited, so the cost follows the
     refined area, not the finest level's whole grid."""
+    # per level k, the sorted keys u * (P0v << k) + v of the level-k patches that hold a present
+    # patch of a finer level: the parents of level k + 1's present patches and of its own such
+    # patches, so each level sorts only its own distinct ones
+    holding: dict[int, np.ndarray] = {}
+    below = np.zeros((0, 2), np.int64)
+    for k in range(top - 1, -1, -1):
+        rows = np.concatenate([below, np.asarray(present.get(k + 1, below), np.int64).reshape(-1, 2)]) >> 1
+        holding[k] = np.unique(rows[:, 0] * (p0v << k) + rows[:, 1])
+        below = np.stack(np.divmod(holding[k], p0v << k), axis=1)
     out = []
     open_ = np.argwhere(np.ones((p0u, p0v), bool)).astype(np.int64)  # level-0 roots
     children = np.array([[0, 0], [0, 1], [1, 0], [1, 1]], np.int64)
     for k in range(top + 1):
-        finer = [present[j] >> (j - k) for j in present if j > k and len(present[j])]
         busy = np.zeros(len(open_), bool)
-        if finer:
-            width = (p0v << k) + 1
-            f = np.concatenate(finer)
-            busy = np.isin(open_[:, 0] * width + open_[:, 1], f[:, 0] * width + f[:, 1])
+        keys = holding.get(k)
+        if keys is not None and keys.size:
+            want = open_[:, 0] * (p0v << k) + open_[:, 1]
+            at = np.minimum(np.searchsorted(keys, want), keys.size - 1)
+            busy = keys[at] == want
         out.append((k, open_[~busy]))
         open_ = (open_[busy][:, None, :] * 2 + children[None]).reshape(-1, 2)
     return out
