@@ -544,18 +544,41 @@ def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray) -> np
     pole is smooth. ``topo`` is a `GridTopology` or a `MeshTopology` (its ``u``, ``v``)."""
     scale = hs.size()
     out = limit.copy()
-    for x, d in ((topo.u, hs.u), (topo.v, hs.v)):
-        if d.periodic:
+    for line in _end_lines(hs, topo):
+        if np.ptp(points[line], axis=0).max() > 1e-12 * scale:
             continue
-        for end in (0.0, float(d.patches0)):
-            line = np.nonzero(x == end)[0]
-            if line.size < 2 or np.ptp(points[line], axis=0).max() > 1e-12 * scale:
-                continue
             m = limit[line].mean(axis=0)
             norm = np.linalg.norm(m)
             if norm > 1e-12:
                 out[line] = m / norm
     return out
+
+
+_END_LINES: dict = {}  # id(topology) -> (a weak reference to it, the surface's directions, its `_end_lines`)
+
+
+def _end_lines(hs: HSpline, topo) -> list[np.ndarray]:
+    """The vertices ``(k,) int64`` of each end of each open direction of ``topo`` that has two or
+    more (the rows `pole_normals` may share a normal over), a function of the topology alone,
+    kept while it lives: the frames of a run share their display's."""
+    hit = _END_LINES.get(id(topo))
+    if hit is not None and hit[0]() is topo and hit[1] == (hs.u, hs.v):
+        return hit[2]
+    lines = []
+    for x, d in ((topo.u, hs.u), (topo.v, hs.v)):
+        if d.periodic:
+            continue
+        for end in (0.0, float(d.patches0)):
+            line = np.nonzero(x == end)[0]
+            if line.size >= 2:
+                lines.append(line)
+    key = id(topo)
+    try:
+        ref = weakref.ref(topo, lambda _, key=key: _END_LINES.pop(key, None))
+    except TypeError:  # a topology without weak references is not kept
+        return lines
+    _END_LINES[key] = (ref, (hs.u, hs.v), lines)
+    return lines
 
 
 def patch_grids(hs: HSpline, patches: np.ndarray, samples: int, det: Details | None = None):
