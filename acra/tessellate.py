@@ -547,10 +547,10 @@ def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray) -> np
     for line in _end_lines(hs, topo):
         if np.ptp(points[line], axis=0).max() > 1e-12 * scale:
             continue
-            m = limit[line].mean(axis=0)
-            norm = np.linalg.norm(m)
-            if norm > 1e-12:
-                out[line] = m / norm
+        m = limit[line].mean(axis=0)
+        norm = np.linalg.norm(m)
+        if norm > 1e-12:
+            out[line] = m / norm
     return out
 
 

@@ -378,3 +378,24 @@ def test_normals_since_changed_cells_evaluate_those_cells_and_the_nudged_vertice
     full = T.grid_samples(moved, topo, H.details(moved))
     for a, b in zip(fast, full):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_pole_s_vertices_share_the_mean_of_their_limit_normals():
+    """`pole_normals` gives every vertex of a collapsed domain edge the normalised mean of their
+    limit normals, the same on later calls with the topology (its end rows are kept), and leaves
+    the other vertices' limit normals."""
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=1)
+    for topo in (T.display_topology(hs.u, hs.v, 4), T.run_topology([hs], 4)):
+        points, limit = T.grid_samples(hs, topo)
+        for _ in range(2):
+            normals = T.pole_normals(hs, topo, points, limit)
+            poles = 0
+            for end in (0.0, float(hs.v.patches0)):
+                line = np.nonzero(topo.v == end)[0]
+                m = limit[line].mean(axis=0)
+                np.testing.assert_array_equal(normals[line], np.broadcast_to(m / np.linalg.norm(m), (line.size, 3)))
+                assert np.ptp(limit[line], axis=0).max() > 0.0  # the mean is not one of them
+                poles += line.size
+            inner = (topo.v != 0.0) & (topo.v != float(hs.v.patches0))
+            np.testing.assert_array_equal(normals[inner], limit[inner])
+            assert poles > 2
