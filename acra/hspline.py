@@ -346,6 +346,7 @@ def surface_normals(
     det: Details | None = None,
     upto: int | None = None,
     ev: SurfaceEval | None = None,
+    nudged: np.ndarray | None = None,
 ) -> tuple[SurfaceEval, np.ndarray]:
     """First-order evaluation plus unit normals that are finite everywhere.
 
@@ -353,6 +354,9 @@ def surface_normals(
     inside the patch: the derivative of ``du × dv`` toward the patch centre (exact when one
     tangent vanishes linearly); where that vanishes too, the point is nudged toward its patch
     centre by growing amounts until the cross product has a direction (acra-notes §1).
+
+    ``nudged`` ``(m,) bool``, if given, is set True at the points whose normal was taken at nudged
+    points (which read the whole level-0 patch, not only the point's own cells) and False elsewhere.
 
     Returns
     -------
@@ -377,6 +381,8 @@ def surface_normals(
         ok = np.linalg.norm(nf, axis=1) > 1e-9 * scale**2
         n[idx[ok]] = nf[ok]
         bad[idx[ok]] = False
+    if nudged is not None:
+        nudged[:] = bad
     for amount in (1e-3, 1e-2, 1e-1, 0.5):
         if not np.any(bad):
             break
@@ -473,25 +479,17 @@ def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: 
     cu, cv = new.u.patches(level), new.v.patches(level)
     out = np.zeros((cu, cv), bool)
 
-    def mark(k: int, pu: np.ndarray, pv: np.ndarray) -> None:
-        # level-k patches into level-`level` cells: a coarser patch covers a block of cells, a
-        # finer one lies in one cell (its closed box in the cell's)
-        if not pu.size:
-            return
-        if k >= level:
-            out[pu >> (k - level), pv >> (k - level)] = True
-            return
-        # each patch's r x r block of cells, so the work follows the changed patches, not the grid
-        r = 1 << (level - k)
-        step = np.arange(r)
-        out[(pu[:, None] * r + step)[:, :, None], (pv[:, None] * r + step)[:, None, :]] = True
+    def mark(k: int, pu: np.ndarray, pv: np.ndarray, spread: int = 0) -> None:
+        # level-k patches (spread 3: the patches j-3 .. j a CV j supports) into level-`level`
+        # cells: a coarser patch covers a block of cells, a finer one lies in one cell (its closed
+        # box in the cell's); compiled, so the work follows the changed patches, not the grid
+        if pu.size:
+            kernels.mark_cells(out, np.ascontiguousarray(pu, np.int64), np.ascontiguousarray(pv, np.int64), k, level,
+                               spread, new.u.patches(k), new.v.patches(k), bool(new.u.periodic), bool(new.v.periodic))
 
     def support(k: int, ju: np.ndarray, jv: np.ndarray) -> None:
         # CV j supports level-k patches j-3 .. j (wrapped where periodic, clipped where open)
-        fit = lambda q, d: np.mod(q, d.patches(k)) if d.periodic else np.clip(q, 0, d.patches(k) - 1)  # noqa: E731
-        qu = fit(ju[:, None] - 3 + _I4, new.u)
-        qv = fit(jv[:, None] - 3 + _I4, new.v)
-        mark(k, *(x.reshape(-1) for x in np.broadcast_arrays(qu[:, :, None], qv[:, None, :])))
+        mark(k, ju, jv, 3)
 
     if old.cvs.shape != new.cvs.shape:
         out[...] = True

@@ -33,7 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["eval_points", "NSLOTS"]
+__all__ = ["eval_points", "NSLOTS", "mark_cells"]
 
 # output slots per derivative order: (0,0) | (1,0) (0,1) | (2,0) (1,1) (0,2), as `SurfaceEval`'s fields
 NSLOTS = (1, 3, 6)
@@ -236,3 +236,35 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
         for s in range(nslot):
             for c in range(3):
                 out[s, i, c] = sum_[s, c]
+
+
+@njit(cache=True, nogil=True)
+def mark_cells(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic):
+    """Set in ``out (P0u << level, P0v << level) bool`` every level-``level`` cell that holds a
+    level-``k`` patch ``(pu[i] - d, pv[i] - e)`` for ``d, e`` in ``0..spread`` (``pu, pv (m,)
+    int64``; ``spread`` 3: the patches a level-``k`` CV ``(pu[i], pv[i])`` supports, 0: the
+    patches themselves), wrapped along a periodic direction and clipped to ``0..n_k - 1`` along
+    an open one (``nu_k, nv_k``: level ``k``'s patch counts). A coarser patch covers a block of
+    cells, a finer one lies in one. `acra.hspline.changed_cells`' marking, as numpy's index
+    assignments it replaces would set them, without their per-level array set-up."""
+    r = 1 << (level - k) if level > k else 1
+    shift = k - level if k > level else 0
+    for i in range(pu.shape[0]):
+        for d in range(spread + 1):
+            qu = pu[i] - spread + d
+            if u_periodic:
+                qu %= nu_k
+            else:
+                qu = min(max(qu, 0), nu_k - 1)
+            for e in range(spread + 1):
+                qv = pv[i] - spread + e
+                if v_periodic:
+                    qv %= nv_k
+                else:
+                    qv = min(max(qv, 0), nv_k - 1)
+                if r == 1:
+                    out[qu >> shift, qv >> shift] = True
+                else:
+                    for a in range(r):
+                        for b in range(r):
+                            out[qu * r + a, qv * r + b] = True

@@ -12,6 +12,7 @@ per level-0 patch edge, is the adaptive mesh of a surface without finer levels.
 from __future__ import annotations
 
 import functools
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -185,8 +186,10 @@ def run_topology(surfaces, samples: int) -> MeshTopology:
         for k in range(1, hs.depth):
             keys = hs.level(k).patches
             if keys.size:
-                present.setdefault(k, []).append(np.stack(np.divmod(keys, hs.v.patches(k)), axis=1))
-    present = {k: np.unique(np.concatenate(rows), axis=0) for k, rows in present.items()}
+                present.setdefault(k, []).append(np.asarray(keys, np.int64))
+    # a key pu * Pv_k + pv sorts as the row (pu, pv): the unique keys give the unique rows, sorted
+    present = {k: np.stack(np.divmod(np.unique(np.concatenate(keys)), surfaces[0].v.patches(k)), axis=1)
+               for k, keys in present.items()}
     return _adaptive(surfaces[0].u, surfaces[0].v, samples, present)
 
 
@@ -196,16 +199,25 @@ def _leaves(p0u: int, p0v: int, present: dict[int, np.ndarray], top: int) -> lis
     level-``j`` patches ``(m_j, 2) int64`` where level ``j`` is present) while their parent holds
     one. Only the patches on the way to a present one are visited, so the cost follows the
     refined area, not the finest level's whole grid."""
+    # per level k, the sorted keys u * (P0v << k) + v of the level-k patches that hold a present
+    # patch of a finer level: the parents of level k + 1's present patches and of its own such
+    # patches, so each level sorts only its own distinct ones
+    holding: dict[int, np.ndarray] = {}
+    below = np.zeros((0, 2), np.int64)
+    for k in range(top - 1, -1, -1):
+        rows = np.concatenate([below, np.asarray(present.get(k + 1, below), np.int64).reshape(-1, 2)]) >> 1
+        holding[k] = np.unique(rows[:, 0] * (p0v << k) + rows[:, 1])
+        below = np.stack(np.divmod(holding[k], p0v << k), axis=1)
     out = []
     open_ = np.argwhere(np.ones((p0u, p0v), bool)).astype(np.int64)  # level-0 roots
     children = np.array([[0, 0], [0, 1], [1, 0], [1, 1]], np.int64)
     for k in range(top + 1):
-        finer = [present[j] >> (j - k) for j in present if j > k and len(present[j])]
         busy = np.zeros(len(open_), bool)
-        if finer:
-            width = (p0v << k) + 1
-            f = np.concatenate(finer)
-            busy = np.isin(open_[:, 0] * width + open_[:, 1], f[:, 0] * width + f[:, 1])
+        keys = holding.get(k)
+        if keys is not None and keys.size:
+            want = open_[:, 0] * (p0v << k) + open_[:, 1]
+            at = np.minimum(np.searchsorted(keys, want), keys.size - 1)
+            busy = keys[at] == want
         out.append((k, open_[~busy]))
         open_ = (open_[busy][:, None, :] * 2 + children[None]).reshape(-1, 2)
     return out
@@ -357,9 +369,12 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
 
     ``since = (points, limit, stale)``: those of a surface that differs from ``hs`` only on the
     level-0 patches ``stale (P0u, P0v) bool`` (`changed_patches`), or the level-``L`` patches
-    ``stale (P0u << L, P0v << L) bool`` (`changed_cells`; with ``normals``, the level-0 patches
-    holding one), on the same topology; only vertices on a stale patch (or its border) are
-    evaluated, the others are copied. ``since =
+    ``stale (P0u << L, P0v << L) bool`` (`changed_cells`), on the same topology; only vertices
+    on a stale patch (or its border) are evaluated, the others are copied. With ``normals``, a
+    vertex whose old normal was taken at nudged points (`surface_normals`: they read its whole
+    level-0 patch) is evaluated again too; where the old limit normals' nudged rows are not known
+    (`_nudged_rows`: not from `grid_samples`), every vertex of a level-0 patch holding a stale
+    cell is. ``since =
     (old_topo, points, limit, stale)``: the same on another topology of the object (``old_topo``
     itself: as without it); a vertex at a
     parameter ``old_topo`` has, on no stale patch, is copied (adaptive topologies of one object
@@ -374,20 +389,26 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
 
     def sample(u, v):
         if not normals:
-            return evaluate(hs, u, v, order=0, det=det).points, None
-        ev, n = surface_normals(hs, u, v, det=det)
-        return ev.points, n
+            return evaluate(hs, u, v, order=0, det=det).points, None, None
+        nudged = np.empty(u.size, bool)
+        ev, n = surface_normals(hs, u, v, det=det, nudged=nudged)
+        return ev.points, n, np.flatnonzero(nudged)
 
     if since is None:
-        return sample(topo.u, topo.v)
+        points, limit, nudged = sample(topo.u, topo.v)
+        if normals:
+            _note_nudged(limit, nudged)
+        return points, limit
     old, (old_points, old_limit, stale) = (since[0] if len(since) == 4 else topo), since[-3:]
     # on the same topology vertex i is the old vertex i
     src, found = (_NO_INDEX, _NO_FOUND) if old is topo else _matched(old, topo, memo)
     level = _level_of(hs, stale)
-    if normals and level:
+    old_nudged = _nudged_rows(old_limit) if normals else None
+    if normals and level and old_nudged is None:
         # a limit normal where du × dv vanishes is taken at points nudged toward the centre of the
-        # vertex's level-0 patch (`surface_normals`), which a finer cell need not hold: with
-        # normals, a vertex is evaluated again on every level-0 patch with a changed cell
+        # vertex's level-0 patch (`surface_normals`), which a finer cell need not hold: where the
+        # old vertices that took one are not known, a vertex is evaluated again on every level-0
+        # patch with a changed cell
         r = 1 << level
         stale, level = stale.reshape(hs.u.patches0, r, hs.v.patches0, r).any(axis=(1, 3)), 0
     (cu, bu), (cv, bv) = _patch_cells(hs, topo, memo, level)
@@ -395,12 +416,47 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     limit = np.empty((topo.u.size, 3)) if normals else _NO_POINTS
     idx = _carry(old_points, old_limit if normals else _NO_POINTS, src, found, np.ascontiguousarray(stale, np.bool_),
                  cu, bu, cv, bv, points, limit)
+    carried = _NO_INDEX  # copied vertices whose old normal was taken at nudged points
+    if old_nudged is not None and old_nudged.size:
+        took = np.zeros(len(old_points), bool)
+        took[old_nudged] = True
+        took = took if old is topo else took[src] & found
+        if level:
+            # a nudged normal reads points anywhere in its level-0 patch, beyond the vertex's own
+            # cells: such a vertex is evaluated again (they are few: where du × dv and its first
+            # Taylor term both vanish)
+            idx = np.union1d(idx, np.flatnonzero(took))
+        else:
+            copied = np.ones(topo.u.size, bool)
+            copied[idx] = False
+            carried = np.flatnonzero(took & copied)
+    nudged = None
     if idx.size:
-        p, n = sample(topo.u[idx], topo.v[idx])
+        p, n, nudged = sample(topo.u[idx], topo.v[idx])
         points[idx] = p
         if normals:
             limit[idx] = n
+            nudged = idx[nudged]
+    if normals and old_nudged is not None:
+        _note_nudged(limit, np.union1d(carried, nudged) if nudged is not None and nudged.size else carried)
     return points, limit if normals else None
+
+
+_NUDGED: dict = {}  # id(limit normals) -> (a weak reference to them, rows taken at nudged points)
+
+
+def _note_nudged(limit: np.ndarray, rows: np.ndarray) -> None:
+    """Keep, for as long as ``limit`` (a `grid_samples` result) lives, its rows ``(k,) int64``
+    whose normal `surface_normals` took at nudged points, so a later evaluation since it knows
+    which copied vertices read more than their own cells."""
+    key = id(limit)
+    _NUDGED[key] = (weakref.ref(limit, lambda _, key=key: _NUDGED.pop(key, None)), np.asarray(rows, np.int64))
+
+
+def _nudged_rows(limit: np.ndarray) -> np.ndarray | None:
+    """`_note_nudged`'s rows of ``limit`` (``None``: not known)."""
+    hit = _NUDGED.get(id(limit))
+    return hit[1] if hit is not None and hit[0]() is limit else None
 
 
 _NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros((0, 3))
@@ -488,18 +544,41 @@ def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray) -> np
     pole is smooth. ``topo`` is a `GridTopology` or a `MeshTopology` (its ``u``, ``v``)."""
     scale = hs.size()
     out = limit.copy()
+    for line in _end_lines(hs, topo):
+        if np.ptp(points[line], axis=0).max() > 1e-12 * scale:
+            continue
+        m = limit[line].mean(axis=0)
+        norm = np.linalg.norm(m)
+        if norm > 1e-12:
+            out[line] = m / norm
+    return out
+
+
+_END_LINES: dict = {}  # id(topology) -> (a weak reference to it, the surface's directions, its `_end_lines`)
+
+
+def _end_lines(hs: HSpline, topo) -> list[np.ndarray]:
+    """The vertices ``(k,) int64`` of each end of each open direction of ``topo`` that has two or
+    more (the rows `pole_normals` may share a normal over), a function of the topology alone,
+    kept while it lives: the frames of a run share their display's."""
+    hit = _END_LINES.get(id(topo))
+    if hit is not None and hit[0]() is topo and hit[1] == (hs.u, hs.v):
+        return hit[2]
+    lines = []
     for x, d in ((topo.u, hs.u), (topo.v, hs.v)):
         if d.periodic:
             continue
         for end in (0.0, float(d.patches0)):
             line = np.nonzero(x == end)[0]
-            if line.size < 2 or np.ptp(points[line], axis=0).max() > 1e-12 * scale:
-                continue
-            m = limit[line].mean(axis=0)
-            norm = np.linalg.norm(m)
-            if norm > 1e-12:
-                out[line] = m / norm
-    return out
+            if line.size >= 2:
+                lines.append(line)
+    key = id(topo)
+    try:
+        ref = weakref.ref(topo, lambda _, key=key: _END_LINES.pop(key, None))
+    except TypeError:  # a topology without weak references is not kept
+        return lines
+    _END_LINES[key] = (ref, (hs.u, hs.v), lines)
+    return lines
 
 
 def patch_grids(hs: HSpline, patches: np.ndarray, samples: int, det: Details | None = None):

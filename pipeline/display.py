@@ -217,8 +217,8 @@ class Displays:
 
 
 CELL_LEVEL = 4  # the finest level whose patches `hspline.changed_cells` tells changed from unchanged
-# (a round's display, points alone; the run's, with normals, re-evaluates the level-0 patches
-# holding a changed cell: `acra.tessellate.grid_samples`)
+# (a round's display, points alone, and the run's, with normals, which also re-evaluates the
+# vertices whose limit normal was taken at nudged points: `acra.tessellate.grid_samples`)
 
 
 def _cell_level(surface: hspline.HSpline) -> int:

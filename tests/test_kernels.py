@@ -261,3 +261,37 @@ def test_compiled_ring_sums_equal_the_array_form(seed):
     np.testing.assert_array_equal(sums, ref)
     want = np.ptp(ref, axis=0).max()
     assert (np.isnan(spread) and np.isnan(want)) or np.float64(spread).tobytes() == want.tobytes()
+
+
+# the compiled marking of `hspline.changed_cells` (`acra.kernels.mark_cells`)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_marked_cells_equal_numpy_index_assignment(seed):
+    """`mark_cells` sets the cells numpy's wrapped or clipped index assignment sets, for levels
+    coarser and finer than the cells', CV supports (spread 3) and patches alone (spread 0)."""
+    rng = np.random.default_rng(seed)
+    p0u, p0v, level = 6, 5, 2
+    for k in range(4):
+        for spread in (0, 3):
+            for u_periodic in (False, True):
+                for v_periodic in (False, True):
+                    nu_k, nv_k = p0u << k, p0v << k
+                    pu = rng.integers(0, nu_k + spread, 7).astype(np.int64)
+                    pv = rng.integers(0, nv_k + spread, 7).astype(np.int64)
+                    want = np.zeros((p0u << level, p0v << level), bool)
+                    d = np.arange(spread + 1)
+                    qu = pu[:, None] - spread + d
+                    qv = pv[:, None] - spread + d
+                    qu = np.mod(qu, nu_k) if u_periodic else np.clip(qu, 0, nu_k - 1)
+                    qv = np.mod(qv, nv_k) if v_periodic else np.clip(qv, 0, nv_k - 1)
+                    qu, qv = (x.reshape(-1) for x in np.broadcast_arrays(qu[:, :, None], qv[:, None, :]))
+                    if k >= level:
+                        want[qu >> (k - level), qv >> (k - level)] = True
+                    else:
+                        r = 1 << (level - k)
+                        s = np.arange(r)
+                        want[(qu[:, None] * r + s)[:, :, None], (qv[:, None] * r + s)[:, None, :]] = True
+                    got = np.zeros_like(want)
+                    kernels.mark_cells(got, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic)
+                    np.testing.assert_array_equal(got, want)

@@ -348,3 +348,54 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
             assert np.isnan(points[want_idx]).all()
             if normals:
                 np.testing.assert_array_equal(limit[copied], old_limit[rows])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_normals_since_changed_cells_evaluate_those_cells_and_the_nudged_vertices(seed, monkeypatch):
+    """With normals, `grid_samples(since=...)` on `changed_cells` evaluates the vertices on the
+    changed cells (not every vertex of their level-0 patches) and, anywhere, the old vertices
+    whose normal was taken at nudged points (`_note_nudged`), and equals a full evaluation."""
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=3)
+    hs = with_random_offsets(H.make_movable(hs, 2, [[4 * int(rng.integers(0, 12)) + 2, 14]]), 0.02, seed)
+    topo = T.run_topology([hs], 4)
+    old = T.grid_samples(hs, topo)
+    moved = nudged(hs, 2, rng)
+    stale = H.changed_cells(hs, H.details(hs), moved, H.details(moved), 2)
+    assert 0 < stale.sum() < stale.size
+    (cu, bu), (cv, bv) = T._cells(hs.u, topo.u, 2), T._cells(hs.v, topo.v, 2)
+    on_cells = stale[cu, cv] | stale[cu, bv] | stale[bu, cv] | stale[bu, bv]
+    patch = stale.reshape(hs.u.patches0, 4, hs.v.patches0, 4).any(axis=(1, 3))
+    (pu, qu), (pv, qv) = T._cells(hs.u, topo.u), T._cells(hs.v, topo.v)
+    on_patches = patch[pu, pv] | patch[pu, qv] | patch[qu, pv] | patch[qu, qv]
+    clean = np.flatnonzero(~on_patches)[:3]
+    T._note_nudged(old[1], clean)  # as if these three had taken nudged points
+    counted = []
+    real = T.surface_normals
+    monkeypatch.setattr(T, "surface_normals", lambda hs_, u, v, **k: (counted.append(u.size), real(hs_, u, v, **k))[1])
+    fast = T.grid_samples(moved, topo, H.details(moved), since=(*old, stale))
+    assert counted == [on_cells.sum() + clean.size] and on_cells.sum() < on_patches.sum()
+    full = T.grid_samples(moved, topo, H.details(moved))
+    for a, b in zip(fast, full):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_pole_s_vertices_share_the_mean_of_their_limit_normals():
+    """`pole_normals` gives every vertex of a collapsed domain edge the normalised mean of their
+    limit normals, the same on later calls with the topology (its end rows are kept), and leaves
+    the other vertices' limit normals."""
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=1)
+    for topo in (T.display_topology(hs.u, hs.v, 4), T.run_topology([hs], 4)):
+        points, limit = T.grid_samples(hs, topo)
+        for _ in range(2):
+            normals = T.pole_normals(hs, topo, points, limit)
+            poles = 0
+            for end in (0.0, float(hs.v.patches0)):
+                line = np.nonzero(topo.v == end)[0]
+                m = limit[line].mean(axis=0)
+                np.testing.assert_array_equal(normals[line], np.broadcast_to(m / np.linalg.norm(m), (line.size, 3)))
+                assert np.ptp(limit[line], axis=0).max() > 0.0  # the mean is not one of them
+                poles += line.size
+            inner = (topo.v != 0.0) & (topo.v != float(hs.v.patches0))
+            np.testing.assert_array_equal(normals[inner], limit[inner])
+            assert poles > 2
