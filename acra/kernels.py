@@ -238,6 +238,13 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
                 out[s, i, c] = sum_[s, c]
 
 
+@njit(inline="always")
+def _patch_index(q, n, periodic):
+    """Patch ``q`` of a direction with ``n`` patches: wrapped if ``periodic``, else clipped to
+    ``0..n - 1``."""
+    return q % n if periodic else min(max(q, 0), n - 1)
+
+
 @njit(cache=True, nogil=True)
 def mark_cells(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic):
     """Set in ``out (P0u << level, P0v << level) bool`` every level-``level`` cell that holds a
@@ -251,17 +258,9 @@ def mark_cells(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic
     shift = k - level if k > level else 0
     for i in range(pu.shape[0]):
         for d in range(spread + 1):
-            qu = pu[i] - spread + d
-            if u_periodic:
-                qu %= nu_k
-            else:
-                qu = min(max(qu, 0), nu_k - 1)
+            qu = _patch_index(pu[i] - spread + d, nu_k, u_periodic)
             for e in range(spread + 1):
-                qv = pv[i] - spread + e
-                if v_periodic:
-                    qv %= nv_k
-                else:
-                    qv = min(max(qv, 0), nv_k - 1)
+                qv = _patch_index(pv[i] - spread + e, nv_k, v_periodic)
                 if r == 1:
                     out[qu >> shift, qv >> shift] = True
                 else:

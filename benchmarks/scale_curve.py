@@ -48,7 +48,7 @@ import contextlib
 import cProfile
 import os
 import pstats
-import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -68,6 +68,8 @@ from pipeline.run import run_file
 from scenes import dog_head_spike as dog
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # doc_tables, beside this script
+import doc_tables  # noqa: E402
 HEAD, SPIKE = "/World/Head", "/World/Jab/Spike"
 ABSORPTION = [0, 0, 0.2, 0.3, 0.5, 0, 0]  # the dog head's
 STAGES = ("ms_setup", "ms_detect", "ms_convert", "ms_respond", "ms_visible", "ms_output", "ms_total")
@@ -257,26 +259,10 @@ def goal_table(rows) -> str:
     return "\n".join(lines)
 
 
-def commit_of(root: Path) -> str:
-    """Short commit of the checkout ``root`` (``+`` when it has uncommitted changes), or '?'."""
-    try:
-        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                             check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True).stdout.strip()
-        return sha + ("+" if dirty else "")
-    except (subprocess.CalledProcessError, FileNotFoundError):
-        return "?"
-
-
-def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
-    """``text`` with what lies between the lines ``begin`` and ``end`` replaced by ``block``;
-    ``block`` alone if ``text`` has no such markers."""
-    if begin not in text or end not in text:
-        return block + "\n"
-    head, rest = text.split(begin, 1)
-    _, tail = rest.split(end, 1)
-    return f"{head}{begin}\n{block}\n{end}{tail}"
+def replace_block(text: str, block: str) -> str:
+    """``text`` with this benchmark's generated block (between `BEGIN` and `END`) replaced by
+    ``block`` (`doc_tables.replace_block`)."""
+    return doc_tables.replace_block(text, block, BEGIN, END)
 
 
 def plot(rows, path: Path) -> None:
@@ -354,7 +340,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per clock and scale (default 3)")
     ap.add_argument("--markdown", type=Path, help="write the tables between this file's markers (see the docstring)")
     args = ap.parse_args()
-    t0, load, label = time.perf_counter(), os.getloadavg(), commit_of(ROOT)
+    t0, load, label = time.perf_counter(), os.getloadavg(), doc_tables.commit_of(ROOT)
     parts = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

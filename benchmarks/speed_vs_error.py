@@ -65,6 +65,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # doc_tables, beside this script
+import doc_tables  # noqa: E402
 _RESPONSE = ("cvs", "patchLevel", "patches", "offsetLevel", "offsetCvs", "offsets")
 BEGIN, END = "<!-- speed_vs_error.py: begin -->", "<!-- speed_vs_error.py: end -->"
 DEFAULTS = dict(method="direct", density=8, cap=4)
@@ -141,18 +143,6 @@ class Worker:
     def close(self) -> None:
         self.proc.stdin.close()
         self.proc.wait(timeout=60)
-
-
-def commit_of(root: Path) -> str:
-    """Short commit of the checkout ``root`` (``+`` when it has uncommitted changes), or '?'."""
-    try:
-        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                             check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True).stdout.strip()
-        return sha + ("+" if dirty else "")
-    except (subprocess.CalledProcessError, FileNotFoundError):
-        return "?"
 
 
 # --- the rulers, in this process ----------------------------------------------------------------
@@ -350,14 +340,10 @@ def before_after(new: list[Row], base: list[Row], base_label: str, new_label: st
     return "\n".join(lines)
 
 
-def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
-    """``text`` with what lies between the lines ``begin`` and ``end`` replaced by ``block``;
-    ``block`` alone if ``text`` has no such markers."""
-    if begin not in text or end not in text:
-        return block + "\n"
-    head, rest = text.split(begin, 1)
-    _, tail = rest.split(end, 1)
-    return f"{head}{begin}\n{block}\n{end}{tail}"
+def replace_block(text: str, block: str) -> str:
+    """``text`` with this benchmark's generated block (between `BEGIN` and `END`) replaced by
+    ``block`` (`doc_tables.replace_block`)."""
+    return doc_tables.replace_block(text, block, BEGIN, END)
 
 
 # --- plot ---------------------------------------------------------------------------------------
@@ -433,8 +419,8 @@ def main() -> None:
     caps, densities, forced = ([1, 2], [8], [1, 2]) if args.quick else (ints(args.caps), ints(args.densities), ints(args.forced))
     tolerances = [1e-3, 5e-4] if args.quick else [float(x) for x in args.tolerances.split(",")]
     methods = args.methods.split(",")
-    new_label = commit_of(ROOT)
-    base_label = (args.base_label or (commit_of(args.base) if commit_of(args.base) != "?" else "base")) if args.base else None
+    new_label = doc_tables.commit_of(ROOT)
+    base_label = (args.base_label or (doc_tables.commit_of(args.base) if doc_tables.commit_of(args.base) != "?" else "base")) if args.base else None
 
     t_start, load = time.perf_counter(), os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
