@@ -442,15 +442,25 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     return points, limit if normals else None
 
 
+# Kept per live array: a weak reference without a callback, dead entries dropped when one is
+# added. A callback would run Python code whenever an array dies, and a KeyboardInterrupt or
+# SIGTERM raised inside it is reported and dropped by the interpreter, not delivered to the run.
 _NUDGED: dict = {}  # id(limit normals) -> (a weak reference to them, rows taken at nudged points)
+
+
+def _drop_dead(kept: dict) -> None:
+    """Remove the entries of ``kept`` (values whose first item is a weak reference) whose object
+    has died."""
+    for key in [key for key, value in kept.items() if value[0]() is None]:
+        del kept[key]
 
 
 def _note_nudged(limit: np.ndarray, rows: np.ndarray) -> None:
     """Keep, for as long as ``limit`` (a `grid_samples` result) lives, its rows ``(k,) int64``
     whose normal `surface_normals` took at nudged points, so a later evaluation since it knows
     which copied vertices read more than their own cells."""
-    key = id(limit)
-    _NUDGED[key] = (weakref.ref(limit, lambda _, key=key: _NUDGED.pop(key, None)), np.asarray(rows, np.int64))
+    _drop_dead(_NUDGED)
+    _NUDGED[id(limit)] = (weakref.ref(limit), np.asarray(rows, np.int64))
 
 
 def _nudged_rows(limit: np.ndarray) -> np.ndarray | None:
@@ -572,12 +582,12 @@ def _end_lines(hs: HSpline, topo) -> list[np.ndarray]:
             line = np.nonzero(x == end)[0]
             if line.size >= 2:
                 lines.append(line)
-    key = id(topo)
     try:
-        ref = weakref.ref(topo, lambda _, key=key: _END_LINES.pop(key, None))
+        ref = weakref.ref(topo)
     except TypeError:  # a topology without weak references is not kept
         return lines
-    _END_LINES[key] = (ref, (hs.u, hs.v), lines)
+    _drop_dead(_END_LINES)
+    _END_LINES[id(topo)] = (ref, (hs.u, hs.v), lines)
     return lines
 
 

@@ -279,17 +279,23 @@ class SurfaceGeometry:
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
 
-_OBJECT_BOXES: "weakref.WeakKeyDictionary[Shape, tuple]" = weakref.WeakKeyDictionary()  # `_object_box`'s answers
+# id(shape) -> (a weak reference to it without a callback, `_object_box`'s answer): a callback
+# would run Python code when a shape dies, where an interrupt raised inside it is dropped
+_OBJECT_BOXES: dict = {}
 
 
 def _object_box(shape: Shape) -> tuple[tuple, tuple]:
     """Object-space box of every level-0 hull box of ``shape`` as its centre and half-extents
     (3 floats each), found once per shape (a shape serves every frame of a run, `shape_of`)."""
-    hit = _OBJECT_BOXES.get(shape)
-    if hit is None:
-        lo, hi = shape.hulls
-        hit = _OBJECT_BOXES[shape] = _centre_half(lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0))
-    return hit
+    hit = _OBJECT_BOXES.get(id(shape))
+    if hit is not None and hit[0]() is shape:
+        return hit[1]
+    lo, hi = shape.hulls
+    box = _centre_half(lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0))
+    for key in [key for key, (ref, _) in _OBJECT_BOXES.items() if ref() is None]:
+        del _OBJECT_BOXES[key]
+    _OBJECT_BOXES[id(shape)] = (weakref.ref(shape), box)
+    return box
 
 
 def _centre_half(lo: np.ndarray, hi: np.ndarray) -> tuple[tuple, tuple]:

@@ -4,6 +4,7 @@ Run ``python tests/test_detect.py`` for the timings quoted in docs/detection.md.
 """
 
 import time
+import weakref
 
 import numpy as np
 import pytest
@@ -924,3 +925,15 @@ def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
     for k in range(2 * D.WORLDS_KEPT):
         D.SurfaceGeometry(hs, move(0.01 * k, 0.0, 0.0)).boxes
     assert len(D._WORLDS) == D.WORLDS_KEPT
+
+
+def test_object_boxes_are_kept_by_weak_references_without_callbacks():
+    """`_object_box` keeps each shape's box through a weak reference without a callback (an
+    interrupt raised in a callback is dropped, not delivered to the run) and serves it while the
+    shape lives."""
+    g = sphere_geom(move())
+    D.apart(g, sphere_geom(move(10.0, 0, 0), "/far"))
+    shape = g.shape
+    ref, box = D._OBJECT_BOXES[id(shape)]
+    assert ref() is shape and D._object_box(shape) == box
+    assert all(r.__callback__ is None for r in weakref.getweakrefs(shape))

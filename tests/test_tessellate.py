@@ -1,5 +1,7 @@
 """Display and collision tessellations: fixed topology, watertight closed objects, hulls."""
 
+import weakref
+
 import numpy as np
 import pytest
 import trimesh
@@ -399,3 +401,28 @@ def test_a_pole_s_vertices_share_the_mean_of_their_limit_normals():
             inner = (topo.v != 0.0) & (topo.v != float(hs.v.patches0))
             np.testing.assert_array_equal(normals[inner], limit[inner])
             assert poles > 2
+
+
+def test_kept_rows_hold_their_arrays_by_weak_references_without_callbacks():
+    """`_note_nudged` and `_end_lines` keep their answers per live array or topology through weak
+    references without callbacks (a callback runs Python code when the array dies, and an
+    interrupt raised there is dropped by the interpreter, not delivered to the run), serve them
+    while it lives, and drop the entries of dead ones when the next is kept."""
+    import gc
+
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=1)
+    topo = T.display_topology(hs.u, hs.v, 4)
+    points, limit = T.grid_samples(hs, topo)
+    T._note_nudged(limit, np.array([1, 2]))
+    T._end_lines(hs, topo)
+    for kept, obj in ((T._NUDGED, limit), (T._END_LINES, topo)):
+        assert all(ref.__callback__ is None for ref in weakref.getweakrefs(obj))
+        assert kept[id(obj)][0]() is obj
+    np.testing.assert_array_equal(T._nudged_rows(limit), [1, 2])
+    key = id(limit)
+    del points, limit
+    gc.collect()
+    other = np.zeros((3, 3))
+    T._note_nudged(other, np.array([0]))
+    assert key not in T._NUDGED or T._NUDGED[key][0]() is not None  # dead entry dropped (or the id reused)
+    assert all(value[0]() is not None for value in T._NUDGED.values())
