@@ -2,6 +2,7 @@
 
 import gc
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -88,9 +89,13 @@ def _interrupt(tiny_stage, tmp_path, sig):
     reported its first frame, and return (exit status, stderr, files left in ``tmp_path``)."""
     src = tiny_stage(frames=400, top=0.4, depth=0.2)
     out, rrd, rep = tmp_path / "o.usda", tmp_path / "o.rrd", tmp_path / "o.json"
+    # the run as started from a terminal: SIGINT and SIGTERM at their default actions, whatever
+    # the test runner inherited (a shell without job control starts background jobs, and so
+    # their children, with SIGINT ignored, and an ignored signal stays ignored across exec)
     proc = subprocess.Popen(
         [sys.executable, "-m", "pipeline.cli", "run", str(src), "-o", str(out), "--rrd", str(rrd), "--report", str(rep)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path,
+        preexec_fn=lambda: [signal.signal(s, signal.SIG_DFL) for s in (signal.SIGINT, signal.SIGTERM)])
     lines, started = [], threading.Event()
 
     def read():
