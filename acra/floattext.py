@@ -578,4 +578,8 @@ def ints_text(values: np.ndarray) -> bytes:
     """The text of int32 ``values``: ``[a, b, ...]`` for ``(n,)``, ``[(a, b), ...]`` for ``(n, m)``."""
     values = np.asarray(values)
     m = values.shape[1] if values.ndim == 2 else 0
-    return _ints_text(np.ascontiguousarray(values, dtype=np.int32).reshape(-1), m).tobytes()
+    flat = np.ascontiguousarray(values, dtype=np.int32).reshape(-1)
+    if flat.flags.writeable:  # one specialisation: USD's buffers come read-only, numpy's copies not
+        flat = flat.view()
+        flat.flags.writeable = False
+    return _ints_text(flat, m).tobytes()

@@ -17,7 +17,12 @@ copied into a temporary directory:
   with the table above);
 * one more ``.usda`` run with numba's cache loads timed (``numba.core.caching.Cache.load_overload``
   wrapped): how many kernels the run loads from the on-disk cache, the first load (which also
-  initialises numba's typing and target contexts) and the rest (wall and CPU seconds).
+  initialises numba's typing and target contexts) and the rest (wall and CPU seconds), and the CPU
+  seconds of the interpreter's exit (the child's CPU after `pipeline.cli.main` returned: atexit
+  handlers, module teardown, the process's end);
+* the CPU seconds of compiling, from source, the checkout's modules that run imported: with
+  ``PYTHONDONTWRITEBYTECODE`` set (as on the project's machine) every process compiles them
+  inside its imports; an installed package has their ``.pyc``.
 
 Prints markdown tables (docs/performance.md, *Start-up and the whole process*).
 """
@@ -85,7 +90,26 @@ try:
     main()
 finally:
     sys.stderr.write("NUMBA_LOADS " + json.dumps(loads) + "\\n")
+    sys.stderr.write("MODULES " + json.dumps([getattr(m, "__file__", None) for m in list(sys.modules.values())]) + "\\n")
+    import resource
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    sys.stderr.write(f"CPU_AT_EXIT {r.ru_utime + r.ru_stime}\\n")
 """
+
+
+def tagged(stderr: str, tag: str):
+    """The JSON after ``tag`` on the last line of ``stderr`` that starts with it."""
+    line = [x for x in stderr.splitlines() if x.startswith(tag + " ")][-1]
+    return json.loads(line[len(tag) + 1:])
+
+
+def source_compile_s(files: list) -> float:
+    """CPU seconds of compiling the checkout's (``HERE``) modules among ``files`` from source."""
+    own = sorted({Path(f) for f in files if f and f.endswith(".py") and Path(f).resolve().is_relative_to(HERE)})
+    t = time.process_time()
+    for f in own:
+        compile(f.read_text(), str(f), "exec")
+    return time.process_time() - t
 
 
 def numba_loads(stderr: str) -> list[tuple[float, float, bool]]:
@@ -124,7 +148,7 @@ def main() -> int:
                     phases[fmt][name].append(sec)
         _, _, traced = timed([sys.executable, "-X", "importtime", "-m", "pipeline.cli", "run", str(src), "-o",
                               str(work / "traced.acra.usda"), "--quiet", "--over-tolerance", "warn"], work, env)
-        _, _, counted = timed([sys.executable, "-c", NUMBA_LOADS, "run", str(src), "-o", str(work / "loads.acra.usda"), "--quiet",
+        _, counted_cpu, counted = timed([sys.executable, "-c", NUMBA_LOADS, "run", str(src), "-o", str(work / "loads.acra.usda"), "--quiet",
                                "--over-tolerance", "warn"], work, env)
     med = lambda xs: float(np.median(xs))  # noqa: E731
     load = os.getloadavg()
@@ -149,6 +173,13 @@ def main() -> int:
     print(f"| the rest | {len(rest)} | {sum(x[0] for x in rest):.3f} | {sum(x[1] for x in rest):.3f} |")
     if not all(x[2] for x in loads):
         print(f"\n{sum(not x[2] for x in loads)} of the loads missed the cache (compiled in that run)")
+    files = tagged(counted.stderr, "MODULES")
+    exit_cpu = counted_cpu - tagged(counted.stderr, "CPU_AT_EXIT")
+    print("\n| more of one `.usda` run | CPU s |\n|---|---:|")
+    print(f"| compiling this checkout's {sum(1 for f in files if f and Path(f).resolve().is_relative_to(HERE))} modules "
+          f"from source (`PYTHONDONTWRITEBYTECODE` {'set' if sys.flags.dont_write_bytecode else 'unset'}) | "
+          f"{source_compile_s(files):.3f} |")
+    print(f"| the interpreter's exit (atexit handlers, module teardown) | {exit_cpu:.3f} |")
     return 0
 
 

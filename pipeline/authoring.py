@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from acra import hspline, shapes
 from acra.hspline import HSpline, from_arrays, from_grid, to_arrays
@@ -521,6 +521,8 @@ def add_collider(stage: Usd.Stage, path: str, vertices: np.ndarray, faces) -> Us
     mesh.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(np.ascontiguousarray(indices)))
     mesh.CreateSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
     mesh.CreateExtentAttr().Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, v.min(axis=0))), Gf.Vec3f(*map(float, v.max(axis=0)))]))
+    from pxr import UsdPhysics  # here: a scene of deformables alone never loads it
+
     UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
     return mesh.GetPrim()
 

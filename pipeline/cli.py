@@ -141,6 +141,14 @@ def bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _farm_error() -> tuple:
+    """`pipeline.farm.FarmError` if this process ran a farm (imported the module), else no class.
+    Evaluated only while an exception is matched, so a run in this process never imports the
+    farm's module for its except clause."""
+    farm = sys.modules.get("pipeline.farm")
+    return () if farm is None else (farm.FarmError,)
+
+
 def _settle_imports(command: str) -> None:
     """Import what ``command`` will run, then move every object so far out of the cyclic GC's reach.
 
@@ -169,7 +177,6 @@ def main(argv: list[str] | None = None) -> int:
         gc.disable()
     args = build_parser().parse_args(argv)
     from pipeline import guard, report
-    from pipeline.farm import FarmError
     from pipeline.model import InputError
 
     try:
@@ -182,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as err:
         print(f"acra: error: {err}", file=sys.stderr)
         return report.EXIT_INPUT
-    except FarmError as err:  # chunks that kept failing on the cluster (retries spent)
+    except _farm_error() as err:  # chunks that kept failing on the cluster (retries spent)
         print(f"acra: error: {err}; nothing written", file=sys.stderr)
         return report.EXIT_FARM
     except OSError as err:  # an output directory that is missing or read-only, a full disk

@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Union
 
-import fcl
 import numpy as np
 
 from acra import hspline as H
@@ -29,6 +28,7 @@ from pipeline.grids import boxes_near
 from pipeline.shape import Closest, Shape, bvh as _bvh, content_digest, overlap as _overlap, shape_of
 
 if TYPE_CHECKING:
+    import fcl
     import trimesh
 
 __all__ = [
@@ -571,6 +571,8 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         return none
 
     def contacts():
+        import fcl  # here: a run whose pairs `acra.narrow.crossings` settles never imports fcl
+
         oa = ga.shape.bvhs.get(pa, ta.triangles[ka])
         ob = gb.static.bvh if collider else gb.shape.bvhs.get(pb, fb_all[kb])
         res = fcl.CollisionResult()

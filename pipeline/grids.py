@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING
 
-import fcl
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -24,6 +23,8 @@ from acra.bvh import bounds
 from acra.tessellate import patch_grids
 
 if TYPE_CHECKING:
+    import fcl
+
     from pipeline.shape import Shape
 
 __all__ = ["PatchGrid", "solid_rows", "GridSet", "GridCache", "Nearest", "Closest", "SetupClock", "timed", "bvh", "BvhCache", "triangle_boxes", "overlap", "boxes_near", "COLLAPSE"]
@@ -63,6 +64,8 @@ def _compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def _build(vertices: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:
+    import fcl  # here: a run whose pairs `acra.narrow` settles alone (the demo's) never imports fcl
+
     model = fcl.BVHModel()
     model.beginModel(len(vertices), len(faces))
     model.addSubModel(vertices, faces)
@@ -161,6 +164,8 @@ class Closest:
         near = np.nonzero(~deep)[0]
         if len(near):
             dist[near], close[near], face[near] = nearest.query(self.index, points[near], None if bound is None else bound[near])
+        import fcl  # here, as in `_build`
+
         probe, req = fcl.Sphere(0.0), fcl.DistanceRequest(enable_nearest_points=True)
         for i in np.nonzero(deep)[0]:
             res = fcl.DistanceResult()  # mesh first: b1 is its face, nearest_points[0] on it

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Usd, UsdGeom, UsdPhysics, UsdUtils
+from pxr import Usd, UsdGeom, UsdUtils
 
 from pipeline.model import InputError
 
@@ -314,7 +314,7 @@ def predict_memory(stage, frames: int) -> Estimate:
     for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
         if usdio._is_deformable(prim):
             parts.extend(_prim_parts(prim, frames))
-        elif prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdPhysics.CollisionAPI):
+        elif usdio._is_collider(prim):
             counts = prim.GetAttribute("faceVertexCounts").Get()
             try:
                 ntri = int(np.maximum(np.asarray(counts, dtype=np.int64) - 2, 0).sum()) if counts is not None else 0

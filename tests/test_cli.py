@@ -84,6 +84,18 @@ def test_progress_in_a_log_is_plain_lines(tiny_stage, tmp_path):
     assert done.stderr.splitlines()[-1] == "acra: frame 4 done (4/4)"
 
 
+def test_chunks_failing_on_the_cluster_exit_1_naming_the_frames(tiny_stage, tmp_path, monkeypatch, capsys):
+    """A `FarmError` from the frames (retries spent) is exit status 1 with one line; the command
+    line matches it without importing the farm's module for a run that has none."""
+    from pipeline import farm, run
+
+    def failing(*args, **kwargs):
+        raise farm.FarmError("frames 3-4 failed on the cluster: OSError: gone")
+
+    monkeypatch.setattr(run, "run_file", failing)
+    assert main(["run", str(tiny_stage(frames=4)), "-o", str(tmp_path / "o.usdc"), "--quiet"]) == 1
+    assert capsys.readouterr().err == "acra: error: frames 3-4 failed on the cluster: OSError: gone; nothing written\n"
+
 def _interrupt(tiny_stage, tmp_path, sig):
     """Start a 400-frame run (every frame in contact) as a real process, send ``sig`` once it has
     reported its first frame, and return (exit status, stderr, files left in ``tmp_path``)."""
@@ -189,3 +201,8 @@ def test_a_run_on_deformables_alone_imports_no_trimesh(tmp_path):
     assert "in collision" in done.stdout and " 0 in collision" not in done.stdout
     tops = {m.split(".")[0] for m in modules}
     assert not tops & {"trimesh", "networkx", "rtree"}
+    # fcl is for pairs `acra.narrow.crossings` does not settle alone and for colliders; the farm's
+    # module for --workers; the path curves for a scene that moves a prim along a path; UsdPhysics
+    # for a stage with meshes (a collider is a Mesh with its CollisionAPI)
+    assert not tops & {"fcl"}
+    assert not modules & {"pipeline.farm", "pipeline.animation.paths", "pipeline.animation.quaternions", "pxr.UsdPhysics"}

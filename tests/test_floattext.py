@@ -78,6 +78,15 @@ def test_ints_same_text_as_usd(shape):
     assert floattext.ints_text(values).decode() == usd_ints(values, tname)
 
 
+def test_ints_text_compiles_once_for_read_only_and_writable_arrays():
+    """USD's int arrays come read-only and numpy's copies writable: both take one specialisation
+    of the kernel, so a run loads (and a first run compiles) it once."""
+    values = np.arange(-3, 3, dtype=np.int32)
+    shown = values.copy()
+    shown.flags.writeable = False
+    assert floattext.ints_text(values) == floattext.ints_text(shown) == floattext.ints_text(Vt.IntArray.FromNumpy(values))
+    assert len(floattext._ints_text.signatures) == 1
+
 def usd_double2(values) -> str:
     layer = Sdf.Layer.CreateAnonymous("t.usda")
     prim = Sdf.CreatePrimInLayer(layer, "/A")

@@ -26,13 +26,16 @@ exists under the same name is re-keyed in place.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pxr import Gf, Sdf, Ts, Usd, UsdGeom, Vt
 
 from . import curves as _curves
 from . import easing as _easing
-from . import paths as _paths
+
+if TYPE_CHECKING:
+    from . import paths as _paths
 
 __all__ = [
     "is_spline_representable", "to_ts_spline", "default_frames", "bake", "write_curve",
@@ -229,6 +232,8 @@ def follow_path(prim, path, frames, timing: "_easing.DistanceTime | None" = None
     xf = UsdGeom.Xformable(prim)
     if not xf:
         raise TypeError("prim is not Xformable")
+    from . import paths as _paths  # here: a scene that only keys transforms never imports the path curves
+
     t = (frames - frames[0]) / (frames[-1] - frames[0])
     P, T, _, _ = _paths.sample_path(path, t, timing, table, method, **params)
     if P.shape[1] != 3:

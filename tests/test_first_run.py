@@ -1,0 +1,52 @@
+"""What the first run after a fresh install compiles (docs/performance.md, *The first run after a
+fresh install*): numba compiles its own implementations, such as the stable ``np.argsort``, once
+per argument type, inside the first kernel that calls them, about 1 s CPU each."""
+
+import numba
+from numba.core import types
+from numba.core.compiler import CompilerBase, DefaultPassBuilder, Flags
+from numba.core.registry import cpu_target
+from numba.core.typed_passes import NopythonTypeInference
+
+from acra import bvh, pseudonormals
+
+
+class _TypingOnly(CompilerBase):
+    """numba's pipeline up to type inference: the argument types of every call, no lowering."""
+
+    def define_pipelines(self):
+        pm = DefaultPassBuilder.define_untyped_pipeline(self.state)
+        pm.add_pass(NopythonTypeInference, "nopython frontend")
+        pm.finalize()
+        return [pm]
+
+
+def _argsort_keys(kernel, *argtypes) -> set:
+    """The types of the keys ``kernel``'s ``np.argsort`` calls take for arguments ``argtypes``."""
+    typing, target = cpu_target.typing_context, cpu_target.target_context
+    typing.refresh()
+    target.refresh()
+    flags = Flags()
+    flags.nrt = True
+    pipeline = _TypingOnly(typing, target, None, argtypes, None, flags, {})
+    pipeline.state.cr = None
+    try:
+        pipeline.compile_extra(kernel.py_func)
+    except numba.core.errors.CompilerError:  # no lowering pass: the pipeline ends after typing
+        pass
+    st = pipeline.state
+    return {sig.args[0] for expr, sig in st.calltypes.items()
+            if getattr(expr, "op", None) == "call" and "argsort" in str(st.typemap[expr.func.name])}
+
+
+def test_every_kernels_merge_sort_takes_one_key_type():
+    """The kernels' stable sorts all take C-contiguous int64 keys (uint64 and float64 keys mapped
+    to int64 of the same order), so numba compiles its merge sort once, not once per key type."""
+    arr = lambda dtype, ndim: types.Array(dtype, ndim, "C")  # noqa: E731
+    keys = set()
+    keys |= _argsort_keys(bvh._stable_order, arr(types.int64, 1))
+    keys |= _argsort_keys(bvh._distinct_rows, arr(types.uint64, 2), arr(types.int64, 1), arr(types.int64, 1))
+    keys |= _argsort_keys(pseudonormals.weld, arr(types.float64, 2), arr(types.int64, 2), types.float64)
+    keys |= _argsort_keys(pseudonormals.part_mesh, arr(types.float64, 2), arr(types.int64, 2), types.float64,
+                          types.boolean)
+    assert keys == {arr(types.int64, 1)}
