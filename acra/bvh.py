@@ -26,8 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from acra.pseudonormals import _signs
+
 __all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "facet_bound", "bounds",
-           "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children"]
+           "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children", "refine"]
 
 LEAF = 4  # triangles per leaf
 
@@ -647,31 +649,39 @@ def faces_at(points: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> np.ndar
 
 
 @njit(cache=True, nogil=True)
+def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_start, facet_faces, tri, least):
+    """Eq. (6) of one cell ``cell (3, 3)`` whose corners' closest faces are ``f0, f1, f2``, with
+    scratch ``tri (3, 3)`` and ``least (3,)``: each facet's faces gathered once, all three corners
+    measured against each; a facet two corners share is measured once (min and max are exact,
+    so the order is free)."""
+    best = np.inf
+    for j in range(3):
+        g = facet[f0 if j == 0 else (f1 if j == 1 else f2)]
+        if (j > 0 and facet[f0] == g) or (j > 1 and facet[f1] == g):
+            continue
+        least[0], least[1], least[2] = np.inf, np.inf, np.inf
+        for s in range(facet_start[g], facet_start[g + 1]):
+            m = facet_faces[s]
+            for k in range(3):
+                # element by element: a row assigned from an array would compile numba's
+                # shape-mismatch message (its string formatting) into the first run
+                for q in range(3):
+                    tri[k, q] = vertices[solid_faces[m, k], q]
+            for i in range(3):
+                x, y, z, _, _, _ = _point_triangle(cell[i], tri[0], tri[1], tri[2])
+                d = np.sqrt((cell[i, 0] - x) ** 2 + (cell[i, 1] - y) ** 2 + (cell[i, 2] - z) ** 2)
+                least[i] = min(least[i], d)
+        best = min(best, max(max(least[0], least[1]), least[2]))
+    return best
+
+
+@njit(cache=True, nogil=True)
 def _facet_bound(cells, faces, vertices, solid_faces, facet, facet_start, facet_faces, out):
-    # each facet's faces gathered once per cell, all three corners measured against each; a
-    # facet two corners share is measured once (min and max are exact, so the order is free)
     tri = np.empty((3, 3))
     least = np.empty(3)
     for c in range(cells.shape[0]):
-        best = np.inf
-        for j in range(3):
-            g = facet[faces[c, j]]
-            if (j > 0 and facet[faces[c, 0]] == g) or (j > 1 and facet[faces[c, 1]] == g):
-                continue
-            least[0], least[1], least[2] = np.inf, np.inf, np.inf
-            for s in range(facet_start[g], facet_start[g + 1]):
-                m = facet_faces[s]
-                for k in range(3):
-                    # element by element: a row assigned from an array would compile numba's
-                    # shape-mismatch message (its string formatting) into the first run
-                    for q in range(3):
-                        tri[k, q] = vertices[solid_faces[m, k], q]
-                for i in range(3):
-                    x, y, z, _, _, _ = _point_triangle(cells[c, i], tri[0], tri[1], tri[2])
-                    d = np.sqrt((cells[c, i, 0] - x) ** 2 + (cells[c, i, 1] - y) ** 2 + (cells[c, i, 2] - z) ** 2)
-                    least[i] = min(least[i], d)
-            best = min(best, max(max(least[0], least[1]), least[2]))
-        out[c] = best
+        out[c] = _cell_facet_bound(cells[c], faces[c, 0], faces[c, 1], faces[c, 2], vertices, solid_faces, facet,
+                                   facet_start, facet_faces, tri, least)
 
 
 def facet_bound(cells: np.ndarray, faces: np.ndarray, vertices: np.ndarray, solid_faces: np.ndarray, facet: np.ndarray,
@@ -911,3 +921,217 @@ def lattice_points(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, step
     if len(lat):
         _lattice_points(np.ascontiguousarray(tri, np.float64), np.ascontiguousarray(owner, np.int64), lat, steps, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _cell_corners(tri, t, lattice, i, steps, out):
+    """The corners ``out (3, 3)`` of cell ``i`` of source triangle ``tri[t]`` at integer barycentric
+    ``lattice[i] (3, 3)``, in `_lattice_points`' arithmetic."""
+    for r in range(3):
+        w0, w1, w2 = lattice[i, r, 0] / steps, lattice[i, r, 1] / steps, lattice[i, r, 2] / steps
+        for c in range(3):
+            out[r, c] = (w0 * tri[t, 0, c] + w1 * tri[t, 1, c]) + w2 * tri[t, 2, c]
+
+
+@njit(cache=True, nogil=True)
+def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, evaluated, reach,
+            leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals,
+            tol, facet, facet_start, facet_faces):
+    # `pipeline.clearance`'s branch and bound from level 0 on, the level-0 cells' eq. (4) given
+    # as ``bound``; each step in the arithmetic and order of its array form (`_triangle_levels`),
+    # so the answers are the same bits. A maximum is exact whatever the order of its terms, so
+    # the retired cells' eq. (6) is taken one cell at a time, largest eq. (4) first, until the
+    # next cannot raise it. Python's ``max(a, b)`` keeps ``a`` unless ``b > a``: written out
+    # below, a signed zero comes out as it does there.
+    cell = np.empty((3, 3))
+    scratch = np.empty((3, 3))
+    least = np.empty(3)
+    cap, m = 256, 0
+    found_tri = np.empty(cap, np.int64)
+    found_lat = np.empty((cap, 3), np.int64)
+    found_pts = np.empty((cap, 3))
+    found_sd = np.empty(cap)
+    retired, level, complete = 0.0, 0, True
+    c = rows.shape[0]
+    first_pass = True
+    while c > 0:
+        top0 = low if low > 0.0 else 0.0
+        now = target if not (1.25 * top0 > target) else 1.25 * top0
+        if not first_pass:
+            for i in range(c):
+                a = sd[i, 0] if sd[i, 0] > sd[i, 1] else sd[i, 1]
+                a = a if a > sd[i, 2] else sd[i, 2]
+                v = a + rho[i]
+                bound[i] = v if v > 0.0 else 0.0
+        first_pass = False
+        need = np.empty(c, np.bool_)
+        late = np.empty(c, np.int64)  # cells eq. (4) retires above 0: eq. (6) only if they could raise the maximum
+        n_late = 0
+        for i in range(c):
+            b = bound[i]
+            split = b > now or (b > decide and low <= decide)
+            if b > 0.0 and split:
+                _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
+                six = _cell_facet_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, facet, facet_start,
+                                        facet_faces, scratch, least)
+                if six < b:
+                    b = six
+                    bound[i] = b
+            keep = b > now or (b > decide and low <= decide)
+            need[i] = keep
+            if split and not keep and b > retired:
+                retired = b
+            elif b > 0.0 and not split:
+                late[n_late] = i
+                n_late += 1
+        if n_late:
+            late = late[:n_late]
+            key = np.empty(n_late)
+            for j in range(n_late):
+                key[j] = -bound[late[j]]
+            for j in np.argsort(key, kind="mergesort"):
+                i = late[j]
+                if not bound[i] > retired:
+                    break
+                _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
+                six = _cell_facet_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, facet, facet_start,
+                                        facet_faces, scratch, least)
+                b = six if six < bound[i] else bound[i]
+                if b > retired:
+                    retired = b
+        kept = 0
+        for i in range(c):
+            if need[i]:
+                kept += 1
+        pick = np.empty(kept, np.int64)
+        kept = 0
+        for i in range(c):
+            if need[i]:
+                pick[kept] = i
+                kept += 1
+        room = (budget - evaluated) // 3
+        if kept == 0 or level == max_split or room <= 0:
+            complete = kept == 0
+            for i in pick:
+                if bound[i] > retired:
+                    retired = bound[i]
+            break
+        if room < kept:  # the budget's last pass: the cells of largest bound
+            key = np.empty(kept)
+            for j in range(kept):
+                key[j] = -bound[pick[j]]
+            rank = np.argsort(key, kind="mergesort")
+            for j in rank[room:]:
+                if bound[pick[j]] > retired:
+                    retired = bound[pick[j]]
+            pick = pick[rank[:room]]
+            kept = room
+            complete = False
+        c = kept
+        rows_k, lat_k, sd_k, fc_k, rho_k = (np.empty(c, np.int64), np.empty((c, 3, 3), np.int64), np.empty((c, 3)),
+                                            np.empty((c, 3), np.int64), np.empty(c))
+        mid = np.empty((c, 3, 3), np.int64)  # midpoints of edges (0,1), (1,2), (2,0); lattice steps here are even
+        owner = np.empty(c, np.int64)
+        for j in range(c):
+            i = pick[j]
+            rows_k[j], rho_k[j] = rows[i], rho[i]
+            owner[j] = src[rows[i]]
+            for k in range(3):
+                sd_k[j, k], fc_k[j, k] = sd[i, k], fc[i, k]
+                for w in range(3):
+                    lat_k[j, k, w] = lattice[i, k, w]
+            for k in range(3):
+                for w in range(3):
+                    mid[j, k, w] = (lat_k[j, k, w] + lat_k[j, (k + 1) % 3, w]) // 2
+        flat = mid.reshape(3 * c, 3)
+        at = np.empty((3 * c, 3))
+        _lattice_points(tri, owner, flat, steps, at)
+        first = np.empty(3 * c, np.int64)
+        inverse = np.empty(3 * c, np.int64)
+        u = _distinct_rows(at.view(np.uint64), first, inverse)
+        pts = np.empty((u, 3))
+        for r in range(u):
+            for k in range(3):
+                pts[r, k] = at[first[r], k]
+        dist, close = np.full(u, np.inf), np.zeros((u, 3))
+        face, bary = np.full(u, -1, np.int64), np.zeros((u, 3))
+        _closest(leaf_tri, order, lo, hi, left, right, start, count, pts, np.full(u, reach), dist, close, face, bary)
+        for r in range(u):
+            if face[r] < 0:  # farther than the part answers for
+                return (1, retired, low, False, evaluated, level, found_tri[:m], found_lat[:m], found_pts[:m],
+                        found_sd[:m])
+        sd_mid = np.empty(u)
+        _signs(pts, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, tol, sd_mid)
+        evaluated += u
+        inside = 0
+        deepest = -np.inf
+        for r in range(u):
+            if sd_mid[r] > 0:
+                inside += 1
+            if sd_mid[r] > deepest:
+                deepest = sd_mid[r]
+        if m + inside > cap:
+            cap = max(2 * cap, m + inside)
+            grown_tri, grown_lat, grown_pts, grown_sd = (np.empty(cap, np.int64), np.empty((cap, 3), np.int64),
+                                                         np.empty((cap, 3)), np.empty(cap))
+            grown_tri[:m], grown_lat[:m], grown_pts[:m], grown_sd[:m] = found_tri[:m], found_lat[:m], found_pts[:m], found_sd[:m]
+            found_tri, found_lat, found_pts, found_sd = grown_tri, grown_lat, grown_pts, grown_sd
+        for r in range(u):
+            if sd_mid[r] > 0:
+                found_tri[m] = owner[first[r] // 3]
+                for k in range(3):
+                    found_lat[m, k] = flat[first[r], k]
+                    found_pts[m, k] = pts[r, k]
+                found_sd[m] = sd_mid[r]
+                m += 1
+        if deepest > low:
+            low = deepest
+        # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20), child by child
+        lattice, sd, fc, rows, rho = (np.empty((4 * c, 3, 3), np.int64), np.empty((4 * c, 3)),
+                                      np.empty((4 * c, 3), np.int64), np.empty(4 * c, np.int64), np.empty(4 * c))
+        _children(lat_k, mid, sd_k, sd_mid, fc_k, face, inverse, rows_k, rho_k, lattice, sd, fc, rows, rho)
+        c = 4 * c
+        bound = np.empty(c)
+        level += 1
+        if not complete:  # the budget's last pass: bound the children and stop
+            last = 0.0
+            for i in range(c):
+                a = sd[i, 0] if sd[i, 0] > sd[i, 1] else sd[i, 1]
+                a = a if a > sd[i, 2] else sd[i, 2]
+                v = a + rho[i]
+                if v > 0.0:
+                    _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
+                    six = _cell_facet_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, facet, facet_start,
+                                            facet_faces, scratch, least)
+                    v = six if six < v else v
+                    if v > last:
+                        last = v
+            if last > retired:
+                retired = last
+            top0 = low if low > 0.0 else 0.0
+            now = target if not (1.25 * top0 > target) else 1.25 * top0
+            complete = retired <= now and not (decide < retired and low <= decide)
+            break
+    return 0, retired, low, complete, evaluated, level, found_tri[:m], found_lat[:m], found_pts[:m], found_sd[:m]
+
+
+def refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, evaluated, reach,
+           tree: Tree, vertices, faces, normals, edge_normals, vertex_normals, tol, facet, facet_start, facet_faces):
+    """The branch and bound of `pipeline.clearance.triangle_depth` past level 0, in one compiled
+    call, over cells ``rows (c,) int64`` (into ``src (s,) int64``, rows of ``tri (t, 3, 3)``) at
+    integer barycentric ``lattice (c, 3, 3) int64`` (weights times ``steps``), with corner depths
+    ``sd (c, 3)``, corner faces ``fc (c, 3) int64``, covering radii ``rho (c,)`` and eq. (4)'s
+    ``bound (c,)``, against the solid's ``tree``, mesh, pseudo-normals (`acra.pseudonormals.signs`
+    with ``tol``) and facets. ``reach``: points farther from every face are unresolved.
+
+    Returns ``None`` if a point is unresolved, else ``(bound, low, complete, evaluated, level,
+    tri (m,) int64, lattice (m, 3) int64, points (m, 3), depth (m,))``: the certified bound, the
+    largest depth found, whether every cell ended within its target, the points evaluated in all,
+    the split depth, and the points evaluated past level 0 found inside, in order."""
+    out = _refine(np.ascontiguousarray(tri, np.float64), np.ascontiguousarray(src, np.int64),
+                  np.array(rows, np.int64), np.array(lattice, np.int64), np.array(sd, np.float64), np.array(fc, np.int64),
+                  np.array(rho, np.float64), np.array(bound, np.float64), float(low), float(target), float(decide),
+                  int(steps), int(max_split), int(budget), int(evaluated), float(reach), tree.leaf_tri, tree.order, tree.lo,
+                  tree.hi, tree.left, tree.right, tree.start, tree.count, vertices, faces, normals, edge_normals,
+                  vertex_normals, float(tol), facet, facet_start, facet_faces)
+    return None if out[0] else out[1:]
