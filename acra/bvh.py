@@ -26,10 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from acra.pseudonormals import _signs
+from acra.pseudonormals import _signs, flood as _flood, links as _links, representatives as _representatives
 
 __all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "facet_bound", "bounds",
-           "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children", "refine"]
+           "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children", "depth"]
 
 LEAF = 4  # triangles per leaf
 
@@ -934,6 +934,33 @@ def _cell_corners(tri, t, lattice, i, steps, out):
 
 
 @njit(cache=True, nogil=True)
+def _signed_at(points, ids, reach, leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals,
+               edge_normals, vertex_normals, tol, sd, face):
+    """Eq. (1) at ``points[ids]`` (closest points within ``reach``, `_closest`; their signs,
+    `acra.pseudonormals.signs`) into ``sd[ids]`` and ``face[ids]``: False if one has no face within
+    ``reach`` (the arrays then partly written). A point's answer does not depend on the others
+    queried with it."""
+    k = ids.shape[0]
+    if k == 0:
+        return True
+    p = np.empty((k, 3))
+    for r in range(k):
+        for c in range(3):
+            p[r, c] = points[ids[r], c]
+    dist, close = np.full(k, np.inf), np.zeros((k, 3))
+    near, bary = np.full(k, -1, np.int64), np.zeros((k, 3))
+    _closest(leaf_tri, order, lo, hi, left, right, start, count, p, np.full(k, reach), dist, close, near, bary)
+    for r in range(k):
+        if near[r] < 0:
+            return False
+    out = np.empty(k)
+    _signs(p, dist, close, near, bary, vertices, faces, normals, edge_normals, vertex_normals, tol, out)
+    for r in range(k):
+        sd[ids[r]], face[ids[r]] = out[r], near[r]
+    return True
+
+
+@njit(cache=True, nogil=True)
 def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, evaluated, reach,
             leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals,
             tol, facet, facet_start, facet_faces):
@@ -1053,15 +1080,11 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
         for r in range(u):
             for k in range(3):
                 pts[r, k] = at[first[r], k]
-        dist, close = np.full(u, np.inf), np.zeros((u, 3))
-        face, bary = np.full(u, -1, np.int64), np.zeros((u, 3))
-        _closest(leaf_tri, order, lo, hi, left, right, start, count, pts, np.full(u, reach), dist, close, face, bary)
-        for r in range(u):
-            if face[r] < 0:  # farther than the part answers for
-                return (1, retired, low, False, evaluated, level, found_tri[:m], found_lat[:m], found_pts[:m],
-                        found_sd[:m])
-        sd_mid = np.empty(u)
-        _signs(pts, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, tol, sd_mid)
+        sd_mid, face = np.empty(u), np.empty(u, np.int64)
+        if not _signed_at(pts, np.arange(u), reach, leaf_tri, order, lo, hi, left, right, start, count, vertices, faces,
+                          normals, edge_normals, vertex_normals, tol, sd_mid, face):  # farther than the part answers for
+            return (1, retired, low, False, evaluated, level, found_tri[:m], found_lat[:m], found_pts[:m],
+                    found_sd[:m])
         evaluated += u
         inside = 0
         deepest = -np.inf
@@ -1115,23 +1138,194 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
     return 0, retired, low, complete, evaluated, level, found_tri[:m], found_lat[:m], found_pts[:m], found_sd[:m]
 
 
-def refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, evaluated, reach,
-           tree: Tree, vertices, faces, normals, edge_normals, vertex_normals, tol, facet, facet_start, facet_faces):
-    """The branch and bound of `pipeline.clearance.triangle_depth` past level 0, in one compiled
-    call, over cells ``rows (c,) int64`` (into ``src (s,) int64``, rows of ``tri (t, 3, 3)``) at
-    integer barycentric ``lattice (c, 3, 3) int64`` (weights times ``steps``), with corner depths
-    ``sd (c, 3)``, corner faces ``fc (c, 3) int64``, covering radii ``rho (c,)`` and eq. (4)'s
-    ``bound (c,)``, against the solid's ``tree``, mesh, pseudo-normals (`acra.pseudonormals.signs`
-    with ``tol``) and facets. ``reach``: points farther from every face are unresolved.
+@njit(cache=True, nogil=True)
+def _depth(tri, box_lo, box_hi, part, reach, target, decide, max_split, budget, far, link, leaf_tri, order, lo, hi, left,
+           right, start, count, vertices, faces, normals, edge_normals, vertex_normals, tol, facet, facet_start,
+           facet_faces):
+    # `pipeline.clearance._triangle_depth`'s level 0 (its corners, `_signed_corners`) in the
+    # arithmetic and order of its array form, then the levels past it (`_refine`)
+    steps = 1 << max_split
+    t = tri.shape[0]
+    meet = np.empty(t, np.bool_)
+    _boxes_meet(tri, box_lo, box_hi, reach if part else 0.0, meet)
+    n_live = 0
+    for i in range(t):
+        if meet[i]:
+            n_live += 1
+        elif part:  # beyond reach of the part's box: farther than the part answers for
+            return 1, 0.0, -np.inf, False, 0, 0, np.empty(0, np.int64), np.empty((0, 3), np.int64), np.empty((0, 3)), np.empty(0)
+    c = n_live
+    src = np.empty(c, np.int64)
+    live = np.empty((c, 3, 3))
+    n_live = 0
+    for i in range(t):
+        if meet[i]:
+            src[n_live] = i
+            for k in range(3):
+                for q in range(3):
+                    live[n_live, k, q] = tri[i, k, q]
+            n_live += 1
+    rho = np.empty(c)
+    if c:
+        _covering_radii(live, rho)
+    corners = live.reshape(3 * c, 3)
+    first, inverse = np.empty(3 * c, np.int64), np.empty(3 * c, np.int64)
+    u = _distinct_rows(corners.view(np.uint64), first, inverse) if c else 0
+    pts = np.empty((u, 3))
+    for r in range(u):
+        for q in range(3):
+            pts[r, q] = corners[first[r], q]
+    cell_pts = inverse.reshape(c, 3)
+    sd_pts, face_pts = np.empty(u), np.full(u, -1, np.int64)
+    pending = np.zeros(u, np.bool_)
+    has_pending = False
+    # `_signed_corners`
+    largest = 0.0
+    for i in range(c):
+        if rho[i] > largest:
+            largest = rho[i]
+    q_far = far * largest
+    if reach < q_far:
+        q_far = reach
+    if u == 0 or not q_far >= largest or not q_far > 0:
+        if not _signed_at(pts, np.arange(u), reach, leaf_tri, order, lo, hi, left, right, start, count, vertices, faces,
+                          normals, edge_normals, vertex_normals, tol, sd_pts, face_pts):
+            return 1, 0.0, -np.inf, False, 0, 0, np.empty(0, np.int64), np.empty((0, 3), np.int64), np.empty((0, 3)), np.empty(0)
+    else:
+        dist, close, bary = np.full(u, np.inf), np.zeros((u, 3)), np.zeros((u, 3))
+        _closest(leaf_tri, order, lo, hi, left, right, start, count, pts, np.full(u, q_far), dist, close, face_pts, bary)
+        n_known = 0
+        for r in range(u):
+            if face_pts[r] >= 0:
+                n_known += 1
+        known = np.empty(n_known, np.int64)
+        n_known = 0
+        for r in range(u):
+            sd_pts[r] = -np.inf
+            if face_pts[r] >= 0:
+                known[n_known] = r
+                n_known += 1
+        kp, kd, kc, kf, kb = (np.empty((n_known, 3)), np.empty(n_known), np.empty((n_known, 3)), np.empty(n_known, np.int64),
+                              np.empty((n_known, 3)))
+        for j in range(n_known):
+            r = known[j]
+            kd[j], kf[j] = dist[r], face_pts[r]
+            for q in range(3):
+                kp[j, q], kc[j, q], kb[j, q] = pts[r, q], close[r, q], bary[r, q]
+        signed = np.empty(n_known)
+        _signs(kp, kd, kc, kf, kb, vertices, faces, normals, edge_normals, vertex_normals, tol, signed)
+        for j in range(n_known):
+            sd_pts[known[j]] = signed[j]
+        if n_known < u:
+            sign = np.zeros(u, np.int8)
+            ub = np.full(u, np.inf)
+            for j in range(n_known):
+                r = known[j]
+                sign[r] = 1 if sd_pts[r] > 0 else -1
+                ub[r] = dist[r]
+            adj_start, neighbour, length = _links(pts, cell_pts, link * q_far)
+            _flood(adj_start, neighbour, length, known, sign, ub)
+            reps = _representatives(adj_start, neighbour, sign)
+            if len(reps):  # a group of far corners no near corner reaches: one of each exactly
+                if not _signed_at(pts, reps, reach, leaf_tri, order, lo, hi, left, right, start, count, vertices, faces,
+                                  normals, edge_normals, vertex_normals, tol, sd_pts, face_pts):
+                    return (1, 0.0, -np.inf, False, 0, 0, np.empty(0, np.int64), np.empty((0, 3), np.int64), np.empty((0, 3)),
+                            np.empty(0))
+                for r in reps:
+                    sign[r] = 1 if sd_pts[r] > 0 else -1
+                    ub[r] = abs(sd_pts[r])
+                _flood(adj_start, neighbour, length, reps, sign, ub)
+            n_exact = 0
+            exact = np.empty(u, np.int64)
+            for r in range(u):
+                if face_pts[r] < 0 and (sign[r] > 0 or ub[r] > reach):
+                    exact[n_exact] = r
+                    n_exact += 1
+            if n_exact:
+                if not _signed_at(pts, exact[:n_exact], reach, leaf_tri, order, lo, hi, left, right, start, count, vertices,
+                                  faces, normals, edge_normals, vertex_normals, tol, sd_pts, face_pts):
+                    return (1, 0.0, -np.inf, False, 0, 0, np.empty(0, np.int64), np.empty((0, 3), np.int64), np.empty((0, 3)),
+                            np.empty(0))
+            for r in range(u):
+                if face_pts[r] < 0:
+                    pending[r] = True
+                    has_pending = True
+    # the corners found inside, and the deepest
+    n_in = 0
+    low = -np.inf
+    for r in range(u):
+        if sd_pts[r] > 0:
+            n_in += 1
+        if r == 0 or sd_pts[r] > low:
+            low = sd_pts[r]
+    in_tri, in_lat, in_pts, in_sd = np.empty(n_in, np.int64), np.zeros((n_in, 3), np.int64), np.empty((n_in, 3)), np.empty(n_in)
+    n_in = 0
+    for r in range(u):
+        if sd_pts[r] > 0:
+            in_tri[n_in] = src[first[r] // 3]
+            in_lat[n_in, first[r] % 3] = steps
+            for q in range(3):
+                in_pts[n_in, q] = pts[r, q]
+            in_sd[n_in] = sd_pts[r]
+            n_in += 1
+    if c == 0:
+        return 0, 0.0, low, True, u, 0, in_tri, in_lat, in_pts, in_sd
+    lattice = np.zeros((c, 3, 3), np.int64)
+    sd, fc = np.empty((c, 3)), np.empty((c, 3), np.int64)
+    bound = np.empty(c)
+    for i in range(c):
+        for k in range(3):
+            lattice[i, k, k] = steps
+            sd[i, k], fc[i, k] = sd_pts[cell_pts[i, k]], face_pts[cell_pts[i, k]]
+        a = sd[i, 0] if sd[i, 0] > sd[i, 1] else sd[i, 1]
+        a = a if a > sd[i, 2] else sd[i, 2]
+        v = a + rho[i]
+        bound[i] = v if v > 0.0 else 0.0
+    if has_pending:  # eq. (6) needs the nearest faces of the far corners of cells above 0
+        wanted = np.zeros(u, np.bool_)
+        for i in range(c):
+            if bound[i] > 0.0:
+                for k in range(3):
+                    wanted[cell_pts[i, k]] = True
+        n_ids = 0
+        ids = np.empty(u, np.int64)
+        for r in range(u):
+            if wanted[r] and pending[r]:
+                ids[n_ids] = r
+                n_ids += 1
+        if n_ids:
+            if not _signed_at(pts, ids[:n_ids], reach, leaf_tri, order, lo, hi, left, right, start, count, vertices, faces,
+                              normals, edge_normals, vertex_normals, tol, sd_pts, face_pts):
+                return 1, 0.0, -np.inf, False, 0, 0, np.empty(0, np.int64), np.empty((0, 3), np.int64), np.empty((0, 3)), np.empty(0)
+            for i in range(c):
+                for k in range(3):
+                    sd[i, k], fc[i, k] = sd_pts[cell_pts[i, k]], face_pts[cell_pts[i, k]]
+    code, retired, low, complete, evaluated, level, f_tri, f_lat, f_pts, f_sd = _refine(
+        tri, src, np.arange(c), lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, u, reach,
+        leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals, tol,
+        facet, facet_start, facet_faces)
+    return (code, retired, low, complete, evaluated, level, np.concatenate((in_tri, f_tri)), np.concatenate((in_lat, f_lat)),
+            np.concatenate((in_pts, f_pts)), np.concatenate((in_sd, f_sd)))
+
+
+def depth(tri, box, part: bool, reach: float, target: float, decide: float, max_split: int, budget: int, far: float,
+          link: float, tree: Tree, vertices, faces, normals, edge_normals, vertex_normals, tol: float, facet, facet_start,
+          facet_faces):
+    """`pipeline.clearance.triangle_depth`'s branch and bound of triangles ``tri (t, 3, 3)`` in one
+    compiled call, the same bits as its array form: the triangles whose boxes meet ``box (2, 3)``
+    (within ``reach`` on a ``part``, where every triangle must), their corners signed (far ones
+    by their neighbours: ``far`` and ``link``, `_signed_corners`), then the levels, against the
+    solid's ``tree``, mesh, pseudo-normals (`acra.pseudonormals.signs` with ``tol``) and facets.
+    ``reach``: points farther from every face are unresolved.
 
     Returns ``None`` if a point is unresolved, else ``(bound, low, complete, evaluated, level,
     tri (m,) int64, lattice (m, 3) int64, points (m, 3), depth (m,))``: the certified bound, the
-    largest depth found, whether every cell ended within its target, the points evaluated in all,
-    the split depth, and the points evaluated past level 0 found inside, in order."""
-    out = _refine(np.ascontiguousarray(tri, np.float64), np.ascontiguousarray(src, np.int64),
-                  np.array(rows, np.int64), np.array(lattice, np.int64), np.array(sd, np.float64), np.array(fc, np.int64),
-                  np.array(rho, np.float64), np.array(bound, np.float64), float(low), float(target), float(decide),
-                  int(steps), int(max_split), int(budget), int(evaluated), float(reach), tree.leaf_tri, tree.order, tree.lo,
-                  tree.hi, tree.left, tree.right, tree.start, tree.count, vertices, faces, normals, edge_normals,
-                  vertex_normals, float(tol), facet, facet_start, facet_faces)
+    largest depth found (``-inf`` if no point), whether every cell ended within its target, the
+    points evaluated, the split depth, and the points found inside, in order, with their
+    integer barycentric weights (times ``1 << max_split``)."""
+    out = _depth(np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3), np.ascontiguousarray(box[0], np.float64),
+                 np.ascontiguousarray(box[1], np.float64), bool(part), float(reach), float(target), float(decide),
+                 int(max_split), int(budget), float(far), float(link), tree.leaf_tri, tree.order, tree.lo, tree.hi, tree.left,
+                 tree.right, tree.start, tree.count, vertices, faces, normals, edge_normals, vertex_normals, float(tol), facet,
+                 facet_start, facet_faces)
     return None if out[0] else out[1:]

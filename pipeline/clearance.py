@@ -474,8 +474,9 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
     ``decide``: a depth the caller compares the bound with (a tolerance): while no evaluated point
     is deeper than it, a cell bounded above it is split too, so a bound within 1.25 of the depth
     found does not put a clear surface over the tolerance.
-    ``compiled``: the levels past the corners run in one compiled call (`acra.bvh.refine`, the
-    same bits) unless false or ``s`` is convex (eq. (7) in numpy: `_levels`).
+    ``compiled``: the whole branch and bound runs in one compiled call (`acra.bvh.depth`, the
+    same bits) unless false or ``s`` is convex (eq. (7) stays in numpy: this module's array form,
+    `_signed_corners` and `_levels`).
     """
     try:
         return _triangle_depth(s, corners, target, max_split, budget, reach, decide, compiled)
@@ -489,6 +490,14 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.ascontiguousarray(corners, np.float64).reshape(-1, 3, 3)
     steps = 1 << max_split  # integer barycentric lattice: weights (i, j, steps - i - j) / steps
+    if compiled and not s.convex:
+        out = bvh.depth(tri, s.bounds, np.isfinite(reach), reach, target, decide, max_split, budget, FAR, LINK, s.tree,
+                        s.vertices, s.faces, s.normals, s.edge_normals, s.vertex_normals, FEATURE * _extent(s), s.facet,
+                        s.facet_start, s.facet_faces)
+        if out is None:
+            raise Unresolved
+        retired, low, complete, evaluated, level, t, lat, p, d = out
+        return Depth(retired, max(low, 0.0), complete, t, lat / steps, p, d, evaluated, level)
     if np.isfinite(reach):
         # a part is a patch of the surface: a triangle missing its box may still lie inside the
         # solid (under a curved cap), so none is skipped; one whose box is beyond ``reach`` of the
@@ -527,18 +536,8 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
             if len(ids):
                 sd_pts[ids], _, face_pts[ids] = _signed(s, pts[ids], reach)
                 sd, fc = sd_pts[corner_pts], face_pts[corner_pts]
-        if compiled and not s.convex:
-            out = bvh.refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget,
-                             evaluated, reach, s.tree, s.vertices, s.faces, s.normals, s.edge_normals, s.vertex_normals,
-                             FEATURE * _extent(s), s.facet, s.facet_start, s.facet_faces)
-            if out is None:
-                raise Unresolved
-            retired, low, complete, evaluated, level, t, lat, p, d = out
-            found.append((t, lat / steps, p, d))
-        else:
-            retired, low, complete, evaluated, level = _levels(s, tri, src, steps, target, max_split, budget, reach,
-                                                               decide, keep, rows, lattice, sd, fc, rho, bound, low,
-                                                               evaluated)
+        retired, low, complete, evaluated, level = _levels(s, tri, src, steps, target, max_split, budget, reach, decide,
+                                                           keep, rows, lattice, sd, fc, rho, bound, low, evaluated)
     t, b, p, d = (np.concatenate(x) for x in zip(*found))
     return Depth(retired, max(low, 0.0), complete, t.astype(np.int64), b, p, d, evaluated, level)
 

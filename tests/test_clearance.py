@@ -647,17 +647,20 @@ def _tangent_sheet(rng, normal, depth, size, n):
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_compiled_levels_are_the_array_form_bit_for_bit(seed):
-    """`acra.bvh.refine` (the levels past the corners in one compiled call) gives the `Depth` of
-    the array form (`_levels`), bit for bit: on a whole torus and on parts of a sphere, sheets
-    crossing the surface and sheets along it (just inside and just outside), with targets from 0
-    to coarse, decided against a tolerance and not, with budgets that end refinement part way
-    through a level and split caps."""
+def test_compiled_depth_is_the_array_form_bit_for_bit(seed):
+    """`acra.bvh.depth` (the branch and bound in one compiled call) gives the `Depth` of the
+    array form (`_signed_corners`, `_levels`), bit for bit, and leaves unresolved what it leaves
+    unresolved: on a whole torus (a sheet partly beyond its box) and on parts of a sphere, sheets
+    crossing the surface and sheets along it (just inside and just outside, one with a ``reach``
+    too short), with targets from 0 to coarse, decided against a tolerance and not, with budgets
+    that end refinement part way through a level and split caps."""
     rng = np.random.default_rng(seed)
     m, torus_solid = shape("torus")
-    cases = [(torus_solid, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], 1.0, 12), np.inf)]
+    cases = [(torus_solid, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], 1.0, 12), np.inf),
+             (torus_solid, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], 4.0, 12), np.inf)]
     v, f = uv_sphere(24, 40, seed)
-    for size, n, pad, depth in ((1.2, 20, 1.0, None), (0.8, 8, 0.8, 1e-3), (0.3, 4, 0.3, 0.004), (0.3, 4, 0.3, -0.002)):
+    for size, n, pad, depth in ((1.2, 20, 1.0, None), (0.8, 8, 0.8, 1e-3), (0.3, 4, 0.3, 0.004), (0.3, 4, 0.3, -0.002),
+                                (0.3, 4, 0.01, 0.004)):
         normal = rng.normal(size=3)
         normal /= np.linalg.norm(normal)
         tri = _sheet(rng, normal, size, n) if depth is None else _tangent_sheet(rng, normal, depth, size, n)
@@ -665,16 +668,17 @@ def test_compiled_levels_are_the_array_form_bit_for_bit(seed):
         rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
         cases.append((C.solid(v, f[rows], part=True, outward=1.0, scale=2.0), tri, pad))
     assert not any(s.convex for s, _, _ in cases)  # a convex solid takes the array form
-    deep = cut = 0
+    deep = cut = unresolved = 0
     for s, tri, reach in cases:
         for target, decide in ((0.0, np.inf), (1e-4, 2e-3), (1e-3, 2e-3), (0.05, 0.1)):
             for budget, max_split in ((60_000, 6), (1_500, 6), (60_000, 2), (400, 0)):
                 got = C.triangle_depth(s, tri, target, max_split, budget, reach=reach, decide=decide)
                 want = C.triangle_depth(s, tri, target, max_split, budget, reach=reach, decide=decide, compiled=False)
                 _same_depth(got, want)
-                deep += got.split == max_split > 0
-                cut += not got.complete and got.split < max_split
-    assert deep and cut
+                unresolved += got is None
+                deep += got is not None and got.split == max_split > 0
+                cut += got is not None and not got.complete and got.split < max_split
+    assert deep and cut and unresolved
 
 
 # --- object space and world space --------------------------------------------------------------------
