@@ -923,6 +923,36 @@ def lattice_points(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, step
     return out
 
 
+_NO_PLANES = np.full(1, -1, np.int64)  # `depth` without eq. (7): not a convex solid
+
+
+@njit(cache=True, nogil=True)
+def _cell_bound(cell, f0, f1, f2, vertices, faces, normals, facet, facet_start, facet_faces, planes, scratch, least):
+    """`pipeline.clearance._cell_bound` of one cell ``cell (3, 3)`` whose corners' closest faces are
+    ``f0, f1, f2``: eq. (6), and on a convex solid (``planes`` not `_NO_PLANES`) the smaller of it
+    and eq. (7), ``min_j max_i max(0, (a_j - c_i) . n_j)`` over the planes of the faces
+    ``planes`` (every facet's), or of ``f0, f1, f2`` if ``planes`` is empty. A dot product of 3
+    terms is summed as ``(p0 + p2) + p1``, as ``np.einsum`` sums it in the array form."""
+    out = _cell_facet_bound(cell, f0, f1, f2, vertices, faces, facet, facet_start, facet_faces, scratch, least)
+    if planes.shape[0] == 1 and planes[0] < 0:
+        return out
+    g = planes.shape[0] if planes.shape[0] else 3
+    plane = np.inf
+    for j in range(g):
+        row = planes[j] if planes.shape[0] else (f0 if j == 0 else (f1 if j == 1 else f2))
+        a = vertices[faces[row, 0]]
+        n = normals[row]
+        d = (a[0] * n[0] + a[2] * n[2]) + a[1] * n[1]
+        top = 0.0
+        for i in range(3):
+            x = d - ((cell[i, 0] * n[0] + cell[i, 2] * n[2]) + cell[i, 1] * n[1])
+            if x > top:
+                top = x
+        if top < plane:
+            plane = top
+    return plane if plane < out else out
+
+
 @njit(cache=True, nogil=True)
 def _cell_corners(tri, t, lattice, i, steps, out):
     """The corners ``out (3, 3)`` of cell ``i`` of source triangle ``tri[t]`` at integer barycentric
@@ -963,7 +993,7 @@ def _signed_at(points, ids, reach, leaf_tri, order, lo, hi, left, right, start, 
 @njit(cache=True, nogil=True)
 def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, evaluated, reach,
             leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals,
-            tol, facet, facet_start, facet_faces):
+            tol, facet, facet_start, facet_faces, planes):
     # `pipeline.clearance`'s branch and bound from level 0 on, the level-0 cells' eq. (4) given
     # as ``bound``; each step in the arithmetic and order of its array form (`_triangle_levels`),
     # so the answers are the same bits. A maximum is exact whatever the order of its terms, so
@@ -999,8 +1029,8 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             split = b > now or (b > decide and low <= decide)
             if b > 0.0 and split:
                 _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
-                six = _cell_facet_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, facet, facet_start,
-                                        facet_faces, scratch, least)
+                six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
+                                   planes, scratch, least)
                 if six < b:
                     b = six
                     bound[i] = b
@@ -1021,8 +1051,8 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                 if not bound[i] > retired:
                     break
                 _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
-                six = _cell_facet_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, facet, facet_start,
-                                        facet_faces, scratch, least)
+                six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
+                                   planes, scratch, least)
                 b = six if six < bound[i] else bound[i]
                 if b > retired:
                     retired = b
@@ -1124,8 +1154,8 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                 v = a + rho[i]
                 if v > 0.0:
                     _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
-                    six = _cell_facet_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, facet, facet_start,
-                                            facet_faces, scratch, least)
+                    six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
+                                   planes, scratch, least)
                     v = six if six < v else v
                     if v > last:
                         last = v
@@ -1141,7 +1171,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
 @njit(cache=True, nogil=True)
 def _depth(tri, box_lo, box_hi, part, reach, target, decide, max_split, budget, far, link, leaf_tri, order, lo, hi, left,
            right, start, count, vertices, faces, normals, edge_normals, vertex_normals, tol, facet, facet_start,
-           facet_faces):
+           facet_faces, planes):
     # `pipeline.clearance._triangle_depth`'s level 0 (its corners, `_signed_corners`) in the
     # arithmetic and order of its array form, then the levels past it (`_refine`)
     steps = 1 << max_split
@@ -1303,20 +1333,23 @@ def _depth(tri, box_lo, box_hi, part, reach, target, decide, max_split, budget, 
     code, retired, low, complete, evaluated, level, f_tri, f_lat, f_pts, f_sd = _refine(
         tri, src, np.arange(c), lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, u, reach,
         leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals, tol,
-        facet, facet_start, facet_faces)
+        facet, facet_start, facet_faces, planes)
     return (code, retired, low, complete, evaluated, level, np.concatenate((in_tri, f_tri)), np.concatenate((in_lat, f_lat)),
             np.concatenate((in_pts, f_pts)), np.concatenate((in_sd, f_sd)))
 
 
 def depth(tri, box, part: bool, reach: float, target: float, decide: float, max_split: int, budget: int, far: float,
           link: float, tree: Tree, vertices, faces, normals, edge_normals, vertex_normals, tol: float, facet, facet_start,
-          facet_faces):
+          facet_faces, planes=None):
     """`pipeline.clearance.triangle_depth`'s branch and bound of triangles ``tri (t, 3, 3)`` in one
     compiled call, the same bits as its array form: the triangles whose boxes meet ``box (2, 3)``
     (within ``reach`` on a ``part``, where every triangle must), their corners signed (far ones
     by their neighbours: ``far`` and ``link``, `_signed_corners`), then the levels, against the
     solid's ``tree``, mesh, pseudo-normals (`acra.pseudonormals.signs` with ``tol``) and facets.
-    ``reach``: points farther from every face are unresolved.
+    ``reach``: points farther from every face are unresolved. ``planes``: on a convex solid, eq.
+    (7) bounds cells too (`_cell_bound`): ``(0,) int64`` for each corner's closest face's plane,
+    else ``(g,) int64`` the faces whose planes bound every cell (one of each facet); ``None``
+    for no eq. (7).
 
     Returns ``None`` if a point is unresolved, else ``(bound, low, complete, evaluated, level,
     tri (m,) int64, lattice (m, 3) int64, points (m, 3), depth (m,))``: the certified bound, the
@@ -1327,5 +1360,5 @@ def depth(tri, box, part: bool, reach: float, target: float, decide: float, max_
                  np.ascontiguousarray(box[1], np.float64), bool(part), float(reach), float(target), float(decide),
                  int(max_split), int(budget), float(far), float(link), tree.leaf_tri, tree.order, tree.lo, tree.hi, tree.left,
                  tree.right, tree.start, tree.count, vertices, faces, normals, edge_normals, vertex_normals, float(tol), facet,
-                 facet_start, facet_faces)
+                 facet_start, facet_faces, _NO_PLANES if planes is None else np.ascontiguousarray(planes, np.int64))
     return None if out[0] else out[1:]

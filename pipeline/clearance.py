@@ -475,8 +475,7 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
     is deeper than it, a cell bounded above it is split too, so a bound within 1.25 of the depth
     found does not put a clear surface over the tolerance.
     ``compiled``: the whole branch and bound runs in one compiled call (`acra.bvh.depth`, the
-    same bits) unless false or ``s`` is convex (eq. (7) stays in numpy: this module's array form,
-    `_signed_corners` and `_levels`).
+    same bits) unless false (this module's array form: `_signed_corners`, `_levels`).
     """
     try:
         return _triangle_depth(s, corners, target, max_split, budget, reach, decide, compiled)
@@ -490,10 +489,13 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.ascontiguousarray(corners, np.float64).reshape(-1, 3, 3)
     steps = 1 << max_split  # integer barycentric lattice: weights (i, j, steps - i - j) / steps
-    if compiled and not s.convex:
+    if compiled:
+        planes = None  # eq. (7): every facet's plane, or each corner's closest face's (`_plane_bound`)
+        if s.convex:
+            planes = s.facet_faces[s.facet_start[:-1]] if len(s.facet_start) - 1 <= ALL_PLANES else np.zeros(0, np.int64)
         out = bvh.depth(tri, s.bounds, np.isfinite(reach), reach, target, decide, max_split, budget, FAR, LINK, s.tree,
                         s.vertices, s.faces, s.normals, s.edge_normals, s.vertex_normals, FEATURE * _extent(s), s.facet,
-                        s.facet_start, s.facet_faces)
+                        s.facet_start, s.facet_faces, planes)
         if out is None:
             raise Unresolved
         retired, low, complete, evaluated, level, t, lat, p, d = out
@@ -552,9 +554,9 @@ def _eq4(sd: np.ndarray, rho: np.ndarray) -> np.ndarray:
 def _levels(s: Solid, tri, src, steps, target, max_split, budget, reach, decide, keep, rows, lattice, sd, fc, rho, bound,
             low, evaluated):
     """The branch and bound from level 0's cells (``bound`` their eq. (4)) in numpy: ``(bound, low,
-    complete, evaluated, level)``, the points found inside handed to ``keep``. `acra.bvh.refine`
-    compiles it in the same arithmetic and order; this form bounds a convex solid (eq. (7)) and
-    is the reference the compiled one is held to."""
+    complete, evaluated, level)``, the points found inside handed to ``keep``. `acra.bvh.depth`
+    compiles it in the same arithmetic and order; this form is the reference the compiled one
+    is held to."""
     retired, level, complete = 0.0, 0, True
     while len(rows):
         now = max(target, 1.25 * max(low, 0.0))

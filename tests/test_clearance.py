@@ -650,14 +650,16 @@ def _tangent_sheet(rng, normal, depth, size, n):
 def test_compiled_depth_is_the_array_form_bit_for_bit(seed):
     """`acra.bvh.depth` (the branch and bound in one compiled call) gives the `Depth` of the
     array form (`_signed_corners`, `_levels`), bit for bit, and leaves unresolved what it leaves
-    unresolved: on a whole torus (a sheet partly beyond its box) and on parts of a sphere, sheets
+    unresolved: on a whole torus (a sheet partly beyond its box), a box and an icosphere (convex:
+    eq. (7) on every facet's plane, and on the corners' faces') and on parts of a sphere, sheets
     crossing the surface and sheets along it (just inside and just outside, one with a ``reach``
     too short), with targets from 0 to coarse, decided against a tolerance and not, with budgets
     that end refinement part way through a level and split caps."""
     rng = np.random.default_rng(seed)
-    m, torus_solid = shape("torus")
-    cases = [(torus_solid, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], 1.0, 12), np.inf),
-             (torus_solid, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], 4.0, 12), np.inf)]
+    cases = []
+    for name, size in (("torus", 1.0), ("torus", 4.0), ("box", 1.0), ("icosphere", 1.0)):
+        m, whole = shape(name)
+        cases.append((whole, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], size, 12), np.inf))
     v, f = uv_sphere(24, 40, seed)
     for size, n, pad, depth in ((1.2, 20, 1.0, None), (0.8, 8, 0.8, 1e-3), (0.3, 4, 0.3, 0.004), (0.3, 4, 0.3, -0.002),
                                 (0.3, 4, 0.01, 0.004)):
@@ -667,7 +669,8 @@ def test_compiled_depth_is_the_array_form_bit_for_bit(seed):
         lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
         rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
         cases.append((C.solid(v, f[rows], part=True, outward=1.0, scale=2.0), tri, pad))
-    assert not any(s.convex for s, _, _ in cases)  # a convex solid takes the array form
+    planes = [len(s.facet_start) - 1 <= C.ALL_PLANES for s, _, _ in cases if s.convex]
+    assert planes == [True, False]  # eq. (7) on every facet's plane (the box), and on the corners' faces'
     deep = cut = unresolved = 0
     for s, tri, reach in cases:
         for target, decide in ((0.0, np.inf), (1e-4, 2e-3), (1e-3, 2e-3), (0.05, 0.1)):
