@@ -16,6 +16,12 @@ point's barycentric coordinates, exactly 0 off the face's interior (on an edge o
 for the sign by pseudo-normals. Among triangles at equal distance the lowest row wins, so the
 answer does not depend on the tree.
 
+The residual's branch and bound (`pipeline.clearance.triangle_depth`) runs here in one compiled
+call (`depth`): its corners and its levels' midpoints searched by the same walk, signed by
+`acra.pseudonormals.signs`, bounded by eq. (4), (6) and (7), deduplicated and split, each step in
+the arithmetic and order of the array form in `pipeline.clearance`, so the answers are the same
+bits; a call costs its searches and bounds, without a numpy call per step of a level.
+
 Arrays are float64 unless stated.
 """
 
@@ -995,7 +1001,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals,
             tol, facet, facet_start, facet_faces, planes):
     # `pipeline.clearance`'s branch and bound from level 0 on, the level-0 cells' eq. (4) given
-    # as ``bound``; each step in the arithmetic and order of its array form (`_triangle_levels`),
+    # as ``bound``; each step in the arithmetic and order of its array form (`_levels`),
     # so the answers are the same bits. A maximum is exact whatever the order of its terms, so
     # the retired cells' eq. (6) is taken one cell at a time, largest eq. (4) first, until the
     # next cannot raise it. Python's ``max(a, b)`` keeps ``a`` unless ``b > a``: written out
