@@ -6,7 +6,8 @@ Runs the scene's ``--frames`` (after a free frame, as `stage_split.py` does), ke
 `residual.pair_depth` call's arguments (the frame loop's rounds and the run's display), then
 replays them ``--passes`` times, each pass with empty part caches (every part solid built again,
 as the first query of a display builds it), and prints the CPU milliseconds of the fastest pass,
-its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box) and a digest of every answer (depths,
+its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box; where
+the branch and bound is one compiled call, `acra.bvh.depth`, its searches and eq. (6) are inside it) and a digest of every answer (depths,
 completeness, the points, parameters and depths found inside): two checkouts answer alike when
 their digests agree. Run it with ``PYTHONPATH`` at each checkout, alternating, for a comparison.
 """
@@ -68,6 +69,8 @@ def main() -> None:
         bvh.faces_meet = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet)
     if hasattr(bvh, "faces_meet_rows"):  # its form giving the rows, where a checkout has it
         bvh.faces_meet_rows = _timed("triangles near a box (acra.bvh.faces_meet_rows)", bvh.faces_meet_rows)
+    if hasattr(bvh, "depth"):  # the branch and bound in one compiled call, where a checkout has it
+        bvh.depth = _timed("the branch and bound, compiled (acra.bvh.depth)", bvh.depth)
     clearance.covering_radius = _timed("covering radii (eq. (3))", clearance.covering_radius)
     if hasattr(bvh, "covering_radii"):  # its compiled form, where a checkout has it
         bvh.covering_radii = _timed("covering radii (eq. (3))", bvh.covering_radii)

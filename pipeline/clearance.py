@@ -461,7 +461,7 @@ def _retired_max(s: Solid, tri, src, steps, retired: float, bound, cells, rows, 
 
 
 def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget: int = 200_000,
-                   reach: float = np.inf, decide: float = np.inf) -> Depth | None:
+                   reach: float = np.inf, decide: float = np.inf, compiled: bool = True) -> Depth | None:
     """`Depth` of triangles ``corners (t, 3, 3) float`` (in ``s``'s object space) inside ``s``,
     refined until every cell's ``U <= max(target, 1.25 L)``, ``max_split`` levels, or ``budget``
     evaluated points (the given triangles' corners are always evaluated). On a whole solid, a
@@ -474,19 +474,32 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
     ``decide``: a depth the caller compares the bound with (a tolerance): while no evaluated point
     is deeper than it, a cell bounded above it is split too, so a bound within 1.25 of the depth
     found does not put a clear surface over the tolerance.
+    ``compiled``: the whole branch and bound runs in one compiled call (`acra.bvh.depth`, the
+    same bits) unless false (this module's array form: `_signed_corners`, `_levels`).
     """
     try:
-        return _triangle_depth(s, corners, target, max_split, budget, reach, decide)
+        return _triangle_depth(s, corners, target, max_split, budget, reach, decide, compiled)
     except Unresolved:
         return None
 
 
 def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: int, reach: float,
-                    decide: float = np.inf) -> Depth:
+                    decide: float = np.inf, compiled: bool = True) -> Depth:
     if not 0 <= max_split <= 30:
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.ascontiguousarray(corners, np.float64).reshape(-1, 3, 3)
     steps = 1 << max_split  # integer barycentric lattice: weights (i, j, steps - i - j) / steps
+    if compiled:
+        planes = None  # eq. (7): every facet's plane, or each corner's closest face's (`_plane_bound`)
+        if s.convex:
+            planes = s.facet_faces[s.facet_start[:-1]] if len(s.facet_start) - 1 <= ALL_PLANES else np.zeros(0, np.int64)
+        out = bvh.depth(tri, s.bounds, np.isfinite(reach), reach, target, decide, max_split, budget, FAR, LINK, s.tree,
+                        s.vertices, s.faces, s.normals, s.edge_normals, s.vertex_normals, FEATURE * _extent(s), s.facet,
+                        s.facet_start, s.facet_faces, planes)
+        if out is None:
+            raise Unresolved
+        retired, low, complete, evaluated, level, t, lat, p, d = out
+        return Depth(retired, max(low, 0.0), complete, t, lat / steps, p, d, evaluated, level)
     if np.isfinite(reach):
         # a part is a patch of the surface: a triangle missing its box may still lie inside the
         # solid (under a curved cap), so none is skipped; one whose box is beyond ``reach`` of the
@@ -516,20 +529,40 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
     rows, rho = np.arange(len(src)), rho0  # cells: row into src, lattice, corner sd, corner faces, rho
     low = float(sd_pts.max()) if len(pts) else -np.inf
     retired, level, complete = 0.0, 0, True
-    while len(rows):
-        now = max(target, 1.25 * max(low, 0.0))
-        # eq. (4); the largest corner as two elementwise maxima: numpy's reduction along an axis
-        # of 3 costs about 40 ns a row, the maxima 2
-        bound = np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)
-        over = np.nonzero(bound > 0.0)[0]
-        if pending is not None:  # level 0: eq. (6) needs the nearest faces of these cells' far corners
+    if len(rows):
+        bound = _eq4(sd, rho)
+        if pending is not None:  # eq. (6) needs the nearest faces of the far corners of cells above 0
             wanted = np.zeros(len(pts), np.bool_)  # the corners of these cells, once each, in order
-            wanted[corner_pts[over]] = True
+            wanted[corner_pts[bound > 0.0]] = True
             ids = np.nonzero(wanted & pending)[0]
             if len(ids):
                 sd_pts[ids], _, face_pts[ids] = _signed(s, pts[ids], reach)
                 sd, fc = sd_pts[corner_pts], face_pts[corner_pts]
-            pending = None
+        retired, low, complete, evaluated, level = _levels(s, tri, src, steps, target, max_split, budget, reach, decide,
+                                                           keep, rows, lattice, sd, fc, rho, bound, low, evaluated)
+    t, b, p, d = (np.concatenate(x) for x in zip(*found))
+    return Depth(retired, max(low, 0.0), complete, t.astype(np.int64), b, p, d, evaluated, level)
+
+
+def _eq4(sd: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """Eq. (4) ``(c,) float64`` of cells with corner depths ``sd (c, 3)`` and covering radii ``rho
+    (c,)``; the largest corner as two elementwise maxima: numpy's reduction along an axis of 3
+    costs about 40 ns a row, the maxima 2."""
+    return np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)
+
+
+def _levels(s: Solid, tri, src, steps, target, max_split, budget, reach, decide, keep, rows, lattice, sd, fc, rho, bound,
+            low, evaluated):
+    """The branch and bound from level 0's cells (``bound`` their eq. (4)) in numpy: ``(bound, low,
+    complete, evaluated, level)``, the points found inside handed to ``keep``. `acra.bvh.depth`
+    compiles it in the same arithmetic and order; this form is the reference the compiled one
+    is held to."""
+    retired, level, complete = 0.0, 0, True
+    while len(rows):
+        now = max(target, 1.25 * max(low, 0.0))
+        if level:
+            bound = _eq4(sd, rho)
+        over = np.nonzero(bound > 0.0)[0]
         # eq. (6): the faces nearest the corners bound the cell too. It only lowers a bound, so a
         # cell that eq. (4) already retires is retired with it, and its bound only counts where it
         # could raise the largest retired bound (`_retired_max`)
@@ -565,13 +598,11 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         lattice, sd, fc, rows, rho = bvh.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
         level += 1
         if not complete:  # the budget's last pass: bound the children and stop
-            last = np.maximum(np.maximum(np.maximum(sd[:, 0], sd[:, 1]), sd[:, 2]) + rho, 0.0)
-            last = np.minimum(last, _cell_bound(s, _at_cells(tri, src[rows], lattice, steps), fc))
+            last = np.minimum(_eq4(sd, rho), _cell_bound(s, _at_cells(tri, src[rows], lattice, steps), fc))
             retired = max(retired, float(last.max()))
             complete = retired <= max(target, 1.25 * max(low, 0.0)) and not (decide < retired and low <= decide)
             break
-    t, b, p, d = (np.concatenate(x) for x in zip(*found))
-    return Depth(retired, max(low, 0.0), complete, t.astype(np.int64), b, p, d, evaluated, level)
+    return retired, low, complete, evaluated, level
 
 
 FAR = 2.5  # corners with no face within FAR x the largest covering radius are signed by their neighbours

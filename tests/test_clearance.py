@@ -626,11 +626,62 @@ def test_retired_cells_bounded_lazily_give_the_same_depth(seed, monkeypatch):
     cases.append((C.solid(v, f[rows], part=True, outward=1.0, scale=2.0), tri, 1.0))
     for s, tri, reach in cases:
         for target, decide in ((0.0, np.inf), (1e-3, np.inf), (1e-3, 2e-3), (0.05, 0.1)):
-            got = C.triangle_depth(s, tri, target, reach=reach, decide=decide, budget=60_000)
+            got = C.triangle_depth(s, tri, target, reach=reach, decide=decide, budget=60_000, compiled=False)
             with monkeypatch.context() as mp:
                 mp.setattr(C, "_retired_max", _every_retired_cell)
-                want = C.triangle_depth(s, tri, target, reach=reach, decide=decide, budget=60_000)
+                want = C.triangle_depth(s, tri, target, reach=reach, decide=decide, budget=60_000, compiled=False)
             _same_depth(got, want)
+
+
+def _tangent_sheet(rng, normal, depth, size, n):
+    """An ``n x n`` grid of triangles ``(2 n^2, 3, 3)`` of side ``size`` square to the unit
+    ``normal``, at ``depth`` inside the unit sphere's surface (below 0: outside), turned at random
+    about the normal: its cells along the surface need every level of splitting."""
+    q = np.linalg.qr(np.column_stack([normal, rng.normal(size=(3, 2))]))[0]
+    g = np.linspace(-0.5, 0.5, n + 1) * size
+    pts = (1.0 - depth) * normal + g[:, None, None] * q[:, 1] + g[None, :, None] * q[:, 2]
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return pts.reshape(-1, 3)[faces]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_depth_is_the_array_form_bit_for_bit(seed):
+    """`acra.bvh.depth` (the branch and bound in one compiled call) gives the `Depth` of the
+    array form (`_signed_corners`, `_levels`), bit for bit, and leaves unresolved what it leaves
+    unresolved: on a whole torus (a sheet partly beyond its box), a box and an icosphere (convex:
+    eq. (7) on every facet's plane, and on the corners' faces') and on parts of a sphere, sheets
+    crossing the surface and sheets along it (just inside and just outside, one with a ``reach``
+    too short), with targets from 0 to coarse, decided against a tolerance and not, with budgets
+    that end refinement part way through a level and split caps."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for name, size in (("torus", 1.0), ("torus", 4.0), ("box", 1.0), ("icosphere", 1.0)):
+        m, whole = shape(name)
+        cases.append((whole, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], size, 12), np.inf))
+    v, f = uv_sphere(24, 40, seed)
+    for size, n, pad, depth in ((1.2, 20, 1.0, None), (0.8, 8, 0.8, 1e-3), (0.3, 4, 0.3, 0.004), (0.3, 4, 0.3, -0.002),
+                                (0.3, 4, 0.01, 0.004)):
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        tri = _sheet(rng, normal, size, n) if depth is None else _tangent_sheet(rng, normal, depth, size, n)
+        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+        rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
+        cases.append((C.solid(v, f[rows], part=True, outward=1.0, scale=2.0), tri, pad))
+    planes = [len(s.facet_start) - 1 <= C.ALL_PLANES for s, _, _ in cases if s.convex]
+    assert planes == [True, False]  # eq. (7) on every facet's plane (the box), and on the corners' faces'
+    deep = cut = unresolved = 0
+    for s, tri, reach in cases:
+        for target, decide in ((0.0, np.inf), (1e-4, 2e-3), (1e-3, 2e-3), (0.05, 0.1)):
+            for budget, max_split in ((60_000, 6), (1_500, 6), (60_000, 2), (400, 0)):
+                got = C.triangle_depth(s, tri, target, max_split, budget, reach=reach, decide=decide)
+                want = C.triangle_depth(s, tri, target, max_split, budget, reach=reach, decide=decide, compiled=False)
+                _same_depth(got, want)
+                unresolved += got is None
+                deep += got is not None and got.split == max_split > 0
+                cut += got is not None and not got.complete and got.split < max_split
+    assert deep and cut and unresolved
 
 
 # --- object space and world space --------------------------------------------------------------------
