@@ -328,9 +328,12 @@ def exact_digits(bits):
             continue
         m = frac | (np.int64(1) << 52)
         e = biased - 1075  # value = m 2^e
-        while e < 0 and (m & 1) == 0:
-            m >>= 1
-            e += 1
+        # drop trailing zero bits while the exponent is negative, by halving steps (a dyadic
+        # value has up to 52)
+        for step in (32, 16, 8, 4, 2, 1):
+            if step <= -e and (m & ((np.int64(1) << step) - 1)) == 0:
+                m >>= step
+                e += step
         if e >= 0:
             if e > 47 or m > ((_EXACT_MAX - 1) >> e):
                 st[i] = 2
@@ -475,7 +478,7 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
                     at += 1
                 h += 1
             else:
-                at = _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
+                at = _put_nonzero(buf, at, cs[i], ks[i], neg[i]) if st[i] == 0 else _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
         buf[at] = 41  # ')'
         at += 1
         t += 1
@@ -485,9 +488,9 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _put_f32(buf, at, c, k, neg):
-    """`_put_value` of a nonzero float32's digits ``c 10^k`` (``c`` at most 9 digits), the
-    digits written from the last, the decimal point in its place as they go (no shift)."""
+def _put_nonzero(buf, at, c, k, neg):
+    """`_put_value` of a nonzero value's digits ``c 10^k`` (``0 < c < 10^18``), the digits
+    written from the last, the decimal point in its place as they go (no shift)."""
     if neg:
         buf[at] = 45
         at += 1
@@ -602,9 +605,10 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
             shift = at - ref_at[t]
             for q in range(t, e):
                 starts[q] = ref_at[q] + shift
-            lo = ref_at[t]
-            size = ref_at[e] - 2 - lo
-            buf[at:at + size] = ref_text[lo:lo + size]
+            size = ref_at[e] - 2 - ref_at[t]
+            into, part = buf[at:], ref_text[ref_at[t]:]  # indices from 0 up: the copy compiles to a block copy
+            for q in range(size):
+                into[q] = part[q]
             at += size
             t = e
             continue
@@ -622,7 +626,7 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
             e = b >> 23
             if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
                 c, k = _ryu(b)
-                at = _put_f32(buf, at, c, k, neg)
+                at = _put_nonzero(buf, at, c, k, neg)
                 continue
             c, k, s = _one(b, _POW5) if e != 0xFF else (np.int64(0), np.int64(0), 2)
             if s == 2:
