@@ -566,9 +566,9 @@ def _marks(bits, m, ref, same):
         for i in range(t * m, t * m + m):
             b = np.int64(bits[i]) & 0x7FFFFFFF
             e = b >> 23
-            if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
+            if _RYU_BIASED[0] <= e <= _RYU_BIASED[1] or b == 0:
                 continue
-            if e == 0xFF or _one(b, _POW5)[2] == 2:
+            if e == 0 or e == 0xFF or _one(b, _POW5)[2] == 2:  # subnormals, inf and NaN too
                 hard[h] = i
                 h += 1
     return hard[:h].copy()
@@ -628,7 +628,10 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
                 c, k = _ryu(b)
                 at = _put_nonzero(buf, at, c, k, neg)
                 continue
-            c, k, s = _one(b, _POW5) if e != 0xFF else (np.int64(0), np.int64(0), 2)
+            if b == 0:
+                at = _put_value(buf, at, 0, 0, 1, neg)
+                continue
+            c, k, s = _one(b, _POW5) if 0 < e < 0xFF else (np.int64(0), np.int64(0), 2)
             if s == 2:
                 for q in range(hard_at[h], hard_at[h + 1]):
                     buf[at] = hard_bytes[q]
