@@ -671,7 +671,7 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
             j = refs[i] = None
         flat = values.reshape(-1).view(np.uint64 if values.dtype == np.float64 else np.uint32)
         same = np.zeros(values.shape[0] if j is not None else 0, np.bool_)
-        if values.dtype == np.float64 or values.ndim != 2 or values.shape[1] == 0:
+        if values.dtype == np.float64 or values.shape[1] == 0:
             cs, ks, st = exact_digits(flat) if values.dtype == np.float64 else shortest_digits(flat, flat[:0], same)
             done.append((values, (cs, ks, st), np.flatnonzero(st == 2), same))
         else:  # float32: only the values the kernel hands back are found here, their text is written in one pass
@@ -699,7 +699,7 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
         if digits is None:
             text, at = _float32_text(values.reshape(-1).view(np.uint32), values.shape[1], same, hard_bytes, hard_at, ref_text, ref_at)
         else:
-            text, at = _tuples_text(values.shape[0], values.shape[1] if values.ndim == 2 else 0, np.signbit(values.reshape(-1)), *digits,
+            text, at = _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), *digits,
                                     hard_bytes, hard_at, same, ref_text, ref_at)
         out.append(text.tobytes())
         if last_use.get(i, -1) > i:
