@@ -15,7 +15,9 @@ double-conversion's exact fallback, which USD's writer uses, rounds). Values who
 comparison would overflow 64 bits (below about 1e-7 or at or above about 2^40 in magnitude,
 and subnormals) are marked, and the caller supplies their text (``hard``). Within that range the
 digits are found by Ryu's float32 algorithm (`_ryu`, 64-bit tables, no loop over candidate
-exponents), about 1.7x faster; it gives `_one`'s digits for every float32 there. A float64 array's
+exponents), about 1.7x faster; it gives `_one`'s digits for every float32 there. A float32
+array's text is written in one pass (`_float32_text`), each value's digits as they are found,
+after `_marks` has found the values handed to the caller. A float64 array's
 values are written as their exact decimals where those have at most 14 digits (`exact_digits`),
 an int array's as their digits (`ints_text`).
 """
