@@ -361,44 +361,20 @@ class _SharedText:
 class _Text:
     """A ``.usda`` layer's ``text`` whose stand-ins (``pattern``, ``which`` of them) are written
     as their arrays' text ``values``, as `Sdf.Layer.Export` writes a layer (`usdio.export_layer`);
-    the text between stand-ins is encoded a piece at a time, so a long run's text is held once.
-    The pieces go to the file a batch at a time (`_write_pieces`): a layer is hundreds of pieces,
-    and one system call each costs more than copying their bytes."""
+    the text between stand-ins is encoded a piece at a time, so a long run's text is held once."""
 
     def __init__(self, text: str, pattern: re.Pattern, which: dict, values: list[bytes]) -> None:
         self.text, self.pattern, self.which, self.values = text, pattern, which, values
 
     def Export(self, path: str) -> bool:  # noqa: N802 (Sdf.Layer's name)
         at = 0
-        pieces: list = []
-        with open(path, "wb", buffering=0) as fh:
+        with open(path, "wb") as fh:
             for m in self.pattern.finditer(self.text):
-                pieces.append(self.text[at:m.start()].encode())
-                pieces.append(self.values[self.which[m.group()]])
+                fh.write(self.text[at:m.start()].encode())
+                fh.write(self.values[self.which[m.group()]])
                 at = m.end()
-                if len(pieces) >= _PIECES:
-                    _write_pieces(fh.fileno(), pieces)
-                    pieces = []
-            pieces.append(self.text[at:].encode())
-            _write_pieces(fh.fileno(), pieces)
+            fh.write(self.text[at:].encode())
         return True
-
-
-_PIECES = 512  # pieces a system call writes (below every system's IOV_MAX, 1024 on Linux)
-
-
-def _write_pieces(fd: int, pieces: list) -> None:
-    """Write ``pieces`` (bytes) to ``fd`` in order in one `os.writev`; a short write (a regular
-    file's is rare) is finished piece by piece."""
-    done = os.writev(fd, pieces)
-    for piece in pieces:
-        if done >= len(piece):
-            done -= len(piece)
-            continue
-        rest = memoryview(piece)[done:]
-        while rest:
-            rest = rest[os.write(fd, rest):]
-        done = 0
 
 
 def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, scene: SceneModel, frames_result: FramesResult) -> Path:

@@ -427,20 +427,6 @@ def test_text_output_formats_display_arrays_without_vt_copies(scene_file, tmp_pa
         assert text.read_bytes() == _usd_text(crate)
 
 
-def test_text_pieces_are_written_whole_after_a_short_write(tmp_path, monkeypatch):
-    """`output_layer._write_pieces` writes every byte in order when `os.writev` writes only part
-    of the pieces (as it may on a regular file: a signal, a size limit)."""
-    import os
-
-    pieces = [b"#usda 1.0\n", b"", b"[(1, 2, 3), (4, 5, 6)]", b"x" * 5000, b"\n"]
-    real = os.writev
-    monkeypatch.setattr(os, "writev", lambda fd, parts: real(fd, [b"".join(parts)[:4030]]))
-    path = tmp_path / "pieces.usda"
-    with open(path, "wb", buffering=0) as fh:
-        output_layer._write_pieces(fh.fileno(), pieces)
-    assert path.read_bytes() == b"".join(pieces)
-
-
 def test_a_long_text_output_is_streamed_by_usds_writer(scene_file, tmp_path, monkeypatch):
     """A layer whose text would exceed `output_layer.TEXT_HELD_MAX` is written by USD itself
     (streamed to the file), with the same bytes; a short one formats its shared arrays once."""
