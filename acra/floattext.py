@@ -15,7 +15,9 @@ double-conversion's exact fallback, which USD's writer uses, rounds). Values who
 comparison would overflow 64 bits (below about 1e-7 or at or above about 2^40 in magnitude,
 and subnormals) are marked, and the caller supplies their text (``hard``). Within that range the
 digits are found by Ryu's float32 algorithm (`_ryu`, 64-bit tables, no loop over candidate
-exponents), about 1.7x faster; it gives `_one`'s digits for every float32 there. A float64 array's
+exponents), about 1.7x faster; it gives `_one`'s digits for every float32 there. A float32
+array's text is written in one pass (`_float32_text`), each value's digits as they are found,
+after `_marks` has found the values handed to the caller. A float64 array's
 values are written as their exact decimals where those have at most 14 digits (`exact_digits`),
 an int array's as their digits (`ints_text`).
 """
@@ -328,9 +330,12 @@ def exact_digits(bits):
             continue
         m = frac | (np.int64(1) << 52)
         e = biased - 1075  # value = m 2^e
-        while e < 0 and (m & 1) == 0:
-            m >>= 1
-            e += 1
+        # drop trailing zero bits while the exponent is negative, by halving steps (a dyadic
+        # value has up to 52)
+        for step in (32, 16, 8, 4, 2, 1):
+            if step <= -e and (m & ((np.int64(1) << step) - 1)) == 0:
+                m >>= step
+                e += step
         if e >= 0:
             if e > 47 or m > ((_EXACT_MAX - 1) >> e):
                 st[i] = 2
@@ -475,7 +480,167 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
                     at += 1
                 h += 1
             else:
-                at = _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
+                at = _put_nonzero(buf, at, cs[i], ks[i], neg[i]) if st[i] == 0 else _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
+        buf[at] = 41  # ')'
+        at += 1
+        t += 1
+    buf[at] = 93  # ']'
+    starts[n] = at + 2
+    return buf[:at + 1], starts
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_nonzero(buf, at, c, k, neg):
+    """`_put_value` of a nonzero value's digits ``c 10^k`` (``0 < c < 10^18``), the digits
+    written from the last, the decimal point in its place as they go (no shift)."""
+    if neg:
+        buf[at] = 45
+        at += 1
+    nd = _ndigits(c)
+    point = nd + k  # the decimal point's place after the first digit
+    if point <= _LOW or point > _HIGH:
+        return _put_value(buf, at, c, k, 0, False)
+    if point <= 0:  # "0.", zeros, then every digit
+        buf[at] = 48
+        buf[at + 1] = 46
+        at += 2
+        for _ in range(-point):
+            buf[at] = 48
+            at += 1
+        end = at + nd
+        j = end
+    elif point >= nd:  # the digits, then zeros
+        end = at + point
+        for q in range(at + nd, end):
+            buf[q] = 48
+        j = at + nd
+    else:  # the fraction's digits, the point, then the integer's
+        end = at + nd + 1
+        j = end
+        frac = nd - point
+        while frac >= 2:
+            r = c % 100
+            c //= 100
+            buf[j - 1] = _PAIRS[2 * r + 1]
+            buf[j - 2] = _PAIRS[2 * r]
+            j -= 2
+            frac -= 2
+        if frac == 1:
+            buf[j - 1] = 48 + c % 10
+            c //= 10
+            j -= 1
+        j -= 1
+        buf[j] = 46
+    while c >= 100:
+        r = c % 100
+        c //= 100
+        buf[j - 1] = _PAIRS[2 * r + 1]
+        buf[j - 2] = _PAIRS[2 * r]
+        j -= 2
+    if c >= 10:
+        buf[j - 1] = _PAIRS[2 * c + 1]
+        buf[j - 2] = _PAIRS[2 * c]
+    else:
+        buf[j - 1] = 48 + c
+    return end
+
+
+@njit(cache=True, nogil=True)
+def _marks(bits, m, ref, same):
+    """Which values of the float32 ``bits`` (tuples of ``m``) the caller formats: the indices
+    of those `_one` hands back (status 2), in order, in tuples whose bits differ from ``ref``'s
+    (``ref`` empty: every tuple). ``same[t]`` is set where tuple ``t``'s bits are ``ref``'s
+    (``same`` empty: none is compared)."""
+    n = bits.shape[0] // m
+    check = same.shape[0] > 0
+    hard = np.empty(bits.shape[0], np.int64)
+    h = 0
+    for t in range(n):
+        if check:
+            eq = True
+            for j in range(t * m, t * m + m):
+                if bits[j] != ref[j]:
+                    eq = False
+                    break
+            same[t] = eq
+            if eq:
+                continue
+        for i in range(t * m, t * m + m):
+            b = np.int64(bits[i]) & 0x7FFFFFFF
+            e = b >> 23
+            if _RYU_BIASED[0] <= e <= _RYU_BIASED[1] or b == 0:
+                continue
+            if e == 0 or e == 0xFF or _one(b, _POW5)[2] == 2:  # subnormals, inf and NaN too
+                hard[h] = i
+                h += 1
+    return hard[:h].copy()
+
+
+@njit(cache=True, nogil=True)
+def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
+    """``[(a, b, c), ...]`` of the float32 ``bits`` in tuples of ``m``, each value its shortest
+    digits (`_ryu`, else `_one`) in USD's layout, or the bytes ``hard_bytes[hard_at[i]:hard_at[i
+    + 1]]`` for the ``i``-th value `_marks` handed to the caller; a run of tuples with ``same``
+    set is copied at once from the reference's text ``ref_text`` (its tuple ``t`` from
+    ``ref_at[t]`` up to ``ref_at[t + 1] - 2``). One pass, digits written as they are found.
+    Returns the text and where each tuple's text starts in it (``n + 1`` entries, the last past
+    the closing ``]``), the layout of ``ref_at``."""
+    n = bits.shape[0] // m
+    check = same.shape[0] > 0
+    # a formatted value takes at most 17 characters (sign, "0.", 5 zeros, 9 digits) and 2 of
+    # separator, a tuple 4 more; a copied run is at most its reference's text
+    buf = np.empty(2 + n * (m * 19 + 4) + hard_bytes.shape[0] + ref_text.shape[0], np.uint8)
+    starts = np.empty(n + 1, np.int64)
+    buf[0] = 91  # '['
+    at = 1
+    h = 0
+    t = 0
+    while t < n:
+        if t > 0:
+            buf[at] = 44
+            buf[at + 1] = 32
+            at += 2
+        if check and same[t]:
+            e = t + 1
+            while e < n and same[e]:
+                e += 1
+            shift = at - ref_at[t]
+            for q in range(t, e):
+                starts[q] = ref_at[q] + shift
+            size = ref_at[e] - 2 - ref_at[t]
+            into, part = buf[at:], ref_text[ref_at[t]:]  # indices from 0 up: the copy compiles to a block copy
+            for q in range(size):
+                into[q] = part[q]
+            at += size
+            t = e
+            continue
+        starts[t] = at
+        buf[at] = 40  # '('
+        at += 1
+        for i in range(t * m, t * m + m):
+            if i > t * m:
+                buf[at] = 44
+                buf[at + 1] = 32
+                at += 2
+            b = np.int64(bits[i])
+            neg = (b >> 31) & 1 == 1
+            b &= 0x7FFFFFFF
+            e = b >> 23
+            if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
+                c, k = _ryu(b)
+                at = _put_nonzero(buf, at, c, k, neg)
+                continue
+            if b == 0:
+                at = _put_value(buf, at, 0, 0, 1, neg)
+                continue
+            c, k, s = _one(b, _POW5) if 0 < e < 0xFF else (np.int64(0), np.int64(0), 2)
+            if s == 2:
+                for q in range(hard_at[h], hard_at[h + 1]):
+                    buf[at] = hard_bytes[q]
+                    at += 1
+                h += 1
+            else:
+                at = _put_value(buf, at, c, k, s, neg)
         buf[at] = 41  # ')'
         at += 1
         t += 1
@@ -508,32 +673,36 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
             j = refs[i] = None
         flat = values.reshape(-1).view(np.uint64 if values.dtype == np.float64 else np.uint32)
         same = np.zeros(values.shape[0] if j is not None else 0, np.bool_)
-        if values.dtype == np.float64:
-            cs, ks, st = exact_digits(flat)
-        else:  # one compiled signature, with a reference or without (empty ``same``)
-            cs, ks, st = shortest_digits(flat, done[j][0].reshape(-1).view(np.uint32) if j is not None else flat[:0], same)
-        done.append((values, cs, ks, st, np.flatnonzero(st == 2), same))
+        if values.dtype == np.float64 or values.shape[1] == 0:
+            cs, ks, st = exact_digits(flat) if values.dtype == np.float64 else shortest_digits(flat, flat[:0], same)
+            done.append((values, (cs, ks, st), np.flatnonzero(st == 2), same))
+        else:  # float32: only the values the kernel hands back are found here, their text is written in one pass
+            done.append((values, None, _marks(flat, values.shape[1], done[j][0].reshape(-1).view(np.uint32) if j is not None else flat[:0], same),
+                         same))
     texts: list = [[] for _ in done]
     for dtype in (np.float32, np.float64):
-        which = [i for i, d in enumerate(done) if d[0].dtype == dtype and d[4].size]
+        which = [i for i, d in enumerate(done) if d[0].dtype == dtype and d[2].size]
         if which:
-            got = iter(hard(np.concatenate([done[i][0].reshape(-1)[done[i][4]] for i in which])))
+            got = iter(hard(np.concatenate([done[i][0].reshape(-1)[done[i][2]] for i in which])))
             for i in which:
-                texts[i] = [next(got).encode() for _ in range(done[i][4].size)]
+                texts[i] = [next(got).encode() for _ in range(done[i][2].size)]
     # a text's tuple starts are kept while a later array refers to it
     last_use = {j: i for i, j in enumerate(refs) if j is not None}
     starts: dict = {}
     out = []
     empty = np.frombuffer(b"", np.uint8), np.zeros(1, np.int64)
-    for i, ((values, cs, ks, st, odd, same), own) in enumerate(zip(done, texts)):
+    for i, ((values, digits, odd, same), own) in enumerate(zip(done, texts)):
         hard_at = np.zeros(len(own) + 1, np.int64)
         if own:
             hard_at[1:] = np.cumsum([len(t) for t in own])
         hard_bytes = np.frombuffer(b"".join(own), np.uint8)
         j = refs[i]
         ref_text, ref_at = (np.frombuffer(out[j], np.uint8), starts[j]) if j is not None else empty
-        text, at = _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), cs, ks, st, hard_bytes,
-                                hard_at, same, ref_text, ref_at)
+        if digits is None:
+            text, at = _float32_text(values.reshape(-1).view(np.uint32), values.shape[1], same, hard_bytes, hard_at, ref_text, ref_at)
+        else:
+            text, at = _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), *digits,
+                                    hard_bytes, hard_at, same, ref_text, ref_at)
         out.append(text.tobytes())
         if last_use.get(i, -1) > i:
             starts[i] = at
