@@ -76,6 +76,12 @@ class ColliderStatic:
         return clearance.solid(np.asarray(self.mesh.vertices, np.float64), np.asarray(self.mesh.faces, np.int64))
 
     @cached_property
+    def scale(self) -> float:
+        """The mesh's size (trimesh's ``scale``, its box's diagonal), read once: each read of a
+        `trimesh.Trimesh` cached property hashes the mesh's arrays to check them."""
+        return float(self.mesh.scale)
+
+    @cached_property
     def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Object-space boxes ``lo, hi (f, 3)`` of the mesh's faces, built once per run (the mesh
         is rigid)."""
@@ -626,7 +632,7 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     # angle-weighted pseudo-normal at its closest point (eq. (1) of `pipeline.clearance`, exact in
     # float64 off the surface), where embree's float32 parity agrees; nearer points keep the parity.
     sd = clearance.signed_depth(static.solid, local)[0]
-    near = np.abs(sd) <= SIDE_SURE * static.mesh.scale
+    near = np.abs(sd) <= SIDE_SURE * static.scale
     m = sd > 0
     if near.any():
         # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
@@ -637,8 +643,11 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     rows = np.nonzero(m)[0]
     if not len(rows):
         return (m, np.zeros(0)) if depth else m
-    band = ON_MESH * static.mesh.scale
+    band = ON_MESH * static.scale
     if not depth:
+        # a point farther than `SIDE_SURE` from the solid (its faces within its weld, 1e-7 of the
+        # size, of the mesh's) is farther than `ON_MESH` from the mesh: only near points can lie on it
+        rows = rows[near[rows]]
         m[rows[static.index.within(local[rows], band)]] = False
         return m
     dist, close, _ = static.index.query(local[rows])
@@ -938,6 +947,10 @@ def world_normals(geom: Geometry, n: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
+_CASTS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # `cast`'s answers by content and rays, most recent last
+CASTS_KEPT = 8
+
+
 def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None = None,
          within: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """First hits of world rays ``origins, directions (n, 3)`` on ``geom`` (thesis eq. 4.16):
@@ -945,9 +958,23 @@ def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: fl
     (default ``1e-3`` of the object's size) behind its origin, for points pushed just past the
     surface, except from inside a closed ``geom``: there it must be ahead (the exit). ``within
     (n,) bool``: `inside` for the origins if the caller has it already (it is most of a cast's
-    cost on a deformable)."""
+    cost on a deformable).
+
+    The answer is one of ``geom``'s content (`SurfaceGeometry.content`, `ColliderGeometry.content`)
+    and the rays' bytes: a contact held still over frames casts the same rays on the same
+    surfaces again (`box_into_sheet`'s frames 12-16), and the `CASTS_KEPT` most recent answers
+    are kept; each call gets its own arrays."""
     origins = np.asarray(origins, np.float64).reshape(-1, 3)
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
+    key = (geom.content, origins.tobytes(), directions.tobytes(), None if behind is None else float(behind),
+           None if within is None else np.asarray(within, bool).reshape(-1).tobytes())
+    hits, valid = _kept(_CASTS, key, lambda: _cast(geom, origins, directions, behind, within), CASTS_KEPT)
+    return hits.copy(), valid.copy()
+
+
+def _cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None,
+          within: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """`cast`, computed."""
     hits, valid = origins.copy(), np.zeros(len(origins), bool)
     length = np.linalg.norm(directions, axis=1)
     rows = np.nonzero(length > 0)[0]

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from embreex import rtcore_scene
+from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from acra import hspline as H
@@ -66,6 +66,9 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     return inside, Nearest(near.distance[side], near.points[side], near.uv[side])
 
 
+_DEVICE = None  # the embree device every scene shares: a scene of its own would start one (50-200 us CPU)
+
+
 class RayMesh:
     """A merged triangle mesh and its embree scene, cast on as trimesh's embree intersector
     (``trimesh.ray.ray_pyembree``, first hits with locations) casts, without a `trimesh.Trimesh`:
@@ -87,7 +90,10 @@ class RayMesh:
             self.factor = float(100.0 / self.scale)
             self.plane_origins = self.vertices[self.faces[:, 0]]
             self.normals = meshops.face_normals(self.vertices, self.faces)
-            self._scene = rtcore_scene.EmbreeScene()
+            global _DEVICE
+            if _DEVICE is None:
+                _DEVICE = rtcore.EmbreeDevice()
+            self._scene = rtcore_scene.EmbreeScene(_DEVICE)
             TriangleMesh(scene=self._scene, vertices=((self.vertices - self.origin) * self.factor).astype(np.float32),
                          indices=self.faces.astype(np.int32))
         return self._scene

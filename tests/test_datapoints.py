@@ -170,6 +170,55 @@ def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
     assert len(region.uv) and len(P.rim_points(sheet, ball_geom, region.uv, down, 2)[0]) == 0
 
 
+def test_rim_points_are_kept_by_content_and_never_served_for_other_content(monkeypatch):
+    """`rim_points` keeps its answers by the pair's content, the region and the direction: a new
+    sheet and box of the same content get the kept answer without bisecting again (and arrays of
+    their own), a moved box or a changed CV (one ulp) a new answer equal to a fresh one, and at
+    most `RIMS_KEPT` answers are kept."""
+    import trimesh
+
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    cvs, _, _ = shapes.sheet(12, 12, width=4.0, depth=4.0)
+    hs = H.from_grid(cvs, depth=3)
+    mesh = trimesh.creation.box(bounds=np.array([[-0.7, -0.9, -0.5], [0.9, 0.7, 0.5]]))
+    static = D.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces))
+    down = np.array([0.0, 0.0, -1.0])
+
+    def pair(surface=hs, dx=0.0):
+        sheet = D.SurfaceGeometry(surface, np.eye(4), "/sheet")
+        xform = np.eye(4)
+        xform[0, 3] = dx
+        box = D.ColliderGeometry(static, xform)
+        return sheet, box, D.regions(sheet, box)[0].uv
+
+    computed = []
+    fresh = P._rim_points
+    monkeypatch.setattr(P, "_rim_points", lambda *a: computed.append(1) or fresh(*a))
+    P._RIMS.clear()
+    sheet, box, uv = pair()
+    first = P.rim_points(sheet, box, uv, down, 2)
+    first[1][:] = np.nan  # the caller's arrays are its own
+    again = P.rim_points(*pair(H.with_cvs(hs, hs.cvs.copy())), down, 2)
+    assert len(computed) == 1 and len(again[0]) >= 12 and np.isfinite(again[1]).all()
+    moved = P.rim_points(*pair(dx=0.25), down, 2)
+    ulp = hs.cvs.copy()
+    ulp[5, 5, 2] = np.nextafter(ulp[5, 5, 2], np.inf)
+    changed = pair(H.with_cvs(hs, ulp))
+    bumped = P.rim_points(*changed, down, 2)
+    assert len(computed) == 3
+    for got, want in ((moved, fresh(*pair(dx=0.25), down, 2)), (bumped, fresh(*changed, down, 2))):
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(moved[1], again[1])
+    for k in range(2 * P.RIMS_KEPT):
+        P.rim_points(*pair(dx=0.01 * (k + 1)), down, 2)
+    assert len(P._RIMS) == P.RIMS_KEPT
+
+
 def test_a_later_round_holds_the_earlier_contact_while_it_clears_a_display_point():
     """The pin rule (`datapoints.pinned`, `respond.respond`'s ``held``): a later round asked to move
     one point of the display on a dent's flank leaves the first round's contact point (the dent's

@@ -389,7 +389,7 @@ def benchmark():
             "detect_pair (rewound, fresh cache)": lambda: C.detect_pair(*pair(), 11.0, geometry_at, start=0.0),
             "detect_pair (rewound, warm cache)": lambda: C.detect_pair(*pair(), 11.0, geometry_at, start=0.0, cache=warm),
             "residual (fresh geometry)": lambda: D.residual(*pair()),
-            "cast 100 rays onto B (fresh geometry)": lambda: D.cast(pair()[1], rays * 0.1 + [0, 0, 1.0], rays),
+            "cast 100 rays onto B (fresh geometry)": lambda: (D._CASTS.clear(), D.cast(pair()[1], rays * 0.1 + [0, 0, 1.0], rays)),
             "touching (fresh geometry)": lambda: D.touching(*pair()),
         }
         print(name)
@@ -897,6 +897,46 @@ def test_intersect_answers_are_kept_by_content_and_never_served_for_other_conten
         D.intersect(a, D.SurfaceGeometry(hs, move(1.0 + 0.01 * k, 0.0, 0.0), "/b"))
     assert len(D._ANSWERS) == D.ANSWERS_KEPT
     assert D.intersect(a, b) is not first and D.intersect(a, b).count == first.count
+
+
+@pytest.mark.parametrize("kind", ["hspline", "collider"])
+def test_cast_answers_are_kept_by_content_and_never_served_for_other_content(kind, monkeypatch):
+    """`cast` keeps its answers by the geometry's content and the rays: a new geometry of the
+    same content gets the kept answer without casting (arrays of its own), a moved matrix or a
+    changed CV (one ulp) or other rays a new answer equal to a fresh one, and at most
+    `CASTS_KEPT` answers are kept."""
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    static = box(0.8)
+
+    def geom(xform, surface=hs):
+        return D.SurfaceGeometry(surface, xform) if kind == "hspline" else D.ColliderGeometry(static, xform)
+
+    computed = []
+    fresh = D._cast
+    monkeypatch.setattr(D, "_cast", lambda *a: computed.append(1) or fresh(*a))
+    D._CASTS.clear()
+    rng = np.random.default_rng(3)
+    origins, dirs = rng.uniform(-0.2, 0.2, (40, 3)), rng.normal(size=(40, 3))
+    hits, valid = D.cast(geom(move()), origins, dirs)
+    assert valid.all()
+    hits[:] = np.nan
+    again = D.cast(geom(move(0.0, 0.0, 0.0)), origins, dirs)
+    assert len(computed) == 1 and np.isfinite(again[0]).all()
+    cvs = hs.cvs.copy()
+    cvs[3, 3, 0] = np.nextafter(cvs[3, 3, 0], np.inf)
+    others = [(geom(move(0.05, 0.0, 0.0)), origins, dirs), (geom(move()), origins, -dirs)]
+    if kind == "hspline":
+        others.append((geom(move(), H.with_cvs(hs, cvs)), origins, dirs))
+    for k, (g, o, d) in enumerate(others):
+        got = D.cast(g, o, d)
+        want = fresh(g, o, d, None, None)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        assert k == 2 or not np.array_equal(got[0], again[0])  # an ulp of one CV may move no hit
+    assert len(computed) == 1 + len(others)
+    for k in range(2 * D.CASTS_KEPT):
+        D.cast(geom(move(0.001 * (k + 1), 0.0, 0.0)), origins, dirs)
+    assert len(D._CASTS) == D.CASTS_KEPT
 
 
 def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
