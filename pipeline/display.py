@@ -135,10 +135,13 @@ def finish(stage, scene: SceneModel, result, stats: list, options, displays: Dis
     from pipeline import residual
 
     ms = evaluate_run(scene, result, run_topologies(scene, result), options.density, displays)
-    residual.measure_run(stage, scene, result, stats, options)
+    residual.measure_run(stage, scene, result, stats, options, displays)
     for st in stats:
         st.ms_output += ms.get(st.frame, 0.0)
         st.ms_total += ms.get(st.frame, 0.0)
+
+
+VIEWS_KEPT = 4  # `SurfaceDisplay.view`s kept per display: an unchanged surface is shown under each frame's matrix
 
 
 class SurfaceDisplay:
@@ -155,6 +158,22 @@ class SurfaceDisplay:
         self.details = details  # the details the points were evaluated with (`Displays.of`)
         self._triangles, self._solid, self._uv = triangles, None, None
         self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
+        self._views: dict = {}  # (path, world matrix bytes) -> `pipeline.residual.Shown`, most recent last
+
+    def view(self, path: str, xform: np.ndarray, build=None):
+        """The `pipeline.residual.Shown` of this display as ``path`` under the world matrix
+        ``xform (4, 4)``: one kept from before (the frame loop's rounds build them; the run's
+        residual, `pipeline.residual.measure_run`, takes them where the run shows these points,
+        their fingerprints taken), else ``build()`` kept (``None`` without ``build``)."""
+        key = (path, np.ascontiguousarray(xform, np.float64).tobytes())
+        hit = self._views.pop(key, None)
+        if hit is None and build is not None:
+            hit = build()
+        if hit is not None:
+            self._views[key] = hit
+            while len(self._views) > VIEWS_KEPT:
+                del self._views[next(iter(self._views))]
+        return hit
 
     @property
     def triangles(self) -> np.ndarray:

@@ -329,9 +329,9 @@ class _Run:
                     hit = self._shown.pop(key, None)
                     if hit is None or hit[0] is not g.surface:  # a surface shown at this place is reused
                         sd = self.displays.of(g.surface, m.controls.samples)
-                        hit = (g.surface, residual.shown(m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
-                                                         g.shape.outward if g.closed else 1.0, sd.solid,
-                                                         sd.parts))
+                        hit = (g.surface, sd.view(m.path, g.xform, lambda: residual.shown(
+                            m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
+                            g.shape.outward if g.closed else 1.0, sd.solid, sd.parts)))
                     self._shown[key] = hit
                     while len(self._shown) > 4 * len(self.defs) + 4:
                         del self._shown[next(iter(self._shown))]

@@ -117,3 +117,32 @@ def test_the_run_s_display_takes_the_rounds_displays_and_equals_a_full_evaluatio
         d = shown.shown(r.surface)
         taken += d is not None and d.topology is topo and r.points is d.points
     assert taken >= 1
+
+
+def test_the_run_s_residual_takes_the_rounds_shown_objects(tiny_stage, monkeypatch):
+    """Where the run shows a round's display points, `residual.measure_run` measures on the
+    `residual.Shown` the frame loop built of them (`SurfaceDisplay.view`, its fingerprint taken),
+    and the figures are those of a run that builds its own."""
+    from pipeline import residual
+
+    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
+    scene = usdio.read_scene(stage)
+    (model,) = scene.deformables
+
+    def run(displays):
+        seen = []
+        real = residual.measure_frame
+        monkeypatch.setattr(residual, "measure_frame", lambda objects, *a, **k: seen.append(list(objects))
+                            or real(objects, *a, **k))
+        result, stats = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=displays)
+        seen.clear()
+        display.finish(stage, scene, result, stats, F.RunOptions(), displays)
+        monkeypatch.setattr(residual, "measure_frame", real)
+        return result, stats, seen
+
+    shown = display.Displays(density=8)
+    result, stats, seen = run(shown)
+    # the frame loop's `Shown` of a display share its part solids; one `measure_run` builds keeps none
+    assert seen and all(objects[0].path == model.path and objects[0].parts is not None for objects in seen)
+    _, alone, _ = run(None)
+    assert [(st.residual, st.pair_residual_rel) for st in stats] == [(st.residual, st.pair_residual_rel) for st in alone]
