@@ -141,7 +141,8 @@ def finish(stage, scene: SceneModel, result, stats: list, options, displays: Dis
         st.ms_total += ms.get(st.frame, 0.0)
 
 
-VIEWS_KEPT = 4  # `SurfaceDisplay.view`s kept per display: an unchanged surface is shown under each frame's matrix
+VIEWS_KEPT = 1  # `SurfaceDisplay.view`s kept per display: the rounds of a frame show a surface under one
+# matrix, and an unchanged surface moved from frame to frame would otherwise keep a world copy per frame
 
 
 class SurfaceDisplay:
