@@ -388,11 +388,10 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     in ``since`` too. With ``tangents`` (and not ``normals``) the second result, and ``since``'s,
     is the first derivatives ``(n, 6)``, ``du`` then ``dv`` (`surface_normals`' ``ev``), which
     give the limit normals where they are wanted (``given``): a vertex's derivatives read its own
-    cells alone, so the copied ones need no nudged rows. ``given = (points,
-    tangents)``, ``hs``'s on ``topo`` (`grid_samples` with ``tangents``), stands for the
-    evaluation: the vertices that would be evaluated take their limit normals from them
-    (`surface_normals`, which evaluates again only where ``du × dv`` vanishes) and the points
-    are ``given``'s."""
+    cells alone, so the copied ones need no nudged rows. ``given = (points, tangents)``,
+    ``hs``'s on ``topo`` (`grid_samples` with ``tangents``), stands for the evaluation: the
+    vertices that would be evaluated take their limit normals from them (`surface_normals`,
+    which evaluates again only where ``du × dv`` vanishes) and the points are ``given``'s."""
     det = details(hs) if det is None and hs.depth > 1 else det
     normals = normals and not tangents
 
@@ -463,7 +462,6 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     return points if given is None else given[0], limit if normals or tangents else None
 
 
-
 # Kept per live array: a weak reference without a callback, dead entries dropped when one is
 # added. A callback would run Python code whenever an array dies, and a KeyboardInterrupt or
 # SIGTERM raised inside it is reported and dropped by the interpreter, not delivered to the run.
@@ -496,11 +494,11 @@ _NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_),
 
 @njit(cache=True, nogil=True)
 def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, limit):
-    """Copy into ``points`` (and every column of ``limit``, unless empty) the old vertex ``src[i]`` of every
-    vertex ``i`` that has one (``found[i]``; empty ``src``: vertex ``i`` itself) and lies on no
-    ``stale`` cell (its cells ``cu[i]``/``bu[i]`` along u, the one before where it is on a border,
-    and ``cv[i]``/``bv[i]`` along v); returns the others' rows ``(m,) int64``, ascending, which the
-    caller evaluates. One pass for numpy's copy of every found vertex, mask of the four cells and
+    """Copy into ``points`` (and every column of ``limit``, unless empty) the old vertex
+    ``src[i]`` of every vertex ``i`` that has one (``found[i]``; empty ``src``: vertex ``i``
+    itself) and lies on no ``stale`` cell (its cells ``cu[i]``/``bu[i]`` along u, the one before
+    where it is on a border, and ``cv[i]``/``bv[i]`` along v); returns the others' rows ``(m,)
+    int64``, ascending, which the caller evaluates. One pass for numpy's copy of every found vertex, mask of the four cells and
     ``np.nonzero``, whose results it equals (`tests/test_tessellate.py`)."""
     n = points.shape[0]
     same = src.shape[0] == 0

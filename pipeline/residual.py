@@ -412,8 +412,8 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
             view = sd.view(m.path, xforms[m.path]) if sd is not None and sd.points is r.points else None
             # an open object's winding is read by nothing (it is never the outer object)
             same = view is not None and view.closed == shape.closed and (view.outward == shape.outward or not shape.closed)
-            objects.append(view if same else shown(m.path, r.points, tris[m.path], xforms[m.path], uvs[m.path], shape.closed,
-                                      shape.outward))
+            objects.append(view if same else shown(m.path, r.points, tris[m.path], xforms[m.path], uvs[m.path],
+                                                   shape.closed, shape.outward))
         for c, s in zip(scene.colliders, colliders):
             v = apply_xform(xforms[c.path], c.vertices)
             box = np.stack([v.min(axis=0), v.max(axis=0)])
