@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from .basis import Direction
-from .hspline import Details, HSpline, details, evaluate, surface_normals
+from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
 from .lattice import unique_keys
 
 __all__ = [
@@ -363,7 +363,8 @@ def evaluate_grid(hs: HSpline, topo: GridTopology, det: Details | None = None) -
 
 def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
                  since: tuple | None = None, memo: dict | None = None,
-                 normals: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+                 normals: bool = True, tangents: bool = False,
+                 given: tuple | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Points ``(n, 3)`` and limit unit normals ``(n, 3)`` (`surface_normals`) at a grid's
     vertices (``topo``: a `GridTopology` or `MeshTopology`).
 
@@ -384,10 +385,28 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     topologies alone: which old vertex each new one is, and each vertex's level-0 patches.
     Without ``normals`` only the points are evaluated (the same bits: a point's sum does not
     depend on the derivative orders summed beside it) and ``None`` stands for the normals,
-    in ``since`` too."""
+    in ``since`` too. With ``tangents`` (and not ``normals``) the second result, and ``since``'s,
+    is the first derivatives ``(n, 6)``, ``du`` then ``dv`` (`surface_normals`' ``ev``), which
+    give the limit normals where they are wanted (``given``): a vertex's derivatives read its own
+    cells alone, so the copied ones need no nudged rows. ``given = (points, tangents)``,
+    ``hs``'s on ``topo`` (`grid_samples` with ``tangents``), stands for the evaluation: the
+    vertices that would be evaluated take their limit normals from them (`surface_normals`,
+    which evaluates again only where ``du × dv`` vanishes) and the points are ``given``'s."""
     det = details(hs) if det is None and hs.depth > 1 else det
+    normals = normals and not tangents
 
-    def sample(u, v):
+    def sample(u, v, rows=None):
+        if given is not None:
+            p, t = (given[0], given[1]) if rows is None else (given[0][rows], given[1][rows])
+            nudged = np.empty(u.size, bool)
+            _, n = surface_normals(hs, u, v, det=det, nudged=nudged,
+                                   ev=SurfaceEval(p, np.ascontiguousarray(t[:, :3]), np.ascontiguousarray(t[:, 3:])))
+            return p, n, np.flatnonzero(nudged)
+        if tangents:
+            ev = evaluate(hs, u, v, order=1, det=det)
+            both = np.empty((u.size, 6))
+            both[:, :3], both[:, 3:] = ev.du, ev.dv
+            return ev.points, both, None
         if not normals:
             return evaluate(hs, u, v, order=0, det=det).points, None, None
         nudged = np.empty(u.size, bool)
@@ -413,9 +432,9 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         stale, level = stale.reshape(hs.u.patches0, r, hs.v.patches0, r).any(axis=(1, 3)), 0
     (cu, bu), (cv, bv) = _patch_cells(hs, topo, memo, level)
     points = np.empty((topo.u.size, 3))
-    limit = np.empty((topo.u.size, 3)) if normals else _NO_POINTS
-    idx = _carry(old_points, old_limit if normals else _NO_POINTS, src, found, np.ascontiguousarray(stale, np.bool_),
-                 cu, bu, cv, bv, points, limit)
+    limit = np.empty((topo.u.size, 6 if tangents else 3)) if normals or tangents else _NO_POINTS
+    idx = _carry(old_points, old_limit if normals or tangents else _NO_POINTS, src, found,
+                 np.ascontiguousarray(stale, np.bool_), cu, bu, cv, bv, points, limit)
     carried = _NO_INDEX  # copied vertices whose old normal was taken at nudged points
     if old_nudged is not None and old_nudged.size:
         took = np.zeros(len(old_points), bool)
@@ -432,14 +451,15 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             carried = np.flatnonzero(took & copied)
     nudged = None
     if idx.size:
-        p, n, nudged = sample(topo.u[idx], topo.v[idx])
+        p, n, nudged = sample(topo.u[idx], topo.v[idx], idx)
         points[idx] = p
-        if normals:
+        if normals or tangents:
             limit[idx] = n
+        if normals:
             nudged = idx[nudged]
     if normals and old_nudged is not None:
         _note_nudged(limit, np.union1d(carried, nudged) if nudged is not None and nudged.size else carried)
-    return points, limit if normals else None
+    return points if given is None else given[0], limit if normals or tangents else None
 
 
 # Kept per live array: a weak reference without a callback, dead entries dropped when one is
@@ -474,11 +494,11 @@ _NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_),
 
 @njit(cache=True, nogil=True)
 def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, limit):
-    """Copy into ``points`` (and ``limit``, unless empty) the old vertex ``src[i]`` of every
-    vertex ``i`` that has one (``found[i]``; empty ``src``: vertex ``i`` itself) and lies on no
-    ``stale`` cell (its cells ``cu[i]``/``bu[i]`` along u, the one before where it is on a border,
-    and ``cv[i]``/``bv[i]`` along v); returns the others' rows ``(m,) int64``, ascending, which the
-    caller evaluates. One pass for numpy's copy of every found vertex, mask of the four cells and
+    """Copy into ``points`` (and every column of ``limit``, unless empty) the old vertex
+    ``src[i]`` of every vertex ``i`` that has one (``found[i]``; empty ``src``: vertex ``i``
+    itself) and lies on no ``stale`` cell (its cells ``cu[i]``/``bu[i]`` along u, the one before
+    where it is on a border, and ``cv[i]``/``bv[i]`` along v); returns the others' rows ``(m,)
+    int64``, ascending, which the caller evaluates. One pass for numpy's copy of every found vertex, mask of the four cells and
     ``np.nonzero``, whose results it equals (`tests/test_tessellate.py`)."""
     n = points.shape[0]
     same = src.shape[0] == 0
@@ -495,7 +515,7 @@ def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, lim
         for c in range(3):
             points[i, c] = old_points[j, c]
         if normals:
-            for c in range(3):
+            for c in range(limit.shape[1]):
                 limit[i, c] = old_limit[j, c]
     return idx[:m]
 

@@ -79,10 +79,18 @@ def _topology(key: tuple, build) -> tuple[MeshTopology, np.ndarray]:
     return hit
 
 
-def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology], density: int = 8) -> dict[int, float]:
+def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology], density: int = 8,
+                 displays: Displays | None = None) -> dict[int, float]:
     """Evaluate every frame's surfaces on ``topologies`` into ``result`` (its points and normals,
     object space), and set ``result.topologies``. Returns the milliseconds spent per frame (a
-    surface's evaluation is charged to the first frame that shows it)."""
+    surface's evaluation is charged to the first frame that shows it).
+
+    A surface the frame loop's ``displays`` still holds (`Displays.shown`) is not evaluated
+    again: on the same topology its display's points are the run's, and its derivatives give
+    the limit normals (`acra.tessellate.grid_samples` with ``given``); on another topology (the
+    run's refines a round's where another frame's response refined more) only the vertices that
+    display lacks are evaluated. Either way, as for a surface the displays do not hold, the
+    normals are taken only where it differs from the surface before it, the others copied."""
     ms: dict[int, float] = {f: 0.0 for f in result.frames}
     memo: dict = {}  # `grid_samples`' memo: each vertex's cells on a topology, shared by its frames
     for model in scene.deformables:
@@ -99,7 +107,17 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
                     last[0], surface_details(last[0], density), r.surface, det, _cell_level(r.surface)))
                 if since is not None and since[2].all():
                     since = None
-                pts, limit = grid_samples(r.surface, topo, det, since, memo)
+                shown = None if displays is None else displays.shown(r.surface)
+                given = None
+                if shown is not None and shown.topology is topo:
+                    given = (shown.points, shown.tangents)
+                elif shown is not None:
+                    # every vertex of both is an exact surface point: those at the display's
+                    # parameters are copied with their derivatives, the others evaluated
+                    unchanged = np.zeros((r.surface.u.patches0, r.surface.v.patches0), bool)
+                    given = grid_samples(r.surface, topo, det, (shown.topology, shown.points, shown.tangents, unchanged),
+                                         memo, normals=False, tangents=True)
+                pts, limit = grid_samples(r.surface, topo, det, since, memo, given=given)
                 hit = done[id(r.surface)] = (r.surface, pts, pole_normals(r.surface, topo, pts, limit), limit)
                 ms[f] += 1e3 * (time.perf_counter() - t0)
             last = hit
@@ -108,32 +126,55 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
     return ms
 
 
-def finish(stage, scene: SceneModel, result, stats: list, options) -> None:
+def finish(stage, scene: SceneModel, result, stats: list, options, displays: Displays | None = None) -> None:
     """Choose the run's display topology, evaluate every frame on it, and measure every frame's
     residual where the user looks (`pipeline.residual.measure_run`): ``stats`` (the frames'
     `frames.FrameStats`, in any order) and the results' residuals are set to what the output
-    shows. ``options`` is the run's `frames.RunOptions` (its tolerance)."""
+    shows. ``options`` is the run's `frames.RunOptions` (its tolerance); ``displays`` the frame
+    loop's (`evaluate_run` takes the surfaces they hold from them)."""
     from pipeline import residual
 
-    ms = evaluate_run(scene, result, run_topologies(scene, result), options.density)
-    residual.measure_run(stage, scene, result, stats, options)
+    ms = evaluate_run(scene, result, run_topologies(scene, result), options.density, displays)
+    residual.measure_run(stage, scene, result, stats, options, displays)
     for st in stats:
         st.ms_output += ms.get(st.frame, 0.0)
         st.ms_total += ms.get(st.frame, 0.0)
 
 
+VIEWS_KEPT = 1  # `SurfaceDisplay.view`s kept per display: the rounds of a frame show a surface under one
+# matrix, and an unchanged surface moved from frame to frame would otherwise keep a world copy per frame
+
+
 class SurfaceDisplay:
     """One surface's own adaptive display (`acra.tessellate.run_topology` of the surface alone):
-    ``topology``, object-space ``points (n, 3)`` and limit normals ``limit (n, 3)`` (``None``:
-    the frame loop measures the residual on the points alone), and, built on first use, its fan
+    ``topology``, object-space ``points (n, 3) float64`` and first derivatives ``tangents (n, 6)
+    float64`` (``du`` then ``dv``: evaluated beside the points, they spare the run's display,
+    which has normals, a second evaluation of the same vertices; the normals themselves are
+    taken only for a display the output shows, `evaluate_run`), and, built on first use, its fan
     ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
 
-    def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, limit: np.ndarray,
+    def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, tangents: np.ndarray,
                  triangles: np.ndarray | None = None, details: hspline.Details | None = None):
-        self.surface, self.topology, self.points, self.limit = surface, topology, points, limit
+        self.surface, self.topology, self.points, self.tangents = surface, topology, points, tangents
         self.details = details  # the details the points were evaluated with (`Displays.of`)
         self._triangles, self._solid, self._uv = triangles, None, None
         self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
+        self._views: dict = {}  # (path, world matrix bytes) -> `pipeline.residual.Shown`, most recent last
+
+    def view(self, path: str, xform: np.ndarray, build=None):
+        """The `pipeline.residual.Shown` of this display as ``path`` under the world matrix
+        ``xform (4, 4)``: one kept from before (the frame loop's rounds build them; the run's
+        residual, `pipeline.residual.measure_run`, takes them where the run shows these points,
+        their fingerprints taken), else ``build()`` kept (``None`` without ``build``)."""
+        key = (path, np.ascontiguousarray(xform, np.float64).tobytes())
+        hit = self._views.pop(key, None)
+        if hit is None and build is not None:
+            hit = build()
+        if hit is not None:
+            self._views[key] = hit
+            while len(self._views) > VIEWS_KEPT:
+                del self._views[next(iter(self._views))]
+        return hit
 
     @property
     def triangles(self) -> np.ndarray:
@@ -189,13 +230,18 @@ class Displays:
             since = None
             if old is not None:
                 stale = hspline.changed_cells(old.surface, old.details, surface, shape.details, _cell_level(surface))
-                since = None if stale.all() else (old.topology, old.points, old.limit, stale)
-            pts, limit = grid_samples(surface, topo, shape.details, since, self._matches, normals=False)
-            hit = SurfaceDisplay(surface, topo, pts, limit, triangles, shape.details)
+                since = None if stale.all() else (old.topology, old.points, old.tangents, stale)
+            pts, both = grid_samples(surface, topo, shape.details, since, self._matches, normals=False, tangents=True)
+            hit = SurfaceDisplay(surface, topo, pts, both, triangles, shape.details)
         self._shown[id(surface)] = hit
         while len(self._shown) > self.kept:
             del self._shown[next(iter(self._shown))]
         return hit
+
+    def shown(self, surface: hspline.HSpline) -> SurfaceDisplay | None:
+        """The display of ``surface`` kept from `of`, else ``None`` (nothing is evaluated)."""
+        hit = self._shown.get(id(surface))
+        return hit if hit is not None and hit.surface is surface else None
 
     def _nearest(self, shape) -> SurfaceDisplay | None:
         """The display to evaluate ``shape``'s surface since: its nearest displayed ancestor
@@ -217,8 +263,9 @@ class Displays:
 
 
 CELL_LEVEL = 4  # the finest level whose patches `hspline.changed_cells` tells changed from unchanged
-# (a round's display, points alone, and the run's, with normals, which also re-evaluates the
-# vertices whose limit normal was taken at nudged points: `acra.tessellate.grid_samples`)
+# (a round's display, points and first derivatives, which read a vertex's own cells alone, and
+# the run's, with normals, which also re-evaluates the vertices whose limit normal was taken at
+# nudged points: `acra.tessellate.grid_samples`)
 
 
 def _cell_level(surface: hspline.HSpline) -> int:

@@ -153,9 +153,16 @@ def run_frames(
     `respond_frames`, then the run's display and every frame's residual on it
     (`display.finish`). ``on_frame(stats, result)`` is called as each frame's responses are done
     (its display and final residual come after the last frame)."""
-    result, stats = respond_frames(stage, scene, frames, options, on_frame, initial)
-    display.finish(stage, scene, result, stats, options)
+    displays = display.Displays(options.density, _kept_displays(scene))
+    result, stats = respond_frames(stage, scene, frames, options, on_frame, initial, displays)
+    display.finish(stage, scene, result, stats, options, displays)
     return result, stats
+
+
+def _kept_displays(scene: SceneModel) -> int:
+    """How many surfaces' displays the frame loop keeps (`display.Displays`): each deformable's
+    animator surface and responded ones of the last frames, which the run's display takes."""
+    return 4 * len(scene.deformables) + 4
 
 
 def respond_frames(
@@ -165,10 +172,12 @@ def respond_frames(
     options: RunOptions = RunOptions(),
     on_frame: Callable[[FrameStats, output_layer.FramesResult], None] | None = None,
     initial: list | None = None,
+    displays: display.Displays | None = None,
 ) -> tuple[output_layer.FramesResult, list[FrameStats]]:
     """Respond every frame of ``frames``: the results' surfaces (points left ``None``, the display
     is chosen from all of them, `display.finish`) and their statistics, whose residual is measured
-    on each surface's own display.
+    on each surface's own display (in ``displays``, which `display.finish` then takes the
+    surfaces it holds from; a new `display.Displays` if ``None``).
 
     A deformable that carries state across frames (`pipeline.state`) starts each frame from the
     animator's shape plus what it carried out of the previous one: ``initial`` (per deformable,
@@ -180,7 +189,7 @@ def respond_frames(
     272 ms instead of 1.8 ms (measured; `docs/performance.md`).
     """
     with threadpool_limits(limits=1, user_api="blas"):
-        return _run_frames(stage, scene, frames, options, on_frame, initial)
+        return _run_frames(stage, scene, frames, options, on_frame, initial, displays)
 
 
 @dataclass
@@ -214,7 +223,8 @@ class _Run:
     round with the least residual where the user looks (`visible`) is kept.
     """
 
-    def __init__(self, stage: Usd.Stage, scene: SceneModel, options: RunOptions, carry) -> None:
+    def __init__(self, stage: Usd.Stage, scene: SceneModel, options: RunOptions, carry,
+                 displays: display.Displays | None = None) -> None:
         self.stage, self.scene, self.options, self.carry = stage, scene, options, carry
         self.statics = [D.prepare_collider(c) for c in scene.colliders]
         self.defs = scene.deformables
@@ -223,7 +233,7 @@ class _Run:
         self.state_memo: dict = {}
         self.held: dict = {}  # inputs that cannot vary in time, read once (`usdio.state_at`)
         self.canonical: list = [None] * len(self.defs)  # last input surface of each deformable
-        self.displays = display.Displays(options.density, 4 * len(self.defs) + 4)
+        self.displays = display.Displays(options.density, _kept_displays(scene)) if displays is None else displays
         self._shown: dict = {}  # (id(surface), world matrix) -> (surface, residual.Shown), most recent last
         self._collider_solids: dict = {}  # collider row -> its inside (`residual.collider_solid`)
         self._depths: dict = {}  # `residual.measure_frame`'s answers by pair of shown objects, most recent last
@@ -319,9 +329,9 @@ class _Run:
                     hit = self._shown.pop(key, None)
                     if hit is None or hit[0] is not g.surface:  # a surface shown at this place is reused
                         sd = self.displays.of(g.surface, m.controls.samples)
-                        hit = (g.surface, residual.shown(m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
-                                                         g.shape.outward if g.closed else 1.0, sd.solid,
-                                                         sd.parts))
+                        hit = (g.surface, sd.view(m.path, g.xform, lambda: residual.shown(
+                            m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
+                            g.shape.outward if g.closed else 1.0, sd.solid, sd.parts)))
                     self._shown[key] = hit
                     while len(self._shown) > 4 * len(self.defs) + 4:
                         del self._shown[next(iter(self._shown))]
@@ -578,8 +588,8 @@ class _Run:
         return self.defs[other[1]].path if other[0] == "d" else self.scene.colliders[other[1]].path
 
 
-def _run_frames(stage, scene, frames, options, on_frame, initial=None):
-    run = _Run(stage, scene, options, state.for_run(stage, scene, frames, options, initial))
+def _run_frames(stage, scene, frames, options, on_frame, initial=None, displays=None):
+    run = _Run(stage, scene, options, state.for_run(stage, scene, frames, options, initial), displays)
     result = output_layer.FramesResult()
     stats: list[FrameStats] = []
     for frame in frames:

@@ -358,14 +358,17 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict
     return out
 
 
-def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
+def measure_run(stage, scene: SceneModel, result, stats: list, options, displays=None) -> None:
     """Measure every frame of a finished run on its display (``result``'s points and topologies,
     `pipeline.display.evaluate_run`): each `frames.FrameStats` gets ``residual``, ``residual_rel``
     and ``pair_residual_rel`` from what the output shows, and each deformable's result its own
     ``residual`` (world), and its milliseconds join the frame's ``ms_output`` and ``ms_total``.
     A pair the frame loop measured on the same content (``result.residuals[frame]``, `known`) is
     not measured again. World matrices come from the stats (``xforms``) or, where a frame's statistics do not carry
-    them (a merge of part files), from the stage."""
+    them (a merge of part files), from the stage. A frame whose display points are those of one
+    of the frame loop's ``displays`` (`pipeline.display.Displays`, `display.evaluate_run`) takes
+    the `Shown` the loop built of them under the same matrix (`SurfaceDisplay.view`), whose
+    fingerprint is taken."""
     from dataclasses import replace
 
     from pipeline import usdio
@@ -405,7 +408,12 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options) -> None:
         for m in scene.deformables:
             r = per[m.path]
             shape = shape_of(r.surface, options.density)
-            objects.append(shown(m.path, r.points, tris[m.path], xforms[m.path], uvs[m.path], shape.closed, shape.outward))
+            sd = None if displays is None else displays.shown(r.surface)
+            view = sd.view(m.path, xforms[m.path]) if sd is not None and sd.points is r.points else None
+            # an open object's winding is read by nothing (it is never the outer object)
+            same = view is not None and view.closed == shape.closed and (view.outward == shape.outward or not shape.closed)
+            objects.append(view if same else shown(m.path, r.points, tris[m.path], xforms[m.path], uvs[m.path],
+                                                   shape.closed, shape.outward))
         for c, s in zip(scene.colliders, colliders):
             v = apply_xform(xforms[c.path], c.vertices)
             box = np.stack([v.min(axis=0), v.max(axis=0)])

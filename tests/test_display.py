@@ -6,7 +6,7 @@ import pytest
 
 from acra import hspline as H
 from acra import shapes
-from acra.tessellate import grid_samples, run_topology
+from acra.tessellate import grid_samples, pole_normals, run_topology
 from conftest import with_random_offsets
 from pipeline import display, usdio
 from pipeline import frames as F
@@ -73,8 +73,9 @@ def test_finish_measures_every_frame_on_the_display(pressed):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(seed):
     """`Displays.of` evaluates a surface responded from a displayed one only where the response
-    changed it (through the shapes' parent chain), and equals a full evaluation (with normals:
-    its points alone are the same bits)."""
+    changed it (through the shapes' parent chain), and equals a full evaluation: its points and
+    first derivatives those of `hspline.evaluate`, bit for bit; it takes no normals (only the
+    display the output shows needs them, `display.evaluate_run`)."""
     from pipeline import shape as S
 
     rng = np.random.default_rng(seed)
@@ -87,6 +88,61 @@ def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(s
     second = shown.of(moved, 4)
     full = grid_samples(moved, second.topology, H.details(moved))
     np.testing.assert_array_equal(second.points, full[0])
-    assert second.limit is None and first.limit is None
+    for d, hs_ in ((first, hs), (second, moved)):
+        ev = H.evaluate(hs_, d.topology.u, d.topology.v, order=1, det=H.details(hs_))
+        np.testing.assert_array_equal(d.tangents, np.concatenate([ev.du, ev.dv], axis=1))
+        assert not hasattr(d, "limit") and not hasattr(d, "normals")
     assert shown.of(moved, 4) is second and shown.of(hs, 4) is first
     assert second.solid().faces.shape[1] == 3  # a closed sphere's display welds to a solid
+
+
+def test_the_run_s_display_takes_the_rounds_displays_and_equals_a_full_evaluation(tiny_stage):
+    """`evaluate_run` with the frame loop's displays evaluates no vertex they hold again: a
+    surface displayed on the run's topology gives its points array itself, and its derivatives
+    the normals; the points and normals equal a full evaluation with normals bit for bit."""
+    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
+    scene = usdio.read_scene(stage)
+    (model,) = scene.deformables
+    shown = display.Displays(density=8)
+    result, _ = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=shown)
+    topologies = display.run_topologies(scene, result)
+    topo = topologies[model.path]
+    display.evaluate_run(scene, result, topologies, displays=shown)
+    taken = 0
+    for per in result.frames.values():
+        r = per[model.path]
+        points, limit = grid_samples(r.surface, topo, H.details(r.surface))
+        np.testing.assert_array_equal(r.points, points)
+        np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topo, points, limit))
+        d = shown.shown(r.surface)
+        taken += d is not None and d.topology is topo and r.points is d.points
+    assert taken >= 1
+
+
+def test_the_run_s_residual_takes_the_rounds_shown_objects(tiny_stage, monkeypatch):
+    """Where the run shows a round's display points, `residual.measure_run` measures on the
+    `residual.Shown` the frame loop built of them (`SurfaceDisplay.view`, its fingerprint taken),
+    and the figures are those of a run that builds its own."""
+    from pipeline import residual
+
+    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
+    scene = usdio.read_scene(stage)
+    (model,) = scene.deformables
+
+    def run(displays):
+        seen = []
+        real = residual.measure_frame
+        monkeypatch.setattr(residual, "measure_frame", lambda objects, *a, **k: seen.append(list(objects))
+                            or real(objects, *a, **k))
+        result, stats = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=displays)
+        seen.clear()
+        display.finish(stage, scene, result, stats, F.RunOptions(), displays)
+        monkeypatch.setattr(residual, "measure_frame", real)
+        return result, stats, seen
+
+    shown = display.Displays(density=8)
+    result, stats, seen = run(shown)
+    # the frame loop's `Shown` of a display share its part solids; one `measure_run` builds keeps none
+    assert seen and all(objects[0].path == model.path and objects[0].parts is not None for objects in seen)
+    _, alone, _ = run(None)
+    assert [(st.residual, st.pair_residual_rel) for st in stats] == [(st.residual, st.pair_residual_rel) for st in alone]

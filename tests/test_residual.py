@@ -186,10 +186,20 @@ def test_a_run_s_frames_apart_are_not_measured_and_read_zero(monkeypatch):
         return ([(st.frame, st.residual, st.residual_rel, st.pair_residual_rel) for st in stats],
                 [(f, p, r.residual) for f in sorted(result.frames) for p, r in sorted(result.frames[f].items())])
 
-    calls = []  # the run's display (its `Shown` keep no parts) measured, per frame
-    real = residual.measure_frame
+    calls = []  # per `measure_frame` call, whether the run's residual (`measure_run`) made it
+    in_run = [False]
+    real, real_run = residual.measure_frame, residual.measure_run
+
+    def run(*a, **k):
+        in_run[0] = True
+        try:
+            return real_run(*a, **k)
+        finally:
+            in_run[0] = False
+
+    monkeypatch.setattr(residual, "measure_run", run)
     monkeypatch.setattr(residual, "measure_frame", lambda objects, *a, **k: calls.append(
-        bool(objects) and all(o.parts is None for o in objects)) or real(objects, *a, **k))
+        bool(objects) and in_run[0]) or real(objects, *a, **k))
     got = figures()
     skipped = 3 - sum(calls)
     monkeypatch.setattr(residual, "_meet", lambda a, b: True)

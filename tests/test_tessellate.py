@@ -382,6 +382,36 @@ def test_normals_since_changed_cells_evaluate_those_cells_and_the_nudged_vertice
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tangents_since_another_topology_and_normals_from_them_equal_a_full_evaluation(seed, monkeypatch):
+    """`grid_samples` with ``tangents`` gives the points and first derivatives, copied since a
+    display on another topology where neither changed; with ``given`` those stand for the
+    evaluation: the limit normals are taken from them (evaluating again only where ``du × dv``
+    vanishes: the sphere's poles), only where the surface changed since the old normals, and
+    all equal a full evaluation bit for bit."""
+    rng = np.random.default_rng(seed)
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[10, 14]]), 0.02, seed)
+    moved = nudged(hs, 2, rng)
+    coarse, topo = T.run_topology([H.from_grid(*shapes.sphere(12, 10), depth=1)], 4), T.run_topology([hs], 4)
+    assert coarse.u.size < topo.u.size
+    stale = H.changed_cells(hs, H.details(hs), moved, H.details(moved), 2)
+    old = T.grid_samples(moved, coarse, H.details(moved), normals=False, tangents=True)
+    points, tangents = T.grid_samples(moved, topo, H.details(moved), since=(coarse, *old, np.zeros((hs.u.patches0, hs.v.patches0), bool)),
+                                      normals=False, tangents=True)
+    ev = H.evaluate(moved, topo.u, topo.v, order=1, det=H.details(moved))
+    np.testing.assert_array_equal(points, ev.points)
+    np.testing.assert_array_equal(tangents, np.concatenate([ev.du, ev.dv], axis=1))
+    before = T.grid_samples(hs, topo, H.details(hs))
+    counted = []
+    real = H.evaluate
+    monkeypatch.setattr(T, "evaluate", lambda *a, **k: (counted.append(a[1].size), real(*a, **k))[1])
+    fast = T.grid_samples(moved, topo, H.details(moved), since=(*before, stale), given=(points, tangents))
+    assert fast[0] is points and sum(counted) < topo.u.size // 10  # the poles' vertices alone
+    full = T.grid_samples(moved, topo, H.details(moved))
+    for a, b in zip(fast, full):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_a_pole_s_vertices_share_the_mean_of_their_limit_normals():
     """`pole_normals` gives every vertex of a collapsed domain edge the normalised mean of their
     limit normals, the same on later calls with the topology (its end rows are kept), and leaves
