@@ -57,7 +57,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
 )
 
 # this module's own names, then the structure's (`acra.hierarchy`), re-exported
-__all__ = ["Details", "SurfaceEval", "details", "keep_details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
+__all__ = ["Details", "SurfaceEval", "details", "moved_details", "keep_details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
 
 
 @dataclass(frozen=True)
@@ -613,34 +613,102 @@ def details(hs: HSpline, upto: int | None = None,
             rows = rows[pos]
         if rows.size:
             ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
-            partial = Details(tuple(vectors), tuple(frames))
-            ev = evaluate(hs, gu, gv, order=1, det=partial, upto=k - 1)
-            # a ring's CVs take their end's one normal: their own (at the end, where du x dv
-            # vanishes and the limit normal needs second derivatives) are not computed
-            shared = []
-            for i, (axis, end) in enumerate(ends):
-                on = ring == i
-                if np.any(on):
-                    n_end = _end_normal(hs, k, axis, end, partial)
-                    if n_end is not None:
-                        shared.append((on, n_end))
-            if not shared:
-                n = surface_normals(hs, gu, gv, det=partial, upto=k - 1, ev=ev)[1]
-            else:
-                own = ~np.logical_or.reduce([on for on, _ in shared])
-                n = np.empty((rows.size, 3))
-                if own.any():  # each row's normal is its own point's: the same on any subset
-                    sub = SurfaceEval(ev.points[own], ev.du[own], ev.dv[own])
-                    n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
-                for on, n_end in shared:
-                    n[on] = n_end
-            fr[rows] = _frames(ev, n)
+            fr[rows] = _frames_at(hs, k, ends, Details(tuple(vectors), tuple(frames)), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
         vec[every] = np.einsum("mij,mj->mi", fr[every], lev.offsets[every])
         vectors.append(vec)
         frames.append(fr)
     return Details(tuple(vectors), tuple(frames))
+
+
+def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
+    """`details` of ``new``, which is ``old`` with other offsets on level ``level >= 1`` alone
+    (a response's move, `acra.respond.move_level`: the same `Level` objects elsewhere, the same
+    CVs and movability on ``level``), found from ``old_det`` by following the move down the
+    levels; ``None`` where ``new`` is not such a surface (then `details` with ``since`` serves).
+
+    A point's evaluation reads, on each level ``m``, the 4×4 block of detail vectors of the
+    level-``m`` patch it lies in, and its nudged points (`surface_normals`) stay in its level-0
+    patch. So a level-``k`` frame can differ from ``old``'s only if its CV's level-0 patch holds
+    a level-``m`` patch (``level <= m < k``) that a CV whose vector is not the same bits
+    supports; a ring's frames only if such a patch lies along its end (`_end_normal`). Level by
+    level the frames of those CVs are evaluated, their vectors taken, and the supports of the
+    vectors that changed marked for the finer levels; every other row keeps ``old_det``'s bits,
+    as `details` would give them (each row's frame and vector is its own point's, its own
+    product). Levels the move does not reach keep ``old_det``'s arrays."""
+    if new.depth != old.depth or len(old_det.vectors) != old.depth - 1 or new.cvs is not old.cvs:
+        return None
+    was, lev = old.fine[level - 1], new.fine[level - 1]
+    if lev.cv_keys is not was.cv_keys or lev.movable is not was.movable or any(
+            a is not b for k, (a, b) in enumerate(zip(old.fine, new.fine)) if k != level - 1):
+        return None
+    vectors, frames = list(old_det.vectors), list(old_det.frames)
+    rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
+    vec = vectors[level - 1].copy()
+    vec[rows] = np.einsum("mij,mj->mi", frames[level - 1][rows], lev.offsets[rows])
+    vectors[level - 1] = vec
+    changed = rows[np.any(_bits(vec[rows]) != _bits(old_det.vectors[level - 1][rows]), axis=-1)]
+    stale = np.zeros((new.u.patches0, new.v.patches0), bool)
+    ends = closed_ends(new)
+    k = level
+    while True:
+        if changed.size:  # the level-0 patches holding a patch a changed level-k CV supports
+            ju, jv = _split_cv(new, k, lev.cv_keys[changed])
+            kernels.mark_cells(stale, ju, jv, k, 0, 3, new.u.patches(k), new.v.patches(k),
+                               bool(new.u.periodic), bool(new.v.periodic))
+        k += 1
+        if k >= new.depth or not stale.any():
+            break
+        lev = new.fine[k - 1]
+        every, ring, gu, gv, centre = _movable_places(new, k, lev, ends)
+        if not every.size:
+            changed = every
+            continue
+        hit = stale.reshape(-1)[centre]
+        if ends:
+            hit |= (ring >= 0) & _ends_stale(new, ends, stale)[np.maximum(ring, 0)]
+        pos = np.nonzero(hit)[0]
+        if not pos.size:
+            changed = pos
+            continue
+        rows = every[pos]
+        fr = frames[k - 1].copy()
+        fr[rows] = _frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])),
+                              ring[pos], gu[pos], gv[pos])
+        vec = vectors[k - 1].copy()
+        vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
+        changed = rows[np.any(_bits(vec[rows]) != _bits(vectors[k - 1][rows]), axis=-1)]
+        vectors[k - 1], frames[k - 1] = vec, fr
+    return Details(tuple(vectors), tuple(frames))
+
+
+def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndarray, gu: np.ndarray,
+               gv: np.ndarray) -> np.ndarray:
+    """Frames ``(m, 3, 3) float64`` of level-``k`` CVs centred at ``gu, gv (m,) float64`` on the
+    surface of levels ``0..k-1`` (``partial``: their details), the CVs of a pole ring (``ring (m,)
+    int64``, `_ring_members`) with their end's one normal (`_end_normal`)."""
+    ev = evaluate(hs, gu, gv, order=1, det=partial, upto=k - 1)
+    # a ring's CVs take their end's one normal: their own (at the end, where du x dv
+    # vanishes and the limit normal needs second derivatives) are not computed
+    shared = []
+    for i, (axis, end) in enumerate(ends):
+        on = ring == i
+        if np.any(on):
+            n_end = _end_normal(hs, k, axis, end, partial)
+            if n_end is not None:
+                shared.append((on, n_end))
+    if not shared:
+        n = surface_normals(hs, gu, gv, det=partial, upto=k - 1, ev=ev)[1]
+    else:
+        own = ~np.logical_or.reduce([on for on, _ in shared])
+        n = np.empty((gu.size, 3))
+        if own.any():  # each row's normal is its own point's: the same on any subset
+            sub = SurfaceEval(ev.points[own], ev.du[own], ev.dv[own])
+            n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
+        for on, n_end in shared:
+            n[on] = n_end
+    return _frames(ev, n)
 
 
 _PLACES: dict = {}  # (id of a level's cv_keys, closed ends) -> `_movable_places`, most recent last

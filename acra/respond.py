@@ -673,6 +673,10 @@ def _redetail(old: H.HSpline, old_det: H.Details | None, new: H.HSpline,
         return new, None
     if old_det is None:
         return new, H.details(new)
+    if moved is not None and len(moved) == 1 and moved[0] >= 1:
+        det = H.moved_details(old, old_det, new, moved[0])
+        if det is not None:
+            return new, det
     return new, H.details(new, since=(old, old_det, H.changed_patches(old, new, levels=moved)), moved=moved)
 
 
