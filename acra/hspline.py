@@ -541,7 +541,7 @@ def _band(d: Direction, m: int) -> np.ndarray:
 
 def details(hs: HSpline, upto: int | None = None,
             since: "tuple[HSpline, Details, np.ndarray] | None" = None,
-            moved: tuple[int, ...] | None = None) -> Details:
+            moved: tuple[int, ...] | None = None, lazy: int | None = None) -> Details:
     """World detail vectors of levels ``1..upto``, computed coarse to fine.
 
     The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
@@ -563,8 +563,15 @@ def details(hs: HSpline, upto: int | None = None,
     finer than the coarsest moved one and the same `Level` object as ``old``'s (neither
     refined nor moved) keeps ``old``'s vectors and frames as they are: its frames' surface and its
     offsets are ``old``'s, and each vector is its own row's product.
+    ``lazy``: on levels finer than ``lazy``, the frames of CVs with zero offsets that would be
+    evaluated are left pending (`_PENDING`): their vectors are zero whatever the frame (numpy's
+    product sums from +0.0), so evaluation does not need them, and a response's next move
+    evaluates them with the frames it turns anyway (`moved_details`). Pending frames are NaN;
+    the next pass of this function or of `moved_details` evaluates them.
     """
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
+    old_pending = since[1].__dict__.get(_PENDING, {}) if since is not None else {}
+    pending = {}
     if since is None:
         first = 0
     elif moved is not None and len(moved) <= 1:
@@ -577,7 +584,8 @@ def details(hs: HSpline, upto: int | None = None,
     ends_stale = None  # `_ends_stale` of ``since``, found once
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
-        if since is not None and k <= first and k - 1 < len(since[1].frames) and lev is since[0].fine[k - 1]:
+        if since is not None and k <= first and k - 1 < len(since[1].frames) and lev is since[0].fine[k - 1] \
+                and k not in old_pending:
             vectors.append(since[1].vectors[k - 1])
             frames.append(since[1].frames[k - 1])
             continue
@@ -591,7 +599,7 @@ def details(hs: HSpline, upto: int | None = None,
             old, old_det, stale = since
             was = old.fine[k - 1]
             if lev.cv_keys is was.cv_keys and lev.movable is was.movable:  # a move: only offsets differ
-                if k <= first:  # and the frames' surface is old's: old's frames, vectors of the new offsets
+                if k <= first and k not in old_pending:  # and the frames' surface is old's: old's frames, vectors of the new offsets
                     fr = old_det.frames[k - 1]
                     vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
                     vectors.append(vec)
@@ -601,6 +609,10 @@ def details(hs: HSpline, upto: int | None = None,
             else:
                 orow, found = _lookup(was.cv_keys, lev.cv_keys[rows])
                 found &= was.movable[orow] if was.cv_keys.size else False
+            if k in old_pending:  # frames an earlier pass left pending are evaluated here
+                unknown = np.zeros(was.cv_keys.size, bool)
+                unknown[old_pending[k]] = True
+                found &= ~unknown[orow]
             fr[rows[found]] = old_det.frames[k - 1][orow[found]]
             if k > first:  # the surface under this level's frames moved on the stale patches
                 ring, centre = places[1], places[4]
@@ -611,15 +623,35 @@ def details(hs: HSpline, upto: int | None = None,
                 found &= (ring < 0) | ~ends_stale[np.maximum(ring, 0)]
             pos = np.nonzero(~found)[0]
             rows = rows[pos]
+        later = None
+        if rows.size and lazy is not None and k > lazy:
+            zero = ~np.any(lev.offsets[rows], axis=-1)
+            later = rows[zero]
+            if later.size:
+                pending[k] = later
+                keep = ~zero
+                rows = rows[keep]
+                pos = np.nonzero(keep)[0] if pos is None else pos[keep]
         if rows.size:
             ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
             fr[rows] = _frames_at(hs, k, ends, Details(tuple(vectors), tuple(frames)), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
         vec[every] = np.einsum("mij,mj->mi", fr[every], lev.offsets[every])
+        if later is not None and later.size:
+            vec[later] = 0.0  # the product of zero offsets, whatever the frame
+            fr[later] = np.nan
         vectors.append(vec)
         frames.append(fr)
-    return Details(tuple(vectors), tuple(frames))
+    out = Details(tuple(vectors), tuple(frames))
+    if pending:
+        out.__dict__[_PENDING] = pending
+    return out
+
+
+# key in a `Details`' ``__dict__``: ``{level: rows (m,) int64}`` of frames left pending (NaN) by
+# `details`' ``lazy``; a `Details` without it has every frame
+_PENDING = "_pending"
 
 
 def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
@@ -636,8 +668,11 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     level the frames of those CVs are evaluated, their vectors taken, and the supports of the
     vectors that changed marked for the finer levels; every other row keeps ``old_det``'s bits,
     as `details` would give them (each row's frame and vector is its own point's, its own
-    product). Levels the move does not reach keep ``old_det``'s arrays."""
-    if new.depth != old.depth or len(old_det.vectors) != old.depth - 1 or new.cvs is not old.cvs:
+    product). Levels the move does not reach keep ``old_det``'s arrays. Frames ``old_det`` left
+    pending (`details`' ``lazy``) are evaluated with the others; the result has none."""
+    pending = old_det.__dict__.get(_PENDING, {})
+    if new.depth != old.depth or len(old_det.vectors) != old.depth - 1 or new.cvs is not old.cvs \
+            or any(k <= level for k in pending):
         return None
     was, lev = old.fine[level - 1], new.fine[level - 1]
     if lev.cv_keys is not was.cv_keys or lev.movable is not was.movable or any(
@@ -658,7 +693,7 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
             kernels.mark_cells(stale, ju, jv, k, 0, 3, new.u.patches(k), new.v.patches(k),
                                bool(new.u.periodic), bool(new.v.periodic))
         k += 1
-        if k >= new.depth or not stale.any():
+        if k >= new.depth or not (stale.any() or any(m >= k for m in pending)):
             break
         lev = new.fine[k - 1]
         every, ring, gu, gv, centre = _movable_places(new, k, lev, ends)
@@ -668,6 +703,8 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         hit = stale.reshape(-1)[centre]
         if ends:
             hit |= (ring >= 0) & _ends_stale(new, ends, stale)[np.maximum(ring, 0)]
+        if k in pending:  # ``every`` is sorted (`_movable_places`)
+            hit[np.searchsorted(every, pending[k])] = True
         pos = np.nonzero(hit)[0]
         if not pos.size:
             changed = pos
