@@ -17,9 +17,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
-__all__ = ["degenerate", "unit_rows", "frames", "ring_sums"]
+from .kernels import eval_points
+
+__all__ = ["degenerate", "unit_rows", "frames", "frames_at", "ring_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -83,6 +86,40 @@ def frames(du, dv, n, out):
         out[i, 1, 1] = n2 * e0 - n0 * e2
         out[i, 2, 1] = n0 * e1 - n1 * e0
         out[i, 0, 2], out[i, 1, 2], out[i, 2, 2] = n0, n1, n2
+
+
+@njit(cache=True, nogil=True)
+def frames_at(u, v, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends, patch_rows,
+              table_rows, table, c1, c2, fixed, n_fixed, ev, out):
+    """Frames ``out (m, 3, 3)`` of detail CVs centred at ``u, v (m,)`` on the surface of levels
+    ``0..top``, in one pass: the first-order evaluation (`acra.kernels.eval_points`, written to
+    ``ev (3, m, 3)``), ``du × dv`` and its test (`degenerate`), the unit normal (`unit_rows`' arithmetic) and
+    the frame (`frames`); a row with ``fixed[i]`` takes the unit normal ``n_fixed[i]`` instead (a
+    pole ring's one normal). Returns how many other rows are degenerate: if any, nothing is
+    written to ``out`` and the caller takes their limit normals (`acra.hspline.surface_normals`).
+    Each row is the same arithmetic as those kernels on it alone, so the same bits."""
+    eval_points(u, v, 1, 0, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends,
+                patch_rows, table_rows, table, ev)
+    m = u.shape[0]
+    n = np.empty((m, 3))
+    bad = np.empty(m, np.bool_)
+    degenerate(ev[1], ev[2], c1, c2, n, bad)
+    count = 0
+    for i in range(m):
+        if bad[i] and not fixed[i]:
+            count += 1
+    if count:
+        return count
+    unit = np.empty((m, 3))
+    for i in range(m):
+        if fixed[i]:
+            unit[i, 0], unit[i, 1], unit[i, 2] = n_fixed[i, 0], n_fixed[i, 1], n_fixed[i, 2]
+        else:  # `unit_rows`' arithmetic; a ring row's own du × dv may vanish, so it is not divided
+            x0, x1, x2 = n[i, 0], n[i, 1], n[i, 2]
+            length = math.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+            unit[i, 0], unit[i, 1], unit[i, 2] = x0 / length, x1 / length, x2 / length
+    frames(ev[1], ev[2], unit, out)
+    return 0
 
 
 @njit(cache=True, nogil=True)

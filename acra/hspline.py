@@ -725,26 +725,33 @@ def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndar
     """Frames ``(m, 3, 3) float64`` of level-``k`` CVs centred at ``gu, gv (m,) float64`` on the
     surface of levels ``0..k-1`` (``partial``: their details), the CVs of a pole ring (``ring (m,)
     int64``, `_ring_members`) with their end's one normal (`_end_normal`)."""
-    ev = evaluate(hs, gu, gv, order=1, det=partial, upto=k - 1)
     # a ring's CVs take their end's one normal: their own (at the end, where du x dv
     # vanishes and the limit normal needs second derivatives) are not computed
-    shared = []
+    fixed, n_fixed = np.zeros(gu.size, bool), np.zeros((gu.size, 3))
     for i, (axis, end) in enumerate(ends):
         on = ring == i
         if np.any(on):
             n_end = _end_normal(hs, k, axis, end, partial)
             if n_end is not None:
-                shared.append((on, n_end))
-    if not shared:
-        n = surface_normals(hs, gu, gv, det=partial, upto=k - 1, ev=ev)[1]
-    else:
-        own = ~np.logical_or.reduce([on for on, _ in shared])
-        n = np.empty((gu.size, 3))
-        if own.any():  # each row's normal is its own point's: the same on any subset
-            sub = SurfaceEval(ev.points[own], ev.du[own], ev.dv[own])
-            n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
-        for on, n_end in shared:
-            n[on] = n_end
+                fixed |= on
+                n_fixed[on] = n_end
+    # one compiled pass (`framekernels.frames_at`) unless a row off the rings is degenerate
+    levels, keys, shifts, ends_, patch_rows = hs._terms_index
+    table = _plain(partial.table) if levels.size > 1 and levels[1] <= k - 1 else _NO_DETAILS
+    ev = np.empty((3, gu.size, 3))
+    out = np.empty((gu.size, 3, 3))
+    s = max(hs.size(), 1e-300)
+    if not framekernels.frames_at(
+            _plain(gu), _plain(gv), int(k - 1), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
+            _plain(hs.cvs).reshape(-1, 3), levels, keys, shifts, ends_, patch_rows, hs._table_rows, table,
+            1e-6 * s, 1e-12 * s**2, fixed, n_fixed, ev, out):
+        return out
+    ev = SurfaceEval(ev[0], ev[1], ev[2])
+    own = ~fixed
+    n = n_fixed.copy()
+    if own.any():  # each row's normal is its own point's: the same on any subset
+        sub = ev if not fixed.any() else SurfaceEval(ev.points[own], ev.du[own], ev.dv[own])
+        n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
     return _frames(ev, n)
 
 

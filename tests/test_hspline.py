@@ -285,11 +285,11 @@ def test_details_since_a_refinement_evaluate_only_the_new_cvs(seed, monkeypatch)
     added = sum(int(b.movable.sum() - a.movable.sum()) for a, b in zip(hs.fine, finer.fine))
     assert added > 0
     evaluated = []
-    real = H.surface_normals
-    monkeypatch.setattr(H, "surface_normals", lambda hs_, u, *a, **kw: evaluated.append(np.size(u)) or real(hs_, u, *a, **kw))
+    real = H._frames_at  # every frame `details` evaluates, in one pass per level
+    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: evaluated.append(np.size(u)) or real(hs_, k, ends, partial, ring, u, v))
     fast = H.details(finer, since=(hs, det, H.changed_patches(hs, finer)))
     assert sum(evaluated) == added
-    monkeypatch.setattr(H, "surface_normals", real)
+    monkeypatch.setattr(H, "_frames_at", real)
     full = H.details(finer)
     for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
         np.testing.assert_array_equal(a, b)
@@ -307,8 +307,8 @@ def test_moved_details_follow_a_move_down_the_levels_as_a_full_pass(monkeypatch)
     where the move's reach stops short of the patches' margin."""
     from acra.respond import move_level
     counted, mine, theirs = [], 0, 0
-    real = H.surface_normals
-    monkeypatch.setattr(H, "surface_normals", lambda hs_, u, *a, **kw: counted.append(np.size(u)) or real(hs_, u, *a, **kw))
+    real = H._frames_at
+    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: counted.append(np.size(u)) or real(hs_, k, ends, partial, ring, u, v))
     for seed in range(4):
         rng = np.random.default_rng(seed)
         hs = H.from_grid(*shapes.sphere(12, 10), depth=4)

@@ -239,6 +239,44 @@ def test_frames_of_a_sphere_with_poles_equal_the_array_form():
         np.testing.assert_array_equal(H._frames(ev, n), H._frames_numpy(ev, n))
 
 
+def test_frames_in_one_pass_equal_evaluation_normals_and_frames():
+    """`framekernels.frames_at` (behind `hspline._frames_at`: evaluation, normal and frame of
+    each CV in one pass) gives the bits of `evaluate`, `surface_normals` and `_frames` one after
+    another, a pole ring's CVs with their end's one normal; a degenerate row off the rings is
+    left to `surface_normals` (the kernel reports it and writes no frame)."""
+    hs = H.from_grid(*shapes.sphere(8, 7), depth=4)
+    for k in (1, 2, 3):
+        hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
+        hs = H.make_movable(hs, k, np.array([[1, 1], [2, 2]]))
+    hs = with_random_offsets(hs, scale=0.01, seed=3)
+    det = H.details(hs)
+    ends = H.closed_ends(hs)
+    for k in range(1, hs.depth):
+        rows, ring, gu, gv, _ = H._movable_places(hs, k, hs.level(k), ends)
+        assert (ring >= 0).any() and (ring < 0).any()
+        partial = H.Details(det.vectors[:k - 1], det.frames[:k - 1])
+        ev, n = H.surface_normals(hs, gu, gv, det=partial, upto=k - 1)
+        for i, (axis, end) in enumerate(ends):
+            n[ring == i] = H._end_normal(hs, k, axis, end, partial)
+        want = H._frames(ev, n)
+        got = H._frames_at(hs, k, ends, partial, ring, gu, gv)
+        np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+        np.testing.assert_array_equal(got.view(np.int64), det.frames[k - 1][rows].view(np.int64))
+    # a point on a pole, not on a ring: its du x dv vanishes, so the kernel leaves it
+    levels, keys, shifts, ends_, patch_rows = hs._terms_index
+    s = hs.size()
+    args = (np.array([0.5, 1.3]), np.array([0.0, 2.2]), 0, hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic,
+            np.array(hs.cvs.reshape(-1, 3)), levels, keys, shifts, ends_, patch_rows, hs._table_rows, np.zeros((0, 3)),
+            1e-6 * s, 1e-12 * s**2)
+    out = np.full((2, 3, 3), 7.0)
+    assert framekernels.frames_at(*args, np.zeros(2, bool), np.zeros((2, 3)), np.empty((3, 2, 3)), out) == 1
+    assert (out == 7.0).all()
+    assert framekernels.frames_at(*args, np.array([True, False]), np.array([[0.0, 0.0, -1.0], [0, 0, 0]]),
+                                  np.empty((3, 2, 3)), out) == 0
+    ev, n = H.surface_normals(hs, args[0][1:], args[1][1:], upto=0)
+    np.testing.assert_array_equal(out[1], H._frames(ev, n)[0])
+
+
 @pytest.mark.parametrize("seed", range(12))
 def test_compiled_ring_sums_equal_the_array_form(seed):
     """`framekernels.ring_sums` (behind `respond._ring_sums`): the column sums and their spread
