@@ -22,7 +22,7 @@ from numba import njit
 
 from .kernels import eval_points
 
-__all__ = ["degenerate", "unit_rows", "frames", "frames_at", "ring_sums"]
+__all__ = ["degenerate", "unit_rows", "frames", "frames_at", "limit_normals", "ring_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -119,6 +119,74 @@ def frames_at(u, v, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shif
             length = math.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
             unit[i, 0], unit[i, 1], unit[i, 2] = x0 / length, x1 / length, x2 / length
     frames(ev[1], ev[2], unit, out)
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _cross_add(a, b, c, d, i):
+    """Row ``i`` of ``a × b + c × d`` (``numpy.cross``'s products and differences, then the sum)."""
+    x0 = (a[i, 1] * b[i, 2] - a[i, 2] * b[i, 1]) + (c[i, 1] * d[i, 2] - c[i, 2] * d[i, 1])
+    x1 = (a[i, 2] * b[i, 0] - a[i, 0] * b[i, 2]) + (c[i, 2] * d[i, 0] - c[i, 0] * d[i, 2])
+    x2 = (a[i, 0] * b[i, 1] - a[i, 1] * b[i, 0]) + (c[i, 0] * d[i, 1] - c[i, 1] * d[i, 0])
+    return x0, x1, x2
+
+
+@njit(cache=True, nogil=True)
+def _centre_sign(x, count, periodic):
+    """``np.sign(0.5 - t)`` of ``t``, the level-0 local parameter of ``x`` (`acra.basis.locate`):
+    which way the patch's centre lies."""
+    xs = x % count if periodic else min(max(x, 0.0), float(count))
+    seg = math.floor(xs)
+    if seg > count - 1:
+        seg = count - 1
+    d = 0.5 - (xs - seg)
+    return 1.0 if d > 0 else (-1.0 if d < 0 else (0.0 if d == 0 else d))
+
+
+@njit(cache=True, nogil=True)
+def limit_normals(u, v, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends, patch_rows,
+                  table_rows, table, c1, c2, c3, pu, pv, unit):
+    """Unit normals ``unit (m, 3)`` of the surface of levels ``0..top`` at ``u, v (m,)``, as
+    `acra.hspline.surface_normals` takes them without nudging: ``du × dv`` where `degenerate`
+    finds a direction, else the first-order term of ``du × dv`` toward the level-0 patch centre
+    (``pu, pv``: level-0 patch counts) where its length exceeds ``c3``. Returns how many points
+    have neither (nothing is written then; the caller nudges them, `surface_normals`). The same
+    arithmetic in the same order as the array form, so the same bits."""
+    m = u.shape[0]
+    ev = np.empty((3, m, 3))
+    eval_points(u, v, 1, 0, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends,
+                patch_rows, table_rows, table, ev)
+    n = np.empty((m, 3))
+    bad = np.empty(m, np.bool_)
+    degenerate(ev[1], ev[2], c1, c2, n, bad)
+    nb = 0
+    for i in range(m):
+        if bad[i]:
+            nb += 1
+    if nb:
+        idx = np.empty(nb, np.int64)
+        j = 0
+        for i in range(m):
+            if bad[i]:
+                idx[j] = i
+                j += 1
+        e2 = np.empty((6, nb, 3))
+        eval_points(u[idx], v[idx], 2, 0, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts,
+                    ends, patch_rows, table_rows, table, e2)
+        du, dv, duu, duv, dvv = e2[1], e2[2], e2[3], e2[4], e2[5]
+        for j in range(nb):
+            i = idx[j]
+            su = _centre_sign(u[i], pu, u_periodic)
+            sv = _centre_sign(v[i], pv, v_periodic)
+            a0, a1, a2 = _cross_add(duu, dv, du, duv, j)
+            b0, b1, b2 = _cross_add(duv, dv, du, dvv, j)
+            f0, f1, f2 = su * a0 + sv * b0, su * a1 + sv * b1, su * a2 + sv * b2
+            if math.sqrt((f0 * f0 + f1 * f1) + f2 * f2) > c3:
+                n[i, 0], n[i, 1], n[i, 2] = f0, f1, f2
+                nb -= 1
+            else:
+                return nb
+    unit_rows(n, unit)
     return 0
 
 

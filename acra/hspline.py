@@ -826,7 +826,18 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
     s = np.arange(m) * other.patches0 / m if other.periodic else np.linspace(0.0, other.patches0, m + 1)
     at = np.full_like(s, end * (hs.u if axis == 0 else hs.v).patches0)
     u, v = (at, s) if axis == 0 else (s, at)
-    n = surface_normals(hs, u, v, det=det, upto=k - 1)[1].mean(axis=0)
+    # compiled (`framekernels.limit_normals`) unless a point needs nudging
+    levels, keys, shifts, ends, patch_rows = hs._terms_index
+    table = _plain(det.table) if levels.size > 1 and levels[1] <= k - 1 else _NO_DETAILS
+    unit = np.empty((u.size, 3))
+    scale = hs.size()
+    c = max(scale, 1e-300)
+    if framekernels.limit_normals(
+            u, v, int(k - 1), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
+            _plain(hs.cvs).reshape(-1, 3), levels, keys, shifts, ends, patch_rows, hs._table_rows, table,
+            1e-6 * c, 1e-12 * c**2, 1e-9 * scale**2, int(hs.u.patches0), int(hs.v.patches0), unit):
+        unit = surface_normals(hs, u, v, det=det, upto=k - 1)[1]
+    n = unit.mean(axis=0)
     length = np.linalg.norm(n)
     return n / length if length > 1e-6 else None
 

@@ -277,6 +277,39 @@ def test_frames_in_one_pass_equal_evaluation_normals_and_frames():
     np.testing.assert_array_equal(out[1], H._frames(ev, n)[0])
 
 
+def _limit_args(hs, u, v, top, det):
+    levels, keys, shifts, ends, patch_rows = hs._terms_index
+    table = np.ascontiguousarray(det.table) if det is not None and levels.size > 1 and levels[1] <= top else np.zeros((0, 3))
+    c, scale = max(hs.size(), 1e-300), hs.size()
+    return (u, v, top, hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, np.array(hs.cvs.reshape(-1, 3)), levels, keys,
+            shifts, ends, patch_rows, hs._table_rows, table, 1e-6 * c, 1e-12 * c**2, 1e-9 * scale**2,
+            hs.u.patches0, hs.v.patches0)
+
+
+def test_compiled_limit_normals_equal_surface_normals():
+    """`framekernels.limit_normals` (behind `hspline._end_normal`) gives `surface_normals`' bits
+    at the poles of a refined sphere, where every ``du × dv`` vanishes and the normal is the
+    first-order term toward the patch centre, and off them; a point that needs nudging (a grid
+    collapsed to one point) is reported and nothing is written."""
+    hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
+    for k in (1, 2):
+        hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
+    hs = with_random_offsets(hs, scale=0.01, seed=5)
+    det = H.details(hs)
+    rng = np.random.default_rng(0)
+    for top in (0, 1, 2):
+        u = np.concatenate([np.arange(16) / 2.0, rng.uniform(0, 8, 9)])
+        v = np.concatenate([np.zeros(8), np.full(8, float(hs.v.patches0)), rng.uniform(0, hs.v.patches0, 9)])
+        unit = np.empty((u.size, 3))
+        assert framekernels.limit_normals(*_limit_args(hs, u, v, top, det), unit) == 0
+        want = H.surface_normals(hs, u, v, det=det, upto=top)[1]
+        np.testing.assert_array_equal(unit.view(np.int64), want.view(np.int64))
+    flat = H.from_grid(np.zeros((6, 6, 3)), depth=1)
+    unit = np.full((2, 3), 7.0)
+    assert framekernels.limit_normals(*_limit_args(flat, np.array([0.5, 1.5]), np.array([0.5, 2.0]), 0, None), unit) == 2
+    assert (unit == 7.0).all()
+
+
 @pytest.mark.parametrize("seed", range(12))
 def test_compiled_ring_sums_equal_the_array_form(seed):
     """`framekernels.ring_sums` (behind `respond._ring_sums`): the column sums and their spread
