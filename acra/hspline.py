@@ -768,12 +768,16 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     hit = _PLACES.pop(key, None)
     if hit is None or hit[0] is not lev.cv_keys or hit[1] is not lev.movable:
         c = lev.cv_keys.size
-        rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
-        ring = _ring_members(hs, k, ends, rows)
-        gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
-        pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
-        pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
-        centre = pu.astype(np.int64) * hs.v.patches0 + pv.astype(np.int64)
+        rows = np.flatnonzero(lev.movable) if c else np.zeros(0, np.int64)
+        ju, jv = np.divmod(lev.cv_keys[rows], hs.v.cvs(k))  # `_split_cv`
+        ring = _ring_members(hs, k, ends, rows, ju, jv)
+        scale = float(1 << k)
+        gu, gv = (ju - 1.0) / scale, (jv - 1.0) / scale  # `cv_uv`: the Greville centres, exact
+        # the level-0 patch of a centre, floor((j - 1) / 2^k), in integers
+        pu, pv = (ju - 1) >> k, (jv - 1) >> k
+        pu = np.mod(pu, hs.u.patches0) if hs.u.periodic else np.clip(pu, 0, hs.u.patches0 - 1)
+        pv = np.mod(pv, hs.v.patches0) if hs.v.periodic else np.clip(pv, 0, hs.v.patches0 - 1)
+        centre = pu * hs.v.patches0 + pv
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
     _PLACES[key] = hit
     while len(_PLACES) > 64:
@@ -781,14 +785,16 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     return hit[2]
 
 
-def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray) -> np.ndarray:
+def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray,
+                  ju: np.ndarray | None = None, jv: np.ndarray | None = None) -> np.ndarray:
     """For level-``k`` CV ``rows (m,) int64``: the index into ``ends`` (`closed_ends`) of the pole
     ring (`pole_ring`: the three CV rows at the end, all along it) each belongs to, or -1, as
-    ``(m,) int64``."""
+    ``(m,) int64``; ``ju, jv (m,) int64``: the rows' CV indices, if the caller has them."""
     out = np.full(rows.size, -1, np.int64)
     if not ends or not rows.size:
         return out
-    ju, jv = _split_cv(hs, k, hs.level(k).cv_keys[rows])
+    if ju is None:
+        ju, jv = _split_cv(hs, k, hs.level(k).cv_keys[rows])
     for i, (axis, end) in enumerate(ends):
         j, d = (ju, hs.u) if axis == 0 else (jv, hs.v)
         first, last = _end_rows(d.cvs(k), end)[[0, 2]]  # the three rows at the end, a run
