@@ -685,15 +685,18 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     vectors[level - 1] = vec
     changed = rows[np.any(_bits(vec[rows]) != _bits(old_det.vectors[level - 1][rows]), axis=-1)]
     stale = np.zeros((new.u.patches0, new.v.patches0), bool)
+    marked = False
     ends = closed_ends(new)
+    ring_stale = None  # per ring index (-1: none, the last entry), whether its end is stale
     k = level
     while True:
         if changed.size:  # the level-0 patches holding a patch a changed level-k CV supports
-            ju, jv = _split_cv(new, k, lev.cv_keys[changed])
+            ju, jv = np.divmod(lev.cv_keys[changed], new.v.cvs(k))  # `_split_cv`
             kernels.mark_cells(stale, ju, jv, k, 0, 3, new.u.patches(k), new.v.patches(k),
                                bool(new.u.periodic), bool(new.v.periodic))
+            marked, ring_stale = True, None
         k += 1
-        if k >= new.depth or not (stale.any() or any(m >= k for m in pending)):
+        if k >= new.depth or not (marked or any(m >= k for m in pending)):
             break
         lev = new.fine[k - 1]
         every, ring, gu, gv, centre = _movable_places(new, k, lev, ends)
@@ -702,7 +705,9 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
             continue
         hit = stale.reshape(-1)[centre]
         if ends:
-            hit |= (ring >= 0) & _ends_stale(new, ends, stale)[np.maximum(ring, 0)]
+            if ring_stale is None:
+                ring_stale = np.append(_ends_stale(new, ends, stale)[:len(ends)], False)
+            hit |= ring_stale[ring]
         if k in pending:  # ``every`` is sorted (`_movable_places`)
             hit[np.searchsorted(every, pending[k])] = True
         pos = np.nonzero(hit)[0]
