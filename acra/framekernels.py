@@ -20,8 +20,6 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernels import eval_points
-
 __all__ = ["degenerate", "unit_rows", "frames", "frames_at", "limit_normals", "ring_sums"]
 
 
@@ -89,21 +87,19 @@ def frames(du, dv, n, out):
 
 
 @njit(cache=True, nogil=True)
-def frames_at(u, v, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends, patch_rows,
-              table_rows, table, c1, c2, fixed, n_fixed, ev, out):
-    """Frames ``out (m, 3, 3)`` of detail CVs centred at ``u, v (m,)`` on the surface of levels
-    ``0..top``, in one pass: the first-order evaluation (`acra.kernels.eval_points`, written to
-    ``ev (3, m, 3)``), ``du × dv`` and its test (`degenerate`), the unit normal (`unit_rows`' arithmetic) and
-    the frame (`frames`); a row with ``fixed[i]`` takes the unit normal ``n_fixed[i]`` instead (a
-    pole ring's one normal). Returns how many other rows are degenerate: if any, nothing is
-    written to ``out`` and the caller takes their limit normals (`acra.hspline.surface_normals`).
-    Each row is the same arithmetic as those kernels on it alone, so the same bits."""
-    eval_points(u, v, 1, 0, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends,
-                patch_rows, table_rows, table, ev)
-    m = u.shape[0]
+def frames_at(du, dv, c1, c2, fixed, n_fixed, out):
+    """Frames ``out (m, 3, 3)`` of detail CVs from their first-order evaluation ``du, dv (m, 3)``
+    in one pass: ``du × dv`` and its test (`degenerate`), the unit normal (`unit_rows`'
+    arithmetic) and the frame (`frames`); a row with ``fixed[i]`` takes the unit normal
+    ``n_fixed[i]`` instead (a pole ring's one normal). Returns how many other rows are
+    degenerate: if any, nothing is written to ``out`` and the caller takes their limit normals
+    (`acra.hspline.surface_normals`). Each row is the same arithmetic as those kernels on it
+    alone, so the same bits. The evaluation stays with `acra.kernels.eval_points`' own
+    signature: a kernel calling it compiles its code again (about 5 s on a first run)."""
+    m = du.shape[0]
     n = np.empty((m, 3))
     bad = np.empty(m, np.bool_)
-    degenerate(ev[1], ev[2], c1, c2, n, bad)
+    degenerate(du, dv, c1, c2, n, bad)
     count = 0
     for i in range(m):
         if bad[i] and not fixed[i]:
@@ -118,7 +114,7 @@ def frames_at(u, v, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shif
             x0, x1, x2 = n[i, 0], n[i, 1], n[i, 2]
             length = math.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
             unit[i, 0], unit[i, 1], unit[i, 2] = x0 / length, x1 / length, x2 / length
-    frames(ev[1], ev[2], unit, out)
+    frames(du, dv, unit, out)
     return 0
 
 
@@ -144,48 +140,34 @@ def _centre_sign(x, count, periodic):
 
 
 @njit(cache=True, nogil=True)
-def limit_normals(u, v, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends, patch_rows,
-                  table_rows, table, c1, c2, c3, pu, pv, unit):
-    """Unit normals ``unit (m, 3)`` of the surface of levels ``0..top`` at ``u, v (m,)``, as
-    `acra.hspline.surface_normals` takes them without nudging: ``du × dv`` where `degenerate`
-    finds a direction, else the first-order term of ``du × dv`` toward the level-0 patch centre
-    (``pu, pv``: level-0 patch counts) where its length exceeds ``c3``. Returns how many points
-    have neither (nothing is written then; the caller nudges them, `surface_normals`). The same
-    arithmetic in the same order as the array form, so the same bits."""
+def limit_normals(u, v, du, dv, duu, duv, dvv, c1, c2, c3, pu, pv, u_periodic, v_periodic, unit):
+    """Unit normals ``unit (m, 3)`` at ``u, v (m,)`` from a second-order evaluation there (``du
+    .. dvv (m, 3)``), as `acra.hspline.surface_normals` takes them without nudging: ``du × dv``
+    where `degenerate` finds a direction, else the first-order term of ``du × dv`` toward the
+    level-0 patch centre (``pu, pv``: level-0 patch counts) where its length exceeds ``c3``.
+    Returns how many points have neither (nothing is written then; the caller nudges them,
+    `surface_normals`). The same arithmetic in the same order as the array form, so the same
+    bits (an evaluation's ``du, dv`` are the same bits at either order)."""
     m = u.shape[0]
-    ev = np.empty((3, m, 3))
-    eval_points(u, v, 1, 0, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends,
-                patch_rows, table_rows, table, ev)
     n = np.empty((m, 3))
     bad = np.empty(m, np.bool_)
-    degenerate(ev[1], ev[2], c1, c2, n, bad)
-    nb = 0
+    degenerate(du, dv, c1, c2, n, bad)
+    left = 0
     for i in range(m):
         if bad[i]:
-            nb += 1
-    if nb:
-        idx = np.empty(nb, np.int64)
-        j = 0
-        for i in range(m):
-            if bad[i]:
-                idx[j] = i
-                j += 1
-        e2 = np.empty((6, nb, 3))
-        eval_points(u[idx], v[idx], 2, 0, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts,
-                    ends, patch_rows, table_rows, table, e2)
-        du, dv, duu, duv, dvv = e2[1], e2[2], e2[3], e2[4], e2[5]
-        for j in range(nb):
-            i = idx[j]
-            su = _centre_sign(u[i], pu, u_periodic)
-            sv = _centre_sign(v[i], pv, v_periodic)
-            a0, a1, a2 = _cross_add(duu, dv, du, duv, j)
-            b0, b1, b2 = _cross_add(duv, dv, du, dvv, j)
-            f0, f1, f2 = su * a0 + sv * b0, su * a1 + sv * b1, su * a2 + sv * b2
-            if math.sqrt((f0 * f0 + f1 * f1) + f2 * f2) > c3:
-                n[i, 0], n[i, 1], n[i, 2] = f0, f1, f2
-                nb -= 1
-            else:
-                return nb
+            left += 1
+    for i in range(m):
+        if not bad[i]:
+            continue
+        su = _centre_sign(u[i], pu, u_periodic)
+        sv = _centre_sign(v[i], pv, v_periodic)
+        a0, a1, a2 = _cross_add(duu, dv, du, duv, i)
+        b0, b1, b2 = _cross_add(duv, dv, du, dvv, i)
+        f0, f1, f2 = su * a0 + sv * b0, su * a1 + sv * b1, su * a2 + sv * b2
+        if not math.sqrt((f0 * f0 + f1 * f1) + f2 * f2) > c3:
+            return left
+        n[i, 0], n[i, 1], n[i, 2] = f0, f1, f2
+        left -= 1
     unit_rows(n, unit)
     return 0
 

@@ -740,18 +740,13 @@ def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndar
             if n_end is not None:
                 fixed |= on
                 n_fixed[on] = n_end
-    # one compiled pass (`framekernels.frames_at`) unless a row off the rings is degenerate
-    levels, keys, shifts, ends_, patch_rows = hs._terms_index
-    table = _plain(partial.table) if levels.size > 1 and levels[1] <= k - 1 else _NO_DETAILS
-    ev = np.empty((3, gu.size, 3))
+    ev = evaluate(hs, gu, gv, order=1, det=partial, upto=k - 1)
+    # normals and frames in one compiled pass (`framekernels.frames_at`) unless a row off the
+    # rings is degenerate
     out = np.empty((gu.size, 3, 3))
     s = max(hs.size(), 1e-300)
-    if not framekernels.frames_at(
-            _plain(gu), _plain(gv), int(k - 1), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-            _plain(hs.cvs).reshape(-1, 3), levels, keys, shifts, ends_, patch_rows, hs._table_rows, table,
-            1e-6 * s, 1e-12 * s**2, fixed, n_fixed, ev, out):
+    if not framekernels.frames_at(ev.du, ev.dv, 1e-6 * s, 1e-12 * s**2, fixed, n_fixed, out):
         return out
-    ev = SurfaceEval(ev[0], ev[1], ev[2])
     own = ~fixed
     n = n_fixed.copy()
     if own.any():  # each row's normal is its own point's: the same on any subset
@@ -838,15 +833,13 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
     at = np.full_like(s, end * (hs.u if axis == 0 else hs.v).patches0)
     u, v = (at, s) if axis == 0 else (s, at)
     # compiled (`framekernels.limit_normals`) unless a point needs nudging
-    levels, keys, shifts, ends, patch_rows = hs._terms_index
-    table = _plain(det.table) if levels.size > 1 and levels[1] <= k - 1 else _NO_DETAILS
+    e2 = evaluate(hs, u, v, order=2, det=det, upto=k - 1)
     unit = np.empty((u.size, 3))
     scale = hs.size()
     c = max(scale, 1e-300)
-    if framekernels.limit_normals(
-            u, v, int(k - 1), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-            _plain(hs.cvs).reshape(-1, 3), levels, keys, shifts, ends, patch_rows, hs._table_rows, table,
-            1e-6 * c, 1e-12 * c**2, 1e-9 * scale**2, int(hs.u.patches0), int(hs.v.patches0), unit):
+    if framekernels.limit_normals(u, v, e2.du, e2.dv, e2.duu, e2.duv, e2.dvv, 1e-6 * c, 1e-12 * c**2,
+                                  1e-9 * scale**2, int(hs.u.patches0), int(hs.v.patches0), bool(hs.u.periodic),
+                                  bool(hs.v.periodic), unit):
         unit = surface_normals(hs, u, v, det=det, upto=k - 1)[1]
     n = unit.mean(axis=0)
     length = np.linalg.norm(n)
