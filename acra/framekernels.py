@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
-__all__ = ["degenerate", "unit_rows", "frames", "ring_sums"]
+__all__ = ["degenerate", "unit_rows", "frames", "frames_at", "limit_normals", "ring_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -83,6 +84,92 @@ def frames(du, dv, n, out):
         out[i, 1, 1] = n2 * e0 - n0 * e2
         out[i, 2, 1] = n0 * e1 - n1 * e0
         out[i, 0, 2], out[i, 1, 2], out[i, 2, 2] = n0, n1, n2
+
+
+@njit(cache=True, nogil=True)
+def frames_at(du, dv, c1, c2, fixed, n_fixed, out):
+    """Frames ``out (m, 3, 3)`` of detail CVs from their first-order evaluation ``du, dv (m, 3)``
+    in one pass: ``du × dv`` and its test (`degenerate`), the unit normal (`unit_rows`'
+    arithmetic) and the frame (`frames`); a row with ``fixed[i]`` takes the unit normal
+    ``n_fixed[i]`` instead (a pole ring's one normal). Returns how many other rows are
+    degenerate: if any, nothing is written to ``out`` and the caller takes their limit normals
+    (`acra.hspline.surface_normals`). Each row is the same arithmetic as those kernels on it
+    alone, so the same bits. The evaluation stays with `acra.kernels.eval_points`' own
+    signature: a kernel calling it compiles its code again (about 5 s on a first run)."""
+    m = du.shape[0]
+    n = np.empty((m, 3))
+    bad = np.empty(m, np.bool_)
+    degenerate(du, dv, c1, c2, n, bad)
+    count = 0
+    for i in range(m):
+        if bad[i] and not fixed[i]:
+            count += 1
+    if count:
+        return count
+    unit = np.empty((m, 3))
+    for i in range(m):
+        if fixed[i]:
+            unit[i, 0], unit[i, 1], unit[i, 2] = n_fixed[i, 0], n_fixed[i, 1], n_fixed[i, 2]
+        else:  # `unit_rows`' arithmetic; a ring row's own du × dv may vanish, so it is not divided
+            x0, x1, x2 = n[i, 0], n[i, 1], n[i, 2]
+            length = math.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+            unit[i, 0], unit[i, 1], unit[i, 2] = x0 / length, x1 / length, x2 / length
+    frames(du, dv, unit, out)
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _cross_add(a, b, c, d, i):
+    """Row ``i`` of ``a × b + c × d`` (``numpy.cross``'s products and differences, then the sum)."""
+    x0 = (a[i, 1] * b[i, 2] - a[i, 2] * b[i, 1]) + (c[i, 1] * d[i, 2] - c[i, 2] * d[i, 1])
+    x1 = (a[i, 2] * b[i, 0] - a[i, 0] * b[i, 2]) + (c[i, 2] * d[i, 0] - c[i, 0] * d[i, 2])
+    x2 = (a[i, 0] * b[i, 1] - a[i, 1] * b[i, 0]) + (c[i, 0] * d[i, 1] - c[i, 1] * d[i, 0])
+    return x0, x1, x2
+
+
+@njit(cache=True, nogil=True)
+def _centre_sign(x, count, periodic):
+    """``np.sign(0.5 - t)`` of ``t``, the level-0 local parameter of ``x`` (`acra.basis.locate`):
+    which way the patch's centre lies."""
+    xs = x % count if periodic else min(max(x, 0.0), float(count))
+    seg = math.floor(xs)
+    if seg > count - 1:
+        seg = count - 1
+    d = 0.5 - (xs - seg)
+    return 1.0 if d > 0 else (-1.0 if d < 0 else (0.0 if d == 0 else d))
+
+
+@njit(cache=True, nogil=True)
+def limit_normals(u, v, du, dv, duu, duv, dvv, c1, c2, c3, pu, pv, u_periodic, v_periodic, unit):
+    """Unit normals ``unit (m, 3)`` at ``u, v (m,)`` from a second-order evaluation there (``du
+    .. dvv (m, 3)``), as `acra.hspline.surface_normals` takes them without nudging: ``du × dv``
+    where `degenerate` finds a direction, else the first-order term of ``du × dv`` toward the
+    level-0 patch centre (``pu, pv``: level-0 patch counts) where its length exceeds ``c3``.
+    Returns how many points have neither (nothing is written then; the caller nudges them,
+    `surface_normals`). The same arithmetic in the same order as the array form, so the same
+    bits (an evaluation's ``du, dv`` are the same bits at either order)."""
+    m = u.shape[0]
+    n = np.empty((m, 3))
+    bad = np.empty(m, np.bool_)
+    degenerate(du, dv, c1, c2, n, bad)
+    left = 0
+    for i in range(m):
+        if bad[i]:
+            left += 1
+    for i in range(m):
+        if not bad[i]:
+            continue
+        su = _centre_sign(u[i], pu, u_periodic)
+        sv = _centre_sign(v[i], pv, v_periodic)
+        a0, a1, a2 = _cross_add(duu, dv, du, duv, i)
+        b0, b1, b2 = _cross_add(duv, dv, du, dvv, i)
+        f0, f1, f2 = su * a0 + sv * b0, su * a1 + sv * b1, su * a2 + sv * b2
+        if not math.sqrt((f0 * f0 + f1 * f1) + f2 * f2) > c3:
+            return left
+        n[i, 0], n[i, 1], n[i, 2] = f0, f1, f2
+        left -= 1
+    unit_rows(n, unit)
+    return 0
 
 
 @njit(cache=True, nogil=True)

@@ -57,7 +57,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
 )
 
 # this module's own names, then the structure's (`acra.hierarchy`), re-exported
-__all__ = ["Details", "SurfaceEval", "details", "keep_details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
+__all__ = ["Details", "SurfaceEval", "details", "moved_details", "keep_details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
 
 
 @dataclass(frozen=True)
@@ -541,7 +541,7 @@ def _band(d: Direction, m: int) -> np.ndarray:
 
 def details(hs: HSpline, upto: int | None = None,
             since: "tuple[HSpline, Details, np.ndarray] | None" = None,
-            moved: tuple[int, ...] | None = None) -> Details:
+            moved: tuple[int, ...] | None = None, lazy: int | None = None) -> Details:
     """World detail vectors of levels ``1..upto``, computed coarse to fine.
 
     The frame of a level-``k`` CV is taken on the surface of levels ``0..k-1`` at the CV's
@@ -563,8 +563,15 @@ def details(hs: HSpline, upto: int | None = None,
     finer than the coarsest moved one and the same `Level` object as ``old``'s (neither
     refined nor moved) keeps ``old``'s vectors and frames as they are: its frames' surface and its
     offsets are ``old``'s, and each vector is its own row's product.
+    ``lazy``: on levels finer than ``lazy``, the frames of CVs with zero offsets that would be
+    evaluated are left pending (`_PENDING`): their vectors are zero whatever the frame (numpy's
+    product sums from +0.0), so evaluation does not need them, and a response's next move
+    evaluates them with the frames it turns anyway (`moved_details`). Pending frames are NaN;
+    the next pass of this function or of `moved_details` evaluates them.
     """
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
+    old_pending = since[1].__dict__.get(_PENDING, {}) if since is not None else {}
+    pending = {}
     if since is None:
         first = 0
     elif moved is not None and len(moved) <= 1:
@@ -577,7 +584,8 @@ def details(hs: HSpline, upto: int | None = None,
     ends_stale = None  # `_ends_stale` of ``since``, found once
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
-        if since is not None and k <= first and k - 1 < len(since[1].frames) and lev is since[0].fine[k - 1]:
+        if since is not None and k <= first and k - 1 < len(since[1].frames) and lev is since[0].fine[k - 1] \
+                and k not in old_pending:
             vectors.append(since[1].vectors[k - 1])
             frames.append(since[1].frames[k - 1])
             continue
@@ -591,7 +599,7 @@ def details(hs: HSpline, upto: int | None = None,
             old, old_det, stale = since
             was = old.fine[k - 1]
             if lev.cv_keys is was.cv_keys and lev.movable is was.movable:  # a move: only offsets differ
-                if k <= first:  # and the frames' surface is old's: old's frames, vectors of the new offsets
+                if k <= first and k not in old_pending:  # and the frames' surface is old's: old's frames, vectors of the new offsets
                     fr = old_det.frames[k - 1]
                     vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
                     vectors.append(vec)
@@ -601,6 +609,10 @@ def details(hs: HSpline, upto: int | None = None,
             else:
                 orow, found = _lookup(was.cv_keys, lev.cv_keys[rows])
                 found &= was.movable[orow] if was.cv_keys.size else False
+            if k in old_pending:  # frames an earlier pass left pending are evaluated here
+                unknown = np.zeros(was.cv_keys.size, bool)
+                unknown[old_pending[k]] = True
+                found &= ~unknown[orow]
             fr[rows[found]] = old_det.frames[k - 1][orow[found]]
             if k > first:  # the surface under this level's frames moved on the stale patches
                 ring, centre = places[1], places[4]
@@ -611,36 +623,136 @@ def details(hs: HSpline, upto: int | None = None,
                 found &= (ring < 0) | ~ends_stale[np.maximum(ring, 0)]
             pos = np.nonzero(~found)[0]
             rows = rows[pos]
+        later = None
+        if rows.size and lazy is not None and k > lazy:
+            zero = ~np.any(lev.offsets[rows], axis=-1)
+            later = rows[zero]
+            if later.size:
+                pending[k] = later
+                keep = ~zero
+                rows = rows[keep]
+                pos = np.nonzero(keep)[0] if pos is None else pos[keep]
         if rows.size:
             ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
-            partial = Details(tuple(vectors), tuple(frames))
-            ev = evaluate(hs, gu, gv, order=1, det=partial, upto=k - 1)
-            # a ring's CVs take their end's one normal: their own (at the end, where du x dv
-            # vanishes and the limit normal needs second derivatives) are not computed
-            shared = []
-            for i, (axis, end) in enumerate(ends):
-                on = ring == i
-                if np.any(on):
-                    n_end = _end_normal(hs, k, axis, end, partial)
-                    if n_end is not None:
-                        shared.append((on, n_end))
-            if not shared:
-                n = surface_normals(hs, gu, gv, det=partial, upto=k - 1, ev=ev)[1]
-            else:
-                own = ~np.logical_or.reduce([on for on, _ in shared])
-                n = np.empty((rows.size, 3))
-                if own.any():  # each row's normal is its own point's: the same on any subset
-                    sub = SurfaceEval(ev.points[own], ev.du[own], ev.dv[own])
-                    n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
-                for on, n_end in shared:
-                    n[on] = n_end
-            fr[rows] = _frames(ev, n)
+            fr[rows] = _frames_at(hs, k, ends, Details(tuple(vectors), tuple(frames)), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
         vec[every] = np.einsum("mij,mj->mi", fr[every], lev.offsets[every])
+        if later is not None and later.size:
+            vec[later] = 0.0  # the product of zero offsets, whatever the frame
+            fr[later] = np.nan
         vectors.append(vec)
         frames.append(fr)
+    out = Details(tuple(vectors), tuple(frames))
+    if pending:
+        out.__dict__[_PENDING] = pending
+    return out
+
+
+# key in a `Details`' ``__dict__``: ``{level: rows (m,) int64}`` of frames left pending (NaN) by
+# `details`' ``lazy``; a `Details` without it has every frame
+_PENDING = "_pending"
+
+
+def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
+    """`details` of ``new``, which is ``old`` with other offsets on level ``level >= 1`` alone
+    (a response's move, `acra.respond.move_level`: the same `Level` objects elsewhere, the same
+    CVs and movability on ``level``), found from ``old_det`` by following the move down the
+    levels; ``None`` where ``new`` is not such a surface (then `details` with ``since`` serves).
+
+    A point's evaluation reads, on each level ``m``, the 4×4 block of detail vectors of the
+    level-``m`` patch it lies in, and its nudged points (`surface_normals`) stay in its level-0
+    patch. So a level-``k`` frame can differ from ``old``'s only if its CV's level-0 patch holds
+    a level-``m`` patch (``level <= m < k``) that a CV whose vector is not the same bits
+    supports; a ring's frames only if such a patch lies along its end (`_end_normal`). Level by
+    level the frames of those CVs are evaluated, their vectors taken, and the supports of the
+    vectors that changed marked for the finer levels; every other row keeps ``old_det``'s bits,
+    as `details` would give them (each row's frame and vector is its own point's, its own
+    product). Levels the move does not reach keep ``old_det``'s arrays. Frames ``old_det`` left
+    pending (`details`' ``lazy``) are evaluated with the others; the result has none."""
+    pending = old_det.__dict__.get(_PENDING, {})
+    if new.depth != old.depth or len(old_det.vectors) != old.depth - 1 or new.cvs is not old.cvs \
+            or any(k <= level for k in pending):
+        return None
+    was, lev = old.fine[level - 1], new.fine[level - 1]
+    if lev.cv_keys is not was.cv_keys or lev.movable is not was.movable or any(
+            a is not b for k, (a, b) in enumerate(zip(old.fine, new.fine)) if k != level - 1):
+        return None
+    vectors, frames = list(old_det.vectors), list(old_det.frames)
+    rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
+    vec = vectors[level - 1].copy()
+    vec[rows] = np.einsum("mij,mj->mi", frames[level - 1][rows], lev.offsets[rows])
+    vectors[level - 1] = vec
+    changed = rows[np.any(_bits(vec[rows]) != _bits(old_det.vectors[level - 1][rows]), axis=-1)]
+    stale = np.zeros((new.u.patches0, new.v.patches0), bool)
+    marked = False
+    ends = closed_ends(new)
+    ring_stale = None  # per ring index (-1: none, the last entry), whether its end is stale
+    k = level
+    while True:
+        if changed.size:  # the level-0 patches holding a patch a changed level-k CV supports
+            ju, jv = np.divmod(lev.cv_keys[changed], new.v.cvs(k))  # `_split_cv`
+            kernels.mark_cells(stale, ju, jv, k, 0, 3, new.u.patches(k), new.v.patches(k),
+                               bool(new.u.periodic), bool(new.v.periodic))
+            marked, ring_stale = True, None
+        k += 1
+        if k >= new.depth or not (marked or any(m >= k for m in pending)):
+            break
+        lev = new.fine[k - 1]
+        every, ring, gu, gv, centre = _movable_places(new, k, lev, ends)
+        if not every.size:
+            changed = every
+            continue
+        hit = stale.reshape(-1)[centre]
+        if ends:
+            if ring_stale is None:
+                ring_stale = np.append(_ends_stale(new, ends, stale)[:len(ends)], False)
+            hit |= ring_stale[ring]
+        if k in pending:  # ``every`` is sorted (`_movable_places`)
+            hit[np.searchsorted(every, pending[k])] = True
+        pos = np.nonzero(hit)[0]
+        if not pos.size:
+            changed = pos
+            continue
+        rows = every[pos]
+        fr = frames[k - 1].copy()
+        fr[rows] = _frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])),
+                              ring[pos], gu[pos], gv[pos])
+        vec = vectors[k - 1].copy()
+        vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
+        changed = rows[np.any(_bits(vec[rows]) != _bits(vectors[k - 1][rows]), axis=-1)]
+        vectors[k - 1], frames[k - 1] = vec, fr
     return Details(tuple(vectors), tuple(frames))
+
+
+def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndarray, gu: np.ndarray,
+               gv: np.ndarray) -> np.ndarray:
+    """Frames ``(m, 3, 3) float64`` of level-``k`` CVs centred at ``gu, gv (m,) float64`` on the
+    surface of levels ``0..k-1`` (``partial``: their details), the CVs of a pole ring (``ring (m,)
+    int64``, `_ring_members`) with their end's one normal (`_end_normal`)."""
+    # a ring's CVs take their end's one normal: their own (at the end, where du x dv
+    # vanishes and the limit normal needs second derivatives) are not computed
+    fixed, n_fixed = np.zeros(gu.size, bool), np.zeros((gu.size, 3))
+    for i, (axis, end) in enumerate(ends):
+        on = ring == i
+        if np.any(on):
+            n_end = _end_normal(hs, k, axis, end, partial)
+            if n_end is not None:
+                fixed |= on
+                n_fixed[on] = n_end
+    ev = evaluate(hs, gu, gv, order=1, det=partial, upto=k - 1)
+    # normals and frames in one compiled pass (`framekernels.frames_at`) unless a row off the
+    # rings is degenerate
+    out = np.empty((gu.size, 3, 3))
+    s = max(hs.size(), 1e-300)
+    if not framekernels.frames_at(ev.du, ev.dv, 1e-6 * s, 1e-12 * s**2, fixed, n_fixed, out):
+        return out
+    own = ~fixed
+    n = n_fixed.copy()
+    if own.any():  # each row's normal is its own point's: the same on any subset
+        sub = ev if not fixed.any() else SurfaceEval(ev.points[own], ev.du[own], ev.dv[own])
+        n[own] = surface_normals(hs, gu[own], gv[own], det=partial, upto=k - 1, ev=sub)[1]
+    return _frames(ev, n)
 
 
 _PLACES: dict = {}  # (id of a level's cv_keys, closed ends) -> `_movable_places`, most recent last
@@ -656,12 +768,16 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     hit = _PLACES.pop(key, None)
     if hit is None or hit[0] is not lev.cv_keys or hit[1] is not lev.movable:
         c = lev.cv_keys.size
-        rows = np.nonzero(lev.movable)[0] if c else np.zeros(0, np.int64)
-        ring = _ring_members(hs, k, ends, rows)
-        gu, gv = cv_uv(hs, k, lev.cv_keys[rows])
-        pu = np.mod(np.floor(gu), hs.u.patches0) if hs.u.periodic else np.clip(np.floor(gu), 0, hs.u.patches0 - 1)
-        pv = np.mod(np.floor(gv), hs.v.patches0) if hs.v.periodic else np.clip(np.floor(gv), 0, hs.v.patches0 - 1)
-        centre = pu.astype(np.int64) * hs.v.patches0 + pv.astype(np.int64)
+        rows = np.flatnonzero(lev.movable) if c else np.zeros(0, np.int64)
+        ju, jv = np.divmod(lev.cv_keys[rows], hs.v.cvs(k))  # `_split_cv`
+        ring = _ring_members(hs, k, ends, rows, ju, jv)
+        scale = float(1 << k)
+        gu, gv = (ju - 1.0) / scale, (jv - 1.0) / scale  # `cv_uv`: the Greville centres, exact
+        # the level-0 patch of a centre, floor((j - 1) / 2^k), in integers
+        pu, pv = (ju - 1) >> k, (jv - 1) >> k
+        pu = np.mod(pu, hs.u.patches0) if hs.u.periodic else np.clip(pu, 0, hs.u.patches0 - 1)
+        pv = np.mod(pv, hs.v.patches0) if hs.v.periodic else np.clip(pv, 0, hs.v.patches0 - 1)
+        centre = pu * hs.v.patches0 + pv
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
     _PLACES[key] = hit
     while len(_PLACES) > 64:
@@ -669,14 +785,16 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     return hit[2]
 
 
-def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray) -> np.ndarray:
+def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray,
+                  ju: np.ndarray | None = None, jv: np.ndarray | None = None) -> np.ndarray:
     """For level-``k`` CV ``rows (m,) int64``: the index into ``ends`` (`closed_ends`) of the pole
     ring (`pole_ring`: the three CV rows at the end, all along it) each belongs to, or -1, as
-    ``(m,) int64``."""
+    ``(m,) int64``; ``ju, jv (m,) int64``: the rows' CV indices, if the caller has them."""
     out = np.full(rows.size, -1, np.int64)
     if not ends or not rows.size:
         return out
-    ju, jv = _split_cv(hs, k, hs.level(k).cv_keys[rows])
+    if ju is None:
+        ju, jv = _split_cv(hs, k, hs.level(k).cv_keys[rows])
     for i, (axis, end) in enumerate(ends):
         j, d = (ju, hs.u) if axis == 0 else (jv, hs.v)
         first, last = _end_rows(d.cvs(k), end)[[0, 2]]  # the three rows at the end, a run
@@ -714,7 +832,16 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
     s = np.arange(m) * other.patches0 / m if other.periodic else np.linspace(0.0, other.patches0, m + 1)
     at = np.full_like(s, end * (hs.u if axis == 0 else hs.v).patches0)
     u, v = (at, s) if axis == 0 else (s, at)
-    n = surface_normals(hs, u, v, det=det, upto=k - 1)[1].mean(axis=0)
+    # compiled (`framekernels.limit_normals`) unless a point needs nudging
+    e2 = evaluate(hs, u, v, order=2, det=det, upto=k - 1)
+    unit = np.empty((u.size, 3))
+    scale = hs.size()
+    c = max(scale, 1e-300)
+    if framekernels.limit_normals(u, v, e2.du, e2.dv, e2.duu, e2.duv, e2.dvv, 1e-6 * c, 1e-12 * c**2,
+                                  1e-9 * scale**2, int(hs.u.patches0), int(hs.v.patches0), bool(hs.u.periodic),
+                                  bool(hs.v.periodic), unit):
+        unit = surface_normals(hs, u, v, det=det, upto=k - 1)[1]
+    n = unit.mean(axis=0)
     length = np.linalg.norm(n)
     return n / length if length > 1e-6 else None
 

@@ -120,16 +120,21 @@ def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> tuple[lis
     """`point_weights`' nonzero weights as lists of arrays: points, CV rows, weights. The points
     off a pole are compiled (`acra.levelkernels.point_entries`); `_entries_numpy` is the array
     form."""
-    su, tu = locate(hs.u, u, level)
-    sv, tv = locate(hs.v, v, level)
     pole = pole_of(hs, u, v)
     lev = hs.level(level) if level else None
     none = np.zeros(0, np.int64)
     pt, rows, w = levelkernels.point_entries(
-        su, sv, basis(tu), basis(tv), pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level), hs.v.periodic,
-        hs.v.patches(level), none if lev is None else lev.cv_keys, np.zeros(0, bool) if lev is None else lev.movable,
-        none if lev is None else lev.patches)
+        _writeable(u), _writeable(v), pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level),
+        hs.v.periodic, hs.u.patches(level), hs.v.patches(level), none if lev is None else lev.cv_keys,
+        np.zeros(0, bool) if lev is None else lev.movable, none if lev is None else lev.patches)
     return _pole_entries(hs, level, pole, [pt], [rows], [w])
+
+
+def _writeable(x: np.ndarray) -> np.ndarray:
+    """``x (K,) float64`` C-contiguous and writeable (a copy only where it is not): one compiled
+    signature of `levelkernels.point_entries` serves every call."""
+    a = np.ascontiguousarray(x, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
 
 
 def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: list, ws: list) -> tuple[list, list, list]:

@@ -14,6 +14,8 @@ broadcast product, so they too are the array form's bits (`tests/test_interpolat
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -178,13 +180,51 @@ def build_level(keys, old_patches, old_cv_keys, old_offsets,
 
 
 @njit(cache=True, nogil=True)
-def point_entries(su, sv, bu, bv, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, v_patches,
+def _segment(x, level, count, periodic):
+    """`acra.basis.locate` of one parameter: level-``level`` segment and local parameter of the
+    level-0 parameter ``x`` (``count``: the level's segments), in numpy's arithmetic."""
+    xs = x * float(1 << level)
+    if periodic:
+        xs = xs % count
+    if xs != xs:  # np.mod and np.clip keep a NaN; numpy casts it to the least int64
+        return np.int64(-9223372036854775808), xs
+    if not periodic:
+        xs = min(max(xs, 0.0), float(count))
+    seg = np.int64(math.floor(xs))
+    if seg > count - 1:
+        seg = count - 1
+    return seg, xs - seg
+
+
+@njit(cache=True, nogil=True)
+def _blending_row(t, out, i):
+    """``out[i] = B_0..B_3 (t)`` (`acra.basis._blending`'s factored forms, then the division)."""
+    s = 1.0 - t
+    out[i, 0] = s * s * s / 6.0
+    out[i, 1] = ((3.0 * t - 6.0) * t * t + 4.0) / 6.0
+    out[i, 2] = ((3.0 * s - 6.0) * s * s + 4.0) / 6.0
+    out[i, 3] = t * t * t / 6.0
+
+
+@njit(cache=True, nogil=True)
+def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_patches, v_patches,
                   cv_keys, movable, patches):
     """`acra.interpolate._entries`' weights of the points off a pole (``pole < 0``): for each
     point in order, its level-``level`` patch's 16 CVs ``(a, b)`` in row-major order whose
     weight ``bu[a] * bv[b]`` is positive and that exist and are movable (level 0: every grid CV),
-    on a patch that is active (level 0: every patch). ``su, sv (K,) int64``: the points' level
-    segments; ``bu, bv (K, 4)``: their basis rows. Returns ``point, row, w`` of the entries."""
+    on a patch that is active (level 0: every patch). ``u, v (K,) float64``: the points'
+    level-0 parameters, whose level segments (`acra.basis.locate`) and basis rows ``bu, bv``
+    (`acra.basis.basis`) are taken here in numpy's arithmetic. Returns ``point, row, w``."""
+    K = u.shape[0]
+    su = np.empty(K, np.int64)
+    sv = np.empty(K, np.int64)
+    bu = np.empty((K, 4))
+    bv = np.empty((K, 4))
+    for i in range(K):
+        su[i], t = _segment(u[i], level, u_patches, u_periodic)
+        _blending_row(t, bu, i)
+        sv[i], t = _segment(v[i], level, v_patches, v_periodic)
+        _blending_row(t, bv, i)
     K = su.shape[0]
     point = np.empty(16 * K, np.int64)
     rows = np.empty(16 * K, np.int64)

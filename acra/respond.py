@@ -378,7 +378,7 @@ def _ring_rows(hs: H.HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, 
     they are), read-only."""
     lev = hs.level(k)
     memo = lev.__dict__.setdefault("_ring_rows", {})
-    key = (hs.u, hs.v, axis, end)
+    key = (hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, axis, end)  # the grid's fields: cheaper to hash than its directions
     if key not in memo:
         ring, _ = H.pole_ring(hs, k, axis, end)
         rows, ok = H._lookup(lev.cv_keys, ring)
@@ -665,15 +665,29 @@ def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
 
 
 def _redetail(old: H.HSpline, old_det: H.Details | None, new: H.HSpline,
-              moved: tuple[int, ...] | None = None) -> tuple[H.HSpline, H.Details | None]:
+              moved: tuple[int, ...] | None = None, lazy: int | None = None) -> tuple[H.HSpline, H.Details | None]:
     """``new`` and its details, recomputed only where it differs from ``old`` (a move is local).
     ``moved``: the levels whose CVs alone can differ (``(level,)`` after `_move_level`, ``()``
-    after a refinement), so the others are not compared; ``None`` compares them all."""
+    after a refinement), so the others are not compared; ``None`` compares them all. ``lazy``:
+    after a refinement, the frames of new CVs finer than level ``lazy`` are left to the next
+    move's pass (`H.details`), which turns them anyway."""
     if new.depth <= 1:
         return new, None
     if old_det is None:
         return new, H.details(new)
-    return new, H.details(new, since=(old, old_det, H.changed_patches(old, new, levels=moved)), moved=moved)
+    if moved is not None and len(moved) == 1 and moved[0] >= 1:
+        det = H.moved_details(old, old_det, new, moved[0])
+        if det is not None:
+            return new, det
+    return new, H.details(new, since=(old, old_det, H.changed_patches(old, new, levels=moved)), moved=moved, lazy=lazy)
+
+
+def _settled(hs: H.HSpline, det: H.Details | None) -> tuple[H.HSpline, H.Details | None]:
+    """``hs`` and ``det`` with the frames `_redetail`'s ``lazy`` left pending evaluated (a level
+    about to move reads its frames, and a response hands back every frame)."""
+    if det is not None and H._PENDING in det.__dict__:
+        return _redetail(hs, det, hs, ())
+    return hs, det
 
 
 def respond(
@@ -770,7 +784,9 @@ def respond(
                                 if controls.absorption[level] > 0.0})
         refined = sum(lev.patches.size for lev in hs.fine) - before
         if refined:
-            hs, det = _redetail(coarse, det, hs, ())
+            # the finer absorbing levels' new CVs are framed by the coarsest one's move, which
+            # turns them; the coarsest level's own frames its solve moves with
+            hs, det = _redetail(coarse, det, hs, (), lazy=int(np.nonzero(controls.absorption > 0)[0].min()))
     for level in range(L):
         a = float(controls.absorption[level])
         if a <= 0.0:
@@ -830,6 +846,7 @@ def respond(
                            amplify=None if level == exact else amplify)
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det), (level,))
         applied = applied + np.where(present, a, 0.0)
+        hs, det = _settled(hs, det)
     hs, det = _close_rings(hs, det, rings, controls.refine)
     H.keep_details(hs, det)
     final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points

@@ -285,11 +285,11 @@ def test_details_since_a_refinement_evaluate_only_the_new_cvs(seed, monkeypatch)
     added = sum(int(b.movable.sum() - a.movable.sum()) for a, b in zip(hs.fine, finer.fine))
     assert added > 0
     evaluated = []
-    real = H.surface_normals
-    monkeypatch.setattr(H, "surface_normals", lambda hs_, u, *a, **kw: evaluated.append(np.size(u)) or real(hs_, u, *a, **kw))
+    real = H._frames_at  # every frame `details` evaluates, in one pass per level
+    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: evaluated.append(np.size(u)) or real(hs_, k, ends, partial, ring, u, v))
     fast = H.details(finer, since=(hs, det, H.changed_patches(hs, finer)))
     assert sum(evaluated) == added
-    monkeypatch.setattr(H, "surface_normals", real)
+    monkeypatch.setattr(H, "_frames_at", real)
     full = H.details(finer)
     for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
         np.testing.assert_array_equal(a, b)
@@ -298,6 +298,44 @@ def test_details_since_a_refinement_evaluate_only_the_new_cvs(seed, monkeypatch)
     full = H.details(moved)
     for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+def test_moved_details_follow_a_move_down_the_levels_as_a_full_pass(monkeypatch):
+    """`H.moved_details` after a response's move (`respond.move_level`) is `H.details` of the
+    moved surface bit for bit, frames of pole rings included; it keeps the coarser levels'
+    arrays and evaluates no more frames than `details(since=...)` on `changed_patches`, fewer
+    where the move's reach stops short of the patches' margin."""
+    from acra.respond import move_level
+    counted, mine, theirs = [], 0, 0
+    real = H._frames_at
+    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: counted.append(np.size(u)) or real(hs_, k, ends, partial, ring, u, v))
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        hs = H.from_grid(*shapes.sphere(12, 10), depth=4)
+        u0 = int(rng.integers(0, 12))
+        hs = H.make_movable(hs, 1, [[2 * u0 + 1, 8]])
+        hs = H.make_movable(hs, 2, [[4 * u0 + 2, 16], [4 * u0 + 6, 1]])  # the second reaches a pole
+        hs = with_random_offsets(H.make_movable(hs, 3, [[8 * u0 + 4, 30], [8 * u0 + 12, 2]]), 0.02, seed)
+        det = H.details(hs)
+        for k in range(1, hs.depth):
+            movable = np.nonzero(hs.level(k).movable)[0]
+            rows = np.unique(rng.choice(movable, size=2, replace=False))
+            moved = move_level(hs, k, rows, rng.normal(scale=0.03, size=(rows.size, 3)), det)
+            counted.clear()
+            fast = H.moved_details(hs, det, moved, k)
+            step = sum(counted)
+            counted.clear()
+            H.details(moved, since=(hs, det, H.changed_patches(hs, moved, levels=(k,))), moved=(k,))
+            assert step <= sum(counted)
+            mine, theirs = mine + step, theirs + sum(counted)
+            full = H.details(moved)
+            for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
+                np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+            assert all(fast.vectors[m] is det.vectors[m] and fast.frames[m] is det.frames[m] for m in range(k - 1))
+        finer = H.refine(hs, 3, [[(8 * u0 + 48) % 96, 40]])
+        assert finer.level(3).cv_keys.size > hs.level(3).cv_keys.size
+        assert H.moved_details(hs, det, finer, 3) is None  # not a move
+    assert mine < theirs
 
 
 def _per_level_sum(hs, u, v, order, det, side=0):

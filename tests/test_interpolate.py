@@ -186,3 +186,22 @@ def test_compiled_entries_equal_the_array_form(periodic, seed):
         for a, b in zip(got, ref):
             x, y = np.concatenate(a), np.concatenate(b)
             assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
+
+
+def test_compiled_entries_locate_parameters_outside_the_domain_as_numpy():
+    """`levelkernels.point_entries` takes each point's segment and basis itself (`basis.locate`,
+    `basis.basis`): parameters past a periodic seam wrap, past an open end clamp, as numpy's."""
+    from acra import interpolate as I
+
+    rng = np.random.default_rng(7)
+    hs = H.from_grid(shapes.sphere(8, 7)[0], True, False, depth=3)
+    hs = H.make_movable(H.make_movable(hs, 1, [[3, 3], [12, 1]]), 2, [[7, 9], [30, 20]])
+    m = 300
+    u = rng.uniform(-2 * hs.u.patches0, 3 * hs.u.patches0, m)
+    v = rng.uniform(-1.0, hs.v.patches0 + 1.0, m)
+    u[:30] = np.round(u[:30] * 4) / 4
+    for k in range(hs.depth):
+        got, ref = I._entries(hs, k, u, v), I._entries_numpy(hs, k, u, v)
+        for a, b in zip(got, ref):
+            x, y = np.concatenate(a), np.concatenate(b)
+            assert x.dtype == y.dtype and x.tobytes() == y.tobytes()

@@ -239,6 +239,73 @@ def test_frames_of_a_sphere_with_poles_equal_the_array_form():
         np.testing.assert_array_equal(H._frames(ev, n), H._frames_numpy(ev, n))
 
 
+def test_frames_in_one_pass_equal_normals_and_frames():
+    """`framekernels.frames_at` (behind `hspline._frames_at`: normal and frame of each CV in one
+    pass after its evaluation) gives the bits of `surface_normals` and `_frames` one after
+    another, a pole ring's CVs with their end's one normal; a degenerate row off the rings is
+    left to `surface_normals` (the kernel reports it and writes no frame)."""
+    hs = H.from_grid(*shapes.sphere(8, 7), depth=4)
+    for k in (1, 2, 3):
+        hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
+        hs = H.make_movable(hs, k, np.array([[1, 1], [2, 2]]))
+    hs = with_random_offsets(hs, scale=0.01, seed=3)
+    det = H.details(hs)
+    ends = H.closed_ends(hs)
+    for k in range(1, hs.depth):
+        rows, ring, gu, gv, _ = H._movable_places(hs, k, hs.level(k), ends)
+        assert (ring >= 0).any() and (ring < 0).any()
+        partial = H.Details(det.vectors[:k - 1], det.frames[:k - 1])
+        ev, n = H.surface_normals(hs, gu, gv, det=partial, upto=k - 1)
+        for i, (axis, end) in enumerate(ends):
+            n[ring == i] = H._end_normal(hs, k, axis, end, partial)
+        want = H._frames(ev, n)
+        got = H._frames_at(hs, k, ends, partial, ring, gu, gv)
+        np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+        np.testing.assert_array_equal(got.view(np.int64), det.frames[k - 1][rows].view(np.int64))
+    # a point on a pole, not on a ring: its du x dv vanishes, so the kernel leaves it
+    ev = H.evaluate(hs, np.array([0.5, 1.3]), np.array([0.0, 2.2]), order=1, upto=0)
+    s = hs.size()
+    out = np.full((2, 3, 3), 7.0)
+    assert framekernels.frames_at(ev.du, ev.dv, 1e-6 * s, 1e-12 * s**2, np.zeros(2, bool), np.zeros((2, 3)), out) == 1
+    assert (out == 7.0).all()
+    fixed = np.array([[0.0, 0.0, -1.0], [0, 0, 0]])
+    assert framekernels.frames_at(ev.du, ev.dv, 1e-6 * s, 1e-12 * s**2, np.array([True, False]), fixed, out) == 0
+    n = H.surface_normals(hs, np.array([1.3]), np.array([2.2]), upto=0)[1]
+    np.testing.assert_array_equal(out, H._frames(ev, np.concatenate([fixed[:1], n])))
+
+
+def _limit_normals(hs, u, v, top, det, unit):
+    e2 = H.evaluate(hs, u, v, order=2, det=det, upto=top)
+    c, scale = max(hs.size(), 1e-300), hs.size()
+    return framekernels.limit_normals(u, v, e2.du, e2.dv, e2.duu, e2.duv, e2.dvv, 1e-6 * c, 1e-12 * c**2,
+                                      1e-9 * scale**2, hs.u.patches0, hs.v.patches0, hs.u.periodic, hs.v.periodic, unit)
+
+
+def test_compiled_limit_normals_equal_surface_normals():
+    """`framekernels.limit_normals` (behind `hspline._end_normal`, on a second-order evaluation)
+    gives `surface_normals`' bits
+    at the poles of a refined sphere, where every ``du × dv`` vanishes and the normal is the
+    first-order term toward the patch centre, and off them; a point that needs nudging (a grid
+    collapsed to one point) is reported and nothing is written."""
+    hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
+    for k in (1, 2):
+        hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
+    hs = with_random_offsets(hs, scale=0.01, seed=5)
+    det = H.details(hs)
+    rng = np.random.default_rng(0)
+    for top in (0, 1, 2):
+        u = np.concatenate([np.arange(16) / 2.0, rng.uniform(0, 8, 9)])
+        v = np.concatenate([np.zeros(8), np.full(8, float(hs.v.patches0)), rng.uniform(0, hs.v.patches0, 9)])
+        unit = np.empty((u.size, 3))
+        assert _limit_normals(hs, u, v, top, det, unit) == 0
+        want = H.surface_normals(hs, u, v, det=det, upto=top)[1]
+        np.testing.assert_array_equal(unit.view(np.int64), want.view(np.int64))
+    flat = H.from_grid(np.zeros((6, 6, 3)), depth=1)
+    unit = np.full((2, 3), 7.0)
+    assert _limit_normals(flat, np.array([0.5, 1.5]), np.array([0.5, 2.0]), 0, None, unit) == 2
+    assert (unit == 7.0).all()
+
+
 @pytest.mark.parametrize("seed", range(12))
 def test_compiled_ring_sums_equal_the_array_form(seed):
     """`framekernels.ring_sums` (behind `respond._ring_sums`): the column sums and their spread

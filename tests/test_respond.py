@@ -376,7 +376,7 @@ def test_every_absorbing_level_is_refined_in_one_pass_before_the_first_move(monk
     c = R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
     passes = []
     redetail = R._redetail
-    monkeypatch.setattr(R, "_redetail", lambda old, det, new, moved=None: passes.append(moved) or redetail(old, det, new, moved))
+    monkeypatch.setattr(R, "_redetail", lambda old, det, new, moved=None, **kw: passes.append(moved) or redetail(old, det, new, moved, **kw))
     out, rep = R.respond(hs, dp, c)
     assert rep.refined > 0 and passes.count(()) == 1 and passes[0] == ()
     monkeypatch.setattr(R, "_redetail", redetail)
@@ -391,3 +391,22 @@ def test_every_absorbing_level_is_refined_in_one_pass_before_the_first_move(monk
     for a, b in zip(out.fine, ref.fine):
         np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
         np.testing.assert_array_equal(a.offsets, b.offsets)
+
+
+def test_the_finer_absorbing_levels_new_cvs_are_framed_once_by_the_first_move(monkeypatch):
+    """The up-front refinement leaves the frames of the finer absorbing levels' new CVs to the
+    coarsest level's move, which turns them anyway (`H.details`' ``lazy``): each level's frames
+    are evaluated once per move above it and not in the refinement's pass too, and the response
+    hands back every frame, the bits of a full `H.details` pass."""
+    hs = flat_sheet(n=10, depth=4)
+    dp = one_point(hs, [3.3, 3.4], [0.02, -0.01, -0.2])
+    framed = []
+    real = H._frames_at
+    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, *a: framed.append(k) or real(hs_, k, *a))
+    out, rep = R.respond(hs, dp, R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3]))
+    assert rep.refined > 0
+    assert [framed.count(k) for k in (1, 2, 3)] == [1, 1, 2]
+    assert H._PENDING not in rep.details.__dict__
+    full = H.details(out)
+    for a, b in zip(rep.details.vectors + rep.details.frames, full.vectors + full.frames):
+        np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
