@@ -62,7 +62,8 @@ def main() -> None:
     grids.GridSet.nearest = timed("GridSet.nearest", grids.GridSet.nearest)
     grids.Closest.query = timed("Closest.query", grids.Closest.query)
     grids.BvhCache.get = timed("BvhCache.get", grids.BvhCache.get)
-    D.fcl.collide = timed("fcl.collide", D.fcl.collide)
+    import fcl  # detect imports it where a pair needs its BVH; the patched name is the module's
+    fcl.collide = timed("fcl.collide", fcl.collide)
     for name in ("hulls", "_coarse", "cv_hull", "_stale"):
         prop = getattr(S.Shape, name)
         prop.func = timed(f"Shape.{name}", prop.func)
