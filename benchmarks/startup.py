@@ -2,6 +2,7 @@
 
     python3 benchmarks/startup.py                                   # scenes/dog_head_spike.py, 5 runs
     python3 benchmarks/startup.py scenes/box_into_sheet.py --repeat 3
+    python3 benchmarks/startup.py --bytecode                        # as an installed package runs
 
 Each figure is from fresh processes of this checkout (``PYTHONPATH`` set to it), the scene file
 copied into a temporary directory:
@@ -22,7 +23,10 @@ copied into a temporary directory:
   handlers, module teardown, the process's end);
 * the CPU seconds of compiling, from source, the checkout's modules that run imported: with
   ``PYTHONDONTWRITEBYTECODE`` set (as on the project's machine) every process compiles them
-  inside its imports; an installed package has their ``.pyc``.
+  inside its imports; an installed package has their ``.pyc``. ``--bytecode`` runs every process
+  as an installed package does: ``PYTHONDONTWRITEBYTECODE`` unset and ``PYTHONPYCACHEPREFIX`` a
+  temporary directory, so the warm-up writes the ``.pyc`` the measured runs read and the checkout
+  gets no ``__pycache__``.
 
 Prints markdown tables (docs/performance.md, *Start-up and the whole process*).
 """
@@ -122,14 +126,18 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scene", nargs="?", type=Path, default=HERE / "scenes" / "dog_head_spike.py")
     parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--bytecode", action="store_true",
+                        help="the modules' .pyc written by the warm-up and read by the measured runs")
     args = parser.parse_args()
     env = dict(os.environ, PYTHONPATH=str(HERE))
     cli = [sys.executable, "-m", "pipeline.cli"]
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
+        if args.bytecode:
+            env.pop("PYTHONDONTWRITEBYTECODE", None)
+            env["PYTHONPYCACHEPREFIX"] = str(work / "pycache")
         src = work / args.scene.name
         shutil.copy(args.scene, src)
-        version = [timed(cli + ["--version"], work, env)[:2] for _ in range(args.repeat)]
         wall: dict = {"usda": [], "usdc": []}
         cpu: dict = {"usda": [], "usdc": []}
         phases: dict = {fmt: defaultdict(list) for fmt in wall}
@@ -146,13 +154,15 @@ def main() -> int:
                 phases[fmt]["interpreter"].append(w - sum(split.values()))
                 for name, sec in split.items():
                     phases[fmt][name].append(sec)
+        version = [timed(cli + ["--version"], work, env)[:2] for _ in range(args.repeat)]  # after the warm-up's .pyc
         _, _, traced = timed([sys.executable, "-X", "importtime", "-m", "pipeline.cli", "run", str(src), "-o",
                               str(work / "traced.acra.usda"), "--quiet", "--over-tolerance", "warn"], work, env)
         _, counted_cpu, counted = timed([sys.executable, "-c", NUMBA_LOADS, "run", str(src), "-o", str(work / "loads.acra.usda"), "--quiet",
                                "--over-tolerance", "warn"], work, env)
     med = lambda xs: float(np.median(xs))  # noqa: E731
     load = os.getloadavg()
-    print(f"`python3 benchmarks/startup.py {args.scene.name} --repeat {args.repeat}`: medians of {args.repeat} "
+    flags = " --bytecode" if args.bytecode else ""
+    print(f"`python3 benchmarks/startup.py {args.scene.name} --repeat {args.repeat}{flags}`: medians of {args.repeat} "
           f"after a warm-up; load average at the end {load[0]:.1f} (1 min), {load[1]:.1f} (5 min)\n")
     print("| process | wall s | CPU s |\n|---|---:|---:|")
     print(f"| `acra --version` | {med([w for w, _ in version]):.3f} | {med([c for _, c in version]):.3f} |")
@@ -176,8 +186,9 @@ def main() -> int:
     files = tagged(counted.stderr, "MODULES")
     exit_cpu = counted_cpu - tagged(counted.stderr, "CPU_AT_EXIT")
     print("\n| more of one `.usda` run | CPU s |\n|---|---:|")
+    bytecode = "unset" if "PYTHONDONTWRITEBYTECODE" not in env else "set"
     print(f"| compiling this checkout's {sum(1 for f in files if f and Path(f).resolve().is_relative_to(HERE))} modules "
-          f"from source (`PYTHONDONTWRITEBYTECODE` {'set' if sys.flags.dont_write_bytecode else 'unset'}) | "
+          f"from source, if no `.pyc` (`PYTHONDONTWRITEBYTECODE` {bytecode} in the runs) | "
           f"{source_compile_s(files):.3f} |")
     print(f"| the interpreter's exit (atexit handlers, module teardown) | {exit_cpu:.3f} |")
     return 0
