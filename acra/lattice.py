@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["unique_keys"]
+__all__ = ["unique_keys", "adaptive_mesh"]
 
 
 @njit(cache=True, nogil=True)
@@ -66,3 +66,171 @@ def unique_keys(i, j, ni, w):
         first[c] = m
         c += 1
     return out[:m].copy(), first, where
+
+
+@njit(cache=True, nogil=True)
+def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
+    """The adaptive display mesh of the quadtree leaves ``(pu, pv)`` (`acra.tessellate._leaves`)
+    in one pass: each leaf's patch ``(l,) int64`` in units of its own level and its cells' step
+    ``ph`` ``(l,) int64`` on a lattice of ``nu`` by ``nv`` steps (``wrap_u``, ``wrap_v``: a
+    periodic seam's last line is its first), ``samples`` cells a leaf's edge.
+
+    Returns the vertices' lattice coordinates ``(n,) int64`` each, sorted by ``(u, v)``; the
+    faces' vertex counts ``(q + t,) int64`` and indices ``(4 q + 3 t,) int64`` (the quads of the
+    unsplit cells, then each split cell's fan of triangles about a vertex at its centre, cells in
+    ``(u, v)`` order). A cell is split where a finer neighbour puts a vertex strictly inside one
+    of its sides: its ring walks the sides counter-clockwise, each corner then the vertices inside
+    the side, so its triangles are those of the array form, in its order."""
+    w = nv + 1
+    nl = pu.shape[0]
+    nc = nl * samples * samples
+    cu, cv, ch = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
+    c = 0
+    for leaf in range(nl):
+        h = ph[leaf]
+        for a in range(samples):
+            for b in range(samples):
+                cu[c], cv[c], ch[c] = (pu[leaf] * samples + a) * h, (pv[leaf] * samples + b) * h, h
+                c += 1
+    # the cells in (u, v) order: their lower corners are distinct, so their keys' positions
+    # are the order
+    _, _, rank = unique_keys(cu, cv, nu, w)
+    su, sv, sh = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
+    for p in range(nc):
+        su[rank[p]], sv[rank[p]], sh[rank[p]] = cu[p], cv[p], ch[p]
+    # corners counter-clockwise, an upper corner wrapped onto a periodic seam
+    u4, v4 = np.empty(4 * nc, np.int64), np.empty(4 * nc, np.int64)
+    for c in range(nc):
+        u1, v1 = su[c] + sh[c], sv[c] + sh[c]
+        if wrap_u and u1 == nu:
+            u1 = 0
+        if wrap_v and v1 == nv:
+            v1 = 0
+        u4[c], v4[c] = su[c], sv[c]
+        u4[nc + c], v4[nc + c] = u1, sv[c]
+        u4[2 * nc + c], v4[2 * nc + c] = u1, v1
+        u4[3 * nc + c], v4[3 * nc + c] = su[c], v1
+    lattice, first, at = unique_keys(u4, v4, nu, w)
+    # the same vertices v-major: a stable counting sort of the u-major ones by v
+    # (a key's v is its offset from its column's start key: no division)
+    m = lattice.shape[0]
+    lv = np.empty(m, np.int64)
+    for c in range(nu + 1):
+        for a in range(first[c], first[c + 1]):
+            lv[a] = lattice[a] - c * w
+    first_v = np.zeros(nv + 2, np.int64)
+    for a in range(m):
+        first_v[lv[a] + 1] += 1
+    for x in range(nv + 1):
+        first_v[x + 1] += first_v[x]
+    fill = first_v.copy()
+    v_to_u = np.empty(m, np.int64)
+    u_to_v = np.empty(m, np.int64)
+    for a in range(m):
+        x = lv[a]
+        v_to_u[fill[x]] = a
+        u_to_v[a] = fill[x]
+        fill[x] += 1
+    at_v = np.empty(4 * nc, np.int64)
+    for p in range(4 * nc):
+        at_v[p] = u_to_v[at[p]]
+    # each side's vertices strictly inside it, rows lo..hi-1 along its line (v-major for a side
+    # along u, u-major along v); a side ending on a periodic seam runs to its line's end
+    lo = np.empty((nc, 4), np.int64)
+    hi = np.empty((nc, 4), np.int64)
+    split = np.zeros(nc, np.bool_)
+    ring_len = 0
+    n_split = 0
+    for c in range(nc):
+        seam_u = wrap_u and su[c] + sh[c] == nu
+        seam_v = wrap_v and sv[c] + sh[c] == nv
+        lo[c, 0] = at_v[c] + 1
+        hi[c, 0] = first_v[sv[c] + 1] if seam_u else at_v[nc + c]
+        lo[c, 1] = at[nc + c] + 1
+        hi[c, 1] = first[u4[nc + c] + 1] if seam_v else at[2 * nc + c]
+        lo[c, 2] = at_v[3 * nc + c] + 1
+        hi[c, 2] = first_v[v4[2 * nc + c] + 1] if seam_u else at_v[2 * nc + c]
+        lo[c, 3] = at[c] + 1
+        hi[c, 3] = first[su[c] + 1] if seam_v else at[3 * nc + c]
+        for s in range(4):
+            if hi[c, s] > lo[c, s]:
+                split[c] = True
+        if split[c]:
+            n_split += 1
+            ring_len += 4
+            for s in range(4):
+                if hi[c, s] > lo[c, s]:
+                    ring_len += hi[c, s] - lo[c, s]
+    # the split cells' centres (inside their cells, so no corner's) sorted and merged with the
+    # corners: a corner's row moves up by the centres before it, a centre's is its rank plus the
+    # corners before it
+    centre = np.empty(n_split, np.int64)
+    k = 0
+    for c in range(nc):
+        if split[c]:
+            centre[k] = (su[c] + sh[c] // 2) * w + sv[c] + sh[c] // 2
+            k += 1
+    by = np.argsort(centre, kind="mergesort")  # the kernels' one sort (distinct keys: any order is this one)
+    row = np.empty(m, np.int64)
+    centre_row = np.empty(n_split, np.int64)
+    a = 0
+    for b in range(n_split):
+        x = centre[by[b]]
+        while a < m and lattice[a] < x:
+            row[a] = a + b
+            a += 1
+        centre_row[by[b]] = a + b
+    while a < m:
+        row[a] = a + n_split
+        a += 1
+    keys = np.empty(m + n_split, np.int64)
+    for a in range(m):
+        keys[row[a]] = lattice[a]
+    for b in range(n_split):
+        keys[centre_row[b]] = centre[b]
+    quads = nc - n_split
+    indices = np.empty(4 * quads + 3 * ring_len, np.int64)
+    q = 0
+    for c in range(nc):
+        if not split[c]:
+            for s in range(4):
+                indices[q] = row[at[s * nc + c]]
+                q += 1
+    ring = np.empty(ring_len, np.int64)
+    k = 0
+    for c in range(nc):
+        if not split[c]:
+            continue
+        n = 0
+        for s in range(4):
+            ring[n] = at[s * nc + c]
+            n += 1
+            if s == 0:
+                for r in range(lo[c, 0], hi[c, 0]):
+                    ring[n] = v_to_u[r]
+                    n += 1
+            elif s == 1:
+                for r in range(lo[c, 1], hi[c, 1]):
+                    ring[n] = r
+                    n += 1
+            elif s == 2:
+                for r in range(hi[c, 2] - 1, lo[c, 2] - 1, -1):
+                    ring[n] = v_to_u[r]
+                    n += 1
+            else:
+                for r in range(hi[c, 3] - 1, lo[c, 3] - 1, -1):
+                    ring[n] = r
+                    n += 1
+        for t in range(n):
+            indices[q] = centre_row[k]
+            indices[q + 1] = row[ring[t]]
+            indices[q + 2] = row[ring[(t + 1) % n]]
+            q += 3
+        k += 1
+    counts = np.full(quads + (q - 4 * quads) // 3, 3, np.int64)
+    counts[:quads] = 4
+    ku, kv = np.empty(m + n_split, np.int64), np.empty(m + n_split, np.int64)
+    for a in range(m + n_split):
+        ku[a] = keys[a] // w
+        kv[a] = keys[a] - ku[a] * w
+    return ku, kv, counts, indices

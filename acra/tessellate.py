@@ -20,7 +20,7 @@ from numba import njit
 
 from .basis import Direction
 from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
-from .lattice import unique_keys
+from .lattice import adaptive_mesh, unique_keys
 
 __all__ = [
     "GridTopology",
@@ -250,7 +250,27 @@ def adaptive_topology(u: Direction, v: Direction, samples: int, levels: np.ndarr
 
 def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.ndarray]) -> MeshTopology:
     """`adaptive_topology` of the levels ``present`` (level ``j`` -> its patches ``(m_j, 2) int64``
-    where it is present; `_leaves`)."""
+    where it is present; `_leaves`): the quadtree's leaves, then their cells and the mesh in one
+    compiled pass (`acra.lattice.adaptive_mesh`, vertex for vertex and face for face
+    `_adaptive_array`'s)."""
+    if samples < 1:
+        raise ValueError(f"samples must be at least 1, got {samples}")
+    present = {j: np.asarray(p, np.int64).reshape(-1, 2) for j, p in present.items() if len(p)}
+    top = max(present, default=0)  # the lattice of the finest level present
+    s = int(samples)
+    leaves = [(k, patches) for k, patches in _leaves(u.patches0, v.patches0, present, top) if len(patches)]
+    patches = np.concatenate([p for _, p in leaves])
+    steps = np.concatenate([np.full(len(p), 1 << (top - k), np.int64) for k, p in leaves])
+    lu, lv, counts, indices = adaptive_mesh(patches[:, 0].copy(), patches[:, 1].copy(), steps, s,
+                                            u.patches0 * (s << top), v.patches0 * (s << top),
+                                            bool(u.periodic), bool(v.periodic))
+    step = float(s << top)
+    return MeshTopology(lu / step, lv / step, counts, indices)
+
+
+def _adaptive_array(u: Direction, v: Direction, samples: int, present: dict[int, np.ndarray]) -> MeshTopology:
+    """`_adaptive` in array form, the reference `tests/test_tessellate.py` holds the compiled
+    pass to."""
     if samples < 1:
         raise ValueError(f"samples must be at least 1, got {samples}")
     present = {j: np.asarray(p, np.int64).reshape(-1, 2) for j, p in present.items() if len(p)}

@@ -8,7 +8,7 @@ from numba.core.compiler import CompilerBase, DefaultPassBuilder, Flags
 from numba.core.registry import cpu_target
 from numba.core.typed_passes import NopythonTypeInference
 
-from acra import bvh, pseudonormals
+from acra import bvh, lattice, pseudonormals
 
 
 class _TypingOnly(CompilerBase):
@@ -49,4 +49,6 @@ def test_every_kernels_merge_sort_takes_one_key_type():
     keys |= _argsort_keys(pseudonormals.weld, arr(types.float64, 2), arr(types.int64, 2), types.float64)
     keys |= _argsort_keys(pseudonormals.part_mesh, arr(types.float64, 2), arr(types.int64, 2), types.float64,
                           types.boolean)
+    keys |= _argsort_keys(lattice.adaptive_mesh, *[arr(types.int64, 1)] * 3, types.int64, types.int64, types.int64,
+                          types.boolean, types.boolean)
     assert keys == {arr(types.int64, 1)}

@@ -302,6 +302,26 @@ def test_adaptive_mesh_triangles_fan_face_by_face():
     np.testing.assert_array_equal(tris, expected)
 
 
+@pytest.mark.parametrize("shape", ["sphere", "torus", "sheet"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_adaptive_mesh_is_the_array_form_s_vertex_for_vertex(shape, seed):
+    """`acra.lattice.adaptive_mesh` (the adaptive topology in one compiled pass) gives the array
+    form's vertices, counts and indices, in the same order and dtypes, across periodic seams and
+    poles, with fans of every size and without finer levels."""
+    maker = {"sphere": shapes.sphere, "torus": shapes.torus, "sheet": shapes.sheet}[shape]
+    hs = H.from_grid(*maker(8, 7), depth=4)
+    for samples, blobs in ((1, 0), (2, 3), (3, 6), (4, 2)):
+        levels = _random_levels(hs, seed, blobs)
+        top = hs.depth - 1
+        present = {j: np.unique(np.argwhere(levels >= j) >> (top - j), axis=0) for j in range(1, top + 1)}
+        got, want = T._adaptive(hs.u, hs.v, samples, present), T._adaptive_array(hs.u, hs.v, samples, present)
+        assert np.count_nonzero(got.counts == 3) > 0 or not blobs
+        for name in ("u", "v", "counts", "indices"):
+            a, b = getattr(got, name), getattr(want, name)
+            assert a.dtype == b.dtype, name
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_lattice_keys_positions_and_columns_equal_numpy_s(seed):
     """`acra.lattice.unique_keys` (the adaptive topology's vertex keys, bucketed by column) gives
