@@ -132,6 +132,49 @@ class _Sizes:
         return self._geoms[i].size
 
 
+def _unbuilt(g) -> bool:
+    """Whether ``g`` is a surface whose patch boxes are not built (a responded surface the
+    rounds have not detected)."""
+    return isinstance(g, D.SurfaceGeometry) and "hulls" not in g.shape.__dict__
+
+
+def _inner_box(g) -> tuple[np.ndarray, float] | None:
+    """A world box ``(2, 3) float64`` inside the geometry's `bounds` (the union of its world patch
+    boxes), and its diagonal, at most `size`. A surface whose patch boxes are not built
+    (`_unbuilt`) gives the box of its level-0 CVs mapped by its matrix, shrunk by 1e-9 of the
+    mapping's terms: every level-0 CV is one of the 4 x 4 of some level-0 patch's control net
+    (`acra.patch_boxes`), so its image lies in that patch's world box ``M c + t ± |M| h`` but for
+    rounding of a few units in the last place of those terms (``None`` where the shrinking
+    leaves no box). Anything else gives its exact `bounds` and `size`."""
+    if not _unbuilt(g):
+        return g.bounds, g.size
+    m, t = g.xform[:3, :3], g.xform[:3, 3]
+    cvs = g.surface.cvs.reshape(-1, 3)
+    world = cvs @ m.T + t
+    reach = float(np.abs(t).max() + (np.abs(m) @ np.abs(cvs).max(axis=0)).max())
+    lo, hi = world.min(axis=0) + 1e-9 * reach, world.max(axis=0) - 1e-9 * reach
+    return (np.stack([lo, hi]), float(np.linalg.norm(hi - lo))) if np.all(lo <= hi) else None
+
+
+def _measured(ga, gb) -> bool:
+    """Whether the residual measures the pair ``ga, gb``: its world boxes meet within the pair's
+    padding (``not detect.apart`` and `detect._boxes_overlap` at `detect.pair_pad`). A pair with
+    a side whose patch boxes are not built (`_unbuilt`) is first tested on boxes inside each
+    side's `bounds` with the padding of their diagonals (`_inner_box`): boxes and padding no
+    larger than `_boxes_overlap`'s, so meeting there means meeting there too, and so not
+    `apart` either (whose boxes and padding hold those); the patch boxes are then not built
+    for it. Only a pair that does not meet there takes the exact test, which also answers every
+    other pair (`apart` first: a few products). Rounding at the inner box's faces can only add a
+    pair to the measure, never drop one, so the residual is never under-reported."""
+    if _unbuilt(ga) or _unbuilt(gb):
+        inner = _inner_box(ga), _inner_box(gb)
+        if None not in inner:
+            (a, da), (b, db) = inner
+            if bool(S.overlap(a[0], a[1], b[0], b[1], D._PAD * max(da, db))):
+                return True
+    return not (D.apart(ga, gb) or not D._boxes_overlap(ga, gb, D.pair_pad(ga, gb)))
+
+
 def _pairs(n_def: int, n_col: int):
     """Every deformable–deformable pair once and every deformable–collider pair."""
     for i in range(n_def):
@@ -346,7 +389,7 @@ class _Run:
             if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
                 continue
             ga, gb = geoms[i], (geoms[other[1]] if other[0] == "d" else cgeoms[other[1]])
-            if D.apart(ga, gb) or not D._boxes_overlap(ga, gb, D.pair_pad(ga, gb)):
+            if not _measured(ga, gb):
                 continue
             for kind_j in (("d", i), other):
                 if kind_j not in index:
@@ -516,8 +559,9 @@ class _Run:
             cgeoms = [D.ColliderGeometry(self.statics[j], cstates[j].xform) for j in range(len(self.statics))]
             if it == 0:  # the animator's surfaces: detection's scale stays fixed while rounds reshape them
                 sizes = _Sizes(geoms)
-            # the display measure builds the shapes it reads (a responded surface's patch boxes):
-            # that is set-up, as it is when detection builds them
+            # the display measure builds the shape data it reads (a responded surface's coarse grid
+            # for its orientation; its patch boxes only where `_measured`'s inner boxes do not
+            # meet): that is set-up, as it is when detection builds them
             tv, setup1 = time.perf_counter(), S.SetupClock.ms
             vis, by_pair = self.visible(geoms, cgeoms, enabled)
             st.ms_setup += S.SetupClock.ms - setup0

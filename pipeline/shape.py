@@ -242,8 +242,13 @@ class Shape:
     @timed
     def _coarse(self) -> tuple[np.ndarray, np.ndarray]:
         """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)`` and ``triangles
-        (8 P, 3) int64``; the parent's points where the response did not reach."""
-        stale = self._stale
+        (8 P, 3) int64``; the parent's points where the response did not reach, once `_stale` is
+        known. Before that every patch is evaluated (a patch's 9 points depend on its own CVs and
+        details alone, so they are the parent's bits where it did not change): finding the
+        changed patches compares every level's offsets, which costs about what evaluating 9
+        points a patch does, and the residual's orientation (`outward`) of a responded surface
+        needs nothing else of it."""
+        stale = self.__dict__.get("_stale") if self.parent is not None else None
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
             pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)

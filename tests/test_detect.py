@@ -506,6 +506,29 @@ def test_candidate_vertices_kept_per_patch_set_equal_a_new_search(seed):
         np.testing.assert_array_equal(getattr(kept, name), getattr(D.tessellate(g, D.candidate_patches(g, bounds, 1e-7)), name))
 
 
+@pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
+def test_a_responded_shapes_orientation_needs_no_changed_patches(seed, absorption):
+    """`Shape.outward` of a responded shape (the residual's only ask of it, `frames._Run.visible`)
+    evaluates its coarse grid without finding the changed patches (`_stale`, which compares every
+    level): the same points as a fresh shape's, bit for bit, so the same sign; the changed patches
+    are found once a builder that reuses the parent's asks (`coarse_index`), with the same answers."""
+    hs, out, rep, rng, p = _responded_sphere(seed, absorption)
+    parent = S.shape_of(hs)
+    parent.coarse_index  # the parent's grid and tree built, as detection leaves them
+    child = S.shape_of(out)
+    assert child.parent is parent
+    outward = child.outward
+    assert "_stale" not in child.__dict__
+    fresh = S.Shape(out)
+    fresh.__dict__["details"] = rep.details
+    for a, b in zip(child._coarse, fresh._coarse):
+        np.testing.assert_array_equal(a, b)
+    assert outward == fresh.outward
+    q = p * rng.uniform(0.8, 1.1, (40, 1)) + 0.05 * rng.normal(size=(40, 3))
+    np.testing.assert_array_equal(child.coarse_index.query(q), fresh.coarse_index.query(q))
+    assert 0 < child._stale.sum() < child._stale.size
+
+
 @pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
 def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed, absorption):
     """Hull boxes and the coarse sample grid of a responded shape (the parent's where the

@@ -203,3 +203,35 @@ def test_each_round_measures_its_displays_once(tiny_stage, monkeypatch):
     scene = usdio.read_scene(stage)
     _, (st,) = F.respond_frames(stage, scene, [3])
     assert st.in_collision and len(calls) == st.iterations + 1
+
+
+def test_the_residual_measures_a_pair_as_the_exact_box_test_without_a_met_surfaces_patch_boxes():
+    """`frames._measured` answers as the exact test (``not detect.apart`` and
+    `detect._boxes_overlap` at `detect.pair_pad`) for spheres and a box at random places, near
+    and apart; a surface whose patch boxes are not built gets an inner box of its level-0 CVs
+    (`frames._inner_box`) inside its exact `bounds`, and where that box meets the other's, the
+    patch boxes stay unbuilt (a responded surface the rounds never detect)."""
+    from acra import hspline as H
+    from acra import shapes
+    from conftest import box, move
+
+    rng = np.random.default_rng(5)
+    met = 0
+    for trial in range(60):
+        a = D.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 6)), move(*rng.uniform(-1.5, 1.5, 3)) @ np.diag([*rng.uniform(0.5, 2.0, 3), 1.0]))
+        if trial % 2:
+            b = D.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 6)), move(*rng.uniform(-1.5, 1.5, 3)))
+        else:
+            b = D.ColliderGeometry(box(rng.uniform(0.2, 1.0)), move(*rng.uniform(-2.0, 2.0, 3)))
+        inner = F._inner_box(a)
+        assert F._unbuilt(a)
+        got = F._measured(a, b)
+        unbuilt = "hulls" not in a.shape.__dict__
+        exact = not (D.apart(a, b) or not D._boxes_overlap(a, b, D.pair_pad(a, b)))
+        assert got == exact
+        box_, diag = inner
+        assert np.all(a.bounds[0] <= box_[0]) and np.all(box_[1] <= a.bounds[1]) and diag <= a.size
+        if unbuilt:
+            met += 1
+            assert got
+    assert met >= 5
