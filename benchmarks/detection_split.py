@@ -62,7 +62,8 @@ def main() -> None:
     grids.GridSet.nearest = timed("GridSet.nearest", grids.GridSet.nearest)
     grids.Closest.query = timed("Closest.query", grids.Closest.query)
     grids.BvhCache.get = timed("BvhCache.get", grids.BvhCache.get)
-    D.fcl.collide = timed("fcl.collide", D.fcl.collide)
+    if hasattr(D, "fcl"):  # fcl is imported only where a contact array is read
+        D.fcl.collide = timed("fcl.collide", D.fcl.collide)
     for name in ("hulls", "_coarse", "cv_hull", "_stale"):
         prop = getattr(S.Shape, name)
         prop.func = timed(f"Shape.{name}", prop.func)

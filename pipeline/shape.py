@@ -17,6 +17,7 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
+from acra import halfspaces
 from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.orientation import volume_sign
@@ -84,9 +85,14 @@ class HullIndex:
     facet whose cone holds a point is looked up among those whose centroid direction from ``c`` is
     nearest the point's (a kd-tree of unit directions); points whose answer this does not settle
     (no such cone within 1e-12 of the size, or behind their facet by less than ``slack``) take the
-    test against every facet, so the answer is that test's (`within`)."""
+    test against every facet, so the answer is that test's (`within`). A hull of at most
+    `DIRECT` facets takes that test for every point (`acra.halfspaces.within`, compiled): a
+    point outside stops at the first facet it is beyond, and one inside costs about a
+    nanosecond a facet, less than the kd-tree's lookup of its cone (a 198-facet CV hull: 0.16
+    against 1.4 µs a point)."""
 
     CANDIDATES = 6  # facets tried per point, by centroid direction
+    DIRECT = 1024  # facets up to which every point takes the compiled test against every facet
 
     def __init__(self, hull: ConvexHull) -> None:
         self.hull = hull
@@ -112,8 +118,8 @@ class HullIndex:
         """``(k,) bool``: points ``q (k, 3)`` with ``n · x + d <= slack`` for every facet."""
         q = np.asarray(q, np.float64).reshape(-1, 3)
         eq = self.equations
-        if len(q) * len(eq) <= 1 << 16:  # a small hull or few points: every facet at once
-            return (q @ eq[:, :3].T + eq[:, 3]).max(axis=1) <= slack
+        if len(eq) <= self.DIRECT:
+            return halfspaces.within(eq, q, slack)
         c, sides, tree, tol = self._cones
         r = q - c
         size = np.linalg.norm(r, axis=1)
@@ -127,7 +133,7 @@ class HullIndex:
         res = inside.copy()
         rest = np.nonzero(~inside & ~(val > slack).any(axis=1))[0]
         if len(rest):
-            res[rest] = (q[rest] @ eq[:, :3].T + eq[:, 3]).max(axis=1) <= slack
+            res[rest] = halfspaces.within(eq, q[rest], slack)
         return res
 
 
