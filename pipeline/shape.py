@@ -17,7 +17,7 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from acra import halfspaces
+from acra import halfspaces, kdtree
 from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.orientation import volume_sign
@@ -32,47 +32,30 @@ __all__ = ["PatchGrid", "GridSet", "GridCache", "HullIndex", "Shape", "SetupCloc
 
 
 @timed
-def _kd_tree(points: np.ndarray) -> cKDTree:
-    """A kd-tree of ``points (n, 3)`` (its build timed as set-up)."""
-    return cKDTree(points)
+def _kd_tree(points: np.ndarray) -> kdtree.PointTree:
+    """A compiled kd-tree of ``points (n, 3)`` (`acra.kdtree`; its build timed as set-up)."""
+    return kdtree.build(points)
 
 
 class CoarseIndex:
     """Distances from points to the nearest of a set of points held as a kd-tree ``tree`` of
-    other points, of which the rows ``current (n,) bool`` belong to the set (``None``: all), and
-    a kd-tree ``extra`` of the set's other points. The same distances as a kd-tree of the set:
-    each is the distance of the same nearest point, computed the same way."""
+    other points (`acra.kdtree.PointTree`), of which the rows ``current (n,) bool`` belong to the
+    set (``None``: all), and a kd-tree ``extra`` of the set's other points. The same distances as
+    scipy's ``cKDTree`` of the set: each is the distance of the same nearest point, computed the
+    same way (`acra.kdtree`)."""
 
-    CANDIDATES = 8  # nearest tree points tried first per query
-
-    def __init__(self, tree: cKDTree, current: np.ndarray | None = None, extra: cKDTree | None = None) -> None:
+    def __init__(self, tree: kdtree.PointTree, current: np.ndarray | None = None,
+                 extra: kdtree.PointTree | None = None) -> None:
         self.tree, self.current, self.extra = tree, current, extra
 
     def query(self, q: np.ndarray) -> np.ndarray:
-        """Distances ``(k,)`` from points ``q (k, 3)`` to the nearest point of the set. A tree
-        point nearer than the nearest ``extra`` point is looked for among the 8 nearest, then
-        among ever more (64, 512, ...) within the largest such distance of the queries left, so
-        a query beside the moved points, whose nearest tree points are mostly masked, visits
-        only the tree points about as near as its nearest moved one."""
-        if self.current is None:
-            return self.tree.query(q)[0]
+        """Distances ``(k,)`` from points ``q (k, 3)`` to the nearest point of the set: the
+        ``extra`` tree's least square bounds the masked tree's search, which passes over the
+        masked points in its leaves, so a query beside the moved points visits only the tree
+        points about as near as its nearest moved one."""
         q = np.asarray(q, np.float64).reshape(-1, 3)
-        d = self.extra.query(q)[0]
-        n, k = len(self.current), self.CANDIDATES
-        todo = np.arange(len(q))
-        while len(todo):
-            k = min(k, n)
-            bound = np.inf if k == self.CANDIDATES else float(np.nextafter(d[todo].max(), np.inf))
-            dist, rows = self.tree.query(q[todo], k=k, distance_upper_bound=bound)
-            dist, rows = dist.reshape(len(todo), -1), rows.reshape(len(todo), -1)
-            ok = np.isfinite(dist)
-            ok[ok] = self.current[rows[ok]]
-            found = ok.any(axis=1)
-            d[todo[found]] = np.minimum(d[todo[found]], dist[found, ok[found].argmax(axis=1)])
-            # unsettled: all k candidates within the bound masked, and more may lie within it
-            todo = todo[~found & np.isfinite(dist[:, -1])] if k < n else todo[:0]
-            k *= 8
-        return d
+        best = None if self.extra is None else kdtree.nearest_squares(self.extra, q)
+        return np.sqrt(kdtree.nearest_squares(self.tree, q, self.current, best))
 
 
 class HullIndex:

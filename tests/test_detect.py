@@ -522,7 +522,7 @@ def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed
     assert np.any(child._coarse[0] != parent._coarse[0])  # the move reached the coarse grid
     # distances to the coarse points: the parent's tree without the moved points and a tree of
     # those (`CoarseIndex`), the same bits as a tree of the child's points, also where a query's
-    # nearest parent points all moved (one candidate tried before looking farther)
+    # nearest parent points all moved
     from scipy.spatial import cKDTree
 
     pts = child._coarse[0]
@@ -531,9 +531,7 @@ def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed
     q = np.concatenate([rng.uniform(pts.min(axis=0), pts.max(axis=0), (2000, 3)), parent._coarse[0][moved], pts[moved]])
     shared = 4 * 9 * child._stale.sum() <= len(pts)  # a response that moved a quarter of the points builds anew
     assert (child.coarse_index.tree is parent.coarse_index.tree) == shared and (child.coarse_index.extra is not None) == shared
-    for candidates in (8, 1):
-        child.coarse_index.CANDIDATES = candidates
-        np.testing.assert_array_equal(child.coarse_index.query(q), cKDTree(pts).query(q)[0])
+    np.testing.assert_array_equal(child.coarse_index.query(q), cKDTree(pts).query(q)[0])
     # every level's CV positions, on the parent's subdivision rows and weights where the response
     # kept the levels' cv_keys, the same bits as built afresh
     parent.cv_positions
