@@ -545,7 +545,7 @@ def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed
     assert np.any(child._coarse[0] != parent._coarse[0])  # the move reached the coarse grid
     # distances to the coarse points: the parent's tree without the moved points and a tree of
     # those (`CoarseIndex`), the same bits as a tree of the child's points, also where a query's
-    # nearest parent points all moved (one candidate tried before looking farther)
+    # nearest parent points all moved
     from scipy.spatial import cKDTree
 
     pts = child._coarse[0]
@@ -554,9 +554,7 @@ def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed
     q = np.concatenate([rng.uniform(pts.min(axis=0), pts.max(axis=0), (2000, 3)), parent._coarse[0][moved], pts[moved]])
     shared = 4 * 9 * child._stale.sum() <= len(pts)  # a response that moved a quarter of the points builds anew
     assert (child.coarse_index.tree is parent.coarse_index.tree) == shared and (child.coarse_index.extra is not None) == shared
-    for candidates in (8, 1):
-        child.coarse_index.CANDIDATES = candidates
-        np.testing.assert_array_equal(child.coarse_index.query(q), cKDTree(pts).query(q)[0])
+    np.testing.assert_array_equal(child.coarse_index.query(q), cKDTree(pts).query(q)[0])
     # every level's CV positions, on the parent's subdivision rows and weights where the response
     # kept the levels' cv_keys, the same bits as built afresh
     parent.cv_positions
@@ -695,6 +693,30 @@ def test_hull_index_answers_as_every_facet():
     exact = every.max(axis=1)
     decided = np.abs(exact) > 1e-15  # a point on a facet plane: either answer is the rounding's
     np.testing.assert_array_equal(got[decided], exact[decided] <= 0.0)
+
+
+def test_a_small_hull_tests_every_facet_compiled():
+    """A hull of at most `HullIndex.DIRECT` facets (a 14x12 ellipsoid net's, about 300) answers
+    many points by the compiled test against every facet, with no kd-tree of cone directions
+    built, as the test against every facet does: random points in and around it, the CVs within
+    1e-10, at the slack `Shape.signed` uses and at none; a point with a NaN coordinate is outside."""
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(7)
+    cvs = shapes.sphere(14, 12, radii=(1.0, 0.85, 0.9))[0].reshape(-1, 3)
+    index = S.HullIndex(ConvexHull(cvs))
+    eq = index.equations
+    assert len(eq) <= S.HullIndex.DIRECT
+    q = np.concatenate([rng.uniform(-1.2, 1.2, (4000, 3)), cvs * (1 + rng.normal(size=(len(cvs), 1)) * 1e-10),
+                        [[np.nan, 0.0, 0.0], [0.0, 0.0, 0.0]]])
+    assert len(q) * len(eq) > 1 << 16  # too many for one matrix of every value
+    every = (q @ eq[:, :3].T + eq[:, 3]).max(axis=1)
+    np.testing.assert_array_equal(index.within(q, 1e-9), every <= 1e-9)
+    got = index.within(q, 0.0)
+    decided = np.isnan(every) | (np.abs(every) > 1e-15)  # on a facet plane: either answer is the rounding's
+    np.testing.assert_array_equal(got[decided], every[decided] <= 0.0)
+    assert not got[-2] and got[-1]
+    assert "_cones" not in index.__dict__
 
 
 @pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
