@@ -55,9 +55,15 @@ def run_topologies(scene: SceneModel, result) -> dict[str, MeshTopology]:
     out = {}
     for m in scene.deformables:
         surfaces = _distinct(result, m.path)
-        out[m.path] = _topology(_refinement(surfaces, m.controls.samples),
-                                lambda: run_topology(surfaces, m.controls.samples))[0]
+        out[m.path] = topology_of(surfaces, m.controls.samples)
     return out
+
+
+def topology_of(surfaces: list, samples: int) -> MeshTopology:
+    """`run_topology` of one object's ``surfaces`` at ``samples``, through the kept topologies
+    (`_topology`): the rest display a scene's reading builds is the one the frame loop's rounds
+    and the run's display get for the same refinement."""
+    return _topology(_refinement(surfaces, samples), lambda: run_topology(surfaces, samples))[0]
 
 
 _TOPOLOGIES: dict = {}  # `_refinement` key -> (topology, its triangles), most recent last

@@ -29,8 +29,8 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from acra.hspline import HierarchyArrays, HSpline, from_arrays, from_grid
-from acra.tessellate import run_topology
 
+from . import display
 from .model import (
     ColliderModel,
     ColliderState,
@@ -513,7 +513,7 @@ def read_deformable(prim: Usd.Prim) -> tuple[DeformableModel, HSpline]:
             else:
                 name = "acra:hierarchy:patches" if stage_ == "patch" else "acra:hierarchy:offsetCvs"
             raise InputError(path, name, msg) from exc
-    topology = run_topology([surface], controls.samples)  # the rest display: every level the animator used
+    topology = display.topology_of([surface], controls.samples)  # the rest display: every level the animator used
     model = DeformableModel(path, uper, vper, nu, nv, levels, controls, hierarchy, topology)
     return model, surface
 

@@ -96,6 +96,21 @@ def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(s
     assert second.solid().faces.shape[1] == 3  # a closed sphere's display welds to a solid
 
 
+def test_the_rest_display_s_topology_is_the_one_the_frame_loop_gets(tiny_stage, monkeypatch):
+    """Reading a scene keeps its rest display's topology (`display.topology_of`): a round that
+    displays the animator's surface, and the run's display of frames that never left it, get
+    that object without building it again."""
+    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
+    scene = usdio.read_scene(stage)
+    (model,) = scene.deformables
+    rest = scene.extra["templates"][model.path]
+    built = []
+    monkeypatch.setattr(display, "run_topology", lambda *a: built.append(a) or run_topology(*a))
+    topo, triangles = display.Displays(density=8).topology(rest, model.controls.samples)
+    assert topo is model.topology and not built
+    np.testing.assert_array_equal(triangles, model.topology.triangles())
+
+
 def test_the_run_s_display_takes_the_rounds_displays_and_equals_a_full_evaluation(tiny_stage):
     """`evaluate_run` with the frame loop's displays evaluates no vertex they hold again: a
     surface displayed on the run's topology gives its points array itself, and its derivatives
