@@ -71,13 +71,12 @@ def main() -> None:
 
     stages = ("ms_setup", "ms_detect", "ms_convert", "ms_respond", "ms_visible", "ms_total")
     runs, splits = [], []
-    from pipeline import datapoints as P
+    from pipeline.run import forget
 
     for _ in range(args.repeat):
-        # a repeat casts the same rays on the same content as the one before: it must not be
-        # served that run's answers, which a run's frames never ask for again
-        D._CASTS.clear()
-        P._RIMS.clear()
+        # a repeat asks what the one before asked, on the same content: it must not be served
+        # that run's answers (shapes, detection, casts, rims, ...), as a fresh run is not
+        forget()
         stage = usdio.open_input(usdio.load_scene_file(ROOT / "scenes" / "dog_head_spike.py"))
         scene = usdio.read_scene(stage)
         F.run_frames(stage, scene, [5])

@@ -64,7 +64,7 @@ from pipeline import detect as D
 from pipeline import frames as F
 from pipeline import usdio
 from pipeline import output_layer
-from pipeline.run import run_file
+from pipeline.run import forget, run_file
 from scenes import dog_head_spike as dog
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -185,9 +185,11 @@ def run_scales(tmp: Path, repeat: int = 3):
     reps, walls, cpus = {}, {r: [] for r in RUNS}, {r: [] for r in RUNS}
     for k in range(repeat):  # round robin over the runs, so that the machine's load falls on every scale alike
         for scale, density in RUNS:
+            forget()  # each run from a cold start, as a fresh process's
             rep = reps[scale, density] = run_file(srcs[scale], output=tmp / f"scale{scale}_{density}_{k}.acra.usda",
                                                   density=density)
             walls[scale, density].append(rep.stats)
+            forget()
             with cpu_clock():  # the same run again, every stage of it on the CPU clock
                 cpus[scale, density].append(run_file(srcs[scale], output=tmp / f"scale{scale}_{density}_cpu.acra.usda",
                                                      density=density).stats)

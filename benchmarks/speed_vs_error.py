@@ -108,12 +108,14 @@ def worker() -> None:
     ``PYTHONPATH`` to the checkout measured); anything the run prints goes to stderr."""
     out = sys.stdout
     with contextlib.redirect_stdout(sys.stderr):
-        from pipeline.run import run_file
+        from pipeline import run
+    forget = getattr(run, "forget", lambda: None)  # a checkout older than `forget` keeps its stores
     for line in sys.stdin:
         req = json.loads(line)
         with contextlib.redirect_stdout(sys.stderr):
+            forget()  # each request from a cold start, not served the request before's answers
             c0 = time.process_time()
-            rep = run_file(Path(req["src"]), output=Path(req["output"]), frames=req["frames"],
+            rep = run.run_file(Path(req["src"]), output=Path(req["output"]), frames=req["frames"],
                            iterations=req["iterations"], tolerance=req["tolerance"], method=req["method"],
                            density=req["density"])
             cpu = time.process_time() - c0

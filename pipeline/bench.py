@@ -108,8 +108,7 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
     """Measure the Fig. 5.2 table on ``scene`` (see the module docstring)."""
     from pipeline import usdio
     from pipeline import output_layer
-    from pipeline.run import run_file
-    from pipeline.shape import _SHAPES as shape_cache
+    from pipeline.run import forget, run_file
 
     scene = Path(scene or default_scene()).resolve()
     per_stage: dict = {k: ([], []) for k in ("set-up", "detection", "conversion", "response, large",
@@ -123,7 +122,7 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
         src = Path(tmp) / scene.name
         src.write_text(scene.read_text())
         for _ in range(repeat):
-            shape_cache.clear()  # cold start: every run builds its own shape data
+            forget()  # cold start: every run computes its own shapes and answers
             report = run_file(src, output=Path(tmp) / "out.acra.usda")
             large, small = _large_small(report)
             stage = usdio.open_input(report.stage_path)  # the input layer open, as in the run

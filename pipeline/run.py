@@ -108,6 +108,22 @@ def _check_farm_options(output, workers, scheduler, chunk, part) -> None:
         raise InputError("--chunk", None, "sets frames per Dask task: it needs --workers or --scheduler")
 
 
+def forget() -> None:
+    """Drop every answer kept by content across frames: shapes and refinement tables, detection's
+    answers, world data, layouts, casts and anchors, rims, topologies, digests and placements.
+    Within a run they spare a frame what an earlier frame computed; across runs in one process
+    they would serve a run what the run before computed. The next run computes everything as the
+    first run of a fresh process does, which is what a benchmark's repeated runs must measure."""
+    from acra import hspline, tessellate
+    from pipeline import contact, datapoints, detect, display, residual, shape
+
+    for store in (shape._SHAPES, shape._REFINEMENTS, detect._ANSWERS, detect._WORLDS, detect._LAYOUTS,
+                  detect._DISTINCT, detect._CASTS, detect._OBJECT_BOXES, contact._AT, datapoints._RIMS,
+                  display._TOPOLOGIES, residual._DIGESTS, residual._PLACEMENTS, hspline._PLACES,
+                  tessellate._NUDGED, tessellate._END_LINES):
+        store.clear()
+
+
 def run_file(
     src: Path,
     output: Path | None = None,
