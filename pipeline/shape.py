@@ -101,7 +101,7 @@ class HullIndex:
         """``(k,) bool``: points ``q (k, 3)`` with ``n · x + d <= slack`` for every facet."""
         q = np.asarray(q, np.float64).reshape(-1, 3)
         eq = self.equations
-        if len(eq) <= self.DIRECT:
+        if len(eq) <= self.DIRECT or not len(q):  # no points: no cone to look up
             return halfspaces.within(eq, q, slack)
         c, sides, tree, tol = self._cones
         r = q - c

@@ -719,6 +719,19 @@ def test_a_small_hull_tests_every_facet_compiled():
     assert "_cones" not in index.__dict__
 
 
+@pytest.mark.parametrize("n", [14, 40])
+def test_a_hull_answers_no_points_with_no_answers(n):
+    """`HullIndex.within` of no points is an empty answer for a hull tested facet by facet (14x12
+    net) and for one looked up by its cones (a 40x30 net's, above `HullIndex.DIRECT` facets), as
+    a response that moves no CV out of level 0's hull asks (`Shape.cv_index`)."""
+    from scipy.spatial import ConvexHull
+
+    index = S.HullIndex(ConvexHull(shapes.sphere(n, 3 * n // 4, radii=(1.0, 0.85, 0.9))[0].reshape(-1, 3)))
+    assert (len(index.equations) > S.HullIndex.DIRECT) == (n == 40)
+    got = index.within(np.zeros((0, 3)), 0.0)
+    assert got.shape == (0,) and got.dtype == np.bool_
+
+
 @pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (1, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
 def test_a_responded_shape_s_cv_hull_is_level_0_s_and_its_moved_cvs(seed, absorption):
     """`Shape.cv_hull` of a responded shape, built from level 0's hull and the CVs with details
