@@ -148,6 +148,24 @@ _POW5_INV_SPLIT = np.array([(2 ** (_pow5bits(q) - 1 + _INV_BITS)) // (5 ** q) + 
 _POW5_SPLIT = np.array([(5 ** i) >> (_pow5bits(i) - _POW_BITS) if _pow5bits(i) >= _POW_BITS else (5 ** i) << (_POW_BITS - _pow5bits(i)) for i in range(47)], dtype=np.uint64)
 
 @njit(cache=True, nogil=True, inline="always")
+def _copy_shared(buf, at, starts, ref_at, ref_text, t, n, same):
+    """Copy the run of tuples ``t`` up to the first one ``same (n,) bool`` does not mark from the
+    reference's text ``ref_text (b,) uint8`` (tuple ``q``'s text at ``ref_at[q]``) into ``buf``
+    at ``at``, with their separators, setting their ``starts``; returns the new ``at`` and the
+    run's end. A shared tuple's text is its reference's bytes, so the run is one block copy."""
+    e = t + 1
+    while e < n and same[e]:
+        e += 1
+    shift = at - ref_at[t]
+    for q in range(t, e):
+        starts[q] = ref_at[q] + shift
+    size = ref_at[e] - 2 - ref_at[t]
+    into, part = buf[at:], ref_text[ref_at[t]:]  # indices from 0 up: the copy compiles to a block copy
+    for q in range(size):
+        into[q] = part[q]
+    return at + size, e
+
+@njit(cache=True, nogil=True, inline="always")
 def _mul_shift(m, factor, shift):
     """``(m factor) >> shift`` of ``m < 2^32`` and a 64-bit ``factor``, in 64-bit halves."""
     lo = factor & np.uint64(0xFFFFFFFF)
@@ -452,18 +470,7 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
             at += 2
         if same.shape[0] > 0 and same[t]:
             # a run of tuples the reference shares: its text and separators are copied at once
-            e = t + 1
-            while e < n and same[e]:
-                e += 1
-            shift = at - ref_at[t]
-            for q in range(t, e):
-                starts[q] = ref_at[q] + shift
-            size = ref_at[e] - 2 - ref_at[t]
-            into, part = buf[at:], ref_text[ref_at[t]:]  # indices from 0 up: the copy compiles to a block copy
-            for q in range(size):
-                into[q] = part[q]
-            at += size
-            t = e
+            at, t = _copy_shared(buf, at, starts, ref_at, ref_text, t, n, same)
             continue
         starts[t] = at
         buf[at] = 40  # '('
@@ -601,18 +608,7 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
             buf[at + 1] = 32
             at += 2
         if check and same[t]:
-            e = t + 1
-            while e < n and same[e]:
-                e += 1
-            shift = at - ref_at[t]
-            for q in range(t, e):
-                starts[q] = ref_at[q] + shift
-            size = ref_at[e] - 2 - ref_at[t]
-            into, part = buf[at:], ref_text[ref_at[t]:]  # indices from 0 up: the copy compiles to a block copy
-            for q in range(size):
-                into[q] = part[q]
-            at += size
-            t = e
+            at, t = _copy_shared(buf, at, starts, ref_at, ref_text, t, n, same)
             continue
         starts[t] = at
         buf[at] = 40  # '('
