@@ -385,13 +385,10 @@ def _ndigits(c):
     return n
 
 
-@njit(cache=True, nogil=True)
-def _put_digits(buf, at, c, nd, point):
-    """The ``nd`` digits of ``c`` from ``buf[at]``, a ``.`` after the first ``point`` of them
-    (none if ``point`` is not within them); the index after them."""
-    inside = 0 < point < nd
-    first = at + 1 if inside else at  # the digits, then the first ``point`` moved left by one
-    j = first + nd
+@njit(cache=True, nogil=True, inline="always")
+def _put_tail(buf, j, c):
+    """The decimal digits of ``c >= 0`` written right to left so that the last is ``buf[j - 1]``,
+    two at a time from `_PAIRS`."""
     while c >= 100:
         r = c % 100
         c //= 100
@@ -403,6 +400,16 @@ def _put_digits(buf, at, c, nd, point):
         buf[j - 2] = _PAIRS[2 * c]
     else:
         buf[j - 1] = 48 + c
+
+
+@njit(cache=True, nogil=True)
+def _put_digits(buf, at, c, nd, point):
+    """The ``nd`` digits of ``c`` from ``buf[at]``, a ``.`` after the first ``point`` of them
+    (none if ``point`` is not within them); the index after them."""
+    inside = 0 < point < nd
+    first = at + 1 if inside else at  # the digits, then the first ``point`` moved left by one
+    j = first + nd
+    _put_tail(buf, j, c)
     if inside:
         for q in range(point):
             buf[at + q] = buf[at + 1 + q]
@@ -538,17 +545,7 @@ def _put_nonzero(buf, at, c, k, neg):
             j -= 1
         j -= 1
         buf[j] = 46
-    while c >= 100:
-        r = c % 100
-        c //= 100
-        buf[j - 1] = _PAIRS[2 * r + 1]
-        buf[j - 2] = _PAIRS[2 * r]
-        j -= 2
-    if c >= 10:
-        buf[j - 1] = _PAIRS[2 * c + 1]
-        buf[j - 2] = _PAIRS[2 * c]
-    else:
-        buf[j - 1] = 48 + c
+    _put_tail(buf, j, c)
     return end
 
 
