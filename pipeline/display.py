@@ -95,8 +95,11 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
     again: on the same topology its display's points are the run's, and its derivatives give
     the limit normals (`acra.tessellate.grid_samples` with ``given``); on another topology (the
     run's refines a round's where another frame's response refined more) only the vertices that
-    display lacks are evaluated. Either way, as for a surface the displays do not hold, the
-    normals are taken only where it differs from the surface before it, the others copied."""
+    display lacks are evaluated. Either way every vertex's normal is taken from those
+    derivatives (`acra.hspline.surface_normals` with ``ev``: a cross product, an evaluation only
+    where ``du × dv`` vanishes), which costs less than `acra.hspline.changed_cells` and a copy; a
+    surface the displays do not hold has its normals taken only where it differs from the
+    surface before it, the others copied."""
     ms: dict[int, float] = {f: 0.0 for f in result.frames}
     memo: dict = {}  # `grid_samples`' memo: each vertex's cells on a topology, shared by its frames
     for model in scene.deformables:
@@ -109,11 +112,14 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
             if hit is None or hit[0] is not r.surface:
                 t0 = time.perf_counter()
                 det = surface_details(r.surface, density)
-                since = None if last is None else (last[1], last[3], hspline.changed_cells(
+                shown = None if displays is None else displays.shown(r.surface)
+                # with the loop's derivatives at hand a vertex's normal is a cross product (an
+                # evaluation only where du × dv vanishes): taking every vertex's costs less than
+                # finding the cells changed since the surface before and copying the others
+                since = None if last is None or shown is not None else (last[1], last[3], hspline.changed_cells(
                     last[0], surface_details(last[0], density), r.surface, det, _cell_level(r.surface)))
                 if since is not None and since[2].all():
                     since = None
-                shown = None if displays is None else displays.shown(r.surface)
                 given = None
                 if shown is not None and shown.topology is topo:
                     given = (shown.points, shown.tangents)

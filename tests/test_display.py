@@ -161,3 +161,26 @@ def test_the_run_s_residual_takes_the_rounds_shown_objects(tiny_stage, monkeypat
     assert seen and all(objects[0].path == model.path and objects[0].parts is not None for objects in seen)
     _, alone, _ = run(None)
     assert [(st.residual, st.pair_residual_rel) for st in stats] == [(st.residual, st.pair_residual_rel) for st in alone]
+
+
+def test_the_run_s_normals_of_a_displayed_surface_come_from_its_derivatives_alone(tiny_stage, monkeypatch):
+    """A surface the rounds displayed gets every normal from the display's derivatives: no cells
+    are compared with the surface before it (a cross product a vertex costs less than
+    `hspline.changed_cells` and the copy), and the normals equal a full evaluation's bit for bit."""
+    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
+    scene = usdio.read_scene(stage)
+    (model,) = scene.deformables
+    shown = display.Displays(density=8)
+    result, _ = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=shown)
+    topologies = display.run_topologies(scene, result)
+    compared = []
+    real = H.changed_cells
+    monkeypatch.setattr(display.hspline, "changed_cells", lambda old, od, new, *a: compared.append(new)
+                        or real(old, od, new, *a))
+    display.evaluate_run(scene, result, topologies, displays=shown)
+    surfaces = [per[model.path].surface for per in result.frames.values()]
+    assert any(shown.shown(s) is not None for s in surfaces[1:])
+    assert not [s for s in compared if shown.shown(s) is not None]
+    for r in (per[model.path] for per in result.frames.values()):
+        points, limit = grid_samples(r.surface, topologies[model.path], H.details(r.surface))
+        np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topologies[model.path], points, limit))
