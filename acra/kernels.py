@@ -33,7 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["eval_points", "NSLOTS", "mark_cells"]
+__all__ = ["eval_points", "NSLOTS", "mark_cells", "tangent_normals"]
 
 # output slots per derivative order: (0,0) | (1,0) (0,1) | (2,0) (1,1) (0,2), as `SurfaceEval`'s fields
 NSLOTS = (1, 3, 6)
@@ -267,3 +267,34 @@ def mark_cells(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic
                     for a in range(r):
                         for b in range(r):
                             out[qu * r + a, qv * r + b] = True
+
+
+@njit(cache=True, nogil=True)
+def tangent_normals(tangents, c1, c2, out, bad):
+    """Unit normals of first derivatives ``tangents (m, 6) float64`` (``du`` then ``dv``, a
+    display's `acra.tessellate.grid_samples` with ``tangents``) into ``out (m, 3) float64``:
+    ``du × dv`` over its length, the products, test and quotient of
+    `acra.framekernels.degenerate` and `unit_rows` (so `acra.hspline.surface_normals`' bits),
+    and ``bad (m,) bool`` where ``|du × dv| <= c1 max(|du|, |dv|) + c2`` (no direction: the
+    caller takes those rows' limit normals, ``out`` left unset there). Returns how many are bad.
+    One pass over the rows, so a display's normals need no copies of ``du`` and ``dv``."""
+    count = 0
+    for i in range(tangents.shape[0]):
+        a0, a1, a2 = tangents[i, 0], tangents[i, 1], tangents[i, 2]
+        b0, b1, b2 = tangents[i, 3], tangents[i, 4], tangents[i, 5]
+        n0 = a1 * b2 - a2 * b1
+        n1 = a2 * b0 - a0 * b2
+        n2 = a0 * b1 - a1 * b0
+        la = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+        lb = math.sqrt((b0 * b0 + b1 * b1) + b2 * b2)
+        if la != la or lb != lb:  # np.maximum propagates NaN
+            longest = math.nan
+        else:
+            longest = la if la >= lb else lb
+        length = math.sqrt((n0 * n0 + n1 * n1) + n2 * n2)
+        bad[i] = length <= c1 * longest + c2
+        if bad[i]:
+            count += 1
+        else:
+            out[i, 0], out[i, 1], out[i, 2] = n0 / length, n1 / length, n2 / length
+    return count

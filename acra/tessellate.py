@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from . import kernels
 from .basis import Direction
 from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
 from .lattice import adaptive_mesh, unique_keys
@@ -418,10 +419,8 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     def sample(u, v, rows=None):
         if given is not None:
             p, t = (given[0], given[1]) if rows is None else (given[0][rows], given[1][rows])
-            nudged = np.empty(u.size, bool)
-            _, n = surface_normals(hs, u, v, det=det, nudged=nudged,
-                                   ev=SurfaceEval(p, np.ascontiguousarray(t[:, :3]), np.ascontiguousarray(t[:, 3:])))
-            return p, n, np.flatnonzero(nudged)
+            n, nudged = _given_normals(hs, u, v, det, p, t)
+            return p, n, nudged
         if tangents:
             ev = evaluate(hs, u, v, order=1, det=det)
             both = np.empty((u.size, 6))
@@ -480,6 +479,26 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     if normals and old_nudged is not None:
         _note_nudged(limit, np.union1d(carried, nudged) if nudged is not None and nudged.size else carried)
     return points if given is None else given[0], limit if normals or tangents else None
+
+
+def _given_normals(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None, points: np.ndarray,
+                   tangents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`surface_normals` of ``hs`` at ``(u, v)`` from the points ``(m, 3)`` and first derivatives
+    ``tangents (m, 6) float64`` evaluated there: the limit unit normals ``(m, 3)`` and the rows
+    ``(k,) int64`` whose normal was taken at nudged points. A row where ``du × dv`` gives a
+    direction is its cross product over its length (`acra.kernels.tangent_normals`, the same
+    bits); only the others (a pole's, a collapsed edge's) go through `surface_normals`, which
+    treats each row on its own, so the result is its result on every row."""
+    t = np.ascontiguousarray(tangents, np.float64)
+    n, bad = np.empty((t.shape[0], 3)), np.empty(t.shape[0], np.bool_)
+    s = max(hs.size(), 1e-300)  # `surface_normals`' scale and `_degenerate`'s bounds
+    if not kernels.tangent_normals(t, 1e-6 * s, 1e-12 * s**2, n, bad):
+        return n, _NO_INDEX
+    idx = np.flatnonzero(bad)
+    nudged = np.empty(idx.size, bool)
+    _, n[idx] = surface_normals(hs, u[idx], v[idx], det=det, nudged=nudged,
+                                ev=SurfaceEval(points[idx], np.ascontiguousarray(t[idx, :3]), np.ascontiguousarray(t[idx, 3:])))
+    return n, idx[nudged]
 
 
 # Kept per live array: a weak reference without a callback, dead entries dropped when one is

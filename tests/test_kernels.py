@@ -362,3 +362,21 @@ def test_marked_cells_equal_numpy_index_assignment(seed):
                     got = np.zeros_like(want)
                     kernels.mark_cells(got, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic)
                     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_normals_of_tangent_rows_equal_degenerate_and_unit_rows(seed):
+    """`kernels.tangent_normals` on ``(m, 6)`` rows (``du`` then ``dv``) marks the rows
+    `framekernels.degenerate` marks and gives every other row `unit_rows`' bits, on tangents of
+    every kind (vanishing, parallel, NaN)."""
+    rng = np.random.default_rng(seed)
+    du, dv = _tangents(rng, 400)
+    c1, c2 = 1e-6 * 3.0, 1e-12 * 9.0
+    n, bad = np.empty((400, 3)), np.empty(400, bool)
+    framekernels.degenerate(du, dv, c1, c2, n, bad)
+    want = np.empty((int((~bad).sum()), 3))
+    framekernels.unit_rows(n[~bad], want)
+    got, flagged = np.empty((400, 3)), np.empty(400, bool)
+    assert kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, got, flagged) == bad.sum() > 0
+    np.testing.assert_array_equal(flagged, bad)
+    np.testing.assert_array_equal(got[~bad].view(np.int64), want.view(np.int64))

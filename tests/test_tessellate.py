@@ -95,6 +95,39 @@ def test_display_samples_since_a_local_move_equal_a_full_evaluation(seed, level)
     np.testing.assert_array_equal(T.pole_normals(moved, topo, *fast), T.evaluate_grid(moved, topo)[1])
 
 
+def _pinched_sheet() -> H.HSpline:
+    """A wavy 8×8 sheet whose CVs of one corner are one point: there ``du × dv`` and its first
+    Taylor term vanish, so `surface_normals` nudges."""
+    rng = np.random.default_rng(0)
+    cvs, pu, pv = shapes.sheet(8, 8, width=5.0, depth=5.0, height=0.3 * rng.normal(size=(8, 8)))
+    cvs[:4, :4] = cvs[0, 0]
+    return H.from_grid(cvs, pu, pv, depth=2)
+
+
+@pytest.mark.parametrize("kind", ["sphere", "pinched"])
+def test_normals_from_given_derivatives_equal_a_full_evaluation(kind):
+    """`grid_samples(given=(points, tangents))` takes each vertex's normal from its derivatives
+    (`kernels.tangent_normals`) and only the rows without a direction from `surface_normals`:
+    the normals and the rows noted as nudged equal a full evaluation's, bit for bit, at a
+    refined sphere's poles and at a corner collapsed to one point."""
+    if kind == "sphere":
+        hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
+        for k in (1, 2):
+            hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
+        hs = with_random_offsets(hs, scale=0.01, seed=5)
+    else:
+        hs = _pinched_sheet()
+    det = H.details(hs) if hs.depth > 1 else None
+    topo = T.run_topology([hs], 3)
+    points, tangents = T.grid_samples(hs, topo, det, normals=False, tangents=True)
+    full = T.grid_samples(hs, topo, det)
+    taken = T.grid_samples(hs, topo, det, given=(points, tangents))
+    assert taken[0] is points
+    np.testing.assert_array_equal(taken[1].view(np.int64), full[1].view(np.int64))
+    np.testing.assert_array_equal(T._nudged_rows(taken[1]), T._nudged_rows(full[1]))
+    assert T._nudged_rows(full[1]).size > 0 if kind == "pinched" else True
+
+
 # --- the adaptive display (contract §1) ----------------------------------------------------------
 from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
