@@ -28,7 +28,7 @@ from acra import hspline
 from acra.tessellate import MeshTopology, grid_samples, pole_normals, run_topology
 from pipeline.model import SceneModel
 
-__all__ = ["run_topologies", "evaluate_run", "finish", "surface_details", "SurfaceDisplay", "Displays"]
+__all__ = ["run_topologies", "evaluate_run", "finish", "kept_triangles", "surface_details", "SurfaceDisplay", "Displays"]
 
 
 def surface_details(surface: hspline.HSpline, density: int = 8) -> hspline.Details | None:
@@ -83,6 +83,15 @@ def _topology(key: tuple, build) -> tuple[MeshTopology, np.ndarray]:
     while len(_TOPOLOGIES) > KEPT_TOPOLOGIES:
         del _TOPOLOGIES[next(iter(_TOPOLOGIES))]
     return hit
+
+
+def kept_triangles(topo: MeshTopology) -> np.ndarray:
+    """The fan triangles ``(t, 3) int64`` of ``topo``: those `_topology` keeps with it, else
+    ``topo.triangles()`` (the run's display is a topology a round built, its triangles taken then)."""
+    for kept, triangles in _TOPOLOGIES.values():
+        if kept is topo:
+            return triangles
+    return topo.triangles()
 
 
 def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology], density: int = 8,

@@ -372,11 +372,19 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
     from dataclasses import replace
 
     from pipeline import usdio
+    from pipeline.display import kept_triangles
     from pipeline.shape import shape_of
 
     colliders = [collider_solid(c.vertices, c.triangles) for c in scene.colliders]
-    tris = {m.path: result.topology(m).triangles() for m in scene.deformables}
-    uvs = {m.path: np.stack([result.topology(m).u, result.topology(m).v], axis=1) for m in scene.deformables}
+    meshes: dict = {}  # path -> the run display's triangles and vertex parameters
+
+    def mesh(m) -> tuple[np.ndarray, np.ndarray]:
+        # built on first need: a frame whose objects are the loop's `Shown`s reads neither
+        if m.path not in meshes:
+            topo = result.topology(m)
+            meshes[m.path] = (kept_triangles(topo), np.stack([topo.u, topo.v], axis=1))
+        return meshes[m.path]
+
     import time
 
     local_boxes: dict = {}  # id(points) -> (points, object-space box of their float32 values)
@@ -412,8 +420,11 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
             view = sd.view(m.path, xforms[m.path]) if sd is not None and sd.points is r.points else None
             # an open object's winding is read by nothing (it is never the outer object)
             same = view is not None and view.closed == shape.closed and (view.outward == shape.outward or not shape.closed)
-            objects.append(view if same else shown(m.path, r.points, tris[m.path], xforms[m.path], uvs[m.path],
-                                                   shape.closed, shape.outward))
+            if same:
+                objects.append(view)
+            else:
+                triangles, uv = mesh(m)
+                objects.append(shown(m.path, r.points, triangles, xforms[m.path], uv, shape.closed, shape.outward))
         for c, s in zip(scene.colliders, colliders):
             v = apply_xform(xforms[c.path], c.vertices)
             box = np.stack([v.min(axis=0), v.max(axis=0)])

@@ -184,3 +184,17 @@ def test_the_run_s_normals_of_a_displayed_surface_come_from_its_derivatives_alon
     for r in (per[model.path] for per in result.frames.values()):
         points, limit = grid_samples(r.surface, topologies[model.path], H.details(r.surface))
         np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topologies[model.path], points, limit))
+
+
+def test_the_run_s_triangles_are_the_kept_topology_s(tiny_stage):
+    """`kept_triangles` of a topology `_topology` keeps is the array kept with it (the run's
+    residual takes it, built once a round built the topology), equal to ``triangles()``; of
+    another topology it builds them."""
+    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
+    scene = usdio.read_scene(stage)
+    (model,) = scene.deformables
+    topo, triangles = display.Displays(density=8).topology(scene.extra["templates"][model.path], 2)
+    assert display.kept_triangles(topo) is triangles
+    np.testing.assert_array_equal(triangles, topo.triangles())
+    other = run_topology([scene.extra["templates"][model.path]], 3)
+    np.testing.assert_array_equal(display.kept_triangles(other), other.triangles())
