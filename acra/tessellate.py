@@ -541,21 +541,27 @@ def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, lim
     ``np.nonzero``, whose results it equals (`tests/test_tessellate.py`)."""
     n = points.shape[0]
     same = src.shape[0] == 0
-    normals = limit.shape[0] > 0
+    width = limit.shape[1] if limit.shape[0] > 0 else 0
     idx = np.empty(n, np.int64)
     m = 0
     for i in range(n):
-        if (not same and not found[i]) or stale[cu[i], cv[i]] or stale[cu[i], bv[i]] or stale[bu[i], cv[i]] \
-                or stale[bu[i], bv[i]]:
+        a, b, c, d = cu[i], bu[i], cv[i], bv[i]
+        if (not same and not found[i]) or stale[a, c] or stale[a, d] or stale[b, c] or stale[b, d]:
             idx[m] = i
             m += 1
             continue
         j = i if same else src[i]
-        for c in range(3):
-            points[i, c] = old_points[j, c]
-        if normals:
-            for c in range(limit.shape[1]):
-                limit[i, c] = old_limit[j, c]
+        points[i, 0], points[i, 1], points[i, 2] = old_points[j, 0], old_points[j, 1], old_points[j, 2]
+        # a constant width (a display's 6 derivatives, the run's 3 normals) lets the copy unroll
+        if width == 6:
+            for e in range(6):
+                limit[i, e] = old_limit[j, e]
+        elif width == 3:
+            for e in range(3):
+                limit[i, e] = old_limit[j, e]
+        else:
+            for e in range(width):
+                limit[i, e] = old_limit[j, e]
     return idx[:m]
 
 

@@ -380,10 +380,10 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
     """`tessellate._carry` (an incremental display's copies of unchanged vertices and the rows
     left to evaluate, one compiled pass) gives the bits and rows of numpy's copy of every found
     vertex, or of every vertex on the same topology, the mask of each vertex's four cells and
-    ``np.nonzero``; with normals and without."""
+    ``np.nonzero``; with normals, with first derivatives (6 columns) and without."""
     rng = np.random.default_rng(seed)
     n, m, cu_n, cv_n = 2000, 2500, 12, 9
-    old_points, old_limit = rng.normal(size=(m, 3)), rng.normal(size=(m, 3))
+    old_points, wide = rng.normal(size=(m, 3)), rng.normal(size=(m, 6))
     stale = rng.random((cu_n, cv_n)) < 0.2
     cu, cv = rng.integers(0, cu_n, n), rng.integers(0, cv_n, n)
     bu, bv = np.where(rng.random(n) < 0.3, (cu - 1) % cu_n, cu), np.where(rng.random(n) < 0.3, (cv - 1) % cv_n, cv)
@@ -392,8 +392,9 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
         same = not src.size
         want_idx = np.nonzero(cells if same else ~found | cells)[0]
         keep = np.ones(n, bool) if same else found
-        for normals in (True, False):
-            points, limit = np.full((n, 3), np.nan), np.full((n, 3), np.nan) if normals else T._NO_POINTS
+        for width in (3, 6, 0):
+            normals, old_limit = width > 0, np.ascontiguousarray(wide[:, :width])
+            points, limit = np.full((n, 3), np.nan), np.full((n, width), np.nan) if normals else T._NO_POINTS
             idx = T._carry(old_points[:n] if same else old_points, old_limit[:n] if same else old_limit, src, found, stale,
                            cu, bu, cv, bv, points, limit)
             np.testing.assert_array_equal(idx, want_idx)
