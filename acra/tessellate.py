@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from . import kernels
+from . import framekernels, kernels
 from .basis import Direction
 from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
 from .lattice import adaptive_mesh, unique_keys
@@ -487,16 +487,28 @@ def _given_normals(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | Non
     ``tangents (m, 6) float64`` evaluated there: the limit unit normals ``(m, 3)`` and the rows
     ``(k,) int64`` whose normal was taken at nudged points. A row where ``du × dv`` gives a
     direction is its cross product over its length (`acra.kernels.tangent_normals`, the same
-    bits); only the others (a pole's, a collapsed edge's) go through `surface_normals`, which
-    treats each row on its own, so the result is its result on every row."""
+    bits); the others (a pole's, a collapsed edge's) take the first-order term of ``du × dv``
+    from a second-order evaluation (`acra.framekernels.limit_normals`), and only where a row needs
+    nudging do they go through `surface_normals`, which treats each row on its own: the result is
+    its result on every row."""
     t = np.ascontiguousarray(tangents, np.float64)
     n, bad = np.empty((t.shape[0], 3)), np.empty(t.shape[0], np.bool_)
     s = max(hs.size(), 1e-300)  # `surface_normals`' scale and `_degenerate`'s bounds
     if not kernels.tangent_normals(t, 1e-6 * s, 1e-12 * s**2, n, bad):
         return n, _NO_INDEX
     idx = np.flatnonzero(bad)
+    # the first-order term toward the patch centre, compiled (`framekernels.limit_normals`, its
+    # bits), unless a row needs nudging
+    ui, vi = u[idx], v[idx]
+    e2 = evaluate(hs, ui, vi, order=2, det=det)
+    unit = np.empty((idx.size, 3))
+    if not framekernels.limit_normals(ui, vi, e2.du, e2.dv, e2.duu, e2.duv, e2.dvv, 1e-6 * s, 1e-12 * s**2,
+                                      1e-9 * hs.size()**2, int(hs.u.patches0), int(hs.v.patches0),
+                                      bool(hs.u.periodic), bool(hs.v.periodic), unit):
+        n[idx] = unit
+        return n, _NO_INDEX
     nudged = np.empty(idx.size, bool)
-    _, n[idx] = surface_normals(hs, u[idx], v[idx], det=det, nudged=nudged,
+    _, n[idx] = surface_normals(hs, ui, vi, det=det, nudged=nudged,
                                 ev=SurfaceEval(points[idx], np.ascontiguousarray(t[idx, :3]), np.ascontiguousarray(t[idx, 3:])))
     return n, idx[nudged]
 
