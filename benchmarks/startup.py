@@ -19,8 +19,8 @@ copied into a temporary directory:
 * one more ``.usda`` run with numba's cache loads timed (``numba.core.caching.Cache.load_overload``
   wrapped): how many kernels the run loads from the on-disk cache, the first load (which also
   initialises numba's typing and target contexts) and the rest (wall and CPU seconds), and the CPU
-  seconds of the interpreter's exit (the child's CPU after `pipeline.cli.main` returned: atexit
-  handlers, module teardown, the process's end);
+  seconds of the process's end (the child's CPU after `pipeline.cli.main` returned, ended as
+  `acra` ends, `pipeline.cli.end`: atexit handlers, and module teardown where it is not skipped);
 * the CPU seconds of compiling, from source, the checkout's modules that run imported: with
   ``PYTHONDONTWRITEBYTECODE`` set (as on the project's machine) every process compiles them
   inside its imports; an installed package has their ``.pyc``. ``--bytecode`` runs every process
@@ -88,16 +88,17 @@ def timed(self, sig, target_context):
     loads.append((time.perf_counter() - w, time.process_time() - c, got is not None))
     return got
 caching.Cache.load_overload = timed
-from pipeline.cli import main
+from pipeline.cli import end, main
 sys.argv = ["acra"] + sys.argv[1:]
 try:
-    main()
+    status = main()
 finally:
     sys.stderr.write("NUMBA_LOADS " + json.dumps(loads) + "\\n")
     sys.stderr.write("MODULES " + json.dumps([getattr(m, "__file__", None) for m in list(sys.modules.values())]) + "\\n")
     import resource
     r = resource.getrusage(resource.RUSAGE_SELF)
     sys.stderr.write(f"CPU_AT_EXIT {r.ru_utime + r.ru_stime}\\n")
+end(status)  # as `acra` ends (`pipeline.cli.program`)
 """
 
 
@@ -190,7 +191,7 @@ def main() -> int:
     print(f"| compiling this checkout's {sum(1 for f in files if f and Path(f).resolve().is_relative_to(HERE))} modules "
           f"from source, if no `.pyc` (`PYTHONDONTWRITEBYTECODE` {bytecode} in the runs) | "
           f"{source_compile_s(files):.3f} |")
-    print(f"| the interpreter's exit (atexit handlers, module teardown) | {exit_cpu:.3f} |")
+    print(f"| the process's end (`pipeline.cli.end`: atexit handlers, no module teardown) | {exit_cpu:.3f} |")
     return 0
 
 

@@ -50,6 +50,36 @@ def test_program_run_freezes_and_still_runs_exit_handlers(tmp_path):
     assert "/world/World/Sheet" in {c.entity_path for c in RrdReader(str(rrd)).stream()}
 
 
+def test_program_exits_without_teardown_after_exit_handlers_and_output(tmp_path):
+    """`program` (the ``acra`` script, ``python -m pipeline.cli``) runs the atexit handlers, flushes
+    what the run printed and exits with main's status, but skips the interpreter's teardown: an
+    object left at module level is never finalised."""
+    scene = tmp_path / SCENE.name
+    shutil.copy(SCENE, scene)
+    out = tmp_path / "box.acra.usda"
+    code = (
+        "import atexit, sys\n"
+        "class Probe:\n"
+        "    def __del__(self):\n"
+        "        print('torn down', flush=True)\n"
+        "probe = Probe()\n"
+        "atexit.register(lambda: print('atexit ran', flush=True))\n"
+        "from pipeline.cli import program\n"
+        "sys.argv = ['acra'] + sys.argv[1:]\n"
+        "program()\n"
+    )
+    run = [sys.executable, "-c", code, "run"]
+    done = subprocess.run(run + [str(scene), "-o", str(out), "--quiet", "--frames", "1:2"],
+                          capture_output=True, text=True, cwd=tmp_path, env=_env())
+    assert done.returncode == 0, done.stderr
+    assert "acra: 2 frames" in done.stdout and "atexit ran" in done.stdout
+    assert "torn down" not in done.stdout
+    assert Usd.Stage.Open(str(out)).GetPrimAtPath("/World/Sheet").GetAttribute("points").GetTimeSamples() == [1.0, 2.0]
+    missing = subprocess.run(run + [str(tmp_path / "missing.usda"), "--quiet"], capture_output=True, text=True,
+                             cwd=tmp_path, env=_env())
+    assert missing.returncode == 2 and "acra: error:" in missing.stderr and "atexit ran" in missing.stdout
+
+
 # --- a command line a TD can script --------------------------------------------------------------
 
 REPO = Path(__file__).resolve().parents[1]
