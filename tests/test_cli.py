@@ -236,3 +236,25 @@ def test_a_run_on_deformables_alone_imports_no_trimesh(tmp_path):
     # for a stage with meshes (a collider is a Mesh with its CollisionAPI)
     assert not tops & {"fcl"}
     assert not modules & {"pipeline.farm", "pipeline.animation.paths", "pipeline.animation.quaternions", "pxr.UsdPhysics"}
+    # scipy's kd-tree and hull come from their compiled modules (`pipeline.spatial`): the
+    # scipy.spatial package's __init__, and scipy.special it pulls in, are never run
+    assert {"scipy.spatial._ckdtree", "scipy.spatial._qhull"} <= modules
+    assert not modules & {"scipy.spatial", "scipy.special"}
+
+
+def test_scipy_spatial_imported_later_holds_the_same_classes():
+    """A later `import scipy.spatial` (trimesh for a rigid collider) finds the compiled modules
+    `pipeline.spatial` loaded and binds them: one cKDTree and one ConvexHull class in the process."""
+    code = (
+        "import sys\n"
+        "from pipeline import spatial\n"
+        "assert 'scipy.spatial' not in sys.modules\n"
+        "import numpy as np, scipy.spatial\n"
+        "assert scipy.spatial.cKDTree is spatial.cKDTree and scipy.spatial.ConvexHull is spatial.ConvexHull\n"
+        "assert scipy.spatial.QhullError is spatial.QhullError\n"
+        "hull = spatial.ConvexHull(np.random.default_rng(1).random((30, 3)))\n"
+        "assert len(scipy.spatial.Delaunay(hull.points).simplices) > 0\n"
+        "print('same', len(hull.vertices) > 3)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env())
+    assert done.returncode == 0 and done.stdout.strip() == "same True", done.stderr
