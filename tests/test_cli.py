@@ -103,6 +103,17 @@ def test_version_comes_from_the_package_metadata(capsys):
     assert capsys.readouterr().out.strip() == f"acra {metadata.version('acra')}"
 
 
+def test_the_version_is_read_only_for_version(tiny_stage, tmp_path, monkeypatch):
+    """Building the command line does not read the package metadata: only `acra --version` does."""
+    from pipeline import cli
+
+    def read():
+        raise AssertionError("the package metadata was read")
+
+    monkeypatch.setattr(cli, "_version", read)
+    assert main(["run", str(tiny_stage(frames=2)), "-o", str(tmp_path / "o.usdc"), "--quiet"]) == 0
+
+
 def test_progress_in_a_log_is_plain_lines(tiny_stage, tmp_path):
     """Issue 18, row 7: with stderr not a terminal the bar wrote carriage-return frames into the log."""
     src = tiny_stage(frames=4)
