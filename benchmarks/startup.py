@@ -88,12 +88,32 @@ def timed(self, sig, target_context):
     loads.append((time.perf_counter() - w, time.process_time() - c, got is not None))
     return got
 caching.Cache.load_overload = timed
+# a load's parts, CPU seconds summed over the loads after the first (which also sets numba up)
+import numba.core.codegen as codegen
+from llvmlite import binding as ll
+parts = {}
+def part(owner, attr, name):
+    f = getattr(owner, attr)
+    def w(*a, **k):
+        c = time.process_time()
+        try:
+            return f(*a, **k)
+        finally:
+            if len(loads) > 0:
+                parts[name] = parts.get(name, 0.0) + time.process_time() - c
+    setattr(owner, attr, w)
+part(caching.IndexDataCacheFile, "_load_index", "index lookup (the index file read and unpickled)")
+part(caching.IndexDataCacheFile, "_load_data", "the kernel's data read and unpickled")
+part(ll, "parse_bitcode", "its linkable LLVM bitcode parsed")
+part(codegen.JitEngine, "_load_defined_symbols", "the symbols that bitcode defines listed")
+part(codegen.CPUCodeLibrary, "_finalize_final_module", "its object code added to the JIT and finalised")
 from pipeline.cli import end, main
 sys.argv = ["acra"] + sys.argv[1:]
 try:
     status = main()
 finally:
     sys.stderr.write("NUMBA_LOADS " + json.dumps(loads) + "\\n")
+    sys.stderr.write("LOAD_PARTS " + json.dumps(parts) + "\\n")
     sys.stderr.write("MODULES " + json.dumps([getattr(m, "__file__", None) for m in list(sys.modules.values())]) + "\\n")
     import resource
     r = resource.getrusage(resource.RUSAGE_SELF)
@@ -182,6 +202,13 @@ def main() -> int:
     print("\n| numba kernels loaded from its cache (one `.usda` run) | loads | wall s | CPU s |\n|---|---:|---:|---:|")
     print(f"| first (with numba's typing and target contexts) | 1 | {loads[0][0]:.3f} | {loads[0][1]:.3f} |")
     print(f"| the rest | {len(rest)} | {sum(x[0] for x in rest):.3f} | {sum(x[1] for x in rest):.3f} |")
+    split = tagged(counted.stderr, "LOAD_PARTS")
+    if rest:
+        print("\n| of a load after the first, CPU ms each (`numba.core.caching`, `codegen`) | ms |\n|---|---:|")
+        for name, sec in split.items():
+            print(f"| {name} | {1e3 * sec / len(rest):.2f} |")
+        print(f"| the rest (the compile result and its environment rebuilt, the dispatcher's entry) | "
+              f"{1e3 * (sum(x[1] for x in rest) - sum(split.values())) / len(rest):.2f} |")
     if not all(x[2] for x in loads):
         print(f"\n{sum(not x[2] for x in loads)} of the loads missed the cache (compiled in that run)")
     files = tagged(counted.stderr, "MODULES")
