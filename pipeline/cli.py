@@ -239,9 +239,12 @@ def end(status: int) -> None:
     writes is the same; a process with other threads, a recording or a cluster exits as usual.
     """
     if _threading_alone() and not any(m in sys.modules for m in _EXIT_AS_USUAL):
-        atexit._run_exitfuncs()
-        for stream in (sys.stdout, sys.stderr):
-            stream.flush()
+        atexit._run_exitfuncs()  # runs each handler once: the interpreter's exit would find none left
+        try:
+            for stream in (sys.stdout, sys.stderr):
+                stream.flush()
+        except OSError:  # a closed pipe: the interpreter's exit reports it, as without `end`
+            sys.exit(status)
         os._exit(status)
     sys.exit(status)
 
