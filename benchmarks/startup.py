@@ -19,8 +19,8 @@ copied into a temporary directory:
 * one more ``.usda`` run with numba's cache loads timed (``numba.core.caching.Cache.load_overload``
   wrapped): how many kernels the run loads from the on-disk cache, the first load (which also
   initialises numba's typing and target contexts) and the rest (wall and CPU seconds), and the CPU
-  seconds of the interpreter's exit (the child's CPU after `pipeline.cli.main` returned: atexit
-  handlers, module teardown, the process's end);
+  seconds of the process's end (the child's CPU after `pipeline.cli.main` returned, ended as
+  `acra` ends, `pipeline.cli.end`: atexit handlers, and module teardown where it is not skipped);
 * the CPU seconds of compiling, from source, the checkout's modules that run imported: with
   ``PYTHONDONTWRITEBYTECODE`` set (as on the project's machine) every process compiles them
   inside its imports; an installed package has their ``.pyc``. ``--bytecode`` runs every process
@@ -88,16 +88,37 @@ def timed(self, sig, target_context):
     loads.append((time.perf_counter() - w, time.process_time() - c, got is not None))
     return got
 caching.Cache.load_overload = timed
-from pipeline.cli import main
+# a load's parts, CPU seconds summed over the loads after the first (which also sets numba up)
+import numba.core.codegen as codegen
+from llvmlite import binding as ll
+parts = {}
+def part(owner, attr, name):
+    f = getattr(owner, attr)
+    def w(*a, **k):
+        c = time.process_time()
+        try:
+            return f(*a, **k)
+        finally:
+            if len(loads) > 0:
+                parts[name] = parts.get(name, 0.0) + time.process_time() - c
+    setattr(owner, attr, w)
+part(caching.IndexDataCacheFile, "_load_index", "index lookup (the index file read and unpickled)")
+part(caching.IndexDataCacheFile, "_load_data", "the kernel's data read and unpickled")
+part(ll, "parse_bitcode", "its linkable LLVM bitcode parsed")
+part(codegen.JitEngine, "_load_defined_symbols", "the symbols that bitcode defines listed")
+part(codegen.CPUCodeLibrary, "_finalize_final_module", "its object code added to the JIT and finalised")
+from pipeline.cli import end, main
 sys.argv = ["acra"] + sys.argv[1:]
 try:
-    main()
+    status = main()
 finally:
     sys.stderr.write("NUMBA_LOADS " + json.dumps(loads) + "\\n")
+    sys.stderr.write("LOAD_PARTS " + json.dumps(parts) + "\\n")
     sys.stderr.write("MODULES " + json.dumps([getattr(m, "__file__", None) for m in list(sys.modules.values())]) + "\\n")
     import resource
     r = resource.getrusage(resource.RUSAGE_SELF)
     sys.stderr.write(f"CPU_AT_EXIT {r.ru_utime + r.ru_stime}\\n")
+end(status)  # as `acra` ends (`pipeline.cli.program`)
 """
 
 
@@ -181,6 +202,13 @@ def main() -> int:
     print("\n| numba kernels loaded from its cache (one `.usda` run) | loads | wall s | CPU s |\n|---|---:|---:|---:|")
     print(f"| first (with numba's typing and target contexts) | 1 | {loads[0][0]:.3f} | {loads[0][1]:.3f} |")
     print(f"| the rest | {len(rest)} | {sum(x[0] for x in rest):.3f} | {sum(x[1] for x in rest):.3f} |")
+    split = tagged(counted.stderr, "LOAD_PARTS")
+    if rest:
+        print("\n| of a load after the first, CPU ms each (`numba.core.caching`, `codegen`) | ms |\n|---|---:|")
+        for name, sec in split.items():
+            print(f"| {name} | {1e3 * sec / len(rest):.2f} |")
+        print(f"| the rest (the compile result and its environment rebuilt, the dispatcher's entry) | "
+              f"{1e3 * (sum(x[1] for x in rest) - sum(split.values())) / len(rest):.2f} |")
     if not all(x[2] for x in loads):
         print(f"\n{sum(not x[2] for x in loads)} of the loads missed the cache (compiled in that run)")
     files = tagged(counted.stderr, "MODULES")
@@ -190,7 +218,7 @@ def main() -> int:
     print(f"| compiling this checkout's {sum(1 for f in files if f and Path(f).resolve().is_relative_to(HERE))} modules "
           f"from source, if no `.pyc` (`PYTHONDONTWRITEBYTECODE` {bytecode} in the runs) | "
           f"{source_compile_s(files):.3f} |")
-    print(f"| the interpreter's exit (atexit handlers, module teardown) | {exit_cpu:.3f} |")
+    print(f"| the process's end (`pipeline.cli.end`: atexit handlers, no module teardown) | {exit_cpu:.3f} |")
     return 0
 
 

@@ -88,9 +88,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from acra import bvh, pseudonormals
+from pipeline.spatial import ConvexHull, QhullError, cKDTree
 
 __all__ = ["Solid", "solid", "signed_depth", "covering_radius", "Depth", "triangle_depth", "Unresolved",
            "sigma_max", "FEATURE"]

@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from acra import hspline as H
 from acra import respond as R
@@ -26,6 +25,7 @@ from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import residual
 from pipeline.model import apply_inverse, apply_xform
+from pipeline.spatial import cKDTree
 
 __all__ = ["data_points_for", "collider_points_for", "rim_points", "visible_points", "deepest_shown", "corrects",
            "with_shown", "spread", "deepest_instead", "group_level", "pinned", "CLEAR", "MEET", "THIN_GAP", "PIN_GAP",

@@ -16,11 +16,11 @@ from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from acra import narrow, nearest
 from acra.bvh import bounds
 from acra.tessellate import patch_grids
+from pipeline.spatial import cKDTree
 
 if TYPE_CHECKING:
     import fcl

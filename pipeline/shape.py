@@ -15,7 +15,6 @@ import hashlib
 from functools import cached_property
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from acra import halfspaces, kdtree
 from acra import hspline as H
@@ -26,6 +25,7 @@ from acra.tessellate import patch_grids
 from pipeline import queries
 from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
                             timed)
+from pipeline.spatial import ConvexHull, QhullError, cKDTree
 
 __all__ = ["PatchGrid", "GridSet", "GridCache", "HullIndex", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest",
            "Closest", "bvh", "overlap", "content_digest", "surface_digest"]

@@ -50,6 +50,36 @@ def test_program_run_freezes_and_still_runs_exit_handlers(tmp_path):
     assert "/world/World/Sheet" in {c.entity_path for c in RrdReader(str(rrd)).stream()}
 
 
+def test_program_exits_without_teardown_after_exit_handlers_and_output(tmp_path):
+    """`program` (the ``acra`` script, ``python -m pipeline.cli``) runs the atexit handlers, flushes
+    what the run printed and exits with main's status, but skips the interpreter's teardown: an
+    object left at module level is never finalised."""
+    scene = tmp_path / SCENE.name
+    shutil.copy(SCENE, scene)
+    out = tmp_path / "box.acra.usda"
+    code = (
+        "import atexit, sys\n"
+        "class Probe:\n"
+        "    def __del__(self):\n"
+        "        print('torn down', flush=True)\n"
+        "probe = Probe()\n"
+        "atexit.register(lambda: print('atexit ran', flush=True))\n"
+        "from pipeline.cli import program\n"
+        "sys.argv = ['acra'] + sys.argv[1:]\n"
+        "program()\n"
+    )
+    run = [sys.executable, "-c", code, "run"]
+    done = subprocess.run(run + [str(scene), "-o", str(out), "--quiet", "--frames", "1:2"],
+                          capture_output=True, text=True, cwd=tmp_path, env=_env())
+    assert done.returncode == 0, done.stderr
+    assert "acra: 2 frames" in done.stdout and "atexit ran" in done.stdout
+    assert "torn down" not in done.stdout
+    assert Usd.Stage.Open(str(out)).GetPrimAtPath("/World/Sheet").GetAttribute("points").GetTimeSamples() == [1.0, 2.0]
+    missing = subprocess.run(run + [str(tmp_path / "missing.usda"), "--quiet"], capture_output=True, text=True,
+                             cwd=tmp_path, env=_env())
+    assert missing.returncode == 2 and "acra: error:" in missing.stderr and "atexit ran" in missing.stdout
+
+
 # --- a command line a TD can script --------------------------------------------------------------
 
 REPO = Path(__file__).resolve().parents[1]
@@ -71,6 +101,17 @@ def test_version_comes_from_the_package_metadata(capsys):
         main(["--version"])
     assert done.value.code == 0
     assert capsys.readouterr().out.strip() == f"acra {metadata.version('acra')}"
+
+
+def test_the_version_is_read_only_for_version(tiny_stage, tmp_path, monkeypatch):
+    """Building the command line does not read the package metadata: only `acra --version` does."""
+    from pipeline import cli
+
+    def read():
+        raise AssertionError("the package metadata was read")
+
+    monkeypatch.setattr(cli, "_version", read)
+    assert main(["run", str(tiny_stage(frames=2)), "-o", str(tmp_path / "o.usdc"), "--quiet"]) == 0
 
 
 def test_progress_in_a_log_is_plain_lines(tiny_stage, tmp_path):
@@ -206,3 +247,25 @@ def test_a_run_on_deformables_alone_imports_no_trimesh(tmp_path):
     # for a stage with meshes (a collider is a Mesh with its CollisionAPI)
     assert not tops & {"fcl"}
     assert not modules & {"pipeline.farm", "pipeline.animation.paths", "pipeline.animation.quaternions", "pxr.UsdPhysics"}
+    # scipy's kd-tree and hull come from their compiled modules (`pipeline.spatial`): the
+    # scipy.spatial package's __init__, and scipy.special it pulls in, are never run
+    assert {"scipy.spatial._ckdtree", "scipy.spatial._qhull"} <= modules
+    assert not modules & {"scipy.spatial", "scipy.special"}
+
+
+def test_scipy_spatial_imported_later_holds_the_same_classes():
+    """A later `import scipy.spatial` (trimesh for a rigid collider) finds the compiled modules
+    `pipeline.spatial` loaded and binds them: one cKDTree and one ConvexHull class in the process."""
+    code = (
+        "import sys\n"
+        "from pipeline import spatial\n"
+        "assert 'scipy.spatial' not in sys.modules\n"
+        "import numpy as np, scipy.spatial\n"
+        "assert scipy.spatial.cKDTree is spatial.cKDTree and scipy.spatial.ConvexHull is spatial.ConvexHull\n"
+        "assert scipy.spatial.QhullError is spatial.QhullError\n"
+        "hull = spatial.ConvexHull(np.random.default_rng(1).random((30, 3)))\n"
+        "assert len(scipy.spatial.Delaunay(hull.points).simplices) > 0\n"
+        "print('same', len(hull.vertices) > 3)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env())
+    assert done.returncode == 0 and done.stdout.strip() == "same True", done.stderr
