@@ -188,13 +188,14 @@ def with_fine(hs: HSpline, fine: tuple[Level, ...], same_cvs: bool = False) -> H
     size, the closed ends) is carried over, not found again for the new surface object; with
     ``same_cvs`` (only offsets changed: every level's patches, CVs and movability as in ``hs``)
     so is `HSpline._terms_index`."""
-    return _carry(hs, replace(hs, fine=fine), _LEVEL0 + (_STRUCTURE if same_cvs else ()))
+    # the constructor, not `dataclasses.replace`: a response builds a surface per move
+    return _carry(hs, HSpline(hs.cvs, hs.u, hs.v, hs.depth, fine), _LEVEL0 + (_STRUCTURE if same_cvs else ()))
 
 
 def with_cvs(hs: HSpline, cvs: np.ndarray) -> HSpline:
     """``hs`` with other level-0 CVs (the same grid) and the same fine levels: `HSpline._terms_index`
     is carried over."""
-    return _carry(hs, replace(hs, cvs=cvs), _STRUCTURE)
+    return _carry(hs, HSpline(cvs, hs.u, hs.v, hs.depth, hs.fine), _STRUCTURE)
 
 
 def _carry(old: HSpline, new: HSpline, names: tuple[str, ...]) -> HSpline:

@@ -775,8 +775,9 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
         gu, gv = (ju - 1.0) / scale, (jv - 1.0) / scale  # `cv_uv`: the Greville centres, exact
         # the level-0 patch of a centre, floor((j - 1) / 2^k), in integers
         pu, pv = (ju - 1) >> k, (jv - 1) >> k
-        pu = np.mod(pu, hs.u.patches0) if hs.u.periodic else np.clip(pu, 0, hs.u.patches0 - 1)
-        pv = np.mod(pv, hs.v.patches0) if hs.v.periodic else np.clip(pv, 0, hs.v.patches0 - 1)
+        # np.minimum/np.maximum, not np.clip, whose dispatch costs more than the few hundred rows
+        pu = np.mod(pu, hs.u.patches0) if hs.u.periodic else np.minimum(np.maximum(pu, 0), hs.u.patches0 - 1)
+        pv = np.mod(pv, hs.v.patches0) if hs.v.periodic else np.minimum(np.maximum(pv, 0), hs.v.patches0 - 1)
         centre = pu * hs.v.patches0 + pv
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
     _PLACES[key] = hit

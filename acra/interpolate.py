@@ -95,17 +95,12 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> Poin
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     v = np.atleast_1d(np.asarray(v, dtype=np.float64))
     pts, rws, ws = _entries(hs, level, u, v)
-    point, allrows, wts = np.concatenate(pts), np.concatenate(rws), np.concatenate(ws)
-    cv_rows, col = np.unique(allrows, return_inverse=True)
-    return PointWeights(
-        level=level,
-        point=point,
-        col=col.astype(np.int64),
-        w=wts,
-        cv_rows=cv_rows.astype(np.int64),
-        npoints=u.size,
-        active=np.bincount(point, minlength=u.size) > 0,
-    )
+    if len(pts) == 1:  # no point on a pole: the kernel's arrays as they are
+        point, allrows, wts = pts[0], rws[0], ws[0]
+    else:
+        point, allrows, wts = np.concatenate(pts), np.concatenate(rws), np.concatenate(ws)
+    cv_rows, col = levelkernels.unique_inverse(np.ascontiguousarray(allrows, np.int64))
+    return PointWeights(level, point, col, wts, cv_rows, u.size, np.bincount(point, minlength=u.size) > 0)
 
 
 def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -140,6 +135,8 @@ def _writeable(x: np.ndarray) -> np.ndarray:
 def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: list, ws: list) -> tuple[list, list, list]:
     """`_entries`' lists with the entries of the points on a pole (`pole_of`) appended: each
     weighs its level's whole `pole_ring` (if the ring is wholly movable)."""
+    if not pole.size or pole.max() < 0:  # no point on a pole
+        return pts, rws, ws
     for i, (axis, end) in enumerate(closed_ends(hs)):
         on = np.nonzero(pole == i)[0]
         if not on.size:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import framekernels
+from . import framekernels, levelkernels
 from . import hspline as H
 from .basis import locate
 from .hierarchy import refine_levels
@@ -244,13 +244,14 @@ def patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
     return su * hs.v.patches(level) + sv
 
 
-def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int):
-    """`region_midpoints` plus the group of each input point: ``inv (n,) int64``."""
+def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool = True):
+    """`region_midpoints` plus the group of each input point: ``inv (n,) int64``; with
+    ``patches`` False the patches are ``None`` (a caller that needs the groups alone)."""
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     if uv_inside.shape[0] == 0:
         return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
     keys = patch_keys(hs, uv_inside, level)
-    uniq, inv = np.unique(keys, return_inverse=True)
+    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(keys, np.int64))
     mids = np.zeros((uniq.size, 2))
     for col, d in ((0, hs.u), (1, hs.v)):
         x = uv_inside[:, col]
@@ -261,6 +262,8 @@ def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int):
             mids[:, col] = np.mod(np.arctan2(s, c), 2 * np.pi) * d.patches0 / (2 * np.pi)
         else:
             mids[:, col] = np.bincount(inv, x, uniq.size) / np.bincount(inv, minlength=uniq.size)
+    if not patches:
+        return mids, None, inv
     return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
 
 
@@ -302,8 +305,10 @@ def slerp_mean(qs: np.ndarray) -> np.ndarray:
 # applying moves to a level
 
 
-def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
-    """Add world (object-space) moves ``dv (P, 3)`` to CVs of ``level``.
+def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None,
+                unique: bool = False) -> H.HSpline:
+    """Add world (object-space) moves ``dv (P, 3)`` to CVs of ``level``; ``unique``: the caller
+    knows each of ``cv_rows (P,) int64`` occurs once (a `PointWeights`' ``cv_rows``).
 
     Level 0 moves the grid directly; finer levels store ``F^T dv`` in the offsets, so the CV's
     position moves by exactly ``dv`` (its frame depends only on coarser levels).
@@ -317,9 +322,12 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     lev = hs.level(level)
     frames = det.frames[level - 1][cv_rows]
     offsets = lev.offsets.copy()
-    np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
+    if unique:  # each row once: one addition per row, as `np.add.at` makes it
+        offsets[cv_rows] += np.einsum("mji,mj->mi", frames, dv)
+    else:
+        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
     fine = list(hs.fine)
-    fine[level - 1] = replace(lev, offsets=offsets)
+    fine[level - 1] = H.Level(lev.k, lev.patches, lev.cv_keys, offsets, lev.movable, lev.patch_rows)
     if "_ring_rows" in lev.__dict__:  # same CVs, other offsets: the same ring rows (`_ring_rows`)
         fine[level - 1].__dict__["_ring_rows"] = lev.__dict__["_ring_rows"]
     return H.with_fine(hs, tuple(fine), same_cvs=True)
@@ -489,7 +497,7 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
         return pw, want
     # the unknowns: the data points' CVs and the rings';
     # each entry's column is its CV's place among them (np.unique's inverse of every entry)
-    cv_rows = np.unique(np.concatenate([pw.cv_rows[pw.col], *ring_rows]))
+    cv_rows = levelkernels.unique_inverse(np.concatenate([pw.cv_rows[pw.col], *ring_rows]))[0]
     col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
     for r in ring_rows:
         c = np.searchsorted(cv_rows, r)
@@ -531,7 +539,7 @@ def _translate(hs, level, uv, moves, det):
     acc = np.zeros((uniq.size, 3))
     np.add.at(acc, inv, flat_moves)
     acc /= np.bincount(inv, minlength=uniq.size)[:, None]
-    return _move_level(hs, level, uniq, acc, det)
+    return _move_level(hs, level, uniq, acc, det, True)
 
 
 def _rotation_pivots(hs, level, uv, det):
@@ -581,7 +589,7 @@ def _rotate(hs, level, uv, points, moves, det):
         else:
             x = det.vectors[level - 1][uniq[i]]
         dv[i] = quat_rotate(q[None], x[None])[0] - x
-    return _move_level(hs, level, uniq, dv, det)
+    return _move_level(hs, level, uniq, dv, det, True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -600,7 +608,7 @@ def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarra
     extra = ~is_contact
     if not np.any(extra):
         return uv, want
-    mids, _, inv = patch_groups(hs, uv[extra], level)
+    mids, _, inv = patch_groups(hs, uv[extra], level, patches=False)
     g = mids.shape[0]
     moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
     moves /= np.bincount(inv, minlength=g)[:, None]
@@ -827,7 +835,7 @@ def respond(
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
             dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                        amplify=None if level == exact else amplify)
-            hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det), (level,))
+            hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det, True), (level,))
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:
             hs, det = _redetail(hs, det, _translate(hs, level, uv[sel], a * t * dq[sel], det), (level,))
@@ -844,7 +852,7 @@ def respond(
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
                 dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                            amplify=None if level == exact else amplify)
-                hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det), (level,))
+                hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det, True), (level,))
         applied = applied + np.where(present, a, 0.0)
         hs, det = _settled(hs, det)
     hs, det = _close_rings(hs, det, rings, controls.refine)
