@@ -785,9 +785,12 @@ def respond(
     # absorbing level is refined before the first solve, so one pass of `H.details` frames all
     # the new CVs and each later move's pass turns those on its stale patches with the rest.
     early = controls.refine and controls.absorption[0] <= 0.0
+    # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
+    # once for every level's weights while level 0 stays as it is
+    cvs0, pole0 = hs.cvs, H.pole_of(hs, uv[:, 0], uv[:, 1])
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
-        pole = H.pole_of(hs, uv[:, 0], uv[:, 1])
+        pole = pole0
         hs = refine_levels(hs, {level: _movable_patches(hs, level, uv, pole) for level in range(1, L)
                                 if controls.absorption[level] > 0.0})
         refined = sum(lev.patches.size for lev in hs.fine) - before
@@ -812,8 +815,9 @@ def respond(
         # merged per patch, none held); otherwise which points the level reaches is all it needs
         own = d > 0 and not (points.per_patch and not np.asarray(points.is_contact, bool).all()) and not (
             level == finest and held is not None and len(held.uv))
-        pw = point_weights(hs, level, uv[:, 0], uv[:, 1]) if own else None
-        present = pw.active if own else point_active(hs, level, uv[:, 0], uv[:, 1])
+        pole = pole0 if hs.cvs is cvs0 else None
+        pw = point_weights(hs, level, uv[:, 0], uv[:, 1], pole) if own else None
+        present = pw.active if own else point_active(hs, level, uv[:, 0], uv[:, 1], pole)
         if d > 0:
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
