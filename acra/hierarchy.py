@@ -508,12 +508,22 @@ def _pole_ring_keys(u: Direction, v: Direction, k: int, axis: int, end: int) -> 
 
 def pole_patches(hs: HSpline, k: int, axis: int, end: int) -> np.ndarray:
     """Level-``k`` patches ``(3 N, 2) int64`` whose activation makes the whole `pole_ring` movable:
-    the three patch rows at the end, all around (a ring CV's support reaches three patches in)."""
-    per, opn = (hs.v, hs.u) if axis == 0 else (hs.u, hs.v)
+    the three patch rows at the end, all around (a ring CV's support reaches three patches in);
+    read-only."""
+    return _pole_patches(hs.u, hs.v, k, axis, end)
+
+
+@functools.lru_cache(maxsize=256)
+def _pole_patches(u: Direction, v: Direction, k: int, axis: int, end: int) -> np.ndarray:
+    """`pole_patches`, which depend on the grid's directions alone: built once per grid and level
+    (a response refines about a pole on each absorbing level), read-only."""
+    per, opn = (v, u) if axis == 0 else (u, v)
     rows = _end_rows(opn.patches(k), end)
     p = np.arange(per.patches(k))
     a, b = np.meshgrid(rows, p, indexing="ij") if axis == 0 else np.meshgrid(p, rows, indexing="ij")
-    return np.stack([a.reshape(-1), b.reshape(-1)], axis=1).astype(np.int64)
+    out = np.stack([a.reshape(-1), b.reshape(-1)], axis=1).astype(np.int64)
+    out.flags.writeable = False
+    return out
 
 
 def storage_size(hs: HSpline) -> int:

@@ -26,7 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import framekernels, hierarchy, kernels
+from . import framekernels, hierarchy, kernels, levelkernels
 from .basis import Direction, basis_rows, locate, refine_rows
 from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used by interpolate, respond, tessellate and tests)
     _I4,
@@ -767,23 +767,31 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     key = (id(lev.cv_keys), ends)  # a level's CV keys are of one grid and level
     hit = _PLACES.pop(key, None)
     if hit is None or hit[0] is not lev.cv_keys or hit[1] is not lev.movable:
-        c = lev.cv_keys.size
-        rows = np.flatnonzero(lev.movable) if c else np.zeros(0, np.int64)
-        ju, jv = np.divmod(lev.cv_keys[rows], hs.v.cvs(k))  # `_split_cv`
+        # compiled (`levelkernels.movable_places`); `_movable_places_numpy` is the array form
+        rows, ju, jv, gu, gv, centre = levelkernels.movable_places(
+            lev.cv_keys, lev.movable, int(k), int(hs.v.cvs(k)), int(hs.u.patches0), bool(hs.u.periodic),
+            int(hs.v.patches0), bool(hs.v.periodic))
         ring = _ring_members(hs, k, ends, rows, ju, jv)
-        scale = float(1 << k)
-        gu, gv = (ju - 1.0) / scale, (jv - 1.0) / scale  # `cv_uv`: the Greville centres, exact
-        # the level-0 patch of a centre, floor((j - 1) / 2^k), in integers
-        pu, pv = (ju - 1) >> k, (jv - 1) >> k
-        # np.minimum/np.maximum, not np.clip, whose dispatch costs more than the few hundred rows
-        pu = np.mod(pu, hs.u.patches0) if hs.u.periodic else np.minimum(np.maximum(pu, 0), hs.u.patches0 - 1)
-        pv = np.mod(pv, hs.v.patches0) if hs.v.periodic else np.minimum(np.maximum(pv, 0), hs.v.patches0 - 1)
-        centre = pu * hs.v.patches0 + pv
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
     _PLACES[key] = hit
     while len(_PLACES) > 64:
         del _PLACES[next(iter(_PLACES))]
     return hit[2]
+
+
+def _movable_places_numpy(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
+    """`_movable_places` as array operations (the reference the kernel is tested against)."""
+    c = lev.cv_keys.size
+    rows = np.flatnonzero(lev.movable) if c else np.zeros(0, np.int64)
+    ju, jv = np.divmod(lev.cv_keys[rows], hs.v.cvs(k))  # `_split_cv`
+    ring = _ring_members(hs, k, ends, rows, ju, jv)
+    scale = float(1 << k)
+    gu, gv = (ju - 1.0) / scale, (jv - 1.0) / scale  # `cv_uv`: the Greville centres, exact
+    # the level-0 patch of a centre, floor((j - 1) / 2^k), in integers
+    pu, pv = (ju - 1) >> k, (jv - 1) >> k
+    pu = np.mod(pu, hs.u.patches0) if hs.u.periodic else np.clip(pu, 0, hs.u.patches0 - 1)
+    pv = np.mod(pv, hs.v.patches0) if hs.v.periodic else np.clip(pv, 0, hs.v.patches0 - 1)
+    return rows, ring, gu, gv, pu * hs.v.patches0 + pv
 
 
 def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray,

@@ -8,6 +8,8 @@ calls on a few hundred to a few thousand keys (sorts, `np.unique`, `np.searchsor
 unsorted keys), and a response refines up to three levels a step (`hierarchy.make_movable`);
 here it is one pass. Everything is integer bookkeeping plus a copy of the old offsets, so the
 level is the same as the array form's, key for key (`tests/test_hspline.py` holds it to it).
+What the frames of a level need of its movable CVs (`acra.hspline._movable_places`: their
+indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
 The CVs a level's data points weigh, and the patches its additional points fall in, are
 numbered by `unique_inverse` (`np.unique` with ``return_inverse``, a sort of a few hundred
 integers at most). A data point's weights are its basis rows' products, each one multiplication as numpy's
@@ -21,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["build_level", "point_entries", "unique_inverse"]
+__all__ = ["build_level", "point_entries", "unique_inverse", "movable_places"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -275,3 +277,37 @@ def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_pat
                 point[n], rows[n], w[n] = i, q, x
                 n += 1
     return point[:n], rows[:n], w[:n]
+
+
+@njit(cache=True, nogil=True)
+def movable_places(cv_keys, movable, k, v_cvs, u_patches0, u_periodic, v_patches0, v_periodic):
+    """Of the movable CVs of a level-``k`` level (``cv_keys (c,) int64``, ``movable (c,) bool``):
+    their ``rows``, CV indices ``ju, jv``, Greville centres ``gu = (ju - 1.0) / 2**k``, ``gv``
+    (level-0 units, exact) and the level-0 patch each centre is in, ``pu * P0v + pv`` with
+    ``pu = (ju - 1) >> k`` wrapped (periodic) or clamped (open); each ``(m,)``, in row order.
+    The same integer and float operations as the array form in `acra.hspline._movable_places`."""
+    m = 0
+    for r in range(cv_keys.shape[0]):
+        if movable[r]:
+            m += 1
+    rows = np.empty(m, np.int64)
+    ju = np.empty(m, np.int64)
+    jv = np.empty(m, np.int64)
+    gu = np.empty(m)
+    gv = np.empty(m)
+    centre = np.empty(m, np.int64)
+    scale = float(1 << k)
+    i = 0
+    for r in range(cv_keys.shape[0]):
+        if not movable[r]:
+            continue
+        a, b = cv_keys[r] // v_cvs, cv_keys[r] % v_cvs
+        rows[i], ju[i], jv[i] = r, a, b
+        gu[i] = (a - 1.0) / scale
+        gv[i] = (b - 1.0) / scale
+        pu, pv = (a - 1) >> k, (b - 1) >> k
+        pu = pu % u_patches0 if u_periodic else min(max(pu, 0), u_patches0 - 1)
+        pv = pv % v_patches0 if v_periodic else min(max(pv, 0), v_patches0 - 1)
+        centre[i] = pu * v_patches0 + pv
+        i += 1
+    return rows, ju, jv, gu, gv, centre

@@ -656,8 +656,9 @@ def _movable_patches(hs: H.HSpline, level: int, uv: np.ndarray, pole: np.ndarray
     su, _ = locate(hs.u, uv[:, 0], level)
     sv, _ = locate(hs.v, uv[:, 1], level)
     out = [(np.stack([su, sv], axis=1)[:, None, :] + _BLOCK).reshape(-1, 2)]
+    on = set(pole.tolist())  # the poles any point sits on (a few dozen points)
     for i, (axis, end) in enumerate(H.closed_ends(hs)):
-        if np.any(pole == i):
+        if i in on:
             out.append(H.pole_patches(hs, level, axis, end))
     return np.concatenate(out)
 
