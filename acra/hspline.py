@@ -654,6 +654,12 @@ def details(hs: HSpline, upto: int | None = None,
 _PENDING = "_pending"
 
 
+# key in a `Level`'s ``__dict__``: ``(old offsets (c, 3) float64, rows (m,) int64)``, set by a move
+# that changed ``rows`` alone (sorted, each once) of the offsets of the level it was made from (the
+# array, not that level, so a surface keeps no chain of the levels it was moved from)
+_MOVED = "_moved"
+
+
 def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
     """`details` of ``new``, which is ``old`` with other offsets on level ``level >= 1`` alone
     (a response's move, `acra.respond.move_level`: the same `Level` objects elsewhere, the same
@@ -679,7 +685,11 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
             a is not b for k, (a, b) in enumerate(zip(old.fine, new.fine)) if k != level - 1):
         return None
     vectors, frames = list(old_det.vectors), list(old_det.frames)
-    rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
+    hint = lev.__dict__.get(_MOVED)
+    if hint is not None and hint[0] is was.offsets:  # a move that names its rows: only those can differ
+        rows = hint[1][np.any(_bits(was.offsets[hint[1]]) != _bits(lev.offsets[hint[1]]), axis=-1)]
+    else:
+        rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
     vec = vectors[level - 1].copy()
     vec[rows] = np.einsum("mij,mj->mi", frames[level - 1][rows], lev.offsets[rows])
     vectors[level - 1] = vec

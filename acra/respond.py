@@ -328,6 +328,8 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
         np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
     fine = list(hs.fine)
     fine[level - 1] = H.Level(lev.k, lev.patches, lev.cv_keys, offsets, lev.movable, lev.patch_rows)
+    if unique:  # the rows that can differ from ``lev``'s offsets, for `H.moved_details`
+        fine[level - 1].__dict__[H._MOVED] = (lev.offsets, cv_rows)
     if "_ring_rows" in lev.__dict__:  # same CVs, other offsets: the same ring rows (`_ring_rows`)
         fine[level - 1].__dict__["_ring_rows"] = lev.__dict__["_ring_rows"]
     return H.with_fine(hs, tuple(fine), same_cvs=True)
@@ -450,6 +452,19 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
     return hs, det
 
 
+def _ring_reach(hs: H.HSpline, pw: PointWeights, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_ring_rows` of level ``k``'s ring at ``(axis, end)`` and which of its CVs ``pw``'s solve
+    moves, ``reached (N, 3) bool``: kept on ``pw`` per level object, as `_reach_rings` and then
+    `_ring_constraints` ask it of the same weights and level."""
+    lev = hs.level(k)
+    memo = pw.__dict__.setdefault("_reach", {})
+    hit = memo.get((k, axis, end))
+    if hit is None or hit[0] is not lev:
+        rows, ok = _ring_rows(hs, k, axis, end)
+        hit = memo[(k, axis, end)] = (lev, rows, ok, H._lookup(pw.cv_rows, rows)[1])  # cv_rows: sorted
+    return hit[1], hit[2], hit[3]
+
+
 def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.ndarray, rings: list[tuple[int, int, int]]):
     """Under ``refine``: make wholly movable each pole ring of ``pw``'s level that its points
     ``uv (K, 2)`` move a CV of, so `_ring_constraints` can keep it closed; ``pw`` is recomputed
@@ -457,8 +472,8 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
-            rows, ok = _ring_rows(hs, k, axis, end)
-            if not ok.all() and H._lookup(pw.cv_rows, rows[ok])[1].any():  # cv_rows: sorted
+            _, ok, reached = _ring_reach(hs, pw, k, axis, end)
+            if not ok.all() and reached[ok].any():
                 hs, det, _ = _open_ring(hs, det, k, axis, end, True)
     if hs is not before:
         pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
@@ -481,8 +496,8 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     for k, axis, end in rings:
         if k != pw.level:
             continue
-        rows, ok = _ring_rows(hs, k, axis, end)  # a ring the move does not reach needs no sums
-        if not ok.all() or not H._lookup(pw.cv_rows, rows)[1].any():  # cv_rows: sorted
+        rows, ok, reached = _ring_reach(hs, pw, k, axis, end)  # a ring the move does not reach needs no sums
+        if not ok.all() or not reached.any():
             continue
         sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
