@@ -38,6 +38,7 @@ __all__ = [
     "from_grid",
     "refine",
     "make_movable",
+    "refine_blocks",
     "with_fine",
     "with_cvs",
     "set_offsets",
@@ -368,6 +369,41 @@ def refine_levels(hs: HSpline, patches: dict[int, np.ndarray]) -> HSpline:
         if built is not None:
             fine[level - 1] = built
         pu, pv = wu[ok] >> 1, wv[ok] >> 1
+    if all(a is b for a, b in zip(fine, hs.fine)):  # every patch was active: the same surface
+        return hs
+    return with_fine(hs, tuple(fine))
+
+
+def refine_blocks(hs: HSpline, levels: tuple[int, ...], u: np.ndarray, v: np.ndarray,
+                  extra: dict[int, np.ndarray] | None = None) -> HSpline:
+    """`make_movable` of the patch of each point ``u, v (K,) float64`` (level-0 units) on each
+    of ``levels``, plus ``extra[k] (m, 2) int64`` patches of level ``k`` (in range), as one
+    `refine_levels`: the same surface, each level built once, its keys listed in one compiled
+    pass (`levelkernels.block_keys`: the 7×7 blocks and the finer level's parents)."""
+    if not levels:
+        return hs
+    top = max(levels)
+    if not 1 <= min(levels) or not top < hs.depth:
+        bad = top if top >= hs.depth else min(levels)
+        raise ValueError(f"cannot refine to level {bad}: the object has levels 0..{hs.depth - 1}")
+    extra = extra or {}
+    u = np.ascontiguousarray(u, np.float64)
+    v = np.ascontiguousarray(v, np.float64)
+    none = u[:0]
+    fine = list(hs.fine)
+    keys, finer_v = np.zeros(0, np.int64), 1
+    for level in range(top, 0, -1):
+        on = level in levels
+        npv = hs.v.patches(level)
+        keys = levelkernels.block_keys(u if on else none, v if on else none, level, hs.u.patches(level), hs.u.periodic,
+                                       npv, hs.v.periodic, keys, finer_v)
+        if level in extra:
+            more = np.asarray(extra[level], np.int64).reshape(-1, 2)
+            keys = np.concatenate([keys, more[:, 0] * npv + more[:, 1]])
+        built = _build_level(hs, level, keys, fine[level - 1]) if keys.size else None
+        if built is not None:
+            fine[level - 1] = built
+        finer_v = npv
     if all(a is b for a, b in zip(fine, hs.fine)):  # every patch was active: the same surface
         return hs
     return with_fine(hs, tuple(fine))

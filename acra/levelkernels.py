@@ -8,6 +8,8 @@ calls on a few hundred to a few thousand keys (sorts, `np.unique`, `np.searchsor
 unsorted keys), and a response refines up to three levels a step (`hierarchy.make_movable`);
 here it is one pass. Everything is integer bookkeeping plus a copy of the old offsets, so the
 level is the same as the array form's, key for key (`tests/test_hspline.py` holds it to it).
+The patches a response refines on a level, the 7×7 block about each data point's patch and
+the parents of the finer level's, are listed by `block_keys`.
 What the frames of a level need of its movable CVs (`acra.hspline._movable_places`: their
 indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
 The CVs a level's data points weigh, and the patches its additional points fall in, are
@@ -23,7 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["build_level", "point_entries", "unique_inverse", "movable_places"]
+__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -311,3 +313,34 @@ def movable_places(cv_keys, movable, k, v_cvs, u_patches0, u_periodic, v_patches
         centre[i] = pu * v_patches0 + pv
         i += 1
     return rows, ju, jv, gu, gv, centre
+
+
+@njit(cache=True, nogil=True)
+def block_keys(u, v, level, u_patches, u_periodic, v_patches, v_periodic, finer, finer_v_patches):
+    """Level-``level`` patch keys ``(n,) int64`` (any order, repeats kept) to activate: the 7×7
+    block ``(su - 3 .. su + 3) × (sv - 3 .. sv + 3)`` about the level patch ``su, sv``
+    (`acra.basis.locate`) of each point ``u, v (K,) float64`` (level-0 units), those outside an
+    open border dropped and the rest wrapped (`acra.hierarchy.make_movable`), then the parent
+    ``(pu >> 1, pv >> 1)`` of each level-``level + 1`` key of ``finer (m,) int64`` (in range;
+    ``finer_v_patches``: that level's patch count along v)."""
+    K = u.shape[0]
+    out = np.empty(49 * K + finer.shape[0], np.int64)
+    n = 0
+    for i in range(K):
+        su = _segment(u[i], level, u_patches, u_periodic)[0]
+        sv = _segment(v[i], level, v_patches, v_periodic)[0]
+        for a in range(-3, 4):
+            pu = su + a
+            if not (u_periodic or (pu >= 0 and pu < u_patches)):
+                continue
+            pu = _wrap(pu, u_patches, u_periodic)
+            for b in range(-3, 4):
+                pv = sv + b
+                if not (v_periodic or (pv >= 0 and pv < v_patches)):
+                    continue
+                out[n] = pu * v_patches + _wrap(pv, v_patches, v_periodic)
+                n += 1
+    for key in finer:
+        out[n] = ((key // finer_v_patches) >> 1) * v_patches + ((key % finer_v_patches) >> 1)
+        n += 1
+    return out[:n]

@@ -25,7 +25,7 @@ import numpy as np
 from . import framekernels, levelkernels
 from . import hspline as H
 from .basis import locate
-from .hierarchy import refine_levels
+from .hierarchy import refine_blocks
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -661,21 +661,15 @@ def _make_movable(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     return _open_pole_rings(H.make_movable(hs, level, np.stack([su, sv], axis=1)), level, uv)
 
 
-_BLOCK = np.stack(np.meshgrid(np.arange(-3, 4), np.arange(-3, 4), indexing="ij"), axis=-1).reshape(-1, 2)
-
-
-def _movable_patches(hs: H.HSpline, level: int, uv: np.ndarray, pole: np.ndarray) -> np.ndarray:
-    """The level-``level`` patches ``(m, 2) int64`` `_make_movable` activates for the points
-    ``uv (K, 2)``: the 7×7 block about each point's patch (`H.make_movable`) and the whole pole
-    ring of each pole a point sits on (``pole (K,)``, `H.pole_of`)."""
-    su, _ = locate(hs.u, uv[:, 0], level)
-    sv, _ = locate(hs.v, uv[:, 1], level)
-    out = [(np.stack([su, sv], axis=1)[:, None, :] + _BLOCK).reshape(-1, 2)]
+def _pole_blocks(hs: H.HSpline, levels: tuple[int, ...], pole: np.ndarray) -> dict[int, np.ndarray]:
+    """The level patches ``(m, 2) int64`` that `_make_movable` activates on each of ``levels``
+    besides each point's 7×7 block: the whole pole ring (`H.pole_patches`) of each pole a point
+    sits on (``pole (K,)``, `H.pole_of`)."""
     on = set(pole.tolist())  # the poles any point sits on (a few dozen points)
-    for i, (axis, end) in enumerate(H.closed_ends(hs)):
-        if i in on:
-            out.append(H.pole_patches(hs, level, axis, end))
-    return np.concatenate(out)
+    ends = [(axis, end) for i, (axis, end) in enumerate(H.closed_ends(hs)) if i in on]
+    if not ends:
+        return {}
+    return {level: np.concatenate([H.pole_patches(hs, level, axis, end) for axis, end in ends]) for level in levels}
 
 
 def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
@@ -806,9 +800,8 @@ def respond(
     cvs0, pole0 = hs.cvs, H.pole_of(hs, uv[:, 0], uv[:, 1])
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
-        pole = pole0
-        hs = refine_levels(hs, {level: _movable_patches(hs, level, uv, pole) for level in range(1, L)
-                                if controls.absorption[level] > 0.0})
+        levels = tuple(level for level in range(1, L) if controls.absorption[level] > 0.0)
+        hs = refine_blocks(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole0))
         refined = sum(lev.patches.size for lev in hs.fine) - before
         if refined:
             # the finer absorbing levels' new CVs are framed by the coarsest one's move, which
