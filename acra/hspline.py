@@ -778,15 +778,22 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     hit = _PLACES.pop(key, None)
     if hit is None or hit[0] is not lev.cv_keys or hit[1] is not lev.movable:
         # compiled (`levelkernels.movable_places`); `_movable_places_numpy` is the array form
-        rows, ju, jv, gu, gv, centre = levelkernels.movable_places(
-            lev.cv_keys, lev.movable, int(k), int(hs.v.cvs(k)), int(hs.u.patches0), bool(hs.u.periodic),
-            int(hs.v.patches0), bool(hs.v.periodic))
-        ring = _ring_members(hs, k, ends, rows, ju, jv)
+        rows, ring, _, _, gu, gv, centre = levelkernels.movable_places(
+            lev.cv_keys, lev.movable, int(k), int(hs.u.cvs(k)), int(hs.v.cvs(k)), int(hs.u.patches0),
+            bool(hs.u.periodic), int(hs.v.patches0), bool(hs.v.periodic), _ends_array(ends))
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
     _PLACES[key] = hit
     while len(_PLACES) > 64:
         del _PLACES[next(iter(_PLACES))]
     return hit[2]
+
+
+@functools.lru_cache(maxsize=16)
+def _ends_array(ends: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """`closed_ends` as ``(E, 2) int64`` rows ``(axis, end)`` for the kernels; read-only."""
+    out = np.array(ends, np.int64).reshape(-1, 2)
+    out.flags.writeable = False
+    return out
 
 
 def _movable_places_numpy(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:

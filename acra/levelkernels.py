@@ -282,17 +282,20 @@ def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_pat
 
 
 @njit(cache=True, nogil=True)
-def movable_places(cv_keys, movable, k, v_cvs, u_patches0, u_periodic, v_patches0, v_periodic):
+def movable_places(cv_keys, movable, k, u_cvs, v_cvs, u_patches0, u_periodic, v_patches0, v_periodic, ends):
     """Of the movable CVs of a level-``k`` level (``cv_keys (c,) int64``, ``movable (c,) bool``):
-    their ``rows``, CV indices ``ju, jv``, Greville centres ``gu = (ju - 1.0) / 2**k``, ``gv``
-    (level-0 units, exact) and the level-0 patch each centre is in, ``pu * P0v + pv`` with
-    ``pu = (ju - 1) >> k`` wrapped (periodic) or clamped (open); each ``(m,)``, in row order.
-    The same integer and float operations as the array form in `acra.hspline._movable_places`."""
+    their ``rows``, pole ring ``ring`` (the index of the last of ``ends (E, 2) int64``, closed ends
+    ``(axis, end)``, whose three outermost CV rows hold the CV, else -1), CV indices ``ju, jv``,
+    Greville centres ``gu = (ju - 1.0) / 2**k``, ``gv`` (level-0 units, exact) and the level-0
+    patch each centre is in, ``pu * P0v + pv`` with ``pu = (ju - 1) >> k`` wrapped (periodic) or
+    clamped (open); each ``(m,)``, in row order. The same integer and float operations as the
+    array form (`acra.hspline._movable_places_numpy`)."""
     m = 0
     for r in range(cv_keys.shape[0]):
         if movable[r]:
             m += 1
     rows = np.empty(m, np.int64)
+    ring = np.full(m, -1, np.int64)
     ju = np.empty(m, np.int64)
     jv = np.empty(m, np.int64)
     gu = np.empty(m)
@@ -311,8 +314,13 @@ def movable_places(cv_keys, movable, k, v_cvs, u_patches0, u_periodic, v_patches
         pu = pu % u_patches0 if u_periodic else min(max(pu, 0), u_patches0 - 1)
         pv = pv % v_patches0 if v_periodic else min(max(pv, 0), v_patches0 - 1)
         centre[i] = pu * v_patches0 + pv
+        for e in range(ends.shape[0]):
+            j, count = (a, u_cvs) if ends[e, 0] == 0 else (b, v_cvs)
+            lo = 0 if ends[e, 1] == 0 else count - 3
+            if j >= lo and j <= lo + 2:
+                ring[i] = e
         i += 1
-    return rows, ju, jv, gu, gv, centre
+    return rows, ring, ju, jv, gu, gv, centre
 
 
 @njit(cache=True, nogil=True)

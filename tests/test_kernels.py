@@ -382,8 +382,9 @@ def test_compiled_movable_places_equal_the_array_form(kind):
             for a, b in zip(got, want):
                 assert a.dtype == b.dtype
                 np.testing.assert_array_equal(np.asarray(a).view(np.int64), np.asarray(b).view(np.int64))
-            rows, ju, jv = levelkernels.movable_places(lev.cv_keys, lev.movable, k, hs.v.cvs(k), hs.u.patches0,
-                                                       hs.u.periodic, hs.v.patches0, hs.v.periodic)[:3]
+            rows, _, ju, jv = levelkernels.movable_places(lev.cv_keys, lev.movable, k, hs.u.cvs(k), hs.v.cvs(k),
+                                                          hs.u.patches0, hs.u.periodic, hs.v.patches0, hs.v.periodic,
+                                                          H._ends_array(ends))[:4]
             np.testing.assert_array_equal(ju * hs.v.cvs(k) + jv, lev.cv_keys[rows])
     H._PLACES.clear()
 
