@@ -512,7 +512,7 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
         return pw, want
     # the unknowns: the data points' CVs and the rings';
     # each entry's column is its CV's place among them (np.unique's inverse of every entry)
-    cv_rows = levelkernels.unique_inverse(np.concatenate([pw.cv_rows[pw.col], *ring_rows]))[0]
+    cv_rows = levelkernels.unique_inverse(np.concatenate([pw.cv_rows, *ring_rows]))[0]  # pw.cv_rows: its entries' rows, each once
     col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
     for r in ring_rows:
         c = np.searchsorted(cv_rows, r)
@@ -780,7 +780,11 @@ def respond(
     # A periodic pole keeps its ring in the solve: there the ring is the spike tip's whole
     # closed end, and without it dog_head_spike's frame 15 needs a third round.
     fan = {(axis, end): not (hs.v if axis == 0 else hs.u).periodic for axis, end in H.closed_ends(hs)}
-    finest = int(np.nonzero(controls.absorption > 0)[0].max()) if np.any(controls.absorption > 0) else -1
+    # the controls as Python floats: the loop reads them per level, a numpy scalar at a time
+    absorb, deform = controls.absorption.tolist(), controls.deform.tolist()
+    translate, rotate = controls.translate.tolist(), controls.rotate.tolist()
+    absorbing = [level for level in range(L) if absorb[level] > 0.0]
+    finest = absorbing[-1] if absorbing else -1
     # the last level that deforms, where finer absorbing levels only turn or translate their
     # detail, keeps every mode above ``rcond`` (`amplify`): what it leaves unfitted no later level
     # can reshape
@@ -794,21 +798,23 @@ def respond(
     # nothing; unless level 0 moves (its ends decide the poles `_open_pole_rings` opens), every
     # absorbing level is refined before the first solve, so one pass of `H.details` frames all
     # the new CVs and each later move's pass turns those on its stale patches with the rest.
-    early = controls.refine and controls.absorption[0] <= 0.0
+    early = controls.refine and absorb[0] <= 0.0
+    is_contact = np.asarray(points.is_contact, bool)
+    merged = points.per_patch and not is_contact.all()  # additional points merged per patch (eq. 4.16)
     # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
     # once for every level's weights while level 0 stays as it is
     cvs0, pole0 = hs.cvs, H.pole_of(hs, uv[:, 0], uv[:, 1])
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
-        levels = tuple(level for level in range(1, L) if controls.absorption[level] > 0.0)
+        levels = tuple(level for level in absorbing if level >= 1)
         hs = refine_blocks(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole0))
         refined = sum(lev.patches.size for lev in hs.fine) - before
         if refined:
             # the finer absorbing levels' new CVs are framed by the coarsest one's move, which
             # turns them; the coarsest level's own frames its solve moves with
-            hs, det = _redetail(coarse, det, hs, (), lazy=int(np.nonzero(controls.absorption > 0)[0].min()))
+            hs, det = _redetail(coarse, det, hs, (), lazy=absorbing[0])
     for level in range(L):
-        a = float(controls.absorption[level])
+        a = absorb[level]
         if a <= 0.0:
             continue
         if level >= 1 and controls.refine and not early:
@@ -819,10 +825,10 @@ def respond(
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
                 hs, det = _redetail(coarse, det, hs, ())
-        d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
+        d, t, r = deform[level], translate[level], rotate[level]
         # the points' own weights serve the solve only when it takes them as they are (no points
         # merged per patch, none held); otherwise which points the level reaches is all it needs
-        own = d > 0 and not (points.per_patch and not np.asarray(points.is_contact, bool).all()) and not (
+        own = d > 0 and not merged and not (
             level == finest and held is not None and len(held.uv))
         pole = pole0 if hs.cvs is cvs0 else None
         pw = point_weights(hs, level, uv[:, 0], uv[:, 1], pole) if own else None
@@ -832,7 +838,7 @@ def respond(
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
             if points.per_patch:
-                luv, lwant = _per_level_points(hs, level, uv, want, np.asarray(points.is_contact, bool))
+                luv, lwant = _per_level_points(hs, level, uv, want, is_contact)
             else:
                 luv, lwant = uv, want
             if level == finest and held is not None and len(held.uv):
