@@ -48,6 +48,7 @@ __all__ = [
     "closed_ends",
     "pole_of",
     "pole_ring",
+    "pole_ring_rows",
     "pole_patches",
     "storage_size",
     "HierarchyArrays",
@@ -527,6 +528,25 @@ def pole_ring(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.
     rows at the end (1/6, 4/6, 1/6). The pole point is ``sum_j B_j(s) (weights @ rows_j)``, the
     same for every ``s`` iff ``weights @ rows_j`` is the same for every column ``j``."""
     return _pole_ring_keys(hs.u, hs.v, k, axis, end), np.array([1.0, 4.0, 1.0]) / 6.0
+
+
+def pole_ring_rows(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+    """The `pole_ring` of level ``k >= 1`` at ``(axis, end)`` as rows of the level's CVs, ``rows
+    (N, 3) int64`` (`_lookup`'s, clipped where absent), and whether each CV exists and is
+    movable, ``ok (N, 3) bool``; read-only. They depend on the level's CVs alone, so they are
+    looked up once per `Level` object and kept on it (a response asks for each ring several times
+    per step, and a weight for each point on a pole)."""
+    lev = hs.level(k)
+    memo = lev.__dict__.setdefault("_ring_rows", {})
+    key = (hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, axis, end)  # the grid's fields: cheaper to hash than its directions
+    if key not in memo:
+        ring = _pole_ring_keys(hs.u, hs.v, k, axis, end)
+        rows, ok = _lookup(lev.cv_keys, ring)
+        if lev.cv_keys.size:
+            ok &= lev.movable[rows]
+        rows.flags.writeable = ok.flags.writeable = False
+        memo[key] = (rows, ok)
+    return memo[key]
 
 
 @functools.lru_cache(maxsize=256)

@@ -21,6 +21,7 @@ import numpy as np
 
 from . import levelkernels
 from .basis import basis, locate
+from .hierarchy import pole_ring_rows
 from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
 __all__ = [
@@ -146,7 +147,8 @@ def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: lis
         if not on.size:
             continue
         ring, rw = pole_ring(hs, level, axis, end)
-        rrows, rok = _movable_rows(hs, level, ring)
+        # kept on the level (`pole_ring_rows`): every level's weights ask for its rings
+        rrows, rok = _movable_rows(hs, level, ring) if level == 0 else pole_ring_rows(hs, level, axis, end)
         if not rok.all():
             continue
         pts.append(np.repeat(on, ring.size))

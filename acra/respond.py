@@ -25,7 +25,7 @@ import numpy as np
 from . import framekernels, levelkernels
 from . import hspline as H
 from .basis import locate
-from .hierarchy import refine_blocks
+from .hierarchy import pole_ring_rows, refine_blocks
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -382,21 +382,8 @@ def _ring_sums(hs: H.HSpline, det: H.Details, k: int, axis: int,
     return sums, rows, ok, spread
 
 
-def _ring_rows(hs: H.HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
-    """`_ring_sums`' rows and movability, which depend on the level's CVs alone: looked up once
-    per `Level` object (a response asks for each ring several times while most levels stay as
-    they are), read-only."""
-    lev = hs.level(k)
-    memo = lev.__dict__.setdefault("_ring_rows", {})
-    key = (hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, axis, end)  # the grid's fields: cheaper to hash than its directions
-    if key not in memo:
-        ring, _ = H.pole_ring(hs, k, axis, end)
-        rows, ok = H._lookup(lev.cv_keys, ring)
-        if lev.cv_keys.size:
-            ok &= lev.movable[rows]
-        rows.flags.writeable = ok.flags.writeable = False
-        memo[key] = (rows, ok)
-    return memo[key]
+# `_ring_sums`' rows and movability, looked up once per `Level` object (`H.pole_ring_rows`)
+_ring_rows = pole_ring_rows
 
 
 def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, int]]:
