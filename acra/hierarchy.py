@@ -38,6 +38,7 @@ __all__ = [
     "from_grid",
     "refine",
     "make_movable",
+    "refine_blocks",
     "with_fine",
     "with_cvs",
     "set_offsets",
@@ -47,6 +48,7 @@ __all__ = [
     "closed_ends",
     "pole_of",
     "pole_ring",
+    "pole_ring_rows",
     "pole_patches",
     "storage_size",
     "HierarchyArrays",
@@ -188,13 +190,14 @@ def with_fine(hs: HSpline, fine: tuple[Level, ...], same_cvs: bool = False) -> H
     size, the closed ends) is carried over, not found again for the new surface object; with
     ``same_cvs`` (only offsets changed: every level's patches, CVs and movability as in ``hs``)
     so is `HSpline._terms_index`."""
-    return _carry(hs, replace(hs, fine=fine), _LEVEL0 + (_STRUCTURE if same_cvs else ()))
+    # the constructor, not `dataclasses.replace`: a response builds a surface per move
+    return _carry(hs, HSpline(hs.cvs, hs.u, hs.v, hs.depth, fine), _LEVEL0 + (_STRUCTURE if same_cvs else ()))
 
 
 def with_cvs(hs: HSpline, cvs: np.ndarray) -> HSpline:
     """``hs`` with other level-0 CVs (the same grid) and the same fine levels: `HSpline._terms_index`
     is carried over."""
-    return _carry(hs, replace(hs, cvs=cvs), _STRUCTURE)
+    return _carry(hs, HSpline(cvs, hs.u, hs.v, hs.depth, hs.fine), _STRUCTURE)
 
 
 def _carry(old: HSpline, new: HSpline, names: tuple[str, ...]) -> HSpline:
@@ -372,6 +375,41 @@ def refine_levels(hs: HSpline, patches: dict[int, np.ndarray]) -> HSpline:
     return with_fine(hs, tuple(fine))
 
 
+def refine_blocks(hs: HSpline, levels: tuple[int, ...], u: np.ndarray, v: np.ndarray,
+                  extra: dict[int, np.ndarray] | None = None) -> HSpline:
+    """`make_movable` of the patch of each point ``u, v (K,) float64`` (level-0 units) on each
+    of ``levels``, plus ``extra[k] (m, 2) int64`` patches of level ``k`` (in range), as one
+    `refine_levels`: the same surface, each level built once, its keys listed in one compiled
+    pass (`levelkernels.block_keys`: the 7×7 blocks and the finer level's parents)."""
+    if not levels:
+        return hs
+    top = max(levels)
+    if not 1 <= min(levels) or not top < hs.depth:
+        bad = top if top >= hs.depth else min(levels)
+        raise ValueError(f"cannot refine to level {bad}: the object has levels 0..{hs.depth - 1}")
+    extra = extra or {}
+    u = np.ascontiguousarray(u, np.float64)
+    v = np.ascontiguousarray(v, np.float64)
+    none = u[:0]
+    fine = list(hs.fine)
+    keys, finer_v = np.zeros(0, np.int64), 1
+    for level in range(top, 0, -1):
+        on = level in levels
+        npv = hs.v.patches(level)
+        keys = levelkernels.block_keys(u if on else none, v if on else none, level, hs.u.patches(level), hs.u.periodic,
+                                       npv, hs.v.periodic, keys, finer_v)
+        if level in extra:
+            more = np.asarray(extra[level], np.int64).reshape(-1, 2)
+            keys = np.concatenate([keys, more[:, 0] * npv + more[:, 1]])
+        built = _build_level(hs, level, keys, fine[level - 1]) if keys.size else None
+        if built is not None:
+            fine[level - 1] = built
+        finer_v = npv
+    if all(a is b for a, b in zip(fine, hs.fine)):  # every patch was active: the same surface
+        return hs
+    return with_fine(hs, tuple(fine))
+
+
 def make_movable(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
     """Refine so that every CV of the given level-``k`` patches is movable (thesis §3.4).
 
@@ -492,6 +530,25 @@ def pole_ring(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.
     return _pole_ring_keys(hs.u, hs.v, k, axis, end), np.array([1.0, 4.0, 1.0]) / 6.0
 
 
+def pole_ring_rows(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+    """The `pole_ring` of level ``k >= 1`` at ``(axis, end)`` as rows of the level's CVs, ``rows
+    (N, 3) int64`` (`_lookup`'s, clipped where absent), and whether each CV exists and is
+    movable, ``ok (N, 3) bool``; read-only. They depend on the level's CVs alone, so they are
+    looked up once per `Level` object and kept on it (a response asks for each ring several times
+    per step, and a weight for each point on a pole)."""
+    lev = hs.level(k)
+    memo = lev.__dict__.setdefault("_ring_rows", {})
+    key = (hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, axis, end)  # the grid's fields: cheaper to hash than its directions
+    if key not in memo:
+        ring = _pole_ring_keys(hs.u, hs.v, k, axis, end)
+        rows, ok = _lookup(lev.cv_keys, ring)
+        if lev.cv_keys.size:
+            ok &= lev.movable[rows]
+        rows.flags.writeable = ok.flags.writeable = False
+        memo[key] = (rows, ok)
+    return memo[key]
+
+
 @functools.lru_cache(maxsize=256)
 def _pole_ring_keys(u: Direction, v: Direction, k: int, axis: int, end: int) -> np.ndarray:
     """`pole_ring`'s keys, which depend on the grid's directions alone: built once per grid and
@@ -507,12 +564,22 @@ def _pole_ring_keys(u: Direction, v: Direction, k: int, axis: int, end: int) -> 
 
 def pole_patches(hs: HSpline, k: int, axis: int, end: int) -> np.ndarray:
     """Level-``k`` patches ``(3 N, 2) int64`` whose activation makes the whole `pole_ring` movable:
-    the three patch rows at the end, all around (a ring CV's support reaches three patches in)."""
-    per, opn = (hs.v, hs.u) if axis == 0 else (hs.u, hs.v)
+    the three patch rows at the end, all around (a ring CV's support reaches three patches in);
+    read-only."""
+    return _pole_patches(hs.u, hs.v, k, axis, end)
+
+
+@functools.lru_cache(maxsize=256)
+def _pole_patches(u: Direction, v: Direction, k: int, axis: int, end: int) -> np.ndarray:
+    """`pole_patches`, which depend on the grid's directions alone: built once per grid and level
+    (a response refines about a pole on each absorbing level), read-only."""
+    per, opn = (v, u) if axis == 0 else (u, v)
     rows = _end_rows(opn.patches(k), end)
     p = np.arange(per.patches(k))
     a, b = np.meshgrid(rows, p, indexing="ij") if axis == 0 else np.meshgrid(p, rows, indexing="ij")
-    return np.stack([a.reshape(-1), b.reshape(-1)], axis=1).astype(np.int64)
+    out = np.stack([a.reshape(-1), b.reshape(-1)], axis=1).astype(np.int64)
+    out.flags.writeable = False
+    return out
 
 
 def storage_size(hs: HSpline) -> int:

@@ -26,7 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import framekernels, hierarchy, kernels
+from . import framekernels, hierarchy, kernels, levelkernels
 from .basis import Direction, basis_rows, locate, refine_rows
 from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used by interpolate, respond, tessellate and tests)
     _I4,
@@ -48,7 +48,9 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     pole_of,
     pole_patches,
     pole_ring,
+    pole_ring_rows,
     refine,
+    refine_blocks,
     set_offsets,
     storage_size,
     to_arrays,
@@ -654,6 +656,12 @@ def details(hs: HSpline, upto: int | None = None,
 _PENDING = "_pending"
 
 
+# key in a `Level`'s ``__dict__``: ``(old offsets (c, 3) float64, rows (m,) int64)``, set by a move
+# that changed ``rows`` alone (sorted, each once) of the offsets of the level it was made from (the
+# array, not that level, so a surface keeps no chain of the levels it was moved from)
+_MOVED = "_moved"
+
+
 def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
     """`details` of ``new``, which is ``old`` with other offsets on level ``level >= 1`` alone
     (a response's move, `acra.respond.move_level`: the same `Level` objects elsewhere, the same
@@ -679,7 +687,11 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
             a is not b for k, (a, b) in enumerate(zip(old.fine, new.fine)) if k != level - 1):
         return None
     vectors, frames = list(old_det.vectors), list(old_det.frames)
-    rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
+    hint = lev.__dict__.get(_MOVED)
+    if hint is not None and hint[0] is was.offsets:  # a move that names its rows: only those can differ
+        rows = hint[1][np.any(_bits(was.offsets[hint[1]]) != _bits(lev.offsets[hint[1]]), axis=-1)]
+    else:
+        rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
     vec = vectors[level - 1].copy()
     vec[rows] = np.einsum("mij,mj->mi", frames[level - 1][rows], lev.offsets[rows])
     vectors[level - 1] = vec
@@ -767,22 +779,38 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     key = (id(lev.cv_keys), ends)  # a level's CV keys are of one grid and level
     hit = _PLACES.pop(key, None)
     if hit is None or hit[0] is not lev.cv_keys or hit[1] is not lev.movable:
-        c = lev.cv_keys.size
-        rows = np.flatnonzero(lev.movable) if c else np.zeros(0, np.int64)
-        ju, jv = np.divmod(lev.cv_keys[rows], hs.v.cvs(k))  # `_split_cv`
-        ring = _ring_members(hs, k, ends, rows, ju, jv)
-        scale = float(1 << k)
-        gu, gv = (ju - 1.0) / scale, (jv - 1.0) / scale  # `cv_uv`: the Greville centres, exact
-        # the level-0 patch of a centre, floor((j - 1) / 2^k), in integers
-        pu, pv = (ju - 1) >> k, (jv - 1) >> k
-        pu = np.mod(pu, hs.u.patches0) if hs.u.periodic else np.clip(pu, 0, hs.u.patches0 - 1)
-        pv = np.mod(pv, hs.v.patches0) if hs.v.periodic else np.clip(pv, 0, hs.v.patches0 - 1)
-        centre = pu * hs.v.patches0 + pv
+        # compiled (`levelkernels.movable_places`); `_movable_places_numpy` is the array form
+        rows, ring, _, _, gu, gv, centre = levelkernels.movable_places(
+            lev.cv_keys, lev.movable, int(k), int(hs.u.cvs(k)), int(hs.v.cvs(k)), int(hs.u.patches0),
+            bool(hs.u.periodic), int(hs.v.patches0), bool(hs.v.periodic), _ends_array(ends))
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
     _PLACES[key] = hit
     while len(_PLACES) > 64:
         del _PLACES[next(iter(_PLACES))]
     return hit[2]
+
+
+@functools.lru_cache(maxsize=16)
+def _ends_array(ends: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """`closed_ends` as ``(E, 2) int64`` rows ``(axis, end)`` for the kernels; read-only."""
+    out = np.array(ends, np.int64).reshape(-1, 2)
+    out.flags.writeable = False
+    return out
+
+
+def _movable_places_numpy(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
+    """`_movable_places` as array operations (the reference the kernel is tested against)."""
+    c = lev.cv_keys.size
+    rows = np.flatnonzero(lev.movable) if c else np.zeros(0, np.int64)
+    ju, jv = np.divmod(lev.cv_keys[rows], hs.v.cvs(k))  # `_split_cv`
+    ring = _ring_members(hs, k, ends, rows, ju, jv)
+    scale = float(1 << k)
+    gu, gv = (ju - 1.0) / scale, (jv - 1.0) / scale  # `cv_uv`: the Greville centres, exact
+    # the level-0 patch of a centre, floor((j - 1) / 2^k), in integers
+    pu, pv = (ju - 1) >> k, (jv - 1) >> k
+    pu = np.mod(pu, hs.u.patches0) if hs.u.periodic else np.clip(pu, 0, hs.u.patches0 - 1)
+    pv = np.mod(pv, hs.v.patches0) if hs.v.periodic else np.clip(pv, 0, hs.v.patches0 - 1)
+    return rows, ring, gu, gv, pu * hs.v.patches0 + pv
 
 
 def _ring_members(hs: HSpline, k: int, ends: tuple[tuple[int, int], ...], rows: np.ndarray,

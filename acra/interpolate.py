@@ -21,6 +21,7 @@ import numpy as np
 
 from . import levelkernels
 from .basis import basis, locate
+from .hierarchy import pole_ring_rows
 from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
 __all__ = [
@@ -79,7 +80,7 @@ class PointWeights:
         return out
 
 
-def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> PointWeights:
+def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None = None) -> PointWeights:
     """Weights of points ``(u, v)`` (level-0 units, ``(K,)`` each) on the movable CVs of ``level``.
 
     Level 0: all 16 CVs of the point's patch. Level ``k >= 1``: the CVs of the point's level-k
@@ -91,36 +92,35 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> Poin
     `H.pole_ring` weighs its row's weight over the ring size. A projection's arbitrary choice of
     the parameter then changes nothing, and moving the point moves the pole as one point. On a
     level whose ring is not wholly movable the point gets no weights.
+
+    ``pole (K,) int64``: `H.pole_of` of the points, if the caller has it (a response asks every
+    level about the same points on the same level-0 grid).
     """
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     v = np.atleast_1d(np.asarray(v, dtype=np.float64))
-    pts, rws, ws = _entries(hs, level, u, v)
-    point, allrows, wts = np.concatenate(pts), np.concatenate(rws), np.concatenate(ws)
-    cv_rows, col = np.unique(allrows, return_inverse=True)
-    return PointWeights(
-        level=level,
-        point=point,
-        col=col.astype(np.int64),
-        w=wts,
-        cv_rows=cv_rows.astype(np.int64),
-        npoints=u.size,
-        active=np.bincount(point, minlength=u.size) > 0,
-    )
+    pts, rws, ws = _entries(hs, level, u, v, pole)
+    if len(pts) == 1:  # no point on a pole: the kernel's arrays as they are
+        point, allrows, wts = pts[0], rws[0], ws[0]
+    else:
+        point, allrows, wts = np.concatenate(pts), np.concatenate(rws), np.concatenate(ws)
+    cv_rows, col = levelkernels.unique_inverse(np.ascontiguousarray(allrows, np.int64))
+    return PointWeights(level, point, col, wts, cv_rows, u.size, np.bincount(point, minlength=u.size) > 0)
 
 
-def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """`point_weights(hs, level, u, v).active` alone: ``(K,) bool``, whether each point weighs
-    some movable CV of ``level``, without gathering the CVs."""
+def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None = None) -> np.ndarray:
+    """`point_weights(hs, level, u, v, pole).active` alone: ``(K,) bool``, whether each point
+    weighs some movable CV of ``level``, without gathering the CVs."""
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     v = np.atleast_1d(np.asarray(v, dtype=np.float64))
-    return np.bincount(np.concatenate(_entries(hs, level, u, v)[0]), minlength=u.size) > 0
+    return np.bincount(np.concatenate(_entries(hs, level, u, v, pole)[0]), minlength=u.size) > 0
 
 
-def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> tuple[list, list, list]:
+def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
+             pole: np.ndarray | None = None) -> tuple[list, list, list]:
     """`point_weights`' nonzero weights as lists of arrays: points, CV rows, weights. The points
     off a pole are compiled (`acra.levelkernels.point_entries`); `_entries_numpy` is the array
     form."""
-    pole = pole_of(hs, u, v)
+    pole = pole_of(hs, u, v) if pole is None else pole
     lev = hs.level(level) if level else None
     none = np.zeros(0, np.int64)
     pt, rows, w = levelkernels.point_entries(
@@ -140,12 +140,15 @@ def _writeable(x: np.ndarray) -> np.ndarray:
 def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: list, ws: list) -> tuple[list, list, list]:
     """`_entries`' lists with the entries of the points on a pole (`pole_of`) appended: each
     weighs its level's whole `pole_ring` (if the ring is wholly movable)."""
+    if not pole.size or pole.max() < 0:  # no point on a pole
+        return pts, rws, ws
     for i, (axis, end) in enumerate(closed_ends(hs)):
         on = np.nonzero(pole == i)[0]
         if not on.size:
             continue
         ring, rw = pole_ring(hs, level, axis, end)
-        rrows, rok = _movable_rows(hs, level, ring)
+        # kept on the level (`pole_ring_rows`): every level's weights ask for its rings
+        rrows, rok = _movable_rows(hs, level, ring) if level == 0 else pole_ring_rows(hs, level, axis, end)
         if not rok.all():
             continue
         pts.append(np.repeat(on, ring.size))

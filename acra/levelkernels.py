@@ -8,7 +8,13 @@ calls on a few hundred to a few thousand keys (sorts, `np.unique`, `np.searchsor
 unsorted keys), and a response refines up to three levels a step (`hierarchy.make_movable`);
 here it is one pass. Everything is integer bookkeeping plus a copy of the old offsets, so the
 level is the same as the array form's, key for key (`tests/test_hspline.py` holds it to it).
-A data point's weights are its basis rows' products, each one multiplication as numpy's
+The patches a response refines on a level, the 7×7 block about each data point's patch and
+the parents of the finer level's, are listed by `block_keys`.
+What the frames of a level need of its movable CVs (`acra.hspline._movable_places`: their
+indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
+The CVs a level's data points weigh, and the patches its additional points fall in, are
+numbered by `unique_inverse` (`np.unique` with ``return_inverse``, a sort of a few hundred
+integers at most). A data point's weights are its basis rows' products, each one multiplication as numpy's
 broadcast product, so they too are the array form's bits (`tests/test_interpolate.py`).
 """
 
@@ -19,7 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["build_level", "point_entries"]
+__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -70,6 +76,26 @@ def _sort(a):
             a[j] = x
         gap //= 3
     return a
+
+
+@njit(cache=True, nogil=True)
+def unique_inverse(x):
+    """``np.unique(x, return_inverse=True)`` of ``x (n,) int64``: the sorted distinct values
+    ``(m,) int64`` and the place of each entry among them ``(n,) int64``. Integers, so the same
+    values as numpy's; numpy's costs tens of microseconds of set-up on the few hundred entries of
+    a level's solve (`acra.interpolate.point_weights`, `acra.respond.patch_groups`)."""
+    n = x.shape[0]
+    uniq = _sort(x.copy())
+    m = 0
+    for i in range(n):
+        if m == 0 or uniq[i] != uniq[m - 1]:
+            uniq[m] = uniq[i]
+            m += 1
+    uniq = uniq[:m].copy()
+    inverse = np.empty(n, np.int64)
+    for i in range(n):
+        inverse[i] = _find(uniq, x[i])[0]
+    return uniq, inverse
 
 
 @njit(cache=True, nogil=True)
@@ -253,3 +279,76 @@ def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_pat
                 point[n], rows[n], w[n] = i, q, x
                 n += 1
     return point[:n], rows[:n], w[:n]
+
+
+@njit(cache=True, nogil=True)
+def movable_places(cv_keys, movable, k, u_cvs, v_cvs, u_patches0, u_periodic, v_patches0, v_periodic, ends):
+    """Of the movable CVs of a level-``k`` level (``cv_keys (c,) int64``, ``movable (c,) bool``):
+    their ``rows``, pole ring ``ring`` (the index of the last of ``ends (E, 2) int64``, closed ends
+    ``(axis, end)``, whose three outermost CV rows hold the CV, else -1), CV indices ``ju, jv``,
+    Greville centres ``gu = (ju - 1.0) / 2**k``, ``gv`` (level-0 units, exact) and the level-0
+    patch each centre is in, ``pu * P0v + pv`` with ``pu = (ju - 1) >> k`` wrapped (periodic) or
+    clamped (open); each ``(m,)``, in row order. The same integer and float operations as the
+    array form (`acra.hspline._movable_places_numpy`)."""
+    m = 0
+    for r in range(cv_keys.shape[0]):
+        if movable[r]:
+            m += 1
+    rows = np.empty(m, np.int64)
+    ring = np.full(m, -1, np.int64)
+    ju = np.empty(m, np.int64)
+    jv = np.empty(m, np.int64)
+    gu = np.empty(m)
+    gv = np.empty(m)
+    centre = np.empty(m, np.int64)
+    scale = float(1 << k)
+    i = 0
+    for r in range(cv_keys.shape[0]):
+        if not movable[r]:
+            continue
+        a, b = cv_keys[r] // v_cvs, cv_keys[r] % v_cvs
+        rows[i], ju[i], jv[i] = r, a, b
+        gu[i] = (a - 1.0) / scale
+        gv[i] = (b - 1.0) / scale
+        pu, pv = (a - 1) >> k, (b - 1) >> k
+        pu = pu % u_patches0 if u_periodic else min(max(pu, 0), u_patches0 - 1)
+        pv = pv % v_patches0 if v_periodic else min(max(pv, 0), v_patches0 - 1)
+        centre[i] = pu * v_patches0 + pv
+        for e in range(ends.shape[0]):
+            j, count = (a, u_cvs) if ends[e, 0] == 0 else (b, v_cvs)
+            lo = 0 if ends[e, 1] == 0 else count - 3
+            if j >= lo and j <= lo + 2:
+                ring[i] = e
+        i += 1
+    return rows, ring, ju, jv, gu, gv, centre
+
+
+@njit(cache=True, nogil=True)
+def block_keys(u, v, level, u_patches, u_periodic, v_patches, v_periodic, finer, finer_v_patches):
+    """Level-``level`` patch keys ``(n,) int64`` (any order, repeats kept) to activate: the 7×7
+    block ``(su - 3 .. su + 3) × (sv - 3 .. sv + 3)`` about the level patch ``su, sv``
+    (`acra.basis.locate`) of each point ``u, v (K,) float64`` (level-0 units), those outside an
+    open border dropped and the rest wrapped (`acra.hierarchy.make_movable`), then the parent
+    ``(pu >> 1, pv >> 1)`` of each level-``level + 1`` key of ``finer (m,) int64`` (in range;
+    ``finer_v_patches``: that level's patch count along v)."""
+    K = u.shape[0]
+    out = np.empty(49 * K + finer.shape[0], np.int64)
+    n = 0
+    for i in range(K):
+        su = _segment(u[i], level, u_patches, u_periodic)[0]
+        sv = _segment(v[i], level, v_patches, v_periodic)[0]
+        for a in range(-3, 4):
+            pu = su + a
+            if not (u_periodic or (pu >= 0 and pu < u_patches)):
+                continue
+            pu = _wrap(pu, u_patches, u_periodic)
+            for b in range(-3, 4):
+                pv = sv + b
+                if not (v_periodic or (pv >= 0 and pv < v_patches)):
+                    continue
+                out[n] = pu * v_patches + _wrap(pv, v_patches, v_periodic)
+                n += 1
+    for key in finer:
+        out[n] = ((key // finer_v_patches) >> 1) * v_patches + ((key % finer_v_patches) >> 1)
+        n += 1
+    return out[:n]

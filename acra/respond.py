@@ -22,10 +22,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import framekernels
+from . import framekernels, levelkernels
 from . import hspline as H
 from .basis import locate
-from .hierarchy import refine_levels
+from .hierarchy import pole_ring_rows, refine_blocks
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -244,13 +244,14 @@ def patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
     return su * hs.v.patches(level) + sv
 
 
-def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int):
-    """`region_midpoints` plus the group of each input point: ``inv (n,) int64``."""
+def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool = True):
+    """`region_midpoints` plus the group of each input point: ``inv (n,) int64``; with
+    ``patches`` False the patches are ``None`` (a caller that needs the groups alone)."""
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     if uv_inside.shape[0] == 0:
         return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
     keys = patch_keys(hs, uv_inside, level)
-    uniq, inv = np.unique(keys, return_inverse=True)
+    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(keys, np.int64))
     mids = np.zeros((uniq.size, 2))
     for col, d in ((0, hs.u), (1, hs.v)):
         x = uv_inside[:, col]
@@ -261,6 +262,8 @@ def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int):
             mids[:, col] = np.mod(np.arctan2(s, c), 2 * np.pi) * d.patches0 / (2 * np.pi)
         else:
             mids[:, col] = np.bincount(inv, x, uniq.size) / np.bincount(inv, minlength=uniq.size)
+    if not patches:
+        return mids, None, inv
     return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
 
 
@@ -302,8 +305,10 @@ def slerp_mean(qs: np.ndarray) -> np.ndarray:
 # applying moves to a level
 
 
-def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
-    """Add world (object-space) moves ``dv (P, 3)`` to CVs of ``level``.
+def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None,
+                unique: bool = False) -> H.HSpline:
+    """Add world (object-space) moves ``dv (P, 3)`` to CVs of ``level``; ``unique``: the caller
+    knows each of ``cv_rows (P,) int64`` occurs once (a `PointWeights`' ``cv_rows``).
 
     Level 0 moves the grid directly; finer levels store ``F^T dv`` in the offsets, so the CV's
     position moves by exactly ``dv`` (its frame depends only on coarser levels).
@@ -317,9 +322,14 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     lev = hs.level(level)
     frames = det.frames[level - 1][cv_rows]
     offsets = lev.offsets.copy()
-    np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
+    if unique:  # each row once: one addition per row, as `np.add.at` makes it
+        offsets[cv_rows] += np.einsum("mji,mj->mi", frames, dv)
+    else:
+        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
     fine = list(hs.fine)
-    fine[level - 1] = replace(lev, offsets=offsets)
+    fine[level - 1] = H.Level(lev.k, lev.patches, lev.cv_keys, offsets, lev.movable, lev.patch_rows)
+    if unique:  # the rows that can differ from ``lev``'s offsets, for `H.moved_details`
+        fine[level - 1].__dict__[H._MOVED] = (lev.offsets, cv_rows)
     if "_ring_rows" in lev.__dict__:  # same CVs, other offsets: the same ring rows (`_ring_rows`)
         fine[level - 1].__dict__["_ring_rows"] = lev.__dict__["_ring_rows"]
     return H.with_fine(hs, tuple(fine), same_cvs=True)
@@ -372,21 +382,8 @@ def _ring_sums(hs: H.HSpline, det: H.Details, k: int, axis: int,
     return sums, rows, ok, spread
 
 
-def _ring_rows(hs: H.HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
-    """`_ring_sums`' rows and movability, which depend on the level's CVs alone: looked up once
-    per `Level` object (a response asks for each ring several times while most levels stay as
-    they are), read-only."""
-    lev = hs.level(k)
-    memo = lev.__dict__.setdefault("_ring_rows", {})
-    key = (hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, axis, end)  # the grid's fields: cheaper to hash than its directions
-    if key not in memo:
-        ring, _ = H.pole_ring(hs, k, axis, end)
-        rows, ok = H._lookup(lev.cv_keys, ring)
-        if lev.cv_keys.size:
-            ok &= lev.movable[rows]
-        rows.flags.writeable = ok.flags.writeable = False
-        memo[key] = (rows, ok)
-    return memo[key]
+# `_ring_sums`' rows and movability, looked up once per `Level` object (`H.pole_ring_rows`)
+_ring_rows = pole_ring_rows
 
 
 def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, int]]:
@@ -442,6 +439,19 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
     return hs, det
 
 
+def _ring_reach(hs: H.HSpline, pw: PointWeights, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_ring_rows` of level ``k``'s ring at ``(axis, end)`` and which of its CVs ``pw``'s solve
+    moves, ``reached (N, 3) bool``: kept on ``pw`` per level object, as `_reach_rings` and then
+    `_ring_constraints` ask it of the same weights and level."""
+    lev = hs.level(k)
+    memo = pw.__dict__.setdefault("_reach", {})
+    hit = memo.get((k, axis, end))
+    if hit is None or hit[0] is not lev:
+        rows, ok = _ring_rows(hs, k, axis, end)
+        hit = memo[(k, axis, end)] = (lev, rows, ok, H._lookup(pw.cv_rows, rows)[1])  # cv_rows: sorted
+    return hit[1], hit[2], hit[3]
+
+
 def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.ndarray, rings: list[tuple[int, int, int]]):
     """Under ``refine``: make wholly movable each pole ring of ``pw``'s level that its points
     ``uv (K, 2)`` move a CV of, so `_ring_constraints` can keep it closed; ``pw`` is recomputed
@@ -449,8 +459,8 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
-            rows, ok = _ring_rows(hs, k, axis, end)
-            if not ok.all() and H._lookup(pw.cv_rows, rows[ok])[1].any():  # cv_rows: sorted
+            _, ok, reached = _ring_reach(hs, pw, k, axis, end)
+            if not ok.all() and reached[ok].any():
                 hs, det, _ = _open_ring(hs, det, k, axis, end, True)
     if hs is not before:
         pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
@@ -473,8 +483,8 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     for k, axis, end in rings:
         if k != pw.level:
             continue
-        rows, ok = _ring_rows(hs, k, axis, end)  # a ring the move does not reach needs no sums
-        if not ok.all() or not H._lookup(pw.cv_rows, rows)[1].any():  # cv_rows: sorted
+        rows, ok, reached = _ring_reach(hs, pw, k, axis, end)  # a ring the move does not reach needs no sums
+        if not ok.all() or not reached.any():
             continue
         sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
@@ -489,7 +499,7 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
         return pw, want
     # the unknowns: the data points' CVs and the rings';
     # each entry's column is its CV's place among them (np.unique's inverse of every entry)
-    cv_rows = np.unique(np.concatenate([pw.cv_rows[pw.col], *ring_rows]))
+    cv_rows = levelkernels.unique_inverse(np.concatenate([pw.cv_rows, *ring_rows]))[0]  # pw.cv_rows: its entries' rows, each once
     col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
     for r in ring_rows:
         c = np.searchsorted(cv_rows, r)
@@ -531,7 +541,7 @@ def _translate(hs, level, uv, moves, det):
     acc = np.zeros((uniq.size, 3))
     np.add.at(acc, inv, flat_moves)
     acc /= np.bincount(inv, minlength=uniq.size)[:, None]
-    return _move_level(hs, level, uniq, acc, det)
+    return _move_level(hs, level, uniq, acc, det, True)
 
 
 def _rotation_pivots(hs, level, uv, det):
@@ -581,7 +591,7 @@ def _rotate(hs, level, uv, points, moves, det):
         else:
             x = det.vectors[level - 1][uniq[i]]
         dv[i] = quat_rotate(q[None], x[None])[0] - x
-    return _move_level(hs, level, uniq, dv, det)
+    return _move_level(hs, level, uniq, dv, det, True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -600,7 +610,7 @@ def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarra
     extra = ~is_contact
     if not np.any(extra):
         return uv, want
-    mids, _, inv = patch_groups(hs, uv[extra], level)
+    mids, _, inv = patch_groups(hs, uv[extra], level, patches=False)
     g = mids.shape[0]
     moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
     moves /= np.bincount(inv, minlength=g)[:, None]
@@ -638,20 +648,15 @@ def _make_movable(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     return _open_pole_rings(H.make_movable(hs, level, np.stack([su, sv], axis=1)), level, uv)
 
 
-_BLOCK = np.stack(np.meshgrid(np.arange(-3, 4), np.arange(-3, 4), indexing="ij"), axis=-1).reshape(-1, 2)
-
-
-def _movable_patches(hs: H.HSpline, level: int, uv: np.ndarray, pole: np.ndarray) -> np.ndarray:
-    """The level-``level`` patches ``(m, 2) int64`` `_make_movable` activates for the points
-    ``uv (K, 2)``: the 7×7 block about each point's patch (`H.make_movable`) and the whole pole
-    ring of each pole a point sits on (``pole (K,)``, `H.pole_of`)."""
-    su, _ = locate(hs.u, uv[:, 0], level)
-    sv, _ = locate(hs.v, uv[:, 1], level)
-    out = [(np.stack([su, sv], axis=1)[:, None, :] + _BLOCK).reshape(-1, 2)]
-    for i, (axis, end) in enumerate(H.closed_ends(hs)):
-        if np.any(pole == i):
-            out.append(H.pole_patches(hs, level, axis, end))
-    return np.concatenate(out)
+def _pole_blocks(hs: H.HSpline, levels: tuple[int, ...], pole: np.ndarray) -> dict[int, np.ndarray]:
+    """The level patches ``(m, 2) int64`` that `_make_movable` activates on each of ``levels``
+    besides each point's 7×7 block: the whole pole ring (`H.pole_patches`) of each pole a point
+    sits on (``pole (K,)``, `H.pole_of`)."""
+    on = set(pole.tolist())  # the poles any point sits on (a few dozen points)
+    ends = [(axis, end) for i, (axis, end) in enumerate(H.closed_ends(hs)) if i in on]
+    if not ends:
+        return {}
+    return {level: np.concatenate([H.pole_patches(hs, level, axis, end) for axis, end in ends]) for level in levels}
 
 
 def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
@@ -762,7 +767,11 @@ def respond(
     # A periodic pole keeps its ring in the solve: there the ring is the spike tip's whole
     # closed end, and without it dog_head_spike's frame 15 needs a third round.
     fan = {(axis, end): not (hs.v if axis == 0 else hs.u).periodic for axis, end in H.closed_ends(hs)}
-    finest = int(np.nonzero(controls.absorption > 0)[0].max()) if np.any(controls.absorption > 0) else -1
+    # the controls as Python floats: the loop reads them per level, a numpy scalar at a time
+    absorb, deform = controls.absorption.tolist(), controls.deform.tolist()
+    translate, rotate = controls.translate.tolist(), controls.rotate.tolist()
+    absorbing = [level for level in range(L) if absorb[level] > 0.0]
+    finest = absorbing[-1] if absorbing else -1
     # the last level that deforms, where finer absorbing levels only turn or translate their
     # detail, keeps every mode above ``rcond`` (`amplify`): what it leaves unfitted no later level
     # can reshape
@@ -776,19 +785,23 @@ def respond(
     # nothing; unless level 0 moves (its ends decide the poles `_open_pole_rings` opens), every
     # absorbing level is refined before the first solve, so one pass of `H.details` frames all
     # the new CVs and each later move's pass turns those on its stale patches with the rest.
-    early = controls.refine and controls.absorption[0] <= 0.0
+    early = controls.refine and absorb[0] <= 0.0
+    is_contact = np.asarray(points.is_contact, bool)
+    merged = points.per_patch and not is_contact.all()  # additional points merged per patch (eq. 4.16)
+    # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
+    # once for every level's weights while level 0 stays as it is
+    cvs0, pole0 = hs.cvs, H.pole_of(hs, uv[:, 0], uv[:, 1])
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
-        pole = H.pole_of(hs, uv[:, 0], uv[:, 1])
-        hs = refine_levels(hs, {level: _movable_patches(hs, level, uv, pole) for level in range(1, L)
-                                if controls.absorption[level] > 0.0})
+        levels = tuple(level for level in absorbing if level >= 1)
+        hs = refine_blocks(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole0))
         refined = sum(lev.patches.size for lev in hs.fine) - before
         if refined:
             # the finer absorbing levels' new CVs are framed by the coarsest one's move, which
             # turns them; the coarsest level's own frames its solve moves with
-            hs, det = _redetail(coarse, det, hs, (), lazy=int(np.nonzero(controls.absorption > 0)[0].min()))
+            hs, det = _redetail(coarse, det, hs, (), lazy=absorbing[0])
     for level in range(L):
-        a = float(controls.absorption[level])
+        a = absorb[level]
         if a <= 0.0:
             continue
         if level >= 1 and controls.refine and not early:
@@ -799,19 +812,20 @@ def respond(
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
                 hs, det = _redetail(coarse, det, hs, ())
-        d, t, r = (float(controls.deform[level]), float(controls.translate[level]), float(controls.rotate[level]))
+        d, t, r = deform[level], translate[level], rotate[level]
         # the points' own weights serve the solve only when it takes them as they are (no points
         # merged per patch, none held); otherwise which points the level reaches is all it needs
-        own = d > 0 and not (points.per_patch and not np.asarray(points.is_contact, bool).all()) and not (
+        own = d > 0 and not merged and not (
             level == finest and held is not None and len(held.uv))
-        pw = point_weights(hs, level, uv[:, 0], uv[:, 1]) if own else None
-        present = pw.active if own else point_active(hs, level, uv[:, 0], uv[:, 1])
+        pole = pole0 if hs.cvs is cvs0 else None
+        pw = point_weights(hs, level, uv[:, 0], uv[:, 1], pole) if own else None
+        present = pw.active if own else point_active(hs, level, uv[:, 0], uv[:, 1], pole)
         if d > 0:
             cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
             if points.per_patch:
-                luv, lwant = _per_level_points(hs, level, uv, want, np.asarray(points.is_contact, bool))
+                luv, lwant = _per_level_points(hs, level, uv, want, is_contact)
             else:
                 luv, lwant = uv, want
             if level == finest and held is not None and len(held.uv):
@@ -827,7 +841,7 @@ def respond(
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
             dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                        amplify=None if level == exact else amplify)
-            hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det), (level,))
+            hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det, True), (level,))
         sel = np.nonzero(present)[0]
         if t > 0 and sel.size:
             hs, det = _redetail(hs, det, _translate(hs, level, uv[sel], a * t * dq[sel], det), (level,))
@@ -844,7 +858,7 @@ def respond(
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
                 dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                            amplify=None if level == exact else amplify)
-                hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det), (level,))
+                hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det, True), (level,))
         applied = applied + np.where(present, a, 0.0)
         hs, det = _settled(hs, det)
     hs, det = _close_rings(hs, det, rings, controls.refine)

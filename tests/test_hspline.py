@@ -251,6 +251,36 @@ def test_refine_levels_builds_each_level_once_as_refining_them_in_turn(closed, m
         Hi.refine_levels(hs, {1: [[0, 0]], 4: [[0, 0]]})
 
 
+@pytest.mark.parametrize("kind", ["sheet", "sphere", "torus"])
+def test_refine_blocks_equal_make_movable_of_each_level_in_one_sweep(kind):
+    """`Hi.refine_blocks` (a response's up-front refinement: the 7×7 block about each point's
+    patch on each absorbing level, listed by `levelkernels.block_keys`, plus a pole's rows) is
+    `refine_levels` of those blocks: the same levels, key for key, across periodic seams and
+    open borders, points on knots and ends included; the same surface when nothing is new."""
+    grid = {"sheet": shapes.sheet(9, 8, 6.0, 5.0), "sphere": shapes.sphere(10, 8), "torus": shapes.torus(7, 6)}[kind]
+    hs = with_random_offsets(H.refine(H.from_grid(*grid, depth=5), 1, [[2, 2]]), 0.05, 0)
+    rng = np.random.default_rng(3)
+    u = np.concatenate([rng.uniform(0, hs.u.patches0, 6), [0.0, hs.u.patches0, 2.5, 1.0]])
+    v = np.concatenate([rng.uniform(0, hs.v.patches0, 6), [hs.v.patches0, 0.0, 3.0, 0.75]])
+    extra = {3: np.array([[0, 1], [4, 2]])}
+    for levels in ((2, 3, 4), (1,), (2, 4)):
+        want = {}
+        for k in levels:
+            su, _ = B.locate(hs.u, u, k)
+            sv, _ = B.locate(hs.v, v, k)
+            d = np.arange(-3, 4)
+            block = np.stack(np.broadcast_arrays(su[:, None, None] + d[:, None], sv[:, None, None] + d[None, :]), -1)
+            want[k] = np.concatenate([block.reshape(-1, 2), extra.get(k, np.zeros((0, 2), np.int64))])
+        ref = Hi.refine_levels(hs, want)
+        got = Hi.refine_blocks(hs, levels, u, v, {k: extra[k] for k in levels if k in extra})
+        assert got is not hs
+        for a, b in zip(ref.fine, got.fine):
+            _same_level(a, b)
+        assert Hi.refine_blocks(got, levels, u, v) is got
+    with pytest.raises(ValueError, match="levels 0..4"):
+        Hi.refine_blocks(hs, (1, 5), u, v)
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_details_since_a_local_move_equal_a_full_recomputation(seed):
     """`details(since=...)` recomputes only CVs centred on changed patches: equal to a full pass."""

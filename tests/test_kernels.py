@@ -380,3 +380,45 @@ def test_normals_of_tangent_rows_equal_degenerate_and_unit_rows(seed):
     assert kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, got, flagged) == bad.sum() > 0
     np.testing.assert_array_equal(flagged, bad)
     np.testing.assert_array_equal(got[~bad].view(np.int64), want.view(np.int64))
+
+
+@pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])
+def test_compiled_movable_places_equal_the_array_form(kind):
+    """`levelkernels.movable_places` (behind `hspline._movable_places`: each movable CV's row,
+    Greville centre and level-0 patch) gives the array form's integers and bits on every level,
+    across periodic seams and open borders (where a centre's patch is clamped)."""
+    from acra import levelkernels
+
+    for seed in range(3):
+        hs = _surface(kind, 4, seed)
+        ends = H.closed_ends(hs)
+        for k in range(1, hs.depth):
+            lev = hs.level(k)
+            H._PLACES.clear()
+            got = H._movable_places(hs, k, lev, ends)
+            want = H._movable_places_numpy(hs, k, lev, ends)
+            for a, b in zip(got, want):
+                assert a.dtype == b.dtype
+                np.testing.assert_array_equal(np.asarray(a).view(np.int64), np.asarray(b).view(np.int64))
+            rows, _, ju, jv = levelkernels.movable_places(lev.cv_keys, lev.movable, k, hs.u.cvs(k), hs.v.cvs(k),
+                                                          hs.u.patches0, hs.u.periodic, hs.v.patches0, hs.v.periodic,
+                                                          H._ends_array(ends))[:4]
+            np.testing.assert_array_equal(ju * hs.v.cvs(k) + jv, lev.cv_keys[rows])
+    H._PLACES.clear()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_compiled_unique_inverse_equals_numpy_unique(seed):
+    """`levelkernels.unique_inverse` (behind `interpolate.point_weights`' columns and
+    `respond.patch_groups`) gives `np.unique`'s sorted values and inverse, duplicates and an
+    empty array included."""
+    from acra import levelkernels
+
+    rng = np.random.default_rng(seed)
+    for n in (0, 1, 7, 300):
+        x = rng.integers(0, max(n // 3, 1) + 5 * seed, n).astype(np.int64)
+        uniq, inv = levelkernels.unique_inverse(x)
+        want_uniq, want_inv = np.unique(x, return_inverse=True)
+        np.testing.assert_array_equal(uniq, want_uniq)
+        np.testing.assert_array_equal(inv, want_inv)
+        assert uniq.dtype == inv.dtype == np.int64
