@@ -24,13 +24,65 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["GROUP", "SLACK", "group_boxes", "sure_first_hits"]
+from acra import meshops
+
+__all__ = ["GROUP", "SLACK", "merged", "group_boxes", "sure_first_hits"]
 
 GROUP = 16  # consecutive faces per box
 # Bound on embree's float32 error of an edge function, a determinant or a depth, as a multiple of
 # float32's unit roundoff times the product of the operands' L1 norms: each is a triple product of
 # differences (a cross product and a dot, about 5 roundings each, some fused); 64 is a wide margin
 SLACK = 64.0 * 2.0**-24
+
+
+@njit(cache=True, nogil=True)
+def _merge(keys, referenced, new_id, rep):
+    """Number the referenced rows of ``keys (n, 3) int64`` by first appearance, equal rows one
+    number (``new_id (n,)``, ``rep``: each number's first row); returns how many. An open
+    addressing table of the rows seen: which rows are equal, not how they hash, fixes the
+    answer."""
+    size = 1
+    while size < 2 * keys.shape[0]:
+        size *= 2
+    table = np.full(size, -1, np.int64)
+    count = 0
+    for i in range(keys.shape[0]):
+        if not referenced[i]:
+            continue
+        h = (np.uint64(keys[i, 0]) * np.uint64(0x9E3779B97F4A7C15) ^ np.uint64(keys[i, 1]) * np.uint64(0xC2B2AE3D27D4EB4F)
+             ^ np.uint64(keys[i, 2]) * np.uint64(0x165667B19E3779F9))
+        slot = np.int64((h ^ (h >> np.uint64(29))) & np.uint64(size - 1))
+        while True:
+            j = table[slot]
+            if j < 0:
+                table[slot] = i
+                new_id[i] = count
+                rep[count] = i
+                count += 1
+                break
+            if keys[j, 0] == keys[i, 0] and keys[j, 1] == keys[i, 1] and keys[j, 2] == keys[i, 2]:
+                new_id[i] = new_id[j]
+                break
+            slot = (slot + 1) & (size - 1)
+    return count
+
+
+def merged(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`acra.meshops.merge_vertices` (trimesh's merge to 1e-8), the same vertices ``(m, 3)`` and
+    faces ``(f, 3) int64``, grouping the rounded rows in one compiled pass instead of sorting them."""
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
+    if not len(vertices):
+        return vertices, faces
+    referenced = np.zeros(len(vertices), dtype=bool)
+    if len(faces):
+        referenced[faces] = True
+    else:
+        referenced[:] = True
+    keys = np.ascontiguousarray((vertices * (10 ** meshops.MERGE_DIGITS)).round().astype(np.int64))
+    new_id, rep = np.zeros(len(vertices), np.int64), np.empty(len(vertices), np.int64)
+    count = _merge(keys, referenced, new_id, rep)
+    return vertices[rep[:count]], new_id[faces]
 
 
 @njit(cache=True, nogil=True)

@@ -72,7 +72,7 @@ _DEVICE = None  # the embree device every scene shares: a scene of its own would
 class RayMesh:
     """A merged triangle mesh cast on as trimesh's embree intersector (``trimesh.ray.ray_pyembree``,
     first hits with locations) casts, without a `trimesh.Trimesh`: the vertices merged to 1e-8
-    (`acra.meshops.merge_vertices`), moved to the box's low corner and scaled to a diagonal of
+    (`acra.raycast.merged`, trimesh's rule), moved to the box's low corner and scaled to a diagonal of
     100 in float32 for embree, which reports the first triangle a ray meets; the hit is where the
     float64 ray meets that triangle's plane (its first corner, unit normal). The same bits as
     trimesh's (tests/test_meshops.py).
@@ -84,20 +84,17 @@ class RayMesh:
     0.2-0.8 ms to build, 30 times a cast of 70 rays."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        self.vertices, self.faces = meshops.merge_vertices(vertices, faces)
+        self.vertices, self.faces = raycast.merged(vertices, faces)
         self.scale = meshops.scale(self.vertices)
         self._scene = None
         self._ready = False
 
     def _prepare(self) -> None:
-        """embree's float32 vertices ``(v, 3)`` and the faces' boxes, the planes' corners and
-        unit normals ``(f, 3)``, at the first cast."""
+        """embree's float32 vertices ``(v, 3)`` and the boxes of the faces, at the first cast."""
         self.origin = self.vertices.min(axis=0)
         self.factor = float(100.0 / self.scale)
         self.scaled = ((self.vertices - self.origin) * self.factor).astype(np.float32)
         self.boxes = raycast.group_boxes(self.scaled, self.faces)
-        self.plane_origins = self.vertices[self.faces[:, 0]]
-        self.normals = meshops.face_normals(self.vertices, self.faces)
         self._ready = True
 
     @property
@@ -125,8 +122,11 @@ class RayMesh:
             ask = np.nonzero(~sure)[0]
             query[ask] = self.scene.run(np.ascontiguousarray(scaled[ask]), np.ascontiguousarray(unit[ask]))
         rays = np.nonzero(query != -1)[0]
-        tris = query[rays]
-        loc, valid = meshops.planes_lines(self.plane_origins[tris], self.normals[tris], origins[rays], directions[rays])
+        faces = self.faces[query[rays]]
+        # the hit faces' normals alone: each row is the same bits as in the whole mesh's
+        # (`Trimesh.face_normals`), every step being row by row
+        normals = meshops.face_normals(self.vertices, faces)
+        loc, valid = meshops.planes_lines(self.vertices[faces[:, 0]], normals, origins[rays], directions[rays])
         return loc, rays[valid]
 
     def trimesh(self):
