@@ -171,7 +171,8 @@ def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.
     loc, ray = mesh.first_hits(origins, directions)
     # embree works in float32 and can let a ray through an edge it meets exactly: retry the
     # rays that met a box but no triangle in float64 (rare, so the slower intersector is fine)
-    miss = np.setdiff1d(np.nonzero(ray_hit)[0], ray)
+    ray_hit[ray] = False
+    miss = np.nonzero(ray_hit)[0]
     if len(miss):
         from trimesh.ray.ray_triangle import RayMeshIntersector
 
