@@ -328,6 +328,7 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
     pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
     h = 1.0 / dens[pu, pv]
     tree = cKDTree(D.wrap_uv(hs, region_uv))
+    bound = 2e-3 * float(h.max())
     src, out = [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         n = region_uv + np.stack([du * h, dv * h], axis=1)
@@ -335,7 +336,9 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
         for c, d in enumerate((hs.u, hs.v)):
             if not d.periodic:  # no neighbour past an open edge of the domain
                 ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
-        dist, _ = tree.query(D.wrap_uv(hs, n))
+        # only whether a sample lies within 1e-3 h matters: the search stops past twice the
+        # largest such h (farther answers come back infinite, and miss as the true distance would)
+        dist, _ = tree.query(D.wrap_uv(hs, n), distance_upper_bound=bound)
         miss = ok & (dist > 1e-3 * h)
         src.append(np.nonzero(miss)[0])
         out.append(n[miss])
