@@ -570,14 +570,10 @@ def spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarray
     if len(points) == 0:
         return keep
     keep &= np.linalg.norm(points - contact, axis=1) > radius
-    # the pairs `cKDTree.query_pairs(radius)` finds: squared distance summed axis by axis in
-    # order, at most the radius squared; taken in order of (i, j), the earlier point of a pair
-    # drops the later while it is kept itself (a few dozen points: every pair at once)
-    d = [points[:, None, a] - points[None, :, a] for a in range(3)]
-    close = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= radius * radius) & np.tri(len(points), k=-1, dtype=bool).T
-    for i in range(len(points) - 1):
+    tree = cKDTree(points)
+    for i, j in sorted(tree.query_pairs(radius)):
         if keep[i]:
-            keep &= ~close[i]
+            keep[j] = False
     return keep
 
 

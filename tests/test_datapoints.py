@@ -343,25 +343,3 @@ def test_thinning_keeps_the_points_the_array_form_keeps(surface):
             np.testing.assert_array_equal(got.uv, uv[keep])
             assert P._uv_distance(hs, uv, uv).tobytes() == dist.tobytes()
 
-
-def test_spread_keeps_what_the_kd_tree_form_keeps():
-    """`datapoints.spread` finds every pair `cKDTree.query_pairs` finds (points on a grid at
-    exactly the radius apart included) and keeps the same points."""
-    from scipy.spatial import cKDTree
-
-    def tree_form(points, contact, radius):
-        keep = np.linalg.norm(points - contact, axis=1) > radius
-        for i, j in sorted(cKDTree(points).query_pairs(radius)):
-            if keep[i]:
-                keep[j] = False
-        return keep
-
-    rng = np.random.default_rng(8)
-    for trial in range(60):
-        n = int(rng.integers(1, 90))
-        points = rng.random((n, 3)) * rng.choice([1.0, 1e-3, 300.0])
-        if trial % 3 == 0:
-            points = np.round(points * 8) / 8  # pairs at exactly a radius of 1/8 or 1/4
-        contact = points[0] + 0.01
-        for radius in (0.125, 0.25, 0.05, 3.0):
-            np.testing.assert_array_equal(P.spread(points, contact, radius), tree_form(points, contact, radius))
