@@ -85,14 +85,26 @@ def merged(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndar
     return vertices[rep[:count]], new_id[faces]
 
 
+@njit(cache=True, nogil=True)
+def _group_boxes(v, faces, group, lo, hi):
+    for g in range(lo.shape[0]):
+        for a in range(3):
+            lo[g, a], hi[g, a] = np.inf, -np.inf
+        for f in range(g * group, min((g + 1) * group, faces.shape[0])):
+            for k in range(3):
+                for a in range(3):
+                    x = np.float64(v[faces[f, k], a])
+                    lo[g, a] = min(lo[g, a], x)
+                    hi[g, a] = max(hi[g, a], x)
+
+
 def group_boxes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Boxes ``lo, hi (g, 3)`` of each `GROUP` consecutive faces ``faces (f, 3) int64`` of
     ``vertices (v, 3) float32``."""
-    if not len(faces):
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    corners = vertices[faces].astype(np.float64)  # (f, 3, 3)
-    starts = np.arange(0, len(faces), GROUP)
-    return np.minimum.reduceat(corners.min(axis=1), starts), np.maximum.reduceat(corners.max(axis=1), starts)
+    count = -(-len(faces) // GROUP)
+    lo, hi = np.empty((count, 3)), np.empty((count, 3))
+    _group_boxes(vertices, faces, GROUP, lo, hi)
+    return lo, hi
 
 
 @njit(cache=True, nogil=True)
