@@ -328,6 +328,7 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
     pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
     h = 1.0 / dens[pu, pv]
     tree = cKDTree(D.wrap_uv(hs, region_uv))
+    bound = 2e-3 * float(h.max())
     src, out = [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         n = region_uv + np.stack([du * h, dv * h], axis=1)
@@ -335,7 +336,9 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
         for c, d in enumerate((hs.u, hs.v)):
             if not d.periodic:  # no neighbour past an open edge of the domain
                 ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
-        dist, _ = tree.query(D.wrap_uv(hs, n))
+        # only whether a sample lies within 1e-3 h matters: the search stops past twice the
+        # largest such h (farther answers come back infinite, and miss as the true distance would)
+        dist, _ = tree.query(D.wrap_uv(hs, n), distance_upper_bound=bound)
         miss = ok & (dist > 1e-3 * h)
         src.append(np.nonzero(miss)[0])
         out.append(n[miss])
@@ -690,18 +693,25 @@ def _thinned(hs: H.HSpline, dp: R.DataPoints, gap: float) -> R.DataPoints:
     contact = np.asarray(dp.is_contact, bool)
     move = np.linalg.norm(dp.target - H.evaluate(hs, dp.uv[:, 0], dp.uv[:, 1]).points, axis=1)
     order = np.concatenate([np.nonzero(contact)[0], np.nonzero(~contact)[0][np.argsort(-move[~contact], kind="stable")]])
-    near = _uv_distance(hs, dp.uv, dp.uv) < gap
-    keep = np.zeros(len(dp.uv), bool)
-    for k in order:
-        keep[k] = contact[k] or not (near[k] & keep).any()
+    near = np.packbits(_uv_distance(hs, dp.uv, dp.uv) < gap, axis=1)
+    # each row's neighbours as the bits of one integer (column j at bit `top - j`), the kept
+    # points as another: a point's test is one `&`, not a pass over every point
+    width, top = near.shape[1], 8 * near.shape[1] - 1
+    rows = near.tobytes()
+    keep, kept, held = np.zeros(len(dp.uv), bool), 0, contact.tolist()
+    for k in order.tolist():
+        if held[k] or not int.from_bytes(rows[k * width:(k + 1) * width], "big") & kept:
+            keep[k] = True
+            kept |= 1 << (top - k)
     return _take(dp, keep)
 
 
 def _uv_distance(hs: H.HSpline, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance in level-0 parameters between each of ``a (n, 2)`` and each of ``b (m, 2)``:
     ``(n, m)``, across the seam of a periodic direction."""
-    d = np.abs(a[:, None, :] - b[None, :, :])
+    d = [np.abs(a[:, None, col] - b[None, :, col]) for col in (0, 1)]
     for col, dim in ((0, hs.u), (1, hs.v)):
         if dim.periodic:
-            d[..., col] = np.minimum(d[..., col], dim.patches0 - d[..., col])
-    return np.linalg.norm(d, axis=2)
+            d[col] = np.minimum(d[col], dim.patches0 - d[col])
+    # `np.linalg.norm(..., axis=-1)` of the (n, m, 2) differences, the same sum of two squares
+    return np.sqrt(d[0] * d[0] + d[1] * d[1])

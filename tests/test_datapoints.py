@@ -300,3 +300,46 @@ def test_an_earlier_contact_gives_way_on_a_flat_face_and_to_a_later_split():
     assert len(P.pinned(hs, new, old, 1, shared=True)[1].uv) == 0
     flank = R.DataPoints(nuv, _on(hs, nuv) + 0.1 * down, np.array([False]))
     assert len(P.pinned(hs, flank, old, 1, shared=True)[1].uv) == 1
+
+
+def _thinned_array_form(hs, dp, gap):
+    """`datapoints._thinned` as one numpy pass per point over a (n, n, 2) distance array."""
+    from acra import hspline as H
+
+    contact = np.asarray(dp.is_contact, bool)
+    move = np.linalg.norm(dp.target - H.evaluate(hs, dp.uv[:, 0], dp.uv[:, 1]).points, axis=1)
+    order = np.concatenate([np.nonzero(contact)[0], np.nonzero(~contact)[0][np.argsort(-move[~contact], kind="stable")]])
+    d = np.abs(dp.uv[:, None, :] - dp.uv[None, :, :])
+    for col, dim in ((0, hs.u), (1, hs.v)):
+        if dim.periodic:
+            d[..., col] = np.minimum(d[..., col], dim.patches0 - d[..., col])
+    near = np.linalg.norm(d, axis=2) < gap
+    keep = np.zeros(len(dp.uv), bool)
+    for k in order:
+        keep[k] = contact[k] or not (near[k] & keep).any()
+    return keep, np.linalg.norm(d, axis=2)
+
+
+@pytest.mark.parametrize("surface", ["sphere", "sheet"])
+def test_thinning_keeps_the_points_the_array_form_keeps(surface):
+    """`datapoints._thinned` (neighbours as bits) and `_uv_distance` give the array form's
+    answers bit for bit, across a periodic seam and with points on a grid (distances equal to
+    the gap), for up to 300 points."""
+    from acra import hspline as H
+    from acra import respond as R
+    from acra import shapes
+
+    hs = H.from_grid(*(shapes.sphere(8, 8) if surface == "sphere" else shapes.sheet(10, 10, 7.0, 7.0)), depth=3)
+    rng = np.random.default_rng(3)
+    for trial in range(12):
+        n = int(rng.integers(1, 300))
+        uv = rng.random((n, 2)) * [hs.u.patches0, hs.v.patches0]
+        if trial % 3 == 0:
+            uv = np.round(uv * 4) / 4
+        dp = R.DataPoints(uv, _on(hs, uv) + rng.standard_normal((n, 3)), rng.random(n) < 0.1)
+        for gap in (0.05, 0.25, 0.5):
+            keep, dist = _thinned_array_form(hs, dp, gap)
+            got = P._thinned(hs, dp, gap)
+            np.testing.assert_array_equal(got.uv, uv[keep])
+            assert P._uv_distance(hs, uv, uv).tobytes() == dist.tobytes()
+
