@@ -20,8 +20,9 @@ the rest (bytecode analysis, rewrites, the cache's save), the top ``--top`` by t
 ``--warm N`` fills a new empty cache from N processes at once, each compiling a disjoint group of
 the kernels the run calls from Python (with the kernels they call) for the signatures a run of
 this checkout records, as a TD could once after install; then runs the scene on that cache.
-Prints the warm-up's wall and user seconds, the specialisations compiled in more than one
-process (a kernel two groups call) and the run's user and wall seconds after it.
+Prints the warm-up's wall and user seconds (and each process's user seconds: on N idle cores
+its wall would be about the largest), the specialisations compiled in more than one process (a
+kernel two groups call) and the run's user and wall seconds after it.
 """
 
 from __future__ import annotations
@@ -177,7 +178,7 @@ def compile_group(path: Path) -> None:
     for key, sigs in pickle.loads(path.read_bytes()).items():
         for sig in sigs:
             found[key].compile(sig)
-    print(sum(len(d.signatures) for d in found.values()))
+    print(sum(len(d.signatures) for d in found.values()), resource.getrusage(resource.RUSAGE_SELF).ru_utime)
 
 
 def _groups(sigs: dict, n: int) -> list[dict]:
@@ -227,7 +228,8 @@ def warm(scene: Path, fmt: str, n: int, checkout: Path = HERE) -> None:
         t = time.perf_counter()
         procs = [subprocess.Popen([sys.executable, __file__, "--compile", str(tmp / f"group{i}.pkl")],
                                   stdout=subprocess.PIPE, text=True, env=env, cwd=tmp) for i in range(n)]
-        compiled = [int(p.communicate()[0].split()[-1]) for p in procs]
+        counts = [p.communicate()[0].split()[-2:] for p in procs]
+        compiled, users = [int(c) for c, _ in counts], [float(u) for _, u in counts]
         wall = time.perf_counter() - t
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cached = len(list((tmp / "cache").rglob("*.nbc")))
@@ -237,7 +239,8 @@ def warm(scene: Path, fmt: str, n: int, checkout: Path = HERE) -> None:
         last = resource.getrusage(resource.RUSAGE_CHILDREN)
     print(f"{checkout}: cache warmed by {n} processes at once: wall {wall:.1f} s, user {after.ru_utime - before.ru_utime:.1f}"
           f" s, system {after.ru_stime - before.ru_stime:.1f} s; {sum(compiled)} specialisations compiled "
-          f"({', '.join(map(str, compiled))}), {cached} cached: {sum(compiled) - cached} compiled twice")
+          f"({', '.join(map(str, compiled))}), {cached} cached: {sum(compiled) - cached} compiled twice; user s a process "
+          f"{', '.join(f'{u:.1f}' for u in users)} (on {n} idle cores the wall would be about the largest)")
     print(f"  then {scene.name} -o .{fmt}: user {last.ru_utime - after.ru_utime:.1f} s, wall {run_wall:.1f} s")
 
 
