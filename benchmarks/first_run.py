@@ -18,7 +18,7 @@ lowering to LLVM IR, of LLVM (optimising and emitting machine code, `CodeLibrary
 the rest (bytecode analysis, rewrites, the cache's save), the top ``--top`` by total.
 
 ``--warm N`` fills a new empty cache from N processes at once, each compiling a disjoint group of
-the kernels the run calls from Python (with the kernels they call) for the signatures a run of
+the kernels the run calls from Python (with the kernels they call, balanced by `_groups`) for the signatures a run of
 this checkout records, as a TD could once after install; then runs the scene on that cache.
 Prints the warm-up's wall and user seconds (and each process's user seconds: on N idle cores
 its wall would be about the largest), the specialisations compiled in more than one process (a
@@ -182,9 +182,12 @@ def compile_group(path: Path) -> None:
 
 
 def _groups(sigs: dict, n: int) -> list[dict]:
-    """The recorded kernels that no recorded kernel calls, in ``n`` groups of about equal source
-    (each with the kernels it calls, which its typing compiles), largest first to the smallest."""
+    """The recorded kernels that no recorded kernel calls, in ``n`` groups of about equal weight,
+    heaviest first to the lightest group. Each is compiled with the kernels it calls, whose code
+    numba links into the caller's and LLVM optimises and emits again there: a kernel weighs its
+    source and the weight of each kernel it calls, once per caller."""
     import inspect
+    from functools import cache
 
     found = _dispatchers()
     calls = {key: {f"{g[name].py_func.__module__}:{g[name].py_func.__name__}" for name in found[key].py_func.__code__.co_names
@@ -192,21 +195,14 @@ def _groups(sigs: dict, n: int) -> list[dict]:
              for key in sigs}
     called = set().union(*calls.values())
 
-    def closure(key: str) -> set:
-        seen, todo = set(), [key]
-        while todo:
-            k = todo.pop()
-            if k not in seen:
-                seen.add(k)
-                todo.extend(calls[k])
-        return seen
+    @cache
+    def weight(key: str) -> int:
+        return len(inspect.getsource(found[key].py_func)) + sum(weight(c) for c in calls[key])
 
-    size = {key: len(inspect.getsource(found[key].py_func)) for key in sigs}
-    roots = sorted((k for k in sigs if k not in called), key=lambda k: -sum(size[c] for c in closure(k)))
-    groups: list[tuple[set, dict]] = [(set(), {}) for _ in range(n)]
-    for key in roots:
-        covered, group = min(groups, key=lambda g: sum(size[c] for c in g[0]))
-        covered |= closure(key)
+    groups: list[tuple[list, dict]] = [([0], {}) for _ in range(n)]
+    for key in sorted((k for k in sigs if k not in called), key=lambda k: -weight(k)):
+        total, group = min(groups, key=lambda g: g[0][0])
+        total[0] += weight(key)
         group[key] = sigs[key]
     return [g for _, g in groups]
 
