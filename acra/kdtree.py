@@ -84,7 +84,9 @@ def _build(pts, order, start, stop, dim, split, left):
         left[node] = -1
         if b - a <= LEAF:
             continue
-        best, d = -1.0, 0
+        # d starts as an int64, not the literal 0: typing would otherwise compile `_select` once
+        # for the literal and once for the axis the loop picks
+        best, d = -1.0, np.int64(0)
         for k in range(3):
             lo, hi = np.inf, -np.inf
             for i in range(a, b):

@@ -16,6 +16,13 @@ with the kernels cached more than once.
 kernel's typing compiled): per kernel and specialisation the CPU seconds of type inference, of
 lowering to LLVM IR, of LLVM (optimising and emitting machine code, `CodeLibrary.finalize`) and of
 the rest (bytecode analysis, rewrites, the cache's save), the top ``--top`` by total.
+
+``--warm N`` fills a new empty cache from N processes at once, each compiling a disjoint group of
+the kernels the run calls from Python (with the kernels they call, balanced by `_groups`) for the signatures a run of
+this checkout records, as a TD could once after install; then runs the scene on that cache.
+Prints the warm-up's wall and user seconds (and each process's user seconds: on N idle cores
+its wall would be about the largest), the specialisations compiled in more than one process (a
+kernel two groups call) and the run's user and wall seconds after it.
 """
 
 from __future__ import annotations
@@ -134,6 +141,105 @@ def profile(scene: Path, fmt: str) -> None:
                         [parents.get((name, args), "")]))
 
 
+def _dispatchers() -> dict:
+    """Every compiled kernel of ``acra``: ``{"module:name": dispatcher}``."""
+    import importlib
+    import pkgutil
+
+    import acra
+    from numba.core.registry import CPUDispatcher
+
+    found = {}
+    for info in pkgutil.iter_modules(acra.__path__):
+        mod = importlib.import_module(f"acra.{info.name}")
+        for name, obj in vars(mod).items():
+            if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == mod.__name__:
+                found[f"{mod.__name__}:{name}"] = obj
+    return found
+
+
+def record(scene: Path, fmt: str, out: Path) -> None:
+    """Child of ``--warm``: run the scene in this process and pickle each kernel's signatures."""
+    import pickle
+
+    from pipeline import cli
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cli.main(["run", str(scene), "-o", str(Path(tmp) / f"out.{fmt}"), "--quiet", "--over-tolerance", "warn"])
+    sigs = {key: list(d.signatures) for key, d in _dispatchers().items() if d.signatures}
+    out.write_bytes(pickle.dumps(sigs))
+
+
+def compile_group(path: Path) -> None:
+    """Child of ``--warm``: compile the pickled ``{"module:name": signatures}`` of one group."""
+    import pickle
+
+    found = _dispatchers()
+    for key, sigs in pickle.loads(path.read_bytes()).items():
+        for sig in sigs:
+            found[key].compile(sig)
+    print(sum(len(d.signatures) for d in found.values()), resource.getrusage(resource.RUSAGE_SELF).ru_utime)
+
+
+def _groups(sigs: dict, n: int) -> list[dict]:
+    """The recorded kernels that no recorded kernel calls, in ``n`` groups of about equal weight,
+    heaviest first to the lightest group. Each is compiled with the kernels it calls, whose code
+    numba links into the caller's and LLVM optimises and emits again there: a kernel weighs its
+    source and the weight of each kernel it calls, once per caller."""
+    import inspect
+    from functools import cache
+
+    found = _dispatchers()
+    calls = {key: {f"{g[name].py_func.__module__}:{g[name].py_func.__name__}" for name in found[key].py_func.__code__.co_names
+                   if name in (g := found[key].py_func.__globals__) and hasattr(g[name], "py_func")} & set(sigs)
+             for key in sigs}
+    called = set().union(*calls.values())
+
+    @cache
+    def weight(key: str) -> int:
+        return len(inspect.getsource(found[key].py_func)) + sum(weight(c) for c in calls[key])
+
+    groups: list[tuple[list, dict]] = [([0], {}) for _ in range(n)]
+    for key in sorted((k for k in sigs if k not in called), key=lambda k: -weight(k)):
+        total, group = min(groups, key=lambda g: g[0][0])
+        total[0] += weight(key)
+        group[key] = sigs[key]
+    return [g for _, g in groups]
+
+
+def warm(scene: Path, fmt: str, n: int, checkout: Path = HERE) -> None:
+    """``--warm N``: the cache filled by ``n`` processes at once, then the scene run on it."""
+    import pickle
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        env = {**os.environ, "PYTHONPATH": str(checkout)}
+        subprocess.run([sys.executable, __file__, "--record", str(tmp / "sigs.pkl"), "--format", fmt, str(scene)],
+                       check=True, capture_output=True, env=env, cwd=tmp)
+        sigs = pickle.loads((tmp / "sigs.pkl").read_bytes())
+        env["NUMBA_CACHE_DIR"] = str(tmp / "cache")
+        for i, group in enumerate(_groups(sigs, n)):
+            (tmp / f"group{i}.pkl").write_bytes(pickle.dumps(group))
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t = time.perf_counter()
+        procs = [subprocess.Popen([sys.executable, __file__, "--compile", str(tmp / f"group{i}.pkl")],
+                                  stdout=subprocess.PIPE, text=True, env=env, cwd=tmp) for i in range(n)]
+        counts = [p.communicate()[0].split()[-2:] for p in procs]
+        compiled, users = [int(c) for c, _ in counts], [float(u) for _, u in counts]
+        wall = time.perf_counter() - t
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cached = len(list((tmp / "cache").rglob("*.nbc")))
+        t = time.perf_counter()
+        subprocess.run(_argv(scene, tmp / f"out.{fmt}"), check=True, capture_output=True, env=env, cwd=tmp)
+        run_wall = time.perf_counter() - t
+        last = resource.getrusage(resource.RUSAGE_CHILDREN)
+    print(f"{checkout}: cache warmed by {n} processes at once: wall {wall:.1f} s, user {after.ru_utime - before.ru_utime:.1f}"
+          f" s, system {after.ru_stime - before.ru_stime:.1f} s; {sum(compiled)} specialisations compiled "
+          f"({', '.join(map(str, compiled))}), {cached} cached: {sum(compiled) - cached} compiled twice; user s a process "
+          f"{', '.join(f'{u:.1f}' for u in users)} (on {n} idle cores the wall would be about the largest)")
+    print(f"  then {scene.name} -o .{fmt}: user {last.ru_utime - after.ru_utime:.1f} s, wall {run_wall:.1f} s")
+
+
 def kernels(scene: Path, fmt: str, top: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp) / "cache"), "PYTHONPATH": str(HERE)}
@@ -175,14 +281,26 @@ def main() -> None:
     ap.add_argument("--kernels", action="store_true", help="also the per-kernel compile table (one more run)")
     ap.add_argument("--top", type=int, default=15)
     ap.add_argument("--base", type=Path, help="another checkout: its runs alternate with this one's (ratio of medians)")
+    ap.add_argument("--warm", type=int, metavar="N", help="also the cache warmed by N processes at once, then a run")
     ap.add_argument("--profile", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--record", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--compile", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     scene = args.scene.resolve()
     if args.profile:
         profile(scene, args.format)
         return
+    if args.record:
+        record(scene, args.format, args.record)
+        return
+    if args.compile:
+        compile_group(args.compile)
+        return
     if args.repeat < 1:
-        kernels(scene, args.format, args.top)
+        if args.warm:
+            warm(scene, args.format, args.warm)
+        if args.kernels or not args.warm:
+            kernels(scene, args.format, args.top)
         return
     checkouts = ([] if args.base is None else [args.base.resolve()]) + [HERE]
     runs: dict = {c: [] for c in checkouts}
@@ -204,6 +322,8 @@ def main() -> None:
         b, h = medians[checkouts[0]], medians[c]
         print(f"{c} / {checkouts[0]}, medians: "
               f"user {h[0] / b[0]:.3f}, wall {h[2] / b[2]:.3f}")
+    if args.warm:
+        warm(scene, args.format, args.warm)
     if args.kernels:
         kernels(scene, args.format, args.top)
 

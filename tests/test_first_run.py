@@ -8,7 +8,7 @@ from numba.core.compiler import CompilerBase, DefaultPassBuilder, Flags
 from numba.core.registry import cpu_target
 from numba.core.typed_passes import NopythonTypeInference
 
-from acra import bvh, lattice, pseudonormals
+from acra import bvh, kdtree, lattice, pseudonormals
 
 
 class _TypingOnly(CompilerBase):
@@ -21,8 +21,9 @@ class _TypingOnly(CompilerBase):
         return [pm]
 
 
-def _argsort_keys(kernel, *argtypes) -> set:
-    """The types of the keys ``kernel``'s ``np.argsort`` calls take for arguments ``argtypes``."""
+def _typed(kernel, *argtypes):
+    """numba's pipeline state after typing ``kernel`` for arguments ``argtypes`` (the kernels its
+    calls reach are compiled, as on a first run)."""
     typing, target = cpu_target.typing_context, cpu_target.target_context
     typing.refresh()
     target.refresh()
@@ -34,7 +35,12 @@ def _argsort_keys(kernel, *argtypes) -> set:
         pipeline.compile_extra(kernel.py_func)
     except numba.core.errors.CompilerError:  # no lowering pass: the pipeline ends after typing
         pass
-    st = pipeline.state
+    return pipeline.state
+
+
+def _argsort_keys(kernel, *argtypes) -> set:
+    """The types of the keys ``kernel``'s ``np.argsort`` calls take for arguments ``argtypes``."""
+    st = _typed(kernel, *argtypes)
     return {sig.args[0] for expr, sig in st.calltypes.items()
             if getattr(expr, "op", None) == "call" and "argsort" in str(st.typemap[expr.func.name])}
 
@@ -52,3 +58,13 @@ def test_every_kernels_merge_sort_takes_one_key_type():
     keys |= _argsort_keys(lattice.adaptive_mesh, *[arr(types.int64, 1)] * 3, types.int64, types.int64, types.int64,
                           types.boolean, types.boolean)
     assert keys == {arr(types.int64, 1)}
+
+
+def test_the_kd_tree_split_is_compiled_once():
+    """`kdtree._build` passes its split axis to `kdtree._select` as an int64 from the start: typing
+    it once as the literal 0 of its first assignment would compile `_select` a second time."""
+    arr = lambda dtype, ndim: types.Array(dtype, ndim, "C")  # noqa: E731
+    i64 = arr(types.int64, 1)
+    _typed(kdtree._build, arr(types.float64, 2), i64, i64, i64, i64, arr(types.float64, 1), i64)
+    assert kdtree._select.signatures
+    assert not any(isinstance(a, types.Literal) for sig in kdtree._select.signatures for a in sig)
