@@ -191,11 +191,14 @@ class _World:
     (a frame's detection and its rewinding at the same time, a still object across frames):
     each level-0 patch's grid in world space ``patch: (points (n, 3), uv (n, 2), triangles
     (f, 3) int64)``, the last few patch sets' `Tessellation` by the set's bytes, and the world
-    patch boxes ``lo, hi (P0u, P0v, 3)`` once found."""
+    patch boxes ``lo, hi (P0u, P0v, 3)`` and their union ``bounds (2, 3)`` once found: each
+    rewinding step's geometries are new objects, and the still one of a pair has the content of
+    the step before."""
 
     grids: dict = field(default_factory=dict)
     tessellations: dict = field(default_factory=dict)
     boxes: tuple | None = None
+    bounds: np.ndarray | None = None
 
 
 _WORLDS: dict[tuple, _World] = {}  # world data by `SurfaceGeometry.content`, most recent last
@@ -213,7 +216,8 @@ class SurfaceGeometry:
     name: str = ""
     density: int = 8
     max_density: int = 64
-    _asked: set = field(default_factory=set, init=False, repr=False)  # level-0 patches tessellated for this geometry
+    # the level-0 patch sets tessellated for this geometry, by their bytes (`tessellated`)
+    _asked: dict = field(default_factory=dict, init=False, repr=False)
 
     @cached_property
     def shape(self) -> Shape:
@@ -255,8 +259,12 @@ class SurfaceGeometry:
     @cached_property
     def bounds(self) -> np.ndarray:
         """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
-        lo, hi = self.boxes
-        return np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+        world = self._world
+        if world.bounds is None:
+            lo, hi = self.boxes
+            world.bounds = np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+            world.bounds.setflags(write=False)  # shared by every geometry of this content
+        return world.bounds
 
     @cached_property
     def size(self) -> float:
@@ -348,7 +356,8 @@ def patch_density(geom: SurfaceGeometry) -> np.ndarray:
 
 
 def candidate_patches(geom: SurfaceGeometry, bounds: np.ndarray, pad: float = 0.0) -> np.ndarray:
-    """Level-0 patches ``(m, 2) int64`` whose world box overlaps ``bounds (2, 3)``."""
+    """Level-0 patches ``(m, 2) int64`` whose world box overlaps ``bounds (2, 3)``, distinct and
+    ascending (row-major), as `tessellate` keys them."""
     lo, hi = geom.boxes
     return np.argwhere(_overlap(lo, hi, bounds[0], bounds[1], pad)).astype(np.int64)
 
@@ -380,12 +389,17 @@ def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error);
     the last few patch sets' tessellations are kept too (the narrow phase, the regions and the
     on-surface search of a round ask for the same sets)."""
-    patches = unique_patches(patches)
+    return _tessellate(geom, unique_patches(patches))
+
+
+def _tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
+    """`tessellate` of distinct ascending ``patches (m, 2) int64`` (`candidate_patches` and its
+    row subsets are), without sorting them again."""
     if not len(patches):
         return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
-    geom._asked.update(map(tuple, patches.tolist()))
-    kept = geom._world.tessellations
     key = patches.tobytes()
+    geom._asked.setdefault(key, patches)
+    kept = geom._world.tessellations
     hit = kept.pop(key, None)
     if hit is None:
         hit = _tessellation(geom, patches)
@@ -449,7 +463,9 @@ def _kept(store: dict, key: tuple, make, size: int = 8):
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:
     """Level-0 patches ``(m, 2) int64`` tessellated so far for ``geom`` (broad-phase audit; their
     grids may have been built for an earlier geometry of the same content, `_World`)."""
-    return np.array(sorted(geom._asked), np.int64).reshape(-1, 2)
+    if not geom._asked:
+        return np.zeros((0, 2), np.int64)
+    return unique_patches(np.concatenate(list(geom._asked.values())))
 
 
 def is_closed(geom: Geometry) -> bool:
@@ -559,7 +575,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         ca, cb = ca[ov.any(axis=1)], cb[ov.any(axis=0)]
     if not len(ca):
         return none
-    ta = tessellate(ga, ca)
+    ta = _tessellate(ga, ca)
     if collider:  # the collider's face boxes are the run's (`ColliderStatic.face_boxes`)
         pa = apply_inverse(gb.xform, ta.points)
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), gb.static.face_boxes, pad)
@@ -570,7 +586,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         rows = (cb[:, 0], cb[:, 1])  # lb, hb: B's world patch boxes, above
         if not len(cb) or not _overlap(ta.points.min(axis=0), ta.points.max(axis=0), lb[rows].min(axis=0), hb[rows].max(axis=0), pad):
             return none
-        tb = tessellate(gb, cb)
+        tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
         ka, kb = _triangles_near(ta.face_boxes, tb.face_boxes, pad)
     if not len(ka):
@@ -796,8 +812,8 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
         used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([bounds[0] - pad, bounds[1] + pad]))])
         pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
     else:
-        patches = unique_patches(candidate_patches(geom, bounds, pad))
-        tess = tessellate(geom, patches)
+        patches = candidate_patches(geom, bounds, pad)
+        tess = _tessellate(geom, patches)
         first = _distinct(geom, patches, tess)
         pts, uv = tess.points[first], tess.uv[first]
     keep = np.all((pts >= bounds[0] - pad) & (pts <= bounds[1] + pad), axis=1)
