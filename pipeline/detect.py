@@ -22,6 +22,7 @@ import numpy as np
 
 from acra import hspline as H
 from acra import narrow
+from acra.bvh import bounds as bounds_of
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
 from pipeline.grids import boxes_near
@@ -287,8 +288,15 @@ class SurfaceGeometry:
         return self.shape.closed
 
     def to_object(self, points: np.ndarray) -> np.ndarray:
-        """World points ``(k, 3)`` in object space."""
-        return apply_inverse(self.xform, points)
+        """World points ``(k, 3)`` in object space: `pipeline.model.apply_inverse`'s arithmetic,
+        the same bits, with the linear part's inverse found once per geometry (a round asks for
+        it in every inside test, closest point and projection on this geometry)."""
+        return (points - self.xform[:3, 3]) @ self._inverse_t
+
+    @cached_property
+    def _inverse_t(self) -> np.ndarray:
+        """``(3, 3) float64``: the transposed inverse of ``xform``'s linear part."""
+        return np.linalg.inv(self.xform[:3, :3]).T
 
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
@@ -584,7 +592,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
         rows = (cb[:, 0], cb[:, 1])  # lb, hb: B's world patch boxes, above
-        if not len(cb) or not _overlap(ta.points.min(axis=0), ta.points.max(axis=0), lb[rows].min(axis=0), hb[rows].max(axis=0), pad):
+        if not len(cb) or not _overlap(*bounds_of(ta.points), lb[rows].min(axis=0), hb[rows].max(axis=0), pad):
             return none
         tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
@@ -816,7 +824,8 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
         tess = _tessellate(geom, patches)
         first = _distinct(geom, patches, tess)
         pts, uv = tess.points[first], tess.uv[first]
-    keep = np.all((pts >= bounds[0] - pad) & (pts <= bounds[1] + pad), axis=1)
+    keep = (pts >= bounds[0] - pad) & (pts <= bounds[1] + pad)
+    keep = keep[:, 0] & keep[:, 1] & keep[:, 2]  # `np.all(axis=1)`, without its row-by-row reduction
     return pts[keep], None if uv is None else uv[keep]
 
 
