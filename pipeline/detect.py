@@ -421,13 +421,19 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     cache = geom._world.grids
     keys = list(map(tuple, patches.tolist()))
     todo = [k for k in keys if k not in cache]
+    points = None
     if todo:
-        obj = geom.shape.grids_for(np.array(todo, np.int64))
+        whole = len(todo) == len(keys)  # a new content's first set: every grid is mapped here
+        obj = geom.shape.grids_for(patches if whole else np.array(todo, np.int64))
+        # one product over the missing grids; a grid's rows are then kept, so whichever set asks
+        # for the patch later gets these bits (a product's rounding may depend on its batch)
         world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
         end = 0
         for p, g in zip(todo, obj):
             start, end = end, end + len(g.points)
             cache[p] = (world[start:end], g.uv, g.triangles)
+        if whole:  # the set's points, in its order, already
+            points = world
     grids = [cache[k] for k in keys]
 
     def layout():
@@ -440,7 +446,7 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     # a grid's parameters and triangles are its patch's and density's alone
     # (`acra.tessellate.patch_grids`): only the points are the surface's
     uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), layout)
-    return Tessellation(np.concatenate([g[0] for g in grids]), uv, triangles, tri_patch)
+    return Tessellation(np.concatenate([g[0] for g in grids]) if points is None else points, uv, triangles, tri_patch)
 
 
 _LAYOUTS: dict[tuple, tuple] = {}  # `_tessellation`'s parameters, triangles and their patches, most recent last
