@@ -580,13 +580,14 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return none
-    ca = candidate_patches(ga, gb.bounds, pad)
-    if not collider:
-        cb = candidate_patches(gb, ga.bounds, pad)
-        (la, ha), (lb, hb) = ga.boxes, gb.boxes
-        ov = _overlap(la[ca[:, 0], ca[:, 1]][:, None], ha[ca[:, 0], ca[:, 1]][:, None],
-                      lb[cb[:, 0], cb[:, 1]][None], hb[cb[:, 0], cb[:, 1]][None], pad)
-        ca, cb = ca[ov.any(axis=1)], cb[ov.any(axis=0)]
+    if collider:
+        ca = candidate_patches(ga, gb.bounds, pad)
+    else:
+        # each side's `candidate_patches` in the other's box, of those the ones whose box meets
+        # one of the other side's, and the box of B's: one compiled pass over the patch boxes
+        keep_a, keep_b, box_b = narrow.patches_near(ga.boxes, ga.bounds, gb.boxes, gb.bounds, pad)
+        ca = np.ascontiguousarray(np.argwhere(keep_a.reshape(ga.boxes[0].shape[:2])), np.int64)
+        cb = np.ascontiguousarray(np.argwhere(keep_b.reshape(gb.boxes[0].shape[:2])), np.int64)
     if not len(ca):
         return none
     ta = _tessellate(ga, ca)
@@ -597,8 +598,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
-        rows = (cb[:, 0], cb[:, 1])  # lb, hb: B's world patch boxes, above
-        if not len(cb) or not _overlap(*bounds_of(ta.points), lb[rows].min(axis=0), hb[rows].max(axis=0), pad):
+        if box_b is None or not _overlap(*bounds_of(ta.points), box_b[0], box_b[1], pad):
             return none
         tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
