@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["THIN", "compact", "crossings", "face_boxes", "solid_mask", "thin_faces", "triangles_near"]
+__all__ = ["THIN", "compact", "crossings", "face_boxes", "patches_near", "solid_mask", "thin_faces", "triangles_near"]
 
 
 @njit(cache=True, nogil=True)
@@ -70,6 +70,46 @@ def _near(lo_a, hi_a, lo_b, hi_b, pad, rounds, keep_a, keep_b):
             _cull(lo_b, hi_b, keep_b, box, pad)
         else:
             keep_b[:] = False
+
+
+@njit(cache=True, nogil=True)
+def _patches_near(lo_a, hi_a, bounds_a, lo_b, hi_b, bounds_b, pad, keep_a, keep_b, box_b):
+    keep_a[:] = True
+    _cull(lo_a, hi_a, keep_a, bounds_b, pad)
+    keep_b[:] = True
+    _cull(lo_b, hi_b, keep_b, bounds_a, pad)
+    meet_a, meet_b = np.zeros(keep_a.shape[0], np.bool_), np.zeros(keep_b.shape[0], np.bool_)
+    for i in range(lo_a.shape[0]):
+        if not keep_a[i]:
+            continue
+        for j in range(lo_b.shape[0]):
+            if not keep_b[j]:
+                continue
+            ok = True
+            for k in range(3):
+                if not (lo_a[i, k] <= hi_b[j, k] + pad and lo_b[j, k] <= hi_a[i, k] + pad):
+                    ok = False
+                    break
+            if ok:
+                meet_a[i] = True
+                meet_b[j] = True
+    keep_a[:] = meet_a
+    keep_b[:] = meet_b
+    return _bounds_of(lo_b, hi_b, keep_b, box_b)
+
+
+def patches_near(box_a: tuple[np.ndarray, np.ndarray], bounds_a: np.ndarray, box_b: tuple[np.ndarray, np.ndarray],
+                 bounds_b: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The broad phase of two surfaces in one pass: of side ``a``'s patch boxes ``lo, hi (n, 3)``
+    those overlapping (within ``pad``) the other side's whole box ``bounds_b (2, 3)``, the same
+    of ``b``'s against ``bounds_a``, then of those the ones overlapping some box kept on the
+    other side. Returns the kept rows ``(m,) bool`` of each side and the box ``(2, 3)`` of
+    ``b``'s kept boxes (``None`` if none is kept)."""
+    f = lambda x: np.ascontiguousarray(x, np.float64).reshape(-1, 3)  # noqa: E731
+    keep_a, keep_b, box = np.empty(len(f(box_a[0])), np.bool_), np.empty(len(f(box_b[0])), np.bool_), np.empty((2, 3))
+    any_b = _patches_near(f(box_a[0]), f(box_a[1]), f(bounds_a), f(box_b[0]), f(box_b[1]), f(bounds_b), float(pad),
+                          keep_a, keep_b, box)
+    return keep_a, keep_b, box if any_b else None
 
 
 def triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray, np.ndarray], pad: float,

@@ -50,7 +50,7 @@ def main() -> None:
                 spent[label][1] += time.perf_counter() - t
         return wrapper
 
-    for name in ("intersect", "regions", "touching", "cast", "project", "tessellate", "_candidate_vertices", "_inside_depth",
+    for name in ("intersect", "regions", "touching", "cast", "project", "tessellate", "_tessellate", "_candidate_vertices", "_inside_depth",
                  "_triangles_near", "_face_boxes"):
         setattr(D, name, timed(f"detect.{name}", getattr(D, name)))
     for name in ("rewind", "deepest_contact", "detect_pair"):

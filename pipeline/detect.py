@@ -22,6 +22,7 @@ import numpy as np
 
 from acra import hspline as H
 from acra import narrow
+from acra.bvh import bounds as bounds_of
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
 from pipeline.grids import boxes_near
@@ -191,11 +192,14 @@ class _World:
     (a frame's detection and its rewinding at the same time, a still object across frames):
     each level-0 patch's grid in world space ``patch: (points (n, 3), uv (n, 2), triangles
     (f, 3) int64)``, the last few patch sets' `Tessellation` by the set's bytes, and the world
-    patch boxes ``lo, hi (P0u, P0v, 3)`` once found."""
+    patch boxes ``lo, hi (P0u, P0v, 3)`` and their union ``bounds (2, 3)`` once found: each
+    rewinding step's geometries are new objects, and the still one of a pair has the content of
+    the step before."""
 
     grids: dict = field(default_factory=dict)
     tessellations: dict = field(default_factory=dict)
     boxes: tuple | None = None
+    bounds: np.ndarray | None = None
 
 
 _WORLDS: dict[tuple, _World] = {}  # world data by `SurfaceGeometry.content`, most recent last
@@ -213,7 +217,8 @@ class SurfaceGeometry:
     name: str = ""
     density: int = 8
     max_density: int = 64
-    _asked: set = field(default_factory=set, init=False, repr=False)  # level-0 patches tessellated for this geometry
+    # the level-0 patch sets tessellated for this geometry, by their bytes (`tessellated`)
+    _asked: dict = field(default_factory=dict, init=False, repr=False)
 
     @cached_property
     def shape(self) -> Shape:
@@ -255,8 +260,12 @@ class SurfaceGeometry:
     @cached_property
     def bounds(self) -> np.ndarray:
         """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
-        lo, hi = self.boxes
-        return np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+        world = self._world
+        if world.bounds is None:
+            lo, hi = self.boxes
+            world.bounds = np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+            world.bounds.setflags(write=False)  # shared by every geometry of this content
+        return world.bounds
 
     @cached_property
     def size(self) -> float:
@@ -279,8 +288,15 @@ class SurfaceGeometry:
         return self.shape.closed
 
     def to_object(self, points: np.ndarray) -> np.ndarray:
-        """World points ``(k, 3)`` in object space."""
-        return apply_inverse(self.xform, points)
+        """World points ``(k, 3)`` in object space: `pipeline.model.apply_inverse`'s arithmetic,
+        the same bits, with the linear part's inverse found once per geometry (a round asks for
+        it in every inside test, closest point and projection on this geometry)."""
+        return (points - self.xform[:3, 3]) @ self._inverse_t
+
+    @cached_property
+    def _inverse_t(self) -> np.ndarray:
+        """``(3, 3) float64``: the transposed inverse of ``xform``'s linear part."""
+        return np.linalg.inv(self.xform[:3, :3]).T
 
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
@@ -348,7 +364,8 @@ def patch_density(geom: SurfaceGeometry) -> np.ndarray:
 
 
 def candidate_patches(geom: SurfaceGeometry, bounds: np.ndarray, pad: float = 0.0) -> np.ndarray:
-    """Level-0 patches ``(m, 2) int64`` whose world box overlaps ``bounds (2, 3)``."""
+    """Level-0 patches ``(m, 2) int64`` whose world box overlaps ``bounds (2, 3)``, distinct and
+    ascending (row-major), as `tessellate` keys them."""
     lo, hi = geom.boxes
     return np.argwhere(_overlap(lo, hi, bounds[0], bounds[1], pad)).astype(np.int64)
 
@@ -380,12 +397,17 @@ def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error);
     the last few patch sets' tessellations are kept too (the narrow phase, the regions and the
     on-surface search of a round ask for the same sets)."""
-    patches = unique_patches(patches)
+    return _tessellate(geom, unique_patches(patches))
+
+
+def _tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
+    """`tessellate` of distinct ascending ``patches (m, 2) int64`` (`candidate_patches` and its
+    row subsets are), without sorting them again."""
     if not len(patches):
         return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
-    geom._asked.update(map(tuple, patches.tolist()))
-    kept = geom._world.tessellations
     key = patches.tobytes()
+    geom._asked.setdefault(key, patches)
+    kept = geom._world.tessellations
     hit = kept.pop(key, None)
     if hit is None:
         hit = _tessellation(geom, patches)
@@ -399,13 +421,19 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     cache = geom._world.grids
     keys = list(map(tuple, patches.tolist()))
     todo = [k for k in keys if k not in cache]
+    points = None
     if todo:
-        obj = geom.shape.grids_for(np.array(todo, np.int64))
+        whole = len(todo) == len(keys)  # a new content's first set: every grid is mapped here
+        obj = geom.shape.grids_for(patches if whole else np.array(todo, np.int64))
+        # one product over the missing grids; a grid's rows are then kept, so whichever set asks
+        # for the patch later gets these bits (a product's rounding may depend on its batch)
         world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
         end = 0
         for p, g in zip(todo, obj):
             start, end = end, end + len(g.points)
             cache[p] = (world[start:end], g.uv, g.triangles)
+        if whole:  # the set's points, in its order, already
+            points = world
     grids = [cache[k] for k in keys]
 
     def layout():
@@ -418,7 +446,7 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     # a grid's parameters and triangles are its patch's and density's alone
     # (`acra.tessellate.patch_grids`): only the points are the surface's
     uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), layout)
-    return Tessellation(np.concatenate([g[0] for g in grids]), uv, triangles, tri_patch)
+    return Tessellation(np.concatenate([g[0] for g in grids]) if points is None else points, uv, triangles, tri_patch)
 
 
 _LAYOUTS: dict[tuple, tuple] = {}  # `_tessellation`'s parameters, triangles and their patches, most recent last
@@ -449,7 +477,9 @@ def _kept(store: dict, key: tuple, make, size: int = 8):
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:
     """Level-0 patches ``(m, 2) int64`` tessellated so far for ``geom`` (broad-phase audit; their
     grids may have been built for an earlier geometry of the same content, `_World`)."""
-    return np.array(sorted(geom._asked), np.int64).reshape(-1, 2)
+    if not geom._asked:
+        return np.zeros((0, 2), np.int64)
+    return unique_patches(np.concatenate(list(geom._asked.values())))
 
 
 def is_closed(geom: Geometry) -> bool:
@@ -550,16 +580,17 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return none
-    ca = candidate_patches(ga, gb.bounds, pad)
-    if not collider:
-        cb = candidate_patches(gb, ga.bounds, pad)
-        (la, ha), (lb, hb) = ga.boxes, gb.boxes
-        ov = _overlap(la[ca[:, 0], ca[:, 1]][:, None], ha[ca[:, 0], ca[:, 1]][:, None],
-                      lb[cb[:, 0], cb[:, 1]][None], hb[cb[:, 0], cb[:, 1]][None], pad)
-        ca, cb = ca[ov.any(axis=1)], cb[ov.any(axis=0)]
+    if collider:
+        ca = candidate_patches(ga, gb.bounds, pad)
+    else:
+        # each side's `candidate_patches` in the other's box, of those the ones whose box meets
+        # one of the other side's, and the box of B's: one compiled pass over the patch boxes
+        keep_a, keep_b, box_b = narrow.patches_near(ga.boxes, ga.bounds, gb.boxes, gb.bounds, pad)
+        ca = np.ascontiguousarray(np.argwhere(keep_a.reshape(ga.boxes[0].shape[:2])), np.int64)
+        cb = np.ascontiguousarray(np.argwhere(keep_b.reshape(gb.boxes[0].shape[:2])), np.int64)
     if not len(ca):
         return none
-    ta = tessellate(ga, ca)
+    ta = _tessellate(ga, ca)
     if collider:  # the collider's face boxes are the run's (`ColliderStatic.face_boxes`)
         pa = apply_inverse(gb.xform, ta.points)
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), gb.static.face_boxes, pad)
@@ -567,10 +598,9 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
-        rows = (cb[:, 0], cb[:, 1])  # lb, hb: B's world patch boxes, above
-        if not len(cb) or not _overlap(ta.points.min(axis=0), ta.points.max(axis=0), lb[rows].min(axis=0), hb[rows].max(axis=0), pad):
+        if box_b is None or not _overlap(*bounds_of(ta.points), box_b[0], box_b[1], pad):
             return none
-        tb = tessellate(gb, cb)
+        tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
         ka, kb = _triangles_near(ta.face_boxes, tb.face_boxes, pad)
     if not len(ka):
@@ -796,11 +826,12 @@ def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple
         used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([bounds[0] - pad, bounds[1] + pad]))])
         pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
     else:
-        patches = unique_patches(candidate_patches(geom, bounds, pad))
-        tess = tessellate(geom, patches)
+        patches = candidate_patches(geom, bounds, pad)
+        tess = _tessellate(geom, patches)
         first = _distinct(geom, patches, tess)
         pts, uv = tess.points[first], tess.uv[first]
-    keep = np.all((pts >= bounds[0] - pad) & (pts <= bounds[1] + pad), axis=1)
+    keep = (pts >= bounds[0] - pad) & (pts <= bounds[1] + pad)
+    keep = keep[:, 0] & keep[:, 1] & keep[:, 2]  # `np.all(axis=1)`, without its row-by-row reduction
     return pts[keep], None if uv is None else uv[keep]
 
 

@@ -17,6 +17,7 @@ from embreex.mesh_construction import TriangleMesh
 
 from acra import hspline as H
 from acra import meshops, raycast
+from acra.bvh import bounds
 from acra.patch_boxes import boxes_within, rays_meet
 from pipeline.grids import Nearest, overlap
 
@@ -38,7 +39,8 @@ def nearest(shape: Shape, q: np.ndarray) -> Nearest:
     lo, hi, _ = shape._boxes
     upper = shape.coarse_index.query(q)  # a surface point: the closest is no farther
     reach = upper.max() * (1 + 1e-9) + 1e-300
-    pre = np.nonzero(overlap(lo, hi, q.min(axis=0) - reach, q.max(axis=0) + reach, 0.0))[0]
+    qlo, qhi = bounds(q)  # `min(axis=0)`, `max(axis=0)` in one compiled pass
+    pre = np.nonzero(overlap(lo, hi, qlo - reach, qhi + reach, 0.0))[0]
     cand = pre[boxes_within(lo[pre], hi[pre], q, upper * (1 + 1e-9) + 1e-300)]
     # one search over the union of every query's candidates: it holds each query's closest point
     return shape.cache.gridset(tuple(cand.tolist())).nearest(q)

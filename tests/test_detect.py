@@ -999,7 +999,7 @@ def test_cast_answers_are_kept_by_content_and_never_served_for_other_content(kin
 
 def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
     """Geometries with the same surface content, matrix and densities share their world grids,
-    tessellations and patch boxes (`detect._World`); a moved matrix or changed CVs get their own,
+    tessellations, patch boxes and bounds (`detect._World`); a moved matrix or changed CVs get their own,
     equal to a fresh computation, and at most `WORLDS_KEPT` contents are kept."""
     from pipeline.model import apply_xform
 
@@ -1009,6 +1009,7 @@ def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
     ta = D.tessellate(a, patches)
     b = D.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(0.25, 0.0, 0.0))
     assert b._world is a._world and b.boxes is a.boxes and D.tessellate(b, patches) is ta
+    assert b.bounds is a.bounds and not a.bounds.flags.writeable  # shared, so no caller may write it
     assert D.tessellated(b).tolist() == patches.tolist()
     for other in (D.SurfaceGeometry(hs, move(0.5, 0.0, 0.0)), D.SurfaceGeometry(H.with_cvs(hs, 1.5 * hs.cvs), move(0.25, 0.0, 0.0))):
         assert other._world is not a._world
@@ -1020,6 +1021,8 @@ def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
         half = ((0.5 * (hi - lo)).reshape(-1, 3) @ np.abs(other.xform[:3, :3]).T).reshape(lo.shape)
         np.testing.assert_array_equal(other.boxes[0], centre - half)
         np.testing.assert_array_equal(other.boxes[1], centre + half)
+        assert other.bounds is not a.bounds
+        np.testing.assert_array_equal(other.bounds, [(centre - half).reshape(-1, 3).min(axis=0), (centre + half).reshape(-1, 3).max(axis=0)])
     for k in range(2 * D.WORLDS_KEPT):
         D.SurfaceGeometry(hs, move(0.01 * k, 0.0, 0.0)).boxes
     assert len(D._WORLDS) == D.WORLDS_KEPT
@@ -1035,3 +1038,22 @@ def test_object_boxes_are_kept_by_weak_references_without_callbacks():
     ref, box = D._OBJECT_BOXES[id(shape)]
     assert ref() is shape and D._object_box(shape) == box
     assert all(r.__callback__ is None for r in weakref.getweakrefs(shape))
+
+
+def test_overlap_joins_the_three_axes_as_np_all_does():
+    """`grids.overlap` joins the axes column by column: ``np.all(axis=-1)``'s answer for boxes of
+    any leading shapes broadcast together, with sides that meet exactly (a pad of 0), NaN
+    corners and 0-d answers for single boxes."""
+    from pipeline.grids import overlap
+
+    rng = np.random.default_rng(7)
+    lo = np.round(rng.uniform(-1, 1, (6, 5, 3)), 1)
+    hi = lo + np.round(rng.uniform(0, 1, (6, 5, 3)), 1)
+    lo[0, 0, 1] = np.nan
+    for pad in (0.0, 0.05):
+        for args in ((lo, hi, lo[2, 3], hi[2, 3]), (lo[:, None], hi[:, None], lo[None, :2], hi[None, :2]),
+                     (lo[1, 1], hi[1, 1], lo[4, 0], hi[4, 0])):
+            got = overlap(*args, pad)
+            want = np.all((args[0] <= args[3] + pad) & (args[2] <= args[1] + pad), axis=-1)
+            assert got.shape == want.shape and got.dtype == want.dtype
+            np.testing.assert_array_equal(got, want)

@@ -146,3 +146,30 @@ def test_crossings_count_fcl_contacts():
             known += 1
             assert count == want, (trial, count, want)
     assert known > 500
+
+
+def test_patches_near_is_the_broad_phase_in_arrays():
+    """`narrow.patches_near` keeps the patch boxes `detect.candidate_patches` keeps on each side,
+    then those meeting a kept box of the other side, as the array form did, and gives the box of
+    ``b``'s kept boxes; boxes that touch exactly (a pad of 0) count, and no kept box gives None."""
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        la = np.round(rng.uniform(-1, 1, (5, 4, 3)), 1)
+        ha = la + np.round(rng.uniform(0, 0.6, (5, 4, 3)), 1)
+        lb = np.round(rng.uniform(-1, 1, (3, 6, 3)), 1) + (0.0 if trial % 4 else 1.5)
+        hb = lb + np.round(rng.uniform(0, 0.6, (3, 6, 3)), 1)
+        bounds_a = np.stack([la.reshape(-1, 3).min(axis=0), ha.reshape(-1, 3).max(axis=0)])
+        bounds_b = np.stack([lb.reshape(-1, 3).min(axis=0), hb.reshape(-1, 3).max(axis=0)])
+        pad = 0.0 if trial % 2 else 0.05
+        ca = np.argwhere(overlap(la, ha, bounds_b[0], bounds_b[1], pad))
+        cb = np.argwhere(overlap(lb, hb, bounds_a[0], bounds_a[1], pad))
+        ov = overlap(la[ca[:, 0], ca[:, 1]][:, None], ha[ca[:, 0], ca[:, 1]][:, None],
+                     lb[cb[:, 0], cb[:, 1]][None], hb[cb[:, 0], cb[:, 1]][None], pad)
+        ca, cb = ca[ov.any(axis=1)], cb[ov.any(axis=0)]
+        keep_a, keep_b, box = narrow.patches_near((la, ha), bounds_a, (lb, hb), bounds_b, pad)
+        np.testing.assert_array_equal(np.argwhere(keep_a.reshape(5, 4)), ca)
+        np.testing.assert_array_equal(np.argwhere(keep_b.reshape(3, 6)), cb)
+        if len(cb):
+            np.testing.assert_array_equal(box, [lb[cb[:, 0], cb[:, 1]].min(axis=0), hb[cb[:, 0], cb[:, 1]].max(axis=0)])
+        else:
+            assert box is None
