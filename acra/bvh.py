@@ -1154,7 +1154,11 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             cap = max(2 * cap, m + inside)
             grown_tri, grown_lat, grown_pts, grown_sd = (np.empty(cap, np.int64), np.empty((cap, 3), np.int64),
                                                          np.empty((cap, 3)), np.empty(cap))
-            grown_tri[:m], grown_lat[:m], grown_pts[:m], grown_sd[:m] = found_tri[:m], found_lat[:m], found_pts[:m], found_sd[:m]
+            for r in range(m):  # element by element: a slice assigned from an array would compile numba's
+                # shape check and its message's string formatting into the first run (about 2 s CPU)
+                grown_tri[r], grown_sd[r] = found_tri[r], found_sd[r]
+                for k in range(3):
+                    grown_lat[r, k], grown_pts[r, k] = found_lat[r, k], found_pts[r, k]
             found_tri, found_lat, found_pts, found_sd = grown_tri, grown_lat, grown_pts, grown_sd
         for r in range(u):
             if sd_mid[r] > 0:
