@@ -1003,6 +1003,21 @@ def _signed_at(points, ids, reach, leaf_tri, order, lo, hi, left, right, start, 
 
 
 @njit(cache=True, nogil=True)
+def _sortable(key):
+    """``key (k,) float64`` (no NaN) as int64 values in the same order, in place: a stable sort
+    of them is the stable sort of ``key`` (equal values, -0.0 and 0.0 among them, stay equal).
+    int64 is the one key type every kernel's merge sort takes, so a first run compiles numba's
+    argsort once (a float64 key costs about 1.2 s CPU more)."""
+    for j in range(key.shape[0]):
+        key[j] = key[j] + 0.0  # -0.0 as 0.0
+    bits = key.view(np.int64)
+    for j in range(bits.shape[0]):
+        if bits[j] < 0:  # negative: larger magnitudes first
+            bits[j] ^= 0x7FFFFFFFFFFFFFFF
+    return bits
+
+
+@njit(cache=True, nogil=True)
 def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, evaluated, reach,
             leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals,
             tol, facet, facet_start, facet_faces, planes):
@@ -1058,7 +1073,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             key = np.empty(n_late)
             for j in range(n_late):
                 key[j] = -bound[late[j]]
-            for j in np.argsort(key, kind="mergesort"):
+            for j in np.argsort(_sortable(key), kind="mergesort"):
                 i = late[j]
                 if not bound[i] > retired:
                     break
@@ -1089,7 +1104,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             key = np.empty(kept)
             for j in range(kept):
                 key[j] = -bound[pick[j]]
-            rank = np.argsort(key, kind="mergesort")
+            rank = np.argsort(_sortable(key), kind="mergesort")
             for j in rank[room:]:
                 if bound[pick[j]] > retired:
                     retired = bound[pick[j]]
@@ -1139,7 +1154,11 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             cap = max(2 * cap, m + inside)
             grown_tri, grown_lat, grown_pts, grown_sd = (np.empty(cap, np.int64), np.empty((cap, 3), np.int64),
                                                          np.empty((cap, 3)), np.empty(cap))
-            grown_tri[:m], grown_lat[:m], grown_pts[:m], grown_sd[:m] = found_tri[:m], found_lat[:m], found_pts[:m], found_sd[:m]
+            for r in range(m):  # element by element: a slice assigned from an array would compile numba's
+                # shape check and its message's string formatting into the first run (about 2 s CPU)
+                grown_tri[r], grown_sd[r] = found_tri[r], found_sd[r]
+                for k in range(3):
+                    grown_lat[r, k], grown_pts[r, k] = found_lat[r, k], found_pts[r, k]
             found_tri, found_lat, found_pts, found_sd = grown_tri, grown_lat, grown_pts, grown_sd
         for r in range(u):
             if sd_mid[r] > 0:

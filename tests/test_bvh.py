@@ -309,3 +309,16 @@ def test_morton_keys_interleave_each_axis_bit_by_bit():
     steps = np.clip((((pts - lo) / span) * 1023.0).astype(np.int64), 0, 1023)
     want = sum(loop[steps[:, a]] << a for a in range(3))
     assert np.array_equal(bvh._morton_keys(pts), want)
+
+
+def test_sortable_keys_sort_as_the_floats_do():
+    """`bvh._sortable`'s int64 keys (the branch and bound's orders by bound, one merge-sort key
+    type for every kernel) give numpy's stable merge sort of the float64 values: negative and
+    positive, infinite, subnormal, both zeros (equal, kept in row order) and ties."""
+    rng = np.random.default_rng(7)
+    x = np.concatenate([rng.standard_normal(500), -rng.random(200) * 1e-300, [0.0, -0.0, 0.0, np.inf, -np.inf, 5e-324,
+                                                                                -5e-324], rng.integers(-3, 3, 300) * 1.0])
+    rng.shuffle(x)
+    keys = bvh._sortable(x.copy())
+    assert keys.dtype == np.int64
+    np.testing.assert_array_equal(np.argsort(keys, kind="mergesort"), np.argsort(x, kind="mergesort"))

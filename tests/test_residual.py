@@ -169,6 +169,40 @@ def test_a_measured_pair_is_taken_by_content_where_the_displays_hold_the_same():
     assert len(residual.measure_frame(again, 2e-3, known=known).pairs[0].inside.points) > 0
 
 
+def test_a_part_s_answer_is_kept_for_the_same_triangles_in_another_display(monkeypatch):
+    """Two displays of the inner object that differ only far from the other object (the run's
+    display and the round's, `measure_run`): their pairs' fingerprints differ, but the triangles
+    near the other object are the same bits, so the second pair takes the first one's answer
+    from the part solid (`clearance.triangle_depth` runs once) and gives the same figures and
+    points; triangles one float32 step away are measured again."""
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    parts: dict = {}
+    b = residual.shown("/ball", grid_samples(ball, topo)[0], topo.triangles(), np.eye(4), None, closed=True, outward=1.0,
+                       parts=parts)
+    _, spts, stris, suv = sheet(0.2, width=3.0)
+    n = len(spts)
+    far = [[5.0, 5.0, 5.0], [5.5, 5.0, 5.0], [5.0, 5.5, 5.0]]  # beyond the ball's box
+    a = residual.shown("/sheet", spts, stris, np.eye(4), suv)
+    other = residual.shown("/sheet", np.vstack([spts, far]), np.vstack([stris, [[n, n + 1, n + 2]]]), np.eye(4),
+                           np.vstack([suv, np.zeros((3, 2))]))
+    assert other.fingerprint != a.fingerprint
+    runs = []
+    real = clearance.triangle_depth
+    monkeypatch.setattr(clearance, "triangle_depth", lambda *args, **kw: runs.append(1) or real(*args, **kw))
+    target = 5e-4 * a.size
+    want = residual.pair_depth(a, b, target, 2 * target)
+    got = residual.pair_depth(other, b, target, 2 * target)
+    assert len(runs) == 1 and want.depth > 0
+    assert (got.depth, got.lower, got.complete) == (want.depth, want.lower, want.complete)
+    for x, y in ((got.points, want.points), (got.uv, want.uv), (got.deep, want.deep)):
+        assert np.array_equal(x, y)
+    step = float(np.spacing(np.float32(0.2)))
+    moved = residual.shown("/sheet", spts + [0.0, 0.0, 2 * step], stris, np.eye(4), suv)
+    residual.pair_depth(moved, b, target, 2 * target)
+    assert len(runs) == 2
+
+
 def test_a_run_s_frames_apart_are_not_measured_and_read_zero(monkeypatch):
     """`measure_run` skips a frame whose objects' boxes (each display's object-space box mapped
     by its world matrix) all lie apart: its figures are those measuring it gives (every pair 0),
