@@ -24,23 +24,30 @@ __all__ = ["degenerate", "unit_rows", "frames", "frames_at", "limit_normals", "r
 
 
 @njit(cache=True, nogil=True)
+def cross_test(a0, a1, a2, b0, b1, b2, c1, c2):
+    """``n = a × b`` of one row's tangents, its length and whether the row has no direction:
+    ``|n| <= c1 max(|a|, |b|) + c2`` (`acra.hspline._degenerate`'s test). Returns
+    ``(n0, n1, n2, |n|, bad)``."""
+    n0 = a1 * b2 - a2 * b1
+    n1 = a2 * b0 - a0 * b2
+    n2 = a0 * b1 - a1 * b0
+    la = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+    lb = math.sqrt((b0 * b0 + b1 * b1) + b2 * b2)
+    if la != la or lb != lb:  # np.maximum propagates NaN
+        longest = math.nan
+    else:
+        longest = la if la >= lb else lb
+    length = math.sqrt((n0 * n0 + n1 * n1) + n2 * n2)
+    return n0, n1, n2, length, length <= c1 * longest + c2
+
+
+@njit(cache=True, nogil=True)
 def degenerate(du, dv, c1, c2, n, bad):
     """``n[i] = du[i] × dv[i]`` and ``bad[i]``: ``|n[i]| <= c1 max(|du[i]|, |dv[i]|) + c2``
     (`acra.hspline._degenerate`, whose ``c1``, ``c2`` the caller computes)."""
     for i in range(du.shape[0]):
-        a0, a1, a2 = du[i, 0], du[i, 1], du[i, 2]
-        b0, b1, b2 = dv[i, 0], dv[i, 1], dv[i, 2]
-        n0 = a1 * b2 - a2 * b1
-        n1 = a2 * b0 - a0 * b2
-        n2 = a0 * b1 - a1 * b0
+        n0, n1, n2, _, bad[i] = cross_test(du[i, 0], du[i, 1], du[i, 2], dv[i, 0], dv[i, 1], dv[i, 2], c1, c2)
         n[i, 0], n[i, 1], n[i, 2] = n0, n1, n2
-        la = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
-        lb = math.sqrt((b0 * b0 + b1 * b1) + b2 * b2)
-        if la != la or lb != lb:  # np.maximum propagates NaN
-            longest = math.nan
-        else:
-            longest = la if la >= lb else lb
-        bad[i] = math.sqrt((n0 * n0 + n1 * n1) + n2 * n2) <= c1 * longest + c2
 
 
 @njit(cache=True, nogil=True)

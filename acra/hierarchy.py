@@ -345,6 +345,30 @@ def refine(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:
     return refine_levels(hs, {k: patches})
 
 
+def _top_level(hs: HSpline, levels) -> int:
+    """The finest of ``levels`` (ints), after checking every one is a refinable level 1..depth-1."""
+    top = max(levels)
+    if not 1 <= min(levels) or not top < hs.depth:
+        bad = top if top >= hs.depth else min(levels)
+        raise ValueError(f"cannot refine to level {bad}: the object has levels 0..{hs.depth - 1}")
+    return top
+
+
+def _build_into(hs: HSpline, level: int, keys: np.ndarray, fine: list) -> None:
+    """Level ``level`` with the patches ``keys (m,) int64`` (``pu * nv + pv``) active, into
+    ``fine[level - 1]``; unchanged when they are all active already."""
+    built = _build_level(hs, level, keys, fine[level - 1]) if keys.size else None
+    if built is not None:
+        fine[level - 1] = built
+
+
+def _with_levels(hs: HSpline, fine: list) -> HSpline:
+    """``hs`` with its finer levels ``fine``; ``hs`` itself when no level was rebuilt."""
+    if all(a is b for a, b in zip(fine, hs.fine)):  # every patch was active: the same surface
+        return hs
+    return with_fine(hs, tuple(fine))
+
+
 def refine_levels(hs: HSpline, patches: dict[int, np.ndarray]) -> HSpline:
     """`refine` of several levels at once: ``patches[k] (m_k, 2) int64`` at each level ``k``.
 
@@ -354,10 +378,7 @@ def refine_levels(hs: HSpline, patches: dict[int, np.ndarray]) -> HSpline:
     """
     if not patches:
         return hs
-    top = max(patches)
-    if not 1 <= min(patches) or not top < hs.depth:
-        bad = top if top >= hs.depth else min(patches)
-        raise ValueError(f"cannot refine to level {bad}: the object has levels 0..{hs.depth - 1}")
+    top = _top_level(hs, patches)
     fine = list(hs.fine)
     pu = pv = np.zeros(0, np.int64)
     for level in range(top, 0, -1):
@@ -366,13 +387,9 @@ def refine_levels(hs: HSpline, patches: dict[int, np.ndarray]) -> HSpline:
             pu, pv = (own[:, 0], own[:, 1]) if level == top else (np.concatenate([own[:, 0], pu]), np.concatenate([own[:, 1], pv]))
         wu, wv, ok = _valid_patches(hs, level, pu, pv)
         keys = _patch_keys(hs, level, wu[ok], wv[ok])
-        built = _build_level(hs, level, keys, fine[level - 1]) if keys.size else None
-        if built is not None:
-            fine[level - 1] = built
+        _build_into(hs, level, keys, fine)
         pu, pv = wu[ok] >> 1, wv[ok] >> 1
-    if all(a is b for a, b in zip(fine, hs.fine)):  # every patch was active: the same surface
-        return hs
-    return with_fine(hs, tuple(fine))
+    return _with_levels(hs, fine)
 
 
 def refine_blocks(hs: HSpline, levels: tuple[int, ...], u: np.ndarray, v: np.ndarray,
@@ -383,10 +400,7 @@ def refine_blocks(hs: HSpline, levels: tuple[int, ...], u: np.ndarray, v: np.nda
     pass (`levelkernels.block_keys`: the 7×7 blocks and the finer level's parents)."""
     if not levels:
         return hs
-    top = max(levels)
-    if not 1 <= min(levels) or not top < hs.depth:
-        bad = top if top >= hs.depth else min(levels)
-        raise ValueError(f"cannot refine to level {bad}: the object has levels 0..{hs.depth - 1}")
+    top = _top_level(hs, levels)
     extra = extra or {}
     u = np.ascontiguousarray(u, np.float64)
     v = np.ascontiguousarray(v, np.float64)
@@ -401,13 +415,9 @@ def refine_blocks(hs: HSpline, levels: tuple[int, ...], u: np.ndarray, v: np.nda
         if level in extra:
             more = np.asarray(extra[level], np.int64).reshape(-1, 2)
             keys = np.concatenate([keys, more[:, 0] * npv + more[:, 1]])
-        built = _build_level(hs, level, keys, fine[level - 1]) if keys.size else None
-        if built is not None:
-            fine[level - 1] = built
+        _build_into(hs, level, keys, fine)
         finer_v = npv
-    if all(a is b for a, b in zip(fine, hs.fine)):  # every patch was active: the same surface
-        return hs
-    return with_fine(hs, tuple(fine))
+    return _with_levels(hs, fine)
 
 
 def make_movable(hs: HSpline, k: int, patches: np.ndarray) -> HSpline:

@@ -33,6 +33,8 @@ import math
 import numpy as np
 from numba import njit
 
+from acra.framekernels import cross_test
+
 __all__ = ["eval_points", "NSLOTS", "mark_cells", "tangent_normals"]
 
 # output slots per derivative order: (0,0) | (1,0) (0,1) | (2,0) (1,1) (0,2), as `SurfaceEval`'s fields
@@ -280,19 +282,8 @@ def tangent_normals(tangents, c1, c2, out, bad):
     One pass over the rows, so a display's normals need no copies of ``du`` and ``dv``."""
     count = 0
     for i in range(tangents.shape[0]):
-        a0, a1, a2 = tangents[i, 0], tangents[i, 1], tangents[i, 2]
-        b0, b1, b2 = tangents[i, 3], tangents[i, 4], tangents[i, 5]
-        n0 = a1 * b2 - a2 * b1
-        n1 = a2 * b0 - a0 * b2
-        n2 = a0 * b1 - a1 * b0
-        la = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
-        lb = math.sqrt((b0 * b0 + b1 * b1) + b2 * b2)
-        if la != la or lb != lb:  # np.maximum propagates NaN
-            longest = math.nan
-        else:
-            longest = la if la >= lb else lb
-        length = math.sqrt((n0 * n0 + n1 * n1) + n2 * n2)
-        bad[i] = length <= c1 * longest + c2
+        n0, n1, n2, length, bad[i] = cross_test(tangents[i, 0], tangents[i, 1], tangents[i, 2],
+                                                tangents[i, 3], tangents[i, 4], tangents[i, 5], c1, c2)
         if bad[i]:
             count += 1
         else:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["TOL_ZERO", "MERGE_DIGITS", "merge_vertices", "face_normals", "scale", "unitize", "planes_lines"]
+__all__ = ["TOL_ZERO", "MERGE_DIGITS", "merge_keys", "merge_vertices", "face_normals", "scale", "unitize", "planes_lines"]
 
 TOL_ZERO = float(np.finfo(np.float64).resolution * 100)  # trimesh.util.TOL_ZERO: a zero vector's norm
 MERGE_DIGITS = 8  # trimesh.util.decimal_to_digits(tol.merge = 1e-8): vertices equal to 1e-8 are merged
@@ -26,6 +26,21 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.dot(a * b, _ONES)
 
 
+def merge_keys(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What a vertex merge groups by: which of ``vertices (n, 3) float64`` the ``faces (f, 3)
+    int64`` reference ``(n,) bool`` (all of them when there are no faces, as trimesh keeps an
+    unreferenced cloud) and each row rounded to multiples of ``10 ** -MERGE_DIGITS``
+    ``(n, 3) int64``, C-contiguous. Two referenced vertices merge exactly when their keys are
+    equal."""
+    referenced = np.zeros(len(vertices), dtype=bool)
+    if len(faces):
+        referenced[faces] = True
+    else:
+        referenced[:] = True
+    keys = np.ascontiguousarray((vertices * (10 ** MERGE_DIGITS)).round().astype(np.int64))
+    return referenced, keys
+
+
 def merge_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``Trimesh(vertices, faces, process=False).merge_vertices()``: the referenced vertices
     whose coordinates round to the same multiples of 1e-8 become one, the first in vertex
@@ -35,12 +50,8 @@ def merge_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
     faces = np.asarray(faces, np.int64)
     if not len(vertices):
         return vertices, faces
-    referenced = np.zeros(len(vertices), dtype=bool)
-    if len(faces):
-        referenced[faces] = True
-    else:
-        referenced[:] = True
-    rows = np.ascontiguousarray((vertices * (10 ** MERGE_DIGITS)).round().astype(np.int64)[referenced])
+    referenced, keys = merge_keys(vertices, faces)
+    rows = np.ascontiguousarray(keys[referenced])
     # group equal integer rows: which rows are equal, not how they are hashed, fixes the answer
     key = rows.view(np.dtype((np.void, rows.itemsize * 3))).reshape(-1)
     _, index, inverse = np.unique(key, return_index=True, return_inverse=True)

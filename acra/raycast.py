@@ -74,12 +74,7 @@ def merged(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndar
     faces = np.asarray(faces, np.int64)
     if not len(vertices):
         return vertices, faces
-    referenced = np.zeros(len(vertices), dtype=bool)
-    if len(faces):
-        referenced[faces] = True
-    else:
-        referenced[:] = True
-    keys = np.ascontiguousarray((vertices * (10 ** meshops.MERGE_DIGITS)).round().astype(np.int64))
+    referenced, keys = meshops.merge_keys(vertices, faces)
     new_id, rep = np.zeros(len(vertices), np.int64), np.empty(len(vertices), np.int64)
     count = _merge(keys, referenced, new_id, rep)
     return vertices[rep[:count]], new_id[faces]
