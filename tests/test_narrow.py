@@ -173,3 +173,16 @@ def test_patches_near_is_the_broad_phase_in_arrays():
             np.testing.assert_array_equal(box, [lb[cb[:, 0], cb[:, 1]].min(axis=0), hb[cb[:, 0], cb[:, 1]].max(axis=0)])
         else:
             assert box is None
+
+
+def test_culls_compile_once_for_read_only_bounds():
+    """`detect` passes its read-only shared bounds to `narrow.patches_near`; `_cull`, which
+    `triangles_near` calls with a writable box, keeps one specialisation (each more is compiled
+    and cached again on the first run after a fresh install)."""
+    lo = np.zeros((4, 3))
+    hi = lo + 1.0
+    bounds = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    bounds.setflags(write=False)
+    narrow.patches_near((lo, hi), bounds, (lo + 0.5, hi + 0.5), bounds, 0.0)
+    narrow.triangles_near((lo, hi), (lo + 0.5, hi + 0.5), 0.0)
+    assert len(narrow._cull.signatures) == 1, narrow._cull.signatures
