@@ -106,8 +106,11 @@ def patches_near(box_a: tuple[np.ndarray, np.ndarray], bounds_a: np.ndarray, box
     other side. Returns the kept rows ``(m,) bool`` of each side and the box ``(2, 3)`` of
     ``b``'s kept boxes (``None`` if none is kept)."""
     f = lambda x: np.ascontiguousarray(x, np.float64).reshape(-1, 3)  # noqa: E731
+    # The bounds are copied: `detect` shares them read-only, and a read-only box would give
+    # `_cull` a second specialisation (compiled and cached again) next to `_near`'s writable one.
+    g = lambda x: np.array(x, np.float64).reshape(2, 3)  # noqa: E731
     keep_a, keep_b, box = np.empty(len(f(box_a[0])), np.bool_), np.empty(len(f(box_b[0])), np.bool_), np.empty((2, 3))
-    any_b = _patches_near(f(box_a[0]), f(box_a[1]), f(bounds_a), f(box_b[0]), f(box_b[1]), f(bounds_b), float(pad),
+    any_b = _patches_near(f(box_a[0]), f(box_a[1]), g(bounds_a), f(box_b[0]), f(box_b[1]), g(bounds_b), float(pad),
                           keep_a, keep_b, box)
     return keep_a, keep_b, box if any_b else None
 

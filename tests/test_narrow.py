@@ -173,3 +173,30 @@ def test_patches_near_is_the_broad_phase_in_arrays():
             np.testing.assert_array_equal(box, [lb[cb[:, 0], cb[:, 1]].min(axis=0), hb[cb[:, 0], cb[:, 1]].max(axis=0)])
         else:
             assert box is None
+
+
+def test_culls_compile_once_for_read_only_bounds(monkeypatch):
+    """`detect` passes its read-only shared bounds to `narrow.patches_near`; the boxes reaching
+    `_cull` through `_patches_near` are of the one type `triangles_near`'s `_near` gives it
+    (writable C-contiguous float64), so `_cull` has one specialisation (each more is compiled and
+    cached again on the first run after a fresh install). Checked on the argument types, since a
+    kernel loaded from the cache never compiles the kernels it calls."""
+    import numba
+
+    seen = set()
+
+    def spy(kernel):
+        def call(*args):
+            seen.update(numba.typeof(a) for a in args if isinstance(a, np.ndarray) and a.dtype == np.float64)
+            return kernel(*args)
+        return call
+
+    monkeypatch.setattr(narrow, "_patches_near", spy(narrow._patches_near))
+    monkeypatch.setattr(narrow, "_near", spy(narrow._near))
+    lo = np.zeros((4, 3))
+    hi = lo + 1.0
+    bounds = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    bounds.setflags(write=False)
+    narrow.patches_near((lo, hi), bounds, (lo + 0.5, hi + 0.5), bounds, 0.0)
+    narrow.triangles_near((lo, hi), (lo + 0.5, hi + 0.5), 0.0)
+    assert seen == {numba.typeof(np.empty((2, 3)))}, seen
