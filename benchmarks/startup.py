@@ -104,9 +104,11 @@ def part(owner, attr, name):
     setattr(owner, attr, w)
 part(caching.IndexDataCacheFile, "_load_index", "index lookup (the index file read and unpickled)")
 part(caching.IndexDataCacheFile, "_load_data", "the kernel's data read and unpickled")
-part(ll, "parse_bitcode", "its linkable LLVM bitcode parsed")
-part(codegen.JitEngine, "_load_defined_symbols", "the symbols that bitcode defines listed")
+part(ll, "parse_bitcode", "LLVM bitcode parsed (`llvmlite.binding.parse_bitcode`)")
+part(codegen.JitEngine, "_load_defined_symbols", "the symbols of the LLVM modules added listed (`JitEngine._load_defined_symbols`)")
 part(codegen.CPUCodeLibrary, "_finalize_final_module", "its object code added to the JIT and finalised")
+import acra.kernelcache as kernelcache
+part(kernelcache, "defined_symbols", "the symbols the object code defines read (`acra.kernelcache`)")
 from pipeline.cli import end, main
 sys.argv = ["acra"] + sys.argv[1:]
 try:

@@ -1,0 +1,131 @@
+"""Loading acra's compiled kernels from numba's on-disk cache without parsing their LLVM bitcode.
+
+Every kernel of `acra` is ``njit(cache=True)``: a process after the first loads each kernel it
+calls from numba's cache (``__pycache__/*.nbi``, ``*.nbc``) instead of compiling it. numba stores
+a kernel as its machine code (an object file) and its linkable LLVM bitcode, which it needs only
+to inline the kernel into a kernel compiled later. On a load, numba (0.60 to 0.68 at least) parses
+that bitcode into an LLVM module and walks the module's functions and globals in Python to note
+the symbols it defines, which the JIT's lookup of the kernel's entry point checks; together about
+7 ms CPU a kernel, 70 % of a load, and a run of the demo loads about 50 kernels.
+
+`install` makes a load read the defined symbols from the object file's symbol table instead
+(`defined_symbols`: ELF, the format of Linux objects; a symbol is defined there when its section
+index is not ``SHN_UNDEF``) and keep the bitcode as bytes, parsed the first time another kernel
+links the loaded one in (`CPUCodeLibrary._get_module_for_linking`). The machine code run is the
+same object code either way; only when and how the symbol names are found changes. Every symbol
+the bitcode defines is defined in the object file (`tests/test_kernelcache.py` compares the two
+sets for loaded kernels); should an entry point still be missing from the names read, its
+library's bitcode is parsed and its symbols noted as numba does before the JIT is asked for it
+(`JITCodeLibrary.get_pointer_to_function`), so a load never yields a null entry. An object file that is not 64-bit little-endian ELF (macOS's
+Mach-O, Windows' COFF) or a numba whose code library lacks the methods used here is loaded by
+numba's own code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["defined_symbols", "install"]
+
+_SECTION = np.dtype([("name", "<u4"), ("type", "<u4"), ("flags", "<u8"), ("addr", "<u8"), ("offset", "<u8"),
+                     ("size", "<u8"), ("link", "<u4"), ("info", "<u4"), ("align", "<u8"), ("entsize", "<u8")])
+_SYMBOL = np.dtype([("name", "<u4"), ("info", "u1"), ("other", "u1"), ("shndx", "<u2"), ("value", "<u8"), ("size", "<u8")])
+_SHT_SYMTAB = 2
+_SHN_UNDEF = 0
+
+
+def defined_symbols(obj: bytes) -> set[str] | None:
+    """The names of the symbols a 64-bit little-endian ELF object file ``obj`` defines (section
+    index not ``SHN_UNDEF``, a name given), or None where ``obj`` is not such a file with one
+    symbol table."""
+    if len(obj) < 64 or obj[:4] != b"\x7fELF" or obj[4] != 2 or obj[5] != 1:
+        return None
+    shoff = int.from_bytes(obj[0x28:0x30], "little")
+    shentsize = int.from_bytes(obj[0x3A:0x3C], "little")
+    shnum = int.from_bytes(obj[0x3C:0x3E], "little")
+    if shentsize != _SECTION.itemsize or shoff + shnum * shentsize > len(obj):
+        return None
+    sections = np.frombuffer(obj, _SECTION, count=shnum, offset=shoff)
+    which = np.flatnonzero(sections["type"] == _SHT_SYMTAB)
+    if which.size != 1:
+        return None
+    table = sections[which[0]]
+    if int(table["link"]) >= shnum or int(table["entsize"]) != _SYMBOL.itemsize:
+        return None
+    names = sections[int(table["link"])]
+    start, size = int(table["offset"]), int(table["size"])
+    nstart, nsize = int(names["offset"]), int(names["size"])
+    if start + size > len(obj) or nstart + nsize > len(obj):
+        return None
+    symbols = np.frombuffer(obj, _SYMBOL, count=size // _SYMBOL.itemsize, offset=start)
+    strings = obj[nstart:nstart + nsize]
+    at = symbols["name"][(symbols["shndx"] != _SHN_UNDEF) & (symbols["name"] != 0)]
+    return {strings[a:strings.index(b"\0", a)].decode() for a in at.tolist()}
+
+
+def _methods():
+    """numba's code library class and the original methods `install` wraps, or None where this
+    numba lacks any of them."""
+    try:
+        from numba.core import codegen
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+    lib = getattr(codegen, "CPUCodeLibrary", None)
+    jit = getattr(codegen, "JITCodeLibrary", None)
+    need = ("_unserialize", "_get_module_for_linking", "enable_object_caching", "_set_compiled_object",
+            "_finalize_final_module")
+    if (lib is None or jit is None or not all(hasattr(lib, n) for n in need) or not hasattr(jit, "get_pointer_to_function")
+            or not hasattr(getattr(codegen, "JitEngine", None), "_load_defined_symbols")):
+        return None
+    return codegen, lib, jit
+
+
+def install() -> bool:
+    """Make numba's cache loads read the defined symbols from the object code and defer parsing
+    the linkable bitcode (module docstring); idempotent. Returns whether the loads are changed
+    (False where this numba's code library differs from the one described)."""
+    found = _methods()
+    if found is None:
+        return False
+    codegen, lib, jit = found
+    if getattr(lib._unserialize, "_acra", False):
+        return True
+    unserialize = lib._unserialize.__func__
+    for_linking = lib._get_module_for_linking
+    pointer = jit.get_pointer_to_function
+    from llvmlite import binding as ll
+
+    def _unserialize(cls, cg, state):
+        name, kind, data = state
+        names = defined_symbols(data[0]) if kind == "object" else None
+        engine = getattr(cg, "_engine", None)
+        if names is None or not isinstance(getattr(engine, "_defined_symbols", None), set):
+            return unserialize(cls, cg, state)
+        object_code, bitcode = data
+        self = cg.create_library(name)
+        self.enable_object_caching()
+        self._set_compiled_object(object_code)
+        self._acra_bitcode = bitcode
+        self._finalize_final_module()
+        engine._defined_symbols |= names
+        return self
+
+    def _get_module_for_linking(self):
+        bitcode = getattr(self, "_acra_bitcode", None)
+        if bitcode is not None and self._shared_module is None:
+            self._shared_module = ll.parse_bitcode(bitcode)
+            self._acra_bitcode = None
+        return for_linking(self)
+
+    def get_pointer_to_function(self, name):
+        # a name the object file's table did not give is looked up as numba's own load does, in
+        # the bitcode's definitions, so a load never hands back a null entry point
+        if getattr(self, "_acra_bitcode", None) is not None and not self._codegen._engine.is_symbol_defined(name):
+            self._codegen._engine._load_defined_symbols(_get_module_for_linking(self))
+        return pointer(self, name)
+
+    _unserialize._acra = True
+    lib._unserialize = classmethod(_unserialize)
+    lib._get_module_for_linking = _get_module_for_linking
+    jit.get_pointer_to_function = get_pointer_to_function
+    return True
