@@ -25,7 +25,7 @@ import numpy as np
 from . import framekernels, levelkernels
 from . import hspline as H
 from .basis import locate
-from .hierarchy import pole_ring_rows, refine_blocks
+from .hierarchy import pole_ring_rows, refine_keys, refinement_keys
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -388,12 +388,53 @@ _ring_rows = pole_ring_rows
 
 def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, int]]:
     """``(k, axis, end)`` of every fine level whose share of a pole of ``hs`` keeps it one point
-    (the ring sums agree within 1e-9 of the size): the rings `_close_rings` must keep closed."""
+    (the ring sums agree within 1e-9 of the size): the rings `_close_rings` must keep closed.
+    Kept per surface and details (`_KEPT`): a static object responds from the same surface
+    every frame."""
     if det is None:
         return []
+    key = ("rings", id(hs), id(det))
+    hit = _KEPT.get(key)
+    if hit is not None and hit[0] is hs and hit[1] is det:
+        return hit[2]
     tol = 1e-9 * hs.size()
-    return [(k, axis, end) for k in range(1, hs.depth) for axis, end in H.closed_ends(hs)
-            if _ring_sums(hs, det, k, axis, end)[3] <= tol]
+    rings = [(k, axis, end) for k in range(1, hs.depth) for axis, end in H.closed_ends(hs)
+             if _ring_sums(hs, det, k, axis, end)[3] <= tol]
+    _keep(key, (hs, det, rings))
+    return rings
+
+
+# Answers that depend on a response's input surface and its details alone (the objects, which
+# are never changed, are held with each answer so an id is not mistaken for a later object's):
+# ``("rings", id(hs), id(det))`` -> `_closed_rings`, ``("refined", id(hs), id(det), lazy, keys)``
+# -> `_refined`. A static object's responses start from the same surface frame after frame, and
+# its contact stays in the same patches; emptied by `pipeline.run.forget`.
+_KEPT: dict = {}
+_KEEP = 32  # answers kept, oldest dropped first
+
+
+def _keep(key: tuple, answer: tuple) -> None:
+    """Keep ``answer`` under ``key`` in `_KEPT`, dropping the oldest past `_KEEP`."""
+    _KEPT[key] = answer
+    while len(_KEPT) > _KEEP:
+        del _KEPT[next(iter(_KEPT))]
+
+
+def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tuple[H.HSpline, H.Details | None]:
+    """``hs`` with the patches ``keys`` (`hierarchy.refinement_keys`) active and its details
+    (`_redetail`'s ``lazy``: the finer absorbing levels' new CVs are framed by the coarsest one's
+    move, which turns them; the coarsest level's own frames its solve moves with). The
+    refinement and its details pass depend on ``hs``, ``det`` and ``keys`` alone, so they are
+    kept (`_KEPT`) for the next response from the same surface to the same patches (a level's
+    patches are a set: keys listed twice, by two points in one patch, refine the same)."""
+    key = ("refined", id(hs), id(det), lazy, tuple((level, np.unique(k).tobytes()) for level, k in keys))
+    hit = _KEPT.get(key)
+    if hit is not None and hit[0] is hs and hit[1] is det:
+        return hit[2], hit[3]
+    new = refine_keys(hs, keys)
+    new_det = _redetail(hs, det, new, (), lazy=lazy)[1] if new is not hs else det
+    _keep(key, (hs, det, new, new_det))
+    return new, new_det
 
 
 _RING_W = np.array([1.0, 4.0, 1.0])  # a ring column's three rows in its pole sum (`_ring_sums`)
@@ -794,12 +835,9 @@ def respond(
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
         levels = tuple(level for level in absorbing if level >= 1)
-        hs = refine_blocks(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole0))
+        hs, det = _refined(hs, det, refinement_keys(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole0)),
+                           absorbing[0])
         refined = sum(lev.patches.size for lev in hs.fine) - before
-        if refined:
-            # the finer absorbing levels' new CVs are framed by the coarsest one's move, which
-            # turns them; the coarsest level's own frames its solve moves with
-            hs, det = _redetail(coarse, det, hs, (), lazy=absorbing[0])
     for level in range(L):
         a = absorb[level]
         if a <= 0.0:

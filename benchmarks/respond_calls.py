@@ -24,7 +24,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from acra import respond as R
-from pipeline import frames, usdio
+from pipeline import frames, run, usdio
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -84,6 +84,9 @@ def main() -> None:
 
 def _replay(calls, repeat, best, cpu, results) -> None:
     for rep in range(repeat):
+        # each repeat a cold run: what a response keeps across frames (`acra.respond._KEPT`)
+        # serves a repeat's later frames, as in a run, not the next repeat
+        run.forget()
         for n, (a, kw) in enumerate(calls):
             t, c = time.perf_counter(), time.process_time()
             hs, report = R.respond(*a, **kw)

@@ -114,12 +114,12 @@ def forget() -> None:
     Within a run they spare a frame what an earlier frame computed; across runs in one process
     they would serve a run what the run before computed. The next run computes everything as the
     first run of a fresh process does, which is what a benchmark's repeated runs must measure."""
-    from acra import hspline, tessellate
+    from acra import hspline, respond, tessellate
     from pipeline import contact, datapoints, detect, display, residual, shape
 
     for store in (shape._SHAPES, shape._REFINEMENTS, detect._ANSWERS, detect._WORLDS, detect._LAYOUTS,
                   detect._DISTINCT, detect._CASTS, detect._OBJECT_BOXES, contact._AT, datapoints._RIMS,
-                  display._TOPOLOGIES, residual._DIGESTS, residual._PLACEMENTS, hspline._PLACES,
+                  display._TOPOLOGIES, residual._DIGESTS, residual._PLACEMENTS, hspline._PLACES, respond._KEPT,
                   tessellate._NUDGED, tessellate._END_LINES):
         store.clear()
 
