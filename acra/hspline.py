@@ -736,7 +736,7 @@ def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndar
     # a ring's CVs take their end's one normal: their own (at the end, where du x dv
     # vanishes and the limit normal needs second derivatives) are not computed
     fixed, n_fixed = np.zeros(gu.size, bool), np.zeros((gu.size, 3))
-    for i, (axis, end) in enumerate(ends):
+    for i, (axis, end) in enumerate(ends if ring.size and ring.max() >= 0 else ()):
         on = ring == i
         if np.any(on):
             n_end = _end_normal(hs, k, axis, end, partial)

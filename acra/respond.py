@@ -18,6 +18,7 @@ and its share is not made up by finer levels: the remainder is exactly the missi
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -500,8 +501,11 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
+            ok = _ring_rows(hs, k, axis, end)[1]
+            if ok.all() or not ok.any():  # wholly movable already, or no CV of it the solve could move
+                continue
             _, ok, reached = _ring_reach(hs, pw, k, axis, end)
-            if not ok.all() and reached[ok].any():
+            if reached[ok].any():
                 hs, det, _ = _open_ring(hs, det, k, axis, end, True)
     if hs is not before:
         pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
@@ -522,18 +526,17 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     point, w, ring_rows = [pw.point], [pw.w], []
     targets, n = [want], pw.npoints
     for k, axis, end in rings:
-        if k != pw.level:
+        if k != pw.level or not _ring_rows(hs, k, axis, end)[1].all():
             continue
         rows, ok, reached = _ring_reach(hs, pw, k, axis, end)  # a ring the move does not reach needs no sums
-        if not ok.all() or not reached.any():
+        if not reached.any():
             continue
         sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
-        # row j: +w_r / 6 on column j's CVs, -w_r / (6 N) on every column's
-        own = np.repeat(np.arange(N), 3)
-        point += [n + own, np.repeat(n + np.arange(N), 3 * N)]
+        own, every, w_own, w_every = _ring_pattern(N)
+        point += [n + own, n + every]
         ring_rows.append(rows.reshape(-1))
-        w += [np.tile(_RING_W / 6.0, N), -np.tile(_RING_W / (6.0 * N), N * N)]
+        w += [w_own, w_every]
         targets.append(-(sums - sums.mean(axis=0)) / 6.0)
         n += N
     if n == pw.npoints:
@@ -544,10 +547,25 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
     for r in ring_rows:
         c = np.searchsorted(cv_rows, r)
-        col += [c, np.tile(c, r.size // 3)]
+        col += [c, np.broadcast_to(c, (r.size // 3, c.size)).reshape(-1)]  # every column's CVs, once per row
     active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
     return PointWeights(pw.level, np.concatenate(point), np.concatenate(col).astype(np.int64), np.concatenate(w),
                         cv_rows.astype(np.int64), n, active), np.concatenate(targets)
+
+
+@functools.lru_cache(maxsize=32)
+def _ring_pattern(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_ring_constraints`' entries of a ring of ``N`` columns, which depend on ``N`` alone: row
+    ``j`` weighs +w_r / 6 on column ``j``'s three CVs and -w_r / (6 N) on every column's. Returns
+    the rows of the own entries ``(3 N,) int64`` and of the every-column ones ``(3 N², ) int64``
+    (from row 0) and their weights ``(3 N,)``, ``(3 N²,) float64``; read-only."""
+    own = np.repeat(np.arange(N), 3)
+    every = np.repeat(np.arange(N), 3 * N)
+    w_own = np.tile(_RING_W / 6.0, N)
+    w_every = -np.tile(_RING_W / (6.0 * N), N * N)
+    for a in (own, every, w_own, w_every):
+        a.flags.writeable = False
+    return own, every, w_own, w_every
 
 
 def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
