@@ -31,8 +31,8 @@ from numba import njit
 
 from acra.kernels import mark_cells
 
-__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
-           "mark_changed", "stale_rows"]
+__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "patch_groups", "movable_places",
+           "differing_rows", "mark_changed", "stale_rows"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -103,6 +103,19 @@ def unique_inverse(x):
     for i in range(n):
         inverse[i] = _find(uniq, x[i])[0]
     return uniq, inverse
+
+
+@njit(cache=True, nogil=True)
+def patch_groups(u, v, level, u_patches, u_periodic, v_patches, v_periodic):
+    """The level-``level`` patch of each point ``u, v (K,) float64`` (level-0 units,
+    `acra.basis.locate`) as a key ``su * v_patches + sv``, numbered as `unique_inverse` numbers
+    them: the sorted distinct keys ``(g,) int64`` and each point's place among them ``(K,)
+    int64`` (`acra.respond.patch_groups`, a level's additional points merged per patch)."""
+    keys = np.empty(u.shape[0], np.int64)
+    for i in range(u.shape[0]):
+        keys[i] = _segment(u[i], level, u_patches, u_periodic)[0] * v_patches + \
+            _segment(v[i], level, v_patches, v_periodic)[0]
+    return unique_inverse(keys)
 
 
 @njit(cache=True, nogil=True)
