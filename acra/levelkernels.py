@@ -31,8 +31,8 @@ from numba import njit
 
 from acra.kernels import mark_cells
 
-__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "patch_groups", "movable_places",
-           "differing_rows", "mark_changed", "stale_rows"]
+__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
+           "mark_changed", "stale_rows"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -103,19 +103,6 @@ def unique_inverse(x):
     for i in range(n):
         inverse[i] = _find(uniq, x[i])[0]
     return uniq, inverse
-
-
-@njit(cache=True, nogil=True)
-def patch_groups(u, v, level, u_patches, u_periodic, v_patches, v_periodic):
-    """The level-``level`` patch of each point ``u, v (K,) float64`` (level-0 units,
-    `acra.basis.locate`) as a key ``su * v_patches + sv``, numbered as `unique_inverse` numbers
-    them: the sorted distinct keys ``(g,) int64`` and each point's place among them ``(K,)
-    int64`` (`acra.respond.patch_groups`, a level's additional points merged per patch)."""
-    keys = np.empty(u.shape[0], np.int64)
-    for i in range(u.shape[0]):
-        keys[i] = _segment(u[i], level, u_patches, u_periodic)[0] * v_patches + \
-            _segment(v[i], level, v_patches, v_periodic)[0]
-    return unique_inverse(keys)
 
 
 @njit(cache=True, nogil=True)
@@ -430,8 +417,12 @@ def stale_rows(stale, centre, ring, ends, every, pending):
     for i in range(centre.shape[0]):
         c = centre[i]
         hit[i] = stale[c // nv, c % nv] or along[ring[i]]
-    if pending.shape[0]:
-        at = np.searchsorted(every, pending)
-        for i in range(at.shape[0]):
-            hit[at[i]] = True
-    return np.nonzero(hit)[0]
+    for key in pending:  # `_find` rather than np.searchsorted, which costs seconds to compile
+        hit[_find(every, key)[0]] = True
+    out = np.empty(centre.shape[0], np.int64)
+    n = 0
+    for i in range(centre.shape[0]):
+        if hit[i]:
+            out[n] = i
+            n += 1
+    return out[:n]

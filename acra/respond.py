@@ -251,10 +251,8 @@ def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     if uv_inside.shape[0] == 0:
         return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    # the points' patch keys numbered in one compiled pass (`patch_keys` then `unique_inverse`)
-    uniq, inv = levelkernels.patch_groups(np.ascontiguousarray(uv_inside[:, 0]), np.ascontiguousarray(uv_inside[:, 1]), int(level),
-                                          int(hs.u.patches(level)), bool(hs.u.periodic), int(hs.v.patches(level)),
-                                          bool(hs.v.periodic))
+    keys = patch_keys(hs, uv_inside, level)
+    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(keys, np.int64))
     mids = np.zeros((uniq.size, 2))
     for col, d in ((0, hs.u), (1, hs.v)):
         x = uv_inside[:, col]

@@ -457,24 +457,3 @@ def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_
         np.testing.assert_array_equal(a.offsets.view(np.int64), b.offsets.view(np.int64))
     for a, b in zip(kept_rep.details.vectors + kept_rep.details.frames, again_rep.details.vectors + again_rep.details.frames):
         np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
-
-
-@pytest.mark.parametrize("periodic", [False, True])
-def test_patch_groups_number_the_points_patches_as_np_unique_does(periodic):
-    """`levelkernels.patch_groups` (behind `R.patch_groups`) numbers the points' level patches as
-    `np.unique` of `R.patch_keys` does, on a seam, the far end and a NaN parameter too."""
-    from acra import levelkernels
-
-    hs = H.from_grid(*shapes.sphere(8, 7), depth=3) if periodic else flat_sheet(n=9, depth=3)
-    P0u, P0v = hs.domain
-    rng = np.random.default_rng(3)
-    uv = np.column_stack([rng.uniform(0, P0u, 40), rng.uniform(0, P0v, 40)])
-    uv[:4] = [[0.0, 0.0], [P0u, P0v], [1.0, 2.5], [P0u - 1e-12, 1.0]]
-    uv[4, 0] = np.nan
-    for level in (0, 1, 2):
-        with np.errstate(invalid="ignore"):  # numpy's cast of the NaN parameter
-            want = np.unique(R.patch_keys(hs, uv, level), return_inverse=True)
-        got = levelkernels.patch_groups(uv[:, 0].copy(), uv[:, 1].copy(), level, hs.u.patches(level), hs.u.periodic,
-                                        hs.v.patches(level), hs.v.periodic)
-        np.testing.assert_array_equal(got[0], want[0])
-        np.testing.assert_array_equal(got[1], want[1].reshape(-1))
