@@ -411,7 +411,7 @@ def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, 
 # -> `_refined`. A static object's responses start from the same surface frame after frame, and
 # its contact stays in the same patches; emptied by `pipeline.run.forget`.
 _KEPT: dict = {}
-_KEEP = 32  # answers kept, oldest dropped first
+_KEEP = 16  # answers kept, oldest dropped first (a refined entry holds two surfaces and their details)
 
 
 def _keep(key: tuple, answer: tuple) -> None:
