@@ -4,7 +4,8 @@
 
 Runs the scene's ``--frames`` (after a free frame, as `benchmarks/stage_split.py` does) and
 records every `acra.respond.respond` call with its arguments, then calls `respond` again on each
-recorded argument set ``--repeat`` times and prints the calls and the milliseconds (wall and
+recorded argument set ``--repeat`` times (each repeat after `pipeline.run.forget`, as a cold run
+of the frames) and prints the calls and the milliseconds (wall and
 CPU) per collision frame of all of them (the least over the repeats of each call, summed). Run it with
 ``PYTHONPATH`` set to two checkouts to compare their responses on the same calls. ``--save FILE``
 stores each call's responded surface (level-0 CVs, every level's keys and offsets, the

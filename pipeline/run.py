@@ -110,7 +110,8 @@ def _check_farm_options(output, workers, scheduler, chunk, part) -> None:
 
 def forget() -> None:
     """Drop every answer kept by content across frames: shapes and refinement tables, detection's
-    answers, world data, layouts, casts and anchors, rims, topologies, digests and placements.
+    answers, world data, layouts, casts and anchors, rims, topologies, digests and placements,
+    responses' refinements and closed rings.
     Within a run they spare a frame what an earlier frame computed; across runs in one process
     they would serve a run what the run before computed. The next run computes everything as the
     first run of a fresh process does, which is what a benchmark's repeated runs must measure."""
