@@ -39,6 +39,8 @@ __all__ = [
     "refine",
     "make_movable",
     "refine_blocks",
+    "refinement_keys",
+    "refine_keys",
     "with_fine",
     "with_cvs",
     "set_offsets",
@@ -398,14 +400,22 @@ def refine_blocks(hs: HSpline, levels: tuple[int, ...], u: np.ndarray, v: np.nda
     of ``levels``, plus ``extra[k] (m, 2) int64`` patches of level ``k`` (in range), as one
     `refine_levels`: the same surface, each level built once, its keys listed in one compiled
     pass (`levelkernels.block_keys`: the 7×7 blocks and the finer level's parents)."""
+    return refine_keys(hs, refinement_keys(hs, levels, u, v, extra))
+
+
+def refinement_keys(hs: HSpline, levels: tuple[int, ...], u: np.ndarray, v: np.ndarray,
+                    extra: dict[int, np.ndarray] | None = None) -> tuple[tuple[int, np.ndarray], ...]:
+    """The patches `refine_blocks` activates, ``(level, keys (m,) int64)`` finest level first
+    (``pu * nv + pv``, the finer levels' parents among them): the refinement is a function of
+    these and ``hs`` alone, so a caller can key what it derives from the refined surface by them."""
     if not levels:
-        return hs
+        return ()
     top = _top_level(hs, levels)
     extra = extra or {}
     u = np.ascontiguousarray(u, np.float64)
     v = np.ascontiguousarray(v, np.float64)
     none = u[:0]
-    fine = list(hs.fine)
+    out = []
     keys, finer_v = np.zeros(0, np.int64), 1
     for level in range(top, 0, -1):
         on = level in levels
@@ -415,8 +425,18 @@ def refine_blocks(hs: HSpline, levels: tuple[int, ...], u: np.ndarray, v: np.nda
         if level in extra:
             more = np.asarray(extra[level], np.int64).reshape(-1, 2)
             keys = np.concatenate([keys, more[:, 0] * npv + more[:, 1]])
-        _build_into(hs, level, keys, fine)
+        out.append((level, keys))
         finer_v = npv
+    return tuple(out)
+
+
+def refine_keys(hs: HSpline, keys: tuple[tuple[int, np.ndarray], ...]) -> HSpline:
+    """``hs`` with the patches ``keys`` (`block_keys`) active, each level built once."""
+    if not keys:
+        return hs
+    fine = list(hs.fine)
+    for level, k in keys:
+        _build_into(hs, level, k, fine)
     return _with_levels(hs, fine)
 
 

@@ -654,6 +654,7 @@ def details(hs: HSpline, upto: int | None = None,
 # key in a `Details`' ``__dict__``: ``{level: rows (m,) int64}`` of frames left pending (NaN) by
 # `details`' ``lazy``; a `Details` without it has every frame
 _PENDING = "_pending"
+_NO_ROWS = np.zeros(0, np.int64)  # `levelkernels.stale_rows`' pending rows of a level with none
 
 
 # key in a `Level`'s ``__dict__``: ``(old offsets (c, 3) float64, rows (m,) int64)``, set by a move
@@ -689,42 +690,31 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     vectors, frames = list(old_det.vectors), list(old_det.frames)
     hint = lev.__dict__.get(_MOVED)
     if hint is not None and hint[0] is was.offsets:  # a move that names its rows: only those can differ
-        rows = hint[1][np.any(_bits(was.offsets[hint[1]]) != _bits(lev.offsets[hint[1]]), axis=-1)]
+        rows = levelkernels.differing_rows(_bits(was.offsets), _bits(lev.offsets), np.ascontiguousarray(hint[1], np.int64))
     else:
         rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
     vec = vectors[level - 1].copy()
     vec[rows] = np.einsum("mij,mj->mi", frames[level - 1][rows], lev.offsets[rows])
     vectors[level - 1] = vec
-    changed = rows[np.any(_bits(vec[rows]) != _bits(old_det.vectors[level - 1][rows]), axis=-1)]
+    # the level-0 patches holding a patch a changed CV supports; then level by level the frames
+    # on them (compiled bookkeeping, `levelkernels.mark_changed` and `stale_rows`)
     stale = np.zeros((new.u.patches0, new.v.patches0), bool)
-    marked = False
     ends = closed_ends(new)
-    ring_stale = None  # per ring index (-1: none, the last entry), whether its end is stale
+    ends_arr = _ends_array(ends)
+    up, vp = bool(new.u.periodic), bool(new.v.periodic)
     k = level
+    marked = levelkernels.mark_changed(_bits(vec), _bits(old_det.vectors[level - 1]), rows, lev.cv_keys,
+                                       int(new.v.cvs(k)), k, int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
     while True:
-        if changed.size:  # the level-0 patches holding a patch a changed level-k CV supports
-            ju, jv = np.divmod(lev.cv_keys[changed], new.v.cvs(k))  # `_split_cv`
-            kernels.mark_cells(stale, ju, jv, k, 0, 3, new.u.patches(k), new.v.patches(k),
-                               bool(new.u.periodic), bool(new.v.periodic))
-            marked, ring_stale = True, None
         k += 1
         if k >= new.depth or not (marked or any(m >= k for m in pending)):
             break
         lev = new.fine[k - 1]
         every, ring, gu, gv, centre = _movable_places(new, k, lev, ends)
         if not every.size:
-            changed = every
             continue
-        hit = stale.reshape(-1)[centre]
-        if ends:
-            if ring_stale is None:
-                ring_stale = np.append(_ends_stale(new, ends, stale)[:len(ends)], False)
-            hit |= ring_stale[ring]
-        if k in pending:  # ``every`` is sorted (`_movable_places`)
-            hit[np.searchsorted(every, pending[k])] = True
-        pos = np.nonzero(hit)[0]
+        pos = levelkernels.stale_rows(stale, centre, ring, ends_arr, every, pending.get(k, _NO_ROWS))
         if not pos.size:
-            changed = pos
             continue
         rows = every[pos]
         fr = frames[k - 1].copy()
@@ -732,7 +722,8 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
                               ring[pos], gu[pos], gv[pos])
         vec = vectors[k - 1].copy()
         vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
-        changed = rows[np.any(_bits(vec[rows]) != _bits(vectors[k - 1][rows]), axis=-1)]
+        marked |= levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
+                                            int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
         vectors[k - 1], frames[k - 1] = vec, fr
     return Details(tuple(vectors), tuple(frames))
 
@@ -745,7 +736,7 @@ def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndar
     # a ring's CVs take their end's one normal: their own (at the end, where du x dv
     # vanishes and the limit normal needs second derivatives) are not computed
     fixed, n_fixed = np.zeros(gu.size, bool), np.zeros((gu.size, 3))
-    for i, (axis, end) in enumerate(ends):
+    for i, (axis, end) in enumerate(ends if ring.size and ring.max() >= 0 else ()):
         on = ring == i
         if np.any(on):
             n_end = _end_normal(hs, k, axis, end, partial)

@@ -151,9 +151,10 @@ def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: lis
         rrows, rok = _movable_rows(hs, level, ring) if level == 0 else pole_ring_rows(hs, level, axis, end)
         if not rok.all():
             continue
+        # each point on the pole weighs every ring CV, rows and weights repeated point by point
         pts.append(np.repeat(on, ring.size))
-        rws.append(np.tile(rrows.reshape(-1), on.size))
-        ws.append(np.tile(np.broadcast_to(rw / ring.shape[0], ring.shape).reshape(-1), on.size))
+        rws.append(np.broadcast_to(rrows.reshape(-1), (on.size, ring.size)).reshape(-1))
+        ws.append(np.broadcast_to(rw / ring.shape[0], (on.size, *ring.shape)).reshape(-1))
     return pts, rws, ws
 
 

@@ -10,6 +10,10 @@ here it is one pass. Everything is integer bookkeeping plus a copy of the old of
 level is the same as the array form's, key for key (`tests/test_hspline.py` holds it to it).
 The patches a response refines on a level, the 7×7 block about each data point's patch and
 the parents of the finer level's, are listed by `block_keys`.
+Following a response's move down the levels (`acra.hspline.moved_details`), which rows of a
+level changed bits (`differing_rows`), the level-0 patches the changed detail vectors' CVs
+support (`mark_changed`) and which finer CVs' frames lie on those patches or rings
+(`stale_rows`) are each one pass in place of a dozen numpy calls on a few hundred rows.
 What the frames of a level need of its movable CVs (`acra.hspline._movable_places`: their
 indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
 The CVs a level's data points weigh, and the patches its additional points fall in, are
@@ -25,7 +29,10 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places"]
+from acra.kernels import mark_cells
+
+__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
+           "mark_changed", "stale_rows"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -351,4 +358,71 @@ def block_keys(u, v, level, u_patches, u_periodic, v_patches, v_periodic, finer,
     for key in finer:
         out[n] = ((key // finer_v_patches) >> 1) * v_patches + ((key % finer_v_patches) >> 1)
         n += 1
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def differing_rows(a, b, rows):
+    """The ``rows (m,) int64`` whose three values differ between ``a`` and ``b`` ``(c, 3) int64``
+    (float64 arrays' bits, so ``-0.0`` is told from ``0.0``), in their order:
+    ``rows[np.any(a[rows] != b[rows], axis=-1)]``."""
+    out = np.empty(rows.shape[0], np.int64)
+    n = 0
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        if a[r, 0] != b[r, 0] or a[r, 1] != b[r, 1] or a[r, 2] != b[r, 2]:
+            out[n] = r
+            n += 1
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def mark_changed(new, old, rows, cv_keys, v_cvs, k, u_patches, v_patches, u_periodic, v_periodic, stale):
+    """Of a level-``k`` move's ``rows (m,) int64``, those whose detail vectors ``new`` and ``old``
+    ``(c, 3) int64`` (bits) differ (`differing_rows`): mark in ``stale (P0u, P0v) bool`` the
+    level-0 patches holding a level-``k`` patch such a CV (key ``cv_keys[row]``, ``ju * v_cvs +
+    jv``) supports (`acra.kernels.mark_cells`, spread 3); returns how many differ."""
+    changed = differing_rows(new, old, rows)
+    if changed.shape[0]:
+        ju = np.empty(changed.shape[0], np.int64)
+        jv = np.empty(changed.shape[0], np.int64)
+        for i in range(changed.shape[0]):
+            key = cv_keys[changed[i]]
+            ju[i] = key // v_cvs
+            jv[i] = key - ju[i] * v_cvs
+        mark_cells(stale, ju, jv, k, 0, 3, u_patches, v_patches, u_periodic, v_periodic)
+    return changed.shape[0]
+
+
+@njit(cache=True, nogil=True)
+def stale_rows(stale, centre, ring, ends, every, pending):
+    """Positions ``(p,) int64`` (ascending) among a level's movable CVs whose frames the level-0
+    patches ``stale (P0u, P0v) bool`` reach: the CV's centre lies on one (``centre (m,) int64``,
+    flat ``pu * P0v + pv``), or it is in the pole ring ``ring (m,) int64`` (-1: none) of a closed
+    end ``ends[i] = (axis, end)`` with a stale patch along it, or its row (``every (m,) int64``,
+    sorted) is among ``pending (q,) int64`` (frames an earlier pass left to evaluate)."""
+    nu, nv = stale.shape
+    along = np.zeros(ends.shape[0] + 1, np.bool_)  # the last entry: a CV on no ring
+    for i in range(ends.shape[0]):
+        axis, end = ends[i, 0], ends[i, 1]
+        if axis == 0:
+            row = nu - 1 if end else 0
+            for j in range(nv):
+                along[i] |= stale[row, j]
+        else:
+            col = nv - 1 if end else 0
+            for j in range(nu):
+                along[i] |= stale[j, col]
+    hit = np.zeros(centre.shape[0], np.bool_)
+    for i in range(centre.shape[0]):
+        c = centre[i]
+        hit[i] = stale[c // nv, c % nv] or along[ring[i]]
+    for key in pending:  # `_find` rather than np.searchsorted, which costs seconds to compile
+        hit[_find(every, key)[0]] = True
+    out = np.empty(centre.shape[0], np.int64)
+    n = 0
+    for i in range(centre.shape[0]):
+        if hit[i]:
+            out[n] = i
+            n += 1
     return out[:n]

@@ -18,6 +18,7 @@ and its share is not made up by finer levels: the remainder is exactly the missi
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -25,7 +26,7 @@ import numpy as np
 from . import framekernels, levelkernels
 from . import hspline as H
 from .basis import locate
-from .hierarchy import pole_ring_rows, refine_blocks
+from .hierarchy import pole_ring_rows, refine_keys, refinement_keys
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -388,12 +389,53 @@ _ring_rows = pole_ring_rows
 
 def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, int]]:
     """``(k, axis, end)`` of every fine level whose share of a pole of ``hs`` keeps it one point
-    (the ring sums agree within 1e-9 of the size): the rings `_close_rings` must keep closed."""
+    (the ring sums agree within 1e-9 of the size): the rings `_close_rings` must keep closed.
+    Kept per surface and details (`_KEPT`): a static object responds from the same surface
+    every frame."""
     if det is None:
         return []
+    key = ("rings", id(hs), id(det))
+    hit = _KEPT.get(key)
+    if hit is not None and hit[0] is hs and hit[1] is det:
+        return hit[2]
     tol = 1e-9 * hs.size()
-    return [(k, axis, end) for k in range(1, hs.depth) for axis, end in H.closed_ends(hs)
-            if _ring_sums(hs, det, k, axis, end)[3] <= tol]
+    rings = [(k, axis, end) for k in range(1, hs.depth) for axis, end in H.closed_ends(hs)
+             if _ring_sums(hs, det, k, axis, end)[3] <= tol]
+    _keep(key, (hs, det, rings))
+    return rings
+
+
+# Answers that depend on a response's input surface and its details alone (the objects, which
+# are never changed, are held with each answer so an id is not mistaken for a later object's):
+# ``("rings", id(hs), id(det))`` -> `_closed_rings`, ``("refined", id(hs), id(det), lazy, keys)``
+# -> `_refined`. A static object's responses start from the same surface frame after frame, and
+# its contact stays in the same patches; emptied by `pipeline.run.forget`.
+_KEPT: dict = {}
+_KEEP = 16  # answers kept, oldest dropped first (a refined entry holds two surfaces and their details)
+
+
+def _keep(key: tuple, answer: tuple) -> None:
+    """Keep ``answer`` under ``key`` in `_KEPT`, dropping the oldest past `_KEEP`."""
+    _KEPT[key] = answer
+    while len(_KEPT) > _KEEP:
+        del _KEPT[next(iter(_KEPT))]
+
+
+def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tuple[H.HSpline, H.Details | None]:
+    """``hs`` with the patches ``keys`` (`hierarchy.refinement_keys`) active and its details
+    (`_redetail`'s ``lazy``: the finer absorbing levels' new CVs are framed by the coarsest one's
+    move, which turns them; the coarsest level's own frames its solve moves with). The
+    refinement and its details pass depend on ``hs``, ``det`` and ``keys`` alone, so they are
+    kept (`_KEPT`) for the next response from the same surface to the same patches (a level's
+    patches are a set: keys listed twice, by two points in one patch, refine the same)."""
+    key = ("refined", id(hs), id(det), lazy, tuple((level, np.unique(k).tobytes()) for level, k in keys))
+    hit = _KEPT.get(key)
+    if hit is not None and hit[0] is hs and hit[1] is det:
+        return hit[2], hit[3]
+    new = refine_keys(hs, keys)
+    new_det = _redetail(hs, det, new, (), lazy=lazy)[1] if new is not hs else det
+    _keep(key, (hs, det, new, new_det))
+    return new, new_det
 
 
 _RING_W = np.array([1.0, 4.0, 1.0])  # a ring column's three rows in its pole sum (`_ring_sums`)
@@ -459,8 +501,11 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
+            ok = _ring_rows(hs, k, axis, end)[1]
+            if ok.all() or not ok.any():  # wholly movable already, or no CV of it the solve could move
+                continue
             _, ok, reached = _ring_reach(hs, pw, k, axis, end)
-            if not ok.all() and reached[ok].any():
+            if reached[ok].any():
                 hs, det, _ = _open_ring(hs, det, k, axis, end, True)
     if hs is not before:
         pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
@@ -481,18 +526,17 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     point, w, ring_rows = [pw.point], [pw.w], []
     targets, n = [want], pw.npoints
     for k, axis, end in rings:
-        if k != pw.level:
+        if k != pw.level or not _ring_rows(hs, k, axis, end)[1].all():
             continue
         rows, ok, reached = _ring_reach(hs, pw, k, axis, end)  # a ring the move does not reach needs no sums
-        if not ok.all() or not reached.any():
+        if not reached.any():
             continue
         sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
-        # row j: +w_r / 6 on column j's CVs, -w_r / (6 N) on every column's
-        own = np.repeat(np.arange(N), 3)
-        point += [n + own, np.repeat(n + np.arange(N), 3 * N)]
+        own, every, w_own, w_every = _ring_pattern(N)
+        point += [n + own, n + every]
         ring_rows.append(rows.reshape(-1))
-        w += [np.tile(_RING_W / 6.0, N), -np.tile(_RING_W / (6.0 * N), N * N)]
+        w += [w_own, w_every]
         targets.append(-(sums - sums.mean(axis=0)) / 6.0)
         n += N
     if n == pw.npoints:
@@ -503,10 +547,25 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
     for r in ring_rows:
         c = np.searchsorted(cv_rows, r)
-        col += [c, np.tile(c, r.size // 3)]
+        col += [c, np.broadcast_to(c, (r.size // 3, c.size)).reshape(-1)]  # every column's CVs, once per row
     active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
     return PointWeights(pw.level, np.concatenate(point), np.concatenate(col).astype(np.int64), np.concatenate(w),
                         cv_rows.astype(np.int64), n, active), np.concatenate(targets)
+
+
+@functools.lru_cache(maxsize=32)
+def _ring_pattern(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_ring_constraints`' entries of a ring of ``N`` columns, which depend on ``N`` alone: row
+    ``j`` weighs +w_r / 6 on column ``j``'s three CVs and -w_r / (6 N) on every column's. Returns
+    the rows of the own entries ``(3 N,) int64`` and of the every-column ones ``(3 N², ) int64``
+    (from row 0) and their weights ``(3 N,)``, ``(3 N²,) float64``; read-only."""
+    own = np.repeat(np.arange(N), 3)
+    every = np.repeat(np.arange(N), 3 * N)
+    w_own = np.tile(_RING_W / 6.0, N)
+    w_every = -np.tile(_RING_W / (6.0 * N), N * N)
+    for a in (own, every, w_own, w_every):
+        a.flags.writeable = False
+    return own, every, w_own, w_every
 
 
 def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -794,12 +853,9 @@ def respond(
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
         levels = tuple(level for level in absorbing if level >= 1)
-        hs = refine_blocks(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole0))
+        hs, det = _refined(hs, det, refinement_keys(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole0)),
+                           absorbing[0])
         refined = sum(lev.patches.size for lev in hs.fine) - before
-        if refined:
-            # the finer absorbing levels' new CVs are framed by the coarsest one's move, which
-            # turns them; the coarsest level's own frames its solve moves with
-            hs, det = _redetail(coarse, det, hs, (), lazy=absorbing[0])
     for level in range(L):
         a = absorb[level]
         if a <= 0.0:

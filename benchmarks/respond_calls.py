@@ -4,7 +4,8 @@
 
 Runs the scene's ``--frames`` (after a free frame, as `benchmarks/stage_split.py` does) and
 records every `acra.respond.respond` call with its arguments, then calls `respond` again on each
-recorded argument set ``--repeat`` times and prints the calls and the milliseconds (wall and
+recorded argument set ``--repeat`` times (each repeat after `pipeline.run.forget`, as a cold run
+of the frames) and prints the calls and the milliseconds (wall and
 CPU) per collision frame of all of them (the least over the repeats of each call, summed). Run it with
 ``PYTHONPATH`` set to two checkouts to compare their responses on the same calls. ``--save FILE``
 stores each call's responded surface (level-0 CVs, every level's keys and offsets, the
@@ -24,7 +25,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from acra import respond as R
-from pipeline import frames, usdio
+from pipeline import frames, run, usdio
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -84,6 +85,9 @@ def main() -> None:
 
 def _replay(calls, repeat, best, cpu, results) -> None:
     for rep in range(repeat):
+        # each repeat a cold run: what a response keeps across frames (`acra.respond._KEPT`)
+        # serves a repeat's later frames, as in a run, not the next repeat
+        run.forget()
         for n, (a, kw) in enumerate(calls):
             t, c = time.perf_counter(), time.process_time()
             hs, report = R.respond(*a, **kw)

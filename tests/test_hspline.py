@@ -535,3 +535,38 @@ def test_level_building_past_the_kernels_grid_is_the_array_form(monkeypatch):
     plain = H.make_movable(hs, 3, patches)
     for a, b in zip(compiled.fine, plain.fine):
         _same_level(a, b)
+
+
+def test_a_moves_bookkeeping_kernels_are_the_array_form():
+    """`H.moved_details`' compiled bookkeeping (`levelkernels.differing_rows`, `mark_changed`,
+    `stale_rows`) gives what its numpy form gives: the rows whose bits differ (``-0.0`` against
+    ``0.0`` too), the level-0 patches their CVs support, and the CVs whose centre or pole ring
+    lies on a stale patch or whose frame is pending."""
+    from acra import kernels, levelkernels
+
+    hs = H.make_movable(H.from_grid(*shapes.sphere(8, 7), depth=3), 2, np.array([[3, 4], [9, 2], [0, 0]]))
+    rng = np.random.default_rng(4)
+    k, lev, ends = 2, hs.level(2), H.closed_ends(hs)
+    a = rng.normal(size=(lev.cv_keys.size, 3))
+    b = a.copy()
+    rows = np.flatnonzero(lev.movable)
+    b[rows[::5], rng.integers(0, 3, rows[::5].size)] += 1e-17
+    a[rows[1]], b[rows[1]] = 0.0, -0.0
+    bits_a, bits_b = a.view(np.int64), b.view(np.int64)
+    want = rows[np.any(bits_a[rows] != bits_b[rows], axis=-1)]
+    np.testing.assert_array_equal(levelkernels.differing_rows(bits_a, bits_b, rows), want)
+    stale = np.zeros((hs.u.patches0, hs.v.patches0), bool)
+    n = levelkernels.mark_changed(bits_a, bits_b, rows, lev.cv_keys, int(hs.v.cvs(k)), k, int(hs.u.patches(k)),
+                                  int(hs.v.patches(k)), bool(hs.u.periodic), bool(hs.v.periodic), stale)
+    ref = np.zeros_like(stale)
+    ju, jv = np.divmod(lev.cv_keys[want], hs.v.cvs(k))
+    kernels.mark_cells(ref, ju, jv, k, 0, 3, hs.u.patches(k), hs.v.patches(k), bool(hs.u.periodic), bool(hs.v.periodic))
+    assert n == want.size and stale.any() and not stale.all()
+    np.testing.assert_array_equal(stale, ref)
+    every, ring, _, _, centre = H._movable_places(hs, k, lev, ends)
+    pending = every[[2, 7]]
+    hit = stale.reshape(-1)[centre] | np.append(H._ends_stale(hs, ends, stale)[:len(ends)], False)[ring]
+    hit[np.searchsorted(every, pending)] = True
+    got = levelkernels.stale_rows(stale, centre, ring, H._ends_array(ends), every, pending)
+    np.testing.assert_array_equal(got, np.nonzero(hit)[0])
+    assert (ring[got] >= 0).any() and (ring[got] < 0).any()

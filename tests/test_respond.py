@@ -426,3 +426,34 @@ def test_a_move_of_rows_each_once_adds_as_np_add_at_does():
     np.testing.assert_array_equal(a.level(2).offsets.view(np.int64), b.level(2).offsets.view(np.int64))
     assert not np.array_equal(a.level(2).offsets, hs.level(2).offsets)
     assert a.fine[0] is hs.fine[0] and a.level(2).cv_keys is hs.level(2).cv_keys
+
+
+def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_refinement(monkeypatch):
+    """The up-front refinement and its details pass depend on the surface, its details and the
+    patches the points activate alone: a static object's next response to the same patches takes
+    them as kept (`R._KEPT`, no `_redetail` pass of a refinement), on the same bits as computing
+    them again after `pipeline.run.forget`."""
+    from pipeline import run
+
+    run.forget()
+    hs = flat_sheet(n=10, depth=4)
+    det = H.details(hs)
+    c = R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
+    first = one_point(hs, [3.3, 3.4], [0.02, -0.01, -0.2])
+    second = one_point(hs, [3.35, 3.42], [-0.01, 0.02, -0.15])  # the same patch on levels 1-3
+    R.respond(hs, first, c, det=det)
+    passes = []
+    redetail = R._redetail
+    monkeypatch.setattr(R, "_redetail", lambda old, d, new, moved=None, **kw: passes.append(moved) or redetail(old, d, new, moved, **kw))
+    kept, kept_rep = R.respond(hs, second, c, det=det)
+    assert kept_rep.refined > 0 and () not in passes
+    run.forget()
+    assert not R._KEPT
+    again, again_rep = R.respond(hs, second, c, det=det)
+    assert passes.count(()) == 1
+    np.testing.assert_array_equal(kept.cvs, again.cvs)
+    for a, b in zip(kept.fine, again.fine):
+        np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
+        np.testing.assert_array_equal(a.offsets.view(np.int64), b.offsets.view(np.int64))
+    for a, b in zip(kept_rep.details.vectors + kept_rep.details.frames, again_rep.details.vectors + again_rep.details.frames):
+        np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
