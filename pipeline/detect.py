@@ -185,6 +185,14 @@ class Tessellation:
         tessellation: the narrow phase of every pair it meets uses them."""
         return _face_boxes(self.points, self.triangles)
 
+    @cached_property
+    def bounds(self) -> np.ndarray:
+        """Box ``(2, 3)`` of the points (`acra.bvh.bounds`), found once per tessellation: a still
+        object's candidate set meets every step of the rewinding search's bisection. Read-only."""
+        box = bounds_of(self.points)
+        box.setflags(write=False)
+        return box
+
 
 @dataclass(eq=False)
 class _World:
@@ -192,7 +200,8 @@ class _World:
     (a frame's detection and its rewinding at the same time, a still object across frames):
     each level-0 patch's grid in world space ``patch: (points (n, 3), uv (n, 2), triangles
     (f, 3) int64)``, the last few patch sets' `Tessellation` by the set's bytes, and the world
-    patch boxes ``lo, hi (P0u, P0v, 3)`` and their union ``bounds (2, 3)`` once found: each
+    patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and the object-level box
+    (`SurfaceGeometry.outer`'s ``(lo, hi, diagonal)``) once found: each
     rewinding step's geometries are new objects, and the still one of a pair has the content of
     the step before."""
 
@@ -200,6 +209,7 @@ class _World:
     tessellations: dict = field(default_factory=dict)
     boxes: tuple | None = None
     bounds: np.ndarray | None = None
+    outer: tuple | None = None
 
 
 _WORLDS: dict[tuple, _World] = {}  # world data by `SurfaceGeometry.content`, most recent last
@@ -262,8 +272,10 @@ class SurfaceGeometry:
         """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
         world = self._world
         if world.bounds is None:
+            # `min(axis=0)` of the low corners and `max(axis=0)` of the high ones, each in one
+            # compiled pass (`acra.bvh.bounds`, exact: numpy reduces a last axis of 3 row by row)
             lo, hi = self.boxes
-            world.bounds = np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+            world.bounds = np.stack([bounds_of(lo)[0], bounds_of(hi)[1]])
             world.bounds.setflags(write=False)  # shared by every geometry of this content
         return world.bounds
 
@@ -281,7 +293,16 @@ class SurfaceGeometry:
 
     @cached_property
     def _outer(self) -> tuple[tuple, tuple, float]:
-        return _mapped_box(self.xform, _object_box(self.shape))
+        # a content met before (the still object of each rewinding step, a new geometry object
+        # each time) keeps its box in its world data; a surface whose digest is not known yet is
+        # not hashed for it, nor is world data made here (`apart` costs a few products)
+        world = _WORLDS.get(self.content) if "digest" in self.shape.__dict__ else None
+        if world is not None and world.outer is not None:
+            return world.outer
+        out = _mapped_box(self.xform, _object_box(self.shape))
+        if world is not None:
+            world.outer = out
+        return out
 
     @property
     def closed(self) -> bool:
@@ -598,7 +619,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
-        if box_b is None or not _overlap(*bounds_of(ta.points), box_b[0], box_b[1], pad):
+        if box_b is None or not _overlap(*ta.bounds, box_b[0], box_b[1], pad):
             return none
         tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
