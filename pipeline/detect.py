@@ -25,7 +25,7 @@ from acra import narrow
 from acra.bvh import bounds as bounds_of
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
-from pipeline.grids import boxes_near
+from pipeline.grids import PatchGrid, boxes_near
 from pipeline.shape import Closest, Shape, bvh as _bvh, content_digest, overlap as _overlap, shape_of
 
 if TYPE_CHECKING:
@@ -201,7 +201,9 @@ class _World:
     each level-0 patch's grid in world space ``patch: (points (n, 3), uv (n, 2), triangles
     (f, 3) int64)``, the last few patch sets' `Tessellation` by the set's bytes, and the world
     patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and the object-level box
-    (`SurfaceGeometry.outer`'s ``(lo, hi, diagonal)``) once found: each
+    (`SurfaceGeometry.outer`'s ``(lo, hi, diagonal)``) once found; ``mapped``: the first patch set
+    asked for, ``(patches (m, 2), world points (n, 3), grids)``, until another set asks and
+    ``grids`` takes its rows (`_split_mapped`). Each
     rewinding step's geometries are new objects, and the still one of a pair has the content of
     the step before."""
 
@@ -210,6 +212,7 @@ class _World:
     boxes: tuple | None = None
     bounds: np.ndarray | None = None
     outer: tuple | None = None
+    mapped: tuple | None = None
 
 
 _WORLDS: dict[tuple, _World] = {}  # world data by `SurfaceGeometry.content`, most recent last
@@ -439,7 +442,17 @@ def _tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
 
 
 def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
-    cache = geom._world.grids
+    world = geom._world
+    if not world.grids and world.mapped is None:
+        # a new content's first set (each step of a rewinding search): its grids' points mapped
+        # in one product, each grid's rows split off only if another set of this content asks
+        obj, grids = geom.shape.cache.set_points(patches)
+        world.mapped = (patches, apply_xform(geom.xform, obj), grids)
+        uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), lambda: _layout(patches, grids))
+        return Tessellation(world.mapped[1], uv, triangles, tri_patch)
+    if world.mapped is not None:
+        _split_mapped(world)
+    cache = world.grids
     keys = list(map(tuple, patches.tolist()))
     todo = [k for k in keys if k not in cache]
     points = None
@@ -448,26 +461,40 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
         obj = geom.shape.grids_for(patches if whole else np.array(todo, np.int64))
         # one product over the missing grids; a grid's rows are then kept, so whichever set asks
         # for the patch later gets these bits (a product's rounding may depend on its batch)
-        world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
+        mapped = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
         end = 0
         for p, g in zip(todo, obj):
             start, end = end, end + len(g.points)
-            cache[p] = (world[start:end], g.uv, g.triangles)
+            cache[p] = (mapped[start:end], g.uv, g.triangles)
         if whole:  # the set's points, in its order, already
-            points = world
+            points = mapped
     grids = [cache[k] for k in keys]
-
-    def layout():
-        points = np.array([len(g[0]) for g in grids])
-        faces = np.array([len(g[2]) for g in grids])
-        triangles = np.concatenate([g[2] for g in grids])
-        triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
-        return np.concatenate([g[1] for g in grids]), triangles, np.repeat(patches, faces, axis=0)
-
     # a grid's parameters and triangles are its patch's and density's alone
     # (`acra.tessellate.patch_grids`): only the points are the surface's
-    uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), layout)
+    uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches),
+                                     lambda: _layout(patches, [PatchGrid(*g, None) for g in grids]))
     return Tessellation(np.concatenate([g[0] for g in grids]) if points is None else points, uv, triangles, tri_patch)
+
+
+def _layout(patches: np.ndarray, grids: list[PatchGrid]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Parameters ``(n, 2)``, triangles ``(f, 3) int64`` and their patches ``(f, 2) int64`` of
+    the grids of ``patches (m, 2) int64`` one after the other."""
+    points = np.array([len(g.points) for g in grids])
+    faces = np.array([len(g.triangles) for g in grids])
+    triangles = np.concatenate([g.triangles for g in grids])
+    triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
+    return np.concatenate([g.uv for g in grids]), triangles, np.repeat(patches, faces, axis=0)
+
+
+def _split_mapped(world: _World) -> None:
+    """Each grid's rows of the set a content mapped first (`_World.mapped`) into its per-patch
+    grids, so the sets asked later take those bits (a product's rounding may depend on its batch)."""
+    patches, points, grids = world.mapped
+    end = 0
+    for p, g in zip(map(tuple, patches.tolist()), grids):
+        start, end = end, end + len(g.points)
+        world.grids[p] = (points[start:end], g.uv, g.triangles)
+    world.mapped = None
 
 
 _LAYOUTS: dict[tuple, tuple] = {}  # `_tessellation`'s parameters, triangles and their patches, most recent last
