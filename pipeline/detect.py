@@ -263,10 +263,10 @@ class SurfaceGeometry:
         content (`_World`)."""
         world = self._world
         if world.boxes is None:
-            lo, hi = self.shape.hulls
-            linear = self.xform[:3, :3]
-            centre = apply_xform(self.xform, (0.5 * (lo + hi)).reshape(-1, 3)).reshape(lo.shape)
-            half = ((0.5 * (hi - lo)).reshape(-1, 3) @ np.abs(linear).T).reshape(lo.shape)
+            obj_centre, obj_half = _object_patch_boxes(self.shape)
+            shape = self.shape.hulls[0].shape
+            centre = apply_xform(self.xform, obj_centre).reshape(shape)
+            half = (obj_half @ np.abs(self.xform[:3, :3]).T).reshape(shape)
             world.boxes = centre - half, centre + half
         return world.boxes
 
@@ -325,8 +325,9 @@ class SurfaceGeometry:
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
 
-# id(shape) -> (a weak reference to it without a callback, `_object_box`'s answer): a callback
-# would run Python code when a shape dies, where an interrupt raised inside it is dropped
+# id(shape) -> (a weak reference to it without a callback, `_object_box`'s answer), and
+# ("patch boxes", id(shape)) -> (the same, `_object_patch_boxes`'s answer): a callback would run
+# Python code when a shape dies, where an interrupt raised inside it is dropped
 _OBJECT_BOXES: dict = {}
 
 
@@ -342,6 +343,24 @@ def _object_box(shape: Shape) -> tuple[tuple, tuple]:
         del _OBJECT_BOXES[key]
     _OBJECT_BOXES[id(shape)] = (weakref.ref(shape), box)
     return box
+
+
+def _object_patch_boxes(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
+    """Centres and half-extents ``(P, 3)`` of ``shape``'s level-0 hull boxes in object space,
+    found once per shape (kept in `_OBJECT_BOXES` beside `_object_box`): every matrix's world
+    boxes (`SurfaceGeometry.boxes`, a rewinding search's every step) map the same ones."""
+    key = ("patch boxes", id(shape))
+    hit = _OBJECT_BOXES.get(key)
+    if hit is not None and hit[0]() is shape:
+        return hit[1]
+    lo, hi = shape.hulls
+    boxes = (0.5 * (lo + hi)).reshape(-1, 3), (0.5 * (hi - lo)).reshape(-1, 3)
+    for a in boxes:
+        a.setflags(write=False)
+    for dead in [k for k, (ref, _) in _OBJECT_BOXES.items() if ref() is None]:
+        del _OBJECT_BOXES[dead]
+    _OBJECT_BOXES[key] = (weakref.ref(shape), boxes)
+    return boxes
 
 
 def _centre_half(lo: np.ndarray, hi: np.ndarray) -> tuple[tuple, tuple]:

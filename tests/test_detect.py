@@ -1032,7 +1032,8 @@ def test_a_new_contents_first_patch_set_maps_the_shapes_kept_grid_points():
     """Each matrix's first patch set maps the shape's kept concatenation of the set's grid points
     (`GridCache.set_points`, one array for every matrix, as a rewinding search's steps ask), with
     the product a fresh one gives; a later set of the same content takes the first set's rows of
-    the patches they share, and the still geometry's object-level box is kept in its world data."""
+    the patches they share; the still geometry's object-level box is kept in its world data, and
+    the shape's object-space patch boxes once for every matrix."""
     from pipeline.model import apply_xform
 
     hs = H.from_grid(*shapes.sphere(16, 14))
@@ -1051,6 +1052,8 @@ def test_a_new_contents_first_patch_set_maps_the_shapes_kept_grid_points():
         for i, j in ((1, 0), (2, 2)):  # patch (1, 2) and (3, 1): rows of the first set's product
             np.testing.assert_array_equal(u.points[later_rows[j]:later_rows[j + 1]], t.points[rows[i]:rows[i + 1]])
     assert seen[0] is seen[1] is seen[2]
+    boxes = D._object_patch_boxes(still.shape)  # every matrix maps one array of object boxes
+    assert D._object_patch_boxes(again.shape) is boxes and not boxes[0].flags.writeable
     still = D.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
     D.pair_pad(still, still)
     again = D.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
