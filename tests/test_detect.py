@@ -1052,12 +1052,12 @@ def test_a_new_contents_first_patch_set_maps_the_shapes_kept_grid_points():
         for i, j in ((1, 0), (2, 2)):  # patch (1, 2) and (3, 1): rows of the first set's product
             np.testing.assert_array_equal(u.points[later_rows[j]:later_rows[j + 1]], t.points[rows[i]:rows[i + 1]])
     assert seen[0] is seen[1] is seen[2]
-    boxes = D._object_patch_boxes(still.shape)  # every matrix maps one array of object boxes
-    assert D._object_patch_boxes(again.shape) is boxes and not boxes[0].flags.writeable
     still = D.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
     D.pair_pad(still, still)
     again = D.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
     assert again._outer is still._outer and again._outer == D._mapped_box(again.xform, D._object_box(again.shape))
+    boxes = D._object_patch_boxes(still.shape)  # every matrix maps one array of object boxes
+    assert D._object_patch_boxes(again.shape) is boxes and not boxes[0].flags.writeable
 
 
 def test_object_boxes_are_kept_by_weak_references_without_callbacks():
