@@ -850,6 +850,9 @@ def _newton(geom: SurfaceGeometry, targets: np.ndarray, uv: np.ndarray, iters: i
         ok = np.isfinite(dc) & ((dc < dist) | shrinks)
         if not ok.any():
             break
+        if ok.all():  # every point steps (a single point, the anchor's): the new arrays whole
+            uv, dist, r, g, ev = cand, dc, rc, gc, ec
+            continue
         uv[ok], dist[ok], r[ok], g[ok] = cand[ok], dc[ok], rc[ok], gc[ok]
         for name in ("points", "du", "dv", "duu", "duv", "dvv"):
             getattr(ev, name)[ok] = getattr(ec, name)[ok]
