@@ -272,7 +272,7 @@ def exit_contact(ga: D.SurfaceGeometry, gb: D.Geometry, ra: D.Region, rb: D.Regi
 
 
 _AT: dict = {}  # `_point_at`, `_normal_at` and `_outward` answers by content, most recent last
-AT_KEPT = 16
+AT_KEPT = 32
 
 
 def _at(kind: str, geom: D.Geometry, where: np.ndarray, make) -> np.ndarray:
@@ -288,17 +288,33 @@ def _at(kind: str, geom: D.Geometry, where: np.ndarray, make) -> np.ndarray:
     return D._kept(_AT, (kind, geom.content, where.tobytes()), made, AT_KEPT)
 
 
+def _on_surface(kind: str, geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
+    """Object-space ``(1, 3)`` answer at ``uv (2,)`` of a deformable's surface alone, kept by the
+    surface's content (`Shape.digest`) and ``uv`` in `_AT`: ``"object point"``, the point
+    `detect.surface_points` maps, or ``"object normal"``, `acra.hspline.surface_normals`'s unit
+    normal. A rigidly moving or still input has one surface at every time, so every frame's
+    contact points, normals and outward sides on it map these by that frame's matrix (a pole's
+    normal takes several evaluations)."""
+    def made():
+        u = np.asarray(uv, np.float64).reshape(1, 2)
+        if kind == "object point":
+            out = H.evaluate(geom.surface, u[:, 0], u[:, 1], order=0, det=geom.details).points
+        else:
+            out = H.surface_normals(geom.surface, u[:, 0], u[:, 1], det=geom.details)[1]
+        out.setflags(write=False)
+        return out
+    where = np.ascontiguousarray(uv, np.float64)
+    return D._kept(_AT, (kind, geom.shape.digest, where.tobytes()), made, AT_KEPT)
+
+
 def _point_at(geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
-    """World point ``(3,)`` of a deformable at ``uv (2,)``."""
-    return _at("point", geom, uv, lambda: D.surface_points(geom, uv).points[0])
+    """World point ``(3,)`` of a deformable at ``uv (2,)`` (`detect.surface_points`'s)."""
+    return _at("point", geom, uv, lambda: apply_xform(geom.xform, _on_surface("object point", geom, uv))[0])
 
 
 def _normal_at(geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
     """World unit normal ``(3,)`` along ``du × dv`` of a deformable at ``uv (2,)``."""
-    def make():
-        u = np.asarray(uv, np.float64).reshape(1, 2)
-        return D.world_normals(geom, H.surface_normals(geom.surface, u[:, 0], u[:, 1], det=geom.details)[1])[0]
-    return _at("normal", geom, uv, make)
+    return _at("normal", geom, uv, lambda: D.world_normals(geom, _on_surface("object normal", geom, uv))[0])
 
 
 def _outward(geom: D.Geometry, uv: np.ndarray | None, local: np.ndarray | None) -> np.ndarray | None:
@@ -316,9 +332,7 @@ def _outward(geom: D.Geometry, uv: np.ndarray | None, local: np.ndarray | None) 
         return _at("outward", geom, local, make)
 
     def make():
-        u = np.asarray(uv, np.float64).reshape(1, 2)
-        n = geom.shape.outward * H.surface_normals(geom.surface, u[:, 0], u[:, 1], det=geom.details)[1][0]
-        return D.world_normals(geom, n)[0]
+        return D.world_normals(geom, geom.shape.outward * _on_surface("object normal", geom, uv)[0])[0]
     return _at("outward", geom, uv, make)
 
 

@@ -25,7 +25,7 @@ from acra import narrow
 from acra.bvh import bounds as bounds_of
 from acra.hspline import HSpline
 from pipeline.model import ColliderModel, apply_inverse, apply_xform
-from pipeline.grids import boxes_near
+from pipeline.grids import PatchGrid, boxes_near
 from pipeline.shape import Closest, Shape, bvh as _bvh, content_digest, overlap as _overlap, shape_of
 
 if TYPE_CHECKING:
@@ -185,6 +185,14 @@ class Tessellation:
         tessellation: the narrow phase of every pair it meets uses them."""
         return _face_boxes(self.points, self.triangles)
 
+    @cached_property
+    def bounds(self) -> np.ndarray:
+        """Box ``(2, 3)`` of the points (`acra.bvh.bounds`), found once per tessellation: a still
+        object's candidate set meets every step of the rewinding search's bisection. Read-only."""
+        box = bounds_of(self.points)
+        box.setflags(write=False)
+        return box
+
 
 @dataclass(eq=False)
 class _World:
@@ -192,7 +200,10 @@ class _World:
     (a frame's detection and its rewinding at the same time, a still object across frames):
     each level-0 patch's grid in world space ``patch: (points (n, 3), uv (n, 2), triangles
     (f, 3) int64)``, the last few patch sets' `Tessellation` by the set's bytes, and the world
-    patch boxes ``lo, hi (P0u, P0v, 3)`` and their union ``bounds (2, 3)`` once found: each
+    patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and the object-level box
+    (`SurfaceGeometry.outer`'s ``(lo, hi, diagonal)``) once found; ``mapped``: the first patch set
+    asked for, ``(patches (m, 2), world points (n, 3), grids)``, until another set asks and
+    ``grids`` takes its rows (`_split_mapped`). Each
     rewinding step's geometries are new objects, and the still one of a pair has the content of
     the step before."""
 
@@ -200,6 +211,8 @@ class _World:
     tessellations: dict = field(default_factory=dict)
     boxes: tuple | None = None
     bounds: np.ndarray | None = None
+    outer: tuple | None = None
+    mapped: tuple | None = None
 
 
 _WORLDS: dict[tuple, _World] = {}  # world data by `SurfaceGeometry.content`, most recent last
@@ -250,10 +263,10 @@ class SurfaceGeometry:
         content (`_World`)."""
         world = self._world
         if world.boxes is None:
-            lo, hi = self.shape.hulls
-            linear = self.xform[:3, :3]
-            centre = apply_xform(self.xform, (0.5 * (lo + hi)).reshape(-1, 3)).reshape(lo.shape)
-            half = ((0.5 * (hi - lo)).reshape(-1, 3) @ np.abs(linear).T).reshape(lo.shape)
+            obj_centre, obj_half = _object_patch_boxes(self.shape)
+            shape = self.shape.hulls[0].shape
+            centre = apply_xform(self.xform, obj_centre).reshape(shape)
+            half = (obj_half @ np.abs(self.xform[:3, :3]).T).reshape(shape)
             world.boxes = centre - half, centre + half
         return world.boxes
 
@@ -262,8 +275,10 @@ class SurfaceGeometry:
         """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
         world = self._world
         if world.bounds is None:
+            # `min(axis=0)` of the low corners and `max(axis=0)` of the high ones, each in one
+            # compiled pass (`acra.bvh.bounds`, exact: numpy reduces a last axis of 3 row by row)
             lo, hi = self.boxes
-            world.bounds = np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+            world.bounds = np.stack([bounds_of(lo)[0], bounds_of(hi)[1]])
             world.bounds.setflags(write=False)  # shared by every geometry of this content
         return world.bounds
 
@@ -281,7 +296,16 @@ class SurfaceGeometry:
 
     @cached_property
     def _outer(self) -> tuple[tuple, tuple, float]:
-        return _mapped_box(self.xform, _object_box(self.shape))
+        # a content met before (the still object of each rewinding step, a new geometry object
+        # each time) keeps its box in its world data; a surface whose digest is not known yet is
+        # not hashed for it, nor is world data made here (`apart` costs a few products)
+        world = _WORLDS.get(self.content) if "digest" in self.shape.__dict__ else None
+        if world is not None and world.outer is not None:
+            return world.outer
+        out = _mapped_box(self.xform, _object_box(self.shape))
+        if world is not None:
+            world.outer = out
+        return out
 
     @property
     def closed(self) -> bool:
@@ -301,8 +325,9 @@ class SurfaceGeometry:
 
 Geometry = Union[SurfaceGeometry, ColliderGeometry]
 
-# id(shape) -> (a weak reference to it without a callback, `_object_box`'s answer): a callback
-# would run Python code when a shape dies, where an interrupt raised inside it is dropped
+# id(shape) -> (a weak reference to it without a callback, `_object_box`'s answer), and
+# ("patch boxes", id(shape)) -> (the same, `_object_patch_boxes`'s answer): a callback would run
+# Python code when a shape dies, where an interrupt raised inside it is dropped
 _OBJECT_BOXES: dict = {}
 
 
@@ -318,6 +343,24 @@ def _object_box(shape: Shape) -> tuple[tuple, tuple]:
         del _OBJECT_BOXES[key]
     _OBJECT_BOXES[id(shape)] = (weakref.ref(shape), box)
     return box
+
+
+def _object_patch_boxes(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
+    """Centres and half-extents ``(P, 3)`` of ``shape``'s level-0 hull boxes in object space,
+    found once per shape (kept in `_OBJECT_BOXES` beside `_object_box`): every matrix's world
+    boxes (`SurfaceGeometry.boxes`, a rewinding search's every step) map the same ones."""
+    key = ("patch boxes", id(shape))
+    hit = _OBJECT_BOXES.get(key)
+    if hit is not None and hit[0]() is shape:
+        return hit[1]
+    lo, hi = shape.hulls
+    boxes = (0.5 * (lo + hi)).reshape(-1, 3), (0.5 * (hi - lo)).reshape(-1, 3)
+    for a in boxes:
+        a.setflags(write=False)
+    for dead in [k for k, (ref, _) in _OBJECT_BOXES.items() if ref() is None]:
+        del _OBJECT_BOXES[dead]
+    _OBJECT_BOXES[key] = (weakref.ref(shape), boxes)
+    return boxes
 
 
 def _centre_half(lo: np.ndarray, hi: np.ndarray) -> tuple[tuple, tuple]:
@@ -418,7 +461,17 @@ def _tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
 
 
 def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
-    cache = geom._world.grids
+    world = geom._world
+    if not world.grids and world.mapped is None:
+        # a new content's first set (each step of a rewinding search): its grids' points mapped
+        # in one product, each grid's rows split off only if another set of this content asks
+        obj, grids = geom.shape.cache.set_points(patches)
+        world.mapped = (patches, apply_xform(geom.xform, obj), grids)
+        uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), lambda: _layout(patches, grids))
+        return Tessellation(world.mapped[1], uv, triangles, tri_patch)
+    if world.mapped is not None:
+        _split_mapped(world)
+    cache = world.grids
     keys = list(map(tuple, patches.tolist()))
     todo = [k for k in keys if k not in cache]
     points = None
@@ -427,26 +480,40 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
         obj = geom.shape.grids_for(patches if whole else np.array(todo, np.int64))
         # one product over the missing grids; a grid's rows are then kept, so whichever set asks
         # for the patch later gets these bits (a product's rounding may depend on its batch)
-        world = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
+        mapped = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
         end = 0
         for p, g in zip(todo, obj):
             start, end = end, end + len(g.points)
-            cache[p] = (world[start:end], g.uv, g.triangles)
+            cache[p] = (mapped[start:end], g.uv, g.triangles)
         if whole:  # the set's points, in its order, already
-            points = world
+            points = mapped
     grids = [cache[k] for k in keys]
-
-    def layout():
-        points = np.array([len(g[0]) for g in grids])
-        faces = np.array([len(g[2]) for g in grids])
-        triangles = np.concatenate([g[2] for g in grids])
-        triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
-        return np.concatenate([g[1] for g in grids]), triangles, np.repeat(patches, faces, axis=0)
-
     # a grid's parameters and triangles are its patch's and density's alone
     # (`acra.tessellate.patch_grids`): only the points are the surface's
-    uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), layout)
+    uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches),
+                                     lambda: _layout(patches, [PatchGrid(*g, None) for g in grids]))
     return Tessellation(np.concatenate([g[0] for g in grids]) if points is None else points, uv, triangles, tri_patch)
+
+
+def _layout(patches: np.ndarray, grids: list[PatchGrid]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Parameters ``(n, 2)``, triangles ``(f, 3) int64`` and their patches ``(f, 2) int64`` of
+    the grids of ``patches (m, 2) int64`` one after the other."""
+    points = np.array([len(g.points) for g in grids])
+    faces = np.array([len(g.triangles) for g in grids])
+    triangles = np.concatenate([g.triangles for g in grids])
+    triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
+    return np.concatenate([g.uv for g in grids]), triangles, np.repeat(patches, faces, axis=0)
+
+
+def _split_mapped(world: _World) -> None:
+    """Each grid's rows of the set a content mapped first (`_World.mapped`) into its per-patch
+    grids, so the sets asked later take those bits (a product's rounding may depend on its batch)."""
+    patches, points, grids = world.mapped
+    end = 0
+    for p, g in zip(map(tuple, patches.tolist()), grids):
+        start, end = end, end + len(g.points)
+        world.grids[p] = (points[start:end], g.uv, g.triangles)
+    world.mapped = None
 
 
 _LAYOUTS: dict[tuple, tuple] = {}  # `_tessellation`'s parameters, triangles and their patches, most recent last
@@ -598,7 +665,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
-        if box_b is None or not _overlap(*bounds_of(ta.points), box_b[0], box_b[1], pad):
+        if box_b is None or not _overlap(*ta.bounds, box_b[0], box_b[1], pad):
             return none
         tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
@@ -783,6 +850,9 @@ def _newton(geom: SurfaceGeometry, targets: np.ndarray, uv: np.ndarray, iters: i
         ok = np.isfinite(dc) & ((dc < dist) | shrinks)
         if not ok.any():
             break
+        if ok.all():  # every point steps (a single point, the anchor's): the new arrays whole
+            uv, dist, r, g, ev = cand, dc, rc, gc, ec
+            continue
         uv[ok], dist[ok], r[ok], g[ok] = cand[ok], dc[ok], rc[ok], gc[ok]
         for name in ("points", "du", "dv", "duu", "duv", "dvv"):
             getattr(ev, name)[ok] = getattr(ec, name)[ok]

@@ -309,6 +309,7 @@ class GridCache:
         self.shape = shape
         self.grids: dict[tuple[int, int], PatchGrid] = {}
         self._gridsets: dict[tuple[int, ...], GridSet] = {}
+        self._sets: dict[bytes, tuple[np.ndarray, list[PatchGrid]]] = {}
 
     @timed
     def build(self, missing: list[tuple[int, int]]) -> None:
@@ -339,6 +340,22 @@ class GridCache:
         if missing:
             self.build(missing)
         return [self.grids[k] for k in keys]
+
+    def set_points(self, patches: np.ndarray) -> tuple[np.ndarray, list[PatchGrid]]:
+        """The grids of level-0 ``patches (m, 2) int64`` (`grids_for`) and their points one after
+        the other ``(n, 3)``, read-only: every matrix a patch set is mapped by (each step of a
+        rewinding search) maps the same rows. The last 8 sets are kept."""
+        key = np.ascontiguousarray(patches, np.int64).tobytes()
+        hit = self._sets.pop(key, None)
+        if hit is None:
+            grids = self.grids_for(patches)
+            points = np.concatenate([g.points for g in grids])
+            points.setflags(write=False)
+            hit = (points, grids)
+        self._sets[key] = hit
+        while len(self._sets) > 8:
+            del self._sets[next(iter(self._sets))]
+        return hit
 
     def gridset(self, found: tuple[int, ...]) -> GridSet:
         """The `GridSet` of flattened patch rows ``found`` (the last few are kept: consecutive

@@ -207,6 +207,31 @@ def test_a_contact_that_goes_in_farther_than_it_slides_keeps_the_first_touch_pai
     np.testing.assert_array_equal(c.push, c.point_b - c.point_a)
 
 
+def test_anchor_points_and_normals_evaluate_a_surface_once_for_every_matrix(monkeypatch):
+    """`_point_at`, `_normal_at` and `_outward` of one surface at new matrices (a moving input's
+    every frame) map the object-space point and normal evaluated at the first, with the bits of
+    an evaluation at each matrix."""
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    uv = np.array([1.25, 2.5])
+    first = D.SurfaceGeometry(hs, move(0.5, 0.0, 0.0), "/s")
+    C._point_at(first, uv), C._normal_at(first, uv), C._outward(first, uv, None)
+    calls = []
+    for name in ("evaluate", "surface_normals"):
+        monkeypatch.setattr(H, name, (lambda f: lambda *a, **k: calls.append(f) or f(*a, **k))(getattr(H, name)))
+    rot = np.eye(4)
+    rot[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    rot[:3, 3] = (0.1, 0.2, 0.3)
+    moved = D.SurfaceGeometry(hs, rot, "/s")
+    p, n, out = C._point_at(moved, uv), C._normal_at(moved, uv), C._outward(moved, uv, None)
+    assert not calls  # no evaluation at the new matrix
+    monkeypatch.undo()
+    u = uv.reshape(1, 2)
+    obj_n = H.surface_normals(hs, u[:, 0], u[:, 1], det=moved.details)[1]
+    np.testing.assert_array_equal(p, D.surface_points(moved, uv).points[0])
+    np.testing.assert_array_equal(n, D.world_normals(moved, obj_n)[0])
+    np.testing.assert_array_equal(out, D.world_normals(moved, moved.shape.outward * obj_n[0])[0])
+
+
 def test_anchor_points_and_normals_are_kept_by_content_and_never_served_for_other_content():
     """`contact._point_at`, `_normal_at` and `_outward` keep their answers by the geometry's
     content and the material point: a new geometry with the same surface and matrix gets the

@@ -1028,6 +1028,38 @@ def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
     assert len(D._WORLDS) == D.WORLDS_KEPT
 
 
+def test_a_new_contents_first_patch_set_maps_the_shapes_kept_grid_points():
+    """Each matrix's first patch set maps the shape's kept concatenation of the set's grid points
+    (`GridCache.set_points`, one array for every matrix, as a rewinding search's steps ask), with
+    the product a fresh one gives; a later set of the same content takes the first set's rows of
+    the patches they share; the still geometry's object-level box is kept in its world data, and
+    the shape's object-space patch boxes once for every matrix."""
+    from pipeline.model import apply_xform
+
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    first, later = np.array([[0, 0], [1, 2], [3, 1]]), np.array([[1, 2], [2, 2], [3, 1]])
+    seen = []
+    for k in range(3):
+        g = D.SurfaceGeometry(hs, move(0.1 + 0.37 * k, 0.2 * k, 0.0))
+        t = D.tessellate(g, first)
+        obj, grids = g.shape.cache.set_points(first)
+        seen.append(obj)
+        assert not obj.flags.writeable
+        np.testing.assert_array_equal(t.points, apply_xform(g.xform, np.concatenate([x.points for x in g.shape.grids_for(first)])))
+        u = D.tessellate(g, later)
+        rows = np.cumsum([0] + [len(x.points) for x in grids])
+        later_rows = np.cumsum([0] + [len(x.points) for x in g.shape.grids_for(later)])
+        for i, j in ((1, 0), (2, 2)):  # patch (1, 2) and (3, 1): rows of the first set's product
+            np.testing.assert_array_equal(u.points[later_rows[j]:later_rows[j + 1]], t.points[rows[i]:rows[i + 1]])
+    assert seen[0] is seen[1] is seen[2]
+    still = D.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
+    D.pair_pad(still, still)
+    again = D.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
+    assert again._outer is still._outer and again._outer == D._mapped_box(again.xform, D._object_box(again.shape))
+    boxes = D._object_patch_boxes(still.shape)  # every matrix maps one array of object boxes
+    assert D._object_patch_boxes(again.shape) is boxes and not boxes[0].flags.writeable
+
+
 def test_object_boxes_are_kept_by_weak_references_without_callbacks():
     """`_object_box` keeps each shape's box through a weak reference without a callback (an
     interrupt raised in a callback is dropped, not delivered to the run) and serves it while the
