@@ -273,12 +273,21 @@ def part_mesh(v, f, radius, flip):
         normals[i, 0], normals[i, 1], normals[i, 2] = _cross(vo[b, 0] - vo[a, 0], vo[b, 1] - vo[a, 1], vo[b, 2] - vo[a, 2],
                                                              vo[c, 0] - vo[a, 0], vo[c, 1] - vo[a, 1], vo[c, 2] - vo[a, 2])
     normals = _unit_rows(normals)
-    summed = np.empty((3 * m, 3))
+    # an inner edge's two slots sum the same two normals in either order, the same bits (addition
+    # commutes), so each edge is summed and scaled once, from its lower slot
+    edge_normals = np.empty((3 * m, 3))
     for s in range(3 * m):
-        o = other[s] // 3
-        for c in range(3):
-            summed[s, c] = normals[s // 3, c] + normals[o, c]
-    edge_normals = _unit_rows(summed).reshape(m, 3, 3)
+        t = other[s]
+        if t < s:
+            for c in range(3):
+                edge_normals[s, c] = edge_normals[t, c]
+            continue
+        o = t // 3
+        x0, x1, x2 = normals[s // 3, 0] + normals[o, 0], normals[s // 3, 1] + normals[o, 1], normals[s // 3, 2] + normals[o, 2]
+        n = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        d = n if n > 0 else 1.0
+        edge_normals[s, 0], edge_normals[s, 1], edge_normals[s, 2] = x0 / d, x1 / d, x2 / d
+    edge_normals = edge_normals.reshape(m, 3, 3)
     sin, cos = np.empty((m, 3)), np.empty((m, 3))
     for i in range(m):
         for k in range(3):
