@@ -69,6 +69,96 @@ def _used(v, f, rows):
 
 
 @njit(cache=True, nogil=True)
+def _join(parent, i, j, dx, dy, dz, below):
+    """Joins ``i`` and ``j``, whose difference is ``(dx, dy, dz)`` and squared distance at most
+    `weld`'s ``above``, if it is at most ``below``; false if not (undecided). The callers test
+    ``above`` inline: most pairs they find are apart, and a call per pair costs more than its
+    test."""
+    if (dx * dx + dy * dy) + dz * dz > below:
+        return False
+    ri, rj = _root(parent, i), _root(parent, j)
+    if ri != rj:
+        parent[max(ri, rj)] = min(ri, rj)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _pairs_by_cells(vu, parent, below, above, reach):
+    """`weld`'s pairs without a sort: the same joins as `_pairs_by_sweep`, which hands `_join`
+    every pair whose x differ by at most ``reach`` (the sign of a difference does not change its
+    square). The points are chained by their cell ``floor(x / (1.5 reach))`` along x in a hash
+    table, so such a pair lies in one cell or two neighbouring ones, each chain in decreasing
+    row, walked down to the row asking. Returns 1 if joined, 0 if a pair was undecided, -1 if a
+    coordinate is too large for its cell to be an exact integer (the caller sweeps)."""
+    g = vu.shape[0]
+    cell = 1.5 * reach
+    q = np.empty(g, np.int64)
+    for i in range(g):
+        x = vu[i, 0] / cell
+        if not abs(x) < 2.0 ** 50:  # also NaN
+            return -1
+        q[i] = np.int64(np.floor(x))
+    size, bits = 16, 4
+    while size < 2 * g:
+        size, bits = 2 * size, bits + 1
+    shift, mask = np.uint64(64 - bits), size - 1
+    key = np.empty(size, np.int64)
+    head = np.full(size, -1, np.int64)  # each cell's points, chained through ``after``
+    after = np.full(g, -1, np.int64)
+    for i in range(g):
+        slot = np.int64((np.uint64(q[i]) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
+        while head[slot] >= 0 and key[slot] != q[i]:
+            slot = (slot + 1) & mask
+        key[slot] = q[i]
+        after[i] = head[slot]
+        head[slot] = i
+    for i in range(g):
+        for dq in range(-1, 2):
+            c = q[i] + dq
+            slot = np.int64((np.uint64(c) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
+            while head[slot] >= 0 and key[slot] != c:
+                slot = (slot + 1) & mask
+            j = head[slot]
+            while j > i:
+                dx = vu[j, 0] - vu[i, 0]
+                if abs(dx) <= reach:
+                    dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
+                    if (dx * dx + dy * dy) + dz * dz <= above and not _join(parent, i, j, dx, dy, dz, below):
+                        return 0
+                j = after[j]
+    return 1
+
+
+@njit(cache=True, nogil=True)
+def _pairs_by_sweep(vu, parent, below, above, reach):
+    """`_pairs_by_cells` by a sweep along x sorted, for coordinates too large for cells:
+    true if joined, false if a pair was undecided."""
+    g = vu.shape[0]
+    # the stable sort of x over int64 keys of the same order (finite x; -0.0 as 0.0), the
+    # one key type every kernel's merge sort takes: a first run compiles numba's argsort
+    # once (about 1.2 s CPU for a second key type)
+    key = np.empty(g)
+    for i in range(g):
+        key[i] = vu[i, 0] + 0.0
+    bits = key.view(np.int64)
+    for i in range(g):
+        if bits[i] < 0:  # negative: larger magnitudes first
+            bits[i] ^= 0x7FFFFFFFFFFFFFFF
+    order = np.argsort(bits, kind="mergesort")
+    for a in range(g):
+        i = order[a]
+        for b in range(a + 1, g):
+            j = order[b]
+            dx = vu[j, 0] - vu[i, 0]
+            if dx > reach:
+                break
+            dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
+            if (dx * dx + dy * dy) + dz * dz <= above and not _join(parent, i, j, dx, dy, dz, below):
+                return False
+    return True
+
+
+@njit(cache=True, nogil=True)
 def weld(v, f, radius):
     """The vertices ``v (n, 3)`` that faces ``f (F, 3) int64`` use, welded: chained by distances
     within ``radius``, each group one vertex, its lowest row's, groups in the order of their
@@ -81,34 +171,13 @@ def weld(v, f, radius):
     g = vu.shape[0]
     parent = np.arange(g)
     if radius > 0:
-        # the stable sort of x over int64 keys of the same order (finite x; -0.0 as 0.0), the
-        # one key type every kernel's merge sort takes: a first run compiles numba's argsort
-        # once (about 1.2 s CPU for a second key type)
-        key = np.empty(g)
-        for i in range(g):
-            key[i] = vu[i, 0] + 0.0
-        bits = key.view(np.int64)
-        for i in range(g):
-            if bits[i] < 0:  # negative: larger magnitudes first
-                bits[i] ^= 0x7FFFFFFFFFFFFFFF
-        order = np.argsort(bits, kind="mergesort")
         r2 = radius * radius
         below, above, reach = r2 * (1.0 - 1e-9), r2 * (1.0 + 1e-9), radius * (1.0 + 1e-6)
-        for a in range(g):
-            i = order[a]
-            for b in range(a + 1, g):
-                j = order[b]
-                dx = vu[j, 0] - vu[i, 0]
-                if dx > reach:
-                    break
-                dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
-                d2 = (dx * dx + dy * dy) + dz * dz
-                if d2 <= below:
-                    ri, rj = _root(parent, i), _root(parent, j)
-                    if ri != rj:
-                        parent[max(ri, rj)] = min(ri, rj)
-                elif d2 <= above:
-                    return 1, np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+        done = _pairs_by_cells(vu, parent, below, above, reach)
+        if done < 0:
+            done = 1 if _pairs_by_sweep(vu, parent, below, above, reach) else 0
+        if done == 0:
+            return 1, np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     label = np.full(g, -1, np.int64)
     group = np.full(g, -1, np.int64)
     count = 0
