@@ -336,12 +336,27 @@ def part_mesh(v, f, radius, flip):
                     return (3,) + empty
                 other[s], other[t] = t, s
                 matched[t] = True
-    normals = np.empty((m, 3))
+    # one pass a face: its edge vectors once; corner k's are ``a`` (to corner k+1) and ``b`` (to
+    # corner k+2), the next edge and the previous one negated, which is exact, so each sum and
+    # product is the one subtracting the corners gives; corner 0's cross product is the normal's
+    normals, sin, cos = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
+    e = np.empty((3, 3))
     for i in range(m):
-        a, b, c = fo[i, 0], fo[i, 1], fo[i, 2]
-        normals[i, 0], normals[i, 1], normals[i, 2] = _cross(vo[b, 0] - vo[a, 0], vo[b, 1] - vo[a, 1], vo[b, 2] - vo[a, 2],
-                                                             vo[c, 0] - vo[a, 0], vo[c, 1] - vo[a, 1], vo[c, 2] - vo[a, 2])
-    normals = _unit_rows(normals)
+        for k in range(3):
+            p, q = fo[i, k], fo[i, (k + 1) % 3]
+            for c in range(3):
+                e[k, c] = vo[q, c] - vo[p, c]
+        for k in range(3):
+            a0, a1, a2 = e[k, 0], e[k, 1], e[k, 2]
+            j = (k + 2) % 3
+            b0, b1, b2 = -e[j, 0], -e[j, 1], -e[j, 2]
+            x0, x1, x2 = _cross(a0, a1, a2, b0, b1, b2)
+            n = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+            sin[i, k] = n
+            cos[i, k] = (a0 * b0 + a2 * b2) + a1 * b1
+            if k == 0:  # `_unit_rows`
+                d = n if n > 0 else 1.0
+                normals[i, 0], normals[i, 1], normals[i, 2] = x0 / d, x1 / d, x2 / d
     # an inner edge's two slots sum the same two normals in either order, the same bits (addition
     # commutes), so each edge is summed and scaled once, from its lower slot
     edge_normals = np.empty((3 * m, 3))
@@ -357,15 +372,6 @@ def part_mesh(v, f, radius, flip):
         d = n if n > 0 else 1.0
         edge_normals[s, 0], edge_normals[s, 1], edge_normals[s, 2] = x0 / d, x1 / d, x2 / d
     edge_normals = edge_normals.reshape(m, 3, 3)
-    sin, cos = np.empty((m, 3)), np.empty((m, 3))
-    for i in range(m):
-        for k in range(3):
-            p, q, r = fo[i, k], fo[i, (k + 1) % 3], fo[i, (k + 2) % 3]
-            a0, a1, a2 = vo[q, 0] - vo[p, 0], vo[q, 1] - vo[p, 1], vo[q, 2] - vo[p, 2]
-            b0, b1, b2 = vo[r, 0] - vo[p, 0], vo[r, 1] - vo[p, 1], vo[r, 2] - vo[p, 2]
-            x0, x1, x2 = _cross(a0, a1, a2, b0, b1, b2)
-            sin[i, k] = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
-            cos[i, k] = (a0 * b0 + a2 * b2) + a1 * b1
     return 0, vo, fo, normals, edge_normals, sin, cos
 
 
