@@ -71,9 +71,9 @@ def _used(v, f, rows):
 @njit(cache=True, nogil=True)
 def _join(parent, i, j, dx, dy, dz, below):
     """Joins ``i`` and ``j``, whose difference is ``(dx, dy, dz)`` and squared distance at most
-    `weld`'s ``above``, if it is at most ``below``; false if not (undecided). The callers test
-    ``above`` inline: most pairs they find are apart, and a call per pair costs more than its
-    test."""
+    `weld`'s ``above``, if it is at most ``below``; false if not (undecided). `_pairs_by_cells`
+    tests ``above`` inline: most pairs it finds are apart, and a call per pair costs more than
+    its test."""
     if (dx * dx + dy * dy) + dz * dz > below:
         return False
     ri, rj = _root(parent, i), _root(parent, j)
@@ -84,12 +84,14 @@ def _join(parent, i, j, dx, dy, dz, below):
 
 @njit(cache=True, nogil=True)
 def _pairs_by_cells(vu, parent, below, above, reach):
-    """`weld`'s pairs without a sort: the same joins as `_pairs_by_sweep`, which hands `_join`
-    every pair whose x differ by at most ``reach`` (the sign of a difference does not change its
-    square). The points are chained by their cell ``floor(x / (1.5 reach))`` along x in a hash
-    table, so such a pair lies in one cell or two neighbouring ones, each chain in decreasing
-    row, walked down to the row asking. Returns 1 if joined, 0 if a pair was undecided, -1 if a
-    coordinate is too large for its cell to be an exact integer (the caller sweeps)."""
+    """`weld`'s pairs: every pair of ``vu (g, 3)`` whose x differ by at most ``reach`` goes to
+    `_join` (the distance test inline; the sign of a difference does not change its square), so
+    the groups are the connected components of the pairs within ``radius``, whatever the order.
+    The points are chained by their cell ``floor(x / (1.5 reach))`` along x in a hash table, so
+    such a pair lies in one cell or two neighbouring ones, each chain in decreasing row, walked
+    down to the row asking: no sort (a sort of the points by x cost a display's part more than
+    the rest of the weld). Returns 1 if joined, 0 if a pair was undecided, -1 if a coordinate
+    is too large for its cell to be an exact integer (``|x| >= 2^50`` cells)."""
     g = vu.shape[0]
     cell = 1.5 * reach
     q = np.empty(g, np.int64)
@@ -130,35 +132,6 @@ def _pairs_by_cells(vu, parent, below, above, reach):
 
 
 @njit(cache=True, nogil=True)
-def _pairs_by_sweep(vu, parent, below, above, reach):
-    """`_pairs_by_cells` by a sweep along x sorted, for coordinates too large for cells:
-    true if joined, false if a pair was undecided."""
-    g = vu.shape[0]
-    # the stable sort of x over int64 keys of the same order (finite x; -0.0 as 0.0), the
-    # one key type every kernel's merge sort takes: a first run compiles numba's argsort
-    # once (about 1.2 s CPU for a second key type)
-    key = np.empty(g)
-    for i in range(g):
-        key[i] = vu[i, 0] + 0.0
-    bits = key.view(np.int64)
-    for i in range(g):
-        if bits[i] < 0:  # negative: larger magnitudes first
-            bits[i] ^= 0x7FFFFFFFFFFFFFFF
-    order = np.argsort(bits, kind="mergesort")
-    for a in range(g):
-        i = order[a]
-        for b in range(a + 1, g):
-            j = order[b]
-            dx = vu[j, 0] - vu[i, 0]
-            if dx > reach:
-                break
-            dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
-            if (dx * dx + dy * dy) + dz * dz <= above and not _join(parent, i, j, dx, dy, dz, below):
-                return False
-    return True
-
-
-@njit(cache=True, nogil=True)
 def weld(v, f, radius):
     """The vertices ``v (n, 3)`` that faces ``f (F, 3) int64`` use, welded: chained by distances
     within ``radius``, each group one vertex, its lowest row's, groups in the order of their
@@ -166,17 +139,15 @@ def weld(v, f, radius):
 
     Returns ``(code, vertices (g, 3), faces (F, 3) int64)``; ``code`` 1 (and nothing else) if a
     pair's distance lies within 1e-9 of ``radius`` relative, where another computation of the
-    distance might decide otherwise (the caller then welds with its kd-tree)."""
+    distance might decide otherwise, or a coordinate lies beyond ``2^50`` times the radius
+    (`_pairs_by_cells`; the caller then welds with its kd-tree)."""
     rank, vu = _used(v, f, np.arange(f.shape[0]))
     g = vu.shape[0]
     parent = np.arange(g)
     if radius > 0:
         r2 = radius * radius
         below, above, reach = r2 * (1.0 - 1e-9), r2 * (1.0 + 1e-9), radius * (1.0 + 1e-6)
-        done = _pairs_by_cells(vu, parent, below, above, reach)
-        if done < 0:
-            done = 1 if _pairs_by_sweep(vu, parent, below, above, reach) else 0
-        if done == 0:
+        if _pairs_by_cells(vu, parent, below, above, reach) <= 0:
             return 1, np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     label = np.full(g, -1, np.int64)
     group = np.full(g, -1, np.int64)
