@@ -69,6 +69,69 @@ def _used(v, f, rows):
 
 
 @njit(cache=True, nogil=True)
+def _join(parent, i, j, dx, dy, dz, below):
+    """Joins ``i`` and ``j``, whose difference is ``(dx, dy, dz)`` and squared distance at most
+    `weld`'s ``above``, if it is at most ``below``; false if not (undecided). `_pairs_by_cells`
+    tests ``above`` inline: most pairs it finds are apart, and a call per pair costs more than
+    its test."""
+    if (dx * dx + dy * dy) + dz * dz > below:
+        return False
+    ri, rj = _root(parent, i), _root(parent, j)
+    if ri != rj:
+        parent[max(ri, rj)] = min(ri, rj)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _pairs_by_cells(vu, parent, below, above, reach):
+    """`weld`'s pairs: every pair of ``vu (g, 3)`` whose x differ by at most ``reach`` goes to
+    `_join` (the distance test inline; the sign of a difference does not change its square), so
+    the groups are the connected components of the pairs within ``radius``, whatever the order.
+    The points are chained by their cell ``floor(x / (1.5 reach))`` along x in a hash table, so
+    such a pair lies in one cell or two neighbouring ones, each chain in decreasing row, walked
+    down to the row asking: no sort (a sort of the points by x cost a display's part more than
+    the rest of the weld). Returns 1 if joined, 0 if a pair was undecided, -1 if a coordinate
+    is too large for its cell to be an exact integer (``|x| >= 2^50`` cells)."""
+    g = vu.shape[0]
+    cell = 1.5 * reach
+    q = np.empty(g, np.int64)
+    for i in range(g):
+        x = vu[i, 0] / cell
+        if not abs(x) < 2.0 ** 50:  # also NaN
+            return -1
+        q[i] = np.int64(np.floor(x))
+    size, bits = 16, 4
+    while size < 2 * g:
+        size, bits = 2 * size, bits + 1
+    shift, mask = np.uint64(64 - bits), size - 1
+    key = np.empty(size, np.int64)
+    head = np.full(size, -1, np.int64)  # each cell's points, chained through ``after``
+    after = np.full(g, -1, np.int64)
+    for i in range(g):
+        slot = np.int64((np.uint64(q[i]) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
+        while head[slot] >= 0 and key[slot] != q[i]:
+            slot = (slot + 1) & mask
+        key[slot] = q[i]
+        after[i] = head[slot]
+        head[slot] = i
+    for i in range(g):
+        for dq in range(-1, 2):
+            c = q[i] + dq
+            slot = np.int64((np.uint64(c) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
+            while head[slot] >= 0 and key[slot] != c:
+                slot = (slot + 1) & mask
+            j = head[slot]
+            while j > i:
+                dx = vu[j, 0] - vu[i, 0]
+                if abs(dx) <= reach:
+                    dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
+                    if (dx * dx + dy * dy) + dz * dz <= above and not _join(parent, i, j, dx, dy, dz, below):
+                        return 0
+                j = after[j]
+    return 1
+
+
+@njit(cache=True, nogil=True)
 def weld(v, f, radius):
     """The vertices ``v (n, 3)`` that faces ``f (F, 3) int64`` use, welded: chained by distances
     within ``radius``, each group one vertex, its lowest row's, groups in the order of their
@@ -76,39 +139,16 @@ def weld(v, f, radius):
 
     Returns ``(code, vertices (g, 3), faces (F, 3) int64)``; ``code`` 1 (and nothing else) if a
     pair's distance lies within 1e-9 of ``radius`` relative, where another computation of the
-    distance might decide otherwise (the caller then welds with its kd-tree)."""
+    distance might decide otherwise, or a coordinate lies beyond ``2^50`` times the radius
+    (`_pairs_by_cells`; the caller then welds with its kd-tree)."""
     rank, vu = _used(v, f, np.arange(f.shape[0]))
     g = vu.shape[0]
     parent = np.arange(g)
     if radius > 0:
-        # the stable sort of x over int64 keys of the same order (finite x; -0.0 as 0.0), the
-        # one key type every kernel's merge sort takes: a first run compiles numba's argsort
-        # once (about 1.2 s CPU for a second key type)
-        key = np.empty(g)
-        for i in range(g):
-            key[i] = vu[i, 0] + 0.0
-        bits = key.view(np.int64)
-        for i in range(g):
-            if bits[i] < 0:  # negative: larger magnitudes first
-                bits[i] ^= 0x7FFFFFFFFFFFFFFF
-        order = np.argsort(bits, kind="mergesort")
         r2 = radius * radius
         below, above, reach = r2 * (1.0 - 1e-9), r2 * (1.0 + 1e-9), radius * (1.0 + 1e-6)
-        for a in range(g):
-            i = order[a]
-            for b in range(a + 1, g):
-                j = order[b]
-                dx = vu[j, 0] - vu[i, 0]
-                if dx > reach:
-                    break
-                dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
-                d2 = (dx * dx + dy * dy) + dz * dz
-                if d2 <= below:
-                    ri, rj = _root(parent, i), _root(parent, j)
-                    if ri != rj:
-                        parent[max(ri, rj)] = min(ri, rj)
-                elif d2 <= above:
-                    return 1, np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+        if _pairs_by_cells(vu, parent, below, above, reach) <= 0:
+            return 1, np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     label = np.full(g, -1, np.int64)
     group = np.full(g, -1, np.int64)
     count = 0
@@ -267,27 +307,42 @@ def part_mesh(v, f, radius, flip):
                     return (3,) + empty
                 other[s], other[t] = t, s
                 matched[t] = True
-    normals = np.empty((m, 3))
-    for i in range(m):
-        a, b, c = fo[i, 0], fo[i, 1], fo[i, 2]
-        normals[i, 0], normals[i, 1], normals[i, 2] = _cross(vo[b, 0] - vo[a, 0], vo[b, 1] - vo[a, 1], vo[b, 2] - vo[a, 2],
-                                                             vo[c, 0] - vo[a, 0], vo[c, 1] - vo[a, 1], vo[c, 2] - vo[a, 2])
-    normals = _unit_rows(normals)
-    summed = np.empty((3 * m, 3))
-    for s in range(3 * m):
-        o = other[s] // 3
-        for c in range(3):
-            summed[s, c] = normals[s // 3, c] + normals[o, c]
-    edge_normals = _unit_rows(summed).reshape(m, 3, 3)
-    sin, cos = np.empty((m, 3)), np.empty((m, 3))
+    # one pass a face: its edge vectors once; corner k's are ``a`` (to corner k+1) and ``b`` (to
+    # corner k+2), the next edge and the previous one negated, which is exact, so each sum and
+    # product is the one subtracting the corners gives; corner 0's cross product is the normal's
+    normals, sin, cos = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
+    e = np.empty((3, 3))
     for i in range(m):
         for k in range(3):
-            p, q, r = fo[i, k], fo[i, (k + 1) % 3], fo[i, (k + 2) % 3]
-            a0, a1, a2 = vo[q, 0] - vo[p, 0], vo[q, 1] - vo[p, 1], vo[q, 2] - vo[p, 2]
-            b0, b1, b2 = vo[r, 0] - vo[p, 0], vo[r, 1] - vo[p, 1], vo[r, 2] - vo[p, 2]
+            p, q = fo[i, k], fo[i, (k + 1) % 3]
+            for c in range(3):
+                e[k, c] = vo[q, c] - vo[p, c]
+        for k in range(3):
+            a0, a1, a2 = e[k, 0], e[k, 1], e[k, 2]
+            j = (k + 2) % 3
+            b0, b1, b2 = -e[j, 0], -e[j, 1], -e[j, 2]
             x0, x1, x2 = _cross(a0, a1, a2, b0, b1, b2)
-            sin[i, k] = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+            n = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+            sin[i, k] = n
             cos[i, k] = (a0 * b0 + a2 * b2) + a1 * b1
+            if k == 0:  # `_unit_rows`
+                d = n if n > 0 else 1.0
+                normals[i, 0], normals[i, 1], normals[i, 2] = x0 / d, x1 / d, x2 / d
+    # an inner edge's two slots sum the same two normals in either order, the same bits (addition
+    # commutes), so each edge is summed and scaled once, from its lower slot
+    edge_normals = np.empty((3 * m, 3))
+    for s in range(3 * m):
+        t = other[s]
+        if t < s:
+            for c in range(3):
+                edge_normals[s, c] = edge_normals[t, c]
+            continue
+        o = t // 3
+        x0, x1, x2 = normals[s // 3, 0] + normals[o, 0], normals[s // 3, 1] + normals[o, 1], normals[s // 3, 2] + normals[o, 2]
+        n = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        d = n if n > 0 else 1.0
+        edge_normals[s, 0], edge_normals[s, 1], edge_normals[s, 2] = x0 / d, x1 / d, x2 / d
+    edge_normals = edge_normals.reshape(m, 3, 3)
     return 0, vo, fo, normals, edge_normals, sin, cos
 
 

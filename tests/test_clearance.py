@@ -723,3 +723,45 @@ def test_non_uniform_scale_bound_covers_world_truth():
         k = C.sigma_max(mat)
         d = C.triangle_depth(s, apply_inverse(mat, tw.reshape(-1, 3)).reshape(-1, 3, 3), 0.01 / k)
         assert k * d.bound >= dense_depth(world, tw) - 1e-12
+
+
+@pytest.mark.parametrize("offset", [0.0, 3e12])
+def test_compiled_weld_is_the_kd_trees(offset):
+    """`pseudonormals.weld` joins the groups `clearance._weld` (a kd-tree's pairs) joins, each
+    its lowest row's point, by cells along x (`_pairs_by_cells`) with a ring of points sharing
+    their x (a display's ring about the x axis) on the way; coordinates too large for a cell's
+    integer give code 1, and `clearance.solid` welds them with the kd-tree."""
+    rng = np.random.default_rng(7)
+    radius = 1e-3
+    base = rng.uniform(-1, 1, (300, 3))
+    base[:40, 0] = base[0, 0]  # one x for 40 points apart in y and z
+    copies = base[rng.integers(0, 300, 200)] + rng.normal(size=(200, 3)) * 0.2 * radius  # within the radius
+    chain = base[5] + np.outer(np.arange(1, 4), [0.9 * radius, 0, 0])  # a chain longer than the radius
+    v = np.concatenate([base, copies, chain])[rng.permutation(503)] + offset
+    faces = np.arange(503 - 503 % 3).reshape(-1, 3)
+    rank, vu = pseudonormals._used(v, faces, np.arange(len(faces)))
+    r2 = radius * radius
+    path = pseudonormals._pairs_by_cells(vu, np.arange(len(vu)), r2 * (1 - 1e-9), r2 * (1 + 1e-9), radius * (1 + 1e-6))
+    assert path == (1 if offset == 0 else -1)
+    code, vw, fw = pseudonormals.weld(v, faces, radius)
+    assert code == (0 if offset == 0 else 1)
+    if code:
+        return
+    used = np.unique(faces)
+    label = C._weld(v[used], radius)
+    first = np.unique(label, return_index=True)[1]
+    np.testing.assert_array_equal(vw, v[used][first])
+    np.testing.assert_array_equal(fw, label[np.searchsorted(used, faces)])
+    assert len(vw) < len(used) - 150  # the copies and the chain joined
+
+
+def test_compiled_part_far_from_its_origin_is_the_array_form():
+    """A part whose coordinates are too large for the compiled weld's cells (code 1) is welded
+    by the kd-tree and equals the array form."""
+    v, f = uv_sphere(8, 12)
+    v = v * 1e-3 + np.array([1e6, 0.0, 0.0])  # weld radius 1e-7 x 2e-3: x is 5e15 radii away
+    a = C.solid(v, f[:60], part=True, outward=1.0, scale=2e-3)
+    b = C.solid(v, f[:60], part=True, outward=1.0, scale=2e-3, compiled=False)
+    assert pseudonormals.weld(v, f[:60], 2e-10)[0] == 1
+    for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
