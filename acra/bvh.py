@@ -1106,6 +1106,14 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             elif b > 0.0 and not split:
                 late[n_late] = i
                 n_late += 1
+        # `retired` only grows, so a cell at or below it now can never raise it: those are left out
+        # of the sort (the rest keep their order, so the cells taken and their order are the same)
+        above = 0
+        for j in range(n_late):
+            if bound[late[j]] > retired:
+                late[above] = late[j]
+                above += 1
+        n_late = above
         if n_late:
             late = late[:n_late]
             key = np.empty(n_late)
