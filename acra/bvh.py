@@ -1422,7 +1422,9 @@ def depth(tri, box, part: bool, reach: float, target: float, decide: float, max_
     compiled call, the same bits as its array form: the triangles whose boxes meet ``box (2, 3)``
     (within ``reach`` on a ``part``, where every triangle must), their corners signed (far ones
     by their neighbours: ``far`` and ``link``, `_signed_corners`), then the levels, against the
-    solid's ``tree``, mesh, pseudo-normals (`acra.pseudonormals.signs` with ``tol``) and facets.
+    solid's ``tree``, mesh, pseudo-normals (`acra.pseudonormals.signs` with ``tol``) and facets
+    (``tree`` built from ``vertices[faces]``, as `build_linear` builds it, so a corner's walk
+    distance is the bits eq. (6) measures to the same face).
     ``reach``: points farther from every face are unresolved. ``planes``: on a convex solid, eq.
     (7) bounds cells too (`_cell_bound`): ``(0,) int64`` for each corner's closest face's plane,
     else ``(g,) int64`` the faces whose planes bound every cell (one of each facet); ``None``
