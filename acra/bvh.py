@@ -655,18 +655,50 @@ def faces_at(points: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> np.ndar
 
 
 @njit(cache=True, nogil=True)
-def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_start, facet_faces, tri, least):
+def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_start, facet_faces, tri, least, o0, o1, o2, cap):
     """Eq. (6) of one cell ``cell (3, 3)`` whose corners' closest faces are ``f0, f1, f2``, with
-    scratch ``tri (3, 3)`` and ``least (3,)``: each facet's faces gathered once, all three corners
-    measured against each; a facet two corners share is measured once (min and max are exact,
-    so the order is free)."""
-    best = np.inf
+    scratch ``tri (3, 3)`` and ``least (3,)``, as ``min(cap, eq. (6))``: each facet's faces gathered
+    once, all three corners measured against each; a facet two corners share is measured once (min
+    and max are exact, so the order is free). ``o0, o1, o2``: each corner's distance to its closest
+    face where known (the walk's, the same arithmetic, so the same bits), else negative: a facet of
+    that face alone needs no second measure of its corner. A facet whose first measured corner is
+    already at least the smaller of ``cap`` and the facets before cannot lower the minimum, so its
+    other corners are not measured."""
+    best = cap
     for j in range(3):
-        g = facet[f0 if j == 0 else (f1 if j == 1 else f2)]
+        fj = f0 if j == 0 else (f1 if j == 1 else f2)
+        g = facet[fj]
         if (j > 0 and facet[f0] == g) or (j > 1 and facet[f1] == g):
             continue
+        s0, s1 = facet_start[g], facet_start[g + 1]
+        oj = o0 if j == 0 else (o1 if j == 1 else o2)
+        if s1 - s0 == 1 and oj >= 0.0:
+            # the facet is corner j's face alone: its distance is known, and one corner at least
+            # the minimum so far decides the facet; the others are measured only if needed
+            top = oj
+            if not top < best:
+                continue
+            m = facet_faces[s0]
+            for k in range(3):
+                for q in range(3):
+                    tri[k, q] = vertices[solid_faces[m, k], q]
+            for i in range(3):
+                if i == j:
+                    continue
+                fi = f0 if i == 0 else (f1 if i == 1 else f2)
+                oi = o0 if i == 0 else (o1 if i == 1 else o2)
+                if fi == m and oi >= 0.0:
+                    d = oi
+                else:
+                    x, y, z, _, _, _ = _point_triangle(cell[i], tri[0], tri[1], tri[2])
+                    d = np.sqrt((cell[i, 0] - x) ** 2 + (cell[i, 1] - y) ** 2 + (cell[i, 2] - z) ** 2)
+                top = max(top, d)
+                if not top < best:
+                    break
+            best = min(best, top)
+            continue
         least[0], least[1], least[2] = np.inf, np.inf, np.inf
-        for s in range(facet_start[g], facet_start[g + 1]):
+        for s in range(s0, s1):
             m = facet_faces[s]
             for k in range(3):
                 # element by element: a row assigned from an array would compile numba's
@@ -687,7 +719,7 @@ def _facet_bound(cells, faces, vertices, solid_faces, facet, facet_start, facet_
     least = np.empty(3)
     for c in range(cells.shape[0]):
         out[c] = _cell_facet_bound(cells[c], faces[c, 0], faces[c, 1], faces[c, 2], vertices, solid_faces, facet,
-                                   facet_start, facet_faces, tri, least)
+                                   facet_start, facet_faces, tri, least, -1.0, -1.0, -1.0, np.inf)
 
 
 def facet_bound(cells: np.ndarray, faces: np.ndarray, vertices: np.ndarray, solid_faces: np.ndarray, facet: np.ndarray,
@@ -939,13 +971,19 @@ _NO_PLANES = np.full(1, -1, np.int64)  # `depth` without eq. (7): not a convex s
 
 
 @njit(cache=True, nogil=True)
-def _cell_bound(cell, f0, f1, f2, vertices, faces, normals, facet, facet_start, facet_faces, planes, scratch, least):
+def _cell_bound(cell, f0, f1, f2, vertices, faces, normals, facet, facet_start, facet_faces, planes, scratch, least, sd, cap):
     """`pipeline.clearance._cell_bound` of one cell ``cell (3, 3)`` whose corners' closest faces are
-    ``f0, f1, f2``: eq. (6), and on a convex solid (``planes`` not `_NO_PLANES`) the smaller of it
-    and eq. (7), ``min_j max_i max(0, (a_j - c_i) . n_j)`` over the planes of the faces
-    ``planes`` (every facet's), or of ``f0, f1, f2`` if ``planes`` is empty. A dot product of 3
-    terms is summed as ``(p0 + p2) + p1``, as ``np.einsum`` sums it in the array form."""
-    out = _cell_facet_bound(cell, f0, f1, f2, vertices, faces, facet, facet_start, facet_faces, scratch, least)
+    ``f0, f1, f2`` and signed depths ``sd (3,)`` (their magnitudes the walks' distances, or
+    ``-inf`` where not found), no larger than ``cap`` (the cell's eq. (4), which the caller keeps
+    if smaller): ``min(cap, eq. (6))``, and on a convex solid (``planes`` not `_NO_PLANES`) the
+    smaller of it and eq. (7), ``min_j max_i max(0, (a_j - c_i) . n_j)`` over the planes of the
+    faces ``planes`` (every facet's), or of ``f0, f1, f2`` if ``planes`` is empty. A dot product of
+    3 terms is summed as ``(p0 + p2) + p1``, as ``np.einsum`` sums it in the array form."""
+    # a corner's own distance, where its walk found it
+    o0 = abs(sd[0]) if f0 >= 0 and abs(sd[0]) < np.inf else -1.0
+    o1 = abs(sd[1]) if f1 >= 0 and abs(sd[1]) < np.inf else -1.0
+    o2 = abs(sd[2]) if f2 >= 0 and abs(sd[2]) < np.inf else -1.0
+    out = _cell_facet_bound(cell, f0, f1, f2, vertices, faces, facet, facet_start, facet_faces, scratch, least, o0, o1, o2, cap)
     if planes.shape[0] == 1 and planes[0] < 0:
         return out
     g = planes.shape[0] if planes.shape[0] else 3
@@ -1057,7 +1095,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             if b > 0.0 and split:
                 _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                 six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                   planes, scratch, least)
+                                  planes, scratch, least, sd[i], b)
                 if six < b:
                     b = six
                     bound[i] = b
@@ -1068,6 +1106,14 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             elif b > 0.0 and not split:
                 late[n_late] = i
                 n_late += 1
+        # `retired` only grows, so a cell at or below it now can never raise it: those are left out
+        # of the sort (the rest keep their order, so the cells taken and their order are the same)
+        above = 0
+        for j in range(n_late):
+            if bound[late[j]] > retired:
+                late[above] = late[j]
+                above += 1
+        n_late = above
         if n_late:
             late = late[:n_late]
             key = np.empty(n_late)
@@ -1079,7 +1125,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                     break
                 _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                 six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                   planes, scratch, least)
+                                  planes, scratch, least, sd[i], bound[i])
                 b = six if six < bound[i] else bound[i]
                 if b > retired:
                     retired = b
@@ -1186,7 +1232,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                 if v > 0.0:
                     _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                     six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                   planes, scratch, least)
+                                      planes, scratch, least, sd[i], v)
                     v = six if six < v else v
                     if v > last:
                         last = v
@@ -1376,7 +1422,9 @@ def depth(tri, box, part: bool, reach: float, target: float, decide: float, max_
     compiled call, the same bits as its array form: the triangles whose boxes meet ``box (2, 3)``
     (within ``reach`` on a ``part``, where every triangle must), their corners signed (far ones
     by their neighbours: ``far`` and ``link``, `_signed_corners`), then the levels, against the
-    solid's ``tree``, mesh, pseudo-normals (`acra.pseudonormals.signs` with ``tol``) and facets.
+    solid's ``tree``, mesh, pseudo-normals (`acra.pseudonormals.signs` with ``tol``) and facets
+    (``tree`` built from ``vertices[faces]``, as `build_linear` builds it, so a corner's walk
+    distance is the bits eq. (6) measures to the same face).
     ``reach``: points farther from every face are unresolved. ``planes``: on a convex solid, eq.
     (7) bounds cells too (`_cell_bound`): ``(0,) int64`` for each corner's closest face's plane,
     else ``(g,) int64`` the faces whose planes bound every cell (one of each facet); ``None``

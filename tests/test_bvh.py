@@ -322,3 +322,33 @@ def test_sortable_keys_sort_as_the_floats_do():
     keys = bvh._sortable(x.copy())
     assert keys.dtype == np.int64
     np.testing.assert_array_equal(np.argsort(keys, kind="mergesort"), np.argsort(x, kind="mergesort"))
+
+
+@pytest.mark.parametrize("merged", [False, True])
+def test_a_cells_bound_with_its_corners_own_distances_is_eq6_capped_to_the_bit(merged):
+    # the corners' distances from their walks and the cell's eq. (4) as a cap spare measures,
+    # never the answer: min(cap, eq. (6)) as `facet_bound` gives it, bit for bit
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    v, fc = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+    f = len(fc)
+    facet = np.arange(f, dtype=np.int64)
+    if merged:  # pairs of faces as one facet, as a flat region's faces are
+        facet = facet // 2
+    g = int(facet.max()) + 1
+    facet_faces = np.argsort(facet, kind="stable").astype(np.int64)
+    facet_start = np.searchsorted(facet[facet_faces], np.arange(g + 1)).astype(np.int64)
+    rng = np.random.default_rng(3)
+    centre = rng.normal(size=(400, 3))
+    centre *= rng.uniform(0.9, 1.1, (400, 1)) / np.linalg.norm(centre, axis=1, keepdims=True)
+    cells = centre[:, None] + rng.normal(scale=rng.choice([0.01, 0.05, 0.2], (400, 1, 1)), size=(400, 3, 3))
+    dist, _, face, _ = bvh.closest(bvh.build_linear(v, fc), cells.reshape(-1, 3))
+    dist, face = dist.reshape(-1, 3), face.reshape(-1, 3)
+    sd = dist * rng.choice([-1.0, 1.0], size=dist.shape)
+    eq6 = bvh.facet_bound(cells, face, v, fc, facet, facet_start, facet_faces)
+    normals = np.asarray(mesh.face_normals, np.float64)
+    scratch, least = np.empty((3, 3)), np.empty(3)
+    caps = np.where(rng.random(400) < 0.5, np.inf, eq6 * rng.uniform(0.5, 1.5, 400))
+    got = np.array([bvh._cell_bound(cells[c], face[c, 0], face[c, 1], face[c, 2], v, fc, normals, facet, facet_start, facet_faces,
+                                    bvh._NO_PLANES, scratch, least, sd[c], caps[c]) for c in range(400)])
+    assert (got < caps).any() and (got == caps).any()
+    assert got.tobytes() == np.minimum(caps, eq6).tobytes()
