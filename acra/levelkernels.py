@@ -390,7 +390,8 @@ def mark_changed(new, old, rows, cv_keys, v_cvs, k, u_patches, v_patches, u_peri
             key = cv_keys[changed[i]]
             ju[i] = key // v_cvs
             jv[i] = key - ju[i] * v_cvs
-        mark_cells(stale, ju, jv, k, 0, 3, u_patches, v_patches, u_periodic, v_periodic)
+        # level and spread as int64 values, not literals: the one specialisation Python's calls use
+        mark_cells(stale, ju, jv, k, np.int64(0), np.int64(3), u_patches, v_patches, u_periodic, v_periodic)
     return changed.shape[0]
 
 

@@ -570,3 +570,23 @@ def test_a_moves_bookkeeping_kernels_are_the_array_form():
     got = levelkernels.stale_rows(stale, centre, ring, H._ends_array(ends), every, pending)
     np.testing.assert_array_equal(got, np.nonzero(hit)[0])
     assert (ring[got] >= 0).any() and (ring[got] < 0).any()
+
+
+def test_mark_changed_calls_mark_cells_with_the_pythons_specialisation():
+    """`levelkernels.mark_changed` hands `kernels.mark_cells` its level and spread as int64
+    values: integer literals in a compiled call would type as ``Literal[int]`` and compile a second
+    specialisation of `mark_cells` on a fresh install (about 1 s). A copy of `mark_changed`
+    compiled here types its call again, adding any new signature to `mark_cells`."""
+    from numba import njit, types
+
+    from acra import kernels, levelkernels
+
+    fresh = njit(levelkernels.mark_changed.py_func)
+    bits = np.zeros((4, 3), np.int64)
+    other = bits.copy()
+    other[1, 0] = 1
+    stale = np.zeros((4, 4), bool)
+    assert fresh(bits, other, np.arange(4, dtype=np.int64), np.arange(4, dtype=np.int64), 4, 0, 4, 4, False, False, stale) == 1
+    assert stale.any()
+    for sig in kernels.mark_cells.signatures:
+        assert not any(isinstance(t, types.Literal) for t in sig), sig
