@@ -106,11 +106,12 @@ def data_points_for(
     direction = p_other - p_self if direction is None else np.asarray(direction, float)
     size = ga.size
     if region_uv is not None and len(region_uv) and np.linalg.norm(direction) > 1e-9 * size:
-        mids, _ = R.region_midpoints(ga.surface, region_uv, group_level)
+        # `respond.region_midpoints`, keeping each sample's patch for `region_deepest`
+        mids, _, groups = R.patch_groups(ga.surface, region_uv, group_level, patches=False)
         a_world = apply_xform(ga.xform, H.evaluate(ga.surface, mids[:, 0], mids[:, 1], det=ga.details).points)
         hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
         if region_depth is not None:
-            deep, depth = R.region_deepest(ga.surface, region_uv, region_depth, group_level)
+            deep, depth = R.region_deepest(ga.surface, region_uv, region_depth, group_level, groups)
             stalled = np.nonzero(valid & (depth > settled) & (np.linalg.norm(hits - a_world, axis=1) <= STALLED * depth))[0]
             if stalled.size:
                 d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[stalled, 0], deep[stalled, 1], det=ga.details).points)
