@@ -87,13 +87,14 @@ class RayMesh:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         self.vertices, self.faces = raycast.merged(vertices, faces)
-        self.scale = meshops.scale(self.vertices)
+        self.box = bounds(self.vertices) if len(self.vertices) else None  # (2, 3): min and max corners
+        self.scale = meshops.scale(self.vertices, self.box)
         self._scene = None
         self._ready = False
 
     def _prepare(self) -> None:
         """embree's float32 vertices ``(v, 3)`` and the boxes of the faces, at the first cast."""
-        self.origin = self.vertices.min(axis=0)
+        self.origin = self.box[0]
         self.factor = float(100.0 / self.scale)
         self.scaled = ((self.vertices - self.origin) * self.factor).astype(np.float32)
         self.boxes = raycast.group_boxes(self.scaled, self.faces)
