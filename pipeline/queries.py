@@ -124,13 +124,9 @@ class RayMesh:
         if not sure.all():
             ask = np.nonzero(~sure)[0]
             query[ask] = self.scene.run(np.ascontiguousarray(scaled[ask]), np.ascontiguousarray(unit[ask]))
-        rays = np.nonzero(query != -1)[0]
-        faces = self.faces[query[rays]]
         # the hit faces' normals alone: each row is the same bits as in the whole mesh's
         # (`Trimesh.face_normals`), every step being row by row
-        normals = meshops.face_normals(self.vertices, faces)
-        loc, valid = meshops.planes_lines(self.vertices[faces[:, 0]], normals, origins[rays], directions[rays])
-        return loc, rays[valid]
+        return raycast.plane_hits(self.vertices, self.faces, query, origins, directions)
 
     def trimesh(self):
         """This mesh as a `trimesh.Trimesh` (imported here: only the rare float64 retry of

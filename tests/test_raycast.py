@@ -80,6 +80,29 @@ def test_hit_faces_normals_are_the_whole_meshs_rows():
         assert meshops.face_normals(v, f[rows]).tobytes() == whole[rows].tobytes()
 
 
+def test_plane_hits_are_face_normals_then_planes_lines():
+    """`raycast.plane_hits` in one compiled pass: the same bits as `meshops.face_normals` of the
+    hit faces and `meshops.planes_lines` (trimesh's arithmetic), with rays that hit nothing,
+    faces of no area and rays nearly along their plane."""
+    rng = np.random.default_rng(3)
+    for _ in range(500):
+        nv, n = int(rng.integers(3, 200)), int(rng.integers(0, 120))
+        v = rng.standard_normal((nv, 3)) * 10.0 ** rng.uniform(-4, 4)
+        f = rng.integers(0, nv, (2 * n + 4, 3))
+        f[:3, 1] = f[:3, 0]  # no area
+        tri = rng.integers(-1, len(f), n)
+        tri[: n // 4] = rng.integers(0, 3, n // 4)
+        o = rng.standard_normal((n, 3)) * 10.0 ** rng.uniform(-4, 4)
+        d = meshops.unitize(rng.standard_normal((n, 3)))[0]
+        d[: n // 8] *= 1e-7  # along the plane, to 1e-5
+        rays = np.nonzero(tri != -1)[0]
+        faces = f[tri[rays]]
+        want, valid = meshops.planes_lines(v[faces[:, 0]], meshops.face_normals(v, faces), o[rays], d[rays])
+        got, rows = raycast.plane_hits(v, f, tri, o, d)
+        assert rows.tolist() == rays[valid].tolist()
+        assert got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
 def test_generic_rays_build_no_embree_scene():
     """Casting rays off the mesh's edges answers without an embree scene; a ray through a shared
     vertex builds it (whether embree's float32 lets that ray through is embree's answer, held to
