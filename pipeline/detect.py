@@ -1104,7 +1104,10 @@ def _cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: f
 def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First hits ``(n, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` (start where none)
     and which rays hit ``(n,) bool``."""
-    o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
+    if isinstance(geom, SurfaceGeometry):  # its linear part's inverse found once (`to_object`): the same bits
+        o, d = geom.to_object(start), unit @ geom._inverse_t
+    else:
+        o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
     if isinstance(geom, ColliderGeometry):
         loc, ray, _ = geom.static.mesh.ray.intersects_location(o, d, multiple_hits=False)
     else:
