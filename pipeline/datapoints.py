@@ -135,7 +135,7 @@ def data_points_for(
     world = np.concatenate(targets)
     is_contact = np.zeros(len(uv_all), bool)
     is_contact[0] = True
-    return R.DataPoints(uv_all, apply_inverse(ga.xform, world), is_contact), world, np.concatenate(origins)
+    return R.DataPoints(uv_all, ga.to_object(world), is_contact), world, np.concatenate(origins)  # `apply_inverse`'s bits
 
 
 WRAP_RING = 1  # patches around the ones a collider's outline covers that a new pocket pushes too
