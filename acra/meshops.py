@@ -84,12 +84,16 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return padded
 
 
-def scale(vertices: np.ndarray) -> float:
+def scale(vertices: np.ndarray, box: np.ndarray | None = None) -> float:
     """The diagonal of the referenced vertices' box, 1 if below trimesh's zero (Parent.scale);
-    ``vertices (n, 3)`` all referenced, as `merge_vertices` leaves them."""
+    ``vertices (n, 3)`` all referenced, as `merge_vertices` leaves them. ``box (2, 3)``: their
+    ``min(axis=0)`` and ``max(axis=0)`` where the caller has them (`acra.bvh.bounds` finds both in
+    one pass, where numpy's reductions over a short last axis go row by row)."""
     if not len(vertices):
         return 1.0
-    extents = np.ptp(np.array([vertices.min(axis=0), vertices.max(axis=0)]), axis=0)
+    if box is None:
+        box = np.array([vertices.min(axis=0), vertices.max(axis=0)])
+    extents = np.ptp(box, axis=0)
     size = float((extents**2).sum() ** 0.5)
     return 1.0 if size < 1e-13 else size
 

@@ -26,7 +26,7 @@ from numba import njit
 
 from acra import meshops
 
-__all__ = ["GROUP", "SLACK", "merged", "group_boxes", "sure_first_hits"]
+__all__ = ["GROUP", "SLACK", "merged", "group_boxes", "sure_first_hits", "sure_hits"]
 
 GROUP = 16  # consecutive faces per box
 # Bound on embree's float32 error of an edge function, a determinant or a depth, as a multiple of
@@ -103,7 +103,7 @@ def group_boxes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np
 
 
 @njit(cache=True, nogil=True)
-def _sure_first_hits(v, faces, group, glo, ghi, orig, dirs, slack, tri, sure):
+def _sure_first_hits(v, faces, group, glo, ghi, orig, dirs, slack, tri, sure, v64, orig64, dirs64, zero, loc, has):
     reach = 3.0 * max(np.abs(glo).max(), np.abs(ghi).max()) if glo.shape[0] else 0.0
     for i in range(orig.shape[0]):
         ox, oy, oz = np.float64(orig[i, 0]), np.float64(orig[i, 1]), np.float64(orig[i, 2])
@@ -180,6 +180,28 @@ def _sure_first_hits(v, faces, group, glo, ghi, orig, dirs, slack, tri, sure):
                     other_lo = min(other_lo, t_lo)
         tri[i] = best
         sure[i] = not unsure and (other_lo > best_hi if best >= 0 else other_lo == np.inf)
+        if has.shape[0] == 0 or not sure[i] or best < 0:
+            continue
+        # the hit: the float64 ray on the plane of the triangle (its first corner, unit normal),
+        # each product and sum in the order numpy's expressions round them (`sure_hits`)
+        fa, fb, fc = faces[best, 0], faces[best, 1], faces[best, 2]
+        ax, ay, az = v64[fb, 0] - v64[fa, 0], v64[fb, 1] - v64[fa, 1], v64[fb, 2] - v64[fa, 2]
+        bx, by, bz = v64[fc, 0] - v64[fb, 0], v64[fc, 1] - v64[fb, 1], v64[fc, 2] - v64[fb, 2]
+        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        norm = np.sqrt((nx * nx + ny * ny) + nz * nz)
+        if not norm > zero:
+            continue  # a face of no area: no plane, no hit
+        inv = 1.0 / norm
+        nx, ny, nz = nx * inv, ny * inv, nz * inv
+        px, py, pz = orig64[i, 0], orig64[i, 1], orig64[i, 2]
+        qx, qy, qz = dirs64[i, 0], dirs64[i, 1], dirs64[i, 2]
+        towards = ((v64[fa, 0] - px) * nx + (v64[fa, 1] - py) * ny) + (v64[fa, 2] - pz) * nz
+        along = (qx * nx + qy * ny) + qz * nz
+        if not abs(along) > 1e-5:
+            continue  # the ray runs along the plane
+        t = towards / along
+        loc[i, 0], loc[i, 1], loc[i, 2] = qx * t + px, qy * t + py, qz * t + pz
+        has[i] = True
 
 
 def sure_first_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, np.ndarray],
@@ -187,8 +209,34 @@ def sure_first_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.nda
     """The triangle embree reports for each ray ``origins, directions (n, 3) float32`` on
     ``vertices (v, 3) float32, faces (f, 3) int64`` (`group_boxes` ``boxes``): ``(n,) int64``,
     -1 for none, and whether that answer is sure ``(n,) bool`` (unsure rows hold no answer)."""
+    none = np.zeros((0, 3))
     tri, sure = np.full(len(origins), -1, np.int64), np.zeros(len(origins), np.bool_)
     if len(origins):
         _sure_first_hits(vertices, faces, GROUP, boxes[0], boxes[1], np.ascontiguousarray(origins, np.float32),
-                         np.ascontiguousarray(directions, np.float32), SLACK, tri, sure)
+                         np.ascontiguousarray(directions, np.float32), SLACK, tri, sure, none, none, none, 0.0, none,
+                         np.zeros(0, np.bool_))
     return tri, sure
+
+
+def sure_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, np.ndarray], origins: np.ndarray,
+              directions: np.ndarray, exact: tuple[np.ndarray, np.ndarray, np.ndarray]
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`sure_first_hits` and, in the same pass, the hit of each sure ray: where the float64 ray
+    meets its triangle's plane. ``exact``: the float64 vertices ``(v, 3)`` the float32
+    ``vertices`` were scaled from, and the rays ``origins, directions (n, 3) float64`` (unit
+    directions) that ``origins, directions`` round. Returns ``tri (n,) int64``, ``sure (n,)
+    bool``, ``loc (n, 3) float64`` and which rows hold a hit ``(n,) bool``: a sure ray on a
+    triangle, unless the triangle has no area or the ray runs along its plane (`acra.meshops
+    .planes_lines`' 1e-5). Each hit is the same bits as `acra.meshops.face_normals` of its face
+    followed by `acra.meshops.planes_lines` (trimesh's arithmetic), without their dozen numpy
+    steps on a cast's few dozen rays."""
+    n = len(origins)
+    tri, sure = np.full(n, -1, np.int64), np.zeros(n, np.bool_)
+    loc, has = np.empty((n, 3)), np.zeros(n, np.bool_)
+    if n:
+        v64, o64, d64 = (np.ascontiguousarray(a, np.float64) for a in exact)
+        _sure_first_hits(vertices, faces, GROUP, boxes[0], boxes[1], np.ascontiguousarray(origins, np.float32),
+                         np.ascontiguousarray(directions, np.float32), SLACK, tri, sure, v64, o64, d64,
+                         meshops.TOL_ZERO, loc, has)
+    return tri, sure, loc, has
+

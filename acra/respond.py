@@ -208,7 +208,8 @@ def region_midpoints(hs: H.HSpline, uv_inside: np.ndarray, level: int) -> tuple[
     return mids, patches
 
 
-def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
+def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, level: int,
+                   groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The deepest inside sample of each level-``level`` patch, in `region_midpoints`' order.
 
     Where a later round finds a patch still partly inside but the middle of its inside part
@@ -222,6 +223,8 @@ def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, leve
         Parameters of surface samples inside the other object.
     depth : (n,) float64
         Their depths (distance to the other surface).
+    groups : (n,) int64, optional
+        The group of each sample (`patch_groups`' ``inv``) where the caller has it already.
 
     Returns
     -------
@@ -231,7 +234,7 @@ def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, leve
     """
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     depth = np.asarray(depth, np.float64).reshape(-1)
-    _, _, inv = patch_groups(hs, uv_inside, level)
+    inv = patch_groups(hs, uv_inside, level, patches=False)[2] if groups is None else groups
     order = np.lexsort((depth, inv))  # by patch, deepest last
     last = np.r_[inv[order][1:] != inv[order][:-1], True] if order.size else np.zeros(0, bool)
     return uv_inside[order[last]], depth[order[last]]

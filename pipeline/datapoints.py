@@ -106,11 +106,12 @@ def data_points_for(
     direction = p_other - p_self if direction is None else np.asarray(direction, float)
     size = ga.size
     if region_uv is not None and len(region_uv) and np.linalg.norm(direction) > 1e-9 * size:
-        mids, _ = R.region_midpoints(ga.surface, region_uv, group_level)
+        # `respond.region_midpoints`, keeping each sample's patch for `region_deepest`
+        mids, _, groups = R.patch_groups(ga.surface, region_uv, group_level, patches=False)
         a_world = apply_xform(ga.xform, H.evaluate(ga.surface, mids[:, 0], mids[:, 1], det=ga.details).points)
         hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
         if region_depth is not None:
-            deep, depth = R.region_deepest(ga.surface, region_uv, region_depth, group_level)
+            deep, depth = R.region_deepest(ga.surface, region_uv, region_depth, group_level, groups)
             stalled = np.nonzero(valid & (depth > settled) & (np.linalg.norm(hits - a_world, axis=1) <= STALLED * depth))[0]
             if stalled.size:
                 d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[stalled, 0], deep[stalled, 1], det=ga.details).points)
@@ -134,7 +135,7 @@ def data_points_for(
     world = np.concatenate(targets)
     is_contact = np.zeros(len(uv_all), bool)
     is_contact[0] = True
-    return R.DataPoints(uv_all, apply_inverse(ga.xform, world), is_contact), world, np.concatenate(origins)
+    return R.DataPoints(uv_all, ga.to_object(world), is_contact), world, np.concatenate(origins)  # `apply_inverse`'s bits
 
 
 WRAP_RING = 1  # patches around the ones a collider's outline covers that a new pocket pushes too
@@ -570,11 +571,32 @@ def spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarray
     if len(points) == 0:
         return keep
     keep &= np.linalg.norm(points - contact, axis=1) > radius
-    tree = cKDTree(points)
-    for i, j in sorted(tree.query_pairs(radius)):
+    if len(points) > SPREAD_DIRECT:
+        for i, j in sorted(cKDTree(points).query_pairs(radius)):
+            if keep[i]:
+                keep[j] = False
+        return keep
+    # the same greedy pass on every pair at once, a tenth of the tree's cost on a frame's few dozen
+    # points: a row drops its later neighbours if it is itself kept, rows in order (a pole's
+    # crowd of 32 equal points is one row's pass)
+    close = _close(np.asarray(points, np.float64), radius)
+    for i in np.nonzero(close.any(axis=1))[0].tolist():
         if keep[i]:
-            keep[j] = False
+            keep &= ~close[i]
     return keep
+
+
+SPREAD_DIRECT = 256  # up to this many points `spread` compares every pair instead of building a kd-tree
+
+
+def _close(points: np.ndarray, radius: float) -> np.ndarray:
+    """Which pairs ``i < j`` of ``points (g, 3) float64`` lie within ``radius``: ``(g, g) bool``,
+    upper triangle; the pairs of scipy's ``cKDTree(points).query_pairs(radius)``, each the tree's
+    leaf test (the squared differences summed in coordinate order, against ``radius * radius``)."""
+    if len(points) < 2:
+        return np.zeros((len(points), len(points)), bool)
+    d = [points[:, None, c] - points[None, :, c] for c in range(3)]
+    return np.triu(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= radius * radius, 1)
 
 
 CLEAR = 0.25  # display points are moved this fraction of the tolerance past the other surface (`visible_points`)

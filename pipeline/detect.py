@@ -1078,19 +1078,22 @@ def _cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: f
     """`cast`, computed."""
     hits, valid = origins.copy(), np.zeros(len(origins), bool)
     length = np.linalg.norm(directions, axis=1)
-    rows = np.nonzero(length > 0)[0]
-    if not len(rows):
-        return hits, valid
-    unit = directions[rows] / length[rows, None]
+    if (length > 0).all():  # every ray has a direction: the rows as they are, without gathering them
+        rows, at, unit = np.arange(len(origins)), origins, directions / length[:, None]
+    else:
+        rows = np.nonzero(length > 0)[0]
+        if not len(rows):
+            return hits, valid
+        at, unit = origins[rows], directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
-    ins = inside(geom, origins[rows]) if within is None else np.asarray(within, bool).reshape(-1)[rows]
-    start = origins[rows] - np.where(ins, 0.0, behind)[:, None] * unit
+    ins = inside(geom, at) if within is None else np.asarray(within, bool).reshape(-1)[rows]
+    start = at - np.where(ins, 0.0, behind)[:, None] * unit
     found, ok = _first_hits(geom, start, unit)
     hits[rows[ok]], valid[rows[ok]] = found[ok], True
     # an origin on the surface whose ray goes in (just ahead of it is inside) counts as inside:
     # its hit is the exit ahead, not the surface it sits on
     eps = ON_SURFACE * geom.size
-    on = ok & (np.linalg.norm(found - origins[rows], axis=1) <= eps)
+    on = ok & (np.linalg.norm(found - at, axis=1) <= eps)
     if on.any() and is_closed(geom):
         ahead = origins[rows[on]] + 2.0 * eps * unit[on]
         into = inside(geom, ahead)
@@ -1104,7 +1107,10 @@ def _cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: f
 def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First hits ``(n, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` (start where none)
     and which rays hit ``(n,) bool``."""
-    o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
+    if isinstance(geom, SurfaceGeometry):  # its linear part's inverse found once (`to_object`): the same bits
+        o, d = geom.to_object(start), unit @ geom._inverse_t
+    else:
+        o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
     if isinstance(geom, ColliderGeometry):
         loc, ray, _ = geom.static.mesh.ray.intersects_location(o, d, multiple_hits=False)
     else:

@@ -87,13 +87,14 @@ class RayMesh:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         self.vertices, self.faces = raycast.merged(vertices, faces)
-        self.scale = meshops.scale(self.vertices)
+        self.box = bounds(self.vertices) if len(self.vertices) else None  # (2, 3): min and max corners
+        self.scale = meshops.scale(self.vertices, self.box)
         self._scene = None
         self._ready = False
 
     def _prepare(self) -> None:
         """embree's float32 vertices ``(v, 3)`` and the boxes of the faces, at the first cast."""
-        self.origin = self.vertices.min(axis=0)
+        self.origin = self.box[0]
         self.factor = float(100.0 / self.scale)
         self.scaled = ((self.vertices - self.origin) * self.factor).astype(np.float32)
         self.boxes = raycast.group_boxes(self.scaled, self.faces)
@@ -119,17 +120,21 @@ class RayMesh:
         directions = meshops.unitize(np.array(directions, dtype=np.float64))[0]
         scaled = ((origins - self.origin) * self.factor).astype(np.float32)
         unit = directions.astype(np.float32)
-        query, sure = raycast.sure_first_hits(self.scaled, self.faces, self.boxes, scaled, unit)
+        # the sure rays' hits come with their triangles (`raycast.sure_hits`); embree's answers for
+        # the others take the same arithmetic in numpy. The hit faces' normals alone: each row is
+        # the same bits as in the whole mesh's (`Trimesh.face_normals`), every step being row by row
+        query, sure, loc, has = raycast.sure_hits(self.scaled, self.faces, self.boxes, scaled, unit,
+                                                  (self.vertices, origins, directions))
         if not sure.all():
             ask = np.nonzero(~sure)[0]
             query[ask] = self.scene.run(np.ascontiguousarray(scaled[ask]), np.ascontiguousarray(unit[ask]))
-        rays = np.nonzero(query != -1)[0]
-        faces = self.faces[query[rays]]
-        # the hit faces' normals alone: each row is the same bits as in the whole mesh's
-        # (`Trimesh.face_normals`), every step being row by row
-        normals = meshops.face_normals(self.vertices, faces)
-        loc, valid = meshops.planes_lines(self.vertices[faces[:, 0]], normals, origins[rays], directions[rays])
-        return loc, rays[valid]
+            rows = ask[query[ask] != -1]
+            faces = self.faces[query[rows]]
+            normals = meshops.face_normals(self.vertices, faces)
+            at, valid = meshops.planes_lines(self.vertices[faces[:, 0]], normals, origins[rows], directions[rows])
+            loc[rows[valid]], has[rows[valid]] = at, True
+        rays = np.nonzero(has)[0]
+        return loc[rays], rays
 
     def trimesh(self):
         """This mesh as a `trimesh.Trimesh` (imported here: only the rare float64 retry of

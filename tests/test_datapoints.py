@@ -28,6 +28,30 @@ def test_spread_keeps_additional_points_apart_and_covers_the_rest():
             assert 0 < keep.sum() < n  # the cluster was thinned, the spread points kept
 
 
+def test_spread_thins_as_the_kd_tree_greedy_does():
+    """`datapoints.spread` compares every pair of a frame's few dozen points itself; its answer is
+    the kd-tree's greedy pass (``sorted(cKDTree(points).query_pairs(radius))``) on seeded points,
+    crowds of nearly equal points (a pole) and sets past `SPREAD_DIRECT`."""
+    from pipeline.spatial import cKDTree
+
+    def tree_greedy(points, contact, radius):
+        keep = np.linalg.norm(points - contact, axis=1) > radius
+        for i, j in sorted(cKDTree(points).query_pairs(radius)):
+            if keep[i]:
+                keep[j] = False
+        return keep
+
+    rng = np.random.default_rng(11)
+    for trial in range(300):
+        n = int(rng.integers(1, P.SPREAD_DIRECT + 40))
+        pts = rng.random((n, 3)) * rng.choice([1e-3, 1.0, 1e3])
+        if trial % 3 == 0:
+            pts[: n // 2] = pts[0] + rng.random((n // 2, 3)) * 1e-9
+        radius = float(rng.random() * pts.std() * 0.5)
+        contact = pts[rng.integers(n)] + 1e-3
+        np.testing.assert_array_equal(P.spread(pts, contact, radius), tree_greedy(pts, contact, radius))
+
+
 @pytest.mark.parametrize("u_low, settled, took", [
     (2.14, 0.005, "deepest"),  # middle x = 0.02: 0.002 inside, 1/20 of the patch's depth 0.04
     (2.3, 0.005, "middle"),  # middle x = 0.1: 0.01 inside, 1/4 of it: not stalled

@@ -49,6 +49,9 @@ def test_merge_normals_scale_match_trimesh(scale):
     _same(merged, np.asarray(mesh.faces))
     _same(meshops.face_normals(vertices, merged), np.asarray(mesh.face_normals))
     assert meshops.scale(vertices) == mesh.scale
+    from acra.bvh import bounds
+
+    assert meshops.scale(vertices, bounds(vertices)) == mesh.scale  # the box found in one compiled pass
 
 
 def test_unitize_and_planes_lines_match_trimesh():

@@ -80,6 +80,31 @@ def test_hit_faces_normals_are_the_whole_meshs_rows():
         assert meshops.face_normals(v, f[rows]).tobytes() == whole[rows].tobytes()
 
 
+@pytest.mark.parametrize("scale", [1.0, 1e-3, 250.0])
+def test_sure_hits_are_face_normals_then_planes_lines(scale):
+    """`raycast.sure_hits`: the triangles and sureness of `sure_first_hits`, and each sure ray's
+    hit in the same pass, the same bits as `meshops.face_normals` of its face and
+    `meshops.planes_lines` (trimesh's arithmetic); no other row holds a hit."""
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        v, f, origin, factor, scaled, _ = _embree_view(*_grids(rng, scale))
+        o, d, _ = _rays(rng, v, f)
+        d[:40] = np.cross(d[:40], rng.standard_normal((40, 3)))  # some rays near their plane
+        d = meshops.unitize(d)[0]
+        so, sd = ((o - origin) * factor).astype(np.float32), d.astype(np.float32)
+        boxes = raycast.group_boxes(scaled, f)
+        tri, sure, loc, has = raycast.sure_hits(scaled, f, boxes, so, sd, (v, o, d))
+        want_tri, want_sure = raycast.sure_first_hits(scaled, f, boxes, so, sd)
+        np.testing.assert_array_equal(tri, want_tri)
+        np.testing.assert_array_equal(sure, want_sure)
+        rows = np.nonzero(sure & (tri >= 0))[0]
+        faces = f[tri[rows]]
+        want, valid = meshops.planes_lines(v[faces[:, 0]], meshops.face_normals(v, faces), o[rows], d[rows])
+        assert len(rows) > len(o) // 4
+        assert has[rows].tolist() == valid.tolist() and not has[np.setdiff1d(np.arange(len(o)), rows)].any()
+        assert loc[rows[valid]].tobytes() == want.tobytes()
+
+
 def test_generic_rays_build_no_embree_scene():
     """Casting rays off the mesh's edges answers without an embree scene; a ray through a shared
     vertex builds it (whether embree's float32 lets that ray through is embree's answer, held to

@@ -219,6 +219,9 @@ def test_region_deepest_picks_each_patchs_deepest_sample_in_midpoint_order():
     np.testing.assert_array_equal(uv_deep, uv[[2, 4, 0]])
     np.testing.assert_array_equal(depth_deep, [0.2, 0.07, 0.3])
     assert R.region_deepest(hs, np.zeros((0, 2)), np.zeros(0), 0)[0].shape == (0, 2)
+    groups = R.patch_groups(hs, uv, 0, patches=False)[2]  # the caller's groups: the same samples
+    for got, want in zip(R.region_deepest(hs, uv, depth, 0, groups), (uv_deep, depth_deep)):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_rotational_response_turns_the_detail_at_additional_points_too():
