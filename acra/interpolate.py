@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from . import levelkernels
 from .basis import basis, locate
@@ -310,15 +311,36 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
         return np.zeros((pw.cv_rows.size, 3))
     if max_bytes is not None and dense_bytes(act.size, pw.cv_rows.size) > max_bytes:
         raise SystemTooLarge(int(act.size), int(pw.cv_rows.size), dense_bytes(act.size, pw.cv_rows.size), int(max_bytes))
-    W = pw.dense()[act]
-    lam, vec = np.linalg.eigh(W @ W.T)
+    # every point active: the rows as they are, without copies (the same C-ordered arrays a
+    # selection would give, so BLAS sums the same products in the same order)
+    every = act.size == pw.npoints
+    W = pw.dense() if every else pw.dense()[act]
+    dqa = dq if every and dq.flags.c_contiguous else dq[act]
+    lam, vec = _eigh(W @ W.T)
     keep = lam > rcond * lam[-1]
     if amplify is not None:
-        along = vec.T @ dq[act]
-        moves = np.linalg.norm(along, axis=1) / np.sqrt(np.maximum(lam, _TINY))
-        keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.linalg.norm(dq[act], axis=1).max()))
-    coef = vec[:, keep].T @ dq[act] / lam[keep][:, None]
+        along = vec.T @ dqa
+        # `np.linalg.norm(x, axis=1)`'s own sum, without its wrapper
+        moves = np.sqrt(np.add.reduce(along * along, axis=1)) / np.sqrt(np.maximum(lam, _TINY))
+        keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.sqrt(np.add.reduce(dqa * dqa, axis=1)).max()))
+    if keep.all() and vec.flags.c_contiguous:
+        coef = vec.T @ dqa / lam[:, None]
+        return W.T @ (vec @ coef)
+    coef = vec[:, keep].T @ dqa / lam[keep][:, None]
     return W.T @ (vec[:, keep] @ coef)
+
+
+def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`np.linalg.eigh(g)` of a symmetric ``g (K, K) float64``: eigenvalues ``(K,)`` ascending and
+    eigenvectors ``(K, K)``, from the same LAPACK driver (``syevd`` on the lower triangle) called
+    without `np.linalg.eigh`'s checks and conversions, which cost about as much as a response's
+    small solves; an answer with a NaN (a NaN in ``g``, or no convergence) is `np.linalg.eigh`'s,
+    which raises `np.linalg.LinAlgError` where LAPACK reports no convergence."""
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
+        lam, vec = _umath_linalg.eigh_lo(g, signature="d->dd")
+    if np.isnan(lam).any():
+        return np.linalg.eigh(g)
+    return lam, vec
 
 
 def solve(pw: PointWeights, dq: np.ndarray, method: str = "direct", iterations: int = 5, tol: float = 0.0,
