@@ -110,10 +110,17 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: n
 
 def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None = None) -> np.ndarray:
     """`point_weights(hs, level, u, v, pole).active` alone: ``(K,) bool``, whether each point
-    weighs some movable CV of ``level``, without gathering the CVs."""
+    weighs some movable CV of ``level``, without gathering the CVs: a point off a pole by its
+    compiled entries, one on a pole by whether its ring is wholly movable (`_pole_entries`)."""
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     v = np.atleast_1d(np.asarray(v, dtype=np.float64))
-    return np.bincount(np.concatenate(_entries(hs, level, u, v, pole)[0]), minlength=u.size) > 0
+    pole = pole_of(hs, u, v) if pole is None else pole
+    active = np.bincount(_kernel_entries(hs, level, u, v, pole)[0], minlength=u.size) > 0
+    if pole.size and pole.max() >= 0:
+        for i, (axis, end) in enumerate(closed_ends(hs)):
+            if level == 0 or pole_ring_rows(hs, level, axis, end)[1].all():  # level 0: every CV movable  # level 0: every CV movable
+                active |= pole == i
+    return active
 
 
 def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
@@ -122,13 +129,22 @@ def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
     off a pole are compiled (`acra.levelkernels.point_entries`); `_entries_numpy` is the array
     form."""
     pole = pole_of(hs, u, v) if pole is None else pole
-    lev = hs.level(level) if level else None
-    none = np.zeros(0, np.int64)
-    pt, rows, w = levelkernels.point_entries(
-        _writeable(u), _writeable(v), pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level),
-        hs.v.periodic, hs.u.patches(level), hs.v.patches(level), none if lev is None else lev.cv_keys,
-        np.zeros(0, bool) if lev is None else lev.movable, none if lev is None else lev.patches)
+    pt, rows, w = _kernel_entries(hs, level, u, v, pole)
     return _pole_entries(hs, level, pole, [pt], [rows], [w])
+
+
+_NONE = np.zeros(0, np.int64)  # a level-0 call's absent level arrays (writeable: the kernel's one signature)
+
+
+def _kernel_entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
+                    pole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The entries of the points off a pole (`acra.levelkernels.point_entries`): points ``(e,)
+    int64``, CV rows ``(e,) int64`` and weights ``(e,) float64``."""
+    lev = hs.level(level) if level else None
+    return levelkernels.point_entries(
+        _writeable(u), _writeable(v), pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level),
+        hs.v.periodic, hs.u.patches(level), hs.v.patches(level), _NONE if lev is None else lev.cv_keys,
+        np.zeros(0, bool) if lev is None else lev.movable, _NONE if lev is None else lev.patches)
 
 
 def _writeable(x: np.ndarray) -> np.ndarray:
@@ -154,8 +170,8 @@ def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: lis
             continue
         # each point on the pole weighs every ring CV, rows and weights repeated point by point
         pts.append(np.repeat(on, ring.size))
-        rws.append(np.broadcast_to(rrows.reshape(-1), (on.size, ring.size)).reshape(-1))
-        ws.append(np.broadcast_to(rw / ring.shape[0], (on.size, *ring.shape)).reshape(-1))
+        rws.append(np.tile(rrows.reshape(-1), on.size))
+        ws.append(np.tile(rw / ring.shape[0], on.size * ring.shape[0]))
     return pts, rws, ws
 
 

@@ -243,3 +243,20 @@ def test_min_norm_solve_with_every_point_active_equals_a_selection():
     keep = lam > 1e-4 * lam[-1]
     ref = W.T @ (vec[:, keep] @ (vec[:, keep].T @ dq / lam[keep][:, None]))
     assert min_norm_solve(pw, dq).tobytes() == ref.tobytes()
+
+
+def test_point_active_agrees_with_the_weights_on_and_off_the_poles():
+    """`point_active` tells a point on a pole by whether its ring is wholly movable, without
+    gathering the ring: the same answer as the weights' ``active`` on every level."""
+    from acra.interpolate import point_active
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    P = float(hs.v.patches0)
+    hs = H.refine(hs, 2, H.pole_patches(hs, 2, 1, 1))  # level 2's north ring movable, level 1's not
+    hs = H.refine(hs, 1, np.array([[2, 3], [3, 3]]))
+    rng = np.random.default_rng(5)
+    u = np.concatenate([rng.uniform(0, 8, 12), [0.3, 4.1, 2.0, 6.5]])
+    v = np.concatenate([rng.uniform(0, P, 12), [0.0, P, P, 0.0]])
+    for level in range(3):
+        want = point_weights(hs, level, u, v).active
+        np.testing.assert_array_equal(point_active(hs, level, u, v), want)
+    assert point_active(hs, 2, u, v)[[13, 14]].all() and not point_active(hs, 1, u, v)[12:].any()
