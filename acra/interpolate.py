@@ -118,7 +118,7 @@ def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np
     active = np.bincount(_kernel_entries(hs, level, u, v, pole)[0], minlength=u.size) > 0
     if pole.size and pole.max() >= 0:
         for i, (axis, end) in enumerate(closed_ends(hs)):
-            if level == 0 or pole_ring_rows(hs, level, axis, end)[1].all():  # level 0: every CV movable  # level 0: every CV movable
+            if level == 0 or pole_ring_rows(hs, level, axis, end)[1].all():  # level 0: every CV movable
                 active |= pole == i
     return active
 
