@@ -655,6 +655,7 @@ def details(hs: HSpline, upto: int | None = None,
 # `details`' ``lazy``; a `Details` without it has every frame
 _PENDING = "_pending"
 _NO_ROWS = np.zeros(0, np.int64)  # `levelkernels.stale_rows`' pending rows of a level with none
+_NO_FRAMES = np.zeros((0, 3, 3))  # `levelkernels.restate_rows`' new frames of a level whose frames stay
 
 
 # key in a `Level`'s ``__dict__``: ``(old offsets (c, 3) float64, rows (m,) int64)``, set by a move
@@ -693,18 +694,17 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         rows = levelkernels.differing_rows(_bits(was.offsets), _bits(lev.offsets), np.ascontiguousarray(hint[1], np.int64))
     else:
         rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
-    vec = vectors[level - 1].copy()
-    vec[rows] = np.einsum("mij,mj->mi", frames[level - 1][rows], lev.offsets[rows])
-    vectors[level - 1] = vec
     # the level-0 patches holding a patch a changed CV supports; then level by level the frames
-    # on them (compiled bookkeeping, `levelkernels.mark_changed` and `stale_rows`)
+    # on them (compiled bookkeeping, `levelkernels.restate_rows` and `stale_rows`)
     stale = np.zeros((new.u.patches0, new.v.patches0), bool)
     ends = closed_ends(new)
     ends_arr = _ends_array(ends)
     up, vp = bool(new.u.periodic), bool(new.v.periodic)
     k = level
-    marked = levelkernels.mark_changed(_bits(vec), _bits(old_det.vectors[level - 1]), rows, lev.cv_keys,
-                                       int(new.v.cvs(k)), k, int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
+    _, vectors[k - 1], changed = levelkernels.restate_rows(
+        frames[k - 1], _NO_FRAMES, rows, lev.offsets, vectors[k - 1], lev.cv_keys, int(new.v.cvs(k)), k,
+        int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale)
+    marked = changed > 0
     while True:
         k += 1
         if k >= new.depth or not (marked or any(m >= k for m in pending)):
@@ -717,14 +717,12 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         if not pos.size:
             continue
         rows = every[pos]
-        fr = frames[k - 1].copy()
-        fr[rows] = _frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])),
-                              ring[pos], gu[pos], gv[pos])
-        vec = vectors[k - 1].copy()
-        vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
-        marked |= levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
-                                            int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
-        vectors[k - 1], frames[k - 1] = vec, fr
+        fresh = np.ascontiguousarray(_frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])),
+                                                ring[pos], gu[pos], gv[pos]))
+        frames[k - 1], vectors[k - 1], changed = levelkernels.restate_rows(
+            frames[k - 1], fresh, rows, lev.offsets, vectors[k - 1], lev.cv_keys, int(new.v.cvs(k)), k,
+            int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale)
+        marked |= changed > 0
     return Details(tuple(vectors), tuple(frames))
 
 

@@ -33,7 +33,7 @@ from numba import njit
 from acra.kernels import mark_cells
 
 __all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "group_sums", "movable_places", "differing_rows",
-           "mark_changed", "stale_rows"]
+           "mark_changed", "restate_rows", "stale_rows"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -412,6 +412,32 @@ def mark_changed(new, old, rows, cv_keys, v_cvs, k, u_patches, v_patches, u_peri
         # level and spread as int64 values, not literals: the one specialisation Python's calls use
         mark_cells(stale, ju, jv, k, np.int64(0), np.int64(3), u_patches, v_patches, u_periodic, v_periodic)
     return changed.shape[0]
+
+
+@njit(cache=True, nogil=True)
+def restate_rows(frames, new_frames, rows, offsets, vectors, cv_keys, v_cvs, k, u_patches, v_patches, u_periodic,
+                 v_periodic, stale):
+    """A level's frames and detail vectors after a move changed its offsets, or the surface under
+    it its frames, on ``rows (m,) int64`` (`acra.hspline.moved_details`): a copy of ``frames (c,
+    3, 3)`` with those rows' set to ``new_frames (m, 3, 3)`` (none given, ``(0, 3, 3)``:
+    ``frames`` itself), a copy of ``vectors (c, 3)`` with those rows' vectors ``frame @ offset``,
+    each summed from 0.0 as ``(p0 + p2) + p1``, as ``np.einsum("mij,mj->mi")`` sums three
+    products, and the supports of the rows whose vectors changed bits marked in ``stale``
+    (`mark_changed`). Returns ``frames, vectors, changed``."""
+    if new_frames.shape[0]:
+        fr = frames.copy()
+        for n in range(rows.shape[0]):
+            fr[rows[n]] = new_frames[n]
+    else:
+        fr = frames
+    vec = vectors.copy()
+    for r in rows:
+        o0, o1, o2 = offsets[r, 0], offsets[r, 1], offsets[r, 2]
+        for i in range(3):
+            vec[r, i] = 0.0 + ((fr[r, i, 0] * o0 + fr[r, i, 2] * o2) + fr[r, i, 1] * o1)
+    changed = mark_changed(vec.view(np.int64), vectors.view(np.int64), rows, cv_keys, v_cvs, k, u_patches, v_patches,
+                           u_periodic, v_periodic, stale)
+    return fr, vec, changed
 
 
 @njit(cache=True, nogil=True)
