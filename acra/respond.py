@@ -451,7 +451,7 @@ def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tu
     refinement and its details pass depend on ``hs``, ``det`` and ``keys`` alone, so they are
     kept (`_KEPT`) for the next response from the same surface to the same patches (a level's
     patches are a set: keys listed twice, by two points in one patch, refine the same)."""
-    key = ("refined", id(hs), id(det), lazy, tuple((level, np.unique(k).tobytes()) for level, k in keys))
+    key = ("refined", id(hs), id(det), lazy, tuple((level, _patch_set(hs, level, k)) for level, k in keys))
     hit = _KEPT.get(key)
     if hit is not None and hit[0] is hs and hit[1] is det:
         return hit[2], hit[3]
@@ -459,6 +459,15 @@ def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tu
     new_det = _redetail(hs, det, new, (), lazy=lazy)[1] if new is not hs else det
     _keep(key, (hs, det, new, new_det))
     return new, new_det
+
+
+def _patch_set(hs: H.HSpline, level: int, keys: np.ndarray) -> bytes:
+    """The level's patches ``keys (m,) int64`` (`hierarchy.refinement_keys`, in range, repeats
+    and any order) as a set: one bit per patch of the level's grid, packed (a few kilobytes for
+    the head's level 4; marking is linear where `np.unique` sorts)."""
+    mark = np.zeros(hs.u.patches(level) * hs.v.patches(level), np.uint8)
+    mark[keys] = 1
+    return np.packbits(mark).tobytes()
 
 
 _RING_W = np.array([1.0, 4.0, 1.0])  # a ring column's three rows in its pole sum (`_ring_sums`)

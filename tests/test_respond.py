@@ -496,3 +496,13 @@ def test_points_merged_per_patch_are_numpys_means_bit_for_bit(periodic):
         got_mids, got_patches, got_inv = R.patch_groups(hs, uv[extra], level)
         assert got_mids.tobytes() == mids.tobytes() and np.array_equal(got_inv, inv)
         np.testing.assert_array_equal(got_patches[:, 0] * hs.v.patches(level) + got_patches[:, 1], uniq)
+
+
+def test_a_refinements_patches_are_kept_by_their_set():
+    """`respond._refined` keys a kept refinement by each level's patches as a set
+    (`_patch_set`): repeats and order do not matter, and another set is another key."""
+    hs = flat_sheet(n=10, depth=4)
+    keys = np.array([5, 17, 17, 3, 40], np.int64)
+    assert R._patch_set(hs, 2, keys) == R._patch_set(hs, 2, np.array([40, 3, 5, 17], np.int64))
+    assert R._patch_set(hs, 2, keys) != R._patch_set(hs, 2, np.array([40, 3, 5], np.int64))
+    assert R._patch_set(hs, 2, keys) != R._patch_set(hs, 2, np.array([40, 3, 5, 17, 41], np.int64))
