@@ -48,6 +48,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     pole_of,
     pole_patches,
     pole_ring,
+    pole_ring_movable,
     pole_ring_rows,
     refine,
     refine_blocks,

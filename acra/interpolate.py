@@ -22,7 +22,7 @@ from numpy.linalg import _umath_linalg
 
 from . import levelkernels
 from .basis import basis, locate
-from .hierarchy import pole_ring_rows
+from .hierarchy import pole_ring_movable, pole_ring_rows
 from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
 __all__ = [
@@ -118,7 +118,7 @@ def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np
     active = np.bincount(_kernel_entries(hs, level, u, v, pole)[0], minlength=u.size) > 0
     if pole.size and pole.max() >= 0:
         for i, (axis, end) in enumerate(closed_ends(hs)):
-            if level == 0 or pole_ring_rows(hs, level, axis, end)[1].all():  # level 0: every CV movable
+            if level == 0 or pole_ring_movable(hs, level, axis, end):  # level 0: every CV movable
                 active |= pole == i
     return active
 

@@ -26,7 +26,7 @@ import numpy as np
 from . import framekernels, levelkernels
 from . import hspline as H
 from .basis import locate
-from .hierarchy import pole_ring_rows, refine_keys, refinement_keys
+from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -477,11 +477,11 @@ def _open_ring(hs: H.HSpline, det: H.Details | None, k: int, axis: int, end: int
                refine: bool) -> tuple[H.HSpline, H.Details | None, bool]:
     """Make level ``k``'s whole pole ring movable under ``refine`` (its three patch rows all
     around, `H.pole_patches`); returns the surface, its details and whether the ring is movable."""
-    ok = _ring_rows(hs, k, axis, end)[1].all()
+    ok = pole_ring_movable(hs, k, axis, end)
     if not ok and refine:
         hs, det = _redetail(hs, det, H.refine(hs, k, H.pole_patches(hs, k, axis, end)), ())
-        ok = _ring_rows(hs, k, axis, end)[1].all()
-    return hs, det, bool(ok)
+        ok = pole_ring_movable(hs, k, axis, end)
+    return hs, det, ok
 
 
 def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, int, int]],
@@ -558,18 +558,18 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     point, w, ring_rows = [pw.point], [pw.w], []
     targets, n = [want], pw.npoints
     for k, axis, end in rings:
-        if k != pw.level or not _ring_rows(hs, k, axis, end)[1].all():
+        if k != pw.level or not pole_ring_movable(hs, k, axis, end):
             continue
         rows, ok, reached = _ring_reach(hs, pw, k, axis, end)  # a ring the move does not reach needs no sums
         if not reached.any():
             continue
         sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
-        own, every, w_own, w_every = _ring_pattern(N)
+        own, every, w_own, w_every = _ring_pattern(N)[:4]
         point += [n + own, n + every]
         ring_rows.append(rows.reshape(-1))
         w += [w_own, w_every]
-        targets.append(-(sums - sums.mean(axis=0)) / 6.0)
+        targets.append(-(sums - np.add.reduce(sums, axis=0) / N) / 6.0)  # `sums.mean(axis=0)`'s sum and division
         n += N
     if n == pw.npoints:
         return pw, want
@@ -579,25 +579,27 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
     for r in ring_rows:
         c = np.searchsorted(cv_rows, r)
-        col += [c, np.broadcast_to(c, (r.size // 3, c.size)).reshape(-1)]  # every column's CVs, once per row
+        col += [c, c[_ring_pattern(r.size // 3)[4]]]  # every column's CVs, once per row
     active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
     return PointWeights(pw.level, np.concatenate(point), np.concatenate(col).astype(np.int64), np.concatenate(w),
                         cv_rows.astype(np.int64), n, active), np.concatenate(targets)
 
 
 @functools.lru_cache(maxsize=32)
-def _ring_pattern(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _ring_pattern(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_ring_constraints`' entries of a ring of ``N`` columns, which depend on ``N`` alone: row
     ``j`` weighs +w_r / 6 on column ``j``'s three CVs and -w_r / (6 N) on every column's. Returns
     the rows of the own entries ``(3 N,) int64`` and of the every-column ones ``(3 N², ) int64``
-    (from row 0) and their weights ``(3 N,)``, ``(3 N²,) float64``; read-only."""
+    (from row 0), their weights ``(3 N,)``, ``(3 N²,) float64``, and which of the ring's ``3 N``
+    CVs each every-column entry weighs, ``(3 N²,) int64``; read-only."""
     own = np.repeat(np.arange(N), 3)
     every = np.repeat(np.arange(N), 3 * N)
     w_own = np.tile(_RING_W / 6.0, N)
     w_every = -np.tile(_RING_W / (6.0 * N), N * N)
-    for a in (own, every, w_own, w_every):
+    cv_every = np.tile(np.arange(3 * N), N)
+    for a in (own, every, w_own, w_every, cv_every):
         a.flags.writeable = False
-    return own, every, w_own, w_every
+    return own, every, w_own, w_every, cv_every
 
 
 def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

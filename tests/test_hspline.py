@@ -626,3 +626,18 @@ def test_restating_a_levels_rows_is_the_array_form():
         assert n == n_ref and np.array_equal(stale, ref)
         assert vec[rows[0]].tobytes() == np.zeros(3).tobytes()
     assert 0 < n < rows.size  # the test moved some rows' vectors and not others
+
+
+def test_a_rings_movability_is_its_rows_all_movable_kept_per_level():
+    """`pole_ring_movable` is `pole_ring_rows`' ``ok`` all true, found once per `Level` object
+    (and so per refinement: a refined level is another object)."""
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    for axis, end in H.closed_ends(hs):
+        assert not H.pole_ring_movable(hs, 2, axis, end)
+    ref = H.refine(hs, 2, H.pole_patches(hs, 2, 1, 1))
+    for k in (1, 2):
+        for axis, end in H.closed_ends(ref):
+            want = bool(H.pole_ring_rows(ref, k, axis, end)[1].all())
+            assert H.pole_ring_movable(ref, k, axis, end) is want
+    assert H.pole_ring_movable(ref, 2, 1, 1) and not H.pole_ring_movable(ref, 2, 1, 0)
+    assert not H.pole_ring_movable(hs, 2, 1, 1)  # the unrefined level keeps its own answer
