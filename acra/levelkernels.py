@@ -11,8 +11,9 @@ level is the same as the array form's, key for key (`tests/test_hspline.py` hold
 The patches a response refines on a level, the 7×7 block about each data point's patch and
 the parents of the finer level's, are listed by `block_keys`.
 Following a response's move down the levels (`acra.hspline.moved_details`), which rows of a
-level changed bits (`differing_rows`), the level-0 patches the changed detail vectors' CVs
-support (`mark_changed`) and which finer CVs' frames lie on those patches or rings
+level changed bits (`differing_rows`), each level's frames and vectors restated on the rows
+that moved or whose frames turned, with the level-0 patches the changed vectors' CVs support
+(`restate_rows`, `mark_changed`), and which finer CVs' frames lie on those patches or rings
 (`stale_rows`) are each one pass in place of a dozen numpy calls on a few hundred rows.
 What the frames of a level need of its movable CVs (`acra.hspline._movable_places`: their
 indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
