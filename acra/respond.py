@@ -533,9 +533,8 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
-            ok = _ring_rows(hs, k, axis, end)[1]
-            if ok.all() or not ok.any():  # wholly movable already, or no CV of it the solve could move
-                continue
+            if pole_ring_movable(hs, k, axis, end) or not _ring_rows(hs, k, axis, end)[1].any():
+                continue  # wholly movable already, or no CV of it the solve could move
             _, ok, reached = _ring_reach(hs, pw, k, axis, end)
             if reached[ok].any():
                 hs, det, _ = _open_ring(hs, det, k, axis, end, True)
