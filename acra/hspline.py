@@ -696,16 +696,16 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     else:
         rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
     # the level-0 patches holding a patch a changed CV supports; then level by level the frames
-    # on them (compiled bookkeeping, `levelkernels.restate_rows` and `stale_rows`)
+    # on them (compiled bookkeeping, `levelkernels.restate_rows`, `mark_changed` and `stale_rows`)
     stale = np.zeros((new.u.patches0, new.v.patches0), bool)
     ends = closed_ends(new)
     ends_arr = _ends_array(ends)
     up, vp = bool(new.u.periodic), bool(new.v.periodic)
     k = level
-    _, vectors[k - 1], changed = levelkernels.restate_rows(
-        frames[k - 1], _NO_FRAMES, rows, lev.offsets, vectors[k - 1], lev.cv_keys, int(new.v.cvs(k)), k,
-        int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale)
-    marked = changed > 0
+    _, vec = levelkernels.restate_rows(frames[k - 1], _NO_FRAMES, rows, lev.offsets, vectors[k - 1])
+    marked = levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
+                                       int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
+    vectors[k - 1] = vec
     while True:
         k += 1
         if k >= new.depth or not (marked or any(m >= k for m in pending)):
@@ -720,10 +720,10 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         rows = every[pos]
         fresh = np.ascontiguousarray(_frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])),
                                                 ring[pos], gu[pos], gv[pos]))
-        frames[k - 1], vectors[k - 1], changed = levelkernels.restate_rows(
-            frames[k - 1], fresh, rows, lev.offsets, vectors[k - 1], lev.cv_keys, int(new.v.cvs(k)), k,
-            int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale)
-        marked |= changed > 0
+        fr, vec = levelkernels.restate_rows(frames[k - 1], fresh, rows, lev.offsets, vectors[k - 1])
+        marked |= levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
+                                            int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
+        vectors[k - 1], frames[k - 1] = vec, fr
     return Details(tuple(vectors), tuple(frames))
 
 

@@ -13,7 +13,7 @@ the parents of the finer level's, are listed by `block_keys`.
 Following a response's move down the levels (`acra.hspline.moved_details`), which rows of a
 level changed bits (`differing_rows`), each level's frames and vectors restated on the rows
 that moved or whose frames turned, with the level-0 patches the changed vectors' CVs support
-(`restate_rows`, `mark_changed`), and which finer CVs' frames lie on those patches or rings
+(`restate_rows`; `mark_changed`), and which finer CVs' frames lie on those patches or rings
 (`stale_rows`) are each one pass in place of a dozen numpy calls on a few hundred rows.
 What the frames of a level need of its movable CVs (`acra.hspline._movable_places`: their
 indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
@@ -108,21 +108,19 @@ def unique_inverse(x):
 
 
 @njit(cache=True, nogil=True)
-def group_sums(x, values):
-    """`unique_inverse` of ``x (n,) int64`` and, per distinct value, the column sums of the rows of
-    ``values (n, c) float64`` that carry it, ``(m, c) float64``, and how many rows do, ``(m,)
+def group_sums(inverse, m, values):
+    """Per group ``0..m-1`` of ``inverse (n,) int64`` (`unique_inverse`'s), the column sums of the
+    rows of ``values (n, c) float64`` in it, ``(m, c) float64``, and how many rows it has, ``(m,)
     int64``: each sum from 0.0 in row order, as ``np.bincount(inverse, values[:, j], m)`` adds its
     weights, so the same bits (`acra.respond.patch_groups`' means per patch)."""
-    uniq, inverse = unique_inverse(x)
-    m = uniq.shape[0]
     sums = np.zeros((m, values.shape[1]))
     counts = np.zeros(m, np.int64)
-    for i in range(x.shape[0]):
+    for i in range(inverse.shape[0]):
         g = inverse[i]
         counts[g] += 1
         for j in range(values.shape[1]):
             sums[g, j] += values[i, j]
-    return uniq, inverse, sums, counts
+    return sums, counts
 
 
 @njit(cache=True, nogil=True)
@@ -416,29 +414,26 @@ def mark_changed(new, old, rows, cv_keys, v_cvs, k, u_patches, v_patches, u_peri
 
 
 @njit(cache=True, nogil=True)
-def restate_rows(frames, new_frames, rows, offsets, vectors, cv_keys, v_cvs, k, u_patches, v_patches, u_periodic,
-                 v_periodic, stale):
+def restate_rows(frames, new_frames, rows, offsets, vectors):
     """A level's frames and detail vectors after a move changed its offsets, or the surface under
     it its frames, on ``rows (m,) int64`` (`acra.hspline.moved_details`): a copy of ``frames (c,
     3, 3)`` with those rows' set to ``new_frames (m, 3, 3)`` (none given, ``(0, 3, 3)``:
-    ``frames`` itself), a copy of ``vectors (c, 3)`` with those rows' vectors ``frame @ offset``,
-    each summed from 0.0 as ``(p0 + p2) + p1``, as ``np.einsum("mij,mj->mi")`` sums three
-    products, and the supports of the rows whose vectors changed bits marked in ``stale``
-    (`mark_changed`). Returns ``frames, vectors, changed``."""
-    if new_frames.shape[0]:
-        fr = frames.copy()
-        for n in range(rows.shape[0]):
-            fr[rows[n]] = new_frames[n]
-    else:
-        fr = frames
+    ``frames`` itself), and a copy of ``vectors (c, 3)`` with those rows' vectors ``frame @
+    offset``, each summed from 0.0 as ``(p0 + p2) + p1``, as ``np.einsum("mij,mj->mi")`` sums
+    three products. Returns ``frames, vectors``. (It calls no other kernel: a compiled call
+    compiles its callee again into the caller, seconds on a fresh install.)"""
+    fr = frames.copy() if new_frames.shape[0] else frames
+    for n in range(new_frames.shape[0]):
+        r = rows[n]
+        for i in range(3):
+            for j in range(3):
+                fr[r, i, j] = new_frames[n, i, j]
     vec = vectors.copy()
     for r in rows:
         o0, o1, o2 = offsets[r, 0], offsets[r, 1], offsets[r, 2]
         for i in range(3):
             vec[r, i] = 0.0 + ((fr[r, i, 0] * o0 + fr[r, i, 2] * o2) + fr[r, i, 1] * o1)
-    changed = mark_changed(vec.view(np.int64), vectors.view(np.int64), rows, cv_keys, v_cvs, k, u_patches, v_patches,
-                           u_periodic, v_periodic, stale)
-    return fr, vec, changed
+    return fr, vec
 
 
 @njit(cache=True, nogil=True)

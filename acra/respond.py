@@ -278,7 +278,8 @@ def _grouped(hs: H.HSpline, uv: np.ndarray, level: int, carried: np.ndarray | No
         values[:, j] = c
     if extra:
         values[:, len(cols):] = carried
-    uniq, inv, sums, counts = levelkernels.group_sums(np.ascontiguousarray(patch_keys(hs, uv, level), np.int64), values)
+    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(patch_keys(hs, uv, level), np.int64))
+    sums, counts = levelkernels.group_sums(inv, uniq.size, values)
     mids = np.empty((uniq.size, 2))
     j = 0
     for col, d in ((0, hs.u), (1, hs.v)):
