@@ -423,10 +423,19 @@ def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, 
     if hit is not None and hit[0] is hs and hit[1] is det:
         return hit[2]
     tol = 1e-9 * hs.size()
-    rings = [(k, axis, end) for k in range(1, hs.depth) for axis, end in H.closed_ends(hs)
-             if _ring_sums(hs, det, k, axis, end)[3] <= tol]
+    spread = {(k, axis, end): _ring_sums(hs, det, k, axis, end)[3] for k in range(1, hs.depth)
+              for axis, end in H.closed_ends(hs)}
+    rings = [ring for ring, x in spread.items() if x <= tol]
     _keep(key, (hs, det, rings))
+    # each ring's spread with the vectors it was read from, for `_close_rings` (a level the
+    # response leaves alone keeps its vectors' array)
+    det.__dict__.setdefault(_SPREAD, {k: (det.vectors[k[0] - 1], x) for k, x in spread.items()})
     return rings
+
+
+# key in a `Details`' ``__dict__``: ``{(k, axis, end): (vectors of level k, spread)}``, each ring's
+# `_ring_sums` spread as `_closed_rings` found it on those details
+_SPREAD = "_ring_spread"
 
 
 # Answers that depend on a response's input surface and its details alone (the objects, which
@@ -486,7 +495,7 @@ def _open_ring(hs: H.HSpline, det: H.Details | None, k: int, axis: int, end: int
 
 
 def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, int, int]],
-                 refine: bool) -> tuple[H.HSpline, H.Details | None]:
+                 refine: bool, start: dict | None = None) -> tuple[H.HSpline, H.Details | None]:
     """Close again every fine level's pole ring in ``rings`` (`_closed_rings` before a response).
 
     The fine-level analogue of `_closed_ends`: a move of some ring columns, or a coarser move that
@@ -498,10 +507,15 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
     ``obey`` a column not wholly movable stays open. The deformational step already keeps the
     rings closed (`_ring_constraints`), so this only mops up the translational and rotational
     steps and frame turns. Levels are closed coarse to fine, as closing one turns the next's
-    frames.
+    frames. ``start``: the spreads `_closed_rings` found on the response's input details, with the
+    vectors they were read from; a ring whose level still has those vectors is not summed again.
     """
     tol = 1e-12 * hs.size()
+    start = start or {}
     for k, axis, end in rings:
+        known = start.get((k, axis, end))
+        if known is not None and known[0] is det.vectors[k - 1] and known[1] <= tol:
+            continue  # the level's vectors as the response found them: closed then, closed now
         if _ring_sums(hs, det, k, axis, end)[3] <= tol:
             continue
         hs, det, full = _open_ring(hs, det, k, axis, end, refine)
@@ -845,7 +859,7 @@ def respond(
         raise ControlError("acra:absorption", f"has {L} levels but the surface has {hs.depth}")
     if det is None and hs.depth > 1:
         det = H.details(hs)
-    rings = _closed_rings(hs, det)
+    rings, det0 = _closed_rings(hs, det), det
     # A collapsed edge of an open grid (a fan's apex) is closed after the finest absorbing
     # level's solve (`_close_rings`), not within it (`_ring_constraints`); coarser levels keep it
     # in the solve. Why: every data point on the apex weighs the same ring (eq. 4.10 weights
@@ -948,7 +962,7 @@ def respond(
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det, True), (level,))
         applied = applied + np.where(present, a, 0.0)
         hs, det = _settled(hs, det)
-    hs, det = _close_rings(hs, det, rings, controls.refine)
+    hs, det = _close_rings(hs, det, rings, controls.refine, det0.__dict__.get(_SPREAD) if det0 is not None else None)
     H.keep_details(hs, det)
     final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)
