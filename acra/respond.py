@@ -429,12 +429,12 @@ def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, 
     _keep(key, (hs, det, rings))
     # each ring's spread with the vectors it was read from, for `_close_rings` (a level the
     # response leaves alone keeps its vectors' array)
-    det.__dict__.setdefault(_SPREAD, {k: (det.vectors[k[0] - 1], x) for k, x in spread.items()})
+    det.__dict__.setdefault(_SPREAD, {k: (det.vectors[k[0] - 1], hs.level(k[0]).cv_keys, x) for k, x in spread.items()})
     return rings
 
 
-# key in a `Details`' ``__dict__``: ``{(k, axis, end): (vectors of level k, spread)}``, each ring's
-# `_ring_sums` spread as `_closed_rings` found it on those details
+# key in a `Details`' ``__dict__``: ``{(k, axis, end): (vectors and CV keys of level k, spread)}``,
+# each ring's `_ring_sums` spread as `_closed_rings` found it on those details and their surface
 _SPREAD = "_ring_spread"
 
 
@@ -514,7 +514,7 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
     start = start or {}
     for k, axis, end in rings:
         known = start.get((k, axis, end))
-        if known is not None and known[0] is det.vectors[k - 1] and known[1] <= tol:
+        if known is not None and known[0] is det.vectors[k - 1] and known[1] is hs.level(k).cv_keys and known[2] <= tol:
             continue  # the level's vectors as the response found them: closed then, closed now
         if _ring_sums(hs, det, k, axis, end)[3] <= tol:
             continue
