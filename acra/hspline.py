@@ -845,11 +845,7 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
     normal per ring turns the ring's detail together. For a pole with a tangent plane (a sphere)
     it is that plane's normal. ``None`` where the limit normals cancel (no side is favoured):
     the CVs then keep their own."""
-    other = hs.v if axis == 0 else hs.u
-    m = 2 * other.patches(k)
-    s = np.arange(m) * other.patches0 / m if other.periodic else np.linspace(0.0, other.patches0, m + 1)
-    at = np.full_like(s, end * (hs.u if axis == 0 else hs.v).patches0)
-    u, v = (at, s) if axis == 0 else (s, at)
+    u, v = _end_params(hs.u, hs.v, k, axis, end)
     # compiled (`framekernels.limit_normals`) unless a point needs nudging
     e2 = evaluate(hs, u, v, order=2, det=det, upto=k - 1)
     unit = np.empty((u.size, 3))
@@ -859,9 +855,21 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
                                   1e-9 * scale**2, int(hs.u.patches0), int(hs.v.patches0), bool(hs.u.periodic),
                                   bool(hs.v.periodic), unit):
         unit = surface_normals(hs, u, v, det=det, upto=k - 1)[1]
-    n = unit.mean(axis=0)
+    n = np.add.reduce(unit, axis=0) / unit.shape[0]  # `unit.mean(axis=0)`: its sum and division
     length = np.linalg.norm(n)
     return n / length if length > 1e-6 else None
+
+
+@functools.lru_cache(maxsize=64)
+def _end_params(u_dir: Direction, v_dir: Direction, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_end_normal`'s points along a closed end, ``u, v (m,) float64``: two per level-``k`` patch
+    along it (and the far end of an open direction). They depend on the grid alone, so they are
+    built once per grid and level; writeable, as the kernels take them (never written)."""
+    other = v_dir if axis == 0 else u_dir
+    m = 2 * other.patches(k)
+    s = np.arange(m) * other.patches0 / m if other.periodic else np.linspace(0.0, other.patches0, m + 1)
+    at = np.full_like(s, end * (u_dir if axis == 0 else v_dir).patches0)
+    return (at, s) if axis == 0 else (s, at)
 
 
 def _first_moved(old: HSpline, new: HSpline) -> int:
