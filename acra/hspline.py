@@ -604,7 +604,7 @@ def details(hs: HSpline, upto: int | None = None,
             if lev.cv_keys is was.cv_keys and lev.movable is was.movable:  # a move: only offsets differ
                 if k <= first and k not in old_pending:  # and the frames' surface is old's: old's frames, vectors of the new offsets
                     fr = old_det.frames[k - 1]
-                    vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
+                    vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, rows, _plain(lev.offsets), vec)[1]
                     vectors.append(vec)
                     frames.append(fr)
                     continue
@@ -640,7 +640,7 @@ def details(hs: HSpline, upto: int | None = None,
             fr[rows] = _frames_at(hs, k, ends, Details(tuple(vectors), tuple(frames)), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
-        vec[every] = np.einsum("mij,mj->mi", fr[every], lev.offsets[every])
+        vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, every, _plain(lev.offsets), vec)[1]
         if later is not None and later.size:
             vec[later] = 0.0  # the product of zero offsets, whatever the frame
             fr[later] = np.nan
@@ -702,7 +702,7 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     ends_arr = _ends_array(ends)
     up, vp = bool(new.u.periodic), bool(new.v.periodic)
     k = level
-    _, vec = levelkernels.restate_rows(frames[k - 1], _NO_FRAMES, rows, lev.offsets, vectors[k - 1])
+    _, vec = levelkernels.restate_rows(_plain(frames[k - 1]), _NO_FRAMES, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
     marked = levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                        int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
     vectors[k - 1] = vec
@@ -718,9 +718,8 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         if not pos.size:
             continue
         rows = every[pos]
-        fresh = np.ascontiguousarray(_frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])),
-                                                ring[pos], gu[pos], gv[pos]))
-        fr, vec = levelkernels.restate_rows(frames[k - 1], fresh, rows, lev.offsets, vectors[k - 1])
+        fresh = _plain(_frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])), ring[pos], gu[pos], gv[pos]))
+        fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
         marked |= levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                             int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
         vectors[k - 1], frames[k - 1] = vec, fr
