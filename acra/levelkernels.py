@@ -19,8 +19,7 @@ What the frames of a level need of its movable CVs (`acra.hspline._movable_place
 indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
 The CVs a level's data points weigh, and the patches its additional points fall in, are
 numbered by `unique_inverse` (`np.unique` with ``return_inverse``, a sort of a few hundred
-integers at most); `group_sums` adds up, per patch, what the additional points merged in it
-carry (their parameters and wanted moves). A data point's weights are its basis rows' products, each one multiplication as numpy's
+integers at most). A data point's weights are its basis rows' products, each one multiplication as numpy's
 broadcast product, so they too are the array form's bits (`tests/test_interpolate.py`).
 """
 
@@ -33,7 +32,7 @@ from numba import njit
 
 from acra.kernels import mark_cells
 
-__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "group_sums", "movable_places", "differing_rows",
+__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
            "mark_changed", "restate_rows", "stale_rows"]
 
 
@@ -105,22 +104,6 @@ def unique_inverse(x):
     for i in range(n):
         inverse[i] = _find(uniq, x[i])[0]
     return uniq, inverse
-
-
-@njit(cache=True, nogil=True)
-def group_sums(inverse, m, values):
-    """Per group ``0..m-1`` of ``inverse (n,) int64`` (`unique_inverse`'s), the column sums of the
-    rows of ``values (n, c) float64`` in it, ``(m, c) float64``, and how many rows it has, ``(m,)
-    int64``: each sum from 0.0 in row order, as ``np.bincount(inverse, values[:, j], m)`` adds its
-    weights, so the same bits (`acra.respond.patch_groups`' means per patch)."""
-    sums = np.zeros((m, values.shape[1]))
-    counts = np.zeros(m, np.int64)
-    for i in range(inverse.shape[0]):
-        g = inverse[i]
-        counts[g] += 1
-        for j in range(values.shape[1]):
-            sums[g, j] += values[i, j]
-    return sums, counts
 
 
 @njit(cache=True, nogil=True)

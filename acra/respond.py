@@ -251,45 +251,21 @@ def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     if uv_inside.shape[0] == 0:
         return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    mids, uniq, inv, _ = _grouped(hs, uv_inside, level, None)
+    keys = patch_keys(hs, uv_inside, level)
+    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(keys, np.int64))
+    mids = np.zeros((uniq.size, 2))
+    for col, d in ((0, hs.u), (1, hs.v)):
+        x = uv_inside[:, col]
+        if d.periodic:
+            ang = 2 * np.pi * x / d.patches0
+            c = np.bincount(inv, np.cos(ang), uniq.size)
+            s = np.bincount(inv, np.sin(ang), uniq.size)
+            mids[:, col] = np.mod(np.arctan2(s, c), 2 * np.pi) * d.patches0 / (2 * np.pi)
+        else:
+            mids[:, col] = np.bincount(inv, x, uniq.size) / np.bincount(inv, minlength=uniq.size)
     if not patches:
         return mids, None, inv
     return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
-
-
-def _grouped(hs: H.HSpline, uv: np.ndarray, level: int, carried: np.ndarray | None):
-    """`patch_groups` of ``uv (n, 2) float64`` (n >= 1) in one compiled pass of sums
-    (`levelkernels.group_sums`): the mean parameters of each level patch ``(g, 2) float64`` (a
-    periodic direction's as the angle of its summed unit vectors), the patches' keys ``(g,)
-    int64``, each point's group ``(n,) int64``, and the mean per group of ``carried (n, c)
-    float64`` (``None``: none), the same bits as `np.bincount`'s sums over the counts."""
-    n = uv.shape[0]
-    cols = []  # per direction: cos and sin of the angle (periodic) or the parameter
-    for col, d in ((0, hs.u), (1, hs.v)):
-        x = uv[:, col]
-        if d.periodic:
-            ang = 2 * np.pi * x / d.patches0
-            cols += [np.cos(ang), np.sin(ang)]
-        else:
-            cols.append(x)
-    extra = 0 if carried is None else carried.shape[1]
-    values = np.empty((n, len(cols) + extra))
-    for j, c in enumerate(cols):
-        values[:, j] = c
-    if extra:
-        values[:, len(cols):] = carried
-    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(patch_keys(hs, uv, level), np.int64))
-    sums, counts = levelkernels.group_sums(inv, uniq.size, values)
-    mids = np.empty((uniq.size, 2))
-    j = 0
-    for col, d in ((0, hs.u), (1, hs.v)):
-        if d.periodic:
-            mids[:, col] = np.mod(np.arctan2(sums[:, j + 1], sums[:, j]), 2 * np.pi) * d.patches0 / (2 * np.pi)
-            j += 2
-        else:
-            mids[:, col] = sums[:, j] / counts
-            j += 1
-    return mids, uniq, inv, (sums[:, j:] / counts[:, None] if extra else None)
 
 
 # --------------------------------------------------------------------------------------------
@@ -717,7 +693,10 @@ def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarra
     extra = ~is_contact
     if not np.any(extra):
         return uv, want
-    mids, _, _, moves = _grouped(hs, uv[extra], level, want[extra])  # mean parameters and moves per patch
+    mids, _, inv = patch_groups(hs, uv[extra], level, patches=False)
+    g = mids.shape[0]
+    moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
+    moves /= np.bincount(inv, minlength=g)[:, None]
     return np.concatenate([uv[is_contact], mids]), np.concatenate([want[is_contact], moves])
 
 

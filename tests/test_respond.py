@@ -459,45 +459,6 @@ def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_
         np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
 
 
-@pytest.mark.parametrize("periodic", [False, True])
-def test_points_merged_per_patch_are_numpys_means_bit_for_bit(periodic):
-    """Eq. 4.16's merge (`respond._per_level_points`, `patch_groups`) sums each patch's points in
-    one compiled pass (`levelkernels.group_sums`): the same bits as `np.bincount`'s sums over the
-    counts, a periodic direction's mean as the angle of its summed unit vectors."""
-    from acra import levelkernels
-    cvs, up, vp = shapes.sphere(8, 9) if periodic else shapes.sheet(9, 9)
-    hs = H.from_grid(cvs, up, vp, depth=3)
-    rng = np.random.default_rng(11)
-    uv = np.stack([rng.uniform(0, hs.u.patches0, 40), rng.uniform(0, hs.v.patches0, 40)], axis=1)
-    uv[20:] = uv[:20] + rng.uniform(-0.1, 0.1, (20, 2))  # several points a patch
-    uv = np.clip(uv, 0.0, [hs.u.patches0, hs.v.patches0])
-    want = rng.normal(size=(40, 3))
-    is_contact = np.zeros(40, bool)
-    is_contact[::7] = True
-    for level in (0, 2):
-        extra = ~is_contact
-        keys = R.patch_keys(hs, uv[extra], level)
-        uniq, inv = levelkernels.unique_inverse(keys)
-        g = uniq.size
-        mids = np.zeros((g, 2))
-        for col, d in ((0, hs.u), (1, hs.v)):
-            x = uv[extra, col]
-            if d.periodic:
-                ang = 2 * np.pi * x / d.patches0
-                mids[:, col] = np.mod(np.arctan2(np.bincount(inv, np.sin(ang), g), np.bincount(inv, np.cos(ang), g)),
-                                      2 * np.pi) * d.patches0 / (2 * np.pi)
-            else:
-                mids[:, col] = np.bincount(inv, x, g) / np.bincount(inv, minlength=g)
-        moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
-        moves /= np.bincount(inv, minlength=g)[:, None]
-        luv, lwant = R._per_level_points(hs, level, uv, want, is_contact)
-        assert luv.tobytes() == np.concatenate([uv[is_contact], mids]).tobytes()
-        assert lwant.tobytes() == np.concatenate([want[is_contact], moves]).tobytes()
-        got_mids, got_patches, got_inv = R.patch_groups(hs, uv[extra], level)
-        assert got_mids.tobytes() == mids.tobytes() and np.array_equal(got_inv, inv)
-        np.testing.assert_array_equal(got_patches[:, 0] * hs.v.patches(level) + got_patches[:, 1], uniq)
-
-
 def test_a_refinements_patches_are_kept_by_their_set():
     """`respond._refined` keys a kept refinement by each level's patches as a set
     (`_patch_set`): repeats and order do not matter, and another set is another key."""
