@@ -858,8 +858,8 @@ def respond(
     # the last level that deforms, where finer absorbing levels only turn or translate their
     # detail, keeps every mode above ``rcond`` (`amplify`): what it leaves unfitted no later level
     # can reshape
-    shaping = np.nonzero((controls.absorption > 0) & (controls.deform > 0))[0]
-    exact = int(shaping.max()) if shaping.size and shaping.max() < finest else -1
+    shaping = [level for level in range(L) if absorb[level] > 0.0 and deform[level] > 0.0]
+    exact = shaping[-1] if shaping and shaping[-1] < finest else -1
     q0 = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
