@@ -51,6 +51,7 @@ __all__ = [
     "pole_of",
     "pole_ring",
     "pole_ring_rows",
+    "pole_ring_movable",
     "pole_patches",
     "storage_size",
     "HierarchyArrays",
@@ -577,6 +578,18 @@ def pole_ring_rows(hs: HSpline, k: int, axis: int, end: int) -> tuple[np.ndarray
         rows.flags.writeable = ok.flags.writeable = False
         memo[key] = (rows, ok)
     return memo[key]
+
+
+def pole_ring_movable(hs: HSpline, k: int, axis: int, end: int) -> bool:
+    """Whether every CV of level ``k``'s `pole_ring` at ``(axis, end)`` exists and is movable
+    (`pole_ring_rows`' ``ok`` all true), kept with those rows on the `Level` object: a response
+    asks it of every ring at every step."""
+    memo = hs.level(k).__dict__.setdefault("_ring_rows", {})
+    key = ("movable", hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, axis, end)
+    hit = memo.get(key)
+    if hit is None:
+        hit = memo[key] = bool(pole_ring_rows(hs, k, axis, end)[1].all())
+    return hit
 
 
 @functools.lru_cache(maxsize=256)

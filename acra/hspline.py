@@ -48,6 +48,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     pole_of,
     pole_patches,
     pole_ring,
+    pole_ring_movable,
     pole_ring_rows,
     refine,
     refine_blocks,
@@ -603,7 +604,7 @@ def details(hs: HSpline, upto: int | None = None,
             if lev.cv_keys is was.cv_keys and lev.movable is was.movable:  # a move: only offsets differ
                 if k <= first and k not in old_pending:  # and the frames' surface is old's: old's frames, vectors of the new offsets
                     fr = old_det.frames[k - 1]
-                    vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
+                    vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, rows, _plain(lev.offsets), vec)[1]
                     vectors.append(vec)
                     frames.append(fr)
                     continue
@@ -639,7 +640,7 @@ def details(hs: HSpline, upto: int | None = None,
             fr[rows] = _frames_at(hs, k, ends, Details(tuple(vectors), tuple(frames)), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
-        vec[every] = np.einsum("mij,mj->mi", fr[every], lev.offsets[every])
+        vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, every, _plain(lev.offsets), vec)[1]
         if later is not None and later.size:
             vec[later] = 0.0  # the product of zero offsets, whatever the frame
             fr[later] = np.nan
@@ -655,6 +656,7 @@ def details(hs: HSpline, upto: int | None = None,
 # `details`' ``lazy``; a `Details` without it has every frame
 _PENDING = "_pending"
 _NO_ROWS = np.zeros(0, np.int64)  # `levelkernels.stale_rows`' pending rows of a level with none
+_NO_FRAMES = np.zeros((0, 3, 3))  # `levelkernels.restate_rows`' new frames of a level whose frames stay
 
 
 # key in a `Level`'s ``__dict__``: ``(old offsets (c, 3) float64, rows (m,) int64)``, set by a move
@@ -693,18 +695,17 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         rows = levelkernels.differing_rows(_bits(was.offsets), _bits(lev.offsets), np.ascontiguousarray(hint[1], np.int64))
     else:
         rows = np.nonzero(np.any(_bits(was.offsets) != _bits(lev.offsets), axis=-1))[0]
-    vec = vectors[level - 1].copy()
-    vec[rows] = np.einsum("mij,mj->mi", frames[level - 1][rows], lev.offsets[rows])
-    vectors[level - 1] = vec
     # the level-0 patches holding a patch a changed CV supports; then level by level the frames
-    # on them (compiled bookkeeping, `levelkernels.mark_changed` and `stale_rows`)
+    # on them (compiled bookkeeping, `levelkernels.restate_rows`, `mark_changed` and `stale_rows`)
     stale = np.zeros((new.u.patches0, new.v.patches0), bool)
     ends = closed_ends(new)
     ends_arr = _ends_array(ends)
     up, vp = bool(new.u.periodic), bool(new.v.periodic)
     k = level
-    marked = levelkernels.mark_changed(_bits(vec), _bits(old_det.vectors[level - 1]), rows, lev.cv_keys,
-                                       int(new.v.cvs(k)), k, int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
+    _, vec = levelkernels.restate_rows(_plain(frames[k - 1]), _NO_FRAMES, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
+    marked = levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
+                                       int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
+    vectors[k - 1] = vec
     while True:
         k += 1
         if k >= new.depth or not (marked or any(m >= k for m in pending)):
@@ -717,11 +718,8 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         if not pos.size:
             continue
         rows = every[pos]
-        fr = frames[k - 1].copy()
-        fr[rows] = _frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])),
-                              ring[pos], gu[pos], gv[pos])
-        vec = vectors[k - 1].copy()
-        vec[rows] = np.einsum("mij,mj->mi", fr[rows], lev.offsets[rows])
+        fresh = _plain(_frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])), ring[pos], gu[pos], gv[pos]))
+        fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
         marked |= levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                             int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
         vectors[k - 1], frames[k - 1] = vec, fr
@@ -846,11 +844,7 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
     normal per ring turns the ring's detail together. For a pole with a tangent plane (a sphere)
     it is that plane's normal. ``None`` where the limit normals cancel (no side is favoured):
     the CVs then keep their own."""
-    other = hs.v if axis == 0 else hs.u
-    m = 2 * other.patches(k)
-    s = np.arange(m) * other.patches0 / m if other.periodic else np.linspace(0.0, other.patches0, m + 1)
-    at = np.full_like(s, end * (hs.u if axis == 0 else hs.v).patches0)
-    u, v = (at, s) if axis == 0 else (s, at)
+    u, v = _end_params(hs.u, hs.v, k, axis, end)
     # compiled (`framekernels.limit_normals`) unless a point needs nudging
     e2 = evaluate(hs, u, v, order=2, det=det, upto=k - 1)
     unit = np.empty((u.size, 3))
@@ -860,9 +854,21 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
                                   1e-9 * scale**2, int(hs.u.patches0), int(hs.v.patches0), bool(hs.u.periodic),
                                   bool(hs.v.periodic), unit):
         unit = surface_normals(hs, u, v, det=det, upto=k - 1)[1]
-    n = unit.mean(axis=0)
+    n = np.add.reduce(unit, axis=0) / unit.shape[0]  # `unit.mean(axis=0)`: its sum and division
     length = np.linalg.norm(n)
     return n / length if length > 1e-6 else None
+
+
+@functools.lru_cache(maxsize=64)
+def _end_params(u_dir: Direction, v_dir: Direction, k: int, axis: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_end_normal`'s points along a closed end, ``u, v (m,) float64``: two per level-``k`` patch
+    along it (and the far end of an open direction). They depend on the grid alone, so they are
+    built once per grid and level; writeable, as the kernels take them (never written)."""
+    other = v_dir if axis == 0 else u_dir
+    m = 2 * other.patches(k)
+    s = np.arange(m) * other.patches0 / m if other.periodic else np.linspace(0.0, other.patches0, m + 1)
+    at = np.full_like(s, end * (u_dir if axis == 0 else v_dir).patches0)
+    return (at, s) if axis == 0 else (s, at)
 
 
 def _first_moved(old: HSpline, new: HSpline) -> int:

@@ -18,10 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from . import levelkernels
 from .basis import basis, locate
-from .hierarchy import pole_ring_rows
+from .hierarchy import pole_ring_movable, pole_ring_rows
 from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
 __all__ = [
@@ -109,10 +110,17 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: n
 
 def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None = None) -> np.ndarray:
     """`point_weights(hs, level, u, v, pole).active` alone: ``(K,) bool``, whether each point
-    weighs some movable CV of ``level``, without gathering the CVs."""
+    weighs some movable CV of ``level``, without gathering the CVs: a point off a pole by its
+    compiled entries, one on a pole by whether its ring is wholly movable (`_pole_entries`)."""
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     v = np.atleast_1d(np.asarray(v, dtype=np.float64))
-    return np.bincount(np.concatenate(_entries(hs, level, u, v, pole)[0]), minlength=u.size) > 0
+    pole = pole_of(hs, u, v) if pole is None else pole
+    active = np.bincount(_kernel_entries(hs, level, u, v, pole)[0], minlength=u.size) > 0
+    if pole.size and pole.max() >= 0:
+        for i, (axis, end) in enumerate(closed_ends(hs)):
+            if level == 0 or pole_ring_movable(hs, level, axis, end):  # level 0: every CV movable
+                active |= pole == i
+    return active
 
 
 def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
@@ -121,13 +129,22 @@ def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
     off a pole are compiled (`acra.levelkernels.point_entries`); `_entries_numpy` is the array
     form."""
     pole = pole_of(hs, u, v) if pole is None else pole
-    lev = hs.level(level) if level else None
-    none = np.zeros(0, np.int64)
-    pt, rows, w = levelkernels.point_entries(
-        _writeable(u), _writeable(v), pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level),
-        hs.v.periodic, hs.u.patches(level), hs.v.patches(level), none if lev is None else lev.cv_keys,
-        np.zeros(0, bool) if lev is None else lev.movable, none if lev is None else lev.patches)
+    pt, rows, w = _kernel_entries(hs, level, u, v, pole)
     return _pole_entries(hs, level, pole, [pt], [rows], [w])
+
+
+_NONE = np.zeros(0, np.int64)  # a level-0 call's absent level arrays (writeable: the kernel's one signature)
+
+
+def _kernel_entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
+                    pole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The entries of the points off a pole (`acra.levelkernels.point_entries`): points ``(e,)
+    int64``, CV rows ``(e,) int64`` and weights ``(e,) float64``."""
+    lev = hs.level(level) if level else None
+    return levelkernels.point_entries(
+        _writeable(u), _writeable(v), pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level),
+        hs.v.periodic, hs.u.patches(level), hs.v.patches(level), _NONE if lev is None else lev.cv_keys,
+        np.zeros(0, bool) if lev is None else lev.movable, _NONE if lev is None else lev.patches)
 
 
 def _writeable(x: np.ndarray) -> np.ndarray:
@@ -153,8 +170,8 @@ def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: lis
             continue
         # each point on the pole weighs every ring CV, rows and weights repeated point by point
         pts.append(np.repeat(on, ring.size))
-        rws.append(np.broadcast_to(rrows.reshape(-1), (on.size, ring.size)).reshape(-1))
-        ws.append(np.broadcast_to(rw / ring.shape[0], (on.size, *ring.shape)).reshape(-1))
+        rws.append(np.tile(rrows.reshape(-1), on.size))
+        ws.append(np.tile(rw / ring.shape[0], on.size * ring.shape[0]))
     return pts, rws, ws
 
 
@@ -310,15 +327,36 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
         return np.zeros((pw.cv_rows.size, 3))
     if max_bytes is not None and dense_bytes(act.size, pw.cv_rows.size) > max_bytes:
         raise SystemTooLarge(int(act.size), int(pw.cv_rows.size), dense_bytes(act.size, pw.cv_rows.size), int(max_bytes))
-    W = pw.dense()[act]
-    lam, vec = np.linalg.eigh(W @ W.T)
+    # every point active: the rows as they are, without copies (the same C-ordered arrays a
+    # selection would give, so BLAS sums the same products in the same order)
+    every = act.size == pw.npoints
+    W = pw.dense() if every else pw.dense()[act]
+    dqa = dq if every and dq.flags.c_contiguous else dq[act]
+    lam, vec = _eigh(W @ W.T)
     keep = lam > rcond * lam[-1]
     if amplify is not None:
-        along = vec.T @ dq[act]
-        moves = np.linalg.norm(along, axis=1) / np.sqrt(np.maximum(lam, _TINY))
-        keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.linalg.norm(dq[act], axis=1).max()))
-    coef = vec[:, keep].T @ dq[act] / lam[keep][:, None]
+        along = vec.T @ dqa
+        # `np.linalg.norm(x, axis=1)`'s own sum, without its wrapper
+        moves = np.sqrt(np.add.reduce(along * along, axis=1)) / np.sqrt(np.maximum(lam, _TINY))
+        keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.sqrt(np.add.reduce(dqa * dqa, axis=1)).max()))
+    if keep.all() and vec.flags.c_contiguous:
+        coef = vec.T @ dqa / lam[:, None]
+        return W.T @ (vec @ coef)
+    coef = vec[:, keep].T @ dqa / lam[keep][:, None]
     return W.T @ (vec[:, keep] @ coef)
+
+
+def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`np.linalg.eigh(g)` of a symmetric ``g (K, K) float64``: eigenvalues ``(K,)`` ascending and
+    eigenvectors ``(K, K)``, from the same LAPACK driver (``syevd`` on the lower triangle) called
+    without `np.linalg.eigh`'s checks and conversions, which cost about as much as a response's
+    small solves; an answer with a NaN (a NaN in ``g``, or no convergence) is `np.linalg.eigh`'s,
+    which raises `np.linalg.LinAlgError` where LAPACK reports no convergence."""
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
+        lam, vec = _umath_linalg.eigh_lo(g, signature="d->dd")
+    if np.isnan(lam).any():
+        return np.linalg.eigh(g)
+    return lam, vec
 
 
 def solve(pw: PointWeights, dq: np.ndarray, method: str = "direct", iterations: int = 5, tol: float = 0.0,

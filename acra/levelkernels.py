@@ -11,8 +11,9 @@ level is the same as the array form's, key for key (`tests/test_hspline.py` hold
 The patches a response refines on a level, the 7×7 block about each data point's patch and
 the parents of the finer level's, are listed by `block_keys`.
 Following a response's move down the levels (`acra.hspline.moved_details`), which rows of a
-level changed bits (`differing_rows`), the level-0 patches the changed detail vectors' CVs
-support (`mark_changed`) and which finer CVs' frames lie on those patches or rings
+level changed bits (`differing_rows`), each level's frames and vectors restated on the rows
+that moved or whose frames turned, with the level-0 patches the changed vectors' CVs support
+(`restate_rows`; `mark_changed`), and which finer CVs' frames lie on those patches or rings
 (`stale_rows`) are each one pass in place of a dozen numpy calls on a few hundred rows.
 What the frames of a level need of its movable CVs (`acra.hspline._movable_places`: their
 indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
@@ -32,7 +33,7 @@ from numba import njit
 from acra.kernels import mark_cells
 
 __all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
-           "mark_changed", "stale_rows"]
+           "mark_changed", "restate_rows", "stale_rows"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -393,6 +394,29 @@ def mark_changed(new, old, rows, cv_keys, v_cvs, k, u_patches, v_patches, u_peri
         # level and spread as int64 values, not literals: the one specialisation Python's calls use
         mark_cells(stale, ju, jv, k, np.int64(0), np.int64(3), u_patches, v_patches, u_periodic, v_periodic)
     return changed.shape[0]
+
+
+@njit(cache=True, nogil=True)
+def restate_rows(frames, new_frames, rows, offsets, vectors):
+    """A level's frames and detail vectors after a move changed its offsets, or the surface under
+    it its frames, on ``rows (m,) int64`` (`acra.hspline.moved_details`): a copy of ``frames (c,
+    3, 3)`` with those rows' set to ``new_frames (m, 3, 3)`` (none given, ``(0, 3, 3)``:
+    ``frames`` itself), and a copy of ``vectors (c, 3)`` with those rows' vectors ``frame @
+    offset``, each summed from 0.0 as ``(p0 + p2) + p1``, as ``np.einsum("mij,mj->mi")`` sums
+    three products. Returns ``frames, vectors``. (It calls no other kernel: a compiled call
+    compiles its callee again into the caller, seconds on a fresh install.)"""
+    fr = frames.copy() if new_frames.shape[0] else frames
+    for n in range(new_frames.shape[0]):
+        r = rows[n]
+        for i in range(3):
+            for j in range(3):
+                fr[r, i, j] = new_frames[n, i, j]
+    vec = vectors.copy()
+    for r in rows:
+        o0, o1, o2 = offsets[r, 0], offsets[r, 1], offsets[r, 2]
+        for i in range(3):
+            vec[r, i] = 0.0 + ((fr[r, i, 0] * o0 + fr[r, i, 2] * o2) + fr[r, i, 1] * o1)
+    return fr, vec
 
 
 @njit(cache=True, nogil=True)

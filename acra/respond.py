@@ -26,7 +26,7 @@ import numpy as np
 from . import framekernels, levelkernels
 from . import hspline as H
 from .basis import locate
-from .hierarchy import pole_ring_rows, refine_keys, refinement_keys
+from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys
 from .interpolate import PointWeights, point_active, point_weights, solve
 
 __all__ = [
@@ -402,10 +402,19 @@ def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, 
     if hit is not None and hit[0] is hs and hit[1] is det:
         return hit[2]
     tol = 1e-9 * hs.size()
-    rings = [(k, axis, end) for k in range(1, hs.depth) for axis, end in H.closed_ends(hs)
-             if _ring_sums(hs, det, k, axis, end)[3] <= tol]
+    spread = {(k, axis, end): _ring_sums(hs, det, k, axis, end)[3] for k in range(1, hs.depth)
+              for axis, end in H.closed_ends(hs)}
+    rings = [ring for ring, x in spread.items() if x <= tol]
     _keep(key, (hs, det, rings))
+    # each ring's spread with the vectors it was read from, for `_close_rings` (a level the
+    # response leaves alone keeps its vectors' array)
+    det.__dict__.setdefault(_SPREAD, {k: (det.vectors[k[0] - 1], hs.level(k[0]).cv_keys, x) for k, x in spread.items()})
     return rings
+
+
+# key in a `Details`' ``__dict__``: ``{(k, axis, end): (vectors and CV keys of level k, spread)}``,
+# each ring's `_ring_sums` spread as `_closed_rings` found it on those details and their surface
+_SPREAD = "_ring_spread"
 
 
 # Answers that depend on a response's input surface and its details alone (the objects, which
@@ -431,7 +440,7 @@ def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tu
     refinement and its details pass depend on ``hs``, ``det`` and ``keys`` alone, so they are
     kept (`_KEPT`) for the next response from the same surface to the same patches (a level's
     patches are a set: keys listed twice, by two points in one patch, refine the same)."""
-    key = ("refined", id(hs), id(det), lazy, tuple((level, np.unique(k).tobytes()) for level, k in keys))
+    key = ("refined", id(hs), id(det), lazy, tuple((level, _patch_set(hs, level, k)) for level, k in keys))
     hit = _KEPT.get(key)
     if hit is not None and hit[0] is hs and hit[1] is det:
         return hit[2], hit[3]
@@ -441,6 +450,15 @@ def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tu
     return new, new_det
 
 
+def _patch_set(hs: H.HSpline, level: int, keys: np.ndarray) -> bytes:
+    """The level's patches ``keys (m,) int64`` (`hierarchy.refinement_keys`, in range, repeats
+    and any order) as a set: one bit per patch of the level's grid, packed (a few kilobytes for
+    the head's level 4; marking is linear where `np.unique` sorts)."""
+    mark = np.zeros(hs.u.patches(level) * hs.v.patches(level), np.uint8)
+    mark[keys] = 1
+    return np.packbits(mark).tobytes()
+
+
 _RING_W = np.array([1.0, 4.0, 1.0])  # a ring column's three rows in its pole sum (`_ring_sums`)
 
 
@@ -448,15 +466,15 @@ def _open_ring(hs: H.HSpline, det: H.Details | None, k: int, axis: int, end: int
                refine: bool) -> tuple[H.HSpline, H.Details | None, bool]:
     """Make level ``k``'s whole pole ring movable under ``refine`` (its three patch rows all
     around, `H.pole_patches`); returns the surface, its details and whether the ring is movable."""
-    ok = _ring_rows(hs, k, axis, end)[1].all()
+    ok = pole_ring_movable(hs, k, axis, end)
     if not ok and refine:
         hs, det = _redetail(hs, det, H.refine(hs, k, H.pole_patches(hs, k, axis, end)), ())
-        ok = _ring_rows(hs, k, axis, end)[1].all()
-    return hs, det, bool(ok)
+        ok = pole_ring_movable(hs, k, axis, end)
+    return hs, det, ok
 
 
 def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, int, int]],
-                 refine: bool) -> tuple[H.HSpline, H.Details | None]:
+                 refine: bool, start: dict | None = None) -> tuple[H.HSpline, H.Details | None]:
     """Close again every fine level's pole ring in ``rings`` (`_closed_rings` before a response).
 
     The fine-level analogue of `_closed_ends`: a move of some ring columns, or a coarser move that
@@ -468,10 +486,15 @@ def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, in
     ``obey`` a column not wholly movable stays open. The deformational step already keeps the
     rings closed (`_ring_constraints`), so this only mops up the translational and rotational
     steps and frame turns. Levels are closed coarse to fine, as closing one turns the next's
-    frames.
+    frames. ``start``: the spreads `_closed_rings` found on the response's input details, with the
+    vectors they were read from; a ring whose level still has those vectors is not summed again.
     """
     tol = 1e-12 * hs.size()
+    start = start or {}
     for k, axis, end in rings:
+        known = start.get((k, axis, end))
+        if known is not None and known[0] is det.vectors[k - 1] and known[1] is hs.level(k).cv_keys and known[2] <= tol:
+            continue  # the level's vectors as the response found them: closed then, closed now
         if _ring_sums(hs, det, k, axis, end)[3] <= tol:
             continue
         hs, det, full = _open_ring(hs, det, k, axis, end, refine)
@@ -504,9 +527,8 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
-            ok = _ring_rows(hs, k, axis, end)[1]
-            if ok.all() or not ok.any():  # wholly movable already, or no CV of it the solve could move
-                continue
+            if pole_ring_movable(hs, k, axis, end) or not _ring_rows(hs, k, axis, end)[1].any():
+                continue  # wholly movable already, or no CV of it the solve could move
             _, ok, reached = _ring_reach(hs, pw, k, axis, end)
             if reached[ok].any():
                 hs, det, _ = _open_ring(hs, det, k, axis, end, True)
@@ -529,18 +551,18 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     point, w, ring_rows = [pw.point], [pw.w], []
     targets, n = [want], pw.npoints
     for k, axis, end in rings:
-        if k != pw.level or not _ring_rows(hs, k, axis, end)[1].all():
+        if k != pw.level or not pole_ring_movable(hs, k, axis, end):
             continue
         rows, ok, reached = _ring_reach(hs, pw, k, axis, end)  # a ring the move does not reach needs no sums
         if not reached.any():
             continue
         sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
-        own, every, w_own, w_every = _ring_pattern(N)
+        own, every, w_own, w_every = _ring_pattern(N)[:4]
         point += [n + own, n + every]
         ring_rows.append(rows.reshape(-1))
         w += [w_own, w_every]
-        targets.append(-(sums - sums.mean(axis=0)) / 6.0)
+        targets.append(-(sums - np.add.reduce(sums, axis=0) / N) / 6.0)  # `sums.mean(axis=0)`'s sum and division
         n += N
     if n == pw.npoints:
         return pw, want
@@ -550,25 +572,27 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
     for r in ring_rows:
         c = np.searchsorted(cv_rows, r)
-        col += [c, np.broadcast_to(c, (r.size // 3, c.size)).reshape(-1)]  # every column's CVs, once per row
+        col += [c, c[_ring_pattern(r.size // 3)[4]]]  # every column's CVs, once per row
     active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
     return PointWeights(pw.level, np.concatenate(point), np.concatenate(col).astype(np.int64), np.concatenate(w),
                         cv_rows.astype(np.int64), n, active), np.concatenate(targets)
 
 
 @functools.lru_cache(maxsize=32)
-def _ring_pattern(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _ring_pattern(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_ring_constraints`' entries of a ring of ``N`` columns, which depend on ``N`` alone: row
     ``j`` weighs +w_r / 6 on column ``j``'s three CVs and -w_r / (6 N) on every column's. Returns
     the rows of the own entries ``(3 N,) int64`` and of the every-column ones ``(3 N², ) int64``
-    (from row 0) and their weights ``(3 N,)``, ``(3 N²,) float64``; read-only."""
+    (from row 0), their weights ``(3 N,)``, ``(3 N²,) float64``, and which of the ring's ``3 N``
+    CVs each every-column entry weighs, ``(3 N²,) int64``; read-only."""
     own = np.repeat(np.arange(N), 3)
     every = np.repeat(np.arange(N), 3 * N)
     w_own = np.tile(_RING_W / 6.0, N)
     w_every = -np.tile(_RING_W / (6.0 * N), N * N)
-    for a in (own, every, w_own, w_every):
+    cv_every = np.tile(np.arange(3 * N), N)
+    for a in (own, every, w_own, w_every, cv_every):
         a.flags.writeable = False
-    return own, every, w_own, w_every
+    return own, every, w_own, w_every, cv_every
 
 
 def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -817,7 +841,7 @@ def respond(
         raise ControlError("acra:absorption", f"has {L} levels but the surface has {hs.depth}")
     if det is None and hs.depth > 1:
         det = H.details(hs)
-    rings = _closed_rings(hs, det)
+    rings, det0 = _closed_rings(hs, det), det
     # A collapsed edge of an open grid (a fan's apex) is closed after the finest absorbing
     # level's solve (`_close_rings`), not within it (`_ring_constraints`); coarser levels keep it
     # in the solve. Why: every data point on the apex weighs the same ring (eq. 4.10 weights
@@ -837,8 +861,8 @@ def respond(
     # the last level that deforms, where finer absorbing levels only turn or translate their
     # detail, keeps every mode above ``rcond`` (`amplify`): what it leaves unfitted no later level
     # can reshape
-    shaping = np.nonzero((controls.absorption > 0) & (controls.deform > 0))[0]
-    exact = int(shaping.max()) if shaping.size and shaping.max() < finest else -1
+    shaping = [level for level in range(L) if absorb[level] > 0.0 and deform[level] > 0.0]
+    exact = shaping[-1] if shaping and shaping[-1] < finest else -1
     q0 = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
@@ -920,7 +944,7 @@ def respond(
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det, True), (level,))
         applied = applied + np.where(present, a, 0.0)
         hs, det = _settled(hs, det)
-    hs, det = _close_rings(hs, det, rings, controls.refine)
+    hs, det = _close_rings(hs, det, rings, controls.refine, det0.__dict__.get(_SPREAD) if det0 is not None else None)
     H.keep_details(hs, det)
     final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)

@@ -590,3 +590,53 @@ def test_mark_changed_calls_mark_cells_with_the_pythons_specialisation():
     assert stale.any()
     for sig in kernels.mark_cells.signatures:
         assert not any(isinstance(t, types.Literal) for t in sig), sig
+
+
+def test_restating_a_levels_rows_is_the_array_form():
+    """`levelkernels.restate_rows` (behind `H.moved_details`) gives the frames with the rows'
+    replaced and the vectors ``np.einsum("mij,mj->mi")`` gives (its ``(p0 + p2) + p1`` from 0.0:
+    a zero offset's vector is +0.0 whatever the frame's signs)."""
+    from acra import levelkernels
+
+    hs = H.make_movable(H.from_grid(*shapes.sphere(8, 7), depth=3), 2, np.array([[3, 4], [9, 2], [0, 0]]))
+    rng = np.random.default_rng(8)
+    k, lev = 2, hs.level(2)
+    c = lev.cv_keys.size
+    frames = rng.normal(size=(c, 3, 3)) * 10.0 ** rng.integers(-6, 6, (c, 3, 3))
+    offsets = rng.normal(size=(c, 3)) * 10.0 ** rng.integers(-6, 6, (c, 3))
+    vectors = np.einsum("mij,mj->mi", frames, offsets)
+    rows = np.flatnonzero(lev.movable)[::3]
+    offsets[rows[0]] = -0.0
+    frames[rows[0]] = -np.abs(frames[rows[0]])
+    new_frames = rng.normal(size=(rows.size, 3, 3))
+    new_frames[1::2] = frames[rows[1::2]]  # half the rows keep their frames, and so their vectors
+    args = (lev.cv_keys, int(hs.v.cvs(k)), k, int(hs.u.patches(k)), int(hs.v.patches(k)), bool(hs.u.periodic),
+            bool(hs.v.periodic))
+    for fresh in (new_frames, np.zeros((0, 3, 3))):
+        want_fr = frames.copy()
+        if fresh.size:
+            want_fr[rows] = fresh
+        want_vec = vectors.copy()
+        want_vec[rows] = np.einsum("mij,mj->mi", want_fr[rows], offsets[rows])
+        fr, vec = levelkernels.restate_rows(frames, fresh, rows, offsets, vectors)
+        assert fr.tobytes() == want_fr.tobytes() and vec.tobytes() == want_vec.tobytes()
+        assert (fr is frames) == (not fresh.size) and vec is not vectors
+        assert vec[rows[0]].tobytes() == np.zeros(3).tobytes()
+        stale = np.zeros((hs.u.patches0, hs.v.patches0), bool)
+        n = levelkernels.mark_changed(vec.view(np.int64), vectors.view(np.int64), rows, *args, stale)
+        assert 0 < n < rows.size  # the test moved some rows' vectors and not others
+
+
+def test_a_rings_movability_is_its_rows_all_movable_kept_per_level():
+    """`pole_ring_movable` is `pole_ring_rows`' ``ok`` all true, found once per `Level` object
+    (and so per refinement: a refined level is another object)."""
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    for axis, end in H.closed_ends(hs):
+        assert not H.pole_ring_movable(hs, 2, axis, end)
+    ref = H.refine(hs, 2, H.pole_patches(hs, 2, 1, 1))
+    for k in (1, 2):
+        for axis, end in H.closed_ends(ref):
+            want = bool(H.pole_ring_rows(ref, k, axis, end)[1].all())
+            assert H.pole_ring_movable(ref, k, axis, end) is want
+    assert H.pole_ring_movable(ref, 2, 1, 1) and not H.pole_ring_movable(ref, 2, 1, 0)
+    assert not H.pole_ring_movable(hs, 2, 1, 1)  # the unrefined level keeps its own answer

@@ -205,3 +205,58 @@ def test_compiled_entries_locate_parameters_outside_the_domain_as_numpy():
         for a, b in zip(got, ref):
             x, y = np.concatenate(a), np.concatenate(b)
             assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
+
+
+@pytest.mark.parametrize("k", [1, 2, 13, 60])
+def test_eigh_without_numpys_wrapper_gives_its_bits(k):
+    """The solve's eigen-decomposition calls numpy's LAPACK driver directly: the same bits as
+    `np.linalg.eigh`, and a matrix with a NaN gets its answer too."""
+    from acra.interpolate import _eigh
+    rng = np.random.default_rng(k)
+    W = rng.normal(size=(k, 3 * k + 4))
+    G = W @ W.T
+    lam, vec = _eigh(G)
+    ref = np.linalg.eigh(G)
+    assert lam.tobytes() == ref.eigenvalues.tobytes() and vec.tobytes() == ref.eigenvectors.tobytes()
+    bad = G.copy()
+    bad[0, 0] = np.nan
+    try:
+        want = np.linalg.eigh(bad)
+    except np.linalg.LinAlgError:
+        with pytest.raises(np.linalg.LinAlgError):
+            _eigh(bad)
+    else:
+        got = _eigh(bad)
+        assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
+
+
+def test_min_norm_solve_with_every_point_active_equals_a_selection():
+    """Every point active: the solve takes the weights and moves as they are, with the bits of
+    the rows selected."""
+    hs = H.from_grid(*shapes.sphere(8, 8), depth=1)
+    rng = np.random.default_rng(3)
+    u, v = rng.uniform(1, 7, 9), rng.uniform(0, 8, 9)
+    pw = point_weights(hs, 0, u, v)
+    dq = rng.normal(size=(9, 3))
+    W = pw.dense()
+    lam, vec = np.linalg.eigh(W @ W.T)
+    keep = lam > 1e-4 * lam[-1]
+    ref = W.T @ (vec[:, keep] @ (vec[:, keep].T @ dq / lam[keep][:, None]))
+    assert min_norm_solve(pw, dq).tobytes() == ref.tobytes()
+
+
+def test_point_active_agrees_with_the_weights_on_and_off_the_poles():
+    """`point_active` tells a point on a pole by whether its ring is wholly movable, without
+    gathering the ring: the same answer as the weights' ``active`` on every level."""
+    from acra.interpolate import point_active
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    P = float(hs.v.patches0)
+    hs = H.refine(hs, 2, H.pole_patches(hs, 2, 1, 1))  # level 2's north ring movable, level 1's not
+    hs = H.refine(hs, 1, np.array([[2, 3], [3, 3]]))
+    rng = np.random.default_rng(5)
+    u = np.concatenate([rng.uniform(0, 8, 12), [0.3, 4.1, 2.0, 6.5]])
+    v = np.concatenate([rng.uniform(0, P, 12), [0.0, P, P, 0.0]])
+    for level in range(3):
+        want = point_weights(hs, level, u, v).active
+        np.testing.assert_array_equal(point_active(hs, level, u, v), want)
+    assert point_active(hs, 2, u, v)[[13, 14]].all() and not point_active(hs, 1, u, v)[12:].any()

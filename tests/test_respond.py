@@ -460,3 +460,42 @@ def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_
         np.testing.assert_array_equal(a.offsets.view(np.int64), b.offsets.view(np.int64))
     for a, b in zip(kept_rep.details.vectors + kept_rep.details.frames, again_rep.details.vectors + again_rep.details.frames):
         np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+
+
+def test_a_refinements_patches_are_kept_by_their_set():
+    """`respond._refined` keys a kept refinement by each level's patches as a set
+    (`_patch_set`): repeats and order do not matter, and another set is another key."""
+    hs = flat_sheet(n=10, depth=4)
+    keys = np.array([5, 17, 17, 3, 40], np.int64)
+    assert R._patch_set(hs, 2, keys) == R._patch_set(hs, 2, np.array([40, 3, 5, 17], np.int64))
+    assert R._patch_set(hs, 2, keys) != R._patch_set(hs, 2, np.array([40, 3, 5], np.int64))
+    assert R._patch_set(hs, 2, keys) != R._patch_set(hs, 2, np.array([40, 3, 5, 17, 41], np.int64))
+
+
+def test_closing_rings_skips_a_level_whose_vectors_are_as_the_response_found_them(monkeypatch):
+    """`respond._close_rings` does not sum a ring again where its level still has the vectors
+    `_closed_rings` read (they are closed as they were); a level a move changed is summed, and the
+    surface is the same as summing every ring."""
+    from pipeline import run
+
+    run.forget()
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    for k in (1, 2):
+        hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 1))
+    det = H.details(hs)
+    rings = R._closed_rings(hs, det)
+    assert (1, 1, 1) in rings and (2, 1, 1) in rings
+    rows = np.flatnonzero(hs.level(2).movable)[:4]
+    moved, mdet = R._redetail(hs, det, R._move_level(hs, 2, rows, np.full((4, 3), 1e-3), det, True), (2,))
+    summed = []
+    ring_sums = R._ring_sums
+    monkeypatch.setattr(R, "_ring_sums", lambda h, d, k, a, e: summed.append(k) or ring_sums(h, d, k, a, e))
+    fast = R._close_rings(moved, mdet, rings, True, det.__dict__[R._SPREAD])
+    assert 1 not in summed and 2 in summed
+    summed.clear()
+    full = R._close_rings(moved, mdet, rings, True)
+    assert 1 in summed
+    np.testing.assert_array_equal(fast[0].level(2).offsets.view(np.int64), full[0].level(2).offsets.view(np.int64))
+    for a, b in zip(fast[1].vectors, full[1].vectors):
+        np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+    run.forget()
