@@ -18,7 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.linalg import _umath_linalg
+
+try:  # numpy's private LAPACK gufuncs; `_eigh` falls back to `np.linalg.eigh` without them
+    from numpy.linalg._umath_linalg import eigh_lo as _EIGH_LO
+except ImportError:  # pragma: no cover - a numpy without the module
+    _EIGH_LO = None
 
 from . import levelkernels
 from .basis import basis, locate
@@ -352,8 +356,10 @@ def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     without `np.linalg.eigh`'s checks and conversions, which cost about as much as a response's
     small solves; an answer with a NaN (a NaN in ``g``, or no convergence) is `np.linalg.eigh`'s,
     which raises `np.linalg.LinAlgError` where LAPACK reports no convergence."""
+    if _EIGH_LO is None:
+        return np.linalg.eigh(g)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
-        lam, vec = _umath_linalg.eigh_lo(g, signature="d->dd")
+        lam, vec = _EIGH_LO(g, signature="d->dd")
     if np.isnan(lam).any():
         return np.linalg.eigh(g)
     return lam, vec
