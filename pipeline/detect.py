@@ -892,17 +892,19 @@ class Region:
 
 def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray | None]:
     """Distinct tessellation vertices of ``geom`` within ``bounds``: world ``(k, 3)``, uv or None."""
-    if isinstance(geom, ColliderGeometry):  # the vertices of the faces near the box, in order
-        used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([bounds[0] - pad, bounds[1] + pad]))])
-        pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
-    else:
+    lo, hi = bounds[0] - pad, bounds[1] + pad
+    if isinstance(geom, SurfaceGeometry):
+        # the distinct vertices within the padded box, gathered in one compiled pass
+        # (`acra.narrow.rows_in_box`): most of the candidate patches' vertices lie outside it
         patches = candidate_patches(geom, bounds, pad)
         tess = _tessellate(geom, patches)
-        first = _distinct(geom, patches, tess)
-        pts, uv = tess.points[first], tess.uv[first]
-    keep = (pts >= bounds[0] - pad) & (pts <= bounds[1] + pad)
+        return narrow.rows_in_box(tess.points, tess.uv, _distinct(geom, patches, tess), lo, hi)
+    # a collider: the vertices of the faces near the box, in order
+    used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([lo, hi]))])
+    pts = apply_xform(geom.xform, geom.static.mesh.vertices[used])
+    keep = (pts >= lo) & (pts <= hi)
     keep = keep[:, 0] & keep[:, 1] & keep[:, 2]  # `np.all(axis=1)`, without its row-by-row reduction
-    return pts[keep], None if uv is None else uv[keep]
+    return pts[keep], None
 
 
 def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) -> np.ndarray:
