@@ -25,9 +25,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from acra.bvh import LEAF, Tree, _morton_order
+from acra.bvh import LEAF, Tree, _bounds, _morton_order
+from acra.halfspaces import _within as _halfspaces_within
+from acra.kdtree import PointTree
+from acra.kdtree import _nearest as _kd_nearest
+from acra.patch_boxes import _within as _boxes_within
 
-__all__ = ["ZERO", "Index", "build", "closest_points", "corners", "face_uv", "index", "query", "refit"]
+__all__ = ["ZERO", "Index", "build", "candidates", "closest_points", "corners", "face_uv", "index", "query", "refit"]
 
 ZERO = 1e-13  # trimesh.constants.tol.zero: the region tests' tolerance, in units of the mesh
 _REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * unit
@@ -360,3 +364,100 @@ def face_uv(points: np.ndarray, uv: np.ndarray, triangles: np.ndarray, face: np.
                  np.ascontiguousarray(close, np.float64), np.ascontiguousarray(lo, np.float64),
                  np.ascontiguousarray(hi, np.float64), out)
     return out
+
+
+# --- which patches can hold a batch's closest points --------------------------------------------
+@njit(cache=True, nogil=True)
+def _candidates(q, equations, slack, ex_pts, ex_keep, ex_start, ex_stop, ex_dim, ex_split, ex_left,
+                pts, keep, start, stop, dim, split, left, lo, hi):
+    k = q.shape[0]
+    ok = np.ones(k, np.bool_)
+    if equations.shape[0]:
+        _halfspaces_within(equations, q, slack, ok)
+    m = 0
+    for i in range(k):
+        m += ok[i]
+    rows = np.empty(m, np.int64)
+    qc = np.empty((m, 3))
+    m = 0
+    for i in range(k):
+        if ok[i]:
+            rows[m] = i
+            qc[m, 0], qc[m, 1], qc[m, 2] = q[i, 0], q[i, 1], q[i, 2]
+            m += 1
+    if m == 0:
+        return rows, qc, np.empty(0, np.int64)
+    best = np.full(m, np.inf)
+    if ex_pts.shape[0]:
+        found = np.empty(m)
+        _kd_nearest(ex_pts, ex_keep, ex_start, ex_stop, ex_dim, ex_split, ex_left, qc, best, found)
+        best = found
+    squares = best
+    if pts.shape[0]:
+        squares = np.empty(m)
+        _kd_nearest(pts, keep, start, stop, dim, split, left, qc, best, squares)
+    limit = np.empty(m)
+    most = np.sqrt(squares[0])
+    for i in range(m):
+        d = np.sqrt(squares[i])
+        if d > most or d != d:  # numpy's max: a NaN wins
+            most = d
+        limit[i] = d * (1 + 1e-9) + 1e-300
+    reach = most * (1 + 1e-9) + 1e-300
+    box = np.empty((2, 3))
+    _bounds(qc, box)
+    q_lo0, q_lo1, q_lo2 = box[0, 0] - reach, box[0, 1] - reach, box[0, 2] - reach
+    q_hi0, q_hi1, q_hi2 = box[1, 0] + reach, box[1, 1] + reach, box[1, 2] + reach
+    pre = np.empty(lo.shape[0], np.int64)
+    n = 0
+    for p in range(lo.shape[0]):
+        if (lo[p, 0] <= q_hi0 and q_lo0 <= hi[p, 0] and lo[p, 1] <= q_hi1 and q_lo1 <= hi[p, 1]
+                and lo[p, 2] <= q_hi2 and q_lo2 <= hi[p, 2]):
+            pre[n] = p
+            n += 1
+    lo_pre, hi_pre = np.empty((n, 3)), np.empty((n, 3))
+    for j in range(n):
+        for a in range(3):
+            lo_pre[j, a], hi_pre[j, a] = lo[pre[j], a], hi[pre[j], a]
+    near = np.zeros(n, np.bool_)
+    if n:
+        _boxes_within(lo_pre, hi_pre, qc, limit, near)
+    count = 0
+    for j in range(n):
+        count += near[j]
+    patches = np.empty(count, np.int64)
+    count = 0
+    for j in range(n):
+        if near[j]:
+            patches[count] = pre[j]
+            count += 1
+    return rows, qc, patches
+
+
+_NO_HULL = np.zeros((0, 4))
+
+
+def candidates(q: np.ndarray, equations: np.ndarray | None, slack: float, extra: PointTree | None, tree: PointTree,
+               keep: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The front of a closest-point search on a closed surface's patches, in one compiled pass.
+
+    Of object-space points ``q (k, 3)``, the rows ``(m,) int64`` within ``slack`` of every
+    half-space of ``equations (h, 4)`` (`acra.halfspaces.within`; ``None``: every row) and those
+    points ``(m, 3)``; then the rows ``(c,) int64``, ascending, of the boxes ``lo, hi (P, 3)``
+    that can hold one of their closest points: the distance to the nearest coarse point bounds
+    each point's (``sqrt`` of the least square over the points of ``extra`` and of ``tree``
+    whose rows ``keep (n,) bool`` hold, `acra.kdtree.nearest_squares`; ``None``: no ``extra``,
+    every row), the boxes overlapping the points' box widened by the largest bound
+    (`pipeline.grids.overlap`), then those within a point's bound (`acra.patch_boxes.boxes_within`),
+    each bound ``d * (1 + 1e-9) + 1e-300``. The same arithmetic as those steps in turn, so the
+    same rows."""
+    q = np.ascontiguousarray(q, np.float64).reshape(-1, 3)
+    hull = _NO_HULL if equations is None else np.ascontiguousarray(equations, np.float64)
+    if extra is None:
+        extra, ex_keep = tree, np.zeros(0, np.bool_)
+        ex = (np.zeros((0, 3)), ex_keep, extra.start, extra.stop, extra.dim, extra.split, extra.left)
+    else:
+        ex = (extra.sorted, np.ones(extra.n, np.bool_), extra.start, extra.stop, extra.dim, extra.split, extra.left)
+    kept = np.ones(tree.n, np.bool_) if keep is None else np.ascontiguousarray(keep[tree.order])
+    return _candidates(q, hull, float(slack), *ex, tree.sorted, kept, tree.start, tree.stop, tree.dim, tree.split,
+                       tree.left, np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64))
