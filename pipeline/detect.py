@@ -200,7 +200,7 @@ class _World:
     (a frame's detection and its rewinding at the same time, a still object across frames):
     each level-0 patch's grid in world space ``patch: (points (n, 3), uv (n, 2), triangles
     (f, 3) int64)``, the last few patch sets' `Tessellation` by the set's bytes, and the world
-    patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and the object-level box
+    patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and its diagonal ``size``, the object-level box
     (`SurfaceGeometry.outer`'s ``(lo, hi, diagonal)``) once found; ``mapped``: the first patch set
     asked for, ``(patches (m, 2), world points (n, 3), grids)``, until another set asks and
     ``grids`` takes its rows (`_split_mapped`). Each
@@ -211,6 +211,7 @@ class _World:
     tessellations: dict = field(default_factory=dict)
     boxes: tuple | None = None
     bounds: np.ndarray | None = None
+    size: float | None = None
     outer: tuple | None = None
     mapped: tuple | None = None
 
@@ -284,7 +285,11 @@ class SurfaceGeometry:
 
     @cached_property
     def size(self) -> float:
-        return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
+        """The diagonal of `bounds`, kept with them in the content's world data."""
+        world = self._world
+        if world.size is None:
+            world.size = float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
+        return world.size
 
     @property
     def outer(self) -> np.ndarray:
@@ -605,7 +610,10 @@ def pair_pad(ga: Geometry, gb: Geometry) -> float:
 
 
 def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
-    return bool(_overlap(ga.bounds[0], ga.bounds[1], gb.bounds[0], gb.bounds[1], pad))
+    """`pipeline.grids.overlap` of the two world boxes, in Python floats (the same sums and
+    comparisons): on three coordinates numpy's per-call cost is the whole work."""
+    (la, ha), (lb, hb) = ga.bounds.tolist(), gb.bounds.tolist()
+    return all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
 
 
 def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
