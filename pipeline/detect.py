@@ -791,7 +791,7 @@ def _inside_depth(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.nd
     closest-point query on a deformable."""
     if isinstance(geom, SurfaceGeometry) and len(points) and geom.closed:
         m, near = geom.shape.signed(geom.to_object(points))
-        return m, np.linalg.norm(points[m] - apply_xform(geom.xform, near.points), axis=1)
+        return m, np.linalg.norm(np.take(points, np.flatnonzero(m), axis=0) - apply_xform(geom.xform, near.points), axis=1)
     if isinstance(geom, ColliderGeometry) and len(points) and geom.static.closed:
         return _collider_inside(geom, points, depth=True)
     m = inside(geom, points)
@@ -946,7 +946,8 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
         else:
             m = inside(y, pts)
             d = np.zeros(int(m.sum()))
-        out.append(Region(None if uv is None else uv[m], pts[m], d))
+        rows = np.flatnonzero(m)  # taken by index: a boolean mask of an (n, 3) array goes element by element
+        out.append(Region(None if uv is None else np.take(uv, rows, axis=0), np.take(pts, rows, axis=0), d))
     return out[0], out[1]
 
 

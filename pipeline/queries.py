@@ -83,9 +83,11 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
         cand, qc, patches = _candidates(shape, q, hull)
         near = _search(shape, qc, patches)
     _, n = H.surface_normals(shape.surface, near.uv[:, 0], near.uv[:, 1], det=shape.details)
-    side = shape.outward * np.einsum("ij,ij->i", qc - near.points, n) < 0
+    # the rows behind, taken by index: numpy's boolean mask of an (m, 3) array walks it element
+    # by element (16 against 3 us for 450 rows)
+    side = np.flatnonzero(shape.outward * np.einsum("ij,ij->i", qc - near.points, n) < 0)
     inside[cand[side]] = True
-    return inside, Nearest(near.distance[side], near.points[side], near.uv[side])
+    return inside, Nearest(near.distance[side], np.take(near.points, side, axis=0), np.take(near.uv, side, axis=0))
 
 
 _DEVICE = None  # the embree device every scene shares: a scene of its own would start one (50-200 us CPU)
