@@ -40,7 +40,7 @@ _REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * un
 @njit(cache=True, nogil=True)
 def _build(tri, lo, hi, left, right, start, count):
     """A linear BVH: the triangles sorted once along a Z-order curve over their centroids, each
-    node's range split at its middle; boxes from the leaves up. Returns the leaf order and the
+    node's range split at its middle (the boxes are `_boxes`'). Returns the leaf order and the
     node count. Its shape only decides how fast `query` finds the answer, never which one."""
     f = tri.shape[0]
     cen = np.empty((f, 3))
@@ -63,30 +63,29 @@ def _build(tri, lo, hi, left, right, start, count):
         stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
         top += 2
         nodes += 2
-    _boxes(tri, order, lo, hi, left, right, start, count, nodes)
     return order, nodes
 
 
 @njit(cache=True, nogil=True)
-def _boxes(tri, order, lo, hi, left, right, start, count, nodes):
-    """The node boxes of a tree over ``tri``: a leaf's from its triangles' corners, an inner
-    node's from its children's; children are numbered after their parent, so boxes go in
-    reverse numbering."""
+def _boxes(leaf_tri, lo, hi, left, right, start, count, nodes):
+    """The node boxes of a tree whose leaves hold ``leaf_tri`` (the triangles in leaf order): a
+    leaf's from its triangles' corners, read in a row, an inner node's from its children's;
+    children are numbered after their parent, so boxes go in reverse numbering. Minima and maxima
+    are exact: the same boxes in any order of reading."""
     for node in range(nodes - 1, -1, -1):
-        for k in range(3):
-            lo[node, k], hi[node, k] = np.inf, -np.inf
+        x0, y0, z0, x1, y1, z1 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
         if left[node] < 0:
             for s in range(start[node], start[node] + count[node]):
-                t = order[s]
                 for c in range(3):
-                    for k in range(3):
-                        lo[node, k] = min(lo[node, k], tri[t, c, k])
-                        hi[node, k] = max(hi[node, k], tri[t, c, k])
+                    x, y, z = leaf_tri[s, c, 0], leaf_tri[s, c, 1], leaf_tri[s, c, 2]
+                    x0, y0, z0 = min(x0, x), min(y0, y), min(z0, z)
+                    x1, y1, z1 = max(x1, x), max(y1, y), max(z1, z)
         else:
             for child in (left[node], right[node]):
-                for k in range(3):
-                    lo[node, k] = min(lo[node, k], lo[child, k])
-                    hi[node, k] = max(hi[node, k], hi[child, k])
+                x0, y0, z0 = min(x0, lo[child, 0]), min(y0, lo[child, 1]), min(z0, lo[child, 2])
+                x1, y1, z1 = max(x1, hi[child, 0]), max(y1, hi[child, 1]), max(z1, hi[child, 2])
+        lo[node, 0], lo[node, 1], lo[node, 2] = x0, y0, z0
+        hi[node, 0], hi[node, 1], hi[node, 2] = x1, y1, z1
 
 
 @njit(cache=True, nogil=True)
@@ -129,7 +128,9 @@ def build(tri: np.ndarray) -> Tree:
     lo, hi = np.empty((n, 3)), np.empty((n, 3))
     left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
     order, used = _build(tri, lo, hi, left, right, start, count)
-    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], _in_order(tri, order))
+    leaf = _in_order(tri, order)
+    _boxes(leaf, lo, hi, left, right, start, count, used)
+    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf)
 
 
 def refit(tree: Tree, tri: np.ndarray) -> Tree:
@@ -141,8 +142,9 @@ def refit(tree: Tree, tri: np.ndarray) -> Tree:
     if len(tri) != len(tree.order):
         raise ValueError("refit needs the tree's triangle count")
     lo, hi = np.empty_like(tree.lo), np.empty_like(tree.hi)
-    _boxes(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, len(lo))
-    return Tree(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, _in_order(tri, tree.order))
+    leaf = _in_order(tri, tree.order)
+    _boxes(leaf, lo, hi, tree.left, tree.right, tree.start, tree.count, len(lo))
+    return Tree(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, leaf)
 
 
 class Index:
