@@ -177,3 +177,24 @@ def test_candidates_are_the_array_steps(seed):
         np.testing.assert_array_equal(got_rows, rows)
         np.testing.assert_array_equal(got_q, qc)
         np.testing.assert_array_equal(got, want)
+
+
+def test_tree_boxes_are_their_triangles_boxes():
+    """A built or refitted tree's node boxes are the minima and maxima of the corners of the
+    triangles under the node, and its leaf triangles are ``tri[order]``, bit for bit."""
+    rng = np.random.default_rng(7)
+    tri, _ = _triangles(rng, 700)
+    moved = tri + rng.standard_normal(tri.shape) * 0.1
+    built = N.build(tri)
+    for tree, t in ((built, tri), (N.refit(built, moved), moved)):
+        np.testing.assert_array_equal(tree.leaf_tri, t[tree.order])
+
+        def under(node):
+            if tree.left[node] < 0:
+                return list(tree.order[tree.start[node]:tree.start[node] + tree.count[node]])
+            return under(tree.left[node]) + under(tree.right[node])
+
+        for node in range(len(tree.lo)):
+            corners = t[under(node)].reshape(-1, 3)
+            np.testing.assert_array_equal(tree.lo[node], corners.min(axis=0))
+            np.testing.assert_array_equal(tree.hi[node], corners.max(axis=0))
