@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["THIN", "compact", "crossings", "face_boxes", "patches_near", "solid_mask", "thin_faces", "triangles_near"]
+__all__ = ["THIN", "compact", "crossings", "face_boxes", "patches_near", "rows_in_box", "solid_mask", "thin_faces",
+           "triangles_near"]
 
 
 @njit(cache=True, nogil=True)
@@ -125,6 +126,33 @@ def triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray
           np.ascontiguousarray(box_b[0], np.float64), np.ascontiguousarray(box_b[1], np.float64), float(pad), int(rounds),
           keep_a, keep_b)
     return np.nonzero(keep_a)[0], np.nonzero(keep_b)[0]
+
+
+@njit(cache=True, nogil=True)
+def _rows_in_box(points, uv, rows, lo, hi, pts_out, uv_out):
+    n = 0
+    for j in range(rows.shape[0]):
+        r = rows[j]
+        x, y, z = points[r, 0], points[r, 1], points[r, 2]
+        if lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1] and lo[2] <= z <= hi[2]:
+            pts_out[n, 0], pts_out[n, 1], pts_out[n, 2] = x, y, z
+            uv_out[n, 0], uv_out[n, 1] = uv[r, 0], uv[r, 1]
+            n += 1
+    return n
+
+
+def rows_in_box(points: np.ndarray, uv: np.ndarray, rows: np.ndarray, lo: np.ndarray, hi: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Of the rows ``rows (m,) int64`` of ``points (n, 3) float64`` and their parameters ``uv (n,
+    2) float64``, those with ``lo <= point <= hi`` on every axis (``lo, hi (3,) float64``), in
+    order: ``points[rows][keep]`` and ``uv[rows][keep]`` for the array form's ``keep = np.all((p
+    >= lo) & (p <= hi), axis=1)`` (a NaN coordinate fails it), the same values, in one pass
+    instead of two gathers and a mask of every candidate row."""
+    rows = np.ascontiguousarray(rows, np.int64)
+    pts, puv = np.empty((len(rows), 3)), np.empty((len(rows), 2))
+    n = _rows_in_box(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(uv, np.float64), rows,
+                     np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64), pts, puv)
+    return pts[:n], puv[:n]
 
 
 @njit(cache=True, nogil=True)

@@ -25,9 +25,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from acra.bvh import LEAF, Tree, _morton_order
+from acra.bvh import LEAF, Tree, _bounds, _morton_order
+from acra.halfspaces import _within as _halfspaces_within
+from acra.kdtree import PointTree
+from acra.kdtree import _nearest as _kd_nearest
+from acra.patch_boxes import _within as _boxes_within
 
-__all__ = ["ZERO", "Index", "build", "closest_points", "corners", "face_uv", "index", "query", "refit"]
+__all__ = ["ZERO", "Index", "build", "candidates", "closest_points", "corners", "face_uv", "index", "query", "refit"]
 
 ZERO = 1e-13  # trimesh.constants.tol.zero: the region tests' tolerance, in units of the mesh
 _REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * unit
@@ -36,7 +40,7 @@ _REL, _ABS = 1e-9, 1e-12  # a box is opened within best * (1 + _REL) + _ABS * un
 @njit(cache=True, nogil=True)
 def _build(tri, lo, hi, left, right, start, count):
     """A linear BVH: the triangles sorted once along a Z-order curve over their centroids, each
-    node's range split at its middle; boxes from the leaves up. Returns the leaf order and the
+    node's range split at its middle (the boxes are `_boxes`'). Returns the leaf order and the
     node count. Its shape only decides how fast `query` finds the answer, never which one."""
     f = tri.shape[0]
     cen = np.empty((f, 3))
@@ -59,30 +63,29 @@ def _build(tri, lo, hi, left, right, start, count):
         stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = nodes + 1, mid, b
         top += 2
         nodes += 2
-    _boxes(tri, order, lo, hi, left, right, start, count, nodes)
     return order, nodes
 
 
 @njit(cache=True, nogil=True)
-def _boxes(tri, order, lo, hi, left, right, start, count, nodes):
-    """The node boxes of a tree over ``tri``: a leaf's from its triangles' corners, an inner
-    node's from its children's; children are numbered after their parent, so boxes go in
-    reverse numbering."""
+def _boxes(leaf_tri, lo, hi, left, right, start, count, nodes):
+    """The node boxes of a tree whose leaves hold ``leaf_tri`` (the triangles in leaf order): a
+    leaf's from its triangles' corners, read in a row, an inner node's from its children's;
+    children are numbered after their parent, so boxes go in reverse numbering. Minima and maxima
+    are exact: the same boxes in any order of reading."""
     for node in range(nodes - 1, -1, -1):
-        for k in range(3):
-            lo[node, k], hi[node, k] = np.inf, -np.inf
+        x0, y0, z0, x1, y1, z1 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
         if left[node] < 0:
             for s in range(start[node], start[node] + count[node]):
-                t = order[s]
                 for c in range(3):
-                    for k in range(3):
-                        lo[node, k] = min(lo[node, k], tri[t, c, k])
-                        hi[node, k] = max(hi[node, k], tri[t, c, k])
+                    x, y, z = leaf_tri[s, c, 0], leaf_tri[s, c, 1], leaf_tri[s, c, 2]
+                    x0, y0, z0 = min(x0, x), min(y0, y), min(z0, z)
+                    x1, y1, z1 = max(x1, x), max(y1, y), max(z1, z)
         else:
             for child in (left[node], right[node]):
-                for k in range(3):
-                    lo[node, k] = min(lo[node, k], lo[child, k])
-                    hi[node, k] = max(hi[node, k], hi[child, k])
+                x0, y0, z0 = min(x0, lo[child, 0]), min(y0, lo[child, 1]), min(z0, lo[child, 2])
+                x1, y1, z1 = max(x1, hi[child, 0]), max(y1, hi[child, 1]), max(z1, hi[child, 2])
+        lo[node, 0], lo[node, 1], lo[node, 2] = x0, y0, z0
+        hi[node, 0], hi[node, 1], hi[node, 2] = x1, y1, z1
 
 
 @njit(cache=True, nogil=True)
@@ -109,6 +112,13 @@ def corners(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return out
 
 
+def _in_order(tri: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """``tri[order]`` for triangles ``tri (f, 3, 3)`` and rows ``order (f,) int64``, the same
+    copy through ``np.take`` along the first axis, which copies each row's 9 values as one block
+    (numpy's fancy index of a 3-d array walks them one by one: 4 times as long)."""
+    return np.take(tri, order, axis=0)
+
+
 def build(tri: np.ndarray) -> Tree:
     """The linear BVH (`acra.bvh.Tree`) of triangles ``tri (f, 3, 3)`` (``f >= 1``)."""
     tri = np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3)
@@ -118,7 +128,9 @@ def build(tri: np.ndarray) -> Tree:
     lo, hi = np.empty((n, 3)), np.empty((n, 3))
     left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
     order, used = _build(tri, lo, hi, left, right, start, count)
-    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], tri[order])
+    leaf = _in_order(tri, order)
+    _boxes(leaf, lo, hi, left, right, start, count, used)
+    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf)
 
 
 def refit(tree: Tree, tri: np.ndarray) -> Tree:
@@ -130,8 +142,9 @@ def refit(tree: Tree, tri: np.ndarray) -> Tree:
     if len(tri) != len(tree.order):
         raise ValueError("refit needs the tree's triangle count")
     lo, hi = np.empty_like(tree.lo), np.empty_like(tree.hi)
-    _boxes(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, len(lo))
-    return Tree(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, tri[tree.order])
+    leaf = _in_order(tri, tree.order)
+    _boxes(leaf, lo, hi, tree.left, tree.right, tree.start, tree.count, len(lo))
+    return Tree(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, leaf)
 
 
 class Index:
@@ -360,3 +373,100 @@ def face_uv(points: np.ndarray, uv: np.ndarray, triangles: np.ndarray, face: np.
                  np.ascontiguousarray(close, np.float64), np.ascontiguousarray(lo, np.float64),
                  np.ascontiguousarray(hi, np.float64), out)
     return out
+
+
+# --- which patches can hold a batch's closest points --------------------------------------------
+@njit(cache=True, nogil=True)
+def _candidates(q, equations, slack, ex_pts, ex_keep, ex_start, ex_stop, ex_dim, ex_split, ex_left,
+                pts, keep, start, stop, dim, split, left, lo, hi):
+    k = q.shape[0]
+    ok = np.ones(k, np.bool_)
+    if equations.shape[0]:
+        _halfspaces_within(equations, q, slack, ok)
+    m = 0
+    for i in range(k):
+        m += ok[i]
+    rows = np.empty(m, np.int64)
+    qc = np.empty((m, 3))
+    m = 0
+    for i in range(k):
+        if ok[i]:
+            rows[m] = i
+            qc[m, 0], qc[m, 1], qc[m, 2] = q[i, 0], q[i, 1], q[i, 2]
+            m += 1
+    if m == 0:
+        return rows, qc, np.empty(0, np.int64)
+    best = np.full(m, np.inf)
+    if ex_pts.shape[0]:
+        found = np.empty(m)
+        _kd_nearest(ex_pts, ex_keep, ex_start, ex_stop, ex_dim, ex_split, ex_left, qc, best, found)
+        best = found
+    squares = best
+    if pts.shape[0]:
+        squares = np.empty(m)
+        _kd_nearest(pts, keep, start, stop, dim, split, left, qc, best, squares)
+    limit = np.empty(m)
+    most = np.sqrt(squares[0])
+    for i in range(m):
+        d = np.sqrt(squares[i])
+        if d > most or d != d:  # numpy's max: a NaN wins
+            most = d
+        limit[i] = d * (1 + 1e-9) + 1e-300
+    reach = most * (1 + 1e-9) + 1e-300
+    box = np.empty((2, 3))
+    _bounds(qc, box)
+    q_lo0, q_lo1, q_lo2 = box[0, 0] - reach, box[0, 1] - reach, box[0, 2] - reach
+    q_hi0, q_hi1, q_hi2 = box[1, 0] + reach, box[1, 1] + reach, box[1, 2] + reach
+    pre = np.empty(lo.shape[0], np.int64)
+    n = 0
+    for p in range(lo.shape[0]):
+        if (lo[p, 0] <= q_hi0 and q_lo0 <= hi[p, 0] and lo[p, 1] <= q_hi1 and q_lo1 <= hi[p, 1]
+                and lo[p, 2] <= q_hi2 and q_lo2 <= hi[p, 2]):
+            pre[n] = p
+            n += 1
+    lo_pre, hi_pre = np.empty((n, 3)), np.empty((n, 3))
+    for j in range(n):
+        for a in range(3):
+            lo_pre[j, a], hi_pre[j, a] = lo[pre[j], a], hi[pre[j], a]
+    near = np.zeros(n, np.bool_)
+    if n:
+        _boxes_within(lo_pre, hi_pre, qc, limit, near)
+    count = 0
+    for j in range(n):
+        count += near[j]
+    patches = np.empty(count, np.int64)
+    count = 0
+    for j in range(n):
+        if near[j]:
+            patches[count] = pre[j]
+            count += 1
+    return rows, qc, patches
+
+
+_NO_HULL = np.zeros((0, 4))
+
+
+def candidates(q: np.ndarray, equations: np.ndarray | None, slack: float, extra: PointTree | None, tree: PointTree,
+               keep: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The front of a closest-point search on a closed surface's patches, in one compiled pass.
+
+    Of object-space points ``q (k, 3)``, the rows ``(m,) int64`` within ``slack`` of every
+    half-space of ``equations (h, 4)`` (`acra.halfspaces.within`; ``None``: every row) and those
+    points ``(m, 3)``; then the rows ``(c,) int64``, ascending, of the boxes ``lo, hi (P, 3)``
+    that can hold one of their closest points: the distance to the nearest coarse point bounds
+    each point's (``sqrt`` of the least square over the points of ``extra`` and of ``tree``
+    whose rows ``keep (n,) bool`` hold, `acra.kdtree.nearest_squares`; ``None``: no ``extra``,
+    every row), the boxes overlapping the points' box widened by the largest bound
+    (`pipeline.grids.overlap`), then those within a point's bound (`acra.patch_boxes.boxes_within`),
+    each bound ``d * (1 + 1e-9) + 1e-300``. The same arithmetic as those steps in turn, so the
+    same rows."""
+    q = np.ascontiguousarray(q, np.float64).reshape(-1, 3)
+    hull = _NO_HULL if equations is None else np.ascontiguousarray(equations, np.float64)
+    if extra is None:
+        extra, ex_keep = tree, np.zeros(0, np.bool_)
+        ex = (np.zeros((0, 3)), ex_keep, extra.start, extra.stop, extra.dim, extra.split, extra.left)
+    else:
+        ex = (extra.sorted, np.ones(extra.n, np.bool_), extra.start, extra.stop, extra.dim, extra.split, extra.left)
+    kept = np.ones(tree.n, np.bool_) if keep is None else np.ascontiguousarray(keep[tree.order])
+    return _candidates(q, hull, float(slack), *ex, tree.sorted, kept, tree.start, tree.stop, tree.dim, tree.split,
+                       tree.left, np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64))

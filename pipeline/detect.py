@@ -200,7 +200,7 @@ class _World:
     (a frame's detection and its rewinding at the same time, a still object across frames):
     each level-0 patch's grid in world space ``patch: (points (n, 3), uv (n, 2), triangles
     (f, 3) int64)``, the last few patch sets' `Tessellation` by the set's bytes, and the world
-    patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and the object-level box
+    patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and its diagonal ``size``, the object-level box
     (`SurfaceGeometry.outer`'s ``(lo, hi, diagonal)``) once found; ``mapped``: the first patch set
     asked for, ``(patches (m, 2), world points (n, 3), grids)``, until another set asks and
     ``grids`` takes its rows (`_split_mapped`). Each
@@ -211,6 +211,7 @@ class _World:
     tessellations: dict = field(default_factory=dict)
     boxes: tuple | None = None
     bounds: np.ndarray | None = None
+    size: float | None = None
     outer: tuple | None = None
     mapped: tuple | None = None
 
@@ -284,7 +285,11 @@ class SurfaceGeometry:
 
     @cached_property
     def size(self) -> float:
-        return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
+        """The diagonal of `bounds`, kept with them in the content's world data."""
+        world = self._world
+        if world.size is None:
+            world.size = float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
+        return world.size
 
     @property
     def outer(self) -> np.ndarray:
@@ -605,7 +610,10 @@ def pair_pad(ga: Geometry, gb: Geometry) -> float:
 
 
 def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
-    return bool(_overlap(ga.bounds[0], ga.bounds[1], gb.bounds[0], gb.bounds[1], pad))
+    """`pipeline.grids.overlap` of the two world boxes, in Python floats (the same sums and
+    comparisons): on three coordinates numpy's per-call cost is the whole work."""
+    (la, ha), (lb, hb) = ga.bounds.tolist(), gb.bounds.tolist()
+    return all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
 
 
 def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -783,7 +791,7 @@ def _inside_depth(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.nd
     closest-point query on a deformable."""
     if isinstance(geom, SurfaceGeometry) and len(points) and geom.closed:
         m, near = geom.shape.signed(geom.to_object(points))
-        return m, np.linalg.norm(points[m] - apply_xform(geom.xform, near.points), axis=1)
+        return m, np.linalg.norm(np.take(points, np.flatnonzero(m), axis=0) - apply_xform(geom.xform, near.points), axis=1)
     if isinstance(geom, ColliderGeometry) and len(points) and geom.static.closed:
         return _collider_inside(geom, points, depth=True)
     m = inside(geom, points)
@@ -892,17 +900,19 @@ class Region:
 
 def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray | None]:
     """Distinct tessellation vertices of ``geom`` within ``bounds``: world ``(k, 3)``, uv or None."""
-    if isinstance(geom, ColliderGeometry):  # the vertices of the faces near the box, in order
-        used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([bounds[0] - pad, bounds[1] + pad]))])
-        pts, uv = apply_xform(geom.xform, geom.static.mesh.vertices[used]), None
-    else:
+    lo, hi = bounds[0] - pad, bounds[1] + pad
+    if isinstance(geom, SurfaceGeometry):
+        # the distinct vertices within the padded box, gathered in one compiled pass
+        # (`acra.narrow.rows_in_box`): most of the candidate patches' vertices lie outside it
         patches = candidate_patches(geom, bounds, pad)
         tess = _tessellate(geom, patches)
-        first = _distinct(geom, patches, tess)
-        pts, uv = tess.points[first], tess.uv[first]
-    keep = (pts >= bounds[0] - pad) & (pts <= bounds[1] + pad)
+        return narrow.rows_in_box(tess.points, tess.uv, _distinct(geom, patches, tess), lo, hi)
+    # a collider: the vertices of the faces near the box, in order
+    used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([lo, hi]))])
+    pts = apply_xform(geom.xform, geom.static.mesh.vertices[used])
+    keep = (pts >= lo) & (pts <= hi)
     keep = keep[:, 0] & keep[:, 1] & keep[:, 2]  # `np.all(axis=1)`, without its row-by-row reduction
-    return pts[keep], None if uv is None else uv[keep]
+    return pts[keep], None
 
 
 def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) -> np.ndarray:
@@ -936,7 +946,8 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
         else:
             m = inside(y, pts)
             d = np.zeros(int(m.sum()))
-        out.append(Region(None if uv is None else uv[m], pts[m], d))
+        rows = np.flatnonzero(m)  # taken by index: a boolean mask of an (n, 3) array goes element by element
+        out.append(Region(None if uv is None else np.take(uv, rows, axis=0), np.take(pts, rows, axis=0), d))
     return out[0], out[1]
 
 
@@ -973,7 +984,8 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
         if not is_closed(y):
             continue
         if isinstance(x, SurfaceGeometry):
-            if len(candidate_patches(x, y.bounds, pad)) < x.surface.u.patches0 * x.surface.v.patches0:
+            lo, hi = x.boxes  # `candidate_patches`, counted
+            if np.count_nonzero(_overlap(lo, hi, y.bounds[0], y.bounds[1], pad)) < x.surface.u.patches0 * x.surface.v.patches0:
                 continue
         elif not np.all((x.vertices >= y.bounds[0] - pad) & (x.vertices <= y.bounds[1] + pad)):
             continue

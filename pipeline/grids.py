@@ -279,8 +279,11 @@ class GridSet:
     def nearest(self, q: np.ndarray) -> Nearest:
         """Closest points to ``q (k, 3)`` and their parameters, interpolated from the face
         corners (trimesh's barycentric coordinates, `acra.nearest.face_uv`)."""
-        dist, close, face = np.full(len(q), np.inf), np.zeros((len(q), 3)), np.zeros(len(q), np.int64)
-        for start, index in self.indices:
+        # the finest density's answer whole: its faces come first (``start`` 0), and where it
+        # finds no face its answer is the starting one (``inf``, zeros, row 0)
+        (_, first), rest = self.indices[0], self.indices[1:]
+        dist, close, face = first.query(q)
+        for start, index in rest:
             d, cp, f = index.query(q, dist * (1 + 1e-9) + 1e-300)  # only what beats a finer density's
             better = d < dist
             dist[better], close[better], face[better] = d[better], cp[better], f[better] + start

@@ -57,6 +57,25 @@ def _solid_rows_array_form(points, triangles, collapse):
     return edges.min(axis=2) > tol[:, None]
 
 
+def test_rows_in_box_is_the_gather_and_mask():
+    """The kept rows are ``points[rows]``, ``uv[rows]`` masked by ``np.all((p >= lo) & (p <= hi),
+    axis=1)``, in order: points on the box's faces kept, NaN rows and empty sets dropped."""
+    rng = np.random.default_rng(3)
+    for trial in range(200):
+        n = int(rng.integers(0, 60))
+        points = np.round(rng.normal(size=(n, 3)), 1)  # rounded: many coordinates on the box's faces
+        if n and trial % 3 == 0:
+            points[rng.integers(0, n), rng.integers(0, 3)] = np.nan
+        uv = rng.random((n, 2))
+        rows = rng.integers(0, n, int(rng.integers(0, 2 * n + 1))) if n else np.zeros(0, np.int64)
+        lo, hi = np.round(rng.normal(size=3) - 0.5, 1), np.round(rng.normal(size=3) + 0.5, 1)
+        pts, puv = narrow.rows_in_box(points, uv, rows, lo, hi)
+        keep = np.all((points[rows] >= lo) & (points[rows] <= hi), axis=1)
+        np.testing.assert_array_equal(pts, points[rows][keep])
+        np.testing.assert_array_equal(puv, uv[rows][keep])
+        assert pts.shape == (int(keep.sum()), 3) and puv.shape == (int(keep.sum()), 2)
+
+
 def test_solid_mask_is_the_array_form():
     """`solid_mask` keeps the rows the array form keeps (edge lengths by ``np.linalg.norm``, the
     extent by ``np.ptp``), bit for bit at the threshold: grids with collapsed rows (poles), edges

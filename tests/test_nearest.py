@@ -133,3 +133,68 @@ def test_face_uv_is_trimesh_barycentric_einsum_and_clip():
         got = N.face_uv(points, uv, faces, face, close, lo, hi)
         same = (got == want) & (np.signbit(got) == np.signbit(want)) | (np.isnan(got) & np.isnan(want))
         assert same.all(), trial
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_candidates_are_the_array_steps(seed):
+    """`candidates` gives the rows `acra.halfspaces.within` keeps, and the patch rows of the
+    coarse bound's box overlap then `acra.patch_boxes.boxes_within`, for a plain tree, a masked
+    tree with an extra one, no hull, an empty hull pass and an empty tree, bit for bit."""
+    from scipy.spatial import ConvexHull
+
+    from acra import halfspaces, kdtree
+    from acra.bvh import bounds
+    from acra.patch_boxes import boxes_within
+    from pipeline.grids import overlap
+
+    rng = np.random.default_rng(seed)
+    for trial in range(40):
+        coarse = rng.standard_normal((int(rng.integers(1, 300)), 3))
+        hull = None if trial % 4 == 0 else ConvexHull(rng.standard_normal((30, 3))).equations
+        q = rng.standard_normal((int(rng.integers(1, 120)), 3)) * rng.choice([0.3, 1.0, 3.0])
+        centre = rng.standard_normal((int(rng.integers(1, 60)), 3)) * 1.5
+        half = np.abs(rng.standard_normal(centre.shape)) * 0.2
+        lo, hi = centre - half, centre + half
+        tree, keep, extra = kdtree.build(coarse), None, None
+        if trial % 3 == 1:
+            keep = rng.random(len(coarse)) < 0.7
+            extra = kdtree.build(coarse[~keep] + 0.01)
+        if trial % 11 == 5:
+            tree = kdtree.build(np.zeros((0, 3)))
+        slack = float(rng.choice([0.0, 1e-9, 0.1]))
+        # the array form, step by step
+        rows = np.arange(len(q)) if hull is None else np.nonzero(halfspaces.within(hull, q, slack))[0]
+        qc = q[rows]
+        want = np.zeros(0, np.int64)
+        if len(qc):
+            best = None if extra is None else kdtree.nearest_squares(extra, qc)
+            upper = np.sqrt(kdtree.nearest_squares(tree, qc, keep, best))
+            reach = upper.max() * (1 + 1e-9) + 1e-300
+            qlo, qhi = bounds(qc)
+            pre = np.nonzero(overlap(lo, hi, qlo - reach, qhi + reach, 0.0))[0]
+            want = pre[boxes_within(lo[pre], hi[pre], qc, upper * (1 + 1e-9) + 1e-300)]
+        got_rows, got_q, got = N.candidates(q, hull, slack, extra, tree, keep, lo, hi)
+        np.testing.assert_array_equal(got_rows, rows)
+        np.testing.assert_array_equal(got_q, qc)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_tree_boxes_are_their_triangles_boxes():
+    """A built or refitted tree's node boxes are the minima and maxima of the corners of the
+    triangles under the node, and its leaf triangles are ``tri[order]``, bit for bit."""
+    rng = np.random.default_rng(7)
+    tri, _ = _triangles(rng, 700)
+    moved = tri + rng.standard_normal(tri.shape) * 0.1
+    built = N.build(tri)
+    for tree, t in ((built, tri), (N.refit(built, moved), moved)):
+        np.testing.assert_array_equal(tree.leaf_tri, t[tree.order])
+
+        def under(node):
+            if tree.left[node] < 0:
+                return list(tree.order[tree.start[node]:tree.start[node] + tree.count[node]])
+            return under(tree.left[node]) + under(tree.right[node])
+
+        for node in range(len(tree.lo)):
+            corners = t[under(node)].reshape(-1, 3)
+            np.testing.assert_array_equal(tree.lo[node], corners.min(axis=0))
+            np.testing.assert_array_equal(tree.hi[node], corners.max(axis=0))
