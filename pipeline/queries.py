@@ -17,6 +17,7 @@ from embreex.mesh_construction import TriangleMesh
 
 from acra import hspline as H
 from acra import meshops, raycast
+from acra.bvh import bounds
 from acra.nearest import candidates
 from acra.patch_boxes import rays_meet
 from pipeline.grids import Nearest
