@@ -263,21 +263,34 @@ ANSWERS_KEPT = 4  # `triangle_depth` answers kept per part solid
 
 
 def _part(b: Shown, rows: np.ndarray) -> tuple[clearance.Solid, list]:
-    """The part solid of ``b``'s faces ``rows`` (`clearance.solid` with ``part``), or the one
-    built before from the same points and rows: the rounds of a frame and the frames of a
-    contact query an unchanged display near the same place. With it, the list of answers
-    `_answer` keeps for it (a fresh list where nothing is kept)."""
+    """The part solid of ``b``'s faces ``rows`` (`clearance.solid` with ``part``), or one built
+    before from the same points and a superset of those rows: the rounds of a frame and the
+    frames of a contact query an unchanged display near the same place. A superset answers as
+    the part of ``rows`` does: ``rows`` holds every face within the reach of every queried point
+    (`pair_depth`), so a point's closest face and the faces around it, and the empty ball about a
+    far corner (`clearance._signed_corners`), are the same in both. The smallest kept superset is
+    taken. With it, the list of answers `_answer` keeps for it (a fresh list where nothing is
+    kept).
+
+    rows : (m,) int64, increasing rows of ``b.triangles``"""
     make = lambda: clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=b.diagonal_local)  # noqa: E731
     if b.parts is None:
         return make(), []
     key = (b.outward, rows.tobytes())
     hit = b.parts.pop(key, None)
     if hit is None:
-        hit = (make(), [])
+        best = None
+        for k, (_, _, kept) in b.parts.items():
+            if k[0] == b.outward and len(kept) > len(rows) and (best is None or len(kept) < len(b.parts[best][2])):
+                at = np.minimum(np.searchsorted(kept, rows), len(kept) - 1)
+                if np.array_equal(kept[at], rows):  # every row of ``rows`` is kept (both increasing)
+                    best = k
+        hit = (make(), [], rows) if best is None else b.parts.pop(best)
+        key = key if best is None else best
     b.parts[key] = hit
     while len(b.parts) > PARTS_KEPT:
         del b.parts[next(iter(b.parts))]
-    return hit
+    return hit[0], hit[1]
 
 
 def _answer(answers: list, part: clearance.Solid, local: np.ndarray, target: float, reach: float, decide: float):

@@ -239,3 +239,34 @@ def test_a_run_s_frames_apart_are_not_measured_and_read_zero(monkeypatch):
     monkeypatch.setattr(residual, "_meet", lambda a, b: True)
     assert got == figures()
     assert skipped == 2 and got[0][2][1] > 0  # the free frames 0 and 5 skipped, frame 14 measured
+
+
+def test_a_part_within_a_kept_part_is_answered_by_the_kept_one(monkeypatch):
+    """A triangle under the top of a closed ball's display, then a smaller one within it: the
+    second pair's part (the ball's faces within its box's diagonal) lies within the first
+    pair's, so the kept part answers it (`clearance.solid` runs once) and gives what a fresh
+    part of its own gives."""
+    from acra import bvh
+
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    pts, tris = grid_samples(ball, topo)[0], topo.triangles()
+    b = residual.shown("/ball", pts, tris, np.eye(4), None, closed=True, outward=1.0, parts={})
+    z = b.box[1, 2] - 0.05
+    big = np.array([[-0.2, -0.2, z], [0.2, -0.2, z], [0.0, 0.2, z]])
+    a = residual.shown("/big", big, np.array([[0, 1, 2]]), np.eye(4))
+    piece = residual.shown("/piece", 0.25 * big + [0.0, 0.0, 0.75 * z], np.array([[0, 1, 2]]), np.eye(4))
+    rows = [b.near_rows(bvh.bounds(x.corners), float(np.linalg.norm(np.ptp(bvh.bounds(x.corners), axis=0))))
+            for x in (a, piece)]
+    assert len(rows[1]) < len(rows[0]) and np.isin(rows[1], rows[0]).all()
+    built = []
+    real = clearance.solid
+    monkeypatch.setattr(clearance, "solid", lambda *args, **kw: built.append(1) or real(*args, **kw))
+    target = 1e-6
+    residual.pair_depth(a, b, target)
+    got = residual.pair_depth(piece, b, target)
+    assert len(built) == 1
+    want = residual.pair_depth(piece, residual.shown("/ball", pts, tris, np.eye(4), None, closed=True, outward=1.0), target)
+    assert len(built) == 2 and want.depth > 0.04
+    assert (got.depth, got.lower, got.complete) == (want.depth, want.lower, want.complete)
+    assert np.array_equal(got.points, want.points) and np.array_equal(got.deep, want.deep)
