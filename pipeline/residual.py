@@ -25,7 +25,7 @@ call. World units unless stated; arrays are float64.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -126,10 +126,14 @@ class Shown:
         return h.digest()
 
     @cached_property
+    def box_local(self) -> np.ndarray:
+        """The box ``(2, 3)`` of the object-space display points."""
+        return bvh.bounds(self.local)
+
+    @cached_property
     def diagonal_local(self) -> float:
         """Diagonal of the box of the object-space display points (the scale solids weld at)."""
-        box = bvh.bounds(self.local)
-        return float(np.linalg.norm(box[1] - box[0]))
+        return float(np.linalg.norm(self.box_local[1] - self.box_local[0]))
 
 
 _DIGESTS: dict = {}  # id(array) -> (array, digest), the arrays made read-only
@@ -232,14 +236,73 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
         region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
         rows = b.near_rows(region, pad)
-        if rows.size:
-            part, answers = _part(b, rows)
-            d = _answer(answers, part, local, target / k, pad / k, decide / k)
+        if len(rows) >= CLEAR_ROWS:
+            d = _clear_depth(b, local, target / k, decide / k, pad / k, _within(b.xform, region, pad, rows))
+        if d is None:
+            if rows.size:
+                part, answers = _part(b, rows)
+                d = _answer(answers, part, local, target / k, pad / k, decide / k)
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
     points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
     uv = None if a.vertex_uv is None else np.einsum("mk,mkc->mc", d.bary, a.vertex_uv[a.triangles[near[d.tri]]])
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
+
+
+CLEAR_ROWS = 2000  # a part of fewer faces is built as it is: proving triangles clear costs more than it saves
+REACH = 2.0  # a near part answers within this many times the triangles' largest covering radius
+SLACK = 1e-6  # x the display's diagonal: how far the weld may move a part's surface (`clearance.solid`)
+
+
+def _within(xform: np.ndarray, region: np.ndarray, pad: float, rows: np.ndarray):
+    """`acra.bvh.clear_of`'s ``near``: ``rows`` (the faces whose world boxes come within ``pad``
+    of the world box ``region (2, 3)``) for an object-space box whose image under ``xform`` lies
+    in that padded box (with room for the roundings of the mapped points), else ``None``."""
+    def near(lo, hi):
+        corners = np.array([[lo[0], lo[1], lo[2]], [hi[0], lo[1], lo[2]], [lo[0], hi[1], lo[2]], [lo[0], lo[1], hi[2]],
+                            [hi[0], hi[1], lo[2]], [hi[0], lo[1], hi[2]], [lo[0], hi[1], hi[2]], [hi[0], hi[1], hi[2]]])
+        w = apply_xform(xform, corners)
+        room = 1e-9 * (float(np.abs(w).max()) + pad)
+        fits = np.all(w.min(axis=0) - room >= region[0] - pad) and np.all(w.max(axis=0) + room <= region[1] + pad)
+        return rows if fits else None
+    return near
+
+
+def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad: float, near=None):
+    """`clearance.triangle_depth` of the object-space triangles ``local (m, 3, 3)`` in ``b``,
+    with the triangles `acra.bvh.clear_of` proves outside ``b`` by more than their covering
+    radii left out, in the part of ``b``'s display near the others; ``None`` where that part
+    cannot answer (the caller then takes the part near all of them).
+
+    A left-out triangle's corners lie outside by more than its covering radius ``rho``, so eq.
+    (4) bounds it by 0 and it holds no point inside: it adds nothing to the bound, the depth
+    found or the points found inside, and no other triangle's cells or points depend on it (a
+    point shared with it is outside too, and its cells are never split). The part holds every
+    face whose box comes within ``R`` (`REACH` times the largest ``rho``) of a kept triangle's,
+    so within ``R`` of any point the kept triangles hold, it has every face the whole display
+    has: a point's closest face and the faces around it, and the empty ball about a far corner
+    (`clearance._signed_corners`), are the whole's, and a point farther than ``R`` from it is
+    not answered (`clearance.triangle_depth` with ``reach``: ``None``). Most triangles of a
+    display near a thin object lie far from it, and a part near the rest is a fraction of the
+    part near their box."""
+    rho = bvh.covering_radii(local)
+    reach = min(REACH * float(rho.max(initial=0.0)), pad)
+    got = bvh.clear_of(b.local, b.triangles, local, rho, SLACK * b.diagonal_local, reach, b.box_local, near=near)
+    if got is None:
+        return None
+    keep, rows, reach = got
+    if reach >= pad:
+        return None
+    if not keep.any():  # every triangle outside with eq. (4) at 0: the bound is 0 and nothing is inside
+        return clearance.Depth(0.0, 0.0, True, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), 0, 0)
+    if not rows.size:
+        return None
+    kept = np.nonzero(keep)[0]
+    part, answers = _part(b, rows)
+    d = _answer(answers, part, local if len(kept) == len(local) else local[kept], target, reach, decide)
+    if d is None or len(kept) == len(local):
+        return d
+    return replace(d, tri=kept[d.tri])
 
 
 _PLACEMENTS: dict = {}  # the bytes of a (4, 4) matrix -> (sigma_max, inverse of its linear part)
