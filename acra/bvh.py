@@ -696,8 +696,8 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
         for k in range(3):
             a = min(min(points[f[0], k], points[f[1], k]), points[f[2], k])
             b = max(max(points[f[0], k], points[f[1], k]), points[f[2], k])
-            flo[r, k] = max(_cell(a, origin[k], h), 0)
-            fhi[r, k] = min(_cell(b, origin[k], h), dims[k] - 1)
+            flo[r, k] = max(_cell(a - slack, origin[k], h), 0)  # the slack: the solid's surface near this face's
+            fhi[r, k] = min(_cell(b + slack, origin[k], h), dims[k] - 1)
             inside = inside and flo[r, k] <= fhi[r, k]
         if inside:
             _box_add(touch, flo[r], fhi[r], 1)
@@ -766,6 +766,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
     # a triangle is clear if every cell within its covering radius (and the slack) of its box is
     # outside; the cells within ``reach`` of the others' boxes are wanted
     want = np.zeros((nx + 1, ny + 1, nz + 1), np.int32)
+    wide = reach * (1.0 + 1e-9) + slack  # past the roundings of ``a - reach``, and the slack
     for t in range(tri.shape[0]):
         pad = rho[t] * (1.0 + 1e-9) + slack
         clear = True
@@ -787,7 +788,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
         for k in range(3):
             a = min(min(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
             b = max(max(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
-            lo[k], hi[k] = _cell(a - reach, origin[k], h), _cell(b + reach, origin[k], h)
+            lo[k], hi[k] = _cell(a - wide, origin[k], h), _cell(b + wide, origin[k], h)
             if lo[k] < 0 or hi[k] >= dims[k]:
                 return -1  # the kept triangle's reach leaves the grid, whose faces alone are known
         _box_add(want, lo, hi, 1)
@@ -817,8 +818,10 @@ def clear_of(points: np.ndarray, faces: np.ndarray, tri: np.ndarray, rho: np.nda
     longest side). ``near(lo, hi)``, if given, may return rows of ``faces`` (increasing) holding
     every face whose box meets the box ``lo, hi``, or ``None`` (every face is then tested).
 
-    A cell no face's box touches holds no point of the surface (the cells of a point are
-    monotone in it, so a point of a face lies in a cell its box touches); a cell beyond the
+    ``slack`` bounds how far the solid's surface lies from the faces (a weld moves their
+    corners): a face's box is widened by it. A cell no face's widened box touches holds no
+    point of the surface (the cells of a point are monotone in it, so a point of a face lies in
+    a cell its box touches); a cell beyond the
     box's cells on an axis holds no point of the solid, and a path through untouched cells
     sharing sides crosses no surface, so every cell so joined to one is outside. A triangle all
     of whose cells within ``rho + slack`` of its box are outside has every point outside and
