@@ -746,23 +746,11 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
             queue[n] = c + 1
             n += 1
     known = np.zeros((nx + 1, ny + 1, nz + 1), np.int32)  # cells not outside, summed
-    near = np.zeros((nx + 1, ny + 1, nz + 1), np.int32)  # touched cells, summed
     for i in range(nx):
         for j in range(ny):
             for q in range(nz):
                 known[i + 1, j + 1, q + 1] = 0 if out[i, j, q] else 1
-                near[i + 1, j + 1, q + 1] = 1 if touch[i, j, q] > 0 else 0
     _sums(known)
-    _sums(near)
-    deep = np.zeros((nx + 1, ny + 1, nz + 1), np.int32)  # inside cells no touched cell adjoins, summed
-    for i in range(nx):
-        for j in range(ny):
-            for q in range(nz):
-                if not out[i, j, q] and touch[i, j, q] == 0:
-                    lo[0], lo[1], lo[2] = max(i - 1, 0), max(j - 1, 0), max(q - 1, 0)
-                    hi[0], hi[1], hi[2] = min(i + 1, nx - 1), min(j + 1, ny - 1), min(q + 1, nz - 1)
-                    deep[i + 1, j + 1, q + 1] = 1 if _box_sum(near, lo, hi) == 0 else 0
-    _sums(deep)
     # a triangle is clear if every cell within its covering radius (and the slack) of its box is
     # outside; the cells within ``reach`` of the others' boxes are wanted
     want = np.zeros((nx + 1, ny + 1, nz + 1), np.int32)
@@ -783,8 +771,18 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
             a = min(min(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
             b = max(max(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
             lo[k], hi[k] = max(_cell(a, origin[k], h), 0), min(_cell(b, origin[k], h), dims[k] - 1)
-        if lo[0] <= hi[0] and lo[1] <= hi[1] and lo[2] <= hi[2] and _box_sum(deep, lo, hi) > 0:
-            return -1  # a kept triangle reaches inside cells a cell away from the surface: deeper than the reach
+        for i in range(lo[0], hi[0] + 1):  # its cells inside, away from the surface: deeper than the reach
+            for j in range(lo[1], hi[1] + 1):
+                for q in range(lo[2], hi[2] + 1):
+                    if out[i, j, q] or touch[i, j, q] > 0:
+                        continue
+                    apart = True  # no touched cell adjoins it
+                    for a0 in range(max(i - 1, 0), min(i + 2, nx)):
+                        for a1 in range(max(j - 1, 0), min(j + 2, ny)):
+                            for a2 in range(max(q - 1, 0), min(q + 2, nz)):
+                                apart = apart and touch[a0, a1, a2] == 0
+                    if apart:
+                        return -1
         for k in range(3):
             a = min(min(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
             b = max(max(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
