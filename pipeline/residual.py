@@ -12,8 +12,9 @@ within 1.25 times the deepest point found, or within half the tolerance, and unt
 same side of the tolerance as the deepest point found.
 
 The queries run in the other object's object space: a collider's `clearance.Solid` is built once
-per run, a deformable's is the part of its display near the other object's triangles, built per
-pair (and kept on the display by its face rows, `Shown.parts`). An object-space depth times the largest singular value of the world matrix's linear part
+per run, a deformable's is the part of its display near the other object's triangles (after
+those proven clear of it are left out, `_clear_depth`), built per pair and kept on the display by
+its face rows (`Shown.parts`; a kept part holding the rows a pair asks for answers it too). An object-space depth times the largest singular value of the world matrix's linear part
 (`clearance.sigma_max`) bounds the world depth from above (exact for rotations, translations and
 uniform scales).
 
@@ -222,7 +223,9 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     box: its faces whose world boxes come within ``P`` (the diagonal of those triangles' box) of
     it. A point within ``P`` of that part has its closest point, and every face around it, in
     the part, so the part answers exactly; a point farther (``a`` deep inside a large ``b``) is
-    answered by ``b``'s whole solid."""
+    answered by ``b``'s whole solid. Where that part holds `CLEAR_ROWS` faces or more, the
+    triangles proven clear of ``b`` are left out first and the part near the others, a fraction
+    of it, answers (`_clear_depth`: the same answer, or ``None`` and the part above)."""
     none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.vertex_uv is None else np.zeros((0, 2)), np.zeros(0))
     if not b.closed:
         return none
