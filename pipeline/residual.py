@@ -12,8 +12,9 @@ within 1.25 times the deepest point found, or within half the tolerance, and unt
 same side of the tolerance as the deepest point found.
 
 The queries run in the other object's object space: a collider's `clearance.Solid` is built once
-per run, a deformable's is the part of its display near the other object's triangles, built per
-pair (and kept on the display by its face rows, `Shown.parts`). An object-space depth times the largest singular value of the world matrix's linear part
+per run, a deformable's is the part of its display near the other object's triangles (after
+those proven clear of it are left out, `_clear_depth`), built per pair and kept on the display by
+its face rows (`Shown.parts`; a kept part holding the rows a pair asks for answers it too). An object-space depth times the largest singular value of the world matrix's linear part
 (`clearance.sigma_max`) bounds the world depth from above (exact for rotations, translations and
 uniform scales).
 
@@ -25,7 +26,7 @@ call. World units unless stated; arrays are float64.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -126,10 +127,14 @@ class Shown:
         return h.digest()
 
     @cached_property
+    def box_local(self) -> np.ndarray:
+        """The box ``(2, 3)`` of the object-space display points."""
+        return bvh.bounds(self.local)
+
+    @cached_property
     def diagonal_local(self) -> float:
         """Diagonal of the box of the object-space display points (the scale solids weld at)."""
-        box = bvh.bounds(self.local)
-        return float(np.linalg.norm(box[1] - box[0]))
+        return float(np.linalg.norm(self.box_local[1] - self.box_local[0]))
 
 
 _DIGESTS: dict = {}  # id(array) -> (array, digest), the arrays made read-only
@@ -218,7 +223,9 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     box: its faces whose world boxes come within ``P`` (the diagonal of those triangles' box) of
     it. A point within ``P`` of that part has its closest point, and every face around it, in
     the part, so the part answers exactly; a point farther (``a`` deep inside a large ``b``) is
-    answered by ``b``'s whole solid."""
+    answered by ``b``'s whole solid. Where that part holds `CLEAR_ROWS` faces or more, the
+    triangles proven clear of ``b`` are left out first and the part near the others, a fraction
+    of it, answers (`_clear_depth`: the same answer, or ``None`` and the part above)."""
     none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.vertex_uv is None else np.zeros((0, 2)), np.zeros(0))
     if not b.closed:
         return none
@@ -232,14 +239,73 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
         region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
         rows = b.near_rows(region, pad)
-        if rows.size:
-            part, answers = _part(b, rows)
-            d = _answer(answers, part, local, target / k, pad / k, decide / k)
+        if len(rows) >= CLEAR_ROWS:
+            d = _clear_depth(b, local, target / k, decide / k, pad / k, _within(b.xform, region, pad, rows))
+        if d is None:
+            if rows.size:
+                part, answers = _part(b, rows)
+                d = _answer(answers, part, local, target / k, pad / k, decide / k)
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
     points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
     uv = None if a.vertex_uv is None else np.einsum("mk,mkc->mc", d.bary, a.vertex_uv[a.triangles[near[d.tri]]])
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
+
+
+CLEAR_ROWS = 2000  # a part of fewer faces is built as it is: proving triangles clear costs more than it saves
+REACH = 2.0  # a near part answers within this many times the triangles' largest covering radius
+SLACK = 1e-6  # x the display's diagonal: how far the weld may move a part's surface (`clearance.solid`)
+
+
+def _within(xform: np.ndarray, region: np.ndarray, pad: float, rows: np.ndarray):
+    """`acra.bvh.clear_of`'s ``near``: ``rows`` (the faces whose world boxes come within ``pad``
+    of the world box ``region (2, 3)``) for an object-space box whose image under ``xform`` lies
+    in that padded box (with room for the roundings of the mapped points), else ``None``."""
+    def near(lo, hi):
+        corners = np.array([[lo[0], lo[1], lo[2]], [hi[0], lo[1], lo[2]], [lo[0], hi[1], lo[2]], [lo[0], lo[1], hi[2]],
+                            [hi[0], hi[1], lo[2]], [hi[0], lo[1], hi[2]], [lo[0], hi[1], hi[2]], [hi[0], hi[1], hi[2]]])
+        w = apply_xform(xform, corners)
+        room = 1e-9 * (float(np.abs(w).max()) + pad)
+        fits = np.all(w.min(axis=0) - room >= region[0] - pad) and np.all(w.max(axis=0) + room <= region[1] + pad)
+        return rows if fits else None
+    return near
+
+
+def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad: float, near=None):
+    """`clearance.triangle_depth` of the object-space triangles ``local (m, 3, 3)`` in ``b``,
+    with the triangles `acra.bvh.clear_of` proves outside ``b`` by more than their covering
+    radii left out, in the part of ``b``'s display near the others; ``None`` where that part
+    cannot answer (the caller then takes the part near all of them).
+
+    A left-out triangle's corners lie outside by more than its covering radius ``rho``, so eq.
+    (4) bounds it by 0 and it holds no point inside: it adds nothing to the bound, the depth
+    found or the points found inside, and no other triangle's cells or points depend on it (a
+    point shared with it is outside too, and its cells are never split). The part holds every
+    face whose box comes within ``R`` (`REACH` times the largest ``rho``) of a kept triangle's,
+    so within ``R`` of any point the kept triangles hold, it has every face the whole display
+    has: a point's closest face and the faces around it, and the empty ball about a far corner
+    (`clearance._signed_corners`), are the whole's, and a point farther than ``R`` from it is
+    not answered (`clearance.triangle_depth` with ``reach``: ``None``). Most triangles of a
+    display near a thin object lie far from it, and a part near the rest is a fraction of the
+    part near their box."""
+    rho = bvh.covering_radii(local)
+    reach = min(REACH * float(rho.max(initial=0.0)), pad)
+    got = bvh.clear_of(b.local, b.triangles, local, rho, SLACK * b.diagonal_local, reach, b.box_local, near=near)
+    if got is None:
+        return None
+    keep, rows, reach = got
+    if reach >= pad:
+        return None
+    if not keep.any():  # every triangle outside with eq. (4) at 0: the bound is 0 and nothing is inside
+        return clearance.Depth(0.0, 0.0, True, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), 0, 0)
+    if not rows.size:
+        return None
+    kept = np.nonzero(keep)[0]
+    part, answers = _part(b, rows)
+    d = _answer(answers, part, local if len(kept) == len(local) else local[kept], target, reach, decide)
+    if d is None or len(kept) == len(local):
+        return d
+    return replace(d, tri=kept[d.tri])
 
 
 _PLACEMENTS: dict = {}  # the bytes of a (4, 4) matrix -> (sigma_max, inverse of its linear part)
@@ -263,21 +329,34 @@ ANSWERS_KEPT = 4  # `triangle_depth` answers kept per part solid
 
 
 def _part(b: Shown, rows: np.ndarray) -> tuple[clearance.Solid, list]:
-    """The part solid of ``b``'s faces ``rows`` (`clearance.solid` with ``part``), or the one
-    built before from the same points and rows: the rounds of a frame and the frames of a
-    contact query an unchanged display near the same place. With it, the list of answers
-    `_answer` keeps for it (a fresh list where nothing is kept)."""
+    """The part solid of ``b``'s faces ``rows`` (`clearance.solid` with ``part``), or one built
+    before from the same points and a superset of those rows: the rounds of a frame and the
+    frames of a contact query an unchanged display near the same place. A superset answers as
+    the part of ``rows`` does: ``rows`` holds every face within the reach of every queried point
+    (`pair_depth`), so a point's closest face and the faces around it, and the empty ball about a
+    far corner (`clearance._signed_corners`), are the same in both. The smallest kept superset is
+    taken. With it, the list of answers `_answer` keeps for it (a fresh list where nothing is
+    kept).
+
+    rows : (m,) int64, increasing rows of ``b.triangles``"""
     make = lambda: clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=b.diagonal_local)  # noqa: E731
     if b.parts is None:
         return make(), []
     key = (b.outward, rows.tobytes())
     hit = b.parts.pop(key, None)
     if hit is None:
-        hit = (make(), [])
+        best = None
+        for k, (_, _, kept) in b.parts.items():
+            if k[0] == b.outward and len(kept) > len(rows) and (best is None or len(kept) < len(b.parts[best][2])):
+                at = np.minimum(np.searchsorted(kept, rows), len(kept) - 1)
+                if np.array_equal(kept[at], rows):  # every row of ``rows`` is kept (both increasing)
+                    best = k
+        hit = (make(), [], rows) if best is None else b.parts.pop(best)
+        key = key if best is None else best
     b.parts[key] = hit
     while len(b.parts) > PARTS_KEPT:
         del b.parts[next(iter(b.parts))]
-    return hit
+    return hit[0], hit[1]
 
 
 def _answer(answers: list, part: clearance.Solid, local: np.ndarray, target: float, reach: float, decide: float):

@@ -239,3 +239,106 @@ def test_a_run_s_frames_apart_are_not_measured_and_read_zero(monkeypatch):
     monkeypatch.setattr(residual, "_meet", lambda a, b: True)
     assert got == figures()
     assert skipped == 2 and got[0][2][1] > 0  # the free frames 0 and 5 skipped, frame 14 measured
+
+
+def test_a_part_within_a_kept_part_is_answered_by_the_kept_one(monkeypatch):
+    """A triangle under the top of a closed ball's display, then a smaller one within it: the
+    second pair's part (the ball's faces within its box's diagonal) lies within the first
+    pair's, so the kept part answers it (`clearance.solid` runs once) and gives what a fresh
+    part of its own gives."""
+    from acra import bvh
+
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    pts, tris = grid_samples(ball, topo)[0], topo.triangles()
+    b = residual.shown("/ball", pts, tris, np.eye(4), None, closed=True, outward=1.0, parts={})
+    z = b.box[1, 2] - 0.05
+    big = np.array([[-0.2, -0.2, z], [0.2, -0.2, z], [0.0, 0.2, z]])
+    a = residual.shown("/big", big, np.array([[0, 1, 2]]), np.eye(4))
+    piece = residual.shown("/piece", 0.25 * big + [0.0, 0.0, 0.75 * z], np.array([[0, 1, 2]]), np.eye(4))
+    rows = [b.near_rows(bvh.bounds(x.corners), float(np.linalg.norm(np.ptp(bvh.bounds(x.corners), axis=0))))
+            for x in (a, piece)]
+    assert len(rows[1]) < len(rows[0]) and np.isin(rows[1], rows[0]).all()
+    built = []
+    real = clearance.solid
+    monkeypatch.setattr(clearance, "solid", lambda *args, **kw: built.append(1) or real(*args, **kw))
+    target = 1e-6
+    residual.pair_depth(a, b, target)
+    got = residual.pair_depth(piece, b, target)
+    assert len(built) == 1
+    want = residual.pair_depth(piece, residual.shown("/ball", pts, tris, np.eye(4), None, closed=True, outward=1.0), target)
+    assert len(built) == 2 and want.depth > 0.04
+    assert (got.depth, got.lower, got.complete) == (want.depth, want.lower, want.complete)
+    assert np.array_equal(got.points, want.points) and np.array_equal(got.deep, want.deep)
+
+
+def _ball_display(parts=None):
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    return residual.shown("/ball", grid_samples(ball, topo)[0], topo.triangles(), np.eye(4), None, closed=True, outward=1.0,
+                          parts=parts)
+
+
+def test_triangles_clear_of_a_solid_are_those_outside_by_more_than_their_covering_radius():
+    """`acra.bvh.clear_of` on a closed ball's display: a triangle far outside is clear; one outside
+    but nearer the surface than its covering radius, one crossing the surface and one deep
+    inside (no face near it: its cells are not joined to the outside) are kept, and the faces
+    chosen hold every face whose box comes within the reach of a kept triangle's."""
+    from acra import bvh
+
+    b = _ball_display()
+    r = float(b.box[1, 2])  # the ball's top
+    tri = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.02, 0.0]])  # rho 0.01 (right-angled)
+    cases = {"far": tri + [0.0, 0.0, r + 0.3], "near": tri + [0.0, 0.0, r + 0.005], "across": tri * 5 + [0.0, 0.0, r - 0.02]}
+    corners = np.stack(list(cases.values()))
+    rho = bvh.covering_radii(corners)
+    keep, chosen, reach = bvh.clear_of(b.local, b.triangles, corners, rho, 0.0, 0.05, b.box_local)
+    assert dict(zip(cases, keep.tolist())) == {"far": False, "near": True, "across": True}
+    deep = np.concatenate([corners, tri[None]])  # the ball's centre: kept, and deeper than a part near it reaches
+    assert bvh.clear_of(b.local, b.triangles, deep, bvh.covering_radii(deep), 0.0, 0.05, b.box_local) is None
+    assert reach >= 0.05
+    box_lo, box_hi = corners[keep].min(axis=1), corners[keep].max(axis=1)
+    tri_b = b.local[b.triangles]
+    near = np.zeros(len(tri_b), bool)
+    for lo, hi in zip(box_lo, box_hi):
+        near |= np.all((tri_b.min(axis=1) <= hi + reach) & (tri_b.max(axis=1) >= lo - reach), axis=1)
+    assert np.isin(np.nonzero(near)[0], chosen).all() and len(chosen) < len(tri_b)
+
+
+def test_a_display_mostly_clear_of_a_deformable_is_measured_on_a_smaller_part(monkeypatch):
+    """A tilted sheet cutting a shallow cap off a small closed ball's display, most of its
+    triangles in the ball's box far outside: the triangles proven clear are left out and the
+    part near the others is smaller than the part near the sheet's box, with the same figures
+    and points. A sheet through the ball's middle, whose deepest points lie farther from the
+    surface than a part near the kept triangles reaches (such a part would not hold their
+    closest faces), is measured on the part near its box and gives the whole ball's bound."""
+    small = 0.2
+    _, spts, stris, suv = sheet(0.0, n=16, width=1.0)
+    built = []
+    real = clearance.solid
+    monkeypatch.setattr(clearance, "solid", lambda v, f, *args, **kw: built.append(len(f)) or real(v, f, *args, **kw))
+
+    def ball():
+        b = _ball_display()
+        return residual.shown("/ball", small * b.local, b.triangles, np.eye(4), None, closed=True, outward=1.0, parts={})
+
+    for c, part_smaller in ((0.19 * np.sqrt(2.0) * small / 0.2, True), (0.0, False)):
+        tilted = spts.copy()
+        tilted[:, 2] = tilted[:, 0] + c  # the plane z = x + c, at c / sqrt(2) from the ball's centre
+        a = residual.shown("/sheet", tilted, stris, np.eye(4), suv)
+        target = 1e-4 * a.size
+        monkeypatch.setattr(residual, "CLEAR_ROWS", 10 ** 9)
+        built.clear()
+        want = residual.pair_depth(a, ball(), target, 2 * target)
+        box_part = built[-1]
+        monkeypatch.setattr(residual, "CLEAR_ROWS", 0)
+        built.clear()
+        got = residual.pair_depth(a, ball(), target, 2 * target)
+        assert want.depth > 0
+        assert (got.depth, got.lower, got.complete) == (want.depth, want.lower, want.complete)
+        for x, y in ((got.points, want.points), (got.uv, want.uv), (got.deep, want.deep)):
+            assert np.array_equal(x, y)
+        assert (len(built) == 1 and built[0] < box_part / 2) == part_smaller
+    b = ball()
+    exact = clearance.triangle_depth(b.whole(), a.near(b.box)[0], target, decide=2 * target)
+    assert got.depth == pytest.approx(exact.bound, rel=1e-12) and got.depth > 0.5 * small
