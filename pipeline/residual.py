@@ -31,7 +31,7 @@ from functools import cached_property
 
 import numpy as np
 
-from acra import bvh
+from acra import bvh, clearcells
 from pipeline import clearance
 from pipeline.model import SceneModel, apply_xform
 
@@ -258,7 +258,7 @@ SLACK = 1e-6  # x the display's diagonal: how far the weld may move a part's sur
 
 
 def _within(xform: np.ndarray, region: np.ndarray, pad: float, rows: np.ndarray):
-    """`acra.bvh.clear_of`'s ``near``: ``rows`` (the faces whose world boxes come within ``pad``
+    """`acra.clearcells.clear_of`'s ``near``: ``rows`` (the faces whose world boxes come within ``pad``
     of the world box ``region (2, 3)``) for an object-space box whose image under ``xform`` lies
     in that padded box (with room for the roundings of the mapped points), else ``None``."""
     def near(lo, hi):
@@ -273,7 +273,7 @@ def _within(xform: np.ndarray, region: np.ndarray, pad: float, rows: np.ndarray)
 
 def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad: float, near=None):
     """`clearance.triangle_depth` of the object-space triangles ``local (m, 3, 3)`` in ``b``,
-    with the triangles `acra.bvh.clear_of` proves outside ``b`` by more than their covering
+    with the triangles `acra.clearcells.clear_of` proves outside ``b`` by more than their covering
     radii left out, in the part of ``b``'s display near the others; ``None`` where that part
     cannot answer (the caller then takes the part near all of them).
 
@@ -290,7 +290,7 @@ def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad:
     part near their box."""
     rho = bvh.covering_radii(local)
     reach = min(REACH * float(rho.max(initial=0.0)), pad)
-    got = bvh.clear_of(b.local, b.triangles, local, rho, SLACK * b.diagonal_local, reach, b.box_local, near=near)
+    got = clearcells.clear_of(b.local, b.triangles, local, rho, SLACK * b.diagonal_local, reach, b.box_local, near=near)
     if got is None:
         return None
     keep, rows, reach = got

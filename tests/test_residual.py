@@ -279,32 +279,6 @@ def _ball_display(parts=None):
                           parts=parts)
 
 
-def test_triangles_clear_of_a_solid_are_those_outside_by_more_than_their_covering_radius():
-    """`acra.bvh.clear_of` on a closed ball's display: a triangle far outside is clear; one outside
-    but nearer the surface than its covering radius, one crossing the surface and one deep
-    inside (no face near it: its cells are not joined to the outside) are kept, and the faces
-    chosen hold every face whose box comes within the reach of a kept triangle's."""
-    from acra import bvh
-
-    b = _ball_display()
-    r = float(b.box[1, 2])  # the ball's top
-    tri = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.02, 0.0]])  # rho 0.01 (right-angled)
-    cases = {"far": tri + [0.0, 0.0, r + 0.3], "near": tri + [0.0, 0.0, r + 0.005], "across": tri * 5 + [0.0, 0.0, r - 0.02]}
-    corners = np.stack(list(cases.values()))
-    rho = bvh.covering_radii(corners)
-    keep, chosen, reach = bvh.clear_of(b.local, b.triangles, corners, rho, 0.0, 0.05, b.box_local)
-    assert dict(zip(cases, keep.tolist())) == {"far": False, "near": True, "across": True}
-    deep = np.concatenate([corners, tri[None]])  # the ball's centre: kept, and deeper than a part near it reaches
-    assert bvh.clear_of(b.local, b.triangles, deep, bvh.covering_radii(deep), 0.0, 0.05, b.box_local) is None
-    assert reach >= 0.05
-    box_lo, box_hi = corners[keep].min(axis=1), corners[keep].max(axis=1)
-    tri_b = b.local[b.triangles]
-    near = np.zeros(len(tri_b), bool)
-    for lo, hi in zip(box_lo, box_hi):
-        near |= np.all((tri_b.min(axis=1) <= hi + reach) & (tri_b.max(axis=1) >= lo - reach), axis=1)
-    assert np.isin(np.nonzero(near)[0], chosen).all() and len(chosen) < len(tri_b)
-
-
 def test_a_display_mostly_clear_of_a_deformable_is_measured_on_a_smaller_part(monkeypatch):
     """A tilted sheet cutting a shallow cap off a small closed ball's display, most of its
     triangles in the ball's box far outside: the triangles proven clear are left out and the
