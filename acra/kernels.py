@@ -110,20 +110,33 @@ def _basis(t, scale, order, out):
 
 
 @njit(inline="always")
-def _add_term(ru, rv, order, table, rows, base, sum_, half):
-    """Contract one 4×4 block and add it to a point's sum.
+def _same(x, y):
+    """``x`` and ``y`` hold the same float, the sign of a zero included (a basis row at -0.0 and
+    at 0.0 can differ in the signs of its zeros)."""
+    return x == y and math.copysign(1.0, x) == math.copysign(1.0, y)
 
-    ``ru, rv (3, 4) float64``: basis rows along u and v (`_basis`); ``table (r, 3) float64`` with
-    the block's rows ``rows (4, 4) int64`` (entry ``[a, b]`` is CV ``(a, b)`` of the block, row
-    ``rows[a, b] - base`` of ``table``); ``sum_ (6, 3) float64`` the point's running sum per slot;
-    ``half (4, 3, 3) float64`` scratch. Slot ``(p, q)`` of the term is ``sum_a ru[p, a] ·
-    (sum_b rv[q, b] · block[a, b])``, added to ``sum_`` once complete."""
+
+@njit(inline="always")
+def _half(rv, order, table, rows, base, half):
+    """The v contraction of one 4×4 block: ``half[a, q, c] = sum_b rv[q, b] · block[a, b, c]``.
+
+    ``rv (3, 4) float64``: basis rows along v (`_basis`); ``table (r, 3) float64`` with the
+    block's rows ``rows (4, 4) int64`` (entry ``[a, b]`` is CV ``(a, b)`` of the block, row
+    ``rows[a, b] - base`` of ``table``); ``half (4, 3, 3) float64`` written. It reads neither u
+    nor the point's sum, so points that share v (bit for bit) and the block share it."""
     for a in range(4):
         r0, r1, r2, r3 = rows[a, 0] - base, rows[a, 1] - base, rows[a, 2] - base, rows[a, 3] - base
         for q in range(order + 1):
             w0, w1, w2, w3 = rv[q, 0], rv[q, 1], rv[q, 2], rv[q, 3]
             for c in range(3):
                 half[a, q, c] = w0 * table[r0, c] + w1 * table[r1, c] + w2 * table[r2, c] + w3 * table[r3, c]
+
+
+@njit(inline="always")
+def _add_term(ru, order, half, sum_):
+    """Add one block's term to a point's sum: slot ``(p, q)`` is ``sum_a ru[p, a] · half[a, q]``
+    (``ru (3, 4) float64`` the basis rows along u, ``half (4, 3, 3)`` `_half`'s, ``sum_ (6, 3)
+    float64`` the point's running sum per slot)."""
     for s in range(_NSLOT[order]):
         p, q = _SLOT_P[s], _SLOT_Q[s]
         w0, w1, w2, w3 = ru[p, 0], ru[p, 1], ru[p, 2], ru[p, 3]
@@ -180,7 +193,12 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
     ru = np.zeros((3, 4))  # (order, CV) float64: basis rows along u of the current level
     rv = np.zeros((3, 4))  # and along v
     sum_ = np.zeros((6, 3))  # (slot, xyz) float64: the current point's sum
-    half = np.zeros((4, 3, 3))  # (a, q, xyz) float64: `_add_term`'s scratch
+    # (level, a, q, xyz) float64: per visited level, the v contraction of the last block summed
+    # (`_half`), kept with the v and block it was taken for: a point with the same v (bit for bit)
+    # on the same block reuses it, the same products in the same order
+    half = np.zeros((max(nlev, 1), 4, 3, 3))
+    half_v = np.full(max(nlev, 1), np.nan)  # (nlev,) float64: the v of each level's `half`
+    half_block = np.full(max(nlev, 1), -1, np.int64)  # (nlev,) int64: and its block (level 0: su; else the patch row)
     rows0 = np.empty((4, 4), np.int64)  # (a, b) int64: the point's level-0 block, rows of `cvs`
     last_key = np.full(nlev, -1, np.int64)  # (nlev,) int64 per level: the last key looked up
     last_row = np.full(nlev, -1, np.int64)  # (nlev,) int64: its row in `keys` (-1: not active)
@@ -193,22 +211,25 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
                     out[s, i, c] = np.nan
             continue
         su, tu = _segment(u0, 0, p0u, u_periodic, side)
-        sv, tv = _segment(v0, 0, p0v, v_periodic, side)
-        for a in range(4):
-            iu = su + a
-            if u_periodic and iu >= nu:
-                iu -= nu
-            for b in range(4):
-                iv = sv + b
-                if v_periodic and iv >= nv:
-                    iv -= nv
-                rows0[a, b] = iu * nv + iv
         for s in range(nslot):
             for c in range(3):
                 sum_[s, c] = -0.0  # -0.0 + x is x, the sign of a zero included
         _basis(tu, 1.0, order, ru)
-        _basis(tv, 1.0, order, rv)
-        _add_term(ru, rv, order, cvs, rows0, 0, sum_, half)
+        if not (half_block[0] == su and _same(v0, half_v[0])):
+            sv, tv = _segment(v0, 0, p0v, v_periodic, side)
+            for a in range(4):
+                iu = su + a
+                if u_periodic and iu >= nu:
+                    iu -= nu
+                for b in range(4):
+                    iv = sv + b
+                    if v_periodic and iv >= nv:
+                        iv -= nv
+                    rows0[a, b] = iu * nv + iv
+            _basis(tv, 1.0, order, rv)
+            _half(rv, order, cvs, rows0, 0, half[0])
+            half_v[0], half_block[0] = v0, su
+        _add_term(ru, order, half[0], sum_)
         for lv in range(1, nlev):
             k = levels[lv]
             su, tu = _segment(u0, k, p0u, u_periodic, side)
@@ -233,8 +254,11 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
                 continue
             scale = float(1 << k)
             _basis(tu, scale, order, ru)
-            _basis(tv, scale, order, rv)
-            _add_term(ru, rv, order, table, patch_rows[lo], base, sum_, half)
+            if not (half_block[lv] == lo and _same(v0, half_v[lv])):
+                _basis(tv, scale, order, rv)
+                _half(rv, order, table, patch_rows[lo], base, half[lv])
+                half_v[lv], half_block[lv] = v0, lo
+            _add_term(ru, order, half[lv], sum_)
         for s in range(nslot):
             for c in range(3):
                 out[s, i, c] = sum_[s, c]

@@ -421,13 +421,19 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             p, t = (given[0], given[1]) if rows is None else (given[0][rows], given[1][rows])
             n, nudged = _given_normals(hs, u, v, det, p, t)
             return p, n, nudged
-        if tangents:
-            ev = evaluate(hs, u, v, order=1, det=det)
+        if tangents or not normals:
+            # evaluated by v, then u (vertices come sorted by u, then v): a point on the same v
+            # and block as the one before reuses its v contraction (`acra.kernels.eval_points`),
+            # and each point is summed on its own, so the order changes no bit
+            o = np.argsort(v, kind="stable")
+            ev = evaluate(hs, u[o], v[o], order=1 if tangents else 0, det=det)
+            p = np.empty((u.size, 3))
+            p[o] = ev.points
+            if not tangents:
+                return p, None, None
             both = np.empty((u.size, 6))
-            both[:, :3], both[:, 3:] = ev.du, ev.dv
-            return ev.points, both, None
-        if not normals:
-            return evaluate(hs, u, v, order=0, det=det).points, None, None
+            both[o, :3], both[o, 3:] = ev.du, ev.dv
+            return p, both, None
         nudged = np.empty(u.size, bool)
         ev, n = surface_normals(hs, u, v, det=det, nudged=nudged)
         return ev.points, n, np.flatnonzero(nudged)

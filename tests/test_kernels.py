@@ -136,6 +136,34 @@ def test_the_demo_head_display():
         _assert_same(hs, rng.uniform(0, 16, 500), rng.uniform(0, 11, 500), order, det, None, -1)
 
 
+def _bits(ev, order):
+    return [getattr(ev, name).view(np.int64) for name in FIELDS[: kernels.NSLOTS[order]]]
+
+
+@pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])
+def test_points_sharing_v_equal_each_point_evaluated_alone(kind):
+    """A point on the v and block of the point before reuses its v contraction
+    (`kernels.eval_points`): a display's lattice taken by v, then u (runs of one v across patches
+    and levels, knots of every level, the domain's ends, -0.0 beside 0.0, v one ulp apart), gives
+    the bits of each point evaluated in a call of its own, where nothing is reused."""
+    hs = _surface(kind, 5, 7)
+    det = H.details(hs)
+    rng = np.random.default_rng(1)
+    us = np.concatenate([np.arange(0, 16 * hs.u.patches0 + 1) / 16.0, rng.uniform(0, hs.u.patches0, 20)])
+    vs = np.concatenate([np.arange(0, 16 * hs.v.patches0 + 1, 3) / 16.0, rng.uniform(0, hs.v.patches0, 6),
+                         [-0.0, 0.0, -0.0, np.nextafter(1.0, 0.0), 1.0, np.nextafter(1.0, 2.0)]])
+    v, u = (x.reshape(-1) for x in np.meshgrid(vs, us, indexing="ij"))  # by v, then u
+    u = np.concatenate([u, np.repeat(us[:40], 2)])  # then u runs whose v alternates in sign of zero
+    v = np.concatenate([v, np.tile([0.0, -0.0], 40)])
+    for order in (0, 1, 2):
+        for side in (0, -1):
+            whole = _bits(H.evaluate(hs, u, v, order=order, det=det, side=side), order)
+            for i in range(0, u.size, 7):
+                alone = _bits(H.evaluate(hs, u[i:i + 1], v[i:i + 1], order=order, det=det, side=side), order)
+                for w, a in zip(whole, alone):
+                    assert np.array_equal(w[i], a[0]), (order, side, u[i], v[i])
+
+
 def test_non_finite_parameters_give_nan_and_bad_arguments_raise():
     hs = _surface("sphere", 3, 5)  # periodic u, open v
     ev = H.evaluate(hs, [np.nan, 1.0, np.inf, 1.0, 1.0], [1.0, np.nan, 1.0, np.inf, -np.inf], order=1)
