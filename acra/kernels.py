@@ -202,6 +202,9 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
     rows0 = np.empty((4, 4), np.int64)  # (a, b) int64: the point's level-0 block, rows of `cvs`
     last_key = np.full(nlev, -1, np.int64)  # (nlev,) int64 per level: the last key looked up
     last_row = np.full(nlev, -1, np.int64)  # (nlev,) int64: its row in `keys` (-1: not active)
+    seg_v = np.empty(nlev, np.int64)  # (nlev,) int64 per level: the last point's segment along v
+    t_v = np.empty(nlev)  # (nlev,) float64: and its local parameter
+    last_v = np.nan  # that point's v (`_domain`'s)
     for i in range(m):
         u0 = _domain(u[i], p0u, u_periodic)
         v0 = _domain(v[i], p0v, v_periodic)
@@ -210,6 +213,8 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
                 for c in range(3):
                     out[s, i, c] = np.nan
             continue
+        new_v = not _same(v0, last_v)
+        last_v = v0
         su, tu = _segment(u0, 0, p0u, u_periodic, side)
         for s in range(nslot):
             for c in range(3):
@@ -233,7 +238,9 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
         for lv in range(1, nlev):
             k = levels[lv]
             su, tu = _segment(u0, k, p0u, u_periodic, side)
-            sv, tv = _segment(v0, k, p0v, v_periodic, side)
+            if new_v:
+                seg_v[lv], t_v[lv] = _segment(v0, k, p0v, v_periodic, side)
+            sv, tv = seg_v[lv], t_v[lv]
             want = su * (p0v << k) + sv + shifts[lv - 1]
             if want == last_key[lv]:  # the previous point's patch on this level
                 lo = last_row[lv]
