@@ -310,11 +310,31 @@ def tangent_normals(tangents, c1, c2, out, bad):
     `acra.framekernels.degenerate` and `unit_rows` (so `acra.hspline.surface_normals`' bits),
     and ``bad (m,) bool`` where ``|du × dv| <= c1 max(|du|, |dv|) + c2`` (no direction: the
     caller takes those rows' limit normals, ``out`` left unset there). Returns how many are bad.
-    One pass over the rows, so a display's normals need no copies of ``du`` and ``dv``."""
+    One pass over the rows, so a display's normals need no copies of ``du`` and ``dv``.
+
+    A row whose ``|du × dv|²`` exceeds ``4 (c1² max(|du|², |dv|²) + c2²)`` passes the test
+    whatever the rounding (``(c1 L + c2)² <= 2 (c1² L² + c2²)``, and the factor 2 left covers
+    every rounding by far), so it takes one square root instead of three; the others take the
+    test itself. Where ``c2²`` could underflow (``c2 < 1e-100``) every row takes the test."""
     count = 0
+    quick = c2 >= 1e-100
+    c1s, c2s = c1 * c1, c2 * c2
     for i in range(tangents.shape[0]):
-        n0, n1, n2, length, bad[i] = cross_test(tangents[i, 0], tangents[i, 1], tangents[i, 2],
-                                                tangents[i, 3], tangents[i, 4], tangents[i, 5], c1, c2)
+        a0, a1, a2 = tangents[i, 0], tangents[i, 1], tangents[i, 2]
+        b0, b1, b2 = tangents[i, 3], tangents[i, 4], tangents[i, 5]
+        if quick:
+            n0 = a1 * b2 - a2 * b1
+            n1 = a2 * b0 - a0 * b2
+            n2 = a0 * b1 - a1 * b0
+            nn = (n0 * n0 + n1 * n1) + n2 * n2
+            la2 = (a0 * a0 + a1 * a1) + a2 * a2
+            lb2 = (b0 * b0 + b1 * b1) + b2 * b2
+            if nn > 4.0 * (c1s * max(la2, lb2) + c2s):  # false for a NaN or an overflow
+                length = math.sqrt(nn)
+                bad[i] = False
+                out[i, 0], out[i, 1], out[i, 2] = n0 / length, n1 / length, n2 / length
+                continue
+        n0, n1, n2, length, bad[i] = cross_test(a0, a1, a2, b0, b1, b2, c1, c2)
         if bad[i]:
             count += 1
         else:

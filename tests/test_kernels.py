@@ -410,6 +410,37 @@ def test_normals_of_tangent_rows_equal_degenerate_and_unit_rows(seed):
     np.testing.assert_array_equal(got[~bad].view(np.int64), want.view(np.int64))
 
 
+@pytest.mark.parametrize("c1, c2", [(3e-6, 9e-12), (1e-6, 1e-120), (1e-6, 0.0), (1e-300, 1e-300), (1e-165, 1e-162), (1e150, 1e200)])
+def test_normals_of_tangent_rows_about_the_test_equal_degenerate(c1, c2):
+    """Rows whose ``|du × dv|`` lies about ``c1 max(|du|, |dv|) + c2`` (from half to twice it,
+    and within a few ulps of it): `kernels.tangent_normals`' one-root path for rows far above
+    it gives the flags and bits of `framekernels.degenerate` and `unit_rows` on each, with a
+    ``c2`` whose square underflows and bounds whose squares overflow."""
+    rng = np.random.default_rng(5)
+    m = 2000
+    du = rng.normal(size=(m, 3)) * 10.0 ** rng.uniform(-3, 3, (m, 1))
+    e = rng.normal(size=(m, 3))
+    w = np.cross(du, e)
+    w /= np.linalg.norm(w, axis=1, keepdims=True)  # a unit vector normal to du
+    dv = du * rng.uniform(-2, 2, (m, 1))  # parallel to du, then tilted off it by w
+    longest = np.maximum(np.linalg.norm(du, axis=1), np.linalg.norm(dv, axis=1))
+    bound = c1 * longest + c2
+    ratio = np.where(rng.random(m) < 0.5, rng.uniform(0.5, 2.0, m), 1.0 + rng.integers(-8, 9, m) * 2.0**-52)
+    # |du × (dv + h w)| = h |du| for w normal to du; |dv| changes by at most h, well under bound
+    h = ratio * bound / np.linalg.norm(du, axis=1)
+    dv = dv + h[:, None] * w
+    with np.errstate(over="ignore", invalid="ignore"):
+        n, bad = np.empty((m, 3)), np.empty(m, bool)
+        framekernels.degenerate(du, dv, c1, c2, n, bad)
+        want = np.empty((int((~bad).sum()), 3))
+        framekernels.unit_rows(n[~bad], want)
+    got, flagged = np.empty((m, 3)), np.empty(m, bool)
+    assert kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, got, flagged) == bad.sum()
+    np.testing.assert_array_equal(flagged, bad)
+    np.testing.assert_array_equal(got[~bad].view(np.int64), want.view(np.int64))
+    assert 0 < bad.sum() < m or c2 >= 1e200
+
+
 @pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])
 def test_compiled_movable_places_equal_the_array_form(kind):
     """`levelkernels.movable_places` (behind `hspline._movable_places`: each movable CV's row,
