@@ -52,6 +52,8 @@ def _domain(x, patches0, periodic):
     ``2**k`` is what `acra.hspline._segments_all` wraps or clamps ``x * 2**k`` to at level ``k``."""
     n = float(patches0)
     if periodic:
+        if 0.0 < x < n:  # fmod's exact result there, without its cost
+            return x
         r = np.fmod(x, n)
         if r != 0.0:
             if r < 0.0:
@@ -202,6 +204,7 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
     rows0 = np.empty((4, 4), np.int64)  # (a, b) int64: the point's level-0 block, rows of `cvs`
     last_key = np.full(nlev, -1, np.int64)  # (nlev,) int64 per level: the last key looked up
     last_row = np.full(nlev, -1, np.int64)  # (nlev,) int64: its row in `keys` (-1: not active)
+    last_pos = np.zeros(nlev, np.int64)  # (nlev,) int64: the first row of `keys` holding a key >= it
     seg_v = np.empty(nlev, np.int64)  # (nlev,) int64 per level: the last point's segment along v
     t_v = np.empty(nlev)  # (nlev,) float64: and its local parameter
     last_v = np.nan  # that point's v (`_domain`'s)
@@ -247,12 +250,22 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
             else:
                 lo = 0 if lv == 1 else ends[lv - 2]
                 hi = ends[lv - 1]
+                if want > last_key[lv] >= 0:
+                    # the points come by v, then u: the next patch along u lies a little after the
+                    # last one's place, so gallop from there before bisecting
+                    lo = last_pos[lv]
+                    step = 1
+                    while lo + step < hi and keys[lo + step] < want:
+                        lo += step
+                        step <<= 1
+                    hi = min(lo + step, hi)
                 while lo < hi:  # first key >= want in this level's keys
                     mid = (lo + hi) >> 1
                     if keys[mid] < want:
                         lo = mid + 1
                     else:
                         hi = mid
+                last_pos[lv] = lo
                 if lo == ends[lv - 1] or keys[lo] != want:
                     lo = -1
                 last_key[lv] = want
