@@ -421,23 +421,29 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             p, t = (given[0], given[1]) if rows is None else (given[0][rows], given[1][rows])
             n, nudged = _given_normals(hs, u, v, det, p, t)
             return p, n, nudged
-        if tangents or not normals:
-            # evaluated by v, then u (vertices come sorted by u, then v): a point on the same v
-            # and block as the one before reuses its v contraction (`acra.kernels.eval_points`),
-            # and each point is summed on its own, so the order changes no bit
-            o = np.argsort(v, kind="stable")
-            ev = evaluate(hs, u[o], v[o], order=1 if tangents else 0, det=det)
-            p = np.empty((u.size, 3))
-            p[o] = ev.points
-            if not tangents:
-                return p, None, None
-            both = np.empty((u.size, 6))
-            both[o, :3], both[o, 3:] = ev.du, ev.dv
-            return p, both, None
+        if tangents:
+            ev = evaluate(hs, u, v, order=1, det=det)
+            return ev.points, np.concatenate((ev.du, ev.dv), axis=1), None
+        if not normals:
+            return evaluate(hs, u, v, order=0, det=det).points, None, None
         nudged = np.empty(u.size, bool)
         ev, n = surface_normals(hs, u, v, det=det, nudged=nudged)
         return ev.points, n, np.flatnonzero(nudged)
 
+    # an evaluation takes its points by v, then u (a topology's vertices come by u, then v): a
+    # point on the v and block of the one before reuses its v contraction
+    # (`acra.kernels.eval_points`), and each point is summed on its own, so the order changes no bit
+    by_v = given is None and (tangents or not normals)
+    if since is None and by_v:
+        o = np.argsort(topo.v, kind="stable")
+        p, t, _ = sample(topo.u[o], topo.v[o])
+        points = np.empty((topo.u.size, 3))
+        points[o] = p
+        if t is not None:
+            limit = np.empty((topo.u.size, 6))
+            limit[o] = t
+            return points, limit
+        return points, None
     if since is None:
         points, limit, nudged = sample(topo.u, topo.v)
         if normals:
@@ -476,6 +482,8 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             carried = np.flatnonzero(took & copied)
     nudged = None
     if idx.size:
+        if by_v:
+            idx = idx[np.argsort(topo.v[idx], kind="stable")]
         p, n, nudged = sample(topo.u[idx], topo.v[idx], idx)
         points[idx] = p
         if normals or tangents:
