@@ -639,19 +639,25 @@ def _cells(d: Direction, x: np.ndarray, level: int = 0) -> tuple[np.ndarray, np.
     return np.clip(cell, 0, n - 1), np.clip(before, 0, n - 1)
 
 
-def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray) -> np.ndarray:
+def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray, in_place: bool = False) -> np.ndarray:
     """Display normals ``(n, 3)``: the limit normals, except that the vertices of every domain
     edge collapsed to one point (a pole) share the mean of their limit normals, so shading at a
-    pole is smooth. ``topo`` is a `GridTopology` or a `MeshTopology` (its ``u``, ``v``)."""
+    pole is smooth. ``topo`` is a `GridTopology` or a `MeshTopology` (its ``u``, ``v``). With
+    ``in_place`` they are written over ``limit`` (returned), which spares a copy of the whole
+    display where the caller needs the limit normals no more; every mean is of the limit normals
+    either way (a corner on two poles' lines)."""
     scale = hs.size()
-    out = limit.copy()
+    shared = []
     for line in _end_lines(hs, topo):
         if np.ptp(points[line], axis=0).max() > 1e-12 * scale:
             continue
         m = limit[line].mean(axis=0)
         norm = np.linalg.norm(m)
         if norm > 1e-12:
-            out[line] = m / norm
+            shared.append((line, m / norm))
+    out = limit if in_place else limit.copy()
+    for line, n in shared:
+        out[line] = n
     return out
 
 
