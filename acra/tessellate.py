@@ -423,15 +423,27 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             return p, n, nudged
         if tangents:
             ev = evaluate(hs, u, v, order=1, det=det)
-            both = np.empty((u.size, 6))
-            both[:, :3], both[:, 3:] = ev.du, ev.dv
-            return ev.points, both, None
+            return ev.points, np.concatenate((ev.du, ev.dv), axis=1), None
         if not normals:
             return evaluate(hs, u, v, order=0, det=det).points, None, None
         nudged = np.empty(u.size, bool)
         ev, n = surface_normals(hs, u, v, det=det, nudged=nudged)
         return ev.points, n, np.flatnonzero(nudged)
 
+    # an evaluation takes its points by v, then u (a topology's vertices come by u, then v): a
+    # point on the v and block of the one before reuses its v contraction
+    # (`acra.kernels.eval_points`), and each point is summed on its own, so the order changes no bit
+    by_v = given is None and (tangents or not normals)
+    if since is None and by_v:
+        o = np.argsort(topo.v, kind="stable")
+        p, t, _ = sample(topo.u[o], topo.v[o])
+        points = np.empty((topo.u.size, 3))
+        points[o] = p
+        if t is not None:
+            limit = np.empty((topo.u.size, 6))
+            limit[o] = t
+            return points, limit
+        return points, None
     if since is None:
         points, limit, nudged = sample(topo.u, topo.v)
         if normals:
@@ -470,6 +482,8 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             carried = np.flatnonzero(took & copied)
     nudged = None
     if idx.size:
+        if by_v:
+            idx = idx[np.argsort(topo.v[idx], kind="stable")]
         p, n, nudged = sample(topo.u[idx], topo.v[idx], idx)
         points[idx] = p
         if normals or tangents:
@@ -625,19 +639,25 @@ def _cells(d: Direction, x: np.ndarray, level: int = 0) -> tuple[np.ndarray, np.
     return np.clip(cell, 0, n - 1), np.clip(before, 0, n - 1)
 
 
-def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray) -> np.ndarray:
+def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray, in_place: bool = False) -> np.ndarray:
     """Display normals ``(n, 3)``: the limit normals, except that the vertices of every domain
     edge collapsed to one point (a pole) share the mean of their limit normals, so shading at a
-    pole is smooth. ``topo`` is a `GridTopology` or a `MeshTopology` (its ``u``, ``v``)."""
+    pole is smooth. ``topo`` is a `GridTopology` or a `MeshTopology` (its ``u``, ``v``). With
+    ``in_place`` they are written over ``limit`` (returned), which spares a copy of the whole
+    display where the caller needs the limit normals no more; every mean is of the limit normals
+    either way (a corner on two poles' lines)."""
     scale = hs.size()
-    out = limit.copy()
+    shared = []
     for line in _end_lines(hs, topo):
         if np.ptp(points[line], axis=0).max() > 1e-12 * scale:
             continue
         m = limit[line].mean(axis=0)
         norm = np.linalg.norm(m)
         if norm > 1e-12:
-            out[line] = m / norm
+            shared.append((line, m / norm))
+    out = limit if in_place else limit.copy()
+    for line, n in shared:
+        out[line] = n
     return out
 
 

@@ -8,7 +8,9 @@ after a response: 7 levels, 23,491 display points). Prints markdown tables of:
 
 * milliseconds per call, numpy (`hspline._evaluate_numpy`) and kernel (`hspline.evaluate`), at
   derivative orders 0 and 1, for the whole display and for calls of 50 points (50 consecutive
-  display parameters, and 50 drawn at random from them): the median of ``--repeat`` (display)
+  display parameters, and 50 drawn at random from them; the display again by v, then u, the
+  order `acra.tessellate.grid_samples` evaluates in, where a point reuses the v contraction of the
+  point before on the same v and block): the median of ``--repeat`` (display)
   or ``--small-repeat`` (50 points) calls, the two forms alternating in this one process, BLAS
   on one thread as in the frame loop (`pipeline.frames`), and the largest difference between
   them relative to the object's size;
@@ -131,8 +133,10 @@ def main() -> None:
         hs, det, topo = pickle.load(f)
     u, v = np.ascontiguousarray(topo.u, np.float64), np.ascontiguousarray(topo.v, np.float64)
     pick = np.random.default_rng(0).choice(u.size, 50, replace=False)
+    by_v = np.argsort(v, kind="stable")  # by v, then u: the order `tessellate.grid_samples` passes
     cases = [
         (f"display, {u.size:,} points", u, v, args.repeat),
+        (f"display, {u.size:,} points by v, then u", u[by_v], v[by_v], args.repeat),
         ("50 consecutive display points", u[:50].copy(), v[:50].copy(), args.small_repeat),
         ("50 random display points", u[pick], v[pick], args.small_repeat),
     ]

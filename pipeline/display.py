@@ -113,9 +113,17 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
     memo: dict = {}  # `grid_samples`' memo: each vertex's cells on a topology, shared by its frames
     for model in scene.deformables:
         topo = topologies[model.path]
-        done: dict = {}  # id(surface) -> (surface, points, normals, limit normals)
+        done: dict = {}  # id(surface) -> (surface, points, normals, limit normals or None)
         last = None
-        for f in sorted(result.frames):
+        order = sorted(result.frames)
+        # a surface's limit normals are read again only where the next frame shows another surface
+        # the displays do not hold (`since`); elsewhere the display normals overwrite them
+        read_again = set()
+        for f, g in zip(order, order[1:]):
+            a, b = result.frames[f][model.path].surface, result.frames[g][model.path].surface
+            if b is not a and (displays is None or displays.shown(b) is None):
+                read_again.add(id(a))
+        for f in order:
             r = result.frames[f][model.path]
             hit = done.get(id(r.surface))
             if hit is None or hit[0] is not r.surface:
@@ -139,7 +147,9 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
                     given = grid_samples(r.surface, topo, det, (shown.topology, shown.points, shown.tangents, unchanged),
                                          memo, normals=False, tangents=True)
                 pts, limit = grid_samples(r.surface, topo, det, since, memo, given=given)
-                hit = done[id(r.surface)] = (r.surface, pts, pole_normals(r.surface, topo, pts, limit), limit)
+                kept = id(r.surface) in read_again
+                normals = pole_normals(r.surface, topo, pts, limit, in_place=not kept)
+                hit = done[id(r.surface)] = (r.surface, pts, normals, limit if kept else None)
                 ms[f] += 1e3 * (time.perf_counter() - t0)
             last = hit
             result.frames[f][model.path] = replace(r, points=hit[1], normals=hit[2])

@@ -186,6 +186,39 @@ def test_the_run_s_normals_of_a_displayed_surface_come_from_its_derivatives_alon
         np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topologies[model.path], points, limit))
 
 
+def test_the_run_s_limit_normals_a_later_frame_reads_are_left_whole(tiny_stage, monkeypatch):
+    """`evaluate_run` writes a frame's display normals over its limit normals only where no later
+    frame reads them: without the loop's displays every frame but the last is evaluated since the
+    one before it, so those keep their limit normals whole (the display normals a copy), and the
+    result equals a full evaluation bit for bit; with them, a displayed surface's are written over."""
+    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
+    scene = usdio.read_scene(stage)
+    (model,) = scene.deformables
+    shown = display.Displays(density=8)
+    result, _ = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=shown)
+    topologies = display.run_topologies(scene, result)
+    calls = []
+    real = display.pole_normals
+    monkeypatch.setattr(display, "pole_normals", lambda hs, topo, points, limit, in_place=False: calls.append(
+        (hs, in_place)) or real(hs, topo, points, limit, in_place))
+    surfaces = [per[model.path].surface for _, per in sorted(result.frames.items())]
+    first = list({id(s): s for s in reversed(surfaces)}.values())[::-1]  # each surface once, in frame order
+
+    def read_again(s, displays):
+        return any(a is s and b is not a and (displays is None or displays.shown(b) is None)
+                   for a, b in zip(surfaces, surfaces[1:]))
+
+    for displays in (None, shown):
+        calls.clear()
+        display.evaluate_run(scene, result, topologies, displays=displays)
+        assert [c[0] for c in calls] == first
+        assert [c[1] for c in calls] == [not read_again(s, displays) for s in first]
+        for r in (per[model.path] for per in result.frames.values()):
+            points, limit = grid_samples(r.surface, topologies[model.path], H.details(r.surface))
+            np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topologies[model.path], points, limit))
+    assert read_again(first[0], None)  # without the displays the first surface's are read again
+
+
 def test_the_run_s_triangles_are_the_kept_topology_s(tiny_stage):
     """`kept_triangles` of a topology `_topology` keeps is the array kept with it (the run's
     residual takes it, built once a round built the topology), equal to ``triangles()``; of

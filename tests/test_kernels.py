@@ -136,6 +136,34 @@ def test_the_demo_head_display():
         _assert_same(hs, rng.uniform(0, 16, 500), rng.uniform(0, 11, 500), order, det, None, -1)
 
 
+def _bits(ev, order):
+    return [getattr(ev, name).view(np.int64) for name in FIELDS[: kernels.NSLOTS[order]]]
+
+
+@pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])
+def test_points_sharing_v_equal_each_point_evaluated_alone(kind):
+    """A point on the v and block of the point before reuses its v contraction
+    (`kernels.eval_points`): a display's lattice taken by v, then u (runs of one v across patches
+    and levels, knots of every level, the domain's ends, -0.0 beside 0.0, v one ulp apart), gives
+    the bits of each point evaluated in a call of its own, where nothing is reused."""
+    hs = _surface(kind, 5, 7)
+    det = H.details(hs)
+    rng = np.random.default_rng(1)
+    us = np.concatenate([np.arange(0, 16 * hs.u.patches0 + 1) / 16.0, rng.uniform(0, hs.u.patches0, 20)])
+    vs = np.concatenate([np.arange(0, 16 * hs.v.patches0 + 1, 3) / 16.0, rng.uniform(0, hs.v.patches0, 6),
+                         [-0.0, 0.0, -0.0, np.nextafter(1.0, 0.0), 1.0, np.nextafter(1.0, 2.0)]])
+    v, u = (x.reshape(-1) for x in np.meshgrid(vs, us, indexing="ij"))  # by v, then u
+    u = np.concatenate([u, np.repeat(us[:40], 2)])  # then u runs whose v alternates in sign of zero
+    v = np.concatenate([v, np.tile([0.0, -0.0], 40)])
+    for order in (0, 1, 2):
+        for side in (0, -1):
+            whole = _bits(H.evaluate(hs, u, v, order=order, det=det, side=side), order)
+            for i in range(0, u.size, 7):
+                alone = _bits(H.evaluate(hs, u[i:i + 1], v[i:i + 1], order=order, det=det, side=side), order)
+                for w, a in zip(whole, alone):
+                    assert np.array_equal(w[i], a[0]), (order, side, u[i], v[i])
+
+
 def test_non_finite_parameters_give_nan_and_bad_arguments_raise():
     hs = _surface("sphere", 3, 5)  # periodic u, open v
     ev = H.evaluate(hs, [np.nan, 1.0, np.inf, 1.0, 1.0], [1.0, np.nan, 1.0, np.inf, -np.inf], order=1)
@@ -380,6 +408,37 @@ def test_normals_of_tangent_rows_equal_degenerate_and_unit_rows(seed):
     assert kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, got, flagged) == bad.sum() > 0
     np.testing.assert_array_equal(flagged, bad)
     np.testing.assert_array_equal(got[~bad].view(np.int64), want.view(np.int64))
+
+
+@pytest.mark.parametrize("c1, c2", [(3e-6, 9e-12), (1e-6, 1e-120), (1e-6, 0.0), (1e-300, 1e-300), (1e-165, 1e-162), (1e150, 1e200)])
+def test_normals_of_tangent_rows_about_the_test_equal_degenerate(c1, c2):
+    """Rows whose ``|du × dv|`` lies about ``c1 max(|du|, |dv|) + c2`` (from half to twice it,
+    and within a few ulps of it): `kernels.tangent_normals`' one-root path for rows far above
+    it gives the flags and bits of `framekernels.degenerate` and `unit_rows` on each, with a
+    ``c2`` whose square underflows and bounds whose squares overflow."""
+    rng = np.random.default_rng(5)
+    m = 2000
+    du = rng.normal(size=(m, 3)) * 10.0 ** rng.uniform(-3, 3, (m, 1))
+    e = rng.normal(size=(m, 3))
+    w = np.cross(du, e)
+    w /= np.linalg.norm(w, axis=1, keepdims=True)  # a unit vector normal to du
+    dv = du * rng.uniform(-2, 2, (m, 1))  # parallel to du, then tilted off it by w
+    longest = np.maximum(np.linalg.norm(du, axis=1), np.linalg.norm(dv, axis=1))
+    bound = c1 * longest + c2
+    ratio = np.where(rng.random(m) < 0.5, rng.uniform(0.5, 2.0, m), 1.0 + rng.integers(-8, 9, m) * 2.0**-52)
+    # |du × (dv + h w)| = h |du| for w normal to du; |dv| changes by at most h, well under bound
+    h = ratio * bound / np.linalg.norm(du, axis=1)
+    dv = dv + h[:, None] * w
+    with np.errstate(over="ignore", invalid="ignore"):
+        n, bad = np.empty((m, 3)), np.empty(m, bool)
+        framekernels.degenerate(du, dv, c1, c2, n, bad)
+        want = np.empty((int((~bad).sum()), 3))
+        framekernels.unit_rows(n[~bad], want)
+    got, flagged = np.empty((m, 3)), np.empty(m, bool)
+    assert kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, got, flagged) == bad.sum()
+    np.testing.assert_array_equal(flagged, bad)
+    np.testing.assert_array_equal(got[~bad].view(np.int64), want.view(np.int64))
+    assert 0 < bad.sum() < m or c2 >= 1e200
 
 
 @pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])

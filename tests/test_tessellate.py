@@ -487,6 +487,26 @@ def test_a_pole_s_vertices_share_the_mean_of_their_limit_normals():
             assert poles > 2
 
 
+def test_pole_normals_in_place_equal_a_copy_where_two_poles_meet():
+    """`pole_normals(in_place=True)` writes over the limit normals what the copy holds, where the
+    lines of two collapsed edges share a corner (each mean is of the limit normals, not of the
+    other line's shared normal), and returns the limit normals' array."""
+    hs = wavy_sheet(nu=7, nv=8, depth=1, seed=3)  # open both ways: four end lines
+    topo = T.display_topology(hs.u, hs.v, 4)
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(topo.u.size, 3))
+    points[(topo.u == 0.0) | (topo.v == 0.0)] = [0.5, 0.25, 1.0]  # two edges collapsed to one point
+    limit = rng.normal(size=(topo.u.size, 3))
+    limit /= np.linalg.norm(limit, axis=1, keepdims=True)
+    before = limit.copy()
+    copied = T.pole_normals(hs, topo, points, limit)
+    np.testing.assert_array_equal(limit, before)
+    assert not np.array_equal(copied, before)
+    written = T.pole_normals(hs, topo, points, limit, in_place=True)
+    assert written is limit
+    np.testing.assert_array_equal(written.view(np.int64), copied.view(np.int64))
+
+
 def test_kept_rows_hold_their_arrays_by_weak_references_without_callbacks():
     """`_note_nudged` and `_end_lines` keep their answers per live array or topology through weak
     references without callbacks (a callback runs Python code when the array dies, and an
