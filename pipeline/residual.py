@@ -117,8 +117,11 @@ class Shown:
         collider's solid, which is fixed for a run): two `Shown` with the same digest give the
         same `pair_depth` answers, as either side of a pair."""
         h = hashlib.sha1(repr((self.path, self.closed, self.deformable, self.outward, self.size)).encode())
-        # ``world`` is ``local`` mapped by ``xform`` (`shown`; a collider's is empty)
-        for x in (self.box, self.xform, self.local):
+        # ``world`` is ``local`` mapped by ``xform`` (`shown`; a collider's is empty). ``local``
+        # holds float32 values (`shown`), so its float32 copy has the same values in half the
+        # bytes to hash
+        local = None if self.local is None else self.local.astype(np.float32)
+        for x in (self.box, self.xform, local):
             h.update(b"-" if x is None else repr((x.dtype.str, x.shape)).encode())
             if x is not None:
                 h.update(np.ascontiguousarray(x).data)
