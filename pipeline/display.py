@@ -23,6 +23,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from acra import hspline
 from acra.tessellate import MeshTopology, grid_samples, pole_normals, run_topology
@@ -165,8 +166,12 @@ def finish(stage, scene: SceneModel, result, stats: list, options, displays: Dis
     loop's (`evaluate_run` takes the surfaces they hold from them)."""
     from pipeline import residual
 
-    ms = evaluate_run(scene, result, run_topologies(scene, result), options.density, displays)
-    residual.measure_run(stage, scene, result, stats, options, displays)
+    # BLAS on one thread, as in the frame loop (`frames.respond_frames`): the run's display and its
+    # residual call it on small arrays only, and a threaded OpenBLAS leaves its workers spinning
+    # on the second core after a call, where the output layer's writing that follows runs
+    with threadpool_limits(limits=1, user_api="blas"):
+        ms = evaluate_run(scene, result, run_topologies(scene, result), options.density, displays)
+        residual.measure_run(stage, scene, result, stats, options, displays)
     for st in stats:
         st.ms_output += ms.get(st.frame, 0.0)
         st.ms_total += ms.get(st.frame, 0.0)
