@@ -115,12 +115,7 @@ def test_the_run_s_display_takes_the_rounds_displays_and_equals_a_full_evaluatio
     """`evaluate_run` with the frame loop's displays evaluates no vertex they hold again: a
     surface displayed on the run's topology gives its points array itself, and its derivatives
     the normals; the points and normals equal a full evaluation with normals bit for bit."""
-    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
-    scene = usdio.read_scene(stage)
-    (model,) = scene.deformables
-    shown = display.Displays(density=8)
-    result, _ = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=shown)
-    topologies = display.run_topologies(scene, result)
+    scene, model, shown, result, topologies = _four_responded_frames(tiny_stage)
     topo = topologies[model.path]
     display.evaluate_run(scene, result, topologies, displays=shown)
     taken = 0
@@ -163,16 +158,22 @@ def test_the_run_s_residual_takes_the_rounds_shown_objects(tiny_stage, monkeypat
     assert [(st.residual, st.pair_residual_rel) for st in stats] == [(st.residual, st.pair_residual_rel) for st in alone]
 
 
-def test_the_run_s_normals_of_a_displayed_surface_come_from_its_derivatives_alone(tiny_stage, monkeypatch):
-    """A surface the rounds displayed gets every normal from the display's derivatives: no cells
-    are compared with the surface before it (a cross product a vertex costs less than
-    `hspline.changed_cells` and the copy), and the normals equal a full evaluation's bit for bit."""
+def _four_responded_frames(tiny_stage):
+    """A tiny stage's frames 1-4 through the frame loop with its displays kept: the scene, its
+    deformable, the `Displays`, the result and the run's topologies."""
     stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
     scene = usdio.read_scene(stage)
     (model,) = scene.deformables
     shown = display.Displays(density=8)
     result, _ = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=shown)
-    topologies = display.run_topologies(scene, result)
+    return scene, model, shown, result, display.run_topologies(scene, result)
+
+
+def test_the_run_s_normals_of_a_displayed_surface_come_from_its_derivatives_alone(tiny_stage, monkeypatch):
+    """A surface the rounds displayed gets every normal from the display's derivatives: no cells
+    are compared with the surface before it (a cross product a vertex costs less than
+    `hspline.changed_cells` and the copy), and the normals equal a full evaluation's bit for bit."""
+    scene, model, shown, result, topologies = _four_responded_frames(tiny_stage)
     compared = []
     real = H.changed_cells
     monkeypatch.setattr(display.hspline, "changed_cells", lambda old, od, new, *a: compared.append(new)
@@ -191,12 +192,7 @@ def test_the_run_s_limit_normals_a_later_frame_reads_are_left_whole(tiny_stage, 
     frame reads them: without the loop's displays every frame but the last is evaluated since the
     one before it, so those keep their limit normals whole (the display normals a copy), and the
     result equals a full evaluation bit for bit; with them, a displayed surface's are written over."""
-    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
-    scene = usdio.read_scene(stage)
-    (model,) = scene.deformables
-    shown = display.Displays(density=8)
-    result, _ = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=shown)
-    topologies = display.run_topologies(scene, result)
+    scene, model, shown, result, topologies = _four_responded_frames(tiny_stage)
     calls = []
     real = display.pole_normals
     monkeypatch.setattr(display, "pole_normals", lambda hs, topo, points, limit, in_place=False: calls.append(
