@@ -984,8 +984,8 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
         if not is_closed(y):
             continue
         if isinstance(x, SurfaceGeometry):
-            lo, hi = x.boxes  # `candidate_patches`, counted
-            if np.count_nonzero(_overlap(lo, hi, y.bounds[0], y.bounds[1], pad)) < x.surface.u.patches0 * x.surface.v.patches0:
+            lo, hi = x.boxes  # every patch a candidate (`candidate_patches`), without listing them
+            if not _overlap(lo, hi, y.bounds[0], y.bounds[1], pad).all():
                 continue
         elif not np.all((x.vertices >= y.bounds[0] - pad) & (x.vertices <= y.bounds[1] + pad)):
             continue
