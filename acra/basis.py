@@ -122,6 +122,10 @@ class Direction:
         Level-0 CV count (open: at least 4, periodic: at least 3).
     periodic : bool
         Whether the direction wraps.
+    patches0 : int
+        Level-0 segment count ``P0`` (``n``, or ``n - 3`` open); the parameter domain is
+        ``[0, P0]``. Not a field (equality and hashing are of ``n`` and ``periodic``): set once,
+        as every query on the grid reads it, tens of times a response step.
     """
 
     n: int
@@ -132,11 +136,8 @@ class Direction:
         if self.n < need:
             kind = "periodic" if self.periodic else "open"
             raise ValueError(f"an {kind} direction needs at least {need} CVs, got {self.n}")
-
-    @property
-    def patches0(self) -> int:
-        """Level-0 segment count ``P0``; the parameter domain is ``[0, P0]``."""
-        return self.n if self.periodic else self.n - 3
+        object.__setattr__(self, "patches0", self.n if self.periodic else self.n - 3)
+        object.__setattr__(self, "_ends", 0 if self.periodic else 3)  # CVs beyond the segments
 
     def patches(self, level: int) -> int:
         """Segment count at ``level``."""
@@ -144,7 +145,7 @@ class Direction:
 
     def cvs(self, level: int) -> int:
         """CV count at ``level``."""
-        return self.patches(level) + (0 if self.periodic else 3)
+        return (self.patches0 << level) + self._ends
 
     def wrap_cv(self, j: np.ndarray, level: int) -> np.ndarray:
         """Map CV indices into range (periodic) or leave them (open); ``j`` int64 any shape."""
