@@ -33,7 +33,7 @@ from numba import njit
 from acra.kernels import mark_cells
 
 __all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
-           "mark_changed", "restate_rows", "stale_rows"]
+           "mark_changed", "restate_rows", "stale_rows", "merge_points"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -451,3 +451,62 @@ def stale_rows(stale, centre, ring, ends, every, pending):
             out[n] = i
             n += 1
     return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def merge_points(uv, want, is_contact, level, u_patches, u_periodic, v_patches, v_periodic, trig):
+    """`acra.respond._per_level_points` in one pass: the contacts of ``uv (K, 2) float64`` and
+    ``want (K, 3) float64`` as they are, in order, then one row per level-``level`` patch that
+    additional points (``is_contact (K,) bool`` false) fall in, patches in key order (``pu *
+    v_patches + pv``, `acra.respond.patch_keys`; `unique_inverse`'s numbering): the mean of
+    their wanted moves and of each open direction's parameters, each sum from 0.0 in the
+    points' order then divided by the count, as ``np.bincount`` sums. A periodic direction's
+    mean is an angle's (`acra.respond.patch_groups`): ``trig (2, 2, E) float64`` holds numpy's
+    cosines and sines of the ``E`` additional points' angles per direction (``[col, 0]``:
+    cosines, ``[col, 1]``: sines; unused for an open direction), summed here per patch into
+    ``sums (g, 2, 2) float64`` for the caller's ``arctan2``. Returns the merged ``uv (n, 2)``,
+    ``want (n, 3)`` (a periodic column of a patch row left for the caller) and ``sums``."""
+    K = uv.shape[0]
+    nc = 0
+    for i in range(K):
+        nc += is_contact[i]
+    E = K - nc
+    keys = np.empty(E, np.int64)
+    e = 0
+    for i in range(K):
+        if not is_contact[i]:
+            su = _segment(uv[i, 0], level, u_patches, u_periodic)[0]
+            sv = _segment(uv[i, 1], level, v_patches, v_periodic)[0]
+            keys[e] = su * v_patches + sv
+            e += 1
+    uniq, inv = unique_inverse(keys)
+    g = uniq.shape[0]
+    count = np.zeros(g, np.int64)
+    plain = np.zeros((g, 2))
+    moves = np.zeros((g, 3))
+    sums = np.zeros((g, 2, 2))
+    out_uv = np.empty((nc + g, 2))
+    out_want = np.empty((nc + g, 3))
+    c = e = 0
+    for i in range(K):
+        if is_contact[i]:
+            out_uv[c, 0], out_uv[c, 1] = uv[i, 0], uv[i, 1]
+            out_want[c, 0], out_want[c, 1], out_want[c, 2] = want[i, 0], want[i, 1], want[i, 2]
+            c += 1
+            continue
+        r = inv[e]
+        count[r] += 1
+        for col in range(2):
+            plain[r, col] += uv[i, col]
+            sums[r, col, 0] += trig[col, 0, e]
+            sums[r, col, 1] += trig[col, 1, e]
+        for j in range(3):
+            moves[r, j] += want[i, j]
+        e += 1
+    for r in range(g):
+        n = float(count[r])
+        for col in range(2):
+            out_uv[nc + r, col] = plain[r, col] / n
+        for j in range(3):
+            out_want[nc + r, j] = moves[r, j] / n
+    return out_uv, out_want, sums

@@ -693,6 +693,29 @@ def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarra
 
     Returns ``uv (g, 2)``, ``want (g, 3)``.
     """
+    if is_contact.all():
+        return uv, want
+    # compiled (`levelkernels.merge_points`) but for a periodic direction's angles, whose
+    # cosines, sines and arctan2 stay numpy's (`patch_groups`' arithmetic, as
+    # `_per_level_points_numpy` holds it)
+    ex = uv[~is_contact]
+    trig = np.zeros((2, 2, ex.shape[0]))
+    for col, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            ang = 2 * np.pi * ex[:, col] / d.patches0
+            trig[col, 0], trig[col, 1] = np.cos(ang), np.sin(ang)
+    luv, lwant, sums = levelkernels.merge_points(
+        np.ascontiguousarray(uv), np.ascontiguousarray(want), np.ascontiguousarray(is_contact), level,
+        hs.u.patches(level), hs.u.periodic, hs.v.patches(level), hs.v.periodic, trig)
+    nc = luv.shape[0] - sums.shape[0]
+    for col, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            luv[nc:, col] = np.mod(np.arctan2(sums[:, col, 1], sums[:, col, 0]), 2 * np.pi) * d.patches0 / (2 * np.pi)
+    return luv, lwant
+
+
+def _per_level_points_numpy(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray):
+    """`_per_level_points` as array operations (the reference its kernel is tested against)."""
     extra = ~is_contact
     if not np.any(extra):
         return uv, want
