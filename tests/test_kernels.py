@@ -481,3 +481,21 @@ def test_compiled_unique_inverse_equals_numpy_unique(seed):
         np.testing.assert_array_equal(uniq, want_uniq)
         np.testing.assert_array_equal(inv, want_inv)
         assert uniq.dtype == inv.dtype == np.int64
+
+
+@pytest.mark.parametrize("span", [1, 200, 5000, 10**9])
+def test_unique_inverse_marks_a_narrow_span_and_sorts_a_wide_one(span):
+    """`levelkernels.unique_inverse` numbers values within a few times their count of each other
+    by marking their span (a pole's thousands of entries on two hundred rows) and sorts the rest
+    (far-flung keys, the least int64 of a NaN parameter's patch); both are `np.unique`'s."""
+    from acra import levelkernels
+
+    rng = np.random.default_rng(span)
+    for n in (1, 40, 4096):
+        x = (rng.integers(0, span, n) - span // 2).astype(np.int64)
+        if n > 1:
+            x[n // 2] = np.iinfo(np.int64).min if span > 5000 else x[0]
+        uniq, inv = levelkernels.unique_inverse(x)
+        want_uniq, want_inv = np.unique(x, return_inverse=True)
+        np.testing.assert_array_equal(uniq, want_uniq)
+        np.testing.assert_array_equal(inv, want_inv)
