@@ -15,6 +15,8 @@ tensor-product basis ``B_a(u) B_b(v)`` (eq. 4.10); moving the CVs by ``dV`` move
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -167,16 +169,27 @@ def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: lis
         on = np.nonzero(pole == i)[0]
         if not on.size:
             continue
-        ring, rw = pole_ring(hs, level, axis, end)
         # kept on the level (`pole_ring_rows`): every level's weights ask for its rings
-        rrows, rok = _movable_rows(hs, level, ring) if level == 0 else pole_ring_rows(hs, level, axis, end)
+        rrows, rok = _movable_rows(hs, level, pole_ring(hs, level, axis, end)[0]) if level == 0 \
+            else pole_ring_rows(hs, level, axis, end)
         if not rok.all():
             continue
         # each point on the pole weighs every ring CV, rows and weights repeated point by point
-        pts.append(np.repeat(on, ring.size))
-        rws.append(np.tile(rrows.reshape(-1), on.size))
-        ws.append(np.tile(rw / ring.shape[0], on.size * ring.shape[0]))
+        # (one point, the usual case, takes the ring's rows and weights as they are)
+        flat, w_ring = rrows.reshape(-1), _ring_weights(rrows.shape[0])
+        pts.append(np.repeat(on, flat.size))
+        rws.append(flat if on.size == 1 else np.tile(flat, on.size))
+        ws.append(w_ring if on.size == 1 else np.tile(w_ring, on.size))
     return pts, rws, ws
+
+
+@functools.lru_cache(maxsize=32)
+def _ring_weights(N: int) -> np.ndarray:
+    """A pole point's weight on each of the ``3 N`` CVs of a ring of ``N`` columns (`pole_ring`'s
+    row weights over ``N``, column by column): ``(3 N,) float64``, read-only."""
+    w = np.tile((np.array([1.0, 4.0, 1.0]) / 6.0) / N, N)
+    w.flags.writeable = False
+    return w
 
 
 def _entries_numpy(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray) -> tuple[list, list, list]:

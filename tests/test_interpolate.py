@@ -139,6 +139,12 @@ def test_a_point_on_a_pole_weighs_the_ring_all_around():
         assert pw.active[0] and pw.cv_rows.size == keys.size
         assert abs(pw.w.sum() - 1.0) <= 1e-15  # partition of unity
         np.testing.assert_allclose(np.sort(pw.w), np.sort(np.tile(w / keys.shape[0], keys.shape[0])), rtol=1e-15)
+        # three points on the pole: each the one point's row, bit for bit
+        many = point_weights(hs, level, np.array([0.0, 0.37, 5.9]), np.full(3, P))
+        np.testing.assert_array_equal(many.cv_rows, pw.cv_rows)
+        for i in range(3):
+            assert many.w[many.point == i].tobytes() == pw.w.tobytes()
+            np.testing.assert_array_equal(many.col[many.point == i], pw.col)
     # level 1's ring is not refined: a pole point gets no weights there (obey leaves it alone)
     assert not point_weights(hs, 1, np.array([0.3]), np.array([0.0])).active[0]
 
