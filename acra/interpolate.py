@@ -359,8 +359,9 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     if keep.all() and vec.flags.c_contiguous:
         coef = vec.T @ dqa / lam[:, None]
         return W.T @ (vec @ coef)
-    coef = vec[:, keep].T @ dqa / lam[keep][:, None]
-    return W.T @ (vec[:, keep] @ coef)
+    kept = vec[:, keep]  # one copy of the kept modes for both products
+    coef = kept.T @ dqa / lam[keep][:, None]
+    return W.T @ (kept @ coef)
 
 
 def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

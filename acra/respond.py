@@ -948,7 +948,7 @@ def respond(
             dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                        amplify=None if level == exact else amplify)
             hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det, True), (level,))
-        sel = np.nonzero(present)[0]
+        sel = np.nonzero(present)[0] if t > 0 or r > 0 else None
         if t > 0 and sel.size:
             hs, det = _redetail(hs, det, _translate(hs, level, uv[sel], a * t * dq[sel], det), (level,))
         if r > 0 and sel.size:
