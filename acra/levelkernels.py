@@ -87,30 +87,6 @@ def _sort(a):
 
 
 @njit(cache=True, nogil=True)
-def _unique_marked(x, lo, span):
-    """`unique_inverse` of ``x (n,) int64`` whose values lie in ``lo .. lo + span - 1``: each
-    value marked in a table of the span, numbered in increasing order."""
-    place = np.zeros(span, np.int64)
-    for i in range(x.shape[0]):
-        place[x[i] - lo] = 1
-    m = 0
-    for r in range(span):
-        if place[r]:
-            place[r] = m
-            m += 1
-        else:
-            place[r] = -1
-    uniq = np.empty(m, np.int64)
-    for r in range(span):
-        if place[r] >= 0:
-            uniq[place[r]] = r + lo
-    inverse = np.empty(x.shape[0], np.int64)
-    for i in range(x.shape[0]):
-        inverse[i] = place[x[i] - lo]
-    return uniq, inverse
-
-
-@njit(cache=True, nogil=True)
 def unique_inverse(x):
     """``np.unique(x, return_inverse=True)`` of ``x (n,) int64``: the sorted distinct values
     ``(m,) int64`` and the place of each entry among them ``(n,) int64``. Integers, so the same
@@ -118,12 +94,34 @@ def unique_inverse(x):
     a level's solve (`acra.interpolate.point_weights`, `acra.respond.patch_groups`)."""
     n = x.shape[0]
     if n:
-        lo, hi = x.min(), x.max()
+        lo = hi = x[0]  # loops, here and below: numba's array min and max cost seconds to compile
+        for i in range(1, n):
+            if x[i] < lo:
+                lo = x[i]
+            elif x[i] > hi:
+                hi = x[i]
         # a level's rows and patch keys span a few times their count at most: marking the span
         # is linear where the sort is not (a pole's entries repeat each ring CV per point, some
         # thousands of entries on two hundred rows); a far-flung key (a NaN parameter's) sorts
         if lo > -(1 << 62) and hi < (1 << 62) and hi - lo < 8 * n + 4096:
-            return _unique_marked(x, lo, hi - lo + 1)
+            place = np.zeros(hi - lo + 1, np.int64)  # each value marked, then numbered in order
+            for i in range(n):
+                place[x[i] - lo] = 1
+            m = 0
+            for r in range(place.shape[0]):
+                if place[r]:
+                    place[r] = m
+                    m += 1
+                else:
+                    place[r] = -1
+            uniq = np.empty(m, np.int64)
+            for r in range(place.shape[0]):
+                if place[r] >= 0:
+                    uniq[place[r]] = r + lo
+            inverse = np.empty(n, np.int64)
+            for i in range(n):
+                inverse[i] = place[x[i] - lo]
+            return uniq, inverse
     uniq = _sort(x.copy())
     m = 0
     for i in range(n):
