@@ -421,11 +421,10 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             p, t = (given[0], given[1]) if rows is None else (given[0][rows], given[1][rows])
             n, nudged = _given_normals(hs, u, v, det, p, t)
             return p, n, nudged
-        if tangents:
-            ev = evaluate(hs, u, v, order=1, det=det)
-            return ev.points, np.concatenate((ev.du, ev.dv), axis=1), None
-        if not normals:
-            return evaluate(hs, u, v, order=0, det=det).points, None, None
+        if tangents or not normals:
+            # the points (and du, dv) are placed in their rows by `_place`, where they are used
+            ev = evaluate(hs, u, v, order=1 if tangents else 0, det=det)
+            return ev, None, None
         nudged = np.empty(u.size, bool)
         ev, n = surface_normals(hs, u, v, det=det, nudged=nudged)
         return ev.points, n, np.flatnonzero(nudged)
@@ -436,14 +435,11 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     by_v = given is None and (tangents or not normals)
     if since is None and by_v:
         o = np.argsort(topo.v, kind="stable")
-        p, t, _ = sample(topo.u[o], topo.v[o])
+        ev = sample(topo.u[o], topo.v[o])[0]
         points = np.empty((topo.u.size, 3))
-        points[o] = p
-        if t is not None:
-            limit = np.empty((topo.u.size, 6))
-            limit[o] = t
-            return points, limit
-        return points, None
+        limit = np.empty((topo.u.size, 6)) if tangents else _NO_TANGENTS
+        _place(ev.points, _NO_POINTS if ev.du is None else ev.du, _NO_POINTS if ev.dv is None else ev.dv, o, points, limit)
+        return points, limit if tangents else None
     if since is None:
         points, limit, nudged = sample(topo.u, topo.v)
         if normals:
@@ -485,9 +481,13 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         if by_v:
             idx = idx[np.argsort(topo.v[idx], kind="stable")]
         p, n, nudged = sample(topo.u[idx], topo.v[idx], idx)
-        points[idx] = p
-        if normals or tangents:
-            limit[idx] = n
+        if by_v:
+            _place(p.points, _NO_POINTS if p.du is None else p.du, _NO_POINTS if p.dv is None else p.dv, idx, points,
+                   limit if tangents else _NO_TANGENTS)
+        else:
+            points[idx] = p
+            if normals or tangents:
+                limit[idx] = n
         if normals:
             nudged = idx[nudged]
     if normals and old_nudged is not None:
@@ -555,6 +555,24 @@ def _nudged_rows(limit: np.ndarray) -> np.ndarray | None:
 
 
 _NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros((0, 3))
+_NO_TANGENTS = np.zeros((0, 6))
+
+
+@njit(cache=True, nogil=True)
+def _place(p, du, dv, rows, points, limit):
+    """Write an evaluation's ``p (m, 3) float64`` into ``points`` at ``rows (m,) int64`` and, unless
+    ``limit`` is empty, ``du`` and ``dv`` ``(m, 3) float64`` into its columns 0-2 and 3-5: numpy's
+    ``points[rows] = p; limit[rows] = concatenate((du, dv), axis=1)`` in one pass, without the
+    concatenated temporary (the points come by v, the display's rows by u)."""
+    tangents = limit.shape[0] > 0
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        for e in range(3):
+            points[r, e] = p[i, e]
+        if tangents:
+            for e in range(3):
+                limit[r, e] = du[i, e]
+                limit[r, 3 + e] = dv[i, e]
 
 
 @njit(cache=True, nogil=True)
