@@ -616,13 +616,44 @@ def _matched(old, topo, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
     hit = None if memo is None else memo.get(key)
     if hit is not None and hit[0] is old and hit[1] is topo:
         return hit[2], hit[3]
-    new_key, old_key = topo.u + 1j * topo.v, old.u + 1j * old.v  # complex values sort by (u, v)
-    order = np.argsort(old_key, kind="stable")
-    src = order[np.minimum(np.searchsorted(old_key[order], new_key), max(len(order) - 1, 0))]
-    found = old_key[src] == new_key if len(order) else np.zeros(new_key.size, bool)
+    src, found = np.empty(topo.u.size, np.int64), np.empty(topo.u.size, np.bool_)
+    # a topology's vertices are sorted by (u, v) (`MeshTopology`, `GridTopology`): one merge of
+    # the two lists, unless one of them is not
+    if not _merge(_f64(old.u), _f64(old.v), _f64(topo.u), _f64(topo.v), src, found):
+        new_key, old_key = topo.u + 1j * topo.v, old.u + 1j * old.v  # complex values sort by (u, v)
+        order = np.argsort(old_key, kind="stable")
+        src = order[np.minimum(np.searchsorted(old_key[order], new_key), max(len(order) - 1, 0))]
+        found = old_key[src] == new_key if len(order) else np.zeros(new_key.size, bool)
     if memo is not None:
         memo[key] = (old, topo, src, found)
     return src, found
+
+
+def _f64(x: np.ndarray) -> np.ndarray:
+    """``x`` as a C-contiguous float64 array (a copy only where it is not one)."""
+    return np.ascontiguousarray(x, np.float64)
+
+
+@njit(cache=True, nogil=True)
+def _merge(old_u, old_v, u, v, src, found):
+    """`_matched` of two vertex lists each sorted by ``(u, v)`` ``(m,)``, ``(n,) float64``: writes
+    into ``src (n,) int64`` the old vertex at each new vertex's parameters and into ``found (n,)
+    bool`` whether there is one (else ``src`` is the old vertex after it, clipped into range), in
+    one merge; returns False, having written nothing usable, where either list is not sorted."""
+    m, n = old_u.shape[0], u.shape[0]
+    for i in range(1, m):
+        if old_u[i] < old_u[i - 1] or (old_u[i] == old_u[i - 1] and old_v[i] <= old_v[i - 1]):
+            return False
+    for i in range(1, n):
+        if u[i] < u[i - 1] or (u[i] == u[i - 1] and v[i] <= v[i - 1]):
+            return False
+    j = 0
+    for i in range(n):
+        while j < m and (old_u[j] < u[i] or (old_u[j] == u[i] and old_v[j] < v[i])):
+            j += 1
+        src[i] = min(j, max(m - 1, 0))
+        found[i] = j < m and old_u[j] == u[i] and old_v[j] == v[i]
+    return True
 
 
 def _level_of(hs: HSpline, stale: np.ndarray) -> int:
@@ -648,13 +679,27 @@ def _patch_cells(hs: HSpline, topo, memo: dict | None, level: int = 0) -> tuple:
 def _cells(d: Direction, x: np.ndarray, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The level-``level`` patch of each parameter ``x (n,)`` (level-0 units) and the one before
     it where ``x`` is on the border between them (else the same patch), both in range."""
-    x = x * float(1 << level)  # exact: a power of two
-    cell = np.floor(x).astype(np.int64)
-    before = np.where(cell == x, cell - 1, cell)
-    n = d.patches(level)
-    if d.periodic:
-        return np.mod(cell, n), np.mod(before, n)
-    return np.clip(cell, 0, n - 1), np.clip(before, 0, n - 1)
+    x = _f64(x)
+    cell, before = np.empty(x.size, np.int64), np.empty(x.size, np.int64)
+    _cells_into(x, float(1 << level), int(d.patches(level)), bool(d.periodic), cell, before)
+    return cell, before
+
+
+@njit(cache=True, nogil=True)
+def _cells_into(x, scale, n, periodic, cell, before):
+    """`_cells` in one pass: of each ``x (m,) float64`` times ``scale`` (a power of two, so
+    exact), the floor into ``cell (m,) int64`` and, where it is on that border, the patch before
+    into ``before (m,) int64``, wrapped into ``0 .. n-1`` (``periodic``) or clipped, as numpy's
+    ``floor``, ``where``, ``mod`` and ``clip``."""
+    for i in range(x.shape[0]):
+        y = x[i] * scale
+        c = np.int64(np.floor(y))
+        b = c - 1 if c == y else c
+        if periodic:
+            c, b = c % n, b % n
+        else:
+            c, b = min(max(c, 0), n - 1), min(max(b, 0), n - 1)
+        cell[i], before[i] = c, b
 
 
 def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray, in_place: bool = False) -> np.ndarray:

@@ -530,3 +530,36 @@ def test_kept_rows_hold_their_arrays_by_weak_references_without_callbacks():
     T._note_nudged(other, np.array([0]))
     assert key not in T._NUDGED or T._NUDGED[key][0]() is not None  # dead entry dropped (or the id reused)
     assert all(value[0]() is not None for value in T._NUDGED.values())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_merge_matches_the_sorted_search_and_cells_numpy_s(seed):
+    """`tessellate._merge` (the old vertex at each new vertex's parameters, by one merge of two
+    lists sorted by ``(u, v)``) finds the vertices numpy's sorted search of complex keys finds,
+    and refuses a list that is not sorted; `_cells_into` gives numpy's floor, border and
+    wrap or clip (`tessellate._cells`)."""
+    rng = np.random.default_rng(seed)
+    lattice = np.stack(np.meshgrid(np.arange(40) / 8, np.arange(30) / 8, indexing="ij"), -1).reshape(-1, 2)
+    old = lattice[np.sort(rng.choice(len(lattice), 700, replace=False))]
+    new = lattice[np.sort(rng.choice(len(lattice), 900, replace=False))]
+    src, found = np.empty(len(new), np.int64), np.empty(len(new), np.bool_)
+    assert T._merge(old[:, 0].copy(), old[:, 1].copy(), new[:, 0].copy(), new[:, 1].copy(), src, found)
+    old_key, new_key = old[:, 0] + 1j * old[:, 1], new[:, 0] + 1j * new[:, 1]
+    want = np.minimum(np.searchsorted(old_key, new_key), len(old) - 1)
+    np.testing.assert_array_equal(found, old_key[want] == new_key)
+    np.testing.assert_array_equal(src[found], want[found])
+    assert 0 < found.sum() < len(new) and src.min() >= 0 and src.max() < len(old)
+    shuffled = old[rng.permutation(len(old))]
+    assert not T._merge(shuffled[:, 0].copy(), shuffled[:, 1].copy(), new[:, 0].copy(), new[:, 1].copy(), src, found)
+    x = np.concatenate([rng.uniform(-1, 9, 500), np.arange(-2, 10) / 2.0])
+    for level in (0, 1, 3):
+        for periodic in (False, True):
+            n = 8 << level
+            y = x * float(1 << level)
+            cell = np.floor(y).astype(np.int64)
+            before = np.where(cell == y, cell - 1, cell)
+            wrap = (lambda c: np.mod(c, n)) if periodic else (lambda c: np.clip(c, 0, n - 1))  # noqa: E731
+            got_cell, got_before = np.empty(x.size, np.int64), np.empty(x.size, np.int64)
+            T._cells_into(x, float(1 << level), n, periodic, got_cell, got_before)
+            np.testing.assert_array_equal(got_cell, wrap(cell))
+            np.testing.assert_array_equal(got_before, wrap(before))
