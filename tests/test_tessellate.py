@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from acra import hspline as H
+from acra import kernels
 from acra import shapes
 from acra import tessellate as T
 from conftest import nudged, wavy_sheet, with_random_offsets
@@ -223,6 +224,36 @@ def test_changed_cells_of_a_refinement_alone_and_of_the_same_surface():
     assert mask.any()
     topo = T.run_topology([hs, finer], 4)
     assert not np.any(_changed_vertices(hs, finer, topo) & ~_covered(mask, finer, topo, 2))
+
+
+@pytest.mark.parametrize("seed,open_", [(0, False), (1, True), (2, False)])
+def test_changed_cells_compiled_equals_the_set_operations(seed, open_, monkeypatch):
+    """`changed_cells`' compiled level pass (`acra.kernels.changed_level`, sorted key lists
+    merged) marks the cells numpy's set operations mark, for a move, a refinement, both, and a
+    surface against a coarser one; unsorted key lists take the set operations."""
+    rng = np.random.default_rng(seed)
+    if open_:
+        hs = with_random_offsets(H.make_movable(H.make_movable(wavy_sheet(), 1, [[3, 3]]), 2, [[5, 5]]), 0.05, seed)
+        finer = H.make_movable(hs, 2, [[12, 9]])
+    else:
+        hs, at = H.from_grid(*shapes.sphere(12, 10), depth=4), int(rng.integers(0, 12))
+        for k in (1, 2, 3):
+            hs = H.make_movable(hs, k, [[(2 * at + 1) << (k - 1), 4 << k]])
+        hs = with_random_offsets(hs, 0.02, seed)
+        finer = H.make_movable(hs, 2, [[(2 * at + 5) << 1, 12]])
+    moved = nudged(hs, 2, rng)
+    pairs = [(hs, moved), (hs, finer), (finer, moved), (moved, finer), (hs, hs)]
+    compiled = [H.changed_cells(a, H.details(a), b, H.details(b), lv) for a, b in pairs for lv in (0, 2, 3)]
+    assert any(m.any() for m in compiled)
+    monkeypatch.setattr(H.kernels, "changed_level", lambda *a: False)
+    arrays = [H.changed_cells(a, H.details(a), b, H.details(b), lv) for a, b in pairs for lv in (0, 2, 3)]
+    for got, want in zip(compiled, arrays):
+        np.testing.assert_array_equal(got, want)
+    out = np.zeros((4, 4), bool)
+    assert not kernels.changed_level(out, 1, 1, np.array([3, 1]), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                                     np.zeros(0, np.int64), np.zeros((0, 3), np.int64), np.zeros((0, 3), np.int64),
+                                     4, 7, 4, 4, False, False)
+    assert not out.any()
 
 
 def test_adaptive_topology_without_fine_levels_is_the_uniform_grid():
