@@ -68,6 +68,24 @@ def unique_keys(i, j, ni, w):
     return out[:m].copy(), first, where
 
 
+@njit(inline="always")
+def _side(c, s, nc, su, sv, sh, at, u_to_v, first, first_v, nu, nv, wrap_u, wrap_v):
+    """The rows ``lo, hi`` of the vertices strictly inside side ``s`` of cell ``c`` (0: its lower
+    side along u, 1: its upper side along v, 2: its upper side along u, 3: its lower side along
+    v), in `adaptive_mesh`'s v-major rows for a side along u and u-major along v; a side ending
+    on a periodic seam runs to its line's end."""
+    u1, v1 = su[c] + sh[c], sv[c] + sh[c]
+    seam_u = wrap_u and u1 == nu
+    seam_v = wrap_v and v1 == nv
+    if s == 0:
+        return u_to_v[at[c]] + 1, first_v[sv[c] + 1] if seam_u else u_to_v[at[nc + c]]
+    if s == 1:
+        return at[nc + c] + 1, first[(0 if seam_u else u1) + 1] if seam_v else at[2 * nc + c]
+    if s == 2:
+        return u_to_v[at[3 * nc + c]] + 1, first_v[(0 if seam_v else v1) + 1] if seam_u else u_to_v[at[2 * nc + c]]
+    return at[c] + 1, first[su[c] + 1] if seam_v else at[3 * nc + c]
+
+
 @njit(cache=True, nogil=True)
 def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
     """The adaptive display mesh of the quadtree leaves ``(pu, pv)`` (`acra.tessellate._leaves`)
@@ -131,36 +149,24 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
         v_to_u[fill[x]] = a
         u_to_v[a] = fill[x]
         fill[x] += 1
-    at_v = np.empty(4 * nc, np.int64)
-    for p in range(4 * nc):
-        at_v[p] = u_to_v[at[p]]
-    # each side's vertices strictly inside it, rows lo..hi-1 along its line (v-major for a side
-    # along u, u-major along v); a side ending on a periodic seam runs to its line's end
-    lo = np.empty((nc, 4), np.int64)
-    hi = np.empty((nc, 4), np.int64)
+    # each side's vertices strictly inside it, rows lo..hi-1 along its line (`_side`), taken
+    # where they are used rather than kept for every cell: the scratch arrays of a large mesh
+    # are new memory, whose page faults cost more than the few operations again
     split = np.zeros(nc, np.bool_)
     ring_len = 0
     n_split = 0
     for c in range(nc):
+        # `_side` of the four sides, written out: this loop visits every cell
         seam_u = wrap_u and su[c] + sh[c] == nu
         seam_v = wrap_v and sv[c] + sh[c] == nv
-        lo[c, 0] = at_v[c] + 1
-        hi[c, 0] = first_v[sv[c] + 1] if seam_u else at_v[nc + c]
-        lo[c, 1] = at[nc + c] + 1
-        hi[c, 1] = first[u4[nc + c] + 1] if seam_v else at[2 * nc + c]
-        lo[c, 2] = at_v[3 * nc + c] + 1
-        hi[c, 2] = first_v[v4[2 * nc + c] + 1] if seam_u else at_v[2 * nc + c]
-        lo[c, 3] = at[c] + 1
-        hi[c, 3] = first[su[c] + 1] if seam_v else at[3 * nc + c]
-        for s in range(4):
-            if hi[c, s] > lo[c, s]:
-                split[c] = True
-        if split[c]:
+        n0 = (first_v[sv[c] + 1] if seam_u else u_to_v[at[nc + c]]) - u_to_v[at[c]] - 1
+        n1 = (first[u4[nc + c] + 1] if seam_v else at[2 * nc + c]) - at[nc + c] - 1
+        n2 = (first_v[v4[2 * nc + c] + 1] if seam_u else u_to_v[at[2 * nc + c]]) - u_to_v[at[3 * nc + c]] - 1
+        n3 = (first[su[c] + 1] if seam_v else at[3 * nc + c]) - at[c] - 1
+        if n0 > 0 or n1 > 0 or n2 > 0 or n3 > 0:
+            split[c] = True
             n_split += 1
-            ring_len += 4
-            for s in range(4):
-                if hi[c, s] > lo[c, s]:
-                    ring_len += hi[c, s] - lo[c, s]
+            ring_len += 4 + max(n0, 0) + max(n1, 0) + max(n2, 0) + max(n3, 0)
     # the split cells' centres (inside their cells, so no corner's) sorted and merged with the
     # corners: a corner's row moves up by the centres before it, a centre's is its rank plus the
     # corners before it
@@ -205,20 +211,21 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
         for s in range(4):
             ring[n] = at[s * nc + c]
             n += 1
+            lo, hi = _side(c, s, nc, su, sv, sh, at, u_to_v, first, first_v, nu, nv, wrap_u, wrap_v)
             if s == 0:
-                for r in range(lo[c, 0], hi[c, 0]):
+                for r in range(lo, hi):
                     ring[n] = v_to_u[r]
                     n += 1
             elif s == 1:
-                for r in range(lo[c, 1], hi[c, 1]):
+                for r in range(lo, hi):
                     ring[n] = r
                     n += 1
             elif s == 2:
-                for r in range(hi[c, 2] - 1, lo[c, 2] - 1, -1):
+                for r in range(hi - 1, lo - 1, -1):
                     ring[n] = v_to_u[r]
                     n += 1
             else:
-                for r in range(hi[c, 3] - 1, lo[c, 3] - 1, -1):
+                for r in range(hi - 1, lo - 1, -1):
                     ring[n] = r
                     n += 1
         for t in range(n):
