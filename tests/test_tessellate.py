@@ -437,6 +437,24 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
                 np.testing.assert_array_equal(limit[copied], old_limit[rows])
 
 
+def test_place_equals_numpy_s_row_assignment():
+    """`tessellate._place` (an evaluation's points and first derivatives written into a
+    display's rows in one pass) gives numpy's ``points[rows] = p`` and ``limit[rows] =
+    concatenate((du, dv), axis=1)``, and leaves ``limit`` alone where it is empty."""
+    rng = np.random.default_rng(3)
+    n, rows = 500, rng.permutation(500)[:300]
+    p, du, dv = (rng.normal(size=(rows.size, 3)) for _ in range(3))
+    points, limit = np.full((n, 3), np.nan), np.full((n, 6), np.nan)
+    T._place(p, du, dv, rows, points, limit)
+    want_points, want_limit = np.full((n, 3), np.nan), np.full((n, 6), np.nan)
+    want_points[rows], want_limit[rows] = p, np.concatenate((du, dv), axis=1)
+    np.testing.assert_array_equal(points, want_points)
+    np.testing.assert_array_equal(limit, want_limit)
+    alone = np.full((n, 3), np.nan)
+    T._place(p, T._NO_POINTS, T._NO_POINTS, rows, alone, T._NO_TANGENTS)
+    np.testing.assert_array_equal(alone, want_points)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_normals_since_changed_cells_evaluate_those_cells_and_the_nudged_vertices(seed, monkeypatch):
     """With normals, `grid_samples(since=...)` on `changed_cells` evaluates the vertices on the
