@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["unique_keys", "adaptive_mesh"]
+__all__ = ["unique_keys", "adaptive_mesh", "fan_triangles"]
 
 
 @njit(cache=True, nogil=True)
@@ -241,3 +241,24 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
         ku[a] = keys[a] // w
         kv[a] = keys[a] - ku[a] * w
     return ku, kv, counts, indices
+
+
+@njit(cache=True, nogil=True)
+def fan_triangles(counts, indices):
+    """Every face of a mesh as triangles, a fan from its first vertex, face by face: the faces'
+    vertex counts ``(f,) int64`` and indices ``(sum counts,) int64`` (USD's) give ``(t, 3)
+    int64``, a face of ``n`` vertices ``n - 2`` triangles (a quad ``a b c d``: ``a b c``,
+    ``a c d``). One pass, where numpy's takes a temporary per step."""
+    t = 0
+    for f in range(counts.shape[0]):
+        t += max(counts[f] - 2, 0)
+    out = np.empty((t, 3), np.int64)
+    k = 0
+    start = 0
+    for f in range(counts.shape[0]):
+        a = indices[start]
+        for e in range(1, counts[f] - 1):
+            out[k, 0], out[k, 1], out[k, 2] = a, indices[start + e], indices[start + e + 1]
+            k += 1
+        start += counts[f]
+    return out

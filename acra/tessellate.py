@@ -21,7 +21,7 @@ from numba import njit
 from . import framekernels, kernels
 from .basis import Direction
 from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
-from .lattice import adaptive_mesh, unique_keys
+from .lattice import adaptive_mesh, fan_triangles, unique_keys
 
 __all__ = [
     "GridTopology",
@@ -139,19 +139,7 @@ class MeshTopology:
         """Every face as triangles, a fan from its first vertex, face by face (a quad ``a b c d``
         gives ``a b c``, ``a c d``, as `GridTopology.triangles` and a USD client's fan):
         ``(t, 3) int64``."""
-        counts = np.asarray(self.counts, np.int64)
-        quads = int(np.count_nonzero(counts == 4))
-        if np.all(counts[:quads] == 4) and np.all(counts[quads:] == 3):
-            # the adaptive mesh's layout, its quads then its fans' triangles: two block copies
-            q = np.asarray(self.indices[:4 * quads], np.int64).reshape(-1, 4)
-            fans = np.empty((quads, 2, 3), np.int64)
-            fans[:, 0], fans[:, 1, 0], fans[:, 1, 1:] = q[:, :3], q[:, 0], q[:, 2:]
-            return np.concatenate([fans.reshape(-1, 3), np.asarray(self.indices[4 * quads:], np.int64).reshape(-1, 3)])
-        starts = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64)
-        fans = np.maximum(counts - 2, 0)
-        first = np.repeat(starts, fans)
-        within = np.arange(fans.sum()) - np.repeat(np.cumsum(fans) - fans, fans) + 1
-        return np.stack([self.indices[first], self.indices[first + within], self.indices[first + within + 1]], axis=1)
+        return fan_triangles(_i64(self.counts), _i64(self.indices))
 
 
 def finest_levels(hs: HSpline) -> np.ndarray:
@@ -627,6 +615,12 @@ def _matched(old, topo, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
     if memo is not None:
         memo[key] = (old, topo, src, found)
     return src, found
+
+
+def _i64(x: np.ndarray) -> np.ndarray:
+    """``x`` as a C-contiguous, writeable int64 array (a copy only where it is not one)."""
+    a = np.ascontiguousarray(x, np.int64)
+    return a if a.flags.writeable else a.copy()
 
 
 def _f64(x: np.ndarray) -> np.ndarray:
