@@ -18,16 +18,14 @@ from numba import njit
 __all__ = ["unique_keys", "adaptive_mesh", "fan_triangles"]
 
 
-@njit(cache=True, nogil=True)
-def unique_keys(i, j, ni, w):
-    """The sorted distinct keys ``i * w + j`` of the points ``(i[p], j[p])`` (``0 <= i <= ni``,
-    ``0 <= j < w``), ``(m,) int64``; where each column ``i`` starts in them, ``(ni + 2,) int64``
-    (entry ``ni + 1`` is ``m``); and the position of each point's key in them, ``(n,) int64``
-    (``np.unique``'s inverse)."""
+@njit(inline="always")
+def _key_order(i, j, ni, w):
+    """The points ``(i[p], j[p])`` ordered by key ``i * w + j`` (stable), ``(n,) int32``, by two
+    stable counting sorts (by j, then by i), and each column's first position in that order
+    ``(ni + 2,) int64``."""
     n = i.shape[0]
     if n >= 2**31:
         raise ValueError("too many points for int32 orders")
-    # two stable counting sorts, by j then by i, order the points by key
     count = np.zeros(w + 1, np.int64)
     for p in range(n):
         count[j[p] + 1] += 1
@@ -50,6 +48,17 @@ def unique_keys(i, j, ni, w):
         p = by_j[q]
         order[fill[i[p]]] = p
         fill[i[p]] += 1
+    return order, first
+
+
+@njit(cache=True, nogil=True)
+def unique_keys(i, j, ni, w):
+    """The sorted distinct keys ``i * w + j`` of the points ``(i[p], j[p])`` (``0 <= i <= ni``,
+    ``0 <= j < w``), ``(m,) int64``; where each column ``i`` starts in them, ``(ni + 2,) int64``
+    (entry ``ni + 1`` is ``m``); and the position of each point's key in them, ``(n,) int64``
+    (``np.unique``'s inverse)."""
+    n = i.shape[0]
+    order, first = _key_order(i, j, ni, w)
     out = np.empty(n, np.int64)
     where = np.empty(n, np.int64)
     m = 0
@@ -114,12 +123,12 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
             for b in range(samples):
                 cu[c], cv[c], ch[c] = (pu[leaf] * samples + a) * h, (pv[leaf] * samples + b) * h, h
                 c += 1
-    # the cells in (u, v) order: their lower corners are distinct, so their keys' positions
-    # are the order
-    _, _, rank = unique_keys(cu, cv, nu, w)
+    # the cells in (u, v) order (their lower corners are distinct, so the keys' order is theirs)
+    by_key, _ = _key_order(cu, cv, nu, w)
     su, sv, sh = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
-    for p in range(nc):
-        su[rank[p]], sv[rank[p]], sh[rank[p]] = cu[p], cv[p], ch[p]
+    for q in range(nc):
+        p = by_key[q]
+        su[q], sv[q], sh[q] = cu[p], cv[p], ch[p]
     # corners counter-clockwise, an upper corner wrapped onto a periodic seam
     u4, v4 = np.empty(4 * nc, np.int64), np.empty(4 * nc, np.int64)
     for c in range(nc):
