@@ -351,35 +351,35 @@ def changed_level(out, k, level, pa, pb, a_keys, b_keys, va, vb, npv_k, ncv_k, n
     nothing, where one does not (the caller takes numpy's set operations instead)."""
     if not (_ascending(pa) and _ascending(pb) and _ascending(a_keys) and _ascending(b_keys)):
         return False
-    i, j = 0, 0
-    while i < pa.shape[0] or j < pb.shape[0]:
-        if j == pb.shape[0] or (i < pa.shape[0] and pa[i] < pb[j]):
-            x = pa[i]
-            i += 1
-        elif i == pa.shape[0] or pb[j] < pa[i]:
-            x = pb[j]
-            j += 1
+    # what to mark, gathered by both merges and marked in one loop (one copy of the marking)
+    at = np.empty(pa.shape[0] + pb.shape[0] + a_keys.shape[0] + b_keys.shape[0], np.int64)
+    m = 0
+    for lists in range(2):
+        xa, xb = (pa, pb) if lists == 0 else (a_keys, b_keys)
+        i, j = 0, 0
+        while i < xa.shape[0] or j < xb.shape[0]:
+            if j == xb.shape[0] or (i < xa.shape[0] and xa[i] < xb[j]):
+                at[m] = xa[i]
+                i += 1
+            elif i == xa.shape[0] or xb[j] < xa[i]:
+                at[m] = xb[j]
+                j += 1
+            else:
+                same = lists == 0 or (va[i, 0] == vb[j, 0] and va[i, 1] == vb[j, 1] and va[i, 2] == vb[j, 2])
+                at[m] = xb[j]
+                i += 1
+                j += 1
+                if same:
+                    continue
+            m += 1
+        if lists == 0:
+            patches = m
+    for q in range(m):
+        if q < patches:
+            pu, pv, spread = at[q] // npv_k, at[q] % npv_k, 0
         else:
-            i += 1
-            j += 1
-            continue
-        _mark_one(out, x // npv_k, x % npv_k, k, level, 0, nu_k, nv_k, u_periodic, v_periodic)
-    i, j = 0, 0
-    while i < a_keys.shape[0] or j < b_keys.shape[0]:
-        if j == b_keys.shape[0] or (i < a_keys.shape[0] and a_keys[i] < b_keys[j]):
-            x = a_keys[i]
-            i += 1
-        elif i == a_keys.shape[0] or b_keys[j] < a_keys[i]:
-            x = b_keys[j]
-            j += 1
-        else:
-            x = b_keys[j]
-            same = va[i, 0] == vb[j, 0] and va[i, 1] == vb[j, 1] and va[i, 2] == vb[j, 2]
-            i += 1
-            j += 1
-            if same:
-                continue
-        _mark_one(out, x // ncv_k, x % ncv_k, k, level, 3, nu_k, nv_k, u_periodic, v_periodic)
+            pu, pv, spread = at[q] // ncv_k, at[q] % ncv_k, 3
+        _mark_one(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic)
     return True
 
 
