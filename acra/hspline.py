@@ -508,9 +508,15 @@ def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: 
             continue
         va = old_det.vectors[k - 1] if old_det is not None and pa.size else np.zeros((a.cv_keys.size, 3))
         vb = new_det.vectors[k - 1] if new_det is not None and pb.size else np.zeros((b.cv_keys.size, 3))
-        if a.cv_keys is b.cv_keys and pa is pb:  # one refinement (a move, or the same level): the rows align
-            if va is vb:
-                continue
+        if a.cv_keys is b.cv_keys and pa is pb and va is vb:  # the same level
+            continue
+        # compiled: the patches active on one surface alone and the CVs whose detail differs,
+        # by merging the sorted key lists (the set operations below where one is not sorted)
+        if kernels.changed_level(out, k, level, _ints(pa), _ints(pb), _ints(a.cv_keys), _ints(b.cv_keys),
+                                 _writable(_bits(va)), _writable(_bits(vb)), new.v.patches(k), new.v.cvs(k),
+                                 new.u.patches(k), new.v.patches(k), bool(new.u.periodic), bool(new.v.periodic)):
+            continue
+        if a.cv_keys is b.cv_keys and pa is pb:  # one refinement (a move): the rows align
             keys = b.cv_keys[np.any(_bits(va) != _bits(vb), axis=-1)]
         else:
             flip = np.setxor1d(pa, pb, assume_unique=True)  # active on one surface alone
@@ -522,6 +528,18 @@ def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: 
             keys = np.concatenate([b.cv_keys[~same], a.cv_keys[gone]])
         support(k, *_split_cv(new, k, keys))
     return out
+
+
+def _ints(x: np.ndarray) -> np.ndarray:
+    """``x`` as a C-contiguous, writeable int64 array (a copy only where it is not one), so one
+    compiled signature serves every call."""
+    return _writable(np.ascontiguousarray(x, np.int64))
+
+
+def _writable(x: np.ndarray) -> np.ndarray:
+    """``x``, or a copy of it where it is read-only (numba compiles another signature for a
+    read-only array)."""
+    return x if x.flags.writeable else x.copy()
 
 
 def _bits(x: np.ndarray) -> np.ndarray:

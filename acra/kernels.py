@@ -44,7 +44,7 @@ from numba import njit
 
 from acra.framekernels import cross_test
 
-__all__ = ["eval_points", "NSLOTS", "mark_cells", "tangent_normals"]
+__all__ = ["eval_points", "NSLOTS", "mark_cells", "changed_level", "tangent_normals"]
 
 # output slots per derivative order: (0,0) | (1,0) (0,1) | (2,0) (1,1) (0,2), as `SurfaceEval`'s fields
 NSLOTS = (1, 3, 6)
@@ -300,6 +300,23 @@ def _patch_index(q, n, periodic):
     return q % n if periodic else min(max(q, 0), n - 1)
 
 
+@njit(inline="always")
+def _mark_one(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic):
+    """`mark_cells` of one level-``k`` patch or CV ``(pu, pv)``."""
+    r = 1 << (level - k) if level > k else 1
+    shift = k - level if k > level else 0
+    for d in range(spread + 1):
+        qu = _patch_index(pu - spread + d, nu_k, u_periodic)
+        for e in range(spread + 1):
+            qv = _patch_index(pv - spread + e, nv_k, v_periodic)
+            if r == 1:
+                out[qu >> shift, qv >> shift] = True
+            else:
+                for a in range(r):
+                    for b in range(r):
+                        out[qu * r + a, qv * r + b] = True
+
+
 @njit(cache=True, nogil=True)
 def mark_cells(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic):
     """Set in ``out (P0u << level, P0v << level) bool`` every level-``level`` cell that holds a
@@ -309,19 +326,61 @@ def mark_cells(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic
     an open one (``nu_k, nv_k``: level ``k``'s patch counts). A coarser patch covers a block of
     cells, a finer one lies in one. `acra.hspline.changed_cells`' marking, as numpy's index
     assignments it replaces would set them, without their per-level array set-up."""
-    r = 1 << (level - k) if level > k else 1
-    shift = k - level if k > level else 0
     for i in range(pu.shape[0]):
-        for d in range(spread + 1):
-            qu = _patch_index(pu[i] - spread + d, nu_k, u_periodic)
-            for e in range(spread + 1):
-                qv = _patch_index(pv[i] - spread + e, nv_k, v_periodic)
-                if r == 1:
-                    out[qu >> shift, qv >> shift] = True
-                else:
-                    for a in range(r):
-                        for b in range(r):
-                            out[qu * r + a, qv * r + b] = True
+        _mark_one(out, pu[i], pv[i], k, level, spread, nu_k, nv_k, u_periodic, v_periodic)
+
+
+@njit(inline="always")
+def _ascending(keys):
+    """Whether ``keys (m,) int64`` are strictly ascending."""
+    for i in range(1, keys.shape[0]):
+        if keys[i] <= keys[i - 1]:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def changed_level(out, k, level, pa, pb, a_keys, b_keys, va, vb, npv_k, ncv_k, nu_k, nv_k, u_periodic, v_periodic):
+    """`acra.hspline.changed_cells`' level ``k`` in one pass: marks in ``out`` (`mark_cells`) each
+    level-``k`` patch active on one surface alone (``pa``, ``pb (m,) int64``: the old and new
+    surfaces' active patch keys ``pu * npv_k + pv`` where `evaluate` visits the level, else
+    empty) and the patches each level-``k`` CV supports whose detail vector differs: on one
+    surface alone (``a_keys``, ``b_keys``: their CV keys ``ju * ncv_k + jv``), or whose bits
+    ``va``, ``vb (m, 3) int64`` (the detail vectors' float64 bits, row by key) differ. Each pair
+    of key lists is merged, so every list must ascend strictly: returns False, having marked
+    nothing, where one does not (the caller takes numpy's set operations instead)."""
+    if not (_ascending(pa) and _ascending(pb) and _ascending(a_keys) and _ascending(b_keys)):
+        return False
+    # what to mark, gathered by both merges and marked in one loop (one copy of the marking)
+    at = np.empty(pa.shape[0] + pb.shape[0] + a_keys.shape[0] + b_keys.shape[0], np.int64)
+    m = 0
+    for lists in range(2):
+        xa, xb = (pa, pb) if lists == 0 else (a_keys, b_keys)
+        i, j = 0, 0
+        while i < xa.shape[0] or j < xb.shape[0]:
+            if j == xb.shape[0] or (i < xa.shape[0] and xa[i] < xb[j]):
+                at[m] = xa[i]
+                i += 1
+            elif i == xa.shape[0] or xb[j] < xa[i]:
+                at[m] = xb[j]
+                j += 1
+            else:
+                same = lists == 0 or (va[i, 0] == vb[j, 0] and va[i, 1] == vb[j, 1] and va[i, 2] == vb[j, 2])
+                at[m] = xb[j]
+                i += 1
+                j += 1
+                if same:
+                    continue
+            m += 1
+        if lists == 0:
+            patches = m
+    for q in range(m):
+        if q < patches:
+            pu, pv, spread = at[q] // npv_k, at[q] % npv_k, 0
+        else:
+            pu, pv, spread = at[q] // ncv_k, at[q] % ncv_k, 3
+        _mark_one(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic)
+    return True
 
 
 @njit(cache=True, nogil=True)

@@ -15,23 +15,25 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["unique_keys", "adaptive_mesh"]
+__all__ = ["unique_keys", "adaptive_mesh", "fan_triangles"]
 
 
-@njit(cache=True, nogil=True)
-def unique_keys(i, j, ni, w):
-    """The sorted distinct keys ``i * w + j`` of the points ``(i[p], j[p])`` (``0 <= i <= ni``,
-    ``0 <= j < w``), ``(m,) int64``; where each column ``i`` starts in them, ``(ni + 2,) int64``
-    (entry ``ni + 1`` is ``m``); and the position of each point's key in them, ``(n,) int64``
-    (``np.unique``'s inverse)."""
+@njit(inline="always")
+def _key_order(i, j, ni, w):
+    """The points ``(i[p], j[p])`` ordered by key ``i * w + j`` (stable), ``(n,) int32``, by two
+    stable counting sorts (by j, then by i), and each column's first position in that order
+    ``(ni + 2,) int64``."""
     n = i.shape[0]
-    # two stable counting sorts, by j then by i, order the points by key
+    if n >= 2**31:
+        raise ValueError("too many points for int32 orders")
     count = np.zeros(w + 1, np.int64)
     for p in range(n):
         count[j[p] + 1] += 1
     for x in range(w):
         count[x + 1] += count[x]
-    by_j = np.empty(n, np.int64)
+    # the orders as int32 (a mesh's points number far below 2**31): half the new memory, whose
+    # page faults cost more than the sort
+    by_j = np.empty(n, np.int32)
     for p in range(n):
         by_j[count[j[p]]] = p
         count[j[p]] += 1
@@ -41,11 +43,22 @@ def unique_keys(i, j, ni, w):
     for c in range(ni + 1):
         first[c + 1] += first[c]
     fill = first.copy()
-    order = np.empty(n, np.int64)
+    order = np.empty(n, np.int32)
     for q in range(n):
         p = by_j[q]
         order[fill[i[p]]] = p
         fill[i[p]] += 1
+    return order, first
+
+
+@njit(cache=True, nogil=True)
+def unique_keys(i, j, ni, w):
+    """The sorted distinct keys ``i * w + j`` of the points ``(i[p], j[p])`` (``0 <= i <= ni``,
+    ``0 <= j < w``), ``(m,) int64``; where each column ``i`` starts in them, ``(ni + 2,) int64``
+    (entry ``ni + 1`` is ``m``); and the position of each point's key in them, ``(n,) int64``
+    (``np.unique``'s inverse)."""
+    n = i.shape[0]
+    order, first = _key_order(i, j, ni, w)
     out = np.empty(n, np.int64)
     where = np.empty(n, np.int64)
     m = 0
@@ -66,6 +79,24 @@ def unique_keys(i, j, ni, w):
         first[c] = m
         c += 1
     return out[:m].copy(), first, where
+
+
+@njit(inline="always")
+def _side(c, s, nc, su, sv, sh, at, u_to_v, first, first_v, nu, nv, wrap_u, wrap_v):
+    """The rows ``lo, hi`` of the vertices strictly inside side ``s`` of cell ``c`` (0: its lower
+    side along u, 1: its upper side along v, 2: its upper side along u, 3: its lower side along
+    v), in `adaptive_mesh`'s v-major rows for a side along u and u-major along v; a side ending
+    on a periodic seam runs to its line's end."""
+    u1, v1 = su[c] + sh[c], sv[c] + sh[c]
+    seam_u = wrap_u and u1 == nu
+    seam_v = wrap_v and v1 == nv
+    if s == 0:
+        return u_to_v[at[c]] + 1, first_v[sv[c] + 1] if seam_u else u_to_v[at[nc + c]]
+    if s == 1:
+        return at[nc + c] + 1, first[(0 if seam_u else u1) + 1] if seam_v else at[2 * nc + c]
+    if s == 2:
+        return u_to_v[at[3 * nc + c]] + 1, first_v[(0 if seam_v else v1) + 1] if seam_u else u_to_v[at[2 * nc + c]]
+    return at[c] + 1, first[su[c] + 1] if seam_v else at[3 * nc + c]
 
 
 @njit(cache=True, nogil=True)
@@ -92,12 +123,12 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
             for b in range(samples):
                 cu[c], cv[c], ch[c] = (pu[leaf] * samples + a) * h, (pv[leaf] * samples + b) * h, h
                 c += 1
-    # the cells in (u, v) order: their lower corners are distinct, so their keys' positions
-    # are the order
-    _, _, rank = unique_keys(cu, cv, nu, w)
+    # the cells in (u, v) order (their lower corners are distinct, so the keys' order is theirs)
+    by_key, _ = _key_order(cu, cv, nu, w)
     su, sv, sh = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
-    for p in range(nc):
-        su[rank[p]], sv[rank[p]], sh[rank[p]] = cu[p], cv[p], ch[p]
+    for q in range(nc):
+        p = by_key[q]
+        su[q], sv[q], sh[q] = cu[p], cv[p], ch[p]
     # corners counter-clockwise, an upper corner wrapped onto a periodic seam
     u4, v4 = np.empty(4 * nc, np.int64), np.empty(4 * nc, np.int64)
     for c in range(nc):
@@ -131,36 +162,24 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
         v_to_u[fill[x]] = a
         u_to_v[a] = fill[x]
         fill[x] += 1
-    at_v = np.empty(4 * nc, np.int64)
-    for p in range(4 * nc):
-        at_v[p] = u_to_v[at[p]]
-    # each side's vertices strictly inside it, rows lo..hi-1 along its line (v-major for a side
-    # along u, u-major along v); a side ending on a periodic seam runs to its line's end
-    lo = np.empty((nc, 4), np.int64)
-    hi = np.empty((nc, 4), np.int64)
+    # each side's vertices strictly inside it, rows lo..hi-1 along its line (`_side`), taken
+    # where they are used rather than kept for every cell: the scratch arrays of a large mesh
+    # are new memory, whose page faults cost more than the few operations again
     split = np.zeros(nc, np.bool_)
     ring_len = 0
     n_split = 0
     for c in range(nc):
+        # `_side` of the four sides, written out: this loop visits every cell
         seam_u = wrap_u and su[c] + sh[c] == nu
         seam_v = wrap_v and sv[c] + sh[c] == nv
-        lo[c, 0] = at_v[c] + 1
-        hi[c, 0] = first_v[sv[c] + 1] if seam_u else at_v[nc + c]
-        lo[c, 1] = at[nc + c] + 1
-        hi[c, 1] = first[u4[nc + c] + 1] if seam_v else at[2 * nc + c]
-        lo[c, 2] = at_v[3 * nc + c] + 1
-        hi[c, 2] = first_v[v4[2 * nc + c] + 1] if seam_u else at_v[2 * nc + c]
-        lo[c, 3] = at[c] + 1
-        hi[c, 3] = first[su[c] + 1] if seam_v else at[3 * nc + c]
-        for s in range(4):
-            if hi[c, s] > lo[c, s]:
-                split[c] = True
-        if split[c]:
+        n0 = (first_v[sv[c] + 1] if seam_u else u_to_v[at[nc + c]]) - u_to_v[at[c]] - 1
+        n1 = (first[u4[nc + c] + 1] if seam_v else at[2 * nc + c]) - at[nc + c] - 1
+        n2 = (first_v[v4[2 * nc + c] + 1] if seam_u else u_to_v[at[2 * nc + c]]) - u_to_v[at[3 * nc + c]] - 1
+        n3 = (first[su[c] + 1] if seam_v else at[3 * nc + c]) - at[c] - 1
+        if n0 > 0 or n1 > 0 or n2 > 0 or n3 > 0:
+            split[c] = True
             n_split += 1
-            ring_len += 4
-            for s in range(4):
-                if hi[c, s] > lo[c, s]:
-                    ring_len += hi[c, s] - lo[c, s]
+            ring_len += 4 + max(n0, 0) + max(n1, 0) + max(n2, 0) + max(n3, 0)
     # the split cells' centres (inside their cells, so no corner's) sorted and merged with the
     # corners: a corner's row moves up by the centres before it, a centre's is its rank plus the
     # corners before it
@@ -205,20 +224,21 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
         for s in range(4):
             ring[n] = at[s * nc + c]
             n += 1
+            lo, hi = _side(c, s, nc, su, sv, sh, at, u_to_v, first, first_v, nu, nv, wrap_u, wrap_v)
             if s == 0:
-                for r in range(lo[c, 0], hi[c, 0]):
+                for r in range(lo, hi):
                     ring[n] = v_to_u[r]
                     n += 1
             elif s == 1:
-                for r in range(lo[c, 1], hi[c, 1]):
+                for r in range(lo, hi):
                     ring[n] = r
                     n += 1
             elif s == 2:
-                for r in range(hi[c, 2] - 1, lo[c, 2] - 1, -1):
+                for r in range(hi - 1, lo - 1, -1):
                     ring[n] = v_to_u[r]
                     n += 1
             else:
-                for r in range(hi[c, 3] - 1, lo[c, 3] - 1, -1):
+                for r in range(hi - 1, lo - 1, -1):
                     ring[n] = r
                     n += 1
         for t in range(n):
@@ -234,3 +254,24 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
         ku[a] = keys[a] // w
         kv[a] = keys[a] - ku[a] * w
     return ku, kv, counts, indices
+
+
+@njit(cache=True, nogil=True)
+def fan_triangles(counts, indices):
+    """Every face of a mesh as triangles, a fan from its first vertex, face by face: the faces'
+    vertex counts ``(f,) int64`` and indices ``(sum counts,) int64`` (USD's) give ``(t, 3)
+    int64``, a face of ``n`` vertices ``n - 2`` triangles (a quad ``a b c d``: ``a b c``,
+    ``a c d``). One pass, where numpy's takes a temporary per step."""
+    t = 0
+    for f in range(counts.shape[0]):
+        t += max(counts[f] - 2, 0)
+    out = np.empty((t, 3), np.int64)
+    k = 0
+    start = 0
+    for f in range(counts.shape[0]):
+        a = indices[start]
+        for e in range(1, counts[f] - 1):
+            out[k, 0], out[k, 1], out[k, 2] = a, indices[start + e], indices[start + e + 1]
+            k += 1
+        start += counts[f]
+    return out

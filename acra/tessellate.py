@@ -21,7 +21,7 @@ from numba import njit
 from . import framekernels, kernels
 from .basis import Direction
 from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
-from .lattice import adaptive_mesh, unique_keys
+from .lattice import adaptive_mesh, fan_triangles, unique_keys
 
 __all__ = [
     "GridTopology",
@@ -139,19 +139,7 @@ class MeshTopology:
         """Every face as triangles, a fan from its first vertex, face by face (a quad ``a b c d``
         gives ``a b c``, ``a c d``, as `GridTopology.triangles` and a USD client's fan):
         ``(t, 3) int64``."""
-        counts = np.asarray(self.counts, np.int64)
-        quads = int(np.count_nonzero(counts == 4))
-        if np.all(counts[:quads] == 4) and np.all(counts[quads:] == 3):
-            # the adaptive mesh's layout, its quads then its fans' triangles: two block copies
-            q = np.asarray(self.indices[:4 * quads], np.int64).reshape(-1, 4)
-            fans = np.empty((quads, 2, 3), np.int64)
-            fans[:, 0], fans[:, 1, 0], fans[:, 1, 1:] = q[:, :3], q[:, 0], q[:, 2:]
-            return np.concatenate([fans.reshape(-1, 3), np.asarray(self.indices[4 * quads:], np.int64).reshape(-1, 3)])
-        starts = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64)
-        fans = np.maximum(counts - 2, 0)
-        first = np.repeat(starts, fans)
-        within = np.arange(fans.sum()) - np.repeat(np.cumsum(fans) - fans, fans) + 1
-        return np.stack([self.indices[first], self.indices[first + within], self.indices[first + within + 1]], axis=1)
+        return fan_triangles(_i64(self.counts), _i64(self.indices))
 
 
 def finest_levels(hs: HSpline) -> np.ndarray:
@@ -421,11 +409,10 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             p, t = (given[0], given[1]) if rows is None else (given[0][rows], given[1][rows])
             n, nudged = _given_normals(hs, u, v, det, p, t)
             return p, n, nudged
-        if tangents:
-            ev = evaluate(hs, u, v, order=1, det=det)
-            return ev.points, np.concatenate((ev.du, ev.dv), axis=1), None
-        if not normals:
-            return evaluate(hs, u, v, order=0, det=det).points, None, None
+        if tangents or not normals:
+            # the points (and du, dv) are placed in their rows by `_place`, where they are used
+            ev = evaluate(hs, u, v, order=1 if tangents else 0, det=det)
+            return ev, None, None
         nudged = np.empty(u.size, bool)
         ev, n = surface_normals(hs, u, v, det=det, nudged=nudged)
         return ev.points, n, np.flatnonzero(nudged)
@@ -436,14 +423,11 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     by_v = given is None and (tangents or not normals)
     if since is None and by_v:
         o = np.argsort(topo.v, kind="stable")
-        p, t, _ = sample(topo.u[o], topo.v[o])
+        ev = sample(topo.u[o], topo.v[o])[0]
         points = np.empty((topo.u.size, 3))
-        points[o] = p
-        if t is not None:
-            limit = np.empty((topo.u.size, 6))
-            limit[o] = t
-            return points, limit
-        return points, None
+        limit = np.empty((topo.u.size, 6)) if tangents else _NO_TANGENTS
+        _place(ev.points, _NO_POINTS if ev.du is None else ev.du, _NO_POINTS if ev.dv is None else ev.dv, o, points, limit)
+        return points, limit if tangents else None
     if since is None:
         points, limit, nudged = sample(topo.u, topo.v)
         if normals:
@@ -485,9 +469,13 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         if by_v:
             idx = idx[np.argsort(topo.v[idx], kind="stable")]
         p, n, nudged = sample(topo.u[idx], topo.v[idx], idx)
-        points[idx] = p
-        if normals or tangents:
-            limit[idx] = n
+        if by_v:
+            _place(p.points, _NO_POINTS if p.du is None else p.du, _NO_POINTS if p.dv is None else p.dv, idx, points,
+                   limit if tangents else _NO_TANGENTS)
+        else:
+            points[idx] = p
+            if normals or tangents:
+                limit[idx] = n
         if normals:
             nudged = idx[nudged]
     if normals and old_nudged is not None:
@@ -555,6 +543,24 @@ def _nudged_rows(limit: np.ndarray) -> np.ndarray | None:
 
 
 _NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros((0, 3))
+_NO_TANGENTS = np.zeros((0, 6))
+
+
+@njit(cache=True, nogil=True)
+def _place(p, du, dv, rows, points, limit):
+    """Write an evaluation's ``p (m, 3) float64`` into ``points`` at ``rows (m,) int64`` and, unless
+    ``limit`` is empty, ``du`` and ``dv`` ``(m, 3) float64`` into its columns 0-2 and 3-5: numpy's
+    ``points[rows] = p; limit[rows] = concatenate((du, dv), axis=1)`` in one pass, without the
+    concatenated temporary (the points come by v, the display's rows by u)."""
+    tangents = limit.shape[0] > 0
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        for e in range(3):
+            points[r, e] = p[i, e]
+        if tangents:
+            for e in range(3):
+                limit[r, e] = du[i, e]
+                limit[r, 3 + e] = dv[i, e]
 
 
 @njit(cache=True, nogil=True)
@@ -598,13 +604,50 @@ def _matched(old, topo, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
     hit = None if memo is None else memo.get(key)
     if hit is not None and hit[0] is old and hit[1] is topo:
         return hit[2], hit[3]
-    new_key, old_key = topo.u + 1j * topo.v, old.u + 1j * old.v  # complex values sort by (u, v)
-    order = np.argsort(old_key, kind="stable")
-    src = order[np.minimum(np.searchsorted(old_key[order], new_key), max(len(order) - 1, 0))]
-    found = old_key[src] == new_key if len(order) else np.zeros(new_key.size, bool)
+    src, found = np.empty(topo.u.size, np.int64), np.empty(topo.u.size, np.bool_)
+    # a topology's vertices are sorted by (u, v) (`MeshTopology`, `GridTopology`): one merge of
+    # the two lists, unless one of them is not
+    if not _merge(_f64(old.u), _f64(old.v), _f64(topo.u), _f64(topo.v), src, found):
+        new_key, old_key = topo.u + 1j * topo.v, old.u + 1j * old.v  # complex values sort by (u, v)
+        order = np.argsort(old_key, kind="stable")
+        src = order[np.minimum(np.searchsorted(old_key[order], new_key), max(len(order) - 1, 0))]
+        found = old_key[src] == new_key if len(order) else np.zeros(new_key.size, bool)
     if memo is not None:
         memo[key] = (old, topo, src, found)
     return src, found
+
+
+def _i64(x: np.ndarray) -> np.ndarray:
+    """``x`` as a C-contiguous, writeable int64 array (a copy only where it is not one)."""
+    a = np.ascontiguousarray(x, np.int64)
+    return a if a.flags.writeable else a.copy()
+
+
+def _f64(x: np.ndarray) -> np.ndarray:
+    """``x`` as a C-contiguous float64 array (a copy only where it is not one)."""
+    return np.ascontiguousarray(x, np.float64)
+
+
+@njit(cache=True, nogil=True)
+def _merge(old_u, old_v, u, v, src, found):
+    """`_matched` of two vertex lists each sorted by ``(u, v)`` ``(m,)``, ``(n,) float64``: writes
+    into ``src (n,) int64`` the old vertex at each new vertex's parameters and into ``found (n,)
+    bool`` whether there is one (else ``src`` is the old vertex after it, clipped into range), in
+    one merge; returns False, having written nothing usable, where either list is not sorted."""
+    m, n = old_u.shape[0], u.shape[0]
+    for i in range(1, m):
+        if old_u[i] < old_u[i - 1] or (old_u[i] == old_u[i - 1] and old_v[i] <= old_v[i - 1]):
+            return False
+    for i in range(1, n):
+        if u[i] < u[i - 1] or (u[i] == u[i - 1] and v[i] <= v[i - 1]):
+            return False
+    j = 0
+    for i in range(n):
+        while j < m and (old_u[j] < u[i] or (old_u[j] == u[i] and old_v[j] < v[i])):
+            j += 1
+        src[i] = min(j, max(m - 1, 0))
+        found[i] = j < m and old_u[j] == u[i] and old_v[j] == v[i]
+    return True
 
 
 def _level_of(hs: HSpline, stale: np.ndarray) -> int:
@@ -630,13 +673,27 @@ def _patch_cells(hs: HSpline, topo, memo: dict | None, level: int = 0) -> tuple:
 def _cells(d: Direction, x: np.ndarray, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The level-``level`` patch of each parameter ``x (n,)`` (level-0 units) and the one before
     it where ``x`` is on the border between them (else the same patch), both in range."""
-    x = x * float(1 << level)  # exact: a power of two
-    cell = np.floor(x).astype(np.int64)
-    before = np.where(cell == x, cell - 1, cell)
-    n = d.patches(level)
-    if d.periodic:
-        return np.mod(cell, n), np.mod(before, n)
-    return np.clip(cell, 0, n - 1), np.clip(before, 0, n - 1)
+    x = _f64(x)
+    cell, before = np.empty(x.size, np.int64), np.empty(x.size, np.int64)
+    _cells_into(x, float(1 << level), int(d.patches(level)), bool(d.periodic), cell, before)
+    return cell, before
+
+
+@njit(cache=True, nogil=True)
+def _cells_into(x, scale, n, periodic, cell, before):
+    """`_cells` in one pass: of each ``x (m,) float64`` times ``scale`` (a power of two, so
+    exact), the floor into ``cell (m,) int64`` and, where it is on that border, the patch before
+    into ``before (m,) int64``, wrapped into ``0 .. n-1`` (``periodic``) or clipped, as numpy's
+    ``floor``, ``where``, ``mod`` and ``clip``."""
+    for i in range(x.shape[0]):
+        y = x[i] * scale
+        c = np.int64(np.floor(y))
+        b = c - 1 if c == y else c
+        if periodic:
+            c, b = c % n, b % n
+        else:
+            c, b = min(max(c, 0), n - 1), min(max(b, 0), n - 1)
+        cell[i], before[i] = c, b
 
 
 def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray, in_place: bool = False) -> np.ndarray:

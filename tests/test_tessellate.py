@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from acra import hspline as H
+from acra import kernels
 from acra import shapes
 from acra import tessellate as T
 from conftest import nudged, wavy_sheet, with_random_offsets
@@ -225,6 +226,36 @@ def test_changed_cells_of_a_refinement_alone_and_of_the_same_surface():
     assert not np.any(_changed_vertices(hs, finer, topo) & ~_covered(mask, finer, topo, 2))
 
 
+@pytest.mark.parametrize("seed,open_", [(0, False), (1, True), (2, False)])
+def test_changed_cells_compiled_equals_the_set_operations(seed, open_, monkeypatch):
+    """`changed_cells`' compiled level pass (`acra.kernels.changed_level`, sorted key lists
+    merged) marks the cells numpy's set operations mark, for a move, a refinement, both, and a
+    surface against a coarser one; unsorted key lists take the set operations."""
+    rng = np.random.default_rng(seed)
+    if open_:
+        hs = with_random_offsets(H.make_movable(H.make_movable(wavy_sheet(), 1, [[3, 3]]), 2, [[5, 5]]), 0.05, seed)
+        finer = H.make_movable(hs, 2, [[12, 9]])
+    else:
+        hs, at = H.from_grid(*shapes.sphere(12, 10), depth=4), int(rng.integers(0, 12))
+        for k in (1, 2, 3):
+            hs = H.make_movable(hs, k, [[(2 * at + 1) << (k - 1), 4 << k]])
+        hs = with_random_offsets(hs, 0.02, seed)
+        finer = H.make_movable(hs, 2, [[(2 * at + 5) << 1, 12]])
+    moved = nudged(hs, 2, rng)
+    pairs = [(hs, moved), (hs, finer), (finer, moved), (moved, finer), (hs, hs)]
+    compiled = [H.changed_cells(a, H.details(a), b, H.details(b), lv) for a, b in pairs for lv in (0, 2, 3)]
+    assert any(m.any() for m in compiled)
+    monkeypatch.setattr(H.kernels, "changed_level", lambda *a: False)
+    arrays = [H.changed_cells(a, H.details(a), b, H.details(b), lv) for a, b in pairs for lv in (0, 2, 3)]
+    for got, want in zip(compiled, arrays):
+        np.testing.assert_array_equal(got, want)
+    out = np.zeros((4, 4), bool)
+    assert not kernels.changed_level(out, 1, 1, np.array([3, 1]), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                                     np.zeros(0, np.int64), np.zeros((0, 3), np.int64), np.zeros((0, 3), np.int64),
+                                     4, 7, 4, 4, False, False)
+    assert not out.any()
+
+
 def test_adaptive_topology_without_fine_levels_is_the_uniform_grid():
     hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
     grid = T.display_topology(hs.u, hs.v, 4)
@@ -406,6 +437,24 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
                 np.testing.assert_array_equal(limit[copied], old_limit[rows])
 
 
+def test_place_equals_numpy_s_row_assignment():
+    """`tessellate._place` (an evaluation's points and first derivatives written into a
+    display's rows in one pass) gives numpy's ``points[rows] = p`` and ``limit[rows] =
+    concatenate((du, dv), axis=1)``, and leaves ``limit`` alone where it is empty."""
+    rng = np.random.default_rng(3)
+    n, rows = 500, rng.permutation(500)[:300]
+    p, du, dv = (rng.normal(size=(rows.size, 3)) for _ in range(3))
+    points, limit = np.full((n, 3), np.nan), np.full((n, 6), np.nan)
+    T._place(p, du, dv, rows, points, limit)
+    want_points, want_limit = np.full((n, 3), np.nan), np.full((n, 6), np.nan)
+    want_points[rows], want_limit[rows] = p, np.concatenate((du, dv), axis=1)
+    np.testing.assert_array_equal(points, want_points)
+    np.testing.assert_array_equal(limit, want_limit)
+    alone = np.full((n, 3), np.nan)
+    T._place(p, T._NO_POINTS, T._NO_POINTS, rows, alone, T._NO_TANGENTS)
+    np.testing.assert_array_equal(alone, want_points)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_normals_since_changed_cells_evaluate_those_cells_and_the_nudged_vertices(seed, monkeypatch):
     """With normals, `grid_samples(since=...)` on `changed_cells` evaluates the vertices on the
@@ -530,3 +579,36 @@ def test_kept_rows_hold_their_arrays_by_weak_references_without_callbacks():
     T._note_nudged(other, np.array([0]))
     assert key not in T._NUDGED or T._NUDGED[key][0]() is not None  # dead entry dropped (or the id reused)
     assert all(value[0]() is not None for value in T._NUDGED.values())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_merge_matches_the_sorted_search_and_cells_numpy_s(seed):
+    """`tessellate._merge` (the old vertex at each new vertex's parameters, by one merge of two
+    lists sorted by ``(u, v)``) finds the vertices numpy's sorted search of complex keys finds,
+    and refuses a list that is not sorted; `_cells_into` gives numpy's floor, border and
+    wrap or clip (`tessellate._cells`)."""
+    rng = np.random.default_rng(seed)
+    lattice = np.stack(np.meshgrid(np.arange(40) / 8, np.arange(30) / 8, indexing="ij"), -1).reshape(-1, 2)
+    old = lattice[np.sort(rng.choice(len(lattice), 700, replace=False))]
+    new = lattice[np.sort(rng.choice(len(lattice), 900, replace=False))]
+    src, found = np.empty(len(new), np.int64), np.empty(len(new), np.bool_)
+    assert T._merge(old[:, 0].copy(), old[:, 1].copy(), new[:, 0].copy(), new[:, 1].copy(), src, found)
+    old_key, new_key = old[:, 0] + 1j * old[:, 1], new[:, 0] + 1j * new[:, 1]
+    want = np.minimum(np.searchsorted(old_key, new_key), len(old) - 1)
+    np.testing.assert_array_equal(found, old_key[want] == new_key)
+    np.testing.assert_array_equal(src[found], want[found])
+    assert 0 < found.sum() < len(new) and src.min() >= 0 and src.max() < len(old)
+    shuffled = old[rng.permutation(len(old))]
+    assert not T._merge(shuffled[:, 0].copy(), shuffled[:, 1].copy(), new[:, 0].copy(), new[:, 1].copy(), src, found)
+    x = np.concatenate([rng.uniform(-1, 9, 500), np.arange(-2, 10) / 2.0])
+    for level in (0, 1, 3):
+        for periodic in (False, True):
+            n = 8 << level
+            y = x * float(1 << level)
+            cell = np.floor(y).astype(np.int64)
+            before = np.where(cell == y, cell - 1, cell)
+            wrap = (lambda c: np.mod(c, n)) if periodic else (lambda c: np.clip(c, 0, n - 1))  # noqa: E731
+            got_cell, got_before = np.empty(x.size, np.int64), np.empty(x.size, np.int64)
+            T._cells_into(x, float(1 << level), n, periodic, got_cell, got_before)
+            np.testing.assert_array_equal(got_cell, wrap(cell))
+            np.testing.assert_array_equal(got_before, wrap(before))
