@@ -253,8 +253,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
                 d = _answer(answers, part, local, target / k, pad / k, decide / k)
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
-    points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
-    uv = None if a.vertex_uv is None else np.einsum("mk,mkc->mc", d.bary, a.vertex_uv[a.triangles[near[d.tri]]])
+    points, uv = bvh.barycentric(d.bary, d.tri, corners, near, a.triangles, a.vertex_uv)
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
 
 
