@@ -30,11 +30,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from acra.pseudonormals import _signs, flood as _flood, links as _links, representatives as _representatives
 
-__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "facet_bound", "bounds",
+__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "faces_mapped", "barycentric", "facet_bound", "bounds",
            "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children", "depth"]
 
 LEAF = 4  # triangles per leaf
@@ -652,6 +654,83 @@ def faces_at(points: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> np.ndar
         _faces_at(np.ascontiguousarray(points, np.float64), _read_only(faces),
                   np.ascontiguousarray(rows, np.int64), out)
     return out
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """``a * b + c`` rounded once (LLVM's ``llvm.fma.f64``, exact on every target)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        name = "llvm.fma.f64"
+        f = builder.module.globals.get(name) or ir.Function(builder.module, ir.FunctionType(d, [d, d, d]), name)
+        return builder.call(f, args)
+    return sig, codegen
+
+
+@njit(cache=True, nogil=True)
+def _faces_mapped(points, faces, rows, shift, inverse, out, local, box):
+    # a row of ``(c - shift) @ inverse.T`` as numpy's matmul gives it for two rows or more (BLAS's
+    # dgemm: the three products summed by fused multiply-adds, first to last; `faces_mapped`'s
+    # test holds the two to the same bits)
+    for i in range(rows.shape[0]):
+        for c in range(3):
+            v = faces[rows[i], c]
+            x, y, z = points[v, 0], points[v, 1], points[v, 2]
+            out[i, c, 0], out[i, c, 1], out[i, c, 2] = x, y, z
+            d0, d1, d2 = x - shift[0], y - shift[1], z - shift[2]
+            for k in range(3):
+                local[i, c, k] = _fma(d2, inverse[k, 2], _fma(d1, inverse[k, 1], d0 * inverse[k, 0]))
+    _bounds(out.reshape(-1, 3), box)
+
+
+def faces_mapped(points: np.ndarray, faces: np.ndarray, rows: np.ndarray, shift: np.ndarray,
+                 inverse: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`faces_at`'s triangles ``(m, 3, 3)`` (``m >= 1``), their box ``(2, 3)`` (`bounds`) and the
+    triangles mapped ``(corner - shift (3,)) @ inverse (3, 3).T`` ``(m, 3, 3)`` (the object space
+    of a matrix whose translation is ``shift`` and whose linear part's inverse is ``inverse``,
+    `pipeline.model.apply_inverse`'s arithmetic), in one compiled pass:
+    ``(triangles, mapped, box)``."""
+    if not len(rows):
+        raise ValueError("faces_mapped: no rows")
+    out, local, box = np.empty((len(rows), 3, 3)), np.empty((len(rows), 3, 3)), np.empty((2, 3))
+    _faces_mapped(np.ascontiguousarray(points, np.float64), _read_only(faces), np.ascontiguousarray(rows, np.int64),
+                  np.ascontiguousarray(shift, np.float64).reshape(3), np.ascontiguousarray(inverse, np.float64), out, local, box)
+    return out, local, box
+
+
+@njit(cache=True, nogil=True)
+def _barycentric(bary, tri, corners, rows, faces, values, points, at):
+    # numpy's einsum("mk,mkc->mc") arithmetic: each output summed from 0.0 (so a -0.0 sum comes
+    # out as 0.0), corner by corner
+    for i in range(bary.shape[0]):
+        t = tri[i]
+        w0, w1, w2 = bary[i, 0], bary[i, 1], bary[i, 2]
+        for c in range(3):
+            points[i, c] = ((0.0 + w0 * corners[t, 0, c]) + w1 * corners[t, 1, c]) + w2 * corners[t, 2, c]
+        if at.shape[0]:
+            f0, f1, f2 = faces[rows[t], 0], faces[rows[t], 1], faces[rows[t], 2]
+            for c in range(values.shape[1]):
+                at[i, c] = ((0.0 + w0 * values[f0, c]) + w1 * values[f1, c]) + w2 * values[f2, c]
+
+
+def barycentric(bary: np.ndarray, tri: np.ndarray, corners: np.ndarray, rows: np.ndarray, faces: np.ndarray,
+                values: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """The points at barycentric weights ``bary (m, 3)`` in triangles ``corners[tri] ((t, 3, 3),
+    tri (m,) int64)``, and, given per-vertex ``values (n, c)``, the values there in the faces
+    ``faces[rows[tri]]`` (``faces (f, 3) int64`` into them, ``rows (t,) int64``), in one compiled
+    pass: ``np.einsum("mk,mkc->mc", bary, corners[tri])`` and ``np.einsum("mk,mkc->mc", bary,
+    values[faces[rows[tri]]])`` to the bit. Returns ``(points (m, 3), at (m, c) or None)``."""
+    m = len(bary)
+    points = np.empty((m, 3))
+    v = np.zeros((0, 2)) if values is None else np.ascontiguousarray(values, np.float64)
+    at = np.empty((m if values is not None else 0, v.shape[1]))
+    if m:
+        _barycentric(np.ascontiguousarray(bary, np.float64), np.ascontiguousarray(tri, np.int64),
+                     np.ascontiguousarray(corners, np.float64), np.ascontiguousarray(rows, np.int64), _read_only(faces), v,
+                     points, at)
+    return points, None if values is None else at
 
 
 @njit(cache=True, nogil=True)

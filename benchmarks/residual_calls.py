@@ -42,6 +42,14 @@ def _timed(label: str, f):
     return wrapper
 
 
+def _fresh(s, parts: dict):
+    """``s`` with empty part caches, one per display (``parts``: by the recorded cache's id),
+    and so the display it may take parts from (``like``, where a checkout has it)."""
+    like = getattr(s, "like", None)
+    more = {} if like is None else {"like": _fresh(like, parts)}
+    return dataclasses.replace(s, parts=None if s.parts is None else parts.setdefault(id(s.parts), {}), **more)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
@@ -78,8 +86,7 @@ def main() -> None:
     for _ in range(args.passes):
         with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs
             parts: dict = {}  # a fresh cache per display, as a new display starts
-            fresh = [tuple(dataclasses.replace(s, parts=None if s.parts is None else parts.setdefault(id(s.parts), {}))
-                           for s in (x, y)) + (t, d) for x, y, t, d in calls]
+            fresh = [tuple(_fresh(s, parts) for s in (x, y)) + (t, d) for x, y, t, d in calls]
             SPENT.clear()
             h = hashlib.sha1()
             t0 = time.process_time()

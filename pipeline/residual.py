@@ -72,6 +72,9 @@ class Shown:
     parts : dict or None
         Part solids of these ``local`` points and ``triangles`` already built (`pair_depth`), by
         face rows; shared by every `Shown` of one display (`display.SurfaceDisplay.parts`).
+    like : Shown or None
+        Another display of the same surface, whose ``parts`` may hold a part of the same content
+        (`_like`): the round's display where the run's display of a frame differs from it.
 
     A pair gathers only the triangles near the other object (`near`); ``corners`` and ``uv``
     gather all of them.
@@ -90,6 +93,7 @@ class Shown:
     whole: object = None
     deformable: bool = True
     parts: dict | None = None
+    like: Shown | None = None
 
     @cached_property
     def corners(self) -> np.ndarray:
@@ -232,14 +236,13 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.vertex_uv is None else np.zeros((0, 2)), np.zeros(0))
     if not b.closed:
         return none
-    corners, near = a.near(b.box)
-    if not len(corners):
+    near = a.near_rows(b.box)
+    if not len(near):
         return none
     k, inverse = _placement(b.xform)  # eq. (5): world lengths at most k times object-space ones
-    local = ((corners.reshape(-1, 3) - b.xform[:3, 3]) @ inverse.T).reshape(-1, 3, 3)  # `apply_inverse`
+    corners, local, region = bvh.faces_mapped(a.world, a.triangles, near, b.xform[:3, 3], inverse)  # `apply_inverse`
     d = None
     if b.deformable:
-        region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
         rows = b.near_rows(region, pad)
         if len(rows) >= CLEAR_ROWS:
@@ -250,8 +253,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
                 d = _answer(answers, part, local, target / k, pad / k, decide / k)
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
-    points = np.einsum("mk,mkc->mc", d.bary, corners[d.tri])
-    uv = None if a.vertex_uv is None else np.einsum("mk,mkc->mc", d.bary, a.vertex_uv[a.triangles[near[d.tri]]])
+    points, uv = bvh.barycentric(d.bary, d.tri, corners, near, a.triangles, a.vertex_uv)
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
 
 
@@ -342,9 +344,10 @@ def _part(b: Shown, rows: np.ndarray) -> tuple[clearance.Solid, list]:
     kept).
 
     rows : (m,) int64, increasing rows of ``b.triangles``"""
-    make = lambda: clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward, scale=b.diagonal_local)  # noqa: E731
+    make = lambda: _like(b, rows) or (clearance.solid(b.local, b.triangles[rows], part=True, outward=b.outward,  # noqa: E731
+                                                      scale=b.diagonal_local), [])
     if b.parts is None:
-        return make(), []
+        return make()
     key = (b.outward, rows.tobytes())
     hit = b.parts.pop(key, None)
     if hit is None:
@@ -354,12 +357,43 @@ def _part(b: Shown, rows: np.ndarray) -> tuple[clearance.Solid, list]:
                 at = np.minimum(np.searchsorted(kept, rows), len(kept) - 1)
                 if np.array_equal(kept[at], rows):  # every row of ``rows`` is kept (both increasing)
                     best = k
-        hit = (make(), [], rows) if best is None else b.parts.pop(best)
+        hit = (*make(), rows) if best is None else b.parts.pop(best)
         key = key if best is None else best
     b.parts[key] = hit
     while len(b.parts) > PARTS_KEPT:
         del b.parts[next(iter(b.parts))]
     return hit[0], hit[1]
+
+
+def _like(b: Shown, rows: np.ndarray) -> tuple[clearance.Solid, list] | None:
+    """A part solid ``b.like`` keeps that is the part of ``b``'s faces ``rows``, with its kept
+    answers, else ``None``: `clearance.solid` reads of the points only those the faces use, in
+    the order of their rows, and of the faces only which of those each corner is (`_content`),
+    so two parts alike in both, under the same winding and weld scale, are the same solid and
+    answer alike (`_answer`). The run's display of a frame often shows the other object near the
+    inner one as the round's display did, where the two topologies differ elsewhere.
+
+    rows : (m,) int64, increasing rows of ``b.triangles``"""
+    like = b.like
+    if like is None or not like.parts or like.outward != b.outward or like.diagonal_local != b.diagonal_local:
+        return None
+    mine = None
+    for (outward, _), (solid, answers, kept) in like.parts.items():
+        if outward == b.outward and len(kept) == len(rows):
+            mine = _content(b.local, b.triangles, rows) if mine is None else mine
+            if all(np.array_equal(x.view(np.uint64), y.view(np.uint64))
+                   for x, y in zip(mine, _content(like.local, like.triangles, kept))):
+                return solid, answers
+    return None
+
+
+def _content(local: np.ndarray, triangles: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What `clearance.solid` reads of the part ``triangles[rows]`` of the points ``local (n, 3)``
+    (`acra.pseudonormals.weld`'s input): the points the faces use, in the order of their rows,
+    ``(k, 3) float64``, and each corner's place among them ``(m, 3) int64``."""
+    faces = triangles[rows]
+    used = np.unique(faces)
+    return local[used], np.searchsorted(used, faces)
 
 
 def _answer(answers: list, part: clearance.Solid, local: np.ndarray, target: float, reach: float, decide: float):
@@ -526,7 +560,11 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
                 objects.append(view)
             else:
                 triangles, uv = mesh(m)
-                objects.append(shown(m.path, r.points, triangles, xforms[m.path], uv, shape.closed, shape.outward))
+                # the round's display of this surface, where the run's shows other points: the
+                # parts it built may be the run's near the other objects (`_like`)
+                like = None if sd is None else sd.view(m.path, xforms[m.path])
+                objects.append(replace(shown(m.path, r.points, triangles, xforms[m.path], uv, shape.closed, shape.outward),
+                                       like=like))
         for c, s in zip(scene.colliders, colliders):
             v = apply_xform(xforms[c.path], c.vertices)
             box = np.stack([v.min(axis=0), v.max(axis=0)])

@@ -123,6 +123,47 @@ def test_build_takes_numpys_boxes_and_centroids():
     np.testing.assert_array_equal(cen, tri.mean(axis=1))
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_faces_mapped_are_numpys_gather_box_and_apply_inverse_to_the_bit(seed):
+    """`faces_mapped` gives `faces_at`'s triangles, their `bounds` and
+    `pipeline.model.apply_inverse`'s numpy arithmetic (``(p - t) @ inv.T``, BLAS's dgemm for two
+    rows or more) to the bit, at every number of triangles, a single one (three rows) too."""
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(60, 3)) * rng.uniform(0.01, 100.0, size=3) + rng.normal(size=3)
+    faces = rng.integers(0, 60, size=(200, 3))
+    xform = np.eye(4)
+    xform[:3] = rng.normal(size=(3, 4)) * 3.0
+    inverse = np.linalg.inv(xform[:3, :3])
+    for m in (1, 2, 3, 5, 17, 64, 200):
+        rows = np.sort(rng.choice(200, size=m, replace=False))
+        tri, mapped, box = bvh.faces_mapped(points, faces, rows, xform[:3, 3], inverse)
+        want = bvh.faces_at(points, faces, rows)
+        assert np.array_equal(tri, want)
+        assert np.array_equal(box.view(np.uint64), bvh.bounds(want).view(np.uint64))
+        numpy = ((want.reshape(-1, 3) - xform[:3, 3]) @ inverse.T).reshape(-1, 3, 3)
+        assert np.array_equal(mapped.view(np.uint64), numpy.view(np.uint64))
+
+
+def test_barycentric_points_and_values_are_numpys_einsum_to_the_bit():
+    """`barycentric` gives ``np.einsum("mk,mkc->mc", ...)`` of the triangles' corners and of
+    per-vertex values to the bit, signed zeros among them (weights 0 on negative coordinates)."""
+    rng = np.random.default_rng(5)
+    points = rng.choice([0.0, -0.0, -1.5, 2.0, 0.3], size=(40, 3)) * rng.uniform(0.5, 2.0, size=(40, 1))
+    values = rng.choice([0.0, -0.0, 0.25, -3.0], size=(40, 2))
+    faces = rng.integers(0, 40, size=(90, 3))
+    rows = np.sort(rng.choice(90, size=30, replace=False))
+    corners = bvh.faces_at(points, faces, rows)
+    for m in (0, 1, 7, 200):
+        tri = rng.integers(0, 30, size=m)
+        bary = rng.choice([0.0, 1.0, 0.5, 0.25, 1.0 / 3.0], size=(m, 3))
+        got, at = bvh.barycentric(bary, tri, corners, rows, faces, values)
+        want = np.einsum("mk,mkc->mc", bary, corners[tri])
+        assert np.array_equal(got.view(np.uint64), want.view(np.uint64))
+        want = np.einsum("mk,mkc->mc", bary, values[faces[rows[tri]]])
+        assert at.shape == want.shape and np.array_equal(at.view(np.uint64), want.view(np.uint64))
+        assert bvh.barycentric(bary, tri, corners, rows, faces)[1] is None
+
+
 def test_bounds_are_numpys_minima_and_maxima():
     p = soup(3, 2000).reshape(-1, 3)
     np.testing.assert_array_equal(bvh.bounds(p), np.stack([p.min(axis=0), p.max(axis=0)]))

@@ -203,6 +203,44 @@ def test_a_part_s_answer_is_kept_for_the_same_triangles_in_another_display(monke
     assert len(runs) == 2
 
 
+def test_a_part_of_another_display_with_the_same_content_answers(monkeypatch):
+    """The run's display of a surface shows other points than the round's (another topology far
+    from the other object) but the same faces near it: a pair on it (``like``: the round's
+    display) takes the round's part solid and its answer (`clearance.solid` and
+    `clearance.triangle_depth` run once) and gives what a part of its own gives; a display
+    whose faces there lie one float32 step higher builds its own."""
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    pts, tris = grid_samples(ball, topo)[0], topo.triangles()
+    round_ = residual.shown("/ball", pts, tris, np.eye(4), None, closed=True, outward=1.0, parts={})
+    z = round_.box[1, 2] - 0.05
+    a = residual.shown("/tri", [[-0.2, -0.2, z], [0.2, -0.2, z], [0.0, 0.2, z]], np.array([[0, 1, 2]]), np.eye(4))
+    low = np.nonzero(pts[:, 2] < pts[:, 2].min() + 0.3 * np.ptp(pts[:, 2]))[0][:3]  # far below the triangle
+    extra = np.vstack([pts, pts[low] * 0.999])  # points inside the box: the same weld scale
+    n = len(pts)
+    other = np.vstack([tris, [[n, n + 1, n + 2]]])
+    run_ = residual.shown("/ball", extra, other, np.eye(4), None, closed=True, outward=1.0)
+    assert run_.diagonal_local == round_.diagonal_local and run_.fingerprint != round_.fingerprint
+    built, runs = [], []
+    real, real_depth = clearance.solid, clearance.triangle_depth
+    monkeypatch.setattr(clearance, "solid", lambda *args, **kw: built.append(1) or real(*args, **kw))
+    monkeypatch.setattr(clearance, "triangle_depth", lambda *args, **kw: runs.append(1) or real_depth(*args, **kw))
+    target = 1e-6
+    want = residual.pair_depth(a, round_, target, 2 * target)
+    assert (len(built), len(runs)) == (1, 1) and want.depth > 0.04
+    got = residual.pair_depth(a, residual.replace(run_, like=round_), target, 2 * target)
+    assert (len(built), len(runs)) == (1, 1)
+    alone = residual.pair_depth(a, run_, target, 2 * target)
+    assert (len(built), len(runs)) == (2, 2)
+    for x in (got, alone):
+        assert (x.depth, x.lower, x.complete) == (want.depth, want.lower, want.complete)
+        assert np.array_equal(x.points, want.points) and np.array_equal(x.deep, want.deep)
+    step = np.float32(pts) + np.spacing(np.float32(pts)) * (pts[:, 2:] > 0)  # the upper half a step up
+    moved = residual.shown("/ball", np.vstack([step, extra[n:]]), other, np.eye(4), None, closed=True, outward=1.0)
+    residual.pair_depth(a, residual.replace(moved, like=round_), target, 2 * target)
+    assert len(built) == 3
+
+
 def test_a_run_s_frames_apart_are_not_measured_and_read_zero(monkeypatch):
     """`measure_run` skips a frame whose objects' boxes (each display's object-space box mapped
     by its world matrix) all lie apart: its figures are those measuring it gives (every pair 0),
