@@ -30,13 +30,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.extending import intrinsic
+from numba import njit
 
 from acra.pseudonormals import _signs, flood as _flood, links as _links, representatives as _representatives
 
-__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "faces_mapped", "barycentric", "facet_bound", "bounds",
+__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "barycentric", "facet_bound", "bounds",
            "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children", "depth"]
 
 LEAF = 4  # triangles per leaf
@@ -654,50 +652,6 @@ def faces_at(points: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> np.ndar
         _faces_at(np.ascontiguousarray(points, np.float64), _read_only(faces),
                   np.ascontiguousarray(rows, np.int64), out)
     return out
-
-
-@intrinsic
-def _fma(typingctx, a, b, c):
-    """``a * b + c`` rounded once (LLVM's ``llvm.fma.f64``, exact on every target)."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):
-        d = ir.DoubleType()
-        name = "llvm.fma.f64"
-        f = builder.module.globals.get(name) or ir.Function(builder.module, ir.FunctionType(d, [d, d, d]), name)
-        return builder.call(f, args)
-    return sig, codegen
-
-
-@njit(cache=True, nogil=True)
-def _faces_mapped(points, faces, rows, shift, inverse, out, local, box):
-    # a row of ``(c - shift) @ inverse.T`` as numpy's matmul gives it for two rows or more (BLAS's
-    # dgemm: the three products summed by fused multiply-adds, first to last; `faces_mapped`'s
-    # test holds the two to the same bits)
-    for i in range(rows.shape[0]):
-        for c in range(3):
-            v = faces[rows[i], c]
-            x, y, z = points[v, 0], points[v, 1], points[v, 2]
-            out[i, c, 0], out[i, c, 1], out[i, c, 2] = x, y, z
-            d0, d1, d2 = x - shift[0], y - shift[1], z - shift[2]
-            for k in range(3):
-                local[i, c, k] = _fma(d2, inverse[k, 2], _fma(d1, inverse[k, 1], d0 * inverse[k, 0]))
-    _bounds(out.reshape(-1, 3), box)
-
-
-def faces_mapped(points: np.ndarray, faces: np.ndarray, rows: np.ndarray, shift: np.ndarray,
-                 inverse: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`faces_at`'s triangles ``(m, 3, 3)`` (``m >= 1``), their box ``(2, 3)`` (`bounds`) and the
-    triangles mapped ``(corner - shift (3,)) @ inverse (3, 3).T`` ``(m, 3, 3)`` (the object space
-    of a matrix whose translation is ``shift`` and whose linear part's inverse is ``inverse``,
-    `pipeline.model.apply_inverse`'s arithmetic), in one compiled pass:
-    ``(triangles, mapped, box)``."""
-    if not len(rows):
-        raise ValueError("faces_mapped: no rows")
-    out, local, box = np.empty((len(rows), 3, 3)), np.empty((len(rows), 3, 3)), np.empty((2, 3))
-    _faces_mapped(np.ascontiguousarray(points, np.float64), _read_only(faces), np.ascontiguousarray(rows, np.int64),
-                  np.ascontiguousarray(shift, np.float64).reshape(3), np.ascontiguousarray(inverse, np.float64), out, local, box)
-    return out, local, box
 
 
 @njit(cache=True, nogil=True)

@@ -236,13 +236,14 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.vertex_uv is None else np.zeros((0, 2)), np.zeros(0))
     if not b.closed:
         return none
-    near = a.near_rows(b.box)
-    if not len(near):
+    corners, near = a.near(b.box)
+    if not len(corners):
         return none
     k, inverse = _placement(b.xform)  # eq. (5): world lengths at most k times object-space ones
-    corners, local, region = bvh.faces_mapped(a.world, a.triangles, near, b.xform[:3, 3], inverse)  # `apply_inverse`
+    local = ((corners.reshape(-1, 3) - b.xform[:3, 3]) @ inverse.T).reshape(-1, 3, 3)  # `apply_inverse`
     d = None
     if b.deformable:
+        region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
         rows = b.near_rows(region, pad)
         if len(rows) >= CLEAR_ROWS:

@@ -123,27 +123,6 @@ def test_build_takes_numpys_boxes_and_centroids():
     np.testing.assert_array_equal(cen, tri.mean(axis=1))
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_faces_mapped_are_numpys_gather_box_and_apply_inverse_to_the_bit(seed):
-    """`faces_mapped` gives `faces_at`'s triangles, their `bounds` and
-    `pipeline.model.apply_inverse`'s numpy arithmetic (``(p - t) @ inv.T``, BLAS's dgemm for two
-    rows or more) to the bit, at every number of triangles, a single one (three rows) too."""
-    rng = np.random.default_rng(seed)
-    points = rng.normal(size=(60, 3)) * rng.uniform(0.01, 100.0, size=3) + rng.normal(size=3)
-    faces = rng.integers(0, 60, size=(200, 3))
-    xform = np.eye(4)
-    xform[:3] = rng.normal(size=(3, 4)) * 3.0
-    inverse = np.linalg.inv(xform[:3, :3])
-    for m in (1, 2, 3, 5, 17, 64, 200):
-        rows = np.sort(rng.choice(200, size=m, replace=False))
-        tri, mapped, box = bvh.faces_mapped(points, faces, rows, xform[:3, 3], inverse)
-        want = bvh.faces_at(points, faces, rows)
-        assert np.array_equal(tri, want)
-        assert np.array_equal(box.view(np.uint64), bvh.bounds(want).view(np.uint64))
-        numpy = ((want.reshape(-1, 3) - xform[:3, 3]) @ inverse.T).reshape(-1, 3, 3)
-        assert np.array_equal(mapped.view(np.uint64), numpy.view(np.uint64))
-
-
 def test_barycentric_points_and_values_are_numpys_einsum_to_the_bit():
     """`barycentric` gives ``np.einsum("mk,mkc->mc", ...)`` of the triangles' corners and of
     per-vertex values to the bit, signed zeros among them (weights 0 on negative coordinates)."""
