@@ -645,26 +645,40 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     return _kept(_ANSWERS, (ga.content, gb.content), lambda: _intersect(ga, gb), ANSWERS_KEPT)
 
 
-def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
-    """`intersect`, computed."""
-    collider = isinstance(gb, ColliderGeometry)
+def _no_intersections(collider: bool) -> Intersections:
+    """No crossing triangle pair (``patch_b`` ``None`` against a collider)."""
     empty = np.zeros((0, 2), np.int64)
-    none = Intersections(np.zeros((0, 3)), empty, None if collider else empty, np.zeros(0, np.int64))
-    if apart(ga, gb):
-        return none
-    pad = pair_pad(ga, gb)
-    if not _boxes_overlap(ga, gb, pad):
-        return none
+    return Intersections(np.zeros((0, 3)), empty, None if collider else empty, np.zeros(0, np.int64))
+
+
+def _patch_rows(keep: np.ndarray, grid: tuple) -> np.ndarray:
+    """Level-0 patches ``(m, 2) int64``, row-major, of the kept rows ``keep (P,) bool`` of a
+    ``grid = (P0u, P0v)`` of patch boxes: ``np.argwhere`` of the grid's mask, C-ordered."""
+    r, c = np.nonzero(keep.reshape(grid))
+    return np.stack((r, c), axis=1).astype(np.int64, copy=False)
+
+
+def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None) -> Intersections:
+    """`intersect`, computed. ``pad``: the pair's `pair_pad`, given by a caller that found the
+    pair neither `apart` nor outside each other's box (`_boxes_overlap`) already."""
+    collider = isinstance(gb, ColliderGeometry)
+    if pad is None:
+        if apart(ga, gb):
+            return _no_intersections(collider)
+        pad = pair_pad(ga, gb)
+        if not _boxes_overlap(ga, gb, pad):
+            return _no_intersections(collider)
     if collider:
         ca = candidate_patches(ga, gb.bounds, pad)
     else:
         # each side's `candidate_patches` in the other's box, of those the ones whose box meets
         # one of the other side's, and the box of B's: one compiled pass over the patch boxes
-        keep_a, keep_b, box_b = narrow.patches_near(ga.boxes, ga.bounds, gb.boxes, gb.bounds, pad)
-        ca = np.ascontiguousarray(np.argwhere(keep_a.reshape(ga.boxes[0].shape[:2])), np.int64)
-        cb = np.ascontiguousarray(np.argwhere(keep_b.reshape(gb.boxes[0].shape[:2])), np.int64)
+        boxes_a, boxes_b = ga.boxes, gb.boxes
+        keep_a, keep_b, box_b = narrow.patches_near(boxes_a, ga.bounds, boxes_b, gb.bounds, pad)
+        ca = _patch_rows(keep_a, boxes_a[0].shape[:2])
+        cb = _patch_rows(keep_b, boxes_b[0].shape[:2])
     if not len(ca):
-        return none
+        return _no_intersections(collider)
     ta = _tessellate(ga, ca)
     if collider:  # the collider's face boxes are the run's (`ColliderStatic.face_boxes`)
         pa = apply_inverse(gb.xform, ta.points)
@@ -674,12 +688,12 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
         if box_b is None or not _overlap(*ta.bounds, box_b[0], box_b[1], pad):
-            return none
+            return _no_intersections(collider)
         tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
         ka, kb = _triangles_near(ta.face_boxes, tb.face_boxes, pad)
     if not len(ka):
-        return none
+        return _no_intersections(collider)
 
     def contacts():
         import fcl  # here: a run whose pairs `acra.narrow.crossings` settles never imports fcl
@@ -978,7 +992,8 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return False
-    if intersect(ga, gb).crosses:
+    # `intersect`, its box tests passed above
+    if _kept(_ANSWERS, (ga.content, gb.content), lambda: _intersect(ga, gb, pad), ANSWERS_KEPT).crosses:
         return True
     for x, y in ((ga, gb), (gb, ga)):
         if not is_closed(y):
