@@ -658,9 +658,11 @@ def _patch_rows(keep: np.ndarray, grid: tuple) -> np.ndarray:
     return np.stack((r, c), axis=1).astype(np.int64, copy=False)
 
 
-def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None) -> Intersections:
+def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, first: bool = False) -> Intersections | None:
     """`intersect`, computed. ``pad``: the pair's `pair_pad`, given by a caller that found the
-    pair neither `apart` nor outside each other's box (`_boxes_overlap`) already."""
+    pair neither `apart` nor outside each other's box (`_boxes_overlap`) already. With
+    ``first``, ``None`` as soon as one triangle pair surely gives a contact (the surfaces cross;
+    how many contacts is not counted): `touching` asks no more."""
     collider = isinstance(gb, ColliderGeometry)
     if pad is None:
         if apart(ga, gb):
@@ -716,9 +718,11 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None) -> I
     # now.
     if collider:
         count, unsure = (0, True) if gb.static.thin else narrow.crossings(pa, ta.triangles, ka, gb.static.mesh.vertices,
-                                                                         gb.static.mesh.faces, kb, pad)
+                                                                         gb.static.mesh.faces, kb, pad, first)
     else:
-        count, unsure = narrow.crossings(pa, ta.triangles, ka, pb, fb_all, kb, pad)
+        count, unsure = narrow.crossings(pa, ta.triangles, ka, pb, fb_all, kb, pad, first)
+    if first and count:
+        return None
     if not unsure:
         return Intersections.later(contacts, count, count > 0)
     if count:  # fcl reports these and the unknown pairs' contacts: how many is read from it later
@@ -992,8 +996,16 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return False
-    # `intersect`, its box tests passed above
-    if _kept(_ANSWERS, (ga.content, gb.content), lambda: _intersect(ga, gb, pad), ANSWERS_KEPT).crosses:
+    # `intersect`'s answer where it is kept; else its pass with the box tests above, stopped at the
+    # first triangle pair with a contact (a rewinding step's crossing pair is all it asks for):
+    # that partial answer is not kept, a whole pass's is
+    key = (ga.content, gb.content)
+    inter = _ANSWERS.get(key)
+    if inter is None:
+        inter = _intersect(ga, gb, pad, first=True)
+        if inter is None:
+            return True
+    if _kept(_ANSWERS, key, lambda: inter, ANSWERS_KEPT).crosses:
         return True
     for x, y in ((ga, gb), (gb, ga)):
         if not is_closed(y):
