@@ -655,7 +655,9 @@ def _patch_rows(keep: np.ndarray, grid: tuple) -> np.ndarray:
     """Level-0 patches ``(m, 2) int64``, row-major, of the kept rows ``keep (P,) bool`` of a
     ``grid = (P0u, P0v)`` of patch boxes: ``np.argwhere`` of the grid's mask, C-ordered."""
     r, c = np.nonzero(keep.reshape(grid))
-    return np.stack((r, c), axis=1).astype(np.int64, copy=False)
+    out = np.empty((len(r), 2), np.int64)
+    out[:, 0], out[:, 1] = r, c
+    return out
 
 
 def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, first: bool = False) -> Intersections | None:
