@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LEAF", "PointTree", "build", "nearest_squares"]
+__all__ = ["LEAF", "PointTree", "build", "nearest_squares", "thin_greedy"]
 
 LEAF = 8  # points a leaf holds at most
 
@@ -173,3 +173,29 @@ def nearest_squares(tree: PointTree, q: np.ndarray, keep: np.ndarray | None = No
     kept = np.ones(tree.n, np.bool_) if keep is None else np.ascontiguousarray(keep[tree.order])
     _nearest(tree.sorted, kept, tree.start, tree.stop, tree.dim, tree.split, tree.left, q, best, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _thin_greedy(points, r2, keep):
+    g = points.shape[0]
+    for i in range(g):
+        if not keep[i]:
+            continue
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        for j in range(i + 1, g):
+            if keep[j]:
+                d0, d1, d2 = x - points[j, 0], y - points[j, 1], z - points[j, 2]
+                if d0 * d0 + d1 * d1 + d2 * d2 <= r2:
+                    keep[j] = False
+
+
+def thin_greedy(points: np.ndarray, radius: float, keep: np.ndarray) -> np.ndarray:
+    """Greedy thinning of ``points (g, 3)`` in row order, in place on ``keep (g,) bool``: each
+    row still kept drops every later row within ``radius`` of it, the pair's offsets ``p_i -
+    p_j`` squared and summed in coordinate order against ``radius * radius`` (the test of the
+    array form ``(d0 * d0 + d1 * d1) + d2 * d2 <= radius * radius`` over every pair ``i < j``, the
+    same bits). One pass over the pairs of a frame's few dozen points, where the array form
+    builds three ``(g, g)`` arrays and walks the rows in Python. Returns ``keep``."""
+    if len(points) > 1:
+        _thin_greedy(np.ascontiguousarray(points, np.float64).reshape(-1, 3), float(radius) * float(radius), keep)
+    return keep

@@ -404,7 +404,7 @@ def _side(points, faces, rows, thin, lo, hi, reach, flag):
 
 
 @njit(cache=True, nogil=True)
-def _crossings(pa, fa, ka, pb, fb, kb, pad, thin):
+def _crossings(pa, fa, ka, pb, fb, kb, pad, thin, first):
     w, E = np.empty((6, 3)), np.empty((5, 3))
     P, Q = np.empty((3, 3)), np.empty((3, 3))
     lo_a, hi_a, lo_b, hi_b = np.empty((len(ka), 3)), np.empty((len(ka), 3)), np.empty((len(kb), 3)), np.empty((len(kb), 3))
@@ -440,11 +440,13 @@ def _crossings(pa, fa, ka, pb, fb, kb, pad, thin):
             depth2, count2 = _deepest(Q, a0, a1, a2, ta)
             depth1, count1 = _deepest(P, b0, b1, b2, tb)
             total += min(count2, 2) if depth1 > depth2 else min(count1, 2)
+            if first and total:
+                return total, unsure
     return total, unsure
 
 
 def crossings(pa: np.ndarray, fa: np.ndarray, ka: np.ndarray, pb: np.ndarray, fb: np.ndarray, kb: np.ndarray,
-              pad: float) -> tuple[int, bool]:
+              pad: float, first: bool = False) -> tuple[int, bool]:
     """The contacts ``fcl.collide`` reports between side ``a``'s triangles ``fa[ka]`` on points
     ``pa (n, 3)`` and side ``b``'s ``fb[kb]`` on ``pb (m, 3)``: how many the pairs this count can
     answer for give, and whether some pair's are left unknown (then fcl reports at least as
@@ -461,12 +463,17 @@ def crossings(pa: np.ndarray, fa: np.ndarray, ka: np.ndarray, pb: np.ndarray, fb
     apart from the other: such a pair passing them, looked for as far as fcl's leaf boxes
     reach, counts only if an edge of one surely passes through the other (every orientation's
     sign beyond rounding) and both have planes; else its contacts are unknown (fcl's planes of
-    a degenerate triangle are unset, and whether it tests a pair apart is its BVHs' to say)."""
+    a degenerate triangle are unset, and whether it tests a pair apart is its BVHs' to say).
+
+    With ``first``, the pass stops at the first pair that gives a contact: a count above 0 is
+    then a lower bound (whether the sets cross is all it answers), a count of 0 the whole
+    pass's."""
     if not len(ka) or not len(kb):
         return 0, False
     total, unsure = _crossings(np.ascontiguousarray(pa, np.float64), np.ascontiguousarray(fa, np.int64),
                                np.ascontiguousarray(ka, np.int64), np.ascontiguousarray(pb, np.float64),
-                               np.ascontiguousarray(fb, np.int64), np.ascontiguousarray(kb, np.int64), float(pad), THIN)
+                               np.ascontiguousarray(fb, np.int64), np.ascontiguousarray(kb, np.int64), float(pad), THIN,
+                               bool(first))
     return int(total), bool(unsure)
 
 

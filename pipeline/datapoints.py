@@ -21,6 +21,7 @@ import numpy as np
 
 from acra import hspline as H
 from acra import respond as R
+from acra.kdtree import thin_greedy
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import residual
@@ -576,27 +577,13 @@ def spread(points: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarray
             if keep[i]:
                 keep[j] = False
         return keep
-    # the same greedy pass on every pair at once, a tenth of the tree's cost on a frame's few dozen
-    # points: a row drops its later neighbours if it is itself kept, rows in order (a pole's
-    # crowd of 32 equal points is one row's pass)
-    close = _close(np.asarray(points, np.float64), radius)
-    for i in np.nonzero(close.any(axis=1))[0].tolist():
-        if keep[i]:
-            keep &= ~close[i]
-    return keep
+    # the same greedy pass over every pair, compiled (`acra.kdtree.thin_greedy`), a small
+    # fraction of the tree's cost on a frame's few dozen points: a row drops its later neighbours
+    # if it is itself kept, rows in order
+    return thin_greedy(np.asarray(points, np.float64), radius, keep)
 
 
 SPREAD_DIRECT = 256  # up to this many points `spread` compares every pair instead of building a kd-tree
-
-
-def _close(points: np.ndarray, radius: float) -> np.ndarray:
-    """Which pairs ``i < j`` of ``points (g, 3) float64`` lie within ``radius``: ``(g, g) bool``,
-    upper triangle; the pairs of scipy's ``cKDTree(points).query_pairs(radius)``, each the tree's
-    leaf test (the squared differences summed in coordinate order, against ``radius * radius``)."""
-    if len(points) < 2:
-        return np.zeros((len(points), len(points)), bool)
-    d = [points[:, None, c] - points[None, :, c] for c in range(3)]
-    return np.triu(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= radius * radius, 1)
 
 
 CLEAR = 0.25  # display points are moved this fraction of the tolerance past the other surface (`visible_points`)

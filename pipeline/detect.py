@@ -645,26 +645,44 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     return _kept(_ANSWERS, (ga.content, gb.content), lambda: _intersect(ga, gb), ANSWERS_KEPT)
 
 
-def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
-    """`intersect`, computed."""
-    collider = isinstance(gb, ColliderGeometry)
+def _no_intersections(collider: bool) -> Intersections:
+    """No crossing triangle pair (``patch_b`` ``None`` against a collider)."""
     empty = np.zeros((0, 2), np.int64)
-    none = Intersections(np.zeros((0, 3)), empty, None if collider else empty, np.zeros(0, np.int64))
-    if apart(ga, gb):
-        return none
-    pad = pair_pad(ga, gb)
-    if not _boxes_overlap(ga, gb, pad):
-        return none
+    return Intersections(np.zeros((0, 3)), empty, None if collider else empty, np.zeros(0, np.int64))
+
+
+def _patch_rows(keep: np.ndarray, grid: tuple) -> np.ndarray:
+    """Level-0 patches ``(m, 2) int64``, row-major, of the kept rows ``keep (P,) bool`` of a
+    ``grid = (P0u, P0v)`` of patch boxes: ``np.argwhere`` of the grid's mask, C-ordered."""
+    r, c = np.nonzero(keep.reshape(grid))
+    out = np.empty((len(r), 2), np.int64)
+    out[:, 0], out[:, 1] = r, c
+    return out
+
+
+def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, first: bool = False) -> Intersections | None:
+    """`intersect`, computed. ``pad``: the pair's `pair_pad`, given by a caller that found the
+    pair neither `apart` nor outside each other's box (`_boxes_overlap`) already. With
+    ``first``, ``None`` as soon as one triangle pair surely gives a contact (the surfaces cross;
+    how many contacts is not counted): `touching` asks no more."""
+    collider = isinstance(gb, ColliderGeometry)
+    if pad is None:
+        if apart(ga, gb):
+            return _no_intersections(collider)
+        pad = pair_pad(ga, gb)
+        if not _boxes_overlap(ga, gb, pad):
+            return _no_intersections(collider)
     if collider:
         ca = candidate_patches(ga, gb.bounds, pad)
     else:
         # each side's `candidate_patches` in the other's box, of those the ones whose box meets
         # one of the other side's, and the box of B's: one compiled pass over the patch boxes
-        keep_a, keep_b, box_b = narrow.patches_near(ga.boxes, ga.bounds, gb.boxes, gb.bounds, pad)
-        ca = np.ascontiguousarray(np.argwhere(keep_a.reshape(ga.boxes[0].shape[:2])), np.int64)
-        cb = np.ascontiguousarray(np.argwhere(keep_b.reshape(gb.boxes[0].shape[:2])), np.int64)
+        boxes_a, boxes_b = ga.boxes, gb.boxes
+        keep_a, keep_b, box_b = narrow.patches_near(boxes_a, ga.bounds, boxes_b, gb.bounds, pad)
+        ca = _patch_rows(keep_a, boxes_a[0].shape[:2])
+        cb = _patch_rows(keep_b, boxes_b[0].shape[:2])
     if not len(ca):
-        return none
+        return _no_intersections(collider)
     ta = _tessellate(ga, ca)
     if collider:  # the collider's face boxes are the run's (`ColliderStatic.face_boxes`)
         pa = apply_inverse(gb.xform, ta.points)
@@ -674,12 +692,12 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
         if box_b is None or not _overlap(*ta.bounds, box_b[0], box_b[1], pad):
-            return none
+            return _no_intersections(collider)
         tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
         ka, kb = _triangles_near(ta.face_boxes, tb.face_boxes, pad)
     if not len(ka):
-        return none
+        return _no_intersections(collider)
 
     def contacts():
         import fcl  # here: a run whose pairs `acra.narrow.crossings` settles never imports fcl
@@ -702,9 +720,11 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     # now.
     if collider:
         count, unsure = (0, True) if gb.static.thin else narrow.crossings(pa, ta.triangles, ka, gb.static.mesh.vertices,
-                                                                         gb.static.mesh.faces, kb, pad)
+                                                                         gb.static.mesh.faces, kb, pad, first)
     else:
-        count, unsure = narrow.crossings(pa, ta.triangles, ka, pb, fb_all, kb, pad)
+        count, unsure = narrow.crossings(pa, ta.triangles, ka, pb, fb_all, kb, pad, first)
+    if first and count:
+        return None
     if not unsure:
         return Intersections.later(contacts, count, count > 0)
     if count:  # fcl reports these and the unknown pairs' contacts: how many is read from it later
@@ -978,7 +998,16 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
     pad = pair_pad(ga, gb)
     if not _boxes_overlap(ga, gb, pad):
         return False
-    if intersect(ga, gb).crosses:
+    # `intersect`'s answer where it is kept; else its pass with the box tests above, stopped at the
+    # first triangle pair with a contact (a rewinding step's crossing pair is all it asks for):
+    # that partial answer is not kept, a whole pass's is
+    key = (ga.content, gb.content)
+    inter = _ANSWERS.get(key)
+    if inter is None:
+        inter = _intersect(ga, gb, pad, first=True)
+        if inter is None:
+            return True
+    if _kept(_ANSWERS, key, lambda: inter, ANSWERS_KEPT).crosses:
         return True
     for x, y in ((ga, gb), (gb, ga)):
         if not is_closed(y):

@@ -1089,3 +1089,20 @@ def test_overlap_joins_the_three_axes_as_np_all_does():
             want = np.all((args[0] <= args[3] + pad) & (args[2] <= args[1] + pad), axis=-1)
             assert got.shape == want.shape and got.dtype == want.dtype
             np.testing.assert_array_equal(got, want)
+
+
+def test_touching_stops_at_a_crossing_pair_and_keeps_no_partial_answer():
+    """`touching` of two crossing spheres stops the narrow phase at its first crossing pair
+    (`acra.narrow.crossings`' ``first``): that partial count is not kept as the pair's
+    `intersect` answer, which then counts every contact as a fresh pair's does; a pair that does
+    not cross keeps the whole pass's answer."""
+    hs = H.from_grid(*shapes.sphere(16, 14))
+    pair = lambda x, z: (D.SurfaceGeometry(hs, move()), D.SurfaceGeometry(hs, move(x, 0.0, z)))  # noqa: E731
+    D._ANSWERS.clear()
+    ga, gb = pair(0.0, 1.9)
+    assert D.touching(ga, gb)
+    assert (ga.content, gb.content) not in D._ANSWERS
+    whole = D.intersect(ga, gb).count
+    assert whole > 1 and whole == D._intersect(*pair(0.0, 1.9)).count
+    near = pair(1.5, 1.5)  # the boxes overlap, the spheres do not meet
+    assert not D.touching(*near) and (near[0].content, near[1].content) in D._ANSWERS

@@ -167,6 +167,36 @@ def test_crossings_count_fcl_contacts():
     assert known > 500
 
 
+
+def test_crossings_first_stops_at_a_contact_and_says_whether_the_sets_cross():
+    """`crossings(..., first=True)`, the rewinding search's question: a count of 0 exactly where
+    the whole pass counts 0 (with its ``unsure``), else at least 1 and at most the whole count
+    (the pass stopped at the first pair with a contact); random soups and crossing bumpy spheres."""
+    rng = np.random.default_rng(8)
+    stopped = crossed = 0
+    for trial in range(300):
+        scale = float(rng.choice([1e-3, 1.0, 100.0]))
+        if trial % 2:
+            pa, fa = _grid(rng, int(rng.integers(4, 12)), np.zeros(3), scale)
+            pb, fb = _grid(rng, int(rng.integers(4, 12)), rng.normal(size=3) * scale, scale * rng.choice([0.3, 1.0]))
+        else:
+            n, m = int(rng.integers(3, 50)), int(rng.integers(3, 50))
+            pa = rng.normal(size=(n, 3)) * scale
+            pb = rng.normal(size=(m, 3)) * scale + rng.normal(size=3) * scale * rng.choice([0, 0.5, 2])
+            fa = np.array([rng.choice(n, 3, replace=False) for _ in range(int(rng.integers(1, 30)))])
+            fb = np.array([rng.choice(m, 3, replace=False) for _ in range(int(rng.integers(1, 30)))])
+        ka, kb = np.arange(len(fa)), np.arange(len(fb))
+        whole, unsure = narrow.crossings(pa, fa, ka, pb, fb, kb, 1e-7 * scale)
+        part, part_unsure = narrow.crossings(pa, fa, ka, pb, fb, kb, 1e-7 * scale, first=True)
+        if whole == 0:
+            assert (part, part_unsure) == (0, unsure), trial
+        else:
+            crossed += 1
+            assert 1 <= part <= whole, (trial, part, whole)
+            stopped += part < whole
+    assert crossed > 50 and stopped > 20
+
+
 def test_patches_near_is_the_broad_phase_in_arrays():
     """`narrow.patches_near` keeps the patch boxes `detect.candidate_patches` keeps on each side,
     then those meeting a kept box of the other side, as the array form did, and gives the box of
