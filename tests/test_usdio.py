@@ -363,6 +363,40 @@ def _shared_and_copied(stage, scene):
     return one, shared, copied
 
 
+@pytest.mark.parametrize("closed", [False, True])
+def test_response_hierarchy_is_to_arrays_and_one_value_per_levels(closed):
+    """`output_layer._levels_arrays` is `H.to_arrays` bit for bit (open and closed surfaces, some
+    offsets zero, a surface with no fine content), and `output_layer._Hierarchy` hands surfaces
+    that hold the same levels' arrays (a response's next frame with new level-0 CVs) the same
+    values, its own to a surface whose offsets differ."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from conftest import with_random_offsets
+
+    hs = H.from_grid(*(shapes.sphere(10, 8) if closed else shapes.sheet(10, 8, 7.0, 5.0)), depth=4)
+    hs = with_random_offsets(H.refine(H.refine(hs, 1, [[2, 2], [5, 3]]), 3, [[20, 17], [21, 17]]), 0.05, 0)
+    idx, off = H.offsets_of(hs, 2)
+    off[::2] = 0.0
+    hs = H.set_offsets(hs, 2, idx, off)
+    for surface in (hs, H.from_grid(hs.cvs, hs.u.periodic, hs.v.periodic, depth=4), H.from_grid(hs.cvs, hs.u.periodic, hs.v.periodic)):
+        want, got = H.to_arrays(surface), output_layer._levels_arrays(surface)
+        for x, y in zip((want.patch_level, want.patches, want.offset_level, want.offset_cvs, want.offsets), got):
+            assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    model = SimpleNamespace(nu=hs.cvs.shape[0], nv=hs.cvs.shape[1], depth=hs.depth, path="/A")
+    hierarchy = output_layer._Hierarchy(lambda vt, a: vt.FromNumpy(a))
+    first = hierarchy(model, 1, hs)
+    moved = hierarchy(model, 2, dataclasses.replace(hs, cvs=hs.cvs + 1.0))
+    other = hierarchy(model, 3, with_random_offsets(hs, 0.05, 1))
+    names = ("patchLevel", "patches", "offsetLevel", "offsetCvs", "offsets")
+    assert all(moved[f"acra:response:{n}"] is first[f"acra:response:{n}"] for n in names)
+    assert other["acra:response:offsets"] is not first["acra:response:offsets"]
+    for values, surface in ((first, hs), (other, with_random_offsets(hs, 0.05, 1))):
+        want = H.to_arrays(surface)
+        for n, field in zip(names, ("patch_level", "patches", "offset_level", "offset_cvs", "offsets")):
+            np.testing.assert_array_equal(np.asarray(values[f"acra:response:{n}"]).reshape(getattr(want, field).shape), getattr(want, field))
+
+
 def test_shared_results_are_written_as_their_copies(scene_file, tmp_path):
     """Repeated objects are converted once; the layer is byte-identical to one from copies."""
     stage = U.open_input(scene_file)
