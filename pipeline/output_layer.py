@@ -25,7 +25,7 @@ from acra import floattext
 from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid
 from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
-from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy
+from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy, vt_array
 
 __all__ = ["DISPLAY_UV", "DeformableResult", "FramesResult", "write_output", "read_output_hierarchy", "read_display_uv", "read_display_topology", "input_points"]
 
@@ -123,14 +123,14 @@ def _checked_floats(model: DeformableModel, topology, frame: int, name: str, a: 
 
 def _checked_vec3f(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
     """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
-    return Vt.Vec3fArray.FromNumpy(_checked_floats(model, topology, frame, name, a))
+    return vt_array(Vt.Vec3fArray, _checked_floats(model, topology, frame, name, a))
 
 
 class _Pending:
     """An array the layer holds as a ``vt`` value (a `Vt` array type), kept as numpy until USD
     needs it: a ``.usda`` layer's `_COMPILED` arrays stand in and have their text written by
-    `acra.floattext` from the numpy array, so converting them to Vt (a copy element by element,
-    about 3 ns each) would be spent on nothing.
+    `acra.floattext` from the numpy array, so converting them to Vt (`usdio.vt_array`) would be
+    spent on nothing.
 
     Attributes
     ----------
@@ -149,7 +149,7 @@ class _Pending:
     def value(self):
         """The array as its `Vt` value, converted at the first call."""
         if self._value is None:
-            self._value = self.vt.FromNumpy(self.array)
+            self._value = vt_array(self.vt, self.array)
         return self._value
 
 
@@ -230,7 +230,7 @@ class _Hierarchy:
         offsets = self._part("offsets", surface.v, tuple(lev.cv_keys for lev in fine) + tuple(lev.offsets for lev in fine), lambda: (
             self.as_vt(Vt.IntArray, levels()[2]), self.as_vt(Vt.Vec2iArray, levels()[3]), self.as_vt(Vt.Vec3dArray, levels()[4])))
         return {
-            "acra:response:cvs": Vt.Vec3dArray.FromNumpy(cvs_to_flat(np.asarray(surface.cvs, dtype=np.float64))),
+            "acra:response:cvs": vt_array(Vt.Vec3dArray, cvs_to_flat(np.asarray(surface.cvs, dtype=np.float64))),
             "acra:response:patchLevel": structure[0],
             "acra:response:patches": structure[1],
             "acra:response:offsetLevel": offsets[0],
@@ -455,7 +455,7 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
     # a text layer writes its display arrays from numpy (`_Pending`); a crate stores Vt values
     text_layer = out.suffix == ".usda"
     vec3f = (lambda *a: _Pending(Vt.Vec3fArray, _checked_floats(*a))) if text_layer else _checked_vec3f
-    as_vt = (lambda vt, a: _Pending(vt, a)) if text_layer else (lambda vt, a: vt.FromNumpy(a))  # noqa: E731
+    as_vt = (lambda vt, a: _Pending(vt, a)) if text_layer else vt_array  # noqa: E731
     hierarchy = _Hierarchy(as_vt)
     values: dict = {}  # (frame, path) -> {attribute name: value}
     for f in frames:

@@ -363,6 +363,24 @@ def _shared_and_copied(stage, scene):
     return one, shared, copied
 
 
+def test_vt_array_is_from_numpy():
+    """`usdio.vt_array` (one block copy into a new Vt array) gives `FromNumpy`'s value for every
+    array type the output layer writes, its own copy (a later change to the source does not show),
+    and USD's conversion where the dtype is not the Vt type's own (float64 into float3[])."""
+    rng = np.random.default_rng(3)
+    cases = [(Vt.Vec3fArray, rng.normal(size=(257, 3)).astype(np.float32)), (Vt.Vec3dArray, rng.normal(size=(65, 3))),
+             (Vt.Vec2dArray, rng.normal(size=(70, 2))), (Vt.Vec2iArray, rng.integers(-9, 9, (33, 2)).astype(np.int32)),
+             (Vt.IntArray, rng.integers(-9, 9, 40).astype(np.int32)), (Vt.Vec3fArray, rng.normal(size=(9, 3))),
+             (Vt.Vec3fArray, np.zeros((0, 3), np.float32)), (Vt.Vec3dArray, np.asfortranarray(rng.normal(size=(12, 3))))]
+    cases[0][1][5] = [-0.0, np.float32(1e-40), np.float32(3.4e38)]
+    for vt, a in cases:
+        got = U.vt_array(vt, a)
+        assert type(got) is vt and got == vt.FromNumpy(np.ascontiguousarray(a))
+        before = np.array(got)
+        a[...] = 7
+        assert np.array_equal(np.asarray(got), before)
+
+
 @pytest.mark.parametrize("closed", [False, True])
 def test_response_hierarchy_is_to_arrays_and_one_value_per_levels(closed):
     """`output_layer._levels_arrays` is `H.to_arrays` bit for bit (open and closed surfaces, some
