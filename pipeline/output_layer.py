@@ -396,9 +396,10 @@ class _SharedText:
         if not self._arrays:
             return export_layer(layer, out)
         values, stand_ins = self._texts()
+        stand_ins = [t.encode() for t in stand_ins]
         which = {text: k for k, text in enumerate(stand_ins)}
-        text = layer.ExportToString()
-        pattern = re.compile("|".join(re.escape(t) for t in stand_ins))
+        text = layer.ExportToString().encode()  # the stand-ins' layer: its arrays' text is not in it
+        pattern = re.compile(b"|".join(re.escape(t) for t in stand_ins))
         found, expected = [0] * len(self._arrays), [0] * len(self._arrays)
         for _, _, k in self._samples:
             expected[k] += 1
@@ -418,22 +419,44 @@ class _SharedText:
 
 
 class _Text:
-    """A ``.usda`` layer's ``text`` whose stand-ins (``pattern``, ``which`` of them) are written
-    as their arrays' text ``values``, as `Sdf.Layer.Export` writes a layer (`usdio.export_layer`);
-    the text between stand-ins is encoded a piece at a time, so a long run's text is held once."""
+    """A ``.usda`` layer's ``text`` (UTF-8) whose stand-ins (``pattern``, ``which`` of them) are
+    written as their arrays' text ``values``, as `Sdf.Layer.Export` writes a layer
+    (`usdio.export_layer`). The pieces are views of the text and the arrays' texts, handed to the
+    file a few hundred at a time (`os.writev`: one system call for them, no copy into a buffer),
+    so a long run's text is held once."""
 
-    def __init__(self, text: str, pattern: re.Pattern, which: dict, values: list[bytes]) -> None:
+    def __init__(self, text: bytes, pattern: re.Pattern, which: dict, values: list[bytes]) -> None:
         self.text, self.pattern, self.which, self.values = text, pattern, which, values
 
     def Export(self, path: str) -> bool:  # noqa: N802 (Sdf.Layer's name)
-        at = 0
-        with open(path, "wb") as fh:
-            for m in self.pattern.finditer(self.text):
-                fh.write(self.text[at:m.start()].encode())
-                fh.write(self.values[self.which[m.group()]])
-                at = m.end()
-            fh.write(self.text[at:].encode())
+        text = memoryview(self.text)
+        pieces, at = [], 0
+        for m in self.pattern.finditer(self.text):
+            pieces += (text[at:m.start()], self.values[self.which[m.group()]])
+            at = m.end()
+        pieces.append(text[at:])
+        with open(path, "wb", buffering=0) as fh:
+            _write_pieces(fh, [memoryview(p) for p in pieces if len(p)])
         return True
+
+
+def _write_pieces(fh, pieces: list[memoryview]) -> None:
+    """Write ``pieces`` in order to the unbuffered file ``fh``, up to 512 a system call where
+    the platform gathers writes (`os.writev`), each written whole however the calls split them."""
+    if not hasattr(os, "writev"):
+        for piece in pieces:
+            while len(piece):
+                piece = piece[fh.write(piece):]
+        return
+    i = 0
+    while i < len(pieces):
+        n = os.writev(fh.fileno(), pieces[i:i + 512])
+        while n and i < len(pieces):  # the pieces it wrote, and the rest of one it cut
+            if n >= len(pieces[i]):
+                n -= len(pieces[i])
+                i += 1
+            else:
+                pieces[i], n = pieces[i][n:], 0
 
 
 def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, scene: SceneModel, frames_result: FramesResult) -> Path:

@@ -363,6 +363,40 @@ def _shared_and_copied(stage, scene):
     return one, shared, copied
 
 
+@pytest.mark.parametrize("gather", [True, False])
+def test_text_layer_pieces_are_written_whole_however_the_writes_split(tmp_path, monkeypatch, gather):
+    """`output_layer._write_pieces` writes every piece in order when each system call takes only
+    part of what it is handed (at most 7 bytes here), gathering with `os.writev` or not."""
+    import os
+
+    rng = np.random.default_rng(5)
+    pieces = [bytes(rng.integers(0, 256, int(n), dtype=np.uint8)) for n in rng.integers(1, 40, 1100)]
+    real = os.writev
+
+    def short_writev(fd, views):
+        return real(fd, [b"".join(bytes(v) for v in views)[:7]])
+
+    if gather:
+        monkeypatch.setattr(output_layer.os, "writev", short_writev)
+    else:
+        monkeypatch.delattr(output_layer.os, "writev")
+    with open(tmp_path / "out", "wb", buffering=0) as fh:
+        if not gather:
+            fh = SimpleWriter(fh)
+        output_layer._write_pieces(fh, [memoryview(p) for p in pieces])
+    assert (tmp_path / "out").read_bytes() == b"".join(pieces)
+
+
+class SimpleWriter:
+    """A file whose ``write`` takes at most 5 bytes a call, as a raw file may."""
+
+    def __init__(self, fh):
+        self.fh = fh
+
+    def write(self, data):
+        return self.fh.write(bytes(data[:5]))
+
+
 def test_vt_array_is_from_numpy():
     """`usdio.vt_array` (one block copy into a new Vt array) gives `FromNumpy`'s value for every
     array type the output layer writes, its own copy (a later change to the source does not show),
