@@ -33,6 +33,9 @@ __all__ = ["exact_digits", "ints_text", "shortest_digits", "tuples_text", "tuple
 _LOW, _HIGH = -6, 15
 _POW5 = np.array([5**i for i in range(28)], dtype=np.int64)
 _POW10 = np.array([10**i for i in range(19)], dtype=np.int64)
+# no values left to the caller; bytes arrays read-only, as `np.frombuffer` makes them (one
+# specialisation of the kernels that take them)
+_NO_BYTES, _ONE_START = np.frombuffer(b"", np.uint8), np.zeros(1, np.int64)
 _PAIRS = np.frombuffer("".join(f"{i:02d}" for i in range(100)).encode(), np.uint8).copy()  # "00" .. "99"
 
 
@@ -672,25 +675,28 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
         else:  # float32: only the values the kernel hands back are found here, their text is written in one pass
             done.append((values, None, _marks(flat, values.shape[1], done[j][0].reshape(-1).view(np.uint32) if j is not None else flat[:0], same),
                          same))
-    texts: list = [[] for _ in done]
+    # each array's values left to ``hard``: their texts' bytes end to end and where each starts
+    texts: list = [(_NO_BYTES, _ONE_START)] * len(done)
     for dtype in (np.float32, np.float64):
         which = [i for i, d in enumerate(done) if d[0].dtype == dtype and d[2].size]
         if which:
-            got = iter(hard(np.concatenate([done[i][0].reshape(-1)[done[i][2]] for i in which])))
+            got = hard(np.concatenate([done[i][0].reshape(-1)[done[i][2]] for i in which]))
+            at = np.zeros(len(got) + 1, np.int64)
+            np.cumsum(np.fromiter(map(len, got), np.int64, len(got)), out=at[1:])
+            blob = np.frombuffer("".join(got).encode("ascii"), np.uint8)  # a float's text is ASCII: one byte a character
+            first = 0
             for i in which:
-                texts[i] = [next(got).encode() for _ in range(done[i][2].size)]
-    # a text's tuple starts are kept while a later array refers to it
+                end = first + done[i][2].size
+                texts[i] = blob[at[first]:at[end]], at[first:end + 1] - at[first]
+                first = end
+    # a text and its tuple starts are kept while a later array refers to it
     last_use = {j: i for i, j in enumerate(refs) if j is not None}
     starts: dict = {}
     out = []
     empty = np.frombuffer(b"", np.uint8), np.zeros(1, np.int64)
-    for i, ((values, digits, odd, same), own) in enumerate(zip(done, texts)):
-        hard_at = np.zeros(len(own) + 1, np.int64)
-        if own:
-            hard_at[1:] = np.cumsum([len(t) for t in own])
-        hard_bytes = np.frombuffer(b"".join(own), np.uint8)
+    for i, ((values, digits, odd, same), (hard_bytes, hard_at)) in enumerate(zip(done, texts)):
         j = refs[i]
-        ref_text, ref_at = (np.frombuffer(out[j], np.uint8), starts[j]) if j is not None else empty
+        ref_text, ref_at = starts[j] if j is not None else empty
         if digits is None:
             text, at = _float32_text(values.reshape(-1).view(np.uint32), values.shape[1], same, hard_bytes, hard_at, ref_text, ref_at)
         else:
@@ -698,7 +704,8 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
                                     hard_bytes, hard_at, same, ref_text, ref_at)
         out.append(text.tobytes())
         if last_use.get(i, -1) > i:
-            starts[i] = at
+            text.flags.writeable = False  # read-only, as the other bytes arrays the kernels take
+            starts[i] = text, at
         if j is not None and last_use[j] == i:
             del starts[j]
     return out

@@ -22,10 +22,10 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from acra import floattext
-from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
+from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid
 from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
-from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy
+from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy, vt_array
 
 __all__ = ["DISPLAY_UV", "DeformableResult", "FramesResult", "write_output", "read_output_hierarchy", "read_display_uv", "read_display_topology", "input_points"]
 
@@ -123,14 +123,14 @@ def _checked_floats(model: DeformableModel, topology, frame: int, name: str, a: 
 
 def _checked_vec3f(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
     """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
-    return Vt.Vec3fArray.FromNumpy(_checked_floats(model, topology, frame, name, a))
+    return vt_array(Vt.Vec3fArray, _checked_floats(model, topology, frame, name, a))
 
 
 class _Pending:
     """An array the layer holds as a ``vt`` value (a `Vt` array type), kept as numpy until USD
     needs it: a ``.usda`` layer's `_COMPILED` arrays stand in and have their text written by
-    `acra.floattext` from the numpy array, so converting them to Vt (a copy element by element,
-    about 3 ns each) would be spent on nothing.
+    `acra.floattext` from the numpy array, so converting them to Vt (`usdio.vt_array`) would be
+    spent on nothing.
 
     Attributes
     ----------
@@ -149,7 +149,7 @@ class _Pending:
     def value(self):
         """The array as its `Vt` value, converted at the first call."""
         if self._value is None:
-            self._value = self.vt.FromNumpy(self.array)
+            self._value = vt_array(self.vt, self.array)
         return self._value
 
 
@@ -163,21 +163,80 @@ def _authored(value):
     return value.value() if type(value) is _Pending else value
 
 
-def _response_values(model: DeformableModel, frame: int, surface: HSpline) -> dict:
-    """The ``acra:response:*`` arrays of a checked surface as Vt values (float64: exact round trip)."""
-    if surface.cvs.shape != (model.nu, model.nv, 3) or surface.depth != model.depth:
-        raise ValueError(f"frame {frame}, {model.path}: surface does not match the model's grid or levels")
-    if not np.all(np.isfinite(surface.cvs)):
-        raise ValueError(f"frame {frame}, {model.path}: surface CVs are not finite")
-    a = to_arrays(surface)
-    return {
-        "acra:response:cvs": Vt.Vec3dArray.FromNumpy(cvs_to_flat(np.asarray(surface.cvs, dtype=np.float64))),
-        "acra:response:patchLevel": Vt.IntArray.FromNumpy(np.ascontiguousarray(a.patch_level, dtype=np.int32)),
-        "acra:response:patches": Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(a.patches, dtype=np.int32)),
-        "acra:response:offsetLevel": Vt.IntArray.FromNumpy(np.ascontiguousarray(a.offset_level, dtype=np.int32)),
-        "acra:response:offsetCvs": Vt.Vec2iArray.FromNumpy(np.ascontiguousarray(a.offset_cvs, dtype=np.int32)),
-        "acra:response:offsets": Vt.Vec3dArray.FromNumpy(np.ascontiguousarray(a.offsets, dtype=np.float64)),
-    }
+def _levels_arrays(hs: HSpline) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`acra.hspline.to_arrays` of ``hs``, the same arrays, in one pass over all its fine levels
+    at once: ``patch_level (m,) int32``, ``patches (m, 2) int32``, ``offset_level (c,) int32``,
+    ``offset_cvs (c, 2) int32``, ``offsets (c, 3) float64``. A level's keys split by its own
+    row length, so the levels' keys are concatenated with each key's divisor beside it."""
+    if not hs.fine:
+        return (np.zeros(0, np.int32), np.zeros((0, 2), np.int32), np.zeros(0, np.int32), np.zeros((0, 2), np.int32),
+                np.zeros((0, 3), np.float64))
+    ks = np.array([lev.k for lev in hs.fine], np.int64)
+    n_patches = [lev.patches.size for lev in hs.fine]
+    keys = np.concatenate([lev.patches for lev in hs.fine])
+    per_row = np.repeat(np.array([hs.v.patches(int(k)) for k in ks], np.int64), n_patches)
+    patches = np.empty((keys.size, 2), np.int32)
+    patches[:, 0], patches[:, 1] = keys // per_row, keys % per_row
+    offsets = np.concatenate([lev.offsets for lev in hs.fine])
+    nz = np.any(offsets != 0.0, axis=1)  # only non-zero offsets are stored
+    n_cvs = [lev.cv_keys.size for lev in hs.fine]
+    cv_keys = np.concatenate([lev.cv_keys for lev in hs.fine])[nz]
+    cv_row = np.repeat(np.array([hs.v.cvs(int(k)) for k in ks], np.int64), n_cvs)[nz]
+    offset_cvs = np.empty((cv_keys.size, 2), np.int32)
+    offset_cvs[:, 0], offset_cvs[:, 1] = cv_keys // cv_row, cv_keys % cv_row
+    return (np.repeat(ks.astype(np.int32), n_patches), patches, np.repeat(ks.astype(np.int32), n_cvs)[nz], offset_cvs,
+            np.ascontiguousarray(offsets[nz], dtype=np.float64))
+
+
+class _Hierarchy:
+    """The ``acra:response:*`` values of a run's responded surfaces, each part made once per
+    distinct content: a response changes the offsets near the contact and keeps the refined
+    patches (its levels' ``patches`` and ``cv_keys`` are the surface's it started from, the same
+    objects), so successive frames hand the same structure arrays, and often the same offsets. A part
+    whose levels are the objects of an earlier surface's is that surface's value (one object:
+    one text in a ``.usda`` layer, one Vt array in a crate). Keeps the levels alive while their
+    ``id`` is a key.
+
+    ``as_vt(vt, array)`` makes an array's value (`Vt` now, or `_Pending` for a text layer).
+    """
+
+    def __init__(self, as_vt) -> None:
+        self.as_vt = as_vt
+        self._memo: dict = {}  # (part, v direction, ids of the levels' arrays) -> (the arrays, their values)
+
+    def _part(self, part: str, v, arrays: tuple, make):
+        key = (part, v) + tuple(map(id, arrays))
+        hit = self._memo.get(key)
+        if hit is None or any(a is not b for a, b in zip(hit[0], arrays)):
+            hit = self._memo[key] = (arrays, make())
+        return hit[1]
+
+    def __call__(self, model: DeformableModel, frame: int, surface: HSpline) -> dict:
+        """The ``acra:response:*`` values of a checked surface (float64: exact round trip)."""
+        if surface.cvs.shape != (model.nu, model.nv, 3) or surface.depth != model.depth:
+            raise ValueError(f"frame {frame}, {model.path}: surface does not match the model's grid or levels")
+        if not np.all(np.isfinite(surface.cvs)):
+            raise ValueError(f"frame {frame}, {model.path}: surface CVs are not finite")
+        fine = surface.fine
+        whole = None
+
+        def levels():
+            nonlocal whole
+            whole = whole or _levels_arrays(surface)
+            return whole
+
+        structure = self._part("structure", surface.v, tuple(lev.patches for lev in fine), lambda: (
+            self.as_vt(Vt.IntArray, levels()[0]), self.as_vt(Vt.Vec2iArray, levels()[1])))
+        offsets = self._part("offsets", surface.v, tuple(lev.cv_keys for lev in fine) + tuple(lev.offsets for lev in fine), lambda: (
+            self.as_vt(Vt.IntArray, levels()[2]), self.as_vt(Vt.Vec2iArray, levels()[3]), self.as_vt(Vt.Vec3dArray, levels()[4])))
+        return {
+            "acra:response:cvs": vt_array(Vt.Vec3dArray, cvs_to_flat(np.asarray(surface.cvs, dtype=np.float64))),
+            "acra:response:patchLevel": structure[0],
+            "acra:response:patches": structure[1],
+            "acra:response:offsetLevel": offsets[0],
+            "acra:response:offsetCvs": offsets[1],
+            "acra:response:offsets": offsets[2],
+        }
 
 
 class _Converted:
@@ -337,9 +396,10 @@ class _SharedText:
         if not self._arrays:
             return export_layer(layer, out)
         values, stand_ins = self._texts()
+        stand_ins = [t.encode() for t in stand_ins]
         which = {text: k for k, text in enumerate(stand_ins)}
-        text = layer.ExportToString()
-        pattern = re.compile("|".join(re.escape(t) for t in stand_ins))
+        text = layer.ExportToString().encode()  # the stand-ins' layer: its arrays' text is not in it
+        pattern = re.compile(b"|".join(re.escape(t) for t in stand_ins))
         found, expected = [0] * len(self._arrays), [0] * len(self._arrays)
         for _, _, k in self._samples:
             expected[k] += 1
@@ -359,22 +419,44 @@ class _SharedText:
 
 
 class _Text:
-    """A ``.usda`` layer's ``text`` whose stand-ins (``pattern``, ``which`` of them) are written
-    as their arrays' text ``values``, as `Sdf.Layer.Export` writes a layer (`usdio.export_layer`);
-    the text between stand-ins is encoded a piece at a time, so a long run's text is held once."""
+    """A ``.usda`` layer's ``text`` (UTF-8) whose stand-ins (``pattern``, ``which`` of them) are
+    written as their arrays' text ``values``, as `Sdf.Layer.Export` writes a layer
+    (`usdio.export_layer`). The pieces are views of the text and the arrays' texts, handed to the
+    file a few hundred at a time (`os.writev`: one system call for them, no copy into a buffer),
+    so a long run's text is held once."""
 
-    def __init__(self, text: str, pattern: re.Pattern, which: dict, values: list[bytes]) -> None:
+    def __init__(self, text: bytes, pattern: re.Pattern, which: dict, values: list[bytes]) -> None:
         self.text, self.pattern, self.which, self.values = text, pattern, which, values
 
     def Export(self, path: str) -> bool:  # noqa: N802 (Sdf.Layer's name)
-        at = 0
-        with open(path, "wb") as fh:
-            for m in self.pattern.finditer(self.text):
-                fh.write(self.text[at:m.start()].encode())
-                fh.write(self.values[self.which[m.group()]])
-                at = m.end()
-            fh.write(self.text[at:].encode())
+        text = memoryview(self.text)
+        pieces, at = [], 0
+        for m in self.pattern.finditer(self.text):
+            pieces += (text[at:m.start()], self.values[self.which[m.group()]])
+            at = m.end()
+        pieces.append(text[at:])
+        with open(path, "wb", buffering=0) as fh:
+            _write_pieces(fh, [memoryview(p) for p in pieces if len(p)])
         return True
+
+
+def _write_pieces(fh, pieces: list[memoryview]) -> None:
+    """Write ``pieces`` in order to the unbuffered file ``fh``, up to 512 a system call where
+    the platform gathers writes (`os.writev`), each written whole however the calls split them."""
+    if not hasattr(os, "writev"):
+        for piece in pieces:
+            while len(piece):
+                piece = piece[fh.write(piece):]
+        return
+    i = 0
+    while i < len(pieces):
+        n = os.writev(fh.fileno(), pieces[i:i + 512])
+        while n and i < len(pieces):  # the pieces it wrote, and the rest of one it cut
+            if n >= len(pieces[i]):
+                n -= len(pieces[i])
+                i += 1
+            else:
+                pieces[i], n = pieces[i][n:], 0
 
 
 def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, scene: SceneModel, frames_result: FramesResult) -> Path:
@@ -396,6 +478,8 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
     # a text layer writes its display arrays from numpy (`_Pending`); a crate stores Vt values
     text_layer = out.suffix == ".usda"
     vec3f = (lambda *a: _Pending(Vt.Vec3fArray, _checked_floats(*a))) if text_layer else _checked_vec3f
+    as_vt = (lambda vt, a: _Pending(vt, a)) if text_layer else vt_array  # noqa: E731
+    hierarchy = _Hierarchy(as_vt)
     values: dict = {}  # (frame, path) -> {attribute name: value}
     for f in frames:
         per = frames_result.frames[f]
@@ -411,7 +495,7 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
             values[f, m.path] = {
                 "points": convert((m.path, "points"), r.points, lambda: vec3f(m, topo, f, "points", r.points)),
                 "normals": convert((m.path, "normals"), r.normals, lambda: vec3f(m, topo, f, "normals", r.normals)),
-                **convert((m.path, "state"), r.surface, lambda: _response_values(m, f, r.surface)),
+                **convert((m.path, "state"), r.surface, lambda: hierarchy(m, f, r.surface)),
                 "acra:response:residual": float(r.residual),
                 "acra:response:inCollision": bool(r.in_collision),
             }
@@ -420,7 +504,6 @@ def write_output(input_path: str | os.PathLike, output_path: str | os.PathLike, 
 
                 values[f, m.path].update(convert((m.path, "carried"), r.carried, lambda: state.carried_values(m, r.carried)))
 
-    as_vt = (lambda vt, a: _Pending(vt, a)) if text_layer else (lambda vt, a: vt.FromNumpy(a))  # noqa: E731
     int_array = lambda a: as_vt(Vt.IntArray, np.ascontiguousarray(a, dtype=np.int32))  # noqa: E731
     # each display vertex's surface parameter (level-0 units), so a client evaluates any other
     # surface of the object (the input's) at the same sites

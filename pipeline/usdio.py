@@ -17,6 +17,7 @@ Conventions
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import math
 import os
 import re
@@ -52,6 +53,7 @@ __all__ = [
     "surface_template",
     "state_at",
     "export_layer",
+    "vt_array",
     "cvs_to_flat",
     "flat_to_cvs",
 ]
@@ -688,6 +690,26 @@ def state_at(stage: Usd.Stage, scene: SceneModel, t: float, held: dict | None = 
 
 # --------------------------------------------------------------------------------------------
 # writing
+
+
+def vt_array(vt: type, array: np.ndarray):
+    """``vt.FromNumpy(array)`` (``vt`` a `Vt` array type, ``array (n,) or (n, m)`` of its scalar
+    type), the same value, made by one block copy.
+
+    USD's conversion goes element by element through the buffer protocol (about 13 ns a
+    ``Vec3f``: 0.3 ms for the demo head's 23,491 display points); a new Vt array of ``n``
+    elements owns its buffer alone, and numpy's read-only view of it is that buffer, so the
+    bytes are copied into it at once (0.03 ms). Where that view is not of ``array``'s shape and
+    dtype, or the copied bytes do not read back through a new view, USD converts."""
+    a = np.ascontiguousarray(array)
+    out = vt(len(a))
+    view = np.asarray(out)
+    if a.size == 0 or view.shape != a.shape or view.dtype != a.dtype:
+        return vt.FromNumpy(a)
+    ctypes.memmove(view.ctypes.data, a.ctypes.data, a.nbytes)
+    if not np.array_equal(np.asarray(out).reshape(-1).view(np.uint8), a.reshape(-1).view(np.uint8)):
+        return vt.FromNumpy(a)
+    return out
 
 
 def _export(layer: Sdf.Layer, path: str) -> None:

@@ -363,6 +363,92 @@ def _shared_and_copied(stage, scene):
     return one, shared, copied
 
 
+@pytest.mark.parametrize("gather", [True, False])
+def test_text_layer_pieces_are_written_whole_however_the_writes_split(tmp_path, monkeypatch, gather):
+    """`output_layer._write_pieces` writes every piece in order when each system call takes only
+    part of what it is handed (at most 7 bytes here), gathering with `os.writev` or not."""
+    import os
+
+    rng = np.random.default_rng(5)
+    pieces = [bytes(rng.integers(0, 256, int(n), dtype=np.uint8)) for n in rng.integers(1, 40, 1100)]
+    real = os.writev
+
+    def short_writev(fd, views):
+        return real(fd, [b"".join(bytes(v) for v in views)[:7]])
+
+    if gather:
+        monkeypatch.setattr(output_layer.os, "writev", short_writev)
+    else:
+        monkeypatch.delattr(output_layer.os, "writev")
+    with open(tmp_path / "out", "wb", buffering=0) as fh:
+        if not gather:
+            fh = SimpleWriter(fh)
+        output_layer._write_pieces(fh, [memoryview(p) for p in pieces])
+    assert (tmp_path / "out").read_bytes() == b"".join(pieces)
+
+
+class SimpleWriter:
+    """A file whose ``write`` takes at most 5 bytes a call, as a raw file may."""
+
+    def __init__(self, fh):
+        self.fh = fh
+
+    def write(self, data):
+        return self.fh.write(bytes(data[:5]))
+
+
+def test_vt_array_is_from_numpy():
+    """`usdio.vt_array` (one block copy into a new Vt array) gives `FromNumpy`'s value for every
+    array type the output layer writes, its own copy (a later change to the source does not show),
+    and USD's conversion where the dtype is not the Vt type's own (float64 into float3[])."""
+    rng = np.random.default_rng(3)
+    cases = [(Vt.Vec3fArray, rng.normal(size=(257, 3)).astype(np.float32)), (Vt.Vec3dArray, rng.normal(size=(65, 3))),
+             (Vt.Vec2dArray, rng.normal(size=(70, 2))), (Vt.Vec2iArray, rng.integers(-9, 9, (33, 2)).astype(np.int32)),
+             (Vt.IntArray, rng.integers(-9, 9, 40).astype(np.int32)), (Vt.Vec3fArray, rng.normal(size=(9, 3))),
+             (Vt.Vec3fArray, np.zeros((0, 3), np.float32)), (Vt.Vec3dArray, np.asfortranarray(rng.normal(size=(12, 3))))]
+    cases[0][1][5] = [-0.0, np.float32(1e-40), np.float32(3.4e38)]
+    for vt, a in cases:
+        got = U.vt_array(vt, a)
+        assert type(got) is vt and got == vt.FromNumpy(np.ascontiguousarray(a))
+        before = np.array(got)
+        a[...] = 7
+        assert np.array_equal(np.asarray(got), before)
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_response_hierarchy_is_to_arrays_and_one_value_per_levels(closed):
+    """`output_layer._levels_arrays` is `H.to_arrays` bit for bit (open and closed surfaces, some
+    offsets zero, a surface with no fine content), and `output_layer._Hierarchy` hands surfaces
+    that hold the same levels' arrays (a response's next frame with new level-0 CVs) the same
+    values, its own to a surface whose offsets differ."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from conftest import with_random_offsets
+
+    hs = H.from_grid(*(shapes.sphere(10, 8) if closed else shapes.sheet(10, 8, 7.0, 5.0)), depth=4)
+    hs = with_random_offsets(H.refine(H.refine(hs, 1, [[2, 2], [5, 3]]), 3, [[20, 17], [21, 17]]), 0.05, 0)
+    idx, off = H.offsets_of(hs, 2)
+    off[::2] = 0.0
+    hs = H.set_offsets(hs, 2, idx, off)
+    for surface in (hs, H.from_grid(hs.cvs, hs.u.periodic, hs.v.periodic, depth=4), H.from_grid(hs.cvs, hs.u.periodic, hs.v.periodic)):
+        want, got = H.to_arrays(surface), output_layer._levels_arrays(surface)
+        for x, y in zip((want.patch_level, want.patches, want.offset_level, want.offset_cvs, want.offsets), got):
+            assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    model = SimpleNamespace(nu=hs.cvs.shape[0], nv=hs.cvs.shape[1], depth=hs.depth, path="/A")
+    hierarchy = output_layer._Hierarchy(lambda vt, a: vt.FromNumpy(a))
+    first = hierarchy(model, 1, hs)
+    moved = hierarchy(model, 2, dataclasses.replace(hs, cvs=hs.cvs + 1.0))
+    other = hierarchy(model, 3, with_random_offsets(hs, 0.05, 1))
+    names = ("patchLevel", "patches", "offsetLevel", "offsetCvs", "offsets")
+    assert all(moved[f"acra:response:{n}"] is first[f"acra:response:{n}"] for n in names)
+    assert other["acra:response:offsets"] is not first["acra:response:offsets"]
+    for values, surface in ((first, hs), (other, with_random_offsets(hs, 0.05, 1))):
+        want = H.to_arrays(surface)
+        for n, field in zip(names, ("patch_level", "patches", "offset_level", "offset_cvs", "offsets")):
+            np.testing.assert_array_equal(np.asarray(values[f"acra:response:{n}"]).reshape(getattr(want, field).shape), getattr(want, field))
+
+
 def test_shared_results_are_written_as_their_copies(scene_file, tmp_path):
     """Repeated objects are converted once; the layer is byte-identical to one from copies."""
     stage = U.open_input(scene_file)
