@@ -679,6 +679,9 @@ def barycentric(bary: np.ndarray, tri: np.ndarray, corners: np.ndarray, rows: np
     m = len(bary)
     points = np.empty((m, 3))
     v = np.zeros((0, 2)) if values is None else np.ascontiguousarray(values, np.float64)
+    if v.flags.writeable:  # one writeability, so the kernel is compiled once (`_read_only`)
+        v = v.view()
+        v.flags.writeable = False
     at = np.empty((m if values is not None else 0, v.shape[1]))
     if m:
         _barycentric(np.ascontiguousarray(bary, np.float64), np.ascontiguousarray(tri, np.int64),

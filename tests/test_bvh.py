@@ -141,6 +141,10 @@ def test_barycentric_points_and_values_are_numpys_einsum_to_the_bit():
         want = np.einsum("mk,mkc->mc", bary, values[faces[rows[tri]]])
         assert at.shape == want.shape and np.array_equal(at.view(np.uint64), want.view(np.uint64))
         assert bvh.barycentric(bary, tri, corners, rows, faces)[1] is None
+        frozen = values.copy()
+        frozen.flags.writeable = False
+        assert np.array_equal(bvh.barycentric(bary, tri, corners, rows, faces, frozen)[1], at)
+    assert len(bvh._barycentric.signatures) == 1  # writeable or not, one compiled kernel
 
 
 def test_bounds_are_numpys_minima_and_maxima():
