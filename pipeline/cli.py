@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("scene", nargs="?", type=Path, help="scene file or stage (default scenes/dog_head_spike.py)")
     bench.add_argument("--repeat", type=int, default=3, help="cold runs to take medians over (default 3)")
     bench.add_argument("--no-first-run", action="store_true",
-                       help="skip timing the first run after a fresh install (numba compiling every kernel, ~90 s CPU)")
+                       help="skip timing the first run after a fresh install (numba compiling every kernel, about 2 min CPU)")
     view = sub.add_parser("preview", help="build the Rerun recording of an output layer alone (no ACRA run)")
     view.add_argument("output", type=Path, help="an ACRA output layer (.acra.usda)")
     shown = view.add_mutually_exclusive_group()
