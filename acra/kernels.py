@@ -44,7 +44,7 @@ from numba import njit
 
 from acra.framekernels import cross_test
 
-__all__ = ["eval_points", "NSLOTS", "mark_cells", "changed_level", "tangent_normals"]
+__all__ = ["eval_points", "NSLOTS", "mark_cells", "changed_level", "ascending", "tangent_normals"]
 
 # output slots per derivative order: (0,0) | (1,0) (0,1) | (2,0) (1,1) (0,2), as `SurfaceEval`'s fields
 NSLOTS = (1, 3, 6)
@@ -330,9 +330,10 @@ def mark_cells(out, pu, pv, k, level, spread, nu_k, nv_k, u_periodic, v_periodic
         _mark_one(out, pu[i], pv[i], k, level, spread, nu_k, nv_k, u_periodic, v_periodic)
 
 
-@njit(inline="always")
-def _ascending(keys):
-    """Whether ``keys (m,) int64`` are strictly ascending."""
+@njit(cache=True, nogil=True)
+def ascending(keys):
+    """Whether ``keys (m,)`` are strictly ascending (`changed_level`'s merges and
+    `acra.levelkernels.build_level` need sorted keys)."""
     for i in range(1, keys.shape[0]):
         if keys[i] <= keys[i - 1]:
             return False
@@ -349,7 +350,7 @@ def changed_level(out, k, level, pa, pb, a_keys, b_keys, va, vb, npv_k, ncv_k, n
     ``va``, ``vb (m, 3) int64`` (the detail vectors' float64 bits, row by key) differ. Each pair
     of key lists is merged, so every list must ascend strictly: returns False, having marked
     nothing, where one does not (the caller takes numpy's set operations instead)."""
-    if not (_ascending(pa) and _ascending(pb) and _ascending(a_keys) and _ascending(b_keys)):
+    if not (ascending(pa) and ascending(pb) and ascending(a_keys) and ascending(b_keys)):
         return False
     # what to mark, gathered by both merges and marked in one loop (one copy of the marking)
     at = np.empty(pa.shape[0] + pb.shape[0] + a_keys.shape[0] + b_keys.shape[0], np.int64)

@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from acra.kernels import mark_cells
+from acra.kernels import ascending, mark_cells
 
 __all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
            "mark_changed", "restate_rows", "stale_rows", "merge_points"]
@@ -57,14 +57,6 @@ def _find(sorted_keys, key):
 @njit(cache=True, nogil=True)
 def _wrap(j, count, periodic):
     return j % count if periodic else j  # Python's (and np.mod's) sign of the result
-
-
-@njit(cache=True, nogil=True)
-def _strictly_increasing(a):
-    for i in range(1, a.shape[0]):
-        if a[i] <= a[i - 1]:
-            return False
-    return True
 
 
 @njit(cache=True, nogil=True)
@@ -165,7 +157,7 @@ def build_level(keys, old_patches, old_cv_keys, old_offsets,
     ``np.unique`` of the patches; the old CVs (if the level had patches) and the new patches'
     blocks' CVs, sorted; C2 movability; the offsets of the old CVs that stay."""
     none = np.zeros(0, np.int64)
-    if not (_strictly_increasing(old_patches) and _strictly_increasing(old_cv_keys)):
+    if not (ascending(old_patches) and ascending(old_cv_keys)):
         return 2, none, none, np.zeros((0, 4, 4), np.int64), np.zeros(0, np.bool_), np.zeros((0, 3)), False
     active = np.zeros(u_patches * v_patches, np.bool_)
     for p in old_patches:
