@@ -662,24 +662,31 @@ class HierarchyArrays:
 
 
 def to_arrays(hs: HSpline) -> HierarchyArrays:
-    """The fine levels as flat arrays; only refined patches and non-zero offsets are kept."""
-    pl, pp, ol, oc, oo = [], [], [], [], []
-    for lev in hs.fine:
-        pu, pv = _split_patch(hs, lev.k, lev.patches)
-        pl.append(np.full(pu.size, lev.k))
-        pp.append(np.stack([pu, pv], axis=1))
-        nz = np.any(lev.offsets != 0.0, axis=1)
-        ju, jv = _split_cv(hs, lev.k, lev.cv_keys[nz])
-        ol.append(np.full(ju.size, lev.k))
-        oc.append(np.stack([ju, jv], axis=1))
-        oo.append(lev.offsets[nz])
-    cat = lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape)  # noqa: E731
+    """The fine levels as flat arrays; only refined patches and non-zero offsets are kept. A
+    level's keys split by its own row length (`_split_patch`, `_split_cv`), so the levels' keys
+    are concatenated with each key's divisor beside it and split in one pass."""
+    if not hs.fine:
+        return HierarchyArrays(np.zeros(0, np.int32), np.zeros((0, 2), np.int32), np.zeros(0, np.int32),
+                               np.zeros((0, 2), np.int32), np.zeros((0, 3), np.float64))
+    ks = np.array([lev.k for lev in hs.fine], np.int64)
+    n_patches = [lev.patches.size for lev in hs.fine]
+    keys = np.concatenate([lev.patches for lev in hs.fine])
+    per_row = np.repeat(np.array([hs.v.patches(int(k)) for k in ks], np.int64), n_patches)
+    patches = np.empty((keys.size, 2), np.int32)
+    patches[:, 0], patches[:, 1] = keys // per_row, keys % per_row
+    offsets = np.concatenate([lev.offsets for lev in hs.fine])
+    nz = np.any(offsets != 0.0, axis=1)
+    n_cvs = [lev.cv_keys.size for lev in hs.fine]
+    cv_keys = np.concatenate([lev.cv_keys for lev in hs.fine])[nz]
+    cv_row = np.repeat(np.array([hs.v.cvs(int(k)) for k in ks], np.int64), n_cvs)[nz]
+    offset_cvs = np.empty((cv_keys.size, 2), np.int32)
+    offset_cvs[:, 0], offset_cvs[:, 1] = cv_keys // cv_row, cv_keys % cv_row
     return HierarchyArrays(
-        patch_level=cat(pl, (0,)).astype(np.int32),
-        patches=cat(pp, (0, 2)).astype(np.int32).reshape(-1, 2),
-        offset_level=cat(ol, (0,)).astype(np.int32),
-        offset_cvs=cat(oc, (0, 2)).astype(np.int32).reshape(-1, 2),
-        offsets=cat(oo, (0, 3)).astype(np.float64).reshape(-1, 3),
+        patch_level=np.repeat(ks.astype(np.int32), n_patches),
+        patches=patches,
+        offset_level=np.repeat(ks.astype(np.int32), n_cvs)[nz],
+        offset_cvs=offset_cvs,
+        offsets=np.ascontiguousarray(offsets[nz], dtype=np.float64),
     )
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from acra import floattext
-from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid
+from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
 from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy, vt_array
@@ -163,31 +163,6 @@ def _authored(value):
     return value.value() if type(value) is _Pending else value
 
 
-def _levels_arrays(hs: HSpline) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`acra.hspline.to_arrays` of ``hs``, the same arrays, in one pass over all its fine levels
-    at once: ``patch_level (m,) int32``, ``patches (m, 2) int32``, ``offset_level (c,) int32``,
-    ``offset_cvs (c, 2) int32``, ``offsets (c, 3) float64``. A level's keys split by its own
-    row length, so the levels' keys are concatenated with each key's divisor beside it."""
-    if not hs.fine:
-        return (np.zeros(0, np.int32), np.zeros((0, 2), np.int32), np.zeros(0, np.int32), np.zeros((0, 2), np.int32),
-                np.zeros((0, 3), np.float64))
-    ks = np.array([lev.k for lev in hs.fine], np.int64)
-    n_patches = [lev.patches.size for lev in hs.fine]
-    keys = np.concatenate([lev.patches for lev in hs.fine])
-    per_row = np.repeat(np.array([hs.v.patches(int(k)) for k in ks], np.int64), n_patches)
-    patches = np.empty((keys.size, 2), np.int32)
-    patches[:, 0], patches[:, 1] = keys // per_row, keys % per_row
-    offsets = np.concatenate([lev.offsets for lev in hs.fine])
-    nz = np.any(offsets != 0.0, axis=1)  # only non-zero offsets are stored
-    n_cvs = [lev.cv_keys.size for lev in hs.fine]
-    cv_keys = np.concatenate([lev.cv_keys for lev in hs.fine])[nz]
-    cv_row = np.repeat(np.array([hs.v.cvs(int(k)) for k in ks], np.int64), n_cvs)[nz]
-    offset_cvs = np.empty((cv_keys.size, 2), np.int32)
-    offset_cvs[:, 0], offset_cvs[:, 1] = cv_keys // cv_row, cv_keys % cv_row
-    return (np.repeat(ks.astype(np.int32), n_patches), patches, np.repeat(ks.astype(np.int32), n_cvs)[nz], offset_cvs,
-            np.ascontiguousarray(offsets[nz], dtype=np.float64))
-
-
 class _Hierarchy:
     """The ``acra:response:*`` values of a run's responded surfaces, each part made once per
     distinct content: a response changes the offsets near the contact and keeps the refined
@@ -220,15 +195,17 @@ class _Hierarchy:
         fine = surface.fine
         whole = None
 
-        def levels():
+        def levels() -> HierarchyArrays:
             nonlocal whole
-            whole = whole or _levels_arrays(surface)
+            if whole is None:
+                whole = to_arrays(surface)
             return whole
 
         structure = self._part("structure", surface.v, tuple(lev.patches for lev in fine), lambda: (
-            self.as_vt(Vt.IntArray, levels()[0]), self.as_vt(Vt.Vec2iArray, levels()[1])))
+            self.as_vt(Vt.IntArray, levels().patch_level), self.as_vt(Vt.Vec2iArray, levels().patches)))
         offsets = self._part("offsets", surface.v, tuple(lev.cv_keys for lev in fine) + tuple(lev.offsets for lev in fine), lambda: (
-            self.as_vt(Vt.IntArray, levels()[2]), self.as_vt(Vt.Vec2iArray, levels()[3]), self.as_vt(Vt.Vec3dArray, levels()[4])))
+            self.as_vt(Vt.IntArray, levels().offset_level), self.as_vt(Vt.Vec2iArray, levels().offset_cvs),
+            self.as_vt(Vt.Vec3dArray, levels().offsets)))
         return {
             "acra:response:cvs": vt_array(Vt.Vec3dArray, cvs_to_flat(np.asarray(surface.cvs, dtype=np.float64))),
             "acra:response:patchLevel": structure[0],

@@ -223,6 +223,36 @@ def test_arrays_round_trip_is_exact(sheet4):
         H.from_arrays(H.from_grid(hs.cvs, False, False, 2), arr)
 
 
+@pytest.mark.parametrize("closed", [False, True])
+def test_to_arrays_splits_each_level_by_its_own_row_length(closed):
+    """`to_arrays` gives, level by level in order, each refined patch ``(key // patches_v(k), key
+    % patches_v(k))`` and each non-zero offset's CV ``(key // cvs_v(k), key % cvs_v(k))``
+    (open and closed surfaces, some offsets zero, a surface with no fine content), int32 keys and
+    levels, float64 offsets."""
+    hs = H.from_grid(*(shapes.sphere(10, 8) if closed else shapes.sheet(10, 8, 7.0, 5.0)), depth=4)
+    hs = with_random_offsets(H.refine(H.refine(hs, 1, [[2, 2], [5, 3]]), 3, [[20, 17], [21, 17]]), 0.05, 0)
+    idx, off = H.offsets_of(hs, 2)
+    off[::2] = 0.0
+    hs = H.set_offsets(hs, 2, idx, off)
+    for surface in (hs, H.from_grid(hs.cvs, hs.u.periodic, hs.v.periodic, depth=4)):
+        got = H.to_arrays(surface)
+        pl, pp, ol, oc, oo = [], [], [], [], []
+        for lev in surface.fine:
+            npv, ncv = surface.v.patches(lev.k), surface.v.cvs(lev.k)
+            pl += [lev.k] * lev.patches.size
+            pp += [(key // npv, key % npv) for key in lev.patches.tolist()]
+            for key, o in zip(lev.cv_keys.tolist(), lev.offsets):
+                if np.any(o != 0.0):
+                    ol.append(lev.k)
+                    oc.append((key // ncv, key % ncv))
+                    oo.append(o)
+        want = (np.array(pl, np.int32), np.array(pp, np.int32).reshape(-1, 2), np.array(ol, np.int32),
+                np.array(oc, np.int32).reshape(-1, 2), np.array(oo, np.float64).reshape(-1, 3))
+        for x, y in zip(want, (got.patch_level, got.patches, got.offset_level, got.offset_cvs, got.offsets)):
+            assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    assert len(H.to_arrays(hs).offsets) < sum(lev.cv_keys.size for lev in hs.fine)  # zero offsets left out
+
+
 def test_refine_rejects_levels_outside_depth(sheet4):
     with pytest.raises(ValueError, match="levels 0..3"):
         H.refine(sheet4, 4, [[0, 0]])
