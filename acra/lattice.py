@@ -109,7 +109,8 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
     Returns the vertices' lattice coordinates ``(n,) int64`` each, sorted by ``(u, v)``; the
     faces' vertex counts ``(q + t,) int64`` and indices ``(4 q + 3 t,) int64`` (the quads of the
     unsplit cells, then each split cell's fan of triangles about a vertex at its centre, cells in
-    ``(u, v)`` order). A cell is split where a finer neighbour puts a vertex strictly inside one
+    ``(u, v)`` order); and the vertices' rows by ``(v, u)`` ``(n,) int64`` (numpy's stable
+    ``argsort`` of their v: the order a display is evaluated in, `acra.tessellate.grid_samples`). A cell is split where a finer neighbour puts a vertex strictly inside one
     of its sides: its ring walks the sides counter-clockwise, each corner then the vertices inside
     the side, so its triangles are those of the array form, in its order."""
     w = nv + 1
@@ -253,7 +254,17 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
     for a in range(m + n_split):
         ku[a] = keys[a] // w
         kv[a] = keys[a] - ku[a] * w
-    return ku, kv, counts, indices
+    # the rows by v, a stable counting sort of the u-major rows (so by u within a v)
+    start = np.zeros(nv + 2, np.int64)
+    for a in range(m + n_split):
+        start[kv[a] + 1] += 1
+    for x in range(nv + 1):
+        start[x + 1] += start[x]
+    by_v = np.empty(m + n_split, np.int64)
+    for a in range(m + n_split):
+        by_v[start[kv[a]]] = a
+        start[kv[a]] += 1
+    return ku, kv, counts, indices, by_v
 
 
 @njit(cache=True, nogil=True)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -121,12 +121,16 @@ class MeshTopology:
     indices : (sum counts,) int64
         USD's ``faceVertexIndices``; every face counter-clockwise seen from the side ``du × dv``
         points to.
+    by_v : (n,) int64 or None
+        The vertices' rows by ``(v, u)`` (numpy's stable ``argsort`` of ``v``), where the mesh's
+        build gives it (`acra.lattice.adaptive_mesh`): the order `grid_samples` evaluates in.
     """
 
     u: np.ndarray
     v: np.ndarray
     counts: np.ndarray
     indices: np.ndarray
+    by_v: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @property
     def quads(self) -> np.ndarray:
@@ -250,11 +254,11 @@ def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.nd
     leaves = [(k, patches) for k, patches in _leaves(u.patches0, v.patches0, present, top) if len(patches)]
     patches = np.concatenate([p for _, p in leaves])
     steps = np.concatenate([np.full(len(p), 1 << (top - k), np.int64) for k, p in leaves])
-    lu, lv, counts, indices = adaptive_mesh(patches[:, 0].copy(), patches[:, 1].copy(), steps, s,
-                                            u.patches0 * (s << top), v.patches0 * (s << top),
-                                            bool(u.periodic), bool(v.periodic))
+    lu, lv, counts, indices, by_v = adaptive_mesh(patches[:, 0].copy(), patches[:, 1].copy(), steps, s,
+                                                  u.patches0 * (s << top), v.patches0 * (s << top),
+                                                  bool(u.periodic), bool(v.periodic))
     step = float(s << top)
-    return MeshTopology(lu / step, lv / step, counts, indices)
+    return MeshTopology(lu / step, lv / step, counts, indices, by_v)
 
 
 def _adaptive_array(u: Direction, v: Direction, samples: int, present: dict[int, np.ndarray]) -> MeshTopology:
@@ -422,7 +426,7 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     # (`acra.kernels.eval_points`), and each point is summed on its own, so the order changes no bit
     by_v = given is None and (tangents or not normals)
     if since is None and by_v:
-        o = np.argsort(topo.v, kind="stable")
+        o = _v_order(topo)
         ev = sample(topo.u[o], topo.v[o])[0]
         points = np.empty((topo.u.size, 3))
         limit = np.empty((topo.u.size, 6)) if tangents else _NO_TANGENTS
@@ -448,8 +452,10 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     (cu, bu), (cv, bv) = _patch_cells(hs, topo, memo, level)
     points = np.empty((topo.u.size, 3))
     limit = np.empty((topo.u.size, 6 if tangents else 3)) if normals or tangents else _NO_POINTS
+    # by v, `_carry` hands the rows to evaluate in the order they are evaluated in
     idx = _carry(old_points, old_limit if normals or tangents else _NO_POINTS, src, found,
-                 np.ascontiguousarray(stale, np.bool_), cu, bu, cv, bv, points, limit)
+                 np.ascontiguousarray(stale, np.bool_), cu, bu, cv, bv, points, limit,
+                 _v_order(topo) if by_v else _NO_INDEX)
     carried = _NO_INDEX  # copied vertices whose old normal was taken at nudged points
     if old_nudged is not None and old_nudged.size:
         took = np.zeros(len(old_points), bool)
@@ -466,8 +472,6 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             carried = np.flatnonzero(took & copied)
     nudged = None
     if idx.size:
-        if by_v:
-            idx = idx[np.argsort(topo.v[idx], kind="stable")]
         p, n, nudged = sample(topo.u[idx], topo.v[idx], idx)
         if by_v:
             _place(p.points, _NO_POINTS if p.du is None else p.du, _NO_POINTS if p.dv is None else p.dv, idx, points,
@@ -563,14 +567,24 @@ def _place(p, du, dv, rows, points, limit):
                 limit[r, 3 + e] = dv[i, e]
 
 
+def _v_order(topo) -> np.ndarray:
+    """The rows of ``topo``'s vertices by ``(v, u)`` ``(n,) int64``: numpy's stable ``argsort`` of
+    ``v`` (the vertices come by ``(u, v)``), which an adaptive mesh's build gives
+    (`MeshTopology.by_v`)."""
+    by_v = getattr(topo, "by_v", None)
+    return by_v if by_v is not None else np.argsort(topo.v, kind="stable")
+
+
 @njit(cache=True, nogil=True)
-def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, limit):
+def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, limit, order):
     """Copy into ``points`` (and every column of ``limit``, unless empty) the old vertex
     ``src[i]`` of every vertex ``i`` that has one (``found[i]``; empty ``src``: vertex ``i``
     itself) and lies on no ``stale`` cell (its cells ``cu[i]``/``bu[i]`` along u, the one before
     where it is on a border, and ``cv[i]``/``bv[i]`` along v); returns the others' rows ``(m,)
-    int64``, ascending, which the caller evaluates. One pass for numpy's copy of every found vertex, mask of the four cells and
-    ``np.nonzero``, whose results it equals (`tests/test_tessellate.py`)."""
+    int64``, which the caller evaluates: ascending, or in the order they appear in ``order (n,)
+    int64`` (a permutation of the rows; empty: ascending). One pass for numpy's copy of every
+    found vertex, mask of the four cells and ``np.nonzero`` (then ``idx[argsort(rank[idx])]``
+    with ``order``), whose results it equals (`tests/test_tessellate.py`)."""
     n = points.shape[0]
     same = src.shape[0] == 0
     width = limit.shape[1] if limit.shape[0] > 0 else 0
@@ -594,6 +608,19 @@ def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, lim
         else:
             for e in range(width):
                 limit[i, e] = old_limit[j, e]
+    if order.shape[0] == 0 or m == 0:
+        return idx[:m]
+    # the rows left, in ``order``'s sequence: marked in the pass above (the copy's rows are
+    # walked in their own order, which keeps its reads and writes near each other)
+    left = np.zeros(n, np.bool_)
+    for q in range(m):
+        left[idx[q]] = True
+    k = 0
+    for q in range(n):
+        i = order[q]
+        if left[i]:
+            idx[k] = i
+            k += 1
     return idx[:m]
 
 

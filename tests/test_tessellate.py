@@ -384,6 +384,8 @@ def test_compiled_adaptive_mesh_is_the_array_form_s_vertex_for_vertex(shape, see
             a, b = getattr(got, name), getattr(want, name)
             assert a.dtype == b.dtype, name
             np.testing.assert_array_equal(a, b, err_msg=name)
+        assert got.by_v.dtype == np.int64
+        np.testing.assert_array_equal(got.by_v, np.argsort(want.v, kind="stable"), err_msg="by_v")
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
@@ -411,7 +413,8 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
     """`tessellate._carry` (an incremental display's copies of unchanged vertices and the rows
     left to evaluate, one compiled pass) gives the bits and rows of numpy's copy of every found
     vertex, or of every vertex on the same topology, the mask of each vertex's four cells and
-    ``np.nonzero``; with normals, with first derivatives (6 columns) and without."""
+    ``np.nonzero``; with normals, with first derivatives (6 columns) and without; and with an
+    order of the rows (a display's by v), the rows left in its sequence."""
     rng = np.random.default_rng(seed)
     n, m, cu_n, cv_n = 2000, 2500, 12, 9
     old_points, wide = rng.normal(size=(m, 3)), rng.normal(size=(m, 6))
@@ -419,6 +422,8 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
     cu, cv = rng.integers(0, cu_n, n), rng.integers(0, cv_n, n)
     bu, bv = np.where(rng.random(n) < 0.3, (cu - 1) % cu_n, cu), np.where(rng.random(n) < 0.3, (cv - 1) % cv_n, cv)
     cells = stale[cu, cv] | stale[cu, bv] | stale[bu, cv] | stale[bu, bv]
+    order = rng.permutation(n)
+    rank = np.argsort(order)
     for src, found in ((rng.integers(0, m, n), rng.random(n) < 0.8), (T._NO_INDEX, T._NO_FOUND)):
         same = not src.size
         want_idx = np.nonzero(cells if same else ~found | cells)[0]
@@ -427,8 +432,10 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
             normals, old_limit = width > 0, np.ascontiguousarray(wide[:, :width])
             points, limit = np.full((n, 3), np.nan), np.full((n, width), np.nan) if normals else T._NO_POINTS
             idx = T._carry(old_points[:n] if same else old_points, old_limit[:n] if same else old_limit, src, found, stale,
-                           cu, bu, cv, bv, points, limit)
-            np.testing.assert_array_equal(idx, want_idx)
+                           cu, bu, cv, bv, points, limit, order if width == 6 else T._NO_INDEX)
+            # with an order (a display's rows by v), the rows come in its sequence
+            np.testing.assert_array_equal(idx, want_idx[np.argsort(rank[want_idx])] if width == 6 else want_idx)
+            idx = np.sort(idx)
             copied = np.setdiff1d(np.nonzero(keep)[0], want_idx)
             rows = copied if same else src[copied]
             np.testing.assert_array_equal(points[copied], old_points[rows])
