@@ -43,6 +43,34 @@ def test_shown_is_what_the_output_stores():
     assert not s.closed
 
 
+@pytest.mark.parametrize("t", [(0.1, 2.2, 0.15), (0.0, 0.0, 0.0), (-0.0, 1.0, 0.0), "minus first"])
+def test_a_translated_display_is_placed_in_one_pass_with_apply_xform_s_bits(t):
+    """Under a matrix whose linear part is the identity, `shown`'s float32 points, world points
+    and box come from one compiled pass with the bits of `apply_xform` and `bvh.bounds`: also at
+    signed zeros and at world points that sum to exactly zero; a -0.0 translation, where the sign
+    of a zero sum depends on the matmul's order, takes numpy's path."""
+    from acra import bvh
+
+    rng = np.random.default_rng(7)
+    p = rng.normal(size=(500, 3)) * 3.0
+    p[rng.random(p.shape) < 0.1] = 0.0
+    p[rng.random(p.shape) < 0.1] = -0.0
+    p[3] = (0.7, -1.3, 2.1)
+    m = np.eye(4)
+    m[:3, 3] = -np.asarray(p[3], np.float32) if t == "minus first" else t
+    local = np.asarray(p, np.float32).astype(np.float64)
+    world = apply_xform(m, local)
+    got = residual._placed(p, m)
+    for a, b in zip(got, (local, world, bvh.bounds(world))):
+        assert a.tobytes() == b.tobytes()
+    out = np.empty((500, 3)), np.empty((500, 3)), np.empty((2, 3))
+    assert residual._translated(p, m, *out) == (t != (-0.0, 1.0, 0.0))
+    m[0, 1] = 1e-3  # a shear: numpy's matmul
+    assert not residual._translated(p, m, *out)
+    local, world = residual._placed(p, m)[:2]
+    assert world.tobytes() == apply_xform(m, local).tobytes()
+
+
 @pytest.mark.parametrize("z", [0.25, -0.4999, 0.6])
 def test_a_sheet_in_a_box_is_as_deep_as_its_distance_to_the_nearest_face(z):
     """A flat sheet through [-0.5, 0.5]^3 at height z, wider than the box: the deepest point is on
