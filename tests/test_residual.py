@@ -71,6 +71,30 @@ def test_a_translated_display_is_placed_in_one_pass_with_apply_xform_s_bits(t):
     assert world.tobytes() == apply_xform(m, local).tobytes()
 
 
+def test_an_array_with_a_kept_array_s_bytes_takes_its_digest_without_hashing(monkeypatch):
+    """`_digest` hashes a new array whose bytes no kept array holds; one holding a kept array's
+    bytes gets that digest unhashed, and bytes that differ anywhere (a -0.0 for a 0.0) differ."""
+    import hashlib
+
+    residual._DIGESTS.clear()
+    hashed, sha1 = [], hashlib.sha1
+    monkeypatch.setattr(residual.hashlib, "sha1", lambda *a: hashed.append(1) or sha1(*a))
+    tris = np.arange(3000, dtype=np.int64).reshape(-1, 3)
+    uv = np.linspace(-1.0, 1.0, 2000).reshape(-1, 2)
+    uv[::7, 0] = 0.0
+    first = residual._digest(tris), residual._digest(uv)
+    assert len(hashed) == 2 and not tris.flags.writeable
+    assert (residual._digest(tris.copy()), residual._digest(uv.copy())) == first and len(hashed) == 2
+    signed = uv.copy()
+    signed[signed == 0.0] = -0.0
+    assert signed.tobytes() != uv.tobytes() and residual._digest(signed) != first[1]
+    other = tris.copy()
+    other[-1, -1] += 1
+    assert residual._digest(other) != first[0]
+    assert residual._digest(tris.astype(np.int32)) != first[0]  # the same values as other bytes
+    assert len(hashed) == 5
+    residual._DIGESTS.clear()
+
 @pytest.mark.parametrize("z", [0.25, -0.4999, 0.6])
 def test_a_sheet_in_a_box_is_as_deep_as_its_distance_to_the_nearest_face(z):
     """A flat sheet through [-0.5, 0.5]^3 at height z, wider than the box: the deepest point is on
