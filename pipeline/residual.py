@@ -191,9 +191,17 @@ def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarra
     p32, world, box = _placed(points, xform)
     if whole is None and closed:
         whole = _Once(lambda: clearance.solid(p32, triangles))
-    return Shown(path, world, None if uv is None else np.asarray(uv, np.float64),
+    return Shown(path, world, None if uv is None else _held(uv, np.float64),
                  float(np.linalg.norm(box[1] - box[0])), box, np.asarray(xform, np.float64), closed, p32,
-                 np.asarray(triangles, np.int64), float(outward), whole, True, parts)
+                 _held(triangles, np.int64), float(outward), whole, True, parts)
+
+
+def _held(x, dtype) -> np.ndarray:
+    """``x`` itself where it is an array of ``dtype`` (a display's triangles or parameters, the
+    same object every round that shows the display, so `_digest` knows it by identity), else
+    ``np.asarray(x, dtype)``: numpy hands back a new view of an array whose dtype equals ``dtype``
+    but is another instance of it (a numba kernel's output)."""
+    return x if isinstance(x, np.ndarray) and x.dtype == dtype else np.asarray(x, dtype)
 
 
 def _placed(points: np.ndarray, xform: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

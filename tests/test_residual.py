@@ -71,6 +71,17 @@ def test_a_translated_display_is_placed_in_one_pass_with_apply_xform_s_bits(t):
     assert world.tobytes() == apply_xform(m, local).tobytes()
 
 
+def test_a_display_s_triangles_and_parameters_are_held_as_given():
+    """`shown` holds a display's own triangles and parameters (the topology's, a numba kernel's
+    output, whose dtype is another instance of int64), so every round's `Shown` of the display
+    digests them by identity; other dtypes are converted."""
+    _, pts, tris, uv = sheet(0.1)
+    assert tris.dtype == np.int64 and tris.dtype is not np.dtype(np.int64)
+    s = residual.shown("/sheet", pts, tris, np.eye(4), uv)
+    assert s.triangles is tris and s.vertex_uv is uv
+    s = residual.shown("/sheet", pts, tris.astype(np.int32), np.eye(4), uv.astype(np.float32))
+    assert s.triangles.dtype == np.int64 and s.vertex_uv.dtype == np.float64
+
 def test_an_array_with_a_kept_array_s_bytes_takes_its_digest_without_hashing(monkeypatch):
     """`_digest` hashes a new array whose bytes no kept array holds; one holding a kept array's
     bytes gets that digest unhashed, and bytes that differ anywhere (a -0.0 for a 0.0) differ."""
