@@ -30,11 +30,10 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
-from numba import njit
 
 from acra import bvh, clearcells
 from pipeline import clearance
-from pipeline.model import SceneModel, apply_xform
+from pipeline.model import SceneModel, apply_xform, translated
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
            "measure_frame", "measure_run", "known", "TARGET"]
@@ -207,49 +206,16 @@ def _held(x, dtype) -> np.ndarray:
 def _placed(points: np.ndarray, xform: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``points (n, 3)`` rounded to float32 (as float64), mapped to world by ``xform (4, 4)``
     (`apply_xform`'s bits), and the world box ``(2, 3)`` (`bvh.bounds`'): one compiled pass where
-    the linear part is the identity (`_translated`), else numpy's."""
+    the linear part is the identity (`pipeline.model.translated`), else numpy's."""
     p = np.ascontiguousarray(points, np.float64)
     x = np.ascontiguousarray(xform, np.float64)
     if p.ndim == 2 and p.shape[1] == 3 and len(p) and x.shape == (4, 4):
         local, world, box = np.empty(p.shape), np.empty(p.shape), np.empty((2, 3))
-        if _translated(p, x, local, world, box):
+        if translated(p, x, True, local, world, box):
             return local, world, box
     local = np.asarray(points, np.float32).astype(np.float64)
     world = apply_xform(xform, local)
     return local, world, bvh.bounds(world)
-
-
-@njit(cache=True, nogil=True)
-def _translated(points, xform, local, world, box):
-    """``local``: ``points`` rounded to float32; ``world``: ``local + t`` and ``box`` its
-    `bvh.bounds`, where ``xform``'s linear part is exactly the identity, no translation ``t`` is
-    -0.0 and every world point is finite; returns whether it is so (else the outputs are
-    unset). Then ``local @ I.T + t`` (`apply_xform`) has these bits in any summation order: each
-    product is exact and all but one are zeros, which add nothing to a finite value; a zero sum's
-    sign is the one place the order shows, and adding ``t``, not -0.0, makes it +0.0 either way."""
-    for i in range(3):
-        for j in range(3):
-            if xform[i, j] != (1.0 if i == j else 0.0):
-                return False
-        if xform[i, 3] == 0.0 and np.signbit(xform[i, 3]):
-            return False
-    finite = True
-    for i in range(points.shape[0]):
-        for k in range(3):
-            x = np.float64(np.float32(points[i, k]))
-            w = x + xform[k, 3]
-            local[i, k] = x
-            world[i, k] = w
-            finite &= np.isfinite(w)
-            # `bvh._bounds`' comparisons, in its order, so equal values of either sign pick alike
-            if i == 0:
-                box[0, k], box[1, k] = w, w
-            else:
-                if w < box[0, k]:
-                    box[0, k] = w
-                if w > box[1, k]:
-                    box[1, k] = w
-    return finite
 
 
 def collider_shown(path: str, box: np.ndarray, size: float, solid: clearance.Solid | None, xform: np.ndarray) -> Shown:
