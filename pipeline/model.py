@@ -203,8 +203,8 @@ def apply_xform(xform: np.ndarray, points: np.ndarray) -> np.ndarray:
 TRANSLATED_ROWS = 64  # fewer points are mapped by numpy as fast as the compiled pass is called
 
 
-@njit(cache=True, nogil=True)
-def translated(points, xform, round32, local, world, box):
+def translated(points: np.ndarray, xform: np.ndarray, round32: bool, local: np.ndarray, world: np.ndarray,
+               box: np.ndarray) -> bool:
     """``world (n, 3) float64``: ``points (n, 3) float64`` (rounded to float32 first where
     ``round32``, those values in ``local``) plus the translation ``t`` of ``xform (4, 4)``, and
     ``box (2, 3)`` their `acra.bvh.bounds`, where ``xform``'s linear part is exactly the
@@ -214,8 +214,16 @@ def translated(points, xform, round32, local, world, box):
     Then `apply_xform`'s ``points @ I.T + t`` has these bits in any summation order, with or
     without fused multiply-adds: each product is exact and all but one are zeros, which add
     nothing to a finite value; only a zero sum's sign depends on the order, and adding ``t``,
-    not -0.0, makes it +0.0 either way (a non-finite point spreads NaN over its row through the
-    zeros' products: not handled here)."""
+    not -0.0, makes it +0.0 either way. A non-finite point, whose row numpy fills with NaN
+    through the zeros' products, answers false."""
+    # read-only views: one specialisation of the kernel whether the caller's arrays are writable or not
+    points, xform = points.view(), xform.view()
+    points.flags.writeable = xform.flags.writeable = False
+    return _translated(points, xform, round32, local, world, box)
+
+
+@njit(cache=True, nogil=True)
+def _translated(points, xform, round32, local, world, box):
     for i in range(3):
         for j in range(3):
             if xform[i, j] != (1.0 if i == j else 0.0):
