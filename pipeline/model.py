@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from acra.hspline import HierarchyArrays, HSpline
 from acra.respond import Controls as AcraControls
@@ -188,8 +189,64 @@ class ColliderState:
 
 
 def apply_xform(xform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """``(n, 3)`` points mapped by a ``(4, 4)`` column-convention matrix."""
+    """``(n, 3)`` points mapped by a ``(4, 4)`` column-convention matrix: ``points @ R.T + t``,
+    in one compiled pass (`translated`) where ``R`` is the identity and the points are many."""
+    if (type(points) is np.ndarray and points.ndim == 2 and len(points) >= TRANSLATED_ROWS and points.shape[1] == 3
+            and points.dtype == np.float64 and points.flags.c_contiguous and type(xform) is np.ndarray
+            and xform.dtype == np.float64 and xform.shape == (4, 4)):
+        out = np.empty(points.shape)
+        if translated(points, xform, False, out, out, np.empty((2, 3))):
+            return out
     return points @ xform[:3, :3].T + xform[:3, 3]
+
+
+TRANSLATED_ROWS = 64  # fewer points are mapped by numpy as fast as the compiled pass is called
+
+
+def translated(points: np.ndarray, xform: np.ndarray, round32: bool, local: np.ndarray, world: np.ndarray,
+               box: np.ndarray) -> bool:
+    """``world (n, 3) float64``: ``points (n, 3) float64`` (rounded to float32 first where
+    ``round32``, those values in ``local``) plus the translation ``t`` of ``xform (4, 4)``, and
+    ``box (2, 3)`` their `acra.bvh.bounds`, where ``xform``'s linear part is exactly the
+    identity, no ``t`` is -0.0 and every world point is finite; returns whether it is so (else
+    the outputs are unset; ``local`` may be ``world`` where ``round32`` is false).
+
+    Then `apply_xform`'s ``points @ I.T + t`` has these bits in any summation order, with or
+    without fused multiply-adds: each product is exact and all but one are zeros, which add
+    nothing to a finite value; only a zero sum's sign depends on the order, and adding ``t``,
+    not -0.0, makes it +0.0 either way. A non-finite point, whose row numpy fills with NaN
+    through the zeros' products, answers false."""
+    # read-only views: one specialisation of the kernel whether the caller's arrays are writable or not
+    points, xform = points.view(), xform.view()
+    points.flags.writeable = xform.flags.writeable = False
+    return _translated(points, xform, round32, local, world, box)
+
+
+@njit(cache=True, nogil=True)
+def _translated(points, xform, round32, local, world, box):
+    for i in range(3):
+        for j in range(3):
+            if xform[i, j] != (1.0 if i == j else 0.0):
+                return False
+        if xform[i, 3] == 0.0 and np.signbit(xform[i, 3]):
+            return False
+    finite = True
+    for i in range(points.shape[0]):
+        for k in range(3):
+            x = np.float64(np.float32(points[i, k])) if round32 else points[i, k]
+            w = x + xform[k, 3]
+            local[i, k] = x
+            world[i, k] = w
+            finite &= np.isfinite(w)
+            # `bvh.bounds`' comparisons, in its order, so equal values of either sign pick alike
+            if i == 0:
+                box[0, k], box[1, k] = w, w
+            else:
+                if w < box[0, k]:
+                    box[0, k] = w
+                if w > box[1, k]:
+                    box[1, k] = w
+    return finite
 
 
 def apply_inverse(xform: np.ndarray, points: np.ndarray) -> np.ndarray:

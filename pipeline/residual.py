@@ -33,7 +33,7 @@ import numpy as np
 
 from acra import bvh, clearcells
 from pipeline import clearance
-from pipeline.model import SceneModel, apply_xform
+from pipeline.model import SceneModel, apply_xform, translated
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
            "measure_frame", "measure_run", "known", "TARGET"]
@@ -144,22 +144,41 @@ class Shown:
         return float(np.linalg.norm(self.box_local[1] - self.box_local[0]))
 
 
-_DIGESTS: dict = {}  # id(array) -> (array, digest), the arrays made read-only
+_DIGESTS: dict = {}  # id(array) -> (array, digest), the arrays made read-only, most recent last
 
 
 def _digest(x: np.ndarray) -> bytes:
     """A digest of ``x``'s dtype, shape and values, kept per array: the array is made read-only,
-    so the values it was taken of are the values it holds."""
-    hit = _DIGESTS.get(id(x))
-    if hit is not None and hit[0] is x and not x.flags.writeable:
-        return hit[1]
-    x.flags.writeable = False
-    h = hashlib.sha1(repr((x.dtype.str, x.shape)).encode())
-    h.update(np.ascontiguousarray(x).data)
-    if len(_DIGESTS) >= 16:
-        _DIGESTS.pop(next(iter(_DIGESTS)))
-    _DIGESTS[id(x)] = (x, h.digest())
-    return _DIGESTS[id(x)][1]
+    so the values it was taken of are the values it holds. An array holding the bytes of a kept
+    one gets that one's digest without hashing: each display stacks its vertex parameters anew,
+    though every display on one topology holds the same, and a topology built again (a
+    refinement no longer kept) gives new triangles of the same bytes; comparing bytes costs a
+    tenth of hashing them."""
+    hit = _DIGESTS.pop(id(x), None)
+    if hit is None or hit[0] is not x or x.flags.writeable:
+        x.flags.writeable = False
+        same = next((d for y, d in reversed(_DIGESTS.values()) if _same_bytes(x, y)), None)
+        if same is None:
+            h = hashlib.sha1(repr((x.dtype.str, x.shape)).encode())
+            h.update(np.ascontiguousarray(x).data)
+            same = h.digest()
+        hit = (x, same)
+    _DIGESTS[id(x)] = hit
+    while len(_DIGESTS) > 16:
+        del _DIGESTS[next(iter(_DIGESTS))]
+    return hit[1]
+
+
+def _same_bytes(x: np.ndarray, y: np.ndarray) -> bool:
+    """Whether ``x`` and the kept array ``y`` (still read-only) hold the same dtype, shape and
+    bytes: compared as unsigned integers of the item's size, so -0.0 and 0.0, or two NaNs, are
+    told apart or alike exactly as their bytes are."""
+    if y.flags.writeable or x.dtype != y.dtype or x.shape != y.shape or x.dtype.hasobject:
+        return False
+    if x.dtype.itemsize not in (1, 2, 4, 8):
+        return np.ascontiguousarray(x).tobytes() == np.ascontiguousarray(y).tobytes()
+    code = f"u{x.dtype.itemsize}"
+    return bool(np.array_equal(np.ascontiguousarray(x).view(code), np.ascontiguousarray(y).view(code)))
 
 
 def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
@@ -169,14 +188,35 @@ def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarra
     vertex parameters ``uv (n, 2)``; ``closed`` with the winding's ``outward`` sign; ``whole()``
     gives its whole `clearance.Solid` (default: built from the points); ``parts`` keeps the part
     solids built of these points and triangles (a dict shared by every call on one display)."""
-    p32 = np.asarray(points, np.float32).astype(np.float64)
-    world = apply_xform(xform, p32)
-    box = bvh.bounds(world)
+    p32, world, box = _placed(points, xform)
     if whole is None and closed:
         whole = _Once(lambda: clearance.solid(p32, triangles))
-    return Shown(path, world, None if uv is None else np.asarray(uv, np.float64),
+    return Shown(path, world, None if uv is None else _held(uv, np.float64),
                  float(np.linalg.norm(box[1] - box[0])), box, np.asarray(xform, np.float64), closed, p32,
-                 np.asarray(triangles, np.int64), float(outward), whole, True, parts)
+                 _held(triangles, np.int64), float(outward), whole, True, parts)
+
+
+def _held(x, dtype) -> np.ndarray:
+    """``x`` itself where it is an array of ``dtype`` (a display's triangles or parameters, the
+    same object every round that shows the display, so `_digest` knows it by identity), else
+    ``np.asarray(x, dtype)``: numpy hands back a new view of an array whose dtype equals ``dtype``
+    but is another instance of it (a numba kernel's output)."""
+    return x if isinstance(x, np.ndarray) and x.dtype == dtype else np.asarray(x, dtype)
+
+
+def _placed(points: np.ndarray, xform: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``points (n, 3)`` rounded to float32 (as float64), mapped to world by ``xform (4, 4)``
+    (`apply_xform`'s bits), and the world box ``(2, 3)`` (`bvh.bounds`'): one compiled pass where
+    the linear part is the identity (`pipeline.model.translated`), else numpy's."""
+    p = np.ascontiguousarray(points, np.float64)
+    x = np.ascontiguousarray(xform, np.float64)
+    if p.ndim == 2 and p.shape[1] == 3 and len(p) and x.shape == (4, 4):
+        local, world, box = np.empty(p.shape), np.empty(p.shape), np.empty((2, 3))
+        if translated(p, x, True, local, world, box):
+            return local, world, box
+    local = np.asarray(points, np.float32).astype(np.float64)
+    world = apply_xform(xform, local)
+    return local, world, bvh.bounds(world)
 
 
 def collider_shown(path: str, box: np.ndarray, size: float, solid: clearance.Solid | None, xform: np.ndarray) -> Shown:

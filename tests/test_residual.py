@@ -10,7 +10,7 @@ from acra import shapes
 from acra.tessellate import grid_samples, run_topology
 from acceptance import visible
 from pipeline import clearance, residual
-from pipeline.model import apply_xform
+from pipeline.model import apply_xform, translated
 
 
 def box_collider(half: float = 0.5, xform=None) -> residual.Shown:
@@ -42,6 +42,69 @@ def test_shown_is_what_the_output_stores():
     assert s.size == pytest.approx(np.linalg.norm(np.ptp(world, axis=0)), rel=1e-15)
     assert not s.closed
 
+
+@pytest.mark.parametrize("t", [(0.1, 2.2, 0.15), (0.0, 0.0, 0.0), (-0.0, 1.0, 0.0), "minus first"])
+def test_a_translated_display_is_placed_in_one_pass_with_apply_xform_s_bits(t):
+    """Under a matrix whose linear part is the identity, `shown`'s float32 points, world points
+    and box come from one compiled pass with the bits of numpy's matmul and `bvh.bounds`: also at
+    signed zeros and at world points that sum to exactly zero; a -0.0 translation, where the sign
+    of a zero sum depends on the matmul's order, takes numpy's path."""
+    from acra import bvh
+
+    rng = np.random.default_rng(7)
+    p = rng.normal(size=(500, 3)) * 3.0
+    p[rng.random(p.shape) < 0.1] = 0.0
+    p[rng.random(p.shape) < 0.1] = -0.0
+    p[3] = (0.7, -1.3, 2.1)
+    m = np.eye(4)
+    m[:3, 3] = -np.asarray(p[3], np.float32) if t == "minus first" else t
+    local = np.asarray(p, np.float32).astype(np.float64)
+    world = local @ m[:3, :3].T + m[:3, 3]  # numpy's arithmetic, as `apply_xform` states it
+    got = residual._placed(p, m)
+    for a, b in zip(got, (local, world, bvh.bounds(world))):
+        assert a.tobytes() == b.tobytes()
+    out = np.empty((500, 3)), np.empty((500, 3)), np.empty((2, 3))
+    assert translated(p, m, True, *out) == (t != (-0.0, 1.0, 0.0))
+    m[0, 1] = 1e-3  # a shear: numpy's matmul
+    assert not translated(p, m, True, *out)
+    local, world = residual._placed(p, m)[:2]
+    assert world.tobytes() == (local @ m[:3, :3].T + m[:3, 3]).tobytes()
+
+
+def test_a_display_s_triangles_and_parameters_are_held_as_given():
+    """`shown` holds a display's own triangles and parameters (the topology's, a numba kernel's
+    output, whose dtype is another instance of int64), so every round's `Shown` of the display
+    digests them by identity; other dtypes are converted."""
+    _, pts, tris, uv = sheet(0.1)
+    assert tris.dtype == np.int64 and tris.dtype is not np.dtype(np.int64)
+    s = residual.shown("/sheet", pts, tris, np.eye(4), uv)
+    assert s.triangles is tris and s.vertex_uv is uv
+    s = residual.shown("/sheet", pts, tris.astype(np.int32), np.eye(4), uv.astype(np.float32))
+    assert s.triangles.dtype == np.int64 and s.vertex_uv.dtype == np.float64
+
+def test_an_array_with_a_kept_array_s_bytes_takes_its_digest_without_hashing(monkeypatch):
+    """`_digest` hashes a new array whose bytes no kept array holds; one holding a kept array's
+    bytes gets that digest unhashed, and bytes that differ anywhere (a -0.0 for a 0.0) differ."""
+    import hashlib
+
+    residual._DIGESTS.clear()
+    hashed, sha1 = [], hashlib.sha1
+    monkeypatch.setattr(residual.hashlib, "sha1", lambda *a: hashed.append(1) or sha1(*a))
+    tris = np.arange(3000, dtype=np.int64).reshape(-1, 3)
+    uv = np.linspace(-1.0, 1.0, 2000).reshape(-1, 2)
+    uv[::7, 0] = 0.0
+    first = residual._digest(tris), residual._digest(uv)
+    assert len(hashed) == 2 and not tris.flags.writeable
+    assert (residual._digest(tris.copy()), residual._digest(uv.copy())) == first and len(hashed) == 2
+    signed = uv.copy()
+    signed[signed == 0.0] = -0.0
+    assert signed.tobytes() != uv.tobytes() and residual._digest(signed) != first[1]
+    other = tris.copy()
+    other[-1, -1] += 1
+    assert residual._digest(other) != first[0]
+    assert residual._digest(tris.astype(np.int32)) != first[0]  # the same values as other bytes
+    assert len(hashed) == 5
+    residual._DIGESTS.clear()
 
 @pytest.mark.parametrize("z", [0.25, -0.4999, 0.6])
 def test_a_sheet_in_a_box_is_as_deep_as_its_distance_to_the_nearest_face(z):

@@ -1,0 +1,60 @@
+"""pipeline.model: `apply_xform`'s compiled pass under a translation has numpy's bits."""
+
+import numpy as np
+import pytest
+
+from pipeline import model
+from pipeline.model import apply_xform
+
+
+def _numpy(xform, points):
+    """`apply_xform`'s arithmetic as numpy states it."""
+    return points @ xform[:3, :3].T + xform[:3, 3]
+
+
+@pytest.mark.parametrize("t", [(0.1, -2.2, 0.15), (0.0, 0.0, 0.0), (1.0, 0.0, -0.0), "cancel"])
+def test_a_translation_maps_many_points_in_one_pass_with_numpy_s_bits(t, monkeypatch):
+    """Many float64 points under a matrix whose linear part is the identity are mapped by
+    `model.translated` with the bits of numpy's matmul and sum: at signed zeros, at sums that
+    cancel to zero and at huge and tiny values. A -0.0 translation or a non-finite point
+    (whose row numpy fills with NaN through the zeros' products) takes numpy's path."""
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(400, 3)) * 10.0 ** rng.integers(-300, 300, size=(400, 1))
+    p[rng.random(p.shape) < 0.1] = 0.0
+    p[rng.random(p.shape) < 0.1] = -0.0
+    p[5] = (0.25, -3.5, 7.0)
+    m = np.eye(4)
+    m[:3, 3] = -p[5] if t == "cancel" else t
+    called = []
+    real = model.translated
+    monkeypatch.setattr(model, "translated", lambda *a: called.append(real(*a)) or called[-1])
+    assert apply_xform(m, p).tobytes() == _numpy(m, p).tobytes()
+    assert called == [t != (1.0, 0.0, -0.0)]
+    for bad in (np.inf, np.nan):
+        q = p.copy()
+        q[7, 1] = bad
+        called.clear()
+        with np.errstate(invalid="ignore"):  # inf times zero, as numpy's matmul meets it
+            assert apply_xform(m, q).tobytes() == _numpy(m, q).tobytes()
+        assert called == [False]
+
+
+def test_other_matrices_and_arrays_take_numpy_s_path(monkeypatch):
+    """A rotation, a few points, float32 points, non-contiguous points: numpy's arithmetic."""
+    rng = np.random.default_rng(4)
+    p = rng.normal(size=(300, 3))
+    called = []
+    real = model.translated
+    monkeypatch.setattr(model, "translated", lambda *a: called.append(real(*a)) or called[-1])
+    c, s = np.cos(0.3), np.sin(0.3)
+    rot = np.eye(4)
+    rot[:2, :2] = [[c, -s], [s, c]]
+    rot[:3, 3] = (1.0, 2.0, 3.0)
+    assert apply_xform(rot, p).tobytes() == _numpy(rot, p).tobytes()
+    assert called == [False]
+    shift = np.eye(4)
+    shift[:3, 3] = (1.0, 2.0, 3.0)
+    called.clear()
+    for q in (p[:8], p.astype(np.float32), p[::2], np.asfortranarray(p)):
+        assert apply_xform(shift, q).tobytes() == _numpy(shift, q).tobytes()
+    assert called == []
