@@ -194,6 +194,33 @@ def test_compiled_entries_equal_the_array_form(periodic, seed):
             assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
 
 
+def test_weights_number_their_columns_and_find_the_poles_in_one_pass():
+    """`point_weights` (one compiled pass, `levelkernels.point_entries`) gives the array form's
+    entries numbered as `np.unique` numbers them, ``active`` where a point has an entry, and the
+    same with the points' poles given (`H.pole_of`) or found in the pass; a ring not wholly
+    movable gives its pole's points no weights."""
+    from acra import interpolate as I
+
+    rng = np.random.default_rng(11)
+    hs = H.from_grid(shapes.sphere(8, 7)[0], True, False, depth=3)
+    hs = H.refine(hs, 2, H.pole_patches(hs, 2, 1, 0))  # level 2's south ring movable, level 1's not
+    hs = H.make_movable(hs, 1, [[3, 3], [12, 1]])
+    m = 120
+    u = rng.uniform(0, hs.u.patches0, m)
+    v = rng.uniform(0, hs.v.patches0, m)
+    v[:6], v[6:9] = 0.0, hs.v.patches0  # on the poles, three of them in a row
+    for k in range(hs.depth):
+        pt, rows, w = (np.concatenate(a) for a in I._entries_numpy(hs, k, u, v))
+        cv_rows, col = np.unique(rows, return_inverse=True)
+        for pole in (None, H.pole_of(hs, u, v)):
+            pw = I.point_weights(hs, k, u, v, pole)
+            assert pw.point.tobytes() == pt.tobytes() and pw.w.tobytes() == w.tobytes()
+            assert pw.cv_rows.tobytes() == cv_rows.tobytes() and pw.col.tobytes() == col.tobytes()
+            np.testing.assert_array_equal(pw.active, np.bincount(pt, minlength=m) > 0)
+            np.testing.assert_array_equal(I.point_active(hs, k, u, v, pole), pw.active)
+    assert I.point_active(hs, 2, u, v)[:6].all() and not I.point_active(hs, 1, u, v)[:9].any()
+
+
 def test_compiled_entries_locate_parameters_outside_the_domain_as_numpy():
     """`levelkernels.point_entries` takes each point's segment and basis itself (`basis.locate`,
     `basis.basis`): parameters past a periodic seam wrap, past an open end clamp, as numpy's."""
