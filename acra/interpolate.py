@@ -377,9 +377,8 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     # every point active: the rows as they are, without copies (the same C-ordered arrays a
     # selection would give, so BLAS sums the same products in the same order)
     every = act.size == pw.npoints
-    W = pw.dense() if every else pw.dense()[act]
+    W, lam, vec = _decomposition(pw, act, every)
     dqa = dq if every and dq.flags.c_contiguous else dq[act]
-    lam, vec = _eigh(W @ W.T)
     keep = lam > rcond * lam[-1]
     if amplify is not None:
         along = vec.T @ dqa
@@ -392,6 +391,34 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     kept = vec[:, keep]  # one copy of the kept modes for both products
     coef = kept.T @ dqa / lam[keep][:, None]
     return W.T @ (kept @ coef)
+
+
+# The dense weights of recent solves' active points and their Gram matrix's eigen-decomposition
+# (`min_norm_solve`), by the weights' entries: a contact held still asks a static object the same
+# solve frame after frame (the demo's frames 13-17: 15 of their 25 solves, the spike's 49- and
+# 69-point ones among them), and the decomposition is most of a solve. The key holds every
+# entry's bytes and the active points', so a hit's arrays are the ones the solve would compute.
+# The most recent `_DECOMPOSED_KEEP` kept, emptied by `pipeline.run.forget`.
+_DECOMPOSED: dict = {}
+_DECOMPOSED_KEEP = 32
+
+
+def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The active points' dense weights ``W (k, P) float64`` and the eigenvalues ``(k,)`` and
+    eigenvectors ``(k, k)`` of ``W Wᵀ`` (`_eigh`), kept (`_DECOMPOSED`) or computed; read-only.
+    ``act (k,) int64``: the active points; ``every``: all of them."""
+    key = (pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(), pw.active.tobytes())
+    hit = _DECOMPOSED.pop(key, None)
+    if hit is None:
+        W = pw.dense() if every else pw.dense()[act]
+        lam, vec = _eigh(W @ W.T)
+        for a in (W, lam, vec):
+            a.flags.writeable = False
+        hit = (W, lam, vec)
+    _DECOMPOSED[key] = hit  # the most recent last
+    while len(_DECOMPOSED) > _DECOMPOSED_KEEP:
+        del _DECOMPOSED[next(iter(_DECOMPOSED))]
+    return hit
 
 
 def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -278,6 +278,36 @@ def test_min_norm_solve_with_every_point_active_equals_a_selection():
     assert min_norm_solve(pw, dq).tobytes() == ref.tobytes()
 
 
+def test_a_repeated_solve_reuses_its_decomposition_with_the_same_bits(monkeypatch):
+    """A solve asked again with the same weights (a contact held still) takes the kept dense
+    weights and eigen-decomposition (`interpolate._DECOMPOSED`) instead of decomposing again, and
+    returns the same bits for any wanted moves; a weight one ulp off decomposes afresh."""
+    from acra import interpolate as I
+    hs = H.from_grid(*shapes.sphere(8, 8), depth=1)
+    rng = np.random.default_rng(4)
+    u, v = rng.uniform(1, 7, 12), rng.uniform(0, 8, 12)
+    pw = point_weights(hs, 0, u, v)
+    I._DECOMPOSED.clear()
+    calls = []
+    eigh = I._eigh
+    monkeypatch.setattr(I, "_eigh", lambda g: calls.append(g.shape) or eigh(g))
+    dq1, dq2 = rng.normal(size=(12, 3)), rng.normal(size=(12, 3))
+    first = min_norm_solve(pw, dq1)
+    fresh = PointWeights(0, pw.point.copy(), pw.col.copy(), pw.w.copy(), pw.cv_rows, 12, pw.active.copy())
+    again, other = min_norm_solve(fresh, dq1), min_norm_solve(fresh, dq2)
+    assert len(calls) == 1 and first.tobytes() == again.tobytes()
+    I._DECOMPOSED.clear()
+    assert other.tobytes() == min_norm_solve(pw, dq2).tobytes() and len(calls) == 2
+    w = pw.w.copy()
+    w[3] = np.nextafter(w[3], 1.0)
+    min_norm_solve(PointWeights(0, pw.point, pw.col, w, pw.cv_rows, 12, pw.active), dq1)
+    assert len(calls) == 3
+    for n in range(I._DECOMPOSED_KEEP + 5):  # the store keeps the most recent alone
+        min_norm_solve(point_weights(hs, 0, u + 0.01 * n, v), dq1)
+    assert len(I._DECOMPOSED) == I._DECOMPOSED_KEEP
+    I._DECOMPOSED.clear()
+
+
 def test_point_active_agrees_with_the_weights_on_and_off_the_poles():
     """`point_active` tells a point on a pole by whether its ring is wholly movable, without
     gathering the ring: the same answer as the weights' ``active`` on every level."""
