@@ -398,9 +398,11 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
 # solve frame after frame (the demo's frames 13-17: 15 of their 25 solves, the spike's 49- and
 # 69-point ones among them), and the decomposition is most of a solve. The key holds every
 # entry's bytes and the active points', so a hit's arrays are the ones the solve would compute.
-# The most recent `_DECOMPOSED_KEEP` kept, emptied by `pipeline.run.forget`.
+# The most recent `_DECOMPOSED_KEEP` kept, in `_DECOMPOSED_BYTES` at most (a solve past a
+# quarter of it is not kept), emptied by `pipeline.run.forget`.
 _DECOMPOSED: dict = {}
 _DECOMPOSED_KEEP = 32
+_DECOMPOSED_BYTES = 1 << 25  # 32 MB: the demo's largest solve keeps 0.3 MB
 
 
 def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -415,10 +417,17 @@ def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.n
         for a in (W, lam, vec):
             a.flags.writeable = False
         hit = (W, lam, vec)
+        if _kept_bytes(key, hit) > _DECOMPOSED_BYTES // 4:
+            return hit
     _DECOMPOSED[key] = hit  # the most recent last
-    while len(_DECOMPOSED) > _DECOMPOSED_KEEP:
+    while len(_DECOMPOSED) > _DECOMPOSED_KEEP or sum(_kept_bytes(k, v) for k, v in _DECOMPOSED.items()) > _DECOMPOSED_BYTES:
         del _DECOMPOSED[next(iter(_DECOMPOSED))]
     return hit
+
+
+def _kept_bytes(key: tuple, arrays: tuple) -> int:
+    """Bytes a `_DECOMPOSED` entry holds: its key's entry bytes and its arrays."""
+    return sum(len(b) for b in key[2:]) + sum(a.nbytes for a in arrays)
 
 
 def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

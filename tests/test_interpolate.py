@@ -281,7 +281,8 @@ def test_min_norm_solve_with_every_point_active_equals_a_selection():
 def test_a_repeated_solve_reuses_its_decomposition_with_the_same_bits(monkeypatch):
     """A solve asked again with the same weights (a contact held still) takes the kept dense
     weights and eigen-decomposition (`interpolate._DECOMPOSED`) instead of decomposing again, and
-    returns the same bits for any wanted moves; a weight one ulp off decomposes afresh."""
+    returns the same bits for any wanted moves; a weight one ulp off decomposes afresh. The store
+    keeps the most recent solves within its count and bytes."""
     from acra import interpolate as I
     hs = H.from_grid(*shapes.sphere(8, 8), depth=1)
     rng = np.random.default_rng(4)
@@ -306,6 +307,16 @@ def test_a_repeated_solve_reuses_its_decomposition_with_the_same_bits(monkeypatc
         min_norm_solve(point_weights(hs, 0, u + 0.01 * n, v), dq1)
     assert len(I._DECOMPOSED) == I._DECOMPOSED_KEEP
     I._DECOMPOSED.clear()
+    min_norm_solve(pw, dq1)
+    size = I._kept_bytes(*next(iter(I._DECOMPOSED.items())))
+    monkeypatch.setattr(I, "_DECOMPOSED_BYTES", 4 * size + size // 2)
+    for n in range(6):  # and within its bytes: four solves of this size
+        min_norm_solve(point_weights(hs, 0, u + 0.01 * n, v), dq1)
+    assert len(I._DECOMPOSED) == 4
+    monkeypatch.setattr(I, "_DECOMPOSED_BYTES", 4 * size - 1)  # one past a quarter of them is not kept
+    I._DECOMPOSED.clear()
+    min_norm_solve(pw, dq1)
+    assert not I._DECOMPOSED
 
 
 def test_point_active_agrees_with_the_weights_on_and_off_the_poles():
