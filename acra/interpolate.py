@@ -29,7 +29,7 @@ except ImportError:  # pragma: no cover - a numpy without the module
 from . import levelkernels
 from .basis import basis, locate
 from .hierarchy import _pole_ring_keys, pole_ring_rows
-from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
+from .hspline import HSpline, _cv_keys, _ends_array, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
 __all__ = [
     "PointWeights",
@@ -101,7 +101,7 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: n
     level whose ring is not wholly movable the point gets no weights.
 
     ``pole (K,) int64``: `H.pole_of` of the points, if the caller has it (a response asks every
-    level about the same points on the same level-0 grid); else found with the weights.
+    level about the same points on the same level-0 grid).
     Compiled in one pass with the columns' numbering (`acra.levelkernels.point_entries`);
     `_entries_numpy` is the array form of the entries.
     """
@@ -133,9 +133,14 @@ def _kernel_entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole:
     ``(e,) int64`` and weights ``(e,) float64``, the level's ``cv_rows (P,) int64``, each
     entry's column ``(e,) int64`` and ``active (K,) bool``."""
     lev = hs.level(level) if level else None
-    ends, rows, w, at, use = _ring_table(hs, level)
+    u, v = _writeable(u), _writeable(v)
+    if pole is None and closed_ends(hs):
+        pole = pole_of(hs, u, v)
+    # the level's rings only for points on a pole: a level a response refined is a new `Level`,
+    # whose ring table is built afresh
+    ends, rows, w, at, use = _ring_table(hs, level) if pole is not None and pole.size and pole.max() >= 0 else _NO_RINGS
     return levelkernels.point_entries(
-        _writeable(u), _writeable(v), _NONE if pole is None else pole, level, hs.u.cvs(level), hs.u.periodic,
+        u, v, _NONE if pole is None else pole, level, hs.u.cvs(level), hs.u.periodic,
         hs.v.cvs(level), hs.v.periodic, hs.u.patches(level), hs.v.patches(level),
         _NONE if lev is None else lev.cv_keys, _NO_BOOLS if lev is None else lev.movable,
         _NONE if lev is None else lev.patches, ends, hs.u.patches0, hs.v.patches0, rows, w, at, use)
@@ -160,6 +165,8 @@ def _ring_table(hs: HSpline, level: int) -> tuple:
     kept on the level (with `pole_ring_rows`, which a move carries to its new `Level`), on the
     grid's directions for level 0."""
     ends = closed_ends(hs)
+    if not ends:
+        return _NO_RINGS
     if level == 0:
         return _level0_rings(hs.u, hs.v, ends)
     memo = hs.level(level).__dict__.setdefault("_ring_rows", {})
@@ -178,15 +185,26 @@ def _level0_rings(u_dir, v_dir, ends: tuple) -> tuple:
 
 
 def _stack_rings(ends: tuple, rows: list, use: list) -> tuple:
-    """`_ring_table`'s arrays from each end's ring rows ``(N, 3) int64`` and movability."""
-    flat = [r.reshape(-1) for r in rows]
-    at = np.cumsum([0] + [f.size for f in flat], dtype=np.int64)
-    cat = lambda xs, dtype: np.concatenate(xs).astype(dtype) if xs else np.zeros(0, dtype)  # noqa: E731
-    out = (np.array(ends, np.int64).reshape(-1, 2), cat(flat, np.int64),
-           cat([_ring_weights(r.shape[0]) for r in rows], np.float64), at, np.array(use, bool).reshape(-1))
-    for a in out:
+    """`_ring_table`'s arrays from each end's ring rows ``(N, 3) int64`` (at least one end) and
+    movability."""
+    at = np.zeros(len(rows) + 1, np.int64)
+    at[1:] = [r.size for r in rows]
+    out = (_ends_array(ends), np.concatenate(rows, axis=None), np.concatenate([_ring_weights(r.shape[0]) for r in rows]),
+           np.cumsum(at), np.array(use))
+    for a in out[1:]:
         a.flags.writeable = False
     return out
+
+
+def _no_rings() -> tuple:
+    """`_ring_table` of a grid without a closed end (read-only, the kernel's one signature)."""
+    out = (_ends_array(()), np.zeros(0, np.int64), np.zeros(0), np.zeros(1, np.int64), np.zeros(0, bool))
+    for a in out[1:]:
+        a.flags.writeable = False
+    return out
+
+
+_NO_RINGS = _no_rings()
 
 
 def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: list, ws: list) -> tuple[list, list, list]:
@@ -411,23 +429,19 @@ def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.n
     ``act (k,) int64``: the active points; ``every``: all of them."""
     key = (pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(), pw.active.tobytes())
     hit = _DECOMPOSED.pop(key, None)
-    if hit is None:
-        W = pw.dense() if every else pw.dense()[act]
-        lam, vec = _eigh(W @ W.T)
-        for a in (W, lam, vec):
-            a.flags.writeable = False
-        hit = (W, lam, vec)
-        if _kept_bytes(key, hit) > _DECOMPOSED_BYTES // 4:
-            return hit
-    _DECOMPOSED[key] = hit  # the most recent last
-    while len(_DECOMPOSED) > _DECOMPOSED_KEEP or sum(_kept_bytes(k, v) for k, v in _DECOMPOSED.items()) > _DECOMPOSED_BYTES:
-        del _DECOMPOSED[next(iter(_DECOMPOSED))]
-    return hit
-
-
-def _kept_bytes(key: tuple, arrays: tuple) -> int:
-    """Bytes a `_DECOMPOSED` entry holds: its key's entry bytes and its arrays."""
-    return sum(len(b) for b in key[2:]) + sum(a.nbytes for a in arrays)
+    if hit is not None:
+        _DECOMPOSED[key] = hit  # the most recent last
+        return hit[:3]
+    W = pw.dense() if every else pw.dense()[act]
+    lam, vec = _eigh(W @ W.T)
+    for a in (W, lam, vec):
+        a.flags.writeable = False
+    size = sum(len(b) for b in key[2:]) + W.nbytes + lam.nbytes + vec.nbytes  # what the entry holds
+    if size <= _DECOMPOSED_BYTES // 4:
+        _DECOMPOSED[key] = (W, lam, vec, size)
+        while len(_DECOMPOSED) > _DECOMPOSED_KEEP or sum(v[3] for v in _DECOMPOSED.values()) > _DECOMPOSED_BYTES:
+            del _DECOMPOSED[next(iter(_DECOMPOSED))]
+    return W, lam, vec
 
 
 def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

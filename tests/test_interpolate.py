@@ -308,7 +308,7 @@ def test_a_repeated_solve_reuses_its_decomposition_with_the_same_bits(monkeypatc
     assert len(I._DECOMPOSED) == I._DECOMPOSED_KEEP
     I._DECOMPOSED.clear()
     min_norm_solve(pw, dq1)
-    size = I._kept_bytes(*next(iter(I._DECOMPOSED.items())))
+    size = next(iter(I._DECOMPOSED.values()))[3]  # the bytes the entry holds
     monkeypatch.setattr(I, "_DECOMPOSED_BYTES", 4 * size + size // 2)
     for n in range(6):  # and within its bytes: four solves of this size
         min_norm_solve(point_weights(hs, 0, u + 0.01 * n, v), dq1)
