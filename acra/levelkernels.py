@@ -32,7 +32,7 @@ from numba import njit
 
 from acra.kernels import ascending, mark_cells
 
-__all__ = ["build_level", "block_keys", "point_entries", "ring_entries", "unique_inverse", "movable_places", "differing_rows",
+__all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
            "mark_changed", "restate_rows", "stale_rows", "merge_points"]
 
 
@@ -340,56 +340,6 @@ def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_pat
     for j in range(n):
         active[point[j]] = True
     return point, rows, w, cv_rows, col, active
-
-
-_RING = (1.0, 4.0, 1.0)  # a ring column's three rows in its pole sum (`acra.respond._RING_W`)
-
-
-@njit(cache=True, nogil=True)
-def ring_entries(point, col, w, cv_rows, npoints, ring_rows, ring_n):
-    """`acra.respond._ring_constraints`' weights in one pass: a level's data-point entries
-    (``point, col (e,) int64``, ``w (e,) float64`` on ``cv_rows (P,) int64``, ``npoints`` points)
-    followed by one virtual point per column of each ring, ``ring_n (R,) int64`` columns each,
-    whose rows are ``ring_rows (sum 3 N,) int64`` (column by column, three rows each). Virtual
-    point ``j`` of a ring of ``N`` weighs ``w_r / 6`` on column ``j``'s three CVs, then ``-w_r /
-    (6 N)`` on every column's, ``w_r`` the rows' ``1, 4, 1`` (`acra.respond._ring_pattern`).
-    Returns the entries' ``point``, ``col`` (into the returned rows) and ``w``, and the sorted
-    union of ``cv_rows`` and the rings' rows (`unique_inverse`)."""
-    P = cv_rows.shape[0]
-    both = np.empty(P + ring_rows.shape[0], np.int64)
-    both[:P] = cv_rows
-    both[P:] = ring_rows
-    rows = unique_inverse(both)[0]
-    e = point.shape[0]
-    total = e
-    for g in range(ring_n.shape[0]):
-        total += 3 * ring_n[g] * (1 + ring_n[g])
-    out_p = np.empty(total, np.int64)
-    out_c = np.empty(total, np.int64)
-    out_w = np.empty(total)
-    place = np.empty(P, np.int64)
-    for i in range(P):
-        place[i] = _find(rows, cv_rows[i])[0]
-    for i in range(e):
-        out_p[i], out_c[i], out_w[i] = point[i], place[col[i]], w[i]
-    n, pt, at = e, npoints, 0
-    for g in range(ring_n.shape[0]):
-        N = ring_n[g]
-        c = np.empty(3 * N, np.int64)
-        for q in range(3 * N):
-            c[q] = _find(rows, ring_rows[at + q])[0]
-        for j in range(N):
-            for r in range(3):
-                out_p[n], out_c[n], out_w[n] = pt + j, c[3 * j + r], _RING[r] / 6.0
-                n += 1
-        share = 6.0 * N
-        for j in range(N):
-            for q in range(3 * N):
-                out_p[n], out_c[n], out_w[n] = pt + j, c[q], -(_RING[q % 3] / share)
-                n += 1
-        pt += N
-        at += 3 * N
-    return out_p, out_c, out_w, rows
 
 
 @njit(cache=True, nogil=True)

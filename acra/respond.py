@@ -562,42 +562,6 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     would pull them back). The rings must be wholly movable.
 
     ``pw`` : PointWeights of the data points; ``want (K, 3)``: their wanted moves. Returns both
-    extended by the ``N`` virtual points of each ring; the entries are gathered in one compiled
-    pass (`levelkernels.ring_entries`; `_ring_constraints_numpy` is the array form).
-    """
-    ring_rows, counts, targets = [], [], [want]
-    for k, axis, end in rings:
-        if k != pw.level or not pole_ring_movable(hs, k, axis, end):
-            continue
-        rows, ok, reached = _ring_reach(hs, pw, k, axis, end)  # a ring the move does not reach needs no sums
-        if not reached.any():
-            continue
-        sums = _ring_sums(hs, det, k, axis, end)[0]
-        N = rows.shape[0]
-        ring_rows.append(rows.reshape(-1))
-        counts.append(N)
-        targets.append(-(sums - np.add.reduce(sums, axis=0) / N) / 6.0)  # `sums.mean(axis=0)`'s sum and division
-    if not counts:
-        return pw, want
-    point, col, w, cv_rows = levelkernels.ring_entries(pw.point, pw.col, pw.w, pw.cv_rows, pw.npoints,
-                                                       np.concatenate(ring_rows), np.array(counts, np.int64))
-    n = pw.npoints + sum(counts)
-    active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
-    return PointWeights(pw.level, point, col, w, cv_rows, n, active), np.concatenate(targets)
-
-
-def _ring_constraints_numpy(hs: H.HSpline, det: H.Details | None, pw: PointWeights, want: np.ndarray,
-                      rings: list[tuple[int, int, int]]):
-    """`_ring_constraints` with the entries gathered as array operations (the reference
-    `levelkernels.ring_entries` is tested against).
-
-    Add to a level's interpolation problem one virtual point per column of each of its pole
-    rings that the move reaches: ``(sum_j - mean sum) / 6``, the column's offset from the pole,
-    must become zero. The minimum-norm solve then moves the CVs near the pole so that it stays
-    one point while the data points reach their targets (closing afterwards, `_close_rings`,
-    would pull them back). The rings must be wholly movable.
-
-    ``pw`` : PointWeights of the data points; ``want (K, 3)``: their wanted moves. Returns both
     extended by the ``N`` virtual points of each ring.
     """
     point, w, ring_rows = [pw.point], [pw.w], []

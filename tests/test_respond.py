@@ -348,34 +348,6 @@ def test_points_near_a_pole_keep_it_one_point_on_every_level(t):
     assert np.ptp(moved[:, 2]) > 1e-3  # the points did dent the cap unevenly (the case is not trivial)
 
 
-def test_compiled_ring_constraints_equal_the_array_form(monkeypatch):
-    """`_ring_constraints` gathers the rings' virtual points in one compiled pass
-    (`levelkernels.ring_entries`): on every call of a response near both poles of a sphere (two
-    rings in one solve) the weights, columns, rows and wanted moves are `_ring_constraints_numpy`'s
-    bits."""
-    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
-    P = float(hs.v.patches0)
-    uv = np.array([[0.3, P - 0.15], [1.4, P - 0.3], [2.2, 0.1], [0.9, 0.45], [5.5, P - 0.2]])
-    q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    dp = R.DataPoints(uv, q + 0.03 * np.array([[0, 0, -1], [0.3, 0, -1], [0, 0, 1], [0, 0.3, 1], [0, 0, -0.5]]),
-                      np.arange(5) == 0)
-    seen = []
-    compiled = R._ring_constraints
-
-    def both(hs, det, pw, want, rings):
-        got, ref = compiled(hs, det, pw, want, rings), R._ring_constraints_numpy(hs, det, pw, want, rings)
-        for name in ("point", "col", "w", "cv_rows", "active"):
-            a, b = getattr(got[0], name), getattr(ref[0], name)
-            assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
-        assert got[0].npoints == ref[0].npoints and got[1].tobytes() == ref[1].tobytes()
-        seen.append(got[0].npoints - pw.npoints)
-        return got
-
-    monkeypatch.setattr(R, "_ring_constraints", both)
-    R.respond(hs, dp, R.check_controls(3, [0.2, 0.3, 0.5], np.ones(3), np.zeros(3), np.zeros(3)))
-    assert max(seen) >= 2 * 8  # a solve took both rings' columns
-
-
 def test_a_level0_response_keeps_a_collapsed_edge_one_point():
     """An open grid whose v = 0 edge is one point (a fan's apex, docs/hard-cases.md case 10):
     points on and near the apex move level 0 (a contact on it whatever its u, additional points
