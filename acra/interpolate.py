@@ -29,7 +29,7 @@ except ImportError:  # pragma: no cover - a numpy without the module
 from . import levelkernels
 from .basis import basis, locate
 from .hierarchy import _pole_ring_keys, pole_ring_rows
-from .hspline import HSpline, _cv_keys, _ends_array, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
+from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
 __all__ = [
     "PointWeights",
@@ -102,11 +102,12 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: n
 
     ``pole (K,) int64``: `H.pole_of` of the points, if the caller has it (a response asks every
     level about the same points on the same level-0 grid).
-    Compiled in one pass with the columns' numbering (`acra.levelkernels.point_entries`);
-    `_entries_numpy` is the array form of the entries.
+    The entries are one compiled pass (`acra.levelkernels.point_entries`; `_entries_numpy` is
+    their array form), numbered by `acra.levelkernels.unique_inverse`.
     """
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
-    point, _, wts, cv_rows, col, active = _kernel_entries(hs, level, u, v, pole)
+    point, rows, wts, active = _kernel_entries(hs, level, u, v, pole)
+    cv_rows, col = levelkernels.unique_inverse(rows)
     return PointWeights(level, point, col, wts, cv_rows, u.size, active)
 
 
@@ -114,7 +115,7 @@ def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np
     """`point_weights(hs, level, u, v, pole).active` alone: ``(K,) bool``, whether each point
     weighs some movable CV of ``level`` (a point on a pole: whether its ring is wholly
     movable)."""
-    return _kernel_entries(hs, level, u, v, pole)[5]
+    return _kernel_entries(hs, level, u, v, pole)[3]
 
 
 def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
@@ -130,20 +131,17 @@ _NONE = np.zeros(0, np.int64)  # a level-0 call's absent level arrays (writeable
 
 def _kernel_entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None) -> tuple:
     """`acra.levelkernels.point_entries` of the points: entries' points ``(e,) int64``, CV rows
-    ``(e,) int64`` and weights ``(e,) float64``, the level's ``cv_rows (P,) int64``, each
-    entry's column ``(e,) int64`` and ``active (K,) bool``."""
+    ``(e,) int64`` and weights ``(e,) float64``, and ``active (K,) bool``."""
     lev = hs.level(level) if level else None
     u, v = _writeable(u), _writeable(v)
-    if pole is None and closed_ends(hs):
-        pole = pole_of(hs, u, v)
+    pole = pole_of(hs, u, v) if pole is None else pole
     # the level's rings only for points on a pole: a level a response refined is a new `Level`,
     # whose ring table is built afresh
-    ends, rows, w, at, use = _ring_table(hs, level) if pole is not None and pole.size and pole.max() >= 0 else _NO_RINGS
+    rows, w, at, use = _ring_table(hs, level) if pole.size and pole.max() >= 0 else _NO_RINGS
     return levelkernels.point_entries(
-        u, v, _NONE if pole is None else pole, level, hs.u.cvs(level), hs.u.periodic,
-        hs.v.cvs(level), hs.v.periodic, hs.u.patches(level), hs.v.patches(level),
-        _NONE if lev is None else lev.cv_keys, _NO_BOOLS if lev is None else lev.movable,
-        _NONE if lev is None else lev.patches, ends, hs.u.patches0, hs.v.patches0, rows, w, at, use)
+        u, v, pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level), hs.v.periodic,
+        hs.u.patches(level), hs.v.patches(level), _NONE if lev is None else lev.cv_keys,
+        _NO_BOOLS if lev is None else lev.movable, _NONE if lev is None else lev.patches, rows, w, at, use)
 
 
 _NO_BOOLS = np.zeros(0, bool)
@@ -157,8 +155,8 @@ def _writeable(x: np.ndarray) -> np.ndarray:
 
 
 def _ring_table(hs: HSpline, level: int) -> tuple:
-    """The level's pole rings as `levelkernels.point_entries` takes them: the closed ends ``(E,
-    2) int64`` (`closed_ends`), each end's ring rows flattened (level 0: grid indices; finer:
+    """The level's pole rings as `levelkernels.point_entries` takes them, one per closed end
+    (`closed_ends`): each end's ring rows flattened (level 0: grid indices; finer:
     `pole_ring_rows`), concatenated ``(R,) int64``, their weights (`_ring_weights`) ``(R,)
     float64``, where each end's span starts ``(E + 1,) int64``, and whether each ring is wholly
     movable ``(E,) bool``. They depend on the grid, the closed ends and the level's CVs alone:
@@ -174,32 +172,32 @@ def _ring_table(hs: HSpline, level: int) -> tuple:
     hit = memo.get(key)
     if hit is None:
         rings = [pole_ring_rows(hs, level, axis, end) for axis, end in ends]
-        hit = memo[key] = _stack_rings(ends, [r for r, _ in rings], [bool(ok.all()) for _, ok in rings])
+        hit = memo[key] = _stack_rings([r for r, _ in rings], [bool(ok.all()) for _, ok in rings])
     return hit
 
 
 @functools.lru_cache(maxsize=32)
 def _level0_rings(u_dir, v_dir, ends: tuple) -> tuple:
     """`_ring_table` of level 0 (every grid CV movable), per grid and closed ends."""
-    return _stack_rings(ends, [_pole_ring_keys(u_dir, v_dir, 0, axis, end) for axis, end in ends], [True] * len(ends))
+    return _stack_rings([_pole_ring_keys(u_dir, v_dir, 0, axis, end) for axis, end in ends], [True] * len(ends))
 
 
-def _stack_rings(ends: tuple, rows: list, use: list) -> tuple:
+def _stack_rings(rows: list, use: list) -> tuple:
     """`_ring_table`'s arrays from each end's ring rows ``(N, 3) int64`` (at least one end) and
     movability."""
     at = np.zeros(len(rows) + 1, np.int64)
     at[1:] = [r.size for r in rows]
-    out = (_ends_array(ends), np.concatenate(rows, axis=None), np.concatenate([_ring_weights(r.shape[0]) for r in rows]),
+    out = (np.concatenate(rows, axis=None), np.concatenate([_ring_weights(r.shape[0]) for r in rows]),
            np.cumsum(at), np.array(use))
-    for a in out[1:]:
+    for a in out:
         a.flags.writeable = False
     return out
 
 
 def _no_rings() -> tuple:
     """`_ring_table` of a grid without a closed end (read-only, the kernel's one signature)."""
-    out = (_ends_array(()), np.zeros(0, np.int64), np.zeros(0), np.zeros(1, np.int64), np.zeros(0, bool))
-    for a in out[1:]:
+    out = (np.zeros(0, np.int64), np.zeros(0), np.zeros(1, np.int64), np.zeros(0, bool))
+    for a in out:
         a.flags.writeable = False
     return out
 

@@ -263,13 +263,11 @@ def _blending_row(t, out, i):
 
 @njit(cache=True, nogil=True)
 def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_patches, v_patches,
-                  cv_keys, movable, patches, ends, u_patches0, v_patches0, ring_rows, ring_w, ring_at, ring_use):
-    """`acra.interpolate.point_weights` of points ``u, v (K,) float64`` (level-0 parameters) on
-    the movable CVs of ``level``, in one pass: ``point, row, w`` of every nonzero weight, then
-    the level's ``cv_rows`` and each entry's ``col`` among them (`unique_inverse`), and
-    ``active (K,) bool``. ``pole (K,) int64``: `acra.hierarchy.pole_of` of the points, or an
-    empty array to find it here from the closed ``ends (E, 2) int64`` (``axis, end``) and the
-    level-0 patch counts, in numpy's arithmetic.
+                  cv_keys, movable, patches, ring_rows, ring_w, ring_at, ring_use):
+    """`acra.interpolate.point_weights`' entries of points ``u, v (K,) float64`` (level-0
+    parameters) on the movable CVs of ``level``, in one pass: ``point, row, w`` of every nonzero
+    weight and ``active (K,) bool``. ``pole (K,) int64``: `acra.hierarchy.pole_of` of the
+    points, the closed end each sits on or -1.
 
     A point off a pole (``pole < 0``) weighs its level-``level`` patch's 16 CVs ``(a, b)`` in
     row-major order whose weight ``bu[a] * bv[b]`` is positive and that exist and are movable
@@ -277,16 +275,10 @@ def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_pat
     (`acra.basis.locate`) and basis rows ``bu, bv`` (`acra.basis.basis`) are taken here in
     numpy's arithmetic. Then, end by end, each point on that end's pole, in order, weighs the
     end's ring: ``ring_rows[ring_at[i]:ring_at[i + 1]] (3 N,) int64`` with ``ring_w`` of the same
-    span (`acra.interpolate._ring_weights`), if ``ring_use[i]`` (the ring wholly movable)."""
+    span (`acra.interpolate._ring_weights`), if ``ring_use[i]`` (the ring wholly movable). The
+    caller numbers the rows (`unique_inverse`, called apart: a kernel that calls it links it in,
+    which costs seconds of compilation on a fresh install)."""
     K = u.shape[0]
-    if pole.shape[0] != K:
-        pole = np.full(K, -1, np.int64)
-        for e in range(ends.shape[0]):
-            x, p0 = (u, u_patches0) if ends[e, 0] == 0 else (v, v_patches0)
-            at, tol = float(ends[e, 1] * p0), 1e-9 * p0
-            for i in range(K):
-                if abs(x[i] - at) <= tol:
-                    pole[i] = e
     su = np.empty(K, np.int64)
     sv = np.empty(K, np.int64)
     bu = np.empty((K, 4))
@@ -334,12 +326,10 @@ def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_pat
                 for j in range(ring_at[e], ring_at[e + 1]):
                     point[n], rows[n], w[n] = i, ring_rows[j], ring_w[j]
                     n += 1
-    point, rows, w = point[:n], rows[:n], w[:n]
-    cv_rows, col = unique_inverse(rows)
     active = np.zeros(K, np.bool_)
     for j in range(n):
         active[point[j]] = True
-    return point, rows, w, cv_rows, col, active
+    return point[:n], rows[:n], w[:n], active
 
 
 @njit(cache=True, nogil=True)

@@ -194,11 +194,12 @@ def test_compiled_entries_equal_the_array_form(periodic, seed):
             assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
 
 
-def test_weights_number_their_columns_and_find_the_poles_in_one_pass():
-    """`point_weights` (one compiled pass, `levelkernels.point_entries`) gives the array form's
-    entries numbered as `np.unique` numbers them, ``active`` where a point has an entry, and the
-    same with the points' poles given (`H.pole_of`) or found in the pass; a ring not wholly
-    movable gives its pole's points no weights."""
+def test_weights_number_their_columns_with_the_poles_given_or_not():
+    """`point_weights` (the entries and ``active`` in one compiled pass,
+    `levelkernels.point_entries`, with each pole's ring from a per-level table) gives the array
+    form's entries numbered as `np.unique` numbers them, ``active`` where a point has an entry,
+    and the same with the points' poles given (`H.pole_of`) or not; a ring not wholly movable
+    gives its pole's points no weights."""
     from acra import interpolate as I
 
     rng = np.random.default_rng(11)
