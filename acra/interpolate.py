@@ -28,7 +28,7 @@ except ImportError:  # pragma: no cover - a numpy without the module
 
 from . import levelkernels
 from .basis import basis, locate
-from .hierarchy import pole_ring_movable, pole_ring_rows
+from .hierarchy import _pole_ring_keys, pole_ring_rows
 from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
 
 __all__ = [
@@ -102,67 +102,112 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: n
 
     ``pole (K,) int64``: `H.pole_of` of the points, if the caller has it (a response asks every
     level about the same points on the same level-0 grid).
+    The entries are one compiled pass (`acra.levelkernels.point_entries`; `_entries_numpy` is
+    their array form), numbered by `acra.levelkernels.unique_inverse`.
     """
     u = np.atleast_1d(np.asarray(u, dtype=np.float64))
-    v = np.atleast_1d(np.asarray(v, dtype=np.float64))
-    pts, rws, ws = _entries(hs, level, u, v, pole)
-    if len(pts) == 1:  # no point on a pole: the kernel's arrays as they are
-        point, allrows, wts = pts[0], rws[0], ws[0]
-    else:
-        point, allrows, wts = np.concatenate(pts), np.concatenate(rws), np.concatenate(ws)
-    cv_rows, col = levelkernels.unique_inverse(np.ascontiguousarray(allrows, np.int64))
-    return PointWeights(level, point, col, wts, cv_rows, u.size, np.bincount(point, minlength=u.size) > 0)
+    point, rows, wts, active = _kernel_entries(hs, level, u, v, pole)
+    cv_rows, col = levelkernels.unique_inverse(rows)
+    return PointWeights(level, point, col, wts, cv_rows, u.size, active)
 
 
 def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None = None) -> np.ndarray:
     """`point_weights(hs, level, u, v, pole).active` alone: ``(K,) bool``, whether each point
-    weighs some movable CV of ``level``, without gathering the CVs: a point off a pole by its
-    compiled entries, one on a pole by whether its ring is wholly movable (`_pole_entries`)."""
-    u = np.atleast_1d(np.asarray(u, dtype=np.float64))
-    v = np.atleast_1d(np.asarray(v, dtype=np.float64))
-    pole = pole_of(hs, u, v) if pole is None else pole
-    active = np.bincount(_kernel_entries(hs, level, u, v, pole)[0], minlength=u.size) > 0
-    if pole.size and pole.max() >= 0:
-        for i, (axis, end) in enumerate(closed_ends(hs)):
-            if level == 0 or pole_ring_movable(hs, level, axis, end):  # level 0: every CV movable
-                active |= pole == i
-    return active
+    weighs some movable CV of ``level`` (a point on a pole: whether its ring is wholly
+    movable)."""
+    return _kernel_entries(hs, level, u, v, pole)[3]
 
 
 def _entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
              pole: np.ndarray | None = None) -> tuple[list, list, list]:
-    """`point_weights`' nonzero weights as lists of arrays: points, CV rows, weights. The points
-    off a pole are compiled (`acra.levelkernels.point_entries`); `_entries_numpy` is the array
-    form."""
-    pole = pole_of(hs, u, v) if pole is None else pole
-    pt, rows, w = _kernel_entries(hs, level, u, v, pole)
-    return _pole_entries(hs, level, pole, [pt], [rows], [w])
+    """`point_weights`' nonzero weights as lists of arrays: points, CV rows, weights (compiled,
+    `acra.levelkernels.point_entries`; `_entries_numpy` is the array form)."""
+    pt, rows, w = _kernel_entries(hs, level, u, v, pole)[:3]
+    return [pt], [rows], [w]
 
 
 _NONE = np.zeros(0, np.int64)  # a level-0 call's absent level arrays (writeable: the kernel's one signature)
 
 
-def _kernel_entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray,
-                    pole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The entries of the points off a pole (`acra.levelkernels.point_entries`): points ``(e,)
-    int64``, CV rows ``(e,) int64`` and weights ``(e,) float64``."""
+def _kernel_entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None) -> tuple:
+    """`acra.levelkernels.point_entries` of the points: entries' points ``(e,) int64``, CV rows
+    ``(e,) int64`` and weights ``(e,) float64``, and ``active (K,) bool``."""
     lev = hs.level(level) if level else None
+    u, v = _writeable(u), _writeable(v)
+    pole = pole_of(hs, u, v) if pole is None else pole
+    # the level's rings only for points on a pole: a level a response refined is a new `Level`,
+    # whose ring table is built afresh
+    rows, w, at, use = _ring_table(hs, level) if pole.size and pole.max() >= 0 else _NO_RINGS
     return levelkernels.point_entries(
-        _writeable(u), _writeable(v), pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level),
-        hs.v.periodic, hs.u.patches(level), hs.v.patches(level), _NONE if lev is None else lev.cv_keys,
-        np.zeros(0, bool) if lev is None else lev.movable, _NONE if lev is None else lev.patches)
+        u, v, pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level), hs.v.periodic,
+        hs.u.patches(level), hs.v.patches(level), _NONE if lev is None else lev.cv_keys,
+        _NO_BOOLS if lev is None else lev.movable, _NONE if lev is None else lev.patches, rows, w, at, use)
+
+
+_NO_BOOLS = np.zeros(0, bool)
 
 
 def _writeable(x: np.ndarray) -> np.ndarray:
     """``x (K,) float64`` C-contiguous and writeable (a copy only where it is not): one compiled
     signature of `levelkernels.point_entries` serves every call."""
-    a = np.ascontiguousarray(x, dtype=np.float64)
+    a = np.ascontiguousarray(x, dtype=np.float64).reshape(-1)
     return a if a.flags.writeable else a.copy()
 
 
+def _ring_table(hs: HSpline, level: int) -> tuple:
+    """The level's pole rings as `levelkernels.point_entries` takes them, one per closed end
+    (`closed_ends`): each end's ring rows flattened (level 0: grid indices; finer:
+    `pole_ring_rows`), concatenated ``(R,) int64``, their weights (`_ring_weights`) ``(R,)
+    float64``, where each end's span starts ``(E + 1,) int64``, and whether each ring is wholly
+    movable ``(E,) bool``. They depend on the grid, the closed ends and the level's CVs alone:
+    kept on the level (with `pole_ring_rows`, which a move carries to its new `Level`), on the
+    grid's directions for level 0."""
+    ends = closed_ends(hs)
+    if not ends:
+        return _NO_RINGS
+    if level == 0:
+        return _level0_rings(hs.u, hs.v, ends)
+    memo = hs.level(level).__dict__.setdefault("_ring_rows", {})
+    key = ("table", hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, ends)
+    hit = memo.get(key)
+    if hit is None:
+        rings = [pole_ring_rows(hs, level, axis, end) for axis, end in ends]
+        hit = memo[key] = _stack_rings([r for r, _ in rings], [bool(ok.all()) for _, ok in rings])
+    return hit
+
+
+@functools.lru_cache(maxsize=32)
+def _level0_rings(u_dir, v_dir, ends: tuple) -> tuple:
+    """`_ring_table` of level 0 (every grid CV movable), per grid and closed ends."""
+    return _stack_rings([_pole_ring_keys(u_dir, v_dir, 0, axis, end) for axis, end in ends], [True] * len(ends))
+
+
+def _stack_rings(rows: list, use: list) -> tuple:
+    """`_ring_table`'s arrays from each end's ring rows ``(N, 3) int64`` (at least one end) and
+    movability."""
+    at = np.zeros(len(rows) + 1, np.int64)
+    at[1:] = [r.size for r in rows]
+    out = (np.concatenate(rows, axis=None), np.concatenate([_ring_weights(r.shape[0]) for r in rows]),
+           np.cumsum(at), np.array(use))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
+def _no_rings() -> tuple:
+    """`_ring_table` of a grid without a closed end (read-only, the kernel's one signature)."""
+    out = (np.zeros(0, np.int64), np.zeros(0), np.zeros(1, np.int64), np.zeros(0, bool))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
+_NO_RINGS = _no_rings()
+
+
 def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: list, ws: list) -> tuple[list, list, list]:
-    """`_entries`' lists with the entries of the points on a pole (`pole_of`) appended: each
-    weighs its level's whole `pole_ring` (if the ring is wholly movable)."""
+    """`_entries_numpy`'s lists with the entries of the points on a pole (`pole_of`) appended:
+    each weighs its level's whole `pole_ring` (if the ring is wholly movable)."""
     if not pole.size or pole.max() < 0:  # no point on a pole
         return pts, rws, ws
     for i, (axis, end) in enumerate(closed_ends(hs)):
@@ -181,6 +226,7 @@ def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: lis
         rws.append(flat if on.size == 1 else np.tile(flat, on.size))
         ws.append(w_ring if on.size == 1 else np.tile(w_ring, on.size))
     return pts, rws, ws
+
 
 
 @functools.lru_cache(maxsize=32)
@@ -347,9 +393,8 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     # every point active: the rows as they are, without copies (the same C-ordered arrays a
     # selection would give, so BLAS sums the same products in the same order)
     every = act.size == pw.npoints
-    W = pw.dense() if every else pw.dense()[act]
+    W, lam, vec = _decomposition(pw, act, every)
     dqa = dq if every and dq.flags.c_contiguous else dq[act]
-    lam, vec = _eigh(W @ W.T)
     keep = lam > rcond * lam[-1]
     if amplify is not None:
         along = vec.T @ dqa
@@ -362,6 +407,39 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     kept = vec[:, keep]  # one copy of the kept modes for both products
     coef = kept.T @ dqa / lam[keep][:, None]
     return W.T @ (kept @ coef)
+
+
+# The dense weights of recent solves' active points and their Gram matrix's eigen-decomposition
+# (`min_norm_solve`), by the weights' entries: a contact held still asks a static object the same
+# solve frame after frame (the demo's frames 13-17: 15 of their 25 solves, the spike's 49- and
+# 69-point ones among them), and the decomposition is most of a solve. The key holds every
+# entry's bytes and the active points', so a hit's arrays are the ones the solve would compute.
+# The most recent `_DECOMPOSED_KEEP` kept, in `_DECOMPOSED_BYTES` at most (a solve past a
+# quarter of it is not kept), emptied by `pipeline.run.forget`.
+_DECOMPOSED: dict = {}
+_DECOMPOSED_KEEP = 32
+_DECOMPOSED_BYTES = 1 << 25  # 32 MB: the demo's largest solve keeps 0.3 MB
+
+
+def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The active points' dense weights ``W (k, P) float64`` and the eigenvalues ``(k,)`` and
+    eigenvectors ``(k, k)`` of ``W Wᵀ`` (`_eigh`), kept (`_DECOMPOSED`) or computed; read-only.
+    ``act (k,) int64``: the active points; ``every``: all of them."""
+    key = (pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(), pw.active.tobytes())
+    hit = _DECOMPOSED.pop(key, None)
+    if hit is not None:
+        _DECOMPOSED[key] = hit  # the most recent last
+        return hit[:3]
+    W = pw.dense() if every else pw.dense()[act]
+    lam, vec = _eigh(W @ W.T)
+    for a in (W, lam, vec):
+        a.flags.writeable = False
+    size = sum(len(b) for b in key[2:]) + W.nbytes + lam.nbytes + vec.nbytes  # what the entry holds
+    if size <= _DECOMPOSED_BYTES // 4:
+        _DECOMPOSED[key] = (W, lam, vec, size)
+        while len(_DECOMPOSED) > _DECOMPOSED_KEEP or sum(v[3] for v in _DECOMPOSED.values()) > _DECOMPOSED_BYTES:
+            del _DECOMPOSED[next(iter(_DECOMPOSED))]
+    return W, lam, vec
 
 
 def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

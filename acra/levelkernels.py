@@ -263,13 +263,21 @@ def _blending_row(t, out, i):
 
 @njit(cache=True, nogil=True)
 def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_patches, v_patches,
-                  cv_keys, movable, patches):
-    """`acra.interpolate._entries`' weights of the points off a pole (``pole < 0``): for each
-    point in order, its level-``level`` patch's 16 CVs ``(a, b)`` in row-major order whose
-    weight ``bu[a] * bv[b]`` is positive and that exist and are movable (level 0: every grid CV),
-    on a patch that is active (level 0: every patch). ``u, v (K,) float64``: the points'
-    level-0 parameters, whose level segments (`acra.basis.locate`) and basis rows ``bu, bv``
-    (`acra.basis.basis`) are taken here in numpy's arithmetic. Returns ``point, row, w``."""
+                  cv_keys, movable, patches, ring_rows, ring_w, ring_at, ring_use):
+    """`acra.interpolate.point_weights`' entries of points ``u, v (K,) float64`` (level-0
+    parameters) on the movable CVs of ``level``, in one pass: ``point, row, w`` of every nonzero
+    weight and ``active (K,) bool``. ``pole (K,) int64``: `acra.hierarchy.pole_of` of the
+    points, the closed end each sits on or -1.
+
+    A point off a pole (``pole < 0``) weighs its level-``level`` patch's 16 CVs ``(a, b)`` in
+    row-major order whose weight ``bu[a] * bv[b]`` is positive and that exist and are movable
+    (level 0: every grid CV), on a patch that is active (level 0: every patch); its segments
+    (`acra.basis.locate`) and basis rows ``bu, bv`` (`acra.basis.basis`) are taken here in
+    numpy's arithmetic. Then, end by end, each point on that end's pole, in order, weighs the
+    end's ring: ``ring_rows[ring_at[i]:ring_at[i + 1]] (3 N,) int64`` with ``ring_w`` of the same
+    span (`acra.interpolate._ring_weights`), if ``ring_use[i]`` (the ring wholly movable). The
+    caller numbers the rows (`unique_inverse`, called apart: a kernel that calls it links it in,
+    which costs seconds of compilation on a fresh install)."""
     K = u.shape[0]
     su = np.empty(K, np.int64)
     sv = np.empty(K, np.int64)
@@ -280,10 +288,13 @@ def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_pat
         _blending_row(t, bu, i)
         sv[i], t = _segment(v[i], level, v_patches, v_periodic)
         _blending_row(t, bv, i)
-    K = su.shape[0]
-    point = np.empty(16 * K, np.int64)
-    rows = np.empty(16 * K, np.int64)
-    w = np.empty(16 * K)
+    on = 0  # entries of the points on a pole, each its end's whole ring
+    for i in range(K):
+        if pole[i] >= 0 and ring_use[pole[i]]:
+            on += ring_at[pole[i] + 1] - ring_at[pole[i]]
+    point = np.empty(16 * K + on, np.int64)
+    rows = np.empty(16 * K + on, np.int64)
+    w = np.empty(16 * K + on)
     n = 0
     c = cv_keys.shape[0]
     for i in range(K):
@@ -307,7 +318,18 @@ def point_entries(u, v, pole, level, u_cvs, u_periodic, v_cvs, v_periodic, u_pat
                     q = r
                 point[n], rows[n], w[n] = i, q, x
                 n += 1
-    return point[:n], rows[:n], w[:n]
+    for e in range(ring_use.shape[0]):
+        if not ring_use[e]:
+            continue
+        for i in range(K):
+            if pole[i] == e:
+                for j in range(ring_at[e], ring_at[e + 1]):
+                    point[n], rows[n], w[n] = i, ring_rows[j], ring_w[j]
+                    n += 1
+    active = np.zeros(K, np.bool_)
+    for j in range(n):
+        active[point[j]] = True
+    return point[:n], rows[:n], w[:n], active
 
 
 @njit(cache=True, nogil=True)

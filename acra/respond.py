@@ -420,10 +420,11 @@ _SPREAD = "_ring_spread"
 # Answers that depend on a response's input surface and its details alone (the objects, which
 # are never changed, are held with each answer so an id is not mistaken for a later object's):
 # ``("rings", id(hs), id(det))`` -> `_closed_rings`, ``("refined", id(hs), id(det), lazy, keys)``
-# -> `_refined`. A static object's responses start from the same surface frame after frame, and
-# its contact stays in the same patches; emptied by `pipeline.run.forget`.
+# -> `_refined`, ``("refined at", id(hs), id(det), lazy, levels, uv bytes)`` -> `_refined_at`. A
+# static object's responses start from the same surface frame after frame, and its contact
+# stays in the same patches; emptied by `pipeline.run.forget`.
 _KEPT: dict = {}
-_KEEP = 16  # answers kept, oldest dropped first (a refined entry holds two surfaces and their details)
+_KEEP = 24  # answers kept, oldest dropped first (a refined entry holds two surfaces and their details)
 
 
 def _keep(key: tuple, answer: tuple) -> None:
@@ -446,6 +447,21 @@ def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tu
         return hit[2], hit[3]
     new = refine_keys(hs, keys)
     new_det = _redetail(hs, det, new, (), lazy=lazy)[1] if new is not hs else det
+    _keep(key, (hs, det, new, new_det))
+    return new, new_det
+
+
+def _refined_at(hs: H.HSpline, det: H.Details | None, levels: tuple[int, ...], uv: np.ndarray, pole: np.ndarray,
+                lazy: int) -> tuple[H.HSpline, H.Details | None]:
+    """`_refined` of the patches `hierarchy.refinement_keys` lists for the points ``uv (K, 2)
+    float64`` on ``levels`` (``pole (K,) int64``: `H.pole_of` of them), kept (`_KEPT`) by the
+    points' parameters too: a contact held still gives a static object's response the same
+    parameters frame after frame, and then the patches are not listed again."""
+    key = ("refined at", id(hs), id(det), lazy, levels, uv.tobytes())
+    hit = _KEPT.get(key)
+    if hit is not None and hit[0] is hs and hit[1] is det:
+        return hit[2], hit[3]
+    new, new_det = _refined(hs, det, refinement_keys(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole)), lazy)
     _keep(key, (hs, det, new, new_det))
     return new, new_det
 
@@ -903,8 +919,7 @@ def respond(
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
         levels = tuple(level for level in absorbing if level >= 1)
-        hs, det = _refined(hs, det, refinement_keys(hs, levels, uv[:, 0], uv[:, 1], _pole_blocks(hs, levels, pole0)),
-                           absorbing[0])
+        hs, det = _refined_at(hs, det, levels, uv, pole0, absorbing[0])
         refined = sum(lev.patches.size for lev in hs.fine) - before
     for level in range(L):
         a = absorb[level]

@@ -111,17 +111,17 @@ def _check_farm_options(output, workers, scheduler, chunk, part) -> None:
 def forget() -> None:
     """Drop every answer kept by content across frames: shapes and refinement tables, detection's
     answers, world data, layouts, casts and anchors, rims, topologies, digests and placements,
-    responses' refinements and closed rings.
+    responses' refinements, closed rings and solves' decompositions.
     Within a run they spare a frame what an earlier frame computed; across runs in one process
     they would serve a run what the run before computed. The next run computes everything as the
     first run of a fresh process does, which is what a benchmark's repeated runs must measure."""
-    from acra import hspline, respond, tessellate
+    from acra import hspline, interpolate, respond, tessellate
     from pipeline import contact, datapoints, detect, display, residual, shape
 
     for store in (shape._SHAPES, shape._REFINEMENTS, detect._ANSWERS, detect._WORLDS, detect._LAYOUTS,
                   detect._DISTINCT, detect._CASTS, detect._OBJECT_BOXES, contact._AT, datapoints._RIMS,
                   display._TOPOLOGIES, residual._DIGESTS, residual._PLACEMENTS, hspline._PLACES, respond._KEPT,
-                  tessellate._NUDGED, tessellate._END_LINES):
+                  tessellate._NUDGED, tessellate._END_LINES, interpolate._DECOMPOSED):
         store.clear()
 
 

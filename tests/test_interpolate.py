@@ -194,6 +194,34 @@ def test_compiled_entries_equal_the_array_form(periodic, seed):
             assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
 
 
+def test_weights_number_their_columns_with_the_poles_given_or_not():
+    """`point_weights` (the entries and ``active`` in one compiled pass,
+    `levelkernels.point_entries`, with each pole's ring from a per-level table) gives the array
+    form's entries numbered as `np.unique` numbers them, ``active`` where a point has an entry,
+    and the same with the points' poles given (`H.pole_of`) or not; a ring not wholly movable
+    gives its pole's points no weights."""
+    from acra import interpolate as I
+
+    rng = np.random.default_rng(11)
+    hs = H.from_grid(shapes.sphere(8, 7)[0], True, False, depth=3)
+    hs = H.refine(hs, 2, H.pole_patches(hs, 2, 1, 0))  # level 2's south ring movable, level 1's not
+    hs = H.make_movable(hs, 1, [[3, 3], [12, 1]])
+    m = 120
+    u = rng.uniform(0, hs.u.patches0, m)
+    v = rng.uniform(0, hs.v.patches0, m)
+    v[:6], v[6:9] = 0.0, hs.v.patches0  # on the poles, three of them in a row
+    for k in range(hs.depth):
+        pt, rows, w = (np.concatenate(a) for a in I._entries_numpy(hs, k, u, v))
+        cv_rows, col = np.unique(rows, return_inverse=True)
+        for pole in (None, H.pole_of(hs, u, v)):
+            pw = I.point_weights(hs, k, u, v, pole)
+            assert pw.point.tobytes() == pt.tobytes() and pw.w.tobytes() == w.tobytes()
+            assert pw.cv_rows.tobytes() == cv_rows.tobytes() and pw.col.tobytes() == col.tobytes()
+            np.testing.assert_array_equal(pw.active, np.bincount(pt, minlength=m) > 0)
+            np.testing.assert_array_equal(I.point_active(hs, k, u, v, pole), pw.active)
+    assert I.point_active(hs, 2, u, v)[:6].all() and not I.point_active(hs, 1, u, v)[:9].any()
+
+
 def test_compiled_entries_locate_parameters_outside_the_domain_as_numpy():
     """`levelkernels.point_entries` takes each point's segment and basis itself (`basis.locate`,
     `basis.basis`): parameters past a periodic seam wrap, past an open end clamp, as numpy's."""
@@ -249,6 +277,47 @@ def test_min_norm_solve_with_every_point_active_equals_a_selection():
     keep = lam > 1e-4 * lam[-1]
     ref = W.T @ (vec[:, keep] @ (vec[:, keep].T @ dq / lam[keep][:, None]))
     assert min_norm_solve(pw, dq).tobytes() == ref.tobytes()
+
+
+def test_a_repeated_solve_reuses_its_decomposition_with_the_same_bits(monkeypatch):
+    """A solve asked again with the same weights (a contact held still) takes the kept dense
+    weights and eigen-decomposition (`interpolate._DECOMPOSED`) instead of decomposing again, and
+    returns the same bits for any wanted moves; a weight one ulp off decomposes afresh. The store
+    keeps the most recent solves within its count and bytes."""
+    from acra import interpolate as I
+    hs = H.from_grid(*shapes.sphere(8, 8), depth=1)
+    rng = np.random.default_rng(4)
+    u, v = rng.uniform(1, 7, 12), rng.uniform(0, 8, 12)
+    pw = point_weights(hs, 0, u, v)
+    I._DECOMPOSED.clear()
+    calls = []
+    eigh = I._eigh
+    monkeypatch.setattr(I, "_eigh", lambda g: calls.append(g.shape) or eigh(g))
+    dq1, dq2 = rng.normal(size=(12, 3)), rng.normal(size=(12, 3))
+    first = min_norm_solve(pw, dq1)
+    fresh = PointWeights(0, pw.point.copy(), pw.col.copy(), pw.w.copy(), pw.cv_rows, 12, pw.active.copy())
+    again, other = min_norm_solve(fresh, dq1), min_norm_solve(fresh, dq2)
+    assert len(calls) == 1 and first.tobytes() == again.tobytes()
+    I._DECOMPOSED.clear()
+    assert other.tobytes() == min_norm_solve(pw, dq2).tobytes() and len(calls) == 2
+    w = pw.w.copy()
+    w[3] = np.nextafter(w[3], 1.0)
+    min_norm_solve(PointWeights(0, pw.point, pw.col, w, pw.cv_rows, 12, pw.active), dq1)
+    assert len(calls) == 3
+    for n in range(I._DECOMPOSED_KEEP + 5):  # the store keeps the most recent alone
+        min_norm_solve(point_weights(hs, 0, u + 0.01 * n, v), dq1)
+    assert len(I._DECOMPOSED) == I._DECOMPOSED_KEEP
+    I._DECOMPOSED.clear()
+    min_norm_solve(pw, dq1)
+    size = next(iter(I._DECOMPOSED.values()))[3]  # the bytes the entry holds
+    monkeypatch.setattr(I, "_DECOMPOSED_BYTES", 4 * size + size // 2)
+    for n in range(6):  # and within its bytes: four solves of this size
+        min_norm_solve(point_weights(hs, 0, u + 0.01 * n, v), dq1)
+    assert len(I._DECOMPOSED) == 4
+    monkeypatch.setattr(I, "_DECOMPOSED_BYTES", 4 * size - 1)  # one past a quarter of them is not kept
+    I._DECOMPOSED.clear()
+    min_norm_solve(pw, dq1)
+    assert not I._DECOMPOSED
 
 
 def test_point_active_agrees_with_the_weights_on_and_off_the_poles():

@@ -462,6 +462,33 @@ def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_
         np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
 
 
+def test_a_response_to_the_same_parameters_does_not_list_the_patches_again(monkeypatch):
+    """A contact held still gives a static object's response the same parameters frame after
+    frame: the refinement is then taken as kept by the parameters (`R._refined_at`) without
+    listing its patches again (`hierarchy.refinement_keys`), on the same bits; other parameters
+    list them."""
+    from pipeline import run
+
+    run.forget()
+    hs = flat_sheet(n=10, depth=4)
+    det = H.details(hs)
+    c = R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
+    listed = []
+    keys = R.refinement_keys
+    monkeypatch.setattr(R, "refinement_keys", lambda *a: listed.append(1) or keys(*a))
+    first, _ = R.respond(hs, one_point(hs, [3.3, 3.4], [0.02, -0.01, -0.2]), c, det=det)
+    again, _ = R.respond(hs, one_point(hs, [3.3, 3.4], [-0.01, 0.02, -0.15]), c, det=det)
+    assert len(listed) == 1
+    R.respond(hs, one_point(hs, [3.35, 3.42], [-0.01, 0.02, -0.15]), c, det=det)
+    assert len(listed) == 2
+    run.forget()
+    cold, _ = R.respond(hs, one_point(hs, [3.3, 3.4], [-0.01, 0.02, -0.15]), c, det=det)
+    for a, b in zip(again.fine, cold.fine):
+        np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
+        np.testing.assert_array_equal(a.offsets.view(np.int64), b.offsets.view(np.int64))
+    run.forget()
+
+
 def test_a_refinements_patches_are_kept_by_their_set():
     """`respond._refined` keys a kept refinement by each level's patches as a set
     (`_patch_set`): repeats and order do not matter, and another set is another key."""
