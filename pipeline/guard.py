@@ -121,10 +121,14 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
     return _normalised(a) == _normalised(b)
 
 
-def protected_paths(src: Path, stage_path: Path | None = None) -> list[Path]:
+def protected_paths(src: Path, stage_path: Path | None = None, held: list | None = None) -> list[Path]:
     """Every file a run on ``src`` reads: ``src``; for a scene file (``.py``) the ``.usda`` it
     exports; and every layer of the stage's layer stack, references and payloads (resolved by
-    USD). A stage USD cannot open yet contributes only its own path (opening reports it)."""
+    USD). A stage USD cannot open yet contributes only its own path (opening reports it).
+
+    ``held``: where given, the layers USD opened for the walk (``Sdf.Layer``) are appended to it,
+    so a caller that opens the stage next while holding them finds them loaded instead of parsing
+    each file again (`usdio.open_input` reloads a loaded layer only when its file changed)."""
     src = Path(src)
     paths = [src]
     usd = Path(stage_path) if stage_path is not None else (src.with_suffix(".usda") if src.suffix == ".py" else src)
@@ -135,6 +139,8 @@ def protected_paths(src: Path, stage_path: Path | None = None) -> list[Path]:
             layers, _assets, _unresolved = UsdUtils.ComputeAllDependencies(str(usd.resolve()))
         except Exception:  # a broken file: open_input names it; the direct path is protected
             layers = []
+        if held is not None:
+            held.extend(layers)
         for layer in layers:
             real = getattr(layer, "realPath", "")
             if real:

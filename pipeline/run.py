@@ -177,13 +177,18 @@ def run_file(
     out = Path(output) if output else stage_path.with_name(stage_path.stem + ".acra.usda")
     outputs = ([("-o", out)] if part is None else []) + [("--rrd", rrd), ("--report", report_path)]
     refuse_outputs(outputs, [src, stage_path])  # before reading even the input's layer list
-    refuse_outputs(outputs, guard.protected_paths(src))
+    # the layers the walk of the input's dependencies loads, held until the stage opens on them:
+    # each file is parsed once (`guard.protected_paths`)
+    held: list = []
+    if not is_scene:  # a scene file's build rewrites its .usda: its layers are walked once it has
+        refuse_outputs(outputs, guard.protected_paths(src, held=held))
     clock.lap("imports")
     if is_scene:  # the exported stage may reference further layers
         stage_path = usdio.load_scene_file(src)
-        refuse_outputs(outputs, guard.protected_paths(src, stage_path))
+        refuse_outputs(outputs, guard.protected_paths(src, stage_path, held))
     clock.lap("scene")
     stage = usdio.open_input(stage_path)
+    held.clear()  # the stage holds what it uses
     start, end = usdio.frame_range(stage)
     frames_run = frame_list(frames, start, end)
     guard.check_budget(guard.predict_memory(stage, len(frames_run)), budget)

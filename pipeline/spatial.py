@@ -11,6 +11,15 @@ answer is scipy's own. Measured after numpy, numba and pxr (dog_head_spike's imp
 seconds, 3 alternated processes): 0.17-0.19 loading the two against 0.27-0.30 importing the
 package. A scipy whose layout differs (a module not found, or not loadable alone) gets the
 package import instead.
+
+What those two modules import is trimmed the same way. ``_qhull`` needs LAPACK's Cython table,
+``scipy.linalg.cython_lapack``, and numba's first kernel load imports it and BLAS's
+(``cython_blas``): both are loaded from their files too, and the ``scipy.linalg`` package that
+holds them is a lazy module whose ``__init__`` runs at its first use (about 0.13 s). ``_ckdtree`` imports ``scipy._lib._util``, whose array-API
+layer copies numpy's namespace attribute by attribute and so would import ``numpy.f2py`` (with
+``charset_normalizer``) and ``numpy.testing``, which no run calls (about 0.11 s): those two are
+set up as lazy modules first (`importlib.util.LazyLoader`), which run their own code at the first
+use of one of their attributes, so a later caller gets numpy's modules.
 """
 
 from __future__ import annotations
@@ -20,7 +29,38 @@ import importlib.util
 import os
 import sys
 
+import numpy  # noqa: F401  (the parent of the lazy submodules `_deferred` sets up)
+
 __all__ = ["ConvexHull", "QhullError", "cKDTree"]
+
+# numpy's submodules that scipy's array-API layer touches while it copies numpy's namespace and
+# no run calls: each loads at its first attribute access instead of at import
+_COPIED_UNUSED = ("numpy.f2py", "numpy.testing")
+
+# LAPACK's and BLAS's Cython tables: _qhull calls the first, and numba's first kernel load imports
+# both (`numba.np.linalg.ensure_blas`) to bind the compiled kernels' linear algebra; loaded from
+# their files, with the scipy.linalg package a lazy module that runs its __init__ at first use
+_LAPACK = ("scipy.linalg.cython_lapack", "scipy.linalg.cython_blas")
+
+
+def _deferred(name: str, children: tuple = ()) -> None:
+    """Put a lazy module for ``name`` (``numpy.f2py``) in ``sys.modules`` and on its parent
+    package, unless imported already: its code runs at the first access of one of its attributes
+    (or at a later ``import`` of it), so it is then the package's own module. ``children``: its
+    submodules loaded already (`_compiled`), bound as its attributes as an import would bind them."""
+    if name in sys.modules:
+        return
+    spec = importlib.util.find_spec(name)
+    if spec is None or not hasattr(spec.loader, "exec_module"):
+        return
+    spec.loader = importlib.util.LazyLoader(spec.loader)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    for child in children:
+        setattr(module, child.__name__.rpartition(".")[2], child)  # kept when the module runs
+    parent, _, leaf = name.rpartition(".")
+    setattr(sys.modules[parent], leaf, module)
 
 
 def _compiled(name: str):
@@ -50,6 +90,11 @@ def _compiled(name: str):
 def _classes() -> tuple:
     """``(cKDTree, ConvexHull, QhullError)``, from the compiled modules or else the package."""
     try:
+        for name in _COPIED_UNUSED:
+            _deferred(name)
+        tables = tuple(_compiled(name) for name in _LAPACK)
+        if all(t is not None for t in tables):  # the package, lazy, holds them as its attributes
+            _deferred("scipy.linalg", tables)
         kdtree, qhull = _compiled("scipy.spatial._ckdtree"), _compiled("scipy.spatial._qhull")
         if kdtree is not None and qhull is not None:
             return kdtree.cKDTree, qhull.ConvexHull, qhull.QhullError

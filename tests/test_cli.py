@@ -251,6 +251,11 @@ def test_a_run_on_deformables_alone_imports_no_trimesh(tmp_path):
     # scipy.spatial package's __init__, and scipy.special it pulls in, are never run
     assert {"scipy.spatial._ckdtree", "scipy.spatial._qhull"} <= modules
     assert not modules & {"scipy.spatial", "scipy.special"}
+    # nor scipy.linalg's __init__ (its Cython LAPACK and BLAS tables are loaded alone), nor what
+    # scipy's array-API layer would import of numpy while copying its namespace (numpy.f2py, with
+    # charset_normalizer, and numpy.testing): lazy modules whose code never ran
+    assert not modules & {"scipy.linalg._basic", "scipy.linalg._decomp", "numpy.f2py.crackfortran", "numpy.testing._private",
+                          "charset_normalizer"}
 
 
 def test_scipy_spatial_imported_later_holds_the_same_classes():
@@ -265,6 +270,11 @@ def test_scipy_spatial_imported_later_holds_the_same_classes():
         "assert scipy.spatial.QhullError is spatial.QhullError\n"
         "hull = spatial.ConvexHull(np.random.default_rng(1).random((30, 3)))\n"
         "assert len(scipy.spatial.Delaunay(hull.points).simplices) > 0\n"
+        "import scipy.linalg, scipy.linalg.cython_lapack\n"
+        "assert scipy.linalg.cython_lapack is sys.modules['scipy.linalg.cython_lapack']\n"
+        "assert np.allclose(scipy.linalg.inv(np.eye(3) * 2), np.eye(3) / 2)\n"
+        "np.testing.assert_equal(np.ma.masked_array([1, 2], [0, 1]).sum(), 1)\n"
+        "assert callable(np.f2py.run_main) and type(np.f2py) is type(sys)\n"
         "print('same', len(hull.vertices) > 3)\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env())

@@ -128,6 +128,30 @@ def test_a_scene_file_and_the_stage_it_exports_are_refused(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == [scene.name]  # refused before the export
 
 
+def test_a_scene_files_export_is_walked_once_and_opened_on_the_walked_layers(tmp_path, monkeypatch):
+    """A scene file's build rewrites its .usda, so its layers are walked once, after the build;
+    the stage then opens on the layers that walk loaded (held, not parsed a second time)."""
+    from pxr import UsdUtils
+
+    from pipeline import usdio
+
+    scene = tmp_path / "box_into_sheet.py"
+    shutil.copy(SCENES / scene.name, scene)
+    walked, loaded_at_open = [], []
+    walk, open_input = UsdUtils.ComputeAllDependencies, usdio.open_input
+    monkeypatch.setattr(UsdUtils, "ComputeAllDependencies", lambda path: walked.append(path) or walk(path))
+
+    def opened(path):
+        loaded_at_open.append(Sdf.Layer.Find(str(Path(path).resolve())) is not None)
+        return open_input(path)
+
+    monkeypatch.setattr(usdio, "open_input", opened)
+    run_file(scene, tmp_path / "out.usdc", frames="0:1", progress=False, over_tolerance="warn")
+    run_file(scene, tmp_path / "out.usdc", frames="0:1", progress=False, over_tolerance="warn")  # its .usda now exists
+    assert [Path(p).name for p in walked] == ["box_into_sheet.usda"] * 2
+    assert loaded_at_open == [True, True]
+
+
 def test_two_outputs_on_one_file_are_refused(tiny_stage, tmp_path, capsys):
     src = tiny_stage()
     out = tmp_path / "out.usda"

@@ -37,6 +37,23 @@ def test_not_elf_is_none():
     assert kernelcache.defined_symbols(b"\x7fELF\x02\x01" + bytes(58)) is None  # no section table
 
 
+def test_numba_skips_pyyaml_unless_a_numba_config_file_is_here(tmp_path):
+    """Importing acra imports numba without PyYAML where the working directory holds no
+    ``.numba_config.yaml`` (numba reads nothing else with it); PyYAML stays importable, and a
+    directory with the file gets numba's own reading of it."""
+    code = """
+        import json, sys
+        import acra
+        from numba.core import config
+        without = "yaml" in sys.modules
+        import yaml
+        print(json.dumps([without, yaml.safe_load("a: 1"), config.DEVELOPER_MODE]))
+    """
+    assert _child(code, tmp_path) == [False, {"a": 1}, 0]
+    (tmp_path / ".numba_config.yaml").write_text("developer_mode: 1\n")
+    assert _child(code, tmp_path) == [True, {"a": 1}, 1]
+
+
 def test_install_is_idempotent_and_installed():
     from numba.core import codegen
 
