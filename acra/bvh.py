@@ -33,8 +33,9 @@ import numpy as np
 from numba import njit
 
 from acra.pseudonormals import _signs, flood as _flood, links as _links, representatives as _representatives
+from acra.pseudonormals import vertex_normals as _vertex_normals
 
-__all__ = ["LEAF", "Tree", "build", "build_linear", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "barycentric", "facet_bound", "bounds",
+__all__ = ["LEAF", "Tree", "build", "build_linear", "part_tree", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "barycentric", "facet_bound", "bounds",
            "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children", "depth"]
 
 LEAF = 4  # triangles per leaf
@@ -311,6 +312,34 @@ def build_linear(vertices: np.ndarray, faces: np.ndarray) -> Tree:
     leaf_tri = np.empty((f, 3, 3))
     _gather(tri, order, leaf_tri)
     return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf_tri)
+
+
+@njit(cache=True, nogil=True)
+def _part_tree(vertices, faces, normals, angle):
+    """`part_tree`'s arrays: the vertex normals, the box, then `build_linear`'s corners, leaf
+    order, node arrays (``2 f + 1`` rows, the first ``used`` filled), ``used`` and leaf corners."""
+    vn = _vertex_normals(vertices.shape[0], faces, normals, angle)
+    box = np.empty((2, 3))
+    _bounds(vertices, box)
+    f = faces.shape[0]
+    n = 2 * f + 1
+    tri = np.empty((f, 3, 3))
+    lo, hi = np.empty((n, 3)), np.empty((n, 3))
+    left, right, start, count = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    order, used = _build_linear(vertices, faces, tri, lo, hi, left, right, start, count)
+    leaf_tri = np.empty((f, 3, 3))
+    _gather(tri, order, leaf_tri)
+    return vn, box, tri, order, lo, hi, left, right, start, count, used, leaf_tri
+
+
+def part_tree(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, angle: np.ndarray):
+    """What a part solid (`pipeline.clearance.solid` with ``part``) builds past its mesh, in one
+    compiled call: the angle-weighted vertex normals ``(n, 3)`` (`acra.pseudonormals.vertex_normals`
+    of the face ``normals (f, 3)`` and corner ``angle (f, 3)``), the box ``(2, 3)`` of ``vertices
+    (n, 3)`` (`bounds`) and `build_linear`'s `Tree` of ``vertices[faces]`` (``faces (f, 3) int64``,
+    ``f >= 1``, C-contiguous): the same arrays, without a call and its arguments' checks each."""
+    vn, box, tri, order, lo, hi, left, right, start, count, used, leaf_tri = _part_tree(vertices, faces, normals, angle)
+    return vn, box, Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf_tri)
 
 
 @njit(cache=True, nogil=True)

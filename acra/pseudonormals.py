@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["weld", "part_mesh", "vertex_normals", "signs", "links", "flood", "representatives"]
+__all__ = ["weld", "part_mesh", "welded_part", "vertex_normals", "signs", "links", "flood", "representatives"]
 
 
 @njit(cache=True, nogil=True)
@@ -344,6 +344,17 @@ def part_mesh(v, f, radius, flip):
         edge_normals[s, 0], edge_normals[s, 1], edge_normals[s, 2] = x0 / d, x1 / d, x2 / d
     edge_normals = edge_normals.reshape(m, 3, 3)
     return 0, vo, fo, normals, edge_normals, sin, cos
+
+
+@njit(cache=True, nogil=True)
+def welded_part(v, f, radius, flip):
+    """`part_mesh` of `weld`'s vertices and faces in one call: its ``code`` and arrays, or ``code``
+    -1 (and empty arrays) where `weld` leaves a pair undecided (its ``code`` 1)."""
+    code, vw, fw = weld(v, f, radius)
+    if code:
+        return (-1, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)),
+                np.zeros((0, 3)))
+    return part_mesh(vw, fw, radius, flip)
 
 
 @njit(cache=True, nogil=True)

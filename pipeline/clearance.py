@@ -216,10 +216,11 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     if not len(f):
         raise ValueError("solid: no faces")
+    flip = outward is not None and outward < 0
     if part and compiled and scale is not None and len(v) < 2_000_000:
-        code, vw, fw = pseudonormals.weld(np.ascontiguousarray(v), np.ascontiguousarray(f), weld * scale)
-        if code == 0:
-            return _compiled_part(vw, fw, weld * scale, outward, vertices, faces, weld, scale)
+        mesh = pseudonormals.welded_part(np.ascontiguousarray(v), np.ascontiguousarray(f), weld * scale, flip)
+        if mesh[0] >= 0:
+            return _compiled_part(mesh, outward, vertices, faces, weld, scale)
     used = np.unique(f)
     if scale is None:
         scale = float(np.linalg.norm(np.ptp(v[used], axis=0)))
@@ -229,7 +230,7 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     v = v[used][first]
     f = label[np.searchsorted(used, f)]
     if part and compiled and len(v) < 2_000_000:
-        return _compiled_part(v, f, radius, outward, vertices, faces, weld, scale)
+        return _compiled_part(pseudonormals.part_mesh(v, f, radius, flip), outward, vertices, faces, weld, scale)
     tri = v[f]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     longest = np.sqrt((np.diff(tri[:, [0, 1, 2, 0]], axis=1) ** 2).sum(axis=2).max(axis=1))
@@ -255,9 +256,7 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
                          f"{int((count > 2).sum())} non-manifold edges (more than two faces)")
     if len(np.unique(head * n + tail)) != len(head):
         raise ValueError("solid: faces inconsistently oriented (an edge traversed the same way by both its faces)")
-    if part:
-        flip = outward is not None and outward < 0
-    else:
+    if not part:
         base = v[f[:, 0]]  # volume: sum of det(v0 - c, v1 - c, v2 - c) / 6 about the centroid c
         volume = np.einsum("ij,ij->", base - v.mean(axis=0), np.cross(v[f[:, 1]] - base, v[f[:, 2]] - base)) / 6.0
         size = float(np.linalg.norm(np.ptp(v, axis=0)))
@@ -296,17 +295,16 @@ def solid(vertices, faces, weld: float = 1e-7, part: bool = False, outward: floa
     return Solid(v, f, normals, edge_normals, vertex_normals, bounds, tree, facet, start, members, convex)
 
 
-def _compiled_part(v, f, radius, outward, vertices, faces, weld, scale) -> Solid:
-    """`solid` of a part past its weld (welded ``v``, relabelled ``f``) by `acra.pseudonormals`;
-    a defect is raised by the array form, from the given ``vertices`` and ``faces``."""
-    flip = outward is not None and outward < 0
-    code, v, f, normals, edge_normals, sin, cos = pseudonormals.part_mesh(v, f, radius, flip)
+def _compiled_part(mesh: tuple, outward, vertices, faces, weld, scale) -> Solid:
+    """`solid` of a part from its mesh (`acra.pseudonormals.part_mesh`'s answer) and the rest in one
+    compiled call (`acra.bvh.part_tree`); a defect is raised by the array form, from the given
+    ``vertices`` and ``faces``."""
+    code, v, f, normals, edge_normals, sin, cos = mesh
     if code:
         return solid(vertices, faces, weld, True, outward, scale, compiled=False)  # raises the defect's error
-    vertex_normals = pseudonormals.vertex_normals(len(v), f, normals, np.arctan2(sin, cos))
+    vertex_normals, box, tree = bvh.part_tree(v, f, normals, np.arctan2(sin, cos))
     facet = np.arange(len(f))
-    return Solid(v, f, normals, edge_normals, vertex_normals, bvh.bounds(v), bvh.build_linear(v, f), facet, np.arange(len(f) + 1),
-                 facet.copy())
+    return Solid(v, f, normals, edge_normals, vertex_normals, box, tree, facet, np.arange(len(f) + 1), facet.copy())
 
 
 def signed_depth(s: Solid, points) -> tuple[np.ndarray, np.ndarray]:

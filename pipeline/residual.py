@@ -273,12 +273,11 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     answered by ``b``'s whole solid. Where that part holds `CLEAR_ROWS` faces or more, the
     triangles proven clear of ``b`` are left out first and the part near the others, a fraction
     of it, answers (`_clear_depth`: the same answer, or ``None`` and the part above)."""
-    none = Inside(0.0, 0.0, np.zeros((0, 3)), None if a.vertex_uv is None else np.zeros((0, 2)), np.zeros(0))
     if not b.closed:
-        return none
+        return _nothing(a)
     corners, near = a.near(b.box)
     if not len(corners):
-        return none
+        return _nothing(a)
     k, inverse = _placement(b.xform)  # eq. (5): world lengths at most k times object-space ones
     local = ((corners.reshape(-1, 3) - b.xform[:3, 3]) @ inverse.T).reshape(-1, 3, 3)  # `apply_inverse`
     d = None
@@ -298,6 +297,11 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
 
 
+def _nothing(a: Shown) -> Inside:
+    """No point of ``a`` inside."""
+    return Inside(0.0, 0.0, np.zeros((0, 3)), None if a.vertex_uv is None else np.zeros((0, 2)), np.zeros(0))
+
+
 CLEAR_ROWS = 2000  # a part of fewer faces is built as it is: proving triangles clear costs more than it saves
 REACH = 2.0  # a near part answers within this many times the triangles' largest covering radius
 SLACK = 1e-6  # x the display's diagonal: how far the weld may move a part's surface (`clearance.solid`)
@@ -308,11 +312,12 @@ def _within(xform: np.ndarray, region: np.ndarray, pad: float, rows: np.ndarray)
     of the world box ``region (2, 3)``) for an object-space box whose image under ``xform`` lies
     in that padded box (with room for the roundings of the mapped points), else ``None``."""
     def near(lo, hi):
-        corners = np.array([[lo[0], lo[1], lo[2]], [hi[0], lo[1], lo[2]], [lo[0], hi[1], lo[2]], [lo[0], lo[1], hi[2]],
-                            [hi[0], hi[1], lo[2]], [hi[0], lo[1], hi[2]], [lo[0], hi[1], hi[2]], [hi[0], hi[1], hi[2]]])
-        w = apply_xform(xform, corners)
-        room = 1e-9 * (float(np.abs(w).max()) + pad)
-        fits = np.all(w.min(axis=0) - room >= region[0] - pad) and np.all(w.max(axis=0) + room <= region[1] + pad)
+        (l0, l1, l2), (h0, h1, h2) = lo.tolist(), hi.tolist()
+        w = apply_xform(xform, np.array([[l0, l1, l2], [h0, l1, l2], [l0, h1, l2], [l0, l1, h2], [h0, h1, l2], [h0, l1, h2],
+                                         [l0, h1, h2], [h0, h1, h2]]))
+        least, most = w.min(axis=0), w.max(axis=0)
+        room = 1e-9 * (max(float(most.max()), -float(least.min())) + pad)  # the largest |w|
+        fits = bool((least - room >= region[0] - pad).all() and (most + room <= region[1] + pad).all())
         return rows if fits else None
     return near
 
@@ -433,8 +438,11 @@ def _content(local: np.ndarray, triangles: np.ndarray, rows: np.ndarray) -> tupl
     (`acra.pseudonormals.weld`'s input): the points the faces use, in the order of their rows,
     ``(k, 3) float64``, and each corner's place among them ``(m, 3) int64``."""
     faces = triangles[rows]
-    used = np.unique(faces)
-    return local[used], np.searchsorted(used, faces)
+    used = np.zeros(len(local), np.bool_)
+    used[faces] = True
+    # a used point's place among them is the count of used points before it: what a search of
+    # the sorted distinct corners gives, without sorting them
+    return local[used], (np.cumsum(used) - 1)[faces]
 
 
 def _answer(answers: list, part: clearance.Solid, local: np.ndarray, target: float, reach: float, decide: float):

@@ -289,6 +289,24 @@ def test_the_linear_tree_gives_the_median_trees_answers_to_the_bit(case):
     np.testing.assert_allclose(dist, d_ref, rtol=1e-12, atol=1e-14)
 
 
+def test_a_part_tree_is_the_linear_tree_with_the_vertex_normals_and_box():
+    """`bvh.part_tree` gives, in one call, `pseudonormals.vertex_normals`, `bounds` and
+    `build_linear`'s tree of the same mesh, bit for bit."""
+    from acra import pseudonormals
+
+    rng = np.random.default_rng(5)
+    v = rng.normal(size=(300, 3))
+    f = rng.integers(0, 300, (500, 3))
+    normals, angle = rng.normal(size=(500, 3)), rng.uniform(0.0, 3.0, (500, 3))
+    vn, box, tree = bvh.part_tree(v, f, normals, angle)
+    np.testing.assert_array_equal(vn, pseudonormals.vertex_normals(len(v), f, normals, angle))
+    np.testing.assert_array_equal(box, bvh.bounds(v))
+    want = bvh.build_linear(v, f)
+    for name in ("tri", "order", "lo", "hi", "left", "right", "start", "count", "leaf_tri"):
+        np.testing.assert_array_equal(getattr(tree, name), getattr(want, name))
+        assert getattr(tree, name).flags.c_contiguous or getattr(tree, name).ndim == 1
+
+
 def test_the_linear_tree_refuses_an_empty_set():
     with pytest.raises(ValueError, match="at least one triangle"):
         bvh.build_linear(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
