@@ -228,7 +228,6 @@ def _pole_entries(hs: HSpline, level: int, pole: np.ndarray, pts: list, rws: lis
     return pts, rws, ws
 
 
-
 @functools.lru_cache(maxsize=32)
 def _ring_weights(N: int) -> np.ndarray:
     """A pole point's weight on each of the ``3 N`` CVs of a ring of ``N`` columns (`pole_ring`'s
