@@ -72,11 +72,12 @@ def test_a_translated_display_is_placed_in_one_pass_with_apply_xform_s_bits(t):
 
 
 def test_a_display_s_triangles_and_parameters_are_held_as_given():
-    """`shown` holds a display's own triangles and parameters (the topology's, a numba kernel's
-    output, whose dtype is another instance of int64), so every round's `Shown` of the display
-    digests them by identity; other dtypes are converted."""
+    """`shown` holds a display's own triangles and parameters (the topology's: a numba kernel's
+    output can carry another instance of the int64 dtype), so every round's `Shown` of the
+    display digests them by identity; other dtypes are converted."""
     _, pts, tris, uv = sheet(0.1)
-    assert tris.dtype == np.int64 and tris.dtype is not np.dtype(np.int64)
+    tris = tris.view(np.dtype(np.int64).newbyteorder("="))  # an equal dtype, another instance
+    assert tris.dtype == np.int64 and np.asarray(tris, np.int64) is not tris  # numpy would make a new view
     s = residual.shown("/sheet", pts, tris, np.eye(4), uv)
     assert s.triangles is tris and s.vertex_uv is uv
     s = residual.shown("/sheet", pts, tris.astype(np.int32), np.eye(4), uv.astype(np.float32))
