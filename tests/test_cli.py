@@ -174,7 +174,7 @@ def test_sigint_half_way_writes_nothing_and_leaves_no_temporary_file(tiny_stage,
     import signal
 
     code, err, files = _interrupt(tiny_stage, tmp_path, signal.SIGINT)
-    assert code == 130
+    assert code == 130, (code, err, files)  # the run's stderr names what ended it otherwise
     assert err.strip().splitlines()[-1] == "acra: interrupted; nothing written" and "Traceback" not in err
     assert files == ["tiny.usda"]
 
@@ -183,7 +183,7 @@ def test_sigterm_half_way_writes_nothing_and_leaves_no_temporary_file(tiny_stage
     import signal
 
     code, err, files = _interrupt(tiny_stage, tmp_path, signal.SIGTERM)
-    assert code == 143
+    assert code == 143, (code, err, files)  # the run's stderr names what ended it otherwise
     assert err.strip().splitlines()[-1] == "acra: interrupted; nothing written" and "Traceback" not in err
     assert files == ["tiny.usda"]
 
