@@ -258,6 +258,8 @@ def test_a_run_on_deformables_alone_imports_no_trimesh(tmp_path):
                           "charset_normalizer"}
     # nor scipy.sparse's (the kd-tree's module imports it for sparse outputs no run asks for)
     assert "scipy.sparse" in modules and not modules & {"scipy.sparse._base", "scipy.sparse._csr", "scipy.sparse._coo"}
+    # numba's configuration reads no .numba_config.yaml here, so PyYAML is never imported (`acra`)
+    assert "yaml" not in tops
 
 
 def test_scipy_spatial_imported_later_holds_the_same_classes():
