@@ -79,6 +79,7 @@ def imports_by_package(stderr: str) -> dict[str, float]:
 # a child process: `acra run` with numba's cache loads timed, the figures as JSON on stderr
 NUMBA_LOADS = """
 import json, sys, time
+import acra  # first, as `acra run` imports it: numba without PyYAML, and its cache loads installed before they are wrapped
 import numba.core.caching as caching
 loads = []
 load = caching.Cache.load_overload

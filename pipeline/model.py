@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+import acra  # noqa: F401  (before numba: numba's configuration then loads without PyYAML, acra/__init__.py)
 from numba import njit
 
 from acra.hspline import HierarchyArrays, HSpline

@@ -184,7 +184,7 @@ def run_file(
         refuse_outputs(outputs, guard.protected_paths(src, held=held))
     clock.lap("imports")
     if is_scene:  # the exported stage may reference further layers
-        stage_path = usdio.load_scene_file(src)
+        stage_path = usdio.load_scene_file(src, held)
         refuse_outputs(outputs, guard.protected_paths(src, stage_path, held))
     clock.lap("scene")
     stage = usdio.open_input(stage_path)

@@ -256,6 +256,10 @@ def test_a_run_on_deformables_alone_imports_no_trimesh(tmp_path):
     # charset_normalizer, and numpy.testing): lazy modules whose code never ran
     assert not modules & {"scipy.linalg._basic", "scipy.linalg._decomp", "numpy.f2py.crackfortran", "numpy.testing._private",
                           "charset_normalizer"}
+    # nor scipy.sparse's (the kd-tree's module imports it for sparse outputs no run asks for)
+    assert "scipy.sparse" in modules and not modules & {"scipy.sparse._base", "scipy.sparse._csr", "scipy.sparse._coo"}
+    # numba's configuration reads no .numba_config.yaml here, so PyYAML is never imported (`acra`)
+    assert "yaml" not in tops
 
 
 def test_scipy_spatial_imported_later_holds_the_same_classes():
@@ -275,6 +279,12 @@ def test_scipy_spatial_imported_later_holds_the_same_classes():
         "assert np.allclose(scipy.linalg.inv(np.eye(3) * 2), np.eye(3) / 2)\n"
         "np.testing.assert_equal(np.ma.masked_array([1, 2], [0, 1]).sum(), 1)\n"
         "assert callable(np.f2py.run_main) and type(np.f2py) is type(sys)\n"
+        "tree = spatial.cKDTree(hull.points)\n"
+        "import scipy.sparse\n"
+        "assert type(tree.sparse_distance_matrix(tree, 0.3, output_type='coo_matrix')) is scipy.sparse.coo_matrix\n"
+        "from scipy.sparse.csgraph import connected_components\n"
+        "assert scipy.sparse is sys.modules['scipy.sparse'] and type(scipy.sparse) is type(sys)\n"
+        "assert connected_components(scipy.sparse.eye(3, format='csr'))[0] == 3\n"
         "print('same', len(hull.vertices) > 3)\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env())

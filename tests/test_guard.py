@@ -152,6 +152,27 @@ def test_a_scene_files_export_is_walked_once_and_opened_on_the_walked_layers(tmp
     assert loaded_at_open == [True, True]
 
 
+def test_a_scene_files_export_opens_on_its_content_copied_not_parsed(tmp_path):
+    """The layer the stage of a scene file opens on holds the build's layer copied in memory
+    (`usdio._written_layer`): the exported .usda is not parsed back, and its text reads back to
+    the same content; a second load refreshes that open layer with the new build's content."""
+    from pipeline import usdio
+
+    scene = tmp_path / "box_into_sheet.py"
+    shutil.copy(SCENES / scene.name, scene)
+    held: list = []
+    path = usdio.load_scene_file(scene, held)
+    layer = Sdf.Layer.Find(str(path.resolve()))
+    assert held == [layer] and layer.dirty  # in memory: USD never read the file for it
+    stage = usdio.open_input(path)
+    assert stage.GetRootLayer() == layer
+    assert Sdf.Layer.OpenAsAnonymous(str(path)).ExportToString() == layer.ExportToString()
+    scene.write_text(scene.read_text().replace("def build(", "def _unused(", 1) + "\n\ndef build():\n"
+                     "    stage = _unused()\n    stage.SetEndTimeCode(stage.GetEndTimeCode() + 1)\n    return stage\n")
+    usdio.load_scene_file(scene, held)
+    assert usdio.open_input(path).GetEndTimeCode() == stage.GetEndTimeCode() == Sdf.Layer.OpenAsAnonymous(str(path)).endTimeCode
+
+
 def test_two_outputs_on_one_file_are_refused(tiny_stage, tmp_path, capsys):
     src = tiny_stage()
     out = tmp_path / "out.usda"

@@ -166,3 +166,35 @@ def test_object_code_defines_every_symbol_the_bitcode_does(tmp_path):
     assert len(report) >= 4  # the kernels loaded from the cache in the child
     for want, missing in report:
         assert want > 0 and missing == 0
+
+
+HELD_BACK = """
+import json, math
+import acra
+import numpy as np
+from numba import njit, typed, types
+from numba.core.registry import cpu_target
+from numba.core.typing import npydecl
+import kernels
+value = float(kernels.scaled_sum(np.arange(5.0), 2.0))  # loaded from the cache
+typing = cpu_target.typing_context
+held = npydecl.registry not in typing._registries
+@njit
+def later(x):  # compiled after the load: numpy's, math's and a typed dict's declarations, the cached kernel linked
+    d = typed.Dict.empty(key_type=types.int64, value_type=types.float64)
+    for i in range(x.size):
+        d[i] = math.sqrt(x[i])
+    return np.sum(np.sort(x)) + d[4] + kernels.scaled_sum(x, 1.0)
+print(json.dumps({"value": value, "held": held, "later": float(later(np.arange(5.0))),
+                  "installed": npydecl.registry in typing._registries}))
+"""
+
+
+def test_a_cache_load_holds_back_the_declarations_until_a_compile(tmp_path):
+    """A cache load refreshes numba's contexts without installing the typing and lowering
+    declarations (`kernelcache._refresh_for_loads`); a function compiled after it gets them all
+    (numpy, math, typed containers) and links the loaded kernel in."""
+    (tmp_path / "kernels.py").write_text(KERNELS)
+    _child(PROBE.format(before="import acra"), tmp_path, tmp_path)  # compiles and writes the cache
+    got = _child(HELD_BACK, tmp_path, tmp_path)
+    assert got == {"value": 20.0, "held": True, "later": 10.0 + 2.0 + 10.0, "installed": True}
