@@ -139,6 +139,12 @@ class MeshTopology:
             raise ValueError("the display has triangles where its density changes: use counts and indices")
         return self.indices.reshape(-1, 4)
 
+    @functools.cached_property
+    def uv(self) -> np.ndarray:
+        """Parameters ``(n, 2) float64`` of the vertices, one array per topology: every display on
+        it holds the same, so a digest of them (`pipeline.residual`) is taken once."""
+        return np.stack([self.u, self.v], axis=1)
+
     def triangles(self) -> np.ndarray:
         """Every face as triangles, a fan from its first vertex, face by face (a quad ``a b c d``
         gives ``a b c``, ``a c d``, as `GridTopology.triangles` and a USD client's fan):
