@@ -114,11 +114,13 @@ def quadtree_leaves(p0u, p0v, keys, starts):
             x = hold[a]
             tmp[t] = ((x // wide) >> 1) * narrow + ((x % wide) >> 1)
             t += 1
-        tmp.sort()
+        # the kernels' one sort (`adaptive_mesh`'s: int64 keys), so no other is compiled
+        by = np.argsort(tmp, kind="mergesort")
         lo = pos
         for a in range(t):
-            if a == 0 or tmp[a] != tmp[a - 1]:
-                hold[pos] = tmp[a]
+            x = tmp[by[a]]
+            if pos == lo or x != hold[pos - 1]:
+                hold[pos] = x
                 pos += 1
         h_lo[k], h_hi[k] = lo, pos
         below_lo, below_hi = lo, pos
@@ -141,7 +143,13 @@ def quadtree_leaves(p0u, p0v, keys, starts):
             busy = False
             if hi > lo:
                 x = ou[a] * width + ov[a]
-                i = lo + np.searchsorted(hold[lo:hi], x)
+                i, j = lo, hi  # the first holding key not below x, by bisection
+                while i < j:
+                    mid = (i + j) >> 1
+                    if hold[mid] < x:
+                        i = mid + 1
+                    else:
+                        j = mid
                 busy = i < hi and hold[i] == x
             if busy:
                 for du in range(2):
