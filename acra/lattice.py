@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["unique_keys", "adaptive_mesh", "fan_triangles"]
+__all__ = ["unique_keys", "quadtree_leaves", "adaptive_mesh", "fan_triangles"]
 
 
 @njit(inline="always")
@@ -79,6 +79,88 @@ def unique_keys(i, j, ni, w):
         first[c] = m
         c += 1
     return out[:m].copy(), first, where
+
+
+@njit(cache=True, nogil=True)
+def quadtree_leaves(p0u, p0v, keys, starts):
+    """The quadtree's leaves over the ``p0u`` by ``p0v`` level-0 patches (`acra.tessellate._leaves`,
+    in its order): per level ``k`` from 0 to ``top``, the level-``k`` patches that hold no present
+    patch of a finer level while their parent holds one, in the order the walk down opens them.
+
+    ``keys (s,) int64``: per level ``j`` from 1 to ``top``, the keys ``pu * (p0v << j) + pv`` of
+    the patches where level ``j`` is present (any order, repeats allowed), level ``j``'s at
+    ``starts[j - 1]`` to ``starts[j]`` (``starts (top + 1,) int64``, ``starts[0] = 0``).
+
+    Returns each leaf's patch ``pu, pv (l,) int64`` in units of its own level and that level ``(l,)
+    int64``. Per level, the sorted distinct keys of the patches holding a finer present one (the
+    parents of the level below's present and holding ones) are built from the finest up, then
+    the walk down from the level-0 patches looks each open patch up in them: the cost follows the
+    refined area, as the array form's, without its per-level temporaries."""
+    top = starts.shape[0] - 1
+    total = starts[top]
+    hold = np.empty(total * max(top, 1) + 1, np.int64)  # every level's holding keys, finest first
+    h_lo, h_hi = np.zeros(top + 1, np.int64), np.zeros(top + 1, np.int64)
+    pos = 0
+    below_lo, below_hi = 0, 0
+    for k in range(top - 1, -1, -1):
+        wide, narrow = p0v << (k + 1), p0v << k
+        tmp = np.empty(starts[k + 1] - starts[k] + below_hi - below_lo, np.int64)
+        t = 0
+        for a in range(starts[k], starts[k + 1]):  # level k + 1's present patches
+            x = keys[a]
+            tmp[t] = ((x // wide) >> 1) * narrow + ((x % wide) >> 1)
+            t += 1
+        for a in range(below_lo, below_hi):  # and those holding a finer one
+            x = hold[a]
+            tmp[t] = ((x // wide) >> 1) * narrow + ((x % wide) >> 1)
+            t += 1
+        # the kernels' one sort (`adaptive_mesh`'s: int64 keys), so no other is compiled
+        by = np.argsort(tmp, kind="mergesort")
+        lo = pos
+        for a in range(t):
+            x = tmp[by[a]]
+            if pos == lo or x != hold[pos - 1]:
+                hold[pos] = x
+                pos += 1
+        h_lo[k], h_hi[k] = lo, pos
+        below_lo, below_hi = lo, pos
+    # every open patch is a leaf or holds one: the level-0 ones and 4 children per holding one
+    cap = p0u * p0v + 4 * pos
+    lu, lv, lk = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
+    ou, ov = np.empty(p0u * p0v, np.int64), np.empty(p0u * p0v, np.int64)
+    n = 0
+    for a in range(p0u):
+        for b in range(p0v):
+            ou[n], ov[n] = a, b
+            n += 1
+    nl = 0
+    for k in range(top + 1):
+        lo, hi = h_lo[k], h_hi[k]
+        width = p0v << k
+        nu_, nv_ = np.empty(4 * (hi - lo), np.int64), np.empty(4 * (hi - lo), np.int64)
+        m = 0
+        for a in range(n):
+            busy = False
+            if hi > lo:
+                x = ou[a] * width + ov[a]
+                i, j = lo, hi  # the first holding key not below x, by bisection
+                while i < j:
+                    mid = (i + j) >> 1
+                    if hold[mid] < x:
+                        i = mid + 1
+                    else:
+                        j = mid
+                busy = i < hi and hold[i] == x
+            if busy:
+                for du in range(2):
+                    for dv in range(2):
+                        nu_[m], nv_[m] = 2 * ou[a] + du, 2 * ov[a] + dv
+                        m += 1
+            else:
+                lu[nl], lv[nl], lk[nl] = ou[a], ov[a], k
+                nl += 1
+        ou, ov, n = nu_, nv_, m
+    return lu[:nl].copy(), lv[:nl].copy(), lk[:nl].copy()
 
 
 @njit(inline="always")

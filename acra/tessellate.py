@@ -21,7 +21,7 @@ from numba import njit
 from . import framekernels, kernels
 from .basis import Direction
 from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
-from .lattice import adaptive_mesh, fan_triangles, unique_keys
+from .lattice import adaptive_mesh, fan_triangles, quadtree_leaves, unique_keys
 
 __all__ = [
     "GridTopology",
@@ -139,6 +139,12 @@ class MeshTopology:
             raise ValueError("the display has triangles where its density changes: use counts and indices")
         return self.indices.reshape(-1, 4)
 
+    @functools.cached_property
+    def uv(self) -> np.ndarray:
+        """Parameters ``(n, 2) float64`` of the vertices, one array per topology: every display on
+        it holds the same, so a digest of them (`pipeline.residual`) is taken once."""
+        return np.stack([self.u, self.v], axis=1)
+
     def triangles(self) -> np.ndarray:
         """Every face as triangles, a fan from its first vertex, face by face (a quad ``a b c d``
         gives ``a b c``, ``a c d``, as `GridTopology.triangles` and a USD client's fan):
@@ -180,10 +186,9 @@ def run_topology(surfaces, samples: int) -> MeshTopology:
             keys = hs.level(k).patches
             if keys.size:
                 present.setdefault(k, []).append(np.asarray(keys, np.int64))
-    # a key pu * Pv_k + pv sorts as the row (pu, pv): the unique keys give the unique rows, sorted
-    present = {k: np.stack(np.divmod(np.unique(np.concatenate(keys)), surfaces[0].v.patches(k)), axis=1)
-               for k, keys in present.items()}
-    return _adaptive(surfaces[0].u, surfaces[0].v, samples, present)
+    # a key pu * Pv_k + pv is the patch (pu, pv) of level k, as `acra.lattice.quadtree_leaves` takes it
+    return _adaptive_keys(surfaces[0].u, surfaces[0].v, samples,
+                          {k: keys[0] if len(keys) == 1 else np.concatenate(keys) for k, keys in present.items()})
 
 
 def _leaves(p0u: int, p0v: int, present: dict[int, np.ndarray], top: int) -> list[tuple[int, np.ndarray]]:
@@ -243,19 +248,31 @@ def adaptive_topology(u: Direction, v: Direction, samples: int, levels: np.ndarr
 
 def _adaptive(u: Direction, v: Direction, samples: int, present: dict[int, np.ndarray]) -> MeshTopology:
     """`adaptive_topology` of the levels ``present`` (level ``j`` -> its patches ``(m_j, 2) int64``
-    where it is present; `_leaves`): the quadtree's leaves, then their cells and the mesh in one
-    compiled pass (`acra.lattice.adaptive_mesh`, vertex for vertex and face for face
-    `_adaptive_array`'s)."""
+    where it is present; `_leaves`): `_adaptive_keys` of their keys."""
+    keys = {}
+    for j, p in present.items():
+        p = np.asarray(p, np.int64).reshape(-1, 2)
+        keys[j] = p[:, 0] * v.patches(j) + p[:, 1]
+    return _adaptive_keys(u, v, samples, keys)
+
+
+def _adaptive_keys(u: Direction, v: Direction, samples: int, present: dict[int, np.ndarray]) -> MeshTopology:
+    """`adaptive_topology` of the levels ``present`` (level ``j`` -> the keys ``pu * (P0v << j) + pv``
+    ``(m_j,) int64`` of its patches where it is present, in any order, repeats allowed): the
+    quadtree's leaves (`acra.lattice.quadtree_leaves`, `_leaves`' in their order), then their
+    cells and the mesh in one compiled pass (`acra.lattice.adaptive_mesh`, vertex for vertex and
+    face for face `_adaptive_array`'s)."""
     if samples < 1:
         raise ValueError(f"samples must be at least 1, got {samples}")
-    present = {j: np.asarray(p, np.int64).reshape(-1, 2) for j, p in present.items() if len(p)}
+    present = {j: k for j, k in present.items() if len(k)}
     top = max(present, default=0)  # the lattice of the finest level present
     s = int(samples)
-    leaves = [(k, patches) for k, patches in _leaves(u.patches0, v.patches0, present, top) if len(patches)]
-    patches = np.concatenate([p for _, p in leaves])
-    steps = np.concatenate([np.full(len(p), 1 << (top - k), np.int64) for k, p in leaves])
-    lu, lv, counts, indices, by_v = adaptive_mesh(patches[:, 0].copy(), patches[:, 1].copy(), steps, s,
-                                                  u.patches0 * (s << top), v.patches0 * (s << top),
+    lengths = [len(present.get(j, ())) for j in range(1, top + 1)]
+    starts = np.concatenate([np.zeros(1, np.int64), np.cumsum(lengths, dtype=np.int64)])
+    keys = np.concatenate([np.zeros(0, np.int64)] + [np.asarray(present[j], np.int64).reshape(-1) for j in sorted(present)])
+    pu, pv, level = quadtree_leaves(int(u.patches0), int(v.patches0), keys, starts)
+    steps = np.left_shift(1, top - level)
+    lu, lv, counts, indices, by_v = adaptive_mesh(pu, pv, steps, s, u.patches0 * (s << top), v.patches0 * (s << top),
                                                   bool(u.periodic), bool(v.periodic))
     step = float(s << top)
     return MeshTopology(lu / step, lv / step, counts, indices, by_v)

@@ -220,10 +220,12 @@ class SurfaceDisplay:
 
     @property
     def uv(self) -> np.ndarray:
-        """Parameters ``(n, 2) float64`` of the vertices (one array per display, so its digest,
-        `pipeline.residual.Shown.fingerprint`, is taken once)."""
+        """Parameters ``(n, 2) float64`` of the vertices: the topology's one array
+        (`acra.tessellate.MeshTopology.uv`), so its digest, `pipeline.residual.Shown.fingerprint`,
+        is taken once for every display on it."""
         if self._uv is None:
-            self._uv = np.stack([self.topology.u, self.topology.v], axis=1)
+            kept = getattr(self.topology, "uv", None)
+            self._uv = kept if kept is not None else np.stack([self.topology.u, self.topology.v], axis=1)
         return self._uv
 
     def solid(self):

@@ -96,6 +96,22 @@ def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(s
     assert second.solid().faces.shape[1] == 3  # a closed sphere's display welds to a solid
 
 
+def test_displays_on_one_topology_hold_one_parameter_array():
+    """Every display on one topology holds its vertex parameters as one array (the topology's),
+    so the residual digests them once (`pipeline.residual.Shown.fingerprint`)."""
+    from pipeline import shape as S
+
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[10, 14]]), 0.02, 0)
+    shown = display.Displays(density=8)
+    first = shown.of(hs, 4)
+    idx, off = H.offsets_of(hs, 2)
+    moved = H.set_offsets(hs, 2, idx, off + 0.01)
+    S.seed_details(moved, None, 8, parent=hs)
+    second = shown.of(moved, 4)
+    assert second.topology is first.topology and second.uv is first.uv
+    np.testing.assert_array_equal(first.uv, np.stack([first.topology.u, first.topology.v], axis=1))
+
+
 def test_the_rest_display_s_topology_is_the_one_the_frame_loop_gets(tiny_stage, monkeypatch):
     """Reading a scene keeps its rest display's topology (`display.topology_of`): a round that
     displays the animator's surface, and the run's display of frames that never left it, get

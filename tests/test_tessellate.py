@@ -388,6 +388,33 @@ def test_compiled_adaptive_mesh_is_the_array_form_s_vertex_for_vertex(shape, see
         np.testing.assert_array_equal(got.by_v, np.argsort(want.v, kind="stable"), err_msg="by_v")
 
 
+@pytest.mark.parametrize("shape", ["sphere", "torus", "sheet"])
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_compiled_quadtree_leaves_are_the_array_form_s_in_its_order(shape, seed):
+    """`acra.lattice.quadtree_leaves` (the adaptive topology's leaves in one compiled pass, from
+    each level's patch keys in any order, repeated) gives `tessellate._leaves`' leaves, level by
+    level in the same order, with levels present, skipped and absent."""
+    from acra.lattice import quadtree_leaves
+
+    maker = {"sphere": shapes.sphere, "torus": shapes.torus, "sheet": shapes.sheet}[shape]
+    hs = H.from_grid(*maker(8, 7), depth=4)
+    rng = np.random.default_rng(seed)
+    for blobs in (0, 1, 3, 6):
+        levels = _random_levels(hs, seed + 10 * blobs, blobs)
+        top = hs.depth - 1
+        present = {j: np.unique(np.argwhere(levels >= j) >> (top - j), axis=0) for j in range(1, top + 1)}
+        present = {j: p for j, p in present.items() if len(p) and (blobs != 6 or j != 1)}  # level 1 skipped
+        t = max(present, default=0)
+        want = [(k, p) for k, p in T._leaves(hs.u.patches0, hs.v.patches0, present, t) if len(p)]
+        keys = [rng.permutation(np.repeat(present[j][:, 0] * hs.v.patches(j) + present[j][:, 1], 2)) if j in present
+                else np.zeros(0, np.int64) for j in range(1, t + 1)]
+        starts = np.concatenate([[0], np.cumsum([len(k) for k in keys])]).astype(np.int64)
+        pu, pv, level = quadtree_leaves(hs.u.patches0, hs.v.patches0, np.concatenate([np.zeros(0, np.int64)] + keys),
+                                        starts)
+        np.testing.assert_array_equal(np.stack([pu, pv], axis=1), np.concatenate([p for _, p in want]))
+        np.testing.assert_array_equal(level, np.concatenate([np.full(len(p), k) for k, p in want]))
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_lattice_keys_positions_and_columns_equal_numpy_s(seed):
     """`acra.lattice.unique_keys` (the adaptive topology's vertex keys, bucketed by column) gives
