@@ -85,6 +85,16 @@ class Details:
         return np.concatenate(self.vectors) if self.vectors else np.zeros((0, 3))
 
 
+def _stacked(vectors: list, frames: list, table: np.ndarray) -> Details:
+    """``Details(vectors, frames)`` with its `Details.table` given: ``table (sum c_k, 3) float64``
+    already holds ``vectors`` stacked (`details` and `moved_details` write each level's rows as
+    they finish it, so a level's frames, which evaluate the coarser levels, and the evaluations
+    after a move read a prefix of one array instead of stacking the levels again)."""
+    out = Details(tuple(vectors), tuple(frames))
+    out.__dict__["table"] = table
+    return out
+
+
 @dataclass(frozen=True)
 class SurfaceEval:
     """Surface points and partial derivatives (with respect to level-0 ``u``, ``v``).
@@ -602,6 +612,10 @@ def details(hs: HSpline, upto: int | None = None,
     ends = closed_ends(hs) if top >= 1 else ()
     vectors: list[np.ndarray] = []
     frames: list[np.ndarray] = []
+    # the vectors stacked as each level is finished (`_stacked`): level k's rows are
+    # ``start[k - 1]:start[k]``
+    start = hs._table_rows - hs._table_rows[0]
+    table = np.empty((int(start[top]), 3))
     ends_stale = None  # `_ends_stale` of ``since``, found once
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
@@ -609,6 +623,7 @@ def details(hs: HSpline, upto: int | None = None,
                 and k not in old_pending:
             vectors.append(since[1].vectors[k - 1])
             frames.append(since[1].frames[k - 1])
+            table[start[k - 1]:start[k]] = vectors[-1]
             continue
         c = lev.cv_keys.size
         vec = np.zeros((c, 3))
@@ -625,6 +640,7 @@ def details(hs: HSpline, upto: int | None = None,
                     vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, rows, _plain(lev.offsets), vec)[1]
                     vectors.append(vec)
                     frames.append(fr)
+                    table[start[k - 1]:start[k]] = vec
                     continue
                 orow, found = rows, np.ones(rows.size, bool)
             else:
@@ -655,7 +671,7 @@ def details(hs: HSpline, upto: int | None = None,
                 pos = np.nonzero(keep)[0] if pos is None else pos[keep]
         if rows.size:
             ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
-            fr[rows] = _frames_at(hs, k, ends, Details(tuple(vectors), tuple(frames)), ring, gu, gv)
+            fr[rows] = _frames_at(hs, k, ends, _stacked(vectors, frames, table[:start[k - 1]]), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
         vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, every, _plain(lev.offsets), vec)[1]
@@ -664,7 +680,8 @@ def details(hs: HSpline, upto: int | None = None,
             fr[later] = np.nan
         vectors.append(vec)
         frames.append(fr)
-    out = Details(tuple(vectors), tuple(frames))
+        table[start[k - 1]:start[k]] = vec
+    out = _stacked(vectors, frames, table)
     if pending:
         out.__dict__[_PENDING] = pending
     return out
@@ -708,6 +725,10 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
             a is not b for k, (a, b) in enumerate(zip(old.fine, new.fine)) if k != level - 1):
         return None
     vectors, frames = list(old_det.vectors), list(old_det.frames)
+    # the vectors stacked (`_stacked`), the rows of each level that moves rewritten: level k's
+    # rows are ``start[k - 1]:start[k]``
+    start = new._table_rows - new._table_rows[0]
+    table = old_det.table.copy()
     hint = lev.__dict__.get(_MOVED)
     if hint is not None and hint[0] is was.offsets:  # a move that names its rows: only those can differ
         rows = levelkernels.differing_rows(_bits(was.offsets), _bits(lev.offsets), np.ascontiguousarray(hint[1], np.int64))
@@ -724,6 +745,7 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     marked = levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                        int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
     vectors[k - 1] = vec
+    table[start[k - 1]:start[k]] = vec
     while True:
         k += 1
         if k >= new.depth or not (marked or any(m >= k for m in pending)):
@@ -736,12 +758,14 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         if not pos.size:
             continue
         rows = every[pos]
-        fresh = _plain(_frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])), ring[pos], gu[pos], gv[pos]))
+        fresh = _plain(_frames_at(new, k, ends, _stacked(vectors[:k - 1], frames[:k - 1], table[:start[k - 1]]),
+                                  ring[pos], gu[pos], gv[pos]))
         fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
         marked |= levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                             int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
         vectors[k - 1], frames[k - 1] = vec, fr
-    return Details(tuple(vectors), tuple(frames))
+        table[start[k - 1]:start[k]] = vec
+    return _stacked(vectors, frames, table)
 
 
 def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndarray, gu: np.ndarray,
