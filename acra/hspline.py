@@ -21,7 +21,7 @@ surface of levels ``0..k-1`` (`surface_normals`, which evaluates it).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cached_property
 
 import numpy as np
@@ -171,7 +171,7 @@ def evaluate(
     """
     if order not in (0, 1, 2):
         raise ValueError(f"derivative order must be 0, 1 or 2, got {order}")
-    u, v = _plain(u).reshape(-1), _plain(v).reshape(-1)
+    u, v = _flat(u), _flat(v)
     if u.size != v.size:
         raise ValueError(f"u and v must have the same size, got {u.size} and {v.size}")
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
@@ -179,7 +179,7 @@ def evaluate(
         raise ValueError(f"upto must be at least 0, got {upto}")
     levels, keys, shifts, ends, patch_rows = hs._terms_index
     if levels.size > 1 and levels[1] <= top:  # a fine level with detail is summed
-        table = _plain((det if det is not None else _details_for(hs, top)).table)
+        table = _flat((det if det is not None else _details_for(hs, top)).table, 2)
     else:
         table = _NO_DETAILS
     out = np.empty((_NSLOTS[order], u.size, 3))
@@ -187,13 +187,38 @@ def evaluate(
     kernels.eval_points(
         u, v, int(order), int(side), int(top),
         int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-        _plain(hs.cvs).reshape(-1, 3),
+        _flat(hs.cvs.reshape(-1, 3), 2),
         levels, keys, shifts, ends, patch_rows, hs._table_rows, table, out,
     )
-    return SurfaceEval(*[out[s] for s in range(out.shape[0])])
+    return _surface_eval(out)
+
+
+def _surface_eval(out: np.ndarray) -> SurfaceEval:
+    """The `SurfaceEval` of ``out (s, m, 3) float64``, slot by slot in field order, the slots not
+    evaluated None; built without the frozen dataclass's ``__init__``, which sets a field at a
+    time through ``object.__setattr__`` (every stage evaluates a few points at a time, many
+    times a frame)."""
+    ev = object.__new__(SurfaceEval)
+    ev.__dict__.update(_UNSET)
+    ev.__dict__.update(zip(_FIELDS, out))
+    return ev
+
+
+def _flat(x, ndim: int = 1) -> np.ndarray:
+    """``x`` as `_plain` gives it, flattened (``ndim`` 1) or as it is (2): ``x`` itself where it
+    is already a C-contiguous, writeable float64 array of ``ndim`` dimensions, as the common
+    call passes, found by a check that costs less than `np.ascontiguousarray`'s."""
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.ndim == ndim:
+        flags = x.flags
+        if flags.c_contiguous and flags.writeable:
+            return x
+    a = _plain(x)
+    return a.reshape(-1) if ndim == 1 else a
 
 
 _NO_DETAILS = np.zeros((0, 3))
+_FIELDS = tuple(f.name for f in fields(SurfaceEval))
+_UNSET = dict.fromkeys(_FIELDS)  # `_surface_eval`'s slots not evaluated, as the constructor's defaults
 
 
 def _details_for(hs: HSpline, top: int) -> Details:
