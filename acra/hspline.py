@@ -21,7 +21,7 @@ surface of levels ``0..k-1`` (`surface_normals`, which evaluates it).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cached_property
 
 import numpy as np
@@ -83,6 +83,16 @@ class Details:
     def table(self) -> np.ndarray:
         """Every level's detail vectors stacked ``(sum c_k, 3)``, in level order."""
         return np.concatenate(self.vectors) if self.vectors else np.zeros((0, 3))
+
+
+def _stacked(vectors: list, frames: list, table: np.ndarray) -> Details:
+    """``Details(vectors, frames)`` with its `Details.table` given: ``table (sum c_k, 3) float64``
+    already holds ``vectors`` stacked (`details` and `moved_details` write each level's rows as
+    they finish it, so a level's frames, which evaluate the coarser levels, and the evaluations
+    after a move read a prefix of one array instead of stacking the levels again)."""
+    out = Details(tuple(vectors), tuple(frames))
+    out.__dict__["table"] = table
+    return out
 
 
 @dataclass(frozen=True)
@@ -161,7 +171,7 @@ def evaluate(
     """
     if order not in (0, 1, 2):
         raise ValueError(f"derivative order must be 0, 1 or 2, got {order}")
-    u, v = _plain(u).reshape(-1), _plain(v).reshape(-1)
+    u, v = _flat(u), _flat(v)
     if u.size != v.size:
         raise ValueError(f"u and v must have the same size, got {u.size} and {v.size}")
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
@@ -169,7 +179,7 @@ def evaluate(
         raise ValueError(f"upto must be at least 0, got {upto}")
     levels, keys, shifts, ends, patch_rows = hs._terms_index
     if levels.size > 1 and levels[1] <= top:  # a fine level with detail is summed
-        table = _plain((det if det is not None else _details_for(hs, top)).table)
+        table = _flat((det if det is not None else _details_for(hs, top)).table, 2)
     else:
         table = _NO_DETAILS
     out = np.empty((_NSLOTS[order], u.size, 3))
@@ -177,13 +187,38 @@ def evaluate(
     kernels.eval_points(
         u, v, int(order), int(side), int(top),
         int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-        _plain(hs.cvs).reshape(-1, 3),
+        _flat(hs.cvs.reshape(-1, 3), 2),
         levels, keys, shifts, ends, patch_rows, hs._table_rows, table, out,
     )
-    return SurfaceEval(*[out[s] for s in range(out.shape[0])])
+    return _surface_eval(out)
+
+
+def _surface_eval(out: np.ndarray) -> SurfaceEval:
+    """The `SurfaceEval` of ``out (s, m, 3) float64``, slot by slot in field order, the slots not
+    evaluated None; built without the frozen dataclass's ``__init__``, which sets a field at a
+    time through ``object.__setattr__`` (every stage evaluates a few points at a time, many
+    times a frame)."""
+    ev = object.__new__(SurfaceEval)
+    ev.__dict__.update(_UNSET)
+    ev.__dict__.update(zip(_FIELDS, out))
+    return ev
+
+
+def _flat(x, ndim: int = 1) -> np.ndarray:
+    """``x`` as `_plain` gives it, flattened (``ndim`` 1) or as it is (2): ``x`` itself where it
+    is already a C-contiguous, writeable float64 array of ``ndim`` dimensions, as the common
+    call passes, found by a check that costs less than `np.ascontiguousarray`'s."""
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.ndim == ndim:
+        flags = x.flags
+        if flags.c_contiguous and flags.writeable:
+            return x
+    a = _plain(x)
+    return a.reshape(-1) if ndim == 1 else a
 
 
 _NO_DETAILS = np.zeros((0, 3))
+_FIELDS = tuple(f.name for f in fields(SurfaceEval))
+_UNSET = dict.fromkeys(_FIELDS)  # `_surface_eval`'s slots not evaluated, as the constructor's defaults
 
 
 def _details_for(hs: HSpline, top: int) -> Details:
@@ -602,6 +637,10 @@ def details(hs: HSpline, upto: int | None = None,
     ends = closed_ends(hs) if top >= 1 else ()
     vectors: list[np.ndarray] = []
     frames: list[np.ndarray] = []
+    # the vectors stacked as each level is finished (`_stacked`): level k's rows are
+    # ``start[k - 1]:start[k]``
+    start = hs._table_rows - hs._table_rows[0]
+    table = np.empty((int(start[top]), 3))
     ends_stale = None  # `_ends_stale` of ``since``, found once
     for k in range(1, top + 1):
         lev = hs.fine[k - 1]
@@ -609,6 +648,7 @@ def details(hs: HSpline, upto: int | None = None,
                 and k not in old_pending:
             vectors.append(since[1].vectors[k - 1])
             frames.append(since[1].frames[k - 1])
+            table[start[k - 1]:start[k]] = vectors[-1]
             continue
         c = lev.cv_keys.size
         vec = np.zeros((c, 3))
@@ -625,6 +665,7 @@ def details(hs: HSpline, upto: int | None = None,
                     vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, rows, _plain(lev.offsets), vec)[1]
                     vectors.append(vec)
                     frames.append(fr)
+                    table[start[k - 1]:start[k]] = vec
                     continue
                 orow, found = rows, np.ones(rows.size, bool)
             else:
@@ -655,7 +696,7 @@ def details(hs: HSpline, upto: int | None = None,
                 pos = np.nonzero(keep)[0] if pos is None else pos[keep]
         if rows.size:
             ring, gu, gv = (places[i] if pos is None else places[i][pos] for i in (1, 2, 3))
-            fr[rows] = _frames_at(hs, k, ends, Details(tuple(vectors), tuple(frames)), ring, gu, gv)
+            fr[rows] = _frames_at(hs, k, ends, _stacked(vectors, frames, table[:start[k - 1]]), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
         vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, every, _plain(lev.offsets), vec)[1]
@@ -664,7 +705,8 @@ def details(hs: HSpline, upto: int | None = None,
             fr[later] = np.nan
         vectors.append(vec)
         frames.append(fr)
-    out = Details(tuple(vectors), tuple(frames))
+        table[start[k - 1]:start[k]] = vec
+    out = _stacked(vectors, frames, table)
     if pending:
         out.__dict__[_PENDING] = pending
     return out
@@ -708,6 +750,10 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
             a is not b for k, (a, b) in enumerate(zip(old.fine, new.fine)) if k != level - 1):
         return None
     vectors, frames = list(old_det.vectors), list(old_det.frames)
+    # the vectors stacked (`_stacked`), the rows of each level that moves rewritten: level k's
+    # rows are ``start[k - 1]:start[k]``
+    start = new._table_rows - new._table_rows[0]
+    table = old_det.table.copy()
     hint = lev.__dict__.get(_MOVED)
     if hint is not None and hint[0] is was.offsets:  # a move that names its rows: only those can differ
         rows = levelkernels.differing_rows(_bits(was.offsets), _bits(lev.offsets), np.ascontiguousarray(hint[1], np.int64))
@@ -724,6 +770,7 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     marked = levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                        int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
     vectors[k - 1] = vec
+    table[start[k - 1]:start[k]] = vec
     while True:
         k += 1
         if k >= new.depth or not (marked or any(m >= k for m in pending)):
@@ -736,12 +783,14 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         if not pos.size:
             continue
         rows = every[pos]
-        fresh = _plain(_frames_at(new, k, ends, Details(tuple(vectors[:k - 1]), tuple(frames[:k - 1])), ring[pos], gu[pos], gv[pos]))
+        fresh = _plain(_frames_at(new, k, ends, _stacked(vectors[:k - 1], frames[:k - 1], table[:start[k - 1]]),
+                                  ring[pos], gu[pos], gv[pos]))
         fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
         marked |= levelkernels.mark_changed(_bits(vec), _bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                             int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
         vectors[k - 1], frames[k - 1] = vec, fr
-    return Details(tuple(vectors), tuple(frames))
+        table[start[k - 1]:start[k]] = vec
+    return _stacked(vectors, frames, table)
 
 
 def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndarray, gu: np.ndarray,

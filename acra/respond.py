@@ -872,6 +872,9 @@ def respond(
     ResponseReport
     """
     uv = np.asarray(points.uv, dtype=np.float64).reshape(-1, 2)
+    # the parameters along u and v as their own C-contiguous arrays, made once: the compiled
+    # passes every level calls (evaluate, weights) take them so, and would copy a column each call
+    pu, pv = uv[:, 0].copy(), uv[:, 1].copy()
     K = uv.shape[0]
     if K == 0:
         return hs, ResponseReport(np.zeros(0), np.zeros((0, 3)), 0)
@@ -902,7 +905,7 @@ def respond(
     # can reshape
     shaping = [level for level in range(L) if absorb[level] > 0.0 and deform[level] > 0.0]
     exact = shaping[-1] if shaping and shaping[-1] < finest else -1
-    q0 = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
+    q0 = H.evaluate(hs, pu, pv, det=det).points
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
     refined = 0
@@ -915,7 +918,7 @@ def respond(
     merged = points.per_patch and not is_contact.all()  # additional points merged per patch (eq. 4.16)
     # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
     # once for every level's weights while level 0 stays as it is
-    cvs0, pole0 = hs.cvs, H.pole_of(hs, uv[:, 0], uv[:, 1])
+    cvs0, pole0 = hs.cvs, H.pole_of(hs, pu, pv)
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
         levels = tuple(level for level in absorbing if level >= 1)
@@ -939,10 +942,10 @@ def respond(
         own = d > 0 and not merged and not (
             level == finest and held is not None and len(held.uv))
         pole = pole0 if hs.cvs is cvs0 else None
-        pw = point_weights(hs, level, uv[:, 0], uv[:, 1], pole) if own else None
-        present = pw.active if own else point_active(hs, level, uv[:, 0], uv[:, 1], pole)
+        pw = point_weights(hs, level, pu, pv, pole) if own else None
+        present = pw.active if own else point_active(hs, level, pu, pv, pole)
         if d > 0:
-            cur = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
+            cur = H.evaluate(hs, pu, pv, det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
             if points.per_patch:
@@ -984,5 +987,5 @@ def respond(
         hs, det = _settled(hs, det)
     hs, det = _close_rings(hs, det, rings, controls.refine, det0.__dict__.get(_SPREAD) if det0 is not None else None)
     H.keep_details(hs, det)
-    final = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
+    final = H.evaluate(hs, pu, pv, det=det).points
     return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)

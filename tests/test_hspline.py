@@ -360,6 +360,63 @@ def test_details_since_a_refinement_evaluate_only_the_new_cvs(seed, monkeypatch)
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
 
 
+def test_evaluate_takes_plain_arrays_as_they_are_and_fills_its_slots_in_order():
+    """`evaluate` hands the kernel a C-contiguous writeable float64 array of the right dimensions
+    as it is (`H._flat`) and a copy of any other (read-only, strided, another dtype, nested), and
+    its `SurfaceEval` holds the evaluated slots in field order, the others None, as the
+    constructor's defaults."""
+    a = np.linspace(0.0, 1.0, 6)
+    grid = a.reshape(2, 3)
+    assert H._flat(a) is a and H._flat(grid, 2) is grid
+    ro = a.copy()
+    ro.flags.writeable = False
+    for other in (ro, a[::2], a.astype(np.float32), a.reshape(2, 3), [0.5, 0.25]):
+        got = H._flat(other)
+        assert got is not other and got.ndim == 1 and got.flags.writeable and got.flags.c_contiguous
+        np.testing.assert_array_equal(got, np.asarray(other, np.float64).reshape(-1))
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(8, 8), depth=3), 2, [[6, 6]]), 0.02, 0)
+    u, v = np.array([0.3, 1.6, 2.2]), np.array([1.4, 1.5, 0.2])
+    for order, names in ((0, ("points",)), (1, ("points", "du", "dv")), (2, ("points", "du", "dv", "duu", "duv", "dvv"))):
+        ev = H.evaluate(hs, u, v, order=order)
+        ref = H._evaluate_numpy(hs, u, v, order=order)
+        for name in ("points", "du", "dv", "duu", "duv", "dvv"):
+            if name in names:
+                np.testing.assert_allclose(getattr(ev, name), getattr(ref, name), rtol=0, atol=1e-12)
+            else:
+                assert getattr(ev, name) is None and vars(ev)[name] is None
+
+
+def test_details_give_their_table_stacked_as_they_go(monkeypatch):
+    """`H.details` and `H.moved_details` hand back (and hand `_frames_at` the coarser levels as)
+    `Details` whose ``table`` is already there, without stacking the vectors on first read, and
+    is their vectors stacked bit for bit; so is a pass up to a level (``upto``) and one since a
+    refinement or a move."""
+    from acra.respond import move_level
+    seen = []
+    real = H._frames_at
+    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: seen.append(partial) or real(hs_, k, ends, partial, ring, u, v))
+
+    def given_and_stacked(det):
+        assert "table" in det.__dict__
+        want = np.concatenate(det.vectors) if det.vectors else np.zeros((0, 3))
+        np.testing.assert_array_equal(det.table.view(np.int64), want.view(np.int64))
+
+    rng = np.random.default_rng(3)
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=4)
+    hs = H.make_movable(hs, 2, [[6, 16], [10, 1]])  # the second reaches a pole
+    hs = with_random_offsets(H.make_movable(hs, 3, [[12, 30]]), 0.02, 3)
+    outs = [H.details(hs), H.details(hs, upto=2)]
+    finer = H.make_movable(hs, 3, [[40, 30]])
+    outs.append(H.details(finer, since=(hs, outs[0], H.changed_patches(hs, finer))))
+    for k in range(1, hs.depth):
+        rows = np.unique(rng.choice(np.nonzero(hs.level(k).movable)[0], size=2, replace=False))
+        moved = move_level(hs, k, rows, rng.normal(scale=0.03, size=(rows.size, 3)), outs[0])
+        outs.append(H.moved_details(hs, outs[0], moved, k))
+    assert len(seen) >= 4 and all(d is not None for d in outs)
+    for det in outs + seen:
+        given_and_stacked(det)
+
+
 def test_moved_details_follow_a_move_down_the_levels_as_a_full_pass(monkeypatch):
     """`H.moved_details` after a response's move (`respond.move_level`) is `H.details` of the
     moved surface bit for bit, frames of pole rings included; it keeps the coarser levels'
