@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 import weakref
 from dataclasses import dataclass, field
-from functools import cached_property
 from typing import TYPE_CHECKING, Union
 
 import numpy as np
@@ -46,6 +45,26 @@ ON_MESH = 1e-9  # a point this close to a collider's mesh (fraction of the mesh'
 SIDE_SURE = 1e-6  # farther than this from a collider's mesh (fraction of its size), a point's side is its pseudo-normal's
 
 
+class _once:
+    """A property computed at its first read and kept in the instance's ``__dict__`` (a later
+    read finds it there without calling this descriptor): `functools.cached_property` without
+    its lock, which Python 3.11 takes at every first read (about 1.3 us against 0.3). Each
+    rewinding step makes new geometries whose first reads (content, world data, boxes, bounds,
+    size, outer box: about 15 a step) are most of that step's Python between the kernels."""
+
+    def __init__(self, func) -> None:
+        self.func, self.name, self.__doc__ = func, func.__name__, func.__doc__
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        value = obj.__dict__[self.name] = self.func(obj)
+        return value
+
+
 # --- static collider data (once per run) and per-time geometry --------------------------------
 @dataclass(frozen=True, eq=False)
 class ColliderStatic:
@@ -58,17 +77,17 @@ class ColliderStatic:
     bvh: fcl.CollisionObject
     closed: bool
 
-    @cached_property
+    @_once
     def index(self) -> Closest:
         return Closest(self.mesh.vertices, self.mesh.faces, self.bvh)
 
-    @cached_property
+    @_once
     def digest(self) -> bytes:
         """The mesh's content (path, vertices and faces, `shape.content_digest`): what every
         answer on it depends on besides the matrix."""
         return content_digest(self.path, self.mesh.vertices, self.mesh.faces)
 
-    @cached_property
+    @_once
     def solid(self):
         """The closed mesh as a `pipeline.clearance.Solid` (pseudo-normals, exact closest
         points), for the side of a point off the mesh (`_collider_inside`)."""
@@ -76,33 +95,33 @@ class ColliderStatic:
 
         return clearance.solid(np.asarray(self.mesh.vertices, np.float64), np.asarray(self.mesh.faces, np.int64))
 
-    @cached_property
+    @_once
     def scale(self) -> float:
         """The mesh's size (trimesh's ``scale``, its box's diagonal), read once: each read of a
         `trimesh.Trimesh` cached property hashes the mesh's arrays to check them."""
         return float(self.mesh.scale)
 
-    @cached_property
+    @_once
     def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Object-space boxes ``lo, hi (f, 3)`` of the mesh's faces, built once per run (the mesh
         is rigid)."""
         tri = self.mesh.vertices[self.mesh.faces]
         return tri.min(axis=1), tri.max(axis=1)
 
-    @cached_property
+    @_once
     def local_box(self) -> tuple[tuple, tuple]:
         """Object-space box of the mesh's vertices: centre and half-extents (`_centre_half`)."""
         v = np.asarray(self.mesh.vertices, np.float64)
         return _centre_half(v.min(axis=0), v.max(axis=0))
 
-    @cached_property
+    @_once
     def thin(self) -> bool:
         """Whether a face is degenerate or thin (`acra.narrow.thin_faces`): fcl's BVH of every
         face may then pair it with triangles `acra.narrow.crossings` never meets, so only fcl
         counts the contacts."""
         return bool(narrow.thin_faces(self.mesh.vertices, self.mesh.faces).any())
 
-    @cached_property
+    @_once
     def _face_centres(self) -> tuple[np.ndarray, np.ndarray]:
         """Centres and half-extents ``(f, 3)`` of `face_boxes`."""
         lo, hi = self.face_boxes
@@ -137,17 +156,17 @@ class ColliderGeometry:
     def name(self) -> str:
         return self.static.path
 
-    @cached_property
+    @_once
     def vertices(self) -> np.ndarray:
         """World vertices ``(n, 3)``."""
         return apply_xform(self.xform, self.static.mesh.vertices)
 
-    @cached_property
+    @_once
     def bounds(self) -> np.ndarray:
         """World box ``(2, 3)``: min and max corner."""
         return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
 
-    @cached_property
+    @_once
     def size(self) -> float:
         return float(np.linalg.norm(np.ptp(self.vertices, axis=0)))
 
@@ -157,11 +176,11 @@ class ColliderGeometry:
         matrix (`_mapped_box`), without mapping its vertices."""
         return np.array(self._outer[:2])
 
-    @cached_property
+    @_once
     def _outer(self) -> tuple[tuple, tuple, float]:
         return _mapped_box(self.xform, self.static.local_box)
 
-    @cached_property
+    @_once
     def content(self) -> tuple:
         """What detection's answers on this collider depend on: its mesh's digest and the
         matrix's bytes."""
@@ -179,13 +198,13 @@ class Tessellation:
     triangles: np.ndarray
     tri_patch: np.ndarray
 
-    @cached_property
+    @_once
     def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Boxes ``lo, hi (f, 3)`` of the triangles (`_face_boxes`), built once per
         tessellation: the narrow phase of every pair it meets uses them."""
         return _face_boxes(self.points, self.triangles)
 
-    @cached_property
+    @_once
     def bounds(self) -> np.ndarray:
         """Box ``(2, 3)`` of the points (`acra.bvh.bounds`), found once per tessellation: a still
         object's candidate set meets every step of the rewinding search's bisection. Read-only."""
@@ -234,11 +253,11 @@ class SurfaceGeometry:
     # the level-0 patch sets tessellated for this geometry, by their bytes (`tessellated`)
     _asked: dict = field(default_factory=dict, init=False, repr=False)
 
-    @cached_property
+    @_once
     def shape(self) -> Shape:
         return shape_of(self.surface, self.density, self.max_density)
 
-    @cached_property
+    @_once
     def content(self) -> tuple:
         """What this geometry's world data and detection's answers depend on: the surface's
         content (`Shape.digest`), the matrix's bytes and the densities."""
@@ -249,12 +268,12 @@ class SurfaceGeometry:
     def details(self) -> H.Details | None:
         return self.shape.details
 
-    @cached_property
+    @_once
     def _world(self) -> _World:
         """The world data of this content (`_World`); the `WORLDS_KEPT` most recent are kept."""
         return _kept(_WORLDS, self.content, _World, WORLDS_KEPT)
 
-    @cached_property
+    @_once
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """World boxes ``lo, hi`` ``(P0u, P0v, 3)`` of the level-0 patches: the box of each hull
         box's 8 mapped corners, from its centre ``c`` and half-extents ``h`` as ``M c + t ± |M| h``
@@ -271,7 +290,7 @@ class SurfaceGeometry:
             world.boxes = centre - half, centre + half
         return world.boxes
 
-    @cached_property
+    @_once
     def bounds(self) -> np.ndarray:
         """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
         world = self._world
@@ -283,7 +302,7 @@ class SurfaceGeometry:
             world.bounds.setflags(write=False)  # shared by every geometry of this content
         return world.bounds
 
-    @cached_property
+    @_once
     def size(self) -> float:
         """The diagonal of `bounds`, kept with them in the content's world data."""
         world = self._world
@@ -299,7 +318,7 @@ class SurfaceGeometry:
         never needs (`apart`)."""
         return np.array(self._outer[:2])
 
-    @cached_property
+    @_once
     def _outer(self) -> tuple[tuple, tuple, float]:
         # a content met before (the still object of each rewinding step, a new geometry object
         # each time) keeps its box in its world data; a surface whose digest is not known yet is
@@ -322,7 +341,7 @@ class SurfaceGeometry:
         it in every inside test, closest point and projection on this geometry)."""
         return (points - self.xform[:3, 3]) @ self._inverse_t
 
-    @cached_property
+    @_once
     def _inverse_t(self) -> np.ndarray:
         """``(3, 3) float64``: the transposed inverse of ``xform``'s linear part."""
         return np.linalg.inv(self.xform[:3, :3]).T
