@@ -222,7 +222,8 @@ class _World:
     patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and its diagonal ``size``, the object-level box
     (`SurfaceGeometry.outer`'s ``(lo, hi, diagonal)``) once found; ``mapped``: the first patch set
     asked for, ``(patches (m, 2), world points (n, 3), grids)``, until another set asks and
-    ``grids`` takes its rows (`_split_mapped`). Each
+    ``grids`` takes its rows (`_split_mapped`); ``inner``: the patch boxes' highest low and
+    lowest high corner (3 floats each, `_every_box_meets`). Each
     rewinding step's geometries are new objects, and the still one of a pair has the content of
     the step before."""
 
@@ -233,6 +234,7 @@ class _World:
     size: float | None = None
     outer: tuple | None = None
     mapped: tuple | None = None
+    inner: tuple | None = None
 
 
 _WORLDS: dict[tuple, _World] = {}  # world data by `SurfaceGeometry.content`, most recent last
@@ -635,6 +637,28 @@ def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
     return all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
 
 
+def _box_meets(a: np.ndarray, b: np.ndarray, pad: float) -> bool:
+    """`pipeline.grids.overlap` of two boxes ``(2, 3)`` (low and high corners), in Python floats
+    (the same sums and comparisons): on three coordinates numpy's per-call cost is the whole work."""
+    (la, ha), (lb, hb) = a.tolist(), b.tolist()
+    return all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
+
+
+def _every_box_meets(geom: SurfaceGeometry, bounds: np.ndarray, pad: float) -> bool:
+    """Whether every level-0 patch box of ``geom`` overlaps the box ``bounds (2, 3)`` (within
+    ``pad``): ``grids.overlap(lo, hi, *bounds, pad).all()``, from the boxes' highest low and
+    lowest high corner alone, kept in the content's world data (a still object's are found once
+    for a whole rewinding search). Every box passes ``lo <= b_hi + pad`` iff the highest ``lo``
+    does, and ``b_lo <= hi + pad`` iff the lowest ``hi`` does (adding ``pad`` rounds monotonically),
+    so this is the same answer, a NaN corner failing both."""
+    world = geom._world
+    if world.inner is None:
+        lo, hi = geom.boxes
+        world.inner = (lo.reshape(-1, 3).max(axis=0).tolist(), hi.reshape(-1, 3).min(axis=0).tolist())
+    (top, bottom), (lb, hb) = world.inner, bounds.tolist()
+    return all(top[k] <= hb[k] + pad and lb[k] <= bottom[k] + pad for k in range(3))
+
+
 def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``
     (compiled: `acra.narrow.face_boxes`)."""
@@ -710,7 +734,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, firs
         # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
-        if box_b is None or not _overlap(*ta.bounds, box_b[0], box_b[1], pad):
+        if box_b is None or not _box_meets(ta.bounds, box_b, pad):
             return _no_intersections(collider)
         tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
@@ -1032,8 +1056,7 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
         if not is_closed(y):
             continue
         if isinstance(x, SurfaceGeometry):
-            lo, hi = x.boxes  # every patch a candidate (`candidate_patches`), without listing them
-            if not _overlap(lo, hi, y.bounds[0], y.bounds[1], pad).all():
+            if not _every_box_meets(x, y.bounds, pad):  # every patch a candidate (`candidate_patches`)
                 continue
         elif not np.all((x.vertices >= y.bounds[0] - pad) & (x.vertices <= y.bounds[1] + pad)):
             continue
