@@ -60,17 +60,43 @@ def _cull(lo, hi, keep, box, pad):
 
 
 @njit(cache=True, nogil=True)
-def _near(lo_a, hi_a, lo_b, hi_b, pad, rounds, keep_a, keep_b):
+def _cull_rows(lo, hi, rows, n, lo_o, hi_o, rows_o, n_o, box, pad):
+    """Of the rows ``rows[:n]`` of boxes ``lo, hi``, those overlapping (within ``pad``) the box of
+    the other side's rows ``rows_o[:n_o]``, moved to the front in their order; returns how many.
+    The box is `_bounds_of`'s and the test `_cull`'s, over the same rows in the same order."""
+    if n_o == 0:
+        return 0
+    for k in range(3):
+        box[0, k], box[1, k] = np.inf, -np.inf
+    for j in range(n_o):
+        i = rows_o[j]
+        for k in range(3):
+            box[0, k] = min(box[0, k], lo_o[i, k])
+            box[1, k] = max(box[1, k], hi_o[i, k])
+    m = 0
+    for j in range(n):
+        i = rows[j]
+        ok = True
+        for k in range(3):
+            if not (lo[i, k] <= box[1, k] + pad and box[0, k] <= hi[i, k] + pad):
+                ok = False
+                break
+        if ok:
+            rows[m] = i
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _near(lo_a, hi_a, lo_b, hi_b, pad, rounds, rows_a, rows_b):
+    # after the first cull each side walks its kept rows alone (a contact keeps a few of
+    # thousands), not a flag per row: the same rows, boxes and tests as flagging every row
+    na, nb = rows_a.shape[0], rows_b.shape[0]
     box = np.empty((2, 3))
     for _ in range(rounds):
-        if _bounds_of(lo_b, hi_b, keep_b, box):
-            _cull(lo_a, hi_a, keep_a, box, pad)
-        else:
-            keep_a[:] = False
-        if _bounds_of(lo_a, hi_a, keep_a, box):
-            _cull(lo_b, hi_b, keep_b, box, pad)
-        else:
-            keep_b[:] = False
+        na = _cull_rows(lo_a, hi_a, rows_a, na, lo_b, hi_b, rows_b, nb, box, pad)
+        nb = _cull_rows(lo_b, hi_b, rows_b, nb, lo_a, hi_a, rows_a, na, box, pad)
+    return na, nb
 
 
 @njit(cache=True, nogil=True)
@@ -107,8 +133,8 @@ def patches_near(box_a: tuple[np.ndarray, np.ndarray], bounds_a: np.ndarray, box
     other side. Returns the kept rows ``(m,) bool`` of each side and the box ``(2, 3)`` of
     ``b``'s kept boxes (``None`` if none is kept)."""
     f = lambda x: np.ascontiguousarray(x, np.float64).reshape(-1, 3)  # noqa: E731
-    # The bounds are copied: `detect` shares them read-only, and a read-only box would give
-    # `_cull` a second specialisation (compiled and cached again) next to `_near`'s writable one.
+    # The bounds are copied: `detect` shares them read-only, and numba types a read-only array
+    # apart from a writable one (each type a specialisation of `_cull`, compiled and cached again).
     g = lambda x: np.array(x, np.float64).reshape(2, 3)  # noqa: E731
     keep_a, keep_b, box = np.empty(len(f(box_a[0])), np.bool_), np.empty(len(f(box_b[0])), np.bool_), np.empty((2, 3))
     any_b = _patches_near(f(box_a[0]), f(box_a[1]), g(bounds_a), f(box_b[0]), f(box_b[1]), g(bounds_b), float(pad),
@@ -121,11 +147,11 @@ def triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray
     """Rows ``(m,) int64`` of side ``a``'s and side ``b``'s triangles, given by their boxes
     ``lo, hi (f, 3)``, whose boxes overlap (within ``pad``) the box of the other side's kept
     ones: ``a`` against ``b``'s, then ``b`` against ``a``'s kept, ``rounds`` times."""
-    keep_a, keep_b = np.ones(len(box_a[0]), np.bool_), np.ones(len(box_b[0]), np.bool_)
-    _near(np.ascontiguousarray(box_a[0], np.float64), np.ascontiguousarray(box_a[1], np.float64),
-          np.ascontiguousarray(box_b[0], np.float64), np.ascontiguousarray(box_b[1], np.float64), float(pad), int(rounds),
-          keep_a, keep_b)
-    return np.nonzero(keep_a)[0], np.nonzero(keep_b)[0]
+    rows_a, rows_b = np.arange(len(box_a[0]), dtype=np.int64), np.arange(len(box_b[0]), dtype=np.int64)
+    na, nb = _near(np.ascontiguousarray(box_a[0], np.float64), np.ascontiguousarray(box_a[1], np.float64),
+                   np.ascontiguousarray(box_b[0], np.float64), np.ascontiguousarray(box_b[1], np.float64), float(pad),
+                   int(rounds), rows_a, rows_b)
+    return rows_a[:na], rows_b[:nb]
 
 
 @njit(cache=True, nogil=True)

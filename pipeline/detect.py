@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 import weakref
 from dataclasses import dataclass, field
-from functools import cached_property
 from typing import TYPE_CHECKING, Union
 
 import numpy as np
@@ -46,6 +45,26 @@ ON_MESH = 1e-9  # a point this close to a collider's mesh (fraction of the mesh'
 SIDE_SURE = 1e-6  # farther than this from a collider's mesh (fraction of its size), a point's side is its pseudo-normal's
 
 
+class _once:
+    """A property computed at its first read and kept in the instance's ``__dict__`` (a later
+    read finds it there without calling this descriptor): `functools.cached_property` without
+    its lock, which Python 3.11 takes at every first read (about 1.3 us against 0.3). Each
+    rewinding step makes new geometries whose first reads (content, world data, boxes, bounds,
+    size, outer box: about 15 a step) are most of that step's Python between the kernels."""
+
+    def __init__(self, func) -> None:
+        self.func, self.name, self.__doc__ = func, func.__name__, func.__doc__
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        value = obj.__dict__[self.name] = self.func(obj)
+        return value
+
+
 # --- static collider data (once per run) and per-time geometry --------------------------------
 @dataclass(frozen=True, eq=False)
 class ColliderStatic:
@@ -58,17 +77,17 @@ class ColliderStatic:
     bvh: fcl.CollisionObject
     closed: bool
 
-    @cached_property
+    @_once
     def index(self) -> Closest:
         return Closest(self.mesh.vertices, self.mesh.faces, self.bvh)
 
-    @cached_property
+    @_once
     def digest(self) -> bytes:
         """The mesh's content (path, vertices and faces, `shape.content_digest`): what every
         answer on it depends on besides the matrix."""
         return content_digest(self.path, self.mesh.vertices, self.mesh.faces)
 
-    @cached_property
+    @_once
     def solid(self):
         """The closed mesh as a `pipeline.clearance.Solid` (pseudo-normals, exact closest
         points), for the side of a point off the mesh (`_collider_inside`)."""
@@ -76,33 +95,33 @@ class ColliderStatic:
 
         return clearance.solid(np.asarray(self.mesh.vertices, np.float64), np.asarray(self.mesh.faces, np.int64))
 
-    @cached_property
+    @_once
     def scale(self) -> float:
         """The mesh's size (trimesh's ``scale``, its box's diagonal), read once: each read of a
         `trimesh.Trimesh` cached property hashes the mesh's arrays to check them."""
         return float(self.mesh.scale)
 
-    @cached_property
+    @_once
     def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Object-space boxes ``lo, hi (f, 3)`` of the mesh's faces, built once per run (the mesh
         is rigid)."""
         tri = self.mesh.vertices[self.mesh.faces]
         return tri.min(axis=1), tri.max(axis=1)
 
-    @cached_property
+    @_once
     def local_box(self) -> tuple[tuple, tuple]:
         """Object-space box of the mesh's vertices: centre and half-extents (`_centre_half`)."""
         v = np.asarray(self.mesh.vertices, np.float64)
         return _centre_half(v.min(axis=0), v.max(axis=0))
 
-    @cached_property
+    @_once
     def thin(self) -> bool:
         """Whether a face is degenerate or thin (`acra.narrow.thin_faces`): fcl's BVH of every
         face may then pair it with triangles `acra.narrow.crossings` never meets, so only fcl
         counts the contacts."""
         return bool(narrow.thin_faces(self.mesh.vertices, self.mesh.faces).any())
 
-    @cached_property
+    @_once
     def _face_centres(self) -> tuple[np.ndarray, np.ndarray]:
         """Centres and half-extents ``(f, 3)`` of `face_boxes`."""
         lo, hi = self.face_boxes
@@ -137,17 +156,17 @@ class ColliderGeometry:
     def name(self) -> str:
         return self.static.path
 
-    @cached_property
+    @_once
     def vertices(self) -> np.ndarray:
         """World vertices ``(n, 3)``."""
         return apply_xform(self.xform, self.static.mesh.vertices)
 
-    @cached_property
+    @_once
     def bounds(self) -> np.ndarray:
         """World box ``(2, 3)``: min and max corner."""
         return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
 
-    @cached_property
+    @_once
     def size(self) -> float:
         return float(np.linalg.norm(np.ptp(self.vertices, axis=0)))
 
@@ -157,11 +176,11 @@ class ColliderGeometry:
         matrix (`_mapped_box`), without mapping its vertices."""
         return np.array(self._outer[:2])
 
-    @cached_property
+    @_once
     def _outer(self) -> tuple[tuple, tuple, float]:
         return _mapped_box(self.xform, self.static.local_box)
 
-    @cached_property
+    @_once
     def content(self) -> tuple:
         """What detection's answers on this collider depend on: its mesh's digest and the
         matrix's bytes."""
@@ -179,13 +198,13 @@ class Tessellation:
     triangles: np.ndarray
     tri_patch: np.ndarray
 
-    @cached_property
+    @_once
     def face_boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Boxes ``lo, hi (f, 3)`` of the triangles (`_face_boxes`), built once per
         tessellation: the narrow phase of every pair it meets uses them."""
         return _face_boxes(self.points, self.triangles)
 
-    @cached_property
+    @_once
     def bounds(self) -> np.ndarray:
         """Box ``(2, 3)`` of the points (`acra.bvh.bounds`), found once per tessellation: a still
         object's candidate set meets every step of the rewinding search's bisection. Read-only."""
@@ -203,7 +222,8 @@ class _World:
     patch boxes ``lo, hi (P0u, P0v, 3)``, their union ``bounds (2, 3)`` and its diagonal ``size``, the object-level box
     (`SurfaceGeometry.outer`'s ``(lo, hi, diagonal)``) once found; ``mapped``: the first patch set
     asked for, ``(patches (m, 2), world points (n, 3), grids)``, until another set asks and
-    ``grids`` takes its rows (`_split_mapped`). Each
+    ``grids`` takes its rows (`_split_mapped`); ``inner``: the patch boxes' highest low and
+    lowest high corner (3 floats each, `_every_box_meets`). Each
     rewinding step's geometries are new objects, and the still one of a pair has the content of
     the step before."""
 
@@ -214,6 +234,7 @@ class _World:
     size: float | None = None
     outer: tuple | None = None
     mapped: tuple | None = None
+    inner: tuple | None = None
 
 
 _WORLDS: dict[tuple, _World] = {}  # world data by `SurfaceGeometry.content`, most recent last
@@ -234,11 +255,11 @@ class SurfaceGeometry:
     # the level-0 patch sets tessellated for this geometry, by their bytes (`tessellated`)
     _asked: dict = field(default_factory=dict, init=False, repr=False)
 
-    @cached_property
+    @_once
     def shape(self) -> Shape:
         return shape_of(self.surface, self.density, self.max_density)
 
-    @cached_property
+    @_once
     def content(self) -> tuple:
         """What this geometry's world data and detection's answers depend on: the surface's
         content (`Shape.digest`), the matrix's bytes and the densities."""
@@ -249,12 +270,12 @@ class SurfaceGeometry:
     def details(self) -> H.Details | None:
         return self.shape.details
 
-    @cached_property
+    @_once
     def _world(self) -> _World:
         """The world data of this content (`_World`); the `WORLDS_KEPT` most recent are kept."""
         return _kept(_WORLDS, self.content, _World, WORLDS_KEPT)
 
-    @cached_property
+    @_once
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """World boxes ``lo, hi`` ``(P0u, P0v, 3)`` of the level-0 patches: the box of each hull
         box's 8 mapped corners, from its centre ``c`` and half-extents ``h`` as ``M c + t ± |M| h``
@@ -271,7 +292,7 @@ class SurfaceGeometry:
             world.boxes = centre - half, centre + half
         return world.boxes
 
-    @cached_property
+    @_once
     def bounds(self) -> np.ndarray:
         """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
         world = self._world
@@ -283,7 +304,7 @@ class SurfaceGeometry:
             world.bounds.setflags(write=False)  # shared by every geometry of this content
         return world.bounds
 
-    @cached_property
+    @_once
     def size(self) -> float:
         """The diagonal of `bounds`, kept with them in the content's world data."""
         world = self._world
@@ -299,7 +320,7 @@ class SurfaceGeometry:
         never needs (`apart`)."""
         return np.array(self._outer[:2])
 
-    @cached_property
+    @_once
     def _outer(self) -> tuple[tuple, tuple, float]:
         # a content met before (the still object of each rewinding step, a new geometry object
         # each time) keeps its box in its world data; a surface whose digest is not known yet is
@@ -322,7 +343,7 @@ class SurfaceGeometry:
         it in every inside test, closest point and projection on this geometry)."""
         return (points - self.xform[:3, 3]) @ self._inverse_t
 
-    @cached_property
+    @_once
     def _inverse_t(self) -> np.ndarray:
         """``(3, 3) float64``: the transposed inverse of ``xform``'s linear part."""
         return np.linalg.inv(self.xform[:3, :3]).T
@@ -616,6 +637,28 @@ def _boxes_overlap(ga: Geometry, gb: Geometry, pad: float) -> bool:
     return all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
 
 
+def _box_meets(a: np.ndarray, b: np.ndarray, pad: float) -> bool:
+    """`pipeline.grids.overlap` of two boxes ``(2, 3)`` (low and high corners), in Python floats
+    (the same sums and comparisons): on three coordinates numpy's per-call cost is the whole work."""
+    (la, ha), (lb, hb) = a.tolist(), b.tolist()
+    return all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
+
+
+def _every_box_meets(geom: SurfaceGeometry, bounds: np.ndarray, pad: float) -> bool:
+    """Whether every level-0 patch box of ``geom`` overlaps the box ``bounds (2, 3)`` (within
+    ``pad``): ``grids.overlap(lo, hi, *bounds, pad).all()``, from the boxes' highest low and
+    lowest high corner alone, kept in the content's world data (a still object's are found once
+    for a whole rewinding search). Every box passes ``lo <= b_hi + pad`` iff the highest ``lo``
+    does, and ``b_lo <= hi + pad`` iff the lowest ``hi`` does (adding ``pad`` rounds monotonically),
+    so this is the same answer, a NaN corner failing both."""
+    world = geom._world
+    if world.inner is None:
+        lo, hi = geom.boxes
+        world.inner = (lo.reshape(-1, 3).max(axis=0).tolist(), hi.reshape(-1, 3).min(axis=0).tolist())
+    (top, bottom), (lb, hb) = world.inner, bounds.tolist()
+    return all(top[k] <= hb[k] + pad and lb[k] <= bottom[k] + pad for k in range(3))
+
+
 def _face_boxes(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Boxes ``lo, hi (f, 3)`` of the triangles ``faces (f, 3) int64`` of ``points (n, 3)``
     (compiled: `acra.narrow.face_boxes`)."""
@@ -691,7 +734,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, firs
         # B's triangles lie in its candidate patches' boxes: if A's grid points all lie outside
         # their union (a concave or thin pair whose hull boxes overlap), no triangle pair can
         # meet and B is not tessellated
-        if box_b is None or not _overlap(*ta.bounds, box_b[0], box_b[1], pad):
+        if box_b is None or not _box_meets(ta.bounds, box_b, pad):
             return _no_intersections(collider)
         tb = _tessellate(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
@@ -1013,8 +1056,7 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
         if not is_closed(y):
             continue
         if isinstance(x, SurfaceGeometry):
-            lo, hi = x.boxes  # every patch a candidate (`candidate_patches`), without listing them
-            if not _overlap(lo, hi, y.bounds[0], y.bounds[1], pad).all():
+            if not _every_box_meets(x, y.bounds, pad):  # every patch a candidate (`candidate_patches`)
                 continue
         elif not np.all((x.vertices >= y.bounds[0] - pad) & (x.vertices <= y.bounds[1] + pad)):
             continue

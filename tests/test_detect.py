@@ -1106,3 +1106,31 @@ def test_touching_stops_at_a_crossing_pair_and_keeps_no_partial_answer():
     assert whole > 1 and whole == D._intersect(*pair(0.0, 1.9)).count
     near = pair(1.5, 1.5)  # the boxes overlap, the spheres do not meet
     assert not D.touching(*near) and (near[0].content, near[1].content) in D._ANSWERS
+
+
+def test_the_touch_test_s_box_checks_are_the_array_form():
+    """`touching`'s test that every patch box meets the other object's box (`_every_box_meets`,
+    from the boxes' highest low and lowest high corners) and `_box_meets` answer as
+    `pipeline.grids.overlap` does, at and beyond ``pad``, with a NaN corner, in every direction."""
+    from pipeline.grids import overlap
+
+    rng = np.random.default_rng(7)
+    g = D.SurfaceGeometry(sphere_geom().surface, move(0.3, -0.1, 0.2))
+    lo, hi = (x.reshape(-1, 3) for x in g.boxes)
+    for trial in range(400):
+        # a box around some of the patch boxes' corners: some tests pass, some fail by a hair
+        corner = lo[rng.integers(len(lo))] if rng.random() < 0.5 else hi[rng.integers(len(hi))]
+        b = np.sort(np.stack([corner + rng.normal(0, 1.0, 3), corner + rng.choice([-1.0, 1.0], 3) * rng.random(3) * 3]), axis=0)
+        pad = float(rng.choice([0.0, 1e-7, 0.5]))
+        if trial % 2:  # the lowest high and highest low corners, one coordinate a step off: the edge
+            b = np.stack([hi.min(axis=0) + pad, lo.max(axis=0) - pad])
+            r, c = rng.integers(2), rng.integers(3)
+            b[r, c] = np.nextafter(b[r, c], rng.choice([-np.inf, np.inf]))
+        if trial % 7 == 0:
+            b[rng.integers(2), rng.integers(3)] = [np.nan, np.inf, -np.inf][trial % 3]
+        fresh = D.SurfaceGeometry(g.surface, g.xform)
+        assert D._every_box_meets(fresh, b, pad) == bool(overlap(lo, hi, b[0], b[1], pad).all()), trial
+        other = np.stack([lo[trial % len(lo)], hi[trial % len(hi)]])
+        assert D._box_meets(other, b, pad) == bool(overlap(other[0], other[1], b[0], b[1], pad)), trial
+    # a still geometry's corners are its content's: the whole box of every patch passes
+    assert D._every_box_meets(g, np.stack([lo.min(axis=0), hi.max(axis=0)]), 0.0)

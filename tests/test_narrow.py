@@ -226,8 +226,8 @@ def test_patches_near_is_the_broad_phase_in_arrays():
 
 def test_culls_compile_once_for_read_only_bounds(monkeypatch):
     """`detect` passes its read-only shared bounds to `narrow.patches_near`; the boxes reaching
-    `_cull` through `_patches_near` are of the one type `triangles_near`'s `_near` gives it
-    (writable C-contiguous float64), so `_cull` has one specialisation (each more is compiled and
+    `_cull` through `_patches_near` and those `triangles_near` gives `_near` are of one type
+    (writable C-contiguous float64), so each has one specialisation (each more is compiled and
     cached again on the first run after a fresh install). Checked on the argument types, since a
     kernel loaded from the cache never compiles the kernels it calls."""
     import numba
