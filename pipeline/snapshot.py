@@ -31,17 +31,20 @@ class World:
 
 
 def _triangles(mesh: UsdGeom.Mesh) -> np.ndarray:
+    """The mesh's faces as fans ``(f, 3) int64``: a face of ``c`` corners starting at index ``s``
+    gives triangles ``(s, s+1+j, s+2+j)`` for ``j < c - 2``, in face order."""
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), np.int64)
     idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), np.int64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    tris = [np.stack([idx[s] * np.ones(c - 2, np.int64), idx[s + 1 + np.arange(c - 2)], idx[s + 2 + np.arange(c - 2)]], 1)
-            for s, c in zip(starts, counts)]
-    return np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)
+    fans = np.maximum(counts - 2, 0)
+    starts = np.repeat(np.cumsum(counts) - counts, fans)  # each triangle's face start
+    j = np.arange(fans.sum()) - np.repeat(np.cumsum(fans) - fans, fans)  # its place in the fan
+    return np.stack([idx[starts], idx[starts + 1 + j], idx[starts + 2 + j]], axis=1)
 
 
-def world_meshes(output: Path, frame: float) -> list[World]:
-    """Every deformable (``acra:cvs``) and collider (``PhysicsCollisionAPI``) Mesh at ``frame``."""
-    out = Usd.Stage.Open(str(output))
+def world_meshes(output: "Path | Usd.Stage", frame: float) -> list[World]:
+    """Every deformable (``acra:cvs``) and collider (``PhysicsCollisionAPI``) Mesh at ``frame``;
+    ``output`` is the output layer's path or its stage, opened once for many frames."""
+    out = output if isinstance(output, Usd.Stage) else Usd.Stage.Open(str(output))
     tc, meshes = Usd.TimeCode(frame), []
     for prim in out.Traverse():
         if not prim.IsA(UsdGeom.Mesh):
@@ -66,7 +69,7 @@ def deepest_frame(output: Path) -> int:
     frames = range(int(out.GetStartTimeCode()), int(out.GetEndTimeCode()) + 1)
     best, best_frame = -1.0, frames[0]
     for f in frames:
-        moved = max((m.moved.max() for m in world_meshes(output, f) if m.deformable and len(m.moved)), default=0.0)
+        moved = max((m.moved.max() for m in world_meshes(out, f) if m.deformable and len(m.moved)), default=0.0)
         if moved > best:
             best, best_frame = moved, f
     return best_frame

@@ -33,6 +33,28 @@ def test_world_meshes_hold_the_sheet_and_the_box_in_world_space(box_output):
     assert sheet.triangles.max() < len(sheet.points)
 
 
+def test_faces_become_fans_in_face_order():
+    """A face of c corners gives c - 2 triangles fanned from its first corner, in face order."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.CreateInMemory()
+    mesh = UsdGeom.Mesh.Define(stage, "/m")
+    mesh.CreateFaceVertexCountsAttr([3, 5, 4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 10, 11, 12, 13, 14, 20, 21, 22, 23])
+    tris = S._triangles(mesh)
+    assert tris.dtype == np.int64
+    assert tris.tolist() == [[0, 1, 2], [10, 11, 12], [10, 12, 13], [10, 13, 14], [20, 21, 22], [20, 22, 23]]
+
+
+def test_world_meshes_take_an_open_stage_as_its_path(box_output):
+    from pxr import Usd
+
+    by_path, by_stage = S.world_meshes(box_output, 12), S.world_meshes(Usd.Stage.Open(str(box_output)), 12)
+    assert [m.path for m in by_path] == [m.path for m in by_stage]
+    for a, b in zip(by_path, by_stage):
+        assert np.array_equal(a.points, b.points) and np.array_equal(a.triangles, b.triangles) and np.array_equal(a.moved, b.moved)
+
+
 def test_deepest_frame_and_png(box_output, tmp_path):
     assert S.deepest_frame(box_output) in (11, 12)
     png = tmp_path / "f.png"
