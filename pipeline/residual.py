@@ -150,10 +150,10 @@ _DIGESTS: dict = {}  # id(array) -> (array, digest), the arrays made read-only, 
 def _digest(x: np.ndarray) -> bytes:
     """A digest of ``x``'s dtype, shape and values, kept per array: the array is made read-only,
     so the values it was taken of are the values it holds. An array holding the bytes of a kept
-    one gets that one's digest without hashing: each display stacks its vertex parameters anew,
-    though every display on one topology holds the same, and a topology built again (a
-    refinement no longer kept) gives new triangles of the same bytes; comparing bytes costs a
-    tenth of hashing them."""
+    one gets that one's digest without hashing: every display on one topology holds the
+    topology's parameter array (`acra.tessellate.MeshTopology.uv`), and a topology built again (a
+    refinement no longer kept) gives new parameters and triangles of the same bytes; comparing
+    bytes costs a tenth of hashing them."""
     hit = _DIGESTS.pop(id(x), None)
     if hit is None or hit[0] is not x or x.flags.writeable:
         x.flags.writeable = False

@@ -57,6 +57,7 @@ def test_every_kernels_merge_sort_takes_one_key_type():
                           types.boolean)
     keys |= _argsort_keys(lattice.adaptive_mesh, *[arr(types.int64, 1)] * 3, types.int64, types.int64, types.int64,
                           types.boolean, types.boolean)
+    keys |= _argsort_keys(lattice.quadtree_leaves, types.int64, types.int64, arr(types.int64, 1), arr(types.int64, 1))
     assert keys == {arr(types.int64, 1)}
 
 
