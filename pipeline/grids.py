@@ -13,6 +13,7 @@ import hashlib
 import time
 from dataclasses import dataclass
 from functools import cached_property
+from itertools import accumulate
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -239,7 +240,11 @@ class GridSet:
     inside their patch)."""
 
     def __init__(self, grids: list[PatchGrid], like: "GridSet | None" = None) -> None:
-        grids = sorted(grids, key=lambda g: len(g.points), reverse=True)  # finest first
+        # finest first, ties in the order given (a stable sort); the sizes read once, as plain ints:
+        # a set holds a few dozen grids, where Python lists cost less than numpy's small-array calls
+        sizes = [len(g.points) for g in grids]
+        order = sorted(range(len(grids)), key=sizes.__getitem__, reverse=True)
+        grids = [grids[i] for i in order]
         self.grids = grids
         if like is not None and like._same_rows(grids):
             # the same patches at the same densities and solid rows, moved (a response's new
@@ -249,24 +254,27 @@ class GridSet:
             unit = extent(self.points)
             self.indices = [(start, Closest(self.points, c.faces, unit=unit, like=c)) for start, c in like.indices]
             return
-        size = np.array([len(g.points) for g in grids])
-        count = np.array([len(g.solid) for g in grids])
-        base = np.cumsum(size) - size  # each grid's first row in the set's points
+        sizes = [sizes[i] for i in order]
+        counts = [len(g.solid) for g in grids]
+        firsts = [0, *accumulate(sizes)]  # each grid's first row in the set's points, and the end
+        faces = [0, *accumulate(counts)]  # each grid's first solid face row, and the end
+        base, count = np.array(firsts[:-1]), np.array(counts)
         self.points = np.concatenate([g.points for g in grids])
         self.uv = np.concatenate([g.uv for g in grids])
         # a grid without slivers keeps every row (``solid`` is then ``arange``): no gather
-        self.triangles = np.concatenate([g.triangles if len(g.solid) == len(g.triangles) else g.triangles[g.solid]
-                                         for g in grids])
+        self.triangles = np.concatenate([g.triangles if c == len(g.triangles) else g.triangles[g.solid]
+                                         for g, c in zip(grids, counts)])
         self.triangles += np.repeat(base, count)[:, None]
         # a grid's first and last points are its patch's parameter corners
         self.face_lo = np.repeat(self.uv[base], count, axis=0)
-        self.face_hi = np.repeat(self.uv[base + size - 1], count, axis=0)
-        first = np.concatenate(([0], np.cumsum(count)))
+        self.face_hi = np.repeat(self.uv[np.array(firsts[1:]) - 1], count, axis=0)
         self.indices = []  # (first face row, Closest) per density, all over the set's points
         unit = extent(self.points)
-        for n in np.unique(size)[::-1]:
-            a, b = np.nonzero(size == n)[0][[0, -1]]
-            self.indices.append((first[a], Closest(self.points, self.triangles[first[a]:first[b + 1]], unit=unit)))
+        a = 0  # the grids of one density are consecutive (finest first)
+        for b in range(1, len(grids) + 1):
+            if b == len(grids) or sizes[b] != sizes[a]:
+                self.indices.append((np.int64(faces[a]), Closest(self.points, self.triangles[faces[a]:faces[b]], unit=unit)))
+                a = b
 
     def _same_rows(self, grids: list[PatchGrid]) -> bool:
         """Whether ``grids`` (finest first) have this set's grids' point counts and solid rows, one
