@@ -135,6 +135,10 @@ class Shape:
         self.surface, self.density, self.max_density = surface, density, max_density
         self.cache = GridCache(self)
         self.parent = parent
+        # with ``parent``: level-0 patches ``(P0u, P0v) bool`` holding every one where the surface
+        # may differ from the parent's, as the response that made it followed its moves
+        # (`acra.respond.ResponseReport.moved`); ``None``: `_stale` compares the levels
+        self.moved: np.ndarray | None = None
         self.bvhs = BvhCache()  # fcl BVHs of the narrow phase's world triangle sets, by content
         self.ray_meshes: dict[bytes, object] = {}  # merged grids that rays were cast on (`queries.cast`)
 
@@ -203,8 +207,12 @@ class Shape:
     @cached_property
     def density_map(self) -> np.ndarray:
         """Steps per edge of each level-0 patch ``(P0u, P0v) int64``: ``max(density, 2 * 2**k)``,
-        ``k`` the finest level with an active patch inside it, capped at ``max_density``."""
-        hs = self.surface
+        ``k`` the finest level with an active patch inside it, capped at ``max_density``; the
+        parent's where every level holds the parent's active patches (a move that refined none)."""
+        hs, p = self.surface, self.parent
+        if p is not None and (p.density, p.max_density) == (self.density, self.max_density) and p.surface.depth == hs.depth \
+                and all(a.patches is b.patches for a, b in zip(p.surface.fine, hs.fine)):
+            return p.density_map
         finest = np.zeros((hs.u.patches0, hs.v.patches0), np.int64)
         for lev in hs.fine:
             if lev.patches.size:
@@ -220,6 +228,13 @@ class Shape:
         if hs.u.periodic == hs.v.periodic:
             return hs.u.periodic
         per, end = (hs.u, hs.v) if hs.u.periodic else (hs.v, hs.u)
+        p = self.parent
+        if self._stale_known and p.surface.size() == hs.size():
+            # the end samples lie on the first and last rows of patches across ``end``: where
+            # none of those is stale they are the parent's bits, and so is the answer
+            stale = self._stale if hs.u.periodic else self._stale.T
+            if not (stale[:, 0].any() or stale[:, -1].any()):
+                return p.closed
         run = np.arange(4 * per.patches0) / 4.0
         for e in (0.0, float(end.patches0)):
             uv = (run, np.full_like(run, e)) if hs.u.periodic else (np.full_like(run, e), run)
@@ -232,12 +247,13 @@ class Shape:
     def _coarse(self) -> tuple[np.ndarray, np.ndarray]:
         """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)`` and ``triangles
         (8 P, 3) int64``; the parent's points where the response did not reach, once `_stale` is
-        known. Before that every patch is evaluated (a patch's 9 points depend on its own CVs and
-        details alone, so they are the parent's bits where it did not change): finding the
-        changed patches compares every level's offsets, which costs about what evaluating 9
-        points a patch does, and the residual's orientation (`outward`) of a responded surface
-        needs nothing else of it."""
-        stale = self.__dict__.get("_stale") if self.parent is not None else None
+        known or costs nothing (the response handed its moved patches, `moved`). Before that
+        every patch is evaluated (a patch's 9 points depend on its own CVs and details alone, so
+        they are the parent's bits where it did not change): finding the changed patches
+        compares every level's offsets, which costs about what evaluating 9 points a patch does,
+        and the residual's orientation (`outward`) of a responded surface needs nothing else of
+        it."""
+        stale = self._stale if self._stale_known else None
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
             pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)
@@ -294,7 +310,13 @@ class Shape:
         p = self.parent
         if p is None:
             return None
-        return changed_patches(p.surface, self.surface) | (p.density_map != self.density_map)
+        moved = changed_patches(p.surface, self.surface) if self.moved is None else self.moved
+        return moved | (p.density_map != self.density_map)
+
+    @property
+    def _stale_known(self) -> bool:
+        """Whether `_stale` is found (or costs a comparison of the density maps alone)."""
+        return self.parent is not None and (self.moved is not None or "_stale" in self.__dict__)
 
     def grids_for(self, patches: np.ndarray) -> list[PatchGrid]:
         """Collision grids of level-0 ``patches (m, 2) int64`` at their density (cached)."""
@@ -428,11 +450,14 @@ def shape_of(surface: HSpline, density: int = 8, max_density: int = 64) -> Shape
 
 
 def seed_details(surface: HSpline, details: H.Details | None, density: int = 8, max_density: int = 64,
-                 parent: HSpline | None = None) -> None:
+                 parent: HSpline | None = None, moved: np.ndarray | None = None) -> None:
     """Give ``surface``'s `Shape` details computed elsewhere (by `acra.respond.respond`) and the
-    shape it was responded from, whose grids it then reuses where it did not change."""
+    shape it was responded from, whose grids it then reuses where it did not change; ``moved
+    (P0u, P0v) bool``: the level-0 patches holding every one where it may differ from ``parent``
+    (`acra.respond.ResponseReport.moved`), so the changed patches need no comparison."""
     shape = shape_of(surface, density, max_density)
     if details is not None and "details" not in shape.__dict__:
         shape.__dict__["details"] = details
     if parent is not None and shape.parent is None and not shape.grids:
         shape.parent = shape_of(parent, density, max_density)
+        shape.moved = moved
