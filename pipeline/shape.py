@@ -207,12 +207,8 @@ class Shape:
     @cached_property
     def density_map(self) -> np.ndarray:
         """Steps per edge of each level-0 patch ``(P0u, P0v) int64``: ``max(density, 2 * 2**k)``,
-        ``k`` the finest level with an active patch inside it, capped at ``max_density``; the
-        parent's where every level holds the parent's active patches (a move that refined none)."""
-        hs, p = self.surface, self.parent
-        if p is not None and (p.density, p.max_density) == (self.density, self.max_density) and p.surface.depth == hs.depth \
-                and all(a.patches is b.patches for a, b in zip(p.surface.fine, hs.fine)):
-            return p.density_map
+        ``k`` the finest level with an active patch inside it, capped at ``max_density``."""
+        hs = self.surface
         finest = np.zeros((hs.u.patches0, hs.v.patches0), np.int64)
         for lev in hs.fine:
             if lev.patches.size:
@@ -229,10 +225,10 @@ class Shape:
             return hs.u.periodic
         per, end = (hs.u, hs.v) if hs.u.periodic else (hs.v, hs.u)
         p = self.parent
-        if self._stale_known and p.surface.size() == hs.size():
+        if self._changed_known and p.surface.size() == hs.size():
             # the end samples lie on the first and last rows of patches across ``end``: where
-            # none of those is stale they are the parent's bits, and so is the answer
-            stale = self._stale if hs.u.periodic else self._stale.T
+            # none of those changed they are the parent's bits, and so is the answer
+            stale = self._changed if hs.u.periodic else self._changed.T
             if not (stale[:, 0].any() or stale[:, -1].any()):
                 return p.closed
         run = np.arange(4 * per.patches0) / 4.0
@@ -247,13 +243,14 @@ class Shape:
     def _coarse(self) -> tuple[np.ndarray, np.ndarray]:
         """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)`` and ``triangles
         (8 P, 3) int64``; the parent's points where the response did not reach, once `_stale` is
-        known or costs nothing (the response handed its moved patches, `moved`). Before that
+        known or costs nothing (the response handed its moved patches, `moved`): `_changed`, as a
+        patch's 9 points change only where the surface does. Before that
         every patch is evaluated (a patch's 9 points depend on its own CVs and details alone, so
         they are the parent's bits where it did not change): finding the changed patches
         compares every level's offsets, which costs about what evaluating 9 points a patch does,
         and the residual's orientation (`outward`) of a responded surface needs nothing else of
         it."""
-        stale = self._stale if self._stale_known else None
+        stale = self._changed if self._changed_known else None
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
             pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)
@@ -272,7 +269,7 @@ class Shape:
         and a tree of the moved points alone, so a response costs what it changed, until the
         points off the shared tree pass a quarter of them."""
         pts = self._coarse[0]
-        stale = self._stale
+        stale = self._changed if self.parent is not None else None
         if stale is None or stale.all():
             return CoarseIndex(_kd_tree(pts))
         par = self.parent.coarse_index
@@ -310,13 +307,22 @@ class Shape:
         p = self.parent
         if p is None:
             return None
-        moved = changed_patches(p.surface, self.surface) if self.moved is None else self.moved
-        return moved | (p.density_map != self.density_map)
+        return self._changed | (p.density_map != self.density_map)
+
+    @cached_property
+    def _changed(self) -> np.ndarray:
+        """Patches ``(P0u, P0v) bool`` where the surface may differ from the parent's
+        (`changed_patches`: the response's `moved` where it handed them), so where its points,
+        coarse grid and ends are the parent's bits; with a parent only. Refinement alone moves
+        no point (a new CV's detail vector is zero), so unlike `_stale` the density map does not
+        enter."""
+        p = self.parent
+        return changed_patches(p.surface, self.surface) if self.moved is None else self.moved
 
     @property
-    def _stale_known(self) -> bool:
-        """Whether `_stale` is found (or costs a comparison of the density maps alone)."""
-        return self.parent is not None and (self.moved is not None or "_stale" in self.__dict__)
+    def _changed_known(self) -> bool:
+        """Whether `_changed` is found or free (the response handed its `moved` patches)."""
+        return self.parent is not None and (self.moved is not None or "_changed" in self.__dict__)
 
     def grids_for(self, patches: np.ndarray) -> list[PatchGrid]:
         """Collision grids of level-0 ``patches (m, 2) int64`` at their density (cached)."""

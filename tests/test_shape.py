@@ -30,7 +30,7 @@ def test_a_responded_shape_evaluates_only_the_moved_patches_and_gives_the_same_b
     child.__dict__["details"] = rep.details
     child.parent, child.moved = parent, rep.moved
     pts, tris = child._coarse
-    assert seen == [int(child._stale.sum())] and seen[0] < rep.moved.size
+    assert seen == [int(rep.moved.sum())] and seen[0] < rep.moved.size
     fresh = S.Shape(new)
     want_pts, want_tris = fresh._coarse
     assert pts.tobytes() == want_pts.tobytes() and np.array_equal(tris, want_tris)
