@@ -832,8 +832,7 @@ def _noted(old: H.HSpline, old_det: H.Details, det: H.Details, raw: np.ndarray |
     root, r0, g0 = old_det.__dict__.get(_SINCE, (old, None, None))
     raw = r0 if raw is None else (raw if r0 is None else r0 | raw)
     grown = g0 if grown is None else (grown if g0 is None else g0 | grown)
-    if det is not old_det:
-        det.__dict__[_SINCE] = (root, raw, grown)
+    det.__dict__[_SINCE] = (root, raw, grown)  # on ``old_det`` too, if handed back: a superset holds for both
     return det
 
 
@@ -845,7 +844,7 @@ def _moved_patches(hs: H.HSpline, start: H.HSpline, det: H.Details | None) -> np
     rec = det.__dict__.pop(_SINCE, None) if det is not None else None
     if rec is None or rec[0] is not start:
         return None
-    root, raw, grown = rec
+    _, raw, grown = rec
     out = np.zeros((hs.u.patches0, hs.v.patches0), bool) if raw is None else H.grown_patches(hs, raw)
     return out if grown is None else out | grown
 

@@ -242,14 +242,12 @@ class Shape:
     @timed
     def _coarse(self) -> tuple[np.ndarray, np.ndarray]:
         """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)`` and ``triangles
-        (8 P, 3) int64``; the parent's points where the response did not reach, once `_stale` is
-        known or costs nothing (the response handed its moved patches, `moved`): `_changed`, as a
-        patch's 9 points change only where the surface does. Before that
-        every patch is evaluated (a patch's 9 points depend on its own CVs and details alone, so
-        they are the parent's bits where it did not change): finding the changed patches
-        compares every level's offsets, which costs about what evaluating 9 points a patch does,
-        and the residual's orientation (`outward`) of a responded surface needs nothing else of
-        it."""
+        (8 P, 3) int64``; the parent's points off `_changed`, once that is known or free (the
+        response handed its `moved` patches). Before that every patch is evaluated (a patch's 9
+        points depend on its own CVs and details alone, so they are the parent's bits where it
+        did not change): finding the changed patches compares every level's offsets, which costs
+        about what evaluating 9 points a patch does, and the residual's orientation (`outward`)
+        of a responded surface needs nothing else of it."""
         stale = self._changed if self._changed_known else None
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
