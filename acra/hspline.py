@@ -492,12 +492,34 @@ def changed_patches(old: HSpline, new: HSpline, margin: int = 2, levels: tuple[i
         qu = wrap((ju[:, None] - 3 + _I4) >> k, new.u)
         qv = wrap((jv[:, None] - 3 + _I4) >> k, new.v)
         mask[qu[:, :, None], qv[:, None, :]] = True
+    return grown_patches(new, mask, margin)
+
+
+def grown_patches(hs: HSpline, mask: np.ndarray, margin: int = 2) -> np.ndarray:
+    """Level-0 patches ``(P0u, P0v) bool``: ``mask`` grown by ``margin`` patches both ways along
+    each direction (wrapping where periodic), as `changed_patches` grows its moved CVs' supports."""
     if not margin or not mask.any():
         return mask
-    # grown by ``margin`` both ways along each direction (wrapping where periodic) as one
-    # product with each direction's band of patches within ``margin``: counts of 0/1 entries,
-    # exact in float64
-    return (_band(new.u, margin) @ mask.astype(np.float64) @ _band(new.v, margin)) > 0.0
+    # one product with each direction's band of patches within ``margin``: counts of 0/1
+    # entries, exact in float64
+    return (_band(hs.u, margin) @ mask.astype(np.float64) @ _band(hs.v, margin)) > 0.0
+
+
+def mark_moved(old: HSpline, new: HSpline, k: int, stale: np.ndarray) -> None:
+    """Mark in ``stale (P0u, P0v) bool`` the level-0 patches holding a level-``k`` patch that a
+    CV whose offset has other bits in ``new`` than in ``old`` supports: `changed_patches` of a
+    move of level ``k >= 1`` alone (the same ``cv_keys``, `moved_details`' surfaces) before its
+    margin. Only the rows the move names (`acra.respond.move_level`'s hint) can differ, else
+    every row is compared."""
+    was, lev = old.level(k), new.level(k)
+    hint = lev.__dict__.get(_MOVED)
+    if hint is not None and hint[0] is was.offsets:
+        rows = np.ascontiguousarray(hint[1], np.int64)
+    else:
+        rows = np.arange(lev.cv_keys.size, dtype=np.int64)
+    levelkernels.mark_changed(_bits(lev.offsets), _bits(was.offsets), rows, lev.cv_keys, int(new.v.cvs(k)), k,
+                              int(new.u.patches(k)), int(new.v.patches(k)), bool(new.u.periodic),
+                              bool(new.v.periodic), stale)
 
 
 def changed_cells(old: HSpline, old_det: Details | None, new: HSpline, new_det: Details | None,

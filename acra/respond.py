@@ -757,12 +757,16 @@ class ResponseReport:
         Patches the ``refine`` policy activated.
     details : Details or None
         ``H.details`` of the responded surface (computed anyway; callers may reuse it).
+    moved : (P0u, P0v) bool or None
+        Level-0 patches holding every one where the responded surface may differ from the one
+        responded from (a superset of `H.changed_patches`); ``None`` where it was not followed.
     """
 
     applied: np.ndarray
     remaining: np.ndarray
     refined: int
     details: H.Details | None = None
+    moved: np.ndarray | None = None
 
 
 def _make_movable(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
@@ -808,8 +812,41 @@ def _redetail(old: H.HSpline, old_det: H.Details | None, new: H.HSpline,
     if moved is not None and len(moved) == 1 and moved[0] >= 1:
         det = H.moved_details(old, old_det, new, moved[0])
         if det is not None:
-            return new, det
-    return new, H.details(new, since=(old, old_det, H.changed_patches(old, new, levels=moved)), moved=moved, lazy=lazy)
+            raw = np.zeros((new.u.patches0, new.v.patches0), bool)
+            H.mark_moved(old, new, moved[0], raw)
+            return new, _noted(old, old_det, det, raw, None)
+    stale = H.changed_patches(old, new, levels=moved)
+    return new, _noted(old, old_det, H.details(new, since=(old, old_det, stale), moved=moved, lazy=lazy), None, stale)
+
+
+_SINCE = "_since"  # a response's details: (the surface it started from, raw and grown stale patches)
+
+
+def _noted(old: H.HSpline, old_det: H.Details, det: H.Details, raw: np.ndarray | None,
+           grown: np.ndarray | None) -> H.Details:
+    """``det``, the details of a surface that differs from ``old`` only on the level-0 patches
+    ``raw`` grown by `H.changed_patches`' margin and ``grown`` (either ``None``: none), noted
+    with where it differs from the surface the response started from: ``old``'s note joined
+    with these, or these if ``old_det`` has none. Steps between `_redetail` calls only refine,
+    which moves no offset, so the union covers `H.changed_patches` of the whole response."""
+    root, r0, g0 = old_det.__dict__.get(_SINCE, (old, None, None))
+    raw = r0 if raw is None else (raw if r0 is None else r0 | raw)
+    grown = g0 if grown is None else (grown if g0 is None else g0 | grown)
+    det.__dict__[_SINCE] = (root, raw, grown)  # on ``old_det`` too, if handed back: a superset holds for both
+    return det
+
+
+def _moved_patches(hs: H.HSpline, start: H.HSpline, det: H.Details | None) -> np.ndarray | None:
+    """Level-0 patches ``(P0u, P0v) bool`` holding every one where ``hs``, responded from
+    ``start`` with details ``det``, may differ from it (`H.changed_patches`, a superset), from the
+    note `_redetail` kept along the response; ``None`` where the note does not reach ``start``.
+    The note is taken off ``det``, so a response from ``hs`` starts its own."""
+    rec = det.__dict__.pop(_SINCE, None) if det is not None else None
+    if rec is None or rec[0] is not start:
+        return None
+    _, raw, grown = rec
+    out = np.zeros((hs.u.patches0, hs.v.patches0), bool) if raw is None else H.grown_patches(hs, raw)
+    return out if grown is None else out | grown
 
 
 def _settled(hs: H.HSpline, det: H.Details | None) -> tuple[H.HSpline, H.Details | None]:
@@ -883,7 +920,9 @@ def respond(
         raise ControlError("acra:absorption", f"has {L} levels but the surface has {hs.depth}")
     if det is None and hs.depth > 1:
         det = H.details(hs)
-    rings, det0 = _closed_rings(hs, det), det
+    rings, det0, start = _closed_rings(hs, det), det, hs
+    if det is not None:  # a note from the response that made ``hs`` is not this one's
+        det.__dict__.pop(_SINCE, None)
     # A collapsed edge of an open grid (a fan's apex) is closed after the finest absorbing
     # level's solve (`_close_rings`), not within it (`_ring_constraints`); coarser levels keep it
     # in the solve. Why: every data point on the apex weighs the same ring (eq. 4.10 weights
@@ -988,4 +1027,4 @@ def respond(
     hs, det = _close_rings(hs, det, rings, controls.refine, det0.__dict__.get(_SPREAD) if det0 is not None else None)
     H.keep_details(hs, det)
     final = H.evaluate(hs, pu, pv, det=det).points
-    return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det)
+    return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det, _moved_patches(hs, start, det))

@@ -527,7 +527,7 @@ class _Run:
             # with its held contacts fitted exactly
             amplify = P.LATER_AMPLIFY if it > 0 and i not in shared else None
             surfaces[i], rep = _respond_bounded(path, frame, parent, dp, controls, self.options, held, rcond, amplify)
-            S.seed_details(surfaces[i], rep.details, self.options.density, parent=parent)
+            S.seed_details(surfaces[i], rep.details, self.options.density, parent=parent, moved=rep.moved)
             surfaces[i] = self.carry.after_response(i, parent, surfaces[i])
             if it == 0:
                 st.data_points[path] = (np.concatenate([o for _, _, o in lst]), np.concatenate([w for _, w, _ in lst]))

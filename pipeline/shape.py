@@ -135,6 +135,10 @@ class Shape:
         self.surface, self.density, self.max_density = surface, density, max_density
         self.cache = GridCache(self)
         self.parent = parent
+        # with ``parent``: level-0 patches ``(P0u, P0v) bool`` holding every one where the surface
+        # may differ from the parent's, as the response that made it followed its moves
+        # (`acra.respond.ResponseReport.moved`); ``None``: `_stale` compares the levels
+        self.moved: np.ndarray | None = None
         self.bvhs = BvhCache()  # fcl BVHs of the narrow phase's world triangle sets, by content
         self.ray_meshes: dict[bytes, object] = {}  # merged grids that rays were cast on (`queries.cast`)
 
@@ -220,6 +224,13 @@ class Shape:
         if hs.u.periodic == hs.v.periodic:
             return hs.u.periodic
         per, end = (hs.u, hs.v) if hs.u.periodic else (hs.v, hs.u)
+        p = self.parent
+        if self._changed_known and p.surface.size() == hs.size():
+            # the end samples lie on the first and last rows of patches across ``end``: where
+            # none of those changed they are the parent's bits, and so is the answer
+            stale = self._changed if hs.u.periodic else self._changed.T
+            if not (stale[:, 0].any() or stale[:, -1].any()):
+                return p.closed
         run = np.arange(4 * per.patches0) / 4.0
         for e in (0.0, float(end.patches0)):
             uv = (run, np.full_like(run, e)) if hs.u.periodic else (np.full_like(run, e), run)
@@ -231,13 +242,13 @@ class Shape:
     @timed
     def _coarse(self) -> tuple[np.ndarray, np.ndarray]:
         """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)`` and ``triangles
-        (8 P, 3) int64``; the parent's points where the response did not reach, once `_stale` is
-        known. Before that every patch is evaluated (a patch's 9 points depend on its own CVs and
-        details alone, so they are the parent's bits where it did not change): finding the
-        changed patches compares every level's offsets, which costs about what evaluating 9
-        points a patch does, and the residual's orientation (`outward`) of a responded surface
-        needs nothing else of it."""
-        stale = self.__dict__.get("_stale") if self.parent is not None else None
+        (8 P, 3) int64``; the parent's points off `_changed`, once that is known or free (the
+        response handed its `moved` patches). Before that every patch is evaluated (a patch's 9
+        points depend on its own CVs and details alone, so they are the parent's bits where it
+        did not change): finding the changed patches compares every level's offsets, which costs
+        about what evaluating 9 points a patch does, and the residual's orientation (`outward`)
+        of a responded surface needs nothing else of it."""
+        stale = self._changed if self._changed_known else None
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
             pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)
@@ -256,7 +267,7 @@ class Shape:
         and a tree of the moved points alone, so a response costs what it changed, until the
         points off the shared tree pass a quarter of them."""
         pts = self._coarse[0]
-        stale = self._stale
+        stale = self._changed if self.parent is not None else None
         if stale is None or stale.all():
             return CoarseIndex(_kd_tree(pts))
         par = self.parent.coarse_index
@@ -294,7 +305,22 @@ class Shape:
         p = self.parent
         if p is None:
             return None
-        return changed_patches(p.surface, self.surface) | (p.density_map != self.density_map)
+        return self._changed | (p.density_map != self.density_map)
+
+    @cached_property
+    def _changed(self) -> np.ndarray:
+        """Patches ``(P0u, P0v) bool`` where the surface may differ from the parent's
+        (`changed_patches`: the response's `moved` where it handed them), so where its points,
+        coarse grid and ends are the parent's bits; with a parent only. Refinement alone moves
+        no point (a new CV's detail vector is zero), so unlike `_stale` the density map does not
+        enter."""
+        p = self.parent
+        return changed_patches(p.surface, self.surface) if self.moved is None else self.moved
+
+    @property
+    def _changed_known(self) -> bool:
+        """Whether `_changed` is found or free (the response handed its `moved` patches)."""
+        return self.parent is not None and (self.moved is not None or "_changed" in self.__dict__)
 
     def grids_for(self, patches: np.ndarray) -> list[PatchGrid]:
         """Collision grids of level-0 ``patches (m, 2) int64`` at their density (cached)."""
@@ -428,11 +454,14 @@ def shape_of(surface: HSpline, density: int = 8, max_density: int = 64) -> Shape
 
 
 def seed_details(surface: HSpline, details: H.Details | None, density: int = 8, max_density: int = 64,
-                 parent: HSpline | None = None) -> None:
+                 parent: HSpline | None = None, moved: np.ndarray | None = None) -> None:
     """Give ``surface``'s `Shape` details computed elsewhere (by `acra.respond.respond`) and the
-    shape it was responded from, whose grids it then reuses where it did not change."""
+    shape it was responded from, whose grids it then reuses where it did not change; ``moved
+    (P0u, P0v) bool``: the level-0 patches holding every one where it may differ from ``parent``
+    (`acra.respond.ResponseReport.moved`), so the changed patches need no comparison."""
     shape = shape_of(surface, density, max_density)
     if details is not None and "details" not in shape.__dict__:
         shape.__dict__["details"] = details
     if parent is not None and shape.parent is None and not shape.grids:
         shape.parent = shape_of(parent, density, max_density)
+        shape.moved = moved

@@ -550,3 +550,24 @@ def test_per_level_points_kernel_is_the_array_form_bit_for_bit(grid):
                 for g, r in zip(got, ref):
                     assert g.shape == r.shape
                     assert np.array_equal(g.view(np.int64), r.view(np.int64))
+
+
+@pytest.mark.parametrize("level,t,r", [(0, 0.0, 0.0), (2, 0.0, 0.0), (2, 0.5, 0.0), (1, 0.0, 0.5)],
+                         ids=["level0", "deform", "translate", "rotate"])
+def test_a_response_hands_back_a_superset_of_the_patches_it_changed(level, t, r):
+    """``ResponseReport.moved`` lets the responded surface's `Shape` skip comparing every level's
+    offsets: it must hold every patch `changed_patches` finds (a missing one would serve the
+    parent's grids there), and a local response stays local; a second response from the first's
+    surface follows its own moves, not the first's."""
+    hs = H.from_grid(*shapes.sphere(10, 9), depth=4)
+    ctl = controls(4, level, d=1.0 - t - r, t=t, r=r)
+    first, rep = R.respond(hs, one_point(hs, [2.5, 4.5], [0.0, 0.0, -0.05]), ctl, det=H.details(hs))
+    assert rep.moved is not None and rep.moved.shape == (hs.u.patches0, hs.v.patches0)
+    assert not (H.changed_patches(hs, first) & ~rep.moved).any()
+    if level:
+        assert not rep.moved.all()
+    second, rep2 = R.respond(first, one_point(first, [7.5, 4.5], [0.0, 0.0, 0.05]), ctl, det=rep.details)
+    assert rep2.moved is not None
+    assert not (H.changed_patches(first, second) & ~rep2.moved).any()
+    if level:
+        assert not (rep2.moved & ~H.changed_patches(first, second)).any()  # the first's patches are not carried
