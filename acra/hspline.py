@@ -406,19 +406,24 @@ def surface_normals(
     ev = evaluate(hs, u, v, order=1, det=det, upto=upto) if ev is None else ev
     scale = hs.size()
     n, bad = _degenerate(ev, scale)
-    if np.any(bad):
-        # first-order Taylor term of du × dv along the direction toward the patch centre:
-        # exact limit where du or dv vanishes linearly (a pole, a collapsed edge)
-        idx = np.nonzero(bad)[0]
-        e2 = evaluate(hs, u[idx], v[idx], order=2, det=det, upto=upto)
-        su = np.sign(0.5 - locate(hs.u, u[idx], 0)[1])[:, None]
-        sv = np.sign(0.5 - locate(hs.v, v[idx], 0)[1])[:, None]
-        c_u = _cross(e2.duu, e2.dv) + _cross(e2.du, e2.duv)
-        c_v = _cross(e2.duv, e2.dv) + _cross(e2.du, e2.dvv)
-        nf = su * c_u + sv * c_v
-        ok = np.linalg.norm(nf, axis=1) > 1e-9 * scale**2
-        n[idx[ok]] = nf[ok]
-        bad[idx[ok]] = False
+    if not bad.any():  # every row has a direction (closest points seldom sit on a pole)
+        if nudged is not None:
+            nudged[:] = False
+        unit = np.empty(n.shape)
+        framekernels.unit_rows(n, unit)  # n / |n| row by row
+        return ev, unit
+    # first-order Taylor term of du × dv along the direction toward the patch centre:
+    # exact limit where du or dv vanishes linearly (a pole, a collapsed edge)
+    idx = np.nonzero(bad)[0]
+    e2 = evaluate(hs, u[idx], v[idx], order=2, det=det, upto=upto)
+    su = np.sign(0.5 - locate(hs.u, u[idx], 0)[1])[:, None]
+    sv = np.sign(0.5 - locate(hs.v, v[idx], 0)[1])[:, None]
+    c_u = _cross(e2.duu, e2.dv) + _cross(e2.du, e2.duv)
+    c_v = _cross(e2.duv, e2.dv) + _cross(e2.du, e2.dvv)
+    nf = su * c_u + sv * c_v
+    ok = np.linalg.norm(nf, axis=1) > 1e-9 * scale**2
+    n[idx[ok]] = nf[ok]
+    bad[idx[ok]] = False
     if nudged is not None:
         nudged[:] = bad
     for amount in (1e-3, 1e-2, 1e-1, 0.5):

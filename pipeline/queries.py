@@ -16,7 +16,7 @@ from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from acra import hspline as H
-from acra import framekernels, meshops, raycast
+from acra import meshops, raycast
 from acra.bvh import bounds
 from acra.nearest import candidates
 from acra.patch_boxes import rays_meet
@@ -83,29 +83,12 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     else:
         cand, qc, patches = _candidates(shape, q, hull)
         near = _search(shape, qc, patches)
-    n = _normals(shape, near.uv)
+    _, n = H.surface_normals(shape.surface, near.uv[:, 0], near.uv[:, 1], det=shape.details)
     # the rows behind, taken by index: numpy's boolean mask of an (m, 3) array walks it element
     # by element (16 against 3 us for 450 rows)
     side = np.flatnonzero(shape.outward * np.einsum("ij,ij->i", qc - near.points, n) < 0)
     inside[cand[side]] = True
     return inside, Nearest(near.distance[side], np.take(near.points, side, axis=0), np.take(near.uv, side, axis=0))
-
-
-def _normals(shape: Shape, uv: np.ndarray) -> np.ndarray:
-    """Unit outward-or-inward normals ``(m, 3)`` of ``shape``'s surface at parameters ``uv (m, 2)``:
-    `hspline.surface_normals`' bits. Its pole limits and nudges serve only rows where ``du × dv``
-    has no direction; a batch without one (the common case: closest points seldom sit on a pole)
-    takes the first-order evaluation, the cross products and their units as three compiled calls,
-    without the argument handling and the limit steps' checks around them."""
-    surface = shape.surface
-    u, v = uv[:, 0].copy(), uv[:, 1].copy()  # C-contiguous columns: the kernel's one signature
-    ev = H.evaluate(surface, u, v, order=1, det=shape.details)
-    n, bad = H._degenerate(ev, surface.size())
-    if bad.any():
-        return H.surface_normals(surface, u, v, det=shape.details, ev=ev)[1]
-    unit = np.empty(n.shape)
-    framekernels.unit_rows(n, unit)  # n / |n| row by row, as `surface_normals` divides
-    return unit
 
 
 _DEVICE = None  # the embree device every scene shares: a scene of its own would start one (50-200 us CPU)

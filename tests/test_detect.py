@@ -1134,21 +1134,3 @@ def test_the_touch_test_s_box_checks_are_the_array_form():
         assert D._box_meets(other, b, pad) == bool(overlap(other[0], other[1], b[0], b[1], pad)), trial
     # a still geometry's corners are its content's: the whole box of every patch passes
     assert D._every_box_meets(g, np.stack([lo.min(axis=0), hi.max(axis=0)]), 0.0)
-
-
-def test_signed_normals_are_surface_normals_bits():
-    """The normals `queries.signed` tests sides with: `hspline.surface_normals`' bits, both for a
-    batch of ordinary points (three compiled steps) and for one holding pole points, where
-    ``du × dv`` vanishes and the limit is taken (the full `surface_normals`)."""
-    from pipeline import queries as Q
-
-    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(8, 8), depth=2), 1, [[4, 9]]), 0.02, seed=3)
-    shape = S.Shape(hs)
-    rng = np.random.default_rng(5)
-    uv = np.column_stack([rng.uniform(0, hs.u.patches0, 60), rng.uniform(0.1, hs.v.patches0 - 0.1, 60)])
-    pole = np.vstack([uv, [[1.3, 0.0], [2.5, float(hs.v.patches0)]]])
-    for batch in (uv, pole, uv[:0]):
-        want = H.surface_normals(hs, batch[:, 0], batch[:, 1], det=shape.details)[1]
-        got = Q._normals(shape, batch)
-        assert got.shape == want.shape and got.tobytes() == want.tobytes()
-    assert H._degenerate(H.evaluate(hs, pole[-2:, 0], pole[-2:, 1], order=1), hs.size())[1].any()  # the limit path taken

@@ -197,6 +197,23 @@ def test_sphere_poles_have_limit_normals():
         np.testing.assert_allclose(n, np.tile([0, 0, sign], (u.size, 1)), atol=1e-6)
 
 
+def test_normals_of_a_batch_without_poles_are_the_rows_of_one_with_poles():
+    """A batch where every ``du × dv`` has a direction returns at once; its normals are the bits
+    the general path (limits and nudges for the pole rows) gives the same rows in a mixed batch,
+    and ``nudged`` is all False."""
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(8, 8), depth=2), 1, [[4, 9]]), 0.02, seed=3)
+    det = H.details(hs)
+    rng = np.random.default_rng(5)
+    uv = np.column_stack([rng.uniform(0, hs.u.patches0, 60), rng.uniform(0.1, hs.v.patches0 - 0.1, 60)])
+    mixed = np.vstack([uv, [[1.3, 0.0], [2.5, float(hs.v.patches0)]]])
+    assert H._degenerate(H.evaluate(hs, mixed[-2:, 0], mixed[-2:, 1], order=1, det=det), hs.size())[1].any()  # the general path
+    flags = np.ones(len(uv), bool)
+    _, plain = H.surface_normals(hs, uv[:, 0], uv[:, 1], det=det, nudged=flags)
+    _, general = H.surface_normals(hs, mixed[:, 0], mixed[:, 1], det=det)
+    assert plain.tobytes() == general[:len(uv)].tobytes() and not flags.any()
+    assert H.surface_normals(hs, uv[:0, 0], uv[:0, 1], det=det)[1].shape == (0, 3)
+
+
 def test_collapsed_edges_evaluate_finite():
     # a degenerate patch: a whole row of an open sheet collapsed to one point
     cvs, pu, pv = shapes.sheet(6, 6)
