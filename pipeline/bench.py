@@ -85,6 +85,7 @@ class Bench:
     end_to_end_usdc_s: float = float("nan")
     startup: dict = field(default_factory=dict)  # phase -> (median s writing .usda, writing .usdc), `PHASES`
     first_run: tuple | None = None  # (wall s, CPU s) of one `acra run` -o .usdc with an empty numba cache
+    holds: tuple = (0, float("nan"))  # (frames, median ms of their frame loop): frames that hold the previous frame
 
 
 def _median(xs) -> float:
@@ -117,6 +118,7 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
                                              "USD writing", "USD writing, .usdc")}
     frame_ms: tuple = ([], [])
     frame_ms_usdc: tuple = ([], [])
+    hold_ms: list = []
     phases: dict = {fmt: {k: [] for k in PHASES} for fmt in ("usda", "usdc")}
     worst = 0.0
     with tempfile.TemporaryDirectory() as tmp:
@@ -131,6 +133,9 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
                       for col in (0, 1) for fmt in ("usda", "usdc")}
             del stage
             for s in report.stats:
+                if s.hold:  # a hold takes the previous frame's answer (`frames.FrameStats.hold`): neither kind's cost
+                    hold_ms.append(s.ms_total)
+                    continue
                 col = 0 if s.in_collision else 1
                 write, write_usdc = writes[col, "usda"], writes[col, "usdc"]
                 per_stage["set-up"][col].append(s.ms_setup)
@@ -145,7 +150,8 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
                 frame_ms[col].append(s.ms_total + write)
                 frame_ms_usdc[col].append(s.ms_total + write_usdc)
                 worst = max(worst, s.residual_rel)
-        n_col = sum(s.in_collision for s in report.stats)
+        n_col = sum(s.in_collision and not s.hold for s in report.stats)
+        n_hold = sum(s.hold for s in report.stats)
         runs: dict[str, list[float]] = {"usda": [], "usdc": []}
         for k in range(repeat + 1):  # the first is a warm-up (file caches, bytecode), not timed
             for fmt in runs:  # interleaved, so both formats see the same load
@@ -162,10 +168,10 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
                     phases[fmt][name].append(wall - sum(split.values()) if name == "interpreter" else split.get(name, 0.0))
         first = _first_run(src, Path(tmp) / "first.acra.usdc") if first_run else None
     rows = {k: (_median(c), _median(f)) for k, (c, f) in per_stage.items()}
-    return Bench(scene, rows, n_col, len(report.stats) - n_col, (_median(frame_ms[0]), _median(frame_ms[1])),
+    return Bench(scene, rows, n_col, len(report.stats) - n_col - n_hold, (_median(frame_ms[0]), _median(frame_ms[1])),
                  (_median(frame_ms_usdc[0]), _median(frame_ms_usdc[1])), _median(runs["usda"]), worst, large, small, repeat,
                  _median(runs["usdc"]), {k: (_median(phases["usda"][k]), _median(phases["usdc"][k])) for k in PHASES},
-                 first)
+                 first, (n_hold, _median(hold_ms)))
 
 
 def _write_ms(output_layer, report, col: int, path: Path) -> float:
@@ -173,7 +179,7 @@ def _write_ms(output_layer, report, col: int, path: Path) -> float:
     (1) frames of ``report``'s result to ``path`` (its suffix picks the format); NaN if none.
     ``path`` must not exist, and is removed afterwards, untimed: replacing an earlier file would
     charge the write the freeing of that file's blocks (tens of ms wall for a 55 MB layer here)."""
-    kind = {s.frame for s in report.stats if (0 if s.in_collision else 1) == col}
+    kind = {s.frame for s in report.stats if not s.hold and (0 if s.in_collision else 1) == col}
     if not kind:
         return float("nan")
     part = output_layer.FramesResult({f: r for f, r in report.result.frames.items() if f in kind}, report.result.topologies)
@@ -213,6 +219,9 @@ def format_report(b: Bench) -> str:
         lines.append(f"| {stage} | {_ms(c, 1)} | {_ms(f, 2)} | {'' if n is None else f'{n}: '}{ms} |")
     lines.append(f"| **whole frame** (USD writing .usda) | **{_ms(b.frame_ms[0], 1)}** | **{_ms(b.frame_ms[1], 2)}** | |")
     lines.append(f"| whole frame, `-o NAME.usdc` | {_ms(b.frame_ms_usdc[0], 1)} | {_ms(b.frame_ms_usdc[1], 2)} | |")
+    if b.holds[0]:
+        lines += ["", f"Holds, left out of both kinds: {b.holds[0]} frames whose input is the previous frame's bit for "
+                      f"bit take its answer, {b.holds[1]:.2f} ms each (the frame loop's median, without writing)."]
     if b.startup:
         lines += ["", f"Whole process, `acra run {b.scene.name} --quiet`, median of {b.repeat} after a warm-up, s:", "",
                   "| phase | `-o NAME.usda` | `-o NAME.usdc` |", "|---|---:|---:|"]

@@ -6,7 +6,9 @@ that carries state across frames (``acra:relax``, ``acra:plasticity``): it start
 animator's shape plus what it carried out of the previous frame (`pipeline.state`). Within a
 frame the loop iterates: detect every pair, turn each contact into data points (thesis eq. 4.15–4.16), respond
 every deformable (`acra.respond.respond`), and detect again, until the residual penetration of
-every pair is within tolerance or the iteration cap is reached. Transforms are only read.
+every pair is within tolerance or the iteration cap is reached. A frame whose input is the
+previous frame's bit for bit (a hold) takes that frame's answer (`_Run._hold_of`). Transforms are
+only read.
 """
 
 from __future__ import annotations
@@ -98,6 +100,7 @@ class FrameStats:
     events: list = field(default_factory=list)
     volume_targets: dict = field(default_factory=dict)  # path -> ("volume" | "area", the animator's display measure)
     pair_residual_rel: dict = field(default_factory=dict)  # (path, other path) -> residual_rel of that pair
+    hold: bool = False  # a hold: the frame's input is the previous frame's, bit for bit, and so is its answer (`_Run._hold_of`)
 
 
 def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints, controls: R.Controls,
@@ -255,13 +258,31 @@ class _Round:
     unseen_rel: float = 0.0
 
 
+REWIND_FRAMES = 10_000  # `contact.rewind`'s ``max_back``: whole frames a rewind steps back at most
+
+
+@dataclass(frozen=True)
+class _Answered:
+    """A processed frame: its input (`usdio.state_at`'s deformable and collider states), its
+    statistics, its final surfaces (scene order) and its residuals (`residual.known`, ``None``
+    if nothing was measured)."""
+
+    frame: int
+    dstates: list
+    cstates: list
+    stats: FrameStats
+    surfaces: list
+    residuals: object
+
+
 class _Run:
     """What a run keeps across frames and the steps of one frame.
 
     Kept across frames: each collider's prepared mesh, the input states by time code (an
     unchanged input surface handed back as the same object, so its object-space `shape.Shape` is
     reused), the display of each distinct surface, each pair's rewinding cache, and the carried
-    state (`pipeline.state`). A frame (`frame`) is rounds of `detect` → `data_points` (eq.
+    state (`pipeline.state`), and the last frame's input and answer, which a hold takes
+    (`_hold_of`). A frame (`frame`) is rounds of `detect` → `data_points` (eq.
     4.15–4.16) → `respond` until the residual is within tolerance or the cap is reached; the
     round with the least residual where the user looks (`visible`) is kept.
     """
@@ -280,6 +301,7 @@ class _Run:
         self._shown: dict = {}  # (id(surface), world matrix) -> (surface, residual.Shown), most recent last
         self._collider_solids: dict = {}  # collider row -> its inside (`residual.collider_solid`)
         self._depths: dict = {}  # `residual.measure_frame`'s answers by pair of shown objects, most recent last
+        self._last: _Answered | None = None  # the frame processed last and what it gave
 
     def states(self, t: float):
         """``(deformable states, collider states)`` at time code ``t`` (`usdio.state_at`)."""
@@ -543,6 +565,9 @@ class _Run:
         t0 = time.perf_counter()
         st = FrameStats(frame)
         dstates, cstates = self.states(float(frame))
+        last = self._hold_of(frame, dstates, cstates)
+        if last is not None:
+            return self._repeat(frame, last, result, t0)
         st.xforms = {m.path: s.xform for m, s in zip(defs, dstates)}
         st.xforms.update({c.path: s.xform for c, s in zip(self.scene.colliders, cstates)})
         surfaces = self.carry.begin(frame, [s.surface for s in dstates])
@@ -624,6 +649,46 @@ class _Run:
         st.volume_targets = self.carry.volume_targets()
         for i, model in enumerate(defs):  # the display is the run's, chosen after every frame (`display.finish`)
             result.add(frame, model.path, output_layer.DeformableResult(None, None, surfaces[i], st.residual, st.in_collision, carried[i]))
+        self._last = _Answered(frame, dstates, cstates, st, surfaces, result.residuals.get(frame))
+        st.ms_total = 1e3 * (time.perf_counter() - t0)
+        return st
+
+    def _hold_of(self, frame: int, dstates: list, cstates: list) -> _Answered | None:
+        """The previous frame's answer where ``frame`` holds it: ``frame`` follows that frame directly and
+        its input is that frame's bit for bit (each deformable's surface, matrix and
+        ``acra:enabled``, each collider's matrix), and nothing carries state across frames.
+
+        A frame is a function of its input and of the contact rewinding (`contact.rewind`), which
+        reads the input at earlier times: from a hold it steps back one more whole frame,
+        through the previous frame's identical input, to the same last free time and the same
+        first touch, and the slide since it (`contact.slide_since`) reads the same two times'
+        input. So every round gives what the previous frame's gave, and the hold takes its
+        answer. A rewind that would step back more than `REWIND_FRAMES` frames is not assumed."""
+        last = self._last
+        if (last is None or last.frame != frame - 1 or self.carry.active
+                or frame - self.scene.start >= REWIND_FRAMES):
+            return None
+        for a, b in zip(last.dstates, dstates):
+            if a.surface is not b.surface or a.enabled != b.enabled or a.xform.tobytes() != b.xform.tobytes():
+                return None
+        for a, b in zip(last.cstates, cstates):
+            if a.xform.tobytes() != b.xform.tobytes():
+                return None
+        return last
+
+    def _repeat(self, frame: int, last: _Answered, result: output_layer.FramesResult, t0: float) -> FrameStats:
+        """``frame``'s statistics and results: the answer ``last`` of the frame it holds (`_hold_of`)."""
+        was = last.stats
+        st = replace(was, frame=frame, hold=True, ms_setup=0.0, ms_detect=0.0, ms_convert=0.0, ms_respond=0.0,
+                     ms_respond_by={}, ms_output=0.0, ms_visible=0.0, contacts=list(was.contacts),
+                     data_points=dict(was.data_points), xforms=dict(was.xforms), regions=dict(was.regions),
+                     events=list(was.events), volume_targets=dict(was.volume_targets),
+                     pair_residual_rel=dict(was.pair_residual_rel))
+        if last.residuals is not None:
+            result.residuals[frame] = last.residuals
+        for i, model in enumerate(self.defs):
+            result.add(frame, model.path, output_layer.DeformableResult(None, None, last.surfaces[i], st.residual, st.in_collision, None))
+        self._last = replace(last, frame=frame)
         st.ms_total = 1e3 * (time.perf_counter() - t0)
         return st
 

@@ -74,7 +74,7 @@ __all__ = [
 ]
 
 PART_SUFFIX = ".acrapart.npz"
-PART_FORMAT = "acra-part/1"
+PART_FORMAT = "acra-part/2"
 RECORD_FIELDS = {
     "points": np.float64,
     "normals": np.float64,
@@ -97,6 +97,7 @@ STAT_FIELDS = {
     "frame": np.int64,
     "in_collision": np.bool_,
     "iterations": np.int64,
+    "hold": np.bool_,
     "residual": np.float64,
     "residual_rel": np.float64,
     "ms_setup": np.float64,

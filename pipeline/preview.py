@@ -479,8 +479,8 @@ class Preview:
         colliders = {c.path: st.xforms[c.path] for c in self.scene.colliders}
         line = None
         if st.in_collision:
-            line = (f"frame {st.frame}: collision, {st.iterations} rounds, residual {st.residual_rel:.2e} of size, "
-                    f"{st.ms_total:.0f} ms")
+            rounds = f"holds frame {st.frame - 1} ({st.iterations} rounds there)" if st.hold else f"{st.iterations} rounds"
+            line = f"frame {st.frame}: collision, {rounds}, residual {st.residual_rel:.2e} of size, {st.ms_total:.0f} ms"
         self.recording.log_frame(st.frame, objects, colliders, line)
         log_state(self.rec, self.scene, st, frame_result, {m.path: result.topology(m) for m in self.scene.deformables})
         if self._marker is None:  # markers scale with the smallest deformable, as first seen

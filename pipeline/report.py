@@ -124,6 +124,7 @@ def report_dict(run, tolerance: float, over: list[tuple[int, float]], status: in
                 "residual": _finite_or_none(s.residual_rel),
                 "residual_abs": _finite_or_none(s.residual),
                 "rounds": int(s.iterations),
+                "hold": bool(s.hold),
                 "ms": {k: round(float(getattr(s, f"ms_{k}")), 3) for k in ("setup", "detect", "convert", "respond", "visible", "output", "total")},
             }
             for s in stats

@@ -13,7 +13,9 @@ BOX = Path(__file__).resolve().parents[1] / "scenes" / "box_into_sheet.py"
 
 def test_bench_splits_every_stage_over_collision_and_free_frames():
     b = B.run_bench(BOX, repeat=1)
-    assert (b.n_collision, b.n_free) == (6, 10)  # the box scene: frames 11-16 collide
+    # the box scene: frames 11-16 collide, and 12-16 hold frame 11 (the box stays): their own line
+    assert (b.n_collision, b.n_free, b.holds[0]) == (1, 10, 5)
+    assert 0 <= b.holds[1] < b.frame_ms[0]
     assert set(B.THESIS) <= set(b.rows)
     for stage, (c, f) in b.rows.items():
         assert np.isfinite(c) and np.isfinite(f) and c >= 0 and f >= 0, stage
@@ -30,6 +32,7 @@ def test_bench_splits_every_stage_over_collision_and_free_frames():
     text = B.format_report(b)
     assert "| detection |" in text and "30: 16" in text and "end to end" in text
     assert "free frame, `-o NAME.usdc`" in text and "end to end, `-o NAME.usdc`" in text
+    assert "Holds, left out of both kinds: 5 frames" in text
 
 
 def test_bench_times_a_first_run_with_an_empty_numba_cache(monkeypatch, tiny_stage):

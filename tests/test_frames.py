@@ -235,3 +235,68 @@ def test_the_residual_measures_a_pair_as_the_exact_box_test_without_a_met_surfac
             met += 1
             assert got
     assert met >= 5
+
+
+# --- holds: a frame whose input is the previous frame's, bit for bit ----------------------------
+
+
+def _pressed_and_held(path, **state):
+    """A 4x4 sheet and a box keyed from z = 1 at frame 1 to 0.1 into the sheet at frame 3; the
+    stage runs to frame 5, so frames 4 and 5 hold frame 3's input. ``state``: the sheet's
+    `authoring.set_state_controls` (state carried across frames)."""
+    from acra import shapes
+    from pipeline import authoring
+
+    stage = authoring.new_stage(1, 5, fps=24, up_axis="Z")
+    cvs, _, _ = shapes.sheet(4, 4, width=2.0, depth=2.0)
+    prim = authoring.add_deformable(stage, "/World/Sheet", cvs, levels=1, samples=2, absorption=[1.0])
+    if state:
+        authoring.set_state_controls(prim, **state)
+    verts, faces = authoring.box(1.0)
+    mover = authoring.add_xform(stage, "/World/Mover")
+    authoring.add_collider(stage, "/World/Mover/Box", verts, faces)
+    authoring.key_transform(mover, 1, translate=(0.0, 0.0, 1.0))
+    authoring.key_transform(mover, 3, translate=(0.0, 0.0, 0.4))
+    return authoring.save(stage, path)
+
+
+@pytest.mark.parametrize("state, holds", [({}, [False, False, False, True, True]),
+                                          ({"plasticity": 0.5}, [False] * 5)])
+def test_frames_after_the_last_key_hold_unless_the_object_carries_state(tmp_path, state, holds):
+    from pipeline import usdio
+
+    stage = usdio.open_input(_pressed_and_held(tmp_path / "held.usda", **state))
+    scene = usdio.read_scene(stage)
+    result, stats = F.respond_frames(stage, scene, [1, 2, 3, 4, 5])
+    assert [s.hold for s in stats] == holds
+    assert [s.in_collision for s in stats] == [False, False, True, True, True]
+    if not state:  # a hold's answer is the frame it holds: the same surface, residual and rounds
+        three = result.frames[3]["/World/Sheet"]
+        for f, st in ((4, stats[3]), (5, stats[4])):
+            assert result.frames[f]["/World/Sheet"].surface is three.surface
+            assert (st.residual, st.iterations, st.ms_respond) == (stats[2].residual, stats[2].iterations, 0.0)
+
+
+def test_a_hold_gives_the_bits_computing_the_frame_gives():
+    """`box_into_sheet`'s box lands at frame 11 and stays: frames 12 and 13 hold frame 11. Frame 12
+    computed on its own (the first frame of a run holds nothing) gives the same surface bits,
+    residual and rounds as the hold."""
+    from acra import hspline as H
+    from pipeline import usdio
+    from pipeline.run import forget
+
+    stage = usdio.open_input(usdio.load_scene_file(SCENE))
+    scene = usdio.read_scene(stage)
+    held, stats = F.respond_frames(stage, scene, [10, 11, 12, 13])
+    assert [s.hold for s in stats] == [False, False, True, True]
+    assert [s.in_collision for s in stats] == [False, True, True, True]
+    forget()
+    alone, (st,) = F.respond_frames(stage, scene, [12])
+    assert not st.hold and st.in_collision
+    a, b = held.frames[12]["/World/Sheet"].surface, alone.frames[12]["/World/Sheet"].surface
+    np.testing.assert_array_equal(a.cvs, b.cvs)
+    ha, hb = H.to_arrays(a), H.to_arrays(b)
+    for name in ("patch_level", "patches", "offset_level", "offset_cvs", "offsets"):
+        np.testing.assert_array_equal(getattr(ha, name), getattr(hb, name))
+    assert (st.residual, st.residual_rel, st.iterations) == (stats[2].residual, stats[2].residual_rel, stats[2].iterations)
+    assert stats[1].residual == stats[2].residual and stats[1].iterations == stats[2].iterations

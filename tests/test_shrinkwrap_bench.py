@@ -182,6 +182,21 @@ def test_tables_have_a_row_per_frame_and_a_median():
     assert text.count("| **median** |") == 2 and "| 102.0 | 1.00 |" in text
 
 
+def test_the_median_times_leave_holds_out_and_say_so():
+    """Frames 2 and 3 hold frame 1 (ACRA took its answer): the times' median is frame 1's alone,
+    the holds' own median is given beside it, and the quality columns still cover every frame."""
+    pen = S.Penetration(0.1, 0.05, 3, 0.2)
+    mv = S.Displacement(10, 4, 0.01, 0.1)
+    rows = [S.FrameRow(1, pen, (40.0, 2.0), (pen, pen), (mv, mv), 2),
+            S.FrameRow(2, pen, (0.5, 2.0), (pen, pen), (mv, mv), 2, hold=True),
+            S.FrameRow(3, pen, (0.25, 2.0), (pen, pen), (mv, mv), 2, hold=True)]
+    text = S.tables(rows)
+    median = next(line for line in text.splitlines() if line.startswith("| **median** | 3 /"))
+    assert "| 40.0 | 2.00 | 20.0× |" in median
+    assert "| 2 (hold) |" in text and "| 3 (hold) |" in text
+    assert "Holds: at frames 2, 3" in text and "0.38 ms against Shrinkwrap's 2.00 ms" in text
+
+
 def test_an_explicit_venv_without_python_is_an_error(tmp_path):
     with pytest.raises(RuntimeError, match="no python"):
         S.ensure_venv(tmp_path / "nothing")
