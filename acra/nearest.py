@@ -407,12 +407,15 @@ def _candidates(q, equations, slack, ex_pts, ex_keep, ex_start, ex_stop, ex_dim,
         _kd_nearest(pts, keep, start, stop, dim, split, left, qc, best, squares)
     limit = np.empty(m)
     most = np.sqrt(squares[0])
+    big = 0.0
     for i in range(m):
         d = np.sqrt(squares[i])
         if d > most or d != d:  # numpy's max: a NaN wins
             most = d
-        limit[i] = d * (1 + 1e-9) + 1e-300
-    reach = most * (1 + 1e-9) + 1e-300
+        size = max(abs(qc[i, 0]), abs(qc[i, 1]), abs(qc[i, 2]))
+        big = max(big, size)
+        limit[i] = d * (1 + 1e-9) + ROUNDING * size + 1e-300
+    reach = most * (1 + 1e-9) + ROUNDING * big + 1e-300
     box = np.empty((2, 3))
     _bounds(qc, box)
     q_lo0, q_lo1, q_lo2 = box[0, 0] - reach, box[0, 1] - reach, box[0, 2] - reach
@@ -444,6 +447,7 @@ def _candidates(q, equations, slack, ex_pts, ex_keep, ex_start, ex_stop, ex_dim,
 
 
 _NO_HULL = np.zeros((0, 4))
+ROUNDING = 1e-12  # `candidates`' bound past the coarse distance, over a point's largest coordinate magnitude
 
 
 def candidates(q: np.ndarray, equations: np.ndarray | None, slack: float, extra: PointTree | None, tree: PointTree,
@@ -458,8 +462,14 @@ def candidates(q: np.ndarray, equations: np.ndarray | None, slack: float, extra:
     whose rows ``keep (n,) bool`` hold, `acra.kdtree.nearest_squares`; ``None``: no ``extra``,
     every row), the boxes overlapping the points' box widened by the largest bound
     (`pipeline.grids.overlap`), then those within a point's bound (`acra.patch_boxes.boxes_within`),
-    each bound ``d * (1 + 1e-9) + 1e-300``. The same arithmetic as those steps in turn, so the
-    same rows."""
+    each bound ``d * (1 + 1e-9) + ROUNDING * s + 1e-300``, ``s`` the point's largest coordinate
+    magnitude (the box's widening: the largest ``d`` and ``s``). The same arithmetic as those
+    steps in turn, so the same rows.
+
+    The ``ROUNDING * s`` term keeps the bound above the rounding of the points themselves: a
+    point on a flat patch lies on its coarse point (``d = 0``) and in its box, whose thickness
+    is 0, yet the evaluated point and the box's CV coordinates differ in their last bits, and
+    a bound of ``d`` alone would leave every box out."""
     q = np.ascontiguousarray(q, np.float64).reshape(-1, 3)
     hull = _NO_HULL if equations is None else np.ascontiguousarray(equations, np.float64)
     if extra is None:

@@ -169,14 +169,31 @@ def test_candidates_are_the_array_steps(seed):
         if len(qc):
             best = None if extra is None else kdtree.nearest_squares(extra, qc)
             upper = np.sqrt(kdtree.nearest_squares(tree, qc, keep, best))
-            reach = upper.max() * (1 + 1e-9) + 1e-300
+            size = np.abs(qc).max(axis=1)
+            reach = upper.max() * (1 + 1e-9) + N.ROUNDING * size.max() + 1e-300
             qlo, qhi = bounds(qc)
             pre = np.nonzero(overlap(lo, hi, qlo - reach, qhi + reach, 0.0))[0]
-            want = pre[boxes_within(lo[pre], hi[pre], qc, upper * (1 + 1e-9) + 1e-300)]
+            want = pre[boxes_within(lo[pre], hi[pre], qc, upper * (1 + 1e-9) + N.ROUNDING * size + 1e-300)]
         got_rows, got_q, got = N.candidates(q, hull, slack, extra, tree, keep, lo, hi)
         np.testing.assert_array_equal(got_rows, rows)
         np.testing.assert_array_equal(got_q, qc)
         np.testing.assert_array_equal(got, want)
+
+
+def test_a_point_on_a_flat_patch_finds_its_box_through_the_last_bits():
+    """A flat patch's box has no thickness: a point evaluated on it, at its coarse point
+    (distance 0), lies off the box by its last bits, and still gets the patch."""
+    from acra import kdtree
+
+    z = 0.03846435624
+    lo, hi = np.array([[-3.0, -3.0, z]]), np.array([[3.0, 3.0, z]])
+    q = np.array([[0.0, 0.0, np.nextafter(z, 1.0)]])
+    tree = kdtree.build(q.copy())
+    rows, qc, patches = N.candidates(q, None, 0.0, None, tree, None, lo, hi)
+    np.testing.assert_array_equal(patches, [0])
+    far = np.array([[0.0, 0.0, z + 1e-9]])  # a real gap: a coarse point there, the box out of reach
+    _, _, none = N.candidates(far, None, 0.0, None, kdtree.build(far.copy()), None, lo, hi)
+    assert none.size == 0
 
 
 def test_tree_boxes_are_their_triangles_boxes():
