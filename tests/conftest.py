@@ -160,17 +160,20 @@ def elastic_levels(stage, path, frame):
 # --- a tiny stage for command-line tests: a 4x4 sheet and a box that presses into it -----------
 
 
-def write_tiny_stage(path, frames=3, n=4, levels=1, samples=2, depth=0.1, top=1.0, **deformable):
+def write_tiny_stage(path, frames=3, n=4, levels=1, samples=2, depth=0.1, top=1.0, end=None, sheet=None, **deformable):
     """Save a stage to ``path``: ``/World/Sheet`` (an ``n`` x ``n`` open sheet, 2 units wide, at
     z = 0) and ``/World/Mover/Box`` (a 1-unit collider box keyed from its centre at z = ``top``
-    at frame 1 down to ``depth`` into the sheet at frame ``frames``). Returns the path."""
+    at frame 1 down to ``depth`` into the sheet at frame ``frames``); the stage ends at ``end``
+    (default ``frames``), and ``sheet(prim, cvs)`` adds to the sheet's prim. Returns the path."""
     from acra import shapes
     from pipeline import authoring
 
-    stage = authoring.new_stage(1, frames, fps=24, up_axis="Z")
+    stage = authoring.new_stage(1, frames if end is None else end, fps=24, up_axis="Z")
     cvs, _, _ = shapes.sheet(n, n, width=2.0, depth=2.0)
     deformable.setdefault("absorption", [0.0] * (levels - 1) + [1.0])
-    authoring.add_deformable(stage, "/World/Sheet", cvs, levels=levels, samples=samples, **deformable)
+    prim = authoring.add_deformable(stage, "/World/Sheet", cvs, levels=levels, samples=samples, **deformable)
+    if sheet is not None:
+        sheet(prim, cvs)
     verts, faces = authoring.box(1.0)
     mover = authoring.add_xform(stage, "/World/Mover")
     authoring.add_collider(stage, "/World/Mover/Box", verts, faces)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 
+from conftest import write_tiny_stage
 from pipeline import detect as D
 from pipeline import frames as F
 from pipeline.cli import main
@@ -241,27 +242,20 @@ def test_the_residual_measures_a_pair_as_the_exact_box_test_without_a_met_surfac
 
 
 def _pressed_and_held(path, keyed_cvs=False, **state):
-    """A 4x4 sheet and a box keyed from z = 1 at frame 1 to 0.1 into the sheet at frame 3; the
-    stage runs to frame 5, so frames 4 and 5 hold frame 3's input. ``keyed_cvs``: the sheet's
-    CVs are keyed too, rising 0.05 from frame 1 to 3. ``state``: the sheet's
-    `authoring.set_state_controls` (state carried across frames)."""
-    from acra import shapes
+    """`conftest.write_tiny_stage`'s box pressed 0.1 into the sheet at frame 3, the stage running
+    to frame 5, so frames 4 and 5 hold frame 3's input. ``keyed_cvs``: the sheet's CVs are keyed
+    too, rising 0.05 from frame 1 to 3. ``state``: the sheet's `authoring.set_state_controls`
+    (state carried across frames)."""
     from pipeline import authoring
 
-    stage = authoring.new_stage(1, 5, fps=24, up_axis="Z")
-    cvs, _, _ = shapes.sheet(4, 4, width=2.0, depth=2.0)
-    prim = authoring.add_deformable(stage, "/World/Sheet", cvs, levels=1, samples=2, absorption=[1.0])
-    if keyed_cvs:
-        authoring.key_cvs(prim, 1, cvs)
-        authoring.key_cvs(prim, 3, cvs + np.array([0.0, 0.0, 0.05]))
-    if state:
-        authoring.set_state_controls(prim, **state)
-    verts, faces = authoring.box(1.0)
-    mover = authoring.add_xform(stage, "/World/Mover")
-    authoring.add_collider(stage, "/World/Mover/Box", verts, faces)
-    authoring.key_transform(mover, 1, translate=(0.0, 0.0, 1.0))
-    authoring.key_transform(mover, 3, translate=(0.0, 0.0, 0.4))
-    return authoring.save(stage, path)
+    def sheet(prim, cvs):
+        if keyed_cvs:
+            authoring.key_cvs(prim, 1, cvs)
+            authoring.key_cvs(prim, 3, cvs + np.array([0.0, 0.0, 0.05]))
+        if state:
+            authoring.set_state_controls(prim, **state)
+
+    return write_tiny_stage(path, frames=3, end=5, sheet=sheet)
 
 
 @pytest.mark.parametrize("state, holds", [({}, [False, False, False, True, True]),
