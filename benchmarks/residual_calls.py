@@ -5,7 +5,8 @@
 Runs the scene's ``--frames`` (after a free frame, as `stage_split.py` does), keeping every
 `residual.pair_depth` call's arguments (the frame loop's rounds and the run's display), then
 replays them ``--passes`` times, each pass with empty part caches (every part solid built again,
-as the first query of a display builds it), and prints the CPU milliseconds of the fastest pass,
+as the first query of a display builds it) and one fresh copy of each recorded `Shown`, shared by
+its calls as the run shares it (what it keeps: fingerprint, boxes, face chunks), and prints the CPU milliseconds of the fastest pass,
 its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box; where
 the branch and bound is one compiled call, `acra.bvh.depth`, its searches and eq. (6) are inside it) and a digest of every answer (depths,
 completeness, the points, parameters and depths found inside): two checkouts answer alike when

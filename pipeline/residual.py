@@ -176,7 +176,7 @@ def _digest(x: np.ndarray) -> bytes:
     return hit[1]
 
 
-_CHUNK_VERTICES: dict = {}  # id(triangles) -> (triangles made read-only, points, `bvh.chunk_vertices`), most recent last
+_CHUNK_VERTICES: dict = {}  # id(triangles) -> (triangles made read-only, their points' count, `bvh.chunk_vertices`), most recent last
 
 
 def _chunk_vertices(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
