@@ -35,7 +35,8 @@ from numba import njit
 from acra.pseudonormals import _signs, flood as _flood, links as _links, representatives as _representatives
 from acra.pseudonormals import vertex_normals as _vertex_normals
 
-__all__ = ["LEAF", "Tree", "build", "build_linear", "part_tree", "closest", "distances", "boxes_meet", "faces_meet_rows", "faces_at", "barycentric", "facet_bound", "bounds",
+__all__ = ["LEAF", "Tree", "build", "build_linear", "part_tree", "closest", "distances", "boxes_meet", "faces_meet_rows", "chunk_vertices", "face_chunks",
+           "faces_at", "barycentric", "facet_bound", "bounds",
            "first_rows", "distinct_rows", "covering_radii", "lattice_points", "children", "depth"]
 
 LEAF = 4  # triangles per leaf
@@ -650,18 +651,135 @@ def _faces_meet_rows(points, faces, lo, hi, pad, beyond, out):
     return n
 
 
-def faces_meet_rows(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0) -> np.ndarray:
+def faces_meet_rows(points: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, pad: float = 0.0,
+                    chunks: tuple | None = None) -> np.ndarray:
     """The rows ``(m,) int64`` of ``faces`` (``(f, 3) int64`` into ``points (n, 3) float64``, finite)
     whose triangles' boxes come within ``pad`` of the box ``lo, hi`` (`boxes_meet`'s comparisons,
     the same answers), in increasing order, without gathering the triangles: each point is
-    compared with the box once, however many faces share it."""
+    compared with the box once, however many faces share it. With ``chunks`` (`face_chunks` of
+    these points and faces) only the faces of the chunks whose boxes come within ``pad`` are
+    compared, the same rows."""
     out = np.empty(len(faces), np.int64)
     n = 0
     if len(faces):
         p = np.ascontiguousarray(points, np.float64)
-        n = _faces_meet_rows(p, _read_only(faces), np.ascontiguousarray(lo, np.float64).reshape(3),
-                             np.ascontiguousarray(hi, np.float64).reshape(3), float(pad), np.empty(len(p), np.uint8), out)
+        lo3, hi3 = np.ascontiguousarray(lo, np.float64).reshape(3), np.ascontiguousarray(hi, np.float64).reshape(3)
+        if chunks is None:
+            n = _faces_meet_rows(p, _read_only(faces), lo3, hi3, float(pad), np.empty(len(p), np.uint8), out)
+        else:
+            n = _faces_meet_chunks(p, _read_only(faces), CHUNK, *chunks, lo3, hi3, float(pad), out)
     return out[:n].copy()
+
+
+CHUNK = 32  # `face_chunks`: consecutive faces a chunk, consecutive chunks a group
+
+
+@njit(cache=True, nogil=True)
+def _chunk_vertices(faces, size, n, start, verts):
+    seen = np.full(n, -1, np.int64)  # the last chunk each point was listed for
+    k = 0
+    for c in range(start.shape[0] - 1):
+        start[c] = k
+        for i in range(c * size, min((c + 1) * size, faces.shape[0])):
+            for j in range(3):
+                v = faces[i, j]
+                if seen[v] != c:
+                    seen[v] = c
+                    verts[k] = v
+                    k += 1
+    start[start.shape[0] - 1] = k
+    return k
+
+
+def chunk_vertices(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The points each chunk of `CHUNK` consecutive rows of ``faces (f, 3) int64`` (into ``n``
+    points) uses, once each: ``(start (c + 1,) int64, verts (k,) int64)``, chunk ``c``'s points
+    ``verts[start[c]:start[c + 1]]``. A function of the faces alone: a display's topology gives
+    it to every display on it (`face_chunks`)."""
+    nc = -(-len(faces) // CHUNK)
+    start, verts = np.zeros(nc + 1, np.int64), np.empty(3 * len(faces), np.int64)
+    k = _chunk_vertices(_read_only(faces), CHUNK, int(n), start, verts) if len(faces) else 0
+    return start, verts[:k].copy()
+
+
+@njit(cache=True, nogil=True)
+def _face_chunks(points, start, verts, size, clo, chi, glo, ghi):
+    nc = clo.shape[0]
+    for c in range(nc):
+        a0, a1, a2, b0, b1, b2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
+        for r in range(start[c], start[c + 1]):
+            v = verts[r]
+            x, y, z = points[v, 0], points[v, 1], points[v, 2]
+            a0, b0 = min(a0, x), max(b0, x)
+            a1, b1 = min(a1, y), max(b1, y)
+            a2, b2 = min(a2, z), max(b2, z)
+        clo[c, 0], clo[c, 1], clo[c, 2], chi[c, 0], chi[c, 1], chi[c, 2] = a0, a1, a2, b0, b1, b2
+    for g in range(glo.shape[0]):
+        a0, a1, a2, b0, b1, b2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
+        for c in range(g * size, min((g + 1) * size, nc)):
+            a0, a1, a2 = min(a0, clo[c, 0]), min(a1, clo[c, 1]), min(a2, clo[c, 2])
+            b0, b1, b2 = max(b0, chi[c, 0]), max(b1, chi[c, 1]), max(b2, chi[c, 2])
+        glo[g, 0], glo[g, 1], glo[g, 2], ghi[g, 0], ghi[g, 1], ghi[g, 2] = a0, a1, a2, b0, b1, b2
+
+
+def face_chunks(points: np.ndarray, used: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Boxes of a mesh's faces in chunks of `CHUNK` consecutive rows, and of those chunks in
+    groups of `CHUNK`, for `faces_meet_rows`: ``(lo (c, 3), hi (c, 3), group_lo (g, 3), group_hi
+    (g, 3))`` float64, the minima and maxima of the points ``points (n, 3) float64`` (finite) each
+    chunk's faces use (``used``, `chunk_vertices` of the faces). A display's rows run along its
+    surface, so a chunk's faces lie together and a query near a contact opens a few chunks
+    instead of comparing every point."""
+    start, verts = used
+    nc = len(start) - 1
+    ng = -(-nc // CHUNK)
+    clo, chi, glo, ghi = np.empty((nc, 3)), np.empty((nc, 3)), np.empty((ng, 3)), np.empty((ng, 3))
+    if nc:
+        _face_chunks(np.ascontiguousarray(points, np.float64), start, verts, CHUNK, clo, chi, glo, ghi)
+    return clo, chi, glo, ghi
+
+
+@njit(cache=True, nogil=True)
+def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out):
+    # `_faces_meet_rows`' comparisons, face by face, in the chunks and groups that may hold a face
+    # meeting the box: a face lacks a side's bit when one of its corners does (``x <= hi + pad``,
+    # ``lo <= x + pad``), and then its chunk's least ``x`` (at most that corner's) is ``<= hi +
+    # pad`` and ``lo <=`` its largest ``x`` plus ``pad`` (the rounding of ``x + pad`` is monotone
+    # in ``x``): a box missing that is skipped with every face in it
+    top0, top1, top2 = hi[0] + pad, hi[1] + pad, hi[2] + pad
+    lo0, lo1, lo2 = lo[0], lo[1], lo[2]
+    nf, nc = faces.shape[0], clo.shape[0]
+    n = 0
+    for g in range(glo.shape[0]):
+        if not (glo[g, 0] <= top0 and glo[g, 1] <= top1 and glo[g, 2] <= top2 and lo0 <= ghi[g, 0] + pad
+                and lo1 <= ghi[g, 1] + pad and lo2 <= ghi[g, 2] + pad):
+            continue
+        for c in range(g * size, min((g + 1) * size, nc)):
+            if not (clo[c, 0] <= top0 and clo[c, 1] <= top1 and clo[c, 2] <= top2 and lo0 <= chi[c, 0] + pad
+                    and lo1 <= chi[c, 1] + pad and lo2 <= chi[c, 2] + pad):
+                continue
+            for i in range(c * size, min((c + 1) * size, nf)):
+                shared = 63
+                for j in range(3):
+                    v = faces[i, j]
+                    x, y, z = points[v, 0], points[v, 1], points[v, 2]
+                    bits = 0
+                    if not lo0 <= x + pad:
+                        bits |= 1
+                    if not x <= top0:
+                        bits |= 2
+                    if not lo1 <= y + pad:
+                        bits |= 4
+                    if not y <= top1:
+                        bits |= 8
+                    if not lo2 <= z + pad:
+                        bits |= 16
+                    if not z <= top2:
+                        bits |= 32
+                    shared &= bits
+                if shared == 0:
+                    out[n] = i
+                    n += 1
+    return n
 
 
 @njit(cache=True, nogil=True)

@@ -5,7 +5,8 @@
 Runs the scene's ``--frames`` (after a free frame, as `stage_split.py` does), keeping every
 `residual.pair_depth` call's arguments (the frame loop's rounds and the run's display), then
 replays them ``--passes`` times, each pass with empty part caches (every part solid built again,
-as the first query of a display builds it), and prints the CPU milliseconds of the fastest pass,
+as the first query of a display builds it) and one fresh copy of each recorded `Shown`, shared by
+its calls as the run shares it (what it keeps: fingerprint, boxes, face chunks), and prints the CPU milliseconds of the fastest pass,
 its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box; where
 the branch and bound is one compiled call, `acra.bvh.depth`, its searches and eq. (6) are inside it) and a digest of every answer (depths,
 completeness, the points, parameters and depths found inside): two checkouts answer alike when
@@ -42,12 +43,17 @@ def _timed(label: str, f):
     return wrapper
 
 
-def _fresh(s, parts: dict):
+def _fresh(s, parts: dict, made: dict):
     """``s`` with empty part caches, one per display (``parts``: by the recorded cache's id),
-    and so the display it may take parts from (``like``, where a checkout has it)."""
+    and so the display it may take parts from (``like``, where a checkout has it); one fresh
+    object per recorded one (``made``: by its id), so the calls of a pass share them as the run did."""
+    if id(s) in made:
+        return made[id(s)][1]
     like = getattr(s, "like", None)
-    more = {} if like is None else {"like": _fresh(like, parts)}
-    return dataclasses.replace(s, parts=None if s.parts is None else parts.setdefault(id(s.parts), {}), **more)
+    more = {} if like is None else {"like": _fresh(like, parts, made)}
+    out = dataclasses.replace(s, parts=None if s.parts is None else parts.setdefault(id(s.parts), {}), **more)
+    made[id(s)] = (s, out)
+    return out
 
 
 def main() -> None:
@@ -75,6 +81,8 @@ def main() -> None:
     bvh.facet_bound = _timed("eq. (6) (acra.bvh.facet_bound)", bvh.facet_bound)
     if hasattr(bvh, "faces_meet"):  # its mask form, where a checkout has it
         bvh.faces_meet = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet)
+    if hasattr(bvh, "face_chunks"):  # boxes of a display's faces in chunks, where a checkout has them
+        bvh.face_chunks = _timed("triangles near a box (acra.bvh.faces_meet_rows)", bvh.face_chunks)
     if hasattr(bvh, "faces_meet_rows"):  # its form giving the rows, where a checkout has it
         bvh.faces_meet_rows = _timed("triangles near a box (acra.bvh.faces_meet_rows)", bvh.faces_meet_rows)
     if hasattr(bvh, "depth"):  # the branch and bound in one compiled call, where a checkout has it
@@ -86,7 +94,8 @@ def main() -> None:
     for _ in range(args.passes):
         with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs
             parts: dict = {}  # a fresh cache per display, as a new display starts
-            fresh = [tuple(_fresh(s, parts) for s in (x, y)) + (t, d) for x, y, t, d in calls]
+            made: dict = {}  # id of a recorded `Shown` -> (it, its fresh copy)
+            fresh = [tuple(_fresh(s, parts, made) for s in (x, y)) + (t, d) for x, y, t, d in calls]
             SPENT.clear()
             h = hashlib.sha1()
             t0 = time.process_time()

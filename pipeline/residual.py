@@ -113,7 +113,14 @@ class Shown:
 
     def near_rows(self, box: np.ndarray, pad: float = 0.0) -> np.ndarray:
         """The rows of `near`'s triangles, without them."""
-        return bvh.faces_meet_rows(self.world, self.triangles, box[0], box[1], pad)
+        return bvh.faces_meet_rows(self.world, self.triangles, box[0], box[1], pad, self.chunks)
+
+    @cached_property
+    def chunks(self) -> tuple:
+        """`acra.bvh.face_chunks` of the world triangles: `near_rows` compares the faces of the
+        chunks near its box alone (the same rows). Each display is asked near both objects of a
+        pair, as the inner object and as the other, and a still display every frame."""
+        return bvh.face_chunks(self.world, _chunk_vertices(self.triangles, len(self.world)))
 
     @cached_property
     def fingerprint(self) -> bytes:
@@ -167,6 +174,23 @@ def _digest(x: np.ndarray) -> bytes:
     while len(_DIGESTS) > 16:
         del _DIGESTS[next(iter(_DIGESTS))]
     return hit[1]
+
+
+_CHUNK_VERTICES: dict = {}  # id(triangles) -> (triangles made read-only, their points' count, `bvh.chunk_vertices`), most recent last
+
+
+def _chunk_vertices(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """`acra.bvh.chunk_vertices` of ``triangles`` into ``n`` points, kept per array: a display's
+    topology holds one triangles array for every display on it, made read-only here (as `_digest`
+    does), so the lists taken of it still hold."""
+    hit = _CHUNK_VERTICES.pop(id(triangles), None)
+    if hit is None or hit[0] is not triangles or hit[1] != n or triangles.flags.writeable:
+        triangles.flags.writeable = False
+        hit = (triangles, n, bvh.chunk_vertices(triangles, n))
+    _CHUNK_VERTICES[id(triangles)] = hit
+    while len(_CHUNK_VERTICES) > 16:
+        del _CHUNK_VERTICES[next(iter(_CHUNK_VERTICES))]
+    return hit[2]
 
 
 def _same_bytes(x: np.ndarray, y: np.ndarray) -> bool:

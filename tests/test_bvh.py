@@ -113,6 +113,46 @@ def test_faces_meet_rows_at_the_box_s_sides_is_the_overlap_of_the_triangle_boxes
         assert rows.dtype == np.int64 and np.array_equal(rows, np.nonzero(want)[0])
         np.testing.assert_array_equal(bvh.boxes_meet(tri, lo, hi, pad), want)
         assert 0 < want.sum() < len(want)
+        chunked = bvh.faces_meet_rows(points, faces, lo, hi, pad, bvh.face_chunks(points, bvh.chunk_vertices(faces, 400)))
+        assert chunked.dtype == np.int64 and np.array_equal(chunked, rows)
+
+
+def test_chunk_vertices_lists_each_chunk_s_points_once_in_order_of_first_use():
+    faces = np.array([[0, 1, 2], [2, 1, 3], [3, 4, 0]] * 15, np.int64)  # 45 rows: a chunk of 32 and one of 13
+    faces[32:] += 5
+    start, verts = bvh.chunk_vertices(faces, 10)
+    assert bvh.CHUNK == 32 and start.tolist() == [0, 5, 10]
+    assert verts.tolist() == [0, 1, 2, 3, 4, 8, 9, 5, 6, 7]  # row 32 is (3, 4, 0) + 5
+    start, verts = bvh.chunk_vertices(faces[:0], 10)
+    assert start.tolist() == [0] and verts.shape == (0,)
+    assert bvh.faces_meet_rows(np.zeros((10, 3)), faces[:0], np.zeros(3), np.ones(3), 0.0,
+                               bvh.face_chunks(np.zeros((10, 3)), (start, verts))).shape == (0,)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 2500), st.floats(0.0, 0.5))
+def test_faces_meet_rows_through_chunks_gives_the_rows_of_the_full_scan(seed, n_faces, pad):
+    """A strip of faces along a wandering path (a display's rows run along its surface) and
+    random faces among them, a box anywhere near: the chunks' and groups' boxes only skip faces
+    that miss it, so the rows are the full scan's, in the same order."""
+    rng = np.random.default_rng(seed)
+    n = n_faces + 2
+    path = np.cumsum(rng.normal(0.0, 0.05, (n, 3)), axis=0)
+    points = path + rng.normal(0.0, 0.01, (n, 3))
+    faces = np.stack([np.arange(n_faces), np.arange(n_faces) + 1, np.arange(n_faces) + 2], axis=1)
+    odd = rng.random(n_faces) < 0.05
+    faces[odd] = rng.integers(0, n, (int(odd.sum()), 3))
+    centre = points[rng.integers(0, n)]
+    lo, hi = np.sort(centre + rng.uniform(-0.3, 0.3, (2, 3)), axis=0)
+    chunks = bvh.face_chunks(points, bvh.chunk_vertices(faces, n))
+    rows = bvh.faces_meet_rows(points, faces, lo, hi, pad)
+    assert np.array_equal(bvh.faces_meet_rows(points, faces, lo, hi, pad, chunks), rows)
+    clo, chi, glo, ghi = chunks
+    tri = points[faces]
+    for c in range(len(clo)):  # each chunk's box is its faces' corners' box
+        np.testing.assert_array_equal(clo[c], tri[32 * c:32 * c + 32].reshape(-1, 3).min(axis=0))
+        np.testing.assert_array_equal(chi[c], tri[32 * c:32 * c + 32].reshape(-1, 3).max(axis=0))
+    assert len(glo) == -(-len(clo) // 32) and (glo <= clo[::32]).all() and (ghi >= chi[::32]).all()
 
 
 def test_build_takes_numpys_boxes_and_centroids():

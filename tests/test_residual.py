@@ -107,6 +107,35 @@ def test_an_array_with_a_kept_array_s_bytes_takes_its_digest_without_hashing(mon
     assert len(hashed) == 5
     residual._DIGESTS.clear()
 
+def test_a_display_s_faces_near_a_box_are_the_full_scan_s_through_chunks_listed_once_a_topology(monkeypatch):
+    """`Shown.near_rows` opens the chunks near the box (`bvh.face_chunks`, built once a `Shown`)
+    and gives the rows a scan of every face gives, boxes anywhere about the display and pads
+    from none to past it; the points each chunk uses are listed once for the triangles array
+    (made read-only), so every display on one topology takes the same lists."""
+    from acra import bvh
+
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    pts, tris = grid_samples(ball, topo)[0], topo.triangles()
+    assert len(tris) > 32 * 32  # more than one group of chunks
+    listed, chunk_vertices = [], bvh.chunk_vertices
+    monkeypatch.setattr(residual.bvh, "chunk_vertices", lambda *a: listed.append(1) or chunk_vertices(*a))
+    residual._CHUNK_VERTICES.clear()
+    m = np.eye(4)
+    m[:3, 3] = (0.3, -0.2, 0.1)
+    rng = np.random.default_rng(5)
+    for k in range(3):
+        s = residual.shown("/ball", pts * (1.0 + 0.01 * k), tris, m, None, closed=True)
+        for _ in range(40):
+            lo, hi = np.sort(rng.uniform(-1.5, 1.5, (2, 3)) * rng.uniform(0.05, 1.0), axis=0) + m[:3, 3]
+            pad = float(rng.choice([0.0, 0.01, 0.3, 3.0]))
+            want = bvh.faces_meet_rows(s.world, s.triangles, lo, hi, pad)
+            assert np.array_equal(s.near_rows(np.stack([lo, hi]), pad), want)
+        assert 0 < len(s.near_rows(s.box, 0.0)) == len(tris)
+    assert len(listed) == 1 and not tris.flags.writeable
+    residual._CHUNK_VERTICES.clear()
+
+
 @pytest.mark.parametrize("z", [0.25, -0.4999, 0.6])
 def test_a_sheet_in_a_box_is_as_deep_as_its_distance_to_the_nearest_face(z):
     """A flat sheet through [-0.5, 0.5]^3 at height z, wider than the box: the deepest point is on
