@@ -164,21 +164,97 @@ def quadtree_leaves(p0u, p0v, keys, starts):
 
 
 @njit(inline="always")
-def _side(c, s, nc, su, sv, sh, at, u_to_v, first, first_v, nu, nv, wrap_u, wrap_v):
+def _corner(c, s, su, sv, sh, nu, nv, wrap_u, wrap_v):
+    """Lattice point ``(i, j)`` of corner ``s`` of cell ``c`` (counter-clockwise from the lower
+    one: 0 ``(u, v)``, 1 ``(u + h, v)``, 2 ``(u + h, v + h)``, 3 ``(u, v + h)``), an upper
+    corner wrapped onto a periodic seam."""
+    # branch-free in s: the corners come in no order where a sort reads them back
+    h = sh[c]
+    i = su[c] + h * ((s ^ (s >> 1)) & 1)
+    j = sv[c] + h * (s >> 1)
+    if wrap_u and i == nu:
+        i = 0
+    if wrap_v and j == nv:
+        j = 0
+    return i, j
+
+
+@njit(inline="always")
+def _corner_keys(su, sv, sh, nu, nv, wrap_u, wrap_v, w):
+    """`unique_keys` of the four corners of every cell ``(su, sv, sh) (nc,) int64`` (`_corner`),
+    corner ``s`` of cell ``c`` the point ``4 c + s``, each taken where it is used rather than
+    kept (eight int64 a cell of new memory, whose page faults cost more than taking them again):
+    the sorted distinct keys ``(m,) int64``, each column's start ``(nu + 2,) int64`` and each
+    corner's position in the keys ``(4 nc,) int32``. Two stable counting sorts, as `_key_order`'s;
+    the order among equal keys does not reach the results."""
+    nc = su.shape[0]
+    n = 4 * nc
+    if n >= 2**31:
+        raise ValueError("too many points for int32 orders")
+    count = np.zeros(w + 1, np.int64)
+    for c in range(nc):
+        for s in range(4):
+            j = _corner(c, s, su, sv, sh, nu, nv, wrap_u, wrap_v)[1]
+            count[j + 1] += 1
+    for x in range(w):
+        count[x + 1] += count[x]
+    by_j = np.empty(n, np.int32)
+    first = np.zeros(nu + 2, np.int64)
+    for c in range(nc):
+        for s in range(4):
+            i, j = _corner(c, s, su, sv, sh, nu, nv, wrap_u, wrap_v)
+            by_j[count[j]] = 4 * c + s
+            count[j] += 1
+            first[i + 1] += 1
+    for x in range(nu + 1):
+        first[x + 1] += first[x]
+    fill = first.copy()
+    order = np.empty(n, np.int32)
+    for q in range(n):
+        p = by_j[q]
+        i = _corner(p >> 2, p & 3, su, sv, sh, nu, nv, wrap_u, wrap_v)[0]
+        order[fill[i]] = p
+        fill[i] += 1
+    out = np.empty(n, np.int64)
+    at = by_j  # by_j is read no more: each corner's position takes its place
+    m = 0
+    last = -1
+    col = 0
+    for q in range(n):
+        p = order[q]
+        i, j = _corner(p >> 2, p & 3, su, sv, sh, nu, nv, wrap_u, wrap_v)
+        x = i * w + j
+        if x != last:
+            while col <= i:  # the columns up to this key's start here
+                first[col] = m
+                col += 1
+            out[m] = x
+            m += 1
+            last = x
+        at[p] = m - 1
+    while col <= nu + 1:
+        first[col] = m
+        col += 1
+    return out[:m].copy(), first, at
+
+
+@njit(inline="always")
+def _side(c, s, su, sv, sh, at, u_to_v, first, first_v, nu, nv, wrap_u, wrap_v):
     """The rows ``lo, hi`` of the vertices strictly inside side ``s`` of cell ``c`` (0: its lower
     side along u, 1: its upper side along v, 2: its upper side along u, 3: its lower side along
     v), in `adaptive_mesh`'s v-major rows for a side along u and u-major along v; a side ending
-    on a periodic seam runs to its line's end."""
+    on a periodic seam runs to its line's end (``at (4 nc,) int32``: corner ``s`` of cell ``c``'s
+    row at ``4 c + s``, `_corner_keys`)."""
     u1, v1 = su[c] + sh[c], sv[c] + sh[c]
     seam_u = wrap_u and u1 == nu
     seam_v = wrap_v and v1 == nv
     if s == 0:
-        return u_to_v[at[c]] + 1, first_v[sv[c] + 1] if seam_u else u_to_v[at[nc + c]]
+        return u_to_v[at[4 * c]] + 1, first_v[sv[c] + 1] if seam_u else u_to_v[at[4 * c + 1]]
     if s == 1:
-        return at[nc + c] + 1, first[(0 if seam_u else u1) + 1] if seam_v else at[2 * nc + c]
+        return at[4 * c + 1] + 1, first[(0 if seam_u else u1) + 1] if seam_v else at[4 * c + 2]
     if s == 2:
-        return u_to_v[at[3 * nc + c]] + 1, first_v[(0 if seam_v else v1) + 1] if seam_u else u_to_v[at[2 * nc + c]]
-    return at[c] + 1, first[su[c] + 1] if seam_v else at[3 * nc + c]
+        return u_to_v[at[4 * c + 3]] + 1, first_v[(0 if seam_v else v1) + 1] if seam_u else u_to_v[at[4 * c + 2]]
+    return at[4 * c] + 1, first[su[c] + 1] if seam_v else at[4 * c + 3]
 
 
 @njit(cache=True, nogil=True)
@@ -212,39 +288,26 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
     for q in range(nc):
         p = by_key[q]
         su[q], sv[q], sh[q] = cu[p], cv[p], ch[p]
-    # corners counter-clockwise, an upper corner wrapped onto a periodic seam
-    u4, v4 = np.empty(4 * nc, np.int64), np.empty(4 * nc, np.int64)
-    for c in range(nc):
-        u1, v1 = su[c] + sh[c], sv[c] + sh[c]
-        if wrap_u and u1 == nu:
-            u1 = 0
-        if wrap_v and v1 == nv:
-            v1 = 0
-        u4[c], v4[c] = su[c], sv[c]
-        u4[nc + c], v4[nc + c] = u1, sv[c]
-        u4[2 * nc + c], v4[2 * nc + c] = u1, v1
-        u4[3 * nc + c], v4[3 * nc + c] = su[c], v1
-    lattice, first, at = unique_keys(u4, v4, nu, w)
+    # the corners' vertices (corner s of cell c at 4 c + s, `_corner`)
+    lattice, first, at = _corner_keys(su, sv, sh, nu, nv, wrap_u, wrap_v, w)
     # the same vertices v-major: a stable counting sort of the u-major ones by v
     # (a key's v is its offset from its column's start key: no division)
     m = lattice.shape[0]
-    lv = np.empty(m, np.int64)
+    first_v = np.zeros(nv + 2, np.int64)
     for c in range(nu + 1):
         for a in range(first[c], first[c + 1]):
-            lv[a] = lattice[a] - c * w
-    first_v = np.zeros(nv + 2, np.int64)
-    for a in range(m):
-        first_v[lv[a] + 1] += 1
+            first_v[lattice[a] - c * w + 1] += 1
     for x in range(nv + 1):
         first_v[x + 1] += first_v[x]
     fill = first_v.copy()
     v_to_u = np.empty(m, np.int64)
     u_to_v = np.empty(m, np.int64)
-    for a in range(m):
-        x = lv[a]
-        v_to_u[fill[x]] = a
-        u_to_v[a] = fill[x]
-        fill[x] += 1
+    for c in range(nu + 1):
+        for a in range(first[c], first[c + 1]):
+            x = lattice[a] - c * w
+            v_to_u[fill[x]] = a
+            u_to_v[a] = fill[x]
+            fill[x] += 1
     # each side's vertices strictly inside it, rows lo..hi-1 along its line (`_side`), taken
     # where they are used rather than kept for every cell: the scratch arrays of a large mesh
     # are new memory, whose page faults cost more than the few operations again
@@ -255,10 +318,11 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
         # `_side` of the four sides, written out: this loop visits every cell
         seam_u = wrap_u and su[c] + sh[c] == nu
         seam_v = wrap_v and sv[c] + sh[c] == nv
-        n0 = (first_v[sv[c] + 1] if seam_u else u_to_v[at[nc + c]]) - u_to_v[at[c]] - 1
-        n1 = (first[u4[nc + c] + 1] if seam_v else at[2 * nc + c]) - at[nc + c] - 1
-        n2 = (first_v[v4[2 * nc + c] + 1] if seam_u else u_to_v[at[2 * nc + c]]) - u_to_v[at[3 * nc + c]] - 1
-        n3 = (first[su[c] + 1] if seam_v else at[3 * nc + c]) - at[c] - 1
+        a0, a1, a2, a3 = at[4 * c], at[4 * c + 1], at[4 * c + 2], at[4 * c + 3]
+        n0 = (first_v[sv[c] + 1] if seam_u else u_to_v[a1]) - u_to_v[a0] - 1
+        n1 = (first[(0 if seam_u else su[c] + sh[c]) + 1] if seam_v else a2) - a1 - 1
+        n2 = (first_v[(0 if seam_v else sv[c] + sh[c]) + 1] if seam_u else u_to_v[a2]) - u_to_v[a3] - 1
+        n3 = (first[su[c] + 1] if seam_v else a3) - a0 - 1
         if n0 > 0 or n1 > 0 or n2 > 0 or n3 > 0:
             split[c] = True
             n_split += 1
@@ -285,18 +349,13 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
     while a < m:
         row[a] = a + n_split
         a += 1
-    keys = np.empty(m + n_split, np.int64)
-    for a in range(m):
-        keys[row[a]] = lattice[a]
-    for b in range(n_split):
-        keys[centre_row[b]] = centre[b]
     quads = nc - n_split
     indices = np.empty(4 * quads + 3 * ring_len, np.int64)
     q = 0
     for c in range(nc):
         if not split[c]:
             for s in range(4):
-                indices[q] = row[at[s * nc + c]]
+                indices[q] = row[at[4 * c + s]]
                 q += 1
     ring = np.empty(ring_len, np.int64)
     k = 0
@@ -305,9 +364,9 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
             continue
         n = 0
         for s in range(4):
-            ring[n] = at[s * nc + c]
+            ring[n] = at[4 * c + s]
             n += 1
-            lo, hi = _side(c, s, nc, su, sv, sh, at, u_to_v, first, first_v, nu, nv, wrap_u, wrap_v)
+            lo, hi = _side(c, s, su, sv, sh, at, u_to_v, first, first_v, nu, nv, wrap_u, wrap_v)
             if s == 0:
                 for r in range(lo, hi):
                     ring[n] = v_to_u[r]
@@ -332,10 +391,15 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
         k += 1
     counts = np.full(quads + (q - 4 * quads) // 3, 3, np.int64)
     counts[:quads] = 4
+    # each vertex's lattice point in its row: a corner's column from the column starts (no
+    # division), a centre's from its key
     ku, kv = np.empty(m + n_split, np.int64), np.empty(m + n_split, np.int64)
-    for a in range(m + n_split):
-        ku[a] = keys[a] // w
-        kv[a] = keys[a] - ku[a] * w
+    for c in range(nu + 1):
+        for a in range(first[c], first[c + 1]):
+            ku[row[a]], kv[row[a]] = c, lattice[a] - c * w
+    for b in range(n_split):
+        x = centre[b] // w
+        ku[centre_row[b]], kv[centre_row[b]] = x, centre[b] - x * w
     # the rows by v, a stable counting sort of the u-major rows (so by u within a v)
     start = np.zeros(nv + 2, np.int64)
     for a in range(m + n_split):

@@ -421,7 +421,9 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     cells alone, so the copied ones need no nudged rows. ``given = (points, tangents)``,
     ``hs``'s on ``topo`` (`grid_samples` with ``tangents``), stands for the evaluation: the
     vertices that would be evaluated take their limit normals from them (`surface_normals`,
-    which evaluates again only where ``du × dv`` vanishes) and the points are ``given``'s."""
+    which evaluates again only where ``du × dv`` vanishes) and the points are ``given``'s.
+    Without ``given``, the vertices evaluated with normals are too: their points and first
+    derivatives by v, then u, and the limit normals from those (`_normals_into`)."""
     det = details(hs) if det is None and hs.depth > 1 else det
     normals = normals and not tangents
 
@@ -441,7 +443,12 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     # an evaluation takes its points by v, then u (a topology's vertices come by u, then v): a
     # point on the v and block of the one before reuses its v contraction
     # (`acra.kernels.eval_points`), and each point is summed on its own, so the order changes no bit
-    by_v = given is None and (tangents or not normals)
+    by_v = given is None
+    if since is None and by_v and normals:
+        o = _v_order(topo)
+        points, limit = np.empty((topo.u.size, 3)), np.empty((topo.u.size, 3))
+        _note_nudged(limit, np.sort(_normals_into(hs, topo.u[o], topo.v[o], det, o, points, limit)))
+        return points, limit
     if since is None and by_v:
         o = _v_order(topo)
         ev = sample(topo.u[o], topo.v[o])[0]
@@ -488,7 +495,9 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             copied[idx] = False
             carried = np.flatnonzero(took & copied)
     nudged = None
-    if idx.size:
+    if idx.size and by_v and normals:
+        nudged = _normals_into(hs, topo.u[idx], topo.v[idx], det, idx, points, limit)
+    elif idx.size:
         p, n, nudged = sample(topo.u[idx], topo.v[idx], idx)
         if by_v:
             _place(p.points, _NO_POINTS if p.du is None else p.du, _NO_POINTS if p.dv is None else p.dv, idx, points,
@@ -502,6 +511,19 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     if normals and old_nudged is not None:
         _note_nudged(limit, np.union1d(carried, nudged) if nudged is not None and nudged.size else carried)
     return points if given is None else given[0], limit if normals or tangents else None
+
+
+def _normals_into(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None, rows: np.ndarray,
+                  points: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """Evaluate ``hs`` at ``(u, v) (m,) float64`` (by v, then u: `grid_samples`' order) into the
+    rows ``rows (m,) int64`` of ``points`` and of the limit unit normals ``limit`` (both ``(n,
+    3) float64``): `surface_normals`' points and normals bit for bit, the normals taken from the
+    first derivatives (`_given_normals`). Returns the rows ``(k,) int64`` whose normal was taken
+    at nudged points."""
+    ev = evaluate(hs, u, v, order=1, det=det)
+    n, nudged = _given_normals(hs, u, v, det, ev.points, np.concatenate((ev.du, ev.dv), axis=1))
+    _place(ev.points, n, _NO_POINTS, rows, points, limit)
+    return rows[nudged]
 
 
 def _given_normals(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None, points: np.ndarray,
@@ -570,10 +592,12 @@ _NO_TANGENTS = np.zeros((0, 6))
 @njit(cache=True, nogil=True)
 def _place(p, du, dv, rows, points, limit):
     """Write an evaluation's ``p (m, 3) float64`` into ``points`` at ``rows (m,) int64`` and, unless
-    ``limit`` is empty, ``du`` and ``dv`` ``(m, 3) float64`` into its columns 0-2 and 3-5: numpy's
+    ``limit`` is empty, ``du`` and ``dv`` ``(m, 3) float64`` into its columns 0-2 and 3-5 (a
+    ``limit`` of 3 columns takes ``du`` alone: a display's limit normals): numpy's
     ``points[rows] = p; limit[rows] = concatenate((du, dv), axis=1)`` in one pass, without the
     concatenated temporary (the points come by v, the display's rows by u)."""
     tangents = limit.shape[0] > 0
+    wide = limit.shape[1] == 6
     for i in range(rows.shape[0]):
         r = rows[i]
         for e in range(3):
@@ -581,7 +605,9 @@ def _place(p, du, dv, rows, points, limit):
         if tangents:
             for e in range(3):
                 limit[r, e] = du[i, e]
-                limit[r, 3 + e] = dv[i, e]
+            if wide:
+                for e in range(3):
+                    limit[r, 3 + e] = dv[i, e]
 
 
 def _v_order(topo) -> np.ndarray:

@@ -102,14 +102,11 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
     surface's evaluation is charged to the first frame that shows it).
 
     A surface the frame loop's ``displays`` still holds (`Displays.shown`) is not evaluated
-    again: on the same topology its display's points are the run's, and its derivatives give
-    the limit normals (`acra.tessellate.grid_samples` with ``given``); on another topology (the
-    run's refines a round's where another frame's response refined more) only the vertices that
-    display lacks are evaluated. Either way every vertex's normal is taken from those
-    derivatives (`acra.hspline.surface_normals` with ``ev``: a cross product, an evaluation only
-    where ``du × dv`` vanishes), which costs less than `acra.hspline.changed_cells` and a copy; a
-    surface the displays do not hold has its normals taken only where it differs from the
-    surface before it, the others copied."""
+    again: on the same topology its display's points and limit normals are the run's; on
+    another topology (the run's refines a round's where another frame's response refined more)
+    only the vertices that display lacks are evaluated (`acra.tessellate.grid_samples` since
+    it, no cell changed). A surface the displays do not hold has its normals taken only where it
+    differs from the surface before it, the others copied."""
     ms: dict[int, float] = {f: 0.0 for f in result.frames}
     memo: dict = {}  # `grid_samples`' memo: each vertex's cells on a topology, shared by its frames
     for model in scene.deformables:
@@ -131,25 +128,25 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
                 t0 = time.perf_counter()
                 det = surface_details(r.surface, density)
                 shown = None if displays is None else displays.shown(r.surface)
-                # with the loop's derivatives at hand a vertex's normal is a cross product (an
-                # evaluation only where du × dv vanishes): taking every vertex's costs less than
-                # finding the cells changed since the surface before and copying the others
                 since = None if last is None or shown is not None else (last[1], last[3], hspline.changed_cells(
                     last[0], surface_details(last[0], density), r.surface, det, _cell_level(r.surface)))
                 if since is not None and since[2].all():
                     since = None
-                given = None
                 if shown is not None and shown.topology is topo:
-                    given = (shown.points, shown.tangents)
+                    pts, limit = shown.points, shown.normals
                 elif shown is not None:
                     # every vertex of both is an exact surface point: those at the display's
-                    # parameters are copied with their derivatives, the others evaluated
+                    # parameters are copied with their limit normals, the others evaluated
                     unchanged = np.zeros((r.surface.u.patches0, r.surface.v.patches0), bool)
-                    given = grid_samples(r.surface, topo, det, (shown.topology, shown.points, shown.tangents, unchanged),
-                                         memo, normals=False, tangents=True)
-                pts, limit = grid_samples(r.surface, topo, det, since, memo, given=given)
+                    pts, limit = grid_samples(r.surface, topo, det, (shown.topology, shown.points, shown.normals,
+                                                                     unchanged), memo)
+                else:
+                    pts, limit = grid_samples(r.surface, topo, det, since, memo)
                 kept = id(r.surface) in read_again
-                normals = pole_normals(r.surface, topo, pts, limit, in_place=not kept)
+                # a display's own limit normals stay whole: a later round's display may be
+                # evaluated since it
+                own = shown is None or limit is not shown.normals
+                normals = pole_normals(r.surface, topo, pts, limit, in_place=own and not kept)
                 hit = done[id(r.surface)] = (r.surface, pts, normals, limit if kept else None)
                 ms[f] += 1e3 * (time.perf_counter() - t0)
             last = hit
@@ -183,15 +180,15 @@ VIEWS_KEPT = 1  # `SurfaceDisplay.view`s kept per display: the rounds of a frame
 
 class SurfaceDisplay:
     """One surface's own adaptive display (`acra.tessellate.run_topology` of the surface alone):
-    ``topology``, object-space ``points (n, 3) float64`` and first derivatives ``tangents (n, 6)
-    float64`` (``du`` then ``dv``: evaluated beside the points, they spare the run's display,
-    which has normals, a second evaluation of the same vertices; the normals themselves are
-    taken only for a display the output shows, `evaluate_run`), and, built on first use, its fan
+    ``topology``, object-space ``points (n, 3) float64`` and limit unit ``normals (n, 3)
+    float64`` (`acra.hspline.surface_normals`', before a pole's are shared: taken beside the
+    points where they are evaluated and copied with them elsewhere, they spare the run's display
+    a pass over every vertex's derivatives, `evaluate_run`), and, built on first use, its fan
     ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
 
-    def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, tangents: np.ndarray,
+    def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, normals: np.ndarray,
                  triangles: np.ndarray | None = None, details: hspline.Details | None = None):
-        self.surface, self.topology, self.points, self.tangents = surface, topology, points, tangents
+        self.surface, self.topology, self.points, self.normals = surface, topology, points, normals
         self.details = details  # the details the points were evaluated with (`Displays.of`)
         self._triangles, self._solid, self._uv = triangles, None, None
         self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
@@ -268,9 +265,9 @@ class Displays:
             since = None
             if old is not None:
                 stale = hspline.changed_cells(old.surface, old.details, surface, shape.details, _cell_level(surface))
-                since = None if stale.all() else (old.topology, old.points, old.tangents, stale)
-            pts, both = grid_samples(surface, topo, shape.details, since, self._matches, normals=False, tangents=True)
-            hit = SurfaceDisplay(surface, topo, pts, both, triangles, shape.details)
+                since = None if stale.all() else (old.topology, old.points, old.normals, stale)
+            pts, limit = grid_samples(surface, topo, shape.details, since, self._matches)
+            hit = SurfaceDisplay(surface, topo, pts, limit, triangles, shape.details)
         self._shown[id(surface)] = hit
         while len(self._shown) > self.kept:
             del self._shown[next(iter(self._shown))]
@@ -301,9 +298,8 @@ class Displays:
 
 
 CELL_LEVEL = 4  # the finest level whose patches `hspline.changed_cells` tells changed from unchanged
-# (a round's display, points and first derivatives, which read a vertex's own cells alone, and
-# the run's, with normals, which also re-evaluates the vertices whose limit normal was taken at
-# nudged points: `acra.tessellate.grid_samples`)
+# (a display's points and limit normals read a vertex's own cells alone, except a limit normal
+# taken at nudged points, whose vertex `acra.tessellate.grid_samples` evaluates again)
 
 
 def _cell_level(surface: hspline.HSpline) -> int:

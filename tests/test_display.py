@@ -74,8 +74,7 @@ def test_finish_measures_every_frame_on_the_display(pressed):
 def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(seed):
     """`Displays.of` evaluates a surface responded from a displayed one only where the response
     changed it (through the shapes' parent chain), and equals a full evaluation: its points and
-    first derivatives those of `hspline.evaluate`, bit for bit; it takes no normals (only the
-    display the output shows needs them, `display.evaluate_run`)."""
+    limit normals those of `hspline.surface_normals`, bit for bit."""
     from pipeline import shape as S
 
     rng = np.random.default_rng(seed)
@@ -88,10 +87,12 @@ def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(s
     second = shown.of(moved, 4)
     full = grid_samples(moved, second.topology, H.details(moved))
     np.testing.assert_array_equal(second.points, full[0])
+    np.testing.assert_array_equal(second.normals, full[1])
     for d, hs_ in ((first, hs), (second, moved)):
-        ev = H.evaluate(hs_, d.topology.u, d.topology.v, order=1, det=H.details(hs_))
-        np.testing.assert_array_equal(d.tangents, np.concatenate([ev.du, ev.dv], axis=1))
-        assert not hasattr(d, "limit") and not hasattr(d, "normals")
+        ev, normals = H.surface_normals(hs_, d.topology.u, d.topology.v, det=H.details(hs_))
+        np.testing.assert_array_equal(d.points, ev.points)
+        np.testing.assert_array_equal(d.normals, normals)
+        assert not hasattr(d, "tangents")
     assert shown.of(moved, 4) is second and shown.of(hs, 4) is first
     assert second.solid().faces.shape[1] == 3  # a closed sphere's display welds to a solid
 
@@ -185,10 +186,10 @@ def _four_responded_frames(tiny_stage):
     return scene, model, shown, result, display.run_topologies(scene, result)
 
 
-def test_the_run_s_normals_of_a_displayed_surface_come_from_its_derivatives_alone(tiny_stage, monkeypatch):
-    """A surface the rounds displayed gets every normal from the display's derivatives: no cells
-    are compared with the surface before it (a cross product a vertex costs less than
-    `hspline.changed_cells` and the copy), and the normals equal a full evaluation's bit for bit."""
+def test_the_run_s_normals_of_a_displayed_surface_come_from_its_display_alone(tiny_stage, monkeypatch):
+    """A surface the rounds displayed gets every limit normal from its display (taken where the
+    display's vertices were evaluated, copied with the others): no cells are compared with the
+    surface before it, and the normals equal a full evaluation's bit for bit."""
     scene, model, shown, result, topologies = _four_responded_frames(tiny_stage)
     compared = []
     real = H.changed_cells
@@ -207,7 +208,9 @@ def test_the_run_s_limit_normals_a_later_frame_reads_are_left_whole(tiny_stage, 
     """`evaluate_run` writes a frame's display normals over its limit normals only where no later
     frame reads them: without the loop's displays every frame but the last is evaluated since the
     one before it, so those keep their limit normals whole (the display normals a copy), and the
-    result equals a full evaluation bit for bit; with them, a displayed surface's are written over."""
+    result equals a full evaluation bit for bit; with them, a displayed surface's are written over
+    except where they are its display's own (on the run's topology: a later round's display may
+    be evaluated since them), which keeps them whole."""
     scene, model, shown, result, topologies = _four_responded_frames(tiny_stage)
     calls = []
     real = display.pole_normals
@@ -220,11 +223,20 @@ def test_the_run_s_limit_normals_a_later_frame_reads_are_left_whole(tiny_stage, 
         return any(a is s and b is not a and (displays is None or displays.shown(b) is None)
                    for a, b in zip(surfaces, surfaces[1:]))
 
+    def own(s, displays):
+        d = None if displays is None else displays.shown(s)
+        return d is not None and d.topology is topologies[model.path]
+
+    assert any(own(s, shown) for s in first)
     for displays in (None, shown):
         calls.clear()
+        kept = {id(s): shown.shown(s).normals.copy() for s in first if own(s, shown)}
         display.evaluate_run(scene, result, topologies, displays=displays)
         assert [c[0] for c in calls] == first
-        assert [c[1] for c in calls] == [not read_again(s, displays) for s in first]
+        assert [c[1] for c in calls] == [not read_again(s, displays) and not own(s, displays) for s in first]
+        for s in first:
+            if own(s, shown):
+                np.testing.assert_array_equal(shown.shown(s).normals, kept[id(s)])
         for r in (per[model.path] for per in result.frames.values()):
             points, limit = grid_samples(r.surface, topologies[model.path], H.details(r.surface))
             np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topologies[model.path], points, limit))

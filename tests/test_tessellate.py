@@ -474,7 +474,8 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
 def test_place_equals_numpy_s_row_assignment():
     """`tessellate._place` (an evaluation's points and first derivatives written into a
     display's rows in one pass) gives numpy's ``points[rows] = p`` and ``limit[rows] =
-    concatenate((du, dv), axis=1)``, and leaves ``limit`` alone where it is empty."""
+    concatenate((du, dv), axis=1)`` (``limit[rows] = du`` for a limit of 3 columns), and leaves
+    ``limit`` alone where it is empty."""
     rng = np.random.default_rng(3)
     n, rows = 500, rng.permutation(500)[:300]
     p, du, dv = (rng.normal(size=(rows.size, 3)) for _ in range(3))
@@ -487,6 +488,11 @@ def test_place_equals_numpy_s_row_assignment():
     alone = np.full((n, 3), np.nan)
     T._place(p, T._NO_POINTS, T._NO_POINTS, rows, alone, T._NO_TANGENTS)
     np.testing.assert_array_equal(alone, want_points)
+    # a limit of 3 columns (a display's limit normals) takes du alone
+    normals, want_normals = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    T._place(p, du, T._NO_POINTS, rows, alone, normals)
+    want_normals[rows] = du
+    np.testing.assert_array_equal(normals, want_normals)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -510,8 +516,8 @@ def test_normals_since_changed_cells_evaluate_those_cells_and_the_nudged_vertice
     clean = np.flatnonzero(~on_patches)[:3]
     T._note_nudged(old[1], clean)  # as if these three had taken nudged points
     counted = []
-    real = T.surface_normals
-    monkeypatch.setattr(T, "surface_normals", lambda hs_, u, v, **k: (counted.append(u.size), real(hs_, u, v, **k))[1])
+    real = T._normals_into
+    monkeypatch.setattr(T, "_normals_into", lambda hs_, u, *a: (counted.append(u.size), real(hs_, u, *a))[1])
     fast = T.grid_samples(moved, topo, H.details(moved), since=(*old, stale))
     assert counted == [on_cells.sum() + clean.size] and on_cells.sum() < on_patches.sum()
     full = T.grid_samples(moved, topo, H.details(moved))
