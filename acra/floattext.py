@@ -507,14 +507,85 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _put_nonzero(buf, at, c, k, neg):
-    """`_put_value` of a nonzero value's digits ``c 10^k`` (``0 < c < 10^18``), the digits
-    written from the last, the decimal point in its place as they go (no shift)."""
-    if neg:
-        buf[at] = 45
-        at += 1
+def _put_nine(buf, at, d):
+    """The nine decimal digits of ``0 <= d < 10^9``, leading zeros too, at ``buf[at:at + 9]``:
+    a fixed number of stores whatever the value, in unsigned arithmetic (no floor correction of
+    a quotient, no wraparound test of an index)."""
+    u = np.uint64(at)
+    d = np.uint64(d)
+    top = d // np.uint64(100000000)
+    d -= top * np.uint64(100000000)
+    a = d // np.uint64(1000000)
+    d -= a * np.uint64(1000000)
+    b = d // np.uint64(10000)
+    d -= b * np.uint64(10000)
+    c = d // np.uint64(100)
+    d -= c * np.uint64(100)
+    one = np.uint64(1)
+    buf[u] = np.uint8(48) + np.uint8(top)
+    buf[u + one] = _PAIRS[a + a]
+    buf[u + np.uint64(2)] = _PAIRS[a + a + one]
+    buf[u + np.uint64(3)] = _PAIRS[b + b]
+    buf[u + np.uint64(4)] = _PAIRS[b + b + one]
+    buf[u + np.uint64(5)] = _PAIRS[c + c]
+    buf[u + np.uint64(6)] = _PAIRS[c + c + one]
+    buf[u + np.uint64(7)] = _PAIRS[d + d]
+    buf[u + np.uint64(8)] = _PAIRS[d + d + one]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_short(buf, at, c, k, neg):
+    """A nonzero value's text from its digits ``c 10^k`` (``0 < c < 10^18``) where they are at
+    most nine and the decimal point falls within the first nine places (every float32 from 1e-6
+    to 1e9); the index after it, or ``-1 - at`` (``at`` after the sign) for `_put_text`.
+
+    The digits are written as nine, left-justified (``c 10^(9 - nd)``: the value's digits, then
+    zeros), in a fixed number of stores, and the text ends where the value's does: the stores
+    past its end (within 17 bytes of the value's start, the buffer's bound a value) are written
+    over by what follows. The layouts differ in where the nine go and the point: ``0.00ddd``
+    (the nine after the zeros), ``dd.ddd`` (the nine one place right, the integer's digits moved
+    back over the gap by a fixed nine selects) and ``ddd00`` (the same, the point past the end).
+    Nothing here branches on a count of digits: a loop of data-dependent length mispredicts."""
+    buf[at] = 45  # '-', kept by a negative value only
+    at += 1 if neg else 0
     nd = _ndigits(c)
     point = nd + k  # the decimal point's place after the first digit
+    if nd > 9 or point <= _LOW or point > 9:
+        return -1 - at
+    d = c * _POW10[9 - nd]
+    u = np.uint64(at)
+    if point <= 0:  # "0.", up to five zeros, then the digits
+        buf[u] = 48
+        buf[u + np.uint64(1)] = 46
+        for q in range(np.uint64(2), np.uint64(7)):
+            buf[u + q] = 48
+        at += 2 - point
+        _put_nine(buf, at, d)
+        return at + nd
+    _put_nine(buf, at + 1, d)
+    p = np.uint64(point)
+    for q in range(np.uint64(9)):
+        buf[u + q] = buf[u + q + np.uint64(1)] if q < p else buf[u + q]
+    buf[u + p] = 46
+    return at + nd + 1 if point < nd else at + point
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_nonzero(buf, at, c, k, neg):
+    """`_put_value` of a nonzero value's digits ``c 10^k`` (``0 < c < 10^18``): `_put_short`,
+    else `_put_text`."""
+    end = _put_short(buf, at, c, k, neg)
+    if end < 0:
+        nd = _ndigits(c)
+        end = _put_text(buf, -1 - end, c, k, nd, nd + k)
+    return end
+
+
+@njit(cache=True, nogil=True)
+def _put_text(buf, at, c, k, nd, point):
+    """`_put_nonzero`'s text of the unsigned value ``c 10^k`` of ``nd`` digits, its decimal point
+    after the first ``point``, the digits written from the last, the point in its place as they
+    go (no shift)."""
     if point <= _LOW or point > _HIGH:
         return _put_value(buf, at, c, k, 0, False)
     if point <= 0:  # "0.", zeros, then every digit
@@ -624,25 +695,38 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
             e = b >> 23
             if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
                 c, k = _ryu(b)
-                at = _put_nonzero(buf, at, c, k, neg)
-                continue
-            if b == 0:
-                at = _put_value(buf, at, 0, 0, 1, neg)
-                continue
-            c, k, s = _one(b, _POW5) if 0 < e < 0xFF else (np.int64(0), np.int64(0), 2)
-            if s == 2:
-                for q in range(hard_at[h], hard_at[h + 1]):
-                    buf[at] = hard_bytes[q]
-                    at += 1
-                h += 1
-            else:
-                at = _put_value(buf, at, c, k, s, neg)
+                end = _put_short(buf, at, c, k, neg)
+                if end >= 0:
+                    at = end
+                    continue
+            at, h = _put_rare(buf, at, b, neg, hard_bytes, hard_at, h)
         buf[at] = 41  # ')'
         at += 1
         t += 1
     buf[at] = 93  # ']'
     starts[n] = at + 2
     return buf[:at + 1], starts
+
+
+@njit(cache=True, nogil=True)
+def _put_rare(buf, at, b, neg, hard_bytes, hard_at, h):
+    """`_float32_text`'s value of ``bits`` ``b`` (sign cleared, ``neg`` its sign) that
+    `_put_short` leaves: zero, digits `_one` finds, or the ``h``-th of the texts left to the
+    caller; the index after it and the next ``h``. Out of the loop's way: a call inlined there
+    slows every value's path."""
+    e = b >> 23
+    if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
+        c, k = _ryu(b)
+        return _put_nonzero(buf, at, c, k, neg), h
+    if b == 0:
+        return _put_value(buf, at, 0, 0, 1, neg), h
+    c, k, s = _one(b, _POW5) if 0 < e < 0xFF else (np.int64(0), np.int64(0), 2)
+    if s == 2:
+        for q in range(hard_at[h], hard_at[h + 1]):
+            buf[at] = hard_bytes[q]
+            at += 1
+        return at, h + 1
+    return _put_value(buf, at, c, k, s, neg), h
 
 
 def tuples_text(values: np.ndarray, hard) -> bytes:
