@@ -491,13 +491,12 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
                 buf[at + 1] = 32
                 at += 2
             i = t * m + j
-            if st[i] == 2:
-                for q in range(hard_at[h], hard_at[h + 1]):
-                    buf[at] = hard_bytes[q]
-                    at += 1
-                h += 1
-            else:
-                at = _put_nonzero(buf, at, cs[i], ks[i], neg[i]) if st[i] == 0 else _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
+            if st[i] == 0:
+                end = _put_short(buf, at, cs[i], ks[i], neg[i])
+                if end >= 0:
+                    at = end
+                    continue
+            at, h = _put_found(buf, at, cs[i], ks[i], st[i], neg[i], hard_bytes, hard_at, h)
         buf[at] = 41  # ')'
         at += 1
         t += 1
@@ -721,12 +720,20 @@ def _put_rare(buf, at, b, neg, hard_bytes, hard_at, h):
     if b == 0:
         return _put_value(buf, at, 0, 0, 1, neg), h
     c, k, s = _one(b, _POW5) if 0 < e < 0xFF else (np.int64(0), np.int64(0), 2)
+    return _put_found(buf, at, c, k, s, neg, hard_bytes, hard_at, h)
+
+
+@njit(cache=True, nogil=True)
+def _put_found(buf, at, c, k, s, neg, hard_bytes, hard_at, h):
+    """A value's text from its digits ``c 10^k`` and status ``s`` (0 found, 1 zero, 2 the
+    ``h``-th of the texts left to the caller, ``hard_bytes[hard_at[h]:hard_at[h + 1]]``); the
+    index after it and the next ``h``."""
     if s == 2:
         for q in range(hard_at[h], hard_at[h + 1]):
             buf[at] = hard_bytes[q]
             at += 1
         return at, h + 1
-    return _put_value(buf, at, c, k, s, neg), h
+    return (_put_nonzero(buf, at, c, k, neg) if s == 0 else _put_value(buf, at, c, k, s, neg)), h
 
 
 def tuples_text(values: np.ndarray, hard) -> bytes:
