@@ -471,7 +471,7 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
     starts = np.empty(n + 1, np.int64)
     buf[0] = 91  # '['
     at = 1
-    h = 0
+    h = np.int64(0)  # not a literal: the calls taking it compile once
     t = 0
     while t < n:
         if t > 0:
@@ -496,7 +496,7 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
                 if end >= 0:
                     at = end
                     continue
-            at, h = _put_found(buf, at, cs[i], ks[i], st[i], neg[i], hard_bytes, hard_at, h)
+            at, h = _put_found(buf, at, cs[i], ks[i], np.int64(st[i]), neg[i], hard_bytes, hard_at, h)
         buf[at] = 41  # ')'
         at += 1
         t += 1
@@ -670,7 +670,7 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
     starts = np.empty(n + 1, np.int64)
     buf[0] = 91  # '['
     at = 1
-    h = 0
+    h = np.int64(0)  # not a literal: the calls taking it compile once
     t = 0
     while t < n:
         if t > 0:
