@@ -457,17 +457,15 @@ def _put_value(buf, at, c, k, s, neg):
 
 
 @njit(cache=True, nogil=True)
-def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref_at):
+def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref_at, buf):
     """``[(a, b, c), ...]`` of ``n`` tuples of ``m`` values (``neg`` their signs, flattened)
     from each value's digits (`shortest_digits`, `exact_digits`) or, at status 2, the bytes
     ``hard_bytes[hard_at[i]:hard_at[i + 1]]`` of its rank ``i`` among the status-2 values; a
     tuple with ``same[t]`` set is the same values as tuple ``t`` of a reference array, whose text
     ``ref_text`` holds it from ``ref_at[t]`` up to ``ref_at[t + 1] - 2`` and is copied from there
-    (``same`` empty: none). Returns the text and where each tuple's text starts in it, in the
+    (``same`` empty: none). The text is written from ``buf[0]`` (``buf`` of `_tuples_bound`
+    bytes at least); returns its length and where each tuple's text starts in it, in the
     layout of ``ref_at`` (``n + 1`` entries, the last two past the closing ``)``)."""
-    # at most 22 characters a value (sign, "0.", 5 zeros, 14 digits) and 2 of separator; a copied
-    # tuple is at most its reference's text
-    buf = np.empty(2 + n * (m * 24 + 4) + hard_bytes.shape[0] + ref_text.shape[0], np.uint8)
     starts = np.empty(n + 1, np.int64)
     buf[0] = 91  # '['
     at = 1
@@ -502,7 +500,7 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
         t += 1
     buf[at] = 93  # ']'
     starts[n] = at + 2
-    return buf[:at + 1], starts
+    return at + 1, starts
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -654,19 +652,17 @@ def _marks(bits, m, ref, same):
 
 
 @njit(cache=True, nogil=True)
-def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
+def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at, buf):
     """``[(a, b, c), ...]`` of the float32 ``bits`` in tuples of ``m``, each value its shortest
     digits (`_ryu`, else `_one`) in USD's layout, or the bytes ``hard_bytes[hard_at[i]:hard_at[i
     + 1]]`` for the ``i``-th value `_marks` handed to the caller; a run of tuples with ``same``
     set is copied at once from the reference's text ``ref_text`` (its tuple ``t`` from
     ``ref_at[t]`` up to ``ref_at[t + 1] - 2``). One pass, digits written as they are found.
-    Returns the text and where each tuple's text starts in it (``n + 1`` entries, the last past
-    the closing ``]``), the layout of ``ref_at``."""
+    The text is written from ``buf[0]`` (``buf`` of `_tuples_bound` bytes at least); returns
+    its length and where each tuple's text starts in it (``n + 1`` entries, the last past the
+    closing ``]``), the layout of ``ref_at``."""
     n = bits.shape[0] // m
     check = same.shape[0] > 0
-    # a formatted value takes at most 17 characters (sign, "0.", 5 zeros, 9 digits) and 2 of
-    # separator, a tuple 4 more; a copied run is at most its reference's text
-    buf = np.empty(2 + n * (m * 19 + 4) + hard_bytes.shape[0] + ref_text.shape[0], np.uint8)
     starts = np.empty(n + 1, np.int64)
     buf[0] = 91  # '['
     at = 1
@@ -704,7 +700,7 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
         t += 1
     buf[at] = 93  # ']'
     starts[n] = at + 2
-    return buf[:at + 1], starts
+    return at + 1, starts
 
 
 @njit(cache=True, nogil=True)
@@ -736,19 +732,37 @@ def _put_found(buf, at, c, k, s, neg, hard_bytes, hard_at, h):
     return (_put_nonzero(buf, at, c, k, neg) if s == 0 else _put_value(buf, at, c, k, s, neg)), h
 
 
+def _tuples_bound(values: np.ndarray, hard_bytes: np.ndarray, ref_text: np.ndarray) -> int:
+    """Bytes enough for the text of ``values (n, m)``: a float32 takes at most 17 characters
+    (sign, "0.", 5 zeros, 9 digits), a float64 written from its digits 22 (14 digits), each 2 of
+    separator and a tuple 4 more, the texts left to the caller theirs; a copied run is at most
+    its reference's text."""
+    n, m = values.shape
+    return 2 + n * (m * (24 if values.dtype == np.float64 else 19) + 4) + hard_bytes.shape[0] + ref_text.shape[0]
+
+
+def _trimmed(buf: np.ndarray, size: int) -> np.ndarray:
+    """``buf``'s first ``size`` bytes as ``buf`` itself, its memory shrunk to them in place
+    (``realloc``: no copy of the text, and no more memory held than the text's)."""
+    buf.resize(size, refcheck=False)  # buf: made here, no view of it anywhere
+    return buf
+
+
 def tuples_text(values: np.ndarray, hard) -> bytes:
     """The text of ``values (n, m)`` (float32 or float64, finite) as ``[(a, b, c), ...]``;
     ``hard(v)`` gives the texts (a list of str) of the values ``v`` (of the same type) this
     cannot format exactly (`shortest_digits`, `exact_digits`: status 2)."""
-    return tuples_texts([values], hard)[0]
+    return tuples_texts([values], hard)[0].tobytes()
 
 
-def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
-    """`tuples_text` of each of ``arrays``, with one call of ``hard`` for each type's values
-    left to it (USD's writer has a fixed cost a call). ``refs[i]``, where given, is the index
-    ``j < i`` of an array whose text serves ``arrays[i]``: the tuples of ``arrays[i]`` whose
-    bits equal the same tuple's of ``arrays[j]`` (same shape and type) are copied from ``j``'s
-    text, not formatted again (a response moves a display's points near the contact alone)."""
+def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[np.ndarray]:
+    """`tuples_text` of each of ``arrays`` as a read-only ``(bytes,) uint8`` array, with one
+    call of ``hard`` for each type's values left to it (USD's writer has a fixed cost a call).
+    ``refs[i]``, where given, is the index ``j < i`` of an array whose text serves
+    ``arrays[i]``: the tuples of ``arrays[i]`` whose bits equal the same tuple's of
+    ``arrays[j]`` (same shape and type) are copied from ``j``'s text, not formatted again (a
+    response moves a display's points near the contact alone). Each text is written into its
+    own buffer and the buffer cut to it, not copied out."""
     refs = list(refs) if refs is not None else [None] * len(arrays)
     done = []
     for i, values in enumerate(arrays):
@@ -788,14 +802,16 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
     for i, ((values, digits, odd, same), (hard_bytes, hard_at)) in enumerate(zip(done, texts)):
         j = refs[i]
         ref_text, ref_at = starts[j] if j is not None else empty
+        buf = np.empty(_tuples_bound(values, hard_bytes, ref_text), np.uint8)
         if digits is None:
-            text, at = _float32_text(values.reshape(-1).view(np.uint32), values.shape[1], same, hard_bytes, hard_at, ref_text, ref_at)
+            size, at = _float32_text(values.reshape(-1).view(np.uint32), values.shape[1], same, hard_bytes, hard_at, ref_text, ref_at, buf)
         else:
-            text, at = _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), *digits,
-                                    hard_bytes, hard_at, same, ref_text, ref_at)
-        out.append(text.tobytes())
+            size, at = _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), *digits,
+                                    hard_bytes, hard_at, same, ref_text, ref_at, buf)
+        text = _trimmed(buf, size)
+        text.flags.writeable = False  # read-only, as the other bytes arrays the kernels take
+        out.append(text)
         if last_use.get(i, -1) > i:
-            text.flags.writeable = False  # read-only, as the other bytes arrays the kernels take
             starts[i] = text, at
         if j is not None and last_use[j] == i:
             del starts[j]

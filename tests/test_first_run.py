@@ -77,9 +77,9 @@ def test_the_text_kernels_rare_value_helpers_compile_once():
     0 of its first assignment, `_put_rare` and `_put_found` would each compile a second time."""
     arr = lambda dtype, readonly=False: types.Array(dtype, 1, "C", readonly=readonly)  # noqa: E731
     _typed(floattext._float32_text, arr(types.uint32), types.int64, arr(types.bool_), arr(types.uint8, True), arr(types.int64),
-           arr(types.uint8, True), arr(types.int64))
+           arr(types.uint8, True), arr(types.int64), arr(types.uint8))
     _typed(floattext._tuples_text, types.int64, types.int64, arr(types.bool_), arr(types.int64), arr(types.int64), arr(types.int8),
-           arr(types.uint8, True), arr(types.int64), arr(types.bool_), arr(types.uint8, True), arr(types.int64))
+           arr(types.uint8, True), arr(types.int64), arr(types.bool_), arr(types.uint8, True), arr(types.int64), arr(types.uint8))
     for helper in (floattext._put_rare, floattext._put_found):
         assert helper.signatures
         assert not any(isinstance(a, types.Literal) for sig in helper.signatures for a in sig)
