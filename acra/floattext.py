@@ -17,7 +17,9 @@ and subnormals) are marked, and the caller supplies their text (``hard``). Withi
 digits are found by Ryu's float32 algorithm (`_ryu`, 64-bit tables, no loop over candidate
 exponents), about 1.7x faster; it gives `_one`'s digits for every float32 there. A float32
 array's text is written in one pass (`_float32_text`), each value's digits as they are found,
-after `_marks` has found the values handed to the caller. A float64 array's
+after `_marks` has found the values handed to the caller; a value of at most nine digits with
+its decimal point among them is stored as nine digits at once (`_put_short`), the rare others
+out of the loop's way. Each text is written into a buffer of its bound and the buffer cut to it. A float64 array's
 values are written as their exact decimals where those have at most 14 digits (`exact_digits`),
 an int array's as their digits (`ints_text`).
 """
