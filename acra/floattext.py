@@ -17,7 +17,9 @@ and subnormals) are marked, and the caller supplies their text (``hard``). Withi
 digits are found by Ryu's float32 algorithm (`_ryu`, 64-bit tables, no loop over candidate
 exponents), about 1.7x faster; it gives `_one`'s digits for every float32 there. A float32
 array's text is written in one pass (`_float32_text`), each value's digits as they are found,
-after `_marks` has found the values handed to the caller. A float64 array's
+after `_marks` has found the values handed to the caller; a value of at most nine digits with
+its decimal point among them is stored as nine digits at once (`_put_short`), the rare others
+out of the loop's way. Each text is written into a buffer of its bound and the buffer cut to it. A float64 array's
 values are written as their exact decimals where those have at most 14 digits (`exact_digits`),
 an int array's as their digits (`ints_text`).
 """
@@ -457,21 +459,19 @@ def _put_value(buf, at, c, k, s, neg):
 
 
 @njit(cache=True, nogil=True)
-def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref_at):
+def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref_at, buf):
     """``[(a, b, c), ...]`` of ``n`` tuples of ``m`` values (``neg`` their signs, flattened)
     from each value's digits (`shortest_digits`, `exact_digits`) or, at status 2, the bytes
     ``hard_bytes[hard_at[i]:hard_at[i + 1]]`` of its rank ``i`` among the status-2 values; a
     tuple with ``same[t]`` set is the same values as tuple ``t`` of a reference array, whose text
     ``ref_text`` holds it from ``ref_at[t]`` up to ``ref_at[t + 1] - 2`` and is copied from there
-    (``same`` empty: none). Returns the text and where each tuple's text starts in it, in the
+    (``same`` empty: none). The text is written from ``buf[0]`` (``buf`` of `_tuples_bound`
+    bytes at least); returns its length and where each tuple's text starts in it, in the
     layout of ``ref_at`` (``n + 1`` entries, the last two past the closing ``)``)."""
-    # at most 22 characters a value (sign, "0.", 5 zeros, 14 digits) and 2 of separator; a copied
-    # tuple is at most its reference's text
-    buf = np.empty(2 + n * (m * 24 + 4) + hard_bytes.shape[0] + ref_text.shape[0], np.uint8)
     starts = np.empty(n + 1, np.int64)
     buf[0] = 91  # '['
     at = 1
-    h = 0
+    h = np.int64(0)  # not a literal: the calls taking it compile once
     t = 0
     while t < n:
         if t > 0:
@@ -491,30 +491,100 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
                 buf[at + 1] = 32
                 at += 2
             i = t * m + j
-            if st[i] == 2:
-                for q in range(hard_at[h], hard_at[h + 1]):
-                    buf[at] = hard_bytes[q]
-                    at += 1
-                h += 1
-            else:
-                at = _put_nonzero(buf, at, cs[i], ks[i], neg[i]) if st[i] == 0 else _put_value(buf, at, cs[i], ks[i], st[i], neg[i])
+            if st[i] == 0:
+                end = _put_short(buf, at, cs[i], ks[i], neg[i])
+                if end >= 0:
+                    at = end
+                    continue
+            at, h = _put_found(buf, at, cs[i], ks[i], np.int64(st[i]), neg[i], hard_bytes, hard_at, h)
         buf[at] = 41  # ')'
         at += 1
         t += 1
     buf[at] = 93  # ']'
     starts[n] = at + 2
-    return buf[:at + 1], starts
+    return at + 1, starts
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_nine(buf, at, d):
+    """The nine decimal digits of ``0 <= d < 10^9``, leading zeros too, at ``buf[at:at + 9]``:
+    a fixed number of stores whatever the value, in unsigned arithmetic (no floor correction of
+    a quotient, no wraparound test of an index)."""
+    u = np.uint64(at)
+    d = np.uint64(d)
+    top = d // np.uint64(100000000)
+    d -= top * np.uint64(100000000)
+    a = d // np.uint64(1000000)
+    d -= a * np.uint64(1000000)
+    b = d // np.uint64(10000)
+    d -= b * np.uint64(10000)
+    c = d // np.uint64(100)
+    d -= c * np.uint64(100)
+    one = np.uint64(1)
+    buf[u] = np.uint8(48) + np.uint8(top)
+    buf[u + one] = _PAIRS[a + a]
+    buf[u + np.uint64(2)] = _PAIRS[a + a + one]
+    buf[u + np.uint64(3)] = _PAIRS[b + b]
+    buf[u + np.uint64(4)] = _PAIRS[b + b + one]
+    buf[u + np.uint64(5)] = _PAIRS[c + c]
+    buf[u + np.uint64(6)] = _PAIRS[c + c + one]
+    buf[u + np.uint64(7)] = _PAIRS[d + d]
+    buf[u + np.uint64(8)] = _PAIRS[d + d + one]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_short(buf, at, c, k, neg):
+    """A nonzero value's text from its digits ``c 10^k`` (``0 < c < 10^18``) where they are at
+    most nine and the decimal point falls within the first nine places (every float32 from 1e-6
+    to 1e9); the index after it, or ``-1 - at`` (``at`` after the sign) for `_put_text`.
+
+    The digits are written as nine, left-justified (``c 10^(9 - nd)``: the value's digits, then
+    zeros), in a fixed number of stores, and the text ends where the value's does: the stores
+    past its end (within 17 bytes of the value's start, the buffer's bound a value) are written
+    over by what follows. The layouts differ in where the nine go and the point: ``0.00ddd``
+    (the nine after the zeros), ``dd.ddd`` (the nine one place right, the integer's digits moved
+    back over the gap by a fixed nine selects) and ``ddd00`` (the same, the point past the end).
+    Nothing here branches on a count of digits: a loop of data-dependent length mispredicts."""
+    buf[at] = 45  # '-', kept by a negative value only
+    at += 1 if neg else 0
+    nd = _ndigits(c)
+    point = nd + k  # the decimal point's place after the first digit
+    if nd > 9 or point <= _LOW or point > 9:
+        return -1 - at
+    d = c * _POW10[9 - nd]
+    u = np.uint64(at)
+    if point <= 0:  # "0.", up to five zeros, then the digits
+        buf[u] = 48
+        buf[u + np.uint64(1)] = 46
+        for q in range(np.uint64(2), np.uint64(7)):
+            buf[u + q] = 48
+        at += 2 - point
+        _put_nine(buf, at, d)
+        return at + nd
+    _put_nine(buf, at + 1, d)
+    p = np.uint64(point)
+    for q in range(np.uint64(9)):
+        buf[u + q] = buf[u + q + np.uint64(1)] if q < p else buf[u + q]
+    buf[u + p] = 46
+    return at + nd + 1 if point < nd else at + point
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _put_nonzero(buf, at, c, k, neg):
-    """`_put_value` of a nonzero value's digits ``c 10^k`` (``0 < c < 10^18``), the digits
-    written from the last, the decimal point in its place as they go (no shift)."""
-    if neg:
-        buf[at] = 45
-        at += 1
-    nd = _ndigits(c)
-    point = nd + k  # the decimal point's place after the first digit
+    """`_put_value` of a nonzero value's digits ``c 10^k`` (``0 < c < 10^18``): `_put_short`,
+    else `_put_text`."""
+    end = _put_short(buf, at, c, k, neg)
+    if end < 0:
+        nd = _ndigits(c)
+        end = _put_text(buf, -1 - end, c, k, nd, nd + k)
+    return end
+
+
+@njit(cache=True, nogil=True)
+def _put_text(buf, at, c, k, nd, point):
+    """`_put_nonzero`'s text of the unsigned value ``c 10^k`` of ``nd`` digits, its decimal point
+    after the first ``point``, the digits written from the last, the point in its place as they
+    go (no shift)."""
     if point <= _LOW or point > _HIGH:
         return _put_value(buf, at, c, k, 0, False)
     if point <= 0:  # "0.", zeros, then every digit
@@ -584,23 +654,21 @@ def _marks(bits, m, ref, same):
 
 
 @njit(cache=True, nogil=True)
-def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
+def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at, buf):
     """``[(a, b, c), ...]`` of the float32 ``bits`` in tuples of ``m``, each value its shortest
     digits (`_ryu`, else `_one`) in USD's layout, or the bytes ``hard_bytes[hard_at[i]:hard_at[i
     + 1]]`` for the ``i``-th value `_marks` handed to the caller; a run of tuples with ``same``
     set is copied at once from the reference's text ``ref_text`` (its tuple ``t`` from
     ``ref_at[t]`` up to ``ref_at[t + 1] - 2``). One pass, digits written as they are found.
-    Returns the text and where each tuple's text starts in it (``n + 1`` entries, the last past
-    the closing ``]``), the layout of ``ref_at``."""
+    The text is written from ``buf[0]`` (``buf`` of `_tuples_bound` bytes at least); returns
+    its length and where each tuple's text starts in it (``n + 1`` entries, the last past the
+    closing ``]``), the layout of ``ref_at``."""
     n = bits.shape[0] // m
     check = same.shape[0] > 0
-    # a formatted value takes at most 17 characters (sign, "0.", 5 zeros, 9 digits) and 2 of
-    # separator, a tuple 4 more; a copied run is at most its reference's text
-    buf = np.empty(2 + n * (m * 19 + 4) + hard_bytes.shape[0] + ref_text.shape[0], np.uint8)
     starts = np.empty(n + 1, np.int64)
     buf[0] = 91  # '['
     at = 1
-    h = 0
+    h = np.int64(0)  # not a literal: the calls taking it compile once
     t = 0
     while t < n:
         if t > 0:
@@ -624,40 +692,79 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at):
             e = b >> 23
             if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
                 c, k = _ryu(b)
-                at = _put_nonzero(buf, at, c, k, neg)
-                continue
-            if b == 0:
-                at = _put_value(buf, at, 0, 0, 1, neg)
-                continue
-            c, k, s = _one(b, _POW5) if 0 < e < 0xFF else (np.int64(0), np.int64(0), 2)
-            if s == 2:
-                for q in range(hard_at[h], hard_at[h + 1]):
-                    buf[at] = hard_bytes[q]
-                    at += 1
-                h += 1
-            else:
-                at = _put_value(buf, at, c, k, s, neg)
+                end = _put_short(buf, at, c, k, neg)
+                if end >= 0:
+                    at = end
+                    continue
+            at, h = _put_rare(buf, at, b, neg, hard_bytes, hard_at, h)
         buf[at] = 41  # ')'
         at += 1
         t += 1
     buf[at] = 93  # ']'
     starts[n] = at + 2
-    return buf[:at + 1], starts
+    return at + 1, starts
+
+
+@njit(cache=True, nogil=True)
+def _put_rare(buf, at, b, neg, hard_bytes, hard_at, h):
+    """`_float32_text`'s value of ``bits`` ``b`` (sign cleared, ``neg`` its sign) that
+    `_put_short` leaves: zero, digits `_one` finds, or the ``h``-th of the texts left to the
+    caller; the index after it and the next ``h``. Out of the loop's way: a call inlined there
+    slows every value's path."""
+    e = b >> 23
+    if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
+        c, k = _ryu(b)
+        return _put_nonzero(buf, at, c, k, neg), h
+    if b == 0:
+        return _put_value(buf, at, 0, 0, 1, neg), h
+    c, k, s = _one(b, _POW5) if 0 < e < 0xFF else (np.int64(0), np.int64(0), 2)
+    return _put_found(buf, at, c, k, s, neg, hard_bytes, hard_at, h)
+
+
+@njit(cache=True, nogil=True)
+def _put_found(buf, at, c, k, s, neg, hard_bytes, hard_at, h):
+    """A value's text from its digits ``c 10^k`` and status ``s`` (0 found, 1 zero, 2 the
+    ``h``-th of the texts left to the caller, ``hard_bytes[hard_at[h]:hard_at[h + 1]]``); the
+    index after it and the next ``h``."""
+    if s == 2:
+        for q in range(hard_at[h], hard_at[h + 1]):
+            buf[at] = hard_bytes[q]
+            at += 1
+        return at, h + 1
+    return (_put_nonzero(buf, at, c, k, neg) if s == 0 else _put_value(buf, at, c, k, s, neg)), h
+
+
+def _tuples_bound(values: np.ndarray, hard_bytes: np.ndarray, ref_text: np.ndarray) -> int:
+    """Bytes enough for the text of ``values (n, m)``: a float32 takes at most 17 characters
+    (sign, "0.", 5 zeros, 9 digits), a float64 written from its digits 22 (14 digits), each 2 of
+    separator and a tuple 4 more, the texts left to the caller theirs; a copied run is at most
+    its reference's text."""
+    n, m = values.shape
+    return 2 + n * (m * (24 if values.dtype == np.float64 else 19) + 4) + hard_bytes.shape[0] + ref_text.shape[0]
+
+
+def _trimmed(buf: np.ndarray, size: int) -> np.ndarray:
+    """``buf``'s first ``size`` bytes as ``buf`` itself, its memory shrunk to them in place
+    (``realloc``: no copy of the text, and no more memory held than the text's)."""
+    buf.resize(size, refcheck=False)  # buf: made here, no view of it anywhere
+    return buf
 
 
 def tuples_text(values: np.ndarray, hard) -> bytes:
     """The text of ``values (n, m)`` (float32 or float64, finite) as ``[(a, b, c), ...]``;
     ``hard(v)`` gives the texts (a list of str) of the values ``v`` (of the same type) this
     cannot format exactly (`shortest_digits`, `exact_digits`: status 2)."""
-    return tuples_texts([values], hard)[0]
+    return tuples_texts([values], hard)[0].tobytes()
 
 
-def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
-    """`tuples_text` of each of ``arrays``, with one call of ``hard`` for each type's values
-    left to it (USD's writer has a fixed cost a call). ``refs[i]``, where given, is the index
-    ``j < i`` of an array whose text serves ``arrays[i]``: the tuples of ``arrays[i]`` whose
-    bits equal the same tuple's of ``arrays[j]`` (same shape and type) are copied from ``j``'s
-    text, not formatted again (a response moves a display's points near the contact alone)."""
+def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[np.ndarray]:
+    """`tuples_text` of each of ``arrays`` as a read-only ``(bytes,) uint8`` array, with one
+    call of ``hard`` for each type's values left to it (USD's writer has a fixed cost a call).
+    ``refs[i]``, where given, is the index ``j < i`` of an array whose text serves
+    ``arrays[i]``: the tuples of ``arrays[i]`` whose bits equal the same tuple's of
+    ``arrays[j]`` (same shape and type) are copied from ``j``'s text, not formatted again (a
+    response moves a display's points near the contact alone). Each text is written into its
+    own buffer and the buffer cut to it, not copied out."""
     refs = list(refs) if refs is not None else [None] * len(arrays)
     done = []
     for i, values in enumerate(arrays):
@@ -697,14 +804,16 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[bytes]:
     for i, ((values, digits, odd, same), (hard_bytes, hard_at)) in enumerate(zip(done, texts)):
         j = refs[i]
         ref_text, ref_at = starts[j] if j is not None else empty
+        buf = np.empty(_tuples_bound(values, hard_bytes, ref_text), np.uint8)
         if digits is None:
-            text, at = _float32_text(values.reshape(-1).view(np.uint32), values.shape[1], same, hard_bytes, hard_at, ref_text, ref_at)
+            size, at = _float32_text(values.reshape(-1).view(np.uint32), values.shape[1], same, hard_bytes, hard_at, ref_text, ref_at, buf)
         else:
-            text, at = _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), *digits,
-                                    hard_bytes, hard_at, same, ref_text, ref_at)
-        out.append(text.tobytes())
+            size, at = _tuples_text(values.shape[0], values.shape[1], np.signbit(values.reshape(-1)), *digits,
+                                    hard_bytes, hard_at, same, ref_text, ref_at, buf)
+        text = _trimmed(buf, size)
+        text.flags.writeable = False  # read-only, as the other bytes arrays the kernels take
+        out.append(text)
         if last_use.get(i, -1) > i:
-            text.flags.writeable = False  # read-only, as the other bytes arrays the kernels take
             starts[i] = text, at
         if j is not None and last_use[j] == i:
             del starts[j]

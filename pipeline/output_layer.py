@@ -337,8 +337,9 @@ class _SharedText:
         return self._made[k]
 
     def _texts(self) -> tuple[list[bytes], list[str]]:
-        """Each array's text and its stand-in's text, as USD's text writer formats them: the
-        arrays of `_COMPILED` types by `acra.floattext`, the others' by USD's writer."""
+        """Each array's text (bytes, or a ``(bytes,) uint8`` array from `floattext.tuples_texts`)
+        and its stand-in's text, as USD's text writer formats them: the arrays of `_COMPILED`
+        types by `acra.floattext`, the others' by USD's writer."""
         scratch = Sdf.Layer.CreateAnonymous("acra_arrays.usda")
         with Sdf.ChangeBlock():
             prim = Sdf.CreatePrimInLayer(scratch, "/A")
@@ -380,7 +381,7 @@ class _SharedText:
         found, expected = [0] * len(self._arrays), [0] * len(self._arrays)
         for _, _, k in self._samples:
             expected[k] += 1
-        if None not in values and len(which) == len(stand_ins):
+        if all(v is not None for v in values) and len(which) == len(stand_ins):
             for m in pattern.finditer(text):
                 found[which[m.group()]] += 1
         if found != expected:
@@ -397,7 +398,7 @@ class _SharedText:
 
 class _Text:
     """A ``.usda`` layer's ``text`` (UTF-8) whose stand-ins (``pattern``, ``which`` of them) are
-    written as their arrays' text ``values``, as `Sdf.Layer.Export` writes a layer
+    written as their arrays' text ``values`` (bytes or ``uint8`` arrays), as `Sdf.Layer.Export` writes a layer
     (`usdio.export_layer`). The pieces are views of the text and the arrays' texts, handed to the
     file a few hundred at a time (`os.writev`: one system call for them, no copy into a buffer),
     so a long run's text is held once."""

@@ -8,7 +8,7 @@ from numba.core.compiler import CompilerBase, DefaultPassBuilder, Flags
 from numba.core.registry import cpu_target
 from numba.core.typed_passes import NopythonTypeInference
 
-from acra import bvh, kdtree, lattice, pseudonormals
+from acra import bvh, floattext, kdtree, lattice, pseudonormals
 
 
 class _TypingOnly(CompilerBase):
@@ -69,3 +69,17 @@ def test_the_kd_tree_split_is_compiled_once():
     _typed(kdtree._build, arr(types.float64, 2), i64, i64, i64, i64, arr(types.float64, 1), i64)
     assert kdtree._select.signatures
     assert not any(isinstance(a, types.Literal) for sig in kdtree._select.signatures for a in sig)
+
+
+def test_the_text_kernels_rare_value_helpers_compile_once():
+    """`floattext._float32_text` and `floattext._tuples_text` pass the count of values left to
+    USD's writer to their rare values' helpers as an int64 from the start: typed as the literal
+    0 of its first assignment, `_put_rare` and `_put_found` would each compile a second time."""
+    arr = lambda dtype, readonly=False: types.Array(dtype, 1, "C", readonly=readonly)  # noqa: E731
+    _typed(floattext._float32_text, arr(types.uint32), types.int64, arr(types.bool_), arr(types.uint8, True), arr(types.int64),
+           arr(types.uint8, True), arr(types.int64), arr(types.uint8))
+    _typed(floattext._tuples_text, types.int64, types.int64, arr(types.bool_), arr(types.int64), arr(types.int64), arr(types.int8),
+           arr(types.uint8, True), arr(types.int64), arr(types.bool_), arr(types.uint8, True), arr(types.int64), arr(types.uint8))
+    for helper in (floattext._put_rare, floattext._put_found):
+        assert helper.signatures
+        assert not any(isinstance(a, types.Literal) for sig in helper.signatures for a in sig)

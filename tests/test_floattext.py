@@ -45,6 +45,24 @@ def test_same_text_as_usd(name):
     assert floattext.tuples_text(values, _float_texts).decode() == usd_text(values)
 
 
+def test_every_layout_of_nine_stored_digits():
+    """`floattext._put_short` stores nine digits whatever the value and ends the text where the
+    value's ends: values of 1 to 9 digits with the decimal point at every place it handles
+    (``0.00000d`` to ``ddddddddd``), and just past them (exponent form, ten places), signed, next
+    to each other in tuples so that a value's extra stores are written over; the text is USD's."""
+    values = []
+    for nd in range(1, 10):
+        for point in range(-6, 12):
+            c = int("123456789"[:nd]) if nd % 2 else int("987654321"[:nd])
+            values.append(c * 10.0 ** (point - nd))
+            values.append(-c * 10.0 ** (point - nd))
+    values = np.array(values + [1e8, 999999936.0, 1e9, 123456792.0, 1e-6, 9.99999e-6, 1e-5, 0.5, 5.0], dtype=np.float32)
+    for shift in range(3):  # each value beside each kind of neighbour
+        rows = np.ascontiguousarray(np.roll(values, shift)[: values.size // 3 * 3].reshape(-1, 3))
+        assert floattext.tuples_text(rows, _float_texts).decode() == usd_text(rows)
+        assert floattext.tuples_text(rows[::-1].copy(), _float_texts).decode() == usd_text(rows[::-1].copy())
+
+
 def test_digits_are_found_for_the_usual_range():
     """Values from 1.03e-7 to 2^40 are formatted by the kernel, not handed back."""
     rng = np.random.default_rng(3)
@@ -119,8 +137,8 @@ def test_several_arrays_with_one_call_for_their_hard_values():
     calls = []
     texts = floattext.tuples_texts(arrays, lambda v: calls.append(v.dtype) or _float_texts(v))
     assert calls == [np.float32, np.float64]
-    assert [t.decode() for t in texts[:3]] == [usd_text(a) for a in arrays[:3]]
-    assert texts[3].decode() == usd_double2(arrays[3])
+    assert [t.tobytes().decode() for t in texts[:3]] == [usd_text(a) for a in arrays[:3]]
+    assert texts[3].tobytes().decode() == usd_double2(arrays[3])
 
 
 def test_text_copied_from_a_reference_array_is_the_text_formatted_afresh():
@@ -140,8 +158,9 @@ def test_text_copied_from_a_reference_array_is_the_text_formatted_afresh():
     again[rng.random(n) < 0.5] = 0.0
     arrays = [base, moved, again, base.reshape(-1, 2), moved[:-1]]
     refs = [None, 0, 1, 0, 1]  # the last two differ in shape from their reference: formatted afresh
-    assert floattext.tuples_texts(arrays, _float_texts, refs) == floattext.tuples_texts(arrays, _float_texts)
-    assert [t.decode() for t in floattext.tuples_texts(arrays[:3], _float_texts, refs[:3])] == [usd_text(a) for a in arrays[:3]]
+    texts = lambda *a: [t.tobytes() for t in floattext.tuples_texts(*a)]  # noqa: E731
+    assert texts(arrays, _float_texts, refs) == texts(arrays, _float_texts)
+    assert [t.decode() for t in texts(arrays[:3], _float_texts, refs[:3])] == [usd_text(a) for a in arrays[:3]]
     same = np.zeros(n, np.bool_)
     cs, ks, st = floattext.shortest_digits(moved.reshape(-1).view(np.uint32), base.reshape(-1).view(np.uint32), same)
     assert np.array_equal(same, (moved == base).all(axis=1) & (np.signbit(moved) == np.signbit(base)).all(axis=1))

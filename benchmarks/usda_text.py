@@ -1,0 +1,79 @@
+"""The `.usda` text of a run's collision frames' displays (`acra.floattext.tuples_texts`), timed.
+
+    PYTHONPATH=$PWD python3 benchmarks/usda_text.py [SCENE.py] [--repeat 40]
+
+Runs the scene once (`frames.run_frames`), then formats the display ``points`` and ``normals``
+of its collision frames as `output_layer._SharedText` does in a layer of the collision frames
+alone (`acra bench`'s collision-frame write): each attribute's first frame whole, each later
+frame from the previous frame's text (`tuples_texts`' ``refs``), one call for all of them, with
+USD's writer for the values the kernels leave to it (`output_layer._float_texts`). Prints the
+CPU milliseconds (`time.process_time`) per collision frame, median and range over ``--repeat``
+calls, and the same for the largest deformable's first collision frame's ``points`` formatted
+whole. The script imports `acra` and `pipeline` from ``PYTHONPATH``: run it with two
+checkouts' paths, alternated, to compare them on the same arrays.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import shutil
+import statistics
+import tempfile
+import time
+
+import numpy as np
+
+from acra import floattext
+from pipeline import frames, output_layer, usdio
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def cpu_ms(fn, repeat: int) -> list[float]:
+    """CPU milliseconds of each of ``repeat`` calls of ``fn()``."""
+    spent = []
+    for _ in range(repeat):
+        t = time.process_time()
+        fn()
+        spent.append(1e3 * (time.process_time() - t))
+    return spent
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
+    ap.add_argument("--repeat", type=int, default=40)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        src = pathlib.Path(tmp) / args.scene.name
+        shutil.copy(args.scene, src)
+        stage = usdio.open_input(usdio.load_scene_file(src))
+        scene = usdio.read_scene(stage)
+        result, stats = frames.run_frames(stage, scene, list(range(scene.start, scene.end + 1)), frames.RunOptions())
+    colliding = [s.frame for s in stats if s.in_collision]
+    if not colliding:
+        raise SystemExit(f"{args.scene.name}: no collision frame")
+    arrays, refs = [], []
+    for path in sorted(result.frames[colliding[0]]):
+        for kind in ("points", "normals"):
+            for f in colliding:
+                refs.append(len(arrays) - 1 if f != colliding[0] else None)
+                arrays.append(np.ascontiguousarray(getattr(result.frames[f][path], kind), dtype=np.float32))
+    largest = max(sorted(result.frames[colliding[0]]), key=lambda p: len(result.frames[colliding[0]][p].points))
+    whole = np.ascontiguousarray(result.frames[colliding[0]][largest].points, dtype=np.float32)
+    floattext.tuples_texts(arrays, output_layer._float_texts, refs)  # kernels loaded or compiled
+    rows = {
+        f"the {len(colliding)} collision frames' display texts, per collision frame":
+            [t / len(colliding) for t in cpu_ms(lambda: floattext.tuples_texts(arrays, output_layer._float_texts, refs), args.repeat)],
+        f"{largest}'s frame-{colliding[0]} points ({len(whole)} tuples) whole":
+            cpu_ms(lambda: floattext.tuples_texts([whole], output_layer._float_texts), args.repeat),
+    }
+    print(f"{args.scene.name}, CPU ms, median (range) of {args.repeat} calls\n")
+    print("| text | CPU ms |\n|---|---:|")
+    for name, v in rows.items():
+        print(f"| {name} | {statistics.median(v):.3f} ({min(v):.3f}–{max(v):.3f}) |")
+
+
+if __name__ == "__main__":
+    main()
