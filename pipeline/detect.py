@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Union
 
 import numpy as np
 
+from acra import halfspaces
 from acra import hspline as H
 from acra import narrow
 from acra.bvh import bounds as bounds_of
@@ -97,9 +98,9 @@ class ColliderStatic:
         return clearance.solid(np.asarray(self.mesh.vertices, np.float64), np.asarray(self.mesh.faces, np.int64))
 
     @_once
-    def planes(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The `solid`'s face planes, unit outward normals ``(f, 3) float64`` and offsets ``(f,)
-        float64`` (``n . p - d`` is a point's height over a face's plane), where the solid is
+    def planes(self) -> np.ndarray | None:
+        """The `solid`'s face planes ``(f, 4) float64``, rows ``(n, d)`` with ``n`` its unit
+        outward normal (``n . p + d`` is a point's height over a face's plane), where the solid is
         convex and its pseudo-normals side with its faces; else None (`_convex_planes`)."""
         return _convex_planes(self.solid)
 
@@ -141,7 +142,7 @@ class ColliderStatic:
         return boxes_near(*self._face_centres, xform, bounds)
 
 
-def _convex_planes(s) -> tuple[np.ndarray, np.ndarray] | None:
+def _convex_planes(s) -> np.ndarray | None:
     """Face planes of a `pipeline.clearance.Solid` ``s`` for `_collider_inside`'s far points, or
     None unless all of these hold: at most `PLANES_MAX` faces; every vertex on or behind every
     face's plane (to 1e-12 of the size); the enclosed volume that of the vertices' convex hull
@@ -149,7 +150,7 @@ def _convex_planes(s) -> tuple[np.ndarray, np.ndarray] | None:
     intersection ``K`` and its parity is 1 there); every edge and vertex pseudo-normal at least
     0.1 along each face it touches.
 
-    Then a point's greatest height ``h = max_f (n_f . p - d_f)`` over the planes is ``-sd`` of
+    Then a point's greatest height ``h = max_f (n_f . p + d_f)`` over the planes is ``-sd`` of
     eq. (1) (`pipeline.clearance`) within the planes' rounding: inside ``K`` the nearest surface
     point is the foot on the nearest plane, and outside, the distance to ``K`` is at least
     ``h``. Whatever feature eq. (1) reads the pseudo-normal ``n`` of (a face, or an edge or a
@@ -177,7 +178,7 @@ def _convex_planes(s) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     if np.einsum("fkc,fc->fk", s.vertex_normals[f], normals).min() < 0.1:
         return None
-    return normals.copy(), offsets
+    return np.concatenate([normals, -offsets[:, None]], axis=1)
 
 
 def prepare_collider(model: ColliderModel) -> ColliderStatic:
@@ -856,7 +857,7 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
         # a convex collider: a point higher than twice `SIDE_SURE` over a face plane or deeper
         # than it under all is far, on the side of its height (`_convex_planes`); the closest
         # points answer the rest
-        h = (local @ planes[0].T - planes[1]).max(axis=1)
+        h = halfspaces.heights(planes, local)
         m, near = h < 0, np.zeros(len(local), bool)
         rows = np.flatnonzero(np.abs(h) <= 2.0 * sure)
         if len(rows):

@@ -950,7 +950,7 @@ def test_collider_inside_by_planes_is_the_closest_points_answer(kind, seed):
     corners moved by rounding up to far outside and deep inside, under a rotation and scale."""
     rng = np.random.default_rng(seed)
     st = _convex_collider(kind, rng)
-    assert st.planes is not None and st.planes[0].shape == (len(st.solid.faces), 3)
+    assert st.planes is not None and st.planes.shape == (len(st.solid.faces), 4)
     rot = trimesh.transformations.rotation_matrix(0.3 + seed, rng.normal(size=3))
     g = D.ColliderGeometry(st, move(*rng.normal(size=3)) @ rot @ np.diag([3.0, 3.0, 3.0, 1.0]))
     tri = st.mesh.triangles[rng.integers(0, len(st.mesh.faces), 200)]
@@ -978,8 +978,8 @@ def test_collider_planes_only_for_convex_solids_with_few_faces():
     more than `PLANES_MAX` faces, nor for a box with a dent."""
     from pipeline.authoring import uv_sphere
 
-    normals, offsets = box(0.5).planes
-    assert normals.shape == (12, 3) and np.allclose(np.abs(normals).sum(axis=1), 1.0) and np.allclose(offsets, 0.5)
+    planes = box(0.5).planes
+    assert planes.shape == (12, 4) and np.allclose(np.abs(planes[:, :3]).sum(axis=1), 1.0) and np.allclose(planes[:, 3], -0.5)
     v, f = uv_sphere(0.45, 24, 12)
     assert D.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f))).planes is None
     dent = np.vstack([BOX_VERTICES, [[1.0, 0.0, 0.0]], [[0.5, 0.0, 0.0]]])  # a point on the +x face, then pushed in
