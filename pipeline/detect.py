@@ -856,10 +856,10 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     else:
         # a convex collider: a point higher than twice `SIDE_SURE` over a face plane or deeper
         # than it under all is far, on the side of its height (`_convex_planes`); the closest
-        # points answer the rest
+        # points answer the rest, and a point with a coordinate not finite as they always have
         h = halfspaces.heights(planes, local)
         m, near = h < 0, np.zeros(len(local), bool)
-        rows = np.flatnonzero(np.abs(h) <= 2.0 * sure)
+        rows = np.flatnonzero((np.abs(h) <= 2.0 * sure) | ~np.isfinite(h))
         if len(rows):
             sd = clearance.signed_depth(static.solid, local[rows])[0]
             near[rows], m[rows] = np.abs(sd) <= sure, sd > 0

@@ -1192,3 +1192,19 @@ def test_the_touch_test_s_box_checks_are_the_array_form():
         assert D._box_meets(other, b, pad) == bool(overlap(other[0], other[1], b[0], b[1], pad)), trial
     # a still geometry's corners are its content's: the whole box of every patch passes
     assert D._every_box_meets(g, np.stack([lo.min(axis=0), hi.max(axis=0)]), 0.0)
+
+
+def test_collider_inside_by_planes_raises_as_the_closest_points_do_on_points_not_finite():
+    """A point with a NaN or infinite coordinate takes the closest points' path on a convex
+    collider too (`pipeline.clearance.Unresolved`: no face is nearer than infinity), as on one
+    answered by them alone."""
+    from pipeline import clearance
+
+    st = box(0.5)
+    slow = D.ColliderStatic(st.path, st.mesh, st.bvh, st.closed)
+    slow.__dict__["planes"] = None
+    for bad in (np.nan, np.inf):
+        p = np.array([[0.0, 0.0, 0.0], [bad, 0.0, 0.0]])
+        for s in (st, slow):
+            with pytest.raises(clearance.Unresolved), np.errstate(invalid="ignore"):
+                D.inside(D.ColliderGeometry(s, move()), p)
