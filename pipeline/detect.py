@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Union
 
 import numpy as np
 
+from acra import halfspaces
 from acra import hspline as H
 from acra import narrow
 from acra.bvh import bounds as bounds_of
@@ -43,6 +44,7 @@ _MAX_CONTACTS = 1_000_000
 _PAD = 1e-7  # box padding, fraction of the pair's size: exactly touching boxes still overlap
 ON_MESH = 1e-9  # a point this close to a collider's mesh (fraction of the mesh's size) lies on it: not inside
 SIDE_SURE = 1e-6  # farther than this from a collider's mesh (fraction of its size), a point's side is its pseudo-normal's
+PLANES_MAX = 64  # a convex collider with at most this many faces answers far points' sides by its face planes
 
 
 class _once:
@@ -96,6 +98,13 @@ class ColliderStatic:
         return clearance.solid(np.asarray(self.mesh.vertices, np.float64), np.asarray(self.mesh.faces, np.int64))
 
     @_once
+    def planes(self) -> np.ndarray | None:
+        """The `solid`'s face planes ``(f, 4) float64``, rows ``(n, d)`` with ``n`` its unit
+        outward normal (``n . p + d`` is a point's height over a face's plane), where the solid is
+        convex and its pseudo-normals side with its faces; else None (`_convex_planes`)."""
+        return _convex_planes(self.solid)
+
+    @_once
     def scale(self) -> float:
         """The mesh's size (trimesh's ``scale``, its box's diagonal), read once: each read of a
         `trimesh.Trimesh` cached property hashes the mesh's arrays to check them."""
@@ -131,6 +140,45 @@ class ColliderStatic:
         """Rows ``(m,) int64`` of ``mesh.faces``, ascending, that hold every face whose world box
         meets the world box ``bounds (2, 3)`` under ``xform (4, 4)`` (`grids.boxes_near`)."""
         return boxes_near(*self._face_centres, xform, bounds)
+
+
+def _convex_planes(s) -> np.ndarray | None:
+    """Face planes of a `pipeline.clearance.Solid` ``s`` for `_collider_inside`'s far points, or
+    None unless all of these hold: at most `PLANES_MAX` faces; every vertex on or behind every
+    face's plane (to 1e-12 of the size); the enclosed volume that of the vertices' convex hull
+    (to 1e-9: the surface covers the hull's boundary once, so the inside is the planes'
+    intersection ``K`` and its parity is 1 there); every edge and vertex pseudo-normal at least
+    0.1 along each face it touches.
+
+    Then a point's greatest height ``h = max_f (n_f . p + d_f)`` over the planes is ``-sd`` of
+    eq. (1) (`pipeline.clearance`) within the planes' rounding: inside ``K`` the nearest surface
+    point is the foot on the nearest plane, and outside, the distance to ``K`` is at least
+    ``h``. Whatever feature eq. (1) reads the pseudo-normal ``n`` of (a face, or an edge or a
+    corner within its feature tolerance), ``p - q`` lies in the normal cone of the closest point
+    ``q``, spanned by normals of faces ``n`` is at least 0.1 along, so ``(p - q) . n`` has the
+    side of ``h`` whenever ``|h|`` is far above the rounding."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    v, f, normals = s.vertices, s.faces, s.normals
+    if not s.convex or len(f) > PLANES_MAX:
+        return None
+    size = float(np.linalg.norm(np.ptp(v, axis=0)))
+    offsets = np.einsum("ij,ij->i", normals, v[f[:, 0]])
+    if (v @ normals.T - offsets).max() > 1e-12 * size:
+        return None
+    base = v[f[:, 0]]
+    volume = np.einsum("ij,ij->", base - v.mean(axis=0), np.cross(v[f[:, 1]] - base, v[f[:, 2]] - base)) / 6.0
+    try:
+        hull = ConvexHull(v).volume
+    except QhullError:
+        return None
+    if abs(volume - hull) > 1e-9 * hull:
+        return None
+    if np.einsum("fkc,fc->fk", s.edge_normals, normals).min() < 0.1:
+        return None
+    if np.einsum("fkc,fc->fk", s.vertex_normals[f], normals).min() < 0.1:
+        return None
+    return np.concatenate([normals, -offsets[:, None]], axis=1)
 
 
 def prepare_collider(model: ColliderModel) -> ColliderStatic:
@@ -799,9 +847,22 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     # A point farther than `SIDE_SURE` of the mesh's size from it takes the side of the
     # angle-weighted pseudo-normal at its closest point (eq. (1) of `pipeline.clearance`, exact in
     # float64 off the surface), where embree's float32 parity agrees; nearer points keep the parity.
-    sd = clearance.signed_depth(static.solid, local)[0]
-    near = np.abs(sd) <= SIDE_SURE * static.scale
-    m = sd > 0
+    sure = SIDE_SURE * static.scale
+    planes = static.planes
+    if planes is None:
+        sd = clearance.signed_depth(static.solid, local)[0]
+        near = np.abs(sd) <= sure
+        m = sd > 0
+    else:
+        # a convex collider: a point higher than twice `SIDE_SURE` over a face plane or deeper
+        # than it under all is far, on the side of its height (`_convex_planes`); the closest
+        # points answer the rest, and a point with a coordinate not finite as they always have
+        h = halfspaces.heights(planes, local)
+        m, near = h < 0, np.zeros(len(local), bool)
+        rows = np.flatnonzero((np.abs(h) <= 2.0 * sure) | ~np.isfinite(h))
+        if len(rows):
+            sd = clearance.signed_depth(static.solid, local[rows])[0]
+            near[rows], m[rows] = np.abs(sd) <= sure, sd > 0
     if near.any():
         # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
         # produces) in a random direction from a shared generator: reseed it, so a run is reproducible

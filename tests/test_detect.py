@@ -933,6 +933,64 @@ def test_collider_inside_agrees_with_ray_parity_near_and_far(seed):
     assert 0.2 < far.mean() < 0.8 and 0 < want[far].sum() < far.sum()  # both rules answer some points
 
 
+def _convex_collider(kind: str, rng) -> D.ColliderStatic:
+    """A box, a flat slab, or the convex hull of random points (at most `PLANES_MAX` faces)."""
+    if kind == "box":
+        return box(0.7)
+    if kind == "slab":
+        return D.prepare_collider(ColliderModel("/slab", BOX_VERTICES * [2.0, 0.01, 1.5], BOX_TRIANGLES))
+    hull = trimesh.convex.convex_hull(rng.normal(size=(14, 3)) * [1.0, 0.6, 0.3])
+    return D.prepare_collider(ColliderModel("/hull", np.asarray(hull.vertices), np.asarray(hull.faces)))
+
+
+@pytest.mark.parametrize("kind,seed", [("box", 0), ("box", 1), ("slab", 2), ("hull", 3), ("hull", 4), ("hull", 5)])
+def test_collider_inside_by_planes_is_the_closest_points_answer(kind, seed):
+    """A convex collider's face planes (`ColliderStatic.planes`) answer `inside` and
+    `_inside_depth` exactly as the closest points and parity do, on points of its faces, edges and
+    corners moved by rounding up to far outside and deep inside, under a rotation and scale."""
+    rng = np.random.default_rng(seed)
+    st = _convex_collider(kind, rng)
+    assert st.planes is not None and st.planes.shape == (len(st.solid.faces), 4)
+    rot = trimesh.transformations.rotation_matrix(0.3 + seed, rng.normal(size=3))
+    g = D.ColliderGeometry(st, move(*rng.normal(size=3)) @ rot @ np.diag([3.0, 3.0, 3.0, 1.0]))
+    tri = st.mesh.triangles[rng.integers(0, len(st.mesh.faces), 200)]
+    w = rng.dirichlet([1.0, 1.0, 1.0], 200)
+    w[:50, 0] = 0.0  # on an edge
+    w[50:80] = np.eye(3)[rng.integers(0, 3, 30)]  # on a corner
+    on = np.einsum("ij,ijk->ik", w / w.sum(axis=1, keepdims=True), tri)
+    size = st.mesh.scale
+    local = np.concatenate([on + rng.normal(size=on.shape) * e * size
+                            for e in (0.0, 1e-15, 5e-10, 1e-7, 1.5e-6, 2.5e-6, 5e-6, 1e-4, 1e-2, 0.3)])
+    world = apply_inverse(np.linalg.inv(g.xform), local)
+    slow = D.ColliderStatic(st.path, st.mesh, st.bvh, st.closed)
+    slow.__dict__["planes"] = None
+    gs = D.ColliderGeometry(slow, g.xform)
+    got, want = D.inside(g, world), D.inside(gs, world)
+    np.testing.assert_array_equal(got, want)
+    (m, depth), (ms, depths) = D._inside_depth(g, world), D._inside_depth(gs, world)
+    np.testing.assert_array_equal(m, ms)
+    np.testing.assert_array_equal(depth, depths)
+    assert 0 < want.sum() < len(want)
+
+
+def test_collider_planes_only_for_convex_solids_with_few_faces():
+    """`ColliderStatic.planes`: a box's 12 unit outward normals and offsets; none for a ball of
+    more than `PLANES_MAX` faces, nor for a box with a dent."""
+    from pipeline.authoring import uv_sphere
+
+    planes = box(0.5).planes
+    assert planes.shape == (12, 4) and np.allclose(np.abs(planes[:, :3]).sum(axis=1), 1.0) and np.allclose(planes[:, 3], -0.5)
+    v, f = uv_sphere(0.45, 24, 12)
+    assert D.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f))).planes is None
+    dent = np.vstack([BOX_VERTICES, [[1.0, 0.0, 0.0]], [[0.5, 0.0, 0.0]]])  # a point on the +x face, then pushed in
+    for centre, planes in ((8, True), (9, False)):
+        hull = trimesh.Trimesh(dent[[0, 1, 2, 3, 4, 5, 6, 7, centre]], process=False)
+        tris = [t for t in BOX_TRIANGLES.tolist() if not all(BOX_VERTICES[i][0] == 1.0 for i in t)]
+        tris += [[4, 6, 8], [6, 7, 8], [7, 5, 8], [5, 4, 8]]  # the +x face as a fan about its centre
+        st = D.prepare_collider(ColliderModel("/dent", np.asarray(hull.vertices), np.asarray(tris)))
+        assert st.closed and (st.planes is not None) == planes
+
+
 def test_intersect_answers_are_kept_by_content_and_never_served_for_other_content():
     """`intersect` keeps its answers by the pair's content: the same surface content and matrices
     in new objects get the kept answer, a moved matrix or changed CVs (one ulp) a new one that
@@ -1134,3 +1192,19 @@ def test_the_touch_test_s_box_checks_are_the_array_form():
         assert D._box_meets(other, b, pad) == bool(overlap(other[0], other[1], b[0], b[1], pad)), trial
     # a still geometry's corners are its content's: the whole box of every patch passes
     assert D._every_box_meets(g, np.stack([lo.min(axis=0), hi.max(axis=0)]), 0.0)
+
+
+def test_collider_inside_by_planes_raises_as_the_closest_points_do_on_points_not_finite():
+    """A point with a NaN or infinite coordinate takes the closest points' path on a convex
+    collider too (`pipeline.clearance.Unresolved`: no face is nearer than infinity), as on one
+    answered by them alone."""
+    from pipeline import clearance
+
+    st = box(0.5)
+    slow = D.ColliderStatic(st.path, st.mesh, st.bvh, st.closed)
+    slow.__dict__["planes"] = None
+    for bad in (np.nan, np.inf):
+        p = np.array([[0.0, 0.0, 0.0], [bad, 0.0, 0.0]])
+        for s in (st, slow):
+            with pytest.raises(clearance.Unresolved), np.errstate(invalid="ignore"):
+                D.inside(D.ColliderGeometry(s, move()), p)

@@ -301,3 +301,29 @@ def test_a_hold_gives_the_bits_computing_the_frame_gives():
         np.testing.assert_array_equal(getattr(ha, name), getattr(hb, name))
     assert (st.residual, st.residual_rel, st.iterations) == (stats[2].residual, stats[2].residual_rel, stats[2].iterations)
     assert stats[1].residual == stats[2].residual and stats[1].iterations == stats[2].iterations
+
+
+def test_a_colliders_inside_is_the_detections_solid_where_trimesh_kept_its_arrays():
+    """`_Run.collider_solid`: a collider whose vertices and triangles trimesh's processing leaves
+    byte for byte takes `ColliderStatic.solid` (the same call on the same arrays), one built a
+    run; one it changes (an unused vertex dropped) or an open one gets `residual.collider_solid`'s
+    answer. Either way the arrays are those `residual.collider_solid` builds."""
+    from types import SimpleNamespace
+
+    from conftest import BOX_TRIANGLES, BOX_VERTICES
+    from pipeline import residual
+    from pipeline.model import ColliderModel
+
+    models = [ColliderModel("/kept", BOX_VERTICES * 0.5, BOX_TRIANGLES),
+              ColliderModel("/unused", np.vstack([BOX_VERTICES * 0.5, [[3.0, 3.0, 3.0]]]), BOX_TRIANGLES),
+              ColliderModel("/open", BOX_VERTICES * 0.5, BOX_TRIANGLES[:-1])]
+    run = SimpleNamespace(scene=SimpleNamespace(colliders=models), statics=[D.prepare_collider(m) for m in models],
+                          _collider_solids={})
+    got = [F._Run.collider_solid(run, j) for j in range(3)]
+    assert got[0] is run.statics[0].solid and F._Run.collider_solid(run, 0) is got[0]
+    assert got[1] is not None and got[1] is not run.statics[1].solid
+    assert got[2] is None and residual.collider_solid(models[2].vertices, models[2].triangles) is None
+    for j in (0, 1):
+        want = residual.collider_solid(models[j].vertices, models[j].triangles)
+        for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds", "facet", "convex"):
+            np.testing.assert_array_equal(getattr(got[j], name), getattr(want, name))
