@@ -205,11 +205,15 @@ def _ms(x: float, digits: int) -> str:
     return "—" if math.isnan(x) else f"{x:.{digits}f}"
 
 
+def _frames(n: int, kind: str) -> str:
+    return f"{n} {kind} frame{'' if n == 1 else 's'}"
+
+
 def format_report(b: Bench) -> str:
     """The markdown report: Fig. 5.2 beside ours, then the targets."""
     lines = [
         f"`acra bench {b.scene.name}` — medians over {b.repeat} cold runs, ms per frame "
-        f"({b.n_collision} collision frames, {b.n_free} free frames); large = `{b.large}`, small = `{b.small}`",
+        f"({_frames(b.n_collision, 'collision')}, {_frames(b.n_free, 'free')}); large = `{b.large}`, small = `{b.small}`",
         "",
         "| stage | ACRA here: collision frames | ACRA here: free frames | thesis Fig. 5.2 (frames: ms) |",
         "|---|---:|---:|---|",

@@ -32,7 +32,7 @@ def test_bench_splits_every_stage_over_collision_and_free_frames():
     text = B.format_report(b)
     assert "| detection |" in text and "30: 16" in text and "end to end" in text
     assert "free frame, `-o NAME.usdc`" in text and "end to end, `-o NAME.usdc`" in text
-    assert "Holds, left out of both kinds: 5 frames" in text
+    assert "Holds, left out of both kinds: 5 frames" in text and "(1 collision frame, 10 free frames)" in text
 
 
 def test_bench_times_a_first_run_with_an_empty_numba_cache(monkeypatch, tiny_stage):
