@@ -46,7 +46,10 @@ def _heights(equations, q, out):
         top = -np.inf
         for f in range(m):
             v = equations[f, 0] * x + equations[f, 1] * y + equations[f, 2] * z + equations[f, 3]
-            if not v <= top:  # NaN propagates, as numpy's max does
+            if v != v:  # a NaN is the maximum, as numpy's max has it
+                top = v
+                break
+            if v > top:
                 top = v
         out[i] = top
 

@@ -144,7 +144,7 @@ class ColliderStatic:
 
 def _convex_planes(s) -> np.ndarray | None:
     """Face planes of a `pipeline.clearance.Solid` ``s`` for `_collider_inside`'s far points, or
-    None unless all of these hold: at most `PLANES_MAX` faces; every vertex on or behind every
+    None unless all of these hold: at most `PLANES_MAX` faces, each with a finite normal; every vertex on or behind every
     face's plane (to 1e-12 of the size); the enclosed volume that of the vertices' convex hull
     (to 1e-9: the surface covers the hull's boundary once, so the inside is the planes'
     intersection ``K`` and its parity is 1 there); every edge and vertex pseudo-normal at least
@@ -160,7 +160,7 @@ def _convex_planes(s) -> np.ndarray | None:
     from scipy.spatial import ConvexHull, QhullError
 
     v, f, normals = s.vertices, s.faces, s.normals
-    if not s.convex or len(f) > PLANES_MAX:
+    if not s.convex or len(f) > PLANES_MAX or not np.isfinite(normals).all():
         return None
     size = float(np.linalg.norm(np.ptp(v, axis=0)))
     offsets = np.einsum("ij,ij->i", normals, v[f[:, 0]])

@@ -21,11 +21,13 @@ def test_heights_over_a_box_are_the_exact_distances():
     np.testing.assert_array_equal(h[:5], [-1.0, -0.5, -0.5, 2.0, 0.25])
     assert np.isnan(h[5])
     np.testing.assert_array_equal(halfspaces.heights(np.zeros((0, 4)), q[:2]), [-np.inf, -np.inf])
+    nan_row = np.concatenate([_BOX[:2], [[np.nan, 0.0, 0.0, 0.0]], _BOX[2:]])  # a NaN row before finite ones
+    assert np.isnan(halfspaces.heights(nan_row, q[:2])).all()
     assert halfspaces.heights(_BOX, np.zeros((0, 3))).shape == (0,)
 
 
 @settings(max_examples=60, deadline=None)
-@given(arrays(np.float64, st.tuples(st.integers(1, 20), st.just(4)), elements=st.floats(-10, 10)),
+@given(arrays(np.float64, st.tuples(st.integers(1, 20), st.just(4)), elements=st.floats(-10, 10) | st.just(np.nan)),
        arrays(np.float64, st.tuples(st.integers(0, 30), st.just(3)), elements=st.floats(-100, 100)))
 def test_heights_are_the_row_maximum_and_agree_with_within(equations, q):
     """`heights` is the maximum over the rows of each value summed term by term, and a point is
