@@ -110,7 +110,7 @@ def _check_farm_options(output, workers, scheduler, chunk, part) -> None:
 
 def forget() -> None:
     """Drop every answer kept by content across frames: shapes and refinement tables, detection's
-    answers, world data, layouts, casts and anchors, rims, topologies, digests and placements,
+    answers, world data, layouts, casts and anchors, rims, topologies, digests, placements and chunk lists,
     responses' refinements, closed rings and solves' decompositions.
     Within a run they spare a frame what an earlier frame computed; across runs in one process
     they would serve a run what the run before computed. The next run computes everything as the
@@ -120,7 +120,7 @@ def forget() -> None:
 
     for store in (shape._SHAPES, shape._REFINEMENTS, detect._ANSWERS, detect._WORLDS, detect._LAYOUTS,
                   detect._DISTINCT, detect._CASTS, detect._OBJECT_BOXES, contact._AT, datapoints._RIMS,
-                  display._TOPOLOGIES, residual._DIGESTS, residual._PLACEMENTS, hspline._PLACES, respond._KEPT,
+                  display._TOPOLOGIES, residual._DIGESTS, residual._PLACEMENTS, residual._CHUNK_VERTICES, hspline._PLACES, respond._KEPT,
                   tessellate._NUDGED, tessellate._END_LINES, interpolate._DECOMPOSED):
         store.clear()
 
