@@ -618,6 +618,27 @@ def _read_only(faces: np.ndarray) -> np.ndarray:
     return f
 
 
+@njit(inline="always")
+def _beyond(points, v, lo0, lo1, lo2, top0, top1, top2, pad):
+    # point ``v``'s side bits against the box padded by ``pad`` (``top`` = ``hi + pad``): bits 1,
+    # 4, 16 where it lies below the box on x, y, z, bits 2, 8, 32 where above
+    x, y, z = points[v, 0], points[v, 1], points[v, 2]
+    bits = 0
+    if not lo0 <= x + pad:
+        bits |= 1
+    if not x <= top0:
+        bits |= 2
+    if not lo1 <= y + pad:
+        bits |= 4
+    if not y <= top1:
+        bits |= 8
+    if not lo2 <= z + pad:
+        bits |= 16
+    if not z <= top2:
+        bits |= 32
+    return bits
+
+
 @njit(cache=True, nogil=True)
 def _faces_meet_rows(points, faces, lo, hi, pad, beyond, out):
     # a face's box misses the padded box on an axis exactly when all three corners lie beyond the
@@ -628,21 +649,7 @@ def _faces_meet_rows(points, faces, lo, hi, pad, beyond, out):
     top0, top1, top2 = hi[0] + pad, hi[1] + pad, hi[2] + pad
     lo0, lo1, lo2 = lo[0], lo[1], lo[2]
     for v in range(points.shape[0]):
-        x, y, z = points[v, 0], points[v, 1], points[v, 2]
-        bits = 0
-        if not lo0 <= x + pad:
-            bits |= 1
-        if not x <= top0:
-            bits |= 2
-        if not lo1 <= y + pad:
-            bits |= 4
-        if not y <= top1:
-            bits |= 8
-        if not lo2 <= z + pad:
-            bits |= 16
-        if not z <= top2:
-            bits |= 32
-        beyond[v] = bits
+        beyond[v] = _beyond(points, v, lo0, lo1, lo2, top0, top1, top2, pad)
     n = 0
     for i in range(faces.shape[0]):
         if beyond[faces[i, 0]] & beyond[faces[i, 1]] & beyond[faces[i, 2]] == 0:
@@ -760,22 +767,7 @@ def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out
             for i in range(c * size, min((c + 1) * size, nf)):
                 shared = 63
                 for j in range(3):
-                    v = faces[i, j]
-                    x, y, z = points[v, 0], points[v, 1], points[v, 2]
-                    bits = 0
-                    if not lo0 <= x + pad:
-                        bits |= 1
-                    if not x <= top0:
-                        bits |= 2
-                    if not lo1 <= y + pad:
-                        bits |= 4
-                    if not y <= top1:
-                        bits |= 8
-                    if not lo2 <= z + pad:
-                        bits |= 16
-                    if not z <= top2:
-                        bits |= 32
-                    shared &= bits
+                    shared &= _beyond(points, faces[i, j], lo0, lo1, lo2, top0, top1, top2, pad)
                 if shared == 0:
                     out[n] = i
                     n += 1
