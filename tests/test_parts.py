@@ -126,8 +126,10 @@ def test_merge_refuses_empty_directories_and_broken_parts(tmp_path, capsys):
     assert _merge(tmp_path / "p", tmp_path / "out.usda", capsys).endswith("holds no ACRA parts (*.acrapart.npz)")
     (tmp_path / "p" / "x.acrapart.npz").write_bytes(b"not a zip")
     assert f"{tmp_path / 'p' / 'x.acrapart.npz'}: not a readable ACRA part" in _merge(tmp_path / "p", tmp_path / "out.usda", capsys)
-    np.savez(tmp_path / "p" / "x.acrapart.npz", meta=np.array('{"format": "acra-part/1"}'))
+    np.savez(tmp_path / "p" / "x.acrapart.npz", meta=np.array(f'{{"format": "{parts.PART_FORMAT}"}}'))
     assert "incomplete ACRA part" in _merge(tmp_path / "p", tmp_path / "out.usda", capsys)
+    np.savez(tmp_path / "p" / "x.acrapart.npz", meta=np.array('{"format": "acra-part/1"}'))  # before holds were kept
+    assert "part format 'acra-part/1', expected 'acra-part/2'" in _merge(tmp_path / "p", tmp_path / "out.usda", capsys)
 
 
 def test_part_and_output_together_are_refused(shot, tmp_path, capsys):
