@@ -386,8 +386,8 @@ def changed_level(out, k, level, pa, pb, a_keys, b_keys, va, vb, npv_k, ncv_k, n
 
 @njit(cache=True, nogil=True)
 def tangent_normals(tangents, c1, c2, out, bad):
-    """Unit normals of first derivatives ``tangents (m, 6) float64`` (``du`` then ``dv``, a
-    display's `acra.tessellate.grid_samples` with ``tangents``) into ``out (m, 3) float64``:
+    """Unit normals of first derivatives ``tangents (m, 6) float64`` (``du`` then ``dv``, as
+    `acra.tessellate._normals_into` stacks a display's evaluation) into ``out (m, 3) float64``:
     ``du × dv`` over its length, the products, test and quotient of
     `acra.framekernels.degenerate` and `unit_rows` (so `acra.hspline.surface_normals`' bits),
     and ``bad (m,) bool`` where ``|du × dv| <= c1 max(|du|, |dv|) + c2`` (no direction: the

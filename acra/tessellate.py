@@ -393,8 +393,7 @@ def evaluate_grid(hs: HSpline, topo: GridTopology, det: Details | None = None) -
 
 def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
                  since: tuple | None = None, memo: dict | None = None,
-                 normals: bool = True, tangents: bool = False,
-                 given: tuple | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+                 normals: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Points ``(n, 3)`` and limit unit normals ``(n, 3)`` (`surface_normals`) at a grid's
     vertices (``topo``: a `GridTopology` or `MeshTopology`).
 
@@ -415,51 +414,26 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     topologies alone: which old vertex each new one is, and each vertex's level-0 patches.
     Without ``normals`` only the points are evaluated (the same bits: a point's sum does not
     depend on the derivative orders summed beside it) and ``None`` stands for the normals,
-    in ``since`` too. With ``tangents`` (and not ``normals``) the second result, and ``since``'s,
-    is the first derivatives ``(n, 6)``, ``du`` then ``dv`` (`surface_normals`' ``ev``), which
-    give the limit normals where they are wanted (``given``): a vertex's derivatives read its own
-    cells alone, so the copied ones need no nudged rows. ``given = (points, tangents)``,
-    ``hs``'s on ``topo`` (`grid_samples` with ``tangents``), stands for the evaluation: the
-    vertices that would be evaluated take their limit normals from them (`surface_normals`,
-    which evaluates again only where ``du × dv`` vanishes) and the points are ``given``'s.
-    Without ``given``, the vertices evaluated with normals are too: their points and first
+    in ``since`` too. With ``normals``, the vertices evaluated take their points and first
     derivatives by v, then u, and the limit normals from those (`_normals_into`)."""
     det = details(hs) if det is None and hs.depth > 1 else det
-    normals = normals and not tangents
 
-    def sample(u, v, rows=None):
-        if given is not None:
-            p, t = (given[0], given[1]) if rows is None else (given[0][rows], given[1][rows])
-            n, nudged = _given_normals(hs, u, v, det, p, t)
-            return p, n, nudged
-        if tangents or not normals:
-            # the points (and du, dv) are placed in their rows by `_place`, where they are used
-            ev = evaluate(hs, u, v, order=1 if tangents else 0, det=det)
-            return ev, None, None
-        nudged = np.empty(u.size, bool)
-        ev, n = surface_normals(hs, u, v, det=det, nudged=nudged)
-        return ev.points, n, np.flatnonzero(nudged)
+    def place_points(rows: np.ndarray, points: np.ndarray) -> None:
+        # the points alone, placed in their rows by `_place`
+        ev = evaluate(hs, topo.u[rows], topo.v[rows], order=0, det=det)
+        _place(ev.points, _NO_POINTS, rows, points, _NO_POINTS)
 
     # an evaluation takes its points by v, then u (a topology's vertices come by u, then v): a
     # point on the v and block of the one before reuses its v contraction
     # (`acra.kernels.eval_points`), and each point is summed on its own, so the order changes no bit
-    by_v = given is None
-    if since is None and by_v and normals:
-        o = _v_order(topo)
-        points, limit = np.empty((topo.u.size, 3)), np.empty((topo.u.size, 3))
-        _note_nudged(limit, np.sort(_normals_into(hs, topo.u[o], topo.v[o], det, o, points, limit)))
-        return points, limit
-    if since is None and by_v:
-        o = _v_order(topo)
-        ev = sample(topo.u[o], topo.v[o])[0]
-        points = np.empty((topo.u.size, 3))
-        limit = np.empty((topo.u.size, 6)) if tangents else _NO_TANGENTS
-        _place(ev.points, _NO_POINTS if ev.du is None else ev.du, _NO_POINTS if ev.dv is None else ev.dv, o, points, limit)
-        return points, limit if tangents else None
     if since is None:
-        points, limit, nudged = sample(topo.u, topo.v)
-        if normals:
-            _note_nudged(limit, nudged)
+        o = _v_order(topo)
+        points = np.empty((topo.u.size, 3))
+        if not normals:
+            place_points(o, points)
+            return points, None
+        limit = np.empty((topo.u.size, 3))
+        _note_nudged(limit, np.sort(_normals_into(hs, topo.u[o], topo.v[o], det, o, points, limit)))
         return points, limit
     old, (old_points, old_limit, stale) = (since[0] if len(since) == 4 else topo), since[-3:]
     # on the same topology vertex i is the old vertex i
@@ -475,11 +449,11 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         stale, level = stale.reshape(hs.u.patches0, r, hs.v.patches0, r).any(axis=(1, 3)), 0
     (cu, bu), (cv, bv) = _patch_cells(hs, topo, memo, level)
     points = np.empty((topo.u.size, 3))
-    limit = np.empty((topo.u.size, 6 if tangents else 3)) if normals or tangents else _NO_POINTS
+    limit = np.empty((topo.u.size, 3)) if normals else _NO_POINTS
     # by v, `_carry` hands the rows to evaluate in the order they are evaluated in
-    idx = _carry(old_points, old_limit if normals or tangents else _NO_POINTS, src, found,
+    idx = _carry(old_points, old_limit if normals else _NO_POINTS, src, found,
                  np.ascontiguousarray(stale, np.bool_), cu, bu, cv, bv, points, limit,
-                 _v_order(topo) if by_v else _NO_INDEX)
+                 _v_order(topo))
     carried = _NO_INDEX  # copied vertices whose old normal was taken at nudged points
     if old_nudged is not None and old_nudged.size:
         took = np.zeros(len(old_points), bool)
@@ -495,22 +469,13 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
             copied[idx] = False
             carried = np.flatnonzero(took & copied)
     nudged = None
-    if idx.size and by_v and normals:
+    if idx.size and normals:
         nudged = _normals_into(hs, topo.u[idx], topo.v[idx], det, idx, points, limit)
     elif idx.size:
-        p, n, nudged = sample(topo.u[idx], topo.v[idx], idx)
-        if by_v:
-            _place(p.points, _NO_POINTS if p.du is None else p.du, _NO_POINTS if p.dv is None else p.dv, idx, points,
-                   limit if tangents else _NO_TANGENTS)
-        else:
-            points[idx] = p
-            if normals or tangents:
-                limit[idx] = n
-        if normals:
-            nudged = idx[nudged]
+        place_points(idx, points)
     if normals and old_nudged is not None:
         _note_nudged(limit, np.union1d(carried, nudged) if nudged is not None and nudged.size else carried)
-    return points if given is None else given[0], limit if normals or tangents else None
+    return points, limit if normals else None
 
 
 def _normals_into(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None, rows: np.ndarray,
@@ -522,7 +487,7 @@ def _normals_into(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None
     at nudged points."""
     ev = evaluate(hs, u, v, order=1, det=det)
     n, nudged = _given_normals(hs, u, v, det, ev.points, np.concatenate((ev.du, ev.dv), axis=1))
-    _place(ev.points, n, _NO_POINTS, rows, points, limit)
+    _place(ev.points, n, rows, points, limit)
     return rows[nudged]
 
 
@@ -586,28 +551,22 @@ def _nudged_rows(limit: np.ndarray) -> np.ndarray | None:
 
 
 _NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_), np.zeros((0, 3))
-_NO_TANGENTS = np.zeros((0, 6))
 
 
 @njit(cache=True, nogil=True)
-def _place(p, du, dv, rows, points, limit):
-    """Write an evaluation's ``p (m, 3) float64`` into ``points`` at ``rows (m,) int64`` and, unless
-    ``limit`` is empty, ``du`` and ``dv`` ``(m, 3) float64`` into its columns 0-2 and 3-5 (a
-    ``limit`` of 3 columns takes ``du`` alone: a display's limit normals): numpy's
-    ``points[rows] = p; limit[rows] = concatenate((du, dv), axis=1)`` in one pass, without the
-    concatenated temporary (the points come by v, the display's rows by u)."""
-    tangents = limit.shape[0] > 0
-    wide = limit.shape[1] == 6
+def _place(p, n, rows, points, limit):
+    """Write an evaluation's ``p (m, 3) float64`` into ``points`` at ``rows (m,) int64`` and,
+    unless ``limit`` is empty, its limit normals ``n (m, 3) float64`` into ``limit``'s rows:
+    numpy's ``points[rows] = p; limit[rows] = n`` in one pass (the points come by v, the
+    display's rows by u)."""
+    normals = limit.shape[0] > 0
     for i in range(rows.shape[0]):
         r = rows[i]
         for e in range(3):
             points[r, e] = p[i, e]
-        if tangents:
+        if normals:
             for e in range(3):
-                limit[r, e] = du[i, e]
-            if wide:
-                for e in range(3):
-                    limit[r, 3 + e] = dv[i, e]
+                limit[r, e] = n[i, e]
 
 
 def _v_order(topo) -> np.ndarray:

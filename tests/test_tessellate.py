@@ -106,10 +106,10 @@ def _pinched_sheet() -> H.HSpline:
 
 
 @pytest.mark.parametrize("kind", ["sphere", "pinched"])
-def test_normals_from_given_derivatives_equal_a_full_evaluation(kind):
-    """`grid_samples(given=(points, tangents))` takes each vertex's normal from its derivatives
-    (`kernels.tangent_normals`) and only the rows without a direction from `surface_normals`:
-    the normals and the rows noted as nudged equal a full evaluation's, bit for bit, at a
+def test_normals_from_the_evaluated_derivatives_equal_surface_normals(kind):
+    """`grid_samples` takes each vertex's normal from its first derivatives (`_normals_into`:
+    `kernels.tangent_normals`) and only the rows without a direction from `surface_normals`: the
+    points, the normals and the rows noted as nudged equal `surface_normals`', bit for bit, at a
     refined sphere's poles and at a corner collapsed to one point."""
     if kind == "sphere":
         hs = H.from_grid(*shapes.sphere(8, 7), depth=3)
@@ -120,13 +120,16 @@ def test_normals_from_given_derivatives_equal_a_full_evaluation(kind):
         hs = _pinched_sheet()
     det = H.details(hs) if hs.depth > 1 else None
     topo = T.run_topology([hs], 3)
-    points, tangents = T.grid_samples(hs, topo, det, normals=False, tangents=True)
-    full = T.grid_samples(hs, topo, det)
-    taken = T.grid_samples(hs, topo, det, given=(points, tangents))
-    assert taken[0] is points
-    np.testing.assert_array_equal(taken[1].view(np.int64), full[1].view(np.int64))
-    np.testing.assert_array_equal(T._nudged_rows(taken[1]), T._nudged_rows(full[1]))
-    assert T._nudged_rows(full[1]).size > 0 if kind == "pinched" else True
+    points, limit = T.grid_samples(hs, topo, det)
+    nudged = np.empty(topo.u.size, bool)
+    ev, want = H.surface_normals(hs, topo.u, topo.v, det=det, nudged=nudged)
+    np.testing.assert_array_equal(points, ev.points)
+    np.testing.assert_array_equal(limit.view(np.int64), want.view(np.int64))
+    np.testing.assert_array_equal(T._nudged_rows(limit), np.flatnonzero(nudged))
+    assert nudged.any() if kind == "pinched" else True
+    alone, none = T.grid_samples(hs, topo, det, normals=False)
+    assert none is None
+    np.testing.assert_array_equal(alone, ev.points)
 
 
 # --- the adaptive display (contract §1) ----------------------------------------------------------
@@ -472,27 +475,21 @@ def test_carry_equals_numpy_s_copy_and_mask(seed):
 
 
 def test_place_equals_numpy_s_row_assignment():
-    """`tessellate._place` (an evaluation's points and first derivatives written into a
-    display's rows in one pass) gives numpy's ``points[rows] = p`` and ``limit[rows] =
-    concatenate((du, dv), axis=1)`` (``limit[rows] = du`` for a limit of 3 columns), and leaves
+    """`tessellate._place` (an evaluation's points and limit normals written into a display's
+    rows in one pass) gives numpy's ``points[rows] = p`` and ``limit[rows] = n``, and leaves
     ``limit`` alone where it is empty."""
     rng = np.random.default_rng(3)
     n, rows = 500, rng.permutation(500)[:300]
-    p, du, dv = (rng.normal(size=(rows.size, 3)) for _ in range(3))
-    points, limit = np.full((n, 3), np.nan), np.full((n, 6), np.nan)
-    T._place(p, du, dv, rows, points, limit)
-    want_points, want_limit = np.full((n, 3), np.nan), np.full((n, 6), np.nan)
-    want_points[rows], want_limit[rows] = p, np.concatenate((du, dv), axis=1)
+    p, normals = (rng.normal(size=(rows.size, 3)) for _ in range(2))
+    points, limit = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    T._place(p, normals, rows, points, limit)
+    want_points, want_limit = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    want_points[rows], want_limit[rows] = p, normals
     np.testing.assert_array_equal(points, want_points)
     np.testing.assert_array_equal(limit, want_limit)
     alone = np.full((n, 3), np.nan)
-    T._place(p, T._NO_POINTS, T._NO_POINTS, rows, alone, T._NO_TANGENTS)
+    T._place(p, T._NO_POINTS, rows, alone, T._NO_POINTS)
     np.testing.assert_array_equal(alone, want_points)
-    # a limit of 3 columns (a display's limit normals) takes du alone
-    normals, want_normals = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
-    T._place(p, du, T._NO_POINTS, rows, alone, normals)
-    want_normals[rows] = du
-    np.testing.assert_array_equal(normals, want_normals)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -526,31 +523,30 @@ def test_normals_since_changed_cells_evaluate_those_cells_and_the_nudged_vertice
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_tangents_since_another_topology_and_normals_from_them_equal_a_full_evaluation(seed, monkeypatch):
-    """`grid_samples` with ``tangents`` gives the points and first derivatives, copied since a
-    display on another topology where neither changed; with ``given`` those stand for the
-    evaluation: the limit normals are taken from them (evaluating again only where ``du × dv``
-    vanishes: the sphere's poles), only where the surface changed since the old normals, and
-    all equal a full evaluation bit for bit."""
+def test_normals_since_another_topology_equal_a_full_evaluation(seed, monkeypatch):
+    """`grid_samples` since a display on another topology where nothing changed copies the
+    vertices the two share, with their limit normals, and evaluates the others; since the
+    surface before a response, it evaluates only where the surface changed. Both equal a full
+    evaluation bit for bit."""
     rng = np.random.default_rng(seed)
     hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[10, 14]]), 0.02, seed)
     moved = nudged(hs, 2, rng)
     coarse, topo = T.run_topology([H.from_grid(*shapes.sphere(12, 10), depth=1)], 4), T.run_topology([hs], 4)
     assert coarse.u.size < topo.u.size
     stale = H.changed_cells(hs, H.details(hs), moved, H.details(moved), 2)
-    old = T.grid_samples(moved, coarse, H.details(moved), normals=False, tangents=True)
-    points, tangents = T.grid_samples(moved, topo, H.details(moved), since=(coarse, *old, np.zeros((hs.u.patches0, hs.v.patches0), bool)),
-                                      normals=False, tangents=True)
-    ev = H.evaluate(moved, topo.u, topo.v, order=1, det=H.details(moved))
-    np.testing.assert_array_equal(points, ev.points)
-    np.testing.assert_array_equal(tangents, np.concatenate([ev.du, ev.dv], axis=1))
-    before = T.grid_samples(hs, topo, H.details(hs))
+    full = T.grid_samples(moved, topo, H.details(moved))
+    old = T.grid_samples(moved, coarse, H.details(moved))
     counted = []
     real = H.evaluate
     monkeypatch.setattr(T, "evaluate", lambda *a, **k: (counted.append(a[1].size), real(*a, **k))[1])
-    fast = T.grid_samples(moved, topo, H.details(moved), since=(*before, stale), given=(points, tangents))
-    assert fast[0] is points and sum(counted) < topo.u.size // 10  # the poles' vertices alone
-    full = T.grid_samples(moved, topo, H.details(moved))
+    shared = T.grid_samples(moved, topo, H.details(moved), since=(coarse, *old, np.zeros((hs.u.patches0, hs.v.patches0), bool)))
+    assert 0 < sum(counted) < topo.u.size  # the vertices the coarse display lacks
+    for a, b in zip(shared, full):
+        np.testing.assert_array_equal(a, b)
+    before = T.grid_samples(hs, topo, H.details(hs))
+    counted.clear()
+    fast = T.grid_samples(moved, topo, H.details(moved), since=(*before, stale))
+    assert 0 < sum(counted) < topo.u.size // 2
     for a, b in zip(fast, full):
         np.testing.assert_array_equal(a, b)
 
