@@ -26,7 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import framekernels, hierarchy, kernels, levelkernels
+from . import framekernels, hierarchy, kernels, levelkernels, memo
 from .basis import Direction, basis_rows, locate, refine_rows
 from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used by interpolate, respond, tessellate and tests)
     _I4,
@@ -850,7 +850,7 @@ def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndar
     return _frames(ev, n)
 
 
-_PLACES: dict = {}  # (id of a level's cv_keys, closed ends) -> `_movable_places`, most recent last
+_PLACES = memo.Table("hspline.places", 64)  # (id of a level's cv_keys, closed ends) -> `_movable_places`, most recent last
 
 
 def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
@@ -860,16 +860,16 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     ``pu * P0v + pv``) each centre is in. Kept per `Level` CV arrays: a move replaces a level's
     offsets, not its ``cv_keys`` and ``movable``, so the response's steps share them."""
     key = (id(lev.cv_keys), ends)  # a level's CV keys are of one grid and level
-    hit = _PLACES.pop(key, None)
+    places = _PLACES.entries()
+    hit = places.pop(key, None)
     if hit is None or hit[0] is not lev.cv_keys or hit[1] is not lev.movable:
         # compiled (`levelkernels.movable_places`); `_movable_places_numpy` is the array form
         rows, ring, _, _, gu, gv, centre = levelkernels.movable_places(
             lev.cv_keys, lev.movable, int(k), int(hs.u.cvs(k)), int(hs.v.cvs(k)), int(hs.u.patches0),
             bool(hs.u.periodic), int(hs.v.patches0), bool(hs.v.periodic), _ends_array(ends))
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
-    _PLACES[key] = hit
-    while len(_PLACES) > 64:
-        del _PLACES[next(iter(_PLACES))]
+    places[key] = hit
+    _PLACES.trim()
     return hit[2]
 
 

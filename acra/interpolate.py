@@ -26,7 +26,7 @@ try:  # numpy's private LAPACK gufuncs; `_eigh` falls back to `np.linalg.eigh` w
 except ImportError:  # pragma: no cover - a numpy without the module
     _EIGH_LO = None
 
-from . import levelkernels
+from . import levelkernels, memo
 from .basis import basis, locate
 from .hierarchy import _pole_ring_keys, pole_ring_rows
 from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_of, pole_ring
@@ -167,12 +167,12 @@ def _ring_table(hs: HSpline, level: int) -> tuple:
         return _NO_RINGS
     if level == 0:
         return _level0_rings(hs.u, hs.v, ends)
-    memo = hs.level(level).__dict__.setdefault("_ring_rows", {})
+    tables = hs.level(level).__dict__.setdefault("_ring_rows", {})
     key = ("table", hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, ends)
-    hit = memo.get(key)
+    hit = tables.get(key)
     if hit is None:
         rings = [pole_ring_rows(hs, level, axis, end) for axis, end in ends]
-        hit = memo[key] = _stack_rings([r for r, _ in rings], [bool(ok.all()) for _, ok in rings])
+        hit = tables[key] = _stack_rings([r for r, _ in rings], [bool(ok.all()) for _, ok in rings])
     return hit
 
 
@@ -414,8 +414,8 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
 # 69-point ones among them), and the decomposition is most of a solve. The key holds every
 # entry's bytes and the active points', so a hit's arrays are the ones the solve would compute.
 # The most recent `_DECOMPOSED_KEEP` kept, in `_DECOMPOSED_BYTES` at most (a solve past a
-# quarter of it is not kept), emptied by `pipeline.run.forget`.
-_DECOMPOSED: dict = {}
+# quarter of it is not kept); a table of the run's memo (`acra.memo`).
+_DECOMPOSED = memo.Table("interpolate.decomposed")
 _DECOMPOSED_KEEP = 32
 _DECOMPOSED_BYTES = 1 << 25  # 32 MB: the demo's largest solve keeps 0.3 MB
 
@@ -425,9 +425,10 @@ def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.n
     eigenvectors ``(k, k)`` of ``W Wᵀ`` (`_eigh`), kept (`_DECOMPOSED`) or computed; read-only.
     ``act (k,) int64``: the active points; ``every``: all of them."""
     key = (pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(), pw.active.tobytes())
-    hit = _DECOMPOSED.pop(key, None)
+    kept = _DECOMPOSED.entries()
+    hit = kept.pop(key, None)
     if hit is not None:
-        _DECOMPOSED[key] = hit  # the most recent last
+        kept[key] = hit  # the most recent last
         return hit[:3]
     W = pw.dense() if every else pw.dense()[act]
     lam, vec = _eigh(W @ W.T)
@@ -435,9 +436,9 @@ def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.n
         a.flags.writeable = False
     size = sum(len(b) for b in key[2:]) + W.nbytes + lam.nbytes + vec.nbytes  # what the entry holds
     if size <= _DECOMPOSED_BYTES // 4:
-        _DECOMPOSED[key] = (W, lam, vec, size)
-        while len(_DECOMPOSED) > _DECOMPOSED_KEEP or sum(v[3] for v in _DECOMPOSED.values()) > _DECOMPOSED_BYTES:
-            del _DECOMPOSED[next(iter(_DECOMPOSED))]
+        kept[key] = (W, lam, vec, size)
+        while len(kept) > _DECOMPOSED_KEEP or sum(v[3] for v in kept.values()) > _DECOMPOSED_BYTES:
+            del kept[next(iter(kept))]
     return W, lam, vec
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import framekernels, levelkernels
+from . import framekernels, levelkernels, memo
 from . import hspline as H
 from .basis import locate
 from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys
@@ -422,16 +422,15 @@ _SPREAD = "_ring_spread"
 # ``("rings", id(hs), id(det))`` -> `_closed_rings`, ``("refined", id(hs), id(det), lazy, keys)``
 # -> `_refined`, ``("refined at", id(hs), id(det), lazy, levels, uv bytes)`` -> `_refined_at`. A
 # static object's responses start from the same surface frame after frame, and its contact
-# stays in the same patches; emptied by `pipeline.run.forget`.
-_KEPT: dict = {}
+# stays in the same patches; a table of the run's memo (`acra.memo`).
 _KEEP = 24  # answers kept, oldest dropped first (a refined entry holds two surfaces and their details)
+_KEPT = memo.Table("respond.kept", _KEEP)
 
 
 def _keep(key: tuple, answer: tuple) -> None:
     """Keep ``answer`` under ``key`` in `_KEPT`, dropping the oldest past `_KEEP`."""
     _KEPT[key] = answer
-    while len(_KEPT) > _KEEP:
-        del _KEPT[next(iter(_KEPT))]
+    _KEPT.trim()
 
 
 def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tuple[H.HSpline, H.Details | None]:
@@ -528,11 +527,11 @@ def _ring_reach(hs: H.HSpline, pw: PointWeights, k: int, axis: int, end: int) ->
     moves, ``reached (N, 3) bool``: kept on ``pw`` per level object, as `_reach_rings` and then
     `_ring_constraints` ask it of the same weights and level."""
     lev = hs.level(k)
-    memo = pw.__dict__.setdefault("_reach", {})
-    hit = memo.get((k, axis, end))
+    reach = pw.__dict__.setdefault("_reach", {})
+    hit = reach.get((k, axis, end))
     if hit is None or hit[0] is not lev:
         rows, ok = _ring_rows(hs, k, axis, end)
-        hit = memo[(k, axis, end)] = (lev, rows, ok, H._lookup(pw.cv_rows, rows)[1])  # cv_rows: sorted
+        hit = reach[(k, axis, end)] = (lev, rows, ok, H._lookup(pw.cv_rows, rows)[1])  # cv_rows: sorted
     return hit[1], hit[2], hit[3]
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from . import framekernels, kernels
+from . import framekernels, kernels, memo
 from .basis import Direction
 from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
 from .lattice import adaptive_mesh, fan_triangles, quadtree_leaves, unique_keys
@@ -392,7 +392,7 @@ def evaluate_grid(hs: HSpline, topo: GridTopology, det: Details | None = None) -
 
 
 def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
-                 since: tuple | None = None, memo: dict | None = None,
+                 since: tuple | None = None, matches: dict | None = None,
                  normals: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Points ``(n, 3)`` and limit unit normals ``(n, 3)`` (`surface_normals`) at a grid's
     vertices (``topo``: a `GridTopology` or `MeshTopology`).
@@ -410,7 +410,7 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     parameter ``old_topo`` has, on no stale patch, is copied (adaptive topologies of one object
     put their vertices on nested dyadic lattices, so away from where a response refined, the
     old vertices are the new). Each vertex is evaluated on its own, so the result equals a full
-    evaluation bit for bit. ``memo`` (a dict the caller keeps) holds what depends on the
+    evaluation bit for bit. ``matches`` (a dict the caller keeps) holds what depends on the
     topologies alone: which old vertex each new one is, and each vertex's level-0 patches.
     Without ``normals`` only the points are evaluated (the same bits: a point's sum does not
     depend on the derivative orders summed beside it) and ``None`` stands for the normals,
@@ -437,7 +437,7 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         return points, limit
     old, (old_points, old_limit, stale) = (since[0] if len(since) == 4 else topo), since[-3:]
     # on the same topology vertex i is the old vertex i
-    src, found = (_NO_INDEX, _NO_FOUND) if old is topo else _matched(old, topo, memo)
+    src, found = (_NO_INDEX, _NO_FOUND) if old is topo else _matched(old, topo, matches)
     level = _level_of(hs, stale)
     old_nudged = _nudged_rows(old_limit) if normals else None
     if normals and level and old_nudged is None:
@@ -447,7 +447,7 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
         # patch with a changed cell
         r = 1 << level
         stale, level = stale.reshape(hs.u.patches0, r, hs.v.patches0, r).any(axis=(1, 3)), 0
-    (cu, bu), (cv, bv) = _patch_cells(hs, topo, memo, level)
+    (cu, bu), (cv, bv) = _patch_cells(hs, topo, matches, level)
     points = np.empty((topo.u.size, 3))
     limit = np.empty((topo.u.size, 3)) if normals else _NO_POINTS
     # by v, `_carry` hands the rows to evaluate in the order they are evaluated in
@@ -526,7 +526,7 @@ def _given_normals(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | Non
 # Kept per live array: a weak reference without a callback, dead entries dropped when one is
 # added. A callback would run Python code whenever an array dies, and a KeyboardInterrupt or
 # SIGTERM raised inside it is reported and dropped by the interpreter, not delivered to the run.
-_NUDGED: dict = {}  # id(limit normals) -> (a weak reference to them, rows taken at nudged points)
+_NUDGED = memo.Table("tessellate.nudged")  # id(limit normals) -> (a weak reference to them, rows taken at nudged points)
 
 
 def _drop_dead(kept: dict) -> None:
@@ -626,11 +626,11 @@ def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, lim
     return idx[:m]
 
 
-def _matched(old, topo, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
+def _matched(old, topo, matches: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """The vertex of ``old`` at each vertex's parameters of ``topo`` ``(n,) int64`` and whether
     there is one ``(n,) bool``."""
     key = ("matched", id(old), id(topo))
-    hit = None if memo is None else memo.get(key)
+    hit = None if matches is None else matches.get(key)
     if hit is not None and hit[0] is old and hit[1] is topo:
         return hit[2], hit[3]
     src, found = np.empty(topo.u.size, np.int64), np.empty(topo.u.size, np.bool_)
@@ -641,8 +641,8 @@ def _matched(old, topo, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
         order = np.argsort(old_key, kind="stable")
         src = order[np.minimum(np.searchsorted(old_key[order], new_key), max(len(order) - 1, 0))]
         found = old_key[src] == new_key if len(order) else np.zeros(new_key.size, bool)
-    if memo is not None:
-        memo[key] = (old, topo, src, found)
+    if matches is not None:
+        matches[key] = (old, topo, src, found)
     return src, found
 
 
@@ -687,15 +687,15 @@ def _level_of(hs: HSpline, stale: np.ndarray) -> int:
     return level
 
 
-def _patch_cells(hs: HSpline, topo, memo: dict | None, level: int = 0) -> tuple:
+def _patch_cells(hs: HSpline, topo, matches: dict | None, level: int = 0) -> tuple:
     """`_cells` of ``topo``'s u and v parameters on ``hs``'s level-``level`` grid."""
     key = ("cells", id(topo), hs.u, hs.v, level)
-    hit = None if memo is None else memo.get(key)
+    hit = None if matches is None else matches.get(key)
     if hit is not None and hit[0] is topo:
         return hit[1], hit[2]
     cells = _cells(hs.u, topo.u, level), _cells(hs.v, topo.v, level)
-    if memo is not None:
-        memo[key] = (topo,) + cells
+    if matches is not None:
+        matches[key] = (topo,) + cells
     return cells
 
 
@@ -747,7 +747,7 @@ def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray, in_pl
     return out
 
 
-_END_LINES: dict = {}  # id(topology) -> (a weak reference to it, the surface's directions, its `_end_lines`)
+_END_LINES = memo.Table("tessellate.end_lines")  # id(topology) -> (a weak reference to it, the surface's directions, its `_end_lines`)
 
 
 def _end_lines(hs: HSpline, topo) -> list[np.ndarray]:

@@ -16,6 +16,7 @@ from typing import Callable
 import numpy as np
 
 from acra import hspline as H
+from acra import memo
 from pipeline import detect as D
 from pipeline.model import apply_inverse, apply_xform
 
@@ -271,8 +272,8 @@ def exit_contact(ga: D.SurfaceGeometry, gb: D.Geometry, ra: D.Region, rb: D.Regi
     return pr.uv[0], None if rb.uv is None else rb.uv[i], local_b, pr.points[0], pb
 
 
-_AT: dict = {}  # `_point_at`, `_normal_at` and `_outward` answers by content, most recent last
 AT_KEPT = 32
+_AT = memo.Table("contact.at", AT_KEPT)  # `_point_at`, `_normal_at` and `_outward` answers by content, most recent last
 
 
 def _at(kind: str, geom: D.Geometry, where: np.ndarray, make) -> np.ndarray:
@@ -285,7 +286,7 @@ def _at(kind: str, geom: D.Geometry, where: np.ndarray, make) -> np.ndarray:
         out.setflags(write=False)
         return out
     where = np.ascontiguousarray(where, np.float64)
-    return D._kept(_AT, (kind, geom.content, where.tobytes()), made, AT_KEPT)
+    return _AT.kept((kind, geom.content, where.tobytes()), made)
 
 
 def _on_surface(kind: str, geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
@@ -304,7 +305,7 @@ def _on_surface(kind: str, geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarra
         out.setflags(write=False)
         return out
     where = np.ascontiguousarray(uv, np.float64)
-    return D._kept(_AT, (kind, geom.shape.digest, where.tobytes()), made, AT_KEPT)
+    return _AT.kept((kind, geom.shape.digest, where.tobytes()), made)
 
 
 def _point_at(geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:

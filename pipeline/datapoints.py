@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from acra import hspline as H
+from acra import memo
 from acra import respond as R
 from acra.kdtree import thin_greedy
 from pipeline import contact as C
@@ -264,8 +265,8 @@ RIM_FACING = 0.95  # |n·d| at least this: the face the region is pushed onto (a
 RIM_BISECT = 6  # bisection steps locating a crossing between two samples (1/64 of the step)
 
 
-_RIMS: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # `rim_points`' answers by content, most recent last
 RIMS_KEPT = 4
+_RIMS = memo.Table("datapoints.rims", RIMS_KEPT)  # `rim_points`' answers by content, most recent last
 
 
 def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
@@ -277,7 +278,7 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
     kept, and each call gets its own arrays."""
     region_uv = np.asarray(region_uv, float).reshape(-1, 2)
     key = (ga.content, gb.content, region_uv.tobytes(), np.asarray(direction, np.float64).tobytes(), int(level))
-    return tuple(a.copy() for a in D._kept(_RIMS, key, lambda: _rim_points(ga, gb, region_uv, direction, level), RIMS_KEPT))
+    return tuple(a.copy() for a in _RIMS.kept(key, lambda: _rim_points(ga, gb, region_uv, direction, level)))
 
 
 def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Union
 
 import numpy as np
 
-from acra import halfspaces
+from acra import halfspaces, memo
 from acra import hspline as H
 from acra import narrow
 from acra.bvh import bounds as bounds_of
@@ -285,8 +285,8 @@ class _World:
     inner: tuple | None = None
 
 
-_WORLDS: dict[tuple, _World] = {}  # world data by `SurfaceGeometry.content`, most recent last
 WORLDS_KEPT = 4
+_WORLDS = memo.Table("detect.worlds", WORLDS_KEPT)  # world data by `SurfaceGeometry.content`, most recent last
 
 
 @dataclass(frozen=True, eq=False)
@@ -321,7 +321,7 @@ class SurfaceGeometry:
     @_once
     def _world(self) -> _World:
         """The world data of this content (`_World`); the `WORLDS_KEPT` most recent are kept."""
-        return _kept(_WORLDS, self.content, _World, WORLDS_KEPT)
+        return _WORLDS.kept(self.content, _World)
 
     @_once
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -402,7 +402,7 @@ Geometry = Union[SurfaceGeometry, ColliderGeometry]
 # id(shape) -> (a weak reference to it without a callback, `_object_box`'s answer), and
 # ("patch boxes", id(shape)) -> (the same, `_object_patch_boxes`'s answer): a callback would run
 # Python code when a shape dies, where an interrupt raised inside it is dropped
-_OBJECT_BOXES: dict = {}
+_OBJECT_BOXES = memo.Table("detect.object_boxes")
 
 
 def _object_box(shape: Shape) -> tuple[tuple, tuple]:
@@ -541,7 +541,7 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
         # in one product, each grid's rows split off only if another set of this content asks
         obj, grids = geom.shape.cache.set_points(patches)
         world.mapped = (patches, apply_xform(geom.xform, obj), grids)
-        uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches), lambda: _layout(patches, grids))
+        uv, triangles, tri_patch = _LAYOUTS.kept(_patch_set_key(geom, patches), lambda: _layout(patches, grids))
         return Tessellation(world.mapped[1], uv, triangles, tri_patch)
     if world.mapped is not None:
         _split_mapped(world)
@@ -564,8 +564,8 @@ def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
     grids = [cache[k] for k in keys]
     # a grid's parameters and triangles are its patch's and density's alone
     # (`acra.tessellate.patch_grids`): only the points are the surface's
-    uv, triangles, tri_patch = _kept(_LAYOUTS, _patch_set_key(geom, patches),
-                                     lambda: _layout(patches, [PatchGrid(*g, None) for g in grids]))
+    uv, triangles, tri_patch = _LAYOUTS.kept(_patch_set_key(geom, patches),
+                                             lambda: _layout(patches, [PatchGrid(*g, None) for g in grids]))
     return Tessellation(np.concatenate([g[0] for g in grids]) if points is None else points, uv, triangles, tri_patch)
 
 
@@ -590,8 +590,10 @@ def _split_mapped(world: _World) -> None:
     world.mapped = None
 
 
-_LAYOUTS: dict[tuple, tuple] = {}  # `_tessellation`'s parameters, triangles and their patches, most recent last
-_DISTINCT: dict[tuple, np.ndarray] = {}  # `_distinct`'s answers, most recent last
+# a patch set's layout and distinct parameters, the 8 most recent kept: a whole-surface set of a
+# large model holds megabytes, and `dog_head_spike`'s 30 frames ask for 5 sets
+_LAYOUTS = memo.Table("detect.layouts", 8)  # `_tessellation`'s parameters, triangles and their patches, most recent last
+_DISTINCT = memo.Table("detect.distinct", 8)  # `_distinct`'s answers, most recent last
 
 
 def _patch_set_key(geom: SurfaceGeometry, patches: np.ndarray) -> tuple:
@@ -600,19 +602,6 @@ def _patch_set_key(geom: SurfaceGeometry, patches: np.ndarray) -> tuple:
     u, v = geom.surface.u, geom.surface.v
     return (patches.tobytes(), geom.shape.density_map[patches[:, 0], patches[:, 1]].tobytes(),
             u.periodic, u.patches0, v.periodic, v.patches0)
-
-
-def _kept(store: dict, key: tuple, make, size: int = 8):
-    """``store[key]``, made by ``make()`` if missing; the ``size`` most recently used are kept (a
-    whole-surface set of a large model holds megabytes; `dog_head_spike`'s 30 frames ask for 5
-    sets)."""
-    hit = store.pop(key, None)
-    if hit is None:
-        hit = make()
-    store[key] = hit
-    while len(store) > size:
-        del store[next(iter(store))]
-    return hit
 
 
 def tessellated(geom: SurfaceGeometry) -> np.ndarray:
@@ -720,8 +709,8 @@ def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarra
     return narrow.triangles_near(box_a, box_b, pad, rounds)
 
 
-_ANSWERS: dict[tuple, Intersections] = {}  # `intersect`'s answers by the pair's content, most recent last
 ANSWERS_KEPT = 8
+_ANSWERS = memo.Table("detect.answers", ANSWERS_KEPT)  # `intersect`'s answers by the pair's content, most recent last
 
 
 def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
@@ -733,7 +722,7 @@ def intersect(ga: SurfaceGeometry, gb: Geometry) -> Intersections:
     `ColliderGeometry.content`): a pair asked again with the same surfaces, matrices and
     densities (a frame's detection and its rewinding at the same time, a still object) gets the
     kept answer; the `ANSWERS_KEPT` most recent are kept."""
-    return _kept(_ANSWERS, (ga.content, gb.content), lambda: _intersect(ga, gb), ANSWERS_KEPT)
+    return _ANSWERS.kept((ga.content, gb.content), lambda: _intersect(ga, gb))
 
 
 def _no_intersections(collider: bool) -> Intersections:
@@ -1046,7 +1035,7 @@ def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) ->
     answer is one of the patch set, the patches' densities and the domain's wrapping, whatever
     the surface's shape: the rounds and frames of a contact ask for the same set again (25 of
     28 times over `dog_head_spike`'s frames 13-17), and the last few answers are kept."""
-    return _kept(_DISTINCT, _patch_set_key(geom, patches), lambda: unique_rows(wrap_uv(geom.surface, tess.uv)))
+    return _DISTINCT.kept(_patch_set_key(geom, patches), lambda: unique_rows(wrap_uv(geom.surface, tess.uv)))
 
 
 def _empty_region(x: Geometry) -> Region:
@@ -1111,7 +1100,7 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
         inter = _intersect(ga, gb, pad, first=True)
         if inter is None:
             return True
-    if _kept(_ANSWERS, key, lambda: inter, ANSWERS_KEPT).crosses:
+    if _ANSWERS.kept(key, lambda: inter).crosses:
         return True
     for x, y in ((ga, gb), (gb, ga)):
         if not is_closed(y):
@@ -1192,8 +1181,8 @@ def world_normals(geom: Geometry, n: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-_CASTS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # `cast`'s answers by content and rays, most recent last
 CASTS_KEPT = 8
+_CASTS = memo.Table("detect.casts", CASTS_KEPT)  # `cast`'s answers by content and rays, most recent last
 
 
 def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: float | None = None,
@@ -1213,7 +1202,7 @@ def cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: fl
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
     key = (geom.content, origins.tobytes(), directions.tobytes(), None if behind is None else float(behind),
            None if within is None else np.asarray(within, bool).reshape(-1).tobytes())
-    hits, valid = _kept(_CASTS, key, lambda: _cast(geom, origins, directions, behind, within), CASTS_KEPT)
+    hits, valid = _CASTS.kept(key, lambda: _cast(geom, origins, directions, behind, within))
     return hits.copy(), valid.copy()
 
 

@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from acra import hspline
+from acra import hspline, memo
 from acra.tessellate import MeshTopology, grid_samples, pole_normals, run_topology
 from pipeline.model import SceneModel
 
@@ -67,8 +67,8 @@ def topology_of(surfaces: list, samples: int) -> MeshTopology:
     return _topology(_refinement(surfaces, samples), lambda: run_topology(surfaces, samples))[0]
 
 
-_TOPOLOGIES: dict = {}  # `_refinement` key -> (topology, its triangles), most recent last
 KEPT_TOPOLOGIES = 16
+_TOPOLOGIES = memo.Table("display.topologies", KEPT_TOPOLOGIES)  # `_refinement` key -> (topology, its triangles), most recent last
 
 
 def _topology(key: tuple, build) -> tuple[MeshTopology, np.ndarray]:
@@ -76,14 +76,10 @@ def _topology(key: tuple, build) -> tuple[MeshTopology, np.ndarray]:
     where none of the last `KEPT_TOPOLOGIES` asked for was of it. `run_topology` is a function
     of the key alone, so the rounds of a frame, the frames of a contact and the run's display
     (`run_topologies`) that refine the same patches share one."""
-    hit = _TOPOLOGIES.pop(key, None)
-    if hit is None:
+    def built():
         topo = build()
-        hit = (topo, topo.triangles())
-    _TOPOLOGIES[key] = hit
-    while len(_TOPOLOGIES) > KEPT_TOPOLOGIES:
-        del _TOPOLOGIES[next(iter(_TOPOLOGIES))]
-    return hit
+        return topo, topo.triangles()
+    return _TOPOLOGIES.kept(key, built)
 
 
 def kept_triangles(topo: MeshTopology) -> np.ndarray:
@@ -108,7 +104,7 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
     it, no cell changed). A surface the displays do not hold has its normals taken only where it
     differs from the surface before it, the others copied."""
     ms: dict[int, float] = {f: 0.0 for f in result.frames}
-    memo: dict = {}  # `grid_samples`' memo: each vertex's cells on a topology, shared by its frames
+    matches: dict = {}  # `grid_samples`' matches: each vertex's cells on a topology, shared by its frames
     for model in scene.deformables:
         topo = topologies[model.path]
         done: dict = {}  # id(surface) -> (surface, points, normals, limit normals or None)
@@ -139,9 +135,9 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
                     # parameters are copied with their limit normals, the others evaluated
                     unchanged = np.zeros((r.surface.u.patches0, r.surface.v.patches0), bool)
                     pts, limit = grid_samples(r.surface, topo, det, (shown.topology, shown.points, shown.normals,
-                                                                     unchanged), memo)
+                                                                     unchanged), matches)
                 else:
-                    pts, limit = grid_samples(r.surface, topo, det, since, memo)
+                    pts, limit = grid_samples(r.surface, topo, det, since, matches)
                 kept = id(r.surface) in read_again
                 # a display's own limit normals stay whole: a later round's display may be
                 # evaluated since it
@@ -244,7 +240,7 @@ class Displays:
     def __init__(self, density: int = 8, kept: int = 16) -> None:
         self.density, self.kept = density, kept
         self._shown: dict = {}  # id(surface) -> SurfaceDisplay, most recent last
-        self._matches: dict = {}  # `grid_samples`' memo over the kept topologies
+        self._matches: dict = {}  # `grid_samples`' matches over the kept topologies
 
     def topology(self, surface: hspline.HSpline, samples: int) -> tuple[MeshTopology, np.ndarray]:
         """`run_topology` of ``surface`` alone and its fan triangles (`_topology`: a surface whose

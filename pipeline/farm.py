@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from acra import memo
 from pipeline.model import InputError
 
 __all__ = ["RETRIES", "CONNECT_TIMEOUT", "CHUNKS_PER_WORKER", "FarmError", "FarmTimings", "require", "plan_chunks", "run_chunk", "run_frames", "connect"]
@@ -116,7 +117,8 @@ def run_chunk(stage_path: str, identity: str, frames: list[int], options) -> dic
         found = parts.input_identity(stage)
         if found != identity:
             raise InputError(stage_path, None, f"changed during the run (identity {found[:12]} on this worker, {identity[:12]} when the run started)")
-        result, stats = frame_loop.respond_frames(stage, scene, list(frames), options)
+        with memo.scope():  # the chunk's answers kept across its frames, dropped with it
+            result, stats = frame_loop.respond_frames(stage, scene, list(frames), options)
     except InputError as err:
         return {"frames": list(frames), "records": {}, "stats": [], "error": err, "worker": _worker_address(), "cpu": 0.0}
     records = parts.records_from_result(result)

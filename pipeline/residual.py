@@ -31,7 +31,7 @@ from functools import cached_property
 
 import numpy as np
 
-from acra import bvh, clearcells
+from acra import bvh, clearcells, memo
 from pipeline import clearance
 from pipeline.model import SceneModel, apply_xform, translated
 
@@ -151,7 +151,7 @@ class Shown:
         return float(np.linalg.norm(self.box_local[1] - self.box_local[0]))
 
 
-_DIGESTS: dict = {}  # id(array) -> (array, digest), the arrays made read-only, most recent last
+_DIGESTS = memo.Table("residual.digests", 16)  # id(array) -> (array, digest), the arrays made read-only, most recent last
 
 
 def _digest(x: np.ndarray) -> bytes:
@@ -161,35 +161,35 @@ def _digest(x: np.ndarray) -> bytes:
     topology's parameter array (`acra.tessellate.MeshTopology.uv`), and a topology built again (a
     refinement no longer kept) gives new parameters and triangles of the same bytes; comparing
     bytes costs a tenth of hashing them."""
-    hit = _DIGESTS.pop(id(x), None)
+    digests = _DIGESTS.entries()
+    hit = digests.pop(id(x), None)
     if hit is None or hit[0] is not x or x.flags.writeable:
         x.flags.writeable = False
-        same = next((d for y, d in reversed(_DIGESTS.values()) if _same_bytes(x, y)), None)
+        same = next((d for y, d in reversed(digests.values()) if _same_bytes(x, y)), None)
         if same is None:
             h = hashlib.sha1(repr((x.dtype.str, x.shape)).encode())
             h.update(np.ascontiguousarray(x).data)
             same = h.digest()
         hit = (x, same)
-    _DIGESTS[id(x)] = hit
-    while len(_DIGESTS) > 16:
-        del _DIGESTS[next(iter(_DIGESTS))]
+    digests[id(x)] = hit
+    _DIGESTS.trim()
     return hit[1]
 
 
-_CHUNK_VERTICES: dict = {}  # id(triangles) -> (triangles made read-only, their points' count, `bvh.chunk_vertices`), most recent last
+_CHUNK_VERTICES = memo.Table("residual.chunk_vertices", 16)  # id(triangles) -> (triangles made read-only, their points' count, `bvh.chunk_vertices`), most recent last
 
 
 def _chunk_vertices(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """`acra.bvh.chunk_vertices` of ``triangles`` into ``n`` points, kept per array: a display's
     topology holds one triangles array for every display on it, made read-only here (as `_digest`
     does), so the lists taken of it still hold."""
-    hit = _CHUNK_VERTICES.pop(id(triangles), None)
+    lists = _CHUNK_VERTICES.entries()
+    hit = lists.pop(id(triangles), None)
     if hit is None or hit[0] is not triangles or hit[1] != n or triangles.flags.writeable:
         triangles.flags.writeable = False
         hit = (triangles, n, bvh.chunk_vertices(triangles, n))
-    _CHUNK_VERTICES[id(triangles)] = hit
-    while len(_CHUNK_VERTICES) > 16:
-        del _CHUNK_VERTICES[next(iter(_CHUNK_VERTICES))]
+    lists[id(triangles)] = hit
+    _CHUNK_VERTICES.trim()
     return hit[2]
 
 
@@ -383,7 +383,7 @@ def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad:
     return replace(d, tri=kept[d.tri])
 
 
-_PLACEMENTS: dict = {}  # the bytes of a (4, 4) matrix -> (sigma_max, inverse of its linear part)
+_PLACEMENTS = memo.Table("residual.placements", 16)  # the bytes of a (4, 4) matrix -> (sigma_max, inverse of its linear part)
 
 
 def _placement(xform: np.ndarray) -> tuple[float, np.ndarray]:
@@ -391,11 +391,12 @@ def _placement(xform: np.ndarray) -> tuple[float, np.ndarray]:
     kept by the matrix's bytes: every pair of a frame, and every frame of a still object, asks
     the same matrix."""
     key = np.ascontiguousarray(xform, np.float64).tobytes()
-    hit = _PLACEMENTS.get(key)
+    placements = _PLACEMENTS.entries()
+    hit = placements.get(key)
     if hit is None:
-        if len(_PLACEMENTS) >= 16:
-            _PLACEMENTS.pop(next(iter(_PLACEMENTS)))
-        hit = _PLACEMENTS[key] = (clearance.sigma_max(xform), np.linalg.inv(np.asarray(xform, np.float64)[:3, :3]))
+        if len(placements) >= _PLACEMENTS.size:
+            placements.pop(next(iter(placements)))
+        hit = placements[key] = (clearance.sigma_max(xform), np.linalg.inv(np.asarray(xform, np.float64)[:3, :3]))
     return hit
 
 
@@ -531,11 +532,11 @@ def _depths_only(ins: Inside) -> Inside:
     return Inside(ins.depth, ins.lower, ins.points[:0], None if ins.uv is None else ins.uv[:0], ins.deep[:0], ins.complete)
 
 
-def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict | None = None,
+def measure_frame(objects: list[Shown], tolerance: float, pairs=None, measured: dict | None = None,
                   known: dict | None = None) -> FrameResidual:
     """`pair_depth` of every deformable of ``objects`` in every other closed one (or the ordered
     ``pairs`` of indices given), refined to ``TARGET * tolerance`` of the inner object's size.
-    ``memo`` keeps each pair's `Inside` by the two `Shown` objects (which never change): a
+    ``measured`` keeps each pair's `Inside` by the two `Shown` objects (which never change): a
     round whose response left both as they were gets the answer measured before. ``known``
     (`known`) holds answers by content: a pair whose two objects hold what a measured pair's
     held gets that answer's depths (`pair_depth` is a function of them), without its points."""
@@ -548,15 +549,15 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None, memo: dict
             continue
         size = max(a.size, 1e-300)
         key = (id(a), id(b), tolerance)
-        hit = None if memo is None else memo.get(key)
+        hit = None if measured is None else measured.get(key)
         if hit is not None and hit[0] is a and hit[1] is b:
             ins = hit[2]
         elif known and (a.fingerprint, b.fingerprint, tolerance) in known:
             ins = known[a.fingerprint, b.fingerprint, tolerance]
         else:
             ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size)
-            if memo is not None:
-                memo[key] = (a, b, ins)
+            if measured is not None:
+                measured[key] = (a, b, ins)
         rel = ins.depth / size
         out.pairs.append(PairDepth(a.path, b.path, ins, rel))
         out.measured.append((a, b, ins))

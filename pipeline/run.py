@@ -8,7 +8,9 @@ tests call. In order it
 2. opens the stage and refuses one whose predicted memory exceeds the budget, before anything large
    is built (`guard.predict_memory`); the response's direct solves are bounded by the same budget
    while the run goes (`frames.RunOptions.memory_budget`);
-3. runs the frames in this process (`frames.run_frames`) or as chunks on Dask (`pipeline.farm`);
+3. runs the frames in this process (`frames.run_frames`) or as chunks on Dask (`pipeline.farm`),
+   with answers kept across frames in a memo of the run's own (`acra.memo.scope`), dropped when
+   the run ends;
 4. writes the output layer (or a part file, `pipeline.parts`), the Rerun recording and the JSON
    report to hidden temporary siblings, and renames them into place together with SIGINT and
    SIGTERM held, so a run writes every file or none.
@@ -16,6 +18,7 @@ tests call. In order it
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from dataclasses import dataclass, field
@@ -23,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acra import memo
 from pipeline import guard, report
 from pipeline.model import InputError
 
@@ -109,22 +113,28 @@ def _check_farm_options(output, workers, scheduler, chunk, part) -> None:
 
 
 def forget() -> None:
-    """Drop every answer kept by content across frames: shapes and refinement tables, detection's
-    answers, world data, layouts, casts and anchors, rims, topologies, digests, placements and chunk lists,
-    responses' refinements, closed rings and solves' decompositions.
-    Within a run they spare a frame what an earlier frame computed; across runs in one process
-    they would serve a run what the run before computed. The next run computes everything as the
-    first run of a fresh process does, which is what a benchmark's repeated runs must measure."""
-    from acra import hspline, interpolate, respond, tessellate
-    from pipeline import contact, datapoints, detect, display, residual, shape
-
-    for store in (shape._SHAPES, shape._REFINEMENTS, detect._ANSWERS, detect._WORLDS, detect._LAYOUTS,
-                  detect._DISTINCT, detect._CASTS, detect._OBJECT_BOXES, contact._AT, datapoints._RIMS,
-                  display._TOPOLOGIES, residual._DIGESTS, residual._PLACEMENTS, residual._CHUNK_VERTICES, hspline._PLACES, respond._KEPT,
-                  tessellate._NUDGED, tessellate._END_LINES, interpolate._DECOMPOSED):
-        store.clear()
+    """Drop every answer kept across frames by the current memo (`acra.memo`): shapes and
+    refinement tables, detection's answers, world data, layouts, casts and anchors, rims,
+    topologies, digests, placements and chunk lists, responses' refinements, closed rings and
+    solves' decompositions. Within a run they spare a frame what an earlier frame computed. A
+    run of `run_file` keeps them in a memo of its own; frames run outside it (a test, a
+    benchmark calling the frame loop) share the context's, and after `forget` the next frames
+    compute everything as the first frames of a fresh process do, which is what a benchmark's
+    repeated runs must measure."""
+    memo.forget()
 
 
+def _own_memo(run):
+    """``run`` inside a memo of its own (`acra.memo.scope`): what its frames keep is the run's,
+    dropped with it; a run after it, or beside it in another thread, starts from nothing."""
+    @functools.wraps(run)
+    def in_scope(*args, **kwargs):
+        with memo.scope():
+            return run(*args, **kwargs)
+    return in_scope
+
+
+@_own_memo
 def run_file(
     src: Path,
     output: Path | None = None,

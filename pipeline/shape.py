@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-from acra import halfspaces, kdtree
+from acra import halfspaces, kdtree, memo
 from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.orientation import volume_sign
@@ -120,8 +120,8 @@ class HullIndex:
         return res
 
 
-_REFINEMENTS: dict = {}  # (u, v, k, level k-1 and k cv_keys bytes) -> `acra.hspline.cv_refinement`, most recent last
 _REFINEMENTS_KEPT = 64
+_REFINEMENTS = memo.Table("shape.refinements", _REFINEMENTS_KEPT)  # (u, v, k, level k-1 and k cv_keys bytes) -> `acra.hspline.cv_refinement`, most recent last
 
 
 class Shape:
@@ -176,12 +176,7 @@ class Shape:
             # else the last few built, by content: each frame starts again from the input and
             # its responses refine the same region, so the same levels' keys come back
             key = (hs.u, hs.v, k, hs.level(k - 1).cv_keys.tobytes() if k > 1 else b"", hs.level(k).cv_keys.tobytes())
-            hit = _REFINEMENTS.pop(key, None)
-            if hit is None:
-                hit = H.cv_refinement(hs, k)
-            _REFINEMENTS[key] = hit
-            while len(_REFINEMENTS) > _REFINEMENTS_KEPT:
-                del _REFINEMENTS[next(iter(_REFINEMENTS))]
+            hit = _REFINEMENTS.kept(key, lambda: H.cv_refinement(hs, k))
         self._cv_refinements[k] = hit
         return hit
 
@@ -434,8 +429,8 @@ def surface_digest(hs: HSpline) -> bytes:
     return content_digest(hs.u, hs.v, hs.depth, hs.cvs, *fine)
 
 
-_SHAPES: dict = {}  # id(surface) -> (surface, density, max_density, Shape), most recent last
 _SHAPES_KEPT = 64
+_SHAPES = memo.Table("shape.shapes", _SHAPES_KEPT)  # id(surface) -> (surface, density, max_density, Shape), most recent last
 
 
 def shape_of(surface: HSpline, density: int = 8, max_density: int = 64) -> Shape:
@@ -444,12 +439,12 @@ def shape_of(surface: HSpline, density: int = 8, max_density: int = 64) -> Shape
     Keyed by identity: surfaces are immutable, and the frame loop hands the same object back for
     unchanged input CVs. The most recent ``_SHAPES_KEPT`` shapes are kept."""
     key = id(surface)
-    hit = _SHAPES.pop(key, None)
+    shapes = _SHAPES.entries()
+    hit = shapes.pop(key, None)
     if hit is None or hit[0] is not surface or hit[1:3] != (density, max_density):
         hit = (surface, density, max_density, Shape(surface, density, max_density))
-    _SHAPES[key] = hit
-    while len(_SHAPES) > _SHAPES_KEPT:
-        del _SHAPES[next(iter(_SHAPES))]
+    shapes[key] = hit
+    _SHAPES.trim()
     return hit[3]
 
 
