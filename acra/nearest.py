@@ -227,7 +227,8 @@ def _distance(points, i, t, s, unit, zero):
 
 
 @njit(cache=True, nogil=True)
-def _box_distance(points, i, lo, hi, node):
+def _box_square(points, i, lo, hi, node):
+    """The squared distance from ``points[i]`` to the box ``lo[node], hi[node]``."""
     d = 0.0
     for k in range(3):
         p = points[i, k]
@@ -235,18 +236,40 @@ def _box_distance(points, i, lo, hi, node):
             d += (lo[node, k] - p) ** 2
         elif p > hi[node, k]:
             d += (p - hi[node, k]) ** 2
-    return np.sqrt(d)
+    return d
 
 
 @njit(cache=True, nogil=True)
-def _query(t, order, lo, hi, left, right, start, count, unit, zero, points, bound, dist, close, face):
+def _triangle_square(points, i, w, s):
+    """The squared distance from ``points[i]`` to the box of triangle ``w[s] (3, 3)``."""
+    d = 0.0
+    for k in range(3):
+        p = points[i, k]
+        a, b, c = w[s, 0, k], w[s, 1, k], w[s, 2, k]
+        low = min(a, min(b, c))
+        if p < low:
+            d += (low - p) ** 2
+            continue
+        high = max(a, max(b, c))
+        if p > high:
+            d += (p - high) ** 2
+    return d
+
+
+@njit(cache=True, nogil=True)
+def _query(t, w, order, lo, hi, left, right, start, count, unit, zero, points, bound, dist, close, face):
     # the least (distance, row) pair; a box is opened while its distance is within `reach` of
-    # the best distance, so the answer does not depend on where the search starts
+    # the best distance, so the answer does not depend on where the search starts. Boxes are
+    # compared by squared distances against the squared reach: the reach's margin (1e-9 of the
+    # best distance) is far above the rounding of the squares, so no box that the distances
+    # themselves would open is passed over. A triangle of an opened leaf (``w``: the leaf
+    # triangles in the caller's units, ``t``: in units of ``unit``) is measured only where its
+    # own box lies within the reach: its box bounds its distance from below as a node's does.
     stack = np.empty(256, np.int64)
     near = np.empty(256)
     seq = _morton_order(points)
     # int64, not literals (here and the root below): a literal argument compiles a specialisation
-    # of `_distance` and `_box_distance` of its own in the first run
+    # of `_distance` and `_box_square` of its own in the first run
     seed = np.int64(-1)  # leaf slot of the previous point's closest triangle
     slack = _ABS * unit
     for j in range(points.shape[0]):
@@ -258,22 +281,26 @@ def _query(t, order, lo, hi, left, right, start, count, unit, zero, points, boun
             if d <= best:
                 best, best_face, bx, by, bz = d, order[seed], x, y, z
         stack[0] = 0
-        near[0] = _box_distance(points, i, lo, hi, np.int64(0))
+        near[0] = _box_square(points, i, lo, hi, np.int64(0))
         top = 1
         while top > 0:
             top -= 1
             node = stack[top]
-            if near[top] > best * (1.0 + _REL) + slack:
+            reach = best * (1.0 + _REL) + slack
+            if near[top] > reach * reach:
                 continue
             if left[node] < 0:
                 for s in range(start[node], start[node] + count[node]):
+                    within = best * (1.0 + _REL) + slack
+                    if _triangle_square(points, i, w, s) > within * within:
+                        continue
                     f = order[s]
                     d, x, y, z = _distance(points, i, t, s, unit, zero)
                     if d < best or (d == best and (best_face < 0 or f < best_face)):
                         best, best_face, seed, bx, by, bz = d, f, s, x, y, z
                 continue
             a, b = left[node], right[node]
-            da, db = _box_distance(points, i, lo, hi, a), _box_distance(points, i, lo, hi, b)
+            da, db = _box_square(points, i, lo, hi, a), _box_square(points, i, lo, hi, b)
             if da <= db:  # the nearer child last on the stack, so it is visited first
                 stack[top], stack[top + 1] = b, a
                 near[top], near[top + 1] = db, da
@@ -306,7 +333,7 @@ def query(idx: Index, points: np.ndarray, bound: np.ndarray | None = None):
     b = np.full(k, np.inf) if bound is None else np.ascontiguousarray(bound, np.float64).reshape(k)
     if k:
         tr = idx.tree
-        _query(idx.leaf_units, tr.order, tr.lo, tr.hi, tr.left, tr.right, tr.start, tr.count, idx.unit, ZERO, p, b, dist,
+        _query(idx.leaf_units, tr.leaf_tri, tr.order, tr.lo, tr.hi, tr.left, tr.right, tr.start, tr.count, idx.unit, ZERO, p, b, dist,
                close, face)
     return dist, close, face
 

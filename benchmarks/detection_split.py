@@ -1,6 +1,6 @@
 """Detection and set-up of a collision frame in CPU time, stage by stage and function by function.
 
-    PYTHONPATH=$PWD python3 benchmarks/detection_split.py [--repeat 3] [--wall]
+    PYTHONPATH=$PWD python3 benchmarks/detection_split.py [--repeat 3] [--wall] [--stages]
 
 Runs `dog_head_spike` frames 13-17 after frame 5 (``--repeat`` times, a fresh stage each time, so
 every run builds the input shapes again) with the frame loop's clock read as the process's CPU
@@ -8,6 +8,9 @@ time (``time.process_time``): on a shared machine other processes' load then cou
 than in wall-clock figures (``--wall`` keeps the wall clock). Prints the frame loop's own split
 (`FrameStats`: set-up, detection, conversion, response, residual where the user looks; ms per
 collision frame) and the nested time inside the detection functions, medians over the runs.
+``--stages`` times no function (no wrapper's overhead) and prints each stage's median and range
+over the runs, and the sum of set-up, detection and conversion, to two decimals: one line to
+compare checkouts by (another checkout: this file with ``PYTHONPATH`` at it).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--wall", action="store_true", help="wall-clock time instead of CPU time")
+    ap.add_argument("--stages", action="store_true", help="the stages alone, median (range), two decimals")
     args = ap.parse_args()
     if not args.wall:
         time.perf_counter = time.process_time  # the frame loop's and the wrappers' clock
@@ -50,6 +54,9 @@ def main() -> None:
                 spent[label][1] += time.perf_counter() - t
         return wrapper
 
+    if args.stages:
+        _stages(args.repeat)
+        return
     for name in ("intersect", "regions", "touching", "cast", "project", "tessellate", "_tessellate", "_candidate_vertices", "_inside_depth",
                  "_triangles_near", "_face_boxes"):
         setattr(D, name, timed(f"detect.{name}", getattr(D, name)))
@@ -93,6 +100,27 @@ def main() -> None:
     print("\n| function | calls | ms |\n|---|---:|---:|")
     for k in sorted(splits[0], key=lambda k: -splits[0][k][1]):
         print(f"| `{k}` | {splits[0][k][0]} | {statistics.median(s.get(k, (0, 0.0))[1] for s in splits):.1f} |")
+
+
+def _stages(repeat: int) -> None:
+    """`main` with ``--stages``: each run's mean over the collision frames, median (range) over runs."""
+    from pipeline import frames as F
+    from pipeline import usdio
+    from pipeline.run import forget
+
+    runs = []
+    for _ in range(repeat):
+        forget()
+        stage = usdio.open_input(usdio.load_scene_file(ROOT / "scenes" / "dog_head_spike.py"))
+        scene = usdio.read_scene(stage)
+        F.run_frames(stage, scene, [5])
+        _, stats = F.respond_frames(stage, scene, list(range(13, 18)))
+        hit = [s for s in stats if s.ms_respond > 0]
+        row = {a: sum(getattr(s, "ms_" + a) for s in hit) / len(hit) for a in ("setup", "detect", "convert", "respond", "visible", "total")}
+        row["three"] = row["setup"] + row["detect"] + row["convert"]
+        runs.append(row)
+    print(" ".join(f"{k} {statistics.median(r[k] for r in runs):.2f} ({min(r[k] for r in runs):.2f}-{max(r[k] for r in runs):.2f})"
+                   for k in ("setup", "detect", "convert", "three", "total")))
 
 
 if __name__ == "__main__":

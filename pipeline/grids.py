@@ -189,20 +189,33 @@ class Closest:
 # --- set-up time ---------------------------------------------------------------------------------
 class SetupClock:
     """Milliseconds spent building `Shape` data (the thesis's "initial setup" of RAPID, Fig. 5.2):
-    the frame loop reads it around detection to report set-up apart from the queries."""
+    the frame loop reads it around detection to report set-up apart from the queries. ``open``:
+    how many `timed` builders are running, one inside another (a shape's patch boxes build its
+    details on their first read): only the outermost one's time is counted, once."""
 
     ms: float = 0.0
+    open: int = 0
 
 
 def timed(build):
-    """Decorate a `Shape` builder so its time goes to `SetupClock`."""
+    """Decorate a `Shape` builder so its time goes to `SetupClock`: the whole time of a builder
+    that no other one called, nothing for a builder called inside another (its time is in that
+    one's)."""
 
     def clocked(*args, **kwargs):
+        if SetupClock.open:
+            SetupClock.open += 1
+            try:
+                return build(*args, **kwargs)
+            finally:
+                SetupClock.open -= 1
+        SetupClock.open = 1
         t = time.perf_counter()
         try:
             return build(*args, **kwargs)
         finally:
             SetupClock.ms += 1e3 * (time.perf_counter() - t)
+            SetupClock.open = 0
 
     clocked.__name__, clocked.__doc__ = build.__name__, build.__doc__
     return clocked

@@ -77,6 +77,28 @@ def test_query_is_every_triangle_s_answer(seed):
     assert np.isinf(bd[~within]).all()
 
 
+@pytest.mark.parametrize("offset", [0.0, 1e3])
+def test_query_keeps_every_tied_triangle_in_reach(offset):
+    """A flat grid (every vertex shared by up to six triangles at the same distance, every edge by
+    two), at the origin and 1e3 of its extent away from it: each triangle's box is within the
+    reach of a point on a vertex or an edge above it, so `query` measures every tied triangle and
+    answers as testing every triangle does, bit for bit (the lowest row among equal distances)."""
+    rng = np.random.default_rng(7)
+    n = 8
+    x, y = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0), indexing="ij")
+    verts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1) + offset
+    ids = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = ids[:-1, :-1].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel(), ids[:-1, 1:].ravel()
+    tri = verts[np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])]
+    on = verts[rng.integers(0, len(verts), 20)] + [0.0, 0.0, 0.5]
+    edge = 0.5 * (tri[:20, 0] + tri[:20, 1]) + [0.0, 0.0, -0.25]
+    pts = np.concatenate([on, edge, offset + rng.uniform(-1.0, n + 1.0, (20, 3))])
+    dist, close, face = N.query(N.index(tri, float(n)), pts)
+    for i, (dd, cp, f) in enumerate(_every_triangle(tri, pts, float(n))):
+        assert (dist[i], face[i]) == (dd, f)
+        assert np.array_equal(close[i], cp)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_refit_answers_as_a_new_build(seed):
     """An `Index` whose tree is refitted from the triangles before they moved (``like``, part of
