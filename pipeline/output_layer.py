@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-from acra import floattext
+from acra import float32, floattext
 from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
@@ -116,9 +116,10 @@ def _checked_floats(model: DeformableModel, topology, frame: int, name: str, a: 
     a = np.asarray(a)
     if a.shape != (n, 3):
         raise ValueError(f"frame {frame}, {model.path}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
-    if not np.all(np.isfinite(a)):
+    values = float32.rounded(a)
+    if values is None:
         raise ValueError(f"frame {frame}, {model.path}: {name} hold NaN or inf")
-    return np.ascontiguousarray(a, dtype=np.float32)
+    return values
 
 
 def _checked_vec3f(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
