@@ -398,15 +398,20 @@ class SimpleWriter:
 
 
 def test_vt_array_is_from_numpy():
-    """`usdio.vt_array` (one block copy into a new Vt array) gives `FromNumpy`'s value for every
-    array type the output layer writes, its own copy (a later change to the source does not show),
-    and USD's conversion where the dtype is not the Vt type's own (float64 into float3[])."""
+    """`usdio.vt_array` (one block copy into a new Vt array from `VT_COPY_MIN` values, USD's
+    conversion below) gives `FromNumpy`'s value for every array type the output layer writes, its
+    own copy (a later change to the source does not show), and USD's conversion where the dtype is
+    not the Vt type's own (float64 into float3[])."""
     rng = np.random.default_rng(3)
     cases = [(Vt.Vec3fArray, rng.normal(size=(257, 3)).astype(np.float32)), (Vt.Vec3dArray, rng.normal(size=(65, 3))),
              (Vt.Vec2dArray, rng.normal(size=(70, 2))), (Vt.Vec2iArray, rng.integers(-9, 9, (33, 2)).astype(np.int32)),
              (Vt.IntArray, rng.integers(-9, 9, 40).astype(np.int32)), (Vt.Vec3fArray, rng.normal(size=(9, 3))),
-             (Vt.Vec3fArray, np.zeros((0, 3), np.float32)), (Vt.Vec3dArray, np.asfortranarray(rng.normal(size=(12, 3))))]
+             (Vt.Vec3fArray, np.zeros((0, 3), np.float32)), (Vt.Vec3dArray, np.asfortranarray(rng.normal(size=(12, 3)))),
+             (Vt.Vec3fArray, rng.normal(size=(U.VT_COPY_MIN, 3)).astype(np.float32)), (Vt.Vec3dArray, rng.normal(size=(700, 3))),
+             (Vt.IntArray, rng.integers(-9, 9, U.VT_COPY_MIN).astype(np.int32)), (Vt.Vec2dArray, rng.normal(size=(U.VT_COPY_MIN // 2, 2))),
+             (Vt.Vec2iArray, rng.integers(-9, 9, (U.VT_COPY_MIN // 2 - 1, 2)).astype(np.int32))]
     cases[0][1][5] = [-0.0, np.float32(1e-40), np.float32(3.4e38)]
+    cases[8][1][5] = [-0.0, np.float32(1e-40), np.float32(3.4e38)]
     for vt, a in cases:
         got = U.vt_array(vt, a)
         assert type(got) is vt and got == vt.FromNumpy(np.ascontiguousarray(a))
