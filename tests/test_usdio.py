@@ -537,10 +537,24 @@ def test_text_output_falls_back_to_usds_writer_when_a_stand_in_is_ambiguous(scen
     scene = U.read_scene(stage)
     _, shared, _ = _shared_and_copied(stage, scene)
     crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, shared)
-    tname, _ = output_layer._STAND_INS[Vt.Vec3fArray]  # points and normals stand in alike
-    monkeypatch.setitem(output_layer._STAND_INS, Vt.Vec3fArray, (tname, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, 0, math.nan)])))
+    tname, _, _ = output_layer._STAND_INS[Vt.Vec3fArray]  # points and normals stand in alike
+    monkeypatch.setitem(output_layer._STAND_INS, Vt.Vec3fArray, (tname, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, 0, math.nan)]),
+                                                                 "[(nan, 0, nan)]"))
     text = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, shared)
     assert text.read_bytes() == _usd_text(crate)
+
+
+def test_stand_ins_text_is_usds():
+    """Each stand-in's text (`output_layer._STAND_INS`) is what USD's writer gives its value."""
+    layer = Sdf.Layer.CreateAnonymous("s.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    want = {}
+    for i, (tname, make, text) in enumerate(output_layer._STAND_INS.values()):
+        for k in (0, 7, 10, 99, 123456, 2**24 - 1):
+            Sdf.AttributeSpec(prim, f"s{i}_{k}", tname, Sdf.VariabilityVarying, True).default = make(k)
+            want[f"s{i}_{k}"] = text.format(k)
+    got = {line.split()[2]: line.split(" = ", 1)[1] for line in layer.ExportToString().splitlines() if line.strip().startswith("custom ")}
+    assert got == want
 
 
 def test_shared_invalid_values_are_rejected_at_their_first_frame(scene_file, tmp_path):
