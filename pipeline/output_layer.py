@@ -25,7 +25,7 @@ from acra import float32, floattext
 from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
-from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy, vt_array
+from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy, vt_array, vt_buffer
 
 __all__ = ["DISPLAY_UV", "DeformableResult", "FramesResult", "write_output", "read_output_hierarchy", "read_display_uv", "read_display_topology", "input_points"]
 
@@ -110,21 +110,33 @@ def _spec(prim_spec: Sdf.PrimSpec, name: str, tname: Sdf.ValueTypeName, custom: 
     return spec if spec is not None else Sdf.AttributeSpec(prim_spec, name, tname, Sdf.VariabilityVarying, custom)
 
 
-def _checked_floats(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> np.ndarray:
-    """Display points or normals ``(n, 3)`` as ``(n, 3) float32``, after checking shape and values."""
+def _checked_shape(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> np.ndarray:
+    """Display points or normals ``(n, 3)`` as an array, after checking their shape."""
     n = topology.u.size
     a = np.asarray(a)
     if a.shape != (n, 3):
         raise ValueError(f"frame {frame}, {model.path}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
-    values = float32.rounded(a)
+    return a
+
+
+def _checked_floats(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> np.ndarray:
+    """Display points or normals ``(n, 3)`` as ``(n, 3) float32``, after checking shape and values."""
+    values = float32.rounded(_checked_shape(model, topology, frame, name, a))
     if values is None:
         raise ValueError(f"frame {frame}, {model.path}: {name} hold NaN or inf")
     return values
 
 
 def _checked_vec3f(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
-    """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
-    return vt_array(Vt.Vec3fArray, _checked_floats(model, topology, frame, name, a))
+    """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values:
+    rounded straight into the Vt array's own buffer (`usdio.vt_buffer`), else through numpy."""
+    a = _checked_shape(model, topology, frame, name, a)
+    out, buffer = vt_buffer(Vt.Vec3fArray, a.shape, np.float32)
+    if out is None:
+        return vt_array(Vt.Vec3fArray, _checked_floats(model, topology, frame, name, a))
+    if not float32.round_into(a, buffer):
+        raise ValueError(f"frame {frame}, {model.path}: {name} hold NaN or inf")
+    return out
 
 
 class _Pending:

@@ -54,6 +54,7 @@ __all__ = [
     "state_at",
     "export_layer",
     "vt_array",
+    "vt_buffer",
     "cvs_to_flat",
     "flat_to_cvs",
 ]
@@ -740,6 +741,20 @@ def vt_array(vt: type, array: np.ndarray):
     if not np.array_equal(np.asarray(out).reshape(-1).view(np.uint8), a.reshape(-1).view(np.uint8)):
         return vt.FromNumpy(a)
     return out
+
+
+def vt_buffer(vt: type, shape: tuple, dtype) -> tuple:
+    """A new ``vt`` array of ``shape[0]`` elements and a writable numpy view ``shape dtype`` of
+    its own buffer, for values written straight into it (no array between, no copy); ``(None,
+    None)`` where numpy's view of the new array is not of that shape and dtype or not the
+    array's own memory (two views at one address: a copy made for each view could not share
+    it while the first lives). The view is valid while the Vt array lives and is not copied."""
+    out = vt(int(shape[0]))
+    first, second = np.asarray(out), np.asarray(out)
+    if first.size == 0 or first.shape != tuple(shape) or first.dtype != dtype or first.ctypes.data != second.ctypes.data:
+        return None, None
+    memory = (ctypes.c_byte * first.nbytes).from_address(first.ctypes.data)
+    return out, np.frombuffer(memory, dtype).reshape(shape)
 
 
 def _export(layer: Sdf.Layer, path: str) -> None:

@@ -1,4 +1,4 @@
-"""`acra.float32.rounded` gives numpy's float32 rounding bit for bit, and refuses NaN and inf."""
+"""`acra.float32.rounded` and `round_into` give numpy's float32 rounding bit for bit, and refuse NaN and inf."""
 
 from __future__ import annotations
 
@@ -45,3 +45,15 @@ def test_other_dtypes_are_numpys_and_one_specialisation_serves_read_only_and_wri
     shown.flags.writeable = False
     assert np.array_equal(float32.rounded(shown), float32.rounded(np.ones((3, 3))))
     assert len(float32._rounded.signatures) == 1
+
+
+@pytest.mark.parametrize("k", range(5))
+def test_round_into_a_given_buffer_is_rounded(k):
+    values = _cases()[k]
+    out = np.full(values.shape, np.float32(7))
+    assert float32.round_into(values, out)
+    assert np.array_equal(out.view(np.uint32), float32.rounded(values).view(np.uint32))
+    values = np.ascontiguousarray(values, dtype=np.float64).copy()
+    if values.size:
+        values.reshape(-1)[-1] = np.nan
+        assert not float32.round_into(values, out)

@@ -420,6 +420,22 @@ def test_vt_array_is_from_numpy():
         assert np.array_equal(np.asarray(got), before)
 
 
+def test_vt_buffer_is_the_new_arrays_own_memory():
+    """Values written through `usdio.vt_buffer`'s view are the Vt array's: the value `FromNumpy`
+    gives for them, kept after the source changes; a view of another shape or dtype is refused."""
+    rng = np.random.default_rng(4)
+    values = rng.normal(size=(3001, 3)).astype(np.float32)
+    out, view = U.vt_buffer(Vt.Vec3fArray, values.shape, np.float32)
+    assert view.flags.writeable and view.shape == values.shape and view.dtype == np.float32
+    view[...] = values
+    assert type(out) is Vt.Vec3fArray and out == Vt.Vec3fArray.FromNumpy(values)
+    values[...] = 7
+    assert np.array_equal(np.asarray(out).view(np.uint32), np.asarray(view).view(np.uint32)) and np.asarray(out)[0, 0] != 7
+    assert U.vt_buffer(Vt.Vec3fArray, (4, 3), np.float64) == (None, None)
+    assert U.vt_buffer(Vt.Vec3fArray, (4, 2), np.float32) == (None, None)
+    assert U.vt_buffer(Vt.Vec3fArray, (0, 3), np.float32) == (None, None)
+
+
 @pytest.mark.parametrize("closed", [False, True])
 def test_response_hierarchy_is_to_arrays_and_one_value_per_levels(closed):
     """`output_layer._Hierarchy`'s values are `H.to_arrays`' arrays, and it hands surfaces that
@@ -564,6 +580,9 @@ def test_shared_invalid_values_are_rejected_at_their_first_frame(scene_file, tmp
     one.normals[5, 1] = np.nan  # the array every frame holds
     with pytest.raises(ValueError, match=f"frame 1, {SHEET}: normals hold NaN"):
         output_layer.write_output(scene_file, tmp_path / "out.usda", scene, shared)
+    with pytest.raises(ValueError, match=f"frame 1, {SHEET}: normals hold NaN"):  # rounded into a Vt array's buffer
+        output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, shared)
+    assert not (tmp_path / "out.usdc").exists()
     _, shared, _ = _shared_and_copied(stage, scene)
     r = shared.frames[3][SHEET]
     shared.frames[3][SHEET] = output_layer.DeformableResult(r.points, r.normals, r.surface, float("inf"))
