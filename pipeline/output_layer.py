@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-from acra import floattext
+from acra import float32, floattext
 from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, grid_samples
 from pipeline.model import DeformableModel, SceneModel
-from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy, vt_array
+from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy, vt_array, vt_buffer
 
 __all__ = ["DISPLAY_UV", "DeformableResult", "FramesResult", "write_output", "read_output_hierarchy", "read_display_uv", "read_display_topology", "input_points"]
 
@@ -110,20 +110,33 @@ def _spec(prim_spec: Sdf.PrimSpec, name: str, tname: Sdf.ValueTypeName, custom: 
     return spec if spec is not None else Sdf.AttributeSpec(prim_spec, name, tname, Sdf.VariabilityVarying, custom)
 
 
-def _checked_floats(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> np.ndarray:
-    """Display points or normals ``(n, 3)`` as ``(n, 3) float32``, after checking shape and values."""
+def _checked_shape(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> np.ndarray:
+    """Display points or normals ``(n, 3)`` as an array, after checking their shape."""
     n = topology.u.size
     a = np.asarray(a)
     if a.shape != (n, 3):
         raise ValueError(f"frame {frame}, {model.path}: {name} has shape {a.shape}, the display topology needs ({n}, 3)")
-    if not np.all(np.isfinite(a)):
+    return a
+
+
+def _checked_floats(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> np.ndarray:
+    """Display points or normals ``(n, 3)`` as ``(n, 3) float32``, after checking shape and values."""
+    values = float32.rounded(_checked_shape(model, topology, frame, name, a))
+    if values is None:
         raise ValueError(f"frame {frame}, {model.path}: {name} hold NaN or inf")
-    return np.ascontiguousarray(a, dtype=np.float32)
+    return values
 
 
 def _checked_vec3f(model: DeformableModel, topology, frame: int, name: str, a: np.ndarray) -> Vt.Vec3fArray:
-    """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values."""
-    return vt_array(Vt.Vec3fArray, _checked_floats(model, topology, frame, name, a))
+    """Display points or normals ``(n, 3)`` as float32 Vt values, after checking shape and values:
+    rounded straight into the Vt array's own buffer (`usdio.vt_buffer`), else through numpy."""
+    a = _checked_shape(model, topology, frame, name, a)
+    out, buffer = vt_buffer(Vt.Vec3fArray, a.shape, np.float32)
+    if out is None:
+        return vt_array(Vt.Vec3fArray, _checked_floats(model, topology, frame, name, a))
+    if not float32.round_into(a, buffer):
+        raise ValueError(f"frame {frame}, {model.path}: {name} hold NaN or inf")
+    return out
 
 
 class _Pending:
@@ -248,13 +261,14 @@ class _Direct:
 
 # an array value's stand-in in the layer: one element no result holds (points, normals and CVs
 # are finite, levels and indices not negative; `_SharedText.export` counts the stand-ins found),
-# ``k`` telling the stand-ins apart
+# ``k`` telling the stand-ins apart; and its text in USD's writer, ``k`` an integer below 2^24
+# written as its digits (`tests/test_usdio.py` holds each to USD's text)
 _STAND_INS = {
-    Vt.Vec3fArray: (T.Float3Array, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, k, math.nan)])),
-    Vt.Vec3dArray: (T.Double3Array, lambda k: Vt.Vec3dArray([Gf.Vec3d(math.nan, k, math.nan)])),
-    Vt.Vec2dArray: (T.Double2Array, lambda k: Vt.Vec2dArray([Gf.Vec2d(math.nan, k)])),
-    Vt.Vec2iArray: (T.Int2Array, lambda k: Vt.Vec2iArray([Gf.Vec2i(-1000000007, k)])),
-    Vt.IntArray: (T.IntArray, lambda k: Vt.IntArray([-1000000007, k])),
+    Vt.Vec3fArray: (T.Float3Array, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, k, math.nan)]), "[(nan, {}, nan)]"),
+    Vt.Vec3dArray: (T.Double3Array, lambda k: Vt.Vec3dArray([Gf.Vec3d(math.nan, k, math.nan)]), "[(nan, {}, nan)]"),
+    Vt.Vec2dArray: (T.Double2Array, lambda k: Vt.Vec2dArray([Gf.Vec2d(math.nan, k)]), "[(nan, {})]"),
+    Vt.Vec2iArray: (T.Int2Array, lambda k: Vt.Vec2iArray([Gf.Vec2i(-1000000007, k)]), "[(-1000000007, {})]"),
+    Vt.IntArray: (T.IntArray, lambda k: Vt.IntArray([-1000000007, k]), "[-1000000007, {}]"),
 }
 _SHARED_MIN = 64  # arrays shorter than this are written as they are
 # characters of text an element can take at most in USD's writer (float32 and int32 shortest
@@ -263,7 +277,7 @@ _SHARED_MIN = 64  # arrays shorter than this are written as they are
 # streams it to the file
 _CHARS = {Vt.Vec3fArray: 56, Vt.Vec3dArray: 80, Vt.Vec2dArray: 54, Vt.Vec2iArray: 28, Vt.IntArray: 13}
 TEXT_HELD_MAX = 256 * 2**20
-_SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ ([vs])(\d+) = (.*)$", re.M)
+_SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ (v)(\d+) = (.*)$", re.M)
 # arrays whose text `acra.floattext` writes (the bytes USD's writer gives, faster,
 # `tests/test_floattext.py`): every one stands in, a collision frame's and a default value too
 _COMPILED = {
@@ -339,18 +353,19 @@ class _SharedText:
     def _texts(self) -> tuple[list[bytes], list[str]]:
         """Each array's text (bytes, or a ``(bytes,) uint8`` array from `floattext.tuples_texts`)
         and its stand-in's text, as USD's text writer formats them: the arrays of `_COMPILED`
-        types by `acra.floattext`, the others' by USD's writer."""
-        scratch = Sdf.Layer.CreateAnonymous("acra_arrays.usda")
-        with Sdf.ChangeBlock():
-            prim = Sdf.CreatePrimInLayer(scratch, "/A")
-            for k, value in enumerate(self._arrays):
-                tname, make = _STAND_INS[_vt_type(value)]
-                if _vt_type(value) not in _COMPILED:
-                    Sdf.AttributeSpec(prim, f"v{k}", tname, Sdf.VariabilityVarying, True).default = _authored(value)
-                Sdf.AttributeSpec(prim, f"s{k}", tname, Sdf.VariabilityVarying, True).default = make(k)
-        texts: dict = {"v": [None] * len(self._arrays), "s": [None] * len(self._arrays)}
-        for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
-            texts[m.group(1)][int(m.group(2))] = m.group(3) if m.group(1) == "s" else m.group(3).encode()
+        types by `acra.floattext`, the others' by USD's writer (a scratch layer holding each as a
+        default value), the stand-ins' from their types' text (`_STAND_INS`)."""
+        texts: dict = {"v": [None] * len(self._arrays), "s": [_STAND_INS[_vt_type(value)][2].format(k) for k, value in enumerate(self._arrays)]}
+        others = [k for k, value in enumerate(self._arrays) if _vt_type(value) not in _COMPILED]
+        if others:
+            scratch = Sdf.Layer.CreateAnonymous("acra_arrays.usda")
+            with Sdf.ChangeBlock():
+                prim = Sdf.CreatePrimInLayer(scratch, "/A")
+                for k in others:
+                    value = self._arrays[k]
+                    Sdf.AttributeSpec(prim, f"v{k}", _STAND_INS[_vt_type(value)][0], Sdf.VariabilityVarying, True).default = _authored(value)
+            for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
+                texts["v"][int(m.group(2))] = m.group(3).encode()
         floats = [k for k, value in enumerate(self._arrays) if _vt_type(value) in _FLOATS]
         # each array's text starts from the one authored before it on the same attribute (the
         # previous frame's display): a response moves the points near the contact alone

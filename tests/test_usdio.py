@@ -398,21 +398,42 @@ class SimpleWriter:
 
 
 def test_vt_array_is_from_numpy():
-    """`usdio.vt_array` (one block copy into a new Vt array) gives `FromNumpy`'s value for every
-    array type the output layer writes, its own copy (a later change to the source does not show),
-    and USD's conversion where the dtype is not the Vt type's own (float64 into float3[])."""
+    """`usdio.vt_array` (one block copy into a new Vt array from `VT_COPY_MIN` values, USD's
+    conversion below) gives `FromNumpy`'s value for every array type the output layer writes, its
+    own copy (a later change to the source does not show), and USD's conversion where the dtype is
+    not the Vt type's own (float64 into float3[])."""
     rng = np.random.default_rng(3)
     cases = [(Vt.Vec3fArray, rng.normal(size=(257, 3)).astype(np.float32)), (Vt.Vec3dArray, rng.normal(size=(65, 3))),
              (Vt.Vec2dArray, rng.normal(size=(70, 2))), (Vt.Vec2iArray, rng.integers(-9, 9, (33, 2)).astype(np.int32)),
              (Vt.IntArray, rng.integers(-9, 9, 40).astype(np.int32)), (Vt.Vec3fArray, rng.normal(size=(9, 3))),
-             (Vt.Vec3fArray, np.zeros((0, 3), np.float32)), (Vt.Vec3dArray, np.asfortranarray(rng.normal(size=(12, 3))))]
+             (Vt.Vec3fArray, np.zeros((0, 3), np.float32)), (Vt.Vec3dArray, np.asfortranarray(rng.normal(size=(12, 3)))),
+             (Vt.Vec3fArray, rng.normal(size=(U.VT_COPY_MIN, 3)).astype(np.float32)), (Vt.Vec3dArray, rng.normal(size=(700, 3))),
+             (Vt.IntArray, rng.integers(-9, 9, U.VT_COPY_MIN).astype(np.int32)), (Vt.Vec2dArray, rng.normal(size=(U.VT_COPY_MIN // 2, 2))),
+             (Vt.Vec2iArray, rng.integers(-9, 9, (U.VT_COPY_MIN // 2 - 1, 2)).astype(np.int32))]
     cases[0][1][5] = [-0.0, np.float32(1e-40), np.float32(3.4e38)]
+    cases[8][1][5] = [-0.0, np.float32(1e-40), np.float32(3.4e38)]
     for vt, a in cases:
         got = U.vt_array(vt, a)
         assert type(got) is vt and got == vt.FromNumpy(np.ascontiguousarray(a))
         before = np.array(got)
         a[...] = 7
         assert np.array_equal(np.asarray(got), before)
+
+
+def test_vt_buffer_is_the_new_arrays_own_memory():
+    """Values written through `usdio.vt_buffer`'s view are the Vt array's: the value `FromNumpy`
+    gives for them, kept after the source changes; a view of another shape or dtype is refused."""
+    rng = np.random.default_rng(4)
+    values = rng.normal(size=(3001, 3)).astype(np.float32)
+    out, view = U.vt_buffer(Vt.Vec3fArray, values.shape, np.float32)
+    assert view.flags.writeable and view.shape == values.shape and view.dtype == np.float32
+    view[...] = values
+    assert type(out) is Vt.Vec3fArray and out == Vt.Vec3fArray.FromNumpy(values)
+    values[...] = 7
+    assert np.array_equal(np.asarray(out).view(np.uint32), np.asarray(view).view(np.uint32)) and np.asarray(out)[0, 0] != 7
+    assert U.vt_buffer(Vt.Vec3fArray, (4, 3), np.float64) == (None, None)
+    assert U.vt_buffer(Vt.Vec3fArray, (4, 2), np.float32) == (None, None)
+    assert U.vt_buffer(Vt.Vec3fArray, (0, 3), np.float32) == (None, None)
 
 
 @pytest.mark.parametrize("closed", [False, True])
@@ -532,10 +553,24 @@ def test_text_output_falls_back_to_usds_writer_when_a_stand_in_is_ambiguous(scen
     scene = U.read_scene(stage)
     _, shared, _ = _shared_and_copied(stage, scene)
     crate = output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, shared)
-    tname, _ = output_layer._STAND_INS[Vt.Vec3fArray]  # points and normals stand in alike
-    monkeypatch.setitem(output_layer._STAND_INS, Vt.Vec3fArray, (tname, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, 0, math.nan)])))
+    tname, _, _ = output_layer._STAND_INS[Vt.Vec3fArray]  # points and normals stand in alike
+    monkeypatch.setitem(output_layer._STAND_INS, Vt.Vec3fArray, (tname, lambda k: Vt.Vec3fArray([Gf.Vec3f(math.nan, 0, math.nan)]),
+                                                                 "[(nan, 0, nan)]"))
     text = output_layer.write_output(scene_file, tmp_path / "out.usda", scene, shared)
     assert text.read_bytes() == _usd_text(crate)
+
+
+def test_stand_ins_text_is_usds():
+    """Each stand-in's text (`output_layer._STAND_INS`) is what USD's writer gives its value."""
+    layer = Sdf.Layer.CreateAnonymous("s.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    want = {}
+    for i, (tname, make, text) in enumerate(output_layer._STAND_INS.values()):
+        for k in (0, 7, 10, 99, 123456, 2**24 - 1):
+            Sdf.AttributeSpec(prim, f"s{i}_{k}", tname, Sdf.VariabilityVarying, True).default = make(k)
+            want[f"s{i}_{k}"] = text.format(k)
+    got = {line.split()[2]: line.split(" = ", 1)[1] for line in layer.ExportToString().splitlines() if line.strip().startswith("custom ")}
+    assert got == want
 
 
 def test_shared_invalid_values_are_rejected_at_their_first_frame(scene_file, tmp_path):
@@ -545,6 +580,9 @@ def test_shared_invalid_values_are_rejected_at_their_first_frame(scene_file, tmp
     one.normals[5, 1] = np.nan  # the array every frame holds
     with pytest.raises(ValueError, match=f"frame 1, {SHEET}: normals hold NaN"):
         output_layer.write_output(scene_file, tmp_path / "out.usda", scene, shared)
+    with pytest.raises(ValueError, match=f"frame 1, {SHEET}: normals hold NaN"):  # rounded into a Vt array's buffer
+        output_layer.write_output(scene_file, tmp_path / "out.usdc", scene, shared)
+    assert not (tmp_path / "out.usdc").exists()
     _, shared, _ = _shared_and_copied(stage, scene)
     r = shared.frames[3][SHEET]
     shared.frames[3][SHEET] = output_layer.DeformableResult(r.points, r.normals, r.surface, float("inf"))
