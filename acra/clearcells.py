@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from acra.bvh import _read_only, bounds, faces_meet_rows
+from acra.pseudonormals import _row
 
 __all__ = ["CELLS", "MORE", "clear_of"]
 
@@ -79,7 +80,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
     flo, fhi = np.empty((rows.shape[0], 3), np.int64), np.empty((rows.shape[0], 3), np.int64)
     touch = np.zeros((nx + 1, ny + 1, nz + 1), np.int32)
     for r in range(rows.shape[0]):
-        f = faces[rows[r]]
+        f = _row(faces, rows[r])
         inside = True
         for k in range(3):
             a = min(min(points[f[0], k], points[f[1], k]), points[f[2], k])
@@ -88,7 +89,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
             fhi[r, k] = min(_cell(b + slack, origin[k], h), dims[k] - 1)
             inside = inside and flo[r, k] <= fhi[r, k]
         if inside:
-            _box_add(touch, flo[r], fhi[r], 1)
+            _box_add(touch, _row(flo, r), _row(fhi, r), 1)
     _sums(touch)
     # the solid lies in its box: an untouched cell beyond the box's cells on an axis is outside,
     # and so is every untouched cell joined to one through untouched cells sharing a side
@@ -189,7 +190,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
     _sums(want)
     m = 0
     for r in range(rows.shape[0]):
-        if flo[r, 0] <= fhi[r, 0] and flo[r, 1] <= fhi[r, 1] and flo[r, 2] <= fhi[r, 2] and _box_sum(want, flo[r], fhi[r]) > 0:
+        if flo[r, 0] <= fhi[r, 0] and flo[r, 1] <= fhi[r, 1] and flo[r, 2] <= fhi[r, 2] and _box_sum(want, _row(flo, r), _row(fhi, r)) > 0:
             chosen[m] = rows[r]
             m += 1
     return m
