@@ -35,7 +35,8 @@ def _cell(x, origin, h):
 
 @njit(cache=True, nogil=True)
 def _box_add(diff, lo, hi, w):
-    # ``w`` on the cells ``lo .. hi`` of a difference array (its prefix sums over the three axes)
+    # ``w`` on the cells ``lo .. hi`` (3 ints each, a tuple: `acra.pseudonormals._row`) of a
+    # difference array (its prefix sums over the three axes)
     a0, a1, a2, b0, b1, b2 = lo[0], lo[1], lo[2], hi[0] + 1, hi[1] + 1, hi[2] + 1
     diff[a0, a1, a2] += w
     diff[b0, a1, a2] -= w
@@ -66,7 +67,8 @@ def _sums(a):
 
 @njit(cache=True, nogil=True)
 def _box_sum(sat, lo, hi):
-    # the sum over cells ``lo .. hi`` of a table whose ``sat[i + 1, j + 1, q + 1]`` sums cells up to (i, j, q)
+    # the sum over cells ``lo .. hi`` (3 ints each, a tuple) of a table whose ``sat[i + 1, j + 1, q + 1]``
+    # sums cells up to (i, j, q)
     a0, a1, a2, b0, b1, b2 = lo[0], lo[1], lo[2], hi[0] + 1, hi[1] + 1, hi[2] + 1
     return (sat[b0, b1, b2] - sat[a0, b1, b2] - sat[b0, a1, b2] - sat[b0, b1, a2] + sat[a0, a1, b2] + sat[a0, b1, a2]
             + sat[b0, a1, a2] - sat[a0, a1, a2])
@@ -152,7 +154,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
             b = max(max(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
             lo[k], hi[k] = _cell(a - pad, origin[k], h), _cell(b + pad, origin[k], h)
             clear = clear and 0 <= lo[k] and hi[k] < dims[k]
-        clear = clear and _box_sum(known, lo, hi) == 0
+        clear = clear and _box_sum(known, (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2])) == 0
         keep[t] = not clear
         if clear:
             continue
@@ -178,7 +180,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
             lo[k], hi[k] = _cell(a - wide, origin[k], h), _cell(b + wide, origin[k], h)
             if lo[k] < 0 or hi[k] >= dims[k]:
                 return -1  # the kept triangle's reach leaves the grid, whose faces alone are known
-        _box_add(want, lo, hi, 1)
+        _box_add(want, (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]), 1)
     _sums(want)
     for i in range(nx, 0, -1):  # the wanted cells' indicator, summed: ``want[i + 1, j + 1, q + 1]``
         for j in range(ny, 0, -1):
@@ -190,7 +192,8 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
     _sums(want)
     m = 0
     for r in range(rows.shape[0]):
-        if flo[r, 0] <= fhi[r, 0] and flo[r, 1] <= fhi[r, 1] and flo[r, 2] <= fhi[r, 2] and _box_sum(want, _row(flo, r), _row(fhi, r)) > 0:
+        if (flo[r, 0] <= fhi[r, 0] and flo[r, 1] <= fhi[r, 1] and flo[r, 2] <= fhi[r, 2]
+                and _box_sum(want, _row(flo, r), _row(fhi, r)) > 0):
             chosen[m] = rows[r]
             m += 1
     return m
