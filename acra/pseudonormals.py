@@ -372,10 +372,11 @@ def vertex_normals(n, faces, normals, angle):
 
 @njit(inline="always")
 def _row(x, i):
-    """Row ``i`` of ``x (n, 3)`` as a tuple of its 3 values. A row view is an array object whose
-    reference count is taken and dropped around each use, a cost of the order of the arithmetic
-    of a point-triangle test; a tuple is plain values. The kernels' per-point and per-face loops
-    (closest-point walks, signs, eq. (6) and (7), `acra.clearcells`) read rows through it."""
+    """Row ``i`` of ``x (n, 3)`` as a tuple of its 3 values. A row view handed to another compiled
+    function is an array object whose reference count is taken and dropped around the call, a
+    cost of the order of the arithmetic of a point-triangle test; a tuple is plain values. The
+    kernels' per-point and per-face loops (closest-point walks, signs, eq. (6) and (7),
+    `acra.clearcells`) read rows through it."""
     return x[i, 0], x[i, 1], x[i, 2]
 
 
