@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from acra.pseudonormals import _signs, flood as _flood, links as _links, representatives as _representatives
+from acra.pseudonormals import _corner, _row, _signs, flood as _flood, links as _links, representatives as _representatives
 from acra.pseudonormals import vertex_normals as _vertex_normals
 
 __all__ = ["LEAF", "Tree", "build", "build_linear", "part_tree", "closest", "distances", "boxes_meet", "faces_meet_rows", "chunk_vertices", "face_chunks",
@@ -346,7 +346,8 @@ def part_tree(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, angl
 @njit(cache=True, nogil=True)
 def _point_triangle(p, a, b, c):
     """Closest point of triangle ``abc`` to ``p`` and its barycentric weights (Ericson 5.1.5):
-    ``(x, y, z, wa, wb, wc)``."""
+    ``(x, y, z, wa, wb, wc)``. Each of ``p, a, b, c`` is a ``(3,)`` array or a tuple of 3 floats
+    (`_row`, `_corner`): the same arithmetic either way."""
     ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
     ap0, ap1, ap2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
@@ -484,12 +485,12 @@ def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist,
     seed = -1  # leaf slot of the previous point's closest triangle
     for j in range(points.shape[0]):
         i = seq[j]
-        p = points[i]
+        p = _row(points, i)
         best = bound[i] * bound[i]
         best_face, best_slot = -1, -1
         bx, by, bz, ba, bb, bc = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         if seed >= 0:
-            x, y, z, wa, wb, wc = _point_triangle(p, tri[seed, 0], tri[seed, 1], tri[seed, 2])
+            x, y, z, wa, wb, wc = _point_triangle(p, _corner(tri, seed, 0), _corner(tri, seed, 1), _corner(tri, seed, 2))
             dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
             if dd <= best:
                 best, best_face, best_slot = dd, order[seed], seed
@@ -506,11 +507,10 @@ def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist,
                 for s in range(start[node], start[node] + count[node]):
                     # the triangle's own box first, as a node's: a triangle whose box is farther
                     # than the best (about half of a leaf's) needs no exact test
-                    t0, t1, t2 = tri[s, 0], tri[s, 1], tri[s, 2]
                     near_box = 0.0
                     for k in range(3):
-                        low = min(min(t0[k], t1[k]), t2[k])
-                        high = max(max(t0[k], t1[k]), t2[k])
+                        low = min(min(tri[s, 0, k], tri[s, 1, k]), tri[s, 2, k])
+                        high = max(max(tri[s, 0, k], tri[s, 1, k]), tri[s, 2, k])
                         if p[k] < low:
                             near_box += (low - p[k]) ** 2
                         elif p[k] > high:
@@ -518,7 +518,7 @@ def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist,
                     if near_box > best:
                         continue
                     f = order[s]
-                    x, y, z, wa, wb, wc = _point_triangle(p, t0, t1, t2)
+                    x, y, z, wa, wb, wc = _point_triangle(p, _corner(tri, s, 0), _corner(tri, s, 1), _corner(tri, s, 2))
                     dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
                     if dd < best or (dd == best and (best_face < 0 or f < best_face)):
                         best, best_face, best_slot = dd, f, s
@@ -569,7 +569,7 @@ def closest(tree: Tree, points: np.ndarray, bound: np.ndarray | None = None):
 @njit(cache=True, nogil=True)
 def _distances(points, tri, out):
     for i in range(points.shape[0]):
-        x, y, z, _, _, _ = _point_triangle(points[i], tri[i, 0], tri[i, 1], tri[i, 2])
+        x, y, z, _, _, _ = _point_triangle(_row(points, i), _corner(tri, i, 0), _corner(tri, i, 1), _corner(tri, i, 2))
         out[i] = np.sqrt((points[i, 0] - x) ** 2 + (points[i, 1] - y) ** 2 + (points[i, 2] - z) ** 2)
 
 
@@ -865,7 +865,7 @@ def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_star
                 if fi == m and oi >= 0.0:
                     d = oi
                 else:
-                    x, y, z, _, _, _ = _point_triangle(cell[i], tri[0], tri[1], tri[2])
+                    x, y, z, _, _, _ = _point_triangle(_row(cell, i), _row(tri, 0), _row(tri, 1), _row(tri, 2))
                     d = np.sqrt((cell[i, 0] - x) ** 2 + (cell[i, 1] - y) ** 2 + (cell[i, 2] - z) ** 2)
                 top = max(top, d)
                 if not top < best:
@@ -881,7 +881,7 @@ def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_star
                 for q in range(3):
                     tri[k, q] = vertices[solid_faces[m, k], q]
             for i in range(3):
-                x, y, z, _, _, _ = _point_triangle(cell[i], tri[0], tri[1], tri[2])
+                x, y, z, _, _, _ = _point_triangle(_row(cell, i), _row(tri, 0), _row(tri, 1), _row(tri, 2))
                 d = np.sqrt((cell[i, 0] - x) ** 2 + (cell[i, 1] - y) ** 2 + (cell[i, 2] - z) ** 2)
                 least[i] = min(least[i], d)
         best = min(best, max(max(least[0], least[1]), least[2]))
@@ -1148,7 +1148,7 @@ _NO_PLANES = np.full(1, -1, np.int64)  # `depth` without eq. (7): not a convex s
 @njit(cache=True, nogil=True)
 def _cell_bound(cell, f0, f1, f2, vertices, faces, normals, facet, facet_start, facet_faces, planes, scratch, least, sd, cap):
     """`pipeline.clearance._cell_bound` of one cell ``cell (3, 3)`` whose corners' closest faces are
-    ``f0, f1, f2`` and signed depths ``sd (3,)`` (their magnitudes the walks' distances, or
+    ``f0, f1, f2`` and signed depths ``sd`` (3 floats: their magnitudes the walks' distances, or
     ``-inf`` where not found), no larger than ``cap`` (the cell's eq. (4), which the caller keeps
     if smaller): ``min(cap, eq. (6))``, and on a convex solid (``planes`` not `_NO_PLANES`) the
     smaller of it and eq. (7), ``min_j max_i max(0, (a_j - c_i) . n_j)`` over the planes of the
@@ -1165,8 +1165,8 @@ def _cell_bound(cell, f0, f1, f2, vertices, faces, normals, facet, facet_start, 
     plane = np.inf
     for j in range(g):
         row = planes[j] if planes.shape[0] else (f0 if j == 0 else (f1 if j == 1 else f2))
-        a = vertices[faces[row, 0]]
-        n = normals[row]
+        a = _row(vertices, faces[row, 0])
+        n = _row(normals, row)
         d = (a[0] * n[0] + a[2] * n[2]) + a[1] * n[1]
         top = 0.0
         for i in range(3):
@@ -1270,7 +1270,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
             if b > 0.0 and split:
                 _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                 six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                  planes, scratch, least, sd[i], b)
+                                  planes, scratch, least, _row(sd, i), b)
                 if six < b:
                     b = six
                     bound[i] = b
@@ -1300,7 +1300,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                     break
                 _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                 six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                  planes, scratch, least, sd[i], bound[i])
+                                  planes, scratch, least, _row(sd, i), bound[i])
                 b = six if six < bound[i] else bound[i]
                 if b > retired:
                     retired = b
@@ -1407,7 +1407,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                 if v > 0.0:
                     _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                     six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                      planes, scratch, least, sd[i], v)
+                                      planes, scratch, least, _row(sd, i), v)
                     v = six if six < v else v
                     if v > last:
                         last = v

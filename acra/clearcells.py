@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from acra.bvh import _read_only, bounds, faces_meet_rows
+from acra.pseudonormals import _row
 
 __all__ = ["CELLS", "MORE", "clear_of"]
 
@@ -34,7 +35,8 @@ def _cell(x, origin, h):
 
 @njit(cache=True, nogil=True)
 def _box_add(diff, lo, hi, w):
-    # ``w`` on the cells ``lo .. hi`` of a difference array (its prefix sums over the three axes)
+    # ``w`` on the cells ``lo .. hi`` (3 ints each, a tuple: `acra.pseudonormals._row`) of a
+    # difference array (its prefix sums over the three axes)
     a0, a1, a2, b0, b1, b2 = lo[0], lo[1], lo[2], hi[0] + 1, hi[1] + 1, hi[2] + 1
     diff[a0, a1, a2] += w
     diff[b0, a1, a2] -= w
@@ -65,7 +67,8 @@ def _sums(a):
 
 @njit(cache=True, nogil=True)
 def _box_sum(sat, lo, hi):
-    # the sum over cells ``lo .. hi`` of a table whose ``sat[i + 1, j + 1, q + 1]`` sums cells up to (i, j, q)
+    # the sum over cells ``lo .. hi`` (3 ints each, a tuple) of a table whose ``sat[i + 1, j + 1, q + 1]``
+    # sums cells up to (i, j, q)
     a0, a1, a2, b0, b1, b2 = lo[0], lo[1], lo[2], hi[0] + 1, hi[1] + 1, hi[2] + 1
     return (sat[b0, b1, b2] - sat[a0, b1, b2] - sat[b0, a1, b2] - sat[b0, b1, a2] + sat[a0, a1, b2] + sat[a0, b1, a2]
             + sat[b0, a1, a2] - sat[a0, a1, a2])
@@ -79,7 +82,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
     flo, fhi = np.empty((rows.shape[0], 3), np.int64), np.empty((rows.shape[0], 3), np.int64)
     touch = np.zeros((nx + 1, ny + 1, nz + 1), np.int32)
     for r in range(rows.shape[0]):
-        f = faces[rows[r]]
+        f = _row(faces, rows[r])
         inside = True
         for k in range(3):
             a = min(min(points[f[0], k], points[f[1], k]), points[f[2], k])
@@ -88,7 +91,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
             fhi[r, k] = min(_cell(b + slack, origin[k], h), dims[k] - 1)
             inside = inside and flo[r, k] <= fhi[r, k]
         if inside:
-            _box_add(touch, flo[r], fhi[r], 1)
+            _box_add(touch, _row(flo, r), _row(fhi, r), 1)
     _sums(touch)
     # the solid lies in its box: an untouched cell beyond the box's cells on an axis is outside,
     # and so is every untouched cell joined to one through untouched cells sharing a side
@@ -151,7 +154,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
             b = max(max(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
             lo[k], hi[k] = _cell(a - pad, origin[k], h), _cell(b + pad, origin[k], h)
             clear = clear and 0 <= lo[k] and hi[k] < dims[k]
-        clear = clear and _box_sum(known, lo, hi) == 0
+        clear = clear and _box_sum(known, (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2])) == 0
         keep[t] = not clear
         if clear:
             continue
@@ -177,7 +180,7 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
             lo[k], hi[k] = _cell(a - wide, origin[k], h), _cell(b + wide, origin[k], h)
             if lo[k] < 0 or hi[k] >= dims[k]:
                 return -1  # the kept triangle's reach leaves the grid, whose faces alone are known
-        _box_add(want, lo, hi, 1)
+        _box_add(want, (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]), 1)
     _sums(want)
     for i in range(nx, 0, -1):  # the wanted cells' indicator, summed: ``want[i + 1, j + 1, q + 1]``
         for j in range(ny, 0, -1):
@@ -189,7 +192,8 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
     _sums(want)
     m = 0
     for r in range(rows.shape[0]):
-        if flo[r, 0] <= fhi[r, 0] and flo[r, 1] <= fhi[r, 1] and flo[r, 2] <= fhi[r, 2] and _box_sum(want, flo[r], fhi[r]) > 0:
+        if (flo[r, 0] <= fhi[r, 0] and flo[r, 1] <= fhi[r, 1] and flo[r, 2] <= fhi[r, 2]
+                and _box_sum(want, _row(flo, r), _row(fhi, r)) > 0):
             chosen[m] = rows[r]
             m += 1
     return m

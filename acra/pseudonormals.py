@@ -370,16 +370,32 @@ def vertex_normals(n, faces, normals, angle):
     return _unit_rows(out)
 
 
+@njit(inline="always")
+def _row(x, i):
+    """Row ``i`` of ``x (n, 3)`` as a tuple of its 3 values. A row view handed to another compiled
+    function is an array object whose reference count is taken and dropped around the call, a
+    cost of the order of the arithmetic of a point-triangle test; a tuple is plain values. The
+    kernels' per-point and per-face loops (closest-point walks, signs, eq. (6) and (7),
+    `acra.clearcells`) read rows through it."""
+    return x[i, 0], x[i, 1], x[i, 2]
+
+
+@njit(inline="always")
+def _corner(tri, s, k):
+    """Corner ``k`` of triangle ``tri[s]`` (``tri (f, 3, 3)``) as a tuple of its 3 values (`_row`)."""
+    return tri[s, k, 0], tri[s, k, 1], tri[s, k, 2]
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _signs(p, dist, close, face, bary, vertices, faces, normals, edge_normals, vertex_normals, tol, out):
     for r in range(p.shape[0]):
         f = face[r]
-        a, b, c = vertices[faces[f, 0]], vertices[faces[f, 1]], vertices[faces[f, 2]]
+        a, b, c = _row(vertices, faces[f, 0]), _row(vertices, faces[f, 1]), _row(vertices, faces[f, 2])
         x0, x1, x2 = _cross(b[0] - a[0], b[1] - a[1], b[2] - a[2], c[0] - a[0], c[1] - a[1], c[2] - a[2])
         twice_area = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
         zeros, first = 0, -1
         for k in range(3):
-            q, s = vertices[faces[f, (k + 2) % 3]], vertices[faces[f, (k + 1) % 3]]
+            q, s = _row(vertices, faces[f, (k + 2) % 3]), _row(vertices, faces[f, (k + 1) % 3])
             d0, d1, d2 = q[0] - s[0], q[1] - s[1], q[2] - s[2]
             opposite = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
             if bary[r, k] * (twice_area / opposite) <= tol:
@@ -387,15 +403,15 @@ def _signs(p, dist, close, face, bary, vertices, faces, normals, edge_normals, v
                 if first < 0:
                     first = k
         if zeros == 1:
-            n = edge_normals[f, (first + 1) % 3]
+            n = _corner(edge_normals, f, (first + 1) % 3)
         elif zeros >= 2:
             k = 0
             for j in range(1, 3):
                 if bary[r, j] > bary[r, k]:
                     k = j
-            n = vertex_normals[faces[f, k]]
+            n = _row(vertex_normals, faces[f, k])
         else:
-            n = normals[f]
+            n = _row(normals, f)
         e0, e1, e2 = p[r, 0] - close[r, 0], p[r, 1] - close[r, 1], p[r, 2] - close[r, 2]
         inside = (e0 * n[0] + e2 * n[2]) + e1 * n[1] < 0
         out[r] = dist[r] if inside else -dist[r]

@@ -347,6 +347,23 @@ def test_a_part_tree_is_the_linear_tree_with_the_vertex_normals_and_box():
         assert getattr(tree, name).flags.c_contiguous or getattr(tree, name).ndim == 1
 
 
+def test_a_point_triangle_test_on_tuples_is_the_test_on_rows_to_the_bit():
+    """The walks read points and corners as tuples (`pseudonormals._row`, `_corner`): the closest
+    point and weights are the bits the same test gives on row arrays, in each Voronoi region of a
+    triangle and on a degenerate one."""
+    from acra import pseudonormals
+
+    rng = np.random.default_rng(9)
+    tri = rng.normal(size=(300, 3, 3))
+    tri[:20, 2] = tri[:20, 1]  # two corners alike
+    tri[20:30] = tri[20:30, :1]  # a point
+    points = rng.normal(size=(300, 3)) * 2.0
+    for i in range(len(tri)):
+        rows = bvh._point_triangle(points[i], tri[i, 0], tri[i, 1], tri[i, 2])
+        tuples = bvh._point_triangle(pseudonormals._row(points, i), *(pseudonormals._corner(tri, i, k) for k in range(3)))
+        assert np.array_equal(np.float64(rows).view(np.uint64), np.float64(tuples).view(np.uint64))
+
+
 def test_the_linear_tree_refuses_an_empty_set():
     with pytest.raises(ValueError, match="at least one triangle"):
         bvh.build_linear(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
