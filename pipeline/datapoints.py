@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from acra import hspline as H
+from acra import kdtree
 from acra import memo
 from acra import respond as R
 from acra.kdtree import thin_greedy
@@ -330,22 +331,7 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
     pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
     pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
     h = 1.0 / dens[pu, pv]
-    tree = cKDTree(D.wrap_uv(hs, region_uv))
-    bound = 2e-3 * float(h.max())
-    src, out = [], []
-    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        n = region_uv + np.stack([du * h, dv * h], axis=1)
-        ok = np.ones(len(n), bool)
-        for c, d in enumerate((hs.u, hs.v)):
-            if not d.periodic:  # no neighbour past an open edge of the domain
-                ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
-        # only whether a sample lies within 1e-3 h matters: the search stops past twice the
-        # largest such h (farther answers come back infinite, and miss as the true distance would)
-        dist, _ = tree.query(D.wrap_uv(hs, n), distance_upper_bound=bound)
-        miss = ok & (dist > 1e-3 * h)
-        src.append(np.nonzero(miss)[0])
-        out.append(n[miss])
-    src, hi = np.concatenate(src), np.concatenate(out)
+    src, hi = _missing_neighbours(hs, region_uv, h)
     if not len(src):
         return empty
 
@@ -362,9 +348,7 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
         mid = 0.5 * (lo + hi)
         m_in = D.inside(gb, world(mid))[:, None]
         lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
-    face = gb.static.index.query(apply_inverse(gb.xform, world(hi)))[2]
-    nd = np.abs(D.world_normals(gb, gb.static.mesh.face_normals[face]) @ unit)
-    use = (nd <= RIM_STEEP) | (nd >= RIM_FACING)
+    use = _on_counted_faces(gb, unit, len(hi), lambda: world(hi))
     s_hit, hit = D.cast(gb, world(region_uv[src[use]]), np.broadcast_to(unit, (int(use.sum()), 3)))
     cross = D.wrap_uv(hs, (hi + step)[use][hit])
     if not len(cross):
@@ -377,6 +361,52 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
     ahead = (plane - points) @ unit
     keep = ahead > 0
     return mids[keep], points[keep], points[keep] + ahead[keep, None] * unit
+
+
+def _on_counted_faces(gb: D.ColliderGeometry, unit: np.ndarray, n: int, points) -> np.ndarray:
+    """Which of ``n`` crossings lie on a face of ``gb`` that counts for `_rim_points`, steep to the
+    push ``unit (3,)`` (``|n·d| <= RIM_STEEP``) or facing it (``>= RIM_FACING``): ``(n,) bool``,
+    by the face of each one's closest point; ``points()`` gives their world points ``(n, 3)``.
+    A collider of at most `detect.PLANES_MAX` faces that all count, each clear of both bounds by
+    1e-9 (a box pushed along one of its axes), counts every crossing without finding its face."""
+    normals = gb.static.mesh.face_normals
+    if len(normals) <= D.PLANES_MAX:
+        every = np.abs(D.world_normals(gb, normals) @ unit)
+        if np.all((every <= RIM_STEEP - 1e-9) | (every >= RIM_FACING + 1e-9)):
+            return np.ones(n, bool)
+    face = gb.static.index.query(apply_inverse(gb.xform, points()))[2]
+    nd = np.abs(D.world_normals(gb, normals[face]) @ unit)
+    return (nd <= RIM_STEEP) | (nd >= RIM_FACING)
+
+
+def _missing_neighbours(hs: H.HSpline, uv: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The neighbours one step ``h (k,)`` away along ``+u, -u, +v, -v`` (in that order) of
+    samples ``uv (k, 2)`` that are not samples themselves: the rows ``(r,) int64`` of the samples
+    they neighbour and their parameters ``(r, 2)``, unwrapped. A neighbour past an open edge of
+    the domain is none; one is a sample where a sample lies within ``1e-3 h`` of it, both wrapped
+    into the domain.
+
+    The distance to the nearest sample is `acra.kdtree`'s, scipy's arithmetic (in the plane ``z
+    = 0`` the sum ``(du² + dv²) + 0`` is a 2-d tree's), so the answer is that of
+    ``scipy.spatial.cKDTree.query``; the search passes over what lies beyond twice the largest
+    such distance, where the answer (that bound) misses as the true distance would."""
+    n = np.concatenate([uv + np.stack([du * h, dv * h], axis=1) for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1))])
+    ok = np.ones(len(n), bool)
+    for c, d in enumerate((hs.u, hs.v)):
+        if not d.periodic:
+            ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
+    bound = 2e-3 * float(h.max())
+    tree = kdtree.build(_in_plane(D.wrap_uv(hs, uv)))
+    dist = np.sqrt(kdtree.nearest_squares(tree, _in_plane(D.wrap_uv(hs, n)), best=np.full(len(n), bound * bound)))
+    miss = ok & (dist > 1e-3 * np.tile(h, 4))
+    return np.tile(np.arange(len(uv)), 4)[miss], n[miss]
+
+
+def _in_plane(uv: np.ndarray) -> np.ndarray:
+    """Parameters ``uv (k, 2)`` as points ``(k, 3)`` of the plane ``z = 0``."""
+    out = np.zeros((len(uv), 3))
+    out[:, :2] = uv
+    return out
 
 
 def visible_points(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside, direction: np.ndarray | None,

@@ -367,3 +367,77 @@ def test_thinning_keeps_the_points_the_array_form_keeps(surface):
             np.testing.assert_array_equal(got.uv, uv[keep])
             assert P._uv_distance(hs, uv, uv).tobytes() == dist.tobytes()
 
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_missing_neighbours_are_those_scipys_kd_tree_finds(periodic):
+    """`_missing_neighbours`: a sample's neighbour one step away is missing where scipy's kd-tree
+    (``cKDTree.query`` with its distance bound, on the wrapped parameters) finds no sample within
+    1e-3 of the step, the same rows and parameters in the same order: samples on patch grids of
+    two densities with holes, across a periodic seam, plus samples a hair (5e-4 and 2e-3 of the
+    step) off a grid point."""
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline.spatial import cKDTree
+
+    hs = H.from_grid(*(shapes.sphere(8, 8) if periodic else shapes.sheet(8, 8)[:1]), depth=2)
+    rng = np.random.default_rng(3)
+    pu, pv = hs.u.patches0, hs.v.patches0
+    grid = np.stack(np.meshgrid(np.arange(0, pu, 1 / 8), np.arange(0, pv, 1 / 8), indexing="ij"), -1).reshape(-1, 2)
+    uv = grid[rng.random(len(grid)) < 0.7]
+    uv = np.concatenate([uv, [[pu - 0.125, 1.0], [0.0, 1.0], [0.0, 2.0]], uv[:20] + [[5e-4 / 8, 0.0]],
+                         uv[20:40] + [[0.0, 2e-3 / 8]]])
+    h = np.where(uv[:, 0] < 2.0, 1 / 8, 1 / 16)
+    src, hi = P._missing_neighbours(hs, uv, h)
+    tree, want_src, want_hi = cKDTree(D.wrap_uv(hs, uv)), [], []
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        n = uv + np.stack([du * h, dv * h], axis=1)
+        ok = np.ones(len(n), bool)
+        for c, d in enumerate((hs.u, hs.v)):
+            if not d.periodic:
+                ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
+        dist, _ = tree.query(D.wrap_uv(hs, n), distance_upper_bound=2e-3 * h.max())
+        miss = ok & (dist > 1e-3 * h)
+        want_src.append(np.nonzero(miss)[0])
+        want_hi.append(n[miss])
+    np.testing.assert_array_equal(src, np.concatenate(want_src))
+    np.testing.assert_array_equal(hi, np.concatenate(want_hi))
+    assert 0 < len(src) < 4 * len(uv)
+
+
+def test_a_box_pushed_along_an_axis_counts_every_rim_crossing_as_its_faces_would():
+    """`_on_counted_faces`: a box's faces are all steep to a push along one of its axes or facing
+    it, so every crossing counts without its face being found, as finding each face says (points
+    on every side and face of the box); pushed at a slant, the faces are found and the slanted ones
+    do not count."""
+    import trimesh
+
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    mesh = trimesh.creation.box(bounds=np.array([[-0.7, -0.9, -0.5], [0.9, 0.7, 0.5]]))
+    shift = np.eye(4)
+    shift[:3, 3] = [0.1, -0.05, 0.3]
+    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), shift)
+    rng = np.random.default_rng(5)
+    tri = mesh.triangles[rng.integers(0, len(mesh.faces), 300)]
+    points = np.einsum("ij,ijk->ik", rng.dirichlet([1.0, 1.0, 1.0], 300), tri) + shift[:3, 3]
+    asked = []
+
+    def at():
+        asked.append(1)
+        return points
+
+    def by_faces(unit):
+        face = box.static.index.query(points - shift[:3, 3])[2]
+        nd = np.abs(D.world_normals(box, box.static.mesh.face_normals[face]) @ unit)
+        return (nd <= P.RIM_STEEP) | (nd >= P.RIM_FACING)
+
+    for unit in (np.array([0.0, 0.0, -1.0]), np.array([1.0, 0.0, 0.0])):
+        got = P._on_counted_faces(box, unit, len(points), at)
+        np.testing.assert_array_equal(got, by_faces(unit))
+        assert got.all() and not asked
+    slant = np.array([0.0, 0.6, -0.8])  # |n·d| 0.6 on the ±y faces: neither steep nor facing
+    got = P._on_counted_faces(box, slant, len(points), at)
+    np.testing.assert_array_equal(got, by_faces(slant))
+    assert asked and 0 < got.sum() < len(points)
