@@ -17,7 +17,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from acra.bvh import _read_only, bounds, faces_meet_rows
+from acra.bvh import bounds
+
+from acra.meshrows import _read_only, faces_meet_rows
 from acra.pseudonormals import _row
 
 __all__ = ["CELLS", "MORE", "clear_of"]

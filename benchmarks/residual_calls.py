@@ -8,7 +8,7 @@ replays them ``--passes`` times, each pass with empty part caches (every part so
 as the first query of a display builds it) and one fresh copy of each recorded `Shown`, shared by
 its calls as the run shares it (what it keeps: fingerprint, boxes, face chunks), and prints the CPU milliseconds of the fastest pass,
 its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box; where
-the branch and bound is one compiled call, `acra.bvh.depth`, its searches and eq. (6) are inside it) and a digest of every answer (depths,
+the branch and bound is one compiled call, `acra.depthbound.depth`, its searches and eq. (6) are inside it) and a digest of every answer (depths,
 completeness, the points, parameters and depths found inside): two checkouts answer alike when
 their digests agree. Run it with ``PYTHONPATH`` at each checkout, alternating, for a comparison.
 """
@@ -25,7 +25,6 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from acra import bvh
 from pipeline import clearance, residual, usdio
 from pipeline import frames as F
 
@@ -56,6 +55,19 @@ def _fresh(s, parts: dict, made: dict):
     return out
 
 
+def _kernel_modules() -> list:
+    """`acra.meshrows`, `acra.depthbound` (where this checkout has them) and `acra.bvh`."""
+    import importlib
+
+    out = []
+    for name in ("meshrows", "depthbound", "bvh"):
+        try:
+            out.append(importlib.import_module(f"acra.{name}"))
+        except ImportError:
+            continue
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
@@ -76,20 +88,21 @@ def main() -> None:
     residual.pair_depth = keep
     F.run_frames(stage, scene, list(range(a, b + 1)))
     residual.pair_depth = real
-    bvh.closest = _timed("closest-point searches (acra.bvh.closest)", bvh.closest)
+    # each kernel in the module that holds it in this checkout (`acra.meshrows` and
+    # `acra.depthbound`, or `acra.bvh` in a checkout that keeps them there), where it has it
+    for name, label in (("closest", "closest-point searches (closest)"),
+                        ("facet_bound", "eq. (6) (facet_bound)"),
+                        ("faces_meet", "triangles near a box (faces_meet)"),  # its mask form
+                        ("face_chunks", "triangles near a box (faces_meet_rows)"),  # boxes of a display's faces in chunks
+                        ("faces_meet_rows", "triangles near a box (faces_meet_rows)"),  # its form giving the rows
+                        ("depth", "the branch and bound, compiled (depth)"),  # in one compiled call
+                        ("covering_radii", "covering radii (eq. (3))")):  # its compiled form
+        for module in _kernel_modules():
+            if hasattr(module, name):
+                setattr(module, name, _timed(label, getattr(module, name)))
+                break
     clearance.solid = _timed("part solids (clearance.solid)", clearance.solid)
-    bvh.facet_bound = _timed("eq. (6) (acra.bvh.facet_bound)", bvh.facet_bound)
-    if hasattr(bvh, "faces_meet"):  # its mask form, where a checkout has it
-        bvh.faces_meet = _timed("triangles near a box (acra.bvh.faces_meet)", bvh.faces_meet)
-    if hasattr(bvh, "face_chunks"):  # boxes of a display's faces in chunks, where a checkout has them
-        bvh.face_chunks = _timed("triangles near a box (acra.bvh.faces_meet_rows)", bvh.face_chunks)
-    if hasattr(bvh, "faces_meet_rows"):  # its form giving the rows, where a checkout has it
-        bvh.faces_meet_rows = _timed("triangles near a box (acra.bvh.faces_meet_rows)", bvh.faces_meet_rows)
-    if hasattr(bvh, "depth"):  # the branch and bound in one compiled call, where a checkout has it
-        bvh.depth = _timed("the branch and bound, compiled (acra.bvh.depth)", bvh.depth)
     clearance.covering_radius = _timed("covering radii (eq. (3))", clearance.covering_radius)
-    if hasattr(bvh, "covering_radii"):  # its compiled form, where a checkout has it
-        bvh.covering_radii = _timed("covering radii (eq. (3))", bvh.covering_radii)
     best, split, digest = np.inf, {}, None
     for _ in range(args.passes):
         with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs

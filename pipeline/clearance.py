@@ -89,7 +89,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acra import bvh, pseudonormals
+from acra import bvh, depthbound, meshrows, pseudonormals
 from pipeline.spatial import ConvexHull, QhullError, cKDTree
 
 __all__ = ["Solid", "solid", "signed_depth", "covering_radius", "Depth", "triangle_depth", "Unresolved",
@@ -392,14 +392,14 @@ def _distinct(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     first occurrence and the inverse ``(k,) int64``."""
     # in the order of np.unique over the rows as 24 raw bytes (memcmp), compiled
     p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
-    first, inverse = bvh.distinct_rows(p)
+    first, inverse = meshrows.distinct_rows(p)
     return p[first], first, inverse
 
 
 def _at_cells(tri: np.ndarray, owner: np.ndarray, lattice: np.ndarray, steps: int) -> np.ndarray:
     """Corners ``(c, 3, 3)`` of cells given by their source triangles ``tri[owner]`` and integer
     barycentric ``lattice (c, 3, 3)`` (per corner, its weights times ``steps``)."""
-    return bvh.lattice_points(tri, owner, lattice, steps).reshape(-1, 3, 3)  # `_at`, compiled
+    return depthbound.lattice_points(tri, owner, lattice, steps).reshape(-1, 3, 3)  # `_at`, compiled
 
 
 ALL_PLANES = 64  # a convex solid with at most this many facets is bounded by every facet's plane
@@ -426,7 +426,7 @@ def _face_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
     ``min_j max_i dist(c_i, P_j)``, ``(c,) float64``, with ``P_j`` the convex facet of ``F_j``
     (`_facets`; the distance to a convex set is convex too, and the facet is part of the
     surface): ``dist(c_i, P_j)`` is the least distance to the facet's faces."""
-    return bvh.facet_bound(cells, faces, s.vertices, s.faces, s.facet, s.facet_start, s.facet_faces)
+    return depthbound.facet_bound(cells, faces, s.vertices, s.faces, s.facet, s.facet_start, s.facet_faces)
 
 
 def _cell_bound(s: Solid, cells: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -472,7 +472,7 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
     ``decide``: a depth the caller compares the bound with (a tolerance): while no evaluated point
     is deeper than it, a cell bounded above it is split too, so a bound within 1.25 of the depth
     found does not put a clear surface over the tolerance.
-    ``compiled``: the whole branch and bound runs in one compiled call (`acra.bvh.depth`, the
+    ``compiled``: the whole branch and bound runs in one compiled call (`acra.depthbound.depth`, the
     same bits) unless false (this module's array form: `_signed_corners`, `_levels`).
     """
     try:
@@ -491,7 +491,7 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         planes = None  # eq. (7): every facet's plane, or each corner's closest face's (`_plane_bound`)
         if s.convex:
             planes = s.facet_faces[s.facet_start[:-1]] if len(s.facet_start) - 1 <= ALL_PLANES else np.zeros(0, np.int64)
-        out = bvh.depth(tri, s.bounds, np.isfinite(reach), reach, target, decide, max_split, budget, FAR, LINK, s.tree,
+        out = depthbound.depth(tri, s.bounds, np.isfinite(reach), reach, target, decide, max_split, budget, FAR, LINK, s.tree,
                         s.vertices, s.faces, s.normals, s.edge_normals, s.vertex_normals, FEATURE * _extent(s), s.facet,
                         s.facet_start, s.facet_faces, planes)
         if out is None:
@@ -502,13 +502,13 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
         # a part is a patch of the surface: a triangle missing its box may still lie inside the
         # solid (under a curved cap), so none is skipped; one whose box is beyond ``reach`` of the
         # part's box has every point farther than the part answers for
-        if not bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], reach).all():
+        if not meshrows.boxes_meet(tri, s.bounds[0], s.bounds[1], reach).all():
             raise Unresolved
         src, live = np.arange(len(tri)), tri  # every triangle, without a copy
     else:  # a whole solid lies in its box: a triangle missing it has no point inside
-        src = np.nonzero(bvh.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
+        src = np.nonzero(meshrows.boxes_meet(tri, s.bounds[0], s.bounds[1], 0.0))[0]
         live = tri[src]
-    rho0 = bvh.covering_radii(live)  # (c,) per live source triangle (covering_radius compiled), halved per split level
+    rho0 = depthbound.covering_radii(live)  # (c,) per live source triangle (covering_radius compiled), halved per split level
     found: list[tuple] = []  # (tri, bary, points, sd) of evaluated points with sd > 0
 
     def keep(rows, lattice, pts, sd):
@@ -552,7 +552,7 @@ def _eq4(sd: np.ndarray, rho: np.ndarray) -> np.ndarray:
 def _levels(s: Solid, tri, src, steps, target, max_split, budget, reach, decide, keep, rows, lattice, sd, fc, rho, bound,
             low, evaluated):
     """The branch and bound from level 0's cells (``bound`` their eq. (4)) in numpy: ``(bound, low,
-    complete, evaluated, level)``, the points found inside handed to ``keep``. `acra.bvh.depth`
+    complete, evaluated, level)``, the points found inside handed to ``keep``. `acra.depthbound.depth`
     compiles it in the same arithmetic and order; this form is the reference the compiled one
     is held to."""
     retired, level, complete = 0.0, 0, True
@@ -586,14 +586,14 @@ def _levels(s: Solid, tri, src, steps, target, max_split, budget, reach, decide,
             rows, lattice, sd, fc, rho = rows[top], lattice[top], sd[top], fc[top], rho[top]
         # midpoints of edges (0,1), (1,2), (2,0); lattice steps at this level are even
         mid = (lattice + lattice[:, [1, 2, 0]]) // 2  # (c, 3, 3)
-        pts, first, inverse = _distinct(bvh.lattice_points(tri, src[rows], mid, steps))  # `_at`, compiled
+        pts, first, inverse = _distinct(depthbound.lattice_points(tri, src[rows], mid, steps))  # `_at`, compiled
         wts = mid.reshape(-1, 3)[first]
         sd_mid, _, face_mid = _signed(s, pts, reach)
         evaluated += len(pts)
         keep(src[rows[first // 3]], wts, pts, sd_mid)
         low = max(low, float(sd_mid.max(initial=-np.inf)))
         # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20), child by child
-        lattice, sd, fc, rows, rho = bvh.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
+        lattice, sd, fc, rows, rho = depthbound.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
         level += 1
         if not complete:  # the budget's last pass: bound the children and stop
             last = np.minimum(_eq4(sd, rho), _cell_bound(s, _at_cells(tri, src[rows], lattice, steps), fc))

@@ -31,7 +31,7 @@ from functools import cached_property
 
 import numpy as np
 
-from acra import bvh, clearcells, memo
+from acra import bvh, clearcells, depthbound, memo, meshrows
 from pipeline import clearance
 from pipeline.model import SceneModel, apply_xform, translated
 
@@ -109,18 +109,18 @@ class Shown:
         """World triangles ``(m, 3, 3)`` whose boxes come within ``pad`` of the world ``box (2, 3)``
         and their rows in ``triangles``."""
         rows = self.near_rows(box, pad)
-        return bvh.faces_at(self.world, self.triangles, rows), rows
+        return meshrows.faces_at(self.world, self.triangles, rows), rows
 
     def near_rows(self, box: np.ndarray, pad: float = 0.0) -> np.ndarray:
         """The rows of `near`'s triangles, without them."""
-        return bvh.faces_meet_rows(self.world, self.triangles, box[0], box[1], pad, self.chunks)
+        return meshrows.faces_meet_rows(self.world, self.triangles, box[0], box[1], pad, self.chunks)
 
     @cached_property
     def chunks(self) -> tuple:
-        """`acra.bvh.face_chunks` of the world triangles: `near_rows` compares the faces of the
+        """`acra.meshrows.face_chunks` of the world triangles: `near_rows` compares the faces of the
         chunks near its box alone (the same rows). Each display is asked near both objects of a
         pair, as the inner object and as the other, and a still display every frame."""
-        return bvh.face_chunks(self.world, _chunk_vertices(self.triangles, len(self.world)))
+        return meshrows.face_chunks(self.world, _chunk_vertices(self.triangles, len(self.world)))
 
     @cached_property
     def fingerprint(self) -> bytes:
@@ -176,18 +176,18 @@ def _digest(x: np.ndarray) -> bytes:
     return hit[1]
 
 
-_CHUNK_VERTICES = memo.Table("residual.chunk_vertices", 16)  # id(triangles) -> (triangles made read-only, their points' count, `bvh.chunk_vertices`), most recent last
+_CHUNK_VERTICES = memo.Table("residual.chunk_vertices", 16)  # id(triangles) -> (triangles made read-only, their points' count, `meshrows.chunk_vertices`), most recent last
 
 
 def _chunk_vertices(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """`acra.bvh.chunk_vertices` of ``triangles`` into ``n`` points, kept per array: a display's
+    """`acra.meshrows.chunk_vertices` of ``triangles`` into ``n`` points, kept per array: a display's
     topology holds one triangles array for every display on it, made read-only here (as `_digest`
     does), so the lists taken of it still hold."""
     lists = _CHUNK_VERTICES.entries()
     hit = lists.pop(id(triangles), None)
     if hit is None or hit[0] is not triangles or hit[1] != n or triangles.flags.writeable:
         triangles.flags.writeable = False
-        hit = (triangles, n, bvh.chunk_vertices(triangles, n))
+        hit = (triangles, n, meshrows.chunk_vertices(triangles, n))
     lists[id(triangles)] = hit
     _CHUNK_VERTICES.trim()
     return hit[2]
@@ -317,7 +317,7 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
                 d = _answer(answers, part, local, target / k, pad / k, decide / k)
     if d is None:
         d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
-    points, uv = bvh.barycentric(d.bary, d.tri, corners, near, a.triangles, a.vertex_uv)
+    points, uv = meshrows.barycentric(d.bary, d.tri, corners, near, a.triangles, a.vertex_uv)
     return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
 
 
@@ -363,7 +363,7 @@ def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad:
     not answered (`clearance.triangle_depth` with ``reach``: ``None``). Most triangles of a
     display near a thin object lie far from it, and a part near the rest is a fraction of the
     part near their box."""
-    rho = bvh.covering_radii(local)
+    rho = depthbound.covering_radii(local)
     reach = min(REACH * float(rho.max(initial=0.0)), pad)
     got = clearcells.clear_of(b.local, b.triangles, local, rho, SLACK * b.diagonal_local, reach, b.box_local, near=near)
     if got is None:
@@ -679,5 +679,5 @@ def _outer_box(xform: np.ndarray, box: np.ndarray) -> np.ndarray:
 
 
 def _meet(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether boxes ``a`` and ``b`` ``(2, 3)`` meet (`bvh.faces_meet_rows`' comparisons)."""
+    """Whether boxes ``a`` and ``b`` ``(2, 3)`` meet (`meshrows.faces_meet_rows`' comparisons)."""
     return bool(np.all(a[0] <= b[1]) and np.all(b[0] <= a[1]))

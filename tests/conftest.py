@@ -225,3 +225,13 @@ def deepest_move(report, path: str, frame: int):
     move = np.linalg.norm(d, axis=1)
     k = int(np.argmax(move))
     return p[k], uv[k], float(move[k]), float(np.abs(d[:, :2]).max())
+
+
+# --- random triangle sets ------------------------------------------------------------------------
+
+
+def soup(seed: int, n: int) -> np.ndarray:
+    """``n`` random triangles of random sizes (a few long slivers among them)."""
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform(-1, 1, (n, 1, 3))
+    return centre + rng.normal(size=(n, 3, 3)) * rng.choice([0.01, 0.1, 0.5], size=(n, 1, 1))

@@ -6,6 +6,8 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import soup
+
 from acra import bvh
 
 
@@ -15,13 +17,6 @@ def brute(tri: np.ndarray, points: np.ndarray):
     p = np.repeat(points, len(tri), axis=0)
     d = np.linalg.norm(trimesh.triangles.closest_point(t, p) - p, axis=1).reshape(len(points), len(tri))
     return d.min(axis=1), d.argmin(axis=1)
-
-
-def soup(seed: int, n: int) -> np.ndarray:
-    """``n`` random triangles of random sizes (a few long slivers among them)."""
-    rng = np.random.default_rng(seed)
-    centre = rng.uniform(-1, 1, (n, 1, 3))
-    return centre + rng.normal(size=(n, 3, 3)) * rng.choice([0.01, 0.1, 0.5], size=(n, 1, 1))
 
 
 @settings(max_examples=40, deadline=None, derandomize=True)
@@ -71,120 +66,12 @@ def test_an_empty_set_is_refused():
         bvh.build(np.zeros((0, 3, 3)))
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_boxes_meet_is_the_overlap_of_the_triangle_boxes(seed):
-    from pipeline.grids import overlap, triangle_boxes
-
-    rng = np.random.default_rng(seed)
-    points = rng.uniform(-1, 1, (300, 3))
-    faces = rng.integers(0, 300, (500, 3))
-    tri = points[faces]
-    lo, hi = np.sort(rng.uniform(-0.5, 0.5, (2, 3)), axis=0)
-    for pad in (0.0, 0.05):
-        want = overlap(*triangle_boxes(tri), lo, hi, pad)
-        np.testing.assert_array_equal(bvh.boxes_meet(tri, lo, hi, pad), want)
-        rows = bvh.faces_meet_rows(points, faces, lo, hi, pad)
-        assert rows.dtype == np.int64 and np.array_equal(rows, np.nonzero(want)[0])
-        assert bvh.faces_at(points, faces, rows).tobytes() == tri[rows].tobytes()
-        assert 0 < want.sum() < len(want)
-    assert bvh.faces_meet_rows(points, faces[:0], lo, hi).shape == (0,)
-    assert bvh.faces_at(points, faces, np.zeros(0, np.int64)).shape == (0, 3, 3)
-
-
-@pytest.mark.parametrize("seed", range(6))
-def test_faces_meet_rows_at_the_box_s_sides_is_the_overlap_of_the_triangle_boxes(seed):
-    """Corners on the padded box's sides, one float step either side of them, on ``lo - pad``
-    rounded (where ``x + pad`` rounds onto ``lo`` or not) and far beyond each side: the rows are `grids.overlap`'s mask of
-    the gathered triangles' boxes, shared corners and faces with repeated corners included."""
-    from pipeline.grids import overlap, triangle_boxes
-
-    rng = np.random.default_rng(seed)
-    lo, hi = np.sort(rng.uniform(-0.5, 0.5, (2, 3)), axis=0)
-    for pad in (0.0, 0.1, float(rng.uniform(0, 0.3)), 1e-300):
-        sides = np.stack([lo, hi, hi + pad, lo - pad, (lo - pad) + pad, lo + pad, 0.5 * (lo + hi)])
-        values = np.concatenate([sides, np.nextafter(sides, np.inf), np.nextafter(sides, -np.inf),
-                                 [lo - pad - 1.0, hi + pad + 1.0]])  # (23, 3), two far apart
-        points = values[rng.integers(0, len(values), (400, 3)), np.arange(3)]
-        faces = rng.integers(0, 400, (3000, 3))
-        faces[:50, 1] = faces[:50, 0]  # a corner repeated
-        tri = points[faces]
-        want = overlap(*triangle_boxes(tri), lo, hi, pad)
-        rows = bvh.faces_meet_rows(points, faces, lo, hi, pad)
-        assert rows.dtype == np.int64 and np.array_equal(rows, np.nonzero(want)[0])
-        np.testing.assert_array_equal(bvh.boxes_meet(tri, lo, hi, pad), want)
-        assert 0 < want.sum() < len(want)
-        chunked = bvh.faces_meet_rows(points, faces, lo, hi, pad, bvh.face_chunks(points, bvh.chunk_vertices(faces, 400)))
-        assert chunked.dtype == np.int64 and np.array_equal(chunked, rows)
-
-
-def test_chunk_vertices_lists_each_chunk_s_points_once_in_order_of_first_use():
-    faces = np.array([[0, 1, 2], [2, 1, 3], [3, 4, 0]] * 15, np.int64)  # 45 rows: a chunk of 32 and one of 13
-    faces[32:] += 5
-    start, verts = bvh.chunk_vertices(faces, 10)
-    assert bvh.CHUNK == 32 and start.tolist() == [0, 5, 10]
-    assert verts.tolist() == [0, 1, 2, 3, 4, 8, 9, 5, 6, 7]  # row 32 is (3, 4, 0) + 5
-    start, verts = bvh.chunk_vertices(faces[:0], 10)
-    assert start.tolist() == [0] and verts.shape == (0,)
-    assert bvh.faces_meet_rows(np.zeros((10, 3)), faces[:0], np.zeros(3), np.ones(3), 0.0,
-                               bvh.face_chunks(np.zeros((10, 3)), (start, verts))).shape == (0,)
-
-
-@settings(max_examples=60, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.integers(1, 2500), st.floats(0.0, 0.5))
-def test_faces_meet_rows_through_chunks_gives_the_rows_of_the_full_scan(seed, n_faces, pad):
-    """A strip of faces along a wandering path (a display's rows run along its surface) and
-    random faces among them, a box anywhere near: the chunks' and groups' boxes only skip faces
-    that miss it, so the rows are the full scan's, in the same order."""
-    rng = np.random.default_rng(seed)
-    n = n_faces + 2
-    path = np.cumsum(rng.normal(0.0, 0.05, (n, 3)), axis=0)
-    points = path + rng.normal(0.0, 0.01, (n, 3))
-    faces = np.stack([np.arange(n_faces), np.arange(n_faces) + 1, np.arange(n_faces) + 2], axis=1)
-    odd = rng.random(n_faces) < 0.05
-    faces[odd] = rng.integers(0, n, (int(odd.sum()), 3))
-    centre = points[rng.integers(0, n)]
-    lo, hi = np.sort(centre + rng.uniform(-0.3, 0.3, (2, 3)), axis=0)
-    chunks = bvh.face_chunks(points, bvh.chunk_vertices(faces, n))
-    rows = bvh.faces_meet_rows(points, faces, lo, hi, pad)
-    assert np.array_equal(bvh.faces_meet_rows(points, faces, lo, hi, pad, chunks), rows)
-    clo, chi, glo, ghi = chunks
-    tri = points[faces]
-    for c in range(len(clo)):  # each chunk's box is its faces' corners' box
-        np.testing.assert_array_equal(clo[c], tri[32 * c:32 * c + 32].reshape(-1, 3).min(axis=0))
-        np.testing.assert_array_equal(chi[c], tri[32 * c:32 * c + 32].reshape(-1, 3).max(axis=0))
-    assert len(glo) == -(-len(clo) // 32) and (glo <= clo[::32]).all() and (ghi >= chi[::32]).all()
-
-
 def test_build_takes_numpys_boxes_and_centroids():
     tri = soup(7, 5000) * 10.0 ** np.random.default_rng(7).integers(-4, 4, (5000, 1, 1))
     lo, hi, cen = bvh._boxes_centroids(np.ascontiguousarray(tri))
     np.testing.assert_array_equal(lo, tri.min(axis=1))
     np.testing.assert_array_equal(hi, tri.max(axis=1))
     np.testing.assert_array_equal(cen, tri.mean(axis=1))
-
-
-def test_barycentric_points_and_values_are_numpys_einsum_to_the_bit():
-    """`barycentric` gives ``np.einsum("mk,mkc->mc", ...)`` of the triangles' corners and of
-    per-vertex values to the bit, signed zeros among them (weights 0 on negative coordinates)."""
-    rng = np.random.default_rng(5)
-    points = rng.choice([0.0, -0.0, -1.5, 2.0, 0.3], size=(40, 3)) * rng.uniform(0.5, 2.0, size=(40, 1))
-    values = rng.choice([0.0, -0.0, 0.25, -3.0], size=(40, 2))
-    faces = rng.integers(0, 40, size=(90, 3))
-    rows = np.sort(rng.choice(90, size=30, replace=False))
-    corners = bvh.faces_at(points, faces, rows)
-    for m in (0, 1, 7, 200):
-        tri = rng.integers(0, 30, size=m)
-        bary = rng.choice([0.0, 1.0, 0.5, 0.25, 1.0 / 3.0], size=(m, 3))
-        got, at = bvh.barycentric(bary, tri, corners, rows, faces, values)
-        want = np.einsum("mk,mkc->mc", bary, corners[tri])
-        assert np.array_equal(got.view(np.uint64), want.view(np.uint64))
-        want = np.einsum("mk,mkc->mc", bary, values[faces[rows[tri]]])
-        assert at.shape == want.shape and np.array_equal(at.view(np.uint64), want.view(np.uint64))
-        assert bvh.barycentric(bary, tri, corners, rows, faces)[1] is None
-        frozen = values.copy()
-        frozen.flags.writeable = False
-        assert np.array_equal(bvh.barycentric(bary, tri, corners, rows, faces, frozen)[1], at)
-    assert len(bvh._barycentric.signatures) == 1  # writeable or not, one compiled kernel
 
 
 def test_bounds_are_numpys_minima_and_maxima():
@@ -250,24 +137,6 @@ def test_stable_order_is_numpys_merge_sort(k):
     for top in (3, 1 << 30):  # many equal keys, then few
         key = rng.integers(0, top, k).astype(np.int64)
         np.testing.assert_array_equal(_stable_order(key), np.argsort(key, kind="mergesort"))
-
-
-def test_lattice_points_are_clearances_numpy_points_to_the_bit():
-    """`bvh.lattice_points` is `clearance._at` at the weights ``lattice / steps`` of each cell's
-    triangle: the same products summed in the same order, so a point shared by two cells is
-    bitwise one point (`clearance._distinct`)."""
-    from pipeline import clearance
-    rng = np.random.default_rng(3)
-    tri = soup(5, 300) * 10.0 ** rng.integers(-3, 3, (300, 1, 1))
-    steps = 1 << 6
-    owner = rng.integers(0, 300, 500)
-    i = rng.integers(0, steps + 1, (500, 3))
-    j = rng.integers(0, steps + 1, (500, 3))
-    j = np.minimum(j, steps - i)
-    lattice = np.stack([i, j, steps - i - j], axis=2)  # (c, 3 corners, 3 weights)
-    want = clearance._at(np.repeat(tri[owner], 3, axis=0), lattice.reshape(-1, 3) / steps)
-    got = bvh.lattice_points(tri, owner, lattice, steps)
-    assert got.tobytes() == want.tobytes()
 
 
 def _as_mesh(tri: np.ndarray):
@@ -369,32 +238,6 @@ def test_the_linear_tree_refuses_an_empty_set():
         bvh.build_linear(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
 
 
-def test_children_are_the_numpy_concatenations():
-    """`bvh.children` gives the arrays `clearance._triangle_depth` built by concatenating each
-    child's picks of the corners and midpoints, child by child, bit for bit."""
-    rng = np.random.default_rng(3)
-    c = 300
-    lattice = rng.integers(0, 64, (c, 3, 3)) * 2
-    mid = (lattice + lattice[:, [1, 2, 0]]) // 2
-    sd, fc = rng.normal(size=(c, 3)), rng.integers(-1, 500, (c, 3))
-    sd[::7, 1] = -np.inf
-    sd[::5, 0] = -0.0
-    u = 400
-    sd_mid, face_mid, inverse = rng.normal(size=u), rng.integers(0, 500, u), rng.integers(0, u, 3 * c)
-    rows, rho = rng.integers(0, 1000, c), rng.uniform(0, 1, c)
-    sm, fm = sd_mid[inverse].reshape(-1, 3), face_mid[inverse].reshape(-1, 3)
-    pick = [(0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)]
-    all_lat, all_sd = np.concatenate([lattice, mid], axis=1), np.concatenate([sd, sm], axis=1)
-    all_fc = np.concatenate([fc, fm], axis=1)
-    want = (np.concatenate([all_lat[:, list(p)] for p in pick]), np.concatenate([all_sd[:, list(p)] for p in pick]),
-            np.concatenate([all_fc[:, list(p)] for p in pick]), np.tile(rows, 4), np.tile(0.5 * rho, 4))
-    got = bvh.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
-    for x, y in zip(got, want):
-        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
-    empty = bvh.children(lattice[:0], mid[:0], sd[:0], sd_mid, fc[:0], face_mid, inverse[:0], rows[:0], rho[:0])
-    assert [x.shape for x in empty] == [(0, 3, 3), (0, 3), (0, 3), (0,), (0,)]
-
-
 def test_morton_keys_interleave_each_axis_bit_by_bit():
     """`_morton_keys`' masked shifts put bit ``b`` of axis ``a``'s 10-bit step at bit ``3 b + a``,
     as a loop over the bits does."""
@@ -410,44 +253,3 @@ def test_morton_keys_interleave_each_axis_bit_by_bit():
     assert np.array_equal(bvh._morton_keys(pts), want)
 
 
-def test_sortable_keys_sort_as_the_floats_do():
-    """`bvh._sortable`'s int64 keys (the branch and bound's orders by bound, one merge-sort key
-    type for every kernel) give numpy's stable merge sort of the float64 values: negative and
-    positive, infinite, subnormal, both zeros (equal, kept in row order) and ties."""
-    rng = np.random.default_rng(7)
-    x = np.concatenate([rng.standard_normal(500), -rng.random(200) * 1e-300, [0.0, -0.0, 0.0, np.inf, -np.inf, 5e-324,
-                                                                                -5e-324], rng.integers(-3, 3, 300) * 1.0])
-    rng.shuffle(x)
-    keys = bvh._sortable(x.copy())
-    assert keys.dtype == np.int64
-    np.testing.assert_array_equal(np.argsort(keys, kind="mergesort"), np.argsort(x, kind="mergesort"))
-
-
-@pytest.mark.parametrize("merged", [False, True])
-def test_a_cells_bound_with_its_corners_own_distances_is_eq6_capped_to_the_bit(merged):
-    # the corners' distances from their walks and the cell's eq. (4) as a cap spare measures,
-    # never the answer: min(cap, eq. (6)) as `facet_bound` gives it, bit for bit
-    mesh = trimesh.creation.icosphere(subdivisions=2)
-    v, fc = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
-    f = len(fc)
-    facet = np.arange(f, dtype=np.int64)
-    if merged:  # pairs of faces as one facet, as a flat region's faces are
-        facet = facet // 2
-    g = int(facet.max()) + 1
-    facet_faces = np.argsort(facet, kind="stable").astype(np.int64)
-    facet_start = np.searchsorted(facet[facet_faces], np.arange(g + 1)).astype(np.int64)
-    rng = np.random.default_rng(3)
-    centre = rng.normal(size=(400, 3))
-    centre *= rng.uniform(0.9, 1.1, (400, 1)) / np.linalg.norm(centre, axis=1, keepdims=True)
-    cells = centre[:, None] + rng.normal(scale=rng.choice([0.01, 0.05, 0.2], (400, 1, 1)), size=(400, 3, 3))
-    dist, _, face, _ = bvh.closest(bvh.build_linear(v, fc), cells.reshape(-1, 3))
-    dist, face = dist.reshape(-1, 3), face.reshape(-1, 3)
-    sd = dist * rng.choice([-1.0, 1.0], size=dist.shape)
-    eq6 = bvh.facet_bound(cells, face, v, fc, facet, facet_start, facet_faces)
-    normals = np.asarray(mesh.face_normals, np.float64)
-    scratch, least = np.empty((3, 3)), np.empty(3)
-    caps = np.where(rng.random(400) < 0.5, np.inf, eq6 * rng.uniform(0.5, 1.5, 400))
-    got = np.array([bvh._cell_bound(cells[c], face[c, 0], face[c, 1], face[c, 2], v, fc, normals, facet, facet_start, facet_faces,
-                                    bvh._NO_PLANES, scratch, least, sd[c], caps[c]) for c in range(400)])
-    assert (got < caps).any() and (got == caps).any()
-    assert got.tobytes() == np.minimum(caps, eq6).tobytes()

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from scipy.optimize import linprog
 
 from acceptance.visible import surface_distance
-from acra import bvh, pseudonormals
+from acra import depthbound, pseudonormals
 from pipeline import clearance as C
 from pipeline.model import apply_inverse
 
@@ -342,14 +342,14 @@ def test_covering_radius_exact():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_compiled_covering_radii_are_the_array_form(seed):
-    """`acra.bvh.covering_radii` (what `triangle_depth` uses) gives `covering_radius`'s bits: acute,
+    """`acra.depthbound.covering_radii` (what `triangle_depth` uses) gives `covering_radius`'s bits: acute,
     obtuse, degenerate (a repeated corner) and collinear triangles at several scales."""
     rng = np.random.default_rng(seed)
     tri = rng.normal(size=(3000, 3, 3)) * 10.0 ** rng.integers(-6, 3, (3000, 1, 1))
     tri[::7, 2] = tri[::7, 0]
     tri[1::7, 2] = 0.5 * (tri[1::7, 0] + tri[1::7, 1])
     tri[2::7] = np.round(tri[2::7], 1)
-    assert bvh.covering_radii(tri).tobytes() == C.covering_radius(tri).tobytes()
+    assert depthbound.covering_radii(tri).tobytes() == C.covering_radius(tri).tobytes()
 
 
 @PROPERTY
@@ -648,7 +648,7 @@ def _tangent_sheet(rng, normal, depth, size, n):
 
 @pytest.mark.parametrize("seed", range(3))
 def test_compiled_depth_is_the_array_form_bit_for_bit(seed):
-    """`acra.bvh.depth` (the branch and bound in one compiled call) gives the `Depth` of the
+    """`acra.depthbound.depth` (the branch and bound in one compiled call) gives the `Depth` of the
     array form (`_signed_corners`, `_levels`), bit for bit, and leaves unresolved what it leaves
     unresolved: on a whole torus (a sheet partly beyond its box), a box and an icosphere (convex:
     eq. (7) on every facet's plane, and on the corners' faces') and on parts of a sphere, sheets

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from acra import bvh
+from acra import depthbound
 from acra import hspline as H
 from acra import shapes
 from acra.clearcells import clear_of
@@ -27,11 +27,11 @@ def test_triangles_clear_of_a_solid_are_those_outside_by_more_than_their_coverin
     tri = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.02, 0.0]])  # rho 0.01 (right-angled)
     cases = {"far": tri + [0.0, 0.0, r + 0.3], "near": tri + [0.0, 0.0, r + 0.005], "across": tri * 5 + [0.0, 0.0, r - 0.02]}
     corners = np.stack(list(cases.values()))
-    rho = bvh.covering_radii(corners)
+    rho = depthbound.covering_radii(corners)
     keep, chosen, reach = clear_of(b.local, b.triangles, corners, rho, 0.0, 0.05, b.box_local)
     assert dict(zip(cases, keep.tolist())) == {"far": False, "near": True, "across": True}
     deep = np.concatenate([corners, tri[None]])  # the ball's centre: kept, and deeper than a part near it reaches
-    assert clear_of(b.local, b.triangles, deep, bvh.covering_radii(deep), 0.0, 0.05, b.box_local) is None
+    assert clear_of(b.local, b.triangles, deep, depthbound.covering_radii(deep), 0.0, 0.05, b.box_local) is None
     assert reach >= 0.05
     box_lo, box_hi = corners[keep].min(axis=1), corners[keep].max(axis=1)
     tri_b = b.local[b.triangles]

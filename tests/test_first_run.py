@@ -8,7 +8,7 @@ from numba.core.compiler import CompilerBase, DefaultPassBuilder, Flags
 from numba.core.registry import cpu_target
 from numba.core.typed_passes import NopythonTypeInference
 
-from acra import bvh, floattext, kdtree, lattice, pseudonormals
+from acra import bvh, floattext, kdtree, lattice, meshrows, pseudonormals
 
 
 class _TypingOnly(CompilerBase):
@@ -51,7 +51,7 @@ def test_every_kernels_merge_sort_takes_one_key_type():
     arr = lambda dtype, ndim: types.Array(dtype, ndim, "C")  # noqa: E731
     keys = set()
     keys |= _argsort_keys(bvh._stable_order, arr(types.int64, 1))
-    keys |= _argsort_keys(bvh._distinct_rows, arr(types.uint64, 2), arr(types.int64, 1), arr(types.int64, 1))
+    keys |= _argsort_keys(meshrows._distinct_rows, arr(types.uint64, 2), arr(types.int64, 1), arr(types.int64, 1))
     keys |= _argsort_keys(pseudonormals.weld, arr(types.float64, 2), arr(types.int64, 2), types.float64)
     keys |= _argsort_keys(pseudonormals.part_mesh, arr(types.float64, 2), arr(types.int64, 2), types.float64,
                           types.boolean)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from acra import hspline as H
+from acra import hspline as H, meshrows
 from acra import shapes
 from acra.tessellate import grid_samples, run_topology
 from acceptance import visible
@@ -108,18 +108,17 @@ def test_an_array_with_a_kept_array_s_bytes_takes_its_digest_without_hashing(mon
     residual._DIGESTS.clear()
 
 def test_a_display_s_faces_near_a_box_are_the_full_scan_s_through_chunks_listed_once_a_topology(monkeypatch):
-    """`Shown.near_rows` opens the chunks near the box (`bvh.face_chunks`, built once a `Shown`)
+    """`Shown.near_rows` opens the chunks near the box (`meshrows.face_chunks`, built once a `Shown`)
     and gives the rows a scan of every face gives, boxes anywhere about the display and pads
     from none to past it; the points each chunk uses are listed once for the triangles array
     (made read-only), so every display on one topology takes the same lists."""
-    from acra import bvh
 
     ball = H.from_grid(*shapes.sphere(10, 8))
     topo = run_topology([ball], 4)
     pts, tris = grid_samples(ball, topo)[0], topo.triangles()
     assert len(tris) > 32 * 32  # more than one group of chunks
-    listed, chunk_vertices = [], bvh.chunk_vertices
-    monkeypatch.setattr(residual.bvh, "chunk_vertices", lambda *a: listed.append(1) or chunk_vertices(*a))
+    listed, chunk_vertices = [], meshrows.chunk_vertices
+    monkeypatch.setattr(residual.meshrows, "chunk_vertices", lambda *a: listed.append(1) or chunk_vertices(*a))
     residual._CHUNK_VERTICES.clear()
     m = np.eye(4)
     m[:3, 3] = (0.3, -0.2, 0.1)
@@ -129,7 +128,7 @@ def test_a_display_s_faces_near_a_box_are_the_full_scan_s_through_chunks_listed_
         for _ in range(40):
             lo, hi = np.sort(rng.uniform(-1.5, 1.5, (2, 3)) * rng.uniform(0.05, 1.0), axis=0) + m[:3, 3]
             pad = float(rng.choice([0.0, 0.01, 0.3, 3.0]))
-            want = bvh.faces_meet_rows(s.world, s.triangles, lo, hi, pad)
+            want = meshrows.faces_meet_rows(s.world, s.triangles, lo, hi, pad)
             assert np.array_equal(s.near_rows(np.stack([lo, hi]), pad), want)
         assert 0 < len(s.near_rows(s.box, 0.0)) == len(tris)
     assert len(listed) == 1 and not tris.flags.writeable
