@@ -6,10 +6,10 @@ Prints a Markdown table (docs/performance.md, "Kernels"): median ms over ``--rep
 
 * **world patch boxes** of the ×16 dog head (2,496 level-0 patches, `benchmarks/scale_curve.py`'s
   refinement): the box of each hull box's 8 corners mapped (the numpy route) against
-  `detect.SurfaceGeometry.boxes` (centre and half-extents mapped);
+  `geometry.SurfaceGeometry.boxes` (centre and half-extents mapped);
 * **a collider's faces near a box**, a 200,000-triangle box collider under a rotation: every
   face's world box from its gathered corners (the numpy route) against
-  `detect.ColliderStatic.faces_near` (object-space face boxes built once);
+  `geometry.ColliderStatic.faces_near` (object-space face boxes built once);
 * **closest points on collision grids**: the 84 `grids.Closest.query` calls of `dog_head_spike`'s
   collision frames 13–17 (recorded from one `run_frames`), per collision frame, each index built
   with its queries: the kd-tree route `Closest.query` took up to `23b1368` (`KdTreeClosest`:
@@ -38,7 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from pipeline import detect, grids, usdio  # noqa: E402
+from pipeline import geometry
+from pipeline import grids, usdio  # noqa: E402
 from pipeline.model import ColliderModel, apply_xform  # noqa: E402
 
 
@@ -46,7 +47,7 @@ def median_ms(fn, repeat: int) -> float:
     return 1e3 * float(np.median(timeit.repeat(fn, number=1, repeat=repeat)))
 
 
-def corner_boxes(geom: detect.SurfaceGeometry) -> tuple[np.ndarray, np.ndarray]:
+def corner_boxes(geom: geometry.SurfaceGeometry) -> tuple[np.ndarray, np.ndarray]:
     """World patch boxes by mapping each hull box's 8 corners (the numpy route)."""
     lo, hi = geom.shape.hulls
     sel = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], bool)
@@ -63,15 +64,15 @@ def patch_boxes(repeat: int) -> list[tuple[str, float, str]]:
         scale_curve.A.save(scale_curve.build_stage(2, scale_curve.head_grids()[2]), src)
         stage = usdio.open_input(src)
         (head, _), _ = usdio.state_at(stage, usdio.read_scene(stage), 1.0)
-        geom = detect.SurfaceGeometry(head.surface, head.xform)
+        geom = geometry.SurfaceGeometry(head.surface, head.xform)
         geom.shape.hulls  # object-space data is built once per run
         old = corner_boxes(geom)
-        new = detect.SurfaceGeometry(head.surface, head.xform).boxes
+        new = geometry.SurfaceGeometry(head.surface, head.xform).boxes
         diff = max(float(np.abs(a - b).max()) for a, b in zip(old, new)) / float(np.abs(old[1]).max())
         n = int(np.prod(old[0].shape[:2]))
         return [(f"world patch boxes, {n} patches: 8 corners mapped", median_ms(lambda: corner_boxes(geom), repeat), ""),
                 ("world patch boxes: centre ± |M| half-extents (`SurfaceGeometry.boxes`)",
-                 median_ms(lambda: detect.SurfaceGeometry(head.surface, head.xform).boxes, repeat),
+                 median_ms(lambda: geometry.SurfaceGeometry(head.surface, head.xform).boxes, repeat),
                  f"max difference {diff:.1e} of the coordinates")]
 
 
@@ -80,7 +81,7 @@ def collider_faces(repeat: int) -> list[tuple[str, float, str]]:
 
     verts, quads = stress.subdivided_box(200_000)
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-    static = detect.prepare_collider(ColliderModel("/box", verts, tris))
+    static = geometry.prepare_collider(ColliderModel("/box", verts, tris))
     rng = np.random.default_rng(7)
     q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     xform = np.eye(4)

@@ -2,7 +2,7 @@
 
 A free frame (no contact) of a run does three things: it evaluates the stage at the frame
 (`usdio.state_at`: ``acra:cvs``, ``acra:enabled``, world transforms), runs detection's broad phase
-(each deformable's world patch boxes, `detect.SurfaceGeometry.boxes`, then the pair tests) and
+(each deformable's world patch boxes, `geometry.SurfaceGeometry.boxes`, then the pair tests) and
 hands back the display of its unchanged surface; the output layer then holds one more time
 sample of each attribute. This measures, on ``SCENE`` (default `scenes/dog_head_spike.py`) after
 one run of all its frames, medians over ``--repeat`` passes of CPU milliseconds per frame
@@ -38,7 +38,8 @@ sys.path.insert(0, str(HERE))
 
 from pxr import Sdf  # noqa: E402
 
-from pipeline import detect, frames, output_layer, state, usdio  # noqa: E402
+from pipeline import geometry
+from pipeline import frames, output_layer, state, usdio  # noqa: E402
 
 
 def cpu_ms(fn, n: int) -> float:
@@ -83,7 +84,7 @@ def main() -> int:
 
             def boxes():
                 for s in dstates:
-                    detect.SurfaceGeometry(s.surface, s.xform, density=options.density).size
+                    geometry.SurfaceGeometry(s.surface, s.xform, density=options.density).size
 
             rows["world boxes and size"].append(cpu_ms(boxes, len(free) * 3))
             for fmt in ("usda", "usdc"):

@@ -59,6 +59,7 @@ from pxr import Usd
 from acra import hspline as H
 from acra import shapes
 from acra.basis import Direction, refine_rows
+from pipeline import geometry
 from pipeline import authoring as A
 from pipeline import detect as D
 from pipeline import frames as F
@@ -148,7 +149,7 @@ def response_diff(srcs: list[Path], outputs: list[Path], scenes: list, shifts: l
 
 
 def boxes_ms(src: Path, density: int, repeat: int = 50) -> float:
-    """Median ms to compute the head's world patch boxes (`pipeline.detect.SurfaceGeometry.boxes`,
+    """Median ms to compute the head's world patch boxes (`pipeline.geometry.SurfaceGeometry.boxes`,
     the broad phase every frame pays) at frame 1, with its object-space `Shape` already built."""
     stage = usdio.open_input(src)
     (head, _), _ = usdio.state_at(stage, usdio.read_scene(stage), 1.0)
@@ -156,7 +157,7 @@ def boxes_ms(src: Path, density: int, repeat: int = 50) -> float:
     ts = []
     for _ in range(repeat):
         t = time.perf_counter()
-        D.SurfaceGeometry(head.surface, head.xform, density=density).boxes
+        geometry.SurfaceGeometry(head.surface, head.xform, density=density).boxes
         ts.append(time.perf_counter() - t)
     return 1e3 * float(np.median(ts))
 

@@ -8,7 +8,7 @@
 The scene runs once at the defaults (cap 4, ``direct``, density 8, tolerance 1e-3) to find its
 collision frames; then every configuration -- cap ``N`` on detect -> respond rounds per frame,
 solver (``direct`` minimum-norm or ``blend`` iterated Bartels-Beatty, thesis §4.3.1), collision
-density ``D`` (least tessellation steps per level-0 patch edge, `pipeline.detect.patch_density`)
+density ``D`` (least tessellation steps per level-0 patch edge, `pipeline.geometry.patch_density`)
 and tolerance -- runs `pipeline.run.run_file` on the range of those frames. Three sweeps: caps 1-8
 x both solvers x densities 4, 8, 16 at the contract tolerance 1e-3 (the loop stops at the first
 round that meets it, so a cap only matters where rounds do not); caps 1, 2, 4, 8 x both solvers
@@ -153,15 +153,15 @@ def pair_residual(stage, scene, statics, frame: int, density: int, surfaces=None
 
     ``surfaces`` (one `HSpline` per deformable, scene order) replaces the input's (the default)."""
     from pipeline import detect as D
-    from pipeline import usdio
+    from pipeline import geometry, usdio
 
     dstates, cstates = usdio.state_at(stage, scene, float(frame))
-    geoms = [D.SurfaceGeometry(surfaces[i] if surfaces else s.surface, s.xform, m.path, density=density)
+    geoms = [geometry.SurfaceGeometry(surfaces[i] if surfaces else s.surface, s.xform, m.path, density=density)
              for i, (m, s) in enumerate(zip(scene.deformables, dstates))]
     worst = 0.0
     for i, ga in enumerate(geoms):
         others = [(g, min(ga.size, g.size)) for g in geoms[i + 1:]]
-        others += [(D.ColliderGeometry(st, c.xform), ga.size) for st, c in zip(statics, cstates)]
+        others += [(geometry.ColliderGeometry(st, c.xform), ga.size) for st, c in zip(statics, cstates)]
         for gb, size in others:
             worst = max(worst, D.residual(ga, gb).max / size)
     return worst
@@ -224,10 +224,10 @@ class Bench:
 
     def __init__(self, src: Path, tmp: Path, frames: list[int], scene, reference_density: int, new: Worker,
                  base: Worker | None):
-        from pipeline import detect as D
+        from pipeline import geometry
 
         self.src, self.tmp, self.frames, self.scene, self.ref_density = src, tmp, frames, scene, reference_density
-        self.statics = [D.prepare_collider(c) for c in scene.colliders]
+        self.statics = [geometry.prepare_collider(c) for c in scene.colliders]
         self.memo: dict = {}
         self.new, self.base = new, base
         self.turn = 0

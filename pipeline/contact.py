@@ -17,6 +17,7 @@ import numpy as np
 
 from acra import hspline as H
 from acra import memo
+from pipeline import geometry
 from pipeline import detect as D
 from pipeline.model import apply_inverse, apply_xform
 
@@ -52,10 +53,10 @@ class RewindCache:
     slides: dict = field(default_factory=dict)
 
 
-GeometryAt = Callable[[float], "tuple[D.SurfaceGeometry, D.Geometry]"]
+GeometryAt = Callable[[float], "tuple[geometry.SurfaceGeometry, geometry.Geometry]"]
 
 
-def _anchor_at(ga: D.SurfaceGeometry, gb: D.Geometry, t: float) -> Anchor | None:
+def _anchor_at(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, t: float) -> Anchor | None:
     """The deepest (central among equals) vertex of a (tiny) interpenetration, else the centre of
     the crossing triangles' contacts, projected onto both surfaces."""
     ra, rb = D.regions(ga, gb)
@@ -154,14 +155,14 @@ def _deepest(region: D.Region, tol: float) -> int:
     return int(tied[np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1))])
 
 
-def deepest_contact(ga: D.SurfaceGeometry, gb: D.Geometry, ra: D.Region, rb: D.Region, inter: D.Intersections):
+def deepest_contact(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, ra: D.Region, rb: D.Region, inter: D.Intersections):
     """``uv_a, uv_b, local_b, P_A, P_B`` from the deepest (central among equals) region vertex and
     its closest point on the other surface, or the crossing centre's when both regions are empty."""
     tol = 1e-9 * max(ga.size, gb.size)
     if not rb.empty and (ra.empty or rb.max_depth > ra.max_depth):
         i = _deepest(rb, tol)
         pa, pb = D.project(ga, rb.points[i][None]), rb.points[i]
-        local_b = apply_inverse(gb.xform, pb[None])[0] if isinstance(gb, D.ColliderGeometry) else None
+        local_b = apply_inverse(gb.xform, pb[None])[0] if isinstance(gb, geometry.ColliderGeometry) else None
         return pa.uv[0], None if rb.uv is None else rb.uv[i], local_b, pa.points[0], pb
     if not ra.empty:
         i = _deepest(ra, tol)
@@ -187,7 +188,7 @@ def _exit_candidates(dirs: np.ndarray, depth: np.ndarray) -> np.ndarray:
     return np.array(kept).reshape(-1, 3)
 
 
-def _exit_lengths(geom: D.Geometry, points: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+def _exit_lengths(geom: geometry.Geometry, points: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """How far each of ``points (k, 3)`` inside ``geom`` travels along each of ``dirs (m, 3)`` to
     leave it: ``(m, k)``, ``nan`` where the ray found no exit (rounding at an edge)."""
     m, k = len(dirs), len(points)
@@ -198,11 +199,11 @@ def _exit_lengths(geom: D.Geometry, points: np.ndarray, dirs: np.ndarray) -> np.
     return np.where(valid, np.einsum("ij,ij->i", hits - o, d), np.nan).reshape(m, k)
 
 
-def _own_normals(geom: D.Geometry, region: D.Region) -> tuple[np.ndarray, np.ndarray]:
+def _own_normals(geom: geometry.Geometry, region: D.Region) -> tuple[np.ndarray, np.ndarray]:
     """World unit normals ``(n, 3)`` of ``geom``'s own surface at its region vertices and the
     region row of each ``(n,) int64``: the H-spline normal on a deformable, the normals of every
     face meeting the vertex on a collider (a box corner gives its three face normals)."""
-    if isinstance(geom, D.ColliderGeometry):
+    if isinstance(geom, geometry.ColliderGeometry):
         mesh = geom.static.mesh
         vert = mesh.kdtree.query(apply_inverse(geom.xform, region.points))[1]
         faces = mesh.vertex_faces[vert]  # (k, most faces at a vertex), -1 padded
@@ -211,10 +212,10 @@ def _own_normals(geom: D.Geometry, region: D.Region) -> tuple[np.ndarray, np.nda
     else:
         rows = np.arange(len(region.points))
         n = H.surface_normals(geom.surface, region.uv[:, 0], region.uv[:, 1], det=geom.details)[1]
-    return D.world_normals(geom, n), rows
+    return geometry.world_normals(geom, n), rows
 
 
-def exit_contact(ga: D.SurfaceGeometry, gb: D.Geometry, ra: D.Region, rb: D.Region, inter: D.Intersections):
+def exit_contact(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, ra: D.Region, rb: D.Region, inter: D.Intersections):
     """The fallback contact ``uv_a, uv_b, local_b, P_A, P_B``: the way out that the whole
     interpenetration needs least, for contacts with no motion to rewind.
 
@@ -268,7 +269,7 @@ def exit_contact(ga: D.SurfaceGeometry, gb: D.Geometry, ra: D.Region, rb: D.Regi
         return ra.uv[i], None if pr.uv is None else pr.uv[0], None if pr.local is None else pr.local[0], pa, pr.points[0]
     i -= len(ra.points)  # B's vertex leaves A along -d: P_A is its exit
     pb, pr = rb.points[i], D.project(ga, (rb.points[i] - row[i + len(ra.points)] * d)[None])
-    local_b = apply_inverse(gb.xform, pb[None])[0] if isinstance(gb, D.ColliderGeometry) else None
+    local_b = apply_inverse(gb.xform, pb[None])[0] if isinstance(gb, geometry.ColliderGeometry) else None
     return pr.uv[0], None if rb.uv is None else rb.uv[i], local_b, pr.points[0], pb
 
 
@@ -276,7 +277,7 @@ AT_KEPT = 32
 _AT = memo.Table("contact.at", AT_KEPT)  # `_point_at`, `_normal_at` and `_outward` answers by content, most recent last
 
 
-def _at(kind: str, geom: D.Geometry, where: np.ndarray, make) -> np.ndarray:
+def _at(kind: str, geom: geometry.Geometry, where: np.ndarray, make) -> np.ndarray:
     """``make()``, kept by ``kind``, the geometry's content (`SurfaceGeometry.content`,
     `ColliderGeometry.content`) and the material point ``where`` (its bytes): a frame's detection
     and its rewinding at the same time, and every frame's look at the first touch, ask for the
@@ -289,10 +290,10 @@ def _at(kind: str, geom: D.Geometry, where: np.ndarray, make) -> np.ndarray:
     return _AT.kept((kind, geom.content, where.tobytes()), made)
 
 
-def _on_surface(kind: str, geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
+def _on_surface(kind: str, geom: geometry.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
     """Object-space ``(1, 3)`` answer at ``uv (2,)`` of a deformable's surface alone, kept by the
     surface's content (`Shape.digest`) and ``uv`` in `_AT`: ``"object point"``, the point
-    `detect.surface_points` maps, or ``"object normal"``, `acra.hspline.surface_normals`'s unit
+    `geometry.surface_points` maps, or ``"object normal"``, `acra.hspline.surface_normals`'s unit
     normal. A rigidly moving or still input has one surface at every time, so every frame's
     contact points, normals and outward sides on it map these by that frame's matrix (a pole's
     normal takes several evaluations)."""
@@ -308,36 +309,36 @@ def _on_surface(kind: str, geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarra
     return _AT.kept((kind, geom.shape.digest, where.tobytes()), made)
 
 
-def _point_at(geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
-    """World point ``(3,)`` of a deformable at ``uv (2,)`` (`detect.surface_points`'s)."""
+def _point_at(geom: geometry.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
+    """World point ``(3,)`` of a deformable at ``uv (2,)`` (`geometry.surface_points`'s)."""
     return _at("point", geom, uv, lambda: apply_xform(geom.xform, _on_surface("object point", geom, uv))[0])
 
 
-def _normal_at(geom: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
+def _normal_at(geom: geometry.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
     """World unit normal ``(3,)`` along ``du × dv`` of a deformable at ``uv (2,)``."""
-    return _at("normal", geom, uv, lambda: D.world_normals(geom, _on_surface("object normal", geom, uv))[0])
+    return _at("normal", geom, uv, lambda: geometry.world_normals(geom, _on_surface("object normal", geom, uv))[0])
 
 
-def _outward(geom: D.Geometry, uv: np.ndarray | None, local: np.ndarray | None) -> np.ndarray | None:
+def _outward(geom: geometry.Geometry, uv: np.ndarray | None, local: np.ndarray | None) -> np.ndarray | None:
     """World outward unit normal ``(3,)`` of a closed ``geom`` at a material point: ``uv (2,)`` on a
     deformable, object-space ``local (3,)`` on a collider (its nearest face's normal); ``None``
     for an open object, which has no outward side."""
-    if not D.is_closed(geom):
+    if not geometry.is_closed(geom):
         return None
-    if isinstance(geom, D.ColliderGeometry):
+    if isinstance(geom, geometry.ColliderGeometry):
         def make():
             mesh = geom.static.mesh
             face = geom.static.index.query(np.asarray(local, np.float64).reshape(1, 3))[2][0]
             n = mesh.face_normals[face] * (1.0 if mesh.volume >= 0 else -1.0)
-            return D.world_normals(geom, n)[0]
+            return geometry.world_normals(geom, n)[0]
         return _at("outward", geom, local, make)
 
     def make():
-        return D.world_normals(geom, geom.shape.outward * _on_surface("object normal", geom, uv)[0])[0]
+        return geometry.world_normals(geom, geom.shape.outward * _on_surface("object normal", geom, uv)[0])[0]
     return _at("outward", geom, uv, make)
 
 
-def depth_along(ga: D.SurfaceGeometry, gb: D.Geometry, anchor: Anchor, pa: np.ndarray, pb: np.ndarray) -> float:
+def depth_along(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, anchor: Anchor, pa: np.ndarray, pb: np.ndarray) -> float:
     """Penetration along the motion at a rewound contact: how far ``P_A`` lies behind ``B``'s
     surface at ``P_B`` along ``B``'s outward normal there, ``(P_B - P_A) . n_B``, or ``P_B`` behind
     ``A``'s at ``P_A`` for an open ``B`` (the larger where both are closed); 0 if neither is closed
@@ -358,7 +359,7 @@ def depth_along(ga: D.SurfaceGeometry, gb: D.Geometry, anchor: Anchor, pa: np.nd
     return out
 
 
-def _own_slide(now: D.SurfaceGeometry, then: D.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
+def _own_slide(now: geometry.SurfaceGeometry, then: geometry.SurfaceGeometry, uv: np.ndarray) -> np.ndarray:
     """How far the material point at ``uv (2,)`` of a deformable's input moved from ``then`` to
     ``now`` within its own tangent plane at ``now``: ``(3,) float64``, world."""
     move = _point_at(now, uv) - _point_at(then, uv)
@@ -394,7 +395,7 @@ def slide_since(geometry_at: GeometryAt, anchor: Anchor, t: float) -> np.ndarray
     ga_now, gb_now = geometry_at(t)
     ga_then, gb_then = geometry_at(anchor.t_contact)
     slide = _own_slide(ga_now, ga_then, anchor.uv_a)
-    deformable_b = anchor.uv_b is not None and isinstance(gb_now, D.SurfaceGeometry)
+    deformable_b = anchor.uv_b is not None and isinstance(gb_now, geometry.SurfaceGeometry)
     if deformable_b:
         slide = slide - _own_slide(gb_now, gb_then, anchor.uv_b)
     if not np.any(slide):
@@ -414,7 +415,7 @@ def _slide(geometry_at: GeometryAt, anchor: Anchor, t: float, cache: RewindCache
     return cache.slides[key]
 
 
-def detect_pair(ga: D.SurfaceGeometry, gb: D.Geometry, t: float = 0.0, geometry_at: GeometryAt | None = None, *,
+def detect_pair(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, t: float = 0.0, geometry_at: GeometryAt | None = None, *,
                 start: float | None = None, cache: RewindCache | None = None, max_back: int = 10_000,
                 steps: int = 12, whole: bool = False) -> PairContact | None:
     """Detect a pair at time ``t``, ``None`` if it neither touches nor interpenetrates. ``ga``/``gb``:
@@ -423,8 +424,8 @@ def detect_pair(ga: D.SurfaceGeometry, gb: D.Geometry, t: float = 0.0, geometry_
     nearest way out, or with ``whole`` `exit_contact`, the way out the whole region needs least;
     the frame loop asks for ``whole`` in a frame's first round). ``P_A``/``P_B`` are the anchor's
     material points on the current geometry."""
-    if not isinstance(ga, D.SurfaceGeometry):
-        raise TypeError("A must be a deformable D.SurfaceGeometry (collider–collider pairs are never tested)")
+    if not isinstance(ga, geometry.SurfaceGeometry):
+        raise TypeError("A must be a deformable geometry.SurfaceGeometry (collider–collider pairs are never tested)")
     inter = D.intersect(ga, gb)
     ra, rb = D.regions(ga, gb)
     if not inter.crosses and ra.empty and rb.empty:

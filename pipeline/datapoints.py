@@ -24,6 +24,7 @@ from acra import kdtree
 from acra import memo
 from acra import respond as R
 from acra.kdtree import thin_greedy
+from pipeline import geometry
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import residual
@@ -54,8 +55,8 @@ STALLED = 0.1  # a patch's middle asking a move of at most this fraction of the 
 
 
 def data_points_for(
-    ga: D.SurfaceGeometry,
-    gb: D.Geometry,
+    ga: geometry.SurfaceGeometry,
+    gb: geometry.Geometry,
     uv: np.ndarray,
     p_self: np.ndarray,
     p_other: np.ndarray,
@@ -122,7 +123,7 @@ def data_points_for(
                 use = stalled[d_valid]
                 mids[use], a_world[use], hits[use] = deep[use], d_world[d_valid], d_hits[d_valid]
         wanted = R.additional_targets(a_world, hits, share)
-        if isinstance(gb, D.ColliderGeometry):
+        if isinstance(gb, geometry.ColliderGeometry):
             r_uv, r_world, r_goal = rim_points(ga, gb, region_uv, direction, group_level)
             if len(r_uv):  # a rim patch's point is its rim point, not its middle
                 valid &= ~np.isin(R.patch_keys(ga.surface, mids, group_level), R.patch_keys(ga.surface, r_uv, group_level))
@@ -145,8 +146,8 @@ WRAP_RING = 1  # patches around the ones a collider's outline covers that a new 
 
 
 def collider_points_for(
-    ga: D.SurfaceGeometry,
-    gb: D.ColliderGeometry,
+    ga: geometry.SurfaceGeometry,
+    gb: geometry.ColliderGeometry,
     region_a: D.Region,
     region_b: D.Region,
     direction: np.ndarray,
@@ -164,7 +165,7 @@ def collider_points_for(
     pulls a thin finger that neither wraps the box nor clears it (docs/hard-cases.md, case 3).
     Here both sides give the wall's samples:
 
-    * the collider's faces inside ``ga`` (`detect.face_samples`, at most half a group-level
+    * the collider's faces inside ``ga`` (`geometry.face_samples`, at most half a group-level
       patch's size apart, near the regions), cast along ``-direction`` onto the wall in front of them
       (`detect.cast`: from inside, the exit ahead); such a wall point must get, along
       ``direction``, to where the line through the sample leaves the collider (its far side);
@@ -217,7 +218,7 @@ def collider_points_for(
     unit = np.asarray(direction, float) / length
     hs = ga.surface
     spacing = 0.5 * ga.size / (max(hs.u.patches0, hs.v.patches0) << group_level)
-    s = D.face_samples(gb, np.stack([pts.min(axis=0) - spacing, pts.max(axis=0) + spacing]), spacing)
+    s = geometry.face_samples(gb, np.stack([pts.min(axis=0) - spacing, pts.max(axis=0) + spacing]), spacing)
     s = s[D.inside(ga, s)]
     wall, ok = D.cast(ga, s, np.broadcast_to(-unit, s.shape), within=np.ones(len(s), bool))
     # where the line through each sample leaves the collider along the push (the sample itself if
@@ -270,7 +271,7 @@ RIMS_KEPT = 4
 _RIMS = memo.Table("datapoints.rims", RIMS_KEPT)  # `rim_points`' answers by content, most recent last
 
 
-def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
+def rim_points(ga: geometry.SurfaceGeometry, gb: geometry.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
                level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`_rim_points`, kept by content: the pair's (`SurfaceGeometry.content`,
     `ColliderGeometry.content`), the region's parameters, the direction and the level. A contact
@@ -282,7 +283,7 @@ def rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndar
     return tuple(a.copy() for a in _RIMS.kept(key, lambda: _rim_points(ga, gb, region_uv, direction, level)))
 
 
-def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
+def _rim_points(ga: geometry.SurfaceGeometry, gb: geometry.ColliderGeometry, region_uv: np.ndarray, direction: np.ndarray,
                 level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Additional points at the rim of a surface's region in a collider, one sample step outside it
     (an interpretation of thesis eq. 4.16, docs/algorithm.md).
@@ -294,7 +295,7 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
     detection's samples while they report 5.3e-4). These points move that transition outside.
 
     Rim samples are region samples ``region_uv`` whose neighbour one grid step away (the
-    detection density of their level-0 patch, `detect.patch_density`) lies outside the collider;
+    detection density of their level-0 patch, `geometry.patch_density`) lies outside the collider;
     the crossing on that step is found by bisection, and the point is the crossing moved one more
     step outward. Its goal is on the plane through the rim samples' cast hits (along
     ``direction``, as for the middles) normal to ``direction``: the face the region is pushed
@@ -327,7 +328,7 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
     unit = np.asarray(direction, float) / np.linalg.norm(direction)
     if not len(region_uv):
         return empty
-    dens = D.patch_density(ga)
+    dens = geometry.patch_density(ga)
     pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
     pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
     h = 1.0 / dens[pu, pv]
@@ -336,7 +337,7 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
         return empty
 
     def world(uv):
-        return apply_xform(ga.xform, H.evaluate(hs, *D.wrap_uv(hs, uv).T, det=ga.details).points)
+        return apply_xform(ga.xform, H.evaluate(hs, *geometry.wrap_uv(hs, uv).T, det=ga.details).points)
 
     outside = ~D.inside(gb, world(hi))  # a neighbour missing from the region may just be untessellated
     src, hi = src[outside], hi[outside]
@@ -350,7 +351,7 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
         lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
     use = _on_counted_faces(gb, unit, len(hi), lambda: world(hi))
     s_hit, hit = D.cast(gb, world(region_uv[src[use]]), np.broadcast_to(unit, (int(use.sum()), 3)))
-    cross = D.wrap_uv(hs, (hi + step)[use][hit])
+    cross = geometry.wrap_uv(hs, (hi + step)[use][hit])
     if not len(cross):
         return empty
     mids, _, inv = R.patch_groups(hs, cross, level)
@@ -363,19 +364,19 @@ def _rim_points(ga: D.SurfaceGeometry, gb: D.ColliderGeometry, region_uv: np.nda
     return mids[keep], points[keep], points[keep] + ahead[keep, None] * unit
 
 
-def _on_counted_faces(gb: D.ColliderGeometry, unit: np.ndarray, n: int, points) -> np.ndarray:
+def _on_counted_faces(gb: geometry.ColliderGeometry, unit: np.ndarray, n: int, points) -> np.ndarray:
     """Which of ``n`` crossings lie on a face of ``gb`` that counts for `_rim_points`, steep to the
     push ``unit (3,)`` (``|n·d| <= RIM_STEEP``) or facing it (``>= RIM_FACING``): ``(n,) bool``,
     by the face of each one's closest point; ``points()`` gives their world points ``(n, 3)``.
-    A collider of at most `detect.PLANES_MAX` faces that all count, each clear of both bounds by
+    A collider of at most `geometry.PLANES_MAX` faces that all count, each clear of both bounds by
     1e-9 (a box pushed along one of its axes), counts every crossing without finding its face."""
     normals = gb.static.mesh.face_normals
-    if len(normals) <= D.PLANES_MAX:
-        every = np.abs(D.world_normals(gb, normals) @ unit)
+    if len(normals) <= geometry.PLANES_MAX:
+        every = np.abs(geometry.world_normals(gb, normals) @ unit)
         if np.all((every <= RIM_STEEP - 1e-9) | (every >= RIM_FACING + 1e-9)):
             return np.ones(n, bool)
     face = gb.static.index.query(apply_inverse(gb.xform, points()))[2]
-    nd = np.abs(D.world_normals(gb, normals[face]) @ unit)
+    nd = np.abs(geometry.world_normals(gb, normals[face]) @ unit)
     return (nd <= RIM_STEEP) | (nd >= RIM_FACING)
 
 
@@ -396,8 +397,8 @@ def _missing_neighbours(hs: H.HSpline, uv: np.ndarray, h: np.ndarray) -> tuple[n
         if not d.periodic:
             ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
     bound = 2e-3 * float(h.max())
-    tree = kdtree.build(_in_plane(D.wrap_uv(hs, uv)))
-    dist = np.sqrt(kdtree.nearest_squares(tree, _in_plane(D.wrap_uv(hs, n)), best=np.full(len(n), bound * bound)))
+    tree = kdtree.build(_in_plane(geometry.wrap_uv(hs, uv)))
+    dist = np.sqrt(kdtree.nearest_squares(tree, _in_plane(geometry.wrap_uv(hs, n)), best=np.full(len(n), bound * bound)))
     miss = ok & (dist > 1e-3 * np.tile(h, 4))
     return np.tile(np.arange(len(uv)), 4)[miss], n[miss]
 
@@ -409,7 +410,7 @@ def _in_plane(uv: np.ndarray) -> np.ndarray:
     return out
 
 
-def visible_points(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside, direction: np.ndarray | None,
+def visible_points(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, inside: residual.Inside, direction: np.ndarray | None,
                    share: float, group_level: int, clear: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The points of a corrective round, from what the user sees: where the display's own points
     lie inside the other object (`residual.Inside`), samples of the limit surface on a regular
@@ -464,13 +465,13 @@ def visible_points(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Insid
     if inside.uv is None or not len(inside.uv):
         return empty
     hs = ga.surface
-    shown_uv = D.wrap_uv(hs, inside.uv)
+    shown_uv = geometry.wrap_uv(hs, inside.uv)
     su, sv = np.divmod(np.unique(R.patch_keys(hs, shown_uv, group_level)), hs.v.patches(group_level))
     steps = np.linspace(0.0, 1.0, GRID + 1)
     offs = np.stack(np.meshgrid(steps, steps, indexing="ij"), axis=-1).reshape(-1, 2)
     uv = ((np.stack([su, sv], axis=1)[:, None, :] + offs[None]) / (1 << group_level)).reshape(-1, 2)
-    uv = np.unique(np.round(D.wrap_uv(hs, uv), 9), axis=0)
-    at = D.surface_points(ga, uv).points
+    uv = np.unique(np.round(geometry.wrap_uv(hs, uv), 9), axis=0)
+    at = geometry.surface_points(ga, uv).points
 
     def units(p):
         if direction is None or np.linalg.norm(direction) <= 1e-12 * ga.size:
@@ -495,8 +496,8 @@ def visible_points(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Insid
     # itself bulges in between samples (a flattened tip) both are the bulge's height and the
     # sample asks only the rest of the chord's lag; on a flank parallel to the push (the normal)
     # or a curved dent (the push) one of them is level
-    q = D.surface_points(ga, shown_uv[ok]).points
-    ev = D.surface_points(ga, uv, order=1)
+    q = geometry.surface_points(ga, shown_uv[ok]).points
+    ev = geometry.surface_points(ga, uv, order=1)
     n = np.cross(ev.du, ev.dv)[near]
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
     n *= np.sign(np.einsum("ij,ij->i", n, pu[ok]))[:, None]
@@ -528,7 +529,7 @@ def _nearest_uv(hs, grid: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return np.tile(base, reps)[idx]
 
 
-def deepest_shown(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside, direction: np.ndarray | None,
+def deepest_shown(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, inside: residual.Inside, direction: np.ndarray | None,
                    share: float, group_level: int, clear: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Additional points (eq. 4.16) from what the user sees, for a surface whose finest absorbing
     level translates or rotates (`visible_points` is a fit, which only a deformation makes): the
@@ -557,7 +558,7 @@ def deepest_shown(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside
     if inside.uv is None or not len(inside.uv):
         return empty
     hs = ga.surface
-    uv = D.wrap_uv(hs, inside.uv)
+    uv = geometry.wrap_uv(hs, inside.uv)
     keys = R.patch_keys(hs, uv, group_level)
     order = np.lexsort((inside.deep, keys))  # by patch, deepest last
     rows = order[np.r_[keys[order][1:] != keys[order][:-1], True]]
@@ -574,7 +575,7 @@ def deepest_shown(ga: D.SurfaceGeometry, gb: D.Geometry, inside: residual.Inside
     hits, valid = D.cast(gb, shown, unit, within=np.ones(len(shown), bool))
     move = np.einsum("ij,ij->i", hits - shown, unit) + clear
     valid &= move > 0
-    origin = D.surface_points(ga, uv[valid]).points
+    origin = geometry.surface_points(ga, uv[valid]).points
     goal = origin + move[valid, None] * unit[valid]
     return uv[valid], R.additional_targets(origin, goal, share), origin
 
@@ -621,7 +622,7 @@ CLEAR = 0.25  # display points are moved this fraction of the tolerance past the
 MEET = 1e-3  # rewound contact points this close (fraction of the size) meet, whatever the run's tolerance
 
 
-def deepest_instead(ga: D.SurfaceGeometry, gb: D.Geometry, c: C.PairContact) -> C.PairContact:
+def deepest_instead(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, c: C.PairContact) -> C.PairContact:
     """The contact of a later round between two deformables whose rewound contact points
     already meet while only one side has vertices inside the other: the deepest region vertex
     and its closest point on the other surface (`contact.deepest_contact`).

@@ -24,6 +24,7 @@ from threadpoolctl import threadpool_limits
 from acra import hspline as H
 from acra import respond as R
 from acra.interpolate import SystemTooLarge
+from pipeline import geometry
 from pipeline import contact as C
 from pipeline import datapoints as P
 from pipeline import detect as D
@@ -52,7 +53,7 @@ class RunOptions:
     method : str
         Interpolation solver, ``"direct"`` or ``"blend"`` (iterated Bartels–Beatty).
     density : int
-        Collision tessellation: least steps per level-0 patch edge (`detect.patch_density`).
+        Collision tessellation: least steps per level-0 patch edge (`geometry.patch_density`).
     memory_budget : int, optional
         Bytes a response's direct solve may hold (`interpolate.dense_bytes`); ``None``: unbounded.
     """
@@ -124,7 +125,7 @@ def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints,
 
 
 class _Sizes:
-    """Each deformable's size (`detect.SurfaceGeometry.size`) at the frame's first round, found
+    """Each deformable's size (`geometry.SurfaceGeometry.size`) at the frame's first round, found
     when a pair in contact first reads it: a size is the box of every level-0 patch, which a
     frame whose objects are apart never builds (`detect.apart`)."""
 
@@ -138,7 +139,7 @@ class _Sizes:
 def _unbuilt(g) -> bool:
     """Whether ``g`` is a surface whose patch boxes are not built (a responded surface the
     rounds have not detected)."""
-    return isinstance(g, D.SurfaceGeometry) and "hulls" not in g.shape.__dict__
+    return isinstance(g, geometry.SurfaceGeometry) and "hulls" not in g.shape.__dict__
 
 
 def _inner_box(g) -> tuple[np.ndarray, float] | None:
@@ -290,7 +291,7 @@ class _Run:
     def __init__(self, stage: Usd.Stage, scene: SceneModel, options: RunOptions, carry,
                  displays: display.Displays | None = None) -> None:
         self.stage, self.scene, self.options, self.carry = stage, scene, options, carry
-        self.statics = [D.prepare_collider(c) for c in scene.colliders]
+        self.statics = [geometry.prepare_collider(c) for c in scene.colliders]
         self.defs = scene.deformables
         self.controls = [m.controls for m in self.defs]
         self.caches: dict = {}  # (i, other) -> contact.RewindCache
@@ -326,8 +327,8 @@ class _Run:
         dstates, cstates = self.states(t)
         kind, j = kind_j
         if kind == "d":
-            return D.SurfaceGeometry(dstates[j].surface, dstates[j].xform, name=self.defs[j].path, density=self.options.density)
-        return D.ColliderGeometry(self.statics[j], cstates[j].xform)
+            return geometry.SurfaceGeometry(dstates[j].surface, dstates[j].xform, name=self.defs[j].path, density=self.options.density)
+        return geometry.ColliderGeometry(self.statics[j], cstates[j].xform)
 
     def detect(self, frame: int, it: int, geoms: list, cgeoms: list, sizes: list, enabled: list) -> _Round:
         """Detect every pair with an enabled deformable (round ``it`` of ``frame``)."""
@@ -372,7 +373,7 @@ class _Run:
 
     def collider_solid(self, j: int):
         """Collider ``j``'s inside in its object space, built on first use (`residual.collider_solid`).
-        Where trimesh's processing (`detect.prepare_collider`) left the model's vertices and
+        Where trimesh's processing (`geometry.prepare_collider`) left the model's vertices and
         triangles as they were, byte for byte, the detection's solid of the same arrays
         (`ColliderStatic.solid`, built by the same call) is that inside: it is built once a run."""
         if j not in self._collider_solids:
@@ -591,8 +592,8 @@ class _Run:
         rounds = max(1, options.iterations)
         for it in range(rounds + 1):
             setup0 = S.SetupClock.ms
-            geoms = [D.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
-            cgeoms = [D.ColliderGeometry(self.statics[j], cstates[j].xform) for j in range(len(self.statics))]
+            geoms = [geometry.SurfaceGeometry(surfaces[i], dstates[i].xform, name=defs[i].path, density=options.density) for i in range(len(defs))]
+            cgeoms = [geometry.ColliderGeometry(self.statics[j], cstates[j].xform) for j in range(len(self.statics))]
             if it == 0:  # the animator's surfaces: detection's scale stays fixed while rounds reshape them
                 sizes = _Sizes(geoms)
             # the display measure builds the shape data it reads (a responded surface's coarse grid

@@ -7,7 +7,7 @@ import pytest
 
 from acra import hspline as H
 from acra import shapes
-from pipeline import detect as D
+from pipeline import geometry
 from pipeline.model import ColliderModel
 
 
@@ -59,7 +59,7 @@ BOX_TRIANGLES = np.array([
 
 
 def box(half, path="/box"):
-    return D.prepare_collider(ColliderModel(path, BOX_VERTICES * half, BOX_TRIANGLES))
+    return geometry.prepare_collider(ColliderModel(path, BOX_VERTICES * half, BOX_TRIANGLES))
 
 
 def move(x=0.0, y=0.0, z=0.0):
@@ -69,11 +69,11 @@ def move(x=0.0, y=0.0, z=0.0):
 
 
 def sphere_geom(xform=None, name="/sphere"):
-    return D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14)), move() if xform is None else xform, name)
+    return geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14)), move() if xform is None else xform, name)
 
 
 def sheet_geom(n=10, width=7.0):
-    return D.SurfaceGeometry(H.from_grid(*shapes.sheet(n, n, width=width, depth=width)), move(), "/sheet")
+    return geometry.SurfaceGeometry(H.from_grid(*shapes.sheet(n, n, width=width, depth=width)), move(), "/sheet")
 
 
 def assert_finite(contact):
@@ -235,3 +235,13 @@ def soup(seed: int, n: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     centre = rng.uniform(-1, 1, (n, 1, 3))
     return centre + rng.normal(size=(n, 3, 3)) * rng.choice([0.01, 0.1, 0.5], size=(n, 1, 1))
+
+
+def rotated_scaled(seed):
+    """A seeded matrix ``(4, 4)``: rotation, non-uniform scale and a translation."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    m = np.eye(4)
+    m[:3, :3] = q @ np.diag(rng.uniform(0.3, 3.0, 3))
+    m[:3, 3] = rng.normal(size=3) * 5
+    return m

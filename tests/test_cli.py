@@ -233,7 +233,7 @@ def test_a_run_on_deformables_alone_imports_no_trimesh(tmp_path):
     """The demo (two deformables) imports neither trimesh, networkx nor rtree: rays are cast
     through embreex directly (`queries.RayMesh`), barycentric coordinates and the merged mesh are
     `acra.meshops`'s, and trimesh is imported only for rigid colliders' meshes
-    (`detect.prepare_collider`) and the rare float64 retry of a ray embree lets through."""
+    (`geometry.prepare_collider`) and the rare float64 retry of a ray embree lets through."""
     scene = tmp_path / "dog_head_spike.py"
     shutil.copy(Path(__file__).resolve().parents[1] / "scenes" / "dog_head_spike.py", scene)
     done, modules = _program(tmp_path, ["run", str(scene), "-o", str(tmp_path / "o.usdc"), "--quiet", "--frames", "13:15",

@@ -6,6 +6,7 @@ import pytest
 
 from acra import hspline as H
 from acra import shapes
+from pipeline import geometry
 from pipeline import contact as C
 from pipeline import detect as D
 from conftest import assert_finite, box, move, sheet_geom, sphere_geom
@@ -16,7 +17,7 @@ def jump_motion(sheet, collider):
 
     def geometry_at(t):
         z = 0.7 + (-0.2 - 0.7) * float(np.clip(t - 10.0, 0.0, 1.0))
-        return sheet, D.ColliderGeometry(collider, move(0.3, 0.2, z))
+        return sheet, geometry.ColliderGeometry(collider, move(0.3, 0.2, z))
 
     return geometry_at
 
@@ -62,7 +63,7 @@ def test_a_box_through_up_to_its_far_face_is_deep_along_the_motion():
     sheet, collider = sheet_geom(), box(0.5)
 
     def geometry_at(t):  # above until t = 10, top face on the sheet (z = -0.5) from t = 11 on
-        return sheet, D.ColliderGeometry(collider, move(0.3, 0.2, 0.7 - 1.2 * float(np.clip(t - 10.0, 0.0, 1.0))))
+        return sheet, geometry.ColliderGeometry(collider, move(0.3, 0.2, 0.7 - 1.2 * float(np.clip(t - 10.0, 0.0, 1.0))))
 
     ga, gb = geometry_at(11.0)
     assert not C.detect_pair(ga, gb, 11.0).region_a.points.size  # unrewound: nothing inside
@@ -94,8 +95,8 @@ def test_the_whole_region_fallback_takes_the_way_out_it_needs_least():
     is sideways, where the far side of the region must travel up to 1.0. The whole region leaves
     by the top or the bottom at 0.5. A 0.3 box inside a sphere leaves along one of its face
     normals (1.127 for its far corners) rather than through a corner (1.26)."""
-    sheet = D.SurfaceGeometry(H.from_grid(*shapes.sheet(12, 12, width=4.0, depth=4.0)), move(), "/sheet")
-    cube = D.ColliderGeometry(box(0.5), move(0.1, -0.1, 0.0))
+    sheet = geometry.SurfaceGeometry(H.from_grid(*shapes.sheet(12, 12, width=4.0, depth=4.0)), move(), "/sheet")
+    cube = geometry.ColliderGeometry(box(0.5), move(0.1, -0.1, 0.0))
     near = C.detect_pair(sheet, cube)
     assert abs(near.point_b[2] - near.point_a[2]) < 1e-12  # the old rule: a side face
     c = C.detect_pair(sheet, cube, whole=True)
@@ -104,7 +105,7 @@ def test_the_whole_region_fallback_takes_the_way_out_it_needs_least():
     np.testing.assert_allclose(np.abs(push), [0.0, 0.0, 0.5], atol=1e-12)
     assert np.all(np.abs(c.point_a[:2] - [0.1, -0.1]) < 0.1)  # central among the tied vertices
     assert C.detect_pair(sheet, cube, whole=True).point_b.tolist() == c.point_b.tolist()  # deterministic
-    s, inner = sphere_geom(), D.ColliderGeometry(box(0.15), move())
+    s, inner = sphere_geom(), geometry.ColliderGeometry(box(0.15), move())
     c = C.detect_pair(s, inner, whole=True)
     push = (c.point_b - c.point_a) / np.linalg.norm(c.point_b - c.point_a)  # the sphere's wall moves in
     assert np.sort(np.abs(push))[-1] > 1.0 - 1e-9
@@ -114,10 +115,10 @@ def test_the_whole_region_fallback_takes_the_way_out_it_needs_least():
 
 def test_two_spheres_rewound_to_the_poles_that_met():
     hs = H.from_grid(*shapes.sphere(16, 14))
-    a = D.SurfaceGeometry(hs, move(), "/a")
+    a = geometry.SurfaceGeometry(hs, move(), "/a")
 
     def geometry_at(t):  # B falls from z = 2.3 to 1.9 between frames 10 and 11
-        return a, D.SurfaceGeometry(hs, move(0.0, 0.0, 2.3 - 0.4 * float(np.clip(t - 10.0, 0.0, 1.0))), "/b")
+        return a, geometry.SurfaceGeometry(hs, move(0.0, 0.0, 2.3 - 0.4 * float(np.clip(t - 10.0, 0.0, 1.0))), "/b")
 
     c = C.detect_pair(*geometry_at(11.0), 11.0, geometry_at, start=0.0)
     assert c is not None and c.rewound and c.a == "/a" and c.b == "/b"
@@ -139,7 +140,7 @@ def test_grazing_contact(rewind):
 
     def geometry_at(t):
         z = 3.0 + (2.0 - depth - 3.0) * float(np.clip(t - 10.0, 0.0, 1.0))
-        return s, D.ColliderGeometry(collider, move(0.0, 0.0, z))
+        return s, geometry.ColliderGeometry(collider, move(0.0, 0.0, z))
 
     c = C.detect_pair(*geometry_at(11.0), 11.0, geometry_at if rewind else None, start=0.0)
     assert c is not None  # the pole vertex is exactly at z = 1
@@ -156,7 +157,7 @@ def test_grazing_contact(rewind):
 @pytest.mark.parametrize("rewind", [False, True])
 def test_coplanar_face_on_the_sheet_gives_finite_output(rewind):
     sheet, collider = sheet_geom(), box(0.5)
-    gb = D.ColliderGeometry(collider, move(0.3, 0.2, 0.5))  # bottom face lies on the sheet
+    gb = geometry.ColliderGeometry(collider, move(0.3, 0.2, 0.5))  # bottom face lies on the sheet
     assert D.touching(sheet, gb)
     c = C.detect_pair(sheet, gb, 5.0, (lambda t: (sheet, gb)) if rewind else None, start=0.0)
     assert c is not None and not c.rewound  # always touching: no earlier free time
@@ -177,7 +178,7 @@ def _turning_sheet(turn_per_frame: float, sink_per_frame: float):
         turn = np.eye(4)
         turn[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
         z = 0.5 + 0.01 - sink_per_frame * (t - 9.0)
-        return D.SurfaceGeometry(hs, turn, "/sheet"), D.ColliderGeometry(collider, move(1.5, 0.0, z))
+        return geometry.SurfaceGeometry(hs, turn, "/sheet"), geometry.ColliderGeometry(collider, move(1.5, 0.0, z))
 
     return geometry_at
 
@@ -213,7 +214,7 @@ def test_anchor_points_and_normals_evaluate_a_surface_once_for_every_matrix(monk
     an evaluation at each matrix."""
     hs = H.from_grid(*shapes.sphere(16, 14))
     uv = np.array([1.25, 2.5])
-    first = D.SurfaceGeometry(hs, move(0.5, 0.0, 0.0), "/s")
+    first = geometry.SurfaceGeometry(hs, move(0.5, 0.0, 0.0), "/s")
     C._point_at(first, uv), C._normal_at(first, uv), C._outward(first, uv, None)
     calls = []
     for name in ("evaluate", "surface_normals"):
@@ -221,15 +222,15 @@ def test_anchor_points_and_normals_evaluate_a_surface_once_for_every_matrix(monk
     rot = np.eye(4)
     rot[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     rot[:3, 3] = (0.1, 0.2, 0.3)
-    moved = D.SurfaceGeometry(hs, rot, "/s")
+    moved = geometry.SurfaceGeometry(hs, rot, "/s")
     p, n, out = C._point_at(moved, uv), C._normal_at(moved, uv), C._outward(moved, uv, None)
     assert not calls  # no evaluation at the new matrix
     monkeypatch.undo()
     u = uv.reshape(1, 2)
     obj_n = H.surface_normals(hs, u[:, 0], u[:, 1], det=moved.details)[1]
-    np.testing.assert_array_equal(p, D.surface_points(moved, uv).points[0])
-    np.testing.assert_array_equal(n, D.world_normals(moved, obj_n)[0])
-    np.testing.assert_array_equal(out, D.world_normals(moved, moved.shape.outward * obj_n[0])[0])
+    np.testing.assert_array_equal(p, geometry.surface_points(moved, uv).points[0])
+    np.testing.assert_array_equal(n, geometry.world_normals(moved, obj_n)[0])
+    np.testing.assert_array_equal(out, geometry.world_normals(moved, moved.shape.outward * obj_n[0])[0])
 
 
 def test_anchor_points_and_normals_are_kept_by_content_and_never_served_for_other_content():
@@ -239,23 +240,23 @@ def test_anchor_points_and_normals_are_kept_by_content_and_never_served_for_othe
     `AT_KEPT` answers are kept."""
     hs = H.from_grid(*shapes.sphere(16, 14))
     uv = np.array([1.25, 2.5])
-    g = D.SurfaceGeometry(hs, move(0.5, 0.0, 0.0), "/s")
+    g = geometry.SurfaceGeometry(hs, move(0.5, 0.0, 0.0), "/s")
     p, n, out = C._point_at(g, uv), C._normal_at(g, uv), C._outward(g, uv, None)
-    same = D.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(0.5, 0.0, 0.0), "/s")
+    same = geometry.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(0.5, 0.0, 0.0), "/s")
     assert C._point_at(same, uv) is p and C._normal_at(same, uv) is n and C._outward(same, uv, None) is out
     rot = np.eye(4)
     rot[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
-    for other in (D.SurfaceGeometry(hs, rot, "/s"), D.SurfaceGeometry(H.with_cvs(hs, 2.0 * hs.cvs), move(0.5, 0.0, 0.0), "/s")):
-        np.testing.assert_array_equal(C._point_at(other, uv), D.surface_points(other, uv).points[0])
-        ev = D.surface_points(other, uv, order=1)
+    for other in (geometry.SurfaceGeometry(hs, rot, "/s"), geometry.SurfaceGeometry(H.with_cvs(hs, 2.0 * hs.cvs), move(0.5, 0.0, 0.0), "/s")):
+        np.testing.assert_array_equal(C._point_at(other, uv), geometry.surface_points(other, uv).points[0])
+        ev = geometry.surface_points(other, uv, order=1)
         cross = np.cross(ev.du[0], ev.dv[0])
         np.testing.assert_allclose(C._normal_at(other, uv), cross / np.linalg.norm(cross), atol=1e-12)
         np.testing.assert_allclose(C._outward(other, uv, None), other.shape.outward * cross / np.linalg.norm(cross), atol=1e-12)
         assert not np.allclose(C._point_at(other, uv), p)
     b = box(0.5)
     local = np.array([0.5, 0.1, 0.2])  # on the box's +x face
-    np.testing.assert_allclose(C._outward(D.ColliderGeometry(b, move()), None, local), [1.0, 0.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(C._outward(D.ColliderGeometry(b, rot), None, local), [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(C._outward(geometry.ColliderGeometry(b, move()), None, local), [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(C._outward(geometry.ColliderGeometry(b, rot), None, local), [0.0, 1.0, 0.0], atol=1e-12)
     for k in range(2 * C.AT_KEPT):
         C._point_at(g, np.array([0.1 * k, 0.5]))
     assert len(C._AT) == C.AT_KEPT

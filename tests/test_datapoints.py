@@ -4,6 +4,7 @@ middles, a collider inside a closed sheet, rim points on a box's side face, earl
 import numpy as np
 import pytest
 
+from pipeline import geometry
 from pipeline import datapoints as P
 
 
@@ -65,16 +66,15 @@ def test_a_patch_whose_middle_has_stalled_takes_its_deepest_sample(u_low, settle
     level-0 patch (2, 2): x = 0.4 (0.04 inside) and x = u_low - 2.5 (below the box)."""
     from acra import hspline as H
     from acra import shapes
-    from pipeline import detect as D
     from pipeline.model import ColliderModel
 
     cvs, _, _ = shapes.sheet(8, 8, width=5.0, depth=5.0)
     cvs[..., 2] = 0.1 * cvs[..., 0]
-    sheet = D.SurfaceGeometry(H.from_grid(cvs), np.eye(4), "/sheet")
+    sheet = geometry.SurfaceGeometry(H.from_grid(cvs), np.eye(4), "/sheet")
     corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 2.0)])
     tris = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
-    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", corners, tris)), np.eye(4))
+    box = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/box", corners, tris)), np.eye(4))
     region_uv = np.array([[2.9, 2.5], [u_low, 2.5]])
     contact = np.array([0.3, 0.0, 0.03])  # apart from both samples (`_spread` drops points on the contact)
     args = (sheet, box, np.array([2.8, 2.5]), contact, contact * [1, 1, 0], region_uv, 0.0, 0, np.array([0.0, 0.0, -1.0]))
@@ -93,14 +93,13 @@ def _ball_and_box(lo, hi):
     ``[lo, hi]`` (world ``(3,)`` each), as detection geometry at the identity matrix."""
     from acra import hspline as H
     from acra import shapes
-    from pipeline import detect as D
     from pipeline.model import ColliderModel
 
-    ball = D.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 8), depth=3), np.eye(4), "/ball")
+    ball = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 8), depth=3), np.eye(4), "/ball")
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], float)
     tris = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
-    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", corners, tris)), np.eye(4))
+    box = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/box", corners, tris)), np.eye(4))
     return ball, box
 
 
@@ -169,10 +168,10 @@ def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
     from pipeline.model import ColliderModel
 
     cvs, _, _ = shapes.sheet(12, 12, width=4.0, depth=4.0)
-    sheet = D.SurfaceGeometry(H.from_grid(cvs, depth=3), np.eye(4), "/sheet")
+    sheet = geometry.SurfaceGeometry(H.from_grid(cvs, depth=3), np.eye(4), "/sheet")
     lo, hi = np.array([-0.7, -0.9, -0.5]), np.array([0.9, 0.7, 0.5])
     mesh = trimesh.creation.box(bounds=np.stack([lo, hi]))
-    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), np.eye(4))
+    box = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), np.eye(4))
     region, _ = D.regions(sheet, box)
     down = np.array([0.0, 0.0, -1.0])
     uv, points, goals = P.rim_points(sheet, box, region.uv, down, 2)
@@ -189,7 +188,7 @@ def test_rim_points_lie_one_step_outside_a_box_on_the_face_it_pushes_to():
 
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.45)
     ball.apply_translation([0.1, -0.1, 0.3])  # 0.15 into the sheet
-    ball_geom = D.ColliderGeometry(D.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces)), np.eye(4))
+    ball_geom = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces)), np.eye(4))
     region, _ = D.regions(sheet, ball_geom)
     assert len(region.uv) and len(P.rim_points(sheet, ball_geom, region.uv, down, 2)[0]) == 0
 
@@ -209,14 +208,14 @@ def test_rim_points_are_kept_by_content_and_never_served_for_other_content(monke
     cvs, _, _ = shapes.sheet(12, 12, width=4.0, depth=4.0)
     hs = H.from_grid(cvs, depth=3)
     mesh = trimesh.creation.box(bounds=np.array([[-0.7, -0.9, -0.5], [0.9, 0.7, 0.5]]))
-    static = D.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces))
+    static = geometry.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces))
     down = np.array([0.0, 0.0, -1.0])
 
     def pair(surface=hs, dx=0.0):
-        sheet = D.SurfaceGeometry(surface, np.eye(4), "/sheet")
+        sheet = geometry.SurfaceGeometry(surface, np.eye(4), "/sheet")
         xform = np.eye(4)
         xform[0, 3] = dx
-        box = D.ColliderGeometry(static, xform)
+        box = geometry.ColliderGeometry(static, xform)
         return sheet, box, D.regions(sheet, box)[0].uv
 
     computed = []
@@ -377,7 +376,6 @@ def test_missing_neighbours_are_those_scipys_kd_tree_finds(periodic):
     step) off a grid point."""
     from acra import hspline as H
     from acra import shapes
-    from pipeline import detect as D
     from pipeline.spatial import cKDTree
 
     hs = H.from_grid(*(shapes.sphere(8, 8) if periodic else shapes.sheet(8, 8)[:1]), depth=2)
@@ -389,14 +387,14 @@ def test_missing_neighbours_are_those_scipys_kd_tree_finds(periodic):
                          uv[20:40] + [[0.0, 2e-3 / 8]]])
     h = np.where(uv[:, 0] < 2.0, 1 / 8, 1 / 16)
     src, hi = P._missing_neighbours(hs, uv, h)
-    tree, want_src, want_hi = cKDTree(D.wrap_uv(hs, uv)), [], []
+    tree, want_src, want_hi = cKDTree(geometry.wrap_uv(hs, uv)), [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         n = uv + np.stack([du * h, dv * h], axis=1)
         ok = np.ones(len(n), bool)
         for c, d in enumerate((hs.u, hs.v)):
             if not d.periodic:
                 ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
-        dist, _ = tree.query(D.wrap_uv(hs, n), distance_upper_bound=2e-3 * h.max())
+        dist, _ = tree.query(geometry.wrap_uv(hs, n), distance_upper_bound=2e-3 * h.max())
         miss = ok & (dist > 1e-3 * h)
         want_src.append(np.nonzero(miss)[0])
         want_hi.append(n[miss])
@@ -412,13 +410,12 @@ def test_a_box_pushed_along_an_axis_counts_every_rim_crossing_as_its_faces_would
     do not count."""
     import trimesh
 
-    from pipeline import detect as D
     from pipeline.model import ColliderModel
 
     mesh = trimesh.creation.box(bounds=np.array([[-0.7, -0.9, -0.5], [0.9, 0.7, 0.5]]))
     shift = np.eye(4)
     shift[:3, 3] = [0.1, -0.05, 0.3]
-    box = D.ColliderGeometry(D.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), shift)
+    box = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), shift)
     rng = np.random.default_rng(5)
     tri = mesh.triangles[rng.integers(0, len(mesh.faces), 300)]
     points = np.einsum("ij,ijk->ik", rng.dirichlet([1.0, 1.0, 1.0], 300), tri) + shift[:3, 3]
@@ -430,7 +427,7 @@ def test_a_box_pushed_along_an_axis_counts_every_rim_crossing_as_its_faces_would
 
     def by_faces(unit):
         face = box.static.index.query(points - shift[:3, 3])[2]
-        nd = np.abs(D.world_normals(box, box.static.mesh.face_normals[face]) @ unit)
+        nd = np.abs(geometry.world_normals(box, box.static.mesh.face_normals[face]) @ unit)
         return (nd <= P.RIM_STEEP) | (nd >= P.RIM_FACING)
 
     for unit in (np.array([0.0, 0.0, -1.0]), np.array([1.0, 0.0, 0.0])):

@@ -12,11 +12,13 @@ import trimesh
 
 from acra import hspline as H
 from acra import shapes
+from pipeline import geometry
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import shape as S
 from pipeline.model import ColliderModel, apply_inverse
-from conftest import BOX_TRIANGLES, BOX_VERTICES, assert_finite, box, move, sheet_geom, sphere_geom, wavy_sheet, with_random_offsets
+from conftest import (BOX_TRIANGLES, BOX_VERTICES, assert_finite, box, move, rotated_scaled, sheet_geom, sphere_geom, wavy_sheet,
+                      with_random_offsets)
 
 def every_patch(hs):
     """All level-0 patches ``(P, 2) int64`` of ``hs``."""
@@ -63,8 +65,8 @@ def test_inside_agrees_with_ray_parity_and_distances_with_brute_force(maker, clo
     pruned closest-point search against every triangle, at random points near and far."""
     cvs, pu, pv = maker(8, 8)
     rot = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])
-    g = D.SurfaceGeometry(H.from_grid(cvs, pu, pv), move(1.0, 2.0, 3.0) @ rot)
-    assert D.is_closed(g) == closed
+    g = geometry.SurfaceGeometry(H.from_grid(cvs, pu, pv), move(1.0, 2.0, 3.0) @ rot)
+    assert geometry.is_closed(g) == closed
     rng = np.random.default_rng(11)
     pts = g.xform[:3, 3] + 0.8 * rng.normal(size=(300, 3))  # the shapes are centred at the origin
     d, _ = D.surface_distance(g, pts)
@@ -88,7 +90,7 @@ def test_closest_points_over_grids_of_mixed_density_match_brute_force(seed):
     hs = H.from_grid(*shapes.sphere(12, 10), depth=5)
     hs = H.make_movable(hs, 4, [[16 * int(rng.integers(0, 12)) + 8, 72]])
     hs = with_random_offsets(H.make_movable(hs, 3, [[8 * int(rng.integers(0, 12)) + 4, 20]]), 0.02, seed)
-    g = D.SurfaceGeometry(hs, move(0.5, -0.2, 0.1))
+    g = geometry.SurfaceGeometry(hs, move(0.5, -0.2, 0.1))
     assert len(np.unique(g.shape.density_map)) >= 3
     pts = g.xform[:3, 3] + 0.6 * rng.normal(size=(200, 3))
     near = g.shape.nearest(g.to_object(pts))
@@ -159,8 +161,8 @@ def test_bvh_cache_answers_equal_triangle_sets_with_one_tree():
 def test_a_reversed_surface_still_has_its_inside_inside():
     """Swapping u's direction turns ``du × dv`` inward; `Shape.outward` finds it."""
     cvs, pu, pv = shapes.sphere(8, 8)
-    g = D.SurfaceGeometry(H.from_grid(cvs, pu, pv), move())
-    r = D.SurfaceGeometry(H.from_grid(cvs[::-1].copy(), pu, pv), move())
+    g = geometry.SurfaceGeometry(H.from_grid(cvs, pu, pv), move())
+    r = geometry.SurfaceGeometry(H.from_grid(cvs[::-1].copy(), pu, pv), move())
     assert g.shape.outward == -r.shape.outward
     pts = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 0.1], [2.0, 0.0, 0.0], [0.0, 0.0, -1.5]])
     np.testing.assert_array_equal(D.inside(r, pts), [True, True, False, False])
@@ -170,11 +172,11 @@ def test_a_reversed_surface_still_has_its_inside_inside():
 def test_grids_of_a_refined_sphere_lie_on_it():
     hs = H.from_grid(*shapes.sphere(8, 8), depth=4)
     hs = H.make_movable(hs, 3, [[20, 20]])  # level-0 patch (2, 2) and its neighbours get 16 steps
-    g = D.SurfaceGeometry(with_random_offsets(hs), move(5.0, -2.0, 1.0))
-    assert D.patch_density(g).max() == 16
+    g = geometry.SurfaceGeometry(with_random_offsets(hs), move(5.0, -2.0, 1.0))
+    assert geometry.patch_density(g).max() == 16
     tess = D.tessellate(g, every_patch(g.surface))
-    np.testing.assert_allclose(D.surface_points(g, tess.uv).points, tess.points, atol=1e-12)
-    assert len(tess.points) == sum((s + 1) ** 2 for s in D.patch_density(g).reshape(-1))
+    np.testing.assert_allclose(geometry.surface_points(g, tess.uv).points, tess.points, atol=1e-12)
+    assert len(tess.points) == sum((s + 1) ** 2 for s in geometry.patch_density(g).reshape(-1))
     pts = g.xform[:3, 3] + np.random.default_rng(2).normal(size=(200, 3))
     d, _ = D.surface_distance(g, pts)
     np.testing.assert_allclose(d, brute_closest(g, pts), rtol=0, atol=1e-12 * g.size)
@@ -183,8 +185,8 @@ def test_grids_of_a_refined_sphere_lie_on_it():
 def test_patch_density_follows_refinement():
     hs = H.from_grid(*shapes.sheet(8, 8, width=5.0, depth=5.0), depth=5)
     hs = H.refine(hs, 3, [[10, 10]])  # inside level-0 patch (1, 1)
-    g = D.SurfaceGeometry(hs, move())
-    dens = D.patch_density(g)
+    g = geometry.SurfaceGeometry(hs, move())
+    dens = geometry.patch_density(g)
     assert dens[1, 1] == 16 and dens.sum() == 8 * (dens.size - 1) + 16
     tess = D.tessellate(g, [[1, 1], [0, 0]])
     assert tess.points.shape == (17 * 17 + 9 * 9, 3) and tess.triangles.shape == (2 * 256 + 2 * 64, 3)
@@ -195,7 +197,7 @@ def test_broad_phase_tessellates_only_patches_near_the_box():
     # 17 x 17 patches of unit size; a patch's control hull spans CVs p..p+3, i.e. x in
     # [x0 + (p - 1), x0 + (p + 2)]: a box of half-size 0.1 at the corner x0 meets patches 0, 1.
     g = sheet_geom(n=20, width=17.0)
-    b = D.ColliderGeometry(box(0.1), move(-8.5, -8.5, 0.0))
+    b = geometry.ColliderGeometry(box(0.1), move(-8.5, -8.5, 0.0))
     c = C.detect_pair(g, b)
     assert c is not None and c.region_a.points.shape == (1, 3)  # the sheet's corner vertex
     np.testing.assert_allclose(c.region_a.points[0], [-8.5, -8.5, 0.0], atol=1e-12)
@@ -210,7 +212,7 @@ def test_broad_phase_tessellates_only_patches_near_the_box():
 
 def test_box_wholly_inside_sphere_is_detected_without_fcl_contact():
     s = sphere_geom()
-    b = D.ColliderGeometry(box(0.2), move(0.1, -0.05, 0.08))
+    b = geometry.ColliderGeometry(box(0.2), move(0.1, -0.05, 0.08))
     assert D.intersect(s, b).count == 0  # fcl sees no crossing surfaces
     assert D.touching(s, b)
     c = C.detect_pair(s, b)
@@ -235,14 +237,14 @@ def test_box_wholly_inside_sphere_is_detected_without_fcl_contact():
 def test_sphere_wholly_inside_a_rotated_scaled_collider_has_exact_depths():
     # the collider's matrix is a similarity (rotation, scale 1.5, translation): depths stay exact
     m = move(0.3, 0.2, -0.1) @ trimesh.transformations.rotation_matrix(0.7, [1.0, 1.0, 0.3]) @ np.diag([1.5, 1.5, 1.5, 1.0])
-    s = D.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14, radii=(0.3, 0.3, 0.3), center=(0.1, 0.0, 0.0))), m)
-    b = D.ColliderGeometry(box(1.0), m)
+    s = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(16, 14, radii=(0.3, 0.3, 0.3), center=(0.1, 0.0, 0.0))), m)
+    b = geometry.ColliderGeometry(box(1.0), m)
     assert D.intersect(s, b).count == 0
     c = C.detect_pair(s, b)
     assert c is not None and c.region_b.empty
     # every vertex is inside; a point inside a box is as deep as its nearest face plane
     all_uv = D.tessellate(s, np.argwhere(np.ones((16, 11), bool))).uv
-    assert len(c.region_a.points) == len(np.unique(D.wrap_uv(s.surface, all_uv), axis=0))
+    assert len(c.region_a.points) == len(np.unique(geometry.wrap_uv(s.surface, all_uv), axis=0))
     local = apply_inverse(m, c.region_a.points)
     np.testing.assert_allclose(c.region_a.depth, 1.5 * (1.0 - np.abs(local)).min(axis=1), atol=1e-12)
     # fallback: P_B is the deepest vertex's foot on the nearest face
@@ -259,7 +261,7 @@ def test_random_box_placements_give_consistent_finite_results(seed):
     s = sphere_geom()
     rot = trimesh.transformations.random_rotation_matrix(rng.uniform(size=3))
     m = move(*rng.uniform(-1.2, 1.2, size=3)) @ rot
-    b = D.ColliderGeometry(box(rng.uniform(0.05, 0.6)), m)
+    b = geometry.ColliderGeometry(box(rng.uniform(0.05, 0.6)), m)
     c = C.detect_pair(s, b)
     res = D.residual(s, b)
     if c is None:
@@ -287,7 +289,7 @@ def test_ray_casts_hit_the_unit_sphere(kind):
         r_in = inradius(g, [0, 0, 0])
     else:
         ico = trimesh.creation.icosphere(subdivisions=5)
-        g = D.ColliderGeometry(D.prepare_collider(ColliderModel("/ico", ico.vertices, ico.faces)), move())
+        g = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/ico", ico.vertices, ico.faces)), move())
         r_in = np.abs(np.einsum("ij,ij->i", ico.face_normals, ico.triangles[:, 0])).min()
     assert 1.0 - r_in < 1e-3
     rng = np.random.default_rng(7)
@@ -314,10 +316,10 @@ def test_ray_casts_hit_the_unit_sphere(kind):
 
 def test_residual_separated_and_analytic_overlaps():
     s = sphere_geom()
-    far = D.ColliderGeometry(box(0.3), move(0.0, 0.0, 1.5))
+    far = geometry.ColliderGeometry(box(0.3), move(0.0, 0.0, 1.5))
     assert D.residual(s, far) == D.Residual(0.0, 0.0, 0)
     # a wide box pressed 0.1 onto the north pole: each cap vertex is as deep as its height
-    cap = D.ColliderGeometry(box(2.0), move(0.0, 0.0, 2.9))
+    cap = geometry.ColliderGeometry(box(2.0), move(0.0, 0.0, 2.9))
     res = D.residual(s, cap)
     ra, _ = D.regions(s, cap)
     assert res.max == pytest.approx(0.1, abs=1e-12)  # the pole is exactly at z = 1
@@ -337,21 +339,21 @@ def test_residual_separated_and_analytic_overlaps():
 def test_projection_is_a_true_closest_point_on_a_refined_surface():
     hs = with_random_offsets(H.make_movable(wavy_sheet(depth=3), 2, [[6, 6]]), scale=0.1)
     rot = trimesh.transformations.rotation_matrix(0.4, [1.0, 2.0, 0.5])
-    g = D.SurfaceGeometry(hs, rot @ move(0.5, 0.0, 0.2))
+    g = geometry.SurfaceGeometry(hs, rot @ move(0.5, 0.0, 0.2))
     rng = np.random.default_rng(3)
     uv = rng.uniform([1.0, 1.0], [4.0, 3.0], size=(40, 2))
-    ev = D.surface_points(g, uv, order=1)
+    ev = geometry.surface_points(g, uv, order=1)
     n = np.cross(ev.du, ev.dv)
     n /= np.linalg.norm(n, axis=1)[:, None]
     offset = 0.05 * rng.uniform(-1, 1, size=40)
     targets = ev.points + offset[:, None] * n
     pr = D.project(g, targets)
-    ev = D.surface_points(g, pr.uv, order=1)
+    ev = geometry.surface_points(g, pr.uv, order=1)
     r = targets - ev.points
     for t in (ev.du, ev.dv):  # first-order optimality: the offset is normal to the surface
         assert np.all(np.abs(np.einsum("ij,ij->i", r, t)) <= 1e-10 * np.linalg.norm(t, axis=1))
     assert np.all(pr.distance <= np.abs(offset) + 1e-12)  # no farther than the point it came from
-    np.testing.assert_allclose(pr.points, D.surface_points(g, pr.uv).points, atol=1e-15)
+    np.testing.assert_allclose(pr.points, geometry.surface_points(g, pr.uv).points, atol=1e-15)
 
 
 # --------------------------------------------------------------------------------------------
@@ -371,8 +373,8 @@ def benchmark():
     collider = box(0.3)
     hs = H.from_grid(*shapes.sphere(16, 14))
     pairs = {
-        "sphere 16x14 vs box (12 tri), 0.1 deep": lambda z=1.2: (D.SurfaceGeometry(hs, move()), D.ColliderGeometry(collider, move(0.0, 0.0, z))),
-        "sphere 16x14 vs sphere 16x14, 0.1 deep": lambda z=1.9: (D.SurfaceGeometry(hs, move()), D.SurfaceGeometry(hs, move(0.0, 0.0, z))),
+        "sphere 16x14 vs box (12 tri), 0.1 deep": lambda z=1.2: (geometry.SurfaceGeometry(hs, move()), geometry.ColliderGeometry(collider, move(0.0, 0.0, z))),
+        "sphere 16x14 vs sphere 16x14, 0.1 deep": lambda z=1.9: (geometry.SurfaceGeometry(hs, move()), geometry.SurfaceGeometry(hs, move(0.0, 0.0, z))),
     }
     rays = np.random.default_rng(0).normal(size=(100, 3))
     for name, pair in pairs.items():
@@ -404,9 +406,9 @@ if __name__ == "__main__":
 def test_an_off_centre_ball_stored_in_float32_is_still_closed():
     """float32 ``acra:cvs`` round a pole row by ~1e-8 of the size: still one point, still closed."""
     cvs, pu, pv = shapes.sphere(8, 8, radii=(0.7,) * 3, center=(0.3, 0.1, 0.2))
-    g = D.SurfaceGeometry(H.from_grid(cvs.astype(np.float32).astype(np.float64), pu, pv), move())
+    g = geometry.SurfaceGeometry(H.from_grid(cvs.astype(np.float32).astype(np.float64), pu, pv), move())
     assert g.closed
-    pole = D.surface_points(g, np.array([[0.5, 0.0], [0.5, g.surface.v.patches0]])).points
+    pole = geometry.surface_points(g, np.array([[0.5, 0.0], [0.5, g.surface.v.patches0]])).points
     np.testing.assert_allclose(pole, [[0.3, 0.1, -0.5], [0.3, 0.1, 0.9]], atol=1e-6)
     np.testing.assert_array_equal(D.inside(g, pole + [[0, 0, 1e-3], [0, 0, -1e-3]]), [True, True])
     np.testing.assert_array_equal(D.inside(g, pole - [[0, 0, 1e-3], [0, 0, -1e-3]]), [False, False])
@@ -490,20 +492,20 @@ def test_candidate_vertices_kept_per_patch_set_equal_a_new_search(seed):
     bounds = np.array([[-2.0, -2.0, -0.5], [2.0, 2.0, 2.0]]) + xform[:3, 3]
     D._DISTINCT.clear()
     D._LAYOUTS.clear()
-    D._candidate_vertices(D.SurfaceGeometry(hs, xform), bounds, 1e-7)
-    g = D.SurfaceGeometry(out, xform)
+    D._candidate_vertices(geometry.SurfaceGeometry(hs, xform), bounds, 1e-7)
+    g = geometry.SurfaceGeometry(out, xform)
     got = D._candidate_vertices(g, bounds, 1e-7)
     assert len(D._DISTINCT) == len(D._LAYOUTS) == 1  # the responded surface's set was the parent's
-    kept = D.tessellate(g, D.candidate_patches(g, bounds, 1e-7))
+    kept = D.tessellate(g, geometry.candidate_patches(g, bounds, 1e-7))
     D._DISTINCT.clear()
     D._LAYOUTS.clear()
-    g = D.SurfaceGeometry(out, xform)
+    g = geometry.SurfaceGeometry(out, xform)
     ref = D._candidate_vertices(g, bounds, 1e-7)
     assert len(got[0]) > 100
     for a, b in zip(got, ref):
         np.testing.assert_array_equal(a, b)
     for name in ("points", "uv", "triangles", "tri_patch"):
-        np.testing.assert_array_equal(getattr(kept, name), getattr(D.tessellate(g, D.candidate_patches(g, bounds, 1e-7)), name))
+        np.testing.assert_array_equal(getattr(kept, name), getattr(D.tessellate(g, geometry.candidate_patches(g, bounds, 1e-7)), name))
 
 
 @pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
@@ -598,7 +600,7 @@ def test_points_on_a_collider_face_are_not_inside_at_any_scale(scale):
     (`detect.ON_MESH` of its size) and not inside, whatever ray parity makes of it; a point
     1e-7 of the size in is inside. The answers are the same at every scale of the scene."""
     half = 0.48828125 * scale
-    g = D.ColliderGeometry(box(half), move(0.25 * scale, -0.125 * scale, 0.5 * scale))
+    g = geometry.ColliderGeometry(box(half), move(0.25 * scale, -0.125 * scale, 0.5 * scale))
     rng = np.random.default_rng(5)
     local = rng.uniform(-0.9, 0.9, size=(64, 3)) * half
     local[:, 1] = -half  # on the face y = -half, the box's lowest plane
@@ -609,25 +611,6 @@ def test_points_on_a_collider_face_are_not_inside_at_any_scale(scale):
         assert D.inside(g, world).tolist() == [expect] * len(pts), (off, scale)
         m, depth = D._inside_depth(g, world)
         assert m.tolist() == [expect] * len(pts) and len(depth) == int(m.sum())
-
-
-@pytest.mark.parametrize("seed", [0, 1])
-def test_closest_within_agrees_with_the_closest_distance(seed):
-    """`Closest.within` answers what `Closest.query`'s distance does, for points on the faces of a
-    ball, a rounding error and 1e-9 of its size off them, and farther."""
-    from pipeline.authoring import uv_sphere
-
-    v, f = uv_sphere(0.45, 24, 12)
-    st = D.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f)))
-    rng = np.random.default_rng(seed)
-    tri = st.mesh.triangles[rng.integers(0, len(st.mesh.faces), 200)]
-    on = np.einsum("ij,ijk->ik", rng.dirichlet([1.0, 1.0, 1.0], 200), tri)
-    size = st.mesh.scale
-    pts = np.concatenate([on + rng.normal(size=on.shape) * e * size for e in (0.0, 1e-15, 5e-10, 2e-9, 1e-6, 1e-2)])
-    band = 1e-9 * size
-    got = st.index.within(pts, band)
-    np.testing.assert_array_equal(got, st.index.query(pts)[0] <= band)
-    assert got[:400].all() and not got[-400:].any()
 
 
 def test_points_outside_the_cv_hull_are_outside_without_a_search():
@@ -765,58 +748,11 @@ def test_a_responded_shape_s_cv_hull_is_level_0_s_and_its_moved_cvs(seed, absorp
     assert "_level0_index" not in lone.__dict__ and "_level0_index" not in lone.parent.__dict__
 
 
-def test_face_samples_cover_a_collider_at_the_spacing():
-    """`detect.face_samples`: points on the box's faces within the given bounds, the corners
-    included, every face point within the spacing of a sample."""
-    b = D.ColliderGeometry(box(0.15), move(0.2, 0.0, 0.0))
-    bounds = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    s = D.face_samples(b, bounds, 0.05)
-    local = s - [0.2, 0.0, 0.0]
-    np.testing.assert_allclose(np.abs(local).max(axis=1), 0.15, atol=1e-12)  # on the surface
-    corners = BOX_VERTICES * 0.15 + [0.2, 0.0, 0.0]
-    assert np.all(np.linalg.norm(s[:, None] - corners[None], axis=2).min(axis=0) < 1e-12)
-    rng = np.random.default_rng(3)
-    probe = rng.uniform(-0.15, 0.15, (500, 3))
-    probe[np.arange(500), rng.integers(0, 3, 500)] = rng.choice([-0.15, 0.15], 500)  # on a face
-    near = np.linalg.norm((probe + [0.2, 0.0, 0.0])[:, None] - s[None], axis=2).min(axis=1)
-    assert near.max() <= 0.05
-    half = D.face_samples(b, np.array([[0.0, -1.0, -1.0], [0.2, 1.0, 1.0]]), 0.05)  # the -x half
-    assert len(half) and np.all(half[:, 0] <= 0.2 + 1e-12) and np.all(half[:, 0] >= 0.05 - 1e-12)
-
-
-
-def test_face_samples_of_a_huge_face_cost_only_the_part_in_the_bounds():
-    """A floor 2e3 across through a 0.2 box: the samples cover the floor inside the box at the
-    spacing, and their number is that part's, not the floor's (5e9 points unsplit)."""
-    floor = trimesh.Trimesh([[-1e3, -1e3, 0.0], [1e3, -1e3, 0.0], [1e3, 1e3, 0.0], [-1e3, 1e3, 0.0]],
-                            [[0, 1, 2], [0, 2, 3]], process=False)
-    g = D.ColliderGeometry(D.prepare_collider(ColliderModel("/Floor", floor.vertices, floor.faces)), np.eye(4))
-    bounds = np.array([[0.3, -0.1, -0.1], [0.5, 0.1, 0.1]])
-    t = time.perf_counter()
-    s = D.face_samples(g, bounds, 0.01)
-    assert time.perf_counter() - t < 5.0
-    assert np.all((s >= bounds[0]) & (s <= bounds[1])) and np.all(s[:, 2] == 0.0)
-    assert 21 * 21 <= len(s) < 20 * 21 * 21
-    rng = np.random.default_rng(5)
-    probe = np.column_stack([rng.uniform(0.3, 0.5, 400), rng.uniform(-0.1, 0.1, 400), np.zeros(400)])
-    assert np.linalg.norm(probe[:, None] - s[None], axis=2).min(axis=1).max() <= 0.01
-
-
-def _rotated_scaled(seed):
-    """A seeded matrix ``(4, 4)``: rotation, non-uniform scale and a translation."""
-    rng = np.random.default_rng(seed)
-    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-    m = np.eye(4)
-    m[:3, :3] = q @ np.diag(rng.uniform(0.3, 3.0, 3))
-    m[:3, 3] = rng.normal(size=3) * 5
-    return m
-
-
 @pytest.mark.parametrize("seed", range(3))
 def test_world_patch_boxes_are_the_boxes_of_the_mapped_hull_corners(seed):
     """`SurfaceGeometry.boxes` (centre and half-extents mapped) equals the box of each hull box's
     8 corners mapped by the matrix, to rounding."""
-    geom = sphere_geom(_rotated_scaled(seed))
+    geom = sphere_geom(rotated_scaled(seed))
     lo, hi = geom.shape.hulls
     corners = np.stack([np.where(np.array([a, b, c], bool), hi, lo) for a in (0, 1) for b in (0, 1) for c in (0, 1)], axis=-2)
     world = (corners.reshape(-1, 3) @ geom.xform[:3, :3].T + geom.xform[:3, 3]).reshape(corners.shape)
@@ -833,19 +769,19 @@ def test_object_boxes_hold_the_exact_boxes_and_apart_implies_no_overlap(seed):
     translation, and `apart` is True only where `_boxes_overlap` with the pair's padding is
     False; pairs placed near touching are tested both ways."""
     rng = np.random.default_rng(seed)
-    m = _rotated_scaled(seed)
+    m = rotated_scaled(seed)
     if seed % 2:
         m[:3, 3] *= 1e4  # far from the origin: the translation's rounding dominates
     ball = trimesh.creation.icosphere(2)
-    static = D.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces))
+    static = geometry.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces))
     base = sphere_geom(m)
-    for g in (base, D.ColliderGeometry(static, m)):
+    for g in (base, geometry.ColliderGeometry(static, m)):
         assert np.all(g.outer[0] <= g.bounds[0]) and np.all(g.outer[1] >= g.bounds[1])
     seen = set()
     for _ in range(40):
         other = m.copy()
         other[:3, 3] += rng.normal(size=3) * rng.choice([0.5, 2.0, 6.0, 20.0])
-        for gb in (sphere_geom(other, "/other"), D.ColliderGeometry(static, other)):
+        for gb in (sphere_geom(other, "/other"), geometry.ColliderGeometry(static, other)):
             meets = D._boxes_overlap(base, gb, D.pair_pad(base, gb))
             assert not (D.apart(base, gb) and meets)
             seen.add((D.apart(base, gb), meets))
@@ -862,31 +798,6 @@ def test_a_pair_apart_builds_no_world_patch_boxes():
     assert "boxes" not in vars(ga) and "boxes" not in vars(gb)
     near = sphere_geom(move(1.5, 0, 0), "/near")
     assert C.detect_pair(ga, near) is not None and "boxes" in vars(ga)
-
-
-@pytest.mark.parametrize("seed", range(3))
-def test_faces_near_holds_every_face_whose_world_box_meets_the_query(seed):
-    """`ColliderStatic.faces_near` (object-space face boxes built once) holds every face whose
-    world box meets a world box, in ascending order, and on an axis-aligned box collider under
-    a translation exactly those."""
-    rng = np.random.default_rng(seed)
-    mesh = trimesh.creation.icosphere(3)
-    static = D.prepare_collider(ColliderModel("/ball", mesh.vertices, mesh.faces))
-    xform = _rotated_scaled(seed)
-    tri = (static.mesh.vertices[static.mesh.faces].reshape(-1, 3) @ xform[:3, :3].T + xform[:3, 3]).reshape(-1, 3, 3)
-    for _ in range(10):
-        c, h = xform[:3, 3] + rng.normal(size=3) * 2, rng.uniform(0.05, 1.5, 3)
-        bounds = np.stack([c - h, c + h])
-        want = np.nonzero(S.overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0))[0]
-        got = static.faces_near(xform, bounds)
-        assert np.all(np.diff(got) > 0) and np.isin(want, got).all()
-    b, bounds = box(1.0), np.array([[4.5, -2.0, -2.0], [5.0, 0.5, 2.0]])  # object-space x = 1 only at world x = 4
-    tri = b.mesh.vertices[b.mesh.faces] + [3.0, 0.0, 0.0]
-    want = np.nonzero(S.overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0))[0]
-    assert np.array_equal(b.faces_near(move(3.0, 0, 0), bounds), want) and len(want) == 0
-    bounds[0, 0] = 3.9  # now the +x face and the faces along it with y below 0.5
-    want = np.nonzero(S.overlap(tri.min(axis=1), tri.max(axis=1), bounds[0], bounds[1], 0.0))[0]
-    assert np.array_equal(b.faces_near(move(3.0, 0, 0), bounds), want) and 0 < len(want) < len(tri)
 
 
 def test_unique_patches_and_rows_are_numpy_unique():
@@ -911,7 +822,7 @@ def test_collider_inside_agrees_with_ray_parity_near_and_far(seed):
 
     v, f = uv_sphere(0.45, 24, 12)
     rot = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])
-    g = D.ColliderGeometry(D.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f))), move(0.3, -0.2, 1.1) @ rot)
+    g = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f))), move(0.3, -0.2, 1.1) @ rot)
     st = g.static
     rng = np.random.default_rng(seed)
     tri = st.mesh.triangles[rng.integers(0, len(st.mesh.faces), 150)]
@@ -933,14 +844,14 @@ def test_collider_inside_agrees_with_ray_parity_near_and_far(seed):
     assert 0.2 < far.mean() < 0.8 and 0 < want[far].sum() < far.sum()  # both rules answer some points
 
 
-def _convex_collider(kind: str, rng) -> D.ColliderStatic:
+def _convex_collider(kind: str, rng) -> geometry.ColliderStatic:
     """A box, a flat slab, or the convex hull of random points (at most `PLANES_MAX` faces)."""
     if kind == "box":
         return box(0.7)
     if kind == "slab":
-        return D.prepare_collider(ColliderModel("/slab", BOX_VERTICES * [2.0, 0.01, 1.5], BOX_TRIANGLES))
+        return geometry.prepare_collider(ColliderModel("/slab", BOX_VERTICES * [2.0, 0.01, 1.5], BOX_TRIANGLES))
     hull = trimesh.convex.convex_hull(rng.normal(size=(14, 3)) * [1.0, 0.6, 0.3])
-    return D.prepare_collider(ColliderModel("/hull", np.asarray(hull.vertices), np.asarray(hull.faces)))
+    return geometry.prepare_collider(ColliderModel("/hull", np.asarray(hull.vertices), np.asarray(hull.faces)))
 
 
 @pytest.mark.parametrize("kind,seed", [("box", 0), ("box", 1), ("slab", 2), ("hull", 3), ("hull", 4), ("hull", 5)])
@@ -952,7 +863,7 @@ def test_collider_inside_by_planes_is_the_closest_points_answer(kind, seed):
     st = _convex_collider(kind, rng)
     assert st.planes is not None and st.planes.shape == (len(st.solid.faces), 4)
     rot = trimesh.transformations.rotation_matrix(0.3 + seed, rng.normal(size=3))
-    g = D.ColliderGeometry(st, move(*rng.normal(size=3)) @ rot @ np.diag([3.0, 3.0, 3.0, 1.0]))
+    g = geometry.ColliderGeometry(st, move(*rng.normal(size=3)) @ rot @ np.diag([3.0, 3.0, 3.0, 1.0]))
     tri = st.mesh.triangles[rng.integers(0, len(st.mesh.faces), 200)]
     w = rng.dirichlet([1.0, 1.0, 1.0], 200)
     w[:50, 0] = 0.0  # on an edge
@@ -962,9 +873,9 @@ def test_collider_inside_by_planes_is_the_closest_points_answer(kind, seed):
     local = np.concatenate([on + rng.normal(size=on.shape) * e * size
                             for e in (0.0, 1e-15, 5e-10, 1e-7, 1.5e-6, 2.5e-6, 5e-6, 1e-4, 1e-2, 0.3)])
     world = apply_inverse(np.linalg.inv(g.xform), local)
-    slow = D.ColliderStatic(st.path, st.mesh, st.bvh, st.closed)
+    slow = geometry.ColliderStatic(st.path, st.mesh, st.bvh, st.closed)
     slow.__dict__["planes"] = None
-    gs = D.ColliderGeometry(slow, g.xform)
+    gs = geometry.ColliderGeometry(slow, g.xform)
     got, want = D.inside(g, world), D.inside(gs, world)
     np.testing.assert_array_equal(got, want)
     (m, depth), (ms, depths) = D._inside_depth(g, world), D._inside_depth(gs, world)
@@ -973,44 +884,26 @@ def test_collider_inside_by_planes_is_the_closest_points_answer(kind, seed):
     assert 0 < want.sum() < len(want)
 
 
-def test_collider_planes_only_for_convex_solids_with_few_faces():
-    """`ColliderStatic.planes`: a box's 12 unit outward normals and offsets; none for a ball of
-    more than `PLANES_MAX` faces, nor for a box with a dent."""
-    from pipeline.authoring import uv_sphere
-
-    planes = box(0.5).planes
-    assert planes.shape == (12, 4) and np.allclose(np.abs(planes[:, :3]).sum(axis=1), 1.0) and np.allclose(planes[:, 3], -0.5)
-    v, f = uv_sphere(0.45, 24, 12)
-    assert D.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f))).planes is None
-    dent = np.vstack([BOX_VERTICES, [[1.0, 0.0, 0.0]], [[0.5, 0.0, 0.0]]])  # a point on the +x face, then pushed in
-    for centre, planes in ((8, True), (9, False)):
-        hull = trimesh.Trimesh(dent[[0, 1, 2, 3, 4, 5, 6, 7, centre]], process=False)
-        tris = [t for t in BOX_TRIANGLES.tolist() if not all(BOX_VERTICES[i][0] == 1.0 for i in t)]
-        tris += [[4, 6, 8], [6, 7, 8], [7, 5, 8], [5, 4, 8]]  # the +x face as a fan about its centre
-        st = D.prepare_collider(ColliderModel("/dent", np.asarray(hull.vertices), np.asarray(tris)))
-        assert st.closed and (st.planes is not None) == planes
-
-
 def test_intersect_answers_are_kept_by_content_and_never_served_for_other_content():
     """`intersect` keeps its answers by the pair's content: the same surface content and matrices
     in new objects get the kept answer, a moved matrix or changed CVs (one ulp) a new one that
     says what the new pair does, and at most `ANSWERS_KEPT` answers are kept."""
     hs = H.from_grid(*shapes.sphere(16, 14))
-    a = D.SurfaceGeometry(hs, move(), "/a")
-    b = D.SurfaceGeometry(hs, move(1.5, 0.0, 0.0), "/b")
+    a = geometry.SurfaceGeometry(hs, move(), "/a")
+    b = geometry.SurfaceGeometry(hs, move(1.5, 0.0, 0.0), "/b")
     first = D.intersect(a, b)
     assert first.crosses
-    again = D.intersect(D.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(), "/a"), D.SurfaceGeometry(hs, move(1.5, 0.0, 0.0), "/b"))
+    again = D.intersect(geometry.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(), "/a"), geometry.SurfaceGeometry(hs, move(1.5, 0.0, 0.0), "/b"))
     assert again is first
-    apart = D.intersect(a, D.SurfaceGeometry(hs, move(3.5, 0.0, 0.0), "/b"))  # the matrix moved b clear
+    apart = D.intersect(a, geometry.SurfaceGeometry(hs, move(3.5, 0.0, 0.0), "/b"))  # the matrix moved b clear
     assert not apart.crosses
-    shrunk = D.intersect(D.SurfaceGeometry(H.with_cvs(hs, 0.5 * hs.cvs), move(), "/a"), b)  # the CVs changed
+    shrunk = D.intersect(geometry.SurfaceGeometry(H.with_cvs(hs, 0.5 * hs.cvs), move(), "/a"), b)  # the CVs changed
     assert not shrunk.crosses
     cvs = hs.cvs.copy()
     cvs[0, 0, 0] = np.nextafter(cvs[0, 0, 0], np.inf)
-    assert D.intersect(D.SurfaceGeometry(H.with_cvs(hs, cvs), move(), "/a"), b) is not first
+    assert D.intersect(geometry.SurfaceGeometry(H.with_cvs(hs, cvs), move(), "/a"), b) is not first
     for k in range(2 * D.ANSWERS_KEPT):
-        D.intersect(a, D.SurfaceGeometry(hs, move(1.0 + 0.01 * k, 0.0, 0.0), "/b"))
+        D.intersect(a, geometry.SurfaceGeometry(hs, move(1.0 + 0.01 * k, 0.0, 0.0), "/b"))
     assert len(D._ANSWERS) == D.ANSWERS_KEPT
     assert D.intersect(a, b) is not first and D.intersect(a, b).count == first.count
 
@@ -1025,7 +918,7 @@ def test_cast_answers_are_kept_by_content_and_never_served_for_other_content(kin
     static = box(0.8)
 
     def geom(xform, surface=hs):
-        return D.SurfaceGeometry(surface, xform) if kind == "hspline" else D.ColliderGeometry(static, xform)
+        return geometry.SurfaceGeometry(surface, xform) if kind == "hspline" else geometry.ColliderGeometry(static, xform)
 
     computed = []
     fresh = D._cast
@@ -1057,19 +950,19 @@ def test_cast_answers_are_kept_by_content_and_never_served_for_other_content(kin
 
 def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
     """Geometries with the same surface content, matrix and densities share their world grids,
-    tessellations, patch boxes and bounds (`detect._World`); a moved matrix or changed CVs get their own,
+    tessellations, patch boxes and bounds (`geometry._World`); a moved matrix or changed CVs get their own,
     equal to a fresh computation, and at most `WORLDS_KEPT` contents are kept."""
     from pipeline.model import apply_xform
 
     hs = H.from_grid(*shapes.sphere(16, 14))
     patches = np.array([[0, 0], [1, 2], [3, 1]])
-    a = D.SurfaceGeometry(hs, move(0.25, 0.0, 0.0))
+    a = geometry.SurfaceGeometry(hs, move(0.25, 0.0, 0.0))
     ta = D.tessellate(a, patches)
-    b = D.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(0.25, 0.0, 0.0))
+    b = geometry.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(0.25, 0.0, 0.0))
     assert b._world is a._world and b.boxes is a.boxes and D.tessellate(b, patches) is ta
     assert b.bounds is a.bounds and not a.bounds.flags.writeable  # shared, so no caller may write it
     assert D.tessellated(b).tolist() == patches.tolist()
-    for other in (D.SurfaceGeometry(hs, move(0.5, 0.0, 0.0)), D.SurfaceGeometry(H.with_cvs(hs, 1.5 * hs.cvs), move(0.25, 0.0, 0.0))):
+    for other in (geometry.SurfaceGeometry(hs, move(0.5, 0.0, 0.0)), geometry.SurfaceGeometry(H.with_cvs(hs, 1.5 * hs.cvs), move(0.25, 0.0, 0.0))):
         assert other._world is not a._world
         t = D.tessellate(other, patches)
         np.testing.assert_allclose(t.points, apply_xform(other.xform, H.evaluate(other.surface, t.uv[:, 0], t.uv[:, 1]).points), atol=1e-13)
@@ -1081,9 +974,9 @@ def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
         np.testing.assert_array_equal(other.boxes[1], centre + half)
         assert other.bounds is not a.bounds
         np.testing.assert_array_equal(other.bounds, [(centre - half).reshape(-1, 3).min(axis=0), (centre + half).reshape(-1, 3).max(axis=0)])
-    for k in range(2 * D.WORLDS_KEPT):
-        D.SurfaceGeometry(hs, move(0.01 * k, 0.0, 0.0)).boxes
-    assert len(D._WORLDS) == D.WORLDS_KEPT
+    for k in range(2 * geometry.WORLDS_KEPT):
+        geometry.SurfaceGeometry(hs, move(0.01 * k, 0.0, 0.0)).boxes
+    assert len(geometry._WORLDS) == geometry.WORLDS_KEPT
 
 
 def test_a_new_contents_first_patch_set_maps_the_shapes_kept_grid_points():
@@ -1098,7 +991,7 @@ def test_a_new_contents_first_patch_set_maps_the_shapes_kept_grid_points():
     first, later = np.array([[0, 0], [1, 2], [3, 1]]), np.array([[1, 2], [2, 2], [3, 1]])
     seen = []
     for k in range(3):
-        g = D.SurfaceGeometry(hs, move(0.1 + 0.37 * k, 0.2 * k, 0.0))
+        g = geometry.SurfaceGeometry(hs, move(0.1 + 0.37 * k, 0.2 * k, 0.0))
         t = D.tessellate(g, first)
         obj, grids = g.shape.cache.set_points(first)
         seen.append(obj)
@@ -1110,12 +1003,12 @@ def test_a_new_contents_first_patch_set_maps_the_shapes_kept_grid_points():
         for i, j in ((1, 0), (2, 2)):  # patch (1, 2) and (3, 1): rows of the first set's product
             np.testing.assert_array_equal(u.points[later_rows[j]:later_rows[j + 1]], t.points[rows[i]:rows[i + 1]])
     assert seen[0] is seen[1] is seen[2]
-    still = D.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
+    still = geometry.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
     D.pair_pad(still, still)
-    again = D.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
-    assert again._outer is still._outer and again._outer == D._mapped_box(again.xform, D._object_box(again.shape))
-    boxes = D._object_patch_boxes(still.shape)  # every matrix maps one array of object boxes
-    assert D._object_patch_boxes(again.shape) is boxes and not boxes[0].flags.writeable
+    again = geometry.SurfaceGeometry(hs, move(0.1, 0.0, 0.0))
+    assert again._outer is still._outer and again._outer == geometry._mapped_box(again.xform, geometry._object_box(again.shape))
+    boxes = geometry._object_patch_boxes(still.shape)  # every matrix maps one array of object boxes
+    assert geometry._object_patch_boxes(again.shape) is boxes and not boxes[0].flags.writeable
 
 
 def test_object_boxes_are_kept_by_weak_references_without_callbacks():
@@ -1125,8 +1018,8 @@ def test_object_boxes_are_kept_by_weak_references_without_callbacks():
     g = sphere_geom(move())
     D.apart(g, sphere_geom(move(10.0, 0, 0), "/far"))
     shape = g.shape
-    ref, box = D._OBJECT_BOXES[id(shape)]
-    assert ref() is shape and D._object_box(shape) == box
+    ref, box = geometry._OBJECT_BOXES[id(shape)]
+    assert ref() is shape and geometry._object_box(shape) == box
     assert all(r.__callback__ is None for r in weakref.getweakrefs(shape))
 
 
@@ -1155,7 +1048,7 @@ def test_touching_stops_at_a_crossing_pair_and_keeps_no_partial_answer():
     `intersect` answer, which then counts every contact as a fresh pair's does; a pair that does
     not cross keeps the whole pass's answer."""
     hs = H.from_grid(*shapes.sphere(16, 14))
-    pair = lambda x, z: (D.SurfaceGeometry(hs, move()), D.SurfaceGeometry(hs, move(x, 0.0, z)))  # noqa: E731
+    pair = lambda x, z: (geometry.SurfaceGeometry(hs, move()), geometry.SurfaceGeometry(hs, move(x, 0.0, z)))  # noqa: E731
     D._ANSWERS.clear()
     ga, gb = pair(0.0, 1.9)
     assert D.touching(ga, gb)
@@ -1173,7 +1066,7 @@ def test_the_touch_test_s_box_checks_are_the_array_form():
     from pipeline.grids import overlap
 
     rng = np.random.default_rng(7)
-    g = D.SurfaceGeometry(sphere_geom().surface, move(0.3, -0.1, 0.2))
+    g = geometry.SurfaceGeometry(sphere_geom().surface, move(0.3, -0.1, 0.2))
     lo, hi = (x.reshape(-1, 3) for x in g.boxes)
     for trial in range(400):
         # a box around some of the patch boxes' corners: some tests pass, some fail by a hair
@@ -1186,7 +1079,7 @@ def test_the_touch_test_s_box_checks_are_the_array_form():
             b[r, c] = np.nextafter(b[r, c], rng.choice([-np.inf, np.inf]))
         if trial % 7 == 0:
             b[rng.integers(2), rng.integers(3)] = [np.nan, np.inf, -np.inf][trial % 3]
-        fresh = D.SurfaceGeometry(g.surface, g.xform)
+        fresh = geometry.SurfaceGeometry(g.surface, g.xform)
         assert D._every_box_meets(fresh, b, pad) == bool(overlap(lo, hi, b[0], b[1], pad).all()), trial
         other = np.stack([lo[trial % len(lo)], hi[trial % len(hi)]])
         assert D._box_meets(other, b, pad) == bool(overlap(other[0], other[1], b[0], b[1], pad)), trial
@@ -1201,10 +1094,10 @@ def test_collider_inside_by_planes_raises_as_the_closest_points_do_on_points_not
     from pipeline import clearance
 
     st = box(0.5)
-    slow = D.ColliderStatic(st.path, st.mesh, st.bvh, st.closed)
+    slow = geometry.ColliderStatic(st.path, st.mesh, st.bvh, st.closed)
     slow.__dict__["planes"] = None
     for bad in (np.nan, np.inf):
         p = np.array([[0.0, 0.0, 0.0], [bad, 0.0, 0.0]])
         for s in (st, slow):
             with pytest.raises(clearance.Unresolved), np.errstate(invalid="ignore"):
-                D.inside(D.ColliderGeometry(s, move()), p)
+                D.inside(geometry.ColliderGeometry(s, move()), p)

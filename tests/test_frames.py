@@ -8,6 +8,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from conftest import write_tiny_stage
+from pipeline import geometry
 from pipeline import detect as D
 from pipeline import frames as F
 from pipeline.cli import main
@@ -132,7 +133,7 @@ def test_residual_is_relative_to_the_size_of_the_display_the_user_sees(tiny_stag
     r = result.frames[2]["/World/Sheet"]
     shown = apply_xform(st.xforms["/World/Sheet"], np.asarray(r.points, np.float32).astype(np.float64))
     diagonal = float(np.linalg.norm(np.ptp(shown, axis=0)))
-    net = D.SurfaceGeometry(r.surface, st.xforms["/World/Sheet"]).size
+    net = geometry.SurfaceGeometry(r.surface, st.xforms["/World/Sheet"]).size
     assert st.iterations == 0 and net > 1.1 * diagonal  # the net reaches past the surface
     assert st.residual == pytest.approx(1e-4, rel=1e-3)  # float32 box and sheet points
     assert st.residual_rel == pytest.approx(st.residual / diagonal, rel=1e-12)
@@ -219,11 +220,11 @@ def test_the_residual_measures_a_pair_as_the_exact_box_test_without_a_met_surfac
     rng = np.random.default_rng(5)
     met = 0
     for trial in range(60):
-        a = D.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 6)), move(*rng.uniform(-1.5, 1.5, 3)) @ np.diag([*rng.uniform(0.5, 2.0, 3), 1.0]))
+        a = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 6)), move(*rng.uniform(-1.5, 1.5, 3)) @ np.diag([*rng.uniform(0.5, 2.0, 3), 1.0]))
         if trial % 2:
-            b = D.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 6)), move(*rng.uniform(-1.5, 1.5, 3)))
+            b = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(8, 6)), move(*rng.uniform(-1.5, 1.5, 3)))
         else:
-            b = D.ColliderGeometry(box(rng.uniform(0.2, 1.0)), move(*rng.uniform(-2.0, 2.0, 3)))
+            b = geometry.ColliderGeometry(box(rng.uniform(0.2, 1.0)), move(*rng.uniform(-2.0, 2.0, 3)))
         inner = F._inner_box(a)
         assert F._unbuilt(a)
         got = F._measured(a, b)
@@ -317,7 +318,7 @@ def test_a_colliders_inside_is_the_detections_solid_where_trimesh_kept_its_array
     models = [ColliderModel("/kept", BOX_VERTICES * 0.5, BOX_TRIANGLES),
               ColliderModel("/unused", np.vstack([BOX_VERTICES * 0.5, [[3.0, 3.0, 3.0]]]), BOX_TRIANGLES),
               ColliderModel("/open", BOX_VERTICES * 0.5, BOX_TRIANGLES[:-1])]
-    run = SimpleNamespace(scene=SimpleNamespace(colliders=models), statics=[D.prepare_collider(m) for m in models],
+    run = SimpleNamespace(scene=SimpleNamespace(colliders=models), statics=[geometry.prepare_collider(m) for m in models],
                           _collider_solids={})
     got = [F._Run.collider_solid(run, j) for j in range(3)]
     assert got[0] is run.statics[0].solid and F._Run.collider_solid(run, 0) is got[0]

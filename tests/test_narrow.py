@@ -198,7 +198,7 @@ def test_crossings_first_stops_at_a_contact_and_says_whether_the_sets_cross():
 
 
 def test_patches_near_is_the_broad_phase_in_arrays():
-    """`narrow.patches_near` keeps the patch boxes `detect.candidate_patches` keeps on each side,
+    """`narrow.patches_near` keeps the patch boxes `geometry.candidate_patches` keeps on each side,
     then those meeting a kept box of the other side, as the array form did, and gives the box of
     ``b``'s kept boxes; boxes that touch exactly (a pad of 0) count, and no kept box gives None."""
     rng = np.random.default_rng(3)

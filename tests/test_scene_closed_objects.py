@@ -14,6 +14,7 @@ from pxr import Gf, Usd, UsdGeom
 from acra import hspline as H
 from acra import respond as R
 from acra import shapes
+from pipeline import geometry
 from pipeline import detect as D
 from pipeline import usdio
 from pipeline import output_layer
@@ -44,7 +45,7 @@ def _contact_moves(report, st):
     p_a, p_b = st.contacts[0]
     moved = []
     for m, state, p in zip(scene.deformables, states, (p_a, p_b)):
-        proj = D.project(D.SurfaceGeometry(state.surface, state.xform), p[None])
+        proj = D.project(geometry.SurfaceGeometry(state.surface, state.xform), p[None])
         assert proj.distance[0] <= 1e-9, m.path  # the contact point is a material point of the input
         hs = output_layer.read_output_hierarchy(out, m.path, st.frame)
         q = H.evaluate(hs, proj.uv[:, 0], proj.uv[:, 1], det=H.details(hs)).points
@@ -90,7 +91,7 @@ def test_both_deform_in_their_rigidity_shares_at_every_frame(run_scene):
 def _sizes(report, frame):
     src, _, scene = _stages(report)
     states, _ = usdio.state_at(src, scene, frame)
-    return [D.SurfaceGeometry(s.surface, s.xform) for s in states]
+    return [geometry.SurfaceGeometry(s.surface, s.xform) for s in states]
 
 
 def test_contact_is_at_the_ball_equator(run_scene):
@@ -100,7 +101,7 @@ def test_contact_is_at_the_ball_equator(run_scene):
         if st.in_collision:
             states, _ = usdio.state_at(src, scene, st.frame)
             p_a = st.contacts[0][0]
-            uv = D.project(D.SurfaceGeometry(states[0].surface, states[0].xform), p_a[None]).uv[0]
+            uv = D.project(geometry.SurfaceGeometry(states[0].surface, states[0].xform), p_a[None]).uv[0]
             # v runs 0 (south pole) .. 5 (north pole): the contact is in the middle patch row
             assert abs(p_a[2]) <= 0.02 and 2.0 < uv[1] < 3.0, (st.frame, p_a, uv)
 
@@ -117,7 +118,7 @@ def test_ball_poles_stay_closed(run_scene):
         size = hs.size()
         for row in (1, hs.v.n - 2):
             assert np.ptp(hs.cvs[:, row], axis=0).max() <= 1e-12 * size, (st.frame, row)
-        assert D.SurfaceGeometry(hs, np.eye(4)).closed, st.frame
+        assert geometry.SurfaceGeometry(hs, np.eye(4)).closed, st.frame
         nrm = np.asarray(UsdGeom.Mesh(prim).GetNormalsAttr().Get(st.frame), dtype=np.float64)
         v = output_layer.read_display_uv(out, BALL)[:, 1]  # the pole rows: v at either end
         assert np.abs(nrm[v == 0.0] - [0, 0, -1]).max() <= 1e-5, st.frame
@@ -141,7 +142,7 @@ def test_level0_response_keeps_a_sphere_closed():
         uv = np.array([uv])
         p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
         out, report = R.respond(hs, R.DataPoints(uv, 0.85 * p, np.array([True])), R.check_controls(3, absorption))
-        assert D.SurfaceGeometry(out, np.eye(4)).closed, uv
+        assert geometry.SurfaceGeometry(out, np.eye(4)).closed, uv
         for row in (1, hs.v.n - 2):
             assert np.ptp(out.cvs[:, row], axis=0).max() <= 1e-12, (uv, row)
         if uv[0, 1] >= 2.0:  # only the pole's patch row changes: an equatorial contact is still met

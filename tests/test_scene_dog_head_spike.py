@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from acra import hspline as H
+from pipeline import geometry
 from pipeline import snapshot as S
 
 CONTACT = np.array([0.1, 0.8, 0.08])  # where the spike's tip meets the cheek (world)
@@ -116,8 +117,8 @@ def test_rounds_past_the_tolerance_keep_lowering_the_residual():
         depths = []
         for s in stats:
             states = usdio.state_at(stage, scene, s.frame)[0]
-            size = min(D.SurfaceGeometry(st.surface, st.xform).size for st in states)
-            kept = [D.SurfaceGeometry(result.frames[s.frame][p].surface, st.xform, name=p) for p, st in zip(paths, states)]
+            size = min(geometry.SurfaceGeometry(st.surface, st.xform).size for st in states)
+            kept = [geometry.SurfaceGeometry(result.frames[s.frame][p].surface, st.xform, name=p) for p, st in zip(paths, states)]
             depths.append(D.residual(*kept).max / size)
         found[cap] = max(depths)
     assert np.all(shown[4] < shown[1]), shown  # a stalled frame keeps its first round: equal

@@ -12,6 +12,7 @@ import pytest
 from pxr import Usd
 
 from acra.tessellate import evaluate_grid
+from pipeline import geometry
 from pipeline import detect as D
 from pipeline import usdio
 from pipeline import output_layer
@@ -52,7 +53,7 @@ def frames(run_scene):
     scene = usdio.read_scene(src)
     (model,) = scene.deformables
     (ball,) = scene.colliders
-    ball_geom = D.ColliderGeometry(D.prepare_collider(ball), np.eye(4))
+    ball_geom = geometry.ColliderGeometry(geometry.prepare_collider(ball), np.eye(4))
     center = S.ball_center(arm_rig())
     rows = []
     for st in report.stats:
@@ -64,7 +65,7 @@ def frames(run_scene):
             inside = D.inside(ball_geom, p)
             depth[inside] = D.surface_distance(ball_geom, p[inside])[0]
         rows.append(Frame(st, p_in, p_out, np.linalg.norm(p_in - center, axis=1) - S.BALL_RADIUS,
-                          depth_in, depth_out, D.SurfaceGeometry(state.surface, state.xform).size))
+                          depth_in, depth_out, geometry.SurfaceGeometry(state.surface, state.xform).size))
     return report, src, out, rows
 
 
