@@ -83,7 +83,7 @@ def unique_inverse(x):
     """``np.unique(x, return_inverse=True)`` of ``x (n,) int64``: the sorted distinct values
     ``(m,) int64`` and the place of each entry among them ``(n,) int64``. Integers, so the same
     values as numpy's; numpy's costs tens of microseconds of set-up on the few hundred entries of
-    a level's solve (`acra.interpolate.point_weights`, `acra.respond.patch_groups`)."""
+    a level's solve (`acra.interpolate.point_weights`, `acra.targets.patch_groups`)."""
     n = x.shape[0]
     if n:
         lo = hi = x[0]  # loops, here and below: numba's array min and max cost seconds to compile
@@ -501,10 +501,10 @@ def merge_points(uv, want, is_contact, level, u_patches, u_periodic, v_patches, 
     """`acra.respond._per_level_points` in one pass: the contacts of ``uv (K, 2) float64`` and
     ``want (K, 3) float64`` as they are, in order, then one row per level-``level`` patch that
     additional points (``is_contact (K,) bool`` false) fall in, patches in key order (``pu *
-    v_patches + pv``, `acra.respond.patch_keys`; `unique_inverse`'s numbering): the mean of
+    v_patches + pv``, `acra.targets.patch_keys`; `unique_inverse`'s numbering): the mean of
     their wanted moves and of each open direction's parameters, each sum from 0.0 in the
     points' order then divided by the count, as ``np.bincount`` sums. A periodic direction's
-    mean is an angle's (`acra.respond.patch_groups`): ``trig (2, 2, E) float64`` holds numpy's
+    mean is an angle's (`acra.targets.patch_groups`): ``trig (2, 2, E) float64`` holds numpy's
     cosines and sines of the ``E`` additional points' angles per direction (``[col, 0]``:
     cosines, ``[col, 1]``: sines; unused for an open direction), summed here per patch into
     ``sums (g, 2, 2) float64`` for the caller's ``arctan2``. Returns the merged ``uv (n, 2)``,

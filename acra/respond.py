@@ -19,290 +19,23 @@ and its share is not made up by finer levels: the remainder is exactly the missi
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import framekernels, levelkernels, memo
 from . import hspline as H
 from .basis import locate
+from .controls import ControlError, Controls
 from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys
 from .interpolate import PointWeights, point_active, point_weights, solve
+from .quat import quat_from_axis_angle, quat_rotate, slerp_mean
+from .targets import DataPoints, patch_groups
 
 __all__ = [
-    "Controls",
-    "ControlError",
-    "check_controls",
-    "DataPoints",
-    "rigidity_share",
-    "patch_keys",
-    "patch_groups",
-    "contact_targets",
-    "additional_targets",
-    "region_midpoints",
-    "region_deepest",
     "respond",
     "move_level",
-    "quat_from_axis_angle",
-    "quat_rotate",
-    "slerp_mean",
 ]
-
-
-class ControlError(ValueError):
-    """An invalid control: ``attribute`` names the contract attribute (``acra:absorption``, …)."""
-
-    def __init__(self, attribute: str, problem: str):
-        self.attribute, self.problem = attribute, problem
-        super().__init__(f"{attribute}: {problem}")
-
-
-@dataclass(frozen=True)
-class Controls:
-    """Validated ACRA controls for one object (see `check_controls`).
-
-    Attributes
-    ----------
-    absorption : (L,) float64
-    deform, translate, rotate : (L,) float64
-    rigidity : float
-    refine : bool
-        ``True``: refine patches down to an absorbing level; ``False``: obey the refinement.
-    """
-
-    absorption: np.ndarray
-    deform: np.ndarray
-    translate: np.ndarray
-    rotate: np.ndarray
-    rigidity: float = 50.0
-    refine: bool = True
-
-
-def check_controls(levels, absorption=None, deform=None, translate=None, rotate=None, rigidity=50.0, refine="refine") -> Controls:
-    """Validate controls against the contract and fill its defaults.
-
-    Defaults: absorption ``[0, …, 0, 1]``, all deformational, rigidity 50, ``refine``.
-    Raises `ControlError` naming the attribute: counts not matching ``levels``, negative or
-    non-finite values, sums off 1 by more than 1e-6, rigidity outside ``[1, 100]``, unknown
-    policy token.
-    """
-    if not isinstance(levels, (int, np.integer)) or levels < 1:
-        raise ControlError("acra:levels", f"must be an integer of at least 1, got {levels!r}")
-    L = int(levels)
-    if absorption is None:
-        absorption = np.zeros(L)
-        absorption[-1] = 1.0
-    mixes = {}
-    for name, val, fill in (("deform", deform, 1.0), ("translate", translate, 0.0), ("rotate", rotate, 0.0)):
-        mixes[name] = np.full(L, fill) if val is None else val
-    if deform is None and (translate is not None or rotate is not None):
-        mixes["deform"] = 1.0 - np.asarray(mixes["translate"], float) - np.asarray(mixes["rotate"], float)
-    arrays = {}
-    for name, val in (("absorption", absorption), *mixes.items()):
-        a = np.asarray(val, dtype=np.float64).reshape(-1)
-        attr = f"acra:{name}"
-        if a.size != L:
-            raise ControlError(attr, f"has {a.size} values but acra:levels is {L}")
-        if not np.all(np.isfinite(a)):
-            raise ControlError(attr, "contains NaN or infinity")
-        if np.any(a < 0):
-            raise ControlError(attr, f"value {float(a[a < 0][0])} is negative; shares must be >= 0")
-        arrays[name] = a
-    if abs(arrays["absorption"].sum() - 1.0) > 1e-6:
-        raise ControlError("acra:absorption", f"sums to {arrays['absorption'].sum():.9g}, must sum to 1")
-    total = arrays["deform"] + arrays["translate"] + arrays["rotate"]
-    bad = np.nonzero(np.abs(total - 1.0) > 1e-6)[0]
-    if bad.size:
-        raise ControlError("acra:deform", f"deform + translate + rotate at level {int(bad[0])} sums to {total[bad[0]]:.9g}, must be 1")
-    r = float(rigidity)
-    if not np.isfinite(r) or not 1.0 <= r <= 100.0:
-        raise ControlError("acra:rigidity", f"{rigidity!r} is outside [1, 100]")
-    if refine not in ("refine", "obey"):
-        raise ControlError("acra:refine", f"unknown token {refine!r} (use 'refine' or 'obey')")
-    return Controls(arrays["absorption"], arrays["deform"], arrays["translate"], arrays["rotate"], r, refine == "refine")
-
-
-# --------------------------------------------------------------------------------------------
-# data points (thesis §4.2)
-
-
-@dataclass(frozen=True)
-class DataPoints:
-    """Where points of one surface must go.
-
-    Attributes
-    ----------
-    uv : (K, 2) float64
-        Parameters of each point on the surface (level-0 units).
-    target : (K, 3) float64
-        Where the point must go (object space of the surface).
-    is_contact : (K,) bool
-        Contact point ``P`` (True) or additional point ``A`` (False).
-    per_patch : bool
-        ``True`` (eq. 4.16): each level's solve merges the additional points to one per patch of
-        that level (`_per_level_points`). ``False``: every point is solved as it is, in least
-        squares where they outnumber the CVs (a corrective round's samples, `corrective`).
-    """
-
-    uv: np.ndarray
-    target: np.ndarray
-    is_contact: np.ndarray
-    per_patch: bool = True
-
-
-def corrective(controls: Controls, depth: int) -> Controls:
-    """Controls of a corrective response: the whole absorption on the finest absorbing level
-    (of a surface ``depth`` levels deep), with that level's own deform/translate/rotate mix.
-
-    A round that only corrects what an earlier round left (a display a fraction of the
-    tolerance inside the other object) asks moves of a few thousandths of the size. Spread over
-    the levels as the animator's absorption asks, a coarse level's share moves its CVs under the
-    whole contact, so the part already in place (a dent's bottom) moves with the correction;
-    the finest absorbing level's CVs reach least far."""
-    L = controls.absorption.size
-    levels = np.nonzero(controls.absorption > 0)[0]
-    k = int(min(levels.max() if levels.size else L - 1, depth - 1))
-    a = np.zeros(L)
-    a[k] = 1.0
-    return replace(controls, absorption=a)
-
-
-def rigidity_share(r1: float, r2: float | None) -> float:
-    """Eq. 4.15: ``R = R1 / (R1 + R2)``; a rigid collider (``r2 is None``) gives ``R = 0``.
-
-    Surface 1 interpolates ``R P1 + (1 - R) P2``, so it moves ``1 - R`` of the way: the more
-    rigid surface moves less, and against a collider the deformable moves all the way.
-    """
-    if r2 is None or np.isinf(r2):
-        return 0.0
-    return float(r1) / (float(r1) + float(r2))
-
-
-def contact_targets(p1: np.ndarray, p2: np.ndarray, share: float) -> np.ndarray:
-    """Eq. 4.15: the common target ``P' = R P1 + (1 - R) P2`` of two contact points ``(3,)``."""
-    return share * np.asarray(p1, float) + (1.0 - share) * np.asarray(p2, float)
-
-
-def additional_targets(a: np.ndarray, b: np.ndarray, share: float) -> np.ndarray:
-    """Eq. 4.16: ``A' = R A + (1 - R) B`` for additional points ``a`` and their hits ``b``, ``(k, 3)``."""
-    return share * np.asarray(a, float) + (1.0 - share) * np.asarray(b, float)
-
-
-def region_midpoints(hs: H.HSpline, uv_inside: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
-    """Parametric middle of the part of each level-``level`` patch inside a region (eq. 4.16).
-
-    Parameters
-    ----------
-    uv_inside : (n, 2) float64
-        Parameters of surface samples that lie inside the other object.
-
-    Returns
-    -------
-    uv_mid : (g, 2) float64
-        One point per patch that is wholly or partly inside: the mean of its inside samples
-        (periodic directions are averaged on the circle so a seam does not split the mean).
-    patches : (g, 2) int64
-        The patch of each point.
-    """
-    mids, patches, _ = patch_groups(hs, uv_inside, level)
-    return mids, patches
-
-
-def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, level: int,
-                   groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The deepest inside sample of each level-``level`` patch, in `region_midpoints`' order.
-
-    Where a later round finds a patch still partly inside but the middle of its inside part
-    already on its target (a sliver along the other object's edge, where the C2 surface curls
-    back up between the samples), the middle moves nothing; the deepest sample is where the
-    residual is.
-
-    Parameters
-    ----------
-    uv_inside : (n, 2) float64
-        Parameters of surface samples inside the other object.
-    depth : (n,) float64
-        Their depths (distance to the other surface).
-    groups : (n,) int64, optional
-        The group of each sample (`patch_groups`' ``inv``) where the caller has it already.
-
-    Returns
-    -------
-    uv_deep : (g, 2) float64
-    depth_deep : (g,) float64
-        The patch's largest depth.
-    """
-    uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
-    depth = np.asarray(depth, np.float64).reshape(-1)
-    inv = patch_groups(hs, uv_inside, level, patches=False)[2] if groups is None else groups
-    order = np.lexsort((depth, inv))  # by patch, deepest last
-    last = np.r_[inv[order][1:] != inv[order][:-1], True] if order.size else np.zeros(0, bool)
-    return uv_inside[order[last]], depth[order[last]]
-
-
-def patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
-    """Level-``level`` patch of each of ``uv (n, 2) float64`` as one key ``(n,) int64``
-    (``su * patches_v + sv``)."""
-    su, _ = locate(hs.u, uv[:, 0], level)
-    sv, _ = locate(hs.v, uv[:, 1], level)
-    return su * hs.v.patches(level) + sv
-
-
-def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool = True):
-    """`region_midpoints` plus the group of each input point: ``inv (n,) int64``; with
-    ``patches`` False the patches are ``None`` (a caller that needs the groups alone)."""
-    uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
-    if uv_inside.shape[0] == 0:
-        return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    keys = patch_keys(hs, uv_inside, level)
-    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(keys, np.int64))
-    mids = np.zeros((uniq.size, 2))
-    for col, d in ((0, hs.u), (1, hs.v)):
-        x = uv_inside[:, col]
-        if d.periodic:
-            ang = 2 * np.pi * x / d.patches0
-            c = np.bincount(inv, np.cos(ang), uniq.size)
-            s = np.bincount(inv, np.sin(ang), uniq.size)
-            mids[:, col] = np.mod(np.arctan2(s, c), 2 * np.pi) * d.patches0 / (2 * np.pi)
-        else:
-            mids[:, col] = np.bincount(inv, x, uniq.size) / np.bincount(inv, minlength=uniq.size)
-    if not patches:
-        return mids, None, inv
-    return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
-
-
-# --------------------------------------------------------------------------------------------
-# quaternions
-
-
-def quat_from_axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``(m, 4)`` as ``(w, x, y, z)`` from unit axes ``(m, 3)`` and angles ``(m,)``."""
-    axis = np.atleast_2d(axis)
-    half = 0.5 * np.atleast_1d(angle)
-    return np.concatenate([np.cos(half)[:, None], np.sin(half)[:, None] * axis], axis=1)
-
-
-def quat_rotate(q: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Rotate vectors ``x (m, 3)`` by unit quaternions ``q (m, 4)``."""
-    w, v = q[:, :1], q[:, 1:]
-    t = 2.0 * np.cross(v, x)
-    return x + w * t + np.cross(v, t)
-
-
-def slerp_mean(qs: np.ndarray) -> np.ndarray:
-    """Mean of unit quaternions ``(n, 4)`` by successive slerp with weights ``1/i``."""
-    acc = qs[0]
-    for i in range(1, qs.shape[0]):
-        q = qs[i] if np.dot(acc, qs[i]) >= 0 else -qs[i]
-        t = 1.0 / (i + 1)
-        cos = np.clip(np.dot(acc, q), -1.0, 1.0)
-        ang = np.arccos(cos)
-        if ang < 1e-12:
-            acc = (1 - t) * acc + t * q
-        else:
-            acc = (np.sin((1 - t) * ang) * acc + np.sin(t * ang) * q) / np.sin(ang)
-        acc = acc / np.linalg.norm(acc)
-    return acc
 
 
 # --------------------------------------------------------------------------------------------
@@ -739,7 +472,6 @@ def _per_level_points_numpy(hs: H.HSpline, level: int, uv: np.ndarray, want: np.
     moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
     moves /= np.bincount(inv, minlength=g)[:, None]
     return np.concatenate([uv[is_contact], mids]), np.concatenate([want[is_contact], moves])
-
 
 
 @dataclass(frozen=True)

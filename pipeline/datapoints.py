@@ -22,7 +22,8 @@ import numpy as np
 from acra import hspline as H
 from acra import kdtree
 from acra import memo
-from acra import respond as R
+from acra.controls import Controls
+from acra.targets import DataPoints, additional_targets, contact_targets, patch_groups, patch_keys, region_deepest
 from acra.kdtree import thin_greedy
 from pipeline import geometry
 from pipeline import contact as C
@@ -36,15 +37,15 @@ __all__ = ["data_points_for", "collider_points_for", "rim_points", "visible_poin
            "HOLD_GAP", "CORRECTIVE_RCOND", "LATER_AMPLIFY"]
 
 
-def group_level(controls: R.Controls, depth: int) -> int:
+def group_level(controls: Controls, depth: int) -> int:
     """Level whose patches get one additional point each: the finest absorbing level."""
     levels = np.nonzero(controls.absorption > 0)[0]
     return int(min(levels.max() if levels.size else 0, depth - 1))
 
 
-def corrects(controls: R.Controls, depth: int) -> bool:
+def corrects(controls: Controls, depth: int) -> bool:
     """Whether a round from the display alone corrects this surface with a fit of samples
-    (`visible_points`, `respond.corrective`): its finest absorbing level only deforms. A
+    (`visible_points`, `corrective`): its finest absorbing level only deforms. A
     translation or a rotation of a patch's detail cannot follow a grid of samples (measured:
     `rotate_and_deform` frames 7-8 1.29e-3 after 4 rounds), so such a surface keeps the
     display's deepest point per patch (`deepest_shown`) and the animator's levels."""
@@ -66,7 +67,7 @@ def data_points_for(
     direction: np.ndarray | None = None,
     region_depth: np.ndarray | None = None,
     settled: float = 0.0,
-) -> tuple[R.DataPoints, np.ndarray]:
+) -> tuple[DataPoints, np.ndarray]:
     """Data points of one surface of a pair, in its object space (thesis eq. 4.15–4.16).
 
     Parameters
@@ -87,7 +88,7 @@ def data_points_for(
         Depths of the ``region_uv`` samples. With them, a patch whose middle has *stalled* (its
         cast asks a move of at most `STALLED` of the patch's depth, and that depth is more than
         ``settled``, a world length that counts as done) takes its deepest sample as its point
-        instead (`respond.region_deepest`). Without this, a later round whose region is a sliver
+        instead (`region_deepest`). Without this, a later round whose region is a sliver
         along the other object's edge pins middles already on their targets and moves nothing,
         however many rounds run (docs/hard-cases.md, case 7).
     settled : float
@@ -103,32 +104,32 @@ def data_points_for(
     DataPoints (object space of ``ga``), the world targets ``(K, 3)`` and the world points
     ``(K, 3)`` they move from (the surface before the response), for the preview's arrows.
     """
-    target_p = R.contact_targets(p_self, p_other, share)
+    target_p = contact_targets(p_self, p_other, share)
     uvs = [np.asarray(uv, float).reshape(1, 2)]
     targets = [target_p[None]]
     origins = [np.asarray(p_self, float).reshape(1, 3)]
     direction = p_other - p_self if direction is None else np.asarray(direction, float)
     size = ga.size
     if region_uv is not None and len(region_uv) and np.linalg.norm(direction) > 1e-9 * size:
-        # `respond.region_midpoints`, keeping each sample's patch for `region_deepest`
-        mids, _, groups = R.patch_groups(ga.surface, region_uv, group_level, patches=False)
+        # `region_midpoints`, keeping each sample's patch for `region_deepest`
+        mids, _, groups = patch_groups(ga.surface, region_uv, group_level, patches=False)
         a_world = apply_xform(ga.xform, H.evaluate(ga.surface, mids[:, 0], mids[:, 1], det=ga.details).points)
         hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
         if region_depth is not None:
-            deep, depth = R.region_deepest(ga.surface, region_uv, region_depth, group_level, groups)
+            deep, depth = region_deepest(ga.surface, region_uv, region_depth, group_level, groups)
             stalled = np.nonzero(valid & (depth > settled) & (np.linalg.norm(hits - a_world, axis=1) <= STALLED * depth))[0]
             if stalled.size:
                 d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[stalled, 0], deep[stalled, 1], det=ga.details).points)
                 d_hits, d_valid = D.cast(gb, d_world, np.broadcast_to(direction, d_world.shape))
                 use = stalled[d_valid]
                 mids[use], a_world[use], hits[use] = deep[use], d_world[d_valid], d_hits[d_valid]
-        wanted = R.additional_targets(a_world, hits, share)
+        wanted = additional_targets(a_world, hits, share)
         if isinstance(gb, geometry.ColliderGeometry):
             r_uv, r_world, r_goal = rim_points(ga, gb, region_uv, direction, group_level)
             if len(r_uv):  # a rim patch's point is its rim point, not its middle
-                valid &= ~np.isin(R.patch_keys(ga.surface, mids, group_level), R.patch_keys(ga.surface, r_uv, group_level))
+                valid &= ~np.isin(patch_keys(ga.surface, mids, group_level), patch_keys(ga.surface, r_uv, group_level))
                 mids, a_world = np.concatenate([mids, r_uv]), np.concatenate([a_world, r_world])
-                wanted = np.concatenate([wanted, R.additional_targets(r_world, r_goal, share)])
+                wanted = np.concatenate([wanted, additional_targets(r_world, r_goal, share)])
                 valid = np.concatenate([valid, np.ones(len(r_uv), bool)])
         valid &= spread(a_world, np.asarray(p_self, float), MEET * size)
         if np.any(valid):
@@ -139,7 +140,7 @@ def data_points_for(
     world = np.concatenate(targets)
     is_contact = np.zeros(len(uv_all), bool)
     is_contact[0] = True
-    return R.DataPoints(uv_all, ga.to_object(world), is_contact), world, np.concatenate(origins)  # `apply_inverse`'s bits
+    return DataPoints(uv_all, ga.to_object(world), is_contact), world, np.concatenate(origins)  # `apply_inverse`'s bits
 
 
 WRAP_RING = 1  # patches around the ones a collider's outline covers that a new pocket pushes too
@@ -242,7 +243,7 @@ def collider_points_for(
     if not ok.any():
         return none
     uv, lag, plane = uv[ok], lag[ok], far[ok] @ unit
-    su, sv = np.divmod(R.patch_keys(hs, uv, group_level), hs.v.patches(group_level))
+    su, sv = np.divmod(patch_keys(hs, uv, group_level), hs.v.patches(group_level))
     shape = (hs.u.patches(group_level), hs.v.patches(group_level))
     most, need = np.full(shape, -np.inf), np.full(shape, -np.inf)
     np.maximum.at(most, (su, sv), lag)
@@ -259,7 +260,7 @@ def collider_points_for(
         move = np.maximum(move, need[pp[:, 0], pp[:, 1]] - a @ unit)
     go = move > 0
     b = a[go] + (move[go, None] + clear) * unit
-    return mid[go], R.additional_targets(a[go], b, share), a[go]
+    return mid[go], additional_targets(a[go], b, share), a[go]
 
 
 RIM_STEEP = 0.5  # |n·d| at most this: a collider face the surface must drop along (a box's side)
@@ -354,7 +355,7 @@ def _rim_points(ga: geometry.SurfaceGeometry, gb: geometry.ColliderGeometry, reg
     cross = geometry.wrap_uv(hs, (hi + step)[use][hit])
     if not len(cross):
         return empty
-    mids, _, inv = R.patch_groups(hs, cross, level)
+    mids, _, inv = patch_groups(hs, cross, level)
     g = len(mids)
     plane = np.stack([np.bincount(inv, s_hit[hit, c], g) for c in range(3)], axis=1)
     plane /= np.bincount(inv, minlength=g)[:, None]  # mean hit of each patch's rim samples
@@ -466,7 +467,7 @@ def visible_points(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, inside: 
         return empty
     hs = ga.surface
     shown_uv = geometry.wrap_uv(hs, inside.uv)
-    su, sv = np.divmod(np.unique(R.patch_keys(hs, shown_uv, group_level)), hs.v.patches(group_level))
+    su, sv = np.divmod(np.unique(patch_keys(hs, shown_uv, group_level)), hs.v.patches(group_level))
     steps = np.linspace(0.0, 1.0, GRID + 1)
     offs = np.stack(np.meshgrid(steps, steps, indexing="ij"), axis=-1).reshape(-1, 2)
     uv = ((np.stack([su, sv], axis=1)[:, None, :] + offs[None]) / (1 << group_level)).reshape(-1, 2)
@@ -505,7 +506,7 @@ def visible_points(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, inside: 
     np.maximum.at(lag, near, shown_lag[ok] + np.minimum(ahead, 0.0))
     go = lag > -np.inf
     goal = at[go] + (np.maximum(lag[go], 0.0) + clear)[:, None] * unit[go]
-    return uv[go], R.additional_targets(at[go], goal, share), at[go]
+    return uv[go], additional_targets(at[go], goal, share), at[go]
 
 
 GRID = 2  # intervals per patch edge of `visible_points`' samples: corners and edge middles
@@ -559,7 +560,7 @@ def deepest_shown(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, inside: r
         return empty
     hs = ga.surface
     uv = geometry.wrap_uv(hs, inside.uv)
-    keys = R.patch_keys(hs, uv, group_level)
+    keys = patch_keys(hs, uv, group_level)
     order = np.lexsort((inside.deep, keys))  # by patch, deepest last
     rows = order[np.r_[keys[order][1:] != keys[order][:-1], True]]
     uv, shown = uv[rows], inside.points[rows]
@@ -577,7 +578,7 @@ def deepest_shown(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, inside: r
     valid &= move > 0
     origin = geometry.surface_points(ga, uv[valid]).points
     goal = origin + move[valid, None] * unit[valid]
-    return uv[valid], R.additional_targets(origin, goal, share), origin
+    return uv[valid], additional_targets(origin, goal, share), origin
 
 
 def with_shown(region: D.Region, shown) -> tuple[np.ndarray | None, np.ndarray]:
@@ -640,8 +641,8 @@ def deepest_instead(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, c: C.Pa
     return replace(c, uv_a=uv_a, uv_b=uv_b, local_b=local_b, point_a=pa, point_b=pb)
 
 
-def pinned(hs: H.HSpline, new: R.DataPoints, old: R.DataPoints | None, level: int,
-           shared: bool = False, slack: float = 0.0) -> tuple[R.DataPoints, R.DataPoints | None]:
+def pinned(hs: H.HSpline, new: DataPoints, old: DataPoints | None, level: int,
+           shared: bool = False, slack: float = 0.0) -> tuple[DataPoints, DataPoints | None]:
     """A later round's data points and the points it holds: ``(new's kept points, held)``.
 
     ``old`` are the frame's earlier data points. Their contact points (eq. 4.15's first-touch
@@ -721,11 +722,11 @@ CORRECTIVE_RCOND = 1e-3
 LATER_AMPLIFY = 2.0
 
 
-def _take(dp: R.DataPoints, rows: np.ndarray) -> R.DataPoints:
-    return R.DataPoints(dp.uv[rows], dp.target[rows], np.asarray(dp.is_contact, bool)[rows], per_patch=dp.per_patch)
+def _take(dp: DataPoints, rows: np.ndarray) -> DataPoints:
+    return DataPoints(dp.uv[rows], dp.target[rows], np.asarray(dp.is_contact, bool)[rows], per_patch=dp.per_patch)
 
 
-def _thinned(hs: H.HSpline, dp: R.DataPoints, gap: float) -> R.DataPoints:
+def _thinned(hs: H.HSpline, dp: DataPoints, gap: float) -> DataPoints:
     """``dp`` without the additional points closer than ``gap`` (level-0 parameters) to a contact
     point or to an additional point asking a larger move (greedy, largest move first).
 

@@ -23,6 +23,8 @@ from threadpoolctl import threadpool_limits
 
 from acra import hspline as H
 from acra import respond as R
+from acra.controls import Controls, corrective as corrective_controls
+from acra.targets import DataPoints, patch_keys, rigidity_share
 from acra.interpolate import SystemTooLarge
 from pipeline import geometry
 from pipeline import contact as C
@@ -104,8 +106,8 @@ class FrameStats:
     hold: bool = False  # a hold: the frame's input is the previous frame's, bit for bit, and so is its answer (`_Run._hold_of`)
 
 
-def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: R.DataPoints, controls: R.Controls,
-                     options: RunOptions, held: R.DataPoints | None = None, rcond: float = 1e-4,
+def _respond_bounded(path: str, frame: int, parent: H.HSpline, dp: DataPoints, controls: Controls,
+                     options: RunOptions, held: DataPoints | None = None, rcond: float = 1e-4,
                      amplify: float | None = None):
     """`respond.respond` with each direct solve's dense arrays bounded by the run's memory budget.
 
@@ -461,7 +463,7 @@ class _Run:
             gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
             r_other = None if other[0] == "c" or not enabled[other[1]] else controls[other[1]].rigidity
             if enabled[i]:
-                share = R.rigidity_share(controls[i].rigidity, r_other)
+                share = rigidity_share(controls[i].rigidity, r_other)
                 push = directions.setdefault((i, other), c.push)
                 # a collider with vertices inside a closed surface: the wall in front of it is pushed
                 # past it along the push, its own region included (`collider_points_for`); every
@@ -481,11 +483,11 @@ class _Run:
                     wrapping.add((i, other))
                     keep = P.spread(start, c.point_a, P.MEET * sizes[i])
                     if keep.any():
-                        dp = R.DataPoints(uv[keep], apply_inverse(geoms[i].xform, world[keep]), np.zeros(int(keep.sum()), bool))
+                        dp = DataPoints(uv[keep], apply_inverse(geoms[i].xform, world[keep]), np.zeros(int(keep.sum()), bool))
                         points[i].append((dp, world[keep], start[keep]))
             if other[0] == "d" and enabled[other[1]]:
                 j = other[1]
-                share = R.rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
+                share = rigidity_share(controls[j].rigidity, controls[i].rigidity if enabled[i] else None)
                 push = -directions.setdefault((i, other), c.push)
                 r_uv, r_depth = P.with_shown(c.region_b, seen.get((i, other), {}).get("b"))
                 dp, world, start = P.data_points_for(geoms[j], geoms[i], c.uv_b, c.point_b, c.point_a - c.slide, r_uv, share,
@@ -506,17 +508,17 @@ class _Run:
                 level = P.group_level(controls[j], surfaces[j].depth)
                 local = them[0] == "c" and P.corrects(controls[j], surfaces[j].depth)  # a pair of two deformables keeps eq. 4.15's split by its held contacts
                 shown = P.visible_points if local else P.deepest_shown
-                uv, world, start = shown(gm, gt, pd.inside, push, R.rigidity_share(controls[j].rigidity, r_them), level, clear)
+                uv, world, start = shown(gm, gt, pd.inside, push, rigidity_share(controls[j].rigidity, r_them), level, clear)
                 if not len(uv):
                     continue
                 # a patch already holding one of detection's points keeps it (two targets in one
                 # patch fight in the interpolation, and the surface swings between them from
                 # round to round)
                 taken = np.concatenate([d.uv for d, _, _ in points.get(j, [])] or [np.zeros((0, 2))])
-                keep = ~np.isin(R.patch_keys(gm.surface, uv, level), R.patch_keys(gm.surface, taken, level))
+                keep = ~np.isin(patch_keys(gm.surface, uv, level), patch_keys(gm.surface, taken, level))
                 keep &= P.spread(start, np.full(3, np.inf), P.MEET * gm.size)
                 if keep.any():
-                    dp = R.DataPoints(uv[keep], apply_inverse(gm.xform, world[keep]), np.zeros(int(keep.sum()), bool))
+                    dp = DataPoints(uv[keep], apply_inverse(gm.xform, world[keep]), np.zeros(int(keep.sum()), bool))
                     points.setdefault(j, []).append((dp, world[keep], start[keep]))
         return points
 
@@ -529,11 +531,11 @@ class _Run:
         here): a later round holds their contact points at the targets they asked (`datapoints.pinned`).
         ``shared`` names the deformables in a pair with another deformable this frame. A deformable
         in ``corrective`` (its points all from `datapoints.visible_points`) gets a corrective
-        response: its samples solved as they are, on the finest absorbing level (`respond.corrective`)."""
+        response: its samples solved as they are, on the finest absorbing level (`corrective`)."""
         pins = {} if pins is None else pins
         for i, lst in points.items():
             t_i = time.perf_counter()
-            dp = R.DataPoints(
+            dp = DataPoints(
                 np.concatenate([d.uv for d, _, _ in lst]),
                 np.concatenate([d.target for d, _, _ in lst]),
                 np.concatenate([d.is_contact for d, _, _ in lst]),
@@ -546,11 +548,11 @@ class _Run:
                 # a flank point this little shallower than an earlier contact reaches it (`datapoints.pinned`)
                 slack = self.options.tolerance * parent.size()
                 dp, held = P.pinned(parent, dp, pins.get(i), P.group_level(controls, parent.depth), i in shared, slack)
-            pins[i] = dp if held is None else R.DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
+            pins[i] = dp if held is None else DataPoints(np.concatenate([dp.uv, held.uv]), np.concatenate([dp.target, held.target]),
                                                            np.concatenate([dp.is_contact, held.is_contact]))
             path = self.defs[i].path
             if i in corrective:
-                controls = R.corrective(controls, parent.depth)
+                controls = corrective_controls(controls, parent.depth)
             # a corrective round's samples, half a finest patch apart, each ask a few millimetres
             # that differ from the next one's by about as much: its solve drops the weak modes that
             # would amplify their disagreement (`datapoints.CORRECTIVE_RCOND`)
@@ -640,7 +642,7 @@ class _Run:
             # regions (`P.with_shown`); a pair detection finds clear, or misses, while its display
             # is over gets points from the display alone (`visible_points`); a deformable whose
             # points all come from there only corrects what the earlier rounds left, locally
-            # (`respond.corrective`), unless its finest absorbing level translates or rotates
+            # (`corrective`), unless its finest absorbing level translates or rotates
             # (`P.corrects`: the display's deepest point per patch, `P.deepest_shown`).
             found = {(i, other) for i, other, _ in rnd.found}
             seen = {key: by_pair[key] for key in over if it > 0 and key in found}

@@ -16,7 +16,7 @@ import acra  # noqa: F401  (before numba: numba's configuration then loads witho
 from numba import njit
 
 from acra.hspline import HierarchyArrays, HSpline
-from acra.respond import Controls as AcraControls
+from acra.controls import Controls as AcraControls
 from acra.tessellate import MeshTopology
 
 __all__ = ["Controls", "DeformableModel", "ColliderModel", "SceneModel", "DeformableState", "ColliderState", "InputError"]
@@ -38,7 +38,7 @@ class InputError(ValueError):
 @dataclass(frozen=True)
 class Controls(AcraControls):
     """ACRA controls of one deformable as read from USD (contract §1): the algorithm's
-    `acra.respond.Controls` (absorption, deform/translate/rotate mix, rigidity, refine policy)
+    `acra.controls.Controls` (absorption, deform/translate/rotate mix, rigidity, refine policy)
     plus the display tessellation density.
 
     Attributes

@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 
 from pipeline import geometry
+from acra.controls import check_controls
+from acra.targets import DataPoints
 from pipeline import datapoints as P
 
 
@@ -252,16 +254,16 @@ def test_a_later_round_holds_the_earlier_contact_while_it_clears_a_display_point
     from acra import shapes
 
     hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=3)
-    controls = R.check_controls(3, [0.0, 0.5, 0.5])
+    controls = check_controls(3, [0.0, 0.5, 0.5])
     # the first round: a dent's contact and its additional points, one per level-2 patch around it
     uv = np.array([[3.5, 3.5], [3.125, 3.5], [3.875, 3.5], [3.5, 3.125], [3.5, 3.875]])
     depth = np.array([0.3, 0.2, 0.2, 0.2, 0.2])
-    first = R.DataPoints(uv, H.evaluate(hs, uv[:, 0], uv[:, 1]).points - depth[:, None] * [0.0, 0.0, 1.0],
+    first = DataPoints(uv, H.evaluate(hs, uv[:, 0], uv[:, 1]).points - depth[:, None] * [0.0, 0.0, 1.0],
                          np.array([True, False, False, False, False]))
     one, _ = R.respond(hs, first, controls)
     # a later round: one point of the display on the dent's flank, a patch and a half away
     at = np.array([[4.25, 3.5]])
-    later = R.DataPoints(at, H.evaluate(one, at[:, 0], at[:, 1]).points - [0.0, 0.0, 0.02], np.array([False]))
+    later = DataPoints(at, H.evaluate(one, at[:, 0], at[:, 1]).points - [0.0, 0.0, 0.02], np.array([False]))
     size = one.size()
     new, held = P.pinned(one, later, first, P.group_level(controls, one.depth))
     np.testing.assert_array_equal(held.uv, uv[:1])  # the contact is held, the additional points are not
@@ -277,16 +279,15 @@ def test_an_earlier_contact_holds_against_additional_points_and_gives_way_to_a_c
     of an earlier contact gives way to it, one farther stays; a later contact within `PIN_GAP`
     replaces the earlier contact; additional points are thinned to `THIN_GAP`."""
     from acra import hspline as H
-    from acra import respond as R
     from acra import shapes
 
     hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=2)
     down = np.array([0.0, 0.0, -1.0])
     ouv = np.array([[2.0, 2.0], [4.0, 4.0], [5.0, 2.0]])
-    old = R.DataPoints(ouv, _on(hs, ouv) + 0.3 * down, np.array([True, True, False]))  # dents' bottoms 0.3 deep
+    old = DataPoints(ouv, _on(hs, ouv) + 0.3 * down, np.array([True, True, False]))  # dents' bottoms 0.3 deep
     nuv = np.array([[2.02, 2.0], [2.3, 2.0], [4.1, 4.0], [5.5, 5.5], [5.55, 5.5]])
     depth = np.array([0.1, 0.1, 0.3, 0.2, 0.1])  # (5.5, 5.5) asks more; the flank's points less than the bottom
-    new = R.DataPoints(nuv, _on(hs, nuv) + depth[:, None] * down, np.array([False, False, True, False, False]))
+    new = DataPoints(nuv, _on(hs, nuv) + depth[:, None] * down, np.array([False, False, True, False, False]))
     kept, held = P.pinned(hs, new, old, 1)
     np.testing.assert_array_equal(kept.uv, [[2.3, 2.0], [4.1, 4.0], [5.5, 5.5]])
     np.testing.assert_array_equal(held.uv, [[2.0, 2.0]])
@@ -305,23 +306,22 @@ def test_an_earlier_contact_gives_way_on_a_flat_face_and_to_a_later_split():
     (``shared``) when the round has a contact of its own anywhere; with the flank shallower, or
     between two deformables with display points alone, the contact is held."""
     from acra import hspline as H
-    from acra import respond as R
     from acra import shapes
 
     hs = H.from_grid(*shapes.sheet(10, 10, 7.0, 7.0), depth=2)
     down = np.array([0.0, 0.0, -1.0])
     ouv = np.array([[2.0, 2.0]])
-    old = R.DataPoints(ouv, _on(hs, ouv) + 0.3 * down, np.array([True]))
+    old = DataPoints(ouv, _on(hs, ouv) + 0.3 * down, np.array([True]))
     nuv = np.array([[2.25, 2.0]])  # half a level-1 patch away
     for depth, slack, is_held in ((0.3, 0.0, False), (0.31, 0.0, False), (0.29, 0.0, True), (0.29, 0.02, False)):
-        new = R.DataPoints(nuv, _on(hs, nuv) + depth * down, np.array([False]))
+        new = DataPoints(nuv, _on(hs, nuv) + depth * down, np.array([False]))
         _, held = P.pinned(hs, new, old, 1, slack=slack)
         assert (len(held.uv) == 1) == is_held, (depth, slack)
     far = np.array([[6.0, 6.0], [2.25, 2.0]])  # a contact of the round far away, the flank shallower
-    new = R.DataPoints(far, _on(hs, far) + np.array([[0.3], [0.1]]) * down, np.array([True, False]))
+    new = DataPoints(far, _on(hs, far) + np.array([[0.3], [0.1]]) * down, np.array([True, False]))
     assert len(P.pinned(hs, new, old, 1)[1].uv) == 1
     assert len(P.pinned(hs, new, old, 1, shared=True)[1].uv) == 0
-    flank = R.DataPoints(nuv, _on(hs, nuv) + 0.1 * down, np.array([False]))
+    flank = DataPoints(nuv, _on(hs, nuv) + 0.1 * down, np.array([False]))
     assert len(P.pinned(hs, flank, old, 1, shared=True)[1].uv) == 1
 
 
@@ -349,7 +349,6 @@ def test_thinning_keeps_the_points_the_array_form_keeps(surface):
     answers bit for bit, across a periodic seam and with points on a grid (distances equal to
     the gap), for up to 300 points."""
     from acra import hspline as H
-    from acra import respond as R
     from acra import shapes
 
     hs = H.from_grid(*(shapes.sphere(8, 8) if surface == "sphere" else shapes.sheet(10, 10, 7.0, 7.0)), depth=3)
@@ -359,7 +358,7 @@ def test_thinning_keeps_the_points_the_array_form_keeps(surface):
         uv = rng.random((n, 2)) * [hs.u.patches0, hs.v.patches0]
         if trial % 3 == 0:
             uv = np.round(uv * 4) / 4
-        dp = R.DataPoints(uv, _on(hs, uv) + rng.standard_normal((n, 3)), rng.random(n) < 0.1)
+        dp = DataPoints(uv, _on(hs, uv) + rng.standard_normal((n, 3)), rng.random(n) < 0.1)
         for gap in (0.05, 0.25, 0.5):
             keep, dist = _thinned_array_form(hs, dp, gap)
             got = P._thinned(hs, dp, gap)

@@ -11,6 +11,8 @@ import pytest
 import trimesh
 
 from acra import hspline as H
+from acra.controls import check_controls
+from acra.targets import DataPoints
 from acra import shapes
 from pipeline import geometry
 from pipeline import contact as C
@@ -430,7 +432,7 @@ def test_a_responded_shape_reuses_its_parents_grids_only_where_it_did_not_change
     parent.grids_for(every)
     uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
     p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=[0, 0.5, 0.5]))
+    out, rep = R.respond(hs, DataPoints(uv, 0.9 * p, np.array([True])), check_controls(3, absorption=[0, 0.5, 0.5]))
     S.seed_details(out, rep.details, parent=hs)
     child = S.shape_of(out)
     assert child.parent is parent
@@ -454,7 +456,7 @@ def _responded_sphere(seed, absorption=(0, 0.5, 0.5)):
     hs = with_random_offsets(H.make_movable(hs, 2, [[4 * u0, 24]]), 0.02, seed)
     uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
     p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    out, rep = R.respond(hs, R.DataPoints(uv, 0.9 * p, np.array([True])), R.check_controls(3, absorption=list(absorption)))
+    out, rep = R.respond(hs, DataPoints(uv, 0.9 * p, np.array([True])), check_controls(3, absorption=list(absorption)))
     S.seed_details(out, rep.details, parent=hs)
     return hs, out, rep, rng, p
 

@@ -469,7 +469,7 @@ def test_compiled_movable_places_equal_the_array_form(kind):
 @pytest.mark.parametrize("seed", range(6))
 def test_compiled_unique_inverse_equals_numpy_unique(seed):
     """`levelkernels.unique_inverse` (behind `interpolate.point_weights`' columns and
-    `respond.patch_groups`) gives `np.unique`'s sorted values and inverse, duplicates and an
+    `patch_groups`) gives `np.unique`'s sorted values and inverse, duplicates and an
     empty array included."""
     from acra import levelkernels
 

@@ -1,4 +1,4 @@
-"""ACRA response (thesis §4.2–4.3): controls, rigidity, absorption locality, the three responses."""
+"""ACRA response (thesis §4.2–4.3): rigidity, absorption locality, the three responses."""
 
 import numpy as np
 import pytest
@@ -6,6 +6,9 @@ import pytest
 from acra import hspline as H
 from acra import respond as R
 from acra import shapes
+from acra.controls import check_controls
+from acra.quat import quat_from_axis_angle, quat_rotate
+from acra.targets import DataPoints, contact_targets, region_midpoints, rigidity_share
 from conftest import with_random_offsets
 
 
@@ -16,43 +19,13 @@ def flat_sheet(n=12, depth=4):
 def one_point(hs, uv, move):
     uv = np.asarray(uv, float).reshape(1, 2)
     q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    return R.DataPoints(uv, q + np.asarray(move, float), np.array([True]))
+    return DataPoints(uv, q + np.asarray(move, float), np.array([True]))
 
 
 def controls(L, level, d=1.0, t=0.0, r=0.0, refine="refine"):
     a = np.zeros(L)
     a[level] = 1.0
-    return R.check_controls(L, a, np.full(L, d), np.full(L, t), np.full(L, r), refine=refine)
-
-
-@pytest.mark.parametrize(
-    "kwargs,attr,words",
-    [
-        (dict(absorption=[0.5, 0.4]), "acra:absorption", "sums to 0.9"),
-        (dict(absorption=[1.5, -0.5]), "acra:absorption", "negative"),
-        (dict(absorption=[1.0]), "acra:absorption", "has 1 values but acra:levels is 2"),
-        (dict(deform=[1, 1], translate=[0.5, 0]), "acra:deform", "level 0 sums to 1.5"),
-        (dict(translate=[0, -0.1], deform=[1, 1.1]), "acra:translate", "negative"),
-        (dict(rigidity=0.5), "acra:rigidity", "outside [1, 100]"),
-        (dict(rigidity=101), "acra:rigidity", "outside [1, 100]"),
-        (dict(rigidity=float("nan")), "acra:rigidity", "outside"),
-        (dict(refine="maybe"), "acra:refine", "unknown token"),
-        (dict(absorption=[float("nan"), 1]), "acra:absorption", "NaN"),
-    ],
-)
-def test_invalid_controls_name_the_attribute(kwargs, attr, words):
-    with pytest.raises(R.ControlError) as err:
-        R.check_controls(2, **kwargs)
-    assert err.value.attribute == attr and words in str(err.value)
-
-
-def test_control_defaults():
-    c = R.check_controls(3)
-    np.testing.assert_array_equal(c.absorption, [0, 0, 1])
-    np.testing.assert_array_equal(c.deform, [1, 1, 1])
-    assert c.rigidity == 50 and c.refine
-    # within 1e-6 of 1 is accepted
-    R.check_controls(2, absorption=[0.5, 0.5 + 5e-7])
+    return check_controls(L, a, np.full(L, d), np.full(L, t), np.full(L, r), refine=refine)
 
 
 @pytest.mark.parametrize("r1,r2", [(10.0, 90.0), (50.0, 50.0), (1.0, 100.0), (70.0, 20.0)])
@@ -62,11 +35,11 @@ def test_rigidity_moves_two_deformables_in_ratio_r2_r1(r1, r2):
     uv = np.array([[4.3, 4.6]])
     p1 = H.evaluate(s1, uv[:, 0], uv[:, 1]).points[0] + [0, 0, 0.0]
     p2 = H.evaluate(s2, uv[:, 0], uv[:, 1]).points[0]
-    share = R.rigidity_share(r1, r2)
-    target = R.contact_targets(p1, p2, share)
-    c = R.check_controls(1, [1.0], rigidity=r1)
-    out1, rep1 = R.respond(s1, R.DataPoints(uv, target[None], np.array([True])), c)
-    out2, rep2 = R.respond(s2, R.DataPoints(uv, target[None], np.array([True])), c)
+    share = rigidity_share(r1, r2)
+    target = contact_targets(p1, p2, share)
+    c = check_controls(1, [1.0], rigidity=r1)
+    out1, rep1 = R.respond(s1, DataPoints(uv, target[None], np.array([True])), c)
+    out2, rep2 = R.respond(s2, DataPoints(uv, target[None], np.array([True])), c)
     m1 = np.linalg.norm(H.evaluate(out1, uv[:, 0], uv[:, 1]).points[0] - p1)
     m2 = np.linalg.norm(H.evaluate(out2, uv[:, 0], uv[:, 1]).points[0] - p2)
     assert m1 / m2 == pytest.approx(r2 / r1, rel=0.02)
@@ -78,9 +51,9 @@ def test_against_a_rigid_collider_the_deformable_moves_all_the_way():
     uv = np.array([[4.0, 4.0]])
     p1 = H.evaluate(hs, uv[:, 0], uv[:, 1]).points[0]
     p2 = p1 + [0, 0, -0.25]
-    target = R.contact_targets(p1, p2, R.rigidity_share(30.0, None))
+    target = contact_targets(p1, p2, rigidity_share(30.0, None))
     np.testing.assert_allclose(target, p2)
-    out, rep = R.respond(hs, R.DataPoints(uv, target[None], np.array([True])), R.check_controls(1, [1.0]))
+    out, rep = R.respond(hs, DataPoints(uv, target[None], np.array([True])), check_controls(1, [1.0]))
     assert np.abs(rep.remaining).max() <= 1e-12
 
 
@@ -127,7 +100,7 @@ def test_translational_response_keeps_the_detail_rigid():
     k = 2
     uv = np.array([[12.5 / 4, 12.5 / 4]])  # inside level-2 patch (12, 12), whose CVs are the bump
     move = np.array([0.07, -0.02, -0.15])
-    dp = R.DataPoints(uv, H.evaluate(hs, uv[:, 0], uv[:, 1]).points + move, np.array([True]))
+    dp = DataPoints(uv, H.evaluate(hs, uv[:, 0], uv[:, 1]).points + move, np.array([True]))
     out, rep = R.respond(hs, dp, controls(3, k, d=0.0, t=1.0))
     before = H.cv_positions(hs, k)[_block_rows(hs, k)]
     after = H.cv_positions(out, k)[_block_rows(out, k)]
@@ -145,7 +118,7 @@ def test_rotational_response_turns_the_detail_by_the_predicted_rotation():
     p = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
     pivot = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det, upto=k - 1).points
     move = np.array([[0.1, 0.0, -0.05]])
-    dp = R.DataPoints(uv, p + move, np.array([True]))
+    dp = DataPoints(uv, p + move, np.array([True]))
     out, _ = R.respond(hs, dp, controls(3, k, d=0.0, r=1.0))
     axis, ang = R.rotation_of(pivot, p, p + move)
     # predicted: axis normal to the plane (pivot, P, P_rot), angle at the pivot
@@ -154,8 +127,8 @@ def test_rotational_response_turns_the_detail_by_the_predicted_rotation():
     assert ang[0] == pytest.approx(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b)), abs=1e-12)
     d_before = det.vectors[k - 1][_block_rows(hs, k)]
     d_after = H.details(out).vectors[k - 1][_block_rows(out, k)]
-    q = R.quat_from_axis_angle(axis, ang)
-    np.testing.assert_allclose(d_after, R.quat_rotate(np.repeat(q, 16, 0), d_before), atol=1e-6)
+    q = quat_from_axis_angle(axis, ang)
+    np.testing.assert_allclose(d_after, quat_rotate(np.repeat(q, 16, 0), d_before), atol=1e-6)
     assert np.abs(d_after - d_before).max() > 1e-3
     # the contact point now lies on the ray from the pivot toward P_rot
     pn = H.evaluate(out, uv[:, 0], uv[:, 1]).points[0]
@@ -163,24 +136,18 @@ def test_rotational_response_turns_the_detail_by_the_predicted_rotation():
     np.testing.assert_allclose(u1, b / np.linalg.norm(b), atol=1e-6)
 
 
-def test_slerp_mean_of_two_rotations_is_the_half_way_rotation():
-    q1 = R.quat_from_axis_angle(np.array([[0, 0, 1.0]]), np.array([0.2]))[0]
-    q2 = R.quat_from_axis_angle(np.array([[0, 0, 1.0]]), np.array([0.6]))[0]
-    np.testing.assert_allclose(R.slerp_mean(np.stack([q1, q2])), R.quat_from_axis_angle(np.array([[0, 0, 1.0]]), np.array([0.4]))[0], atol=1e-12)
-
-
 def test_refine_removes_what_obey_leaves_as_the_missing_absorption():
     hs = flat_sheet(n=10, depth=3)
     dp = one_point(hs, [3.3, 3.4], [0, 0, -0.2])
     a = np.array([0.0, 0.4, 0.6])
-    ref, rep_r = R.respond(hs, dp, R.check_controls(3, a, refine="refine"))
-    obey, rep_o = R.respond(hs, dp, R.check_controls(3, a, refine="obey"))
+    ref, rep_r = R.respond(hs, dp, check_controls(3, a, refine="refine"))
+    obey, rep_o = R.respond(hs, dp, check_controls(3, a, refine="obey"))
     assert np.abs(rep_r.remaining).max() <= 1e-10
     # nothing is refined, so levels 1 and 2 are missing: the remainder is their whole share
     np.testing.assert_allclose(rep_o.remaining, [[0, 0, -0.2]], atol=1e-12)
     # with level 1 refined by the animator, obey leaves exactly level 2's share
     hs1 = H.make_movable(hs, 1, [[6, 6]])
-    _, rep_1 = R.respond(hs1, dp, R.check_controls(3, a, refine="obey"))
+    _, rep_1 = R.respond(hs1, dp, check_controls(3, a, refine="obey"))
     np.testing.assert_allclose(rep_1.remaining, [[0, 0, -0.2 * 0.6]], atol=1e-10)
     np.testing.assert_allclose(rep_1.applied, [0.4])
 
@@ -191,37 +158,13 @@ def test_respond_is_pure_and_mixes_levels():
     cvs0 = hs.cvs.copy()
     uv = np.array([[3.4, 3.3], [3.0, 3.6]])
     q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    dp = R.DataPoints(uv, q + [0, 0, -0.1], np.array([True, False]))
-    c = R.check_controls(3, [0.2, 0.3, 0.5], [1, 0.5, 0.5], [0, 0.5, 0], [0, 0, 0.5])
+    dp = DataPoints(uv, q + [0, 0, -0.1], np.array([True, False]))
+    c = check_controls(3, [0.2, 0.3, 0.5], [1, 0.5, 0.5], [0, 0.5, 0], [0, 0, 0.5])
     out, rep = R.respond(hs, dp, c)
     np.testing.assert_array_equal(hs.cvs, cvs0)
     for lev, off in zip(hs.fine, before):
         np.testing.assert_array_equal(lev.offsets, off)
     assert np.all(np.isfinite(rep.remaining)) and np.abs(rep.remaining).max() < 0.1
-
-
-def test_region_midpoints_average_across_a_periodic_seam():
-    hs = H.from_grid(*shapes.torus(8, 6))
-    uv = np.array([[7.9, 1.2], [0.1, 1.4], [0.05, 1.3]])
-    mids, patches = R.region_midpoints(hs, uv, 0)
-    # 7.9 is in patch 7, the others in patch 0
-    assert patches.tolist() == [[0, 1], [7, 1]]
-    np.testing.assert_allclose(mids[0], [0.075, 1.35], atol=1e-9)
-
-
-def test_region_deepest_picks_each_patchs_deepest_sample_in_midpoint_order():
-    hs = H.from_grid(*shapes.torus(8, 6))
-    uv = np.array([[7.9, 1.2], [0.1, 1.4], [0.05, 1.3], [3.5, 2.5], [3.2, 2.1]])
-    depth = np.array([0.3, 0.1, 0.2, 0.05, 0.07])
-    _, patches = R.region_midpoints(hs, uv, 0)
-    assert patches.tolist() == [[0, 1], [3, 2], [7, 1]]
-    uv_deep, depth_deep = R.region_deepest(hs, uv, depth, 0)
-    np.testing.assert_array_equal(uv_deep, uv[[2, 4, 0]])
-    np.testing.assert_array_equal(depth_deep, [0.2, 0.07, 0.3])
-    assert R.region_deepest(hs, np.zeros((0, 2)), np.zeros(0), 0)[0].shape == (0, 2)
-    groups = R.patch_groups(hs, uv, 0, patches=False)[2]  # the caller's groups: the same samples
-    for got, want in zip(R.region_deepest(hs, uv, depth, 0, groups), (uv_deep, depth_deep)):
-        np.testing.assert_array_equal(got, want)
 
 
 def test_rotational_response_turns_the_detail_at_additional_points_too():
@@ -236,14 +179,13 @@ def test_rotational_response_turns_the_detail_at_additional_points_too():
     det = H.details(hs)
     uv = np.array([[12.5, 12.5], [13.5, 12.5], [12.5, 13.5], [13.5, 13.5]]) / 4  # bump patches
     p = H.evaluate(hs, uv[:, 0], uv[:, 1], det=det).points
-    dp = R.DataPoints(uv, p + [0.1, 0.0, 0.0], np.array([True, False, False, False]))
+    dp = DataPoints(uv, p + [0.1, 0.0, 0.0], np.array([True, False, False, False]))
     out, _ = R.respond(hs, dp, controls(3, k, d=0.0, r=1.0))
     before = det.vectors[k - 1][_block_rows(hs, k)]
     after = H.details(out).vectors[k - 1][_block_rows(out, k)]
     np.testing.assert_allclose(np.linalg.norm(after, axis=1), np.linalg.norm(before, axis=1), atol=1e-9)
     turned = np.arctan2(after[:, 0], after[:, 2])  # toward +x, the push, about the y axis
     assert turned.min() > 0.05, turned
-
 
 
 def test_contact_among_one_point_per_patch_does_not_ring():
@@ -260,13 +202,13 @@ def test_contact_among_one_point_per_patch_does_not_ring():
     g = np.linspace(0, 7, 57)  # 8 samples per level-0 patch: one per level-3 patch, at the knots
     uu, vv = (x.reshape(-1) for x in np.meshgrid(g, g, indexing="ij"))
     inside = (uu - 3.5) ** 2 + (vv - 3.5) ** 2 < 1.0
-    mids, _ = R.region_midpoints(hs, np.stack([uu[inside], vv[inside]], 1), 3)
+    mids, _ = region_midpoints(hs, np.stack([uu[inside], vv[inside]], 1), 3)
     for contact in ([3.67, 3.59], [3.5625, 3.5625]):
         uv = np.concatenate([[contact], mids])
         depth = 0.2 * (1.0 - ((uv[:, 0] - 3.5) ** 2 + (uv[:, 1] - 3.5) ** 2))
         depth[0] += 0.002
         q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-        dp = R.DataPoints(uv, q - depth[:, None] * [0, 0, 1], np.arange(len(uv)) == 0)
+        dp = DataPoints(uv, q - depth[:, None] * [0, 0, 1], np.arange(len(uv)) == 0)
         out, rep = R.respond(hs, dp, controls(4, 3))
         moved = np.linalg.norm(H.evaluate(out, uu, vv).points - H.evaluate(hs, uu, vv).points, axis=1)
         assert moved.max() <= 1.01 * depth.max(), (contact, moved.max())
@@ -289,13 +231,13 @@ def test_noisy_dent_on_three_levels_stays_within_its_depth():
         c = 3.5 + rng.uniform(-0.5, 0.5, 2)
         cxy = H.evaluate(hs, c[:1], c[1:]).points[0, :2]
         inside = np.linalg.norm(p[:, :2] - cxy, axis=1) < np.sqrt(0.3**2 - 0.15**2)
-        mids, _ = R.region_midpoints(hs, np.stack([uu[inside], vv[inside]], 1), 3)
+        mids, _ = region_midpoints(hs, np.stack([uu[inside], vv[inside]], 1), 3)
         uv = np.concatenate([[c], mids])
         q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
         r = np.linalg.norm(q[:, :2] - cxy, axis=1)
         depth = np.clip(np.sqrt(np.clip(0.09 - r**2, 0, None)) - 0.15, 0, None) + 0.002 * rng.standard_normal(len(r))
-        dp = R.DataPoints(uv, q - depth[:, None] * [0, 0, 1], np.arange(len(uv)) == 0)
-        out, _ = R.respond(hs, dp, R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3]))
+        dp = DataPoints(uv, q - depth[:, None] * [0, 0, 1], np.arange(len(uv)) == 0)
+        out, _ = R.respond(hs, dp, check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3]))
         worst = max(worst, np.abs(H.evaluate(out, uu, vv).points - p)[:, 2].max() / 0.15)
     assert worst < 1.1, worst
 
@@ -332,9 +274,9 @@ def test_points_near_a_pole_keep_it_one_point_on_every_level(t):
     P = float(hs.v.patches0)
     uv = np.array([[0.3, P - 0.15], [1.4, P - 0.3], [2.2, P - 0.1], [0.9, P - 0.45]])
     q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    dp = R.DataPoints(uv, q + [[0.0, 0.0, -0.04], [0.01, 0.0, -0.03], [0.0, 0.0, -0.05], [0.0, 0.01, -0.02]],
+    dp = DataPoints(uv, q + [[0.0, 0.0, -0.04], [0.01, 0.0, -0.03], [0.0, 0.0, -0.05], [0.0, 0.01, -0.02]],
                       np.arange(4) == 0)
-    ctl = R.check_controls(3, [0.2, 0.3, 0.5], np.full(3, 1.0 - t), np.full(3, t), np.zeros(3))
+    ctl = check_controls(3, [0.2, 0.3, 0.5], np.full(3, 1.0 - t), np.full(3, t), np.zeros(3))
     out, rep = R.respond(hs, dp, ctl)
     if t == 0.0:
         assert np.abs(rep.remaining).max() <= 1e-12
@@ -364,7 +306,7 @@ def test_a_level0_response_keeps_a_collapsed_edge_one_point():
         uv = np.array([[u, 0.0], [2.2, 0.1], [2.6, 0.3], [3.1, 0.2]])
         q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
         move = np.array([[0.0, 0.0, -0.1], [0.0, 0.01, -0.09], [0.0, 0.0, -0.08], [0.02, 0.0, -0.07]])
-        out, rep = R.respond(hs, R.DataPoints(uv, q + move, np.arange(4) == 0), R.check_controls(1))
+        out, rep = R.respond(hs, DataPoints(uv, q + move, np.arange(4) == 0), check_controls(1))
         apex = H.evaluate(out, edge, np.zeros_like(edge)).points
         assert np.ptp(apex, axis=0).max() <= 1e-12 * hs.size()
         outs.append(apex[0])
@@ -377,7 +319,7 @@ def test_every_absorbing_level_is_refined_in_one_pass_before_the_first_move(monk
     and ends on the same bits as a response on the surface refined beforehand."""
     hs = flat_sheet(n=10, depth=4)
     dp = one_point(hs, [3.3, 3.4], [0.02, -0.01, -0.2])
-    c = R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
+    c = check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
     passes = []
     redetail = R._redetail
     monkeypatch.setattr(R, "_redetail", lambda old, det, new, moved=None, **kw: passes.append(moved) or redetail(old, det, new, moved, **kw))
@@ -407,7 +349,7 @@ def test_the_finer_absorbing_levels_new_cvs_are_framed_once_by_the_first_move(mo
     framed = []
     real = H._frames_at
     monkeypatch.setattr(H, "_frames_at", lambda hs_, k, *a: framed.append(k) or real(hs_, k, *a))
-    out, rep = R.respond(hs, dp, R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3]))
+    out, rep = R.respond(hs, dp, check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3]))
     assert rep.refined > 0
     assert [framed.count(k) for k in (1, 2, 3)] == [1, 1, 2]
     assert H._PENDING not in rep.details.__dict__
@@ -441,7 +383,7 @@ def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_
     run.forget()
     hs = flat_sheet(n=10, depth=4)
     det = H.details(hs)
-    c = R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
+    c = check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
     first = one_point(hs, [3.3, 3.4], [0.02, -0.01, -0.2])
     second = one_point(hs, [3.35, 3.42], [-0.01, 0.02, -0.15])  # the same patch on levels 1-3
     R.respond(hs, first, c, det=det)
@@ -472,7 +414,7 @@ def test_a_response_to_the_same_parameters_does_not_list_the_patches_again(monke
     run.forget()
     hs = flat_sheet(n=10, depth=4)
     det = H.details(hs)
-    c = R.check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
+    c = check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
     listed = []
     keys = R.refinement_keys
     monkeypatch.setattr(R, "refinement_keys", lambda *a: listed.append(1) or keys(*a))

@@ -13,6 +13,8 @@ from pxr import Gf, Usd, UsdGeom
 
 from acra import hspline as H
 from acra import respond as R
+from acra.controls import check_controls
+from acra.targets import DataPoints, contact_targets, rigidity_share
 from acra import shapes
 from pipeline import geometry
 from pipeline import detect as D
@@ -28,7 +30,7 @@ from conftest import SCENES
 NAME = "closed_objects"
 BALL, TORUS, CARRIER = "/World/Ball", "/World/Carrier/Torus", "/World/Carrier"
 # eq. 4.15: R = R_ball / (R_ball + R_torus); the ball moves 1 - R = 3/4 of the gap, the torus 1/4
-SHARE = R.rigidity_share(S.RIGIDITY["ball"], S.RIGIDITY["torus"])
+SHARE = rigidity_share(S.RIGIDITY["ball"], S.RIGIDITY["torus"])
 RATIO = (1.0 - SHARE) / SHARE
 
 
@@ -63,7 +65,7 @@ def test_one_round_lands_both_contact_points_on_the_eq_4_15_point(tmp_path):
     p_a, p_b, q_a, q_b = _contact_moves(report, st)
     gap = np.linalg.norm(p_b - p_a)
     assert gap > 0.15, gap
-    target = R.contact_targets(p_a, p_b, SHARE)
+    target = contact_targets(p_a, p_b, SHARE)
     assert np.linalg.norm(q_a - target) <= 1e-6 * gap
     assert np.linalg.norm(q_b - target) <= 1e-6 * gap
     assert np.linalg.norm(q_a - p_a) / np.linalg.norm(q_b - p_b) == pytest.approx(RATIO, rel=1e-5)
@@ -141,7 +143,7 @@ def test_level0_response_keeps_a_sphere_closed():
     for uv, absorption in cases:  # the equator with this scene's controls; near and at the south pole
         uv = np.array([uv])
         p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-        out, report = R.respond(hs, R.DataPoints(uv, 0.85 * p, np.array([True])), R.check_controls(3, absorption))
+        out, report = R.respond(hs, DataPoints(uv, 0.85 * p, np.array([True])), check_controls(3, absorption))
         assert geometry.SurfaceGeometry(out, np.eye(4)).closed, uv
         for row in (1, hs.v.n - 2):
             assert np.ptp(out.cvs[:, row], axis=0).max() <= 1e-12, (uv, row)

@@ -16,6 +16,7 @@ from pxr import Usd, UsdGeom
 
 from acra import hspline as H
 from acra import respond as R
+from acra.targets import DataPoints
 from pipeline import output_layer
 from pipeline.authoring import spike_offsets
 
@@ -80,7 +81,7 @@ def test_the_level1_half_is_the_all_deform_response_and_level2_turns_instead(run
     np.testing.assert_array_equal(mixed.rotate, [0, 0, 1])
     p = H.evaluate(rest, *TOP).points
     push = np.array([0.2, 0.0, -0.18])
-    dp = R.DataPoints(np.array([[2.0, 2.0]]), p + push, np.array([True]))
+    dp = DataPoints(np.array([[2.0, 2.0]]), p + push, np.array([True]))
     a, _ = R.respond(rest, dp, mixed)
     b, rep_b = R.respond(rest, dp, deform)
     # level 1 comes first and is the same deformation in both: half of the push at the crest

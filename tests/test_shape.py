@@ -4,6 +4,8 @@ import numpy as np
 
 from acra import hspline as H
 from acra import respond as R
+from acra.controls import check_controls
+from acra.targets import DataPoints
 from acra import shapes
 from pipeline import shape as S
 
@@ -12,10 +14,10 @@ def _responded():
     hs = H.from_grid(*shapes.sphere(10, 15), depth=4)
     a = np.zeros(4)
     a[2] = 1.0
-    ctl = R.check_controls(4, a, np.ones(4), np.zeros(4), np.zeros(4), refine="refine")
+    ctl = check_controls(4, a, np.ones(4), np.zeros(4), np.zeros(4), refine="refine")
     uv = np.array([[2.5, 6.5]])
     q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    new, rep = R.respond(hs, R.DataPoints(uv, q + [0.0, 0.0, -0.05], np.array([True])), ctl, det=H.details(hs))
+    new, rep = R.respond(hs, DataPoints(uv, q + [0.0, 0.0, -0.05], np.array([True])), ctl, det=H.details(hs))
     return hs, new, rep
 
 

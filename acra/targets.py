@@ -1,0 +1,149 @@
+"""Data points (thesis §4.2): where points of a surface must go, and the targets of eq. 4.15–4.16.
+
+A contact's two points meet at the split of their relative rigidity (`rigidity_share`,
+`contact_targets`); additional points of a region inside the other object move by the same share
+of their push (`additional_targets`), one per finest absorbing patch (`patch_keys`,
+`patch_groups`: the middle of the region's samples in it, `region_midpoints`, or its deepest,
+`region_deepest`). A surface's points and their targets are a `DataPoints`, what
+`acra.respond.respond` takes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import levelkernels
+from . import hspline as H
+from .basis import locate
+
+__all__ = ["DataPoints", "rigidity_share", "contact_targets", "additional_targets", "region_midpoints", "region_deepest", "patch_keys", "patch_groups"]
+
+
+@dataclass(frozen=True)
+class DataPoints:
+    """Where points of one surface must go.
+
+    Attributes
+    ----------
+    uv : (K, 2) float64
+        Parameters of each point on the surface (level-0 units).
+    target : (K, 3) float64
+        Where the point must go (object space of the surface).
+    is_contact : (K,) bool
+        Contact point ``P`` (True) or additional point ``A`` (False).
+    per_patch : bool
+        ``True`` (eq. 4.16): each level's solve merges the additional points to one per patch of
+        that level (`_per_level_points`). ``False``: every point is solved as it is, in least
+        squares where they outnumber the CVs (a corrective round's samples, `corrective`).
+    """
+
+    uv: np.ndarray
+    target: np.ndarray
+    is_contact: np.ndarray
+    per_patch: bool = True
+
+
+def rigidity_share(r1: float, r2: float | None) -> float:
+    """Eq. 4.15: ``R = R1 / (R1 + R2)``; a rigid collider (``r2 is None``) gives ``R = 0``.
+
+    Surface 1 interpolates ``R P1 + (1 - R) P2``, so it moves ``1 - R`` of the way: the more
+    rigid surface moves less, and against a collider the deformable moves all the way.
+    """
+    if r2 is None or np.isinf(r2):
+        return 0.0
+    return float(r1) / (float(r1) + float(r2))
+
+
+def contact_targets(p1: np.ndarray, p2: np.ndarray, share: float) -> np.ndarray:
+    """Eq. 4.15: the common target ``P' = R P1 + (1 - R) P2`` of two contact points ``(3,)``."""
+    return share * np.asarray(p1, float) + (1.0 - share) * np.asarray(p2, float)
+
+
+def additional_targets(a: np.ndarray, b: np.ndarray, share: float) -> np.ndarray:
+    """Eq. 4.16: ``A' = R A + (1 - R) B`` for additional points ``a`` and their hits ``b``, ``(k, 3)``."""
+    return share * np.asarray(a, float) + (1.0 - share) * np.asarray(b, float)
+
+
+def region_midpoints(hs: H.HSpline, uv_inside: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
+    """Parametric middle of the part of each level-``level`` patch inside a region (eq. 4.16).
+
+    Parameters
+    ----------
+    uv_inside : (n, 2) float64
+        Parameters of surface samples that lie inside the other object.
+
+    Returns
+    -------
+    uv_mid : (g, 2) float64
+        One point per patch that is wholly or partly inside: the mean of its inside samples
+        (periodic directions are averaged on the circle so a seam does not split the mean).
+    patches : (g, 2) int64
+        The patch of each point.
+    """
+    mids, patches, _ = patch_groups(hs, uv_inside, level)
+    return mids, patches
+
+
+def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, level: int,
+                   groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The deepest inside sample of each level-``level`` patch, in `region_midpoints`' order.
+
+    Where a later round finds a patch still partly inside but the middle of its inside part
+    already on its target (a sliver along the other object's edge, where the C2 surface curls
+    back up between the samples), the middle moves nothing; the deepest sample is where the
+    residual is.
+
+    Parameters
+    ----------
+    uv_inside : (n, 2) float64
+        Parameters of surface samples inside the other object.
+    depth : (n,) float64
+        Their depths (distance to the other surface).
+    groups : (n,) int64, optional
+        The group of each sample (`patch_groups`' ``inv``) where the caller has it already.
+
+    Returns
+    -------
+    uv_deep : (g, 2) float64
+    depth_deep : (g,) float64
+        The patch's largest depth.
+    """
+    uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
+    depth = np.asarray(depth, np.float64).reshape(-1)
+    inv = patch_groups(hs, uv_inside, level, patches=False)[2] if groups is None else groups
+    order = np.lexsort((depth, inv))  # by patch, deepest last
+    last = np.r_[inv[order][1:] != inv[order][:-1], True] if order.size else np.zeros(0, bool)
+    return uv_inside[order[last]], depth[order[last]]
+
+
+def patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
+    """Level-``level`` patch of each of ``uv (n, 2) float64`` as one key ``(n,) int64``
+    (``su * patches_v + sv``)."""
+    su, _ = locate(hs.u, uv[:, 0], level)
+    sv, _ = locate(hs.v, uv[:, 1], level)
+    return su * hs.v.patches(level) + sv
+
+
+def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool = True):
+    """`region_midpoints` plus the group of each input point: ``inv (n,) int64``; with
+    ``patches`` False the patches are ``None`` (a caller that needs the groups alone)."""
+    uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
+    if uv_inside.shape[0] == 0:
+        return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    keys = patch_keys(hs, uv_inside, level)
+    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(keys, np.int64))
+    mids = np.zeros((uniq.size, 2))
+    for col, d in ((0, hs.u), (1, hs.v)):
+        x = uv_inside[:, col]
+        if d.periodic:
+            ang = 2 * np.pi * x / d.patches0
+            c = np.bincount(inv, np.cos(ang), uniq.size)
+            s = np.bincount(inv, np.sin(ang), uniq.size)
+            mids[:, col] = np.mod(np.arctan2(s, c), 2 * np.pi) * d.patches0 / (2 * np.pi)
+        else:
+            mids[:, col] = np.bincount(inv, x, uniq.size) / np.bincount(inv, minlength=uniq.size)
+    if not patches:
+        return mids, None, inv
+    return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
