@@ -44,7 +44,7 @@ from numba import njit
 
 from acra.framekernels import cross_test
 
-__all__ = ["eval_points", "NSLOTS", "mark_cells", "changed_level", "ascending", "tangent_normals"]
+__all__ = ["eval_points", "NSLOTS", "mark_cells", "changed_level", "ascending", "tangent_normals", "place_normals"]
 
 # output slots per derivative order: (0,0) | (1,0) (0,1) | (2,0) (1,1) (0,2), as `SurfaceEval`'s fields
 NSLOTS = (1, 3, 6)
@@ -384,11 +384,31 @@ def changed_level(out, k, level, pa, pb, a_keys, b_keys, va, vb, npv_k, ncv_k, n
     return True
 
 
+@njit(inline="always")
+def _tangent_normal(a0, a1, a2, b0, b1, b2, quick, c1, c2, c1s, c2s):
+    """One row of `tangent_normals`: the unit normal ``(n0, n1, n2)`` of ``du = (a0, a1, a2)``,
+    ``dv = (b0, b1, b2)`` and whether it has no direction (then the normal is unset), with
+    ``quick`` (``c2 >= 1e-100``), ``c1s = c1 * c1`` and ``c2s = c2 * c2`` taken once a call."""
+    if quick:
+        n0 = a1 * b2 - a2 * b1
+        n1 = a2 * b0 - a0 * b2
+        n2 = a0 * b1 - a1 * b0
+        nn = (n0 * n0 + n1 * n1) + n2 * n2
+        la2 = (a0 * a0 + a1 * a1) + a2 * a2
+        lb2 = (b0 * b0 + b1 * b1) + b2 * b2
+        if nn > 4.0 * (c1s * max(la2, lb2) + c2s):  # false for a NaN or an overflow
+            length = math.sqrt(nn)
+            return n0 / length, n1 / length, n2 / length, False
+    n0, n1, n2, length, bad = cross_test(a0, a1, a2, b0, b1, b2, c1, c2)
+    if bad:
+        return 0.0, 0.0, 0.0, True
+    return n0 / length, n1 / length, n2 / length, False
+
+
 @njit(cache=True, nogil=True)
 def tangent_normals(tangents, c1, c2, out, bad):
-    """Unit normals of first derivatives ``tangents (m, 6) float64`` (``du`` then ``dv``, as
-    `acra.tessellate._normals_into` stacks a display's evaluation) into ``out (m, 3) float64``:
-    ``du × dv`` over its length, the products, test and quotient of
+    """Unit normals of first derivatives ``tangents (m, 6) float64`` (``du`` then ``dv``) into
+    ``out (m, 3) float64``: ``du × dv`` over its length, the products, test and quotient of
     `acra.framekernels.degenerate` and `unit_rows` (so `acra.hspline.surface_normals`' bits),
     and ``bad (m,) bool`` where ``|du × dv| <= c1 max(|du|, |dv|) + c2`` (no direction: the
     caller takes those rows' limit normals, ``out`` left unset there). Returns how many are bad.
@@ -402,23 +422,35 @@ def tangent_normals(tangents, c1, c2, out, bad):
     quick = c2 >= 1e-100
     c1s, c2s = c1 * c1, c2 * c2
     for i in range(tangents.shape[0]):
-        a0, a1, a2 = tangents[i, 0], tangents[i, 1], tangents[i, 2]
-        b0, b1, b2 = tangents[i, 3], tangents[i, 4], tangents[i, 5]
-        if quick:
-            n0 = a1 * b2 - a2 * b1
-            n1 = a2 * b0 - a0 * b2
-            n2 = a0 * b1 - a1 * b0
-            nn = (n0 * n0 + n1 * n1) + n2 * n2
-            la2 = (a0 * a0 + a1 * a1) + a2 * a2
-            lb2 = (b0 * b0 + b1 * b1) + b2 * b2
-            if nn > 4.0 * (c1s * max(la2, lb2) + c2s):  # false for a NaN or an overflow
-                length = math.sqrt(nn)
-                bad[i] = False
-                out[i, 0], out[i, 1], out[i, 2] = n0 / length, n1 / length, n2 / length
-                continue
-        n0, n1, n2, length, bad[i] = cross_test(a0, a1, a2, b0, b1, b2, c1, c2)
-        if bad[i]:
+        n0, n1, n2, b = _tangent_normal(tangents[i, 0], tangents[i, 1], tangents[i, 2],
+                                        tangents[i, 3], tangents[i, 4], tangents[i, 5], quick, c1, c2, c1s, c2s)
+        bad[i] = b
+        if b:
             count += 1
         else:
-            out[i, 0], out[i, 1], out[i, 2] = n0 / length, n1 / length, n2 / length
+            out[i, 0], out[i, 1], out[i, 2] = n0, n1, n2
+    return count
+
+
+@njit(cache=True, nogil=True)
+def place_normals(p, du, dv, rows, c1, c2, points, limit, bad):
+    """An evaluation's points ``p`` and first derivatives ``du``, ``dv`` (each ``(m, 3)
+    float64``) written into a display: each point into ``points``' row ``rows[i]`` (``rows (m,)
+    int64``) and its unit normal (`tangent_normals`' bits) into ``limit``'s (both ``(n, 3)
+    float64``), ``bad (m,) bool`` marking the rows without a direction, whose ``limit`` row is
+    left for the caller. Returns how many are bad. One pass for `tangent_normals` and
+    `acra.tessellate._place`, without stacking ``du`` and ``dv`` or an array of the normals."""
+    count = 0
+    quick = c2 >= 1e-100
+    c1s, c2s = c1 * c1, c2 * c2
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        points[r, 0], points[r, 1], points[r, 2] = p[i, 0], p[i, 1], p[i, 2]
+        n0, n1, n2, b = _tangent_normal(du[i, 0], du[i, 1], du[i, 2], dv[i, 0], dv[i, 1], dv[i, 2],
+                                        quick, c1, c2, c1s, c2s)
+        bad[i] = b
+        if b:
+            count += 1
+        else:
+            limit[r, 0], limit[r, 1], limit[r, 2] = n0, n1, n2
     return count

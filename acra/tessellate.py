@@ -482,45 +482,34 @@ def _normals_into(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None
                   points: np.ndarray, limit: np.ndarray) -> np.ndarray:
     """Evaluate ``hs`` at ``(u, v) (m,) float64`` (by v, then u: `grid_samples`' order) into the
     rows ``rows (m,) int64`` of ``points`` and of the limit unit normals ``limit`` (both ``(n,
-    3) float64``): `surface_normals`' points and normals bit for bit, the normals taken from the
-    first derivatives (`_given_normals`). Returns the rows ``(k,) int64`` whose normal was taken
-    at nudged points."""
+    3) float64``): `surface_normals`' points and normals bit for bit. A row where ``du × dv``
+    gives a direction takes its cross product over its length, written with its point in one
+    compiled pass (`acra.kernels.place_normals`, `kernels.tangent_normals`' bits); the others
+    (a pole's, a collapsed edge's) take the first-order term of ``du × dv`` from a second-order
+    evaluation (`acra.framekernels.limit_normals`), and only where a row needs nudging do they
+    go through `surface_normals`, which treats each row on its own: the result is its result on
+    every row. Returns the rows ``(k,) int64`` whose normal was taken at nudged points."""
     ev = evaluate(hs, u, v, order=1, det=det)
-    n, nudged = _given_normals(hs, u, v, det, ev.points, np.concatenate((ev.du, ev.dv), axis=1))
-    _place(ev.points, n, rows, points, limit)
-    return rows[nudged]
-
-
-def _given_normals(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None, points: np.ndarray,
-                   tangents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """`surface_normals` of ``hs`` at ``(u, v)`` from the points ``(m, 3)`` and first derivatives
-    ``tangents (m, 6) float64`` evaluated there: the limit unit normals ``(m, 3)`` and the rows
-    ``(k,) int64`` whose normal was taken at nudged points. A row where ``du × dv`` gives a
-    direction is its cross product over its length (`acra.kernels.tangent_normals`, the same
-    bits); the others (a pole's, a collapsed edge's) take the first-order term of ``du × dv``
-    from a second-order evaluation (`acra.framekernels.limit_normals`), and only where a row needs
-    nudging do they go through `surface_normals`, which treats each row on its own: the result is
-    its result on every row."""
-    t = np.ascontiguousarray(tangents, np.float64)
-    n, bad = np.empty((t.shape[0], 3)), np.empty(t.shape[0], np.bool_)
     s = max(hs.size(), 1e-300)  # `surface_normals`' scale and `_degenerate`'s bounds
-    if not kernels.tangent_normals(t, 1e-6 * s, 1e-12 * s**2, n, bad):
-        return n, _NO_INDEX
+    bad = np.empty(rows.size, np.bool_)
+    if not kernels.place_normals(ev.points, ev.du, ev.dv, rows, 1e-6 * s, 1e-12 * s**2, points, limit, bad):
+        return _NO_INDEX
     idx = np.flatnonzero(bad)
     # the first-order term toward the patch centre, compiled (`framekernels.limit_normals`, its
     # bits), unless a row needs nudging
     ui, vi = u[idx], v[idx]
     e2 = evaluate(hs, ui, vi, order=2, det=det)
     unit = np.empty((idx.size, 3))
-    if not framekernels.limit_normals(ui, vi, e2.du, e2.dv, e2.duu, e2.duv, e2.dvv, 1e-6 * s, 1e-12 * s**2,
-                                      1e-9 * hs.size()**2, int(hs.u.patches0), int(hs.v.patches0),
-                                      bool(hs.u.periodic), bool(hs.v.periodic), unit):
-        n[idx] = unit
-        return n, _NO_INDEX
-    nudged = np.empty(idx.size, bool)
-    _, n[idx] = surface_normals(hs, ui, vi, det=det, nudged=nudged,
-                                ev=SurfaceEval(points[idx], np.ascontiguousarray(t[idx, :3]), np.ascontiguousarray(t[idx, 3:])))
-    return n, idx[nudged]
+    if framekernels.limit_normals(ui, vi, e2.du, e2.dv, e2.duu, e2.duv, e2.dvv, 1e-6 * s, 1e-12 * s**2,
+                                  1e-9 * hs.size()**2, int(hs.u.patches0), int(hs.v.patches0),
+                                  bool(hs.u.periodic), bool(hs.v.periodic), unit):
+        nudged = np.empty(idx.size, bool)
+        _, unit = surface_normals(hs, ui, vi, det=det, nudged=nudged,
+                                  ev=SurfaceEval(ev.points[idx], ev.du[idx], ev.dv[idx]))
+        limit[rows[idx]] = unit
+        return rows[idx[nudged]]
+    limit[rows[idx]] = unit
+    return _NO_INDEX
 
 
 # Kept per live array: a weak reference without a callback, dead entries dropped when one is

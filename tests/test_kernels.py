@@ -441,6 +441,30 @@ def test_normals_of_tangent_rows_about_the_test_equal_degenerate(c1, c2):
     assert 0 < bad.sum() < m or c2 >= 1e200
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_placed_normals_equal_tangent_normals_and_numpy_s_row_assignment(seed):
+    """`kernels.place_normals` (an evaluation's points and unit normals written into a display's
+    rows in one pass) gives ``points[rows] = p`` and, on the rows with a direction,
+    ``limit[rows] = n`` of `kernels.tangent_normals` on the stacked ``du``, ``dv``, bit for bit,
+    the same rows flagged and the same count; a flagged row's ``limit`` is left as it was."""
+    rng = np.random.default_rng(seed)
+    m, n = 400, 700
+    du, dv = _tangents(rng, m)
+    p = rng.normal(size=(m, 3))
+    rows = rng.permutation(n)[:m]
+    c1, c2 = 1e-6 * 3.0, 1e-12 * 9.0
+    want_n, want_bad = np.empty((m, 3)), np.empty(m, bool)
+    count = kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, want_n, want_bad)
+    want_points, want_limit = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    want_points[rows] = p
+    want_limit[rows[~want_bad]] = want_n[~want_bad]
+    points, limit, bad = np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.empty(m, bool)
+    assert kernels.place_normals(p, du, dv, rows, c1, c2, points, limit, bad) == count > 0
+    np.testing.assert_array_equal(bad, want_bad)
+    np.testing.assert_array_equal(points.view(np.int64), want_points.view(np.int64))
+    np.testing.assert_array_equal(limit.view(np.int64), want_limit.view(np.int64))
+
+
 @pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])
 def test_compiled_movable_places_equal_the_array_form(kind):
     """`levelkernels.movable_places` (behind `hspline._movable_places`: each movable CV's row,
