@@ -288,12 +288,13 @@ def _project6(a0, a1, a2, w):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _sat(P, Q, w, e, f):
     """fcl's ``Intersect::intersect_Triangle`` test (17 axes) of triangles ``P, Q (3, 3)``, in its
     arithmetic: both moved by ``-P[0]`` into ``w (6, 3)``, edges ``p2 - p1, p3 - p2, p1 - p3``
-    into ``e, f (3, 3)`` (the caller's buffers: the test runs per pair of overlapping boxes, and
-    two arrays allocated per call cost a good part of its arithmetic)."""
+    into ``e, f (3, 3)``. It runs per pair of overlapping boxes, so it is inlined and works in
+    the caller's buffers: a compiled call takes and drops the reference count of each array
+    handed to it, and two arrays allocated per call cost a good part of its arithmetic."""
     for r in range(3):
         for k in range(3):
             w[r, k] = P[r, k] - P[0, k]
