@@ -288,16 +288,17 @@ def _project6(a0, a1, a2, w):
     return True
 
 
-@njit(cache=True, nogil=True)
-def _sat(P, Q, w):
+@njit(cache=True, nogil=True, inline="always")
+def _sat(P, Q, w, e, f):
     """fcl's ``Intersect::intersect_Triangle`` test (17 axes) of triangles ``P, Q (3, 3)``, in its
-    arithmetic: both moved by ``-P[0]``, edges ``p2 - p1, p3 - p2, p1 - p3``."""
+    arithmetic: both moved by ``-P[0]`` into ``w (6, 3)``, edges ``p2 - p1, p3 - p2, p1 - p3``
+    into ``e, f (3, 3)``. It runs per pair of overlapping boxes, so it is inlined and works in
+    the caller's buffers: a compiled call takes and drops the reference count of each array
+    handed to it, and two arrays allocated per call cost a good part of its arithmetic."""
     for r in range(3):
         for k in range(3):
             w[r, k] = P[r, k] - P[0, k]
             w[3 + r, k] = Q[r, k] - P[0, k]
-    e = np.empty((3, 3))
-    f = np.empty((3, 3))
     for k in range(3):
         e[0, k], e[1, k], e[2, k] = w[1, k] - w[0, k], w[2, k] - w[1, k], w[0, k] - w[2, k]
         f[0, k], f[1, k], f[2, k] = w[4, k] - w[3, k], w[5, k] - w[4, k], w[3, k] - w[5, k]
@@ -432,7 +433,7 @@ def _side(points, faces, rows, thin, lo, hi, reach, flag):
 @njit(cache=True, nogil=True)
 def _crossings(pa, fa, ka, pb, fb, kb, pad, thin, first):
     w, E = np.empty((6, 3)), np.empty((5, 3))
-    P, Q = np.empty((3, 3)), np.empty((3, 3))
+    P, Q, e, f = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     lo_a, hi_a, lo_b, hi_b = np.empty((len(ka), 3)), np.empty((len(ka), 3)), np.empty((len(kb), 3)), np.empty((len(kb), 3))
     reach_a, reach_b = np.empty(len(ka)), np.empty(len(kb))
     thin_a, thin_b = np.empty(len(ka), np.bool_), np.empty(len(kb), np.bool_)
@@ -454,7 +455,7 @@ def _crossings(pa, fa, ka, pb, fb, kb, pad, thin, first):
             for r in range(3):
                 for k in range(3):
                     Q[r, k] = pb[fb[kb[j], r], k]
-            if not _sat(P, Q, w):
+            if not _sat(P, Q, w, e, f):
                 continue  # fcl, testing the pair, finds the same axis apart
             a0, a1, a2, ta, sqa, _ = _plane(P)
             b0, b1, b2, tb, sqb, _ = _plane(Q)

@@ -30,6 +30,7 @@ from acra.halfspaces import _within as _halfspaces_within
 from acra.kdtree import PointTree
 from acra.kdtree import _nearest as _kd_nearest
 from acra.patch_boxes import _within as _boxes_within
+from acra.pseudonormals import _corner
 
 __all__ = ["ZERO", "Index", "build", "candidates", "closest_points", "corners", "face_uv", "index", "query", "refit"]
 
@@ -165,11 +166,15 @@ def index(tri: np.ndarray, unit: float, like: Index | None = None) -> Index:
 
 
 @njit(cache=True, nogil=True)
-def _closest_units(p0, p1, p2, t, s, zero):
-    """trimesh's ``closest_point`` of the point ``p`` and triangle ``t[s]`` (both in units)."""
-    a0, a1, a2 = t[s, 0, 0], t[s, 0, 1], t[s, 0, 2]
-    b0, b1, b2 = t[s, 1, 0], t[s, 1, 1], t[s, 1, 2]
-    c0, c1, c2 = t[s, 2, 0], t[s, 2, 1], t[s, 2, 2]
+def _closest_units(p0, p1, p2, a, b, c, zero):
+    """trimesh's ``closest_point`` of the point ``p`` and the triangle of corners ``a, b, c``
+    (tuples of 3 values; both in units). Corners as values, not the triangle array: the compiled
+    walk calls this function (too large to be inlined), and an array handed to it has its
+    reference count taken and dropped around each exact test, a cost of the order of the test's
+    arithmetic (*Kernels* in ``docs/performance.md``)."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    c0, c1, c2 = c
     ab0, ab1, ab2 = b0 - a0, b1 - a1, b2 - a2
     ac0, ac1, ac2 = c0 - a0, c1 - a1, c2 - a2
     ap0, ap1, ap2 = p0 - a0, p1 - a1, p2 - a2
@@ -220,7 +225,8 @@ def _distance(points, i, t, s, unit, zero):
     """Distance, in the caller's units, from ``points[i]`` to triangle ``t[s]`` (in units of
     ``unit``) and its closest point: ``unit * closest_point(t / unit, p / unit)``, then the norm."""
     p0, p1, p2 = points[i, 0], points[i, 1], points[i, 2]
-    x, y, z = _closest_units(p0 / unit, p1 / unit, p2 / unit, t, s, zero)
+    a, b, c = _corner(t, s, 0), _corner(t, s, 1), _corner(t, s, 2)
+    x, y, z = _closest_units(p0 / unit, p1 / unit, p2 / unit, a, b, c, zero)
     x, y, z = unit * x, unit * y, unit * z
     dx, dy, dz = x - p0, y - p1, z - p2
     return np.sqrt(dx * dx + dy * dy + dz * dz), x, y, z

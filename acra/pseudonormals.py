@@ -402,18 +402,22 @@ def _signs(p, dist, close, face, bary, vertices, faces, normals, edge_normals, v
                 zeros += 1
                 if first < 0:
                     first = k
+        # the normal's values read in each branch: a helper's tuple taken from one of three
+        # arrays leaves that array's reference count taken and dropped per point
         if zeros == 1:
-            n = _corner(edge_normals, f, (first + 1) % 3)
+            k = (first + 1) % 3
+            n0, n1, n2 = edge_normals[f, k, 0], edge_normals[f, k, 1], edge_normals[f, k, 2]
         elif zeros >= 2:
             k = 0
             for j in range(1, 3):
                 if bary[r, j] > bary[r, k]:
                     k = j
-            n = _row(vertex_normals, faces[f, k])
+            v = faces[f, k]
+            n0, n1, n2 = vertex_normals[v, 0], vertex_normals[v, 1], vertex_normals[v, 2]
         else:
-            n = _row(normals, f)
+            n0, n1, n2 = normals[f, 0], normals[f, 1], normals[f, 2]
         e0, e1, e2 = p[r, 0] - close[r, 0], p[r, 1] - close[r, 1], p[r, 2] - close[r, 2]
-        inside = (e0 * n[0] + e2 * n[2]) + e1 * n[1] < 0
+        inside = (e0 * n0 + e2 * n2) + e1 * n1 < 0
         out[r] = dist[r] if inside else -dist[r]
 
 
