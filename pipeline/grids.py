@@ -297,9 +297,9 @@ class GridSet:
             len(g.points) == len(h.points) and (g.solid is h.solid or np.array_equal(g.solid, h.solid))
             for g, h in zip(grids, self.grids))
 
-    def nearest(self, q: np.ndarray) -> Nearest:
-        """Closest points to ``q (k, 3)`` and their parameters, interpolated from the face
-        corners (trimesh's barycentric coordinates, `acra.nearest.face_uv`)."""
+    def closest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Distances ``(k,)``, closest points ``(k, 3)`` and the set's face rows ``(k,) int64`` of
+        ``q (k, 3)``: the least distance over the densities, a finer density's on ties."""
         # the finest density's answer whole: its faces come first (``start`` 0), and where it
         # finds no face its answer is the starting one (``inf``, zeros, row 0)
         (_, first), rest = self.indices[0], self.indices[1:]
@@ -308,6 +308,12 @@ class GridSet:
             d, cp, f = index.query(q, dist * (1 + 1e-9) + 1e-300)  # only what beats a finer density's
             better = d < dist
             dist[better], close[better], face[better] = d[better], cp[better], f[better] + start
+        return dist, close, face
+
+    def nearest(self, q: np.ndarray) -> Nearest:
+        """Closest points to ``q (k, 3)`` (`closest`) and their parameters, interpolated from the
+        face corners (trimesh's barycentric coordinates, `acra.nearest.face_uv`)."""
+        dist, close, face = self.closest(q)
         # trimesh's barycentric coordinates of the closest points, the corners' parameters mixed by
         # them and clipped to the face's patch, in one compiled pass (`acra.nearest.face_uv`)
         return Nearest(dist, close, nearest.face_uv(self.points, self.uv, self.triangles, face, close, self.face_lo, self.face_hi))
