@@ -61,10 +61,10 @@ from acra import shapes
 from acra.basis import Direction, refine_rows
 from pipeline import geometry
 from pipeline import authoring as A
-from pipeline import detect as D
 from pipeline import frames as F
 from pipeline import usdio
 from pipeline import output_layer
+from pipeline.shape import shape_of
 from pipeline.run import forget, run_file
 from scenes import dog_head_spike as dog
 
@@ -153,7 +153,7 @@ def boxes_ms(src: Path, density: int, repeat: int = 50) -> float:
     the broad phase every frame pays) at frame 1, with its object-space `Shape` already built."""
     stage = usdio.open_input(src)
     (head, _), _ = usdio.state_at(stage, usdio.read_scene(stage), 1.0)
-    D.shape_of(head.surface, density).hulls
+    shape_of(head.surface, density).hulls
     ts = []
     for _ in range(repeat):
         t = time.perf_counter()
