@@ -44,7 +44,7 @@ from numba import njit
 
 from acra.framekernels import cross_test
 
-__all__ = ["eval_points", "NSLOTS", "mark_cells", "changed_level", "ascending", "tangent_normals", "place_normals"]
+__all__ = ["eval_points", "NSLOTS", "mark_cells", "changed_level", "ascending", "place_normals"]
 
 # output slots per derivative order: (0,0) | (1,0) (0,1) | (2,0) (1,1) (0,2), as `SurfaceEval`'s fields
 NSLOTS = (1, 3, 6)
@@ -386,7 +386,7 @@ def changed_level(out, k, level, pa, pb, a_keys, b_keys, va, vb, npv_k, ncv_k, n
 
 @njit(inline="always")
 def _tangent_normal(a0, a1, a2, b0, b1, b2, quick, c1, c2, c1s, c2s):
-    """One row of `tangent_normals`: the unit normal ``(n0, n1, n2)`` of ``du = (a0, a1, a2)``,
+    """One row of `place_normals`: the unit normal ``(n0, n1, n2)`` of ``du = (a0, a1, a2)``,
     ``dv = (b0, b1, b2)`` and whether it has no direction (then the normal is unset), with
     ``quick`` (``c2 >= 1e-100``), ``c1s = c1 * c1`` and ``c2s = c2 * c2`` taken once a call."""
     if quick:
@@ -406,40 +406,20 @@ def _tangent_normal(a0, a1, a2, b0, b1, b2, quick, c1, c2, c1s, c2s):
 
 
 @njit(cache=True, nogil=True)
-def tangent_normals(tangents, c1, c2, out, bad):
-    """Unit normals of first derivatives ``tangents (m, 6) float64`` (``du`` then ``dv``) into
-    ``out (m, 3) float64``: ``du × dv`` over its length, the products, test and quotient of
-    `acra.framekernels.degenerate` and `unit_rows` (so `acra.hspline.surface_normals`' bits),
-    and ``bad (m,) bool`` where ``|du × dv| <= c1 max(|du|, |dv|) + c2`` (no direction: the
-    caller takes those rows' limit normals, ``out`` left unset there). Returns how many are bad.
-    One pass over the rows, so a display's normals need no copies of ``du`` and ``dv``.
+def place_normals(p, du, dv, rows, c1, c2, points, limit, bad):
+    """An evaluation's points ``p`` and first derivatives ``du``, ``dv`` (each ``(m, 3)
+    float64``) written into a display: each point into ``points``' row ``rows[i]`` (``rows (m,)
+    int64``) and its unit normal into ``limit``'s (both ``(n, 3) float64``): ``du × dv`` over its
+    length, the products, test and quotient of `acra.framekernels.degenerate` and `unit_rows` (so
+    `acra.hspline.surface_normals`' bits). ``bad (m,) bool`` marks the rows where ``|du × dv| <=
+    c1 max(|du|, |dv|) + c2`` (no direction), whose ``limit`` row is left for the caller's limit
+    normals. Returns how many are bad. One pass, without stacking ``du`` and ``dv`` or an array
+    of the normals.
 
     A row whose ``|du × dv|²`` exceeds ``4 (c1² max(|du|², |dv|²) + c2²)`` passes the test
     whatever the rounding (``(c1 L + c2)² <= 2 (c1² L² + c2²)``, and the factor 2 left covers
     every rounding by far), so it takes one square root instead of three; the others take the
     test itself. Where ``c2²`` could underflow (``c2 < 1e-100``) every row takes the test."""
-    count = 0
-    quick = c2 >= 1e-100
-    c1s, c2s = c1 * c1, c2 * c2
-    for i in range(tangents.shape[0]):
-        n0, n1, n2, b = _tangent_normal(tangents[i, 0], tangents[i, 1], tangents[i, 2],
-                                        tangents[i, 3], tangents[i, 4], tangents[i, 5], quick, c1, c2, c1s, c2s)
-        bad[i] = b
-        if b:
-            count += 1
-        else:
-            out[i, 0], out[i, 1], out[i, 2] = n0, n1, n2
-    return count
-
-
-@njit(cache=True, nogil=True)
-def place_normals(p, du, dv, rows, c1, c2, points, limit, bad):
-    """An evaluation's points ``p`` and first derivatives ``du``, ``dv`` (each ``(m, 3)
-    float64``) written into a display: each point into ``points``' row ``rows[i]`` (``rows (m,)
-    int64``) and its unit normal (`tangent_normals`' bits) into ``limit``'s (both ``(n, 3)
-    float64``), ``bad (m,) bool`` marking the rows without a direction, whose ``limit`` row is
-    left for the caller. Returns how many are bad. One pass for `tangent_normals` and
-    `acra.tessellate._place`, without stacking ``du`` and ``dv`` or an array of the normals."""
     count = 0
     quick = c2 >= 1e-100
     c1s, c2s = c1 * c1, c2 * c2

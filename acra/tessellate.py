@@ -484,7 +484,7 @@ def _normals_into(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None
     rows ``rows (m,) int64`` of ``points`` and of the limit unit normals ``limit`` (both ``(n,
     3) float64``): `surface_normals`' points and normals bit for bit. A row where ``du × dv``
     gives a direction takes its cross product over its length, written with its point in one
-    compiled pass (`acra.kernels.place_normals`, `kernels.tangent_normals`' bits); the others
+    compiled pass (`acra.kernels.place_normals`, `acra.framekernels.degenerate`'s bits); the others
     (a pole's, a collapsed edge's) take the first-order term of ``du × dv`` from a second-order
     evaluation (`acra.framekernels.limit_normals`), and only where a row needs nudging do they
     go through `surface_normals`, which treats each row on its own: the result is its result on

@@ -394,9 +394,8 @@ def test_marked_cells_equal_numpy_index_assignment(seed):
 
 @pytest.mark.parametrize("seed", range(4))
 def test_normals_of_tangent_rows_equal_degenerate_and_unit_rows(seed):
-    """`kernels.tangent_normals` on ``(m, 6)`` rows (``du`` then ``dv``) marks the rows
-    `framekernels.degenerate` marks and gives every other row `unit_rows`' bits, on tangents of
-    every kind (vanishing, parallel, NaN)."""
+    """`kernels.place_normals` marks the rows `framekernels.degenerate` marks and gives every
+    other row `unit_rows`' bits, on tangents of every kind (vanishing, parallel, NaN)."""
     rng = np.random.default_rng(seed)
     du, dv = _tangents(rng, 400)
     c1, c2 = 1e-6 * 3.0, 1e-12 * 9.0
@@ -404,8 +403,8 @@ def test_normals_of_tangent_rows_equal_degenerate_and_unit_rows(seed):
     framekernels.degenerate(du, dv, c1, c2, n, bad)
     want = np.empty((int((~bad).sum()), 3))
     framekernels.unit_rows(n[~bad], want)
-    got, flagged = np.empty((400, 3)), np.empty(400, bool)
-    assert kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, got, flagged) == bad.sum() > 0
+    got, flagged = _placed(du, dv, c1, c2)
+    assert flagged.sum() == bad.sum() > 0
     np.testing.assert_array_equal(flagged, bad)
     np.testing.assert_array_equal(got[~bad].view(np.int64), want.view(np.int64))
 
@@ -413,7 +412,7 @@ def test_normals_of_tangent_rows_equal_degenerate_and_unit_rows(seed):
 @pytest.mark.parametrize("c1, c2", [(3e-6, 9e-12), (1e-6, 1e-120), (1e-6, 0.0), (1e-300, 1e-300), (1e-165, 1e-162), (1e150, 1e200)])
 def test_normals_of_tangent_rows_about_the_test_equal_degenerate(c1, c2):
     """Rows whose ``|du × dv|`` lies about ``c1 max(|du|, |dv|) + c2`` (from half to twice it,
-    and within a few ulps of it): `kernels.tangent_normals`' one-root path for rows far above
+    and within a few ulps of it): `kernels.place_normals`' one-root path for rows far above
     it gives the flags and bits of `framekernels.degenerate` and `unit_rows` on each, with a
     ``c2`` whose square underflows and bounds whose squares overflow."""
     rng = np.random.default_rng(5)
@@ -434,35 +433,46 @@ def test_normals_of_tangent_rows_about_the_test_equal_degenerate(c1, c2):
         framekernels.degenerate(du, dv, c1, c2, n, bad)
         want = np.empty((int((~bad).sum()), 3))
         framekernels.unit_rows(n[~bad], want)
-    got, flagged = np.empty((m, 3)), np.empty(m, bool)
-    assert kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, got, flagged) == bad.sum()
+    with np.errstate(over="ignore", invalid="ignore"):
+        got, flagged = _placed(du, dv, c1, c2)
     np.testing.assert_array_equal(flagged, bad)
     np.testing.assert_array_equal(got[~bad].view(np.int64), want.view(np.int64))
     assert 0 < bad.sum() < m or c2 >= 1e200
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_placed_normals_equal_tangent_normals_and_numpy_s_row_assignment(seed):
+def test_placed_normals_equal_degenerate_and_numpy_s_row_assignment(seed):
     """`kernels.place_normals` (an evaluation's points and unit normals written into a display's
     rows in one pass) gives ``points[rows] = p`` and, on the rows with a direction,
-    ``limit[rows] = n`` of `kernels.tangent_normals` on the stacked ``du``, ``dv``, bit for bit,
-    the same rows flagged and the same count; a flagged row's ``limit`` is left as it was."""
+    ``limit[rows] = n`` of `framekernels.degenerate` and `unit_rows`, bit for bit, the same rows
+    flagged and the same count; a flagged row's ``limit`` is left as it was."""
     rng = np.random.default_rng(seed)
     m, n = 400, 700
     du, dv = _tangents(rng, m)
     p = rng.normal(size=(m, 3))
     rows = rng.permutation(n)[:m]
     c1, c2 = 1e-6 * 3.0, 1e-12 * 9.0
-    want_n, want_bad = np.empty((m, 3)), np.empty(m, bool)
-    count = kernels.tangent_normals(np.concatenate([du, dv], axis=1), c1, c2, want_n, want_bad)
+    cross, want_bad = np.empty((m, 3)), np.empty(m, bool)
+    framekernels.degenerate(du, dv, c1, c2, cross, want_bad)
+    want_n = np.empty((int((~want_bad).sum()), 3))
+    framekernels.unit_rows(cross[~want_bad], want_n)
     want_points, want_limit = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
     want_points[rows] = p
-    want_limit[rows[~want_bad]] = want_n[~want_bad]
+    want_limit[rows[~want_bad]] = want_n
     points, limit, bad = np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.empty(m, bool)
-    assert kernels.place_normals(p, du, dv, rows, c1, c2, points, limit, bad) == count > 0
+    assert kernels.place_normals(p, du, dv, rows, c1, c2, points, limit, bad) == want_bad.sum() > 0
     np.testing.assert_array_equal(bad, want_bad)
     np.testing.assert_array_equal(points.view(np.int64), want_points.view(np.int64))
     np.testing.assert_array_equal(limit.view(np.int64), want_limit.view(np.int64))
+
+
+def _placed(du: np.ndarray, dv: np.ndarray, c1: float, c2: float) -> tuple[np.ndarray, np.ndarray]:
+    """`kernels.place_normals` of ``du, dv (m, 3)`` into rows ``0..m-1``: the normals ``(m, 3)``
+    (rows without a direction NaN) and the flags ``(m,) bool``."""
+    m = len(du)
+    limit, bad = np.full((m, 3), np.nan), np.empty(m, bool)
+    kernels.place_normals(np.zeros((m, 3)), du, dv, np.arange(m), c1, c2, np.empty((m, 3)), limit, bad)
+    return limit, bad
 
 
 @pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])

@@ -108,7 +108,7 @@ def _pinched_sheet() -> H.HSpline:
 @pytest.mark.parametrize("kind", ["sphere", "pinched"])
 def test_normals_from_the_evaluated_derivatives_equal_surface_normals(kind):
     """`grid_samples` takes each vertex's normal from its first derivatives (`_normals_into`:
-    `kernels.tangent_normals`) and only the rows without a direction from `surface_normals`: the
+    `kernels.place_normals`) and only the rows without a direction from `surface_normals`: the
     points, the normals and the rows noted as nudged equal `surface_normals`', bit for bit, at a
     refined sphere's poles and at a corner collapsed to one point."""
     if kind == "sphere":
