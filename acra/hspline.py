@@ -60,7 +60,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
 )
 
 # this module's own names, then the structure's (`acra.hierarchy`), re-exported
-__all__ = ["Details", "SurfaceEval", "details", "moved_details", "keep_details", "evaluate", "cv_positions", "surface_normals", *hierarchy.__all__]
+__all__ = ["Details", "SurfaceEval", "details", "moved_details", "keep_details", "evaluate", "eval_arrays", "cv_positions", "surface_normals", *hierarchy.__all__]
 
 
 @dataclass(frozen=True)
@@ -174,6 +174,17 @@ def evaluate(
     u, v = _flat(u), _flat(v)
     if u.size != v.size:
         raise ValueError(f"u and v must have the same size, got {u.size} and {v.size}")
+    out = np.empty((_NSLOTS[order], u.size, 3))
+    kernels.eval_points(u, v, int(order), int(side), *eval_arrays(hs, det, upto), out)
+    return _surface_eval(out)
+
+
+def eval_arrays(hs: HSpline, det: Details | None = None, upto: int | None = None) -> tuple:
+    """`acra.kernels.eval_points`' arguments after the order and side, as `evaluate` passes them
+    for ``det`` and ``upto``: ``(top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts,
+    ends, patch_rows, table_rows, table)``, plain ints, bools and C-contiguous arrays, so one
+    compiled signature serves every call (and compiled code that evaluates the surface itself,
+    `acra.sides.behind`, sums what `evaluate` sums)."""
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
     if top < 0:
         raise ValueError(f"upto must be at least 0, got {upto}")
@@ -182,15 +193,8 @@ def evaluate(
         table = _flat((det if det is not None else _details_for(hs, top)).table, 2)
     else:
         table = _NO_DETAILS
-    out = np.empty((_NSLOTS[order], u.size, 3))
-    # plain ints, bools and C-contiguous arrays: one compiled signature serves every call
-    kernels.eval_points(
-        u, v, int(order), int(side), int(top),
-        int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-        _flat(hs.cvs.reshape(-1, 3), 2),
-        levels, keys, shifts, ends, patch_rows, hs._table_rows, table, out,
-    )
-    return _surface_eval(out)
+    return (int(top), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
+            _flat(hs.cvs.reshape(-1, 3), 2), levels, keys, shifts, ends, patch_rows, hs._table_rows, table)
 
 
 def _surface_eval(out: np.ndarray) -> SurfaceEval:

@@ -26,31 +26,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from acra import hspline
 from acra.framekernels import cross_test
 from acra.kernels import eval_points
 from acra.nearest import _face_uv
 
-__all__ = ["EvalArgs", "eval_args", "behind"]
-
-# `acra.kernels.eval_points`' arguments after the parameters and the order, as `hspline.evaluate`
-# passes them for every level: (top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts,
-# ends, patch_rows, table_rows, table)
-EvalArgs = tuple
-
-
-def eval_args(hs: hspline.HSpline, det: hspline.Details | None) -> EvalArgs:
-    """The arguments `hspline.evaluate` hands `acra.kernels.eval_points` for surface ``hs`` with
-    details ``det`` (every level, ``upto`` None), read once per surface: plain ints and bools,
-    C-contiguous arrays, so the kernel sums what `evaluate` sums."""
-    top = hs.depth - 1
-    levels, keys, shifts, ends, patch_rows = hs._terms_index
-    if levels.size > 1 and levels[1] <= top:
-        table = hspline._flat((det if det is not None else hspline._details_for(hs, top)).table, 2)
-    else:
-        table = hspline._NO_DETAILS
-    return (int(top), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-            hspline._flat(hs.cvs.reshape(-1, 3), 2), levels, keys, shifts, ends, patch_rows, hs._table_rows, table)
+__all__ = ["behind"]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -77,7 +57,7 @@ def _behind(points, uv, triangles, face, close, face_lo, face_hi, q, outward, c1
 
 def behind(points: np.ndarray, uv: np.ndarray, triangles: np.ndarray, face_lo: np.ndarray, face_hi: np.ndarray,
            face: np.ndarray, close: np.ndarray, q: np.ndarray, outward: float, size: float,
-           args: EvalArgs) -> tuple[np.ndarray, np.ndarray]:
+           args: tuple) -> tuple[np.ndarray, np.ndarray]:
     """Closest points' parameters and which points lie behind the surface's outward normal there.
 
     Parameters
@@ -94,8 +74,8 @@ def behind(points: np.ndarray, uv: np.ndarray, triangles: np.ndarray, face_lo: n
         ``+1`` where ``du × dv`` points out of the surface, else ``-1`` (`Shape.outward`).
     size : float
         The surface's size (`HSpline.size`): the scale of the no-direction test.
-    args : EvalArgs
-        `eval_args` of the surface.
+    args : tuple
+        `acra.hspline.eval_arrays` of the surface (every level).
 
     Returns
     -------

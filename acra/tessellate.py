@@ -421,7 +421,7 @@ def grid_samples(hs: HSpline, topo: GridTopology, det: Details | None = None,
     def place_points(rows: np.ndarray, points: np.ndarray) -> None:
         # the points alone, placed in their rows by `_place`
         ev = evaluate(hs, topo.u[rows], topo.v[rows], order=0, det=det)
-        _place(ev.points, _NO_POINTS, rows, points, _NO_POINTS)
+        _place(ev.points, rows, points)
 
     # an evaluation takes its points by v, then u (a topology's vertices come by u, then v): a
     # point on the v and block of the one before reuses its v contraction
@@ -543,19 +543,14 @@ _NO_INDEX, _NO_FOUND, _NO_POINTS = np.zeros(0, np.int64), np.zeros(0, np.bool_),
 
 
 @njit(cache=True, nogil=True)
-def _place(p, n, rows, points, limit):
-    """Write an evaluation's ``p (m, 3) float64`` into ``points`` at ``rows (m,) int64`` and,
-    unless ``limit`` is empty, its limit normals ``n (m, 3) float64`` into ``limit``'s rows:
-    numpy's ``points[rows] = p; limit[rows] = n`` in one pass (the points come by v, the
-    display's rows by u)."""
-    normals = limit.shape[0] > 0
+def _place(p, rows, points):
+    """Write an evaluation's ``p (m, 3) float64`` into ``points`` at ``rows (m,) int64``: numpy's
+    ``points[rows] = p`` in one pass (the points come by v, the display's rows by u). A display
+    with normals takes its points with them (`acra.kernels.place_normals`)."""
     for i in range(rows.shape[0]):
         r = rows[i]
         for e in range(3):
             points[r, e] = p[i, e]
-        if normals:
-            for e in range(3):
-                limit[r, e] = n[i, e]
 
 
 def _v_order(topo) -> np.ndarray:

@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-from acra import halfspaces, kdtree, memo, sides
+from acra import halfspaces, kdtree, memo
 from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.orientation import volume_sign
@@ -161,8 +161,8 @@ class Shape:
     @cached_property
     def eval_args(self) -> tuple:
         """What `acra.kernels.eval_points` reads of the surface and its `details`, read once
-        (`acra.sides.eval_args`): the inside tests' normals are evaluated in compiled code."""
-        return sides.eval_args(self.surface, self.details)
+        (`acra.hspline.eval_arrays`): the inside tests' normals are evaluated in compiled code."""
+        return H.eval_arrays(self.surface, self.details)
 
     @cached_property
     def cv_positions(self) -> list[np.ndarray]:
