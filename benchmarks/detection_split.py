@@ -9,8 +9,8 @@ than in wall-clock figures (``--wall`` keeps the wall clock). Prints the frame l
 (`FrameStats`: set-up, detection, conversion, response, residual where the user looks; ms per
 collision frame) and the nested time inside the detection functions, medians over the runs.
 ``--stages`` times no function (no wrapper's overhead) and prints each stage's median and range
-over the runs, and the sum of set-up, detection and conversion, to two decimals: one line to
-compare checkouts by (another checkout: this file with ``PYTHONPATH`` at it).
+over the runs (the sum of set-up, detection and conversion as ``three``), to two decimals: one
+line to compare checkouts by (another checkout: this file with ``PYTHONPATH`` at it).
 """
 
 from __future__ import annotations
@@ -120,7 +120,7 @@ def _stages(repeat: int) -> None:
         row["three"] = row["setup"] + row["detect"] + row["convert"]
         runs.append(row)
     print(" ".join(f"{k} {statistics.median(r[k] for r in runs):.2f} ({min(r[k] for r in runs):.2f}-{max(r[k] for r in runs):.2f})"
-                   for k in ("setup", "detect", "convert", "three", "total")))
+                   for k in ("setup", "detect", "convert", "three", "respond", "visible", "total")))
 
 
 if __name__ == "__main__":
