@@ -1,6 +1,6 @@
 """Detection and set-up of a collision frame in CPU time, stage by stage and function by function.
 
-    PYTHONPATH=$PWD python3 benchmarks/detection_split.py [--repeat 3] [--wall] [--stages]
+    PYTHONPATH=$PWD python3 benchmarks/detection_split.py [--repeat 3] [--wall] [--stages] [--per-frame]
 
 Runs `dog_head_spike` frames 13-17 after frame 5 (``--repeat`` times, a fresh stage each time, so
 every run builds the input shapes again) with the frame loop's clock read as the process's CPU
@@ -11,6 +11,9 @@ collision frame) and the nested time inside the detection functions, medians ove
 ``--stages`` times no function (no wrapper's overhead) and prints each stage's median and range
 over the runs (the sum of set-up, detection and conversion as ``three``), to two decimals: one
 line to compare checkouts by (another checkout: this file with ``PYTHONPATH`` at it).
+``--per-frame`` times no function either and prints each collision frame's set-up, detection and
+conversion, medians over the runs: the first frame in contact builds the input shapes and rewinds
+to the first touch, the later ones look both up.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--wall", action="store_true", help="wall-clock time instead of CPU time")
     ap.add_argument("--stages", action="store_true", help="the stages alone, median (range), two decimals")
+    ap.add_argument("--per-frame", action="store_true", help="set-up, detection and conversion of each frame, medians")
     args = ap.parse_args()
     if not args.wall:
         time.perf_counter = time.process_time  # the frame loop's and the wrappers' clock
@@ -54,8 +58,8 @@ def main() -> None:
                 spent[label][1] += time.perf_counter() - t
         return wrapper
 
-    if args.stages:
-        _stages(args.repeat)
+    if args.stages or args.per_frame:
+        _stages(args.repeat, args.per_frame)
         return
     for name in ("intersect", "regions", "touching", "cast", "project", "tessellate", "_tessellate", "_candidate_vertices", "_inside_depth",
                  "_triangles_near", "_face_boxes"):
@@ -102,13 +106,14 @@ def main() -> None:
         print(f"| `{k}` | {splits[0][k][0]} | {statistics.median(s.get(k, (0, 0.0))[1] for s in splits):.1f} |")
 
 
-def _stages(repeat: int) -> None:
-    """`main` with ``--stages``: each run's mean over the collision frames, median (range) over runs."""
+def _stages(repeat: int, per_frame: bool = False) -> None:
+    """`main` with ``--stages``: each run's mean over the collision frames, median (range) over runs;
+    with ``per_frame``, each collision frame's set-up, detection and conversion, medians over runs."""
     from pipeline import frames as F
     from pipeline import usdio
     from pipeline.run import forget
 
-    runs = []
+    runs, frames = [], []
     for _ in range(repeat):
         forget()
         stage = usdio.open_input(usdio.load_scene_file(ROOT / "scenes" / "dog_head_spike.py"))
@@ -119,6 +124,13 @@ def _stages(repeat: int) -> None:
         row = {a: sum(getattr(s, "ms_" + a) for s in hit) / len(hit) for a in ("setup", "detect", "convert", "respond", "visible", "total")}
         row["three"] = row["setup"] + row["detect"] + row["convert"]
         runs.append(row)
+        frames.append([(s.frame, s.ms_setup, s.ms_detect, s.ms_convert) for s in hit])
+    if per_frame:
+        print("| frame | set-up | detection | conversion |\n|---:|---:|---:|---:|")
+        for i, (frame, *_) in enumerate(frames[0]):
+            cells = " | ".join(f"{statistics.median(run[i][j] for run in frames):.2f}" for j in (1, 2, 3))
+            print(f"| {frame} | {cells} |")
+        return
     print(" ".join(f"{k} {statistics.median(r[k] for r in runs):.2f} ({min(r[k] for r in runs):.2f}-{max(r[k] for r in runs):.2f})"
                    for k in ("setup", "detect", "convert", "three", "respond", "visible", "total")))
 
