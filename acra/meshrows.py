@@ -190,6 +190,10 @@ def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out
     # ``lo <= x + pad``), and then its chunk's least ``x`` (at most that corner's) is ``<= hi +
     # pad`` and ``lo <=`` its largest ``x`` plus ``pad`` (the rounding of ``x + pad`` is monotone
     # in ``x``): a box missing that is skipped with every face in it
+    # A box whose least ``x`` has ``lo <= x + pad`` and whose largest is ``<= hi + pad`` on every
+    # axis holds only points without a side's bit (each of its points lies between those two,
+    # and ``x + pad`` rounds monotonically), so every face of it meets the box: its rows are
+    # taken without comparing their corners
     top0, top1, top2 = hi[0] + pad, hi[1] + pad, hi[2] + pad
     lo0, lo1, lo2 = lo[0], lo[1], lo[2]
     nf, nc = faces.shape[0], clo.shape[0]
@@ -198,9 +202,21 @@ def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out
         if not (glo[g, 0] <= top0 and glo[g, 1] <= top1 and glo[g, 2] <= top2 and lo0 <= ghi[g, 0] + pad
                 and lo1 <= ghi[g, 1] + pad and lo2 <= ghi[g, 2] + pad):
             continue
+        if (ghi[g, 0] <= top0 and ghi[g, 1] <= top1 and ghi[g, 2] <= top2 and lo0 <= glo[g, 0] + pad
+                and lo1 <= glo[g, 1] + pad and lo2 <= glo[g, 2] + pad):
+            for i in range(g * size * size, min((g + 1) * size * size, nf)):
+                out[n] = i
+                n += 1
+            continue
         for c in range(g * size, min((g + 1) * size, nc)):
             if not (clo[c, 0] <= top0 and clo[c, 1] <= top1 and clo[c, 2] <= top2 and lo0 <= chi[c, 0] + pad
                     and lo1 <= chi[c, 1] + pad and lo2 <= chi[c, 2] + pad):
+                continue
+            if (chi[c, 0] <= top0 and chi[c, 1] <= top1 and chi[c, 2] <= top2 and lo0 <= clo[c, 0] + pad
+                    and lo1 <= clo[c, 1] + pad and lo2 <= clo[c, 2] + pad):
+                for i in range(c * size, min((c + 1) * size, nf)):
+                    out[n] = i
+                    n += 1
                 continue
             for i in range(c * size, min((c + 1) * size, nf)):
                 shared = 63

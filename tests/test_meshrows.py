@@ -142,3 +142,24 @@ def test_faces_placed_are_the_corners_their_box_and_their_shift_to_the_bit(seed,
     if plain:
         for eye in (np.eye(3), np.where(np.eye(3) > 0, 1.0, -0.0)):
             assert (flat @ eye.T).tobytes() == flat.tobytes()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 3000), st.sampled_from([0.0, 1e-300, 1e-9, 0.01]))
+def test_faces_meet_rows_of_chunks_and_groups_inside_the_box_are_the_full_scan_s(seed, n_faces, pad):
+    """Boxes holding whole chunks and groups (whose rows are taken without their corners'
+    comparisons): the box of all the points or of a run of them, its sides on points' values,
+    one float step inside or outside them; the rows are the full scan's, in the same order."""
+    rng = np.random.default_rng(seed)
+    n = n_faces + 2
+    points = np.cumsum(rng.normal(0.0, 0.05, (n, 3)), axis=0)
+    faces = np.stack([np.arange(n_faces), np.arange(n_faces) + 1, np.arange(n_faces) + 2], axis=1)
+    chunks = meshrows.face_chunks(points, meshrows.chunk_vertices(faces, n))
+    a = int(rng.integers(0, n))
+    b = int(rng.integers(a, n)) + 1
+    lo, hi = points[a:b].min(axis=0), points[a:b].max(axis=0)
+    for step in (0, 1, -1):
+        l, h = (np.nextafter(lo, lo + step), np.nextafter(hi, hi - step)) if step else (lo, hi)
+        for pad_lo, pad_hi in ((l, h), (points.min(axis=0), points.max(axis=0))):
+            rows = meshrows.faces_meet_rows(points, faces, pad_lo, pad_hi, pad)
+            assert np.array_equal(meshrows.faces_meet_rows(points, faces, pad_lo, pad_hi, pad, chunks), rows)
