@@ -4,7 +4,7 @@ corners of chosen faces, points by barycentric coordinates, and distinct points.
 The residual a user sees (`pipeline.residual`) measures the display triangles near the other
 object: which faces' boxes come within a padded box (`faces_meet_rows`, through the boxes of
 `CHUNK`-face chunks and groups of chunks where a display's chunk lists are kept,
-`chunk_vertices`, `face_chunks`), their corners (`faces_at`), the points found inside and their
+`chunk_vertices`, `face_chunks`), their corners (`faces_at`; with their box and a shift, `faces_placed`), the points found inside and their
 parameters (`barycentric`, numpy einsum's arithmetic to the bit), and the distinct points of a
 set with each row's first equal row (`first_rows`, `distinct_rows`, by the bits of the
 coordinates). Each is one compiled loop over the rows where numpy would build a boolean array
@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["boxes_meet", "faces_meet_rows", "CHUNK", "chunk_vertices", "face_chunks", "faces_at", "barycentric", "first_rows", "distinct_rows"]
+__all__ = ["boxes_meet", "faces_meet_rows", "CHUNK", "chunk_vertices", "face_chunks", "faces_at", "faces_placed", "barycentric", "first_rows", "distinct_rows"]
 
 
 @njit(cache=True, nogil=True)
@@ -190,6 +190,10 @@ def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out
     # ``lo <= x + pad``), and then its chunk's least ``x`` (at most that corner's) is ``<= hi +
     # pad`` and ``lo <=`` its largest ``x`` plus ``pad`` (the rounding of ``x + pad`` is monotone
     # in ``x``): a box missing that is skipped with every face in it
+    # A box whose least ``x`` has ``lo <= x + pad`` and whose largest is ``<= hi + pad`` on every
+    # axis holds only points without a side's bit (each of its points lies between those two,
+    # and ``x + pad`` rounds monotonically), so every face of it meets the box: its rows are
+    # taken without comparing their corners
     top0, top1, top2 = hi[0] + pad, hi[1] + pad, hi[2] + pad
     lo0, lo1, lo2 = lo[0], lo[1], lo[2]
     nf, nc = faces.shape[0], clo.shape[0]
@@ -198,9 +202,21 @@ def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out
         if not (glo[g, 0] <= top0 and glo[g, 1] <= top1 and glo[g, 2] <= top2 and lo0 <= ghi[g, 0] + pad
                 and lo1 <= ghi[g, 1] + pad and lo2 <= ghi[g, 2] + pad):
             continue
+        if (ghi[g, 0] <= top0 and ghi[g, 1] <= top1 and ghi[g, 2] <= top2 and lo0 <= glo[g, 0] + pad
+                and lo1 <= glo[g, 1] + pad and lo2 <= glo[g, 2] + pad):
+            for i in range(g * size * size, min((g + 1) * size * size, nf)):
+                out[n] = i
+                n += 1
+            continue
         for c in range(g * size, min((g + 1) * size, nc)):
             if not (clo[c, 0] <= top0 and clo[c, 1] <= top1 and clo[c, 2] <= top2 and lo0 <= chi[c, 0] + pad
                     and lo1 <= chi[c, 1] + pad and lo2 <= chi[c, 2] + pad):
+                continue
+            if (chi[c, 0] <= top0 and chi[c, 1] <= top1 and chi[c, 2] <= top2 and lo0 <= clo[c, 0] + pad
+                    and lo1 <= clo[c, 1] + pad and lo2 <= clo[c, 2] + pad):
+                for i in range(c * size, min((c + 1) * size, nf)):
+                    out[n] = i
+                    n += 1
                 continue
             for i in range(c * size, min((c + 1) * size, nf)):
                 shared = 63
@@ -213,12 +229,31 @@ def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out
 
 
 @njit(cache=True, nogil=True)
-def _faces_at(points, faces, rows, out):
+def _faces_at(points, faces, rows, shift, out, moved, box):
+    # the corners in order, their box in `acra.bvh.bounds`' comparisons and order (the first
+    # corner, then each later one against the least and largest so far), and, where ``moved``
+    # has rows, each corner less ``shift`` (numpy's subtraction); true where every such value is
+    # finite and not zero
+    placed = moved.shape[0] > 0
+    plain = True
     for i in range(rows.shape[0]):
         for c in range(3):
             v = faces[rows[i], c]
             for k in range(3):
-                out[i, c, k] = points[v, k]
+                x = points[v, k]
+                out[i, c, k] = x
+                if i == 0 and c == 0:
+                    box[0, k], box[1, k] = x, x
+                else:
+                    if x < box[0, k]:
+                        box[0, k] = x
+                    if x > box[1, k]:
+                        box[1, k] = x
+                if placed:
+                    d = x - shift[k]
+                    moved[i, c, k] = d
+                    plain &= d != 0.0 and abs(d) < np.inf  # false for NaN too
+    return plain
 
 
 def faces_at(points: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -227,8 +262,26 @@ def faces_at(points: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> np.ndar
     out = np.empty((len(rows), 3, 3))
     if len(rows):
         _faces_at(np.ascontiguousarray(points, np.float64), _read_only(faces),
-                  np.ascontiguousarray(rows, np.int64), out)
+                  np.ascontiguousarray(rows, np.int64), np.zeros(3), out, out[:0], np.empty((2, 3)))
     return out
+
+
+def faces_placed(points: np.ndarray, faces: np.ndarray, rows: np.ndarray,
+                 shift: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """`faces_at`'s corners ``tri (m, 3, 3)`` (``m`` > 0), with in the same compiled pass their
+    box ``(2, 3)`` (`acra.bvh.bounds`' bits) and ``tri - shift`` ``(m, 3, 3)`` (``shift (3,)``,
+    numpy's bits), and whether every value of the latter is finite and not zero.
+
+    The last says when mapping those values by an identity matrix changes no bit: each output
+    is its own value times 1 plus two products with 0, which are zeros and leave a finite
+    nonzero value as it is, in any order of summation and with or without fused
+    multiply-adds (`pipeline.residual.pair_depth` takes a display into an object space whose
+    linear part is the identity)."""
+    m = len(rows)
+    out, moved, box = np.empty((m, 3, 3)), np.empty((m, 3, 3)), np.empty((2, 3))
+    plain = _faces_at(np.ascontiguousarray(points, np.float64), _read_only(faces), np.ascontiguousarray(rows, np.int64),
+                      np.ascontiguousarray(shift, np.float64).reshape(3), out, moved, box)
+    return out, box, moved, bool(plain)
 
 
 @njit(cache=True, nogil=True)

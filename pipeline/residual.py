@@ -299,14 +299,17 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
     of it, answers (`_clear_depth`: the same answer, or ``None`` and the part above)."""
     if not b.closed:
         return _nothing(a)
-    corners, near = a.near(b.box)
-    if not len(corners):
+    near = a.near_rows(b.box)
+    if not len(near):
         return _nothing(a)
-    k, inverse = _placement(b.xform)  # eq. (5): world lengths at most k times object-space ones
-    local = ((corners.reshape(-1, 3) - b.xform[:3, 3]) @ inverse.T).reshape(-1, 3, 3)  # `apply_inverse`
+    # the triangles, their box and their corners less ``b``'s translation in one pass
+    corners, region, moved, plain = meshrows.faces_placed(a.world, a.triangles, near, b.xform[:3, 3])
+    k, inverse, identity = _placement(b.xform)  # eq. (5): world lengths at most k times object-space ones
+    # `apply_inverse`: under an identity linear part the product changes no finite nonzero value
+    # (`meshrows.faces_placed`), so those are the object-space corners as they are
+    local = moved if plain and identity else (moved.reshape(-1, 3) @ inverse.T).reshape(-1, 3, 3)
     d = None
     if b.deformable:
-        region = bvh.bounds(corners)
         pad = float(np.linalg.norm(region[1] - region[0]))
         rows = b.near_rows(region, pad)
         if len(rows) >= CLEAR_ROWS:
@@ -383,20 +386,22 @@ def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad:
     return replace(d, tri=kept[d.tri])
 
 
-_PLACEMENTS = memo.Table("residual.placements", 16)  # the bytes of a (4, 4) matrix -> (sigma_max, inverse of its linear part)
+_PLACEMENTS = memo.Table("residual.placements", 16)  # the bytes of a (4, 4) matrix -> (sigma_max, inverse of its linear part, whether it is the identity)
 
 
-def _placement(xform: np.ndarray) -> tuple[float, np.ndarray]:
-    """`clearance.sigma_max` of ``xform`` and the inverse of its linear part (`apply_inverse`'s),
-    kept by the matrix's bytes: every pair of a frame, and every frame of a still object, asks
-    the same matrix."""
+def _placement(xform: np.ndarray) -> tuple[float, np.ndarray, bool]:
+    """`clearance.sigma_max` of ``xform``, the inverse of its linear part (`apply_inverse`'s) and
+    whether that inverse is the identity (zeros of either sign off its diagonal), kept by the
+    matrix's bytes: every pair of a frame, and every frame of a still object, asks the same
+    matrix."""
     key = np.ascontiguousarray(xform, np.float64).tobytes()
     placements = _PLACEMENTS.entries()
     hit = placements.get(key)
     if hit is None:
         if len(placements) >= _PLACEMENTS.size:
             placements.pop(next(iter(placements)))
-        hit = placements[key] = (clearance.sigma_max(xform), np.linalg.inv(np.asarray(xform, np.float64)[:3, :3]))
+        inverse = np.linalg.inv(np.asarray(xform, np.float64)[:3, :3])
+        hit = placements[key] = (clearance.sigma_max(xform), inverse, bool(np.array_equal(inverse, np.eye(3))))
     return hit
 
 

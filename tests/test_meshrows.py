@@ -114,3 +114,52 @@ def test_barycentric_points_and_values_are_numpys_einsum_to_the_bit():
         frozen.flags.writeable = False
         assert np.array_equal(meshrows.barycentric(bary, tri, corners, rows, faces, frozen)[1], at)
     assert len(meshrows._barycentric.signatures) == 1  # writeable or not, one compiled kernel
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), special=st.booleans())
+def test_faces_placed_are_the_corners_their_box_and_their_shift_to_the_bit(seed, special):
+    """`faces_placed` gives ``points[faces[rows]]``, its `acra.bvh.bounds` and ``tri - shift``
+    bit for bit, and says the shifted values are all finite and nonzero exactly when they are;
+    then the identity's product (numpy's, through BLAS) gives them unchanged, under an identity
+    with zeros of either sign."""
+    from acra import bvh
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-2, 2, (50, 3))
+    shift = rng.choice([0.0, -0.0, 0.5, float(rng.uniform(-1, 1))], size=3)
+    if special:  # values on the shift (zero after it), signed zeros and non-finite values
+        points[rng.integers(0, 50, 6), rng.integers(0, 3, 6)] = rng.choice([shift[0], 0.0, -0.0, np.inf, np.nan], size=6)
+    faces = rng.integers(0, 50, (80, 3))
+    rows = np.sort(rng.choice(80, size=int(rng.integers(1, 80)), replace=False))
+    tri, box, moved, plain = meshrows.faces_placed(points, faces, rows, shift)
+    want = points[faces[rows]]
+    assert tri.tobytes() == want.tobytes()
+    assert box.tobytes() == bvh.bounds(want).tobytes()
+    flat = want.reshape(-1, 3) - shift
+    assert moved.tobytes() == flat.tobytes()
+    assert plain == bool(np.all(np.isfinite(flat) & (flat != 0)))
+    if plain:
+        for eye in (np.eye(3), np.where(np.eye(3) > 0, 1.0, -0.0)):
+            assert (flat @ eye.T).tobytes() == flat.tobytes()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 3000), st.sampled_from([0.0, 1e-300, 1e-9, 0.01]))
+def test_faces_meet_rows_of_chunks_and_groups_inside_the_box_are_the_full_scan_s(seed, n_faces, pad):
+    """Boxes holding whole chunks and groups (whose rows are taken without their corners'
+    comparisons): the box of all the points or of a run of them, its sides on points' values,
+    one float step inside or outside them; the rows are the full scan's, in the same order."""
+    rng = np.random.default_rng(seed)
+    n = n_faces + 2
+    points = np.cumsum(rng.normal(0.0, 0.05, (n, 3)), axis=0)
+    faces = np.stack([np.arange(n_faces), np.arange(n_faces) + 1, np.arange(n_faces) + 2], axis=1)
+    chunks = meshrows.face_chunks(points, meshrows.chunk_vertices(faces, n))
+    a = int(rng.integers(0, n))
+    b = int(rng.integers(a, n)) + 1
+    lo, hi = points[a:b].min(axis=0), points[a:b].max(axis=0)
+    for step in (0, 1, -1):
+        l, h = (np.nextafter(lo, lo + step), np.nextafter(hi, hi - step)) if step else (lo, hi)
+        for pad_lo, pad_hi in ((l, h), (points.min(axis=0), points.max(axis=0))):
+            rows = meshrows.faces_meet_rows(points, faces, pad_lo, pad_hi, pad)
+            assert np.array_equal(meshrows.faces_meet_rows(points, faces, pad_lo, pad_hi, pad, chunks), rows)
