@@ -587,9 +587,10 @@ def _bounds(points, out):
     for i in range(1, points.shape[0]):
         for k in range(3):
             x = points[i, k]
-            if x < out[0, k]:
+            # numpy's minimum and maximum: a NaN wins, and no comparison lets a later value replace it
+            if x < out[0, k] or x != x:
                 out[0, k] = x
-            if x > out[1, k]:
+            if x > out[1, k] or x != x:
                 out[1, k] = x
 
 

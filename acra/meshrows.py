@@ -4,8 +4,9 @@ corners of chosen faces, points by barycentric coordinates, and distinct points.
 The residual a user sees (`pipeline.residual`) measures the display triangles near the other
 object: which faces' boxes come within a padded box (`faces_meet_rows`, through the boxes of
 `CHUNK`-face chunks and groups of chunks where a display's chunk lists are kept,
-`chunk_vertices`, `face_chunks`), their corners (`faces_at`; with their box and a shift, `faces_placed`), the points found inside and their
-parameters (`barycentric`, numpy einsum's arithmetic to the bit), and the distinct points of a
+`chunk_vertices`, `face_chunks`), their corners (`faces_at`; with their box and a shift,
+`faces_placed`), the points found inside and their parameters (`barycentric`, numpy einsum's
+arithmetic to the bit), and the distinct points of a
 set with each row's first equal row (`first_rows`, `distinct_rows`, by the bits of the
 coordinates). Each is one compiled loop over the rows where numpy would build a boolean array
 per comparison.
@@ -18,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["boxes_meet", "faces_meet_rows", "CHUNK", "chunk_vertices", "face_chunks", "faces_at", "faces_placed", "barycentric", "first_rows", "distinct_rows"]
+__all__ = ["boxes_meet", "faces_meet_rows", "CHUNK", "chunk_vertices", "face_chunks", "faces_at", "faces_placed",
+           "barycentric", "first_rows", "distinct_rows"]
 
 
 @njit(cache=True, nogil=True)
@@ -231,7 +233,7 @@ def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out
 @njit(cache=True, nogil=True)
 def _faces_at(points, faces, rows, shift, out, moved, box):
     # the corners in order, their box in `acra.bvh.bounds`' comparisons and order (the first
-    # corner, then each later one against the least and largest so far), and, where ``moved``
+    # corner, then each later one against the least and largest so far, a NaN winning as in numpy), and, where ``moved``
     # has rows, each corner less ``shift`` (numpy's subtraction); true where every such value is
     # finite and not zero
     placed = moved.shape[0] > 0
@@ -245,9 +247,9 @@ def _faces_at(points, faces, rows, shift, out, moved, box):
                 if i == 0 and c == 0:
                     box[0, k], box[1, k] = x, x
                 else:
-                    if x < box[0, k]:
+                    if x < box[0, k] or x != x:
                         box[0, k] = x
-                    if x > box[1, k]:
+                    if x > box[1, k] or x != x:
                         box[1, k] = x
                 if placed:
                     d = x - shift[k]

@@ -82,6 +82,15 @@ def test_bounds_are_numpys_minima_and_maxima():
         bvh.bounds(np.zeros((0, 3)))
 
 
+@pytest.mark.parametrize("row", [0, 1, 999])
+def test_bounds_propagate_a_nan_as_numpy_does(row):
+    p = soup(4, 1000).reshape(-1, 3)[:1000].copy()
+    p[row, 1], p[500, 2] = np.nan, np.inf
+    expected = np.stack([p.min(axis=0), p.max(axis=0)])
+    assert np.isnan(expected[:, 1]).all() and expected[1, 2] == np.inf
+    np.testing.assert_array_equal(bvh.bounds(p), expected)
+
+
 def _tree_sorting_every_node(tri: np.ndarray):
     """The tree `bvh.build` stands for, in numpy: each node's triangles sorted stably by their
     centroids along the longest side of its centroid box, split at the median; its box from its
