@@ -23,7 +23,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from acra import hspline, memo
 from acra.tessellate import MeshTopology, grid_samples, pole_normals, run_topology
@@ -162,12 +162,26 @@ def finish(stage, scene: SceneModel, result, stats: list, options, displays: Dis
     # BLAS on one thread, as in the frame loop (`frames.respond_frames`): the run's display and its
     # residual call it on small arrays only, and a threaded OpenBLAS leaves its workers spinning
     # on the second core after a call, where the output layer's writing that follows runs
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas().limit(limits=1, user_api="blas"):
         ms = evaluate_run(scene, result, run_topologies(scene, result), options.density, displays)
         residual.measure_run(stage, scene, result, stats, options, displays)
     for st in stats:
         st.ms_output += ms.get(st.frame, 0.0)
         st.ms_total += ms.get(st.frame, 0.0)
+
+
+_CONTROLLER: list = []  # the process's `threadpoolctl.ThreadpoolController`, built at the first `finish`
+
+
+def _blas() -> ThreadpoolController:
+    """The process's thread-pool controller, built once: building one scans every loaded library
+    for a BLAS (0.25 ms CPU on this machine with USD's libraries loaded), where the limit it then
+    sets takes 0.01 ms. `finish` calls it after importing `pipeline.residual`, whose imports load
+    scipy.linalg, so both BLAS libraries the process has (numpy's and scipy's OpenBLAS) are
+    loaded by the first scan."""
+    if not _CONTROLLER:
+        _CONTROLLER.append(ThreadpoolController())
+    return _CONTROLLER[0]
 
 
 VIEWS_KEPT = 1  # `SurfaceDisplay.view`s kept per display: the rounds of a frame show a surface under one

@@ -255,3 +255,31 @@ def test_the_run_s_triangles_are_the_kept_topology_s(tiny_stage):
     np.testing.assert_array_equal(triangles, topo.triangles())
     other = run_topology([scene.extra["templates"][model.path]], 3)
     np.testing.assert_array_equal(display.kept_triangles(other), other.triangles())
+
+
+def test_finish_limits_blas_to_one_thread_with_one_controller(pressed, monkeypatch):
+    """`finish` holds every BLAS library the process has (numpy's and scipy's, as a fresh scan
+    finds them) to one thread while it runs, through one controller built once (`display._blas`),
+    and gives their threads back afterwards."""
+    from threadpoolctl import ThreadpoolController
+
+    from pipeline import residual
+
+    stage, scene, result, stats = pressed
+    seen = []
+    measure = residual.measure_run
+
+    def spy(*args, **kwargs):
+        seen.append([lib["num_threads"] for lib in ThreadpoolController().info() if lib["user_api"] == "blas"])
+        return measure(*args, **kwargs)
+
+    monkeypatch.setattr(residual, "measure_run", spy)
+    before = {lib["filepath"]: lib["num_threads"] for lib in ThreadpoolController().info() if lib["user_api"] == "blas"}
+    display.finish(stage, scene, result, stats, F.RunOptions())
+    controller = display._blas()
+    display.finish(stage, scene, result, stats, F.RunOptions())
+    assert display._blas() is controller
+    assert {lib["filepath"] for lib in controller.info() if lib["user_api"] == "blas"} == set(before)
+    assert seen == [[1] * len(before)] * 2
+    after = {lib["filepath"]: lib["num_threads"] for lib in ThreadpoolController().info() if lib["user_api"] == "blas"}
+    assert after == before
