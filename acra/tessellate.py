@@ -20,7 +20,7 @@ from numba import njit
 
 from . import framekernels, kernels, memo
 from .basis import Direction
-from .hspline import Details, HSpline, SurfaceEval, details, eval_arrays, evaluate, surface_normals
+from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
 from .lattice import adaptive_mesh, fan_triangles, quadtree_leaves, unique_keys
 
 __all__ = [
@@ -489,7 +489,7 @@ def _normals_into(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None
     evaluation (`acra.framekernels.limit_normals`), and only where a row needs nudging do they
     go through `surface_normals`, which treats each row on its own: the result is its result on
     every row. Returns the rows ``(k,) int64`` whose normal was taken at nudged points."""
-    ev = _first_order(hs, u, v, det)
+    ev = evaluate(hs, u, v, order=1, det=det)
     s = max(hs.size(), 1e-300)  # `surface_normals`' scale and `_degenerate`'s bounds
     bad = np.empty(rows.size, np.bool_)
     if not kernels.place_normals(ev.points, ev.du, ev.dv, rows, 1e-6 * s, 1e-12 * s**2, points, limit, bad):
@@ -510,28 +510,6 @@ def _normals_into(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None
         return rows[idx[nudged]]
     limit[rows[idx]] = unit
     return _NO_INDEX
-
-
-SLOTS_KEPT = 1 << 18  # floats of `_first_order`'s kept slots (2 MiB): 29,127 points a call, the demo
-# head's whole display (21,464) among them; a larger call takes new memory
-_SLOTS: list = [np.empty(0)]  # `_first_order`'s slots, grown up to `SLOTS_KEPT`
-
-
-def _first_order(hs: HSpline, u: np.ndarray, v: np.ndarray, det: Details | None) -> SurfaceEval:
-    """`evaluate` of ``hs`` at ``(u, v) (m,) float64`` with first derivatives, the same call of
-    `acra.kernels.eval_points`, into slots ``(3, m, 3) float64`` kept from the call before where
-    they fit in `SLOTS_KEPT`: `_normals_into` reads them before it returns, and new slots are
-    new memory, whose page faults make filling a new 600 kB array cost 76 µs on this machine
-    against 16 for one kept. The result is valid until the next call."""
-    u, v = _plain(u), _plain(v)
-    need = 9 * u.size
-    if need > SLOTS_KEPT:
-        return evaluate(hs, u, v, order=1, det=det)
-    if _SLOTS[0].size < need:
-        _SLOTS[0] = np.empty(min(max(need, 2 * _SLOTS[0].size), SLOTS_KEPT))
-    out = _SLOTS[0][:need].reshape(3, u.size, 3)
-    kernels.eval_points(u, v, 1, 0, *eval_arrays(hs, det), out)
-    return SurfaceEval(out[0], out[1], out[2])
 
 
 # Kept per live array: a weak reference without a callback, dead entries dropped when one is
@@ -661,13 +639,6 @@ def _matched(old, topo, matches: dict | None) -> tuple[np.ndarray, np.ndarray]:
 def _i64(x: np.ndarray) -> np.ndarray:
     """``x`` as a C-contiguous, writeable int64 array (a copy only where it is not one)."""
     a = np.ascontiguousarray(x, np.int64)
-    return a if a.flags.writeable else a.copy()
-
-
-def _plain(x: np.ndarray) -> np.ndarray:
-    """``x`` as a C-contiguous, writeable float64 array, as `evaluate` passes its parameters to
-    `acra.kernels.eval_points` (numba compiles another signature for a read-only one)."""
-    a = np.ascontiguousarray(x, np.float64)
     return a if a.flags.writeable else a.copy()
 
 

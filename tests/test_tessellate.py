@@ -531,9 +531,9 @@ def test_normals_since_another_topology_equal_a_full_evaluation(seed, monkeypatc
     stale = H.changed_cells(hs, H.details(hs), moved, H.details(moved), 2)
     full = T.grid_samples(moved, topo, H.details(moved))
     old = T.grid_samples(moved, coarse, H.details(moved))
-    counted = []  # the points of every evaluation (`acra.kernels.eval_points` serves each route)
-    real = T.kernels.eval_points
-    monkeypatch.setattr(T.kernels, "eval_points", lambda *a: (counted.append(a[0].size), real(*a))[1])
+    counted = []
+    real = H.evaluate
+    monkeypatch.setattr(T, "evaluate", lambda *a, **k: (counted.append(a[1].size), real(*a, **k))[1])
     shared = T.grid_samples(moved, topo, H.details(moved), since=(coarse, *old, np.zeros((hs.u.patches0, hs.v.patches0), bool)))
     assert 0 < sum(counted) < topo.u.size  # the vertices the coarse display lacks
     for a, b in zip(shared, full):
@@ -643,26 +643,3 @@ def test_merge_matches_the_sorted_search_and_cells_numpy_s(seed):
             T._cells_into(x, float(1 << level), n, periodic, got_cell, got_before)
             np.testing.assert_array_equal(got_cell, wrap(cell))
             np.testing.assert_array_equal(got_before, wrap(before))
-
-
-@pytest.mark.parametrize("seed", [0, 1])
-def test_first_order_equals_evaluate_in_kept_and_new_slots(seed, monkeypatch):
-    """`tessellate._first_order` (a display's points and first derivatives in slots kept from the
-    call before) gives `evaluate`'s bits at order 1, for a call that grows the slots, a smaller
-    one that reuses them, a read-only parameter array, and a call beyond `SLOTS_KEPT` (new
-    memory)."""
-    rng = np.random.default_rng(seed)
-    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[10, 14]]), 0.02, seed)
-    det = H.details(hs)
-    monkeypatch.setattr(T, "SLOTS_KEPT", 9 * 300)
-    monkeypatch.setattr(T, "_SLOTS", [np.empty(0)])
-    for m in (200, 50, 300, 301, 1000):
-        u, v = rng.uniform(0, hs.u.patches0, m), rng.uniform(0, hs.v.patches0, m)
-        if m == 50:
-            u.flags.writeable = False
-        got = T._first_order(hs, u, v, det)
-        want = H.evaluate(hs, u, v, order=1, det=det)
-        for name in ("points", "du", "dv"):
-            np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
-        kept = m * 9 <= T.SLOTS_KEPT
-        assert np.shares_memory(got.points, T._SLOTS[0]) == kept
