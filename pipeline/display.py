@@ -194,13 +194,14 @@ class SurfaceDisplay:
     float64`` (`acra.hspline.surface_normals`', before a pole's are shared: taken beside the
     points where they are evaluated and copied with them elsewhere, they spare the run's display
     a pass over every vertex's derivatives, `evaluate_run`), and, built on first use, its fan
-    ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
+    ``triangles (t, 3) int64`` and its inside, ``solid()`` (`_Inside`)."""
 
     def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, normals: np.ndarray,
                  triangles: np.ndarray | None = None, details: hspline.Details | None = None):
         self.surface, self.topology, self.points, self.normals = surface, topology, points, normals
         self.details = details  # the details the points were evaluated with (`Displays.of`)
-        self._triangles, self._solid, self._uv = triangles, None, None
+        self.solid = _Inside(points, topology, triangles)
+        self._uv = None
         self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
         self._views: dict = {}  # (path, world matrix bytes) -> `pipeline.residual.Shown`, most recent last
 
@@ -221,9 +222,7 @@ class SurfaceDisplay:
 
     @property
     def triangles(self) -> np.ndarray:
-        if self._triangles is None:
-            self._triangles = self.topology.triangles()
-        return self._triangles
+        return self.solid.fan()
 
     @property
     def uv(self) -> np.ndarray:
@@ -235,13 +234,36 @@ class SurfaceDisplay:
             self._uv = kept if kept is not None else np.stack([self.topology.u, self.topology.v], axis=1)
         return self._uv
 
-    def solid(self):
-        """The inside of the display as the output stores it (float32 points), for a closed surface."""
-        if self._solid is None:
+
+
+class _Inside:
+    """A display's inside as the output stores it (float32 points), for a closed surface: called,
+    `pipeline.clearance.Solid` of the display's ``points (n, 3) float64`` and fan ``triangles (t,
+    3) int64`` (``topology.triangles()`` where none were given), built on the first call and kept.
+
+    It holds the display's arrays, not the display: the `pipeline.residual.Shown` a display keeps
+    (`SurfaceDisplay.view`) holds it as its ``whole``, and a reference back to the display would
+    make a cycle, which frees a dropped display's arrays only at the cyclic collector's next pass:
+    meanwhile every new display takes new memory (25 MB more resident a run of the demo's frames
+    13–17, about 900 page faults a collision frame more)."""
+
+    __slots__ = ("points", "topology", "triangles", "solid")
+
+    def __init__(self, points: np.ndarray, topology: MeshTopology, triangles: np.ndarray | None) -> None:
+        self.points, self.topology, self.triangles, self.solid = points, topology, triangles, None
+
+    def fan(self) -> np.ndarray:
+        """The display's fan triangles ``(t, 3) int64``, built on first use."""
+        if self.triangles is None:
+            self.triangles = self.topology.triangles()
+        return self.triangles
+
+    def __call__(self):
+        if self.solid is None:
             from pipeline import clearance
 
-            self._solid = clearance.solid(np.asarray(self.points, np.float32).astype(np.float64), self.triangles)
-        return self._solid
+            self.solid = clearance.solid(np.asarray(self.points, np.float32).astype(np.float64), self.fan())
+        return self.solid
 
 
 class Displays:

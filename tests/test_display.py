@@ -283,3 +283,32 @@ def test_finish_limits_blas_to_one_thread_with_one_controller(pressed, monkeypat
     assert seen == [[1] * len(before)] * 2
     after = {lib["filepath"]: lib["num_threads"] for lib in ThreadpoolController().info() if lib["user_api"] == "blas"}
     assert after == before
+
+
+def test_a_dropped_display_and_its_shown_view_are_freed_without_the_cyclic_collector():
+    """A display whose `pipeline.residual.Shown` view holds its inside (``solid``, as the frame
+    loop builds the view) makes no reference cycle: dropped, its arrays are freed at once, not
+    at the cyclic collector's next pass, so a later display reuses their memory. The inside and
+    the triangles are the display's own, built once."""
+    import gc
+    import weakref
+
+    from pipeline import residual
+
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=2)
+    shown = display.Displays(density=8, kept=1)
+    d = shown.of(hs, 4)
+    view = d.view("/s", np.eye(4), lambda: residual.shown("/s", d.points, d.triangles, np.eye(4), d.uv, True, 1.0,
+                                                           d.solid, d.parts))
+    assert view.whole() is d.solid() and d.triangles is d.triangles
+    assert d.solid().faces.shape[1] == 3
+    gone, points = weakref.ref(d), weakref.ref(d.points)
+    del d, view
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        shown.of(H.from_grid(*shapes.sphere(12, 10, radii=(2.0, 2.0, 2.0)), depth=2), 4)  # evicts the first (kept=1)
+        assert gone() is None and points() is None
+    finally:
+        if enabled:
+            gc.enable()
