@@ -235,7 +235,6 @@ class SurfaceDisplay:
         return self._uv
 
 
-
 class _Inside:
     """A display's inside as the output stores it (float32 points), for a closed surface: called,
     `pipeline.clearance.Solid` of the display's ``points (n, 3) float64`` and fan ``triangles (t,
@@ -244,8 +243,8 @@ class _Inside:
     It holds the display's arrays, not the display: the `pipeline.residual.Shown` a display keeps
     (`SurfaceDisplay.view`) holds it as its ``whole``, and a reference back to the display would
     make a cycle, which frees a dropped display's arrays only at the cyclic collector's next pass:
-    meanwhile every new display takes new memory (25 MB more resident a run of the demo's frames
-    13–17, about 900 page faults a collision frame more)."""
+    meanwhile every new display takes new memory (about 25 MB more resident after each repeat of
+    `benchmarks/display_split.py`'s frames, about 850 page faults a collision frame more)."""
 
     __slots__ = ("points", "topology", "triangles", "solid")
 
