@@ -246,7 +246,7 @@ class _Inside:
     meanwhile every new display takes new memory (about 25 MB more resident after each repeat of
     `benchmarks/display_split.py`'s frames, about 850 page faults a collision frame more)."""
 
-    __slots__ = ("points", "topology", "triangles", "solid")
+    __slots__ = ("points", "solid", "topology", "triangles")
 
     def __init__(self, points: np.ndarray, topology: MeshTopology, triangles: np.ndarray | None) -> None:
         self.points, self.topology, self.triangles, self.solid = points, topology, triangles, None

@@ -298,8 +298,8 @@ def test_a_dropped_display_and_its_shown_view_are_freed_without_the_cyclic_colle
     hs = H.from_grid(*shapes.sphere(12, 10), depth=2)
     shown = display.Displays(density=8, kept=1)
     d = shown.of(hs, 4)
-    view = d.view("/s", np.eye(4), lambda: residual.shown("/s", d.points, d.triangles, np.eye(4), d.uv, True, 1.0,
-                                                           d.solid, d.parts))
+    view = d.view("/s", np.eye(4), lambda d=d: residual.shown("/s", d.points, d.triangles, np.eye(4), d.uv, True, 1.0,
+                                                               d.solid, d.parts))
     assert view.whole() is d.solid() and d.triangles is d.triangles
     assert d.solid().faces.shape[1] == 3
     gone, points = weakref.ref(d), weakref.ref(d.points)
