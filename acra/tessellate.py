@@ -574,12 +574,14 @@ def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, lim
     n = points.shape[0]
     same = src.shape[0] == 0
     width = limit.shape[1] if limit.shape[0] > 0 else 0
-    idx = np.empty(n, np.int64)
+    # the rows left are marked (n bytes) and counted, and their list is sized to them: an (n,)
+    # int64 scratch is new memory whose page faults cost more than a second pass over the marks
+    left = np.zeros(n, np.bool_)
     m = 0
     for i in range(n):
         a, b, c, d = cu[i], bu[i], cv[i], bv[i]
         if (not same and not found[i]) or stale[a, c] or stale[a, d] or stale[b, c] or stale[b, d]:
-            idx[m] = i
+            left[i] = True
             m += 1
             continue
         j = i if same else src[i]
@@ -594,20 +596,24 @@ def _carry(old_points, old_limit, src, found, stale, cu, bu, cv, bv, points, lim
         else:
             for e in range(width):
                 limit[i, e] = old_limit[j, e]
-    if order.shape[0] == 0 or m == 0:
-        return idx[:m]
-    # the rows left, in ``order``'s sequence: marked in the pass above (the copy's rows are
-    # walked in their own order, which keeps its reads and writes near each other)
-    left = np.zeros(n, np.bool_)
-    for q in range(m):
-        left[idx[q]] = True
+    idx = np.empty(m, np.int64)
     k = 0
+    if order.shape[0] == 0:
+        for i in range(n):
+            if left[i]:
+                idx[k] = i
+                k += 1
+        return idx
+    # the rows left, in ``order``'s sequence (the copy's rows are walked in their own order,
+    # which keeps its reads and writes near each other)
     for q in range(n):
+        if k == m:
+            break
         i = order[q]
         if left[i]:
             idx[k] = i
             k += 1
-    return idx[:m]
+    return idx
 
 
 def _matched(old, topo, matches: dict | None) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,9 @@ first frame), and prints per function the least over the repeats of its
 CPU milliseconds (``time.process_time``, nested) per collision frame: `display.Displays.of` (a
 round's display, with `run_topology` and `grid_samples` inside it), `display.finish` (the run's
 display and its residual: `evaluate_run`, `run_topologies`), `acra.respond.respond`, and the
-whole `run_frames` call. Run it with ``PYTHONPATH`` set to another checkout to compare.
+whole `run_frames` call; then the median over the repeats of the minor page faults a collision
+frame (``getrusage``: memory the loop takes anew) and the process's resident size after the
+last. Run it with ``PYTHONPATH`` set to another checkout to compare.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from __future__ import annotations
 import argparse
 import collections
 import pathlib
+import resource
+import statistics
 import time
 
 from acra import respond as R
@@ -52,21 +56,27 @@ def main() -> None:
     from pipeline.run import forget
     display.finish = _timed("display.finish", display.finish)
     best: dict = {}
+    faults = []
     for _ in range(args.repeat):
         # each repeat as a fresh run's frames 13-17: no answers of the repeat before (`forget`), the
         # input's shapes built at an earlier frame (5), untimed, as a run builds them at its first
         forget()
         frames.run_frames(stage, scene, [5])
         SPENT.clear()
-        t = time.process_time()
+        t, f0 = time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt
         frames.run_frames(stage, scene, list(range(13, 18)))
         SPENT["frames.run_frames (13-17)"] = time.process_time() - t
+        faults.append((resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) / 5)
         for label, sec in SPENT.items():
             best[label] = min(best.get(label, float("inf")), sec)
     print(f"dog_head_spike frames 13-17, CPU ms per collision frame, least of {args.repeat}\n")
     print("| function | ms |\n|---|---:|")
     for label, sec in sorted(best.items(), key=lambda kv: -kv[1]):
         print(f"| `{label}` | {1e3 * sec / 5:.2f} |")
+    with open("/proc/self/statm") as f:
+        resident = int(f.read().split()[1]) * resource.getpagesize() / 2**20
+    print(f"\nminor page faults a collision frame, median of {args.repeat}: {statistics.median(faults):.0f} "
+          f"({min(faults):.0f}-{max(faults):.0f}); resident after the repeats: {resident:.0f} MB")
 
 
 if __name__ == "__main__":

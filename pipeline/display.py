@@ -23,7 +23,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from acra import hspline, memo
 from acra.tessellate import MeshTopology, grid_samples, pole_normals, run_topology
@@ -162,12 +162,26 @@ def finish(stage, scene: SceneModel, result, stats: list, options, displays: Dis
     # BLAS on one thread, as in the frame loop (`frames.respond_frames`): the run's display and its
     # residual call it on small arrays only, and a threaded OpenBLAS leaves its workers spinning
     # on the second core after a call, where the output layer's writing that follows runs
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas().limit(limits=1, user_api="blas"):
         ms = evaluate_run(scene, result, run_topologies(scene, result), options.density, displays)
         residual.measure_run(stage, scene, result, stats, options, displays)
     for st in stats:
         st.ms_output += ms.get(st.frame, 0.0)
         st.ms_total += ms.get(st.frame, 0.0)
+
+
+_CONTROLLER: list = []  # the process's `threadpoolctl.ThreadpoolController`, built at the first `finish`
+
+
+def _blas() -> ThreadpoolController:
+    """The process's thread-pool controller, built once: building one scans every loaded library
+    for a BLAS (0.25 ms CPU on this machine with USD's libraries loaded), where the limit it then
+    sets takes 0.01 ms. `finish` calls it after importing `pipeline.residual`, whose imports load
+    scipy.linalg, so both BLAS libraries the process has (numpy's and scipy's OpenBLAS) are
+    loaded by the first scan."""
+    if not _CONTROLLER:
+        _CONTROLLER.append(ThreadpoolController())
+    return _CONTROLLER[0]
 
 
 VIEWS_KEPT = 1  # `SurfaceDisplay.view`s kept per display: the rounds of a frame show a surface under one
@@ -180,13 +194,14 @@ class SurfaceDisplay:
     float64`` (`acra.hspline.surface_normals`', before a pole's are shared: taken beside the
     points where they are evaluated and copied with them elsewhere, they spare the run's display
     a pass over every vertex's derivatives, `evaluate_run`), and, built on first use, its fan
-    ``triangles (t, 3) int64`` and its inside (`pipeline.clearance.Solid`)."""
+    ``triangles (t, 3) int64`` and its inside, ``solid()`` (`_Inside`)."""
 
     def __init__(self, surface: hspline.HSpline, topology: MeshTopology, points: np.ndarray, normals: np.ndarray,
                  triangles: np.ndarray | None = None, details: hspline.Details | None = None):
         self.surface, self.topology, self.points, self.normals = surface, topology, points, normals
         self.details = details  # the details the points were evaluated with (`Displays.of`)
-        self._triangles, self._solid, self._uv = triangles, None, None
+        self.solid = _Inside(points, topology, triangles)
+        self._uv = None
         self.parts: dict = {}  # `pipeline.residual`'s part solids of this display, by their face rows
         self._views: dict = {}  # (path, world matrix bytes) -> `pipeline.residual.Shown`, most recent last
 
@@ -207,9 +222,7 @@ class SurfaceDisplay:
 
     @property
     def triangles(self) -> np.ndarray:
-        if self._triangles is None:
-            self._triangles = self.topology.triangles()
-        return self._triangles
+        return self.solid.fan()
 
     @property
     def uv(self) -> np.ndarray:
@@ -221,13 +234,35 @@ class SurfaceDisplay:
             self._uv = kept if kept is not None else np.stack([self.topology.u, self.topology.v], axis=1)
         return self._uv
 
-    def solid(self):
-        """The inside of the display as the output stores it (float32 points), for a closed surface."""
-        if self._solid is None:
+
+class _Inside:
+    """A display's inside as the output stores it (float32 points), for a closed surface: called,
+    `pipeline.clearance.Solid` of the display's ``points (n, 3) float64`` and fan ``triangles (t,
+    3) int64`` (``topology.triangles()`` where none were given), built on the first call and kept.
+
+    It holds the display's arrays, not the display: the `pipeline.residual.Shown` a display keeps
+    (`SurfaceDisplay.view`) holds it as its ``whole``, and a reference back to the display would
+    make a cycle, which frees a dropped display's arrays only at the cyclic collector's next pass:
+    meanwhile every new display takes new memory (about 25 MB more resident after each repeat of
+    `benchmarks/display_split.py`'s frames, about 850 page faults a collision frame more)."""
+
+    __slots__ = ("points", "solid", "topology", "triangles")
+
+    def __init__(self, points: np.ndarray, topology: MeshTopology, triangles: np.ndarray | None) -> None:
+        self.points, self.topology, self.triangles, self.solid = points, topology, triangles, None
+
+    def fan(self) -> np.ndarray:
+        """The display's fan triangles ``(t, 3) int64``, built on first use."""
+        if self.triangles is None:
+            self.triangles = self.topology.triangles()
+        return self.triangles
+
+    def __call__(self):
+        if self.solid is None:
             from pipeline import clearance
 
-            self._solid = clearance.solid(np.asarray(self.points, np.float32).astype(np.float64), self.triangles)
-        return self._solid
+            self.solid = clearance.solid(np.asarray(self.points, np.float32).astype(np.float64), self.fan())
+        return self.solid
 
 
 class Displays:

@@ -255,3 +255,60 @@ def test_the_run_s_triangles_are_the_kept_topology_s(tiny_stage):
     np.testing.assert_array_equal(triangles, topo.triangles())
     other = run_topology([scene.extra["templates"][model.path]], 3)
     np.testing.assert_array_equal(display.kept_triangles(other), other.triangles())
+
+
+def test_finish_limits_blas_to_one_thread_with_one_controller(pressed, monkeypatch):
+    """`finish` holds every BLAS library the process has (numpy's and scipy's, as a fresh scan
+    finds them) to one thread while it runs, through one controller built once (`display._blas`),
+    and gives their threads back afterwards."""
+    from threadpoolctl import ThreadpoolController
+
+    from pipeline import residual
+
+    stage, scene, result, stats = pressed
+    seen = []
+    measure = residual.measure_run
+
+    def spy(*args, **kwargs):
+        seen.append([lib["num_threads"] for lib in ThreadpoolController().info() if lib["user_api"] == "blas"])
+        return measure(*args, **kwargs)
+
+    monkeypatch.setattr(residual, "measure_run", spy)
+    before = {lib["filepath"]: lib["num_threads"] for lib in ThreadpoolController().info() if lib["user_api"] == "blas"}
+    display.finish(stage, scene, result, stats, F.RunOptions())
+    controller = display._blas()
+    display.finish(stage, scene, result, stats, F.RunOptions())
+    assert display._blas() is controller
+    assert {lib["filepath"] for lib in controller.info() if lib["user_api"] == "blas"} == set(before)
+    assert seen == [[1] * len(before)] * 2
+    after = {lib["filepath"]: lib["num_threads"] for lib in ThreadpoolController().info() if lib["user_api"] == "blas"}
+    assert after == before
+
+
+def test_a_dropped_display_and_its_shown_view_are_freed_without_the_cyclic_collector():
+    """A display whose `pipeline.residual.Shown` view holds its inside (``solid``, as the frame
+    loop builds the view) makes no reference cycle: dropped, its arrays are freed at once, not
+    at the cyclic collector's next pass, so a later display reuses their memory. The inside and
+    the triangles are the display's own, built once."""
+    import gc
+    import weakref
+
+    from pipeline import residual
+
+    hs = H.from_grid(*shapes.sphere(12, 10), depth=2)
+    shown = display.Displays(density=8, kept=1)
+    d = shown.of(hs, 4)
+    view = d.view("/s", np.eye(4), lambda d=d: residual.shown("/s", d.points, d.triangles, np.eye(4), d.uv, True, 1.0,
+                                                               d.solid, d.parts))
+    assert view.whole() is d.solid() and d.triangles is d.triangles
+    assert d.solid().faces.shape[1] == 3
+    gone, points = weakref.ref(d), weakref.ref(d.points)
+    del d, view
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        shown.of(H.from_grid(*shapes.sphere(12, 10, radii=(2.0, 2.0, 2.0)), depth=2), 4)  # evicts the first (kept=1)
+        assert gone() is None and points() is None
+    finally:
+        if enabled:
+            gc.enable()
