@@ -380,7 +380,7 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     from pipeline import clearance
 
     static = geom.static
-    local = apply_inverse(geom.xform, points)
+    local = geom.to_object(points)
     # A point farther than `SIDE_SURE` of the mesh's size from it takes the side of the
     # angle-weighted pseudo-normal at its closest point (eq. (1) of `pipeline.clearance`, exact in
     # float64 off the surface), where embree's float32 parity agrees; nearer points keep the parity.
@@ -404,7 +404,7 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
         # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
         # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
         if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
-            trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
+            trimesh.util._RANDOM_DEFAULT = _reseeded()
         m[near] = static.mesh.contains(local[near])
     rows = np.nonzero(m)[0]
     if not len(rows):
@@ -420,6 +420,19 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     on = dist <= band
     m[rows[on]] = False
     return m, np.linalg.norm(points[rows[~on]] - apply_xform(geom.xform, close[~on]), axis=1)
+
+
+_RECAST_SEED = 20260311
+_RECAST = np.random.default_rng(_RECAST_SEED)  # the generator of trimesh's re-casts (`_reseeded`)
+_RECAST_START = _RECAST.bit_generator.state
+
+
+def _reseeded() -> np.random.Generator:
+    """``np.random.default_rng(_RECAST_SEED)``'s stream from its start: one kept generator whose
+    state is set back to the seed's, the same draws for a tenth of a new generator's set-up (the
+    rim's bisection sets it before each of its inside tests near a face)."""
+    _RECAST.bit_generator.state = _RECAST_START
+    return _RECAST
 
 
 def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:

@@ -1103,3 +1103,15 @@ def test_collider_inside_by_planes_raises_as_the_closest_points_do_on_points_not
         for s in (st, slow):
             with pytest.raises(clearance.Unresolved), np.errstate(invalid="ignore"):
                 D.inside(geometry.ColliderGeometry(s, move()), p)
+
+
+def test_reseeded_generator_draws_what_a_new_one_of_the_seed_draws():
+    """`_reseeded` sets its kept generator back to the seed's start: after any draws it gives what
+    ``np.random.default_rng(_RECAST_SEED)`` gives, so trimesh's re-casts of points on a mesh take
+    the same directions in every inside test."""
+    for n in (0, 1, 7, 1000):
+        g = D._reseeded()
+        g.random(n)
+        g.normal(size=n)
+        assert D._reseeded() is g
+        assert g.random(9).tobytes() == np.random.default_rng(D._RECAST_SEED).random(9).tobytes()
