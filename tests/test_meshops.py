@@ -102,3 +102,61 @@ def test_ray_mesh_as_trimesh():
     ref.merge_vertices()
     _same(np.asarray(mesh.vertices), np.asarray(ref.vertices))
     _same(np.asarray(mesh.faces), np.asarray(ref.faces))
+
+
+def _parity_meshes():
+    """A box, a ball and a bent tube's outside (a non-convex closed mesh), as `prepare_collider`
+    merges them."""
+    box = trimesh.creation.box(bounds=np.array([[-0.7, -0.9, -0.5], [0.9, 0.7, 0.5]]))
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.45)
+    ring = trimesh.creation.torus(major_radius=1.0, minor_radius=0.3, major_sections=24, minor_sections=10)
+    return [trimesh.Trimesh(m.vertices, m.faces, process=True) for m in (box, ball, ring)]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_contains_is_trimesh_ray_parity(seed):
+    """`meshops.contains` on a mesh's embree scene, box, face planes and size answers what
+    ``Trimesh.contains`` answers, with the same re-cast directions from the same generator:
+    points on faces, edges and vertices, a rounding error to 1e-6 of the size off them (where the
+    two rays disagree and are re-cast), farther, and outside the box."""
+    rng = np.random.default_rng(seed)
+    recast = 0
+    for mesh in _parity_meshes():
+        tri = mesh.triangles[rng.integers(0, len(mesh.faces), 200)]
+        bary = rng.dirichlet([1.0, 1.0, 1.0], 200)
+        bary[:40] = np.eye(3)[rng.integers(0, 3, 40)]  # vertices
+        bary[40:80, rng.integers(0, 3)] = 0.0  # edges
+        bary[40:80] /= bary[40:80].sum(axis=1, keepdims=True)
+        on = np.einsum("ij,ijk->ik", bary, tri)
+        pts = np.concatenate([on + rng.normal(size=on.shape) * e * mesh.scale
+                              for e in (0.0, 1e-15, 1e-9, 1e-7, 1e-6, 1e-3, 0.3)])
+        args = (mesh.ray._scene.run, mesh.bounds, mesh.triangles[:, 0, :], mesh.face_normals, mesh.scale)
+        draws = []
+
+        def direction():
+            draws.append(1)
+            return trimesh.util.unitize(trimesh.util.random_generator().random(3) - 0.5)
+
+        for rows in (slice(None), slice(0, 1), slice(0, 0), slice(37, 420)):
+            trimesh.util._RANDOM_DEFAULT = np.random.default_rng(7)
+            want = mesh.contains(pts[rows])
+            trimesh.util._RANDOM_DEFAULT = np.random.default_rng(7)
+            _same(meshops.contains(*args, pts[rows], direction), want)
+        recast += len(draws)
+        assert 0 < want.sum() < len(want)
+    assert recast  # some points were asked again along a drawn direction
+
+
+def test_hit_rays_are_trimesh_intersects_id():
+    """`meshops.hit_rays` gives trimesh's rays of every hit (multiple hits, locations asked) in
+    its order, through a non-convex mesh from points on and off it."""
+    rng = np.random.default_rng(3)
+    for mesh in _parity_meshes():
+        origins = rng.normal(size=(300, 3)) * mesh.scale * 0.4
+        origins[:100] = mesh.triangles[rng.integers(0, len(mesh.faces), 100)].mean(axis=1)
+        directions = rng.normal(size=(300, 3))
+        want = RayMeshIntersector(mesh).intersects_id(origins, directions, multiple_hits=True, return_locations=True)[1]
+        args = (mesh.ray._scene.run, mesh.triangles[:, 0, :], mesh.face_normals, mesh.scale)
+        got = meshops.hit_rays(*args, origins, directions)
+        _same(got, want)
+        assert (np.bincount(got) >= 2).any()  # rays that go on past a hit
