@@ -3,12 +3,10 @@
 `acra run` needs only a few of trimesh's operations on the demo's path: for the ray casts of
 `pipeline.queries`, the merged mesh, its face normals and size, and the line-plane hit of a ray on
 the triangle embree reports (the closest points' barycentric coordinates are trimesh's Cramer rule
-compiled, `acra.nearest.face_uv`); for a collider's points near its faces, the ray parity of
-``Trimesh.contains`` on its embree scene (`contains`). Importing trimesh costs about 0.25 s on top of scipy (it pulls
+compiled, `acra.nearest.face_uv`). Importing trimesh costs about 0.25 s on top of scipy (it pulls
 in networkx) and builds a tracked, cached `Trimesh` per mesh; these are the same numpy expressions
 in the same order as trimesh 5.2's (``grouping.merge_vertices``, ``Trimesh.face_normals``,
-``Parent.scale``, ``util.unitize``, ``intersections.planes_lines``, ``ray_util.contains_points``
-with ``RayMeshIntersector.intersects_id``), so each result is the same
+``Parent.scale``, ``util.unitize``, ``intersections.planes_lines``), so each result is the same
 bits as trimesh's (tests/test_meshops.py holds them to it). Arrays are float64 unless stated.
 """
 
@@ -16,8 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["TOL_ZERO", "MERGE_DIGITS", "merge_keys", "merge_vertices", "face_normals", "scale", "unitize", "planes_lines",
-           "CONTAINS_DIRECTION", "hit_rays", "contains"]
+__all__ = ["TOL_ZERO", "MERGE_DIGITS", "merge_keys", "merge_vertices", "face_normals", "scale", "unitize", "planes_lines"]
 
 TOL_ZERO = float(np.finfo(np.float64).resolution * 100)  # trimesh.util.TOL_ZERO: a zero vector's norm
 MERGE_DIGITS = 8  # trimesh.util.decimal_to_digits(tol.merge = 1e-8): vertices equal to 1e-8 are merged
@@ -113,84 +110,3 @@ def planes_lines(plane_origins: np.ndarray, plane_normals: np.ndarray, line_orig
     on_plane = line_directions[valid] * distance.reshape((-1, 1))
     on_plane += line_origins[valid]
     return on_plane, valid
-
-
-CONTAINS_DIRECTION = np.array([0.4395064455, 0.617598629942, 0.652231566745])  # trimesh's parity ray (not unit)
-RAY_OFFSET = 1e-6  # trimesh's step past a hit, a fraction of the mesh's size, before the next cast
-RAY_OFFSET_FLOOR = 1e-8  # and its least length
-MAX_HITS = 100  # casts a ray at most
-
-
-def hit_rays(run, plane_origins: np.ndarray, plane_normals: np.ndarray, size: float, origins: np.ndarray,
-             directions: np.ndarray) -> np.ndarray:
-    """The ray of each hit ``(m,) int64`` of rays ``origins, directions (n, 3)`` on a mesh, every
-    hit along each ray: trimesh's ``RayMeshIntersector.intersects_id(..., multiple_hits=True,
-    return_locations=True)``'s ``index_ray``. ``run(origins, directions)`` is the mesh's embree
-    scene (trimesh's ``_EmbreeWrap.run``: the first triangle each ray meets, -1 for none);
-    ``plane_origins, plane_normals (f, 3)`` each face's first corner and unit normal, ``size`` the
-    mesh's (`scale`).
-
-    A ray goes on from where it meets the reported face's plane, one offset (`RAY_OFFSET` of the
-    size) past it; one that reports the face it last hit is a repeat, not a hit, and moves on by
-    twice its last offset; a ray parallel to the face's plane (``|d·n| <= 1e-5``) stops."""
-    ray_origins = np.array(origins, dtype=np.float64)
-    ray_directions = unitize(np.array(directions, dtype=np.float64))[0]
-    base_offset = max(RAY_OFFSET_FLOOR, size * RAY_OFFSET)
-    ray_offsets = ray_directions * base_offset
-    last_hit = np.full(len(ray_origins), -1, dtype=np.int64)
-    live = np.arange(len(ray_origins))
-    found = [np.zeros(0, dtype=np.int64)]
-    for _ in range(MAX_HITS):
-        query = run(ray_origins[live], ray_directions[live])
-        hit = query != -1
-        if not hit.any():
-            break
-        rays, tris = live[hit], query[hit]
-        dupe = last_hit[rays] == tris
-        last_hit[rays] = tris
-        ok_rays, ok_tris, dupe_rays = rays[~dupe], tris[~dupe], rays[dupe]
-        at, valid = planes_lines(plane_origins[ok_tris], plane_normals[ok_tris], ray_origins[ok_rays],
-                                 ray_directions[ok_rays])
-        ok_rays = ok_rays[valid]
-        found.append(ok_rays)
-        ray_origins[ok_rays] = at + ray_offsets[ok_rays]
-        ray_offsets[ok_rays] = ray_directions[ok_rays] * base_offset
-        ray_offsets[dupe_rays] *= 2.0
-        ray_origins[dupe_rays] += ray_offsets[dupe_rays]
-        live = np.concatenate([ok_rays, dupe_rays])
-    return np.concatenate(found)
-
-
-def contains(run, box: np.ndarray, plane_origins: np.ndarray, plane_normals: np.ndarray, size: float,
-             points: np.ndarray, recast, direction: np.ndarray | None = None) -> np.ndarray:
-    """Which of ``points (k, 3)`` a closed mesh contains ``(k,) bool`` by ray parity:
-    ``Trimesh.contains`` (trimesh's ``ray_util.contains_points``) on the mesh of `hit_rays`'
-    ``run, plane_origins, plane_normals, size``, its ``box (2, 3)`` (``Trimesh.bounds``).
-
-    A point strictly inside the box casts a ray along ``direction`` (`CONTAINS_DIRECTION`) and one
-    against it; an odd count of hits is inside. Where the two counts' parities disagree and both
-    rays hit (a ray through an edge or a vertex, or from a point on a face), the point is asked
-    again along ``recast()``, a unit direction (trimesh draws it from its shared generator);
-    disagreeing points whose one ray hit nothing take the first ray's answer."""
-    points = np.asanyarray(points, dtype=np.float64)
-    inside = np.zeros(len(points), dtype=bool)
-    in_box = np.logical_and((points > box[0]).all(axis=1), (points < box[1]).all(axis=1))
-    if not in_box.any():
-        return inside
-    ray = CONTAINS_DIRECTION if direction is None else np.array(direction).reshape(3)
-    ray = np.tile(ray, (in_box.sum(), 1))
-    rays = hit_rays(run, plane_origins, plane_normals, size, np.vstack((points[in_box], points[in_box])), np.vstack((ray, -ray)))
-    if not len(rays):
-        return inside
-    both = np.bincount(rays, minlength=len(ray) * 2).reshape((2, -1))
-    odd = np.mod(both, 2) == 1
-    agree = np.equal(*odd)
-    mask = in_box.copy()
-    mask[mask] = agree
-    inside[mask] = odd[0][agree]
-    broken = np.logical_and(np.logical_not(agree), np.logical_not((both == 0).any(axis=0)))
-    if broken.any() and direction is None:
-        mask = in_box.copy()
-        mask[mask] = broken
-        inside[mask] = contains(run, box, plane_origins, plane_normals, size, points[in_box][broken], recast, recast())
-    return inside

@@ -13,13 +13,12 @@ float64 unless stated.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
-from acra import halfspaces, memo, meshops, narrow
-from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, Tessellation, _face_boxes, _World,
+from acra import halfspaces, memo, narrow
+from pipeline.geometry import (ColliderGeometry, Geometry, SurfaceGeometry, Tessellation, _face_boxes, _World,
                                candidate_patches, is_closed, surface_points, wrap_uv)
 from pipeline.grids import PatchGrid
 from pipeline.model import apply_inverse, apply_xform
@@ -406,7 +405,7 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
         # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
         if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
             trimesh.util._RANDOM_DEFAULT = _reseeded()
-        m[near] = _parity(static, local[near])
+        m[near] = static.mesh.contains(local[near])
     rows = np.nonzero(m)[0]
     if not len(rows):
         return (m, np.zeros(0)) if depth else m
@@ -434,24 +433,6 @@ def _reseeded() -> np.random.Generator:
     rim's bisection sets it before each of its inside tests near a face)."""
     _RECAST.bit_generator.state = _RECAST_START
     return _RECAST
-
-
-_PARITY: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # `_parity`'s mesh arrays by collider
-
-
-def _parity(static: ColliderStatic, local: np.ndarray) -> np.ndarray:
-    """``static.mesh.contains(local)`` ``(k,) bool`` for object-space points ``local (k, 3)``: the
-    same ray parity on the same embree scene (`acra.meshops.contains`), with the mesh's box, face
-    planes and size read once per collider instead of through trimesh's cache at every call (the
-    rim's bisection asks it for the points near a face in each of its inside tests)."""
-    import trimesh
-
-    args = _PARITY.get(static)
-    if args is None:
-        mesh = static.mesh
-        args = _PARITY[static] = (mesh.ray._scene.run, np.array(mesh.bounds), np.array(mesh.triangles[:, 0, :]),
-                                  np.array(mesh.face_normals), float(mesh.scale))
-    return meshops.contains(*args, local, lambda: trimesh.util.unitize(trimesh.util.random_generator().random(3) - 0.5))
 
 
 def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
