@@ -524,3 +524,71 @@ def test_rim_points_ask_each_distinct_crossing_once_with_every_rows_bits(monkeyp
     assert len(got[0]) >= 12 and once < sum(asked)
     for a, b in zip(got, want):
         assert a.tobytes() == b.tobytes()
+
+
+def _bisected_in_turn(gb, world, lo, hi):
+    """`_bisected` as the array form: `detect.inside` of the neighbours, then of each halving's
+    midpoints in turn."""
+    from pipeline import detect as D
+
+    outside = ~D.inside(gb, world(hi))
+    lo, hi = lo[outside], hi[outside]
+    for _ in range(P.RIM_BISECT):
+        mid = 0.5 * (lo + hi)
+        m_in = D.inside(gb, world(mid))[:, None]
+        lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
+    return outside, hi
+
+
+@pytest.mark.parametrize("paths,seed", [(P.RIM_PATHS, 0), (P.RIM_PATHS, 1), (0, 2)])
+def test_bisected_asks_the_parity_once_with_the_answers_of_asking_in_turn(monkeypatch, paths, seed):
+    """`_bisected` follows a segment whose point lies near the box's surface both ways and asks
+    every near point's parity at the end: the same outside rows and crossings, bit for bit, as
+    asking `detect.inside` in turn, for one parity call instead of one a round. Segments across
+    the box's faces, edges and corners in the plane ``z = 0.1`` (the parameters are the points'
+    x and y), their midpoints on a face, a rounding error or 1e-7 of the size off it at one
+    halving or another, some neighbours inside or near; with no path to spare (``RIM_PATHS``
+    0) each round asks its near points at once."""
+    import trimesh
+
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    monkeypatch.setattr(P, "RIM_PATHS", paths)
+    mesh = trimesh.creation.box(bounds=np.array([[-0.5, -0.25, -0.5], [0.5, 0.75, 0.5]]))
+    shift = np.eye(4)
+    shift[:3, 3] = [0.125, -0.0625, 0.0]
+    box = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), shift)
+    rng = np.random.default_rng(seed)
+    size = box.static.scale
+    face = np.array([[0.625, 0.0], [-0.375, 0.0], [0.0, 0.6875], [0.0, -0.3125]])  # x = 0.625 (+x face), ...
+    n = 400
+    which = rng.integers(0, 4, n)
+    along = rng.uniform(-0.3, 0.6, n)
+    step = 2.0 ** -rng.integers(2, 6, n)
+    # the face crossed at a halving's midpoint: lo and hi placed so that midpoint k lies on it
+    k = rng.integers(0, P.RIM_BISECT + 1, n)
+    off = rng.choice([0.0, 1e-16, 1e-7 * size, -1e-7 * size, 3e-3], n)
+    lo, hi = np.empty((n, 2)), np.empty((n, 2))
+    for i in range(n):
+        axis, sign = (0 if which[i] < 2 else 1), (1.0 if which[i] in (0, 2) else -1.0)
+        at = face[which[i], axis] + off[i]
+        t = 1.0 - 2.0 ** -k[i]  # the k-th midpoint of [0, 1] always halving towards its outer end
+        a = at - sign * t * step[i]
+        lo[i, axis], hi[i, axis] = a, a + sign * step[i]
+        lo[i, 1 - axis] = hi[i, 1 - axis] = along[i]
+    lo[:20] = [0.125, 0.1875] + rng.uniform(-0.2, 0.2, (20, 2))  # neighbours inside
+    hi[:20] = lo[:20] + rng.uniform(-0.05, 0.05, (20, 2))
+
+    def world(uv):
+        return np.column_stack([uv, np.full(len(uv), 0.1)])
+
+    calls, parity = [], D._parity
+    monkeypatch.setattr(D, "_parity", lambda s, p: calls.append(len(p)) or parity(s, p))
+    got = P._bisected(box, world, lo, hi)
+    ours = len(calls)
+    calls.clear()
+    want = _bisected_in_turn(box, world, lo, hi)
+    assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
+    assert 0 < got[0].sum() < n - 20 + 1 and sum(calls) > 20  # near points at several halvings
+    assert (ours == 1 if paths else ours == len(calls)) and len(calls) > 3
