@@ -3,16 +3,17 @@ face of the box, how near they lie in embree's float32 numbers, and what the par
 
     PYTHONPATH=$PWD python3 benchmarks/rim_parity.py [--repeat 100]
 
-Runs frame 11 after frame 5 and records each ``Trimesh.contains`` call `detect._collider_inside`
-makes (the points within `detect.SIDE_SURE` of the box's surface). Prints the calls and points,
+Runs frame 11 after frame 5 and records each parity call of the inside tests (``detect._parity``
+where the checkout has it, else ``Trimesh.contains``: the points within `detect.SIDE_SURE` of the
+box's surface). Prints the calls and points,
 each point's distance from the nearest face plane in float32 roundings of its coordinates in
 embree's scaled frame (trimesh's scene: the box's low corner at 0, a diagonal of 100), the count
 beyond 8 and 64 roundings (``acra.raycast.sure_hits`` proves a triangle where its tests clear 64
 roundings), and the CPU time of replaying the calls ``--repeat`` times through ``Trimesh.contains``
 (the generator reseeded before each call, as `detect._collider_inside` does), in ms a frame;
 where the checkout has ``acra.meshops.contains`` (a measured alternative, commit ``2c9f3fe``),
-the same calls through it too. The digest is of the parity answers, so two checkouts can be
-shown to agree.
+the same calls through it too. The digest is of the recorded calls' parity answers: two
+checkouts that ask the same points print the same.
 """
 
 from __future__ import annotations
@@ -47,8 +48,7 @@ def main() -> None:
         calls.append((mesh, np.array(points, np.float64)))
         return contains(mesh, points)
 
-    trimesh.Trimesh.contains = recorded
-    parity = getattr(D, "_parity", None)  # the alternative's route to the parity (commit 2c9f3fe)
+    parity = getattr(D, "_parity", None)  # the inside tests' one route to the parity, where there is one
     if parity is not None:
 
         def recorded_parity(static, local):
@@ -56,6 +56,8 @@ def main() -> None:
             return parity(static, local)
 
         D._parity = recorded_parity
+    else:
+        trimesh.Trimesh.contains = recorded
     forget()
     stage = usdio.open_input(usdio.load_scene_file(ROOT / "scenes" / "box_into_sheet.py"))
     scene = usdio.read_scene(stage)
