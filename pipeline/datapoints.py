@@ -411,7 +411,6 @@ def _bisected(gb: geometry.ColliderGeometry, world, lo: np.ndarray, hi: np.ndarr
             break
         mid = 0.5 * (lo + hi)
         local, inside, near = D.collider_sides(gb, world(mid))
-
         if near.any() and len(seg) + int(near.sum()) > RIM_PATHS * n:
             inside[near] = D.near_inside(gb.static, local[near])
             near[:] = False
