@@ -8,8 +8,9 @@ time) with the frame loop's clock read as the process's CPU time (``time.process
 shared machine other processes' load counts far less than in wall-clock figures. Prints the frame's
 CPU time and the frame loop's own split (`FrameStats`: set-up, detection, conversion, response,
 residual where the user looks), then the nested time inside the rim points
-(`datapoints._rim_points`) and the inside tests and casts they ask, medians over the runs and
-their ranges. Another checkout's code runs with its own ``PYTHONPATH`` (functions it lacks are
+(`datapoints._rim_points`) and the inside tests and casts they ask (and, where the checkout has
+it, the bisection `datapoints._bisected`, which settles its points' sides itself: its inside tests
+do not go through `detect.inside`), medians over the runs and their ranges. Another checkout's code runs with its own ``PYTHONPATH`` (functions it lacks are
 left out), so two checkouts can be alternated.
 """
 
@@ -63,7 +64,7 @@ def main() -> None:
     timed(P, "_rim_points", outer=True)
     for name in ("inside", "_cast"):
         timed(D, name)
-    for name in ("_missing_neighbours", "_on_counted_faces"):
+    for name in ("_missing_neighbours", "_on_counted_faces", "_bisected"):
         timed(P, name)
 
     def once() -> tuple[float, object, dict]:
@@ -87,7 +88,7 @@ def main() -> None:
     line("frame (`respond_frames`)", [r[0] for r in runs])
     for key in STAGES:
         line(f"`FrameStats.{key}`", [getattr(r[1], key) for r in runs])
-    for name in ("_rim_points", "inside", "_cast", "_missing_neighbours", "_on_counted_faces"):
+    for name in ("_rim_points", "inside", "_cast", "_missing_neighbours", "_on_counted_faces", "_bisected"):
         if any(name in r[2] for r in runs):
             line(f"in the rim: `{name}`" if name != "_rim_points" else "`datapoints._rim_points`",
                  [r[2].get(name, 0.0) for r in runs])

@@ -29,7 +29,7 @@ from pipeline import geometry
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import residual
-from pipeline.model import apply_inverse, apply_xform
+from pipeline.model import apply_xform
 from pipeline.spatial import cKDTree
 
 __all__ = ["data_points_for", "collider_points_for", "rim_points", "visible_points", "deepest_shown", "corrects",
@@ -329,30 +329,42 @@ def _rim_points(ga: geometry.SurfaceGeometry, gb: geometry.ColliderGeometry, reg
     unit = np.asarray(direction, float) / np.linalg.norm(direction)
     if not len(region_uv):
         return empty
+    # A sample on an edge two patches share is a region sample twice, and each of its crossings
+    # would be bisected twice: the distinct samples' crossings are found, and every row of the
+    # region takes its sample's. Each answer is a function of its row's bits alone (evaluation,
+    # inside test and cast go point by point), so a row keeps the bits it would get asked alone,
+    # and the grouping below sums every region row's crossing, repeats included, in their order.
+    first, at = _distinct_rows(region_uv)
+    uv = region_uv[first]
     dens = geometry.patch_density(ga)
-    pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
-    pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
-    h = 1.0 / dens[pu, pv]
-    src, hi = _missing_neighbours(hs, region_uv, h)
+    pu = np.clip(np.floor(uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
+    pv = np.clip(np.floor(uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
+    miss, n = _missing_neighbours(hs, uv, 1.0 / dens[pu, pv])
+    k = len(uv)
+    src, hi = np.tile(np.arange(k), 4)[miss.reshape(-1)], n[miss]
+    # the region's rows of `_missing_neighbours`' order (by direction, then the region's order),
+    # each as its distinct sample's crossing
+    row = (np.cumsum(miss.reshape(-1)) - 1).reshape(4, k)[:, at][miss[:, at]]
     if not len(src):
         return empty
 
     def world(uv):
         return apply_xform(ga.xform, H.evaluate(hs, *geometry.wrap_uv(hs, uv).T, det=ga.details).points)
 
-    outside = ~D.inside(gb, world(hi))  # a neighbour missing from the region may just be untessellated
-    src, hi = src[outside], hi[outside]
-    lo = region_uv[src]
+    outside, crossed = _bisected(gb, world, uv[src], hi)  # a neighbour missing from the region may just be untessellated
+    row = (np.cumsum(outside) - 1)[row[outside[row]]]
+    step = hi[outside] - uv[src[outside]]
+    src, hi = src[outside], crossed
     if not len(src):
         return empty
-    step = hi - lo
-    for _ in range(RIM_BISECT):
-        mid = 0.5 * (lo + hi)
-        m_in = D.inside(gb, world(mid))[:, None]
-        lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
     use = _on_counted_faces(gb, unit, len(hi), lambda: world(hi))
-    s_hit, hit = D.cast(gb, world(region_uv[src[use]]), np.broadcast_to(unit, (int(use.sum()), 3)))
-    cross = geometry.wrap_uv(hs, (hi + step)[use][hit])
+    cast, slot = np.unique(src[use], return_inverse=True)  # each sample cast once, for each of its crossings
+    s_hit, hit = D.cast(gb, world(uv[cast]), np.broadcast_to(unit, (len(cast), 3)))
+    which = np.full(len(src), -1)
+    which[use] = slot
+    row = row[use[row]]  # every region row's counted crossing, its sample's cast
+    s_hit, hit = s_hit[which[row]], hit[which[row]]
+    cross = geometry.wrap_uv(hs, (hi + step)[row][hit])
     if not len(cross):
         return empty
     mids, _, inv = patch_groups(hs, cross, level)
@@ -363,6 +375,83 @@ def _rim_points(ga: geometry.SurfaceGeometry, gb: geometry.ColliderGeometry, reg
     ahead = (plane - points) @ unit
     keep = ahead > 0
     return mids[keep], points[keep], points[keep] + ahead[keep, None] * unit
+
+
+RIM_PATHS = 2  # paths `_bisected` follows at most, per segment, before it asks a round's near points at once
+
+
+def _bisected(gb: geometry.ColliderGeometry, world, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where segments from region samples ``lo (n, 2)`` (inside ``gb``) to their missing
+    neighbours ``hi (n, 2)`` cross ``gb``'s surface: which neighbours lie outside ``(n,) bool``
+    and, for those, the outer end ``(m, 2)`` after `RIM_BISECT` halvings, each keeping the half
+    whose ends lie on either side (``world(uv)`` maps parameters to world points): the answer of
+    asking `detect.inside` of the neighbours and of each halving's midpoints in turn.
+
+    A point's side is `detect.collider_sides`' unless it lies within `detect.SIDE_SURE` of the
+    mesh, where it is embree's ray parity (`detect.near_inside`), one trimesh call of about 0.1 ms
+    whatever its points. A segment whose point is near is followed both ways, its path as if the
+    point were outside and a copy as if inside, and every near point's parity is asked in one
+    call at the end: each segment keeps the one path whose assumptions it confirms (the copies'
+    arithmetic is the segment's own, so the same bits). A near point lies within 1e-6 of the size
+    from a face and the next midpoint half a step farther, so a path meets another only at
+    another face; beyond `RIM_PATHS` paths a segment, a round's near points are asked at once."""
+    n = len(hi)
+    local, inside, near = D.collider_sides(gb, world(hi))
+    asked = [local[near]]  # the near points' object-space points, in the order asked
+    count = int(near.sum())
+    # per path: its segment, ends, and per round the near point it assumed the side of (-1 none)
+    # and the side assumed (inside)
+    ask = np.full((n, RIM_BISECT + 1), -1, np.int64)
+    want = np.zeros((n, RIM_BISECT + 1), bool)
+    ask[near, 0] = np.arange(count)
+    go = near | ~inside
+    seg, lo, hi, ask, want = np.flatnonzero(go), lo[go], hi[go], ask[go], want[go]
+    for r in range(1, RIM_BISECT + 1):
+        if not len(seg):
+            break
+        mid = 0.5 * (lo + hi)
+        local, inside, near = D.collider_sides(gb, world(mid))
+        if near.any() and len(seg) + int(near.sum()) > RIM_PATHS * n:
+            inside[near] = D.near_inside(gb.static, local[near])
+            near[:] = False
+        k = np.flatnonzero(near)
+        copy_hi = hi[k]  # a near point's copy: as if inside, from its midpoint to the path's outer end
+        lo, hi = np.where((inside & ~near)[:, None], mid, lo), np.where((inside & ~near)[:, None], hi, mid)
+        if len(k):
+            ask[k, r] = count + np.arange(len(k))
+            asked.append(local[k])
+            count += len(k)
+            copy_ask, copy_want = ask[k].copy(), want[k].copy()
+            copy_want[:, r] = True
+            seg, ask, want = np.concatenate([seg, seg[k]]), np.concatenate([ask, copy_ask]), np.concatenate([want, copy_want])
+            lo, hi = np.concatenate([lo, mid[k]]), np.concatenate([hi, copy_hi])
+    answer = D.near_inside(gb.static, np.concatenate(asked)) if count else np.zeros(0, bool)
+    holds = np.all((ask < 0) | (answer[np.maximum(ask, 0)] == want), axis=1) if count else np.ones(len(seg), bool)
+    outside = np.zeros(n, bool)
+    outside[seg[holds]] = True
+    end = np.empty((n, 2))
+    end[seg[holds]] = hi[holds]
+    return outside, end[outside]
+
+
+def _distinct_rows(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``uv (n, 2) float64`` by their bits (``-0.0`` and ``0.0`` differ, as
+    they may in what is computed from them; a NaN row is like itself): rows ``first (d,) int64``
+    of ``uv``, one of each, and ``at (n,) int64``, each row's place among them, so
+    ``uv[first][at]`` has ``uv``'s bits. A stable sort of the two columns' bits as integers."""
+    bits = np.ascontiguousarray(uv, np.float64).reshape(-1, 2).view(np.int64)
+    if not len(bits):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    u, v = bits[:, 0].copy(), bits[:, 1].copy()
+    order = np.lexsort((v, u))
+    su, sv = u[order], v[order]
+    new = np.empty(len(order), bool)
+    new[0] = True
+    np.not_equal(su[1:], su[:-1], out=new[1:])
+    new[1:] |= sv[1:] != sv[:-1]
+    at = np.empty(len(order), np.int64)
+    at[order] = np.cumsum(new) - 1
+    return order[new], at
 
 
 def _on_counted_faces(gb: geometry.ColliderGeometry, unit: np.ndarray, n: int, points) -> np.ndarray:
@@ -376,32 +465,32 @@ def _on_counted_faces(gb: geometry.ColliderGeometry, unit: np.ndarray, n: int, p
         every = np.abs(geometry.world_normals(gb, normals) @ unit)
         if np.all((every <= RIM_STEEP - 1e-9) | (every >= RIM_FACING + 1e-9)):
             return np.ones(n, bool)
-    face = gb.static.index.query(apply_inverse(gb.xform, points()))[2]
+    face = gb.static.index.query(gb.to_object(points()))[2]
     nd = np.abs(geometry.world_normals(gb, normals[face]) @ unit)
     return (nd <= RIM_STEEP) | (nd >= RIM_FACING)
 
 
 def _missing_neighbours(hs: H.HSpline, uv: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The neighbours one step ``h (k,)`` away along ``+u, -u, +v, -v`` (in that order) of
-    samples ``uv (k, 2)`` that are not samples themselves: the rows ``(r,) int64`` of the samples
-    they neighbour and their parameters ``(r, 2)``, unwrapped. A neighbour past an open edge of
-    the domain is none; one is a sample where a sample lies within ``1e-3 h`` of it, both wrapped
-    into the domain.
+    samples ``uv (k, 2)`` that are not samples themselves: ``miss (4, k) bool``, which of each
+    direction's neighbours are missing, and the neighbours' parameters ``(4, k, 2)``, unwrapped.
+    A neighbour past an open edge of the domain is none; one is a sample where a sample lies
+    within ``1e-3 h`` of it, both wrapped into the domain.
 
     The distance to the nearest sample is `acra.kdtree`'s, scipy's arithmetic (in the plane ``z
     = 0`` the sum ``(du² + dv²) + 0`` is a 2-d tree's), so the answer is that of
     ``scipy.spatial.cKDTree.query``; the search passes over what lies beyond twice the largest
     such distance, where the answer (that bound) misses as the true distance would."""
-    n = np.concatenate([uv + np.stack([du * h, dv * h], axis=1) for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1))])
-    ok = np.ones(len(n), bool)
+    n = np.stack([uv + np.stack([du * h, dv * h], axis=1) for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1))])
+    flat = n.reshape(-1, 2)
+    ok = np.ones(len(flat), bool)
     for c, d in enumerate((hs.u, hs.v)):
         if not d.periodic:
-            ok &= (n[:, c] >= -1e-9) & (n[:, c] <= d.patches0 + 1e-9)
+            ok &= (flat[:, c] >= -1e-9) & (flat[:, c] <= d.patches0 + 1e-9)
     bound = 2e-3 * float(h.max())
     tree = kdtree.build(_in_plane(geometry.wrap_uv(hs, uv)))
-    dist = np.sqrt(kdtree.nearest_squares(tree, _in_plane(geometry.wrap_uv(hs, n)), best=np.full(len(n), bound * bound)))
-    miss = ok & (dist > 1e-3 * np.tile(h, 4))
-    return np.tile(np.arange(len(uv)), 4)[miss], n[miss]
+    dist = np.sqrt(kdtree.nearest_squares(tree, _in_plane(geometry.wrap_uv(hs, flat)), best=np.full(len(flat), bound * bound)))
+    return (ok & (dist > 1e-3 * np.tile(h, 4))).reshape(4, -1), n
 
 
 def _in_plane(uv: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from acra import halfspaces, memo, narrow
-from pipeline.geometry import (ColliderGeometry, Geometry, SurfaceGeometry, Tessellation, _face_boxes, _World,
+from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, Tessellation, _face_boxes, _World,
                                candidate_patches, is_closed, surface_points, wrap_uv)
 from pipeline.grids import PatchGrid
 from pipeline.model import apply_inverse, apply_xform
@@ -375,12 +375,33 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
     inside, whatever the parity says: its depth would be rounding, and `with_on_surface` is what
     adds on-surface points to a region. Farther points keep the parity answer. Only points the
     parity calls inside need the distance, which `regions` needs for their depth anyway."""
-    import trimesh  # imported by `prepare_collider` already
+    static = geom.static
+    local, m, near = collider_sides(geom, points)
+    if not depth:
+        if near.any():
+            m[near] = near_inside(static, local[near])
+        return m
+    if near.any():
+        m[near] = _parity(static, local[near])
+    rows = np.nonzero(m)[0]
+    if not len(rows):
+        return m, np.zeros(0)
+    dist, close, _ = static.index.query(local[rows])
+    on = dist <= ON_MESH * static.scale
+    m[rows[on]] = False
+    return m, np.linalg.norm(points[rows[~on]] - apply_xform(geom.xform, close[~on]), axis=1)
 
+
+def collider_sides(geom: ColliderGeometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The part of `inside` on a collider that needs no ray parity: world ``points (k, 3)`` in
+    object space ``(k, 3)``, the side ``(k,) bool`` (inside) of each point farther than
+    `SIDE_SURE` of the mesh's size from it, and which points are nearer ``near (k,) bool``, whose
+    answer is `near_inside`'s of their object-space points (their entries of the side are unset).
+    Each point's answers are its own: a caller may ask the near points of several calls at once."""
     from pipeline import clearance
 
     static = geom.static
-    local = apply_inverse(geom.xform, points)
+    local = geom.to_object(points)
     # A point farther than `SIDE_SURE` of the mesh's size from it takes the side of the
     # angle-weighted pseudo-normal at its closest point (eq. (1) of `pipeline.clearance`, exact in
     # float64 off the surface), where embree's float32 parity agrees; nearer points keep the parity.
@@ -400,26 +421,46 @@ def _collider_inside(geom: ColliderGeometry, points: np.ndarray, depth: bool = F
         if len(rows):
             sd = clearance.signed_depth(static.solid, local[rows])[0]
             near[rows], m[rows] = np.abs(sd) <= sure, sd > 0
-    if near.any():
-        # trimesh re-casts rays of points it finds ambiguous (on the surface, which every response
-        # produces) in a random direction from a shared generator: reseed it, so a run is reproducible
-        if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
-            trimesh.util._RANDOM_DEFAULT = np.random.default_rng(20260311)
-        m[near] = static.mesh.contains(local[near])
+    return local, m, near
+
+
+def near_inside(static: ColliderStatic, local: np.ndarray) -> np.ndarray:
+    """`inside` ``(k,) bool`` of object-space points ``local (k, 3)`` that `collider_sides` finds
+    within `SIDE_SURE` of the collider's mesh: the ray parity, and a point within `ON_MESH` of the
+    mesh's size from it lies on it, not inside. (A point farther than `SIDE_SURE` from the solid,
+    its faces within its weld, 1e-7 of the size, of the mesh's, is farther than `ON_MESH` from the
+    mesh: only near points can lie on it.)"""
+    m = _parity(static, local)
     rows = np.nonzero(m)[0]
-    if not len(rows):
-        return (m, np.zeros(0)) if depth else m
-    band = ON_MESH * static.scale
-    if not depth:
-        # a point farther than `SIDE_SURE` from the solid (its faces within its weld, 1e-7 of the
-        # size, of the mesh's) is farther than `ON_MESH` from the mesh: only near points can lie on it
-        rows = rows[near[rows]]
-        m[rows[static.index.within(local[rows], band)]] = False
-        return m
-    dist, close, _ = static.index.query(local[rows])
-    on = dist <= band
-    m[rows[on]] = False
-    return m, np.linalg.norm(points[rows[~on]] - apply_xform(geom.xform, close[~on]), axis=1)
+    if len(rows):
+        m[rows[static.index.within(local[rows], ON_MESH * static.scale)]] = False
+    return m
+
+
+def _parity(static: ColliderStatic, local: np.ndarray) -> np.ndarray:
+    """trimesh's ray parity (``Trimesh.contains``) ``(k,) bool`` of object-space points ``local
+    (k, 3)``. trimesh re-casts the rays of a point whose two rays disagree (on the surface, which
+    every response produces) in a random direction from a shared generator: it is set back to its
+    seed first (`_reseeded`), so a run is reproducible and every call's re-casts take the same
+    direction, whichever points it asks."""
+    import trimesh  # imported by `prepare_collider` already
+
+    if hasattr(trimesh.util, "_RANDOM_DEFAULT"):
+        trimesh.util._RANDOM_DEFAULT = _reseeded()
+    return static.mesh.contains(local)
+
+
+_RECAST_SEED = 20260311
+_RECAST = np.random.default_rng(_RECAST_SEED)  # the generator of trimesh's re-casts (`_reseeded`)
+_RECAST_START = _RECAST.bit_generator.state
+
+
+def _reseeded() -> np.random.Generator:
+    """``np.random.default_rng(_RECAST_SEED)``'s stream from its start: one kept generator whose
+    state is set back to the seed's, the same draws for a tenth of a new generator's set-up (the
+    rim's bisection sets it before each of its inside tests near a face)."""
+    _RECAST.bit_generator.state = _RECAST_START
+    return _RECAST
 
 
 def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:

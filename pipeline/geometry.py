@@ -230,6 +230,17 @@ class ColliderGeometry:
         matrix's bytes."""
         return ("collider", self.static.digest, np.ascontiguousarray(self.xform, np.float64).tobytes())
 
+    def to_object(self, points: np.ndarray) -> np.ndarray:
+        """World points ``(k, 3)`` in object space: `pipeline.model.apply_inverse`'s arithmetic,
+        the same bits, with the linear part's inverse found once per geometry (the rim's
+        bisection asks for it in each of its inside tests on this geometry)."""
+        return (points - self.xform[:3, 3]) @ self._inverse_t
+
+    @_once
+    def _inverse_t(self) -> np.ndarray:
+        """``(3, 3) float64``: the transposed inverse of ``xform``'s linear part."""
+        return np.linalg.inv(self.xform[:3, :3]).T
+
 
 @dataclass(frozen=True, eq=False)
 class Tessellation:

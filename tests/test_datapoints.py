@@ -385,7 +385,8 @@ def test_missing_neighbours_are_those_scipys_kd_tree_finds(periodic):
     uv = np.concatenate([uv, [[pu - 0.125, 1.0], [0.0, 1.0], [0.0, 2.0]], uv[:20] + [[5e-4 / 8, 0.0]],
                          uv[20:40] + [[0.0, 2e-3 / 8]]])
     h = np.where(uv[:, 0] < 2.0, 1 / 8, 1 / 16)
-    src, hi = P._missing_neighbours(hs, uv, h)
+    miss, n = P._missing_neighbours(hs, uv, h)
+    src, hi = np.tile(np.arange(len(uv)), 4)[miss.reshape(-1)], n[miss]
     tree, want_src, want_hi = cKDTree(geometry.wrap_uv(hs, uv)), [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         n = uv + np.stack([du * h, dv * h], axis=1)
@@ -437,3 +438,157 @@ def test_a_box_pushed_along_an_axis_counts_every_rim_crossing_as_its_faces_would
     got = P._on_counted_faces(box, slant, len(points), at)
     np.testing.assert_array_equal(got, by_faces(slant))
     assert asked and 0 < got.sum() < len(points)
+
+
+def test_distinct_rows_are_distinct_by_their_bits():
+    """`_distinct_rows`: one row of each distinct bit pattern (``-0.0`` apart from ``0.0``, a NaN
+    row like itself), and each row's place among them gives back every row's bits."""
+    rng = np.random.default_rng(11)
+    base = np.round(rng.normal(size=(40, 2)) * 8) / 8
+    base[3], base[4], base[5, 1] = [0.5, 0.0], [0.5, -0.0], np.nan
+    x = base[rng.integers(0, len(base), 300)]
+    first, at = P._distinct_rows(x)
+    assert x[first][at].tobytes() == x.tobytes()
+    assert len(first) == len({r.tobytes() for r in x}) == len({r.tobytes() for r in x[first]})
+    assert [len(a) for a in P._distinct_rows(np.zeros((0, 2)))] == [0, 0]
+
+
+def _rim_points_every_row(ga, gb, region_uv, direction, level):
+    """`datapoints._rim_points` as arrays over every row of the region, repeats included: each
+    crossing bisected and each sample cast once per row."""
+    from acra import hspline as H
+    from acra.targets import patch_groups
+    from pipeline import detect as D
+    from pipeline.model import apply_xform
+
+    hs = ga.surface
+    unit = direction / np.linalg.norm(direction)
+    dens = geometry.patch_density(ga)
+    pu = np.clip(np.floor(region_uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
+    pv = np.clip(np.floor(region_uv[:, 1]).astype(np.int64) % hs.v.patches0, 0, hs.v.patches0 - 1)
+    miss, n = P._missing_neighbours(hs, region_uv, 1.0 / dens[pu, pv])
+    src, hi = np.tile(np.arange(len(region_uv)), 4)[miss.reshape(-1)], n[miss]
+
+    def world(uv):
+        return apply_xform(ga.xform, H.evaluate(hs, *geometry.wrap_uv(hs, uv).T, det=ga.details).points)
+
+    outside = ~D.inside(gb, world(hi))
+    src, hi = src[outside], hi[outside]
+    lo = region_uv[src]
+    step = hi - lo
+    for _ in range(P.RIM_BISECT):
+        mid = 0.5 * (lo + hi)
+        m_in = D.inside(gb, world(mid))[:, None]
+        lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
+    use = P._on_counted_faces(gb, unit, len(hi), lambda: world(hi))
+    s_hit, hit = D.cast(gb, world(region_uv[src[use]]), np.broadcast_to(unit, (int(use.sum()), 3)))
+    cross = geometry.wrap_uv(hs, (hi + step)[use][hit])
+    mids, _, inv = patch_groups(hs, cross, level)
+    g = len(mids)
+    plane = np.stack([np.bincount(inv, s_hit[hit, c], g) for c in range(3)], axis=1)
+    plane /= np.bincount(inv, minlength=g)[:, None]
+    points = world(mids)
+    ahead = (plane - points) @ unit
+    keep = ahead > 0
+    return mids[keep], points[keep], points[keep] + ahead[keep, None] * unit
+
+
+@pytest.mark.parametrize("direction,turn", [((0.0, 0.0, -0.8), 0.0), ((0.1, -0.05, -1.0), 0.3)])
+def test_rim_points_ask_each_distinct_crossing_once_with_every_rows_bits(monkeypatch, direction, turn):
+    """`_rim_points` bisects each distinct sample's crossings and casts each sample once, every
+    region row taking its sample's: the same bits as the arrays over every row
+    (`_rim_points_every_row`) on a region whose samples on shared patch edges come twice, for
+    fewer points asked; pushed along the box's axis and at a slant to a turned box (whose faces
+    are found for each crossing)."""
+    import trimesh
+
+    from acra import hspline as H
+    from acra import shapes
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    cvs, _, _ = shapes.sheet(12, 12, width=4.0, depth=4.0)
+    sheet = geometry.SurfaceGeometry(H.from_grid(cvs, depth=3), np.eye(4), "/sheet")
+    mesh = trimesh.creation.box(bounds=np.array([[-0.7, -0.9, -0.5], [0.9, 0.7, 0.5]]))
+    xform = trimesh.transformations.rotation_matrix(turn, [0.2, 0.3, 1.0])
+    box = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), xform)
+    region, _ = D.regions(sheet, box)
+    uv = np.concatenate([region.uv, region.uv[::3]])  # samples given twice
+    down = np.array(direction)
+    asked, inside = [], D.inside
+    monkeypatch.setattr(D, "inside", lambda g, p: asked.append(len(p)) or inside(g, p))
+    got = P._rim_points(sheet, box, uv, down, 2)
+    once = sum(asked)
+    asked.clear()
+    want = _rim_points_every_row(sheet, box, uv, down, 2)
+    assert len(got[0]) >= 12 and once < sum(asked)
+    for a, b in zip(got, want):
+        assert a.tobytes() == b.tobytes()
+
+
+def _bisected_in_turn(gb, world, lo, hi):
+    """`_bisected` as the array form: `detect.inside` of the neighbours, then of each halving's
+    midpoints in turn."""
+    from pipeline import detect as D
+
+    outside = ~D.inside(gb, world(hi))
+    lo, hi = lo[outside], hi[outside]
+    for _ in range(P.RIM_BISECT):
+        mid = 0.5 * (lo + hi)
+        m_in = D.inside(gb, world(mid))[:, None]
+        lo, hi = np.where(m_in, mid, lo), np.where(m_in, hi, mid)
+    return outside, hi
+
+
+@pytest.mark.parametrize("paths,seed", [(P.RIM_PATHS, 0), (P.RIM_PATHS, 1), (0, 2)])
+def test_bisected_asks_the_parity_once_with_the_answers_of_asking_in_turn(monkeypatch, paths, seed):
+    """`_bisected` follows a segment whose point lies near the box's surface both ways and asks
+    every near point's parity at the end: the same outside rows and crossings, bit for bit, as
+    asking `detect.inside` in turn, for one parity call instead of one a round. Segments across
+    the box's faces, edges and corners in the plane ``z = 0.1`` (the parameters are the points'
+    x and y), their midpoints on a face, a rounding error or 1e-7 of the size off it at one
+    halving or another, some neighbours inside or near; with no path to spare (``RIM_PATHS``
+    0) each round asks its near points at once."""
+    import trimesh
+
+    from pipeline import detect as D
+    from pipeline.model import ColliderModel
+
+    monkeypatch.setattr(P, "RIM_PATHS", paths)
+    mesh = trimesh.creation.box(bounds=np.array([[-0.5, -0.25, -0.5], [0.5, 0.75, 0.5]]))
+    shift = np.eye(4)
+    shift[:3, 3] = [0.125, -0.0625, 0.0]
+    box = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/box", mesh.vertices, mesh.faces)), shift)
+    rng = np.random.default_rng(seed)
+    size = box.static.scale
+    face = np.array([[0.625, 0.0], [-0.375, 0.0], [0.0, 0.6875], [0.0, -0.3125]])  # x = 0.625 (+x face), ...
+    n = 400
+    which = rng.integers(0, 4, n)
+    along = rng.uniform(-0.3, 0.6, n)
+    step = 2.0 ** -rng.integers(2, 6, n)
+    # the face crossed at a halving's midpoint: lo and hi placed so that midpoint k lies on it
+    k = rng.integers(0, P.RIM_BISECT + 1, n)
+    off = rng.choice([0.0, 1e-16, 1e-7 * size, -1e-7 * size, 3e-3], n)
+    lo, hi = np.empty((n, 2)), np.empty((n, 2))
+    for i in range(n):
+        axis, sign = (0 if which[i] < 2 else 1), (1.0 if which[i] in (0, 2) else -1.0)
+        at = face[which[i], axis] + off[i]
+        t = 1.0 - 2.0 ** -k[i]  # the k-th midpoint of [0, 1] always halving towards its outer end
+        a = at - sign * t * step[i]
+        lo[i, axis], hi[i, axis] = a, a + sign * step[i]
+        lo[i, 1 - axis] = hi[i, 1 - axis] = along[i]
+    lo[:20] = [0.125, 0.1875] + rng.uniform(-0.2, 0.2, (20, 2))  # neighbours inside
+    hi[:20] = lo[:20] + rng.uniform(-0.05, 0.05, (20, 2))
+
+    def world(uv):
+        return np.column_stack([uv, np.full(len(uv), 0.1)])
+
+    calls, parity = [], D._parity
+    monkeypatch.setattr(D, "_parity", lambda s, p: calls.append(len(p)) or parity(s, p))
+    got = P._bisected(box, world, lo, hi)
+    ours = len(calls)
+    calls.clear()
+    want = _bisected_in_turn(box, world, lo, hi)
+    assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
+    assert 0 < got[0].sum() < n - 20 + 1 and sum(calls) > 20  # near points at several halvings
+    assert (ours == 1 if paths else ours == len(calls)) and len(calls) > 3

@@ -1103,3 +1103,47 @@ def test_collider_inside_by_planes_raises_as_the_closest_points_do_on_points_not
         for s in (st, slow):
             with pytest.raises(clearance.Unresolved), np.errstate(invalid="ignore"):
                 D.inside(geometry.ColliderGeometry(s, move()), p)
+
+
+def test_reseeded_generator_draws_what_a_new_one_of_the_seed_draws():
+    """`_reseeded` sets its kept generator back to the seed's start: after any draws it gives what
+    ``np.random.default_rng(_RECAST_SEED)`` gives, so trimesh's re-casts of points on a mesh take
+    the same directions in every inside test."""
+    for n in (0, 1, 7, 1000):
+        g = D._reseeded()
+        g.random(n)
+        g.normal(size=n)
+        assert D._reseeded() is g
+        assert g.random(9).tobytes() == np.random.default_rng(D._RECAST_SEED).random(9).tobytes()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_near_points_of_several_inside_tests_asked_at_once_answer_as_in_each(seed):
+    """`collider_sides` settles the points off a collider's mesh and leaves the near ones to
+    `near_inside`: together they are `inside`, and the near points of several calls asked in one
+    `near_inside` get the answers each call's own gives (the re-cast generator set back to its
+    seed for every call), on a ball turned and moved, points on its faces moved by up to 1e-2 of
+    its size."""
+    from pipeline.authoring import uv_sphere
+
+    v, f = uv_sphere(0.45, 24, 12)
+    rot = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])
+    g = geometry.ColliderGeometry(geometry.prepare_collider(ColliderModel("/ball", np.asarray(v), np.asarray(f))), move(0.3, -0.2, 1.1) @ rot)
+    st = g.static
+    rng = np.random.default_rng(seed)
+    calls, locals_ = [], []
+    for _ in range(4):
+        tri = st.mesh.triangles[rng.integers(0, len(st.mesh.faces), 60)]
+        on = np.einsum("ij,ijk->ik", rng.dirichlet([1.0, 1.0, 1.0], 60), tri)
+        local = np.concatenate([on + rng.normal(size=on.shape) * e * st.mesh.scale for e in (0.0, 1e-15, 2e-9, 1e-7, 1e-2)])
+        world = (g.xform[:3, :3] @ local.T).T + g.xform[:3, 3]
+        at, side, near = D.collider_sides(g, world)
+        want = D.inside(g, world)
+        each = side.copy()
+        each[near] = D.near_inside(st, at[near])
+        np.testing.assert_array_equal(each, want)
+        calls.append((side, near, want))
+        locals_.append(at[near])
+    together = D.near_inside(st, np.concatenate(locals_))
+    np.testing.assert_array_equal(together, np.concatenate([w[n] for _, n, w in calls]))
+    assert 0 < together.sum() < len(together)

@@ -109,3 +109,19 @@ def test_collider_planes_only_for_convex_solids_with_few_faces():
         tris += [[4, 6, 8], [6, 7, 8], [7, 5, 8], [5, 4, 8]]  # the +x face as a fan about its centre
         st = geometry.prepare_collider(ColliderModel("/dent", np.asarray(hull.vertices), np.asarray(tris)))
         assert st.closed and (st.planes is not None) == planes
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_collider_to_object_has_apply_inverses_bits(seed):
+    """`ColliderGeometry.to_object` (the linear part's inverse found once) maps world points to
+    the bits `pipeline.model.apply_inverse` gives, under rotations, scales and translations."""
+    from pipeline.model import apply_inverse
+
+    rng = np.random.default_rng(seed)
+    m = np.eye(4)
+    m[:3, :3] = rng.normal(size=(3, 3))
+    m[:3, 3] = rng.normal(size=3) * 10.0
+    g = geometry.ColliderGeometry(box(0.7), m)
+    for n in (0, 1, 5, 300):
+        pts = rng.normal(size=(n, 3)) * 3.0
+        assert g.to_object(pts).tobytes() == apply_inverse(m, pts).tobytes()
