@@ -500,6 +500,8 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
             i = t * m + j
             if st[i] == 0:
                 end = _put_short(buf, at, cs[i], ks[i], neg[i])
+                if end < 0:
+                    end = _put_long(buf, -1 - end, cs[i], ks[i])
                 if end >= 0:
                     at = end
                     continue
@@ -574,6 +576,41 @@ def _put_short(buf, at, c, k, neg):
         buf[u + q] = buf[u + q + np.uint64(1)] if q < p else buf[u + q]
     buf[u + p] = 46
     return at + nd + 1 if point < nd else at + point
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_long(buf, at, c, k):
+    """`_put_short` of a value of up to 18 digits ``c 10^k`` (a float64's 17) whose decimal
+    point falls within its digits or before them (``0.00ddd`` to ``d.ddd``, decimal exponents -6
+    to 14), its sign written:
+    the digits as eighteen, left-justified, in two stores of nine (`_put_nine`), the integer's
+    digits moved back over the gap by a fixed eighteen selects and the text ended where the
+    value's does (the stores past it, within 26 bytes of the value's start, are written over by
+    what follows); the index after it, or -1 for `_put_text`'s layouts."""
+    nd = _ndigits(c)
+    point = nd + k
+    if point <= _LOW or point >= nd or point > _HIGH:
+        return np.int64(-1)
+    d = c * _POW10[18 - nd]
+    hi = d // 1000000000
+    lo = d - hi * 1000000000
+    u = np.uint64(at)
+    if point <= 0:  # "0.", up to five zeros, then the digits
+        buf[u] = 48
+        buf[u + np.uint64(1)] = 46
+        for q in range(np.uint64(2), np.uint64(7)):
+            buf[u + q] = 48
+        at += 2 - point
+        _put_nine(buf, at, hi)
+        _put_nine(buf, at + 9, lo)
+        return at + nd
+    _put_nine(buf, at + 1, hi)
+    _put_nine(buf, at + 10, lo)
+    p = np.uint64(point)
+    for q in range(np.uint64(18)):
+        buf[u + q] = buf[u + q + np.uint64(1)] if q < p else buf[u + q]
+    buf[u + p] = 46
+    return at + nd + 1
 
 
 @njit(cache=True, nogil=True, inline="always")

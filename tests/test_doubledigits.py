@@ -100,3 +100,19 @@ def test_double3_text_is_usd_s():
     calls = []
     assert floattext.tuples_text(values, lambda v: calls.append(v) or _float_texts(v)).decode() == usd_double3(values)
     assert calls == []
+
+
+def test_every_layout_of_long_digits_is_usd_s():
+    """`floattext._put_long` stores up to 18 digits in two stores of nine and ends the text where
+    the value's does: values of 1 to 17 digits with the decimal point at every place (``0.00000d``
+    to exponent form beyond 10^15), signed, beside each kind of neighbour; the text is USD's."""
+    values = []
+    for nd in range(1, 18):
+        for point in range(-7, 18):
+            c = int("12345678901234567"[:nd]) if nd % 2 else int("98765432109876543"[:nd])
+            values += [float(f"{c}e{point - nd}"), -float(f"{c}e{point - nd}")]
+    values = np.array(values + [1e15, 999999999999999.9, 1e-6, 9.999999999999999e-7, 0.5, 5.0])
+    for shift in range(3):
+        rows = np.ascontiguousarray(np.roll(values, shift)[: values.size // 3 * 3].reshape(-1, 3))
+        assert floattext.tuples_text(rows, _float_texts).decode() == usd_double3(rows)
+        assert floattext.tuples_text(rows[::-1].copy(), _float_texts).decode() == usd_double3(rows[::-1].copy())
