@@ -4,7 +4,8 @@ parameters).
 
 USD's text writer prints a float64 as the shortest decimal that reads back as the same float64,
 the closest to it where several are as short, the even one at a tie (double-conversion's
-``ToShortest``). `shortest_digits64` finds those digits ``c 10^k`` by Ryu's float64 algorithm
+``ToShortest``). `shortest_digits64` finds those digits ``c 10^k``: a value's exact decimal
+where it has at most 14 digits (`_exact`; then it is the shortest), else by Ryu's float64 algorithm
 (Adams 2018, ``d2s``): a value ``m 2^e`` rounds back to itself from the interval between the
 midpoints to its neighbours, ``[(4m - 2) 2^(e-2), (4m + 2) 2^(e-2)]`` (``4m - 1`` below a power
 of two, ends included when ``m`` is even); the interval's ends and the value are scaled by
@@ -19,7 +20,8 @@ digits is `acra.floattext`'s, the same as a float32's.
 
 `tests/test_doubledigits.py` holds the digits to Python's ``repr`` (David Gay's shortest,
 closest, ties to even) on seeded random bits of every exponent, subnormals and the powers of two
-and ten, and the text to USD's.
+and ten, Ryu's digits to the exact decimals where those are short (`exact_digits`), and the text
+to USD's.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["shortest_digits64"]
+__all__ = ["exact_digits", "shortest_digits64"]
 
 _INV_BITS, _POW_BITS = 125, 125
 
@@ -49,6 +51,8 @@ _POW5_INV_SPLIT = np.array([_split(2 ** (_pow5bits(q) - 1 + _INV_BITS) // 5**q +
 _POW5_SPLIT = np.array([_split(5**i >> (_pow5bits(i) - _POW_BITS) if _pow5bits(i) >= _POW_BITS else 5**i << (_POW_BITS - _pow5bits(i)))
                         for i in range(326)], dtype=np.uint64)
 _M32 = np.uint64(0xFFFFFFFF)
+_POW5 = np.array([5**i for i in range(21)], dtype=np.int64)
+_EXACT_MAX = 10**14  # a float64's exact decimal shorter than this is its shortest (see `_exact`)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -194,11 +198,73 @@ def _d2s(bits):
     return c, k10
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _exact(b):
+    """``(c, k, found)``: the exact decimal ``c 10^k`` (``c`` free of trailing zeros) of the
+    finite nonzero float64 with ``b`` (int64 pattern, sign cleared) where ``c < 10^14``. Such a
+    decimal is the shortest that reads back: any shorter one differs from it by at least 10^k,
+    which is more than 10^-14 of the value, while a float64 reads back from within 2^-53 of it.
+    A display's surface parameters (dyadic, few bits) are found here, where Ryu's steps would
+    drop their many trailing digits one at a time."""
+    biased = b >> 52
+    if biased == 0:
+        return np.int64(0), np.int64(0), False
+    m = (b & 0xFFFFFFFFFFFFF) | (np.int64(1) << 52)
+    e = biased - 1075  # value = m 2^e
+    # drop trailing zero bits while the exponent is negative, by halving steps (a dyadic value
+    # has up to 52)
+    for step in (32, 16, 8, 4, 2, 1):
+        if step <= -e and (m & ((np.int64(1) << step) - 1)) == 0:
+            m >>= step
+            e += step
+    if e >= 0:
+        if e > 47 or m > ((_EXACT_MAX - 1) >> e):
+            return np.int64(0), np.int64(0), False
+        c = m << e
+        k = np.int64(0)
+    else:
+        if -e >= 21 or m > (_EXACT_MAX - 1) // _POW5[-e]:
+            return np.int64(0), np.int64(0), False
+        c = m * _POW5[-e]
+        k = e
+    while c % 10 == 0:
+        c //= 10
+        k += 1
+    return c, k, True
+
+
+@njit(cache=True, nogil=True)
+def exact_digits(bits):
+    """``(c, k, status)`` per float64 (``bits`` its uint64 pattern, as int64 arithmetic sees
+    it): ``|value| = c 10^k`` exactly with ``c < 10^14`` (`_exact`), status 1 for zero, 2 where
+    the value's exact decimal is longer (or the value is subnormal, infinite or NaN); the
+    reference `tests/test_doubledigits.py` holds `_d2s`'s digits to where it finds them."""
+    n = bits.shape[0]
+    cs = np.zeros(n, np.int64)
+    ks = np.zeros(n, np.int64)
+    st = np.zeros(n, np.int8)
+    for i in range(n):
+        b = np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF
+        if b == 0:
+            st[i] = 1
+            continue
+        if (b >> 52) == 0x7FF:
+            st[i] = 2
+            continue
+        c, k, found = _exact(b)
+        if found:
+            cs[i], ks[i] = c, k
+        else:
+            st[i] = 2
+    return cs, ks, st
+
+
 @njit(cache=True, nogil=True)
 def shortest_digits64(bits):
     """``(c, k, status)`` per float64 (``bits (n,)`` its uint64 pattern): ``|value| = c 10^k``,
-    the shortest digits that read back (`_d2s`), status 0; 1 for zero; 2 for infinities and NaN,
-    whose text the caller gives."""
+    the shortest digits that read back, status 0 (the exact decimal where it has at most 14
+    digits, `_exact`, else Ryu's, `_d2s`); 1 for zero; 2 for infinities and NaN, whose text the
+    caller gives."""
     n = bits.shape[0]
     cs = np.zeros(n, np.int64)
     ks = np.zeros(n, np.int64)
@@ -210,5 +276,8 @@ def shortest_digits64(bits):
         elif (b >> 52) == 0x7FF:
             st[i] = 2
         else:
-            cs[i], ks[i] = _d2s(b)
+            c, k, found = _exact(b)
+            if not found:
+                c, k = _d2s(b)
+            cs[i], ks[i] = c, k
     return cs, ks, st

@@ -21,10 +21,9 @@ array's text is written in one pass (`_float32_text`), each value's digits as th
 after `_marks` has found the values handed to the caller; a value of at most nine digits with
 its decimal point among them is stored as nine digits at once (`_put_short`), the rare others
 out of the loop's way. Each text is written into a buffer of its bound and the buffer cut to it. A float64
-array's values are written from their shortest digits (`acra.doubledigits.shortest_digits64`,
-Ryu's float64 algorithm) in the same layout; `exact_digits`, a float64's exact decimal where it
-has at most 14 digits (then its shortest), is the reference those digits are held to. An int
-array's values are written as their digits (`ints_text`).
+array's values are written from their shortest digits (`acra.doubledigits.shortest_digits64`:
+a float64's exact decimal where it has at most 14 digits, Ryu's float64 algorithm otherwise) in
+the same layout. An int array's values are written as their digits (`ints_text`).
 """
 
 from __future__ import annotations
@@ -34,7 +33,7 @@ from numba import njit
 
 from acra.doubledigits import shortest_digits64
 
-__all__ = ["exact_digits", "ints_text", "shortest_digits", "tuples_text", "tuples_texts"]
+__all__ = ["ints_text", "shortest_digits", "tuples_text", "tuples_texts"]
 
 # decimal exponents printed in decimal point notation: LOW <= exponent < HIGH
 _LOW, _HIGH = -6, 15
@@ -330,58 +329,6 @@ def shortest_digits(bits, ref=None, same=None):
             st[i] = 1
             continue
         cs[i], ks[i] = _ryu(b)
-    return cs, ks, st
-
-
-_EXACT_MAX = 10**14  # a float64's exact decimal shorter than this is its shortest (see exact_digits)
-
-
-@njit(cache=True, nogil=True)
-def exact_digits(bits):
-    """``(c, k, status)`` per float64 (``bits`` its uint64 pattern, as int64 arithmetic sees
-    it): ``|value| = c 10^k`` exactly with ``c < 10^14``, status 1 for zero, 2 where the value's
-    exact decimal is longer. Such a decimal is the shortest that reads back: any shorter one
-    differs from it by at least 10^k, which is more than 10^-14 of the value, while a float64
-    reads back from within 2^-53 of it; the reference `acra.doubledigits.shortest_digits64` is
-    held to (`tests/test_doubledigits.py`)."""
-    n = bits.shape[0]
-    cs = np.zeros(n, np.int64)
-    ks = np.zeros(n, np.int64)
-    st = np.zeros(n, np.int8)
-    for i in range(n):
-        b = np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF
-        biased = b >> 52
-        frac = b & 0xFFFFFFFFFFFFF
-        if biased == 0:
-            st[i] = 1 if frac == 0 else 2
-            continue
-        if biased == 0x7FF:
-            st[i] = 2
-            continue
-        m = frac | (np.int64(1) << 52)
-        e = biased - 1075  # value = m 2^e
-        # drop trailing zero bits while the exponent is negative, by halving steps (a dyadic
-        # value has up to 52)
-        for step in (32, 16, 8, 4, 2, 1):
-            if step <= -e and (m & ((np.int64(1) << step) - 1)) == 0:
-                m >>= step
-                e += step
-        if e >= 0:
-            if e > 47 or m > ((_EXACT_MAX - 1) >> e):
-                st[i] = 2
-                continue
-            c = m << e
-            k = 0
-        else:
-            if -e >= 21 or m > (_EXACT_MAX - 1) // _POW5[-e]:
-                st[i] = 2
-                continue
-            c = m * _POW5[-e]
-            k = e
-        while c % 10 == 0:
-            c //= 10
-            k += 1
-        cs[i], ks[i] = c, k
     return cs, ks, st
 
 

@@ -9,9 +9,10 @@ from decimal import Decimal
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numba import njit
 from pxr import Sdf, Vt
 
-from acra import floattext
+from acra import doubledigits, floattext
 from acra.doubledigits import shortest_digits64
 from pipeline.output_layer import _float_texts
 
@@ -55,16 +56,34 @@ def test_edges_powers_and_short_values_give_repr_s_digits():
     assert _mismatches(values[values != 0]) == []
 
 
-def test_the_exact_decimal_where_it_is_short():
+@njit
+def _ryu_digits(bits):
+    """`doubledigits._d2s`'s digits of each nonzero finite float64 ``bits (n,) uint64``."""
+    cs = np.zeros(bits.shape[0], np.int64)
+    ks = np.zeros(bits.shape[0], np.int64)
+    for i in range(bits.shape[0]):
+        cs[i], ks[i] = doubledigits._d2s(np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF)
+    return cs, ks
+
+
+def test_ryu_gives_the_exact_decimal_where_it_is_short():
     """Where a float64's exact decimal has at most 14 digits it is its shortest
-    (`floattext.exact_digits`): the same digits."""
+    (`doubledigits.exact_digits`, which `shortest_digits64` takes first): Ryu's steps give the
+    same digits there, dyadic values of few bits, integers and their mixtures."""
     rng = np.random.default_rng(47)
-    values = rng.integers(-2**12, 2**12, 30_000) / 2.0 ** rng.integers(0, 13, 30_000)
+    n = 30_000
+    values = np.concatenate([rng.integers(-2**12, 2**12, n) / 2.0 ** rng.integers(0, 13, n),
+                             rng.integers(-2**40, 2**40, n) / 2.0 ** rng.integers(0, 30, n),
+                             rng.integers(-10**13, 10**13, n).astype(np.float64)])
     values = values[values != 0]
     bits = values.view(np.uint64)
-    exact, found = floattext.exact_digits(bits), shortest_digits64(bits)
-    assert not np.any(exact[2] == 2)
-    assert all(np.array_equal(a, b) for a, b in zip(exact, found))
+    exact = doubledigits.exact_digits(bits)
+    short = exact[2] == 0
+    assert short.mean() > 0.5
+    cs, ks = _ryu_digits(bits[short])
+    assert np.array_equal(cs, exact[0][short]) and np.array_equal(ks, exact[1][short])
+    found = shortest_digits64(bits)
+    assert np.array_equal(found[0][short], exact[0][short]) and np.array_equal(found[1][short], exact[1][short])
 
 
 def test_zero_infinities_and_nan_are_marked():
