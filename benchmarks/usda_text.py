@@ -12,7 +12,10 @@ calls, and the same for the largest deformable's first collision frame's ``point
 whole; then the collision frames' response arrays of ``double3[]`` (each deformable's
 ``acra:response:cvs`` and ``acra:response:offsets`` of 64 tuples or more, those a layer writes
 from `floattext`), formatted by `floattext.tuples_texts` and, for comparison, by USD's writer
-(`Sdf.Layer.ExportToString` of a layer holding each as a default value). The last line is a
+(`Sdf.Layer.ExportToString` of a layer holding each as a default value); and the digits of the
+largest deformable's display surface parameters (``acra:display:uv``, dyadic values of few bits)
+by `doubledigits.shortest_digits64` (their exact decimal first), by Ryu's steps alone
+(`doubledigits._d2s`, a loop compiled here) and by `exact_digits` alone. The last line is a
 digest of every text made (SHA-1 of their bytes, first 12 hex digits), the same for two
 checkouts that write the same text. The script imports `acra` and `pipeline` from
 ``PYTHONPATH``: run it with two checkouts' paths, alternated, to compare them on the same arrays.
@@ -31,7 +34,9 @@ import time
 import numpy as np
 from pxr import Sdf, Vt
 
-from acra import floattext
+from numba import njit
+
+from acra import doubledigits, floattext
 from acra.hspline import to_arrays
 from pipeline import frames, output_layer, usdio
 
@@ -46,6 +51,18 @@ def cpu_ms(fn, repeat: int) -> list[float]:
         fn()
         spent.append(1e3 * (time.process_time() - t))
     return spent
+
+
+@njit(cache=False)
+def ryu_alone(bits):
+    """`doubledigits._d2s`'s digits of each nonzero finite float64 of ``bits (n,) uint64``."""
+    cs = np.zeros(bits.shape[0], np.int64)
+    ks = np.zeros(bits.shape[0], np.int64)
+    for i in range(bits.shape[0]):
+        b = np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF
+        if b != 0 and (b >> 52) != 0x7FF:
+            cs[i], ks[i] = doubledigits._d2s(b)
+    return cs, ks
 
 
 def main() -> None:
@@ -88,6 +105,13 @@ def main() -> None:
     name = f"the {len(colliding)} collision frames' response `double3[]` arrays ({len(doubles)}, {sum(map(len, doubles))} tuples), per collision frame"
     rows[name + ", `floattext`"] = [t / len(colliding) for t in cpu_ms(lambda: floattext.tuples_texts(doubles, output_layer._float_texts), args.repeat)]
     rows[name + ", USD's writer"] = [t / len(colliding) for t in cpu_ms(layer.ExportToString, args.repeat)]
+    topology = result.topologies.get(largest) or next(m.topology for m in scene.deformables if m.path == largest)
+    sites = np.ascontiguousarray(np.stack([topology.u, topology.v], axis=1), dtype=np.float64).reshape(-1).view(np.uint64)
+    if hasattr(doubledigits, "shortest_digits64"):  # this checkout writes float64 digits itself
+        ryu_alone(sites)
+        rows[f"{largest}'s display surface parameters ({sites.size} values), `shortest_digits64`"] = cpu_ms(lambda: doubledigits.shortest_digits64(sites), args.repeat)
+        rows["the same, Ryu's steps alone"] = cpu_ms(lambda: ryu_alone(sites), args.repeat)
+        rows["the same, `exact_digits` alone"] = cpu_ms(lambda: doubledigits.exact_digits(sites), args.repeat)
     digest = hashlib.sha1()
     for text in floattext.tuples_texts(arrays, output_layer._float_texts, refs) + floattext.tuples_texts(doubles, output_layer._float_texts):
         digest.update(text.tobytes())
