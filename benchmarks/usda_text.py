@@ -36,7 +36,12 @@ from pxr import Sdf, Vt
 
 from numba import njit
 
-from acra import doubledigits, floattext
+from acra import floattext
+
+try:  # a checkout that writes float64 digits itself
+    from acra import doubledigits
+except ImportError:
+    doubledigits = None
 from acra.hspline import to_arrays
 from pipeline import frames, output_layer, usdio
 
@@ -107,7 +112,7 @@ def main() -> None:
     rows[name + ", USD's writer"] = [t / len(colliding) for t in cpu_ms(layer.ExportToString, args.repeat)]
     topology = result.topologies.get(largest) or next(m.topology for m in scene.deformables if m.path == largest)
     sites = np.ascontiguousarray(np.stack([topology.u, topology.v], axis=1), dtype=np.float64).reshape(-1).view(np.uint64)
-    if hasattr(doubledigits, "shortest_digits64"):  # this checkout writes float64 digits itself
+    if doubledigits is not None:
         ryu_alone(sites)
         rows[f"{largest}'s display surface parameters ({sites.size} values), `shortest_digits64`"] = cpu_ms(lambda: doubledigits.shortest_digits64(sites), args.repeat)
         rows["the same, Ryu's steps alone"] = cpu_ms(lambda: ryu_alone(sites), args.repeat)
