@@ -11,17 +11,19 @@ interval for every ``k`` up to some largest ``K``, which gives the shortest digi
 the value are divided by ``10^k`` once, at ``k`` near log10 of the interval's width, and then a
 digit at a time while the interval still holds a multiple; of the multiples of ``10^K`` within,
 the one closest to the value is taken, the even one where the value lies midway between two (as
-double-conversion's exact fallback, which USD's writer uses, rounds). Values whose exact
-comparison would overflow 64 bits (below about 1e-7 or at or above about 2^40 in magnitude,
-and subnormals) are marked, and the caller supplies their text (``hard``). Within that range the
+double-conversion's exact fallback, which USD's writer uses, rounds). That exact search fits 64
+bits from about 1.5e-8 to 2^75 (`_RYU_BIASED`) and is the reference the digits are held to; the
 digits are found by Ryu's float32 algorithm (`_ryu`, 64-bit tables, no loop over candidate
-exponents), about 1.7x faster; it gives `_one`'s digits for every float32 there. A float32
+exponents), which gives `_one`'s digits for every float32 there and USD's text for every float32
+beyond, subnormals too. Infinities and NaN are marked, and the caller supplies their text
+(``hard``). A float32
 array's text is written in one pass (`_float32_text`), each value's digits as they are found,
 after `_marks` has found the values handed to the caller; a value of at most nine digits with
 its decimal point among them is stored as nine digits at once (`_put_short`), the rare others
-out of the loop's way. Each text is written into a buffer of its bound and the buffer cut to it. A float64 array's
-values are written as their exact decimals where those have at most 14 digits (`exact_digits`),
-an int array's as their digits (`ints_text`).
+out of the loop's way. Each text is written into a buffer of its bound and the buffer cut to it. A float64
+array's values are written from their shortest digits (`acra.doubledigits.shortest_digits64`:
+a float64's exact decimal where it has at most 14 digits, Ryu's float64 algorithm otherwise) in
+the same layout. An int array's values are written as their digits (`ints_text`).
 """
 
 from __future__ import annotations
@@ -29,7 +31,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["exact_digits", "ints_text", "shortest_digits", "tuples_text", "tuples_texts"]
+from acra.doubledigits import shortest_digits64
+
+__all__ = ["ints_text", "shortest_digits", "tuples_text", "tuples_texts"]
 
 # decimal exponents printed in decimal point notation: LOW <= exponent < HIGH
 _LOW, _HIGH = -6, 15
@@ -146,11 +150,11 @@ def _pow5bits(e):
     return ((e * 1217359) >> 19) + 1
 
 _INV_BITS, _POW_BITS = 59, 61
-# biased float32 exponents `_ryu` formats (1.5e-8 up to 2^75), every one of which `_one` formats
-# too (it hands the others to the caller)
+# biased float32 exponents where `_one`'s exact search fits 64 bits at every value (1.5e-8 up to
+# 2^75): the range `tests/test_floattext.py` holds `_ryu`'s digits to `_one`'s over
 _RYU_BIASED = (101, 201)
 _POW5_INV_SPLIT = np.array([(2 ** (_pow5bits(q) - 1 + _INV_BITS)) // (5 ** q) + 1 for q in range(31)], dtype=np.uint64)
-_POW5_SPLIT = np.array([(5 ** i) >> (_pow5bits(i) - _POW_BITS) if _pow5bits(i) >= _POW_BITS else (5 ** i) << (_POW_BITS - _pow5bits(i)) for i in range(47)], dtype=np.uint64)
+_POW5_SPLIT = np.array([(5 ** i) >> (_pow5bits(i) - _POW_BITS) if _pow5bits(i) >= _POW_BITS else (5 ** i) << (_POW_BITS - _pow5bits(i)) for i in range(48)], dtype=np.uint64)
 
 @njit(cache=True, nogil=True, inline="always")
 def _copy_shared(buf, at, starts, ref_at, ref_text, t, n, same):
@@ -197,15 +201,17 @@ def _pow5bits_n(e):
 @njit(cache=True, nogil=True)
 def _ryu(bits):
     """Shortest digits ``(c, k)``, value ``c 10^k``, of the float32 with ``bits`` (sign cleared,
-    biased exponent in `_RYU_BIASED`), by Ryu (Adams 2018, ``f2s``): the interval's ends and the
+    finite, not zero; subnormals too), by Ryu (Adams 2018, ``f2s``): the interval's ends and the
     value are scaled by ``10^-q`` with 64-bit tables of powers of 5 (`_POW5_INV_SPLIT`,
     `_POW5_SPLIT`), digits are dropped while the ends differ above the last, and the value rounds
-    to the nearest, the even one at a tie; its answers are `_one`'s, every float32 of that
-    exponent range compared (`tests/test_floattext.py` keeps a sample)."""
+    to the nearest, the even one at a tie. Its answers are `_one`'s, every float32 of
+    `_RYU_BIASED`'s exponents compared, and USD's text elsewhere (`tests/test_floattext.py`
+    keeps samples of both)."""
     biased = np.int64(bits >> 23)
     frac = np.int64(bits & 0x7FFFFF)
-    e2 = biased - 152
-    m2 = frac | 0x800000
+    # a subnormal is frac 2^-149, a normal value (2^23 + frac) 2^(biased - 150); both times 4 here
+    e2 = biased - 152 if biased > 0 else np.int64(-151)
+    m2 = frac | 0x800000 if biased > 0 else frac
     even = (m2 & 1) == 0
     mv = np.uint64(4 * m2)
     mp = np.uint64(4 * m2 + 2)
@@ -319,62 +325,10 @@ def shortest_digits(bits, ref=None, same=None):
         if (b >> 23) == 0xFF:
             st[i] = 2
             continue
-        if _RYU_BIASED[0] <= (b >> 23) <= _RYU_BIASED[1]:
-            cs[i], ks[i] = _ryu(b)
+        if b == 0:
+            st[i] = 1
             continue
-        c, k, s = _one(b, _POW5)
-        cs[i], ks[i], st[i] = c, k, s
-    return cs, ks, st
-
-
-_EXACT_MAX = 10**14  # a float64's exact decimal shorter than this is its shortest (see exact_digits)
-
-
-@njit(cache=True, nogil=True)
-def exact_digits(bits):
-    """``(c, k, status)`` per float64 (``bits`` its uint64 pattern, as int64 arithmetic sees
-    it): ``|value| = c 10^k`` exactly with ``c < 10^14``, status 1 for zero, 2 where the value's
-    exact decimal is longer (the caller formats it). Such a decimal is the shortest that reads
-    back: any shorter one differs from it by at least 10^k, which is more than 10^-14 of the
-    value, while a float64 reads back from within 2^-53 of it."""
-    n = bits.shape[0]
-    cs = np.zeros(n, np.int64)
-    ks = np.zeros(n, np.int64)
-    st = np.zeros(n, np.int8)
-    for i in range(n):
-        b = np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF
-        biased = b >> 52
-        frac = b & 0xFFFFFFFFFFFFF
-        if biased == 0:
-            st[i] = 1 if frac == 0 else 2
-            continue
-        if biased == 0x7FF:
-            st[i] = 2
-            continue
-        m = frac | (np.int64(1) << 52)
-        e = biased - 1075  # value = m 2^e
-        # drop trailing zero bits while the exponent is negative, by halving steps (a dyadic
-        # value has up to 52)
-        for step in (32, 16, 8, 4, 2, 1):
-            if step <= -e and (m & ((np.int64(1) << step) - 1)) == 0:
-                m >>= step
-                e += step
-        if e >= 0:
-            if e > 47 or m > ((_EXACT_MAX - 1) >> e):
-                st[i] = 2
-                continue
-            c = m << e
-            k = 0
-        else:
-            if -e >= 21 or m > (_EXACT_MAX - 1) // _POW5[-e]:
-                st[i] = 2
-                continue
-            c = m * _POW5[-e]
-            k = e
-        while c % 10 == 0:
-            c //= 10
-            k += 1
-        cs[i], ks[i] = c, k
+        cs[i], ks[i] = _ryu(b)
     return cs, ks, st
 
 
@@ -461,7 +415,7 @@ def _put_value(buf, at, c, k, s, neg):
 @njit(cache=True, nogil=True)
 def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref_at, buf):
     """``[(a, b, c), ...]`` of ``n`` tuples of ``m`` values (``neg`` their signs, flattened)
-    from each value's digits (`shortest_digits`, `exact_digits`) or, at status 2, the bytes
+    from each value's digits (`shortest_digits`, `shortest_digits64`) or, at status 2, the bytes
     ``hard_bytes[hard_at[i]:hard_at[i + 1]]`` of its rank ``i`` among the status-2 values; a
     tuple with ``same[t]`` set is the same values as tuple ``t`` of a reference array, whose text
     ``ref_text`` holds it from ``ref_at[t]`` up to ``ref_at[t + 1] - 2`` and is copied from there
@@ -493,6 +447,8 @@ def _tuples_text(n, m, neg, cs, ks, st, hard_bytes, hard_at, same, ref_text, ref
             i = t * m + j
             if st[i] == 0:
                 end = _put_short(buf, at, cs[i], ks[i], neg[i])
+                if end < 0:
+                    end = _put_long(buf, -1 - end, cs[i], ks[i])
                 if end >= 0:
                     at = end
                     continue
@@ -570,6 +526,41 @@ def _put_short(buf, at, c, k, neg):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _put_long(buf, at, c, k):
+    """`_put_short` of a value of up to 18 digits ``c 10^k`` (a float64's 17) whose decimal
+    point falls within its digits or before them (``0.00ddd`` to ``d.ddd``, decimal exponents -6
+    to 14), its sign written:
+    the digits as eighteen, left-justified, in two stores of nine (`_put_nine`), the integer's
+    digits moved back over the gap by a fixed eighteen selects and the text ended where the
+    value's does (the stores past it, within 26 bytes of the value's start, are written over by
+    what follows); the index after it, or -1 for `_put_text`'s layouts."""
+    nd = _ndigits(c)
+    point = nd + k
+    if point <= _LOW or point >= nd or point > _HIGH:
+        return np.int64(-1)
+    d = c * _POW10[18 - nd]
+    hi = d // 1000000000
+    lo = d - hi * 1000000000
+    u = np.uint64(at)
+    if point <= 0:  # "0.", up to five zeros, then the digits
+        buf[u] = 48
+        buf[u + np.uint64(1)] = 46
+        for q in range(np.uint64(2), np.uint64(7)):
+            buf[u + q] = 48
+        at += 2 - point
+        _put_nine(buf, at, hi)
+        _put_nine(buf, at + 9, lo)
+        return at + nd
+    _put_nine(buf, at + 1, hi)
+    _put_nine(buf, at + 10, lo)
+    p = np.uint64(point)
+    for q in range(np.uint64(18)):
+        buf[u + q] = buf[u + q + np.uint64(1)] if q < p else buf[u + q]
+    buf[u + p] = 46
+    return at + nd + 1
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _put_nonzero(buf, at, c, k, neg):
     """`_put_value` of a nonzero value's digits ``c 10^k`` (``0 < c < 10^18``): `_put_short`,
     else `_put_text`."""
@@ -643,11 +634,7 @@ def _marks(bits, m, ref, same):
             if eq:
                 continue
         for i in range(t * m, t * m + m):
-            b = np.int64(bits[i]) & 0x7FFFFFFF
-            e = b >> 23
-            if _RYU_BIASED[0] <= e <= _RYU_BIASED[1] or b == 0:
-                continue
-            if e == 0 or e == 0xFF or _one(b, _POW5)[2] == 2:  # subnormals, inf and NaN too
+            if (bits[i] >> 23) & 0xFF == 0xFF:  # inf and NaN
                 hard[h] = i
                 h += 1
     return hard[:h].copy()
@@ -656,7 +643,7 @@ def _marks(bits, m, ref, same):
 @njit(cache=True, nogil=True)
 def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at, buf):
     """``[(a, b, c), ...]`` of the float32 ``bits`` in tuples of ``m``, each value its shortest
-    digits (`_ryu`, else `_one`) in USD's layout, or the bytes ``hard_bytes[hard_at[i]:hard_at[i
+    digits (`_ryu`) in USD's layout, or the bytes ``hard_bytes[hard_at[i]:hard_at[i
     + 1]]`` for the ``i``-th value `_marks` handed to the caller; a run of tuples with ``same``
     set is copied at once from the reference's text ``ref_text`` (its tuple ``t`` from
     ``ref_at[t]`` up to ``ref_at[t + 1] - 2``). One pass, digits written as they are found.
@@ -689,8 +676,7 @@ def _float32_text(bits, m, same, hard_bytes, hard_at, ref_text, ref_at, buf):
             b = np.int64(bits[i])
             neg = (b >> 31) & 1 == 1
             b &= 0x7FFFFFFF
-            e = b >> 23
-            if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
+            if b != 0 and (b >> 23) != 0xFF:
                 c, k = _ryu(b)
                 end = _put_short(buf, at, c, k, neg)
                 if end >= 0:
@@ -711,14 +697,12 @@ def _put_rare(buf, at, b, neg, hard_bytes, hard_at, h):
     `_put_short` leaves: zero, digits `_one` finds, or the ``h``-th of the texts left to the
     caller; the index after it and the next ``h``. Out of the loop's way: a call inlined there
     slows every value's path."""
-    e = b >> 23
-    if _RYU_BIASED[0] <= e <= _RYU_BIASED[1]:
-        c, k = _ryu(b)
-        return _put_nonzero(buf, at, c, k, neg), h
     if b == 0:
         return _put_value(buf, at, 0, 0, 1, neg), h
-    c, k, s = _one(b, _POW5) if 0 < e < 0xFF else (np.int64(0), np.int64(0), 2)
-    return _put_found(buf, at, c, k, s, neg, hard_bytes, hard_at, h)
+    if (b >> 23) != 0xFF:
+        c, k = _ryu(b)
+        return _put_nonzero(buf, at, c, k, neg), h
+    return _put_found(buf, at, np.int64(0), np.int64(0), np.int64(2), neg, hard_bytes, hard_at, h)
 
 
 @njit(cache=True, nogil=True)
@@ -736,11 +720,11 @@ def _put_found(buf, at, c, k, s, neg, hard_bytes, hard_at, h):
 
 def _tuples_bound(values: np.ndarray, hard_bytes: np.ndarray, ref_text: np.ndarray) -> int:
     """Bytes enough for the text of ``values (n, m)``: a float32 takes at most 17 characters
-    (sign, "0.", 5 zeros, 9 digits), a float64 written from its digits 22 (14 digits), each 2 of
+    (sign, "0.", 5 zeros, 9 digits), a float64 25 (17 digits), each 2 of
     separator and a tuple 4 more, the texts left to the caller theirs; a copied run is at most
     its reference's text."""
     n, m = values.shape
-    return 2 + n * (m * (24 if values.dtype == np.float64 else 19) + 4) + hard_bytes.shape[0] + ref_text.shape[0]
+    return 2 + n * (m * (27 if values.dtype == np.float64 else 19) + 4) + hard_bytes.shape[0] + ref_text.shape[0]
 
 
 def _trimmed(buf: np.ndarray, size: int) -> np.ndarray:
@@ -753,7 +737,7 @@ def _trimmed(buf: np.ndarray, size: int) -> np.ndarray:
 def tuples_text(values: np.ndarray, hard) -> bytes:
     """The text of ``values (n, m)`` (float32 or float64, finite) as ``[(a, b, c), ...]``;
     ``hard(v)`` gives the texts (a list of str) of the values ``v`` (of the same type) this
-    cannot format exactly (`shortest_digits`, `exact_digits`: status 2)."""
+    does not format (infinities and NaN: `shortest_digits`, `shortest_digits64` status 2)."""
     return tuples_texts([values], hard)[0].tobytes()
 
 
@@ -777,7 +761,7 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[np.ndarra
         flat = values.reshape(-1).view(np.uint64 if values.dtype == np.float64 else np.uint32)
         same = np.zeros(values.shape[0] if j is not None else 0, np.bool_)
         if values.dtype == np.float64 or values.shape[1] == 0:
-            cs, ks, st = exact_digits(flat) if values.dtype == np.float64 else shortest_digits(flat, flat[:0], same)
+            cs, ks, st = shortest_digits64(flat) if values.dtype == np.float64 else shortest_digits(flat, flat[:0], same)
             done.append((values, (cs, ks, st), np.flatnonzero(st == 2), same))
         else:  # float32: only the values the kernel hands back are found here, their text is written in one pass
             done.append((values, None, _marks(flat, values.shape[1], done[j][0].reshape(-1).view(np.uint32) if j is not None else flat[:0], same),

@@ -283,10 +283,11 @@ _SCRATCH_LINE = re.compile(r"^ +custom [\w\[\]]+ (v)(\d+) = (.*)$", re.M)
 _COMPILED = {
     Vt.Vec3fArray: lambda value: floattext.tuples_text(_numpy(value), _float_texts),
     Vt.Vec2dArray: lambda value: floattext.tuples_text(_numpy(value), _float_texts),
+    Vt.Vec3dArray: lambda value: floattext.tuples_text(_numpy(value), _float_texts),
     Vt.IntArray: lambda value: floattext.ints_text(_numpy(value)),
     Vt.Vec2iArray: lambda value: floattext.ints_text(_numpy(value)),
 }
-_FLOATS = {Vt.Vec3fArray, Vt.Vec2dArray}  # of them, written together (`floattext.tuples_texts`)
+_FLOATS = {Vt.Vec3fArray, Vt.Vec2dArray, Vt.Vec3dArray}  # of them, written together (`floattext.tuples_texts`)
 
 
 def _numpy(value) -> np.ndarray:

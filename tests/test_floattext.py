@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from pxr import Sdf, Vt
 
-from acra import floattext
+from acra import doubledigits, floattext
 from pipeline.output_layer import _float_texts
 
 
@@ -114,8 +114,8 @@ def usd_double2(values) -> str:
 
 
 def test_doubles_same_text_as_usd():
-    """float64 values with a short exact decimal (a display's surface parameters: dyadic) are
-    written by the kernel, the others handed to USD; the text is USD's."""
+    """float64 values with a short exact decimal (a display's surface parameters: dyadic) and
+    any others are written by the kernel from their shortest digits; the text is USD's."""
     rng = np.random.default_rng(11)
     n = 40000
     dyadic = rng.integers(-2**20, 2**20, n) / 2.0 ** rng.integers(0, 30, n)
@@ -127,13 +127,16 @@ def test_doubles_same_text_as_usd():
     values = np.ascontiguousarray(values[: values.size // 2 * 2].reshape(-1, 2))
     assert floattext.tuples_text(values, _float_texts).decode() == usd_double2(values)
     short = rng.integers(-2**12, 2**12, n) / 2.0 ** rng.integers(0, 13, n)  # i 5^s < 10^14
-    assert not np.any(floattext.exact_digits(short.view(np.uint64))[2] == 2)
+    assert not np.any(doubledigits.exact_digits(short.view(np.uint64))[2] == 2)
 
 
 def test_several_arrays_with_one_call_for_their_hard_values():
     rng = np.random.default_rng(5)
     arrays = [(rng.standard_normal((500, 3)) * 10.0 ** rng.integers(-40, 30, (500, 3))).astype(np.float32) for _ in range(3)]
+    for a in arrays:  # infinities and NaN: the float32 values the kernel leaves to USD's writer
+        a[rng.integers(0, 500, 20), rng.integers(0, 3, 20)] = rng.choice([np.inf, -np.inf, np.nan], 20)
     arrays.append(rng.integers(-2**20, 2**20, (300, 2)) / 2.0 ** rng.integers(0, 60, (300, 2)))
+    arrays[3][rng.integers(0, 300, 10), rng.integers(0, 2, 10)] = rng.choice([np.inf, -np.inf, np.nan], 10)
     calls = []
     texts = floattext.tuples_texts(arrays, lambda v: calls.append(v.dtype) or _float_texts(v))
     assert calls == [np.float32, np.float64]
@@ -190,3 +193,25 @@ def test_ryu_gives_the_exact_digits_across_its_range():
     bits = (rng.integers(lo, hi + 1, 2_000_000) << 23) | rng.integers(0, 2**23, 2_000_000)
     edges = np.concatenate([exps << 23, (exps << 23) | 1, (exps << 23) | (2**23 - 1), (exps << 23) | 2**22])
     assert mismatches(np.concatenate([bits, edges])) == 0
+
+
+def test_ryu_gives_usd_s_text_beyond_the_exact_search_s_range():
+    """Below 1.5e-8 (subnormals too) and at or above 2^75, where `_one`'s exact search would
+    overflow 64 bits, `_ryu`'s digits give USD's text, none left to USD's writer (every float32
+    of those exponents was compared once, 154 x 2^23 values); random values of every such
+    exponent, both signs, and each exponent's ends and middle."""
+    lo, hi = floattext._RYU_BIASED
+    exps = np.concatenate([np.arange(0, lo), np.arange(hi + 1, 255)]).astype(np.uint64)
+    rng = np.random.default_rng(29)
+    n = 150_000
+    bits = (rng.choice(exps, n) << np.uint64(23)) | rng.integers(0, 2**23, n).astype(np.uint64)
+    bits |= rng.integers(0, 2, n).astype(np.uint64) << np.uint64(31)
+    edges = np.concatenate([exps << np.uint64(23), (exps << np.uint64(23)) | np.uint64(1), (exps << np.uint64(23)) | np.uint64(2**23 - 1),
+                            (exps << np.uint64(23)) | np.uint64(2**22)])
+    values = np.concatenate([bits, edges]).astype(np.uint32).view(np.float32)
+    values = np.ascontiguousarray(values[: values.size // 3 * 3].reshape(-1, 3))
+    calls = []
+    assert floattext.tuples_text(values, lambda v: calls.append(v) or _float_texts(v)).decode() == usd_text(values)
+    assert calls == []
+    _, _, status = floattext.shortest_digits(values.reshape(-1).view(np.uint32))
+    assert not np.any(status == 2)
