@@ -57,12 +57,13 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
         np.add.at(cvs, cv_rows, dv)
         return H.with_cvs(hs, _closed_ends(hs, cvs.reshape(hs.cvs.shape)))
     lev = hs.level(level)
-    frames = det.frames[level - 1][cv_rows]
-    offsets = lev.offsets.copy()
-    if unique:  # each row once: one addition per row, as `np.add.at` makes it
-        offsets[cv_rows] += np.einsum("mji,mj->mi", frames, dv)
+    if unique:  # each row once: one addition per row, as `np.add.at` makes it (compiled,
+        # `levelkernels.move_rows`: the einsum's sums and the additions below, in one pass)
+        offsets = levelkernels.move_rows(H._plain(lev.offsets), H._plain(det.frames[level - 1]),
+                                         H._ints(cv_rows), H._plain(dv))
     else:
-        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
+        offsets = lev.offsets.copy()
+        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", det.frames[level - 1][cv_rows], dv))
     fine = list(hs.fine)
     fine[level - 1] = H.Level(lev.k, lev.patches, lev.cv_keys, offsets, lev.movable, lev.patch_rows)
     if unique:  # the rows that can differ from ``lev``'s offsets, for `H.moved_details`
@@ -431,7 +432,8 @@ def _rotate(hs, level, uv, points, moves, det):
 # --------------------------------------------------------------------------------------------
 # the response
 
-def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray):
+def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray,
+                      trig: np.ndarray | None = None):
     """Data points for one level's solve: contacts as they are, additional points merged per
     level-``level`` patch (mean parameters and mean wanted move), thesis eq. 4.16.
 
@@ -439,19 +441,16 @@ def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarra
     fewer CVs than that, and solving every point there would over-determine it. One point per
     patch of the level being solved keeps its system within its CVs.
 
-    Returns ``uv (g, 2)``, ``want (g, 3)``.
+    ``trig``: `_merge_trig` of the points, if the caller has it (a response merges the same
+    points on every level). Returns ``uv (g, 2)``, ``want (g, 3)``.
     """
     if is_contact.all():
         return uv, want
     # compiled (`levelkernels.merge_points`) but for a periodic direction's angles, whose
     # cosines, sines and arctan2 stay numpy's (`patch_groups`' arithmetic, as
     # `_per_level_points_numpy` holds it)
-    ex = uv[~is_contact]
-    trig = np.zeros((2, 2, ex.shape[0]))
-    for col, d in ((0, hs.u), (1, hs.v)):
-        if d.periodic:
-            ang = 2 * np.pi * ex[:, col] / d.patches0
-            trig[col, 0], trig[col, 1] = np.cos(ang), np.sin(ang)
+    if trig is None:
+        trig = _merge_trig(hs, uv, is_contact)
     luv, lwant, sums = levelkernels.merge_points(
         np.ascontiguousarray(uv), np.ascontiguousarray(want), np.ascontiguousarray(is_contact), level,
         hs.u.patches(level), hs.u.periodic, hs.v.patches(level), hs.v.periodic, trig)
@@ -460,6 +459,20 @@ def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarra
         if d.periodic:
             luv[nc:, col] = np.mod(np.arctan2(sums[:, col, 1], sums[:, col, 0]), 2 * np.pi) * d.patches0 / (2 * np.pi)
     return luv, lwant
+
+
+def _merge_trig(hs: H.HSpline, uv: np.ndarray, is_contact: np.ndarray) -> np.ndarray:
+    """`levelkernels.merge_points`' ``trig (2, 2, E) float64``: numpy's cosines and sines of the
+    angles of the ``E`` additional points (``is_contact (K,) bool`` false of ``uv (K, 2)``) along
+    each periodic direction (zeros along an open one). They depend on the points alone, so a
+    response finds them once for all its levels."""
+    ex = uv[~is_contact]
+    trig = np.zeros((2, 2, ex.shape[0]))
+    for col, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            ang = 2 * np.pi * ex[:, col] / d.patches0
+            trig[col, 0], trig[col, 1] = np.cos(ang), np.sin(ang)
+    return trig
 
 
 def _per_level_points_numpy(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray):
@@ -686,6 +699,7 @@ def respond(
     early = controls.refine and absorb[0] <= 0.0
     is_contact = np.asarray(points.is_contact, bool)
     merged = points.per_patch and not is_contact.all()  # additional points merged per patch (eq. 4.16)
+    trig = _merge_trig(hs, uv, is_contact) if merged else None  # their angles, the same on every level
     # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
     # once for every level's weights while level 0 stays as it is
     cvs0, pole0 = hs.cvs, H.pole_of(hs, pu, pv)
@@ -719,7 +733,7 @@ def respond(
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
             if points.per_patch:
-                luv, lwant = _per_level_points(hs, level, uv, want, is_contact)
+                luv, lwant = _per_level_points(hs, level, uv, want, is_contact, trig)
             else:
                 luv, lwant = uv, want
             if level == finest and held is not None and len(held.uv):
