@@ -33,7 +33,7 @@ from numba import njit
 from acra.kernels import ascending, mark_cells
 
 __all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
-           "mark_changed", "restate_rows", "stale_rows", "merge_points", "move_rows"]
+           "mark_changed", "restate_rows", "stale_rows", "merge_points"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -460,27 +460,6 @@ def restate_rows(frames, new_frames, rows, offsets, vectors):
         for i in range(3):
             vec[r, i] = 0.0 + ((fr[r, i, 0] * o0 + fr[r, i, 2] * o2) + fr[r, i, 1] * o1)
     return fr, vec
-
-
-@njit(cache=True, nogil=True)
-def move_rows(offsets, frames, rows, dv):
-    """A fine level's offsets after a move (`acra.respond._move_level`): a copy of ``offsets (c,
-    3) float64`` with each of ``rows (m,) int64`` (each once) moved by ``F^T dv``, its frame
-    ``frames[row] (3, 3)`` transposed times ``dv (m, 3) float64``, so the CV's world position
-    moves by exactly ``dv``. Each product ``sum_j F[j, i] dv[j]`` is summed from 0.0 in ``j``'s
-    order, as ``np.einsum("mji,mj->mi")`` sums three products, then added to the row's offset,
-    as ``offsets[rows] += ...`` adds it: the array form's bits."""
-    out = offsets.copy()
-    for n in range(rows.shape[0]):
-        r = rows[n]
-        d0, d1, d2 = dv[n, 0], dv[n, 1], dv[n, 2]
-        for i in range(3):
-            s = 0.0
-            s += frames[r, 0, i] * d0
-            s += frames[r, 1, i] * d1
-            s += frames[r, 2, i] * d2
-            out[r, i] = out[r, i] + s
-    return out
 
 
 @njit(cache=True, nogil=True)

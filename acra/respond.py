@@ -57,13 +57,12 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
         np.add.at(cvs, cv_rows, dv)
         return H.with_cvs(hs, _closed_ends(hs, cvs.reshape(hs.cvs.shape)))
     lev = hs.level(level)
-    if unique:  # each row once: one addition per row, as `np.add.at` makes it (compiled,
-        # `levelkernels.move_rows`: the einsum's sums and the additions below, in one pass)
-        offsets = levelkernels.move_rows(H._plain(lev.offsets), H._plain(det.frames[level - 1]),
-                                         H._ints(cv_rows), H._plain(dv))
+    frames = det.frames[level - 1][cv_rows]
+    offsets = lev.offsets.copy()
+    if unique:  # each row once: one addition per row, as `np.add.at` makes it
+        offsets[cv_rows] += np.einsum("mji,mj->mi", frames, dv)
     else:
-        offsets = lev.offsets.copy()
-        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", det.frames[level - 1][cv_rows], dv))
+        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
     fine = list(hs.fine)
     fine[level - 1] = H.Level(lev.k, lev.patches, lev.cv_keys, offsets, lev.movable, lev.patch_rows)
     if unique:  # the rows that can differ from ``lev``'s offsets, for `H.moved_details`

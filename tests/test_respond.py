@@ -2,11 +2,8 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from acra import hspline as H
-from acra import levelkernels
 from acra import respond as R
 from acra import shapes
 from acra.controls import check_controls
@@ -563,37 +560,6 @@ def test_per_level_points_kernel_is_the_array_form_bit_for_bit(grid):
                     assert g.shape == r.shape == k.shape
                     assert np.array_equal(g.view(np.int64), r.view(np.int64))
                     assert np.array_equal(k.view(np.int64), r.view(np.int64))
-
-
-def _move_rows_numpy(offsets, frames, rows, dv):
-    """`levelkernels.move_rows` as array operations (`respond._move_level`'s array form)."""
-    out = offsets.copy()
-    out[rows] += np.einsum("mji,mj->mi", frames[rows], dv)
-    return out
-
-
-@settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), c=st.integers(1, 300), frac=st.floats(0.0, 1.0))
-def test_move_rows_kernel_is_the_array_form_bit_for_bit(seed, c, frac):
-    """`levelkernels.move_rows` (a fine level's move, `respond._move_level`) gives
-    ``offsets[rows] += einsum("mji,mj->mi", frames[rows], dv)``'s bits: values over sixteen
-    orders of magnitude, signed zeros, cancelling products, every row or none moved."""
-    rng = np.random.default_rng(seed)
-    scale = lambda shape: 10.0 ** rng.integers(-8, 8, shape)  # noqa: E731
-    offsets = rng.normal(size=(c, 3)) * scale((c, 3))
-    frames = rng.normal(size=(c, 3, 3)) * scale((c, 3, 3))
-    frames[rng.uniform(size=frames.shape) < 0.1] = -0.0
-    offsets[rng.uniform(size=offsets.shape) < 0.1] = 0.0
-    rows = np.sort(rng.choice(c, int(round(frac * c)), replace=False)).astype(np.int64)
-    dv = rng.normal(size=(rows.size, 3)) * scale((rows.size, 3))
-    dv[rng.uniform(size=dv.shape) < 0.1] = -0.0
-    if rows.size:  # a move that cancels its row's offset exactly
-        dv[0] = 0.0
-        frames[rows[0]] = np.eye(3)
-        dv[0, 0] = -offsets[rows[0], 0]
-    got = levelkernels.move_rows(offsets, frames, rows, dv)
-    ref = _move_rows_numpy(offsets, frames, rows, dv)
-    assert got is not offsets and np.array_equal(got.view(np.int64), ref.view(np.int64))
 
 
 @pytest.mark.parametrize("level,t,r", [(0, 0.0, 0.0), (2, 0.0, 0.0), (2, 0.5, 0.0), (1, 0.0, 0.5)],
