@@ -30,7 +30,7 @@ from .controls import ControlError, Controls
 from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys
 from .interpolate import PointWeights, point_active, point_weights, solve
 from .quat import quat_from_axis_angle, quat_rotate, slerp_mean
-from .targets import DataPoints, patch_groups
+from .targets import DataPoints, merge_trig, per_level_points
 
 __all__ = [
     "respond",
@@ -505,61 +505,6 @@ def _rotate(hs, level, uv, points, moves, det):
 # --------------------------------------------------------------------------------------------
 # the response
 
-def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray,
-                      trig: np.ndarray | None = None):
-    """Data points for one level's solve: contacts as they are, additional points merged per
-    level-``level`` patch (mean parameters and mean wanted move), thesis eq. 4.16.
-
-    The additional points come one per patch of the finest absorbing level; a coarser level has
-    fewer CVs than that, and solving every point there would over-determine it. One point per
-    patch of the level being solved keeps its system within its CVs.
-
-    ``trig``: `_merge_trig` of the points, if the caller has it (a response merges the same
-    points on every level). Returns ``uv (g, 2)``, ``want (g, 3)``.
-    """
-    if is_contact.all():
-        return uv, want
-    # compiled (`levelkernels.merge_points`) but for a periodic direction's angles, whose
-    # cosines, sines and arctan2 stay numpy's (`patch_groups`' arithmetic, as
-    # `_per_level_points_numpy` holds it)
-    if trig is None:
-        trig = _merge_trig(hs, uv, is_contact)
-    luv, lwant, sums = levelkernels.merge_points(
-        np.ascontiguousarray(uv), np.ascontiguousarray(want), np.ascontiguousarray(is_contact), level,
-        hs.u.patches(level), hs.u.periodic, hs.v.patches(level), hs.v.periodic, trig)
-    nc = luv.shape[0] - sums.shape[0]
-    for col, d in ((0, hs.u), (1, hs.v)):
-        if d.periodic:
-            luv[nc:, col] = np.mod(np.arctan2(sums[:, col, 1], sums[:, col, 0]), 2 * np.pi) * d.patches0 / (2 * np.pi)
-    return luv, lwant
-
-
-def _merge_trig(hs: H.HSpline, uv: np.ndarray, is_contact: np.ndarray) -> np.ndarray:
-    """`levelkernels.merge_points`' ``trig (2, 2, E) float64``: numpy's cosines and sines of the
-    angles of the ``E`` additional points (``is_contact (K,) bool`` false of ``uv (K, 2)``) along
-    each periodic direction (zeros along an open one). They depend on the points alone, so a
-    response finds them once for all its levels."""
-    ex = uv[~is_contact]
-    trig = np.zeros((2, 2, ex.shape[0]))
-    for col, d in ((0, hs.u), (1, hs.v)):
-        if d.periodic:
-            ang = 2 * np.pi * ex[:, col] / d.patches0
-            trig[col, 0], trig[col, 1] = np.cos(ang), np.sin(ang)
-    return trig
-
-
-def _per_level_points_numpy(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray):
-    """`_per_level_points` as array operations (the reference its kernel is tested against)."""
-    extra = ~is_contact
-    if not np.any(extra):
-        return uv, want
-    mids, _, inv = patch_groups(hs, uv[extra], level, patches=False)
-    g = mids.shape[0]
-    moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
-    moves /= np.bincount(inv, minlength=g)[:, None]
-    return np.concatenate([uv[is_contact], mids]), np.concatenate([want[is_contact], moves])
-
-
 @dataclass(frozen=True)
 class ResponseReport:
     """What `respond` did.
@@ -775,7 +720,7 @@ def respond(
     early = controls.refine and absorb[0] <= 0.0
     is_contact = np.asarray(points.is_contact, bool)
     merged = points.per_patch and not is_contact.all()  # additional points merged per patch (eq. 4.16)
-    trig = _merge_trig(hs, uv, is_contact) if merged else None  # their angles, the same on every level
+    trig = merge_trig(hs, uv, is_contact) if merged else None  # their angles, the same on every level
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
         levels = tuple(level for level in absorbing if level >= 1)
@@ -807,7 +752,7 @@ def respond(
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
             if points.per_patch:
-                luv, lwant = _per_level_points(hs, level, uv, want, is_contact, trig)
+                luv, lwant = per_level_points(hs, level, uv, want, is_contact, trig)
             else:
                 luv, lwant = uv, want
             if level == finest and held is not None and len(held.uv):

@@ -535,33 +535,6 @@ def test_closing_rings_skips_a_level_whose_vectors_are_as_the_response_found_the
     run.forget()
 
 
-@pytest.mark.parametrize("grid", ["torus", "sheet"])
-def test_per_level_points_kernel_is_the_array_form_bit_for_bit(grid):
-    """`respond._per_level_points` (compiled, `levelkernels.merge_points`) merges the additional
-    points per level patch with the array form's bits: contacts first in order, one row per
-    patch in key order, means of the open parameters and moves, a periodic direction's mean
-    angle; several points to a patch, a point on a patch border, none or every point a contact."""
-    hs = H.from_grid(*shapes.torus(8, 6), depth=4) if grid == "torus" else flat_sheet(depth=4)
-    rng = np.random.default_rng(7)
-    P = np.array(hs.domain)
-    for level in range(4):
-        for K in (1, 2, 9, 40):
-            uv = rng.uniform(0.0, 1.0, (K, 2)) * P
-            uv[K // 2] = np.floor(uv[K // 2] * 2 ** level) / 2 ** level  # on a level-patch corner
-            if K > 3:
-                uv[-2:] = uv[1] + 1e-3  # with the second point in its patch
-            want = rng.normal(size=(K, 3))
-            for is_contact in (rng.uniform(size=K) < 0.3, np.zeros(K, bool), np.ones(K, bool)):
-                got = R._per_level_points(hs, level, uv, want, is_contact)
-                ref = R._per_level_points_numpy(hs, level, uv, want, is_contact)
-                # the angles found once for a response's levels (`_merge_trig`) give the same
-                kept = R._per_level_points(hs, level, uv, want, is_contact, R._merge_trig(hs, uv, is_contact))
-                for g, k, r in zip(got, kept, ref):
-                    assert g.shape == r.shape == k.shape
-                    assert np.array_equal(g.view(np.int64), r.view(np.int64))
-                    assert np.array_equal(k.view(np.int64), r.view(np.int64))
-
-
 @pytest.mark.parametrize("level,t,r", [(0, 0.0, 0.0), (2, 0.0, 0.0), (2, 0.5, 0.0), (1, 0.0, 0.5)],
                          ids=["level0", "deform", "translate", "rotate"])
 def test_a_response_hands_back_a_superset_of_the_patches_it_changed(level, t, r):
