@@ -418,13 +418,19 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
 _DECOMPOSED = memo.Table("interpolate.decomposed")
 _DECOMPOSED_KEEP = 32
 _DECOMPOSED_BYTES = 1 << 25  # 32 MB: the demo's largest solve keeps 0.3 MB
+_KEY = "_decomposed_key"  # key in a `PointWeights`' ``__dict__``: its `_DECOMPOSED` key
 
 
 def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The active points' dense weights ``W (k, P) float64`` and the eigenvalues ``(k,)`` and
     eigenvectors ``(k, k)`` of ``W Wᵀ`` (`_eigh`), kept (`_DECOMPOSED`) or computed; read-only.
     ``act (k,) int64``: the active points; ``every``: all of them."""
-    key = (pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(), pw.active.tobytes())
+    # the key is made once per weights object, whose arrays nothing writes into (a response
+    # solves the same kept weights again, `acra.respond._weights`): its bytes keep their hashes
+    key = pw.__dict__.get(_KEY)
+    if key is None:
+        key = pw.__dict__[_KEY] = (pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(),
+                                   pw.active.tobytes())
     kept = _DECOMPOSED.entries()
     hit = kept.pop(key, None)
     if hit is not None:

@@ -498,7 +498,7 @@ def stale_rows(stale, centre, ring, ends, every, pending):
 
 @njit(cache=True, nogil=True)
 def merge_points(uv, want, is_contact, level, u_patches, u_periodic, v_patches, v_periodic, trig):
-    """`acra.respond._per_level_points` in one pass: the contacts of ``uv (K, 2) float64`` and
+    """`acra.targets.per_level_points` in one pass: the contacts of ``uv (K, 2) float64`` and
     ``want (K, 3) float64`` as they are, in order, then one row per level-``level`` patch that
     additional points (``is_contact (K,) bool`` false) fall in, patches in key order (``pu *
     v_patches + pv``, `acra.targets.patch_keys`; `unique_inverse`'s numbering): the mean of

@@ -30,7 +30,7 @@ from .controls import ControlError, Controls
 from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys
 from .interpolate import PointWeights, point_active, point_weights, solve
 from .quat import quat_from_axis_angle, quat_rotate, slerp_mean
-from .targets import DataPoints, patch_groups
+from .targets import DataPoints, merge_trig, per_level_points
 
 __all__ = [
     "respond",
@@ -166,6 +166,55 @@ def _keep(key: tuple, answer: tuple) -> None:
     _KEPT.trim()
 
 
+# Answers about a response's data points on one surface structure, kept across responses (a
+# table of the run's memo, `acra.memo`): a static object whose contact is held still is
+# responded from the same surface at the same parameters frame after frame (the demo's head in
+# 4 of its 5 calls of frames 13-17, the spike in 2), and every level of each response asks them
+# again. ``("at", id(hs), id(det), u, v bytes)`` -> the surface's points there and their poles
+# (`_points_at`); ``("weights", level, grid, closed ends, ids of the level's CV keys, movability
+# and patches, u, v bytes)`` -> `_weights`. A moved level keeps its CV keys, movability and
+# patches arrays (`_move_level`), so a level's weights serve every surface a response moves it
+# to; each entry holds the objects its key names by ``id``.
+_AT = memo.Table("respond.at", 64)
+
+
+def _points_at(hs: H.HSpline, det: H.Details | None, pu: np.ndarray, pv: np.ndarray,
+               poles: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """`H.evaluate`'s points ``(K, 3) float64`` of ``hs`` (details ``det``) at ``pu, pv (K,)
+    float64`` and, under ``poles``, `H.pole_of` of those parameters ``(K,) int64`` (else
+    ``None``), kept (`_AT`); nothing writes into them (the points are read-only)."""
+    key = ("at", id(hs), id(det), pu.tobytes(), pv.tobytes())
+    kept = _AT.entries()
+    hit = kept.pop(key, None)
+    if hit is None or hit[0] is not hs or hit[1] is not det:
+        q = H.evaluate(hs, pu, pv, det=det).points
+        q.flags.writeable = False
+        hit = [hs, det, q, None]
+    if poles and hit[3] is None:  # writeable, as the weights' kernel takes it (never written)
+        hit[3] = H.pole_of(hs, pu, pv)
+    kept[key] = hit
+    _AT.trim()
+    return hit[2], hit[3]
+
+
+def _weights(hs: H.HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None = None) -> PointWeights:
+    """`point_weights` of the points ``u, v (K,) float64`` on ``level`` (``pole``: their
+    `H.pole_of`, if the caller has it), kept (`_AT`): they depend on the grid, its closed ends,
+    the level's CV keys, movability and patches and the parameters alone. The weights are
+    shared; nothing writes into them."""
+    lev = hs.fine[level - 1] if level else None
+    arrays = () if lev is None else (lev.cv_keys, lev.movable, lev.patches)
+    key = ("weights", level, hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, H.closed_ends(hs),
+           *[id(a) for a in arrays], u.tobytes(), v.tobytes())
+    kept = _AT.entries()
+    hit = kept.pop(key, None)
+    if hit is None or any(a is not b for a, b in zip(hit[0], arrays)):
+        hit = (arrays, point_weights(hs, level, u, v, pole))
+    kept[key] = hit
+    _AT.trim()
+    return hit[1]
+
+
 def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tuple[H.HSpline, H.Details | None]:
     """``hs`` with the patches ``keys`` (`hierarchy.refinement_keys`) active and its details
     (`_redetail`'s ``lazy``: the finer absorbing levels' new CVs are framed by the coarsest one's
@@ -294,36 +343,61 @@ def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, wa
     would pull them back). The rings must be wholly movable.
 
     ``pw`` : PointWeights of the data points; ``want (K, 3)``: their wanted moves. Returns both
-    extended by the ``N`` virtual points of each ring.
+    extended by the ``N`` virtual points of each ring (the weights by `_ring_extension`).
     """
-    point, w, ring_rows = [pw.point], [pw.w], []
-    targets, n = [want], pw.npoints
+    used, ext = _ring_extension(hs, pw, rings)
+    if not used:
+        return pw, want
+    targets = [want]
+    for k, axis, end in used:
+        sums = _ring_sums(hs, det, k, axis, end)[0]
+        targets.append(-(sums - np.add.reduce(sums, axis=0) / sums.shape[0]) / 6.0)  # `sums.mean(axis=0)`'s sum and division
+    return ext, np.concatenate(targets)
+
+
+def _ring_extension(hs: H.HSpline, pw: PointWeights, rings: list[tuple[int, int, int]]) -> tuple[tuple, PointWeights]:
+    """The rings of ``rings`` whose virtual points `_ring_constraints` adds to ``pw``'s problem
+    (on ``pw``'s level, wholly movable, reached by its solve), in order, and ``pw`` extended by
+    their entries (``pw`` itself if none). They depend on ``pw`` and the level's CV keys and
+    movability alone, so they are kept on ``pw`` (`_weights` hands a level the same weights
+    for the same points, move after move and frame after frame)."""
+    if not pw.level:  # rings are of fine levels
+        return (), pw
+    lev = hs.level(pw.level)
+    kept = pw.__dict__.setdefault("_ring_extension", {})
+    key = tuple(rings)
+    hit = kept.get(key)
+    if hit is not None and hit[0] is lev.cv_keys and hit[1] is lev.movable:
+        return hit[2], hit[3]
+    point, w, ring_rows, used = [pw.point], [pw.w], [], []
+    n = pw.npoints
     for k, axis, end in rings:
         if k != pw.level or not pole_ring_movable(hs, k, axis, end):
             continue
         rows, ok, reached = _ring_reach(hs, pw, k, axis, end)  # a ring the move does not reach needs no sums
         if not reached.any():
             continue
-        sums = _ring_sums(hs, det, k, axis, end)[0]
         N = rows.shape[0]
         own, every, w_own, w_every = _ring_pattern(N)[:4]
         point += [n + own, n + every]
         ring_rows.append(rows.reshape(-1))
         w += [w_own, w_every]
-        targets.append(-(sums - np.add.reduce(sums, axis=0) / N) / 6.0)  # `sums.mean(axis=0)`'s sum and division
+        used.append((k, axis, end))
         n += N
-    if n == pw.npoints:
-        return pw, want
-    # the unknowns: the data points' CVs and the rings';
-    # each entry's column is its CV's place among them (np.unique's inverse of every entry)
-    cv_rows = levelkernels.unique_inverse(np.concatenate([pw.cv_rows, *ring_rows]))[0]  # pw.cv_rows: its entries' rows, each once
-    col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
-    for r in ring_rows:
-        c = np.searchsorted(cv_rows, r)
-        col += [c, c[_ring_pattern(r.size // 3)[4]]]  # every column's CVs, once per row
-    active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
-    return PointWeights(pw.level, np.concatenate(point), np.concatenate(col).astype(np.int64), np.concatenate(w),
-                        cv_rows.astype(np.int64), n, active), np.concatenate(targets)
+    ext = pw
+    if used:
+        # the unknowns: the data points' CVs and the rings';
+        # each entry's column is its CV's place among them (np.unique's inverse of every entry)
+        cv_rows = levelkernels.unique_inverse(np.concatenate([pw.cv_rows, *ring_rows]))[0]  # pw.cv_rows: its entries' rows, each once
+        col = [np.searchsorted(cv_rows, pw.cv_rows)[pw.col]]
+        for r in ring_rows:
+            c = np.searchsorted(cv_rows, r)
+            col += [c, c[_ring_pattern(r.size // 3)[4]]]  # every column's CVs, once per row
+        active = np.concatenate([pw.active, np.ones(n - pw.npoints, bool)])
+        ext = PointWeights(pw.level, np.concatenate(point), np.concatenate(col).astype(np.int64, copy=False),
+                           np.concatenate(w), cv_rows.astype(np.int64, copy=False), n, active)
+    kept[key] = (lev.cv_keys, lev.movable, tuple(used), ext)
+    return tuple(used), ext
 
 
 @functools.lru_cache(maxsize=32)
@@ -430,49 +504,6 @@ def _rotate(hs, level, uv, points, moves, det):
 
 # --------------------------------------------------------------------------------------------
 # the response
-
-def _per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray):
-    """Data points for one level's solve: contacts as they are, additional points merged per
-    level-``level`` patch (mean parameters and mean wanted move), thesis eq. 4.16.
-
-    The additional points come one per patch of the finest absorbing level; a coarser level has
-    fewer CVs than that, and solving every point there would over-determine it. One point per
-    patch of the level being solved keeps its system within its CVs.
-
-    Returns ``uv (g, 2)``, ``want (g, 3)``.
-    """
-    if is_contact.all():
-        return uv, want
-    # compiled (`levelkernels.merge_points`) but for a periodic direction's angles, whose
-    # cosines, sines and arctan2 stay numpy's (`patch_groups`' arithmetic, as
-    # `_per_level_points_numpy` holds it)
-    ex = uv[~is_contact]
-    trig = np.zeros((2, 2, ex.shape[0]))
-    for col, d in ((0, hs.u), (1, hs.v)):
-        if d.periodic:
-            ang = 2 * np.pi * ex[:, col] / d.patches0
-            trig[col, 0], trig[col, 1] = np.cos(ang), np.sin(ang)
-    luv, lwant, sums = levelkernels.merge_points(
-        np.ascontiguousarray(uv), np.ascontiguousarray(want), np.ascontiguousarray(is_contact), level,
-        hs.u.patches(level), hs.u.periodic, hs.v.patches(level), hs.v.periodic, trig)
-    nc = luv.shape[0] - sums.shape[0]
-    for col, d in ((0, hs.u), (1, hs.v)):
-        if d.periodic:
-            luv[nc:, col] = np.mod(np.arctan2(sums[:, col, 1], sums[:, col, 0]), 2 * np.pi) * d.patches0 / (2 * np.pi)
-    return luv, lwant
-
-
-def _per_level_points_numpy(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray):
-    """`_per_level_points` as array operations (the reference its kernel is tested against)."""
-    extra = ~is_contact
-    if not np.any(extra):
-        return uv, want
-    mids, _, inv = patch_groups(hs, uv[extra], level, patches=False)
-    g = mids.shape[0]
-    moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
-    moves /= np.bincount(inv, minlength=g)[:, None]
-    return np.concatenate([uv[is_contact], mids]), np.concatenate([want[is_contact], moves])
-
 
 @dataclass(frozen=True)
 class ResponseReport:
@@ -675,7 +706,10 @@ def respond(
     # can reshape
     shaping = [level for level in range(L) if absorb[level] > 0.0 and deform[level] > 0.0]
     exact = shaping[-1] if shaping and shaping[-1] < finest else -1
-    q0 = H.evaluate(hs, pu, pv, det=det).points
+    # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
+    # once for every level's weights while level 0 stays as it is
+    cvs0 = hs.cvs
+    q0, pole0 = _points_at(hs, det, pu, pv, True)
     dq = np.asarray(points.target, dtype=np.float64) - q0
     applied = np.zeros(K)
     refined = 0
@@ -686,9 +720,7 @@ def respond(
     early = controls.refine and absorb[0] <= 0.0
     is_contact = np.asarray(points.is_contact, bool)
     merged = points.per_patch and not is_contact.all()  # additional points merged per patch (eq. 4.16)
-    # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
-    # once for every level's weights while level 0 stays as it is
-    cvs0, pole0 = hs.cvs, H.pole_of(hs, pu, pv)
+    trig = merge_trig(hs, uv, is_contact) if merged else None  # their angles, the same on every level
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
         levels = tuple(level for level in absorbing if level >= 1)
@@ -712,14 +744,15 @@ def respond(
         own = d > 0 and not merged and not (
             level == finest and held is not None and len(held.uv))
         pole = pole0 if hs.cvs is cvs0 else None
-        pw = point_weights(hs, level, pu, pv, pole) if own else None
-        present = pw.active if own else point_active(hs, level, pu, pv, pole)
+        pw = _weights(hs, level, pu, pv, pole)
+        present = pw.active
         if d > 0:
-            cur = H.evaluate(hs, pu, pv, det=det).points
+            # the first level's surface is the refined input, kept with its details (`_refined_at`)
+            cur = _points_at(hs, det, pu, pv)[0] if level == absorbing[0] else H.evaluate(hs, pu, pv, det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
             if points.per_patch:
-                luv, lwant = _per_level_points(hs, level, uv, want, is_contact)
+                luv, lwant = per_level_points(hs, level, uv, want, is_contact, trig)
             else:
                 luv, lwant = uv, want
             if level == finest and held is not None and len(held.uv):
@@ -729,7 +762,7 @@ def respond(
                 hcur = H.evaluate(hs, huv[:, 0], huv[:, 1], det=det).points
                 luv = np.concatenate([luv, huv])
                 lwant = np.concatenate([lwant, htarget - hcur])
-            lpw = pw if luv is uv and own else point_weights(hs, level, luv[:, 0], luv[:, 1])
+            lpw = pw if luv is uv and own else _weights(hs, level, np.ascontiguousarray(luv[:, 0]), np.ascontiguousarray(luv[:, 1]))
             if controls.refine:
                 hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])

@@ -18,7 +18,8 @@ from . import levelkernels
 from . import hspline as H
 from .basis import locate
 
-__all__ = ["DataPoints", "rigidity_share", "contact_targets", "additional_targets", "region_midpoints", "region_deepest", "patch_keys", "patch_groups"]
+__all__ = ["DataPoints", "rigidity_share", "contact_targets", "additional_targets", "region_midpoints", "region_deepest", "patch_keys", "patch_groups",
+           "per_level_points", "merge_trig"]
 
 
 @dataclass(frozen=True)
@@ -35,7 +36,7 @@ class DataPoints:
         Contact point ``P`` (True) or additional point ``A`` (False).
     per_patch : bool
         ``True`` (eq. 4.16): each level's solve merges the additional points to one per patch of
-        that level (`_per_level_points`). ``False``: every point is solved as it is, in least
+        that level (`per_level_points`). ``False``: every point is solved as it is, in least
         squares where they outnumber the CVs (a corrective round's samples, `corrective`).
     """
 
@@ -147,3 +148,59 @@ def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool
     if not patches:
         return mids, None, inv
     return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
+
+
+def per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray,
+                     trig: np.ndarray | None = None):
+    """Data points for one level's solve: contacts as they are, additional points merged per
+    level-``level`` patch (mean parameters and mean wanted move), thesis eq. 4.16.
+
+    The additional points come one per patch of the finest absorbing level; a coarser level has
+    fewer CVs than that, and solving every point there would over-determine it. One point per
+    patch of the level being solved keeps its system within its CVs.
+
+    ``uv (K, 2) float64``, ``want (K, 3) float64``: the points and their wanted moves;
+    ``is_contact (K,) bool``; ``trig``: `merge_trig` of the points, if the caller has it (a
+    response merges the same points on every level). Returns ``uv (g, 2)``, ``want (g, 3)``.
+    """
+    if is_contact.all():
+        return uv, want
+    # compiled (`levelkernels.merge_points`) but for a periodic direction's angles, whose
+    # cosines, sines and arctan2 stay numpy's (`patch_groups`' arithmetic, as
+    # `_per_level_points_numpy` holds it)
+    if trig is None:
+        trig = merge_trig(hs, uv, is_contact)
+    luv, lwant, sums = levelkernels.merge_points(
+        np.ascontiguousarray(uv), np.ascontiguousarray(want), np.ascontiguousarray(is_contact), level,
+        hs.u.patches(level), hs.u.periodic, hs.v.patches(level), hs.v.periodic, trig)
+    nc = luv.shape[0] - sums.shape[0]
+    for col, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            luv[nc:, col] = np.mod(np.arctan2(sums[:, col, 1], sums[:, col, 0]), 2 * np.pi) * d.patches0 / (2 * np.pi)
+    return luv, lwant
+
+
+def merge_trig(hs: H.HSpline, uv: np.ndarray, is_contact: np.ndarray) -> np.ndarray:
+    """`levelkernels.merge_points`' ``trig (2, 2, E) float64``: numpy's cosines and sines of the
+    angles of the ``E`` additional points (``is_contact (K,) bool`` false of ``uv (K, 2)``) along
+    each periodic direction (zeros along an open one). They depend on the points alone, so a
+    response finds them once for all its levels."""
+    ex = uv[~is_contact]
+    trig = np.zeros((2, 2, ex.shape[0]))
+    for col, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            ang = 2 * np.pi * ex[:, col] / d.patches0
+            trig[col, 0], trig[col, 1] = np.cos(ang), np.sin(ang)
+    return trig
+
+
+def _per_level_points_numpy(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray):
+    """`per_level_points` as array operations (the reference its kernel is tested against)."""
+    extra = ~is_contact
+    if not np.any(extra):
+        return uv, want
+    mids, _, inv = patch_groups(hs, uv[extra], level, patches=False)
+    g = mids.shape[0]
+    moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
+    moves /= np.bincount(inv, minlength=g)[:, None]
+    return np.concatenate([uv[is_contact], mids]), np.concatenate([want[is_contact], moves])

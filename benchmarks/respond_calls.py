@@ -1,6 +1,7 @@
 """The responses of a run's collision frames, replayed and timed.
 
     python3 benchmarks/respond_calls.py [SCENE.py] [--frames 13:17] [--repeat 5] [--save FILE] [--check FILE]
+                                        [--split MODULE:FUNCTION ...]
 
 Runs the scene's ``--frames`` (after a free frame, as `benchmarks/stage_split.py` does) and
 records every `acra.respond.respond` call with its arguments, then calls `respond` again on each
@@ -12,6 +13,13 @@ stores each call's responded surface (level-0 CVs, every level's keys and offset
 details it hands back) and
 ``--check FILE`` prints the largest difference from a stored run over the surface's size
 (the calls are the same when both checkouts give the same surfaces up to the recorded frames).
+``--split acra.respond:solve acra.hspline:moved_details ...`` (each function named where its caller
+looks it up: `respond` calls `acra.respond.solve`) records every call of each named
+function during one cold pass of the responses, then calls it again on each recorded argument
+set ``--repeat`` times (each repeat after `pipeline.run.forget`) and prints its calls and CPU
+milliseconds per collision frame (the least of each call, summed): each function alone, run
+warm in a loop, so a lower bound of its share of the responses (nested functions count in
+each that calls them).
 """
 
 from __future__ import annotations
@@ -69,6 +77,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--save")
     ap.add_argument("--check")
+    ap.add_argument("--split", nargs="+", default=[], metavar="MODULE:FUNCTION")
     args = ap.parse_args()
     first, last = (int(x) for x in args.frames.split(":"))
     calls = record(pathlib.Path(args.scene), first, last, args.warm)
@@ -81,6 +90,46 @@ def main() -> None:
     print(f"{len(calls)} respond calls, per collision frame: {1e3 * best.sum() / nframes:.2f} ms wall, "
           f"{1e3 * cpu.sum() / nframes:.2f} ms CPU (least of {args.repeat} per call, summed)")
     _check(args, calls, results)
+    if args.split:
+        with threadpool_limits(limits=1, user_api="blas"):
+            _split(calls, args.split, args.repeat, nframes)
+
+
+def _split(calls, names, repeat, nframes) -> None:
+    """Each named function's CPU ms per collision frame over the responses' calls of it (see the
+    module's docstring)."""
+    import importlib
+
+    targets = []
+    for name in names:
+        module, function = name.split(":")
+        targets.append((importlib.import_module(module), function, []))
+    originals = [getattr(m, f) for m, f, _ in targets]
+
+    def recording(f, seen):
+        def g(*a, **kw):
+            seen.append((a, kw))
+            return f(*a, **kw)
+        return g
+
+    for (m, f, seen), original in zip(targets, originals):
+        setattr(m, f, recording(original, seen))
+    try:
+        run.forget()
+        for a, kw in calls:
+            R.respond(*a, **kw)
+    finally:
+        for (m, f, _), original in zip(targets, originals):
+            setattr(m, f, original)
+    for (m, f, seen), original in zip(targets, originals):
+        least = np.full(len(seen), np.inf)
+        for _ in range(repeat):
+            run.forget()
+            for n, (a, kw) in enumerate(seen):
+                c = time.process_time()
+                original(*a, **kw)
+                least[n] = min(least[n], time.process_time() - c)
+        print(f"{m.__name__}.{f}: {len(seen) / nframes:.1f} calls, {1e3 * least.sum() / nframes:.3f} ms CPU per collision frame")
 
 
 def _replay(calls, repeat, best, cpu, results) -> None:

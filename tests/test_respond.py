@@ -431,6 +431,71 @@ def test_a_response_to_the_same_parameters_does_not_list_the_patches_again(monke
     run.forget()
 
 
+def test_a_response_to_the_same_parameters_reuses_its_weights_and_points(monkeypatch):
+    """A contact held still asks every level of a static object's response the same weights
+    frame after frame: the second response to the same parameters takes the surface's points
+    and poles there (`R._points_at`), each level's weights (`R._weights`, through the moves of
+    coarser levels) and their pole-ring rows (`R._ring_extension`) as kept, builds no weights
+    and decomposes no Gram matrix, on the same bits as a response after `pipeline.run.forget`."""
+    from acra import interpolate as I
+    from pipeline import run
+
+    run.forget()
+    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
+    det = H.details(hs)
+    P = float(hs.v.patches0)
+    # a contact on the pole (its rings refined whole up front) and additional points near it
+    uv = np.array([[0.3, P], [1.4, P - 0.3], [2.2, P - 0.1], [0.9, P - 0.45], [5.0, P - 0.2]])
+    q = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+    ctl = check_controls(3, [0.0, 0.5, 0.5])
+    built, solved, eighs = [], [], []
+    weights, eigh, solve = R.point_weights, I._eigh, R.solve
+    monkeypatch.setattr(R, "point_weights", lambda *a: built.append(a[1]) or weights(*a))
+    monkeypatch.setattr(I, "_eigh", lambda g: eighs.append(g.shape) or eigh(g))
+    monkeypatch.setattr(R, "solve", lambda pw, *a, **kw: solved.append(pw) or solve(pw, *a, **kw))
+    R.respond(hs, DataPoints(uv, q + [0.0, 0.0, -0.04], np.arange(5) == 0), ctl, det=det)
+    assert built and eighs and len(solved) == 2 and all(pw.npoints > 5 for pw in solved)  # with ring rows
+    first = list(solved)
+    built.clear(), solved.clear(), eighs.clear()
+    dp = DataPoints(uv, q + [0.01, 0.0, -0.03], np.arange(5) == 0)
+    kept, kept_rep = R.respond(hs, dp, ctl, det=det)
+    assert not built and not eighs
+    assert all(a is b for a, b in zip(first, solved)) and len(first) == len(solved)
+    run.forget()
+    assert not R._AT
+    cold, cold_rep = R.respond(hs, dp, ctl, det=det)
+    assert built and eighs
+    np.testing.assert_array_equal(kept.cvs, cold.cvs)
+    for a, b in zip(kept.fine, cold.fine):
+        np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
+        np.testing.assert_array_equal(a.offsets.view(np.int64), b.offsets.view(np.int64))
+    for a, b in zip(kept_rep.details.vectors + kept_rep.details.frames, cold_rep.details.vectors + cold_rep.details.frames):
+        np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+    np.testing.assert_array_equal(kept_rep.remaining.view(np.int64), cold_rep.remaining.view(np.int64))
+    run.forget()
+
+
+def test_kept_weights_follow_the_levels_arrays_not_the_surface():
+    """`R._weights` hands back the weights `point_weights` gives (the same arrays), the same
+    object for a surface whose level was moved (its CV keys, movability and patches arrays
+    carried over) and new ones once the level is refined or the parameters differ."""
+    from pipeline import run
+
+    run.forget()
+    hs = flat_sheet(n=10, depth=3)
+    u, v = np.array([3.3, 4.1]), np.array([3.4, 2.2])
+    pw = R._weights(hs, 2, u, v)
+    ref = R.point_weights(hs, 2, u, v)
+    for name in ("point", "col", "w", "cv_rows", "active"):
+        np.testing.assert_array_equal(getattr(pw, name), getattr(ref, name))
+    refined = H.refine(hs, 2, np.array([[6, 6]]))
+    det = H.details(refined)
+    moved = R._move_level(refined, 2, np.array([0, 1]), np.ones((2, 3)), det, True)
+    assert R._weights(moved, 2, u, v) is R._weights(refined, 2, u, v) is not pw
+    assert R._weights(hs, 2, u, v) is pw and R._weights(hs, 2, u + 0.1, v) is not pw
+    run.forget()
+
+
 def test_a_refinements_patches_are_kept_by_their_set():
     """`respond._refined` keys a kept refinement by each level's patches as a set
     (`_patch_set`): repeats and order do not matter, and another set is another key."""
@@ -468,30 +533,6 @@ def test_closing_rings_skips_a_level_whose_vectors_are_as_the_response_found_the
     for a, b in zip(fast[1].vectors, full[1].vectors):
         np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
     run.forget()
-
-
-@pytest.mark.parametrize("grid", ["torus", "sheet"])
-def test_per_level_points_kernel_is_the_array_form_bit_for_bit(grid):
-    """`respond._per_level_points` (compiled, `levelkernels.merge_points`) merges the additional
-    points per level patch with the array form's bits: contacts first in order, one row per
-    patch in key order, means of the open parameters and moves, a periodic direction's mean
-    angle; several points to a patch, a point on a patch border, none or every point a contact."""
-    hs = H.from_grid(*shapes.torus(8, 6), depth=4) if grid == "torus" else flat_sheet(depth=4)
-    rng = np.random.default_rng(7)
-    P = np.array(hs.domain)
-    for level in range(4):
-        for K in (1, 2, 9, 40):
-            uv = rng.uniform(0.0, 1.0, (K, 2)) * P
-            uv[K // 2] = np.floor(uv[K // 2] * 2 ** level) / 2 ** level  # on a level-patch corner
-            if K > 3:
-                uv[-2:] = uv[1] + 1e-3  # with the second point in its patch
-            want = rng.normal(size=(K, 3))
-            for is_contact in (rng.uniform(size=K) < 0.3, np.zeros(K, bool), np.ones(K, bool)):
-                got = R._per_level_points(hs, level, uv, want, is_contact)
-                ref = R._per_level_points_numpy(hs, level, uv, want, is_contact)
-                for g, r in zip(got, ref):
-                    assert g.shape == r.shape
-                    assert np.array_equal(g.view(np.int64), r.view(np.int64))
 
 
 @pytest.mark.parametrize("level,t,r", [(0, 0.0, 0.0), (2, 0.0, 0.0), (2, 0.5, 0.0), (1, 0.0, 0.5)],

@@ -1,9 +1,11 @@
 """acra.targets: data points' grouping per finest absorbing patch (eq. 4.16)."""
 
 import numpy as np
+import pytest
 
 from acra import hspline as H
 from acra import shapes
+from acra import targets as T
 from acra.targets import patch_groups, region_deepest, region_midpoints
 
 
@@ -29,3 +31,30 @@ def test_region_deepest_picks_each_patchs_deepest_sample_in_midpoint_order():
     groups = patch_groups(hs, uv, 0, patches=False)[2]  # the caller's groups: the same samples
     for got, want in zip(region_deepest(hs, uv, depth, 0, groups), (uv_deep, depth_deep)):
         np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("grid", ["torus", "sheet"])
+def test_per_level_points_kernel_is_the_array_form_bit_for_bit(grid):
+    """`targets.per_level_points` (compiled, `levelkernels.merge_points`) merges the additional
+    points per level patch with the array form's bits: contacts first in order, one row per
+    patch in key order, means of the open parameters and moves, a periodic direction's mean
+    angle; several points to a patch, a point on a patch border, none or every point a contact."""
+    hs = H.from_grid(*shapes.torus(8, 6), depth=4) if grid == "torus" else H.from_grid(*shapes.sheet(12, 12, 9.0, 9.0), depth=4)
+    rng = np.random.default_rng(7)
+    P = np.array(hs.domain)
+    for level in range(4):
+        for K in (1, 2, 9, 40):
+            uv = rng.uniform(0.0, 1.0, (K, 2)) * P
+            uv[K // 2] = np.floor(uv[K // 2] * 2 ** level) / 2 ** level  # on a level-patch corner
+            if K > 3:
+                uv[-2:] = uv[1] + 1e-3  # with the second point in its patch
+            want = rng.normal(size=(K, 3))
+            for is_contact in (rng.uniform(size=K) < 0.3, np.zeros(K, bool), np.ones(K, bool)):
+                got = T.per_level_points(hs, level, uv, want, is_contact)
+                ref = T._per_level_points_numpy(hs, level, uv, want, is_contact)
+                # the angles found once for a response's levels (`merge_trig`) give the same
+                kept = T.per_level_points(hs, level, uv, want, is_contact, T.merge_trig(hs, uv, is_contact))
+                for g, k, r in zip(got, kept, ref):
+                    assert g.shape == r.shape == k.shape
+                    assert np.array_equal(g.view(np.int64), r.view(np.int64))
+                    assert np.array_equal(k.view(np.int64), r.view(np.int64))
