@@ -207,12 +207,12 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as err:  # an output directory that is missing or read-only, a full disk
         print(f"acra: error: {err.filename or 'file system'}: {err.strerror or err}; nothing written", file=sys.stderr)
         return report.EXIT_INPUT
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, guard.Terminated, SystemError) as err:
+        signal = guard.interruption(err)  # a SystemError carries one raised inside a compiled call
+        if signal is None:
+            raise
         print("acra: interrupted; nothing written", file=sys.stderr)
-        return report.EXIT_INTERRUPTED
-    except guard.Terminated:
-        print("acra: interrupted; nothing written", file=sys.stderr)
-        return report.EXIT_TERMINATED
+        return report.EXIT_TERMINATED if isinstance(signal, guard.Terminated) else report.EXIT_INTERRUPTED
     finally:
         if as_program:
             gc.freeze()

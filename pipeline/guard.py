@@ -39,6 +39,7 @@ from pipeline.model import InputError
 
 __all__ = [
     "Terminated",
+    "interruption",
     "terminate_raises",
     "signals_held",
     "same_file",
@@ -67,6 +68,22 @@ class Terminated(BaseException):
 
 def _raise_terminated(signum, frame):
     raise Terminated(signum)
+
+
+def interruption(err: BaseException) -> BaseException | None:
+    """The `KeyboardInterrupt` or `Terminated` that ``err`` carries, or ``None``.
+
+    A signal's handler runs at the next point the interpreter checks for signals. Inside a
+    compiled kernel's call that can be Python code the kernel's wrapper runs (boxing its result),
+    whose C caller then returns its result with the handler's exception set: Python reports that
+    as a `SystemError` caused by it. The run was interrupted all the same."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, (KeyboardInterrupt, Terminated)):
+            return err
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return None
 
 
 @contextlib.contextmanager

@@ -373,6 +373,60 @@ def test_sigterm_raises_inside_the_block_only():
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+def _raised_inside_a_compiled_call(signal_error: BaseException):
+    """What Python raises when a signal's handler raised inside a C call that then returned a result
+    (a compiled kernel's wrapper boxing its result): a `SystemError` caused by it."""
+    try:
+        raise signal_error
+    except BaseException as err:
+        raise SystemError("CPUDispatcher(<function _depth>) returned a result with an exception set") from err
+
+
+@pytest.mark.parametrize("signal_error", [guard.Terminated(15), KeyboardInterrupt()])
+def test_an_interruption_is_found_behind_the_system_error_it_caused(signal_error):
+    with pytest.raises(SystemError) as raised:
+        _raised_inside_a_compiled_call(signal_error)
+    assert guard.interruption(raised.value) is signal_error
+    assert guard.interruption(signal_error) is signal_error
+    try:  # an exception raised while handling the signal's (its context, not its cause)
+        try:
+            raise signal_error
+        except BaseException:
+            raise RuntimeError("cleanup failed")
+    except RuntimeError as err:
+        assert guard.interruption(err) is signal_error
+    with pytest.raises(SystemError) as raised:
+        try:
+            raise ValueError("not a signal")
+        except ValueError as err:
+            raise SystemError("returned a result with an exception set") from err
+    assert guard.interruption(raised.value) is None
+
+
+@pytest.mark.parametrize("signal_error, status", [(guard.Terminated(15), 143), (KeyboardInterrupt(), 130)])
+def test_a_signal_raised_inside_a_compiled_call_ends_the_run_as_interrupted(signal_error, status, monkeypatch, capsys,
+                                                                           tiny_stage, tmp_path):
+    """The command line ends with the signal's status and one line, whether the signal's exception
+    arrives as itself or behind the `SystemError` of a compiled call; any other `SystemError` is
+    not taken for an interruption."""
+    from pipeline import cli
+
+    def interrupted(args, loaded):
+        _raised_inside_a_compiled_call(signal_error)
+
+    monkeypatch.setattr(cli, "run", interrupted)
+    argv = ["run", str(tiny_stage(frames=2)), "-o", str(tmp_path / "o.usda"), "--quiet"]
+    assert main(argv) == status
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "acra: interrupted; nothing written"
+
+    def broken(args, loaded):
+        raise SystemError("returned a result with an exception set")
+
+    monkeypatch.setattr(cli, "run", broken)
+    with pytest.raises(SystemError):
+        main(argv)
+
+
 def test_signals_during_the_final_renames_are_dropped():
     """The run's files are renamed into place together with SIGINT/SIGTERM held: a signal then
     neither interrupts the renames nor is reported afterwards as an interruption."""
