@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from acra.doubledigits import shortest_digits64
+from acra.doubledigits import _pow5_factor, shortest_digits64
 
 __all__ = ["ints_text", "shortest_digits", "tuples_text", "tuples_texts"]
 
@@ -182,15 +182,6 @@ def _mul_shift(m, factor, shift):
     b0 = m * lo
     b1 = m * hi
     return ((b0 >> np.uint64(32)) + b1) >> np.uint64(shift - 32)
-
-@njit(cache=True, nogil=True, inline="always")
-def _pow5_factor(v):
-    """How many times 5 divides ``v > 0``."""
-    c = 0
-    while v % np.uint64(5) == 0:
-        v //= np.uint64(5)
-        c += 1
-    return c
 
 @njit(cache=True, nogil=True, inline="always")
 def _pow5bits_n(e):
