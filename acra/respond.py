@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import framekernels, levelkernels, memo
+from . import changes, framekernels, levelkernels, memo
 from . import hspline as H
 from .basis import locate
 from .controls import ControlError, Controls
@@ -66,7 +66,7 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     fine = list(hs.fine)
     fine[level - 1] = H.Level(lev.k, lev.patches, lev.cv_keys, offsets, lev.movable, lev.patch_rows)
     if unique:  # the rows that can differ from ``lev``'s offsets, for `H.moved_details`
-        fine[level - 1].__dict__[H._MOVED] = (lev.offsets, cv_rows)
+        fine[level - 1].__dict__[changes.MOVED] = (lev.offsets, cv_rows)
     if "_ring_rows" in lev.__dict__:  # same CVs, other offsets: the same ring rows (`_ring_rows`)
         fine[level - 1].__dict__["_ring_rows"] = lev.__dict__["_ring_rows"]
     return H.with_fine(hs, tuple(fine), same_cvs=True)
