@@ -8,8 +8,8 @@ time) with the frame loop's clock read as the process's CPU time (``time.process
 shared machine other processes' load counts far less than in wall-clock figures. Prints the frame's
 CPU time and the frame loop's own split (`FrameStats`: set-up, detection, conversion, response,
 residual where the user looks), then the nested time inside the rim points
-(`datapoints._rim_points`) and the inside tests and casts they ask (and, where the checkout has
-it, the bisection `datapoints._bisected`, which settles its points' sides itself: its inside tests
+(`rim._rim_points`, `datapoints._rim_points` in a checkout without `pipeline.rim`) and the inside
+tests and casts they ask (and, where the checkout has it, the bisection `rim._bisected`, which settles its points' sides itself: its inside tests
 do not go through `detect.inside`), medians over the runs and their ranges. Another checkout's code runs with its own ``PYTHONPATH`` (functions it lacks are
 left out), so two checkouts can be alternated.
 """
@@ -33,8 +33,12 @@ def main() -> None:
     args = ap.parse_args()
     time.perf_counter = time.process_time  # the frame loop's and the wrappers' clock
 
-    from pipeline import datapoints as P
     from pipeline import detect as D
+
+    try:
+        from pipeline import rim as P
+    except ImportError:  # a checkout whose rim is in `pipeline.datapoints`
+        from pipeline import datapoints as P
     from pipeline import frames as F
     from pipeline import usdio
     from pipeline.run import forget
@@ -90,7 +94,7 @@ def main() -> None:
         line(f"`FrameStats.{key}`", [getattr(r[1], key) for r in runs])
     for name in ("_rim_points", "inside", "_cast", "_missing_neighbours", "_on_counted_faces", "_bisected"):
         if any(name in r[2] for r in runs):
-            line(f"in the rim: `{name}`" if name != "_rim_points" else "`datapoints._rim_points`",
+            line(f"in the rim: `{name}`" if name != "_rim_points" else f"`{P.__name__.split('.')[-1]}._rim_points`",
                  [r[2].get(name, 0.0) for r in runs])
     print(f"\nrounds {runs[0][1].iterations}, residual {runs[0][1].residual_rel:.3e} of the size")
 

@@ -16,7 +16,7 @@ HALF = S.BOX_SIZE / 2.0
 LO, HI = np.array(S.BOX_XY) - HALF, np.array(S.BOX_XY) + HALF  # the box's footprint (world xy)
 # a level-0 CV moves only if a data point lies in its support (4 x 4 patches) and moves the surface
 # only there: nothing moves farther than 4 level-0 patches from a data point; data points lie in
-# the footprint or one detection step (1/8 patch) outside it (`datapoints.rim_points`)
+# the footprint or one detection step (1/8 patch) outside it (`rim.rim_points`)
 REACH = (4.0 + 1.0 / 8.0) * PATCH
 
 
