@@ -1,9 +1,10 @@
 """Level-0 patch boxes from every level's control points, compiled.
 
-`acra.tessellate.patch_hulls` bounds each level-0 patch by the box of every control point (all
-levels) whose support touches it (the convex-hull property). Its array form sorts every
-(patch, control point) pair, 16 per fine CV, to reduce them per patch; here each fine CV's
-position widens the boxes of the level-0 patches its support touches in one compiled pass.
+`patch_hulls` bounds each level-0 patch by the box of every control point (all levels) whose
+support touches it (the convex-hull property). That array form sorts every (patch, control
+point) pair, 16 per fine CV, to reduce them per patch, and is the reference the tests hold the
+compiled form to; `patch_boxes` widens the boxes of the level-0 patches each fine CV's support
+touches by its position, in one compiled pass.
 Minima and maxima are exact, so the boxes are the same bits in any order. Arrays are float64
 unless stated.
 """
@@ -14,8 +15,9 @@ import numpy as np
 from numba import njit
 
 from acra.hierarchy import HSpline, _split_cv
+from acra.hspline import Details, all_cv_positions, details
 
-__all__ = ["boxes_within", "patch_boxes", "rays_meet"]
+__all__ = ["boxes_within", "patch_boxes", "patch_hulls", "rays_meet"]
 
 
 @njit(cache=True, nogil=True)
@@ -71,7 +73,7 @@ def _level0(cvs, iu, iv, lo, hi):
 
 
 def patch_boxes(hs: HSpline, every: list[np.ndarray], only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """`acra.tessellate.patch_hulls` of ``hs`` given every level's CV positions ``every``
+    """`patch_hulls` of ``hs`` given every level's CV positions ``every``
     (`acra.hspline.all_cv_positions`), the same boxes: ``lo, hi (P0u, P0v, 3)``. ``only
     (P0u, P0v) bool``: widen just these patches' boxes (the others hold level 0's alone)."""
     pu, pv = hs.u.patches0, hs.v.patches0
@@ -148,3 +150,58 @@ def rays_meet(lo: np.ndarray, hi: np.ndarray, origins: np.ndarray, directions: n
                    np.ascontiguousarray(origins, np.float64), np.ascontiguousarray(directions, np.float64),
                    box_hit, ray_hit)
     return box_hit, ray_hit
+
+
+def patch_hulls(hs: HSpline, det: Details | None = None, only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned boxes bounding every level-0 patch, from the convex-hull property.
+
+    A patch lies in the hull of its 16 level-0 CVs plus whatever detail finer levels add; the
+    detail of each fine CV is bounded by its level's CV positions, so the box of all control
+    points (all levels) whose support touches the patch bounds it.
+
+    Parameters
+    ----------
+    only : (P0u, P0v) bool, optional
+        Bound just these patches (a responded surface reuses its parent's other boxes); the
+        other entries of the result are level 0's boxes alone.
+
+    Returns
+    -------
+    lo, hi : (P0u, P0v, 3) float64
+    """
+    pu, pv = hs.u.patches0, hs.v.patches0
+    i4 = np.arange(4)
+    iu = hs.u.wrap_cv(np.arange(pu)[:, None] + i4, 0)
+    iv = hs.v.wrap_cv(np.arange(pv)[:, None] + i4, 0)
+    block = hs.cvs[iu[:, None, :, None], iv[None, :, None, :]]  # (pu, pv, 4, 4, 3)
+    lo = block.min(axis=(2, 3))
+    hi = block.max(axis=(2, 3))
+    if hs.depth > 1:
+        det = details(hs) if det is None else det
+        every = all_cv_positions(hs, det)
+        cells, points = [], []
+        for k in range(1, hs.depth):
+            lev = hs.level(k)
+            if lev.cv_keys.size == 0:
+                continue
+            ju, jv = _split_cv(hs, k, lev.cv_keys)
+            # level-k CV j supports level-k patches j-3..j, i.e. level-0 patches (j-3)>>k .. j>>k
+            for du in range(4):
+                for dv in range(4):
+                    qu = hs.u.wrap_patch((ju - 3 + du) >> k, 0)
+                    qv = hs.v.wrap_patch((jv - 3 + dv) >> k, 0)
+                    ok = hs.u.patch_valid(qu, 0) & hs.v.patch_valid(qv, 0)
+                    if only is not None:
+                        ok &= only[np.clip(qu, 0, pu - 1), np.clip(qv, 0, pv - 1)]
+                    cells.append(qu[ok] * pv + qv[ok])
+                    points.append(every[k][ok])
+        if cells:
+            # one sort groups every (patch, control point) pair; reduceat takes each patch's box
+            cell = np.concatenate(cells)
+            order = np.argsort(cell, kind="stable")
+            cell, pts = cell[order], np.concatenate(points)[order]
+            start = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+            flo, fhi, at = lo.reshape(-1, 3), hi.reshape(-1, 3), cell[start]
+            flo[at] = np.minimum(flo[at], np.minimum.reduceat(pts, start, axis=0))
+            fhi[at] = np.maximum(fhi[at], np.maximum.reduceat(pts, start, axis=0))
+    return lo, hi

@@ -34,7 +34,6 @@ __all__ = [
     "grid_samples",
     "pole_normals",
     "patch_grids",
-    "patch_hulls",
 ]
 
 
@@ -812,60 +811,3 @@ def _patch_pattern(s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for x in out:
         x.flags.writeable = False
     return out
-
-
-def patch_hulls(hs: HSpline, det: Details | None = None, only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned boxes bounding every level-0 patch, from the convex-hull property.
-
-    A patch lies in the hull of its 16 level-0 CVs plus whatever detail finer levels add; the
-    detail of each fine CV is bounded by its level's CV positions, so the box of all control
-    points (all levels) whose support touches the patch bounds it.
-
-    Parameters
-    ----------
-    only : (P0u, P0v) bool, optional
-        Bound just these patches (a responded surface reuses its parent's other boxes); the
-        other entries of the result are level 0's boxes alone.
-
-    Returns
-    -------
-    lo, hi : (P0u, P0v, 3) float64
-    """
-    from .hspline import all_cv_positions, _split_cv
-
-    pu, pv = hs.u.patches0, hs.v.patches0
-    i4 = np.arange(4)
-    iu = hs.u.wrap_cv(np.arange(pu)[:, None] + i4, 0)
-    iv = hs.v.wrap_cv(np.arange(pv)[:, None] + i4, 0)
-    block = hs.cvs[iu[:, None, :, None], iv[None, :, None, :]]  # (pu, pv, 4, 4, 3)
-    lo = block.min(axis=(2, 3))
-    hi = block.max(axis=(2, 3))
-    if hs.depth > 1:
-        det = details(hs) if det is None else det
-        every = all_cv_positions(hs, det)
-        cells, points = [], []
-        for k in range(1, hs.depth):
-            lev = hs.level(k)
-            if lev.cv_keys.size == 0:
-                continue
-            ju, jv = _split_cv(hs, k, lev.cv_keys)
-            # level-k CV j supports level-k patches j-3..j, i.e. level-0 patches (j-3)>>k .. j>>k
-            for du in range(4):
-                for dv in range(4):
-                    qu = hs.u.wrap_patch((ju - 3 + du) >> k, 0)
-                    qv = hs.v.wrap_patch((jv - 3 + dv) >> k, 0)
-                    ok = hs.u.patch_valid(qu, 0) & hs.v.patch_valid(qv, 0)
-                    if only is not None:
-                        ok &= only[np.clip(qu, 0, pu - 1), np.clip(qv, 0, pv - 1)]
-                    cells.append(qu[ok] * pv + qv[ok])
-                    points.append(every[k][ok])
-        if cells:
-            # one sort groups every (patch, control point) pair; reduceat takes each patch's box
-            cell = np.concatenate(cells)
-            order = np.argsort(cell, kind="stable")
-            cell, pts = cell[order], np.concatenate(points)[order]
-            start = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
-            flo, fhi, at = lo.reshape(-1, 3), hi.reshape(-1, 3), cell[start]
-            flo[at] = np.minimum(flo[at], np.minimum.reduceat(pts, start, axis=0))
-            fhi[at] = np.maximum(fhi[at], np.maximum.reduceat(pts, start, axis=0))
-    return lo, hi

@@ -194,7 +194,7 @@ class Shape:
     @timed
     def hulls(self) -> tuple[np.ndarray, np.ndarray]:
         """Object-space boxes ``lo, hi (P0u, P0v, 3)`` of the level-0 patches' control hulls
-        (`acra.tessellate.patch_hulls`, compiled: `acra.patch_boxes`); the parent's where the
+        (`acra.patch_boxes.patch_hulls`, compiled: `patch_boxes`); the parent's where the
         response did not reach."""
         stale = self._stale
         if stale is None or stale.all():

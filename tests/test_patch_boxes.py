@@ -1,4 +1,4 @@
-"""`acra.patch_boxes`: the level-0 patch boxes of `acra.tessellate.patch_hulls`, compiled."""
+"""`acra.patch_boxes`: the level-0 patch boxes of `patch_hulls`, compiled."""
 
 import numpy as np
 import pytest
@@ -6,8 +6,7 @@ from conftest import wavy_sheet, with_random_offsets
 
 from acra import hspline as H
 from acra import shapes
-from acra import tessellate as T
-from acra.patch_boxes import patch_boxes
+from acra.patch_boxes import patch_boxes, patch_hulls
 
 
 @pytest.mark.parametrize("name", ["sheet", "sphere", "torus", "tube"])
@@ -26,12 +25,24 @@ def test_patch_boxes_equal_patch_hulls(name):
     det = H.details(hs)
     every = H.all_cv_positions(hs, det)
     lo, hi = patch_boxes(hs, every)
-    ref = T.patch_hulls(hs, det)
+    ref = patch_hulls(hs, det)
     assert np.array_equal(lo, ref[0]) and np.array_equal(hi, ref[1])
     only = np.random.default_rng(3).random((hs.u.patches0, hs.v.patches0)) < 0.3
     lo, hi = patch_boxes(hs, every, only=only)
-    ref = T.patch_hulls(hs, det, only=only)
+    ref = patch_hulls(hs, det, only=only)
     assert np.array_equal(lo, ref[0]) and np.array_equal(hi, ref[1])
+
+
+def test_patch_hulls_bound_the_surface():
+    hs = with_random_offsets(H.make_movable(wavy_sheet(), 3, [[10, 9]]), scale=0.3)
+    lo, hi = patch_hulls(hs)
+    rng = np.random.default_rng(2)
+    u = rng.uniform(0, hs.u.patches0, 20_000)
+    v = rng.uniform(0, hs.v.patches0, 20_000)
+    p = H.evaluate(hs, u, v).points
+    pu = np.minimum(u.astype(int), hs.u.patches0 - 1)
+    pv = np.minimum(v.astype(int), hs.v.patches0 - 1)
+    assert np.all(p >= lo[pu, pv] - 1e-12) and np.all(p <= hi[pu, pv] + 1e-12)
 
 
 def test_boxes_within_is_the_array_form():

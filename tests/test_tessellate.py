@@ -64,18 +64,6 @@ def test_patch_grids_match_the_surface_and_tag_patches(sheet4):
         assert np.all((uv[t, 0] >= pu) & (uv[t, 0] <= pu + 1) & (uv[t, 1] >= pv) & (uv[t, 1] <= pv + 1))
 
 
-def test_patch_hulls_bound_the_surface():
-    hs = with_random_offsets(H.make_movable(wavy_sheet(), 3, [[10, 9]]), scale=0.3)
-    lo, hi = T.patch_hulls(hs)
-    rng = np.random.default_rng(2)
-    u = rng.uniform(0, hs.u.patches0, 20_000)
-    v = rng.uniform(0, hs.v.patches0, 20_000)
-    p = H.evaluate(hs, u, v).points
-    pu = np.minimum(u.astype(int), hs.u.patches0 - 1)
-    pv = np.minimum(v.astype(int), hs.v.patches0 - 1)
-    assert np.all(p >= lo[pu, pv] - 1e-12) and np.all(p <= hi[pu, pv] + 1e-12)
-
-
 @pytest.mark.parametrize("seed,level", [(0, 0), (1, 1), (2, 2), (3, 1)])
 def test_display_samples_since_a_local_move_equal_a_full_evaluation(seed, level):
     """`grid_samples(since=...)` evaluates only vertices on stale patches (borders included),
