@@ -480,6 +480,16 @@ def _put_nine(buf, at, d):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _put_fraction_start(buf, u):
+    """``0.`` and five zeros at ``u``: the start of a value below 1 in decimal point notation
+    (`_put_short`, `_put_long`), whose digits are then stored from the first place they need."""
+    buf[u] = 48
+    buf[u + np.uint64(1)] = 46
+    for q in range(np.uint64(2), np.uint64(7)):
+        buf[u + q] = 48
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _put_short(buf, at, c, k, neg):
     """A nonzero value's text from its digits ``c 10^k`` (``0 < c < 10^18``) where they are at
     most nine and the decimal point falls within the first nine places (every float32 from 1e-6
@@ -501,10 +511,7 @@ def _put_short(buf, at, c, k, neg):
     d = c * _POW10[9 - nd]
     u = np.uint64(at)
     if point <= 0:  # "0.", up to five zeros, then the digits
-        buf[u] = 48
-        buf[u + np.uint64(1)] = 46
-        for q in range(np.uint64(2), np.uint64(7)):
-            buf[u + q] = 48
+        _put_fraction_start(buf, u)
         at += 2 - point
         _put_nine(buf, at, d)
         return at + nd
@@ -534,10 +541,7 @@ def _put_long(buf, at, c, k):
     lo = d - hi * 1000000000
     u = np.uint64(at)
     if point <= 0:  # "0.", up to five zeros, then the digits
-        buf[u] = 48
-        buf[u + np.uint64(1)] = 46
-        for q in range(np.uint64(2), np.uint64(7)):
-            buf[u + q] = 48
+        _put_fraction_start(buf, u)
         at += 2 - point
         _put_nine(buf, at, hi)
         _put_nine(buf, at + 9, lo)
