@@ -20,8 +20,7 @@ digits is `acra.floattext`'s, the same as a float32's.
 
 `tests/test_doubledigits.py` holds the digits to Python's ``repr`` (David Gay's shortest,
 closest, ties to even) on seeded random bits of every exponent, subnormals and the powers of two
-and ten, Ryu's digits to the exact decimals where those are short (`exact_digits`), and the text
-to USD's.
+and ten, Ryu's digits to the exact decimals where those are short (`_exact`), and the text to USD's.
 """
 
 from __future__ import annotations
@@ -29,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["exact_digits", "shortest_digits64"]
+__all__ = ["shortest_digits64"]
 
 _INV_BITS, _POW_BITS = 125, 125
 
@@ -231,32 +230,6 @@ def _exact(b):
         c //= 10
         k += 1
     return c, k, True
-
-
-@njit(cache=True, nogil=True)
-def exact_digits(bits):
-    """``(c, k, status)`` per float64 (``bits`` its uint64 pattern, as int64 arithmetic sees
-    it): ``|value| = c 10^k`` exactly with ``c < 10^14`` (`_exact`), status 1 for zero, 2 where
-    the value's exact decimal is longer (or the value is subnormal, infinite or NaN); the
-    reference `tests/test_doubledigits.py` holds `_d2s`'s digits to where it finds them."""
-    n = bits.shape[0]
-    cs = np.zeros(n, np.int64)
-    ks = np.zeros(n, np.int64)
-    st = np.zeros(n, np.int8)
-    for i in range(n):
-        b = np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF
-        if b == 0:
-            st[i] = 1
-            continue
-        if (b >> 52) == 0x7FF:
-            st[i] = 2
-            continue
-        c, k, found = _exact(b)
-        if found:
-            cs[i], ks[i] = c, k
-        else:
-            st[i] = 2
-    return cs, ks, st
 
 
 @njit(cache=True, nogil=True)

@@ -15,7 +15,7 @@ from `floattext`), formatted by `floattext.tuples_texts` and, for comparison, by
 (`Sdf.Layer.ExportToString` of a layer holding each as a default value); and the digits of the
 largest deformable's display surface parameters (``acra:display:uv``, dyadic values of few bits)
 by `doubledigits.shortest_digits64` (their exact decimal first), by Ryu's steps alone
-(`doubledigits._d2s`, a loop compiled here) and by `exact_digits` alone. The last line is a
+(`doubledigits._d2s`, a loop compiled here) and by the exact decimal alone (`doubledigits._exact`, a loop compiled here). The last line is a
 digest of every text made (SHA-1 of their bytes, first 12 hex digits), the same for two
 checkouts that write the same text. The script imports `acra` and `pipeline` from
 ``PYTHONPATH``: run it with two checkouts' paths, alternated, to compare them on the same arrays.
@@ -56,6 +56,18 @@ def cpu_ms(fn, repeat: int) -> list[float]:
         fn()
         spent.append(1e3 * (time.process_time() - t))
     return spent
+
+
+@njit(cache=False)
+def exact_alone(bits):
+    """`doubledigits._exact`'s digits of each nonzero finite float64 of ``bits (n,) uint64``."""
+    cs = np.zeros(bits.shape[0], np.int64)
+    ks = np.zeros(bits.shape[0], np.int64)
+    for i in range(bits.shape[0]):
+        b = np.int64(bits[i]) & 0x7FFFFFFFFFFFFFFF
+        if b != 0 and (b >> 52) != 0x7FF:
+            cs[i], ks[i], _ = doubledigits._exact(b)
+    return cs, ks
 
 
 @njit(cache=False)
@@ -116,7 +128,8 @@ def main() -> None:
         ryu_alone(sites)
         rows[f"{largest}'s display surface parameters ({sites.size} values), `shortest_digits64`"] = cpu_ms(lambda: doubledigits.shortest_digits64(sites), args.repeat)
         rows["the same, Ryu's steps alone"] = cpu_ms(lambda: ryu_alone(sites), args.repeat)
-        rows["the same, `exact_digits` alone"] = cpu_ms(lambda: doubledigits.exact_digits(sites), args.repeat)
+        exact_alone(sites)
+        rows["the same, the exact decimal alone"] = cpu_ms(lambda: exact_alone(sites), args.repeat)
     digest = hashlib.sha1()
     for text in floattext.tuples_texts(arrays, output_layer._float_texts, refs) + floattext.tuples_texts(doubles, output_layer._float_texts):
         digest.update(text.tobytes())
