@@ -3,7 +3,7 @@
     PYTHONPATH=$PWD python3 benchmarks/interrupts.py [--runs 40] [--seed 0]
 
 Starts ``--runs`` real `acra run` processes of a 400-frame stage in contact every frame
-(`tests/conftest.py`'s tiny stage), each with SIGINT and SIGTERM at their default actions, and
+(`tests/conftest.py`'s tiny stage and `interrupted_run`), each with SIGINT and SIGTERM at their default actions, and
 sends SIGINT to the even runs and SIGTERM to the odd ones at a random moment (0-0.5 s, seeded)
 after the first frame is reported, so the signals land anywhere in the frame loop, compiled
 kernels included. Prints the count of each exit status and the last stderr line of any run that
@@ -19,42 +19,10 @@ import collections
 import pathlib
 import random
 import signal
-import subprocess
 import sys
 import tempfile
-import threading
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-
-
-def interrupt(src: pathlib.Path, work: pathlib.Path, sig: int, delay: float) -> tuple[int, str, list[str]]:
-    """One run of ``src`` writing into ``work``, sent ``sig`` ``delay`` s after its first frame:
-    its exit status, its stderr and the files it left besides ``src``."""
-    out = work / "out.usda"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "pipeline.cli", "run", str(src), "-o", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=work,
-        preexec_fn=lambda: [signal.signal(s, signal.SIG_DFL) for s in (signal.SIGINT, signal.SIGTERM)])
-    lines, started = [], threading.Event()
-
-    def read():
-        for line in proc.stderr:
-            lines.append(line)
-            if line.startswith("acra: frame 1 done"):
-                started.set()
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    try:
-        started.wait(timeout=120)
-        threading.Event().wait(delay)
-        proc.send_signal(sig)
-        proc.wait(timeout=120)
-        reader.join(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    return proc.returncode, "".join(lines), sorted(p.name for p in work.iterdir() if p != src)
 
 
 def main() -> None:
@@ -63,7 +31,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "tests"))
-    from conftest import write_tiny_stage
+    from conftest import interrupted_run, write_tiny_stage
 
     rng = random.Random(args.seed)
     statuses: collections.Counter = collections.Counter()
@@ -73,7 +41,8 @@ def main() -> None:
         src = write_tiny_stage(work / "tiny.usda", frames=400, top=0.4, depth=0.2)
         for k in range(args.runs):
             sig = signal.SIGTERM if k % 2 else signal.SIGINT
-            code, err, left = interrupt(src, work, sig, rng.uniform(0.0, 0.5))
+            code, err, files = interrupted_run(src, work / "out.usda", sig, rng.uniform(0.0, 0.5))
+            left = [name for name in files if name != src.name]
             statuses[code] += 1
             last = err.strip().splitlines()[-1] if err.strip() else ""
             want = 143 if sig == signal.SIGTERM else 130

@@ -1,5 +1,9 @@
 """Shared, seeded test objects."""
 
+import signal
+import subprocess
+import sys
+import threading
 from dataclasses import replace
 
 import numpy as np
@@ -245,3 +249,41 @@ def rotated_scaled(seed):
     m[:3, :3] = q @ np.diag(rng.uniform(0.3, 3.0, 3))
     m[:3, 3] = rng.normal(size=3) * 5
     return m
+
+
+# --- a real `acra run` interrupted half-way ------------------------------------------------------
+
+
+def interrupted_run(src, out, sig, delay: float = 0.0, extra=(), env=None):
+    """Run ``acra run SRC -o OUT [EXTRA]`` as a real process in ``out``'s directory, send ``sig``
+    ``delay`` seconds after it reports its first frame, and return (exit status, stderr, the
+    names of the files in that directory).
+
+    The run is started as from a terminal: SIGINT and SIGTERM at their default actions, whatever
+    the test runner inherited (a shell without job control starts background jobs, and so their
+    children, with SIGINT ignored, and an ignored signal stays ignored across exec)."""
+    work = out.parent
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "run", str(src), "-o", str(out), *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=work,
+        preexec_fn=lambda: [signal.signal(s, signal.SIG_DFL) for s in (signal.SIGINT, signal.SIGTERM)])
+    lines, started = [], threading.Event()
+
+    def read():
+        for line in proc.stderr:
+            lines.append(line)
+            if line.startswith("acra: frame 1 done"):
+                started.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        assert started.wait(timeout=120), "".join(lines)
+        threading.Event().wait(delay)
+        proc.send_signal(sig)
+        proc.wait(timeout=120)
+        reader.join(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, "".join(lines), sorted(p.name for p in work.iterdir())

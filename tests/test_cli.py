@@ -2,14 +2,13 @@
 
 import gc
 import shutil
-import signal
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 from pxr import Usd
 
+from conftest import interrupted_run
 from pipeline.cli import main
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "box_into_sheet.py"
@@ -141,33 +140,8 @@ def _interrupt(tiny_stage, tmp_path, sig):
     """Start a 400-frame run (every frame in contact) as a real process, send ``sig`` once it has
     reported its first frame, and return (exit status, stderr, files left in ``tmp_path``)."""
     src = tiny_stage(frames=400, top=0.4, depth=0.2)
-    out, rrd, rep = tmp_path / "o.usda", tmp_path / "o.rrd", tmp_path / "o.json"
-    # the run as started from a terminal: SIGINT and SIGTERM at their default actions, whatever
-    # the test runner inherited (a shell without job control starts background jobs, and so
-    # their children, with SIGINT ignored, and an ignored signal stays ignored across exec)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "pipeline.cli", "run", str(src), "-o", str(out), "--rrd", str(rrd), "--report", str(rep)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path,
-        preexec_fn=lambda: [signal.signal(s, signal.SIG_DFL) for s in (signal.SIGINT, signal.SIGTERM)])
-    lines, started = [], threading.Event()
-
-    def read():
-        for line in proc.stderr:
-            lines.append(line)
-            if line.startswith("acra: frame 1 done"):
-                started.set()
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    try:
-        assert started.wait(timeout=120), "".join(lines)
-        proc.send_signal(sig)
-        proc.wait(timeout=120)
-        reader.join(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    return proc.returncode, "".join(lines), sorted(p.name for p in tmp_path.iterdir())
+    extra = ["--rrd", str(tmp_path / "o.rrd"), "--report", str(tmp_path / "o.json")]
+    return interrupted_run(src, tmp_path / "o.usda", sig, extra=extra, env=_env())
 
 
 def test_sigint_half_way_writes_nothing_and_leaves_no_temporary_file(tiny_stage, tmp_path):
