@@ -339,6 +339,19 @@ def test_every_absorbing_level_is_refined_in_one_pass_before_the_first_move(monk
         np.testing.assert_array_equal(a.offsets, b.offsets)
 
 
+def _same_bits(a, b, a_rep=None, b_rep=None):
+    """Two responded surfaces hold the same bits: level 0's CVs, each fine level's CV keys and
+    offsets, and (given the reports) the details' vectors and frames."""
+    np.testing.assert_array_equal(a.cvs.view(np.int64), b.cvs.view(np.int64))
+    assert len(a.fine) == len(b.fine)
+    for x, y in zip(a.fine, b.fine):
+        np.testing.assert_array_equal(x.cv_keys, y.cv_keys)
+        np.testing.assert_array_equal(x.offsets.view(np.int64), y.offsets.view(np.int64))
+    if a_rep is not None:
+        for x, y in zip(a_rep.details.vectors + a_rep.details.frames, b_rep.details.vectors + b_rep.details.frames, strict=True):
+            np.testing.assert_array_equal(x.view(np.int64), y.view(np.int64))
+
+
 def test_the_finer_absorbing_levels_new_cvs_are_framed_once_by_the_first_move(monkeypatch):
     """The up-front refinement leaves the frames of the finer absorbing levels' new CVs to the
     coarsest level's move, which turns them anyway (`H.details`' ``lazy``): each level's frames
@@ -396,12 +409,7 @@ def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_
     assert not R._KEPT
     again, again_rep = R.respond(hs, second, c, det=det)
     assert passes.count(()) == 1
-    np.testing.assert_array_equal(kept.cvs, again.cvs)
-    for a, b in zip(kept.fine, again.fine):
-        np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
-        np.testing.assert_array_equal(a.offsets.view(np.int64), b.offsets.view(np.int64))
-    for a, b in zip(kept_rep.details.vectors + kept_rep.details.frames, again_rep.details.vectors + again_rep.details.frames):
-        np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+    _same_bits(kept, again, kept_rep, again_rep)
 
 
 def test_a_response_to_the_same_parameters_does_not_list_the_patches_again(monkeypatch):
@@ -425,9 +433,7 @@ def test_a_response_to_the_same_parameters_does_not_list_the_patches_again(monke
     assert len(listed) == 2
     run.forget()
     cold, _ = R.respond(hs, one_point(hs, [3.3, 3.4], [-0.01, 0.02, -0.15]), c, det=det)
-    for a, b in zip(again.fine, cold.fine):
-        np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
-        np.testing.assert_array_equal(a.offsets.view(np.int64), b.offsets.view(np.int64))
+    _same_bits(again, cold)
     run.forget()
 
 
@@ -465,12 +471,7 @@ def test_a_response_to_the_same_parameters_reuses_its_weights_and_points(monkeyp
     assert not R._AT
     cold, cold_rep = R.respond(hs, dp, ctl, det=det)
     assert built and eighs
-    np.testing.assert_array_equal(kept.cvs, cold.cvs)
-    for a, b in zip(kept.fine, cold.fine):
-        np.testing.assert_array_equal(a.cv_keys, b.cv_keys)
-        np.testing.assert_array_equal(a.offsets.view(np.int64), b.offsets.view(np.int64))
-    for a, b in zip(kept_rep.details.vectors + kept_rep.details.frames, cold_rep.details.vectors + cold_rep.details.frames):
-        np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+    _same_bits(kept, cold, kept_rep, cold_rep)
     np.testing.assert_array_equal(kept_rep.remaining.view(np.int64), cold_rep.remaining.view(np.int64))
     run.forget()
 
