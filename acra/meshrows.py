@@ -328,13 +328,18 @@ def _first_rows(bits, first, label):
     while size < 2 * bits.shape[0]:
         size *= 2
     table = np.full(size, -1, np.int64)
-    mask = np.uint64(size - 1)
+    # the slot is the product's top bits (multiplicative hashing): a coordinate of few mantissa
+    # bits (a lattice's dyadic parameters) has its low bits zero, and so have its products' low
+    # bits, which would send such rows to a few slots
+    b = 0
+    while (1 << b) < size:
+        b += 1
+    shift = np.uint64(64 - b)  # size >= 2 rows' worth, so b >= 1
     u = 0
     for i in range(bits.shape[0]):
         h = (bits[i, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[i, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) \
             ^ (bits[i, 2] * np.uint64(0x165667B19E3779F9))
-        h ^= h >> np.uint64(31)
-        slot = np.int64(h & mask)
+        slot = np.int64(h >> shift)
         while True:
             j = table[slot]
             if j < 0:

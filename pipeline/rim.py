@@ -20,6 +20,7 @@ import numpy as np
 from acra import hspline as H
 from acra import kdtree
 from acra import memo
+from acra import meshrows
 from acra.targets import patch_groups
 from pipeline import geometry
 from pipeline import detect as D
@@ -99,7 +100,7 @@ def _rim_points(ga: geometry.SurfaceGeometry, gb: geometry.ColliderGeometry, reg
     # region takes its sample's. Each answer is a function of its row's bits alone (evaluation,
     # inside test and cast go point by point), so a row keeps the bits it would get asked alone,
     # and the grouping below sums every region row's crossing, repeats included, in their order.
-    first, at = _distinct_rows(region_uv)
+    first, at = meshrows.first_rows(_in_plane(region_uv))
     uv = region_uv[first]
     dens = geometry.patch_density(ga)
     pu = np.clip(np.floor(uv[:, 0]).astype(np.int64) % hs.u.patches0, 0, hs.u.patches0 - 1)
@@ -197,26 +198,6 @@ def _bisected(gb: geometry.ColliderGeometry, world, lo: np.ndarray, hi: np.ndarr
     end = np.empty((n, 2))
     end[seg[holds]] = hi[holds]
     return outside, end[outside]
-
-
-def _distinct_rows(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct rows of ``uv (n, 2) float64`` by their bits (``-0.0`` and ``0.0`` differ, as
-    they may in what is computed from them; a NaN row is like itself): rows ``first (d,) int64``
-    of ``uv``, one of each, and ``at (n,) int64``, each row's place among them, so
-    ``uv[first][at]`` has ``uv``'s bits. A stable sort of the two columns' bits as integers."""
-    bits = np.ascontiguousarray(uv, np.float64).reshape(-1, 2).view(np.int64)
-    if not len(bits):
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    u, v = bits[:, 0].copy(), bits[:, 1].copy()
-    order = np.lexsort((v, u))
-    su, sv = u[order], v[order]
-    new = np.empty(len(order), bool)
-    new[0] = True
-    np.not_equal(su[1:], su[:-1], out=new[1:])
-    new[1:] |= sv[1:] != sv[:-1]
-    at = np.empty(len(order), np.int64)
-    at[order] = np.cumsum(new) - 1
-    return order[new], at
 
 
 def _on_counted_faces(gb: geometry.ColliderGeometry, unit: np.ndarray, n: int, points) -> np.ndarray:

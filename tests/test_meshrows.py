@@ -163,3 +163,26 @@ def test_faces_meet_rows_of_chunks_and_groups_inside_the_box_are_the_full_scan_s
         for pad_lo, pad_hi in ((l, h), (points.min(axis=0), points.max(axis=0))):
             rows = meshrows.faces_meet_rows(points, faces, pad_lo, pad_hi, pad)
             assert np.array_equal(meshrows.faces_meet_rows(points, faces, pad_lo, pad_hi, pad, chunks), rows)
+
+
+@pytest.mark.parametrize("kind", ["random", "lattice", "signed zeros"])
+def test_first_rows_are_each_distinct_rows_first_occurrence(kind):
+    """`first_rows`: the rows of first occurrence in their order and each row's index into them,
+    by the rows' bits, as a dictionary over their bytes gives them, on random values, on a
+    lattice's dyadic values (few mantissa bits, whose products' low bits are all zero) and with
+    ``-0.0`` apart from ``0.0``."""
+    rng = np.random.default_rng(11)
+    if kind == "random":
+        rows = rng.standard_normal((400, 3))
+    elif kind == "lattice":
+        rows = np.zeros((1200, 3))
+        rows[:, :2] = np.stack(np.meshgrid(np.arange(40) / 8.0 + 3, np.arange(30) / 8.0 + 2, indexing="ij"), -1).reshape(-1, 2)
+    else:
+        rows = rng.choice([0.0, -0.0, 1.0], size=(300, 3))
+    points = np.concatenate([rows, rows[rng.integers(0, len(rows), len(rows) // 2)]])
+    points = points[rng.permutation(len(points))]
+    seen: dict = {}
+    want_label = [seen.setdefault(p.tobytes(), len(seen)) for p in points]
+    want_first = [next(i for i, p in enumerate(points) if p.tobytes() == key) for key in seen]
+    first, label = meshrows.first_rows(points)
+    assert first.tolist() == want_first and label.tolist() == want_label

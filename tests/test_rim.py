@@ -169,19 +169,6 @@ def test_a_box_pushed_along_an_axis_counts_every_rim_crossing_as_its_faces_would
     assert asked and 0 < got.sum() < len(points)
 
 
-def test_distinct_rows_are_distinct_by_their_bits():
-    """`_distinct_rows`: one row of each distinct bit pattern (``-0.0`` apart from ``0.0``, a NaN
-    row like itself), and each row's place among them gives back every row's bits."""
-    rng = np.random.default_rng(11)
-    base = np.round(rng.normal(size=(40, 2)) * 8) / 8
-    base[3], base[4], base[5, 1] = [0.5, 0.0], [0.5, -0.0], np.nan
-    x = base[rng.integers(0, len(base), 300)]
-    first, at = R._distinct_rows(x)
-    assert x[first][at].tobytes() == x.tobytes()
-    assert len(first) == len({r.tobytes() for r in x}) == len({r.tobytes() for r in x[first]})
-    assert [len(a) for a in R._distinct_rows(np.zeros((0, 2)))] == [0, 0]
-
-
 def _rim_points_every_row(ga, gb, region_uv, direction, level):
     """`rim._rim_points` as arrays over every row of the region, repeats included: each
     crossing bisected and each sample cast once per row."""
