@@ -6,9 +6,12 @@ milliseconds per frame for each stage of Fig. 5.2 — set-up, detection, convers
 inputs, response of the large and the small object, USD writing — over the collision frames and
 over the free frames, beside the thesis's figures (Pentium 150 MHz, 1998). USD writing is the
 default ``.usda`` text output and, in its own row, the binary ``.usdc`` (what ``-o NAME.usdc``
-costs: the text writer's float formatting is the ``.usda`` floor, docs/cli.md); each kind of
-frame's figure is the write of a layer holding that kind's frames alone over their count, so a
-free frame is not charged the conversion of the collision frames' new surfaces.
+costs: the text writer's float formatting is the ``.usda`` floor, docs/cli.md). A free frame's
+figure is the write of a layer of the free frames alone over their count, so a free frame is not
+charged the conversion of the collision frames' new surfaces; a collision frame's is what the
+collision frames add to it: the write of a layer of every computed frame less that of the free
+frames alone, over the collision frames' count. The two together are the write of the run's
+computed frames, no part counted twice (holds are neither kind and written in neither layer).
 Then times ``acra run`` end to end in a fresh process (start-up included), writing ``.usda`` and
 ``.usdc`` in turn after one warm-up run, splits each process's wall clock into its phases (the
 run's ``--report`` phases, `pipeline.run.run_file`; the interpreter's start and exit is the rest),
@@ -47,6 +50,9 @@ THESIS = {
 }
 # targets: ms per collision frame, ms per free frame (.usda, .usdc output), s end to end
 TARGETS = {"collision frame": 10.0, "free frame": 2.0, "free frame, .usdc": 0.5, "end to end": 2.0}
+# timed writes of each layer whose median a repeat takes (`_writes`): a collision frame's write is
+# a difference of two layers' writes, and the median of three keeps one disturbed write out of it
+WRITES = 3
 # phases of one `acra run` process, in order (`pipeline.run.run_file`; "interpreter" is the rest of
 # the process's wall clock: starting Python before the command line's first line, and exiting)
 PHASES = {
@@ -129,8 +135,7 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
             report = run_file(src, output=Path(tmp) / "out.acra.usda")
             large, small = _large_small(report)
             stage = usdio.open_input(report.stage_path)  # the input layer open, as in the run
-            writes = {(col, fmt): _write_ms(output_layer, report, col, Path(tmp) / f"kind{col}.acra.{fmt}")
-                      for col in (0, 1) for fmt in ("usda", "usdc")}
+            writes = _writes(output_layer, report, Path(tmp))
             del stage
             for s in report.stats:
                 if s.hold:  # a hold takes the previous frame's answer (`frames.FrameStats.hold`): neither kind's cost
@@ -174,18 +179,45 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
                  first, (n_hold, _median(hold_ms)))
 
 
-def _write_ms(output_layer, report, col: int, path: Path) -> float:
-    """Milliseconds per frame of writing a layer of only the collision (``col`` 0) or the free
-    (1) frames of ``report``'s result to ``path`` (its suffix picks the format); NaN if none.
-    ``path`` must not exist, and is removed afterwards, untimed: replacing an earlier file would
-    charge the write the freeing of that file's blocks (tens of ms wall for a 55 MB layer here)."""
-    kind = {s.frame for s in report.stats if not s.hold and (0 if s.in_collision else 1) == col}
-    if not kind:
-        return float("nan")
-    part = output_layer.FramesResult({f: r for f, r in report.result.frames.items() if f in kind}, report.result.topologies)
+def _writes(output_layer, report, tmp: Path) -> dict:
+    """Milliseconds per frame of writing ``report``'s result, ``{(col, fmt): ms}`` with ``col`` 0
+    for a collision frame and 1 for a free frame, ``fmt`` "usda" or "usdc" (NaN where the scene has
+    no frame of that kind). A free frame's is a layer of the free frames alone over their count; a
+    collision frame's is a layer of every computed frame (holds left out) less the free frames'
+    layer, over the collision frames' count: what the collision frames add to the run's write, the
+    formatting of what they changed and their share of the bytes, while the whole display's first
+    formatting and the layer's fixed costs stay with the free frames, as in the run. Each layer's
+    figure is the median of `WRITES` writes, the two layers alternated after one untimed write of
+    each (the format's first write in a process loads what later ones reuse)."""
+    computed = {s.frame: s.in_collision for s in report.stats if not s.hold}
+    free = {f for f, c in computed.items() if not c}
+    n_col = len(computed) - len(free)
+    layers = {"free": free, "all": set(computed) if n_col else set()}
+    out = {}
+    for fmt in ("usda", "usdc"):
+        ms: dict = {k: [] for k in layers}
+        for i in range(WRITES + 1):
+            for k, frames in layers.items():
+                t = _write_ms(output_layer, report, frames, tmp / f"{k}.acra.{fmt}")
+                if i:
+                    ms[k].append(t)
+        ms_free, ms_all = _median(ms["free"]), _median(ms["all"])
+        out[1, fmt] = ms_free / len(free) if free else float("nan")
+        out[0, fmt] = (ms_all - ms_free) / n_col if n_col else float("nan")
+    return out
+
+
+def _write_ms(output_layer, report, frames: set, path: Path) -> float:
+    """Milliseconds of one write of a layer of only ``frames`` of ``report``'s result to ``path``
+    (its suffix picks the format); 0 for no frames. ``path`` must not exist, and is removed
+    afterwards, untimed: replacing an earlier file would charge the write the freeing of that
+    file's blocks (tens of ms wall for a 55 MB layer here)."""
+    if not frames:
+        return 0.0
+    part = output_layer.FramesResult({f: r for f, r in report.result.frames.items() if f in frames}, report.result.topologies)
     t = time.perf_counter()
     output_layer.write_output(report.stage_path, path, report.scene, part)
-    ms = 1e3 * (time.perf_counter() - t) / len(kind)
+    ms = 1e3 * (time.perf_counter() - t)
     path.unlink()
     return ms
 

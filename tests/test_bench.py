@@ -65,3 +65,36 @@ def test_bench_times_a_first_run_with_an_empty_numba_cache(monkeypatch, tiny_sta
 def test_bench_rejects_a_bad_repeat(capsys):
     assert main(["bench", str(BOX), "--repeat", "0"]) == 2
     assert "--repeat" in capsys.readouterr().err
+
+
+def test_bench_charges_collision_frames_what_they_add_to_the_run_write(monkeypatch, tmp_path):
+    """A free frame's write is the free frames' layer over their count; a collision frame's is the
+    layer of every computed frame less the free frames' layer, over the collision frames' count:
+    the two together are the run's write, nothing counted twice, holds in neither. A fake clock
+    makes each write cost exactly a layer's fixed 7 ms, 11 ms for the first frame's whole display,
+    then 2 ms a free frame and 5 ms a collision frame after it."""
+    from types import SimpleNamespace as NS
+
+    clock = [0.0]
+    kinds = {0: False, 1: False, 2: True, 3: True, 4: False, 5: True, 6: False}  # frame -> in collision
+    stats = [NS(frame=f, in_collision=c, hold=False) for f, c in kinds.items()]
+    stats.append(NS(frame=7, in_collision=True, hold=True))  # a hold: written in neither layer
+
+    def write_output(stage_path, path, scene, part):
+        frames = sorted(part.frames)
+        assert 7 not in frames
+        clock[0] += 1e-3 * (7 + 11 + sum(5 if kinds[f] else 2 for f in frames[1:]))
+        Path(path).write_text("layer")
+
+    fake = NS(FramesResult=lambda frames, topologies: NS(frames=frames), write_output=write_output)
+    report = NS(stats=stats, result=NS(frames={s.frame: object() for s in stats}, topologies={}), stage_path="in.usda", scene=None)
+    monkeypatch.setattr(B.time, "perf_counter", lambda: clock[0])
+    out = B._writes(fake, report, tmp_path)
+    for fmt in ("usda", "usdc"):
+        assert out[1, fmt] == pytest.approx((7 + 11 + 3 * 2) / 4, abs=1e-12)
+        assert out[0, fmt] == pytest.approx(5, abs=1e-12)  # what each collision frame adds
+        assert 3 * out[0, fmt] + 4 * out[1, fmt] == pytest.approx(7 + 11 + 3 * 5 + 3 * 2, abs=1e-12)  # the run's write
+    assert not any(tmp_path.iterdir())  # every layer removed after its write
+    only_free = NS(**{**vars(report), "stats": [s for s in stats if not s.in_collision]})
+    out = B._writes(fake, only_free, tmp_path)
+    assert np.isnan(out[0, "usda"]) and out[1, "usda"] == pytest.approx((7 + 11 + 3 * 2) / 4, abs=1e-12)
