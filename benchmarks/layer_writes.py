@@ -9,7 +9,10 @@ untimed), the layers alternated, two writes of each first untimed. Prints the CP
 (`time.process_time`) per frame of the layer's kind, median and range over ``--repeat`` writes,
 and what `acra bench` charges a collision frame: the layer of every computed frame less the layer
 of the free frames alone (the first frame included, as the run writes it), over the collision
-frames' count, each pass's difference, median and range. The script imports
+frames' count, each pass's difference, median and range. ``--profile FMT`` (``usda`` or ``usdc``)
+then profiles that share: cProfile with the CPU clock over ``--repeat`` writes of each of the two
+layers, and prints the functions whose own time differs most between them, per collision frame
+(cProfile's overhead included, so the parts, not the total, are the figures to read). The script imports
 `acra` and `pipeline` from ``PYTHONPATH``: run it with two checkouts' paths, alternated, to
 compare them on the same results.
 """
@@ -17,8 +20,10 @@ compare them on the same results.
 from __future__ import annotations
 
 import argparse
+import cProfile
 import os
 import pathlib
+import pstats
 import shutil
 import statistics
 import tempfile
@@ -33,6 +38,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
     parser.add_argument("--repeat", type=int, default=9)
+    parser.add_argument("--profile", choices=("usda", "usdc"), help="profile a collision frame's share of the run's write")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         src = pathlib.Path(tmp) / args.scene.name
@@ -74,6 +80,35 @@ def main() -> None:
             share = [cell([(a - f) / n_col for a, f in zip(times["every computed frame", fmt], times["free frames and the first", fmt])])
                      for fmt in ("usda", "usdc")]
             print(f"| a collision frame's share of the run's write (`acra bench`) | {n_col} | {share[0]} | {share[1]} |")
+            if args.profile:
+                print(_profile_share(stage_path, scene, result, kinds, args.profile, args.repeat, pathlib.Path(tmp)))
+
+
+def _profile_share(stage_path, scene, result, kinds: dict, fmt: str, repeat: int, tmp: pathlib.Path) -> str:
+    """The functions whose own CPU time differs most between a layer of every computed frame and
+    one of the free frames with the first, per collision frame: where a collision frame's share
+    of the run's write goes."""
+    own = {}
+    for kind in ("every computed frame", "free frames and the first"):
+        part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(kinds[kind])}, result.topologies)
+        prof = cProfile.Profile(time.process_time)
+        for i in range(repeat + 1):
+            out = tmp / f"profile{i}.acra.{fmt}"
+            if i:
+                prof.enable()
+            output_layer.write_output(stage_path, out, scene, part)
+            if i:
+                prof.disable()
+            out.unlink()
+        own[kind] = {k: v[2] for k, v in pstats.Stats(prof).stats.items()}
+    n = len(kinds["collision frames alone"]) * repeat
+    every, free = own["every computed frame"], own["free frames and the first"]
+    diff = sorted(((t - free.get(k, 0.0)) / n, k) for k, t in every.items())[::-1]
+    lines = [f"\nA collision frame's share of the `.{fmt}` write, by function (own CPU ms, cProfile, {repeat} writes of each layer):\n",
+             "| function | ms |", "|---|---:|"]
+    lines += [f"| `{pathlib.Path(k[0]).name}:{k[2]}` | {1e3 * t:.3f} |" for t, k in diff[:12]]
+    lines.append(f"| all | {1e3 * sum(t for t, _ in diff):.3f} |")
+    return "\n".join(lines)
 
 if __name__ == "__main__":
     main()
