@@ -9,9 +9,9 @@ default ``.usda`` text output and, in its own row, the binary ``.usdc`` (what ``
 costs: the text writer's float formatting is the ``.usda`` floor, docs/cli.md). A free frame's
 figure is the write of a layer of the free frames alone over their count, so a free frame is not
 charged the conversion of the collision frames' new surfaces; a collision frame's is what the
-collision frames add to it: the write of a layer of every computed frame less that of the free
-frames alone, over the collision frames' count. The two together are the write of the run's
-computed frames, no part counted twice (holds are neither kind and written in neither layer).
+collision frames add to the run's write: a layer of them with the free frames around them less a
+layer of those free frames alone, over their count, the difference taken in CPU time and given
+in wall clock at the writes' own ratio (`_writes`).
 Then times ``acra run`` end to end in a fresh process (start-up included), writing ``.usda`` and
 ``.usdc`` in turn after one warm-up run, splits each process's wall clock into its phases (the
 run's ``--report`` phases, `pipeline.run.run_file`; the interpreter's start and exit is the rest),
@@ -51,8 +51,8 @@ THESIS = {
 # targets: ms per collision frame, ms per free frame (.usda, .usdc output), s end to end
 TARGETS = {"collision frame": 10.0, "free frame": 2.0, "free frame, .usdc": 0.5, "end to end": 2.0}
 # timed writes of each layer whose median a repeat takes (`_writes`): a collision frame's write is
-# a difference of two layers' writes, and the median of three keeps one disturbed write out of it
-WRITES = 3
+# a difference of two layers' writes, and the median of five keeps a disturbed write out of it
+WRITES = 5
 # phases of one `acra run` process, in order (`pipeline.run.run_file`; "interpreter" is the rest of
 # the process's wall clock: starting Python before the command line's first line, and exiting)
 PHASES = {
@@ -182,42 +182,57 @@ def run_bench(scene: Path | None = None, repeat: int = 3, first_run: bool = Fals
 def _writes(output_layer, report, tmp: Path) -> dict:
     """Milliseconds per frame of writing ``report``'s result, ``{(col, fmt): ms}`` with ``col`` 0
     for a collision frame and 1 for a free frame, ``fmt`` "usda" or "usdc" (NaN where the scene has
-    no frame of that kind). A free frame's is a layer of the free frames alone over their count; a
-    collision frame's is a layer of every computed frame (holds left out) less the free frames'
-    layer, over the collision frames' count: what the collision frames add to the run's write, the
-    formatting of what they changed and their share of the bytes, while the whole display's first
-    formatting and the layer's fixed costs stay with the free frames, as in the run. Each layer's
-    figure is the median of `WRITES` writes, the two layers alternated after one untimed write of
-    each (the format's first write in a process loads what later ones reuse)."""
-    computed = {s.frame: s.in_collision for s in report.stats if not s.hold}
-    free = {f for f, c in computed.items() if not c}
-    n_col = len(computed) - len(free)
-    layers = {"free": free, "all": set(computed) if n_col else set()}
+    no frame of that kind). Holds are neither kind and written in neither.
+
+    A free frame's is the wall clock of a layer of the free frames alone over their count. A
+    collision frame's is what the collision frames add to the run's write: a layer of the
+    collision frames with the free frames around them (the computed frame before and after each
+    run of collision frames) less a layer of those free frames alone, over the collision frames'
+    count. A frame's text formats only what differs from the frame before it, so that difference
+    is the formatting of what the collision frames changed and of the free frame after them
+    formatting the surface back, their bytes and their response's arrays, as in the run's layer;
+    the whole display's first formatting and the layer's fixed costs fall in both layers and
+    cancel. The difference is taken in CPU time, which other processes' load leaves alone (a
+    difference of two wall clocks on a loaded machine is mostly the load's), and given in wall
+    clock at the two layers' writes' own ratio of wall to CPU time, never below 1 (a write using
+    more than one thread is charged its CPU time). Each figure is the median of `WRITES` writes,
+    the layers alternated after one untimed write of each (a format's first write in a process
+    loads what later ones reuse)."""
+    order = [s.frame for s in sorted(report.stats, key=lambda s: s.frame) if not s.hold]
+    hit = {s.frame for s in report.stats if not s.hold and s.in_collision}
+    free = set(order) - hit
+    near = {f for i, f in enumerate(order) if f in free and ((i > 0 and order[i - 1] in hit) or (i + 1 < len(order) and order[i + 1] in hit))}
+    layers = {"free": free, "near": near, "both": near | hit}
     out = {}
     for fmt in ("usda", "usdc"):
-        ms: dict = {k: [] for k in layers}
+        wall: dict = {k: [] for k in layers}
+        cpu: dict = {k: [] for k in layers}
         for i in range(WRITES + 1):
             for k, frames in layers.items():
-                t = _write_ms(output_layer, report, frames, tmp / f"{k}.acra.{fmt}")
+                w, c = _write_ms(output_layer, report, frames, tmp / f"{k}.acra.{fmt}")
                 if i:
-                    ms[k].append(t)
-        ms_free, ms_all = _median(ms["free"]), _median(ms["all"])
-        out[1, fmt] = ms_free / len(free) if free else float("nan")
-        out[0, fmt] = (ms_all - ms_free) / n_col if n_col else float("nan")
+                    wall[k].append(w)
+                    cpu[k].append(c)
+        out[1, fmt] = _median(wall["free"]) / len(free) if free else float("nan")
+        if hit:
+            ratio = sum(wall["near"] + wall["both"]) / max(sum(cpu["near"] + cpu["both"]), 1e-12)
+            out[0, fmt] = (_median(cpu["both"]) - _median(cpu["near"])) * max(ratio, 1.0) / len(hit)
+        else:
+            out[0, fmt] = float("nan")
     return out
 
 
-def _write_ms(output_layer, report, frames: set, path: Path) -> float:
-    """Milliseconds of one write of a layer of only ``frames`` of ``report``'s result to ``path``
-    (its suffix picks the format); 0 for no frames. ``path`` must not exist, and is removed
-    afterwards, untimed: replacing an earlier file would charge the write the freeing of that
-    file's blocks (tens of ms wall for a 55 MB layer here)."""
+def _write_ms(output_layer, report, frames: set, path: Path) -> tuple[float, float]:
+    """Wall and CPU milliseconds of one write of a layer of only ``frames`` of ``report``'s
+    result to ``path`` (its suffix picks the format); zeros for no frames. ``path`` must not
+    exist, and is removed afterwards, untimed: replacing an earlier file would charge the write
+    the freeing of that file's blocks (tens of ms wall for a 55 MB layer here)."""
     if not frames:
-        return 0.0
+        return 0.0, 0.0
     part = output_layer.FramesResult({f: r for f, r in report.result.frames.items() if f in frames}, report.result.topologies)
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     output_layer.write_output(report.stage_path, path, report.scene, part)
-    ms = 1e3 * (time.perf_counter() - t)
+    ms = 1e3 * (time.perf_counter() - t), 1e3 * (time.process_time() - c)
     path.unlink()
     return ms
 

@@ -68,33 +68,42 @@ def test_bench_rejects_a_bad_repeat(capsys):
 
 
 def test_bench_charges_collision_frames_what_they_add_to_the_run_write(monkeypatch, tmp_path):
-    """A free frame's write is the free frames' layer over their count; a collision frame's is the
-    layer of every computed frame less the free frames' layer, over the collision frames' count:
-    the two together are the run's write, nothing counted twice, holds in neither. A fake clock
-    makes each write cost exactly a layer's fixed 7 ms, 11 ms for the first frame's whole display,
-    then 2 ms a free frame and 5 ms a collision frame after it."""
+    """A free frame's write is the free frames' layer over their count; a collision frame's is a
+    layer of the collision frames with the free frames around them less a layer of those free
+    frames alone, over the collision frames' count, in CPU time, given in wall clock at the
+    writes' ratio (never below 1); holds are in neither. Fake clocks make each write cost exactly
+    a layer's fixed 7 ms CPU, 11 ms for its first frame's whole display, then 2 ms a free frame
+    and 5 ms a collision frame after it (each collision frame adds 5 ms CPU), the wall clock
+    running 1.5 times as fast (a loaded machine) or 0.8 times (a write on two threads)."""
     from types import SimpleNamespace as NS
 
-    clock = [0.0]
-    kinds = {0: False, 1: False, 2: True, 3: True, 4: False, 5: True, 6: False}  # frame -> in collision
+    kinds = {0: False, 1: False, 2: True, 3: True, 4: False, 5: True, 6: False, 7: False}  # frame -> in collision
     stats = [NS(frame=f, in_collision=c, hold=False) for f, c in kinds.items()]
-    stats.append(NS(frame=7, in_collision=True, hold=True))  # a hold: written in neither layer
-
-    def write_output(stage_path, path, scene, part):
-        frames = sorted(part.frames)
-        assert 7 not in frames
-        clock[0] += 1e-3 * (7 + 11 + sum(5 if kinds[f] else 2 for f in frames[1:]))
-        Path(path).write_text("layer")
-
-    fake = NS(FramesResult=lambda frames, topologies: NS(frames=frames), write_output=write_output)
+    stats.append(NS(frame=8, in_collision=True, hold=True))  # a hold: written in neither layer
     report = NS(stats=stats, result=NS(frames={s.frame: object() for s in stats}, topologies={}), stage_path="in.usda", scene=None)
-    monkeypatch.setattr(B.time, "perf_counter", lambda: clock[0])
-    out = B._writes(fake, report, tmp_path)
-    for fmt in ("usda", "usdc"):
-        assert out[1, fmt] == pytest.approx((7 + 11 + 3 * 2) / 4, abs=1e-12)
-        assert out[0, fmt] == pytest.approx(5, abs=1e-12)  # what each collision frame adds
-        assert 3 * out[0, fmt] + 4 * out[1, fmt] == pytest.approx(7 + 11 + 3 * 5 + 3 * 2, abs=1e-12)  # the run's write
-    assert not any(tmp_path.iterdir())  # every layer removed after its write
+    # (the wall clock's pace against the CPU clock's, what a collision frame is charged)
+    for pace, charged in ((1.5, 5 * 1.5), (0.8, 5)):  # a loaded machine; a write on more than one thread
+        wall, cpu, written = [0.0], [0.0], []
+
+        def write_output(stage_path, path, scene, part):
+            frames = sorted(part.frames)
+            written.append(tuple(frames))
+            cost = 1e-3 * (7 + 11 + sum(5 if kinds[f] else 2 for f in frames[1:]))
+            cpu[0] += cost
+            wall[0] += pace * cost
+            Path(path).write_text("layer")
+
+        fake = NS(FramesResult=lambda frames, topologies: NS(frames=frames), write_output=write_output)
+        monkeypatch.setattr(B.time, "perf_counter", lambda: wall[0])
+        monkeypatch.setattr(B.time, "process_time", lambda: cpu[0])
+        out = B._writes(fake, report, tmp_path)
+        # the layers: the free frames; the free frames around a collision frame (1, 4, 6), with the collision frames
+        assert set(written) == {(0, 1, 4, 6, 7), (1, 4, 6), (1, 2, 3, 4, 5, 6)}
+        assert len(written) == 2 * 3 * (B.WRITES + 1)
+        for fmt in ("usda", "usdc"):
+            assert out[1, fmt] == pytest.approx(pace * (7 + 11 + 4 * 2) / 5, abs=1e-12)  # wall clock
+            assert out[0, fmt] == pytest.approx(charged, abs=1e-12)  # what each collision frame adds
+        assert not any(tmp_path.iterdir())  # every layer removed after its write
     only_free = NS(**{**vars(report), "stats": [s for s in stats if not s.in_collision]})
     out = B._writes(fake, only_free, tmp_path)
-    assert np.isnan(out[0, "usda"]) and out[1, "usda"] == pytest.approx((7 + 11 + 3 * 2) / 4, abs=1e-12)
+    assert np.isnan(out[0, "usda"]) and out[1, "usda"] == pytest.approx(0.8 * (7 + 11 + 4 * 2) / 5, abs=1e-12)
