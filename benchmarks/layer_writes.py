@@ -2,17 +2,19 @@
 
     PYTHONPATH=$PWD python3 benchmarks/layer_writes.py [SCENE.py] [--repeat 9]
 
-Runs the scene once (`frames.run_frames`), then writes a layer of its collision frames alone, a
-layer of its free frames alone (not the first frame) and a layer of every computed frame, each as
-``.usda`` and as ``.usdc`` (`output_layer.write_output`, each write to a new file, removed
-untimed), the layers alternated, two writes of each first untimed. Prints the CPU milliseconds
-(`time.process_time`) per frame of the layer's kind, median and range over ``--repeat`` writes,
-and what `acra bench` charges a collision frame: the layer of every computed frame less the layer
-of the free frames alone (the first frame included, as the run writes it), over the collision
-frames' count, each pass's difference, median and range. ``--profile FMT`` (``usda`` or ``usdc``)
-then profiles that share: cProfile with the CPU clock over ``--repeat`` writes of each of the two
-layers, and prints the functions whose own time differs most between them, per collision frame
-(cProfile's overhead included, so the parts, not the total, are the figures to read). The script imports
+Runs the scene once (`frames.run_frames`), then writes layers of its results, each as ``.usda``
+and as ``.usdc`` (`output_layer.write_output`, each write to a new file, removed untimed), the
+layers alternated, two writes of each first untimed: its collision frames alone; its free frames
+alone (not the first frame); the free frames with the first; every computed frame; the free
+frames around the collision frames (the computed frame before and after each run of them); and
+those with the collision frames. Prints the CPU milliseconds (`time.process_time`) per frame of
+the layer's kind, median and range over ``--repeat`` writes, and what `acra bench` charges a
+collision frame in CPU time (`pipeline.bench._writes`): the last layer less the one before, over
+the collision frames' count, each pass's difference, median and range. ``--profile FMT``
+(``usda`` or ``usdc``) then profiles that share: cProfile with the CPU clock over ``--repeat``
+writes of each of the two layers, and prints the functions whose own time differs most between
+them, per collision frame (cProfile's overhead included, so the parts, not the total, are the
+figures to read). The script imports
 `acra` and `pipeline` from ``PYTHONPATH``: run it with two checkouts' paths, alternated, to
 compare them on the same results.
 """
@@ -52,6 +54,10 @@ def main() -> None:
                  "free frames alone": [s.frame for s in stats if not s.in_collision and not s.hold and s.frame != scene.start],
                  "free frames and the first": [s.frame for s in stats if not s.in_collision and not s.hold],
                  "every computed frame": computed}
+        hit = set(kinds["collision frames alone"])
+        kinds["the free frames around them"] = [f for i, f in enumerate(computed) if f not in hit and (
+            (i > 0 and computed[i - 1] in hit) or (i + 1 < len(computed) and computed[i + 1] in hit))]
+        kinds["those with the collision frames"] = sorted(set(kinds["the free frames around them"]) | hit)
         kinds = {k: v for k, v in kinds.items() if v}
         print(f"`python3 benchmarks/layer_writes.py {args.scene.name} --repeat {args.repeat}`: CPU ms per frame of the layer's kind, "
               f"median (range) of {args.repeat} writes; load average {os.getloadavg()[0]:.1f} (1 min)\n")
@@ -76,8 +82,8 @@ def main() -> None:
             print(f"| {kind} | {len(which)} | {cell([t / len(which) for t in times[kind, 'usda']])} | "
                   f"{cell([t / len(which) for t in times[kind, 'usdc']])} |")
         n_col = len(kinds.get("collision frames alone", []))
-        if n_col and "free frames and the first" in kinds:
-            share = [cell([(a - f) / n_col for a, f in zip(times["every computed frame", fmt], times["free frames and the first", fmt])])
+        if n_col:
+            share = [cell([(a - f) / n_col for a, f in zip(times["those with the collision frames", fmt], times["the free frames around them", fmt])])
                      for fmt in ("usda", "usdc")]
             print(f"| a collision frame's share of the run's write (`acra bench`) | {n_col} | {share[0]} | {share[1]} |")
             if args.profile:
@@ -85,11 +91,11 @@ def main() -> None:
 
 
 def _profile_share(stage_path, scene, result, kinds: dict, fmt: str, repeat: int, tmp: pathlib.Path) -> str:
-    """The functions whose own CPU time differs most between a layer of every computed frame and
-    one of the free frames with the first, per collision frame: where a collision frame's share
-    of the run's write goes."""
+    """The functions whose own CPU time differs most between a layer of the collision frames with
+    the free frames around them and one of those free frames alone, per collision frame: where
+    a collision frame's share of the run's write goes."""
     own = {}
-    for kind in ("every computed frame", "free frames and the first"):
+    for kind in ("those with the collision frames", "the free frames around them"):
         part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(kinds[kind])}, result.topologies)
         prof = cProfile.Profile(time.process_time)
         for i in range(repeat + 1):
@@ -102,7 +108,7 @@ def _profile_share(stage_path, scene, result, kinds: dict, fmt: str, repeat: int
             out.unlink()
         own[kind] = {k: v[2] for k, v in pstats.Stats(prof).stats.items()}
     n = len(kinds["collision frames alone"]) * repeat
-    every, free = own["every computed frame"], own["free frames and the first"]
+    every, free = own["those with the collision frames"], own["the free frames around them"]
     diff = sorted(((t - free.get(k, 0.0)) / n, k) for k, t in every.items())[::-1]
     lines = [f"\nA collision frame's share of the `.{fmt}` write, by function (own CPU ms, cProfile, {repeat} writes of each layer):\n",
              "| function | ms |", "|---|---:|"]
