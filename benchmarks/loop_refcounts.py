@@ -26,7 +26,7 @@ os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="loop_refcounts_")  # be
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODULES = ("nearest", "kdtree", "narrow", "levelkernels", "framekernels", "halfspaces", "raycast", "patch_boxes",
-           "orientation", "float32", "floattext", "pseudonormals", "bvh", "depthbound", "meshrows", "clearcells",
+           "orientation", "float32", "floatdigits", "floattext", "pseudonormals", "bvh", "depthbound", "meshrows", "clearcells",
            "kernels", "tessellate", "lattice")
 
 

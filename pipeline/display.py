@@ -170,16 +170,19 @@ def finish(stage, scene: SceneModel, result, stats: list, options, displays: Dis
         st.ms_total += ms.get(st.frame, 0.0)
 
 
-_CONTROLLER: list = []  # the process's `threadpoolctl.ThreadpoolController`, built at the first `finish`
+_CONTROLLER: list = []  # the process's `threadpoolctl.ThreadpoolController`, built at its first use
 
 
 def _blas() -> ThreadpoolController:
-    """The process's thread-pool controller, built once: building one scans every loaded library
-    for a BLAS (0.25 ms CPU on this machine with USD's libraries loaded), where the limit it then
-    sets takes 0.01 ms. `finish` calls it after importing `pipeline.residual`, whose imports load
-    scipy.linalg, so both BLAS libraries the process has (numpy's and scipy's OpenBLAS) are
-    loaded by the first scan."""
+    """The process's thread-pool controller, built once, which the frame loop
+    (`frames.respond_frames`) and `finish` both limit BLAS through: building one scans every
+    loaded library for a BLAS (0.25 ms CPU on this machine with USD's libraries loaded), where
+    the limit it then sets takes 0.01 ms. It is built after importing `pipeline.residual`, whose
+    imports load scipy.linalg, so both BLAS libraries the process has (numpy's and scipy's
+    OpenBLAS) are loaded by the first scan."""
     if not _CONTROLLER:
+        from pipeline import residual  # noqa: F401  (its imports load scipy's BLAS before the scan)
+
         _CONTROLLER.append(ThreadpoolController())
     return _CONTROLLER[0]
 

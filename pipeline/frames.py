@@ -19,7 +19,6 @@ from typing import Callable
 
 import numpy as np
 from pxr import Usd
-from threadpoolctl import threadpool_limits
 
 from acra import hspline as H
 from acra import respond as R
@@ -235,9 +234,11 @@ def respond_frames(
 
     BLAS runs single-threaded here: ACRA's systems are small (a Gram matrix per object, K ≲ a few
     hundred), and a threaded OpenBLAS on a busy 2-core machine made a 100×100 ``eigh`` take
-    272 ms instead of 1.8 ms (measured; `docs/performance.md`).
+    272 ms instead of 1.8 ms (measured; `docs/performance.md`). The limit is set through the
+    process's one thread-pool controller (`display._blas`), which scans the loaded libraries once
+    rather than at every call.
     """
-    with threadpool_limits(limits=1, user_api="blas"):
+    with display._blas().limit(limits=1, user_api="blas"):
         return _run_frames(stage, scene, frames, options, on_frame, initial, displays)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+import weakref
 from dataclasses import dataclass
 from functools import cached_property
 from itertools import accumulate
@@ -333,13 +334,23 @@ class GridCache:
     """The collision grids of one `Shape`, built on demand per level-0 patch at the patch's
     `Shape.density_map` steps, and the last few `GridSet`s asked for. A responded shape takes its
     parent's grid objects for patches the response did not reach (`Shape._stale`), so a local
-    response re-tessellates only where it changed the surface."""
+    response re-tessellates only where it changed the surface.
+
+    The cache reaches its shape through a weak reference: the shape holds the cache
+    (`Shape.cache`), so a strong one back would make a cycle, and a dropped shape, its grids and
+    their sets would wait for the cyclic collector instead of being freed at once."""
 
     def __init__(self, shape: Shape) -> None:
-        self.shape = shape
+        self._shape = weakref.ref(shape)
         self.grids: dict[tuple[int, int], PatchGrid] = {}
         self._gridsets: dict[tuple[int, ...], GridSet] = {}
         self._sets: dict[bytes, tuple[np.ndarray, list[PatchGrid]]] = {}
+
+    @property
+    def shape(self) -> Shape:
+        """The shape whose grids these are (alive while the cache is used: it is reached through
+        its shape, `Shape.cache`)."""
+        return self._shape()
 
     @timed
     def build(self, missing: list[tuple[int, int]]) -> None:

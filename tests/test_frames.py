@@ -329,3 +329,31 @@ def test_a_colliders_inside_is_the_detections_solid_where_trimesh_kept_its_array
         want = residual.collider_solid(models[j].vertices, models[j].triangles)
         for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds", "facet", "convex"):
             np.testing.assert_array_equal(getattr(got[j], name), getattr(want, name))
+
+
+def test_respond_frames_limits_blas_through_the_process_s_one_controller(tiny_stage, monkeypatch):
+    """`respond_frames` holds every BLAS library the process has (as a fresh scan finds them) to
+    one thread while its frames run, through the controller `display.finish` uses
+    (`display._blas`: no scan of the loaded libraries a call), and gives their threads back
+    after."""
+    import threadpoolctl
+
+    from pipeline import display, usdio
+
+    stage = usdio.open_input(tiny_stage(frames=2, n=6, levels=1, depth=0.1))
+    scene = usdio.read_scene(stage)
+    blas = lambda c: {lib["filepath"]: lib["num_threads"] for lib in c.info() if lib["user_api"] == "blas"}  # noqa: E731
+    controller = display._blas()
+    with threadpoolctl.ThreadpoolController().limit(limits=2, user_api="blas"):  # threads to give back
+        before = blas(threadpoolctl.ThreadpoolController())
+        assert set(blas(controller)) == set(before) and set(before.values()) == {2}
+        seen, scans = [], []
+        run, scan = F._run_frames, threadpoolctl.ThreadpoolController._load_libraries
+        monkeypatch.setattr(F, "_run_frames", lambda *a: seen.append(blas(controller)) or run(*a))
+        monkeypatch.setattr(threadpoolctl.ThreadpoolController, "_load_libraries",
+                            lambda self: scans.append(1) or scan(self))
+        F.respond_frames(stage, scene, [1, 2])
+        F.respond_frames(stage, scene, [2])
+        assert display._blas() is controller and not scans
+        assert seen == [dict.fromkeys(before, 1)] * 2
+        assert blas(controller) == before
