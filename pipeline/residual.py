@@ -609,7 +609,8 @@ def _measured(a: Shown, b: Shown, tolerance: float, measured: dict | None, known
         return known[a.fingerprint, b.fingerprint, tolerance]
     if settle and proven:  # depth and deepest point 0: lower bounds
         return replace(_nothing(a), complete=False, stopped=True)
-    ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size, OVER * tolerance * size if settle else np.inf)
+    more = {"stop": OVER * tolerance * size} if settle else {}
+    ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size, **more)
     if measured is not None and not ins.stopped:
         measured[key] = (a, b, ins)
     return ins

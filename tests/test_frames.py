@@ -195,7 +195,8 @@ def test_set_up_the_display_measure_triggers_is_counted_as_set_up(tiny_stage, mo
 def test_each_round_measures_its_displays_once(tiny_stage, monkeypatch):
     """A round's display measure (`residual.measure_frame`) is taken once, at the round's start:
     the round's judge, the skip of detection (`_Run._displays_judge`) and the kept round's
-    residual all read that one measure."""
+    residual all read that one measure (the first round's lower bounds are completed from it,
+    `residual.complete`, not measured again)."""
     from pipeline import residual
     from pipeline import usdio
 
