@@ -583,19 +583,19 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None, measured: 
     later = set(settle)
     for n, (i, j) in enumerate(pairs):
         if n not in later and objects[j].closed:
-            answers[n] = _measured(objects[i], objects[j], tolerance, measured, known)
+            answers[n] = _pair_answer(objects[i], objects[j], tolerance, measured, known)
     proven = over or any(ins is not None and ins.depth / max(objects[i].size, 1e-300) > tolerance
                          for ins, (i, _) in zip(answers, pairs))
     for n in settle:
         i, j = pairs[n]
         if objects[j].closed:
-            answers[n] = _measured(objects[i], objects[j], tolerance, measured, known, settle=True, proven=proven)
+            answers[n] = _pair_answer(objects[i], objects[j], tolerance, measured, known, settle=True, proven=proven)
             proven = proven or answers[n].stopped or answers[n].depth / max(objects[i].size, 1e-300) > tolerance
     return _residual([(objects[i], objects[j], ins) for (i, j), ins in zip(pairs, answers) if ins is not None])
 
 
-def _measured(a: Shown, b: Shown, tolerance: float, measured: dict | None, known: dict | None, settle: bool = False,
-              proven: bool = False) -> Inside:
+def _pair_answer(a: Shown, b: Shown, tolerance: float, measured: dict | None, known: dict | None, settle: bool = False,
+                 proven: bool = False) -> Inside:
     """`measure_frame`'s answer for ``a`` in ``b``: kept in ``measured`` or ``known``, else
     measured (and kept in ``measured``); with ``settle``, a search stopped at a point `OVER`
     times deeper than the tolerance, or, where the frame is ``proven`` over it, no measure (a
@@ -638,7 +638,7 @@ def complete(fr: FrameResidual, tolerance: float, measured: dict | None = None) 
     ``settle`` gives on the same objects, its answers and figures in the same order."""
     if not fr.stopped:
         return fr
-    return _residual([(a, b, _measured(a, b, tolerance, measured, None) if ins.stopped else ins)
+    return _residual([(a, b, _pair_answer(a, b, tolerance, measured, None) if ins.stopped else ins)
                       for a, b, ins in fr.measured])
 
 
