@@ -305,10 +305,11 @@ def _sortable(key):
 @njit(cache=True, nogil=True)
 def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, evaluated, reach,
             leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals,
-            tol, facet, facet_start, facet_faces, planes):
+            tol, facet, facet_start, facet_faces, planes, stop):
     # `pipeline.clearance`'s branch and bound from level 0 on, the level-0 cells' eq. (4) given
     # as ``bound``; each step in the arithmetic and order of its array form (`_levels`),
-    # so the answers are the same bits. A maximum is exact whatever the order of its terms, so
+    # so the answers are the same bits. A level whose points reach deeper than ``stop`` ends the
+    # search (code 2): the caller asks only whether the depth exceeds it. A maximum is exact whatever the order of its terms, so
     # the retired cells' eq. (6) is taken one cell at a time, largest eq. (4) first, until the
     # next cannot raise it. Python's ``max(a, b)`` keeps ``a`` unless ``b > a``: written out
     # below, a signed zero comes out as it does there.
@@ -463,6 +464,8 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                 m += 1
         if deepest > low:
             low = deepest
+        if low > stop:  # a point deeper than ``stop`` answers the caller: the cells are left
+            return 2, low, low, False, evaluated, level, found_tri[:m], found_lat[:m], found_pts[:m], found_sd[:m]
         # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20), child by child
         lattice, sd, fc, rows, rho = (np.empty((4 * c, 3, 3), np.int64), np.empty((4 * c, 3)),
                                       np.empty((4 * c, 3), np.int64), np.empty(4 * c, np.int64), np.empty(4 * c))
@@ -495,9 +498,10 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
 @njit(cache=True, nogil=True)
 def _depth(tri, box_lo, box_hi, part, reach, target, decide, max_split, budget, far, link, leaf_tri, order, lo, hi, left,
            right, start, count, vertices, faces, normals, edge_normals, vertex_normals, tol, facet, facet_start,
-           facet_faces, planes):
+           facet_faces, planes, stop):
     # `pipeline.clearance._triangle_depth`'s level 0 (its corners, `_signed_corners`) in the
-    # arithmetic and order of its array form, then the levels past it (`_refine`)
+    # arithmetic and order of its array form, then the levels past it (`_refine`); a corner
+    # deeper than ``stop`` ends the search there (code 2, the corners found inside)
     steps = 1 << max_split
     t = tri.shape[0]
     meet = np.empty(t, np.bool_)
@@ -624,6 +628,8 @@ def _depth(tri, box_lo, box_hi, part, reach, target, decide, max_split, budget, 
             n_in += 1
     if c == 0:
         return 0, 0.0, low, True, u, 0, in_tri, in_lat, in_pts, in_sd
+    if low > stop:
+        return 2, low, low, False, u, 0, in_tri, in_lat, in_pts, in_sd
     lattice = np.zeros((c, 3, 3), np.int64)
     sd, fc = np.empty((c, 3)), np.empty((c, 3), np.int64)
     bound = np.empty(c)
@@ -657,14 +663,14 @@ def _depth(tri, box_lo, box_hi, part, reach, target, decide, max_split, budget, 
     code, retired, low, complete, evaluated, level, f_tri, f_lat, f_pts, f_sd = _refine(
         tri, src, np.arange(c), lattice, sd, fc, rho, bound, low, target, decide, steps, max_split, budget, u, reach,
         leaf_tri, order, lo, hi, left, right, start, count, vertices, faces, normals, edge_normals, vertex_normals, tol,
-        facet, facet_start, facet_faces, planes)
+        facet, facet_start, facet_faces, planes, stop)
     return (code, retired, low, complete, evaluated, level, np.concatenate((in_tri, f_tri)), np.concatenate((in_lat, f_lat)),
             np.concatenate((in_pts, f_pts)), np.concatenate((in_sd, f_sd)))
 
 
 def depth(tri, box, part: bool, reach: float, target: float, decide: float, max_split: int, budget: int, far: float,
           link: float, tree: Tree, vertices, faces, normals, edge_normals, vertex_normals, tol: float, facet, facet_start,
-          facet_faces, planes=None):
+          facet_faces, planes=None, stop: float = np.inf):
     """`pipeline.clearance.triangle_depth`'s branch and bound of triangles ``tri (t, 3, 3)`` in one
     compiled call, the same bits as its array form: the triangles whose boxes meet ``box (2, 3)``
     (within ``reach`` on a ``part``, where every triangle must), their corners signed (far ones
@@ -677,14 +683,21 @@ def depth(tri, box, part: bool, reach: float, target: float, decide: float, max_
     else ``(g,) int64`` the faces whose planes bound every cell (one of each facet); ``None``
     for no eq. (7).
 
+    ``stop``: the search ends at the first level (the corners, then each split's midpoints)
+    whose points reach deeper than it, for a caller that asks only whether the depth exceeds it
+    (a tolerance): every step before is the full search's, so the points found are the first of
+    the full search's, bit for bit, and no later step is taken. ``inf``: the full search.
+
     Returns ``None`` if a point is unresolved, else ``(bound, low, complete, evaluated, level,
-    tri (m,) int64, lattice (m, 3) int64, points (m, 3), depth (m,))``: the certified bound, the
-    largest depth found (``-inf`` if no point), whether every cell ended within its target, the
-    points evaluated, the split depth, and the points found inside, in order, with their
-    integer barycentric weights (times ``1 << max_split``)."""
+    tri (m,) int64, lattice (m, 3) int64, points (m, 3), depth (m,), stopped)``: the certified
+    bound, the largest depth found (``-inf`` if no point), whether every cell ended within its
+    target, the points evaluated, the split depth, the points found inside, in order, with their
+    integer barycentric weights (times ``1 << max_split``), and whether ``stop`` ended the
+    search (``bound`` is then ``low``, a lower bound only, and ``complete`` is False)."""
     out = _depth(np.ascontiguousarray(tri, np.float64).reshape(-1, 3, 3), np.ascontiguousarray(box[0], np.float64),
                  np.ascontiguousarray(box[1], np.float64), bool(part), float(reach), float(target), float(decide),
                  int(max_split), int(budget), float(far), float(link), tree.leaf_tri, tree.order, tree.lo, tree.hi, tree.left,
                  tree.right, tree.start, tree.count, vertices, faces, normals, edge_normals, vertex_normals, float(tol), facet,
-                 facet_start, facet_faces, _NO_PLANES if planes is None else np.ascontiguousarray(planes, np.int64))
-    return None if out[0] else out[1:]
+                 facet_start, facet_faces, _NO_PLANES if planes is None else np.ascontiguousarray(planes, np.int64),
+                 float(stop))
+    return None if out[0] == 1 else out[1:] + (out[0] == 2,)

@@ -11,6 +11,11 @@ its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles 
 the branch and bound is one compiled call, `acra.depthbound.depth`, its searches and eq. (6) are inside it) and a digest of every answer (depths,
 completeness, the points, parameters and depths found inside): two checkouts answer alike when
 their digests agree. Run it with ``PYTHONPATH`` at each checkout, alternating, for a comparison.
+A call's ``stop`` (the first round's pairs detection found, searched only until a point deeper
+than the tolerance: `residual.measure_frame`'s ``settle``) is kept and replayed with it; a
+checkout whose frame loop makes such calls makes fewer calls, and its digest differs from one
+whose loop measures every pair in full. The calls with a stop are also given apart: their whole
+time, and their compiled search's.
 """
 
 from __future__ import annotations
@@ -30,6 +35,9 @@ from pipeline import frames as F
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SPENT: dict = collections.defaultdict(float)
+DEPTH = "the branch and bound, compiled (depth)"
+WITH_STOP = "of all, the calls with a stop"  # not part of the split: the calls' whole time
+WITH_STOP_DEPTH = "of those, the branch and bound"
 
 
 def _timed(label: str, f):
@@ -81,9 +89,9 @@ def main() -> None:
     calls = []
     real = residual.pair_depth
 
-    def keep(x, y, target, decide=np.inf):
-        calls.append((x, y, target, decide))
-        return real(x, y, target, decide)
+    def keep(x, y, target, decide=np.inf, **more):  # ``stop`` where the checkout's frame loop gives one
+        calls.append((x, y, target, decide, more))
+        return real(x, y, target, decide, **more)
 
     residual.pair_depth = keep
     F.run_frames(stage, scene, list(range(a, b + 1)))
@@ -95,7 +103,7 @@ def main() -> None:
                         ("faces_meet", "triangles near a box (faces_meet)"),  # its mask form
                         ("face_chunks", "triangles near a box (faces_meet_rows)"),  # boxes of a display's faces in chunks
                         ("faces_meet_rows", "triangles near a box (faces_meet_rows)"),  # its form giving the rows
-                        ("depth", "the branch and bound, compiled (depth)"),  # in one compiled call
+                        ("depth", DEPTH),  # in one compiled call
                         ("covering_radii", "covering radii (eq. (3))")):  # its compiled form
         for module in _kernel_modules():
             if hasattr(module, name):
@@ -108,12 +116,16 @@ def main() -> None:
         with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs
             parts: dict = {}  # a fresh cache per display, as a new display starts
             made: dict = {}  # id of a recorded `Shown` -> (it, its fresh copy)
-            fresh = [tuple(_fresh(s, parts, made) for s in (x, y)) + (t, d) for x, y, t, d in calls]
+            fresh = [tuple(_fresh(s, parts, made) for s in (x, y)) + (t, d, more) for x, y, t, d, more in calls]
             SPENT.clear()
             h = hashlib.sha1()
             t0 = time.process_time()
-            for x, y, t, d in fresh:
-                ins = residual.pair_depth(x, y, t, d)
+            for x, y, t, d, more in fresh:
+                t1, inside = time.process_time(), SPENT.get(DEPTH, 0.0)
+                ins = residual.pair_depth(x, y, t, d, **more)
+                if more:  # a call with a stop: its whole time and its compiled search's
+                    SPENT[WITH_STOP] += time.process_time() - t1
+                    SPENT[WITH_STOP_DEPTH] += SPENT.get(DEPTH, 0.0) - inside
                 h.update(np.float64([ins.depth, ins.lower, ins.complete]).tobytes())
                 for arr in (ins.points, ins.uv, ins.deep):
                     if arr is not None:
@@ -122,7 +134,8 @@ def main() -> None:
             if spent < best:
                 best, split, digest = spent, dict(SPENT), h.hexdigest()
     n = b - a + 1
-    print(f"{args.scene.name}, frames {a}-{b}: {len(calls)} pair_depth calls, fastest of {args.passes} passes "
+    stopped = sum(bool(more) for *_, more in calls)
+    print(f"{args.scene.name}, frames {a}-{b}: {len(calls)} pair_depth calls ({stopped} with a stop), fastest of {args.passes} passes "
           f"{1e3 * best:.1f} ms CPU ({1e3 * best / n:.2f} a frame); answers {digest}")
     for label, sec in sorted(split.items(), key=lambda kv: -kv[1]):
         print(f"  {label}: {1e3 * sec:.1f} ms")

@@ -367,6 +367,8 @@ class Depth:
     depth : (m,) float64, its depth (> 0)
     evaluated : number of points whose signed depth was evaluated
     split : the deepest split level any cell reached
+    stopped : True if a point deeper than `triangle_depth`'s ``stop`` ended the search: ``bound``
+        is then ``lower``, a lower bound only, and ``complete`` is False
     """
 
     bound: float
@@ -378,6 +380,7 @@ class Depth:
     depth: np.ndarray
     evaluated: int
     split: int
+    stopped: bool = False
 
 
 def _at(tri: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -459,7 +462,8 @@ def _retired_max(s: Solid, tri, src, steps, retired: float, bound, cells, rows, 
 
 
 def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget: int = 200_000,
-                   reach: float = np.inf, decide: float = np.inf, compiled: bool = True) -> Depth | None:
+                   reach: float = np.inf, decide: float = np.inf, compiled: bool = True,
+                   stop: float = np.inf) -> Depth | None:
     """`Depth` of triangles ``corners (t, 3, 3) float`` (in ``s``'s object space) inside ``s``,
     refined until every cell's ``U <= max(target, 1.25 L)``, ``max_split`` levels, or ``budget``
     evaluated points (the given triangles' corners are always evaluated). On a whole solid, a
@@ -474,15 +478,20 @@ def triangle_depth(s: Solid, corners, target: float, max_split: int = 6, budget:
     found does not put a clear surface over the tolerance.
     ``compiled``: the whole branch and bound runs in one compiled call (`acra.depthbound.depth`, the
     same bits) unless false (this module's array form: `_signed_corners`, `_levels`).
+    ``stop``: the search ends after the first level (the corners, then each split's midpoints)
+    whose points reach deeper than it (`Depth.stopped`): a caller asking only whether the
+    depth exceeds a figure learns it from one such point. Every step before is the full
+    search's, so the points found are the first of the full search's; without such a point
+    the answer is the full search's.
     """
     try:
-        return _triangle_depth(s, corners, target, max_split, budget, reach, decide, compiled)
+        return _triangle_depth(s, corners, target, max_split, budget, reach, decide, compiled, stop)
     except Unresolved:
         return None
 
 
 def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: int, reach: float,
-                    decide: float = np.inf, compiled: bool = True) -> Depth:
+                    decide: float = np.inf, compiled: bool = True, stop: float = np.inf) -> Depth:
     if not 0 <= max_split <= 30:
         raise ValueError(f"max_split must be in 0..30, not {max_split}")
     tri = np.ascontiguousarray(corners, np.float64).reshape(-1, 3, 3)
@@ -493,11 +502,11 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
             planes = s.facet_faces[s.facet_start[:-1]] if len(s.facet_start) - 1 <= ALL_PLANES else np.zeros(0, np.int64)
         out = depthbound.depth(tri, s.bounds, np.isfinite(reach), reach, target, decide, max_split, budget, FAR, LINK, s.tree,
                         s.vertices, s.faces, s.normals, s.edge_normals, s.vertex_normals, FEATURE * _extent(s), s.facet,
-                        s.facet_start, s.facet_faces, planes)
+                        s.facet_start, s.facet_faces, planes, stop)
         if out is None:
             raise Unresolved
-        retired, low, complete, evaluated, level, t, lat, p, d = out
-        return Depth(retired, max(low, 0.0), complete, t, lat / steps, p, d, evaluated, level)
+        retired, low, complete, evaluated, level, t, lat, p, d, stopped = out
+        return Depth(retired, max(low, 0.0), complete, t, lat / steps, p, d, evaluated, level, stopped)
     if np.isfinite(reach):
         # a part is a patch of the surface: a triangle missing its box may still lie inside the
         # solid (under a curved cap), so none is skipped; one whose box is beyond ``reach`` of the
@@ -526,8 +535,10 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
     fc = face_pts[inverse.reshape(-1)].reshape(-1, 3)
     rows, rho = np.arange(len(src)), rho0  # cells: row into src, lattice, corner sd, corner faces, rho
     low = float(sd_pts.max()) if len(pts) else -np.inf
-    retired, level, complete = 0.0, 0, True
-    if len(rows):
+    retired, level, complete, stopped = 0.0, 0, True, False
+    if len(rows) and low > stop:  # a corner deeper than ``stop`` answers the caller
+        retired, complete, stopped = low, False, True
+    elif len(rows):
         bound = _eq4(sd, rho)
         if pending is not None:  # eq. (6) needs the nearest faces of the far corners of cells above 0
             wanted = np.zeros(len(pts), np.bool_)  # the corners of these cells, once each, in order
@@ -536,10 +547,11 @@ def _triangle_depth(s: Solid, corners, target: float, max_split: int, budget: in
             if len(ids):
                 sd_pts[ids], _, face_pts[ids] = _signed(s, pts[ids], reach)
                 sd, fc = sd_pts[corner_pts], face_pts[corner_pts]
-        retired, low, complete, evaluated, level = _levels(s, tri, src, steps, target, max_split, budget, reach, decide,
-                                                           keep, rows, lattice, sd, fc, rho, bound, low, evaluated)
+        retired, low, complete, evaluated, level, stopped = _levels(s, tri, src, steps, target, max_split, budget, reach,
+                                                                    decide, keep, rows, lattice, sd, fc, rho, bound, low,
+                                                                    evaluated, stop)
     t, b, p, d = (np.concatenate(x) for x in zip(*found))
-    return Depth(retired, max(low, 0.0), complete, t.astype(np.int64), b, p, d, evaluated, level)
+    return Depth(retired, max(low, 0.0), complete, t.astype(np.int64), b, p, d, evaluated, level, stopped)
 
 
 def _eq4(sd: np.ndarray, rho: np.ndarray) -> np.ndarray:
@@ -550,11 +562,12 @@ def _eq4(sd: np.ndarray, rho: np.ndarray) -> np.ndarray:
 
 
 def _levels(s: Solid, tri, src, steps, target, max_split, budget, reach, decide, keep, rows, lattice, sd, fc, rho, bound,
-            low, evaluated):
+            low, evaluated, stop=np.inf):
     """The branch and bound from level 0's cells (``bound`` their eq. (4)) in numpy: ``(bound, low,
-    complete, evaluated, level)``, the points found inside handed to ``keep``. `acra.depthbound.depth`
-    compiles it in the same arithmetic and order; this form is the reference the compiled one
-    is held to."""
+    complete, evaluated, level, stopped)``, the points found inside handed to ``keep``; a level
+    whose points reach deeper than ``stop`` ends it (``stopped``, ``bound`` is ``low``).
+    `acra.depthbound.depth` compiles it in the same arithmetic and order; this form is the
+    reference the compiled one is held to."""
     retired, level, complete = 0.0, 0, True
     while len(rows):
         now = max(target, 1.25 * max(low, 0.0))
@@ -592,6 +605,8 @@ def _levels(s: Solid, tri, src, steps, target, max_split, budget, reach, decide,
         evaluated += len(pts)
         keep(src[rows[first // 3]], wts, pts, sd_mid)
         low = max(low, float(sd_mid.max(initial=-np.inf)))
+        if low > stop:
+            return low, low, False, evaluated, level, True
         # children (c0, m01, m20), (m01, c1, m12), (m20, m12, c2), (m01, m12, m20), child by child
         lattice, sd, fc, rows, rho = depthbound.children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
         level += 1
@@ -600,7 +615,7 @@ def _levels(s: Solid, tri, src, steps, target, max_split, budget, reach, decide,
             retired = max(retired, float(last.max()))
             complete = retired <= max(target, 1.25 * max(low, 0.0)) and not (decide < retired and low <= decide)
             break
-    return retired, low, complete, evaluated, level
+    return retired, low, complete, evaluated, level, False
 
 
 FAR = 2.5  # corners with no face within FAR x the largest covering radius are signed by their neighbours

@@ -394,11 +394,16 @@ class _Run:
 
 
 
-    def visible(self, geoms: list, cgeoms: list, enabled: list) -> tuple[residual.FrameResidual, dict]:
+    def visible(self, geoms: list, cgeoms: list, enabled: list, settle: dict | None = None,
+                over: bool = False) -> tuple[residual.FrameResidual, dict]:
         """The round's residual where the user looks (`pipeline.residual`): each deformable's own
         adaptive display (`display.Displays`) in every other closed object whose box meets its
         own, for the pairs `detect` tests. Returns it and, per pair ``(i, other)``, the
-        `residual.Inside` of ``i`` in ``other`` and (a deformable ``other``) of ``other`` in ``i``."""
+        `residual.Inside` of ``i`` in ``other`` and (a deformable ``other``) of ``other`` in ``i``.
+        ``settle`` (`_settle`) maps ``((i, other), side)`` (``"a"``: ``i`` in ``other``, ``"b"``
+        the reverse) to a guess of its depth: those sides are measured only until one shows the
+        frame over the tolerance, the deepest guess first, or not at all with ``over``
+        (`residual.measure_frame`'s ``settle``)."""
         shown: dict = {}
 
         def obj(kind: str, j: int) -> residual.Shown:
@@ -437,7 +442,9 @@ class _Run:
             if other[0] == "d":
                 pairs.append((index[other], index["d", i]))
                 keys.append(((i, other), "b"))
-        fr = residual.measure_frame(objects, self.options.tolerance, pairs, self._depths)
+        settle = settle or {}
+        order = sorted((n for n, ks in enumerate(keys) if ks in settle), key=lambda n: -settle[keys[n]])
+        fr = residual.measure_frame(objects, self.options.tolerance, pairs, self._depths, settle=order, over=over)
         while len(self._depths) > 4 * len(pairs) + 4:
             del self._depths[next(iter(self._depths))]
         by_pair: dict = {}
@@ -592,6 +599,7 @@ class _Run:
         pins: dict = {}  # deformable -> the data points of the frame's responses so far (`respond`)
         best = (np.inf, list(surfaces))
         kept = None  # the kept round's residual, whose answers `display.finish` takes where it shows the same
+        first = None  # the first round's residual and detection's unseen part, while it holds lower bounds only
         rounds = max(1, options.iterations)
         for it in range(rounds + 1):
             setup0 = S.SetupClock.ms
@@ -599,22 +607,24 @@ class _Run:
             cgeoms = [geometry.ColliderGeometry(self.statics[j], cstates[j].xform) for j in range(len(self.statics))]
             if it == 0:  # the animator's surfaces: detection's scale stays fixed while rounds reshape them
                 sizes = _Sizes(geoms)
+            st.ms_setup += S.SetupClock.ms - setup0
+            # detection reads nothing of the display measure: on the animator's shapes it runs
+            # first, so the measure knows the pairs it found, whose displays need only show the
+            # frame over the tolerance (`_settle`)
+            rnd = self._detected(st, frame, it, geoms, cgeoms, sizes, enabled) if it == 0 else None
             # the display measure builds the shape data it reads (a responded surface's coarse grid
             # for its orientation; its patch boxes only where `_measured`'s inner boxes do not
             # meet): that is set-up, as it is when detection builds them
             tv, setup1 = time.perf_counter(), S.SetupClock.ms
-            vis, by_pair = self.visible(geoms, cgeoms, enabled)
-            st.ms_setup += S.SetupClock.ms - setup0
+            vis, by_pair = self.visible(geoms, cgeoms, enabled, *(_settle(rnd, sizes, options.tolerance) if it == 0 else ()))
+            st.ms_setup += S.SetupClock.ms - setup1
             st.ms_visible += 1e3 * (time.perf_counter() - tv) - (S.SetupClock.ms - setup1)
-            if it > 0 and vis.worst_rel <= options.tolerance and self._displays_judge(geoms, enabled):
+            if rnd is None and vis.worst_rel <= options.tolerance and self._displays_judge(geoms, enabled):
                 # every pair is judged by its displays alone and they are within the tolerance:
                 # this round ends the frame whatever detection would find
                 rnd = _Round([], {}, {}, 0.0, 0.0)
-            else:
-                td, setup0 = time.perf_counter(), S.SetupClock.ms
-                rnd = self.detect(frame, it, geoms, cgeoms, sizes, enabled)
-                st.ms_setup += S.SetupClock.ms - setup0
-                st.ms_detect += 1e3 * (time.perf_counter() - td) - (S.SetupClock.ms - setup0)
+            elif rnd is None:
+                rnd = self._detected(st, frame, it, geoms, cgeoms, sizes, enabled)
             if it == 0:
                 st.in_collision = bool(rnd.found) or vis.worst_rel > options.tolerance  # a pair to respond to
                 st.contacts = [(c.point_a, c.point_b) for _, _, c in rnd.found]
@@ -624,12 +634,16 @@ class _Run:
             # deformables; any other pair is also judged by what detection still finds (a
             # collider wholly inside a closed deformable shows nothing of itself, yet is inside)
             score = max(vis.worst_rel, rnd.unseen_rel)
+            if first is not None and score > options.tolerance:
+                # the first round holds lower bounds over the tolerance: a round within it is kept
+                # before it whatever its exact figures, one over it is held against them
+                kept, best = self._completed(st, first, best)
+                first = None
             if score < best[0]:
                 best = (score, list(surfaces))
                 kept = vis
-                st.residual, st.residual_rel = vis.worst, vis.worst_rel
-                st.pair_residual_rel = {(defs[i].path, self._name(other)): vis.pair_rel(defs[i].path, self._name(other))
-                                        for i, other in _pairs(len(defs), len(self.statics))}
+                self._report(st, vis)
+                first = (vis, rnd.unseen_rel) if vis.stopped else None
             # what the user would see still over the tolerance, per pair and side
             over = {key: {side: p for side, p in sides.items() if p.rel > options.tolerance}
                     for key, sides in by_pair.items()}
@@ -657,6 +671,8 @@ class _Run:
             shared = frozenset(k for (i, other) in directions if other[0] == "d" for k in (i, other[1]))
             self.respond(frame, it, st, points, surfaces, pins, shared, set(points) - detected - shared)
             st.iterations = it + 1
+        if first is not None:  # the first round kept: its figures are reported, so measured in full
+            kept, best = self._completed(st, first, best)
         surfaces = best[1]
         if kept is not None:
             result.residuals[frame] = residual.known(kept, options.tolerance)
@@ -667,6 +683,32 @@ class _Run:
         self._last = _Answered(frame, dstates, cstates, st, surfaces, result.residuals.get(frame))
         st.ms_total = 1e3 * (time.perf_counter() - t0)
         return st
+
+    def _detected(self, st: FrameStats, frame: int, it: int, geoms: list, cgeoms: list, sizes, enabled: list) -> _Round:
+        """`detect`, its time and the set-up it triggers counted in ``st``."""
+        td, setup0 = time.perf_counter(), S.SetupClock.ms
+        rnd = self.detect(frame, it, geoms, cgeoms, sizes, enabled)
+        st.ms_setup += S.SetupClock.ms - setup0
+        st.ms_detect += 1e3 * (time.perf_counter() - td) - (S.SetupClock.ms - setup0)
+        return rnd
+
+    def _report(self, st: FrameStats, vis: residual.FrameResidual) -> None:
+        """The kept round's residual ``vis`` into ``st``: the worst, and each pair's."""
+        defs = self.defs
+        st.residual, st.residual_rel = vis.worst, vis.worst_rel
+        st.pair_residual_rel = {(defs[i].path, self._name(other)): vis.pair_rel(defs[i].path, self._name(other))
+                                for i, other in _pairs(len(defs), len(self.statics))}
+
+    def _completed(self, st: FrameStats, first: tuple, best: tuple) -> tuple[residual.FrameResidual, tuple]:
+        """The first round's residual measured in full (`residual.complete`, ``first`` its lower
+        bounds and detection's unseen part), reported in ``st``, and ``best`` with its score."""
+        vis, unseen = first
+        t0, setup0 = time.perf_counter(), S.SetupClock.ms
+        vis = residual.complete(vis, self.options.tolerance, self._depths)
+        st.ms_setup += S.SetupClock.ms - setup0
+        st.ms_visible += 1e3 * (time.perf_counter() - t0) - (S.SetupClock.ms - setup0)
+        self._report(st, vis)
+        return vis, (max(vis.worst_rel, unseen), best[1])
 
     def _hold_of(self, frame: int, dstates: list, cstates: list) -> _Answered | None:
         """The previous frame's answer where ``frame`` holds it: ``frame`` follows that frame directly and
@@ -713,6 +755,29 @@ class _Run:
     def _name(self, other: tuple) -> str:
         """Prim path of ``("d", j)`` or ``("c", j)``."""
         return self.defs[other[1]].path if other[0] == "d" else self.scene.colliders[other[1]].path
+
+
+def _settle(rnd: _Round, sizes, tolerance: float) -> tuple[dict, bool]:
+    """`_Run.visible`'s ``settle`` and ``over`` for the first round, detection's ``rnd``: the sides
+    of the pairs it found, each guessed as deep as its deepest region vertex over its inner
+    object's size; ``over`` where detection alone shows the frame over the tolerance (a pair
+    the displays do not judge, `_Round.unseen_rel`).
+
+    At the animator's shapes a pair detection found is responded to whatever its display shows
+    (`_Run.frame` leaves it out of the display's own data points), so its display's figure is
+    read only as the round's score, and the round's score only against the tolerance (to end
+    the frame) and against a later round's (to keep the better): one point deeper than the
+    tolerance settles the first, and a later round within the tolerance is kept before it
+    whatever its exact figure; `_Run.frame` measures the rest where a later round is over the
+    tolerance, or the first round is kept. Nothing is settled where detection found no pair."""
+    if not rnd.found:
+        return {}, False
+    settle: dict = {}
+    for i, other, c in rnd.found:
+        settle[(i, other), "a"] = c.region_a.max_depth / sizes[i]
+        if other[0] == "d":
+            settle[(i, other), "b"] = c.region_b.max_depth / sizes[other[1]]
+    return settle, rnd.unseen_rel > tolerance
 
 
 def _run_frames(stage, scene, frames, options, on_frame, initial=None, displays=None):

@@ -36,9 +36,13 @@ from pipeline import clearance
 from pipeline.model import SceneModel, apply_xform, translated
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
-           "measure_frame", "measure_run", "known", "TARGET"]
+           "measure_frame", "complete", "measure_run", "known", "TARGET", "OVER"]
 
 TARGET = 0.5  # a bound within this fraction of the tolerance needs no refining (clearance.triangle_depth)
+# a point this many times deeper than the tolerance proves a pair over it (`measure_frame`'s
+# ``settle``): the certified bound of the full search, at least that point's depth but for the
+# rounding of eq. (6)'s few operations, then lies over the tolerance too
+OVER = 1.0 + 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -275,7 +279,12 @@ def collider_solid(vertices: np.ndarray, triangles: np.ndarray) -> clearance.Sol
 class Inside:
     """What of ``a`` lies inside ``b``: the certified ``depth`` bound (world), the deepest point
     found ``lower``, and the points found inside: world ``points (m, 3)``, parameters on ``a``
-    ``uv (m, 2)`` (``None`` if ``a`` is not a deformable), ``deep (m,)``."""
+    ``uv (m, 2)`` (``None`` if ``a`` is not a deformable), ``deep (m,)``.
+
+    ``stopped``: the search ended at a point deeper than `pair_depth`'s ``stop``, or the pair
+    was not measured (`measure_frame`'s ``settle``): ``depth`` is then ``lower``, a lower bound
+    only (0 where not measured), and the points are the first the full search finds. Such an
+    answer is never kept where a lookup takes answers (`measure_frame`'s ``measured``, `known`)."""
 
     depth: float
     lower: float
@@ -283,12 +292,15 @@ class Inside:
     uv: np.ndarray | None
     deep: np.ndarray
     complete: bool = True
+    stopped: bool = False
 
 
-def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Inside:
+def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf, stop: float = np.inf) -> Inside:
     """How deep ``a``'s triangles go inside ``b`` (`clearance.triangle_depth` in ``b``'s object
     space), with ``target`` the world depth below which the bound need not be refined and
     ``decide`` the world depth it is held against (the tolerance: refined until on one side).
+    ``stop``: a world depth whose first evaluated point ends the search (`Inside.stopped`, a
+    lower bound; `clearance.triangle_depth`'s ``stop``); without one, the full answer.
 
     A deformable ``b`` is queried through the part of its display near ``a``'s triangles in its
     box: its faces whose world boxes come within ``P`` (the diagonal of those triangles' box) of
@@ -313,15 +325,15 @@ def pair_depth(a: Shown, b: Shown, target: float, decide: float = np.inf) -> Ins
         pad = float(np.linalg.norm(region[1] - region[0]))
         rows = b.near_rows(region, pad)
         if len(rows) >= CLEAR_ROWS:
-            d = _clear_depth(b, local, target / k, decide / k, pad / k, _within(b.xform, region, pad, rows))
+            d = _clear_depth(b, local, target / k, decide / k, pad / k, _within(b.xform, region, pad, rows), stop / k)
         if d is None:
             if rows.size:
                 part, answers = _part(b, rows)
-                d = _answer(answers, part, local, target / k, pad / k, decide / k)
+                d = _answer(answers, part, local, target / k, pad / k, decide / k, stop / k)
     if d is None:
-        d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k)
+        d = clearance.triangle_depth(b.whole(), local, target / k, decide=decide / k, stop=stop / k)
     points, uv = meshrows.barycentric(d.bary, d.tri, corners, near, a.triangles, a.vertex_uv)
-    return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete)
+    return Inside(k * d.bound, k * d.lower, points, uv, k * d.depth, d.complete, d.stopped)
 
 
 def _nothing(a: Shown) -> Inside:
@@ -349,7 +361,7 @@ def _within(xform: np.ndarray, region: np.ndarray, pad: float, rows: np.ndarray)
     return near
 
 
-def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad: float, near=None):
+def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad: float, near=None, stop: float = np.inf):
     """`clearance.triangle_depth` of the object-space triangles ``local (m, 3, 3)`` in ``b``,
     with the triangles `acra.clearcells.clear_of` proves outside ``b`` by more than their covering
     radii left out, in the part of ``b``'s display near the others; ``None`` where that part
@@ -380,7 +392,7 @@ def _clear_depth(b: Shown, local: np.ndarray, target: float, decide: float, pad:
         return None
     kept = np.nonzero(keep)[0]
     part, answers = _part(b, rows)
-    d = _answer(answers, part, local if len(kept) == len(local) else local[kept], target, reach, decide)
+    d = _answer(answers, part, local if len(kept) == len(local) else local[kept], target, reach, decide, stop)
     if d is None or len(kept) == len(local):
         return d
     return replace(d, tri=kept[d.tri])
@@ -475,18 +487,23 @@ def _content(local: np.ndarray, triangles: np.ndarray, rows: np.ndarray) -> tupl
     return local[used], (np.cumsum(used) - 1)[faces]
 
 
-def _answer(answers: list, part: clearance.Solid, local: np.ndarray, target: float, reach: float, decide: float):
+def _answer(answers: list, part: clearance.Solid, local: np.ndarray, target: float, reach: float, decide: float,
+            stop: float = np.inf):
     """`clearance.triangle_depth` of the object-space triangles ``local (m, 3, 3)`` in ``part``, or
     the answer kept in ``answers`` for the same bits of triangles and the same figures: it is a
     function of them alone. The run's display of a frame (`measure_run`) often shows the inner
     object's triangles near the other object as the round's display did, where the two displays
-    differ elsewhere, so the pair's fingerprints differ and `known` misses it."""
+    differ elsewhere, so the pair's fingerprints differ and `known` misses it. Only full answers
+    are kept: one answers a ``stop`` query too (it is what the stopped search would have gone
+    on to), and a stopped one is kept nowhere."""
     figures = (target, reach, decide)
     bits = local.view(np.uint64)
     for kept_bits, kept_figures, d in answers:
         if kept_figures == figures and kept_bits.shape == bits.shape and np.array_equal(kept_bits, bits):
             return d
-    d = clearance.triangle_depth(part, local, target, reach=reach, decide=decide)
+    d = clearance.triangle_depth(part, local, target, reach=reach, decide=decide, stop=stop)
+    if d is not None and d.stopped:
+        return d
     answers.append((bits, figures, d))
     if len(answers) > ANSWERS_KEPT:
         del answers[0]
@@ -509,7 +526,9 @@ class FrameResidual:
     """A frame's residual: ``pairs`` (every ordered pair measured), ``worst`` (world) and
     ``worst_rel`` (over the inner object's size), and per deformable path its own worst depth
     ``by_object`` (world) and ``rel_by_object``; ``measured`` holds ``(a, b, Inside)`` per pair
-    (the two `Shown`), for `known`."""
+    (the two `Shown`), for `known`. ``stopped``: some answer is a lower bound only
+    (`Inside.stopped`, `measure_frame`'s ``settle``), and so are the figures; `complete` gives
+    the full measure."""
 
     pairs: list = field(default_factory=list)
     measured: list = field(default_factory=list)
@@ -517,6 +536,7 @@ class FrameResidual:
     worst_rel: float = 0.0
     by_object: dict = field(default_factory=dict)
     rel_by_object: dict = field(default_factory=dict)
+    stopped: bool = False
 
     def pair_rel(self, a: str, b: str) -> float:
         """The larger of ``a`` in ``b`` and ``b`` in ``a``, each over its own object's size."""
@@ -528,41 +548,79 @@ def known(fr: FrameResidual, tolerance: float) -> dict:
     `measure_frame`'s ``known``: the run's display of a frame often shows the surfaces of the
     round the frame loop kept, on the same topology, as the same points. Each answer keeps its
     depths and completeness but not the points found inside (`measure_run` reads the depths
-    alone), so a run's kept answers stay a few numbers a pair."""
-    return {(a.fingerprint, b.fingerprint, tolerance): _depths_only(ins) for a, b, ins in fr.measured}
+    alone), so a run's kept answers stay a few numbers a pair. A lower bound (`Inside.stopped`)
+    is left out: a lookup takes what it finds as the full answer."""
+    return {(a.fingerprint, b.fingerprint, tolerance): _depths_only(ins) for a, b, ins in fr.measured if not ins.stopped}
 
 
 def _depths_only(ins: Inside) -> Inside:
     """``ins`` without its points."""
-    return Inside(ins.depth, ins.lower, ins.points[:0], None if ins.uv is None else ins.uv[:0], ins.deep[:0], ins.complete)
+    return Inside(ins.depth, ins.lower, ins.points[:0], None if ins.uv is None else ins.uv[:0], ins.deep[:0], ins.complete,
+                  ins.stopped)
 
 
 def measure_frame(objects: list[Shown], tolerance: float, pairs=None, measured: dict | None = None,
-                  known: dict | None = None) -> FrameResidual:
+                  known: dict | None = None, settle=(), over: bool = False) -> FrameResidual:
     """`pair_depth` of every deformable of ``objects`` in every other closed one (or the ordered
     ``pairs`` of indices given), refined to ``TARGET * tolerance`` of the inner object's size.
     ``measured`` keeps each pair's `Inside` by the two `Shown` objects (which never change): a
     round whose response left both as they were gets the answer measured before. ``known``
     (`known`) holds answers by content: a pair whose two objects hold what a measured pair's
-    held gets that answer's depths (`pair_depth` is a function of them), without its points."""
-    out = FrameResidual()
+    held gets that answer's depths (`pair_depth` is a function of them), without its points.
+
+    ``settle`` lists positions in ``pairs`` whose answers the caller reads only as far as
+    whether the frame is over the tolerance (the frame loop's first round, for the pairs
+    detection found: any answer over it sends the frame to a response). They are measured after
+    the others, in the order given, each stopping at its first point `OVER` times deeper than
+    the tolerance (`pair_depth`'s ``stop``), until one answer proves the frame over it; the
+    rest are not measured (an answer kept in ``measured`` or ``known`` is still taken). With
+    ``over`` the caller knows the frame is over already, and none is measured. A stopped or
+    unmeasured answer is a lower bound (`Inside.stopped`, `FrameResidual.stopped`), kept in
+    neither table; an answer the stop did not end is the full one, and is kept."""
     if pairs is None:  # every deformable's display in every other object
         pairs = [(i, j) for i, a in enumerate(objects) if a.deformable for j in range(len(objects)) if j != i]
-    for i, j in pairs:
-        a, b = objects[i], objects[j]
-        if not b.closed:
-            continue
+    answers: list = [None] * len(pairs)
+    later = set(settle)
+    for n, (i, j) in enumerate(pairs):
+        if n not in later and objects[j].closed:
+            answers[n] = _pair_answer(objects[i], objects[j], tolerance, measured, known)
+    proven = over or any(ins is not None and ins.depth / max(objects[i].size, 1e-300) > tolerance
+                         for ins, (i, _) in zip(answers, pairs))
+    for n in settle:
+        i, j = pairs[n]
+        if objects[j].closed:
+            answers[n] = _pair_answer(objects[i], objects[j], tolerance, measured, known, settle=True, proven=proven)
+            proven = proven or answers[n].stopped or answers[n].depth / max(objects[i].size, 1e-300) > tolerance
+    return _residual([(objects[i], objects[j], ins) for (i, j), ins in zip(pairs, answers) if ins is not None])
+
+
+def _pair_answer(a: Shown, b: Shown, tolerance: float, measured: dict | None, known: dict | None, settle: bool = False,
+                 proven: bool = False) -> Inside:
+    """`measure_frame`'s answer for ``a`` in ``b``: kept in ``measured`` or ``known``, else
+    measured (and kept in ``measured``); with ``settle``, a search stopped at a point `OVER`
+    times deeper than the tolerance, or, where the frame is ``proven`` over it, no measure (a
+    lower bound, kept nowhere)."""
+    size = max(a.size, 1e-300)
+    key = (id(a), id(b), tolerance)
+    hit = None if measured is None else measured.get(key)
+    if hit is not None and hit[0] is a and hit[1] is b:
+        return hit[2]
+    if known and (a.fingerprint, b.fingerprint, tolerance) in known:
+        return known[a.fingerprint, b.fingerprint, tolerance]
+    if settle and proven:  # depth and deepest point 0: lower bounds
+        return replace(_nothing(a), complete=False, stopped=True)
+    more = {"stop": OVER * tolerance * size} if settle else {}
+    ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size, **more)
+    if measured is not None and not ins.stopped:
+        measured[key] = (a, b, ins)
+    return ins
+
+
+def _residual(answers: list) -> FrameResidual:
+    """The `FrameResidual` of ``answers``, ``(a, b, Inside)`` per measured pair in order."""
+    out = FrameResidual()
+    for a, b, ins in answers:
         size = max(a.size, 1e-300)
-        key = (id(a), id(b), tolerance)
-        hit = None if measured is None else measured.get(key)
-        if hit is not None and hit[0] is a and hit[1] is b:
-            ins = hit[2]
-        elif known and (a.fingerprint, b.fingerprint, tolerance) in known:
-            ins = known[a.fingerprint, b.fingerprint, tolerance]
-        else:
-            ins = pair_depth(a, b, TARGET * tolerance * size, tolerance * size)
-            if measured is not None:
-                measured[key] = (a, b, ins)
         rel = ins.depth / size
         out.pairs.append(PairDepth(a.path, b.path, ins, rel))
         out.measured.append((a, b, ins))
@@ -570,7 +628,18 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None, measured: 
         out.worst_rel = max(out.worst_rel, rel)
         out.by_object[a.path] = max(out.by_object.get(a.path, 0.0), ins.depth)
         out.rel_by_object[a.path] = max(out.rel_by_object.get(a.path, 0.0), rel)
+        out.stopped = out.stopped or ins.stopped
     return out
+
+
+def complete(fr: FrameResidual, tolerance: float, measured: dict | None = None) -> FrameResidual:
+    """``fr`` (`measure_frame`'s at ``tolerance``) with every lower bound (`Inside.stopped`)
+    measured in full (``measured`` as `measure_frame`'s): what `measure_frame` without
+    ``settle`` gives on the same objects, its answers and figures in the same order."""
+    if not fr.stopped:
+        return fr
+    return _residual([(a, b, _pair_answer(a, b, tolerance, measured, None) if ins.stopped else ins)
+                      for a, b, ins in fr.measured])
 
 
 def measure_run(stage, scene: SceneModel, result, stats: list, options, displays=None) -> None:

@@ -684,6 +684,53 @@ def test_compiled_depth_is_the_array_form_bit_for_bit(seed):
     assert deep and cut and unresolved
 
 
+@pytest.mark.parametrize("seed", range(2))
+def test_a_search_stopped_deeper_than_a_figure_is_the_full_search_s_first_steps(seed):
+    """``stop``: the search ends after the first level (the corners, then a split's midpoints)
+    whose points reach deeper than it. Compiled and array forms stop alike, bit for bit; a
+    stopped answer is a lower bound over ``stop`` whose points are the first the full search
+    finds, in its order and bits, and an answer no point ended is the full one. On a whole
+    torus, a box and parts of a sphere, stops under the corners' depth, between it and the
+    deepest point, and over every point."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for name, size in (("torus", 1.0), ("box", 1.0)):
+        m, whole = shape(name)
+        cases.append((whole, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], size, 12), np.inf))
+    v, f = uv_sphere(24, 40, seed)
+    for size, n, pad, depth in ((1.2, 20, 1.0, None), (0.3, 4, 0.3, 0.004)):
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        tri = _sheet(rng, normal, size, n) if depth is None else _tangent_sheet(rng, normal, depth, size, n)
+        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+        rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
+        cases.append((C.solid(v, f[rows], part=True, outward=1.0, scale=2.0), tri, pad))
+    at_corners = later = full = 0
+    for s, tri, reach in cases:
+        for target, decide in ((0.0, np.inf), (1e-3, 2e-3)):
+            want = C.triangle_depth(s, tri, target, reach=reach, decide=decide)
+            corners = C.triangle_depth(s, tri, target, max_split=6, budget=1, reach=reach, decide=decide)  # level 0 alone
+            if want is None or want.lower <= 0.0:
+                continue
+            for stop in (0.5 * corners.lower, 0.5 * (corners.lower + want.lower), want.lower, 2.0 * want.lower):
+                got = C.triangle_depth(s, tri, target, reach=reach, decide=decide, stop=stop)
+                ref = C.triangle_depth(s, tri, target, reach=reach, decide=decide, stop=stop, compiled=False)
+                _same_depth(got, ref)
+                assert got.stopped == ref.stopped
+                if not got.stopped:
+                    _same_depth(got, want)
+                    full += 1
+                    continue
+                assert got.lower > stop and got.bound == got.lower and not got.complete
+                assert got.evaluated <= want.evaluated and got.split <= want.split
+                m = len(got.tri)
+                for x, y in ((got.tri, want.tri), (got.bary, want.bary), (got.points, want.points), (got.depth, want.depth)):
+                    assert x.tobytes() == y[:m].tobytes()
+                at_corners += got.evaluated == corners.evaluated
+                later += got.evaluated > corners.evaluated
+    assert at_corners and later and full
+
+
 # --- object space and world space --------------------------------------------------------------------
 def rotation(seed: int) -> np.ndarray:
     q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))

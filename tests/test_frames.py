@@ -195,7 +195,8 @@ def test_set_up_the_display_measure_triggers_is_counted_as_set_up(tiny_stage, mo
 def test_each_round_measures_its_displays_once(tiny_stage, monkeypatch):
     """A round's display measure (`residual.measure_frame`) is taken once, at the round's start:
     the round's judge, the skip of detection (`_Run._displays_judge`) and the kept round's
-    residual all read that one measure."""
+    residual all read that one measure (the first round's lower bounds are completed from it,
+    `residual.complete`, not measured again)."""
     from pipeline import residual
     from pipeline import usdio
 
@@ -357,3 +358,90 @@ def test_respond_frames_limits_blas_through_the_process_s_one_controller(tiny_st
         assert display._blas() is controller and not scans
         assert seen == [dict.fromkeys(before, 1)] * 2
         assert blas(controller) == before
+
+
+DEMO = Path(__file__).resolve().parents[1] / "scenes" / "dog_head_spike.py"
+
+
+def _demo_frames(frames, monkeypatch=None, settle=True, respond=True):
+    """The demo's ``frames`` after a run's state is dropped: the results and statistics, and each
+    `residual.pair_depth` call's stop (finite or not), stopped or not, and how many calls each
+    `_Run.visible` made. ``settle`` false: every side of the first round measured in full (as
+    without `_settle`); ``respond`` false: no response changes a surface."""
+    from pipeline import residual, usdio
+    from pipeline.run import forget
+
+    calls, per_round = [], []
+    pair_depth, visible = residual.pair_depth, F._Run.visible
+
+    def counted(a, b, target, decide=np.inf, stop=np.inf):
+        ins = pair_depth(a, b, target, decide, stop)
+        calls.append((bool(np.isfinite(stop)), ins.stopped))
+        return ins
+
+    def measured(self, *args):
+        n = len(calls)
+        out = visible(self, *args)
+        per_round.append((bool(args[3:4] and args[3]), len(calls) - n))
+        return out
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(residual, "pair_depth", counted)
+        mp.setattr(F._Run, "visible", measured)
+        if not settle:
+            mp.setattr(F, "_settle", lambda rnd, sizes, tolerance: ({}, False))
+        if not respond:
+            mp.setattr(F._Run, "respond", lambda self, *a, **k: None)
+        forget()
+        stage = usdio.open_input(usdio.load_scene_file(DEMO))
+        result, stats = F.respond_frames(stage, usdio.read_scene(stage), frames)
+    return result, stats, calls, per_round
+
+
+def _same_outcome(a, b):
+    """Two runs' frame statistics (all but times) and kept residual answers, bit for bit."""
+    (ra, sa), (rb, sb) = a, b
+    for x, y in zip(sa, sb):
+        assert (x.in_collision, x.iterations, x.residual, x.residual_rel, x.pair_residual_rel) == \
+            (y.in_collision, y.iterations, y.residual, y.residual_rel, y.pair_residual_rel)
+    assert ra.residuals.keys() == rb.residuals.keys()
+    for f in ra.residuals:
+        ka, kb = ra.residuals[f], rb.residuals[f]
+        assert ka.keys() == kb.keys()
+        for key in ka:
+            assert (ka[key].depth, ka[key].lower, ka[key].complete, ka[key].stopped) == \
+                (kb[key].depth, kb[key].lower, kb[key].complete, False)
+
+
+def test_the_first_round_settles_the_pairs_detection_found_with_one_deep_point():
+    """On the demo every first round finds the spike's tip inside the head: its display in the
+    head is searched only until a point deeper than the tolerance (one call, stopped), the
+    head's in the spike not at all; the second round is within the tolerance and kept, so the
+    first is never measured in full, and every figure is the full measure's."""
+    frames = [14, 15, 16]
+    result, stats, calls, per_round = _demo_frames(frames)
+    assert [r for r in per_round if r[0]] == [(True, 1)] * len(frames)  # the first rounds: one call each
+    assert calls.count((True, True)) == len(frames) and (True, False) not in calls
+    assert all(st.iterations == 1 and st.residual_rel <= 1e-3 for st in stats)
+    full = _demo_frames(frames, settle=False)
+    assert full[3] == [(False, 2), (False, 2)] * len(frames)
+    _same_outcome(result_stats := (result, stats), full[:2])
+    assert result_stats[1][0].in_collision
+
+
+def test_a_kept_first_round_reports_its_full_measure():
+    """Where no response changes a surface, every later round scores what the first did (over
+    the tolerance) and the first round is kept: its figures and the answers the run's display
+    takes (`residual.known`) are the full measure's, never the lower bounds that settled it."""
+    from pipeline import residual
+
+    completed = []
+    complete = residual.complete
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(residual, "complete", lambda fr, *a, **k: completed.append(fr.stopped) or complete(fr, *a, **k))
+        got = _demo_frames([15], respond=False)
+    want = _demo_frames([15], settle=False, respond=False)
+    assert completed == [True] and got[2].count((True, True)) == 1
+    assert got[1][0].residual_rel > 1e-3 and got[1][0].iterations == F.RunOptions().iterations
+    _same_outcome(got[:2], want[:2])
+    assert len(got[0].residuals[15]) == 2  # both sides of the pair, the unmeasured one among them
