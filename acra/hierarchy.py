@@ -185,7 +185,10 @@ class HSpline:
 
 
 _LEVEL0 = ("_size", "_closed_ends")  # cached properties of level 0 alone
-_STRUCTURE = ("_terms_index", "_table_rows")  # of the grid's size and the fine levels' patches and CVs alone
+TABLE_STARTS = "_table_starts"  # `hspline._starts`, kept on a surface
+_STRUCTURE = ("_terms_index", "_table_rows", TABLE_STARTS)  # of the grid's size and the fine levels' patches and CVs alone
+# `hspline.eval_arrays`' arguments of a surface, kept on it: of level 0 and the structure alone
+EVAL_ARGS = "_eval_args"
 
 
 def with_fine(hs: HSpline, fine: tuple[Level, ...], same_cvs: bool = False) -> HSpline:
@@ -194,7 +197,7 @@ def with_fine(hs: HSpline, fine: tuple[Level, ...], same_cvs: bool = False) -> H
     ``same_cvs`` (only offsets changed: every level's patches, CVs and movability as in ``hs``)
     so is `HSpline._terms_index`."""
     # the constructor, not `dataclasses.replace`: a response builds a surface per move
-    return _carry(hs, HSpline(hs.cvs, hs.u, hs.v, hs.depth, fine), _LEVEL0 + (_STRUCTURE if same_cvs else ()))
+    return _carry(hs, HSpline(hs.cvs, hs.u, hs.v, hs.depth, fine), _LEVEL0 + (_STRUCTURE + (EVAL_ARGS,) if same_cvs else ()))
 
 
 def with_cvs(hs: HSpline, cvs: np.ndarray) -> HSpline:

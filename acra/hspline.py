@@ -192,15 +192,26 @@ def eval_arrays(hs: HSpline, det: Details | None = None, upto: int | None = None
     compiled signature serves every call (and compiled code that evaluates the surface itself,
     `acra.sides.behind`, sums what `evaluate` sums)."""
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
-    if top < 0:
-        raise ValueError(f"upto must be at least 0, got {upto}")
-    levels, keys, shifts, ends, patch_rows = hs._terms_index
-    if levels.size > 1 and levels[1] <= top:  # a fine level with detail is summed
-        table = _flat((det if det is not None else _details_for(hs, top)).table, 2)
-    else:
-        table = _NO_DETAILS
-    return (int(top), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-            _flat(hs.cvs.reshape(-1, 3), 2), levels, keys, shifts, ends, patch_rows, hs._table_rows, table)
+    known = hs.__dict__.get(_EVAL_ARGS)
+    if known is None:
+        known = hs.__dict__[_EVAL_ARGS] = {}
+    hit = known.get(top)
+    if hit is None:
+        if top < 0:
+            raise ValueError(f"upto must be at least 0, got {upto}")
+        levels, keys, shifts, ends, patch_rows = hs._terms_index
+        hit = known[top] = (levels.size > 1 and levels[1] <= top,  # a fine level with detail is summed
+                            (int(top), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
+                             _flat(hs.cvs.reshape(-1, 3), 2), levels, keys, shifts, ends, patch_rows, hs._table_rows))
+    if hit[0]:
+        return (*hit[1], _flat((det if det is not None else _details_for(hs, top)).table, 2))
+    return (*hit[1], _NO_DETAILS)
+
+
+# key in an `HSpline`'s ``__dict__``: ``{top: (whether a fine level is summed, eval_arrays' arguments
+# before the table)}``, which depend on level 0 and the levels' structure alone (carried by
+# `hierarchy.with_fine` to a surface of other offsets)
+_EVAL_ARGS = hierarchy.EVAL_ARGS
 
 
 def _surface_eval(out: np.ndarray) -> SurfaceEval:
@@ -524,7 +535,7 @@ def details(hs: HSpline, upto: int | None = None,
     frames: list[np.ndarray] = []
     # the vectors stacked as each level is finished (`_stacked`): level k's rows are
     # ``start[k - 1]:start[k]``
-    start = hs._table_rows - hs._table_rows[0]
+    start = _starts(hs)
     table = np.empty((int(start[top]), 3))
     ends_stale = None  # `_ends_stale` of ``since``, found once
     for k in range(1, top + 1):
@@ -597,6 +608,19 @@ def details(hs: HSpline, upto: int | None = None,
     return out
 
 
+def _starts(hs: HSpline) -> list[int]:
+    """Where each fine level's rows start in a `Details.table` of ``hs``, ``depth`` ints: level
+    ``k``'s rows are ``[k - 1]:[k]`` (`HSpline._table_rows` less level 0's), as Python ints
+    for slicing."""
+    out = hs.__dict__.get(_STARTS)
+    if out is None:
+        out = hs.__dict__[_STARTS] = (hs._table_rows - hs._table_rows[0]).tolist()
+    return out
+
+
+_STARTS = hierarchy.TABLE_STARTS
+
+
 # key in a `Details`' ``__dict__``: ``{level: rows (m,) int64}`` of frames left pending (NaN) by
 # `details`' ``lazy``; a `Details` without it has every frame
 _PENDING = "_pending"
@@ -631,7 +655,7 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     vectors, frames = list(old_det.vectors), list(old_det.frames)
     # the vectors stacked (`_stacked`), the rows of each level that moves rewritten: level k's
     # rows are ``start[k - 1]:start[k]``
-    start = new._table_rows - new._table_rows[0]
+    start = _starts(new)
     table = old_det.table.copy()
     hint = lev.__dict__.get(changes.MOVED)
     if hint is not None and hint[0] is was.offsets:  # a move that names its rows: only those can differ
@@ -711,6 +735,14 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     centres ``gu, gv (m,) float64`` (`cv_uv`) and the level-0 patch ``(m,) int64`` (flat,
     ``pu * P0v + pv``) each centre is in. Kept per `Level` CV arrays: a move replaces a level's
     offsets, not its ``cv_keys`` and ``movable``, so the response's steps share them."""
+    # first on the `Level` object itself (`PLACES`; a move's new `Level` carries it), which a
+    # response asks on every level its moves follow
+    on_level = lev.__dict__.get(PLACES)
+    if on_level is None:
+        on_level = lev.__dict__[PLACES] = {}
+    hit = on_level.get(ends)
+    if hit is not None and hit[0] is lev.cv_keys and hit[1] is lev.movable:
+        return hit[2]
     key = (id(lev.cv_keys), ends)  # a level's CV keys are of one grid and level
     places = _PLACES.entries()
     hit = places.pop(key, None)
@@ -722,7 +754,12 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
     places[key] = hit
     _PLACES.trim()
+    on_level[ends] = hit
     return hit[2]
+
+
+# key in a `Level`'s ``__dict__``: ``{closed ends: (cv_keys, movable, `_movable_places`)}``
+PLACES = "_places"
 
 
 @functools.lru_cache(maxsize=16)

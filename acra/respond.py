@@ -67,9 +67,15 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
     fine[level - 1] = H.Level(lev.k, lev.patches, lev.cv_keys, offsets, lev.movable, lev.patch_rows)
     if unique:  # the rows that can differ from ``lev``'s offsets, for `H.moved_details`
         fine[level - 1].__dict__[changes.MOVED] = (lev.offsets, cv_rows)
-    if "_ring_rows" in lev.__dict__:  # same CVs, other offsets: the same ring rows (`_ring_rows`)
-        fine[level - 1].__dict__["_ring_rows"] = lev.__dict__["_ring_rows"]
+    for name in _SAME_CVS:  # same CVs, other offsets: the same ring rows and movable CVs' places
+        if name in lev.__dict__:
+            fine[level - 1].__dict__[name] = lev.__dict__[name]
     return H.with_fine(hs, tuple(fine), same_cvs=True)
+
+
+# what a `Level` keeps on itself that depends on its CV keys and movability alone (`_ring_rows`,
+# `H._movable_places`), carried to the level a move makes
+_SAME_CVS = ("_ring_rows", H.PLACES)
 
 
 def move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
@@ -324,7 +330,7 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
-            if pole_ring_movable(hs, k, axis, end) or not _ring_rows(hs, k, axis, end)[1].any():
+            if _ring_settled(hs, k, axis, end):
                 continue  # wholly movable already, or no CV of it the solve could move
             _, ok, reached = _ring_reach(hs, pw, k, axis, end)
             if reached[ok].any():
@@ -332,6 +338,19 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     if hs is not before:
         pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
     return hs, det, pw
+
+
+def _ring_settled(hs: H.HSpline, k: int, axis: int, end: int) -> bool:
+    """Whether level ``k``'s ring at ``(axis, end)`` is wholly movable (`pole_ring_movable`) or
+    has no movable CV (`_ring_rows`' ``ok`` all false): `_reach_rings` has nothing to open on it.
+    Kept with the ring's rows on the `Level` object (which a move carries), as they depend on
+    the level's CVs and movability alone."""
+    memo = hs.level(k).__dict__.setdefault("_ring_rows", {})
+    key = ("settled", hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, axis, end)
+    hit = memo.get(key)
+    if hit is None:
+        hit = memo[key] = pole_ring_movable(hs, k, axis, end) or not _ring_rows(hs, k, axis, end)[1].any()
+    return hit
 
 
 def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, want: np.ndarray,
@@ -751,7 +770,7 @@ def respond(
             cur = _points_at(hs, det, pu, pv)[0] if level == absorbing[0] else H.evaluate(hs, pu, pv, det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
             want = np.where(present[:, None], goal - cur, 0.0)
-            if points.per_patch:
+            if merged:  # `per_level_points` of contacts alone is the points as they are
                 luv, lwant = per_level_points(hs, level, uv, want, is_contact, trig)
             else:
                 luv, lwant = uv, want
