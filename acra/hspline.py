@@ -58,6 +58,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     to_arrays,
     with_cvs,
     with_fine,
+    with_offsets,
 )
 
 from .changes import changed_cells, changed_patches, grown_patches, mark_moved  # noqa: F401  (re-exported)
@@ -558,7 +559,7 @@ def details(hs: HSpline, upto: int | None = None,
             if lev.cv_keys is was.cv_keys and lev.movable is was.movable:  # a move: only offsets differ
                 if k <= first and k not in old_pending:  # and the frames' surface is old's: old's frames, vectors of the new offsets
                     fr = old_det.frames[k - 1]
-                    vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, rows, _plain(lev.offsets), vec)[1]
+                    vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, rows, _plain(lev.offsets), vec, _NO_MOVES, _NO_MOVES)[1]
                     vectors.append(vec)
                     frames.append(fr)
                     table[start[k - 1]:start[k]] = vec
@@ -595,7 +596,7 @@ def details(hs: HSpline, upto: int | None = None,
             fr[rows] = _frames_at(hs, k, ends, _stacked(vectors, frames, table[:start[k - 1]]), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
-        vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, every, _plain(lev.offsets), vec)[1]
+        vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, every, _plain(lev.offsets), vec, _NO_MOVES, _NO_MOVES)[1]
         if later is not None and later.size:
             vec[later] = 0.0  # the product of zero offsets, whatever the frame
             fr[later] = np.nan
@@ -626,6 +627,11 @@ _STARTS = hierarchy.TABLE_STARTS
 _PENDING = "_pending"
 _NO_ROWS = np.zeros(0, np.int64)  # `levelkernels.stale_rows`' pending rows of a level with none
 _NO_FRAMES = np.zeros((0, 3, 3))  # `levelkernels.restate_rows`' new frames of a level whose frames stay
+_NO_MOVES = np.zeros((0, 3))  # `levelkernels.restate_rows`' moves (and moved offsets) of a pass that moves nothing
+# key in a moved `Level`'s ``__dict__`` (`acra.respond.move_level`, beside `changes.MOVED`):
+# ``(frames, vectors, new vectors)``, the level's vectors restated from its new offsets with the
+# frames and vectors of the details it was moved with, in the same pass as the move
+MOVED_VECTORS = "_moved_vectors"
 
 
 def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
@@ -658,18 +664,27 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     start = _starts(new)
     table = old_det.table.copy()
     hint = lev.__dict__.get(changes.MOVED)
+    k = level
     if hint is not None and hint[0] is was.offsets:  # a move that names its rows: only those can differ
-        rows = levelkernels.differing_rows(changes.bits(was.offsets), changes.bits(lev.offsets), np.ascontiguousarray(hint[1], np.int64))
+        rows = np.ascontiguousarray(hint[1], np.int64)
+        restated = lev.__dict__.get(MOVED_VECTORS)
+        if restated is not None and restated[0] is frames[k - 1] and restated[1] is vectors[k - 1]:
+            vec = restated[2]  # the move's own pass restated them, from these frames and vectors
+        else:
+            rows = levelkernels.differing_rows(changes.bits(was.offsets), changes.bits(lev.offsets), rows)
+            vec = None
     else:
         rows = np.nonzero(np.any(changes.bits(was.offsets) != changes.bits(lev.offsets), axis=-1))[0]
+        vec = None
     # the level-0 patches holding a patch a changed CV supports; then level by level the frames
     # on them (compiled bookkeeping, `levelkernels.restate_rows`, `mark_changed` and `stale_rows`)
     stale = np.zeros((new.u.patches0, new.v.patches0), bool)
     ends = closed_ends(new)
     ends_arr = _ends_array(ends)
     up, vp = bool(new.u.periodic), bool(new.v.periodic)
-    k = level
-    _, vec = levelkernels.restate_rows(_plain(frames[k - 1]), _NO_FRAMES, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
+    if vec is None:
+        vec = levelkernels.restate_rows(_plain(frames[k - 1]), _NO_FRAMES, rows, _plain(lev.offsets), _plain(vectors[k - 1]),
+                                        _NO_MOVES, _NO_MOVES)[1]
     marked = levelkernels.mark_changed(changes.bits(vec), changes.bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                        int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
     vectors[k - 1] = vec
@@ -688,7 +703,8 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         rows = every[pos]
         fresh = _plain(_frames_at(new, k, ends, _stacked(vectors[:k - 1], frames[:k - 1], table[:start[k - 1]]),
                                   ring[pos], gu[pos], gv[pos]))
-        fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
+        fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]),
+                                            _NO_MOVES, _NO_MOVES)
         marked |= levelkernels.mark_changed(changes.bits(vec), changes.bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                             int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
         vectors[k - 1], frames[k - 1] = vec, fr
@@ -706,7 +722,7 @@ def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndar
     fixed, n_fixed = np.zeros(gu.size, bool), np.zeros((gu.size, 3))
     for i, (axis, end) in enumerate(ends if ring.size and ring.max() >= 0 else ()):
         on = ring == i
-        if np.any(on):
+        if np.count_nonzero(on):
             n_end = _end_normal(hs, k, axis, end, partial)
             if n_end is not None:
                 fixed |= on

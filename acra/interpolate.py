@@ -34,6 +34,7 @@ from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_
 __all__ = [
     "PointWeights",
     "point_active",
+    "active_rows",
     "SystemTooLarge",
     "dense_bytes",
     "point_weights",
@@ -384,7 +385,7 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     -------
     (P, 3) float64
     """
-    act, every = _active(pw)
+    act, every = active_rows(pw)
     if act.size == 0:
         return np.zeros((pw.cv_rows.size, 3))
     if max_bytes is not None and dense_bytes(act.size, pw.cv_rows.size) > max_bytes:
@@ -408,7 +409,7 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     return W.T @ (kept @ (kept.T @ dqa / lam_kept))
 
 
-def _active(pw: PointWeights) -> tuple[np.ndarray, bool]:
+def active_rows(pw: PointWeights) -> tuple[np.ndarray, bool]:
     """The rows of ``pw``'s active points ``(k,) int64`` and whether that is all of them, kept on
     the weights (a response solves kept weights level after level, `acra.respond._weights`).
     Every point active: the solve takes the rows as they are, without copies (the same C-ordered
@@ -420,14 +421,14 @@ def _active(pw: PointWeights) -> tuple[np.ndarray, bool]:
     return hit
 
 
-_ACTIVE = "_active_rows"  # key in a `PointWeights`' ``__dict__``: `_active`'s answer
+_ACTIVE = "_active_rows"  # key in a `PointWeights`' ``__dict__``: `active_rows`' answer
 
 
 def _kept_modes(lam: np.ndarray, vec: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The eigenvectors ``(k, m) float64`` of the ``m`` modes ``keep (k,) bool`` keeps, and their
     eigenvalues as a column ``(m, 1) float64``: ``vec`` itself where every mode is kept and it is
     C-ordered, else one copy of the kept columns for both products of the solve."""
-    if keep.all() and vec.flags.c_contiguous:
+    if np.count_nonzero(keep) == keep.size and vec.flags.c_contiguous:
         return vec, lam[:, None]
     return vec[:, keep], lam[keep][:, None]
 
@@ -485,7 +486,7 @@ def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.linalg.eigh(g)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
         lam, vec = _EIGH_LO(g, signature="d->dd")
-    if np.isnan(lam).any():
+    if np.count_nonzero(np.isnan(lam)):
         return np.linalg.eigh(g)
     return lam, vec
 
