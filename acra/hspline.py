@@ -97,8 +97,10 @@ def _stacked(vectors: list, frames: list, table: np.ndarray) -> Details:
     already holds ``vectors`` stacked (`details` and `moved_details` write each level's rows as
     they finish it, so a level's frames, which evaluate the coarser levels, and the evaluations
     after a move read a prefix of one array instead of stacking the levels again)."""
-    out = Details(tuple(vectors), tuple(frames))
-    out.__dict__["table"] = table
+    # the fields set directly: the frozen constructor sets one at a time through
+    # ``object.__setattr__``, and a move's pass stacks a level's coarser details per level
+    out = object.__new__(Details)
+    out.__dict__.update(vectors=tuple(vectors), frames=tuple(frames), table=table)
     return out
 
 
@@ -720,7 +722,7 @@ def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndar
     # a ring's CVs take their end's one normal: their own (at the end, where du x dv
     # vanishes and the limit normal needs second derivatives) are not computed
     fixed, n_fixed = np.zeros(gu.size, bool), np.zeros((gu.size, 3))
-    for i, (axis, end) in enumerate(ends if ring.size and ring.max() >= 0 else ()):
+    for i, (axis, end) in enumerate(ends if np.count_nonzero(ring >= 0) else ()):
         on = ring == i
         if np.count_nonzero(on):
             n_end = _end_normal(hs, k, axis, end, partial)

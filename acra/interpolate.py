@@ -106,10 +106,13 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: n
     The entries are one compiled pass (`acra.levelkernels.point_entries`; `_entries_numpy` is
     their array form), numbered by `acra.levelkernels.unique_inverse`.
     """
-    u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     point, rows, wts, active = _kernel_entries(hs, level, u, v, pole)
     cv_rows, col = levelkernels.unique_inverse(rows)
-    return PointWeights(level, point, col, wts, cv_rows, u.size, active)
+    # the fields set directly: the frozen constructor sets one at a time through
+    # ``object.__setattr__``, and a response builds weights on every level
+    out = object.__new__(PointWeights)
+    out.__dict__.update(level=level, point=point, col=col, w=wts, cv_rows=cv_rows, npoints=active.size, active=active)
+    return out
 
 
 def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None = None) -> np.ndarray:
@@ -138,7 +141,7 @@ def _kernel_entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole:
     pole = pole_of(hs, u, v) if pole is None else pole
     # the level's rings only for points on a pole: a level a response refined is a new `Level`,
     # whose ring table is built afresh
-    rows, w, at, use = _ring_table(hs, level) if pole.size and pole.max() >= 0 else _NO_RINGS
+    rows, w, at, use = _ring_table(hs, level) if np.count_nonzero(pole >= 0) else _NO_RINGS
     return levelkernels.point_entries(
         u, v, pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level), hs.v.periodic,
         hs.u.patches(level), hs.v.patches(level), _NONE if lev is None else lev.cv_keys,
@@ -446,6 +449,29 @@ _DECOMPOSED_BYTES = 1 << 25  # 32 MB: the demo's largest solve keeps 0.3 MB
 _KEY = "_decomposed_key"  # key in a `PointWeights`' ``__dict__``: its `_DECOMPOSED` key
 
 
+class _Content:
+    """A `_DECOMPOSED` key: a solve's sizes and its weights' bytes, ``parts = (K, P, point, col,
+    w, active bytes)``, equal to another only with every byte the same, hashed by the sizes and
+    the first `_HASHED` bytes of each array alone. Python hashes a bytes object whole (about
+    0.5 µs a kilobyte), and a large solve's entries are 90 kB; two solves' weights differ in
+    their first entries almost always, and where they do not, equality still reads them all."""
+
+    __slots__ = ("parts", "_hash")
+
+    def __init__(self, parts: tuple) -> None:
+        self.parts = parts
+        self._hash = hash(parts[:2] + tuple(b[:_HASHED] for b in parts[2:]) + tuple(len(b) for b in parts[2:]))
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is _Content and self._hash == other._hash and self.parts == other.parts
+
+
+_HASHED = 1024  # bytes of each array a `_Content` hashes
+
+
 def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple:
     """The active points' dense weights ``W (k, P) float64`` and the eigenvalues ``(k,)`` and
     eigenvectors ``(k, k)`` of ``W Wᵀ`` (`_eigh`), read-only, then the bytes the entry holds and
@@ -456,8 +482,8 @@ def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple:
     # solves the same kept weights again, `acra.respond._weights`): its bytes keep their hashes
     key = pw.__dict__.get(_KEY)
     if key is None:
-        key = pw.__dict__[_KEY] = (pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(),
-                                   pw.active.tobytes())
+        key = pw.__dict__[_KEY] = _Content((pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(),
+                                            pw.active.tobytes()))
     kept = _DECOMPOSED.entries()
     hit = kept.pop(key, None)
     if hit is not None:
@@ -467,7 +493,7 @@ def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple:
     lam, vec = _eigh(W @ W.T)
     for a in (W, lam, vec):
         a.flags.writeable = False
-    size = sum(len(b) for b in key[2:]) + W.nbytes + lam.nbytes + vec.nbytes  # what the entry holds
+    size = sum(len(b) for b in key.parts[2:]) + W.nbytes + lam.nbytes + vec.nbytes  # what the entry holds
     entry = (W, lam, vec, size, {})
     if size <= _DECOMPOSED_BYTES // 4:
         kept[key] = entry

@@ -722,9 +722,6 @@ def respond(
     # A periodic pole keeps its ring in the solve: there the ring is the spike tip's whole
     # closed end, and without it dog_head_spike's frame 15 needs a third round.
     fan = {(axis, end): not (hs.v if axis == 0 else hs.u).periodic for axis, end in H.closed_ends(hs)}
-    # the rings each level's solve keeps closed: every one, and on the finest level the periodic
-    # poles' alone (tuples: `_ring_extension` keys its kept extensions by them)
-    rings_kept, rings_finest = tuple(rings), tuple(g for g in rings if not fan[g[1:]])
     # the controls as Python floats: the loop reads them per level, a numpy scalar at a time
     absorb, deform = controls.absorption.tolist(), controls.deform.tolist()
     translate, rotate = controls.translate.tolist(), controls.rotate.tolist()
@@ -735,6 +732,11 @@ def respond(
     # can reshape
     shaping = [level for level in range(L) if absorb[level] > 0.0 and deform[level] > 0.0]
     exact = shaping[-1] if shaping and shaping[-1] < finest else -1
+    # each level's own rings (`_reach_rings` and `_ring_constraints` look at a level's alone),
+    # and those its solve keeps closed: every one, and on the finest level the periodic poles'
+    # alone (tuples: `_ring_extension` keys its kept extensions by them)
+    rings_at = {level: tuple(g for g in rings if g[0] == level) for level in absorbing}
+    rings_kept = {level: tuple(g for g in rings_at[level] if not (level == finest and fan[g[1:]])) for level in absorbing}
     # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
     # once for every level's weights while level 0 stays as it is
     cvs0 = hs.cvs
@@ -794,8 +796,8 @@ def respond(
                 lwant = np.concatenate([lwant, htarget - hcur])
             lpw = pw if luv is uv and own else _weights(hs, level, np.ascontiguousarray(luv[:, 0]), np.ascontiguousarray(luv[:, 1]))
             if controls.refine:
-                hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
-            lpw, lwant = _ring_constraints(hs, det, lpw, lwant, rings_finest if level == finest else rings_kept)
+                hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings_at[level])
+            lpw, lwant = _ring_constraints(hs, det, lpw, lwant, rings_kept[level])
             dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                        amplify=None if level == exact else amplify)
             hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det, True), (level,))
