@@ -270,8 +270,11 @@ def keep_details(hs: HSpline, det: Details | None) -> None:
 def _plain(x) -> np.ndarray:
     """``x`` as a C-contiguous, writeable float64 array (a copy only where it is not one): the
     kernel reads its arrays alone, but numba compiles another signature for a read-only one."""
-    a = np.ascontiguousarray(x, dtype=np.float64)
+    a = np.ascontiguousarray(x, dtype=_F64)
     return a if a.flags.writeable else a.copy()
+
+
+_F64 = np.dtype(np.float64)  # `_plain`'s dtype as an object: numpy converts a type on every call
 
 
 def _evaluate_numpy(
