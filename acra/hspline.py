@@ -859,7 +859,7 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
                                   bool(hs.v.periodic), unit):
         unit = surface_normals(hs, u, v, det=det, upto=k - 1)[1]
     n = np.add.reduce(unit, axis=0) / unit.shape[0]  # `unit.mean(axis=0)`: its sum and division
-    length = np.linalg.norm(n)
+    length = np.sqrt(n.dot(n))  # `np.linalg.norm(n)`: its dot product and root, without its wrapper
     return n / length if length > 1e-6 else None
 
 
