@@ -453,7 +453,8 @@ def restate_rows(frames, new_frames, rows, offsets, vectors, moves, moved):
     caller made, takes on each row the offset plus ``frame.T @ move``, that product summed from
     0.0 in order ``p0, p1, p2`` as ``np.einsum("mji,mj->mi")`` sums it, added as numpy's
     ``offsets[rows] += ...`` adds it; then the vectors are restated from ``moved`` on the rows
-    whose offsets changed bits (`differing_rows`'), the others' kept. (It calls no other kernel:
+    whose offsets changed bits (`differing_rows`', but a NaN offset counts as changed, which
+    restates its row with the bits it had), the others' kept. (It calls no other kernel:
     a compiled call compiles its callee again into the caller, seconds on a fresh install.)"""
     fr = frames.copy() if new_frames.shape[0] else frames
     for n in range(new_frames.shape[0]):
@@ -463,13 +464,18 @@ def restate_rows(frames, new_frames, rows, offsets, vectors, moves, moved):
                 fr[r, i, j] = new_frames[n, i, j]
     vec = vectors.copy()
     if moves.shape[0]:
-        new_bits, old_bits = moved.view(np.int64), offsets.view(np.int64)
         for n in range(moves.shape[0]):
             r = rows[n]
             m0, m1, m2 = moves[n, 0], moves[n, 1], moves[n, 2]
+            same = True
             for i in range(3):
-                moved[r, i] = offsets[r, i] + (((0.0 + fr[r, 0, i] * m0) + fr[r, 1, i] * m1) + fr[r, 2, i] * m2)
-            if new_bits[r, 0] == old_bits[r, 0] and new_bits[r, 1] == old_bits[r, 1] and new_bits[r, 2] == old_bits[r, 2]:
+                x = offsets[r, i] + (((0.0 + fr[r, 0, i] * m0) + fr[r, 1, i] * m1) + fr[r, 2, i] * m2)
+                y = offsets[r, i]
+                moved[r, i] = x
+                # the same bits: equal, with the same sign where zero (an int64 view of the
+                # arrays compiles half a second longer); a NaN counts as changed
+                same = same and x == y and (x != 0.0 or math.copysign(1.0, x) == math.copysign(1.0, y))
+            if same:
                 continue
             o0, o1, o2 = moved[r, 0], moved[r, 1], moved[r, 2]
             for i in range(3):
