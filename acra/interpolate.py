@@ -400,14 +400,15 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
         hit = modes.get(rcond)
         if hit is None:
             hit = modes[rcond] = _kept_modes(lam, vec, lam > rcond * lam[-1])
+            for a in hit:  # shared with every later solve of these weights
+                a.flags.writeable = False
         kept, lam_kept = hit
         return W.T @ (kept @ (kept.T @ dqa / lam_kept))
     keep = lam > rcond * lam[-1]
-    if amplify is not None:
-        along = vec.T @ dqa
-        # `np.linalg.norm(x, axis=1)`'s own sum, without its wrapper
-        moves = np.sqrt(np.add.reduce(along * along, axis=1)) / np.sqrt(np.maximum(lam, _TINY))
-        keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.sqrt(np.add.reduce(dqa * dqa, axis=1)).max()))
+    along = vec.T @ dqa
+    # `np.linalg.norm(x, axis=1)`'s own sum, without its wrapper
+    moves = np.sqrt(np.add.reduce(along * along, axis=1)) / np.sqrt(np.maximum(lam, _TINY))
+    keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.sqrt(np.add.reduce(dqa * dqa, axis=1)).max()))
     kept, lam_kept = _kept_modes(lam, vec, keep)
     return W.T @ (kept @ (kept.T @ dqa / lam_kept))
 
