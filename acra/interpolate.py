@@ -453,9 +453,9 @@ _KEY = "_decomposed_key"  # key in a `PointWeights`' ``__dict__``: its `_DECOMPO
 class _Content:
     """A `_DECOMPOSED` key: a solve's sizes and its weights' bytes, ``parts = (K, P, point, col,
     w, active bytes)``, equal to another only with every byte the same, hashed by the sizes and
-    the first `_HASHED` bytes of each array alone. Python hashes a bytes object whole (about
-    0.5 µs a kilobyte), and a large solve's entries are 90 kB; two solves' weights differ in
-    their first entries almost always, and where they do not, equality still reads them all."""
+    the first `_HASHED` bytes of each array alone. Python hashes a bytes object whole, and a
+    large solve's entries are 90 kB; two solves' weights differ in their first entries almost
+    always, and where they do not, equality still reads them all."""
 
     __slots__ = ("parts", "_hash")
 
