@@ -168,7 +168,10 @@ def _writable(x: np.ndarray) -> np.ndarray:
 
 def bits(x: np.ndarray) -> np.ndarray:
     """``x`` float64 as its bits (int64), so a comparison tells ``-0.0`` from ``0.0``."""
-    return np.ascontiguousarray(x).view(np.int64)
+    return np.ascontiguousarray(x).view(_INT64)
+
+
+_INT64 = np.dtype(np.int64)  # `bits`' view: a dtype object, which a view takes without converting a type
 
 
 @functools.lru_cache(maxsize=64)

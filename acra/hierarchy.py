@@ -43,6 +43,7 @@ __all__ = [
     "refine_keys",
     "with_fine",
     "with_cvs",
+    "with_offsets",
     "set_offsets",
     "offsets_of",
     "cv_uv",
@@ -185,7 +186,10 @@ class HSpline:
 
 
 _LEVEL0 = ("_size", "_closed_ends")  # cached properties of level 0 alone
-_STRUCTURE = ("_terms_index", "_table_rows")  # of the grid's size and the fine levels' patches and CVs alone
+TABLE_STARTS = "_table_starts"  # `hspline._starts`, kept on a surface
+_STRUCTURE = ("_terms_index", "_table_rows", TABLE_STARTS)  # of the grid's size and the fine levels' patches and CVs alone
+# `hspline.eval_arrays`' arguments of a surface, kept on it: of level 0 and the structure alone
+EVAL_ARGS = "_eval_args"
 
 
 def with_fine(hs: HSpline, fine: tuple[Level, ...], same_cvs: bool = False) -> HSpline:
@@ -193,8 +197,21 @@ def with_fine(hs: HSpline, fine: tuple[Level, ...], same_cvs: bool = False) -> H
     size, the closed ends) is carried over, not found again for the new surface object; with
     ``same_cvs`` (only offsets changed: every level's patches, CVs and movability as in ``hs``)
     so is `HSpline._terms_index`."""
-    # the constructor, not `dataclasses.replace`: a response builds a surface per move
-    return _carry(hs, HSpline(hs.cvs, hs.u, hs.v, hs.depth, fine), _LEVEL0 + (_STRUCTURE if same_cvs else ()))
+    # the fields set directly, not `dataclasses.replace` nor the frozen constructor, which sets
+    # one field at a time through ``object.__setattr__``: a response builds a surface per move
+    new = object.__new__(HSpline)
+    new.__dict__.update(cvs=hs.cvs, u=hs.u, v=hs.v, depth=hs.depth, fine=fine)
+    return _carry(hs, new, _LEVEL0 + (_STRUCTURE + (EVAL_ARGS,) if same_cvs else ()))
+
+
+def with_offsets(lev: Level, offsets: np.ndarray) -> Level:
+    """``lev`` with other ``offsets (c, 3) float64`` (the same patches, CVs and movability),
+    its fields set directly as `with_fine` sets a surface's (a response moves a level per
+    step)."""
+    new = object.__new__(Level)
+    new.__dict__.update(k=lev.k, patches=lev.patches, cv_keys=lev.cv_keys, offsets=offsets, movable=lev.movable,
+                        patch_rows=lev.patch_rows)
+    return new
 
 
 def with_cvs(hs: HSpline, cvs: np.ndarray) -> HSpline:

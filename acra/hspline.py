@@ -58,6 +58,7 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     to_arrays,
     with_cvs,
     with_fine,
+    with_offsets,
 )
 
 from .changes import changed_cells, changed_patches, grown_patches, mark_moved  # noqa: F401  (re-exported)
@@ -96,8 +97,10 @@ def _stacked(vectors: list, frames: list, table: np.ndarray) -> Details:
     already holds ``vectors`` stacked (`details` and `moved_details` write each level's rows as
     they finish it, so a level's frames, which evaluate the coarser levels, and the evaluations
     after a move read a prefix of one array instead of stacking the levels again)."""
-    out = Details(tuple(vectors), tuple(frames))
-    out.__dict__["table"] = table
+    # the fields set directly: the frozen constructor sets one at a time through
+    # ``object.__setattr__``, and a move's pass stacks a level's coarser details per level
+    out = object.__new__(Details)
+    out.__dict__.update(vectors=tuple(vectors), frames=tuple(frames), table=table)
     return out
 
 
@@ -192,15 +195,26 @@ def eval_arrays(hs: HSpline, det: Details | None = None, upto: int | None = None
     compiled signature serves every call (and compiled code that evaluates the surface itself,
     `acra.sides.behind`, sums what `evaluate` sums)."""
     top = hs.depth - 1 if upto is None else min(upto, hs.depth - 1)
-    if top < 0:
-        raise ValueError(f"upto must be at least 0, got {upto}")
-    levels, keys, shifts, ends, patch_rows = hs._terms_index
-    if levels.size > 1 and levels[1] <= top:  # a fine level with detail is summed
-        table = _flat((det if det is not None else _details_for(hs, top)).table, 2)
-    else:
-        table = _NO_DETAILS
-    return (int(top), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
-            _flat(hs.cvs.reshape(-1, 3), 2), levels, keys, shifts, ends, patch_rows, hs._table_rows, table)
+    known = hs.__dict__.get(_EVAL_ARGS)
+    if known is None:
+        known = hs.__dict__[_EVAL_ARGS] = {}
+    hit = known.get(top)
+    if hit is None:
+        if top < 0:
+            raise ValueError(f"upto must be at least 0, got {upto}")
+        levels, keys, shifts, ends, patch_rows = hs._terms_index
+        hit = known[top] = (levels.size > 1 and levels[1] <= top,  # a fine level with detail is summed
+                            (int(top), int(hs.u.n), bool(hs.u.periodic), int(hs.v.n), bool(hs.v.periodic),
+                             _flat(hs.cvs.reshape(-1, 3), 2), levels, keys, shifts, ends, patch_rows, hs._table_rows))
+    if hit[0]:
+        return (*hit[1], _flat((det if det is not None else _details_for(hs, top)).table, 2))
+    return (*hit[1], _NO_DETAILS)
+
+
+# key in an `HSpline`'s ``__dict__``: ``{top: (whether a fine level is summed, eval_arrays' arguments
+# before the table)}``, which depend on level 0 and the levels' structure alone (carried by
+# `hierarchy.with_fine` to a surface of other offsets)
+_EVAL_ARGS = hierarchy.EVAL_ARGS
 
 
 def _surface_eval(out: np.ndarray) -> SurfaceEval:
@@ -256,8 +270,11 @@ def keep_details(hs: HSpline, det: Details | None) -> None:
 def _plain(x) -> np.ndarray:
     """``x`` as a C-contiguous, writeable float64 array (a copy only where it is not one): the
     kernel reads its arrays alone, but numba compiles another signature for a read-only one."""
-    a = np.ascontiguousarray(x, dtype=np.float64)
+    a = np.ascontiguousarray(x, dtype=_F64)
     return a if a.flags.writeable else a.copy()
+
+
+_F64 = np.dtype(np.float64)  # `_plain`'s dtype as an object: numpy converts a type on every call
 
 
 def _evaluate_numpy(
@@ -524,7 +541,7 @@ def details(hs: HSpline, upto: int | None = None,
     frames: list[np.ndarray] = []
     # the vectors stacked as each level is finished (`_stacked`): level k's rows are
     # ``start[k - 1]:start[k]``
-    start = hs._table_rows - hs._table_rows[0]
+    start = _starts(hs)
     table = np.empty((int(start[top]), 3))
     ends_stale = None  # `_ends_stale` of ``since``, found once
     for k in range(1, top + 1):
@@ -547,7 +564,7 @@ def details(hs: HSpline, upto: int | None = None,
             if lev.cv_keys is was.cv_keys and lev.movable is was.movable:  # a move: only offsets differ
                 if k <= first and k not in old_pending:  # and the frames' surface is old's: old's frames, vectors of the new offsets
                     fr = old_det.frames[k - 1]
-                    vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, rows, _plain(lev.offsets), vec)[1]
+                    vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, rows, _plain(lev.offsets), vec, _NO_MOVES, _NO_MOVES)[1]
                     vectors.append(vec)
                     frames.append(fr)
                     table[start[k - 1]:start[k]] = vec
@@ -584,7 +601,7 @@ def details(hs: HSpline, upto: int | None = None,
             fr[rows] = _frames_at(hs, k, ends, _stacked(vectors, frames, table[:start[k - 1]]), ring, gu, gv)
         # every movable CV's vector from its frame, kept or new (offsets may have moved); each
         # row's product is its own, so one product serves both
-        vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, every, _plain(lev.offsets), vec)[1]
+        vec = levelkernels.restate_rows(_plain(fr), _NO_FRAMES, every, _plain(lev.offsets), vec, _NO_MOVES, _NO_MOVES)[1]
         if later is not None and later.size:
             vec[later] = 0.0  # the product of zero offsets, whatever the frame
             fr[later] = np.nan
@@ -597,11 +614,29 @@ def details(hs: HSpline, upto: int | None = None,
     return out
 
 
+def _starts(hs: HSpline) -> list[int]:
+    """Where each fine level's rows start in a `Details.table` of ``hs``, ``depth`` ints: level
+    ``k``'s rows are ``[k - 1]:[k]`` (`HSpline._table_rows` less level 0's), as Python ints
+    for slicing."""
+    out = hs.__dict__.get(_STARTS)
+    if out is None:
+        out = hs.__dict__[_STARTS] = (hs._table_rows - hs._table_rows[0]).tolist()
+    return out
+
+
+_STARTS = hierarchy.TABLE_STARTS
+
+
 # key in a `Details`' ``__dict__``: ``{level: rows (m,) int64}`` of frames left pending (NaN) by
 # `details`' ``lazy``; a `Details` without it has every frame
 _PENDING = "_pending"
 _NO_ROWS = np.zeros(0, np.int64)  # `levelkernels.stale_rows`' pending rows of a level with none
 _NO_FRAMES = np.zeros((0, 3, 3))  # `levelkernels.restate_rows`' new frames of a level whose frames stay
+_NO_MOVES = np.zeros((0, 3))  # `levelkernels.restate_rows`' moves (and moved offsets) of a pass that moves nothing
+# key in a moved `Level`'s ``__dict__`` (`acra.respond.move_level`, beside `changes.MOVED`):
+# ``(frames, vectors, new vectors)``, the level's vectors restated from its new offsets with the
+# frames and vectors of the details it was moved with, in the same pass as the move
+MOVED_VECTORS = "_moved_vectors"
 
 
 def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
@@ -631,21 +666,30 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     vectors, frames = list(old_det.vectors), list(old_det.frames)
     # the vectors stacked (`_stacked`), the rows of each level that moves rewritten: level k's
     # rows are ``start[k - 1]:start[k]``
-    start = new._table_rows - new._table_rows[0]
+    start = _starts(new)
     table = old_det.table.copy()
     hint = lev.__dict__.get(changes.MOVED)
+    k = level
     if hint is not None and hint[0] is was.offsets:  # a move that names its rows: only those can differ
-        rows = levelkernels.differing_rows(changes.bits(was.offsets), changes.bits(lev.offsets), np.ascontiguousarray(hint[1], np.int64))
+        rows = np.ascontiguousarray(hint[1], np.int64)
+        restated = lev.__dict__.get(MOVED_VECTORS)
+        if restated is not None and restated[0] is frames[k - 1] and restated[1] is vectors[k - 1]:
+            vec = restated[2]  # the move's own pass restated them, from these frames and vectors
+        else:
+            rows = levelkernels.differing_rows(changes.bits(was.offsets), changes.bits(lev.offsets), rows)
+            vec = None
     else:
         rows = np.nonzero(np.any(changes.bits(was.offsets) != changes.bits(lev.offsets), axis=-1))[0]
+        vec = None
     # the level-0 patches holding a patch a changed CV supports; then level by level the frames
     # on them (compiled bookkeeping, `levelkernels.restate_rows`, `mark_changed` and `stale_rows`)
     stale = np.zeros((new.u.patches0, new.v.patches0), bool)
     ends = closed_ends(new)
     ends_arr = _ends_array(ends)
     up, vp = bool(new.u.periodic), bool(new.v.periodic)
-    k = level
-    _, vec = levelkernels.restate_rows(_plain(frames[k - 1]), _NO_FRAMES, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
+    if vec is None:
+        vec = levelkernels.restate_rows(_plain(frames[k - 1]), _NO_FRAMES, rows, _plain(lev.offsets), _plain(vectors[k - 1]),
+                                        _NO_MOVES, _NO_MOVES)[1]
     marked = levelkernels.mark_changed(changes.bits(vec), changes.bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                        int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
     vectors[k - 1] = vec
@@ -664,7 +708,8 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         rows = every[pos]
         fresh = _plain(_frames_at(new, k, ends, _stacked(vectors[:k - 1], frames[:k - 1], table[:start[k - 1]]),
                                   ring[pos], gu[pos], gv[pos]))
-        fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]))
+        fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]),
+                                            _NO_MOVES, _NO_MOVES)
         marked |= levelkernels.mark_changed(changes.bits(vec), changes.bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
                                             int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
         vectors[k - 1], frames[k - 1] = vec, fr
@@ -680,9 +725,9 @@ def _frames_at(hs: HSpline, k: int, ends: tuple, partial: Details, ring: np.ndar
     # a ring's CVs take their end's one normal: their own (at the end, where du x dv
     # vanishes and the limit normal needs second derivatives) are not computed
     fixed, n_fixed = np.zeros(gu.size, bool), np.zeros((gu.size, 3))
-    for i, (axis, end) in enumerate(ends if ring.size and ring.max() >= 0 else ()):
+    for i, (axis, end) in enumerate(ends if np.count_nonzero(ring >= 0) else ()):
         on = ring == i
-        if np.any(on):
+        if np.count_nonzero(on):
             n_end = _end_normal(hs, k, axis, end, partial)
             if n_end is not None:
                 fixed |= on
@@ -711,6 +756,14 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
     centres ``gu, gv (m,) float64`` (`cv_uv`) and the level-0 patch ``(m,) int64`` (flat,
     ``pu * P0v + pv``) each centre is in. Kept per `Level` CV arrays: a move replaces a level's
     offsets, not its ``cv_keys`` and ``movable``, so the response's steps share them."""
+    # first on the `Level` object itself (`PLACES`; a move's new `Level` carries it), which a
+    # response asks on every level its moves follow
+    on_level = lev.__dict__.get(PLACES)
+    if on_level is None:
+        on_level = lev.__dict__[PLACES] = {}
+    hit = on_level.get(ends)
+    if hit is not None and hit[0] is lev.cv_keys and hit[1] is lev.movable:
+        return hit[2]
     key = (id(lev.cv_keys), ends)  # a level's CV keys are of one grid and level
     places = _PLACES.entries()
     hit = places.pop(key, None)
@@ -722,7 +775,12 @@ def _movable_places(hs: HSpline, k: int, lev: Level, ends: tuple) -> tuple:
         hit = (lev.cv_keys, lev.movable, (rows, ring, gu, gv, centre))
     places[key] = hit
     _PLACES.trim()
+    on_level[ends] = hit
     return hit[2]
+
+
+# key in a `Level`'s ``__dict__``: ``{closed ends: (cv_keys, movable, `_movable_places`)}``
+PLACES = "_places"
 
 
 @functools.lru_cache(maxsize=16)
@@ -801,7 +859,7 @@ def _end_normal(hs: HSpline, k: int, axis: int, end: int, det: Details) -> np.nd
                                   bool(hs.v.periodic), unit):
         unit = surface_normals(hs, u, v, det=det, upto=k - 1)[1]
     n = np.add.reduce(unit, axis=0) / unit.shape[0]  # `unit.mean(axis=0)`: its sum and division
-    length = np.linalg.norm(n)
+    length = np.sqrt(n.dot(n))  # `np.linalg.norm(n)`: its dot product and root, without its wrapper
     return n / length if length > 1e-6 else None
 
 

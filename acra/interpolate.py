@@ -34,6 +34,7 @@ from .hspline import HSpline, _cv_keys, _lookup, _patch_keys, closed_ends, pole_
 __all__ = [
     "PointWeights",
     "point_active",
+    "active_rows",
     "SystemTooLarge",
     "dense_bytes",
     "point_weights",
@@ -105,10 +106,13 @@ def point_weights(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: n
     The entries are one compiled pass (`acra.levelkernels.point_entries`; `_entries_numpy` is
     their array form), numbered by `acra.levelkernels.unique_inverse`.
     """
-    u = np.atleast_1d(np.asarray(u, dtype=np.float64))
     point, rows, wts, active = _kernel_entries(hs, level, u, v, pole)
     cv_rows, col = levelkernels.unique_inverse(rows)
-    return PointWeights(level, point, col, wts, cv_rows, u.size, active)
+    # the fields set directly: the frozen constructor sets one at a time through
+    # ``object.__setattr__``, and a response builds weights on every level
+    out = object.__new__(PointWeights)
+    out.__dict__.update(level=level, point=point, col=col, w=wts, cv_rows=cv_rows, npoints=active.size, active=active)
+    return out
 
 
 def point_active(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.ndarray | None = None) -> np.ndarray:
@@ -137,7 +141,7 @@ def _kernel_entries(hs: HSpline, level: int, u: np.ndarray, v: np.ndarray, pole:
     pole = pole_of(hs, u, v) if pole is None else pole
     # the level's rings only for points on a pole: a level a response refined is a new `Level`,
     # whose ring table is built afresh
-    rows, w, at, use = _ring_table(hs, level) if pole.size and pole.max() >= 0 else _NO_RINGS
+    rows, w, at, use = _ring_table(hs, level) if np.count_nonzero(pole >= 0) else _NO_RINGS
     return levelkernels.point_entries(
         u, v, pole, level, hs.u.cvs(level), hs.u.periodic, hs.v.cvs(level), hs.v.periodic,
         hs.u.patches(level), hs.v.patches(level), _NONE if lev is None else lev.cv_keys,
@@ -384,28 +388,53 @@ def min_norm_solve(pw: PointWeights, dq: np.ndarray, rcond: float = 1e-4, max_by
     -------
     (P, 3) float64
     """
-    act = np.nonzero(pw.active)[0]
+    act, every = active_rows(pw)
     if act.size == 0:
         return np.zeros((pw.cv_rows.size, 3))
     if max_bytes is not None and dense_bytes(act.size, pw.cv_rows.size) > max_bytes:
         raise SystemTooLarge(int(act.size), int(pw.cv_rows.size), dense_bytes(act.size, pw.cv_rows.size), int(max_bytes))
-    # every point active: the rows as they are, without copies (the same C-ordered arrays a
-    # selection would give, so BLAS sums the same products in the same order)
-    every = act.size == pw.npoints
-    W, lam, vec = _decomposition(pw, act, every)
+    W, lam, vec, _, modes = _decomposition(pw, act, every)
     dqa = dq if every and dq.flags.c_contiguous else dq[act]
+    if amplify is None:
+        # the modes above ``rcond`` depend on the decomposition alone: taken once per kept one
+        hit = modes.get(rcond)
+        if hit is None:
+            hit = modes[rcond] = _kept_modes(lam, vec, lam > rcond * lam[-1])
+            for a in hit:  # shared with every later solve of these weights
+                a.flags.writeable = False
+        kept, lam_kept = hit
+        return W.T @ (kept @ (kept.T @ dqa / lam_kept))
     keep = lam > rcond * lam[-1]
-    if amplify is not None:
-        along = vec.T @ dqa
-        # `np.linalg.norm(x, axis=1)`'s own sum, without its wrapper
-        moves = np.sqrt(np.add.reduce(along * along, axis=1)) / np.sqrt(np.maximum(lam, _TINY))
-        keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.sqrt(np.add.reduce(dqa * dqa, axis=1)).max()))
-    if keep.all() and vec.flags.c_contiguous:
-        coef = vec.T @ dqa / lam[:, None]
-        return W.T @ (vec @ coef)
-    kept = vec[:, keep]  # one copy of the kept modes for both products
-    coef = kept.T @ dqa / lam[keep][:, None]
-    return W.T @ (kept @ coef)
+    along = vec.T @ dqa
+    # `np.linalg.norm(x, axis=1)`'s own sum, without its wrapper
+    moves = np.sqrt(np.add.reduce(along * along, axis=1)) / np.sqrt(np.maximum(lam, _TINY))
+    keep &= ~((lam < weak * lam[-1]) & (moves > amplify * np.sqrt(np.add.reduce(dqa * dqa, axis=1)).max()))
+    kept, lam_kept = _kept_modes(lam, vec, keep)
+    return W.T @ (kept @ (kept.T @ dqa / lam_kept))
+
+
+def active_rows(pw: PointWeights) -> tuple[np.ndarray, bool]:
+    """The rows of ``pw``'s active points ``(k,) int64`` and whether that is all of them, kept on
+    the weights (a response solves kept weights level after level, `acra.respond._weights`).
+    Every point active: the solve takes the rows as they are, without copies (the same C-ordered
+    arrays a selection would give, so BLAS sums the same products in the same order)."""
+    hit = pw.__dict__.get(_ACTIVE)
+    if hit is None:
+        act = np.nonzero(pw.active)[0]
+        hit = pw.__dict__[_ACTIVE] = (act, act.size == pw.npoints)
+    return hit
+
+
+_ACTIVE = "_active_rows"  # key in a `PointWeights`' ``__dict__``: `active_rows`' answer
+
+
+def _kept_modes(lam: np.ndarray, vec: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The eigenvectors ``(k, m) float64`` of the ``m`` modes ``keep (k,) bool`` keeps, and their
+    eigenvalues as a column ``(m, 1) float64``: ``vec`` itself where every mode is kept and it is
+    C-ordered, else one copy of the kept columns for both products of the solve."""
+    if np.count_nonzero(keep) == keep.size and vec.flags.c_contiguous:
+        return vec, lam[:, None]
+    return vec[:, keep], lam[keep][:, None]
 
 
 # The dense weights of recent solves' active points and their Gram matrix's eigen-decomposition
@@ -421,31 +450,57 @@ _DECOMPOSED_BYTES = 1 << 25  # 32 MB: the demo's largest solve keeps 0.3 MB
 _KEY = "_decomposed_key"  # key in a `PointWeights`' ``__dict__``: its `_DECOMPOSED` key
 
 
-def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+class _Content:
+    """A `_DECOMPOSED` key: a solve's sizes and its weights' bytes, ``parts = (K, P, point, col,
+    w, active bytes)``, equal to another only with every byte the same, hashed by the sizes and
+    the first `_HASHED` bytes of each array alone. Python hashes a bytes object whole, and a
+    large solve's entries are 90 kB; two solves' weights differ in their first entries almost
+    always, and where they do not, equality still reads them all."""
+
+    __slots__ = ("parts", "_hash")
+
+    def __init__(self, parts: tuple) -> None:
+        self.parts = parts
+        self._hash = hash(parts[:2] + tuple(b[:_HASHED] for b in parts[2:]) + tuple(len(b) for b in parts[2:]))
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is _Content and self._hash == other._hash and self.parts == other.parts
+
+
+_HASHED = 1024  # bytes of each array a `_Content` hashes
+
+
+def _decomposition(pw: PointWeights, act: np.ndarray, every: bool) -> tuple:
     """The active points' dense weights ``W (k, P) float64`` and the eigenvalues ``(k,)`` and
-    eigenvectors ``(k, k)`` of ``W Wᵀ`` (`_eigh`), kept (`_DECOMPOSED`) or computed; read-only.
-    ``act (k,) int64``: the active points; ``every``: all of them."""
+    eigenvectors ``(k, k)`` of ``W Wᵀ`` (`_eigh`), read-only, then the bytes the entry holds and
+    its kept modes by eigenvalue cut-off (``{rcond: `_kept_modes`}``, filled by `min_norm_solve`):
+    the entry kept (`_DECOMPOSED`) or computed. ``act (k,) int64``: the active points; ``every``:
+    all of them."""
     # the key is made once per weights object, whose arrays nothing writes into (a response
     # solves the same kept weights again, `acra.respond._weights`): its bytes keep their hashes
     key = pw.__dict__.get(_KEY)
     if key is None:
-        key = pw.__dict__[_KEY] = (pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(),
-                                   pw.active.tobytes())
+        key = pw.__dict__[_KEY] = _Content((pw.npoints, pw.cv_rows.size, pw.point.tobytes(), pw.col.tobytes(), pw.w.tobytes(),
+                                            pw.active.tobytes()))
     kept = _DECOMPOSED.entries()
     hit = kept.pop(key, None)
     if hit is not None:
         kept[key] = hit  # the most recent last
-        return hit[:3]
+        return hit
     W = pw.dense() if every else pw.dense()[act]
     lam, vec = _eigh(W @ W.T)
     for a in (W, lam, vec):
         a.flags.writeable = False
-    size = sum(len(b) for b in key[2:]) + W.nbytes + lam.nbytes + vec.nbytes  # what the entry holds
+    size = sum(len(b) for b in key.parts[2:]) + W.nbytes + lam.nbytes + vec.nbytes  # what the entry holds
+    entry = (W, lam, vec, size, {})
     if size <= _DECOMPOSED_BYTES // 4:
-        kept[key] = (W, lam, vec, size)
+        kept[key] = entry
         while len(kept) > _DECOMPOSED_KEEP or sum(v[3] for v in kept.values()) > _DECOMPOSED_BYTES:
             del kept[next(iter(kept))]
-    return W, lam, vec
+    return entry
 
 
 def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -458,7 +513,7 @@ def _eigh(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.linalg.eigh(g)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
         lam, vec = _EIGH_LO(g, signature="d->dd")
-    if np.isnan(lam).any():
+    if np.count_nonzero(np.isnan(lam)):
         return np.linalg.eigh(g)
     return lam, vec
 

@@ -440,14 +440,22 @@ def mark_changed(new, old, rows, cv_keys, v_cvs, k, u_patches, v_patches, u_peri
 
 
 @njit(cache=True, nogil=True)
-def restate_rows(frames, new_frames, rows, offsets, vectors):
+def restate_rows(frames, new_frames, rows, offsets, vectors, moves, moved):
     """A level's frames and detail vectors after a move changed its offsets, or the surface under
     it its frames, on ``rows (m,) int64`` (`acra.hspline.moved_details`): a copy of ``frames (c,
     3, 3)`` with those rows' set to ``new_frames (m, 3, 3)`` (none given, ``(0, 3, 3)``:
     ``frames`` itself), and a copy of ``vectors (c, 3)`` with those rows' vectors ``frame @
     offset``, each summed from 0.0 as ``(p0 + p2) + p1``, as ``np.einsum("mij,mj->mi")`` sums
-    three products. Returns ``frames, vectors``. (It calls no other kernel: a compiled call
-    compiles its callee again into the caller, seconds on a fresh install.)"""
+    three products. Returns ``frames, vectors``.
+
+    With ``moves (m, 3) float64`` (none: ``(0, 3)``) the rows are a move's, each once
+    (`acra.respond.move_level`): first ``moved (c, 3) float64``, a copy of ``offsets`` the
+    caller made, takes on each row the offset plus ``frame.T @ move``, that product summed from
+    0.0 in order ``p0, p1, p2`` as ``np.einsum("mji,mj->mi")`` sums it, added as numpy's
+    ``offsets[rows] += ...`` adds it; then the vectors are restated from ``moved`` on the rows
+    whose offsets changed bits (`differing_rows`', but a NaN offset counts as changed, which
+    restates its row with the bits it had), the others' kept. (It calls no other kernel:
+    a compiled call compiles its callee again into the caller, seconds on a fresh install.)"""
     fr = frames.copy() if new_frames.shape[0] else frames
     for n in range(new_frames.shape[0]):
         r = rows[n]
@@ -455,6 +463,24 @@ def restate_rows(frames, new_frames, rows, offsets, vectors):
             for j in range(3):
                 fr[r, i, j] = new_frames[n, i, j]
     vec = vectors.copy()
+    if moves.shape[0]:
+        for n in range(moves.shape[0]):
+            r = rows[n]
+            m0, m1, m2 = moves[n, 0], moves[n, 1], moves[n, 2]
+            same = True
+            for i in range(3):
+                x = offsets[r, i] + (((0.0 + fr[r, 0, i] * m0) + fr[r, 1, i] * m1) + fr[r, 2, i] * m2)
+                y = offsets[r, i]
+                moved[r, i] = x
+                # the same bits: equal, with the same sign where zero (an int64 view of the
+                # arrays compiles half a second longer); a NaN counts as changed
+                same = same and x == y and (x != 0.0 or math.copysign(1.0, x) == math.copysign(1.0, y))
+            if same:
+                continue
+            o0, o1, o2 = moved[r, 0], moved[r, 1], moved[r, 2]
+            for i in range(3):
+                vec[r, i] = 0.0 + ((fr[r, i, 0] * o0 + fr[r, i, 2] * o2) + fr[r, i, 1] * o1)
+        return fr, vec
     for r in rows:
         o0, o1, o2 = offsets[r, 0], offsets[r, 1], offsets[r, 2]
         for i in range(3):

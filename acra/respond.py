@@ -27,8 +27,8 @@ from . import changes, framekernels, levelkernels, memo
 from . import hspline as H
 from .basis import locate
 from .controls import ControlError, Controls
-from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys
-from .interpolate import PointWeights, point_active, point_weights, solve
+from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys, with_offsets
+from .interpolate import PointWeights, active_rows, point_active, point_weights, solve
 from .quat import quat_from_axis_angle, quat_rotate, slerp_mean
 from .targets import DataPoints, merge_trig, per_level_points
 
@@ -57,19 +57,32 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
         np.add.at(cvs, cv_rows, dv)
         return H.with_cvs(hs, _closed_ends(hs, cvs.reshape(hs.cvs.shape)))
     lev = hs.level(level)
-    frames = det.frames[level - 1][cv_rows]
-    offsets = lev.offsets.copy()
-    if unique:  # each row once: one addition per row, as `np.add.at` makes it
-        offsets[cv_rows] += np.einsum("mji,mj->mi", frames, dv)
+    if unique:
+        # each row once: one addition per row, as `np.add.at` makes it; the move and the level's
+        # vectors restated from its new offsets are one compiled pass (`levelkernels.restate_rows`
+        # with moves: ``offsets[cv_rows] += np.einsum("mji,mj->mi", frames[cv_rows], dv)``'s bits)
+        rows = np.ascontiguousarray(cv_rows, np.int64)
+        old = H._plain(lev.offsets)
+        offsets = old.copy()
+        vec = levelkernels.restate_rows(H._plain(det.frames[level - 1]), H._NO_FRAMES, rows, old,
+                                        H._plain(det.vectors[level - 1]), H._plain(dv), offsets)[1]
     else:
-        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", frames, dv))
+        offsets = lev.offsets.copy()
+        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", det.frames[level - 1][cv_rows], dv))
     fine = list(hs.fine)
-    fine[level - 1] = H.Level(lev.k, lev.patches, lev.cv_keys, offsets, lev.movable, lev.patch_rows)
-    if unique:  # the rows that can differ from ``lev``'s offsets, for `H.moved_details`
+    fine[level - 1] = with_offsets(lev, offsets)
+    if unique:  # the rows that can differ from ``lev``'s offsets, and its vectors, for `H.moved_details`
         fine[level - 1].__dict__[changes.MOVED] = (lev.offsets, cv_rows)
-    if "_ring_rows" in lev.__dict__:  # same CVs, other offsets: the same ring rows (`_ring_rows`)
-        fine[level - 1].__dict__["_ring_rows"] = lev.__dict__["_ring_rows"]
+        fine[level - 1].__dict__[H.MOVED_VECTORS] = (det.frames[level - 1], det.vectors[level - 1], vec)
+    for name in _SAME_CVS:  # same CVs, other offsets: the same ring rows and movable CVs' places
+        if name in lev.__dict__:
+            fine[level - 1].__dict__[name] = lev.__dict__[name]
     return H.with_fine(hs, tuple(fine), same_cvs=True)
+
+
+# what a `Level` keeps on itself that depends on its CV keys and movability alone (`_ring_rows`,
+# `H._movable_places`), carried to the level a move makes
+_SAME_CVS = ("_ring_rows", H.PLACES)
 
 
 def move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
@@ -324,7 +337,7 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     before = hs
     for k, axis, end in rings:
         if k == pw.level:
-            if pole_ring_movable(hs, k, axis, end) or not _ring_rows(hs, k, axis, end)[1].any():
+            if _ring_settled(hs, k, axis, end):
                 continue  # wholly movable already, or no CV of it the solve could move
             _, ok, reached = _ring_reach(hs, pw, k, axis, end)
             if reached[ok].any():
@@ -332,6 +345,19 @@ def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.
     if hs is not before:
         pw = point_weights(hs, pw.level, uv[:, 0], uv[:, 1])
     return hs, det, pw
+
+
+def _ring_settled(hs: H.HSpline, k: int, axis: int, end: int) -> bool:
+    """Whether level ``k``'s ring at ``(axis, end)`` is wholly movable (`pole_ring_movable`) or
+    has no movable CV (`_ring_rows`' ``ok`` all false): `_reach_rings` has nothing to open on it.
+    Kept with the ring's rows on the `Level` object (which a move carries), as they depend on
+    the level's CVs and movability alone."""
+    memo = hs.level(k).__dict__.setdefault("_ring_rows", {})
+    key = ("settled", hs.u.n, hs.u.periodic, hs.v.n, hs.v.periodic, axis, end)
+    hit = memo.get(key)
+    if hit is None:
+        hit = memo[key] = pole_ring_movable(hs, k, axis, end) or not _ring_rows(hs, k, axis, end)[1].any()
+    return hit
 
 
 def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, want: np.ndarray,
@@ -706,6 +732,11 @@ def respond(
     # can reshape
     shaping = [level for level in range(L) if absorb[level] > 0.0 and deform[level] > 0.0]
     exact = shaping[-1] if shaping and shaping[-1] < finest else -1
+    # each level's own rings (`_reach_rings` and `_ring_constraints` look at a level's alone),
+    # and those its solve keeps closed: every one, and on the finest level the periodic poles'
+    # alone (tuples: `_ring_extension` keys its kept extensions by them)
+    rings_at = {level: tuple(g for g in rings if g[0] == level) for level in absorbing}
+    rings_kept = {level: tuple(g for g in rings_at[level] if not (level == finest and fan[g[1:]])) for level in absorbing}
     # which pole each point sits on depends on the level-0 grid alone (its closed ends): found
     # once for every level's weights while level 0 stays as it is
     cvs0 = hs.cvs
@@ -719,7 +750,7 @@ def respond(
     # the new CVs and each later move's pass turns those on its stale patches with the rest.
     early = controls.refine and absorb[0] <= 0.0
     is_contact = np.asarray(points.is_contact, bool)
-    merged = points.per_patch and not is_contact.all()  # additional points merged per patch (eq. 4.16)
+    merged = points.per_patch and np.count_nonzero(is_contact) < K  # additional points merged per patch (eq. 4.16)
     trig = merge_trig(hs, uv, is_contact) if merged else None  # their angles, the same on every level
     if early:
         coarse, before = hs, sum(lev.patches.size for lev in hs.fine)
@@ -746,12 +777,13 @@ def respond(
         pole = pole0 if hs.cvs is cvs0 else None
         pw = _weights(hs, level, pu, pv, pole)
         present = pw.active
+        every = active_rows(pw)[1]  # every point reaches the level: the selections below are the arrays themselves
         if d > 0:
             # the first level's surface is the refined input, kept with its details (`_refined_at`)
             cur = _points_at(hs, det, pu, pv)[0] if level == absorbing[0] else H.evaluate(hs, pu, pv, det=det).points
             goal = q0 + (applied + a * d)[:, None] * dq
-            want = np.where(present[:, None], goal - cur, 0.0)
-            if points.per_patch:
+            want = goal - cur if every else np.where(present[:, None], goal - cur, 0.0)
+            if merged:  # `per_level_points` of contacts alone is the points as they are
                 luv, lwant = per_level_points(hs, level, uv, want, is_contact, trig)
             else:
                 luv, lwant = uv, want
@@ -764,8 +796,8 @@ def respond(
                 lwant = np.concatenate([lwant, htarget - hcur])
             lpw = pw if luv is uv and own else _weights(hs, level, np.ascontiguousarray(luv[:, 0]), np.ascontiguousarray(luv[:, 1]))
             if controls.refine:
-                hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings)
-            lpw, lwant = _ring_constraints(hs, det, lpw, lwant, [g for g in rings if not (level == finest and fan[g[1:]])])
+                hs, det, lpw = _reach_rings(hs, det, lpw, luv, rings_at[level])
+            lpw, lwant = _ring_constraints(hs, det, lpw, lwant, rings_kept[level])
             dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                        amplify=None if level == exact else amplify)
             hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det, True), (level,))
@@ -786,7 +818,7 @@ def respond(
                 dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                            amplify=None if level == exact else amplify)
                 hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det, True), (level,))
-        applied = applied + np.where(present, a, 0.0)
+        applied = applied + a if every else applied + np.where(present, a, 0.0)
         hs, det = _settled(hs, det)
     hs, det = _close_rings(hs, det, rings, controls.refine, det0.__dict__.get(_SPREAD) if det0 is not None else None)
     H.keep_details(hs, det)

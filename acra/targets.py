@@ -163,7 +163,7 @@ def per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray
     ``is_contact (K,) bool``; ``trig``: `merge_trig` of the points, if the caller has it (a
     response merges the same points on every level). Returns ``uv (g, 2)``, ``want (g, 3)``.
     """
-    if is_contact.all():
+    if np.count_nonzero(is_contact) == is_contact.size:
         return uv, want
     # compiled (`levelkernels.merge_points`) but for a periodic direction's angles, whose
     # cosines, sines and arctan2 stay numpy's (`patch_groups`' arithmetic, as

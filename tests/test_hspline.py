@@ -722,13 +722,47 @@ def test_restating_a_levels_rows_is_the_array_form():
             want_fr[rows] = fresh
         want_vec = vectors.copy()
         want_vec[rows] = np.einsum("mij,mj->mi", want_fr[rows], offsets[rows])
-        fr, vec = levelkernels.restate_rows(frames, fresh, rows, offsets, vectors)
+        none = np.zeros((0, 3))
+        fr, vec = levelkernels.restate_rows(frames, fresh, rows, offsets, vectors, none, none)
         assert fr.tobytes() == want_fr.tobytes() and vec.tobytes() == want_vec.tobytes()
         assert (fr is frames) == (not fresh.size) and vec is not vectors
         assert vec[rows[0]].tobytes() == np.zeros(3).tobytes()
         stale = np.zeros((hs.u.patches0, hs.v.patches0), bool)
         n = levelkernels.mark_changed(vec.view(np.int64), vectors.view(np.int64), rows, *args, stale)
         assert 0 < n < rows.size  # the test moved some rows' vectors and not others
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_restating_a_moves_rows_is_the_array_form(seed):
+    """`levelkernels.restate_rows` with moves (behind `acra.respond.move_level`) gives the
+    offsets ``offsets[rows] += np.einsum("mji,mj->mi", frames[rows], moves)`` gives, bit for bit
+    (its products summed from 0.0 in order, then added), and the vectors restated from them on
+    the rows whose offsets changed bits, every other row's kept: a zero move, or one too small to
+    change an offset, keeps the row's vector even where it is not the frame's product."""
+    from acra import levelkernels
+
+    rng = np.random.default_rng(20 + seed)
+    c = 200
+    frames = rng.normal(size=(c, 3, 3)) * 10.0 ** rng.integers(-6, 6, (c, 3, 3))
+    offsets = rng.normal(size=(c, 3)) * 10.0 ** rng.integers(-6, 6, (c, 3))
+    vectors = rng.normal(size=(c, 3))  # not the frames' products: a kept row shows as its own bits
+    rows = rng.permutation(c)[: 1 + seed * 40].astype(np.int64)
+    moves = rng.normal(size=(rows.size, 3)) * 10.0 ** rng.integers(-9, 3, (rows.size, 3))
+    moves[::5] = 0.0  # rows the move leaves
+    moves[1::7] = -0.0
+    moves[2::9] *= 1e-30  # below an ulp of the offset
+    offsets[rows[3::6]] = -0.0
+    want_off = offsets.copy()
+    want_off[rows] += np.einsum("mji,mj->mi", frames[rows], moves)
+    changed = rows[np.any(want_off[rows].view(np.int64) != offsets[rows].view(np.int64), axis=-1)]
+    want_vec = vectors.copy()
+    want_vec[changed] = np.einsum("mij,mj->mi", frames[changed], want_off[changed])
+    moved = offsets.copy()
+    fr, vec = levelkernels.restate_rows(frames, np.zeros((0, 3, 3)), rows, offsets, vectors, moves, moved)
+    assert moved.tobytes() == want_off.tobytes() and vec.tobytes() == want_vec.tobytes()
+    assert fr is frames and vec is not vectors
+    if seed:
+        assert 0 < changed.size < rows.size  # some rows moved and some did not
 
 
 def test_a_rings_movability_is_its_rows_all_movable_kept_per_level():
