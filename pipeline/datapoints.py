@@ -21,7 +21,7 @@ import numpy as np
 
 from acra import hspline as H
 from acra.controls import Controls
-from acra.targets import DataPoints, additional_targets, contact_targets, patch_groups, patch_keys, region_deepest
+from acra.targets import DataPoints, additional_targets, contact_targets, patch_keys, region_groups
 from acra.kdtree import thin_greedy
 from pipeline import geometry
 from pipeline import contact as C
@@ -110,12 +110,13 @@ def data_points_for(
     direction = p_other - p_self if direction is None else np.asarray(direction, float)
     size = ga.size
     if region_uv is not None and len(region_uv) and np.linalg.norm(direction) > 1e-9 * size:
-        # `region_midpoints`, keeping each sample's patch for `region_deepest`
-        mids, _, groups = patch_groups(ga.surface, region_uv, group_level, patches=False)
+        # `region_midpoints` and `region_deepest` in one pass over the samples
+        mids, _, rows, _ = region_groups(ga.surface, region_uv, group_level, region_depth)
         a_world = apply_xform(ga.xform, H.evaluate(ga.surface, mids[:, 0], mids[:, 1], det=ga.details).points)
         hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
         if region_depth is not None:
-            deep, depth = region_deepest(ga.surface, region_uv, region_depth, group_level, groups)
+            deep = np.asarray(region_uv, np.float64).reshape(-1, 2)[rows]
+            depth = np.asarray(region_depth, np.float64).reshape(-1)[rows]
             stalled = np.nonzero(valid & (depth > settled) & (np.linalg.norm(hits - a_world, axis=1) <= STALLED * depth))[0]
             if stalled.size:
                 d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[stalled, 0], deep[stalled, 1], det=ga.details).points)
