@@ -472,7 +472,7 @@ def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
     if not len(points) or not is_closed(geom):
         return np.zeros(len(points), bool)
     if isinstance(geom, SurfaceGeometry):
-        return geom.shape.signed(geom.to_object(points))[0]
+        return geom.shape.signed(geom.to_object(points), False)[0]
     return _collider_inside(geom, points)
 
 
@@ -741,34 +741,38 @@ def _cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: f
     hits, valid = origins.copy(), np.zeros(len(origins), bool)
     length = np.linalg.norm(directions, axis=1)
     if (length > 0).all():  # every ray has a direction: the rows as they are, without gathering them
-        rows, at, unit = np.arange(len(origins)), origins, directions / length[:, None]
+        rows, at, unit = None, origins, directions / length[:, None]
     else:
         rows = np.nonzero(length > 0)[0]
         if not len(rows):
             return hits, valid
         at, unit = origins[rows], directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
-    ins = inside(geom, at) if within is None else np.asarray(within, bool).reshape(-1)[rows]
+    if within is None:
+        ins = inside(geom, at)
+    else:
+        ins = np.asarray(within, bool).reshape(-1)
+        ins = ins if rows is None else ins[rows]
     start = at - np.where(ins, 0.0, behind)[:, None] * unit
-    found, ok = _first_hits(geom, start, unit)
-    hits[rows[ok]], valid[rows[ok]] = found[ok], True
+    found, ray = _first_hits(geom, start, unit)  # the rays that hit, in order
+    dest = ray if rows is None else rows[ray]
+    hits[dest], valid[dest] = found, True
     # an origin on the surface whose ray goes in (just ahead of it is inside) counts as inside:
     # its hit is the exit ahead, not the surface it sits on
     eps = ON_SURFACE * geom.size
-    on = ok & (np.linalg.norm(found - at, axis=1) <= eps)
+    on = np.linalg.norm(found - at[ray], axis=1) <= eps
     if on.any() and is_closed(geom):
-        ahead = origins[rows[on]] + 2.0 * eps * unit[on]
+        ahead = origins[dest[on]] + 2.0 * eps * unit[ray[on]]
         into = inside(geom, ahead)
         if into.any():
-            sub = np.nonzero(on)[0][into]
-            exit_, got = _first_hits(geom, ahead[into], unit[sub])
-            hits[rows[sub[got]]] = exit_[got]
+            exit_, got = _first_hits(geom, ahead[into], unit[ray[on][into]])
+            hits[dest[on][into][got]] = exit_
     return hits, valid
 
 
 def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """First hits ``(n, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` (start where none)
-    and which rays hit ``(n,) bool``."""
+    """First hits ``(m, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` and the row of
+    each ray that hits ``(m,) int64``, in increasing order."""
     if isinstance(geom, SurfaceGeometry):  # its linear part's inverse found once (`to_object`): the same bits
         o, d = geom.to_object(start), unit @ geom._inverse_t
     else:
@@ -776,7 +780,11 @@ def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np
     if isinstance(geom, ColliderGeometry):
         loc, ray, _ = geom.static.mesh.ray.intersects_location(o, d, multiple_hits=False)
     else:
-        loc, ray, _ = geom.shape.cast(o, d)
-    hits, valid = start.copy(), np.zeros(len(start), bool)
-    hits[ray], valid[ray] = apply_xform(geom.xform, loc), True
-    return hits, valid
+        loc, ray = geom.shape.cast(o, d)
+    # mapped as the intersector lists them (a matrix product's rows as it was given them), then
+    # put in the rays' order
+    found, ray = apply_xform(geom.xform, loc), np.asarray(ray, np.int64)
+    if len(ray) > 1 and (ray[1:] < ray[:-1]).any():
+        order = np.argsort(ray, kind="stable")
+        found, ray = found[order], ray[order]
+    return found, ray
