@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acra import halfspaces, memo, narrow
+from acra import halfspaces, memo, meshops, narrow
 from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, Tessellation, _face_boxes, _World,
                                candidate_patches, is_closed, surface_points, wrap_uv)
 from pipeline.grids import PatchGrid
@@ -773,12 +773,10 @@ def _cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: f
 def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First hits ``(m, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` and the row of
     each ray that hits ``(m,) int64``, in increasing order."""
-    if isinstance(geom, SurfaceGeometry):  # its linear part's inverse found once (`to_object`): the same bits
-        o, d = geom.to_object(start), unit @ geom._inverse_t
-    else:
-        o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
+    # the linear part's inverse found once per geometry (`to_object`): `apply_inverse`'s bits
+    o, d = geom.to_object(start), unit @ geom._inverse_t
     if isinstance(geom, ColliderGeometry):
-        loc, ray, _ = geom.static.mesh.ray.intersects_location(o, d, multiple_hits=False)
+        loc, ray = _collider_first_hits(geom.static, o, d)
     else:
         loc, ray = geom.shape.cast(o, d)
     # mapped as the intersector lists them (a matrix product's rows as it was given them), then
@@ -788,3 +786,32 @@ def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np
         order = np.argsort(ray, kind="stable")
         found, ray = found[order], ray[order]
     return found, ray
+
+
+_RAY_SCENES = memo.Table("detect.ray_scenes", 4)  # a collider mesh's embree scene and face planes, by its content
+
+
+def _collider_first_hits(static: ColliderStatic, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """trimesh's ``mesh.ray.intersects_location(origins, directions, multiple_hits=False)`` on a
+    collider's mesh (object-space rays ``(n, 3)``): the first hits ``(m, 3)`` and the row of each
+    ray that hits ``(m,) int64``, in increasing order. Its steps for a first hit: the unit
+    directions (`acra.meshops.unitize`), embree's triangle from trimesh's own scene of the mesh
+    (its float32 scaling), the float64 ray on that triangle's plane (`acra.meshops.planes_lines`
+    on the mesh's first corners and face normals). The scene and the planes are taken once per
+    mesh content: trimesh checks its mesh's hash at every reach into its caches (the intersector,
+    its scene, the triangles, the normals), a dozen array hashes a cast of a 12-face box."""
+    from trimesh.ray import ray_pyembree
+
+    mesh = static.mesh
+    if not isinstance(mesh.ray, ray_pyembree.RayMeshIntersector):  # trimesh without embree: its own
+        loc, ray, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
+        return loc, np.asarray(ray, np.int64)
+    scene, corners, normals = _RAY_SCENES.kept(static.digest, lambda: (
+        mesh.ray._scene, np.asarray(mesh.triangles[:, 0, :]), np.asarray(mesh.face_normals)))
+    origins = np.array(origins, dtype=np.float64)
+    directions = meshops.unitize(np.array(directions, dtype=np.float64))[0]
+    query = scene.run(origins, directions)
+    rays = np.flatnonzero(query != -1)
+    tris = query[rays]
+    loc, valid = meshops.planes_lines(corners[tris], normals[tris], origins[rays], directions[rays])
+    return loc, rays[valid]
