@@ -194,9 +194,15 @@ def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> RayMesh:
     if mesh is None:
         grids = shape.grids_for(patches[hit])
         base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+        tri = grids[0].triangles
+        if all(g.triangles is tri and len(g.solid) == len(tri) for g in grids):
+            # one density, no pole row: every grid's triangles are the shared list whole (its solid
+            # rows are all of them), moved past the points before it, in one sum
+            faces = (tri[None] + base[:, None, None]).reshape(-1, 3)
+        else:
+            faces = np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)])
         # patch borders are evaluated twice: merge them, or rays slip through float32 cracks
-        mesh = RayMesh(np.concatenate([g.points for g in grids]),
-                       np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)]))
+        mesh = RayMesh(np.concatenate([g.points for g in grids]), faces)
     shape.ray_meshes[key] = mesh
     while len(shape.ray_meshes) > 4:
         del shape.ray_meshes[next(iter(shape.ray_meshes))]
