@@ -193,20 +193,26 @@ def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> RayMesh:
     mesh = shape.ray_meshes.pop(key, None)
     if mesh is None:
         grids = shape.grids_for(patches[hit])
-        base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
-        tri = grids[0].triangles
-        if all(g.triangles is tri and len(g.solid) == len(tri) for g in grids):
-            # one density, no pole row: every grid's triangles are the shared list whole (its solid
-            # rows are all of them), moved past the points before it, in one sum
-            faces = (tri[None] + base[:, None, None]).reshape(-1, 3)
-        else:
-            faces = np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)])
         # patch borders are evaluated twice: merge them, or rays slip through float32 cracks
-        mesh = RayMesh(np.concatenate([g.points for g in grids]), faces)
+        mesh = RayMesh(np.concatenate([g.points for g in grids]), _grid_faces(grids))
     shape.ray_meshes[key] = mesh
     while len(shape.ray_meshes) > 4:
         del shape.ray_meshes[next(iter(shape.ray_meshes))]
     return mesh
+
+
+def _grid_faces(grids: list) -> np.ndarray:
+    """The solid triangles ``(f, 3) int64`` of ``grids`` (`PatchGrid`) one grid after another,
+    each moved past the points of the grids before it. Grids built together at one density share
+    their triangle list (`GridCache.build`); where every grid shares it and keeps all of it (no
+    pole row's slivers), the list moved by every grid's offset in one sum is the same faces."""
+    base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+    tri = grids[0].triangles
+    if all(g.triangles is tri and len(g.solid) == len(tri) for g in grids):
+        return (tri[None] + base[:, None, None]).reshape(-1, 3)
+    # a pole grid's rows masked out, or the lists of two densities joined, cost what this does
+    # (`benchmarks/ray_mesh_calls.py`)
+    return np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)])
 
 
 def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
