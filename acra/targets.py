@@ -136,7 +136,22 @@ def _deepest_rows_numpy(depth: np.ndarray, inv: np.ndarray) -> np.ndarray:
 
 def patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
     """Level-``level`` patch of each of ``uv (n, 2) float64`` as one key ``(n,) int64``
-    (``su * patches_v + sv``)."""
+    (``su * patches_v + sv``): each row's key from `_region_groups`' pass (the sorted keys at
+    each row's group), `_patch_keys_numpy`'s integers."""
+    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 2)
+    if not len(uv):
+        return np.zeros(0, np.int64)
+    uniq, inv = _region_groups(uv, _NO_DEPTH, level, hs.u.patches(level), hs.u.periodic, hs.v.patches(level),
+                               hs.v.periodic, np.zeros((2, 2, len(uv))))[:2]
+    return uniq[inv]
+
+
+_NO_DEPTH = np.zeros(0)  # `_region_groups` without depths: no deepest rows
+
+
+def _patch_keys_numpy(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
+    """`patch_keys` as array operations (`acra.basis.locate` along each direction), the
+    reference it is tested against."""
     su, _ = locate(hs.u, uv[:, 0], level)
     sv, _ = locate(hs.v, uv[:, 1], level)
     return su * hs.v.patches(level) + sv
@@ -224,7 +239,7 @@ def _patch_groups_numpy(hs: H.HSpline, uv_inside: np.ndarray, level: int):
     """`patch_groups` as array operations (the reference `_region_groups` is tested against):
     ``mids (g, 2)``, ``inv (n,)``, the sorted keys ``(g,)``."""
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
-    keys = patch_keys(hs, uv_inside, level)
+    keys = _patch_keys_numpy(hs, uv_inside, level)
     uniq, inv = np.unique(keys, return_inverse=True)
     mids = np.zeros((uniq.size, 2))
     for col, d in ((0, hs.u), (1, hs.v)):

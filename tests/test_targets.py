@@ -67,7 +67,7 @@ def test_region_groups_kernel_is_the_array_form_bit_for_bit(grid):
     keys, each sample's group, the mean parameters (a periodic direction's by its angles) and
     each patch's deepest row, with tied depths, signed zeros and NaN depths, samples on patch
     corners, outside the domain and a NaN parameter; `patch_groups`, `region_midpoints` and
-    `region_deepest` give the same."""
+    `region_deepest` give the same, and each sample's key is `patch_keys`' (an empty set's too)."""
     hs = H.from_grid(*shapes.torus(8, 6), depth=4) if grid == "torus" else H.from_grid(*shapes.sheet(12, 12, 9.0, 9.0), depth=4)
     rng = np.random.default_rng(11)
     P = np.array(hs.domain)
@@ -88,8 +88,12 @@ def test_region_groups_kernel_is_the_array_form_bit_for_bit(grid):
                 assert got.shape == want.shape
                 assert np.array_equal(got.view(np.int64), np.asarray(want).view(np.int64))
             assert T.region_groups(hs, uv, level)[2].shape == (0,)  # no depths, no rows
+            keys, ref = T.patch_keys(hs, uv, level), T._patch_keys_numpy(hs, uv, level)
+            assert keys.dtype == ref.dtype == np.int64 and np.array_equal(keys, ref)
+            assert np.array_equal(T.patch_keys(hs, uv[::-2], level), T._patch_keys_numpy(hs, uv[::-2], level))  # a strided view
             m, patches, i = patch_groups(hs, uv, level)
             assert np.array_equal(m.view(np.int64), ref_mids.view(np.int64)) and np.array_equal(i, ref_inv)
             np.testing.assert_array_equal(patches[:, 0] * hs.v.patches(level) + patches[:, 1], ref_keys)
             for got, want in zip(region_deepest(hs, uv, depth, level), (uv[ref_rows], depth[ref_rows])):
                 assert np.array_equal(got.view(np.int64), want.view(np.int64))
+    assert T.patch_keys(hs, np.zeros((0, 2)), 2).shape == (0,)
