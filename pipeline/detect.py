@@ -779,7 +779,7 @@ def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np
         loc, ray = _collider_first_hits(geom.static, o, d)
     else:
         loc, ray = geom.shape.cast(o, d)
-    # mapped as the intersector lists them (a matrix product's rows as it was given them), then
+    # mapped in the intersector's order (a matrix product's rows in the order it is given them), then
     # put in the rays' order
     found, ray = apply_xform(geom.xform, loc), np.asarray(ray, np.int64)
     if len(ray) > 1 and (ray[1:] < ray[:-1]).any():

@@ -60,6 +60,7 @@ def test_per_level_points_kernel_is_the_array_form_bit_for_bit(grid):
                     assert np.array_equal(k.view(np.int64), r.view(np.int64))
 
 
+@pytest.mark.filterwarnings("ignore:invalid value encountered in cast")  # the NaN parameter's key in numpy
 @pytest.mark.parametrize("grid", ["torus", "sheet"])
 def test_region_groups_kernel_is_the_array_form_bit_for_bit(grid):
     """`targets.region_groups` (compiled, `_region_groups`) groups a region's samples per level
