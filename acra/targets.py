@@ -13,13 +13,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from . import levelkernels
 from . import hspline as H
 from .basis import locate
+from .levelkernels import _segment, unique_inverse
 
 __all__ = ["DataPoints", "rigidity_share", "contact_targets", "additional_targets", "region_midpoints", "region_deepest", "patch_keys", "patch_groups",
-           "per_level_points", "merge_trig"]
+           "region_groups", "per_level_points", "merge_trig"]
 
 
 @dataclass(frozen=True)
@@ -103,7 +105,9 @@ def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, leve
     depth : (n,) float64
         Their depths (distance to the other surface).
     groups : (n,) int64, optional
-        The group of each sample (`patch_groups`' ``inv``) where the caller has it already.
+        The group of each sample (`patch_groups`' ``inv``) where the caller has it already: the
+        array form's sort then picks the rows (`_deepest_rows_numpy`); without it one compiled
+        pass groups the samples and picks them (`region_groups`), the same rows.
 
     Returns
     -------
@@ -113,15 +117,41 @@ def region_deepest(hs: H.HSpline, uv_inside: np.ndarray, depth: np.ndarray, leve
     """
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
     depth = np.asarray(depth, np.float64).reshape(-1)
-    inv = patch_groups(hs, uv_inside, level, patches=False)[2] if groups is None else groups
+    if groups is None:
+        rows = region_groups(hs, uv_inside, level, depth)[2]
+    else:
+        rows = _deepest_rows_numpy(depth, groups)
+    return uv_inside[rows], depth[rows]
+
+
+def _deepest_rows_numpy(depth: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """Row ``(g,) int64`` of each group's deepest sample, ``depth (n,) float64`` grouped by
+    ``inv (n,) int64``, as array operations (the reference `_region_groups` is tested against):
+    a sort by group then depth (a NaN after every number, ties in the samples' order), the last
+    row of each group."""
     order = np.lexsort((depth, inv))  # by patch, deepest last
     last = np.r_[inv[order][1:] != inv[order][:-1], True] if order.size else np.zeros(0, bool)
-    return uv_inside[order[last]], depth[order[last]]
+    return order[last]
 
 
 def patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
     """Level-``level`` patch of each of ``uv (n, 2) float64`` as one key ``(n,) int64``
-    (``su * patches_v + sv``)."""
+    (``su * patches_v + sv``): each row's key from `_region_groups`' pass (the sorted keys at
+    each row's group), `_patch_keys_numpy`'s integers."""
+    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 2)
+    if not len(uv):
+        return np.zeros(0, np.int64)
+    uniq, inv = _region_groups(uv, _NO_DEPTH, level, hs.u.patches(level), hs.u.periodic, hs.v.patches(level),
+                               hs.v.periodic, np.zeros((2, 2, len(uv))))[:2]
+    return uniq[inv]
+
+
+_NO_DEPTH = np.zeros(0)  # `_region_groups` without depths: no deepest rows
+
+
+def _patch_keys_numpy(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
+    """`patch_keys` as array operations (`acra.basis.locate` along each direction), the
+    reference it is tested against."""
     su, _ = locate(hs.u, uv[:, 0], level)
     sv, _ = locate(hs.v, uv[:, 1], level)
     return su * hs.v.patches(level) + sv
@@ -130,11 +160,87 @@ def patch_keys(hs: H.HSpline, uv: np.ndarray, level: int) -> np.ndarray:
 def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool = True):
     """`region_midpoints` plus the group of each input point: ``inv (n,) int64``; with
     ``patches`` False the patches are ``None`` (a caller that needs the groups alone)."""
+    mids, inv, _, uniq = region_groups(hs, uv_inside, level)
+    if not patches:
+        return mids, None, inv
+    return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
+
+
+def region_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, depth: np.ndarray | None = None):
+    """A region's samples ``uv_inside (n, 2) float64`` grouped per level-``level`` patch in one
+    compiled pass (`_region_groups`): ``mids (g, 2) float64`` (`region_midpoints`), the group of
+    each sample ``inv (n,) int64``, the row ``(g,) int64`` of each patch's deepest sample by
+    ``depth (n,) float64`` (`region_deepest`; empty without ``depth``) and the patch keys
+    ``(g,) int64`` in order (`patch_keys`). The array form's bits (`_patch_groups_numpy`,
+    `_deepest_rows_numpy`): integer keys, sums from 0.0 in the samples' order as ``np.bincount``
+    adds, numpy's cosines, sines and ``arctan2`` of a periodic direction's angles."""
+    uv_inside = np.ascontiguousarray(uv_inside, dtype=np.float64).reshape(-1, 2)
+    n = uv_inside.shape[0]
+    if n == 0:
+        return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    trig = np.zeros((2, 2, n))
+    for col, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            ang = 2 * np.pi * uv_inside[:, col] / d.patches0
+            trig[col, 0], trig[col, 1] = np.cos(ang), np.sin(ang)
+    depth = np.zeros(0) if depth is None else np.ascontiguousarray(depth, np.float64).reshape(-1)
+    uniq, inv, mids, sums, rows = _region_groups(uv_inside, depth, level, hs.u.patches(level), hs.u.periodic,
+                                                 hs.v.patches(level), hs.v.periodic, trig)
+    for col, d in ((0, hs.u), (1, hs.v)):
+        if d.periodic:
+            mids[:, col] = np.mod(np.arctan2(sums[:, col, 1], sums[:, col, 0]), 2 * np.pi) * d.patches0 / (2 * np.pi)
+    return mids, inv, rows, uniq
+
+
+@njit(cache=True, nogil=True)
+def _region_groups(uv, depth, level, u_patches, u_periodic, v_patches, v_periodic, trig):
+    """`region_groups`' pass over ``uv (n, 2) float64``: the patch keys (`levelkernels._segment`,
+    `patch_keys`' arithmetic), numbered as ``np.unique`` numbers them (`unique_inverse`); per
+    patch the mean of each open parameter (a sum from 0.0 in the samples' order over the count),
+    the sums ``(g, 2, 2)`` of ``trig (2, 2, n)``'s cosines and sines for a periodic direction's
+    ``arctan2``, and, where ``depth (n,) float64`` has a row per sample, the deepest sample's row:
+    the last in the samples' order of those with the largest depth, a NaN above every number
+    (``np.lexsort``'s order, `_deepest_rows_numpy`). Returns ``uniq (g,)``, ``inv (n,)``,
+    ``mids (g, 2)`` (a periodic column left for the caller), ``sums`` and ``rows (g,)`` (empty
+    without depths)."""
+    n = uv.shape[0]
+    keys = np.empty(n, np.int64)
+    for i in range(n):
+        su = _segment(uv[i, 0], level, u_patches, u_periodic)[0]
+        sv = _segment(uv[i, 1], level, v_patches, v_periodic)[0]
+        keys[i] = su * v_patches + sv
+    uniq, inv = unique_inverse(keys)
+    g = uniq.shape[0]
+    count = np.zeros(g, np.int64)
+    mids = np.zeros((g, 2))
+    sums = np.zeros((g, 2, 2))
+    deep = depth.shape[0] == n
+    rows = np.full(g if deep else 0, -1, np.int64)
+    for i in range(n):
+        r = inv[i]
+        count[r] += 1
+        for col in range(2):
+            mids[r, col] += uv[i, col]
+            sums[r, col, 0] += trig[col, 0, i]
+            sums[r, col, 1] += trig[col, 1, i]
+        if deep:
+            b = rows[r]
+            d = depth[i]
+            if b < 0 or d != d or (depth[b] == depth[b] and d >= depth[b]):
+                rows[r] = i
+    for r in range(g):
+        c = float(count[r])
+        mids[r, 0] /= c
+        mids[r, 1] /= c
+    return uniq, inv, mids, sums, rows
+
+
+def _patch_groups_numpy(hs: H.HSpline, uv_inside: np.ndarray, level: int):
+    """`patch_groups` as array operations (the reference `_region_groups` is tested against):
+    ``mids (g, 2)``, ``inv (n,)``, the sorted keys ``(g,)``."""
     uv_inside = np.asarray(uv_inside, dtype=np.float64).reshape(-1, 2)
-    if uv_inside.shape[0] == 0:
-        return np.zeros((0, 2)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    keys = patch_keys(hs, uv_inside, level)
-    uniq, inv = levelkernels.unique_inverse(np.ascontiguousarray(keys, np.int64))
+    keys = _patch_keys_numpy(hs, uv_inside, level)
+    uniq, inv = np.unique(keys, return_inverse=True)
     mids = np.zeros((uniq.size, 2))
     for col, d in ((0, hs.u), (1, hs.v)):
         x = uv_inside[:, col]
@@ -145,9 +251,7 @@ def patch_groups(hs: H.HSpline, uv_inside: np.ndarray, level: int, patches: bool
             mids[:, col] = np.mod(np.arctan2(s, c), 2 * np.pi) * d.patches0 / (2 * np.pi)
         else:
             mids[:, col] = np.bincount(inv, x, uniq.size) / np.bincount(inv, minlength=uniq.size)
-    if not patches:
-        return mids, None, inv
-    return mids, np.stack([uniq // hs.v.patches(level), uniq % hs.v.patches(level)], axis=1), inv
+    return mids, inv, uniq
 
 
 def per_level_points(hs: H.HSpline, level: int, uv: np.ndarray, want: np.ndarray, is_contact: np.ndarray,
@@ -199,7 +303,7 @@ def _per_level_points_numpy(hs: H.HSpline, level: int, uv: np.ndarray, want: np.
     extra = ~is_contact
     if not np.any(extra):
         return uv, want
-    mids, _, inv = patch_groups(hs, uv[extra], level, patches=False)
+    mids, inv, _ = _patch_groups_numpy(hs, uv[extra], level)
     g = mids.shape[0]
     moves = np.stack([np.bincount(inv, want[extra, c], g) for c in range(3)], axis=1)
     moves /= np.bincount(inv, minlength=g)[:, None]

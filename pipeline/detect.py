@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acra import halfspaces, memo, narrow
+from acra import halfspaces, memo, meshops, narrow
 from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, Tessellation, _face_boxes, _World,
                                candidate_patches, is_closed, surface_points, wrap_uv)
 from pipeline.grids import PatchGrid
@@ -472,7 +472,7 @@ def inside(geom: Geometry, points: np.ndarray) -> np.ndarray:
     if not len(points) or not is_closed(geom):
         return np.zeros(len(points), bool)
     if isinstance(geom, SurfaceGeometry):
-        return geom.shape.signed(geom.to_object(points))[0]
+        return geom.shape.signed(geom.to_object(points), False)[0]
     return _collider_inside(geom, points)
 
 
@@ -741,42 +741,77 @@ def _cast(geom: Geometry, origins: np.ndarray, directions: np.ndarray, behind: f
     hits, valid = origins.copy(), np.zeros(len(origins), bool)
     length = np.linalg.norm(directions, axis=1)
     if (length > 0).all():  # every ray has a direction: the rows as they are, without gathering them
-        rows, at, unit = np.arange(len(origins)), origins, directions / length[:, None]
+        rows, at, unit = None, origins, directions / length[:, None]
     else:
         rows = np.nonzero(length > 0)[0]
         if not len(rows):
             return hits, valid
         at, unit = origins[rows], directions[rows] / length[rows, None]
     behind = 1e-3 * geom.size if behind is None else float(behind)
-    ins = inside(geom, at) if within is None else np.asarray(within, bool).reshape(-1)[rows]
+    if within is None:
+        ins = inside(geom, at)
+    else:
+        ins = np.asarray(within, bool).reshape(-1)
+        ins = ins if rows is None else ins[rows]
     start = at - np.where(ins, 0.0, behind)[:, None] * unit
-    found, ok = _first_hits(geom, start, unit)
-    hits[rows[ok]], valid[rows[ok]] = found[ok], True
+    found, ray = _first_hits(geom, start, unit)  # the rays that hit, in order
+    dest = ray if rows is None else rows[ray]
+    hits[dest], valid[dest] = found, True
     # an origin on the surface whose ray goes in (just ahead of it is inside) counts as inside:
     # its hit is the exit ahead, not the surface it sits on
     eps = ON_SURFACE * geom.size
-    on = ok & (np.linalg.norm(found - at, axis=1) <= eps)
+    on = np.linalg.norm(found - at[ray], axis=1) <= eps
     if on.any() and is_closed(geom):
-        ahead = origins[rows[on]] + 2.0 * eps * unit[on]
+        ahead = origins[dest[on]] + 2.0 * eps * unit[ray[on]]
         into = inside(geom, ahead)
         if into.any():
-            sub = np.nonzero(on)[0][into]
-            exit_, got = _first_hits(geom, ahead[into], unit[sub])
-            hits[rows[sub[got]]] = exit_[got]
+            exit_, got = _first_hits(geom, ahead[into], unit[ray[on][into]])
+            hits[dest[on][into][got]] = exit_
     return hits, valid
 
 
 def _first_hits(geom: Geometry, start: np.ndarray, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """First hits ``(n, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` (start where none)
-    and which rays hit ``(n,) bool``."""
-    if isinstance(geom, SurfaceGeometry):  # its linear part's inverse found once (`to_object`): the same bits
-        o, d = geom.to_object(start), unit @ geom._inverse_t
-    else:
-        o, d = apply_inverse(geom.xform, start), unit @ np.linalg.inv(geom.xform[:3, :3]).T
+    """First hits ``(m, 3)`` of world rays ``start, unit (n, 3)`` on ``geom`` and the row of
+    each ray that hits ``(m,) int64``, in increasing order."""
+    # the linear part's inverse found once per geometry (`to_object`): `apply_inverse`'s bits
+    o, d = geom.to_object(start), unit @ geom._inverse_t
     if isinstance(geom, ColliderGeometry):
-        loc, ray, _ = geom.static.mesh.ray.intersects_location(o, d, multiple_hits=False)
+        loc, ray = _collider_first_hits(geom.static, o, d)
     else:
-        loc, ray, _ = geom.shape.cast(o, d)
-    hits, valid = start.copy(), np.zeros(len(start), bool)
-    hits[ray], valid[ray] = apply_xform(geom.xform, loc), True
-    return hits, valid
+        loc, ray = geom.shape.cast(o, d)
+    # mapped in the intersector's order (a matrix product's rows in the order it is given them), then
+    # put in the rays' order
+    found, ray = apply_xform(geom.xform, loc), np.asarray(ray, np.int64)
+    if len(ray) > 1 and (ray[1:] < ray[:-1]).any():
+        order = np.argsort(ray, kind="stable")
+        found, ray = found[order], ray[order]
+    return found, ray
+
+
+_RAY_SCENES = memo.Table("detect.ray_scenes", 4)  # a collider mesh's embree scene and face planes, by its content
+
+
+def _collider_first_hits(static: ColliderStatic, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """trimesh's ``mesh.ray.intersects_location(origins, directions, multiple_hits=False)`` on a
+    collider's mesh (object-space rays ``(n, 3)``): the first hits ``(m, 3)`` and the row of each
+    ray that hits ``(m,) int64``, in increasing order. Its steps for a first hit: the unit
+    directions (`acra.meshops.unitize`), embree's triangle from trimesh's own scene of the mesh
+    (its float32 scaling), the float64 ray on that triangle's plane (`acra.meshops.planes_lines`
+    on the mesh's first corners and face normals). The scene and the planes are taken once per
+    mesh content: trimesh checks its mesh's hash at every reach into its caches (the intersector,
+    its scene, the triangles, the normals), a dozen array hashes a cast of a 12-face box."""
+    from trimesh.ray import ray_pyembree
+
+    mesh = static.mesh
+    if not isinstance(mesh.ray, ray_pyembree.RayMeshIntersector):  # trimesh without embree: its own
+        loc, ray, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
+        return loc, np.asarray(ray, np.int64)
+    scene, corners, normals = _RAY_SCENES.kept(static.digest, lambda: (
+        mesh.ray._scene, np.asarray(mesh.triangles[:, 0, :]), np.asarray(mesh.face_normals)))
+    origins = np.array(origins, dtype=np.float64)
+    directions = meshops.unitize(np.array(directions, dtype=np.float64))[0]
+    query = scene.run(origins, directions)
+    rays = np.flatnonzero(query != -1)
+    tris = query[rays]
+    loc, valid = meshops.planes_lines(corners[tris], normals[tris], origins[rays], directions[rays])
+    return loc, rays[valid]

@@ -64,9 +64,10 @@ def _search(shape: Shape, q: np.ndarray, patches: np.ndarray) -> Nearest:
     return shape.cache.gridset(tuple(patches.tolist())).nearest(q)
 
 
-def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
+def signed(shape: Shape, q: np.ndarray, nearest: bool = True) -> tuple[np.ndarray, Nearest | None]:
     """Which object-space points ``q (k, 3)`` are inside ``(k,) bool`` (all False if the
-    surface is open), and the `nearest` points of those inside. Inside: behind the outward
+    surface is open), and the `nearest` points of those inside (``None`` where ``nearest`` is
+    false: an inside test alone, as a cast's origins ask). Inside: behind the outward
     normal at the closest point; points on the grids (distance 0) count as outside. Points
     outside `cv_hull` (by more than 1e-9 of the size) are outside without a closest-point
     search (`Shape.cv_hull`): a thin object's box holds many such points (on `dog_head_spike`, 484 head vertices
@@ -79,7 +80,7 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     q = np.asarray(q, np.float64).reshape(-1, 3)
     inside = np.zeros(len(q), bool)
     if not shape.closed or not len(q):
-        return inside, _no_points()
+        return inside, _no_points() if nearest else None
     hull = shape.cv_hull
     if hull is not None and len(hull) > shape.cv_index.DIRECT:  # a large hull's test goes through its cones
         cand = np.nonzero(shape.cv_index.within(q, 1e-9 * shape.surface.size()))[0]
@@ -87,7 +88,7 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     else:
         cand, qc, patches = _candidates(shape, q, hull)
     if not len(qc):
-        return inside, _no_points()
+        return inside, _no_points() if nearest else None
     grid = shape.cache.gridset(tuple(patches.tolist()))
     dist, close, face = grid.closest(qc)
     outward = shape.outward
@@ -101,6 +102,8 @@ def signed(shape: Shape, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
     # by element (16 against 3 us for 450 rows)
     side = np.flatnonzero(flag > 0)
     inside[cand[side]] = True
+    if not nearest:
+        return inside, None
     return inside, Nearest(np.take(dist, side), np.take(close, side, axis=0), np.take(uv, side, axis=0))
 
 
@@ -152,8 +155,8 @@ class RayMesh:
         of each ray that hit (trimesh's ``intersects_location(..., multiple_hits=False)``)."""
         if not self._ready:
             self._prepare()
-        origins = np.array(origins, dtype=np.float64)
-        directions = meshops.unitize(np.array(directions, dtype=np.float64))[0]
+        origins = np.ascontiguousarray(origins, dtype=np.float64)  # read, not written
+        directions = meshops.unitize(np.ascontiguousarray(directions, dtype=np.float64))[0]
         scaled = ((origins - self.origin) * self.factor).astype(np.float32)
         unit = directions.astype(np.float32)
         # the sure rays' hits come with their triangles (`raycast.sure_hits`); embree's answers for
@@ -190,36 +193,46 @@ def _ray_mesh(shape: Shape, patches: np.ndarray, hit: np.ndarray) -> RayMesh:
     mesh = shape.ray_meshes.pop(key, None)
     if mesh is None:
         grids = shape.grids_for(patches[hit])
-        base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
         # patch borders are evaluated twice: merge them, or rays slip through float32 cracks
-        mesh = RayMesh(np.concatenate([g.points for g in grids]),
-                       np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)]))
+        mesh = RayMesh(np.concatenate([g.points for g in grids]), _grid_faces(grids))
     shape.ray_meshes[key] = mesh
     while len(shape.ray_meshes) > 4:
         del shape.ray_meshes[next(iter(shape.ray_meshes))]
     return mesh
 
 
-def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _grid_faces(grids: list) -> np.ndarray:
+    """The solid triangles ``(f, 3) int64`` of ``grids`` (`PatchGrid`) one grid after another,
+    each moved past the points of the grids before it. Grids built together at one density share
+    their triangle list (`GridCache.build`); where every grid shares it and keeps all of it (no
+    pole row's slivers), the list moved by every grid's offset in one sum is the same faces."""
+    base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+    tri = grids[0].triangles
+    if all(g.triangles is tri and len(g.solid) == len(tri) for g in grids):
+        return (tri[None] + base[:, None, None]).reshape(-1, 3)
+    # a pole grid's rows masked out, or the lists of two densities joined, cost what this does
+    # (`benchmarks/ray_mesh_calls.py`)
+    return np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)])
+
+
+def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First hits ``(m, 3)`` of object-space rays ``origins, directions (n, 3)`` on the
-    collision grids, the row of each hit ray ``(m,) int64``, and its distance along the
-    (unnormalised) direction ``(m,)``. Only patches whose boxes the rays meet are tessellated."""
+    collision grids and the row of each hit ray ``(m,) int64`` (in increasing order but for the
+    float64 retries, which follow). Only patches whose boxes the rays meet are tessellated."""
     lo, hi, patches = shape._boxes
     box_hit, ray_hit = rays_meet(lo, hi, origins, directions)
-    hit = np.nonzero(box_hit)[0]
-    empty = np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
+    hit = np.flatnonzero(box_hit)
     if not len(hit):
-        return empty
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
     mesh = _ray_mesh(shape, patches, hit)
     loc, ray = mesh.first_hits(origins, directions)
     # embree works in float32 and can let a ray through an edge it meets exactly: retry the
     # rays that met a box but no triangle in float64 (rare, so the slower intersector is fine)
     ray_hit[ray] = False
-    miss = np.nonzero(ray_hit)[0]
+    miss = np.flatnonzero(ray_hit)
     if len(miss):
         from trimesh.ray.ray_triangle import RayMeshIntersector
 
         more, row, _ = RayMeshIntersector(mesh.trimesh()).intersects_location(origins[miss], directions[miss], multiple_hits=False)
         loc, ray = np.concatenate([loc, np.reshape(more, (-1, 3))]), np.concatenate([ray, miss[np.asarray(row, np.int64)]])
-    along = np.einsum("ij,ij->i", loc - origins[ray], directions[ray]) / np.einsum("ij,ij->i", directions[ray], directions[ray])
-    return loc, ray, along
+    return loc, ray

@@ -399,12 +399,12 @@ class Shape:
         (`queries.nearest`)."""
         return queries.nearest(self, q)
 
-    def signed(self, q: np.ndarray) -> tuple[np.ndarray, Nearest]:
-        """Which object-space points ``q (k, 3)`` are inside, and their nearest points
-        (`queries.signed`)."""
-        return queries.signed(self, q)
+    def signed(self, q: np.ndarray, nearest: bool = True) -> tuple[np.ndarray, Nearest | None]:
+        """Which object-space points ``q (k, 3)`` are inside, and their nearest points unless
+        ``nearest`` is false (`queries.signed`)."""
+        return queries.signed(self, q, nearest)
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """First hits of object-space rays on the collision grids (`queries.cast`)."""
         return queries.cast(self, origins, directions)
 

@@ -1147,3 +1147,28 @@ def test_near_points_of_several_inside_tests_asked_at_once_answer_as_in_each(see
     together = D.near_inside(st, np.concatenate(locals_))
     np.testing.assert_array_equal(together, np.concatenate([w[n] for _, n, w in calls]))
     assert 0 < together.sum() < len(together)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_collider_first_hits_are_trimesh_intersects_location(seed):
+    """`detect._collider_first_hits` (trimesh's embree scene and face planes taken once per mesh)
+    gives trimesh's ``intersects_location(..., multiple_hits=False)`` bit for bit: the hits and
+    the rays that hit, rays through the box's edges, corners and along its faces' planes, from
+    inside and outside, misses and unnormalised directions included; an icosphere too."""
+    rng = np.random.default_rng(seed)
+    ico = trimesh.creation.icosphere(2, 0.4)
+    for static in (box(0.5), geometry.prepare_collider(ColliderModel("/ico", ico.vertices, ico.faces))):
+        mesh = static.mesh
+        n = 400
+        origins = rng.uniform(-1.0, 1.0, (n, 3))
+        directions = rng.standard_normal((n, 3)) * rng.uniform(0.1, 3.0, (n, 1))
+        origins[:60] = np.round(origins[:60] * 2) / 2  # on the box's edges, corners and face planes
+        directions[:60] = np.eye(3)[rng.integers(0, 3, 60)] * rng.choice([-1.0, 1.0], (60, 1))
+        origins[60:80] = rng.uniform(-0.2, 0.2, (20, 3))  # from inside
+        for o, d in ((origins, directions), (origins[:1], directions[:1]), (origins[:0], directions[:0])):
+            loc, ray = D._collider_first_hits(static, o, d)
+            want_loc, want_ray, _ = mesh.ray.intersects_location(o, d, multiple_hits=False)
+            order = np.argsort(want_ray, kind="stable")
+            want_loc, want_ray = np.asarray(want_loc, np.float64).reshape(-1, 3)[order], np.asarray(want_ray, np.int64)[order]
+            assert ray.dtype == np.int64 and np.array_equal(ray, want_ray)
+            assert loc.shape == want_loc.shape and loc.tobytes() == want_loc.tobytes()

@@ -58,3 +58,43 @@ def test_per_level_points_kernel_is_the_array_form_bit_for_bit(grid):
                     assert g.shape == r.shape == k.shape
                     assert np.array_equal(g.view(np.int64), r.view(np.int64))
                     assert np.array_equal(k.view(np.int64), r.view(np.int64))
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered in cast")  # the NaN parameter's key in numpy
+@pytest.mark.parametrize("grid", ["torus", "sheet"])
+def test_region_groups_kernel_is_the_array_form_bit_for_bit(grid):
+    """`targets.region_groups` (compiled, `_region_groups`) groups a region's samples per level
+    patch with the array form's bits (`_patch_groups_numpy`, `_deepest_rows_numpy`): the sorted
+    keys, each sample's group, the mean parameters (a periodic direction's by its angles) and
+    each patch's deepest row, with tied depths, signed zeros and NaN depths, samples on patch
+    corners, outside the domain and a NaN parameter; `patch_groups`, `region_midpoints` and
+    `region_deepest` give the same, and each sample's key is `patch_keys`' (an empty set's too)."""
+    hs = H.from_grid(*shapes.torus(8, 6), depth=4) if grid == "torus" else H.from_grid(*shapes.sheet(12, 12, 9.0, 9.0), depth=4)
+    rng = np.random.default_rng(11)
+    P = np.array(hs.domain)
+    for level in range(4):
+        for n in (1, 2, 9, 40, 300):
+            uv = rng.uniform(-0.05, 1.05, (n, 2)) * P
+            uv[n // 2] = np.floor(uv[n // 2] * 2 ** level) / 2 ** level  # on a level-patch corner
+            depth = rng.choice(np.array([0.0, -0.0, 0.5, 0.25, 1.0]), n) if n > 9 else rng.uniform(size=n)
+            if n > 9:
+                depth[rng.integers(0, n, 3)] = np.nan
+                uv[-3:] = uv[1] + 1e-3  # with the second sample in its patch
+            if n == 300:
+                uv[7, 1] = np.nan  # the least int64 as its key: `unique_inverse` sorts
+            mids, inv, rows, keys = T.region_groups(hs, uv, level, depth)
+            ref_mids, ref_inv, ref_keys = T._patch_groups_numpy(hs, uv, level)
+            ref_rows = T._deepest_rows_numpy(depth, ref_inv)
+            for got, want in ((mids, ref_mids), (inv, ref_inv), (rows, ref_rows), (keys, ref_keys)):
+                assert got.shape == want.shape
+                assert np.array_equal(got.view(np.int64), np.asarray(want).view(np.int64))
+            assert T.region_groups(hs, uv, level)[2].shape == (0,)  # no depths, no rows
+            keys, ref = T.patch_keys(hs, uv, level), T._patch_keys_numpy(hs, uv, level)
+            assert keys.dtype == ref.dtype == np.int64 and np.array_equal(keys, ref)
+            assert np.array_equal(T.patch_keys(hs, uv[::-2], level), T._patch_keys_numpy(hs, uv[::-2], level))  # a strided view
+            m, patches, i = patch_groups(hs, uv, level)
+            assert np.array_equal(m.view(np.int64), ref_mids.view(np.int64)) and np.array_equal(i, ref_inv)
+            np.testing.assert_array_equal(patches[:, 0] * hs.v.patches(level) + patches[:, 1], ref_keys)
+            for got, want in zip(region_deepest(hs, uv, depth, level), (uv[ref_rows], depth[ref_rows])):
+                assert np.array_equal(got.view(np.int64), want.view(np.int64))
+    assert T.patch_keys(hs, np.zeros((0, 2)), 2).shape == (0,)
