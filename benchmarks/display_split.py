@@ -11,17 +11,24 @@ round's display, with `run_topology` and `grid_samples` inside it), `display.fin
 display and its residual: `evaluate_run`, `run_topologies`), `acra.respond.respond`, and the
 whole `run_frames` call; then the median over the repeats of the minor page faults a collision
 frame (``getrusage``: memory the loop takes anew) and the process's resident size after the
-last. Run it with ``PYTHONPATH`` set to another checkout to compare.
+last. Then one more untimed pass of frames 13-17 prints a digest of what the displays hold: every
+display `display.Displays.of` builds (its points, limit normals, face counts and indices, in the
+order built) and the run's display of each frame (`display.finish`: points and normals), so two
+checkouts can be shown to give the same bits. Run it with ``PYTHONPATH`` set to another checkout
+to compare.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import hashlib
 import pathlib
 import resource
 import statistics
 import time
+
+import numpy as np
 
 from acra import respond as R
 from pipeline import display, frames, usdio
@@ -38,6 +45,39 @@ def _timed(label: str, f):
         finally:
             SPENT[label] += time.process_time() - t
     return wrapper
+
+
+def _digest(stage, scene) -> str:
+    """The first 16 hex digits of a SHA-256 over frames 13-17's displays (after `forget` and frame
+    5, as a timed repeat runs them): each display `display.Displays.of` builds, in the order built
+    (points, limit normals, the topology's face counts and indices), then each frame's run
+    display (`display.finish`'s points and normals, by frame and deformable path)."""
+    from pipeline.run import forget
+
+    h = hashlib.sha256()
+    of = display.Displays.of
+
+    def hashed(self, surface, samples):
+        hit = self._shown.get(id(surface))
+        sd = of(self, surface, samples)
+        if hit is not sd:  # a display built in this call
+            for a in (sd.points, sd.normals, sd.topology.counts, sd.topology.indices):
+                h.update(np.ascontiguousarray(a).tobytes())
+        return sd
+
+    forget()
+    frames.run_frames(stage, scene, [5])
+    display.Displays.of = hashed
+    try:
+        result, _ = frames.run_frames(stage, scene, list(range(13, 18)))
+    finally:
+        display.Displays.of = of
+    for f in sorted(result.frames):
+        for path in sorted(result.frames[f]):
+            r = result.frames[f][path]
+            for a in (r.points, r.normals):
+                h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:16]
 
 
 def main() -> None:
@@ -75,6 +115,7 @@ def main() -> None:
         print(f"| `{label}` | {1e3 * sec / 5:.2f} |")
     with open("/proc/self/statm") as f:
         resident = int(f.read().split()[1]) * resource.getpagesize() / 2**20
+    print(f"\ndisplays' digest: {_digest(stage, scene)}")
     print(f"\nminor page faults a collision frame, median of {args.repeat}: {statistics.median(faults):.0f} "
           f"({min(faults):.0f}-{max(faults):.0f}); resident after the repeats: {resident:.0f} MB")
 
