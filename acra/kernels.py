@@ -48,7 +48,9 @@ __all__ = ["eval_points", "NSLOTS", "mark_cells", "changed_level", "ascending", 
 
 # output slots per derivative order: (0,0) | (1,0) (0,1) | (2,0) (1,1) (0,2), as `SurfaceEval`'s fields
 NSLOTS = (1, 3, 6)
-_ZERO_SUM = (-0.0,) * 18  # `_add_term`'s sum of no term: every slot's x, y, z
+_NSLOT = np.array(NSLOTS, np.int64)
+_SLOT_P = np.array([0, 1, 0, 2, 1, 0], np.int64)  # derivative order along u of each slot
+_SLOT_Q = np.array([0, 0, 1, 0, 1, 2], np.int64)  # and along v
 
 
 @njit(inline="always")
@@ -142,33 +144,15 @@ def _half(rv, order, table, rows, base, half):
 
 
 @njit(inline="always")
-def _acc(ru, p, half, q, x, y, z):
-    """One slot ``(p, q)`` of a block's term added to ``(x, y, z)``: ``sum_a ru[p, a] · half[a, q]``
-    contracted in ``a`` order, then added (`_add_term`)."""
-    w0, w1, w2, w3 = ru[p, 0], ru[p, 1], ru[p, 2], ru[p, 3]
-    return (x + (w0 * half[0, q, 0] + w1 * half[1, q, 0] + w2 * half[2, q, 0] + w3 * half[3, q, 0]),
-            y + (w0 * half[0, q, 1] + w1 * half[1, q, 1] + w2 * half[2, q, 1] + w3 * half[3, q, 1]),
-            z + (w0 * half[0, q, 2] + w1 * half[1, q, 2] + w2 * half[2, q, 2] + w3 * half[3, q, 2]))
-
-
-@njit(inline="always")
-def _add_term(ru, order, half, s):
-    """Add one block's term to a point's sum ``s``, a tuple of 18 float64 (slot by slot, ``x, y,
-    z`` each; slots as `NSLOTS`' fields): slot ``(p, q)`` gains ``sum_a ru[p, a] · half[a, q]``
-    (``ru (3, 4) float64`` the basis rows along u, ``half (4, 3, 3)`` `_half`'s). The sum is a
-    tuple of scalars rather than an array, so the loop keeps it in registers, and with ``order``
-    a constant (`eval_points`) the slots it does not take are pruned."""
-    x0, y0, z0 = _acc(ru, 0, half, 0, s[0], s[1], s[2])
-    x1, y1, z1, x2, y2, z2 = s[3], s[4], s[5], s[6], s[7], s[8]
-    x3, y3, z3, x4, y4, z4, x5, y5, z5 = s[9], s[10], s[11], s[12], s[13], s[14], s[15], s[16], s[17]
-    if order >= 1:
-        x1, y1, z1 = _acc(ru, 1, half, 0, x1, y1, z1)
-        x2, y2, z2 = _acc(ru, 0, half, 1, x2, y2, z2)
-    if order >= 2:
-        x3, y3, z3 = _acc(ru, 2, half, 0, x3, y3, z3)
-        x4, y4, z4 = _acc(ru, 1, half, 1, x4, y4, z4)
-        x5, y5, z5 = _acc(ru, 0, half, 2, x5, y5, z5)
-    return (x0, y0, z0, x1, y1, z1, x2, y2, z2, x3, y3, z3, x4, y4, z4, x5, y5, z5)
+def _add_term(ru, order, half, sum_):
+    """Add one block's term to a point's sum: slot ``(p, q)`` is ``sum_a ru[p, a] · half[a, q]``
+    (``ru (3, 4) float64`` the basis rows along u, ``half (4, 3, 3)`` `_half`'s, ``sum_ (6, 3)
+    float64`` the point's running sum per slot)."""
+    for s in range(_NSLOT[order]):
+        p, q = _SLOT_P[s], _SLOT_Q[s]
+        w0, w1, w2, w3 = ru[p, 0], ru[p, 1], ru[p, 2], ru[p, 3]
+        for c in range(3):
+            sum_[s, c] += w0 * half[0, q, c] + w1 * half[1, q, c] + w2 * half[2, q, c] + w3 * half[3, q, c]
 
 
 @njit(cache=True, nogil=True)
@@ -207,24 +191,6 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
     out : (NSLOTS[order], m, 3) float64
         Written: slot ``s`` of point ``i`` is ``out[s, i]``. A point with a NaN parameter gets NaN.
     """
-    # one copy of the loop per order, each with its order a constant, so the slots it sums are
-    # unrolled and the others pruned (`_add_term`): the same products in the same order as one
-    # loop testing a variable order, in less time (`docs/performance.md`, *Compiled evaluation*)
-    if order == 1:
-        _points(u, v, 1, side, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends,
-                patch_rows, table_rows, table, out)
-    elif order == 0:
-        _points(u, v, 0, side, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends,
-                patch_rows, table_rows, table, out)
-    else:
-        _points(u, v, 2, side, top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts, ends,
-                patch_rows, table_rows, table, out)
-
-
-@njit(inline="always")
-def _points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
-            levels, keys, shifts, ends, patch_rows, table_rows, table, out):
-    """`eval_points`' loop, inlined there with ``order`` a constant."""
     m = u.shape[0]
     p0u = nu if u_periodic else nu - 3
     p0v = nv if v_periodic else nv - 3
@@ -237,6 +203,7 @@ def _points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
         raise ValueError("the detail table is shorter than the levels evaluated need")
     ru = np.zeros((3, 4))  # (order, CV) float64: basis rows along u of the current level
     rv = np.zeros((3, 4))  # and along v
+    sum_ = np.zeros((6, 3))  # (slot, xyz) float64: the current point's sum
     # (level, a, q, xyz) float64: per visited level, the v contraction of the last block summed
     # (`_half`), kept with the v and block it was taken for: a point with the same v (bit for bit)
     # on the same block reuses it, the same products in the same order
@@ -261,7 +228,9 @@ def _points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
         new_v = not _same(v0, last_v)
         last_v = v0
         su, tu = _segment(u0, 0, p0u, u_periodic, side)
-        sum_ = _ZERO_SUM  # -0.0 + x is x, the sign of a zero included
+        for s in range(nslot):
+            for c in range(3):
+                sum_[s, c] = -0.0  # -0.0 + x is x, the sign of a zero included
         _basis(tu, 1.0, order, ru)
         if not (half_block[0] == su and _same(v0, half_v[0])):
             sv, tv = _segment(v0, 0, p0v, v_periodic, side)
@@ -277,7 +246,7 @@ def _points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
             _basis(tv, 1.0, order, rv)
             _half(rv, order, cvs, rows0, 0, half[0])
             half_v[0], half_block[0] = v0, su
-        sum_ = _add_term(ru, order, half[0], sum_)
+        _add_term(ru, order, half[0], sum_)
         for lv in range(1, nlev):
             k = levels[lv]
             su, tu = _segment(u0, k, p0u, u_periodic, side)
@@ -318,9 +287,10 @@ def _points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
                 _basis(tv, scale, order, rv)
                 _half(rv, order, table, patch_rows[lo], base, half[lv])
                 half_v[lv], half_block[lv] = v0, lo
-            sum_ = _add_term(ru, order, half[lv], sum_)
+            _add_term(ru, order, half[lv], sum_)
         for s in range(nslot):
-            out[s, i, 0], out[s, i, 1], out[s, i, 2] = sum_[3 * s], sum_[3 * s + 1], sum_[3 * s + 2]
+            for c in range(3):
+                out[s, i, c] = sum_[s, c]
 
 
 @njit(inline="always")
