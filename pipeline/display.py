@@ -292,7 +292,7 @@ class Displays:
         if hit is None or hit.surface is not surface:
             topo, triangles = self.topology(surface, samples)
             shape = shape_of(surface, self.density)
-            old = self._nearest(shape)
+            old = self._nearest(shape, topo)
             since = None
             if old is not None:
                 stale = hspline.changed_cells(old.surface, old.details, surface, shape.details, _cell_level(surface))
@@ -309,23 +309,42 @@ class Displays:
         hit = self._shown.get(id(surface))
         return hit if hit is not None and hit.surface is surface else None
 
-    def _nearest(self, shape) -> SurfaceDisplay | None:
-        """The display to evaluate ``shape``'s surface since: its nearest displayed ancestor
-        (`pipeline.shape.Shape.parent`: the surface a response started from), else the last
-        display of a surface on the same grid (a frame's start that has no parent, the
+    def _nearest(self, shape, topo: MeshTopology | None = None) -> SurfaceDisplay | None:
+        """The display to evaluate ``shape``'s surface since: the last display on its topology
+        ``topo`` of a surface with the same level-0 CVs (bit for bit), else its nearest displayed
+        ancestor (`pipeline.shape.Shape.parent`: the surface a response started from), else the
+        last display of a surface on the same grid (a frame's start that has no parent, the
         animator's surface after the last frame's response). Any is exact (`changed_cells`
-        compares the two); a near one differs on few cells."""
+        compares the two); a near one differs on few cells.
+
+        The first is the response of the frame before where a contact is held and the animator
+        moves no level-0 CV (only the object's transform): the responses of two such frames
+        differ where their data points do, and on the same topology each vertex is copied from
+        the one at its own row, where the ancestor (the animator's surface, on a coarser
+        topology) differs by the whole response and is matched vertex by vertex."""
+        hs = shape.surface
+        if topo is not None:
+            for old in reversed(self._shown.values()):
+                if old.topology is topo and _same_level0(old.surface, hs):
+                    return old
         up = shape
         while up.parent is not None:
             up = up.parent
             old = self._shown.get(id(up.surface))
             if old is not None and old.surface is up.surface:
                 return old
-        hs = shape.surface
         for old in reversed(self._shown.values()):
             if (old.surface.u, old.surface.v, old.surface.depth) == (hs.u, hs.v, hs.depth):
                 return old
         return None
+
+
+def _same_level0(a: hspline.HSpline, b: hspline.HSpline) -> bool:
+    """Whether ``a`` and ``b`` have the same grid, depth and level-0 CVs ``(nu, nv, 3) float64``,
+    bit for bit."""
+    if (a.u, a.v, a.depth) != (b.u, b.v, b.depth):
+        return False
+    return a.cvs is b.cvs or (a.cvs.shape == b.cvs.shape and a.cvs.tobytes() == b.cvs.tobytes())
 
 
 CELL_LEVEL = 4  # the finest level whose patches `hspline.changed_cells` tells changed from unchanged

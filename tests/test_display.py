@@ -97,6 +97,53 @@ def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(s
     assert second.solid().faces.shape[1] == 3  # a closed sphere's display welds to a solid
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_display_is_evaluated_since_the_last_on_its_topology_with_the_same_level0_cvs(seed, monkeypatch):
+    """Two responses of one surface on one topology (a held contact's frames, the animator moving
+    no level-0 CV): the second is evaluated since the first, not since their parent, on the rows
+    where the two differ alone, and equals a full evaluation bit for bit. A surface whose level-0
+    CVs differ is evaluated since its parent."""
+    from acra import tessellate as T
+    from pipeline import shape as S
+
+    rng = np.random.default_rng(seed)
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[10, 14]]), 0.02, seed)
+    shown = display.Displays(density=8)
+    parent = shown.of(hs, 4)
+    idx, off = H.offsets_of(hs, 2)
+    first_off = off + rng.normal(scale=0.01, size=off.shape)
+    a = H.set_offsets(hs, 2, idx, first_off)
+    S.seed_details(a, None, 8, parent=hs)
+    first = shown.of(a, 4)
+    second_off = first_off.copy()
+    second_off[:2] += rng.normal(scale=0.01, size=second_off[:2].shape)  # differs from `a` on two offsets
+    b = H.set_offsets(hs, 2, idx, second_off)
+    S.seed_details(b, None, 8, parent=hs)
+    evaluated = []
+    normals_into = T._normals_into
+
+    def counted(hs_, u, v, det, rows, points, limit):
+        evaluated.append(len(rows))
+        return normals_into(hs_, u, v, det, rows, points, limit)
+
+    monkeypatch.setattr(T, "_normals_into", counted)
+    topo = shown.topology(b, 4)[0]
+    assert topo is first.topology
+    assert shown._nearest(S.shape_of(b, 8), topo) is first
+    second = shown.of(b, 4)
+    assert 0 < sum(evaluated) < topo.u.size
+    full = grid_samples(b, topo, H.details(b))
+    np.testing.assert_array_equal(second.points, full[0])
+    np.testing.assert_array_equal(second.normals, full[1])
+    c = H.with_cvs(b, b.cvs + 1e-3)  # the same fine levels, other level-0 CVs
+    S.seed_details(c, None, 8, parent=hs)
+    assert shown._nearest(S.shape_of(c, 8), topo) is parent
+    third = shown.of(c, 4)
+    full = grid_samples(c, third.topology, H.details(c))
+    np.testing.assert_array_equal(third.points, full[0])
+    np.testing.assert_array_equal(third.normals, full[1])
+
+
 def test_displays_on_one_topology_hold_one_parameter_array():
     """Every display on one topology holds its vertex parameters as one array (the topology's),
     so the residual digests them once (`pipeline.residual.Shown.fingerprint`)."""
