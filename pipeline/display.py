@@ -267,8 +267,9 @@ class _Inside:
 
 class Displays:
     """The displays the frame loop measures the residual on, one per surface (`SurfaceDisplay`), kept for
-    the last ``kept`` surfaces. A responded surface is evaluated only where it differs from its
-    nearest displayed ancestor (the surface it was responded from, through
+    the last ``kept`` surfaces. A responded surface is evaluated only where it differs from the
+    display it is evaluated since (`_nearest`: the last on its own topology of a surface with its
+    level-0 CVs, else its nearest displayed ancestor, the surface it was responded from, through
     `pipeline.shape.Shape.parent`): the cells `acra.hspline.changed_cells` finds, on the
     topology its refinement gives (`acra.tessellate.grid_samples` with another topology)."""
 
