@@ -268,9 +268,9 @@ class _Inside:
 class Displays:
     """The displays the frame loop measures the residual on, one per surface (`SurfaceDisplay`), kept for
     the last ``kept`` surfaces. A responded surface is evaluated only where it differs from the
-    display it is evaluated since (`_nearest`: the last on its own topology of a surface with its
-    level-0 CVs, else its nearest displayed ancestor, the surface it was responded from, through
-    `pipeline.shape.Shape.parent`): the cells `acra.hspline.changed_cells` finds, on the
+    display it is evaluated since (`_nearest`: its nearest displayed ancestor, the surface it was
+    responded from through `pipeline.shape.Shape.parent`, or where that display is on a coarser
+    topology, the last on its own of a surface with its level-0 CVs): the cells `acra.hspline.changed_cells` finds, on the
     topology its refinement gives (`acra.tessellate.grid_samples` with another topology)."""
 
     def __init__(self, density: int = 8, kept: int = 16) -> None:
@@ -311,29 +311,35 @@ class Displays:
         return hit if hit is not None and hit.surface is surface else None
 
     def _nearest(self, shape, topo: MeshTopology | None = None) -> SurfaceDisplay | None:
-        """The display to evaluate ``shape``'s surface since: the last display on its topology
-        ``topo`` of a surface with the same level-0 CVs (bit for bit), else its nearest displayed
-        ancestor (`pipeline.shape.Shape.parent`: the surface a response started from), else the
-        last display of a surface on the same grid (a frame's start that has no parent, the
-        animator's surface after the last frame's response). Any is exact (`changed_cells`
+        """The display to evaluate ``shape``'s surface since: its nearest displayed ancestor
+        (`pipeline.shape.Shape.parent`: the surface a response started from) where that display
+        is on the surface's own topology ``topo``; else the last display on ``topo`` of a surface
+        with the same level-0 CVs (bit for bit); else the ancestor's display on another topology;
+        else the last display of a surface on the same grid (a frame's start that has no parent,
+        the animator's surface after the last frame's response). Any is exact (`changed_cells`
         compares the two); a near one differs on few cells.
 
-        The first is the response of the frame before where a contact is held and the animator
+        The second is the response of the frame before where a contact is held and the animator
         moves no level-0 CV (only the object's transform): the responses of two such frames
-        differ where their data points do, and on the same topology each vertex is copied from
-        the one at its own row, where the ancestor (the animator's surface, on a coarser
-        topology) differs by the whole response and is matched vertex by vertex."""
+        differ where their data points do, and on one topology each vertex is copied from the one
+        at its own row, where the ancestor (the animator's surface, displayed on a coarser
+        topology) differs by the whole response and is matched vertex by vertex. An ancestor on
+        the same topology (a later round's response from an earlier round's) comes first: it
+        differs by one response alone."""
         hs = shape.surface
-        if topo is not None:
-            for old in reversed(self._shown.values()):
-                if old.topology is topo and _same_level0(old.surface, hs):
-                    return old
+        ancestor = None
         up = shape
-        while up.parent is not None:
+        while up.parent is not None and ancestor is None:
             up = up.parent
             old = self._shown.get(id(up.surface))
             if old is not None and old.surface is up.surface:
-                return old
+                ancestor = old
+        if topo is not None and (ancestor is None or ancestor.topology is not topo):
+            for old in reversed(self._shown.values()):
+                if old.topology is topo and _same_level0(old.surface, hs):
+                    return old
+        if ancestor is not None:
+            return ancestor
         for old in reversed(self._shown.values()):
             if (old.surface.u, old.surface.v, old.surface.depth) == (hs.u, hs.v, hs.depth):
                 return old
