@@ -5,7 +5,9 @@
 Runs the scene's ``--frames`` (after a free frame, as `benchmarks/stage_split.py` does) and
 records every `acra.hspline.evaluate` call with its arguments, then calls `evaluate` again on each
 recorded argument set ``--repeat`` times and prints, per kind of call (up to 1,000 points or more;
-derivative order), the calls, the points and the median milliseconds per collision frame. Run it
+derivative order), the calls, the points and the median CPU milliseconds (``time.process_time``)
+per collision frame, and a digest of every replayed call's output (the first 16 hex digits of a
+SHA-256 over its arrays, call by call), so two checkouts can be shown to agree bit for bit. Run it
 with ``PYTHONPATH`` set to two checkouts to compare their evaluators on the same calls (the calls
 are the same when the two give the same surfaces). The frames' calls are many and small: the
 fixed cost of a call matters there, the cost per point in the display-size ones.
@@ -15,12 +17,13 @@ from __future__ import annotations
 
 import argparse
 import collections
+import hashlib
 import pathlib
 import time
 
 import numpy as np
 
-from acra import hspline
+from acra import hspline, tessellate
 from pipeline import frames, usdio
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -28,7 +31,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 def record(scene: pathlib.Path, first: int, last: int, warm: int) -> list[tuple]:
     """The argument tuples ``(hs, u, v, order, det, upto, side)`` of every `evaluate` call of
-    frames ``first..last`` (module attribute replaced, so calls inside `acra.hspline` count)."""
+    frames ``first..last`` (module attribute replaced, so calls inside `acra.hspline` count, and
+    `acra.tessellate`'s name for it, so the displays' evaluations do)."""
     calls: list[tuple] = []
     evaluate = hspline.evaluate
 
@@ -39,11 +43,11 @@ def record(scene: pathlib.Path, first: int, last: int, warm: int) -> list[tuple]
     stage = usdio.open_input(usdio.load_scene_file(scene))
     parsed = usdio.read_scene(stage)
     frames.run_frames(stage, parsed, [warm])
-    hspline.evaluate = recording
+    hspline.evaluate = tessellate.evaluate = recording
     try:
         frames.run_frames(stage, parsed, list(range(first, last + 1)))
     finally:
-        hspline.evaluate = evaluate
+        hspline.evaluate = tessellate.evaluate = evaluate
     return calls[:]
 
 
@@ -61,17 +65,24 @@ def main() -> None:
         kinds[(call[1].size > 1000, call[3])].append(call)
     frames_n = last - first + 1
     print(f"{args.scene.name}, frames {first}-{last}: {len(calls)} evaluate calls\n")
-    print("| calls of | order | calls | points | ms per frame (median of {}) |\n|---|---:|---:|---:|---:|".format(args.repeat))
+    print("| calls of | order | calls | points | CPU ms per frame (median of {}) |\n|---|---:|---:|---:|---:|".format(args.repeat))
+    digest = hashlib.sha256()
+    for call in calls:
+        ev = hspline.evaluate(*call)
+        for a in (ev.points, ev.du, ev.dv, ev.duu, ev.duv, ev.dvv):
+            if a is not None:
+                digest.update(np.ascontiguousarray(a).tobytes())
     for (large, order), group in sorted(kinds.items()):
         spent = []
         for _ in range(args.repeat):
-            t = time.perf_counter()
+            t = time.process_time()
             for call in group:
                 hspline.evaluate(*call)
-            spent.append(time.perf_counter() - t)
+            spent.append(time.process_time() - t)
         points = sum(call[1].size for call in group)
         label = "more than 1,000 points" if large else "up to 1,000 points"
         print(f"| {label} | {order} | {len(group)} | {points} | {1e3 * float(np.median(spent)) / frames_n:.2f} |")
+    print(f"\noutputs' digest: {digest.hexdigest()[:16]}")
 
 
 if __name__ == "__main__":

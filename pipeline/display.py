@@ -270,9 +270,10 @@ class _Inside:
 
 class Displays:
     """The displays the frame loop measures the residual on, one per surface (`SurfaceDisplay`), kept for
-    the last ``kept`` surfaces. A responded surface is evaluated only where it differs from its
-    nearest displayed ancestor (the surface it was responded from, through
-    `pipeline.shape.Shape.parent`): the cells `acra.hspline.changed_cells` finds, on the
+    the last ``kept`` surfaces. A responded surface is evaluated only where it differs from the
+    display it is evaluated since (`_nearest`: its nearest displayed ancestor, the surface it was
+    responded from through `pipeline.shape.Shape.parent`, or where that display is on a coarser
+    topology, the last on its own of a surface with its level-0 CVs): the cells `acra.hspline.changed_cells` finds, on the
     topology its refinement gives (`acra.tessellate.grid_samples` with another topology)."""
 
     def __init__(self, density: int = 8, kept: int = 16) -> None:
@@ -295,7 +296,7 @@ class Displays:
         if hit is None or hit.surface is not surface:
             topo, triangles = self.topology(surface, samples)
             shape = shape_of(surface, self.density)
-            old = self._nearest(shape)
+            old = self._nearest(shape, topo)
             since = None
             if old is not None:
                 stale = hspline.changed_cells(old.surface, old.details, surface, shape.details, _cell_level(surface))
@@ -312,23 +313,48 @@ class Displays:
         hit = self._shown.get(id(surface))
         return hit if hit is not None and hit.surface is surface else None
 
-    def _nearest(self, shape) -> SurfaceDisplay | None:
+    def _nearest(self, shape, topo: MeshTopology | None = None) -> SurfaceDisplay | None:
         """The display to evaluate ``shape``'s surface since: its nearest displayed ancestor
-        (`pipeline.shape.Shape.parent`: the surface a response started from), else the last
-        display of a surface on the same grid (a frame's start that has no parent, the
-        animator's surface after the last frame's response). Any is exact (`changed_cells`
-        compares the two); a near one differs on few cells."""
+        (`pipeline.shape.Shape.parent`: the surface a response started from) where that display
+        is on the surface's own topology ``topo``; else the last display on ``topo`` of a surface
+        with the same level-0 CVs (bit for bit); else the ancestor's display on another topology;
+        else the last display of a surface on the same grid (a frame's start that has no parent,
+        the animator's surface after the last frame's response). Any is exact (`changed_cells`
+        compares the two); a near one differs on few cells.
+
+        The second is the response of the frame before where a contact is held and the animator
+        moves no level-0 CV (only the object's transform): the responses of two such frames
+        differ where their data points do, and on one topology each vertex is copied from the one
+        at its own row, where the ancestor (the animator's surface, displayed on a coarser
+        topology) differs by the whole response and is matched vertex by vertex. An ancestor on
+        the same topology (a later round's response from an earlier round's) comes first: it
+        differs by one response alone."""
+        hs = shape.surface
+        ancestor = None
         up = shape
-        while up.parent is not None:
+        while up.parent is not None and ancestor is None:
             up = up.parent
             old = self._shown.get(id(up.surface))
             if old is not None and old.surface is up.surface:
-                return old
-        hs = shape.surface
+                ancestor = old
+        if topo is not None and (ancestor is None or ancestor.topology is not topo):
+            for old in reversed(self._shown.values()):
+                if old.topology is topo and _same_level0(old.surface, hs):
+                    return old
+        if ancestor is not None:
+            return ancestor
         for old in reversed(self._shown.values()):
             if (old.surface.u, old.surface.v, old.surface.depth) == (hs.u, hs.v, hs.depth):
                 return old
         return None
+
+
+def _same_level0(a: hspline.HSpline, b: hspline.HSpline) -> bool:
+    """Whether ``a`` and ``b`` have the same grid, depth and level-0 CVs ``(nu, nv, 3) float64``,
+    bit for bit."""
+    if (a.u, a.v, a.depth) != (b.u, b.v, b.depth):
+        return False
+    return a.cvs is b.cvs or (a.cvs.shape == b.cvs.shape and a.cvs.tobytes() == b.cvs.tobytes())
 
 
 CELL_LEVEL = 4  # the finest level whose patches `hspline.changed_cells` tells changed from unchanged

@@ -97,6 +97,70 @@ def test_a_responded_surface_s_display_is_its_parent_s_where_it_did_not_change(s
     assert second.solid().faces.shape[1] == 3  # a closed sphere's display welds to a solid
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_display_is_evaluated_since_the_last_on_its_topology_with_the_same_level0_cvs(seed, monkeypatch):
+    """Two responses of one surface that refine it alike (a held contact's frames, the animator
+    moving no level-0 CV): the second is evaluated since the first, on its own topology, not since
+    their parent, displayed on a coarser one; on the rows where the two differ alone, and equal to
+    a full evaluation bit for bit. A surface whose level-0 CVs differ, or whose parent's display
+    is on its own topology, is evaluated since its parent."""
+    from acra import tessellate as T
+    from pipeline import shape as S
+
+    rng = np.random.default_rng(seed)
+    hs = with_random_offsets(H.make_movable(H.from_grid(*shapes.sphere(12, 10), depth=3), 2, [[10, 14]]), 0.02, seed)
+    shown = display.Displays(density=8)
+    parent = shown.of(hs, 4)
+    refined = H.make_movable(hs, 2, [[30, 4]])  # both responses refine one more place
+    idx, off = H.offsets_of(refined, 2)
+
+    def response(offsets, of=refined):
+        r = H.set_offsets(of, 2, idx, offsets)
+        S.seed_details(r, None, 8, parent=hs)
+        return r
+
+    first_off = off + rng.normal(scale=0.01, size=off.shape)
+    first = shown.of(response(first_off), 4)
+    assert first.topology is not parent.topology
+    second_off = first_off.copy()
+    second_off[:2] += rng.normal(scale=0.01, size=second_off[:2].shape)  # differs from the first on two offsets
+    b = response(second_off)
+    evaluated = []
+    normals_into = T._normals_into
+
+    def counted(hs_, u, v, det, rows, points, limit):
+        evaluated.append(len(rows))
+        return normals_into(hs_, u, v, det, rows, points, limit)
+
+    monkeypatch.setattr(T, "_normals_into", counted)
+    topo = shown.topology(b, 4)[0]
+    assert topo is first.topology
+    assert shown._nearest(S.shape_of(b, 8), topo) is first
+    second = shown.of(b, 4)
+    assert 0 < sum(evaluated) < topo.u.size
+    full = grid_samples(b, topo, H.details(b))
+    np.testing.assert_array_equal(second.points, full[0])
+    np.testing.assert_array_equal(second.normals, full[1])
+    c = H.with_cvs(b, b.cvs + 1e-3)  # the same fine levels, other level-0 CVs
+    S.seed_details(c, None, 8, parent=hs)
+    assert shown._nearest(S.shape_of(c, 8), topo) is parent
+    # a response on its parent's own topology is evaluated since its parent, not since a later
+    # display on that topology (a sibling response)
+    i0, o0 = H.offsets_of(hs, 2)
+    sibling = H.set_offsets(hs, 2, i0, o0 + rng.normal(scale=0.01, size=o0.shape))
+    S.seed_details(sibling, None, 8, parent=hs)
+    assert shown.of(sibling, 4).topology is parent.topology
+    d = H.set_offsets(hs, 2, i0, o0 + rng.normal(scale=0.01, size=o0.shape))
+    S.seed_details(d, None, 8, parent=hs)
+    assert shown.topology(d, 4)[0] is parent.topology
+    assert shown._nearest(S.shape_of(d, 8), parent.topology) is parent
+    for surface in (c, d):
+        shown_ = shown.of(surface, 4)
+        full = grid_samples(surface, shown_.topology, H.details(surface))
+        np.testing.assert_array_equal(shown_.points, full[0])
+        np.testing.assert_array_equal(shown_.normals, full[1])
+
+
 def test_displays_on_one_topology_hold_one_parameter_array():
     """Every display on one topology holds its vertex parameters as one array (the topology's),
     so the residual digests them once (`pipeline.residual.Shown.fingerprint`)."""
