@@ -4,7 +4,7 @@ level where their evaluations may differ bit for bit (`changed_cells`), and the 
 whose CVs moved (`first_moved`, `moved_cvs`).
 
 A display re-evaluates only where a response changed its surface (`acra.tessellate`), the
-details follow a move only where it reached (`acra.hspline.details`' ``since``), and a shape's
+details follow a move only where it reached (`acra.details.details`' ``since``), and a shape's
 data is rebuilt only on the patches that changed (`pipeline.shape`): each asks these. A change is
 found by the bits of the arrays, so ``-0.0`` and ``0.0`` differ as they may in what is computed
 from them. `acra.hspline` re-exports the public names.
@@ -22,7 +22,7 @@ from .basis import Direction
 from .hierarchy import _I4, HSpline, _lookup, _split_cv
 
 if TYPE_CHECKING:
-    from .hspline import Details
+    from .details import Details
 
 __all__ = ["changed_patches", "grown_patches", "mark_moved", "changed_cells", "first_moved", "moved_cvs", "bits", "MOVED"]
 
@@ -75,7 +75,7 @@ def grown_patches(hs: HSpline, mask: np.ndarray, margin: int = 2) -> np.ndarray:
 def mark_moved(old: HSpline, new: HSpline, k: int, stale: np.ndarray) -> None:
     """Mark in ``stale (P0u, P0v) bool`` the level-0 patches holding a level-``k`` patch that a
     CV whose offset has other bits in ``new`` than in ``old`` supports: `changed_patches` of a
-    move of level ``k >= 1`` alone (the same ``cv_keys``, `hspline.moved_details`' surfaces) before its
+    move of level ``k >= 1`` alone (the same ``cv_keys``, `details.moved_details`' surfaces) before its
     margin. Only the rows the move names (`acra.respond.move_level`'s hint) can differ, else
     every row is compared."""
     was, lev = old.level(k), new.level(k)

@@ -3,7 +3,7 @@
 The frames of a level's detail CVs are built from a first-order evaluation at each CV's centre:
 ``du × dv``, whether it is too small to give a direction, the unit normal, and the tangent frame
 around it. In array form that is some forty numpy calls on a few dozen rows each time a response
-moves a level (`acra.hspline.details`); here it is one pass per call. Each value is computed by
+moves a level (`acra.details.details`); here it is one pass per call. Each value is computed by
 numpy's operations in numpy's order (a cross product as ``a1 b2 - a2 b1``, a norm over three
 components as ``sqrt((x0² + x1²) + x2²)``, a sum over three as ``(a0 + a1) + a2``), so the frames
 are the same bits as the array form's (`tests/test_kernels.py` holds them to it).

@@ -186,7 +186,7 @@ class HSpline:
 
 
 _LEVEL0 = ("_size", "_closed_ends")  # cached properties of level 0 alone
-TABLE_STARTS = "_table_starts"  # `hspline._starts`, kept on a surface
+TABLE_STARTS = "_table_starts"  # `details._starts`, kept on a surface
 _STRUCTURE = ("_terms_index", "_table_rows", TABLE_STARTS)  # of the grid's size and the fine levels' patches and CVs alone
 # `hspline.eval_arrays`' arguments of a surface, kept on it: of level 0 and the structure alone
 EVAL_ARGS = "_eval_args"

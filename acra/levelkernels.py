@@ -10,12 +10,12 @@ here it is one pass. Everything is integer bookkeeping plus a copy of the old of
 level is the same as the array form's, key for key (`tests/test_hspline.py` holds it to it).
 The patches a response refines on a level, the 7×7 block about each data point's patch and
 the parents of the finer level's, are listed by `block_keys`.
-Following a response's move down the levels (`acra.hspline.moved_details`), which rows of a
+Following a response's move down the levels (`acra.details.moved_details`), which rows of a
 level changed bits (`differing_rows`), each level's frames and vectors restated on the rows
 that moved or whose frames turned, with the level-0 patches the changed vectors' CVs support
 (`restate_rows`; `mark_changed`), and which finer CVs' frames lie on those patches or rings
 (`stale_rows`) are each one pass in place of a dozen numpy calls on a few hundred rows.
-What the frames of a level need of its movable CVs (`acra.hspline._movable_places`: their
+What the frames of a level need of its movable CVs (`acra.details._movable_places`: their
 indices, Greville centres and level-0 patches) is `movable_places`, one pass over the level.
 The CVs a level's data points weigh, and the patches its additional points fall in, are
 numbered by `unique_inverse` (`np.unique` with ``return_inverse``, a sort of a few hundred
@@ -340,7 +340,7 @@ def movable_places(cv_keys, movable, k, u_cvs, v_cvs, u_patches0, u_periodic, v_
     Greville centres ``gu = (ju - 1.0) / 2**k``, ``gv`` (level-0 units, exact) and the level-0
     patch each centre is in, ``pu * P0v + pv`` with ``pu = (ju - 1) >> k`` wrapped (periodic) or
     clamped (open); each ``(m,)``, in row order. The same integer and float operations as the
-    array form (`acra.hspline._movable_places_numpy`)."""
+    array form (`acra.details._movable_places_numpy`)."""
     m = 0
     for r in range(cv_keys.shape[0]):
         if movable[r]:
@@ -442,7 +442,7 @@ def mark_changed(new, old, rows, cv_keys, v_cvs, k, u_patches, v_patches, u_peri
 @njit(cache=True, nogil=True)
 def restate_rows(frames, new_frames, rows, offsets, vectors, moves, moved):
     """A level's frames and detail vectors after a move changed its offsets, or the surface under
-    it its frames, on ``rows (m,) int64`` (`acra.hspline.moved_details`): a copy of ``frames (c,
+    it its frames, on ``rows (m,) int64`` (`acra.details.moved_details`): a copy of ``frames (c,
     3, 3)`` with those rows' set to ``new_frames (m, 3, 3)`` (none given, ``(0, 3, 3)``:
     ``frames`` itself), and a copy of ``vectors (c, 3)`` with those rows' vectors ``frame @
     offset``, each summed from 0.0 as ``(p0 + p2) + p1``, as ``np.einsum("mij,mj->mi")`` sums

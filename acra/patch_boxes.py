@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 from acra.hierarchy import HSpline, _split_cv
-from acra.hspline import Details, all_cv_positions, details
+from acra.details import Details, all_cv_positions, details
 
 __all__ = ["boxes_within", "patch_boxes", "patch_hulls", "rays_meet"]
 
@@ -74,7 +74,7 @@ def _level0(cvs, iu, iv, lo, hi):
 
 def patch_boxes(hs: HSpline, every: list[np.ndarray], only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """`patch_hulls` of ``hs`` given every level's CV positions ``every``
-    (`acra.hspline.all_cv_positions`), the same boxes: ``lo, hi (P0u, P0v, 3)``. ``only
+    (`acra.details.all_cv_positions`), the same boxes: ``lo, hi (P0u, P0v, 3)``. ``only
     (P0u, P0v) bool``: widen just these patches' boxes (the others hold level 0's alone)."""
     pu, pv = hs.u.patches0, hs.v.patches0
     i4 = np.arange(4)

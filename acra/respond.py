@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import changes, framekernels, levelkernels, memo
+from . import details as D
 from . import hspline as H
 from .basis import locate
 from .controls import ControlError, Controls
@@ -42,7 +43,7 @@ __all__ = [
 # applying moves to a level
 
 
-def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None,
+def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: D.Details | None,
                 unique: bool = False) -> H.HSpline:
     """Add world (object-space) moves ``dv (P, 3)`` to CVs of ``level``; ``unique``: the caller
     knows each of ``cv_rows (P,) int64`` occurs once (a `PointWeights`' ``cv_rows``).
@@ -64,16 +65,16 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
         rows = np.ascontiguousarray(cv_rows, np.int64)
         old = H._plain(lev.offsets)
         offsets = old.copy()
-        vec = levelkernels.restate_rows(H._plain(det.frames[level - 1]), H._NO_FRAMES, rows, old,
+        vec = levelkernels.restate_rows(H._plain(det.frames[level - 1]), D._NO_FRAMES, rows, old,
                                         H._plain(det.vectors[level - 1]), H._plain(dv), offsets)[1]
     else:
         offsets = lev.offsets.copy()
         np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", det.frames[level - 1][cv_rows], dv))
     fine = list(hs.fine)
     fine[level - 1] = with_offsets(lev, offsets)
-    if unique:  # the rows that can differ from ``lev``'s offsets, and its vectors, for `H.moved_details`
+    if unique:  # the rows that can differ from ``lev``'s offsets, and its vectors, for `D.moved_details`
         fine[level - 1].__dict__[changes.MOVED] = (lev.offsets, cv_rows)
-        fine[level - 1].__dict__[H.MOVED_VECTORS] = (det.frames[level - 1], det.vectors[level - 1], vec)
+        fine[level - 1].__dict__[D.MOVED_VECTORS] = (det.frames[level - 1], det.vectors[level - 1], vec)
     for name in _SAME_CVS:  # same CVs, other offsets: the same ring rows and movable CVs' places
         if name in lev.__dict__:
             fine[level - 1].__dict__[name] = lev.__dict__[name]
@@ -81,14 +82,14 @@ def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, 
 
 
 # what a `Level` keeps on itself that depends on its CV keys and movability alone (`_ring_rows`,
-# `H._movable_places`), carried to the level a move makes
-_SAME_CVS = ("_ring_rows", H.PLACES)
+# `D._movable_places`), carried to the level a move makes
+_SAME_CVS = ("_ring_rows", D.PLACES)
 
 
-def move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: H.Details | None) -> H.HSpline:
+def move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: D.Details | None) -> H.HSpline:
     """Add object-space moves ``dv (P, 3)`` to the level-``level`` CVs ``cv_rows (P,)`` (rows as in
     `acra.interpolate.PointWeights.cv_rows`), keeping closed ends closed; ``det`` is
-    ``H.details(hs)`` (needed for ``level >= 1``)."""
+    ``D.details(hs)`` (needed for ``level >= 1``)."""
     return _move_level(hs, level, cv_rows, dv, det)
 
 
@@ -116,7 +117,7 @@ def _closed_ends(hs: H.HSpline, cvs: np.ndarray) -> np.ndarray:
     return new
 
 
-def _ring_sums(hs: H.HSpline, det: H.Details, k: int, axis: int,
+def _ring_sums(hs: H.HSpline, det: D.Details, k: int, axis: int,
                end: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Level ``k``'s share of one pole (`H.pole_ring`): per ring column ``j`` the sum
     ``D0 + 4 D1 + D2`` of its three rows' detail vectors, ``sums (N, 3) float64``; the rows of
@@ -136,7 +137,7 @@ def _ring_sums(hs: H.HSpline, det: H.Details, k: int, axis: int,
 _ring_rows = pole_ring_rows
 
 
-def _closed_rings(hs: H.HSpline, det: H.Details | None) -> list[tuple[int, int, int]]:
+def _closed_rings(hs: H.HSpline, det: D.Details | None) -> list[tuple[int, int, int]]:
     """``(k, axis, end)`` of every fine level whose share of a pole of ``hs`` keeps it one point
     (the ring sums agree within 1e-9 of the size): the rings `_close_rings` must keep closed.
     Kept per surface and details (`_KEPT`): a static object responds from the same surface
@@ -191,7 +192,7 @@ def _keep(key: tuple, answer: tuple) -> None:
 _AT = memo.Table("respond.at", 64)
 
 
-def _points_at(hs: H.HSpline, det: H.Details | None, pu: np.ndarray, pv: np.ndarray,
+def _points_at(hs: H.HSpline, det: D.Details | None, pu: np.ndarray, pv: np.ndarray,
                poles: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """`H.evaluate`'s points ``(K, 3) float64`` of ``hs`` (details ``det``) at ``pu, pv (K,)
     float64`` and, under ``poles``, `H.pole_of` of those parameters ``(K,) int64`` (else
@@ -228,7 +229,7 @@ def _weights(hs: H.HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.n
     return hit[1]
 
 
-def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tuple[H.HSpline, H.Details | None]:
+def _refined(hs: H.HSpline, det: D.Details | None, keys: tuple, lazy: int) -> tuple[H.HSpline, D.Details | None]:
     """``hs`` with the patches ``keys`` (`hierarchy.refinement_keys`) active and its details
     (`_redetail`'s ``lazy``: the finer absorbing levels' new CVs are framed by the coarsest one's
     move, which turns them; the coarsest level's own frames its solve moves with). The
@@ -245,8 +246,8 @@ def _refined(hs: H.HSpline, det: H.Details | None, keys: tuple, lazy: int) -> tu
     return new, new_det
 
 
-def _refined_at(hs: H.HSpline, det: H.Details | None, levels: tuple[int, ...], uv: np.ndarray, pole: np.ndarray,
-                lazy: int) -> tuple[H.HSpline, H.Details | None]:
+def _refined_at(hs: H.HSpline, det: D.Details | None, levels: tuple[int, ...], uv: np.ndarray, pole: np.ndarray,
+                lazy: int) -> tuple[H.HSpline, D.Details | None]:
     """`_refined` of the patches `hierarchy.refinement_keys` lists for the points ``uv (K, 2)
     float64`` on ``levels`` (``pole (K,) int64``: `H.pole_of` of them), kept (`_KEPT`) by the
     points' parameters too: a contact held still gives a static object's response the same
@@ -272,8 +273,8 @@ def _patch_set(hs: H.HSpline, level: int, keys: np.ndarray) -> bytes:
 _RING_W = np.array([1.0, 4.0, 1.0])  # a ring column's three rows in its pole sum (`_ring_sums`)
 
 
-def _open_ring(hs: H.HSpline, det: H.Details | None, k: int, axis: int, end: int,
-               refine: bool) -> tuple[H.HSpline, H.Details | None, bool]:
+def _open_ring(hs: H.HSpline, det: D.Details | None, k: int, axis: int, end: int,
+               refine: bool) -> tuple[H.HSpline, D.Details | None, bool]:
     """Make level ``k``'s whole pole ring movable under ``refine`` (its three patch rows all
     around, `H.pole_patches`); returns the surface, its details and whether the ring is movable."""
     ok = pole_ring_movable(hs, k, axis, end)
@@ -283,8 +284,8 @@ def _open_ring(hs: H.HSpline, det: H.Details | None, k: int, axis: int, end: int
     return hs, det, ok
 
 
-def _close_rings(hs: H.HSpline, det: H.Details | None, rings: list[tuple[int, int, int]],
-                 refine: bool, start: dict | None = None) -> tuple[H.HSpline, H.Details | None]:
+def _close_rings(hs: H.HSpline, det: D.Details | None, rings: list[tuple[int, int, int]],
+                 refine: bool, start: dict | None = None) -> tuple[H.HSpline, D.Details | None]:
     """Close again every fine level's pole ring in ``rings`` (`_closed_rings` before a response).
 
     The fine-level analogue of `_closed_ends`: a move of some ring columns, or a coarser move that
@@ -330,7 +331,7 @@ def _ring_reach(hs: H.HSpline, pw: PointWeights, k: int, axis: int, end: int) ->
     return hit[1], hit[2], hit[3]
 
 
-def _reach_rings(hs: H.HSpline, det: H.Details | None, pw: PointWeights, uv: np.ndarray, rings: list[tuple[int, int, int]]):
+def _reach_rings(hs: H.HSpline, det: D.Details | None, pw: PointWeights, uv: np.ndarray, rings: list[tuple[int, int, int]]):
     """Under ``refine``: make wholly movable each pole ring of ``pw``'s level that its points
     ``uv (K, 2)`` move a CV of, so `_ring_constraints` can keep it closed; ``pw`` is recomputed
     if that refined anything."""
@@ -360,7 +361,7 @@ def _ring_settled(hs: H.HSpline, k: int, axis: int, end: int) -> bool:
     return hit
 
 
-def _ring_constraints(hs: H.HSpline, det: H.Details | None, pw: PointWeights, want: np.ndarray,
+def _ring_constraints(hs: H.HSpline, det: D.Details | None, pw: PointWeights, want: np.ndarray,
                       rings: list[tuple[int, int, int]]):
     """Add to a level's interpolation problem one virtual point per column of each of its pole
     rings that the move reaches: ``(sum_j - mean sum) / 6``, the column's offset from the pole,
@@ -544,7 +545,7 @@ class ResponseReport:
     refined : int
         Patches the ``refine`` policy activated.
     details : Details or None
-        ``H.details`` of the responded surface (computed anyway; callers may reuse it).
+        ``D.details`` of the responded surface (computed anyway; callers may reuse it).
     moved : (P0u, P0v) bool or None
         Level-0 patches holding every one where the responded surface may differ from the one
         responded from (a superset of `H.changed_patches`); ``None`` where it was not followed.
@@ -553,7 +554,7 @@ class ResponseReport:
     applied: np.ndarray
     remaining: np.ndarray
     refined: int
-    details: H.Details | None = None
+    details: D.Details | None = None
     moved: np.ndarray | None = None
 
 
@@ -586,32 +587,32 @@ def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     return hs
 
 
-def _redetail(old: H.HSpline, old_det: H.Details | None, new: H.HSpline,
-              moved: tuple[int, ...] | None = None, lazy: int | None = None) -> tuple[H.HSpline, H.Details | None]:
+def _redetail(old: H.HSpline, old_det: D.Details | None, new: H.HSpline,
+              moved: tuple[int, ...] | None = None, lazy: int | None = None) -> tuple[H.HSpline, D.Details | None]:
     """``new`` and its details, recomputed only where it differs from ``old`` (a move is local).
     ``moved``: the levels whose CVs alone can differ (``(level,)`` after `_move_level`, ``()``
     after a refinement), so the others are not compared; ``None`` compares them all. ``lazy``:
     after a refinement, the frames of new CVs finer than level ``lazy`` are left to the next
-    move's pass (`H.details`), which turns them anyway."""
+    move's pass (`D.details`), which turns them anyway."""
     if new.depth <= 1:
         return new, None
     if old_det is None:
-        return new, H.details(new)
+        return new, D.details(new)
     if moved is not None and len(moved) == 1 and moved[0] >= 1:
-        det = H.moved_details(old, old_det, new, moved[0])
+        det = D.moved_details(old, old_det, new, moved[0])
         if det is not None:
             raw = np.zeros((new.u.patches0, new.v.patches0), bool)
             H.mark_moved(old, new, moved[0], raw)
             return new, _noted(old, old_det, det, raw, None)
     stale = H.changed_patches(old, new, levels=moved)
-    return new, _noted(old, old_det, H.details(new, since=(old, old_det, stale), moved=moved, lazy=lazy), None, stale)
+    return new, _noted(old, old_det, D.details(new, since=(old, old_det, stale), moved=moved, lazy=lazy), None, stale)
 
 
 _SINCE = "_since"  # a response's details: (the surface it started from, raw and grown stale patches)
 
 
-def _noted(old: H.HSpline, old_det: H.Details, det: H.Details, raw: np.ndarray | None,
-           grown: np.ndarray | None) -> H.Details:
+def _noted(old: H.HSpline, old_det: D.Details, det: D.Details, raw: np.ndarray | None,
+           grown: np.ndarray | None) -> D.Details:
     """``det``, the details of a surface that differs from ``old`` only on the level-0 patches
     ``raw`` grown by `H.changed_patches`' margin and ``grown`` (either ``None``: none), noted
     with where it differs from the surface the response started from: ``old``'s note joined
@@ -624,7 +625,7 @@ def _noted(old: H.HSpline, old_det: H.Details, det: H.Details, raw: np.ndarray |
     return det
 
 
-def _moved_patches(hs: H.HSpline, start: H.HSpline, det: H.Details | None) -> np.ndarray | None:
+def _moved_patches(hs: H.HSpline, start: H.HSpline, det: D.Details | None) -> np.ndarray | None:
     """Level-0 patches ``(P0u, P0v) bool`` holding every one where ``hs``, responded from
     ``start`` with details ``det``, may differ from it (`H.changed_patches`, a superset), from the
     note `_redetail` kept along the response; ``None`` where the note does not reach ``start``.
@@ -637,10 +638,10 @@ def _moved_patches(hs: H.HSpline, start: H.HSpline, det: H.Details | None) -> np
     return out if grown is None else out | grown
 
 
-def _settled(hs: H.HSpline, det: H.Details | None) -> tuple[H.HSpline, H.Details | None]:
+def _settled(hs: H.HSpline, det: D.Details | None) -> tuple[H.HSpline, D.Details | None]:
     """``hs`` and ``det`` with the frames `_redetail`'s ``lazy`` left pending evaluated (a level
     about to move reads its frames, and a response hands back every frame)."""
-    if det is not None and H._PENDING in det.__dict__:
+    if det is not None and D._PENDING in det.__dict__:
         return _redetail(hs, det, hs, ())
     return hs, det
 
@@ -651,7 +652,7 @@ def respond(
     controls: Controls,
     method: str = "direct",
     iterations: int = 5,
-    det: H.Details | None = None,
+    det: D.Details | None = None,
     max_bytes: int | None = None,
     held: DataPoints | None = None,
     rcond: float = 1e-4,
@@ -671,7 +672,7 @@ def respond(
         ``"direct"`` minimum-norm solve or ``"blend"`` (iterated Bartels–Beatty) for the
         deformational step; ``iterations`` caps the latter.
     det : Details, optional
-        ``H.details(hs)`` if the caller has it already (details are most of a response's cost).
+        ``D.details(hs)`` if the caller has it already (details are most of a response's cost).
     max_bytes : int, optional
         Bound on each direct solve's dense arrays (`interpolate.SystemTooLarge` past it).
     held : DataPoints, optional
@@ -707,7 +708,7 @@ def respond(
     if L > hs.depth:
         raise ControlError("acra:absorption", f"has {L} levels but the surface has {hs.depth}")
     if det is None and hs.depth > 1:
-        det = H.details(hs)
+        det = D.details(hs)
     rings, det0, start = _closed_rings(hs, det), det, hs
     if det is not None:  # a note from the response that made ``hs`` is not this one's
         det.__dict__.pop(_SINCE, None)
@@ -746,7 +747,7 @@ def respond(
     refined = 0
     # Refinement depends on the points' parameters alone, not on where the CVs are, and moves
     # nothing; unless level 0 moves (its ends decide the poles `_open_pole_rings` opens), every
-    # absorbing level is refined before the first solve, so one pass of `H.details` frames all
+    # absorbing level is refined before the first solve, so one pass of `D.details` frames all
     # the new CVs and each later move's pass turns those on its stale patches with the rest.
     early = controls.refine and absorb[0] <= 0.0
     is_contact = np.asarray(points.is_contact, bool)

@@ -20,7 +20,8 @@ from numba import njit
 
 from . import framekernels, kernels, memo
 from .basis import Direction
-from .hspline import Details, HSpline, SurfaceEval, details, evaluate, surface_normals
+from .details import Details, details
+from .hspline import HSpline, SurfaceEval, evaluate, surface_normals
 from .lattice import adaptive_mesh, fan_triangles, quadtree_leaves, unique_keys
 
 __all__ = [

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import details as D
 from . import hspline as H
 from .interpolate import point_weights
 from .respond import move_level
@@ -135,7 +136,7 @@ def bulge(hs: H.HSpline, topo: GridTopology, target: float, level: int, weights:
     pw = point_weights(hs, level, topo.u, topo.v)
     n_cv = pw.cv_rows.size
     mean_w = np.bincount(pw.col, pw.w * weights[pw.point], n_cv) / np.maximum(np.bincount(pw.col, pw.w, n_cv), 1e-300)
-    det = H.details(hs) if hs.depth > 1 else None
+    det = D.details(hs) if hs.depth > 1 else None
     pts = H.evaluate(hs, topo.u, topo.v, det=det).points
     vol = size(pts, tris)
     for _ in range(steps):
@@ -150,7 +151,7 @@ def bulge(hs: H.HSpline, topo: GridTopology, target: float, level: int, weights:
         if abs(rate) <= 1e-300:
             break
         hs = move_level(hs, level, pw.cv_rows, (missing / rate) * direction, det)
-        det = H.details(hs) if hs.depth > 1 else None
+        det = D.details(hs) if hs.depth > 1 else None
         pts = H.evaluate(hs, topo.u, topo.v, det=det).points
         vol = size(pts, tris)
     return hs, vol

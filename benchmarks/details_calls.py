@@ -1,4 +1,4 @@
-"""The `acra.hspline.details` calls of a run's responses, replayed and timed.
+"""The `acra.details.details` calls of a run's responses, replayed and timed.
 
     PYTHONPATH=$PWD python3 benchmarks/details_calls.py [--repeat 9]
 
@@ -19,7 +19,7 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from acra import hspline as H
+from acra import details as LD
 from acra import respond as R
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
@@ -34,19 +34,19 @@ def main() -> None:
     args = ap.parse_args()
     calls = record(ROOT / "scenes" / "dog_head_spike.py", 13, 17, 5)
     seen: list = []
-    details = H.details
+    details = LD.details
 
     def recording(*a, **kw):
         seen.append((a, kw))
         return details(*a, **kw)
 
     with threadpool_limits(limits=1, user_api="blas"):
-        H.details = recording
+        LD.details = recording
         try:
             for a, kw in calls:
                 R.respond(*a, **kw)
         finally:
-            H.details = details
+            LD.details = details
         best = np.full(len(seen), np.inf)
         for _ in range(args.repeat):
             for n, (a, kw) in enumerate(seen):

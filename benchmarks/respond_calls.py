@@ -13,7 +13,7 @@ stores each call's responded surface (level-0 CVs, every level's keys and offset
 details it hands back) and
 ``--check FILE`` prints the largest difference from a stored run over the surface's size
 (the calls are the same when both checkouts give the same surfaces up to the recorded frames).
-``--split acra.respond:solve acra.hspline:moved_details ...`` (each function named where its caller
+``--split acra.respond:solve acra.details:moved_details ...`` (each function named where its caller
 looks it up: `respond` calls `acra.respond.solve`) records every call of each named
 function during one cold pass of the responses, then calls it again on each recorded argument
 set ``--repeat`` times (each repeat after `pipeline.run.forget`) and prints its calls and CPU

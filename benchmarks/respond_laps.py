@@ -1,7 +1,7 @@
 """Where a response's time goes, statement by statement: CPU laps inside one function of the replay.
 
     python3 benchmarks/respond_laps.py acra.respond:respond [--repeat 25] [--top 25]
-    python3 benchmarks/respond_laps.py acra.hspline:moved_details
+    python3 benchmarks/respond_laps.py acra.details:moved_details
 
 Records the `acra.respond.respond` calls of frames 13–17 as `benchmarks/respond_calls.py` does,
 then compiles the named function again with a lap before each of its statements (in loops and

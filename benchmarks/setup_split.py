@@ -30,6 +30,8 @@ def main() -> None:
     from pipeline import grids, usdio
     from pipeline import shape as S
 
+    from acra import details as LD
+
     spent: dict = collections.defaultdict(lambda: [0, 0.0])
 
     def timed(label, f):
@@ -43,7 +45,8 @@ def main() -> None:
                 spent[label][1] += time.process_time() - t
         return wrapper
 
-    S.H.all_cv_positions = timed("all_cv_positions", S.H.all_cv_positions)
+    # defined in `acra.details`; `S.H.all_cv_positions` (the `acra.hspline` re-export) looks it up there on each call
+    LD.all_cv_positions = timed("all_cv_positions", LD.all_cv_positions)
     for name, label in (("changed_patches", "changed_patches"), ("patch_boxes", "patch_boxes"),
                         ("patch_grids", "patch_grids (Shape._coarse)"), ("ConvexHull", "ConvexHull"),
                         ("cKDTree", "cKDTree"), ("volume_sign", "volume_sign")):

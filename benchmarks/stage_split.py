@@ -18,6 +18,7 @@ import functools
 import pathlib
 import time
 
+from acra import details as LD
 from acra import hspline as H
 from acra import respond as R
 from pipeline import clearance
@@ -56,7 +57,7 @@ def instrument() -> None:
     P.data_points_for = _timed("datapoints.data_points_for", P.data_points_for)
     display.grid_samples = _timed("display: tessellate.grid_samples", display.grid_samples)
     R.respond = _timed("respond.respond", R.respond)
-    H.details = _timed("hspline.details", H.details)
+    LD.details = _timed("details.details", LD.details)
     H.evaluate = _timed("hspline.evaluate", H.evaluate)
     for name in ("nearest", "cast"):
         setattr(S.Shape, name, _timed(f"Shape.{name}", getattr(S.Shape, name)))

@@ -121,7 +121,7 @@ class HullIndex:
 
 
 _REFINEMENTS_KEPT = 64
-_REFINEMENTS = memo.Table("shape.refinements", _REFINEMENTS_KEPT)  # (u, v, k, level k-1 and k cv_keys bytes) -> `acra.hspline.cv_refinement`, most recent last
+_REFINEMENTS = memo.Table("shape.refinements", _REFINEMENTS_KEPT)  # (u, v, k, level k-1 and k cv_keys bytes) -> `acra.details.cv_refinement`, most recent last
 
 
 class Shape:
@@ -166,12 +166,12 @@ class Shape:
 
     @cached_property
     def cv_positions(self) -> list[np.ndarray]:
-        """Every level's CV positions ``(c_k, 3)`` (`acra.hspline.all_cv_positions`): the patch
+        """Every level's CV positions ``(c_k, 3)`` (`acra.details.all_cv_positions`): the patch
         boxes and the CV hull both bound the surface by them (timed as theirs)."""
         return H.all_cv_positions(self.surface, self.details, self._cv_refinement)
 
     def _cv_refinement(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """`acra.hspline.cv_refinement` of level ``k``: the parent's where both surfaces hold the
+        """`acra.details.cv_refinement` of level ``k``: the parent's where both surfaces hold the
         same ``cv_keys`` arrays on levels ``k`` and ``k-1`` (it depends on them alone; a response
         that does not refine a level keeps its arrays), else built."""
         p, hs = self.parent, self.surface

@@ -1,4 +1,4 @@
-"""H-spline surfaces (thesis §3.4): exactness, continuity, locality, detail riding along."""
+"""H-spline surfaces (thesis §3.4): exactness, continuity, locality, normals, the plain-array form."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,7 @@ from acra import basis as B
 from acra import hierarchy as Hi
 from acra import hspline as H
 from acra import shapes
-from conftest import nudged, wavy_sheet, with_random_offsets
+from conftest import wavy_sheet, with_random_offsets
 
 
 def _net_eval(hs, k, u, v, det):
@@ -114,46 +114,6 @@ def test_open_border_cvs_are_movable(sheet4):
     hs = H.make_movable(sheet4, 1, [[0, 0]])
     idx, _ = H.offsets_of(hs, 1)
     assert (0, 0) in {tuple(x) for x in idx}
-
-
-def test_coarse_move_carries_level3_bump_along(sheet4):
-    hs = H.make_movable(sheet4, 3, [[10, 9]])
-    bump = np.array([[10 + a, 9 + b] for a in range(4) for b in range(4)])
-    offs = np.zeros((16, 3))
-    offs[:, 2] = 0.02 * (1 + np.arange(16) % 3)
-    offs[:, 0] = 0.005
-    hs = H.set_offsets(hs, 3, bump, offs)
-    det0 = H.details(hs)
-
-    # (a) a rigid motion of the level-0 grid moves the whole surface, bump included, rigidly
-    ang = 0.7
-    rot = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]]) @ np.array(
-        [[1, 0, 0], [0, np.cos(0.3), -np.sin(0.3)], [0, np.sin(0.3), np.cos(0.3)]]
-    )
-    moved = H.HSpline(hs.cvs @ rot.T + [1.0, -2.0, 0.5], hs.u, hs.v, hs.depth, hs.fine)
-    u, v = _random_uv(hs, 5000, 9)
-    p0 = H.evaluate(hs, u, v, det=det0).points
-    p1 = H.evaluate(moved, u, v).points
-    assert np.abs(p1 - (p0 @ rot.T + [1.0, -2.0, 0.5])).max() <= 1e-9 * hs.size()
-
-    # (b) moving one coarse CV near the bump: the bump's CVs keep their shape in their frames
-    cvs = hs.cvs.copy()
-    cvs[3, 3] += [0.1, -0.2, 0.6]
-    bent = H.HSpline(cvs, hs.u, hs.v, hs.depth, hs.fine)
-    det1 = H.details(bent)
-    lev = hs.level(3)
-    rows = H._lookup(lev.cv_keys, bump[:, 0] * hs.v.cvs(3) + bump[:, 1])[0]
-    for surf, det in ((hs, det0), (bent, det1)):
-        pos = H.cv_positions(surf, 3, det)[rows]
-        derived = pos - det.vectors[2][rows]
-        local = np.einsum("mji,mj->mi", det.frames[2][rows], pos - derived)
-        np.testing.assert_allclose(local, offs, rtol=0, atol=1e-9)
-    # and the bump really moved with the coarse surface (not a vacuous check)
-    pb0 = H.cv_positions(hs, 3, det0)[rows]
-    pb1 = H.cv_positions(bent, 3, det1)[rows]
-    assert np.abs(pb1 - pb0).max() > 1e-2
-    # the frames turned, so the world detail vectors turned with them
-    assert np.abs(det1.vectors[2][rows] - det0.vectors[2][rows]).max() > 1e-4
 
 
 @settings(max_examples=20, deadline=None)
@@ -328,55 +288,6 @@ def test_refine_blocks_equal_make_movable_of_each_level_in_one_sweep(kind):
         Hi.refine_blocks(hs, (1, 5), u, v)
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_details_since_a_local_move_equal_a_full_recomputation(seed):
-    """`details(since=...)` recomputes only CVs centred on changed patches: equal to a full pass."""
-    rng = np.random.default_rng(seed)
-    hs = H.from_grid(*shapes.sphere(12, 10), depth=4)
-    u0 = int(rng.integers(0, 12))
-    hs = H.make_movable(hs, 3, [[8 * u0 + 4, 30]])
-    hs = with_random_offsets(hs, 0.02, seed)
-    det = H.details(hs)
-    levels = [0] + [k for k in range(1, hs.depth) if len(H.offsets_of(hs, k)[1])]
-    assert len(levels) >= 2
-    for k in levels:
-        moved = nudged(hs, k, rng, cv=(u0, 4))
-        stale = H.changed_patches(hs, moved)
-        assert 0 < stale.sum() < stale.size
-        fast = H.details(moved, since=(hs, det, stale))
-        full = H.details(moved)
-        for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
-            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
-
-
-@pytest.mark.parametrize("seed", range(4))
-def test_details_since_a_refinement_evaluate_only_the_new_cvs(seed, monkeypatch):
-    """Refinement moves nothing: `details(since=...)` keeps every old frame, evaluates frames
-    only for the CVs it added, and equals a full pass; a move on top of it still does."""
-    rng = np.random.default_rng(seed)
-    hs = H.from_grid(*shapes.sphere(12, 10), depth=4)
-    hs = H.make_movable(hs, 2, [[4 * int(rng.integers(0, 12)) + 2, 14]])
-    hs = with_random_offsets(hs, 0.02, seed)
-    det = H.details(hs)
-    finer = H.make_movable(hs, 3, [[8 * int(rng.integers(0, 12)) + 4, 30]])
-    added = sum(int(b.movable.sum() - a.movable.sum()) for a, b in zip(hs.fine, finer.fine))
-    assert added > 0
-    evaluated = []
-    real = H._frames_at  # every frame `details` evaluates, in one pass per level
-    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: evaluated.append(np.size(u)) or real(hs_, k, ends, partial, ring, u, v))
-    fast = H.details(finer, since=(hs, det, H.changed_patches(hs, finer)))
-    assert sum(evaluated) == added
-    monkeypatch.setattr(H, "_frames_at", real)
-    full = H.details(finer)
-    for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
-        np.testing.assert_array_equal(a, b)
-    moved = nudged(finer, 2, rng)
-    fast = H.details(moved, since=(finer, full, H.changed_patches(finer, moved)))
-    full = H.details(moved)
-    for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
-        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
-
-
 def test_evaluate_takes_plain_arrays_as_they_are_and_fills_its_slots_in_order():
     """`evaluate` hands the kernel a C-contiguous writeable float64 array of the right dimensions
     as it is (`H._flat`) and a copy of any other (read-only, strided, another dtype, nested), and
@@ -401,75 +312,6 @@ def test_evaluate_takes_plain_arrays_as_they_are_and_fills_its_slots_in_order():
                 np.testing.assert_allclose(getattr(ev, name), getattr(ref, name), rtol=0, atol=1e-12)
             else:
                 assert getattr(ev, name) is None and vars(ev)[name] is None
-
-
-def test_details_give_their_table_stacked_as_they_go(monkeypatch):
-    """`H.details` and `H.moved_details` hand back (and hand `_frames_at` the coarser levels as)
-    `Details` whose ``table`` is already there, without stacking the vectors on first read, and
-    is their vectors stacked bit for bit; so is a pass up to a level (``upto``) and one since a
-    refinement or a move."""
-    from acra.respond import move_level
-    seen = []
-    real = H._frames_at
-    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: seen.append(partial) or real(hs_, k, ends, partial, ring, u, v))
-
-    def given_and_stacked(det):
-        assert "table" in det.__dict__
-        want = np.concatenate(det.vectors) if det.vectors else np.zeros((0, 3))
-        np.testing.assert_array_equal(det.table.view(np.int64), want.view(np.int64))
-
-    rng = np.random.default_rng(3)
-    hs = H.from_grid(*shapes.sphere(12, 10), depth=4)
-    hs = H.make_movable(hs, 2, [[6, 16], [10, 1]])  # the second reaches a pole
-    hs = with_random_offsets(H.make_movable(hs, 3, [[12, 30]]), 0.02, 3)
-    outs = [H.details(hs), H.details(hs, upto=2)]
-    finer = H.make_movable(hs, 3, [[40, 30]])
-    outs.append(H.details(finer, since=(hs, outs[0], H.changed_patches(hs, finer))))
-    for k in range(1, hs.depth):
-        rows = np.unique(rng.choice(np.nonzero(hs.level(k).movable)[0], size=2, replace=False))
-        moved = move_level(hs, k, rows, rng.normal(scale=0.03, size=(rows.size, 3)), outs[0])
-        outs.append(H.moved_details(hs, outs[0], moved, k))
-    assert len(seen) >= 4 and all(d is not None for d in outs)
-    for det in outs + seen:
-        given_and_stacked(det)
-
-
-def test_moved_details_follow_a_move_down_the_levels_as_a_full_pass(monkeypatch):
-    """`H.moved_details` after a response's move (`respond.move_level`) is `H.details` of the
-    moved surface bit for bit, frames of pole rings included; it keeps the coarser levels'
-    arrays and evaluates no more frames than `details(since=...)` on `changed_patches`, fewer
-    where the move's reach stops short of the patches' margin."""
-    from acra.respond import move_level
-    counted, mine, theirs = [], 0, 0
-    real = H._frames_at
-    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: counted.append(np.size(u)) or real(hs_, k, ends, partial, ring, u, v))
-    for seed in range(4):
-        rng = np.random.default_rng(seed)
-        hs = H.from_grid(*shapes.sphere(12, 10), depth=4)
-        u0 = int(rng.integers(0, 12))
-        hs = H.make_movable(hs, 1, [[2 * u0 + 1, 8]])
-        hs = H.make_movable(hs, 2, [[4 * u0 + 2, 16], [4 * u0 + 6, 1]])  # the second reaches a pole
-        hs = with_random_offsets(H.make_movable(hs, 3, [[8 * u0 + 4, 30], [8 * u0 + 12, 2]]), 0.02, seed)
-        det = H.details(hs)
-        for k in range(1, hs.depth):
-            movable = np.nonzero(hs.level(k).movable)[0]
-            rows = np.unique(rng.choice(movable, size=2, replace=False))
-            moved = move_level(hs, k, rows, rng.normal(scale=0.03, size=(rows.size, 3)), det)
-            counted.clear()
-            fast = H.moved_details(hs, det, moved, k)
-            step = sum(counted)
-            counted.clear()
-            H.details(moved, since=(hs, det, H.changed_patches(hs, moved, levels=(k,))), moved=(k,))
-            assert step <= sum(counted)
-            mine, theirs = mine + step, theirs + sum(counted)
-            full = H.details(moved)
-            for a, b in zip(fast.vectors + fast.frames, full.vectors + full.frames):
-                np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
-            assert all(fast.vectors[m] is det.vectors[m] and fast.frames[m] is det.frames[m] for m in range(k - 1))
-        finer = H.refine(hs, 3, [[(8 * u0 + 48) % 96, 40]])
-        assert finer.level(3).cv_keys.size > hs.level(3).cv_keys.size
-        assert H.moved_details(hs, det, finer, 3) is None  # not a move
-    assert mine < theirs
 
 
 def _per_level_sum(hs, u, v, order, det, side=0):
@@ -548,36 +390,6 @@ def test_closed_ends_and_pole_points():
     np.testing.assert_allclose(np.einsum("r,jrc->jc", w, cols), np.tile(tip, (keys.shape[0], 1)), atol=1e-12)
 
 
-def test_a_pole_rings_detail_turns_as_one_under_a_small_coarse_wiggle():
-    """Every CV of a fine level's pole ring frames its detail with one normal, the end's
-    (`hspline._end_normal`). Near a pole one tangent vanishes, so the per-CV normals there swing
-    with any bump across the short direction: here a level-1 wiggle of 1e-4 of the size (alternate
-    columns up and down, four rows from the pole) turned level-2 ring detail by up to 180 degrees
-    with per-CV normals (spread 2.0 between the ring's normals); with one normal per ring, which
-    the symmetric wiggle leaves where it was, the detail does not turn (turned detail folds a
-    fan's apex, hard case 10)."""
-    hs = H.from_grid(*shapes.sphere(8, 9), depth=3)
-    axis, end = H.closed_ends(hs)[1]
-    for k in (1, 2):
-        hs = H.refine(hs, k, H.pole_patches(hs, k, axis, end))
-    keys, _ = H.pole_ring(hs, 2, axis, end)
-    rows, _ = H._lookup(hs.level(2).cv_keys, keys.reshape(-1))
-    ju, jv = H._split_cv(hs, 2, hs.level(2).cv_keys[rows])
-    hs = H.set_offsets(hs, 2, np.stack([ju, jv], 1), np.tile([0.0, 0.0, -0.05], (rows.size, 1)))
-    det = H.details(hs)
-    assert np.ptp(det.frames[1][rows][:, :, 2], axis=0).max() <= 1e-12
-    lev = hs.level(1)
-    ju1, jv1 = H._split_cv(hs, 1, lev.cv_keys)
-    near = (jv1 >= hs.v.cvs(1) - 4) & lev.movable
-    wiggle = np.zeros((near.sum(), 3))
-    wiggle[:, 2] = 1e-4 * hs.size() * np.where(ju1[near] % 2 == 0, 1.0, -1.0)
-    det2 = H.details(H.set_offsets(hs, 1, np.stack([ju1[near], jv1[near]], 1), wiggle))
-    v0, v1 = det.vectors[1][rows], det2.vectors[1][rows]
-    cos = np.sum(v0 * v1, axis=1) / (np.linalg.norm(v0, axis=1) * np.linalg.norm(v1, axis=1))
-    assert np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max() <= 1.0
-    assert np.ptp(det2.frames[1][rows][:, :, 2], axis=0).max() <= 1e-12
-
-
 def _same_level(a, b):
     for f in ("k", "patches", "cv_keys", "patch_rows", "movable", "offsets"):
         x, y = np.asarray(getattr(a, f)), np.asarray(getattr(b, f))
@@ -639,41 +451,6 @@ def test_level_building_past_the_kernels_grid_is_the_array_form(monkeypatch):
     plain = H.make_movable(hs, 3, patches)
     for a, b in zip(compiled.fine, plain.fine):
         _same_level(a, b)
-
-
-def test_a_moves_bookkeeping_kernels_are_the_array_form():
-    """`H.moved_details`' compiled bookkeeping (`levelkernels.differing_rows`, `mark_changed`,
-    `stale_rows`) gives what its numpy form gives: the rows whose bits differ (``-0.0`` against
-    ``0.0`` too), the level-0 patches their CVs support, and the CVs whose centre or pole ring
-    lies on a stale patch or whose frame is pending."""
-    from acra import kernels, levelkernels
-
-    hs = H.make_movable(H.from_grid(*shapes.sphere(8, 7), depth=3), 2, np.array([[3, 4], [9, 2], [0, 0]]))
-    rng = np.random.default_rng(4)
-    k, lev, ends = 2, hs.level(2), H.closed_ends(hs)
-    a = rng.normal(size=(lev.cv_keys.size, 3))
-    b = a.copy()
-    rows = np.flatnonzero(lev.movable)
-    b[rows[::5], rng.integers(0, 3, rows[::5].size)] += 1e-17
-    a[rows[1]], b[rows[1]] = 0.0, -0.0
-    bits_a, bits_b = a.view(np.int64), b.view(np.int64)
-    want = rows[np.any(bits_a[rows] != bits_b[rows], axis=-1)]
-    np.testing.assert_array_equal(levelkernels.differing_rows(bits_a, bits_b, rows), want)
-    stale = np.zeros((hs.u.patches0, hs.v.patches0), bool)
-    n = levelkernels.mark_changed(bits_a, bits_b, rows, lev.cv_keys, int(hs.v.cvs(k)), k, int(hs.u.patches(k)),
-                                  int(hs.v.patches(k)), bool(hs.u.periodic), bool(hs.v.periodic), stale)
-    ref = np.zeros_like(stale)
-    ju, jv = np.divmod(lev.cv_keys[want], hs.v.cvs(k))
-    kernels.mark_cells(ref, ju, jv, k, 0, 3, hs.u.patches(k), hs.v.patches(k), bool(hs.u.periodic), bool(hs.v.periodic))
-    assert n == want.size and stale.any() and not stale.all()
-    np.testing.assert_array_equal(stale, ref)
-    every, ring, _, _, centre = H._movable_places(hs, k, lev, ends)
-    pending = every[[2, 7]]
-    hit = stale.reshape(-1)[centre] | np.append(H._ends_stale(hs, ends, stale)[:len(ends)], False)[ring]
-    hit[np.searchsorted(every, pending)] = True
-    got = levelkernels.stale_rows(stale, centre, ring, H._ends_array(ends), every, pending)
-    np.testing.assert_array_equal(got, np.nonzero(hit)[0])
-    assert (ring[got] >= 0).any() and (ring[got] < 0).any()
 
 
 def test_mark_changed_calls_mark_cells_with_the_pythons_specialisation():
@@ -778,3 +555,25 @@ def test_a_rings_movability_is_its_rows_all_movable_kept_per_level():
             assert H.pole_ring_movable(ref, k, axis, end) is want
     assert H.pole_ring_movable(ref, 2, 1, 1) and not H.pole_ring_movable(ref, 2, 1, 0)
     assert not H.pole_ring_movable(hs, 2, 1, 1)  # the unrefined level keeps its own answer
+
+
+def test_the_detail_names_are_acra_details_own_looked_up_on_each_access(monkeypatch):
+    """`acra.hspline` re-exports `acra.details`' public names by looking them up there on each
+    access, so a replaced ``acra.details.details`` (a benchmark's timer, a test's counter) is what
+    every ``H.details`` caller gets; either module imports first."""
+    import subprocess
+    import sys
+
+    from acra import details as D
+    for name in H._FROM_DETAILS:
+        assert getattr(H, name) is getattr(D, name)
+        assert name in H.__all__
+    seen = []
+    monkeypatch.setattr(D, "details", lambda *a, **k: seen.append(a) or "replaced")
+    assert H.details(None) == "replaced" and seen == [(None,)]
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        H.nothing  # noqa: B018
+    for first in ("acra.details", "acra.hspline"):
+        done = subprocess.run([sys.executable, "-c", f"import {first}; from acra import hspline, details; "
+                               "assert hspline.Details is details.Details"], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from acra import details as D
 from acra import hspline as H
 from acra import framekernels, kernels, shapes
 from conftest import wavy_sheet, with_random_offsets
@@ -102,9 +103,9 @@ def test_kernel_equals_the_array_form(kind, depth, seed, order, side, upto, det_
     if det_kind == "computed" or hs.depth == 1:
         det = None
     elif det_kind == "given":
-        det = H.details(hs)
+        det = D.details(hs)
     else:
-        det = H.Details(tuple(rng.normal(size=(lev.cv_keys.size, 3)) for lev in hs.fine), ())
+        det = D.Details(tuple(rng.normal(size=(lev.cv_keys.size, 3)) for lev in hs.fine), ())
     _assert_same(hs, u, v, order, det, upto, side)
 
 
@@ -114,7 +115,7 @@ def test_small_calls_and_strided_parameters(kind, n):
     """Calls of a point or a few (numpy's single-row route in the array form) and parameters
     taken as a column of an ``(m, 2)`` array."""
     hs = _surface(kind, 4, 11)
-    det = H.details(hs)
+    det = D.details(hs)
     uv = np.stack(_parameters(hs, 30, np.random.default_rng(3)), axis=1)[:n]
     for order in (0, 1, 2):
         for side in (0, -1):
@@ -128,7 +129,7 @@ def test_the_demo_head_display():
     for k, c in ((2, 18), (4, 74), (6, 300)):
         hs = H.make_movable(hs, k, np.array([[c, c], [c + 1, c + 1]]))
     hs = with_random_offsets(hs, scale=0.01, seed=4)
-    det = H.details(hs)
+    det = D.details(hs)
     u = np.repeat(np.linspace(0, 16, 161), 3)
     v = np.tile(np.linspace(0, 11, 3 * 161) % 11, 1)[: u.size]
     for order in (0, 1, 2):
@@ -147,7 +148,7 @@ def test_points_sharing_v_equal_each_point_evaluated_alone(kind):
     and levels, knots of every level, the domain's ends, -0.0 beside 0.0, v one ulp apart), gives
     the bits of each point evaluated in a call of its own, where nothing is reused."""
     hs = _surface(kind, 5, 7)
-    det = H.details(hs)
+    det = D.details(hs)
     rng = np.random.default_rng(1)
     us = np.concatenate([np.arange(0, 16 * hs.u.patches0 + 1) / 16.0, rng.uniform(0, hs.u.patches0, 20)])
     vs = np.concatenate([np.arange(0, 16 * hs.v.patches0 + 1, 3) / 16.0, rng.uniform(0, hs.v.patches0, 6),
@@ -182,7 +183,7 @@ def test_a_detail_table_too_short_raises():
     """Details of fewer levels than are evaluated: the kernel refuses rather than read past the
     table; with ``upto`` at the levels the details cover it agrees with the array form."""
     hs = with_random_offsets(H.make_movable(wavy_sheet(depth=4), 3, [[10, 9], [11, 9]]))
-    short = H.details(hs, upto=2)
+    short = D.details(hs, upto=2)
     with pytest.raises(ValueError, match="detail table"):
         H.evaluate(hs, [1.5], [1.5], det=short)
     u, v = _parameters(hs, 40, np.random.default_rng(1))
@@ -193,7 +194,7 @@ def test_one_compiled_signature_serves_every_call():
     """Lists, float32, strided, scalar and read-only parameters, read-only CVs, numpy integer
     arguments: all reach the kernel as the one signature, so no call compiles again."""
     hs = _surface("torus", 3, 2)
-    det = H.details(hs)
+    det = D.details(hs)
     H.evaluate(hs, np.zeros(3), np.zeros(3), det=det)
     before = len(kernels.eval_points.signatures)
     uv = np.random.default_rng(0).uniform(0, 5, (20, 2))
@@ -259,7 +260,7 @@ def test_frames_of_a_sphere_with_poles_equal_the_array_form():
         hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
         hs = H.make_movable(hs, k, np.array([[1, 1], [2, 2]]))
     hs = with_random_offsets(hs, scale=0.01, seed=3)
-    det = H.details(hs)
+    det = D.details(hs)
     for k in range(1, hs.depth):
         rows = np.nonzero(hs.level(k).movable)[0]
         gu, gv = H.cv_uv(hs, k, hs.level(k).cv_keys[rows])
@@ -268,7 +269,7 @@ def test_frames_of_a_sphere_with_poles_equal_the_array_form():
 
 
 def test_frames_in_one_pass_equal_normals_and_frames():
-    """`framekernels.frames_at` (behind `hspline._frames_at`: normal and frame of each CV in one
+    """`framekernels.frames_at` (behind `acra.details._frames_at`: normal and frame of each CV in one
     pass after its evaluation) gives the bits of `surface_normals` and `_frames` one after
     another, a pole ring's CVs with their end's one normal; a degenerate row off the rings is
     left to `surface_normals` (the kernel reports it and writes no frame)."""
@@ -277,17 +278,17 @@ def test_frames_in_one_pass_equal_normals_and_frames():
         hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
         hs = H.make_movable(hs, k, np.array([[1, 1], [2, 2]]))
     hs = with_random_offsets(hs, scale=0.01, seed=3)
-    det = H.details(hs)
+    det = D.details(hs)
     ends = H.closed_ends(hs)
     for k in range(1, hs.depth):
-        rows, ring, gu, gv, _ = H._movable_places(hs, k, hs.level(k), ends)
+        rows, ring, gu, gv, _ = D._movable_places(hs, k, hs.level(k), ends)
         assert (ring >= 0).any() and (ring < 0).any()
-        partial = H.Details(det.vectors[:k - 1], det.frames[:k - 1])
+        partial = D.Details(det.vectors[:k - 1], det.frames[:k - 1])
         ev, n = H.surface_normals(hs, gu, gv, det=partial, upto=k - 1)
         for i, (axis, end) in enumerate(ends):
-            n[ring == i] = H._end_normal(hs, k, axis, end, partial)
+            n[ring == i] = D._end_normal(hs, k, axis, end, partial)
         want = H._frames(ev, n)
-        got = H._frames_at(hs, k, ends, partial, ring, gu, gv)
+        got = D._frames_at(hs, k, ends, partial, ring, gu, gv)
         np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
         np.testing.assert_array_equal(got.view(np.int64), det.frames[k - 1][rows].view(np.int64))
     # a point on a pole, not on a ring: its du x dv vanishes, so the kernel leaves it
@@ -310,7 +311,7 @@ def _limit_normals(hs, u, v, top, det, unit):
 
 
 def test_compiled_limit_normals_equal_surface_normals():
-    """`framekernels.limit_normals` (behind `hspline._end_normal`, on a second-order evaluation)
+    """`framekernels.limit_normals` (behind `acra.details._end_normal`, on a second-order evaluation)
     gives `surface_normals`' bits
     at the poles of a refined sphere, where every ``du × dv`` vanishes and the normal is the
     first-order term toward the patch centre, and off them; a point that needs nudging (a grid
@@ -319,7 +320,7 @@ def test_compiled_limit_normals_equal_surface_normals():
     for k in (1, 2):
         hs = H.refine(hs, k, H.pole_patches(hs, k, 1, 0))
     hs = with_random_offsets(hs, scale=0.01, seed=5)
-    det = H.details(hs)
+    det = D.details(hs)
     rng = np.random.default_rng(0)
     for top in (0, 1, 2):
         u = np.concatenate([np.arange(16) / 2.0, rng.uniform(0, 8, 9)])
@@ -477,7 +478,7 @@ def _placed(du: np.ndarray, dv: np.ndarray, c1: float, c2: float) -> tuple[np.nd
 
 @pytest.mark.parametrize("kind", ["sheet", "sphere", "torus", "tube"])
 def test_compiled_movable_places_equal_the_array_form(kind):
-    """`levelkernels.movable_places` (behind `hspline._movable_places`: each movable CV's row,
+    """`levelkernels.movable_places` (behind `acra.details._movable_places`: each movable CV's row,
     Greville centre and level-0 patch) gives the array form's integers and bits on every level,
     across periodic seams and open borders (where a centre's patch is clamped)."""
     from acra import levelkernels
@@ -487,17 +488,17 @@ def test_compiled_movable_places_equal_the_array_form(kind):
         ends = H.closed_ends(hs)
         for k in range(1, hs.depth):
             lev = hs.level(k)
-            H._PLACES.clear()
-            got = H._movable_places(hs, k, lev, ends)
-            want = H._movable_places_numpy(hs, k, lev, ends)
+            D._PLACES.clear()
+            got = D._movable_places(hs, k, lev, ends)
+            want = D._movable_places_numpy(hs, k, lev, ends)
             for a, b in zip(got, want):
                 assert a.dtype == b.dtype
                 np.testing.assert_array_equal(np.asarray(a).view(np.int64), np.asarray(b).view(np.int64))
             rows, _, ju, jv = levelkernels.movable_places(lev.cv_keys, lev.movable, k, hs.u.cvs(k), hs.v.cvs(k),
                                                           hs.u.patches0, hs.u.periodic, hs.v.patches0, hs.v.periodic,
-                                                          H._ends_array(ends))[:4]
+                                                          D._ends_array(ends))[:4]
             np.testing.assert_array_equal(ju * hs.v.cvs(k) + jv, lev.cv_keys[rows])
-    H._PLACES.clear()
+    D._PLACES.clear()
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from acra import details as D
 from acra import hspline as H
 from acra import respond as R
 from acra import shapes
@@ -360,12 +361,12 @@ def test_the_finer_absorbing_levels_new_cvs_are_framed_once_by_the_first_move(mo
     hs = flat_sheet(n=10, depth=4)
     dp = one_point(hs, [3.3, 3.4], [0.02, -0.01, -0.2])
     framed = []
-    real = H._frames_at
-    monkeypatch.setattr(H, "_frames_at", lambda hs_, k, *a: framed.append(k) or real(hs_, k, *a))
+    real = D._frames_at
+    monkeypatch.setattr(D, "_frames_at", lambda hs_, k, *a: framed.append(k) or real(hs_, k, *a))
     out, rep = R.respond(hs, dp, check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3]))
     assert rep.refined > 0
     assert [framed.count(k) for k in (1, 2, 3)] == [1, 1, 2]
-    assert H._PENDING not in rep.details.__dict__
+    assert D._PENDING not in rep.details.__dict__
     full = H.details(out)
     for a, b in zip(rep.details.vectors + rep.details.frames, full.vectors + full.frames):
         np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
