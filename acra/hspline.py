@@ -53,6 +53,8 @@ from .hierarchy import (  # noqa: F401  (re-exported; the key helpers are used b
     pole_ring_rows,
     refine,
     refine_blocks,
+    refine_keys,
+    refinement_keys,
     set_offsets,
     storage_size,
     to_arrays,

@@ -577,3 +577,15 @@ def test_the_detail_names_are_acra_details_own_looked_up_on_each_access(monkeypa
         done = subprocess.run([sys.executable, "-c", f"import {first}; from acra import hspline, details; "
                                "assert hspline.Details is details.Details"], capture_output=True, text=True)
         assert done.returncode == 0, done.stderr
+
+
+def test_every_name_hspline_exports_is_there():
+    """`acra.hspline`'s ``__all__`` (its own names and those it re-exports from `acra.hierarchy`,
+    `acra.changes` and `acra.details`) names only what the module gives: ``import *`` works."""
+    import acra.hspline as H
+
+    missing = [name for name in H.__all__ if not hasattr(H, name)]
+    assert not missing
+    namespace: dict = {}
+    exec("from acra.hspline import *", namespace)
+    assert set(H.__all__) <= set(namespace)
