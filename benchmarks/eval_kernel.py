@@ -3,8 +3,10 @@
     python3 benchmarks/eval_kernel.py [CASE.pkl] [--repeat 15] [--small-repeat 400]
 
 ``CASE.pkl`` holds ``(hs, det, topo)``: an `HSpline`, its `Details` and a display topology whose
-``topo.u, topo.v`` are the parameters evaluated (default ``/tmp/exp/head15.pkl``, the demo head
-after a response: 7 levels, 23,491 display points). Prints markdown tables of:
+``topo.u, topo.v`` are the parameters evaluated. Without it, the case is the demo head after its
+response at frame 15 (7 levels, 23,491 display points): `dog_head_spike` runs frames 5 and 13–15,
+and the head's surface at 15, its details and its display's topology (`display.Displays.of` at
+the head's ``acra:samples``) are written to a temporary file for the fresh processes to read. Prints markdown tables of:
 
 * milliseconds per call, numpy (`hspline._evaluate_numpy`) and kernel (`hspline.evaluate`), at
   derivative orders 0 and 1, for the whole display and for calls of 50 points (50 consecutive
@@ -123,12 +125,16 @@ def table(hs, det, cases) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("case", nargs="?", type=Path, default=Path("/tmp/exp/head15.pkl"))
+    ap.add_argument("case", nargs="?", type=Path, help="a pickled (hs, det, topo); default: the demo head at frame 15")
     ap.add_argument("--repeat", type=int, default=15, help="display-size calls per form (default 15)")
     ap.add_argument("--small-repeat", type=int, default=400, help="50-point calls per form (default 400)")
     ap.add_argument("--fresh", type=int, default=3, help="fresh processes per start-up figure (default 3)")
     args = ap.parse_args()
 
+    made = None
+    if args.case is None:
+        made = tempfile.TemporaryDirectory()
+        args.case = demo_case(Path(made.name) / "head15.pkl")
     with open(args.case, "rb") as f:
         hs, det, topo = pickle.load(f)
     u, v = np.ascontiguousarray(topo.u, np.float64), np.ascontiguousarray(topo.v, np.float64)
@@ -160,6 +166,29 @@ def main() -> None:
     print(f"| a trivial cached function's first call (numba's set-up) | {cold[2]:.3f} | {warm[2]:.3f} |")
     print(f"| first `evaluate` call after it (50 points) | {cold[3]:.3f} | {warm[3]:.3f} |")
     print(f"| second call | {cold[4]:.5f} | {warm[4]:.5f} |")
+    if made is not None:
+        made.cleanup()
+
+
+def demo_case(path: Path) -> Path:
+    """``path`` holding the demo head after its response at frame 15 as ``(hs, det, topo)``:
+    its surface, its details (`acra.details.details`) and its display's topology."""
+    from types import SimpleNamespace
+
+    from acra import details as D
+    from pipeline import display, frames, usdio
+
+    root = Path(__file__).resolve().parents[1]
+    stage = usdio.open_input(usdio.load_scene_file(root / "scenes" / "dog_head_spike.py"))
+    scene = usdio.read_scene(stage)
+    frames.run_frames(stage, scene, [5])
+    result, _ = frames.run_frames(stage, scene, [13, 14, 15])
+    model = next(m for m in scene.deformables if m.path == "/World/Head")
+    hs = result.frames[15][model.path].surface
+    uv = display.Displays().of(hs, model.controls.samples).uv
+    with open(path, "wb") as f:
+        pickle.dump((hs, D.details(hs), SimpleNamespace(u=uv[:, 0].copy(), v=uv[:, 1].copy())), f)
+    return path
 
 
 if __name__ == "__main__":
