@@ -287,3 +287,17 @@ def interrupted_run(src, out, sig, delay: float = 0.0, extra=(), env=None):
         if proc.poll() is None:
             proc.kill()
     return proc.returncode, "".join(lines), sorted(p.name for p in work.iterdir())
+
+
+def usd_array_text(values, type_name: str) -> str:
+    """USD's own `.usda` text of the array ``values`` as an attribute of ``type_name``
+    (``"float3[]"``, ``"double2[]"``, ``"int[]"``, …): what its text writer puts after ``= ``,
+    the text `acra.floattext` is held to."""
+    from pxr import Sdf
+
+    kind = Sdf.ValueTypeNames.Find(type_name)
+    layer = Sdf.Layer.CreateAnonymous("t.usda")
+    prim = Sdf.CreatePrimInLayer(layer, "/A")
+    Sdf.AttributeSpec(prim, "v", kind, Sdf.VariabilityVarying, True).default = kind.type.pythonClass.FromNumpy(np.ascontiguousarray(values))
+    line = next(x for x in layer.ExportToString().splitlines() if f"{type_name} v = " in x)
+    return line.split(" = ", 1)[1]

@@ -10,11 +10,12 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit
-from pxr import Sdf, Vt
 
 from acra import doubledigits, floattext
 from acra.doubledigits import shortest_digits64
 from pipeline.output_layer import _float_texts
+
+from conftest import usd_array_text
 
 
 def repr_digits(x: float) -> tuple[int, int]:
@@ -110,14 +111,6 @@ def test_any_float_gives_repr_s_digits(x):
     assert _mismatches(np.array([x])) == []
 
 
-def usd_double3(values: np.ndarray) -> str:
-    layer = Sdf.Layer.CreateAnonymous("t.usda")
-    prim = Sdf.CreatePrimInLayer(layer, "/A")
-    Sdf.AttributeSpec(prim, "v", Sdf.ValueTypeNames.Double3Array, Sdf.VariabilityVarying, True).default = Vt.Vec3dArray.FromNumpy(values)
-    line = next(x for x in layer.ExportToString().splitlines() if "double3[] v = " in x)
-    return line.split(" = ", 1)[1]
-
-
 def test_double3_text_is_usd_s():
     """A response's CVs and offsets (``double3[]``) written from these digits are USD's text:
     values of every scale, signs, zeros, integers and the exponent layout's edges."""
@@ -129,7 +122,7 @@ def test_double3_text_is_usd_s():
                              [0.0, -0.0, 1e-7, 1e-6, 9.999999999999999e-7, 1e14, 99999999999999.98, 1e15, 1e21, 5e-324, -1.7976931348623157e308]])
     values = np.ascontiguousarray(values[: values.size // 3 * 3].reshape(-1, 3))
     calls = []
-    assert floattext.tuples_text(values, lambda v: calls.append(v) or _float_texts(v)).decode() == usd_double3(values)
+    assert floattext.tuples_text(values, lambda v: calls.append(v) or _float_texts(v)).decode() == usd_array_text(values, "double3[]")
     assert calls == []
 
 
@@ -145,5 +138,5 @@ def test_every_layout_of_long_digits_is_usd_s():
     values = np.array(values + [1e15, 999999999999999.9, 1e-6, 9.999999999999999e-7, 0.5, 5.0])
     for shift in range(3):
         rows = np.ascontiguousarray(np.roll(values, shift)[: values.size // 3 * 3].reshape(-1, 3))
-        assert floattext.tuples_text(rows, _float_texts).decode() == usd_double3(rows)
-        assert floattext.tuples_text(rows[::-1].copy(), _float_texts).decode() == usd_double3(rows[::-1].copy())
+        assert floattext.tuples_text(rows, _float_texts).decode() == usd_array_text(rows, "double3[]")
+        assert floattext.tuples_text(rows[::-1].copy(), _float_texts).decode() == usd_array_text(rows[::-1].copy(), "double3[]")

@@ -5,18 +5,11 @@ through `acra.floattext`, to USD's text beyond it."""
 from __future__ import annotations
 
 import numpy as np
-from pxr import Sdf, Vt
 
 from acra import floatdigits, floattext
 from pipeline.output_layer import _float_texts
 
-
-def usd_text(values: np.ndarray) -> str:
-    layer = Sdf.Layer.CreateAnonymous("t.usda")
-    prim = Sdf.CreatePrimInLayer(layer, "/A")
-    Sdf.AttributeSpec(prim, "v", Sdf.ValueTypeNames.Float3Array, Sdf.VariabilityVarying, True).default = Vt.Vec3fArray.FromNumpy(values)
-    line = next(x for x in layer.ExportToString().splitlines() if "float3[] v = " in x)
-    return line.split(" = ", 1)[1]
+from conftest import usd_array_text
 
 
 def test_digits_are_found_for_the_usual_range():
@@ -66,7 +59,7 @@ def test_ryu_gives_usd_s_text_beyond_the_exact_search_s_range():
     values = np.concatenate([bits, edges]).astype(np.uint32).view(np.float32)
     values = np.ascontiguousarray(values[: values.size // 3 * 3].reshape(-1, 3))
     calls = []
-    assert floattext.tuples_text(values, lambda v: calls.append(v) or _float_texts(v)).decode() == usd_text(values)
+    assert floattext.tuples_text(values, lambda v: calls.append(v) or _float_texts(v)).decode() == usd_array_text(values, "float3[]")
     assert calls == []
     _, _, status = floatdigits.shortest_digits(values.reshape(-1).view(np.uint32))
     assert not np.any(status == 2)

@@ -6,18 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pxr import Sdf, Vt
+from pxr import Vt
 
 from acra import doubledigits, floatdigits, floattext
 from pipeline.output_layer import _float_texts
 
-
-def usd_text(values: np.ndarray) -> str:
-    layer = Sdf.Layer.CreateAnonymous("t.usda")
-    prim = Sdf.CreatePrimInLayer(layer, "/A")
-    Sdf.AttributeSpec(prim, "v", Sdf.ValueTypeNames.Float3Array, Sdf.VariabilityVarying, True).default = Vt.Vec3fArray.FromNumpy(values)
-    line = next(x for x in layer.ExportToString().splitlines() if "float3[] v = " in x)
-    return line.split(" = ", 1)[1]
+from conftest import usd_array_text
 
 
 def _cases() -> dict:
@@ -43,7 +37,7 @@ def test_same_text_as_usd(name):
     values = _cases()[name]
     values = values[np.isfinite(values)]
     values = np.ascontiguousarray(values[: values.size // 3 * 3].reshape(-1, 3))
-    assert floattext.tuples_text(values, _float_texts).decode() == usd_text(values)
+    assert floattext.tuples_text(values, _float_texts).decode() == usd_array_text(values, "float3[]")
 
 
 def test_every_layout_of_nine_stored_digits():
@@ -60,8 +54,8 @@ def test_every_layout_of_nine_stored_digits():
     values = np.array(values + [1e8, 999999936.0, 1e9, 123456792.0, 1e-6, 9.99999e-6, 1e-5, 0.5, 5.0], dtype=np.float32)
     for shift in range(3):  # each value beside each kind of neighbour
         rows = np.ascontiguousarray(np.roll(values, shift)[: values.size // 3 * 3].reshape(-1, 3))
-        assert floattext.tuples_text(rows, _float_texts).decode() == usd_text(rows)
-        assert floattext.tuples_text(rows[::-1].copy(), _float_texts).decode() == usd_text(rows[::-1].copy())
+        assert floattext.tuples_text(rows, _float_texts).decode() == usd_array_text(rows, "float3[]")
+        assert floattext.tuples_text(rows[::-1].copy(), _float_texts).decode() == usd_array_text(rows[::-1].copy(), "float3[]")
 
 
 def test_tuple_widths():
@@ -70,23 +64,13 @@ def test_tuple_widths():
     assert floattext.tuples_text(values.reshape(-1, 1), _float_texts).decode() == "[(1.5), (-0), (1e-9), (2)]"
 
 
-def usd_ints(values, tname) -> str:
-    layer = Sdf.Layer.CreateAnonymous("t.usda")
-    prim = Sdf.CreatePrimInLayer(layer, "/A")
-    vt = Vt.IntArray if values.ndim == 1 else Vt.Vec2iArray
-    Sdf.AttributeSpec(prim, "v", tname, Sdf.VariabilityVarying, True).default = vt.FromNumpy(values)
-    line = next(x for x in layer.ExportToString().splitlines() if "[] v = " in x)
-    return line.split(" = ", 1)[1]
-
-
 @pytest.mark.parametrize("shape", [(1,), (7,), (5000,), (1, 2), (2500, 2)])
 def test_ints_same_text_as_usd(shape):
     rng = np.random.default_rng(7)
     values = rng.integers(-2**31, 2**31, shape, dtype=np.int64).astype(np.int32)
     values.reshape(-1)[:4] = [0, -1, 2**31 - 1, -2**31][: values.size]
     values.reshape(-1)[4:2000] = rng.integers(-1000, 1000, max(0, min(values.size, 2000) - 4))
-    tname = Sdf.ValueTypeNames.IntArray if values.ndim == 1 else Sdf.ValueTypeNames.Int2Array
-    assert floattext.ints_text(values).decode() == usd_ints(values, tname)
+    assert floattext.ints_text(values).decode() == usd_array_text(values, "int[]" if values.ndim == 1 else "int2[]")
 
 
 def test_ints_text_compiles_once_for_read_only_and_writable_arrays():
@@ -97,13 +81,6 @@ def test_ints_text_compiles_once_for_read_only_and_writable_arrays():
     shown.flags.writeable = False
     assert floattext.ints_text(values) == floattext.ints_text(shown) == floattext.ints_text(Vt.IntArray.FromNumpy(values))
     assert len(floattext._ints_text.signatures) == 1
-
-def usd_double2(values) -> str:
-    layer = Sdf.Layer.CreateAnonymous("t.usda")
-    prim = Sdf.CreatePrimInLayer(layer, "/A")
-    Sdf.AttributeSpec(prim, "v", Sdf.ValueTypeNames.Double2Array, Sdf.VariabilityVarying, True).default = Vt.Vec2dArray.FromNumpy(values)
-    line = next(x for x in layer.ExportToString().splitlines() if "double2[] v = " in x)
-    return line.split(" = ", 1)[1]
 
 
 def test_doubles_same_text_as_usd():
@@ -118,7 +95,7 @@ def test_doubles_same_text_as_usd():
                         1e-6, 0.000001, 1.5e-6, 2.0**-30, 5e-324, 1.7976931348623157e308, 0.1, 1 / 3])
     values = np.concatenate([dyadic, ints, other, special])
     values = np.ascontiguousarray(values[: values.size // 2 * 2].reshape(-1, 2))
-    assert floattext.tuples_text(values, _float_texts).decode() == usd_double2(values)
+    assert floattext.tuples_text(values, _float_texts).decode() == usd_array_text(values, "double2[]")
     short = rng.integers(-2**12, 2**12, n) / 2.0 ** rng.integers(0, 13, n)  # i 5^s < 10^14
     assert all(doubledigits._exact(np.int64(b) & 0x7FFFFFFFFFFFFFFF)[2] for b in short[short != 0].view(np.uint64))
 
@@ -133,8 +110,8 @@ def test_several_arrays_with_one_call_for_their_hard_values():
     calls = []
     texts = floattext.tuples_texts(arrays, lambda v: calls.append(v.dtype) or _float_texts(v))
     assert calls == [np.float32, np.float64]
-    assert [t.tobytes().decode() for t in texts[:3]] == [usd_text(a) for a in arrays[:3]]
-    assert texts[3].tobytes().decode() == usd_double2(arrays[3])
+    assert [t.tobytes().decode() for t in texts[:3]] == [usd_array_text(a, "float3[]") for a in arrays[:3]]
+    assert texts[3].tobytes().decode() == usd_array_text(arrays[3], "double2[]")
 
 
 def test_text_copied_from_a_reference_array_is_the_text_formatted_afresh():
@@ -156,7 +133,7 @@ def test_text_copied_from_a_reference_array_is_the_text_formatted_afresh():
     refs = [None, 0, 1, 0, 1]  # the last two differ in shape from their reference: formatted afresh
     texts = lambda *a: [t.tobytes() for t in floattext.tuples_texts(*a)]  # noqa: E731
     assert texts(arrays, _float_texts, refs) == texts(arrays, _float_texts)
-    assert [t.decode() for t in texts(arrays[:3], _float_texts, refs[:3])] == [usd_text(a) for a in arrays[:3]]
+    assert [t.decode() for t in texts(arrays[:3], _float_texts, refs[:3])] == [usd_array_text(a, "float3[]") for a in arrays[:3]]
     same = np.zeros(n, np.bool_)
     cs, ks, st = floatdigits.shortest_digits(moved.reshape(-1).view(np.uint32), base.reshape(-1).view(np.uint32), same)
     assert np.array_equal(same, (moved == base).all(axis=1) & (np.signbit(moved) == np.signbit(base)).all(axis=1))
