@@ -646,6 +646,28 @@ def _tangent_sheet(rng, normal, depth, size, n):
     return pts.reshape(-1, 3)[faces]
 
 
+def _depth_cases(seed: int, whole: tuple, sheets: tuple) -> list:
+    """Solids and triangle sheets to bound, seeded: on each whole solid of ``whole`` (a shape's
+    name and the sheet's size) a sheet through one of its vertices; on parts of a uv sphere, each
+    of ``sheets`` (size, triangles a side, the part's reach, and a depth below the surface for a
+    sheet tangent to it or ``None`` for one through it). ``(solid, triangles, reach)`` each."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for name, size in whole:
+        m, solid = shape(name)
+        cases.append((solid, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], size, 12), np.inf))
+    v, f = uv_sphere(24, 40, seed)
+    for size, n, pad, depth in sheets:
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        tri = _sheet(rng, normal, size, n) if depth is None else _tangent_sheet(rng, normal, depth, size, n)
+        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+        rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
+        cases.append((C.solid(v, f[rows], part=True, outward=1.0, scale=2.0), tri, pad))
+    return cases
+
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_compiled_depth_is_the_array_form_bit_for_bit(seed):
     """`acra.depthbound.depth` (the branch and bound in one compiled call) gives the `Depth` of the
@@ -655,20 +677,9 @@ def test_compiled_depth_is_the_array_form_bit_for_bit(seed):
     crossing the surface and sheets along it (just inside and just outside, one with a ``reach``
     too short), with targets from 0 to coarse, decided against a tolerance and not, with budgets
     that end refinement part way through a level and split caps."""
-    rng = np.random.default_rng(seed)
-    cases = []
-    for name, size in (("torus", 1.0), ("torus", 4.0), ("box", 1.0), ("icosphere", 1.0)):
-        m, whole = shape(name)
-        cases.append((whole, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], size, 12), np.inf))
-    v, f = uv_sphere(24, 40, seed)
-    for size, n, pad, depth in ((1.2, 20, 1.0, None), (0.8, 8, 0.8, 1e-3), (0.3, 4, 0.3, 0.004), (0.3, 4, 0.3, -0.002),
-                                (0.3, 4, 0.01, 0.004)):
-        normal = rng.normal(size=3)
-        normal /= np.linalg.norm(normal)
-        tri = _sheet(rng, normal, size, n) if depth is None else _tangent_sheet(rng, normal, depth, size, n)
-        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
-        rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
-        cases.append((C.solid(v, f[rows], part=True, outward=1.0, scale=2.0), tri, pad))
+    cases = _depth_cases(seed, (("torus", 1.0), ("torus", 4.0), ("box", 1.0), ("icosphere", 1.0)),
+                         ((1.2, 20, 1.0, None), (0.8, 8, 0.8, 1e-3), (0.3, 4, 0.3, 0.004), (0.3, 4, 0.3, -0.002),
+                          (0.3, 4, 0.01, 0.004)))
     planes = [len(s.facet_start) - 1 <= C.ALL_PLANES for s, _, _ in cases if s.convex]
     assert planes == [True, False]  # eq. (7) on every facet's plane (the box), and on the corners' faces'
     deep = cut = unresolved = 0
@@ -692,19 +703,7 @@ def test_a_search_stopped_deeper_than_a_figure_is_the_full_search_s_first_steps(
     finds, in its order and bits, and an answer no point ended is the full one. On a whole
     torus, a box and parts of a sphere, stops under the corners' depth, between it and the
     deepest point, and over every point."""
-    rng = np.random.default_rng(seed)
-    cases = []
-    for name, size in (("torus", 1.0), ("box", 1.0)):
-        m, whole = shape(name)
-        cases.append((whole, _sheet(rng, m.vertices[rng.integers(len(m.vertices))], size, 12), np.inf))
-    v, f = uv_sphere(24, 40, seed)
-    for size, n, pad, depth in ((1.2, 20, 1.0, None), (0.3, 4, 0.3, 0.004)):
-        normal = rng.normal(size=3)
-        normal /= np.linalg.norm(normal)
-        tri = _sheet(rng, normal, size, n) if depth is None else _tangent_sheet(rng, normal, depth, size, n)
-        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
-        rows = np.nonzero(np.all((v[f].min(axis=1) <= hi + pad) & (v[f].max(axis=1) >= lo - pad), axis=1))[0]
-        cases.append((C.solid(v, f[rows], part=True, outward=1.0, scale=2.0), tri, pad))
+    cases = _depth_cases(seed, (("torus", 1.0), ("box", 1.0)), ((1.2, 20, 1.0, None), (0.3, 4, 0.3, 0.004)))
     at_corners = later = full = 0
     for s, tri, reach in cases:
         for target, decide in ((0.0, np.inf), (1e-3, 2e-3)):
