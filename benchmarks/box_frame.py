@@ -6,7 +6,7 @@ points' share of its conversion.
 Runs frame 11 after frame 5 (once to load every kernel, then ``--repeat`` times, a fresh stage each
 time) with the frame loop's clock read as the process's CPU time (``time.process_time``): on a
 shared machine other processes' load counts far less than in wall-clock figures. Prints the frame's
-CPU time and the frame loop's own split (`FrameStats`: set-up, detection, conversion, response,
+CPU time and the frame loop's own split (`one_frame.stage_table`) (`FrameStats`: set-up, detection, conversion, response,
 residual where the user looks), then the nested time inside the rim points
 (`rim._rim_points`, `datapoints._rim_points` in a checkout without `pipeline.rim`) and the inside
 tests and casts they ask (and, where the checkout has it, the bisection `rim._bisected`, which settles its points' sides itself: its inside tests
@@ -20,11 +20,11 @@ import argparse
 import collections
 import functools
 import pathlib
-import statistics
 import time
 
+from one_frame import frame_runs, line, stage_table
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-STAGES = ("ms_setup", "ms_detect", "ms_convert", "ms_respond", "ms_visible", "ms_total")
 
 
 def main() -> None:
@@ -39,9 +39,6 @@ def main() -> None:
         from pipeline import rim as P
     except ImportError:  # a checkout whose rim is in `pipeline.datapoints`
         from pipeline import datapoints as P
-    from pipeline import frames as F
-    from pipeline import usdio
-    from pipeline.run import forget
 
     spent: dict = collections.defaultdict(float)
     depth = [0]  # inside `_rim_points`
@@ -71,27 +68,9 @@ def main() -> None:
     for name in ("_missing_neighbours", "_on_counted_faces", "_bisected"):
         timed(P, name)
 
-    def once() -> tuple[float, object, dict]:
-        forget()
-        stage = usdio.open_input(usdio.load_scene_file(ROOT / "scenes" / "box_into_sheet.py"))
-        scene = usdio.read_scene(stage)
-        F.run_frames(stage, scene, [5])
-        spent.clear()
-        t = time.process_time()
-        _, stats = F.respond_frames(stage, scene, [11])
-        return 1e3 * (time.process_time() - t), stats[0], {k: 1e3 * v for k, v in spent.items()}
-
-    once()
-    runs = [once() for _ in range(args.repeat)]
-
-    def line(label: str, values: list) -> None:
-        print(f"| {label} | {statistics.median(values):.2f} | {min(values):.2f}–{max(values):.2f} |")
-
-    print(f"box_into_sheet frame 11, ms CPU, median and range of {args.repeat} runs\n")
-    print("| part | median | range |\n|---|---:|---:|")
-    line("frame (`respond_frames`)", [r[0] for r in runs])
-    for key in STAGES:
-        line(f"`FrameStats.{key}`", [getattr(r[1], key) for r in runs])
+    runs = frame_runs(ROOT / "scenes" / "box_into_sheet.py", 11, 5, args.repeat, reset=spent.clear,
+                      collect=lambda: {k: 1e3 * v for k, v in spent.items()})
+    stage_table("box_into_sheet frame 11", runs)
     for name in ("_rim_points", "inside", "_cast", "_missing_neighbours", "_on_counted_faces", "_bisected"):
         if any(name in r[2] for r in runs):
             line(f"in the rim: `{name}`" if name != "_rim_points" else f"`{P.__name__.split('.')[-1]}._rim_points`",

@@ -48,6 +48,46 @@ def _digest(h, x) -> None:
         h.update(repr(x).encode())
 
 
+def frame_runs(scene: pathlib.Path, frame: int, after: int, repeat: int, reset=None, collect=None) -> list:
+    """``repeat`` timed runs of ``frame`` after ``after`` (each from a fresh stage and an empty
+    memo), after one untimed run: a list of ``(ms, FrameStats, collected)``, the frame's CPU ms
+    (`respond_frames`), its statistics and what ``collect()`` returns after it (None without
+    ``collect``); ``reset()`` runs just before each frame is timed. The frame loop's clock must be
+    the process's CPU time (the caller sets ``time.perf_counter``)."""
+    from pipeline import frames as F
+    from pipeline import usdio
+    from pipeline.run import forget
+
+    def once():
+        forget()
+        stage = usdio.open_input(usdio.load_scene_file(scene))
+        model = usdio.read_scene(stage)
+        F.run_frames(stage, model, [after])
+        if reset is not None:
+            reset()
+        t = time.process_time()
+        _, stats = F.respond_frames(stage, model, [frame])
+        return 1e3 * (time.process_time() - t), stats[0], (collect() if collect is not None else None)
+
+    once()
+    return [once() for _ in range(repeat)]
+
+
+def line(label: str, values: list) -> None:
+    """One table row: ``label``, the median and range of ``values``."""
+    print(f"| {label} | {statistics.median(values):.2f} | {min(values):.2f}–{max(values):.2f} |")
+
+
+def stage_table(title: str, runs: list) -> None:
+    """The heading ``title`` and the rows of the frame's CPU ms and its `FrameStats` split over ``runs``
+    (`frame_runs`)."""
+    print(f"{title}, ms CPU, median and range of {len(runs)} runs\n")
+    print("| part | median | range |\n|---|---:|---:|")
+    line("frame (`respond_frames`)", [r[0] for r in runs])
+    for key in STAGES:
+        line(f"`FrameStats.{key}`", [getattr(r[1], key) for r in runs])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
@@ -57,30 +97,8 @@ def main() -> None:
     args = ap.parse_args()
     time.perf_counter = time.process_time  # the frame loop's clock
 
-    from pipeline import frames as F
-    from pipeline import usdio
-    from pipeline.run import forget
-
-    def once():
-        forget()
-        stage = usdio.open_input(usdio.load_scene_file(args.scene))
-        scene = usdio.read_scene(stage)
-        F.run_frames(stage, scene, [args.after])
-        t = time.process_time()
-        _, stats = F.respond_frames(stage, scene, [args.frame])
-        return 1e3 * (time.process_time() - t), stats[0]
-
-    once()
-    runs = [once() for _ in range(args.repeat)]
-
-    def line(label: str, values: list) -> None:
-        print(f"| {label} | {statistics.median(values):.2f} | {min(values):.2f}–{max(values):.2f} |")
-
-    print(f"{args.scene.name} frame {args.frame} after {args.after}, ms CPU, median and range of {args.repeat} runs\n")
-    print("| part | median | range |\n|---|---:|---:|")
-    line("frame (`respond_frames`)", [r[0] for r in runs])
-    for key in STAGES:
-        line(f"`FrameStats.{key}`", [getattr(r[1], key) for r in runs])
+    runs = frame_runs(args.scene, args.frame, args.after, args.repeat)
+    stage_table(f"{args.scene.name} frame {args.frame} after {args.after}", runs)
     st = runs[0][1]
     h = hashlib.sha1()
     for k, v in vars(st).items():
