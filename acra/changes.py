@@ -76,7 +76,7 @@ def mark_moved(old: HSpline, new: HSpline, k: int, stale: np.ndarray) -> None:
     """Mark in ``stale (P0u, P0v) bool`` the level-0 patches holding a level-``k`` patch that a
     CV whose offset has other bits in ``new`` than in ``old`` supports: `changed_patches` of a
     move of level ``k >= 1`` alone (the same ``cv_keys``, `details.moved_details`' surfaces) before its
-    margin. Only the rows the move names (`acra.respond.move_level`'s hint) can differ, else
+    margin. Only the rows the move names (`acra.moves.move_level`'s hint) can differ, else
     every row is compared."""
     was, lev = old.level(k), new.level(k)
     hint = lev.__dict__.get(MOVED)

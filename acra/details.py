@@ -199,7 +199,7 @@ _PENDING = "_pending"
 _NO_ROWS = np.zeros(0, np.int64)  # `levelkernels.stale_rows`' pending rows of a level with none
 _NO_FRAMES = np.zeros((0, 3, 3))  # `levelkernels.restate_rows`' new frames of a level whose frames stay
 _NO_MOVES = np.zeros((0, 3))  # `levelkernels.restate_rows`' moves (and moved offsets) of a pass that moves nothing
-# key in a moved `Level`'s ``__dict__`` (`acra.respond.move_level`, beside `changes.MOVED`):
+# key in a moved `Level`'s ``__dict__`` (`acra.moves.move_level`, beside `changes.MOVED`):
 # ``(frames, vectors, new vectors)``, the level's vectors restated from its new offsets with the
 # frames and vectors of the details it was moved with, in the same pass as the move
 MOVED_VECTORS = "_moved_vectors"
@@ -207,7 +207,7 @@ MOVED_VECTORS = "_moved_vectors"
 
 def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
     """`details` of ``new``, which is ``old`` with other offsets on level ``level >= 1`` alone
-    (a response's move, `acra.respond.move_level`: the same `Level` objects elsewhere, the same
+    (a response's move, `acra.moves.move_level`: the same `Level` objects elsewhere, the same
     CVs and movability on ``level``), found from ``old_det`` by following the move down the
     levels; ``None`` where ``new`` is not such a surface (then `details` with ``since`` serves).
 

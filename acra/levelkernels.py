@@ -449,7 +449,7 @@ def restate_rows(frames, new_frames, rows, offsets, vectors, moves, moved):
     three products. Returns ``frames, vectors``.
 
     With ``moves (m, 3) float64`` (none: ``(0, 3)``) the rows are a move's, each once
-    (`acra.respond.move_level`): first ``moved (c, 3) float64``, a copy of ``offsets`` the
+    (`acra.moves.move_level`): first ``moved (c, 3) float64``, a copy of ``offsets`` the
     caller made, takes on each row the offset plus ``frame.T @ move``, that product summed from
     0.0 in order ``p0, p1, p2`` as ``np.einsum("mji,mj->mi")`` sums it, added as numpy's
     ``offsets[rows] += ...`` adds it; then the vectors are restated from ``moved`` on the rows

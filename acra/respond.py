@@ -14,6 +14,9 @@ deformational step therefore aims at ``Q_orig + (shares applied so far + its own
 than at ``Q_current + a[l] dQ``; without drift the two are the same, and with it the final level
 lands on the full target. Under ``obey`` a level that is not refined at a point is skipped there
 and its share is not made up by finer levels: the remainder is exactly the missing absorption.
+
+The moves themselves (deformational, translational, rotational) and the details each leaves are
+`acra.moves`'; this module chooses them level by level.
 """
 
 from __future__ import annotations
@@ -23,98 +26,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import changes, framekernels, levelkernels, memo
 from . import details as D
+from . import framekernels, levelkernels, memo
 from . import hspline as H
+from . import moves as M
 from .basis import locate
 from .controls import ControlError, Controls
-from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys, with_offsets
+from .hierarchy import pole_ring_movable, pole_ring_rows, refine_keys, refinement_keys
 from .interpolate import PointWeights, active_rows, point_active, point_weights, solve
-from .quat import quat_from_axis_angle, quat_rotate, slerp_mean
 from .targets import DataPoints, merge_trig, per_level_points
 
 __all__ = [
     "respond",
-    "move_level",
 ]
 
 
 # --------------------------------------------------------------------------------------------
-# applying moves to a level
-
-
-def _move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: D.Details | None,
-                unique: bool = False) -> H.HSpline:
-    """Add world (object-space) moves ``dv (P, 3)`` to CVs of ``level``; ``unique``: the caller
-    knows each of ``cv_rows (P,) int64`` occurs once (a `PointWeights`' ``cv_rows``).
-
-    Level 0 moves the grid directly; finer levels store ``F^T dv`` in the offsets, so the CV's
-    position moves by exactly ``dv`` (its frame depends only on coarser levels).
-    """
-    if cv_rows.size == 0:
-        return hs
-    if level == 0:
-        cvs = hs.cvs.reshape(-1, 3).copy()
-        np.add.at(cvs, cv_rows, dv)
-        return H.with_cvs(hs, _closed_ends(hs, cvs.reshape(hs.cvs.shape)))
-    lev = hs.level(level)
-    if unique:
-        # each row once: one addition per row, as `np.add.at` makes it; the move and the level's
-        # vectors restated from its new offsets are one compiled pass (`levelkernels.restate_rows`
-        # with moves: ``offsets[cv_rows] += np.einsum("mji,mj->mi", frames[cv_rows], dv)``'s bits)
-        rows = np.ascontiguousarray(cv_rows, np.int64)
-        old = H._plain(lev.offsets)
-        offsets = old.copy()
-        vec = levelkernels.restate_rows(H._plain(det.frames[level - 1]), D._NO_FRAMES, rows, old,
-                                        H._plain(det.vectors[level - 1]), H._plain(dv), offsets)[1]
-    else:
-        offsets = lev.offsets.copy()
-        np.add.at(offsets, cv_rows, np.einsum("mji,mj->mi", det.frames[level - 1][cv_rows], dv))
-    fine = list(hs.fine)
-    fine[level - 1] = with_offsets(lev, offsets)
-    if unique:  # the rows that can differ from ``lev``'s offsets, and its vectors, for `D.moved_details`
-        fine[level - 1].__dict__[changes.MOVED] = (lev.offsets, cv_rows)
-        fine[level - 1].__dict__[D.MOVED_VECTORS] = (det.frames[level - 1], det.vectors[level - 1], vec)
-    for name in _SAME_CVS:  # same CVs, other offsets: the same ring rows and movable CVs' places
-        if name in lev.__dict__:
-            fine[level - 1].__dict__[name] = lev.__dict__[name]
-    return H.with_fine(hs, tuple(fine), same_cvs=True)
-
-
-# what a `Level` keeps on itself that depends on its CV keys and movability alone (`_ring_rows`,
-# `D._movable_places`), carried to the level a move makes
-_SAME_CVS = ("_ring_rows", D.PLACES)
-
-
-def move_level(hs: H.HSpline, level: int, cv_rows: np.ndarray, dv: np.ndarray, det: D.Details | None) -> H.HSpline:
-    """Add object-space moves ``dv (P, 3)`` to the level-``level`` CVs ``cv_rows (P,)`` (rows as in
-    `acra.interpolate.PointWeights.cv_rows`), keeping closed ends closed; ``det`` is
-    ``D.details(hs)`` (needed for ``level >= 1``)."""
-    return _move_level(hs, level, cv_rows, dv, det)
-
-
-def _closed_ends(hs: H.HSpline, cvs: np.ndarray) -> np.ndarray:
-    """Level-0 ``cvs (nu, nv, 3)`` (``hs``'s after a move) with every end that ``hs`` closes
-    (`H.closed_ends`) closed again.
-
-    Moving rows 1–2 of a pole alone, as any level-0 contact within two patches does, splits it:
-    the surface gets a hole, detection no longer sees an inside and the pole normal flips. The end
-    row ``R0`` takes the least change that closes the end again (after a collapsed pole row ``R1``
-    is collapsed to its mean), so the surface changes only in that end's patch rows.
-    """
-    ends = H.closed_ends(hs)
-    if not ends:
-        return cvs
-    tol, new = 1e-6 * hs.size(), cvs.copy()
-    for axis, end in ends:  # each end in its own orientation: (along the end, across it, 3) views
-        old_v, new_v = (hs.cvs.transpose(1, 0, 2), new.transpose(1, 0, 2)) if axis == 0 else (hs.cvs, new)
-        m = old_v.shape[1]
-        e0, e1, e2 = (0, 1, 2) if end == 0 else (m - 1, m - 2, m - 3)
-        if np.ptp(old_v[:, e1], axis=0).max() <= tol:
-            new_v[:, e1] = new_v[:, e1].mean(axis=0)
-        ring = new_v[:, e0] + 4.0 * new_v[:, e1] + new_v[:, e2]
-        new_v[:, e0] -= ring - ring.mean(axis=0)
-    return new
+# the fine levels' pole rings; answers kept across responses
 
 
 def _ring_sums(hs: H.HSpline, det: D.Details, k: int, axis: int,
@@ -187,7 +115,7 @@ def _keep(key: tuple, answer: tuple) -> None:
 # again. ``("at", id(hs), id(det), u, v bytes)`` -> the surface's points there and their poles
 # (`_points_at`); ``("weights", level, grid, closed ends, ids of the level's CV keys, movability
 # and patches, u, v bytes)`` -> `_weights`. A moved level keeps its CV keys, movability and
-# patches arrays (`_move_level`), so a level's weights serve every surface a response moves it
+# patches arrays (`moves.move_level`), so a level's weights serve every surface a response moves it
 # to; each entry holds the objects its key names by ``id``.
 _AT = memo.Table("respond.at", 64)
 
@@ -231,7 +159,7 @@ def _weights(hs: H.HSpline, level: int, u: np.ndarray, v: np.ndarray, pole: np.n
 
 def _refined(hs: H.HSpline, det: D.Details | None, keys: tuple, lazy: int) -> tuple[H.HSpline, D.Details | None]:
     """``hs`` with the patches ``keys`` (`hierarchy.refinement_keys`) active and its details
-    (`_redetail`'s ``lazy``: the finer absorbing levels' new CVs are framed by the coarsest one's
+    (`moves.redetail`'s ``lazy``: the finer absorbing levels' new CVs are framed by the coarsest one's
     move, which turns them; the coarsest level's own frames its solve moves with). The
     refinement and its details pass depend on ``hs``, ``det`` and ``keys`` alone, so they are
     kept (`_KEPT`) for the next response from the same surface to the same patches (a level's
@@ -241,7 +169,7 @@ def _refined(hs: H.HSpline, det: D.Details | None, keys: tuple, lazy: int) -> tu
     if hit is not None and hit[0] is hs and hit[1] is det:
         return hit[2], hit[3]
     new = refine_keys(hs, keys)
-    new_det = _redetail(hs, det, new, (), lazy=lazy)[1] if new is not hs else det
+    new_det = M.redetail(hs, det, new, (), lazy=lazy)[1] if new is not hs else det
     _keep(key, (hs, det, new, new_det))
     return new, new_det
 
@@ -279,7 +207,7 @@ def _open_ring(hs: H.HSpline, det: D.Details | None, k: int, axis: int, end: int
     around, `H.pole_patches`); returns the surface, its details and whether the ring is movable."""
     ok = pole_ring_movable(hs, k, axis, end)
     if not ok and refine:
-        hs, det = _redetail(hs, det, H.refine(hs, k, H.pole_patches(hs, k, axis, end)), ())
+        hs, det = M.redetail(hs, det, H.refine(hs, k, H.pole_patches(hs, k, axis, end)), ())
         ok = pole_ring_movable(hs, k, axis, end)
     return hs, det, ok
 
@@ -314,7 +242,7 @@ def _close_rings(hs: H.HSpline, det: D.Details | None, rings: list[tuple[int, in
         fix = ok.all(axis=1) & (np.abs(off).max(axis=1) > tol)
         if fix.any():
             dv = -off[fix, None, :] * (_RING_W / (_RING_W @ _RING_W))[None, :, None]
-            hs, det = _redetail(hs, det, _move_level(hs, k, rows[fix].reshape(-1), dv.reshape(-1, 3), det), (k,))
+            hs, det = M.redetail(hs, det, M.move_level(hs, k, rows[fix].reshape(-1), dv.reshape(-1, 3), det), (k,))
     return hs, det
 
 
@@ -444,89 +372,6 @@ def _ring_pattern(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     return own, every, w_own, w_every, cv_every
 
 
-def _patch_cv_rows(hs: H.HSpline, level: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of the 16 CVs of each point's level patch, and whether each is movable: ``(K, 16)``."""
-    su, _ = locate(hs.u, uv[:, 0], level)
-    sv, _ = locate(hs.v, uv[:, 1], level)
-    i4 = np.arange(4)
-    ju = hs.u.wrap_cv(su[:, None] + i4, level)
-    jv = hs.v.wrap_cv(sv[:, None] + i4, level)
-    if level == 0:
-        rows = (ju[:, :, None] * hs.v.n + jv[:, None, :]).reshape(-1, 16)
-        return rows, np.ones(rows.shape, bool)
-    lev = hs.level(level)
-    rows, found = H._lookup(lev.cv_keys, H._cv_keys(hs, level, ju[:, :, None], jv[:, None, :]).reshape(-1, 16))
-    _, pfound = H._lookup(lev.patches, H._patch_keys(hs, level, su, sv))
-    ok = found & pfound[:, None]
-    if lev.cv_keys.size:
-        ok &= lev.movable[rows]
-    return rows, ok
-
-
-def _translate(hs, level, uv, moves, det):
-    """Translational response: every CV of each point's level patch moves by that point's move.
-
-    A CV shared by several patches takes the mean of their moves; a patch holding several
-    points moves by their mean.
-    """
-    rows, ok = _patch_cv_rows(hs, level, uv)
-    flat_rows = rows[ok]
-    flat_moves = np.repeat(moves[:, None, :], 16, axis=1)[ok]
-    uniq, inv = np.unique(flat_rows, return_inverse=True)
-    acc = np.zeros((uniq.size, 3))
-    np.add.at(acc, inv, flat_moves)
-    acc /= np.bincount(inv, minlength=uniq.size)[:, None]
-    return _move_level(hs, level, uniq, acc, det, True)
-
-
-def _rotation_pivots(hs, level, uv, det):
-    """Pivot of a level's rotation: the point on the surface of the coarser levels (base of the
-    detail being turned); for level 0, the centroid of the level-0 control net."""
-    if level == 0:
-        return np.broadcast_to(hs.cvs.reshape(-1, 3).mean(axis=0), (uv.shape[0], 3)).copy()
-    return H.evaluate(hs, uv[:, 0], uv[:, 1], det=det, upto=level - 1).points
-
-
-def rotation_of(pivot: np.ndarray, p: np.ndarray, p_rot: np.ndarray):
-    """Axis ``(m, 3)`` and angle ``(m,)`` turning ``p - pivot`` toward ``p_rot - pivot`` (§4.2.2)."""
-    a = p - pivot
-    b = p_rot - pivot
-    axis = np.cross(a, b)
-    n = np.linalg.norm(axis, axis=1)
-    ang = np.arctan2(n, np.sum(a * b, axis=1))
-    ok = n > 1e-15 * (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1) + 1e-300)
-    axis = np.where(ok[:, None], axis / np.where(ok, n, 1.0)[:, None], [1.0, 0.0, 0.0])
-    return axis, np.where(ok, ang, 0.0)
-
-
-def _rotate(hs, level, uv, points, moves, det):
-    """Rotational response: turn the detail of each point's patch about the coarser surface.
-
-    The quaternion turns ``P - C`` toward ``P + r dP - C`` (``C``: pivot); it rotates the detail
-    vectors (offsets) of the 16 CVs of the patch; a CV reached by several quaternions takes
-    their slerp mean. Level 0, which has no detail, rotates its CVs about the net centroid.
-    Contacts and additional points are treated alike (thesis: "an identical process"); points
-    where the level has no detail to turn take the rotational share as a deformation (see
-    `respond`).
-    """
-    pivots = _rotation_pivots(hs, level, uv, det)
-    axis, ang = rotation_of(pivots, points, points + moves)
-    quats = quat_from_axis_angle(axis, ang)
-    rows, ok = _patch_cv_rows(hs, level, uv)
-    flat_rows = rows[ok]
-    flat_q = np.repeat(quats[:, None, :], 16, axis=1)[ok]
-    flat_piv = np.repeat(pivots[:, None, :], 16, axis=1)[ok]
-    uniq, inv = np.unique(flat_rows, return_inverse=True)
-    dv = np.zeros((uniq.size, 3))
-    for i in range(uniq.size):
-        sel = inv == i
-        q = slerp_mean(flat_q[sel]) if sel.sum() > 1 else flat_q[sel][0]
-        if level == 0:
-            x = hs.cvs.reshape(-1, 3)[uniq[i]] - flat_piv[sel][0]
-        else:
-            x = det.vectors[level - 1][uniq[i]]
-        dv[i] = quat_rotate(q[None], x[None])[0] - x
-    return _move_level(hs, level, uniq, dv, det, True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -587,63 +432,6 @@ def _open_pole_rings(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
     return hs
 
 
-def _redetail(old: H.HSpline, old_det: D.Details | None, new: H.HSpline,
-              moved: tuple[int, ...] | None = None, lazy: int | None = None) -> tuple[H.HSpline, D.Details | None]:
-    """``new`` and its details, recomputed only where it differs from ``old`` (a move is local).
-    ``moved``: the levels whose CVs alone can differ (``(level,)`` after `_move_level`, ``()``
-    after a refinement), so the others are not compared; ``None`` compares them all. ``lazy``:
-    after a refinement, the frames of new CVs finer than level ``lazy`` are left to the next
-    move's pass (`D.details`), which turns them anyway."""
-    if new.depth <= 1:
-        return new, None
-    if old_det is None:
-        return new, D.details(new)
-    if moved is not None and len(moved) == 1 and moved[0] >= 1:
-        det = D.moved_details(old, old_det, new, moved[0])
-        if det is not None:
-            raw = np.zeros((new.u.patches0, new.v.patches0), bool)
-            H.mark_moved(old, new, moved[0], raw)
-            return new, _noted(old, old_det, det, raw, None)
-    stale = H.changed_patches(old, new, levels=moved)
-    return new, _noted(old, old_det, D.details(new, since=(old, old_det, stale), moved=moved, lazy=lazy), None, stale)
-
-
-_SINCE = "_since"  # a response's details: (the surface it started from, raw and grown stale patches)
-
-
-def _noted(old: H.HSpline, old_det: D.Details, det: D.Details, raw: np.ndarray | None,
-           grown: np.ndarray | None) -> D.Details:
-    """``det``, the details of a surface that differs from ``old`` only on the level-0 patches
-    ``raw`` grown by `H.changed_patches`' margin and ``grown`` (either ``None``: none), noted
-    with where it differs from the surface the response started from: ``old``'s note joined
-    with these, or these if ``old_det`` has none. Steps between `_redetail` calls only refine,
-    which moves no offset, so the union covers `H.changed_patches` of the whole response."""
-    root, r0, g0 = old_det.__dict__.get(_SINCE, (old, None, None))
-    raw = r0 if raw is None else (raw if r0 is None else r0 | raw)
-    grown = g0 if grown is None else (grown if g0 is None else g0 | grown)
-    det.__dict__[_SINCE] = (root, raw, grown)  # on ``old_det`` too, if handed back: a superset holds for both
-    return det
-
-
-def _moved_patches(hs: H.HSpline, start: H.HSpline, det: D.Details | None) -> np.ndarray | None:
-    """Level-0 patches ``(P0u, P0v) bool`` holding every one where ``hs``, responded from
-    ``start`` with details ``det``, may differ from it (`H.changed_patches`, a superset), from the
-    note `_redetail` kept along the response; ``None`` where the note does not reach ``start``.
-    The note is taken off ``det``, so a response from ``hs`` starts its own."""
-    rec = det.__dict__.pop(_SINCE, None) if det is not None else None
-    if rec is None or rec[0] is not start:
-        return None
-    _, raw, grown = rec
-    out = np.zeros((hs.u.patches0, hs.v.patches0), bool) if raw is None else H.grown_patches(hs, raw)
-    return out if grown is None else out | grown
-
-
-def _settled(hs: H.HSpline, det: D.Details | None) -> tuple[H.HSpline, D.Details | None]:
-    """``hs`` and ``det`` with the frames `_redetail`'s ``lazy`` left pending evaluated (a level
-    about to move reads its frames, and a response hands back every frame)."""
-    if det is not None and D._PENDING in det.__dict__:
-        return _redetail(hs, det, hs, ())
-    return hs, det
 
 
 def respond(
@@ -711,7 +499,7 @@ def respond(
         det = D.details(hs)
     rings, det0, start = _closed_rings(hs, det), det, hs
     if det is not None:  # a note from the response that made ``hs`` is not this one's
-        det.__dict__.pop(_SINCE, None)
+        det.__dict__.pop(M.SINCE, None)
     # A collapsed edge of an open grid (a fan's apex) is closed after the finest absorbing
     # level's solve (`_close_rings`), not within it (`_ring_constraints`); coarser levels keep it
     # in the solve. Why: every data point on the apex weighs the same ring (eq. 4.10 weights
@@ -769,7 +557,7 @@ def respond(
             added = sum(lev.patches.size for lev in hs.fine) - before
             refined += added
             if added:  # new CVs need their frames; refinement alone moves nothing
-                hs, det = _redetail(coarse, det, hs, ())
+                hs, det = M.redetail(coarse, det, hs, ())
         d, t, r = deform[level], translate[level], rotate[level]
         # the points' own weights serve the solve only when it takes them as they are (no points
         # merged per patch, none held); otherwise which points the level reaches is all it needs
@@ -801,27 +589,27 @@ def respond(
             lpw, lwant = _ring_constraints(hs, det, lpw, lwant, rings_kept[level])
             dv = solve(lpw, lwant, method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                        amplify=None if level == exact else amplify)
-            hs, det = _redetail(hs, det, _move_level(hs, level, lpw.cv_rows, dv, det, True), (level,))
+            hs, det = M.redetail(hs, det, M.move_level(hs, level, lpw.cv_rows, dv, det, True), (level,))
         sel = np.nonzero(present)[0] if t > 0 or r > 0 else None
         if t > 0 and sel.size:
-            hs, det = _redetail(hs, det, _translate(hs, level, uv[sel], a * t * dq[sel], det), (level,))
+            hs, det = M.redetail(hs, det, M.translate(hs, level, uv[sel], a * t * dq[sel], det), (level,))
         if r > 0 and sel.size:
             # thesis §4.3.2: contacts and additional points alike turn their patch's detail
             cur = H.evaluate(hs, uv[sel, 0], uv[sel, 1], det=det).points
-            pivots = _rotation_pivots(hs, level, uv[sel], det)
+            pivots = M.rotation_pivots(hs, level, uv[sel], det)
             # a level with no detail at a point has nothing to turn there: deform instead
             flat = np.linalg.norm(cur - pivots, axis=1) <= 1e-9 * hs.size()
             rot, rest = sel[~flat], sel[flat]
             if rot.size:
-                hs, det = _redetail(hs, det, _rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det), (level,))
+                hs, det = M.redetail(hs, det, M.rotate(hs, level, uv[rot], cur[~flat], a * r * dq[rot], det), (level,))
             if rest.size:  # points without detail take the share as deformation
                 sub = point_weights(hs, level, uv[rest, 0], uv[rest, 1])
                 dv = solve(sub, a * r * dq[rest], method=method, iterations=iterations, max_bytes=max_bytes, rcond=rcond,
                            amplify=None if level == exact else amplify)
-                hs, det = _redetail(hs, det, _move_level(hs, level, sub.cv_rows, dv, det, True), (level,))
+                hs, det = M.redetail(hs, det, M.move_level(hs, level, sub.cv_rows, dv, det, True), (level,))
         applied = applied + a if every else applied + np.where(present, a, 0.0)
-        hs, det = _settled(hs, det)
+        hs, det = M.settled(hs, det)
     hs, det = _close_rings(hs, det, rings, controls.refine, det0.__dict__.get(_SPREAD) if det0 is not None else None)
     H.keep_details(hs, det)
     final = H.evaluate(hs, pu, pv, det=det).points
-    return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det, _moved_patches(hs, start, det))
+    return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det, M.moved_patches(hs, start, det))

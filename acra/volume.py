@@ -23,7 +23,7 @@ import numpy as np
 from . import details as D
 from . import hspline as H
 from .interpolate import point_weights
-from .respond import move_level
+from .moves import move_level
 from .tessellate import GridTopology
 
 __all__ = ["encloses", "triangles", "enclosed_volume", "volume_gradient", "surface_area", "area_gradient", "MEASURES",

@@ -1,7 +1,7 @@
 """The responses of a run's collision frames, replayed and timed.
 
     python3 benchmarks/respond_calls.py [SCENE.py] [--frames 13:17] [--repeat 5] [--save FILE] [--check FILE]
-                                        [--split MODULE:FUNCTION ...]
+                                        [--split MODULE:FUNCTION ...] [--per-call]
 
 Runs the scene's ``--frames`` (after a free frame, as `benchmarks/stage_split.py` does) and
 records every `acra.respond.respond` call with its arguments, then calls `respond` again on each
@@ -19,7 +19,8 @@ function during one cold pass of the responses, then calls it again on each reco
 set ``--repeat`` times (each repeat after `pipeline.run.forget`) and prints its calls and CPU
 milliseconds per collision frame (the least of each call, summed): each function alone, run
 warm in a loop, so a lower bound of its share of the responses (nested functions count in
-each that calls them).
+each that calls them). ``--per-call`` prints each call's least CPU milliseconds with its
+surface's depth and data points (call ``n`` is `benchmarks/respond_laps.py`'s ``--calls n``).
 """
 
 from __future__ import annotations
@@ -78,6 +79,7 @@ def main() -> None:
     ap.add_argument("--save")
     ap.add_argument("--check")
     ap.add_argument("--split", nargs="+", default=[], metavar="MODULE:FUNCTION")
+    ap.add_argument("--per-call", action="store_true")
     args = ap.parse_args()
     first, last = (int(x) for x in args.frames.split(":"))
     calls = record(pathlib.Path(args.scene), first, last, args.warm)
@@ -89,6 +91,9 @@ def main() -> None:
     nframes = last - first + 1
     print(f"{len(calls)} respond calls, per collision frame: {1e3 * best.sum() / nframes:.2f} ms wall, "
           f"{1e3 * cpu.sum() / nframes:.2f} ms CPU (least of {args.repeat} per call, summed)")
+    if args.per_call:
+        for n, (a, _) in enumerate(calls):
+            print(f"call {n}: depth {a[0].depth}, {len(a[1].uv)} data points, {1e3 * cpu[n]:.3f} ms CPU")
     _check(args, calls, results)
     if args.split:
         with threadpool_limits(limits=1, user_api="blas"):

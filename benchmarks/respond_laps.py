@@ -1,7 +1,7 @@
 """Where a response's time goes, statement by statement: CPU laps inside one function of the replay.
 
     python3 benchmarks/respond_laps.py acra.respond:respond [--repeat 25] [--top 25]
-    python3 benchmarks/respond_laps.py acra.details:moved_details
+    python3 benchmarks/respond_laps.py acra.details:moved_details [--calls 0 1]
 
 Records the `acra.respond.respond` calls of frames 13–17 as `benchmarks/respond_calls.py` does,
 then compiles the named function again with a lap before each of its statements (in loops and
@@ -10,7 +10,9 @@ branches too) and one as it returns, and replays the calls ``--repeat`` times (e
 next lap: a compound statement's own test, a simple one's whole work with the functions it calls.
 Prints, per statement, the least over the repeats of its CPU ms in each call, summed over the
 calls, per collision frame (a lap costs about 0.5 µs of the time it measures), and a digest of the
-responded surfaces (`respond_calls.surface_arrays`), which the laps do not change.
+responded surfaces (`respond_calls.surface_arrays`), which the laps do not change. ``--calls n
+...`` sums the laps of those calls alone (numbered as `benchmarks/respond_calls.py --per-call`
+prints them), still per collision frame of the whole replay.
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ def main() -> None:
     ap.add_argument("function", help="MODULE:FUNCTION, named where it is defined")
     ap.add_argument("--repeat", type=int, default=25)
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--calls", type=int, nargs="+", default=None, metavar="N")
     args = ap.parse_args()
     module, name = args.function.split(":")
     mod = importlib.import_module(module)
@@ -108,8 +111,9 @@ def main() -> None:
         setattr(mod, name, original)
         del mod.__dict__["__lap"]
     per: dict = collections.defaultdict(float)
-    for (_, line), t in least.items():
-        per[line] += t
+    for (n, line), t in least.items():
+        if args.calls is None or n in args.calls:
+            per[line] += t
     lines = src.splitlines()
     nframes = 5
     print(f"{args.function}: {1e3 * sum(per.values()) / nframes:.3f} ms CPU per collision frame in its statements "

@@ -7,7 +7,7 @@ Each repeat is a fresh process (``PYTHONPATH`` as given, else this checkout) who
 ``NUMBA_CACHE_DIR`` is a new empty directory: it imports `acra.levelkernels` and calls
 `restate_rows` once, which compiles it (and saves it to the cache), and prints the CPU seconds of
 that call. The kernel takes five arguments in a checkout without moves and seven with them
-(``moves, moved``, `acra.respond.move_level`); either way it is called on the same seeded rows
+(``moves, moved``, `acra.moves.move_level`); either way it is called on the same seeded rows
 without a move, and the script prints a digest of the vectors it returns, the same in both.
 """
 

@@ -110,7 +110,7 @@ def test_details_give_their_table_stacked_as_they_go(monkeypatch):
     `Details` whose ``table`` is already there, without stacking the vectors on first read, and
     is their vectors stacked bit for bit; so is a pass up to a level (``upto``) and one since a
     refinement or a move."""
-    from acra.respond import move_level
+    from acra.moves import move_level
     seen = []
     real = D._frames_at
     monkeypatch.setattr(D, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: seen.append(partial) or real(hs_, k, ends, partial, ring, u, v))
@@ -137,11 +137,11 @@ def test_details_give_their_table_stacked_as_they_go(monkeypatch):
 
 
 def test_moved_details_follow_a_move_down_the_levels_as_a_full_pass(monkeypatch):
-    """`D.moved_details` after a response's move (`respond.move_level`) is `D.details` of the
+    """`D.moved_details` after a response's move (`moves.move_level`) is `D.details` of the
     moved surface bit for bit, frames of pole rings included; it keeps the coarser levels'
     arrays and evaluates no more frames than `details(since=...)` on `changed_patches`, fewer
     where the move's reach stops short of the patches' margin."""
-    from acra.respond import move_level
+    from acra.moves import move_level
     counted, mine, theirs = [], 0, 0
     real = D._frames_at
     monkeypatch.setattr(D, "_frames_at", lambda hs_, k, ends, partial, ring, u, v: counted.append(np.size(u)) or real(hs_, k, ends, partial, ring, u, v))

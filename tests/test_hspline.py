@@ -511,7 +511,7 @@ def test_restating_a_levels_rows_is_the_array_form():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_restating_a_moves_rows_is_the_array_form(seed):
-    """`levelkernels.restate_rows` with moves (behind `acra.respond.move_level`) gives the
+    """`levelkernels.restate_rows` with moves (behind `acra.moves.move_level`) gives the
     offsets ``offsets[rows] += np.einsum("mji,mj->mi", frames[rows], moves)`` gives, bit for bit
     (its products summed from 0.0 in order, then added), and the vectors restated from them on
     the rows whose offsets changed bits, every other row's kept: a zero move, or one too small to

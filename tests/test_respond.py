@@ -5,12 +5,12 @@ import pytest
 
 from acra import details as D
 from acra import hspline as H
+from acra import moves as M
 from acra import respond as R
 from acra import shapes
 from acra.controls import check_controls
 from acra.quat import quat_from_axis_angle, quat_rotate
 from acra.targets import DataPoints, contact_targets, region_midpoints, rigidity_share
-from conftest import with_random_offsets
 
 
 def flat_sheet(n=12, depth=4):
@@ -121,7 +121,7 @@ def test_rotational_response_turns_the_detail_by_the_predicted_rotation():
     move = np.array([[0.1, 0.0, -0.05]])
     dp = DataPoints(uv, p + move, np.array([True]))
     out, _ = R.respond(hs, dp, controls(3, k, d=0.0, r=1.0))
-    axis, ang = R.rotation_of(pivot, p, p + move)
+    axis, ang = M.rotation_of(pivot, p, p + move)
     # predicted: axis normal to the plane (pivot, P, P_rot), angle at the pivot
     a, b = p[0] - pivot[0], p[0] + move[0] - pivot[0]
     np.testing.assert_allclose(axis[0], np.cross(a, b) / np.linalg.norm(np.cross(a, b)), atol=1e-12)
@@ -322,11 +322,11 @@ def test_every_absorbing_level_is_refined_in_one_pass_before_the_first_move(monk
     dp = one_point(hs, [3.3, 3.4], [0.02, -0.01, -0.2])
     c = check_controls(4, [0, 1 / 3, 1 / 3, 1 / 3])
     passes = []
-    redetail = R._redetail
-    monkeypatch.setattr(R, "_redetail", lambda old, det, new, moved=None, **kw: passes.append(moved) or redetail(old, det, new, moved, **kw))
+    redetail = M.redetail
+    monkeypatch.setattr(M, "redetail", lambda old, det, new, moved=None, **kw: passes.append(moved) or redetail(old, det, new, moved, **kw))
     out, rep = R.respond(hs, dp, c)
     assert rep.refined > 0 and passes.count(()) == 1 and passes[0] == ()
-    monkeypatch.setattr(R, "_redetail", redetail)
+    monkeypatch.setattr(M, "redetail", redetail)
     pre = hs
     for k in (1, 2, 3):
         su, _ = R.locate(hs.u, dp.uv[:, 0], k)
@@ -372,25 +372,10 @@ def test_the_finer_absorbing_levels_new_cvs_are_framed_once_by_the_first_move(mo
         np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
 
 
-def test_a_move_of_rows_each_once_adds_as_np_add_at_does():
-    """`_move_level` with ``unique`` (rows each once, as a solve's ``cv_rows``) adds each row's
-    move by one fancy-indexed addition: the same offsets, bit for bit, as `np.add.at`."""
-    hs = H.make_movable(H.from_grid(*shapes.sphere(8, 7), depth=3), 2, np.array([[3, 4], [9, 2]]))
-    hs = with_random_offsets(hs, scale=0.01, seed=5)
-    det = H.details(hs)
-    rows = np.flatnonzero(hs.level(2).movable)[::3]
-    dv = np.random.default_rng(2).normal(size=(rows.size, 3)) * 1e-3
-    a = R._move_level(hs, 2, rows, dv, det, True)
-    b = R._move_level(hs, 2, rows, dv, det)
-    np.testing.assert_array_equal(a.level(2).offsets.view(np.int64), b.level(2).offsets.view(np.int64))
-    assert not np.array_equal(a.level(2).offsets, hs.level(2).offsets)
-    assert a.fine[0] is hs.fine[0] and a.level(2).cv_keys is hs.level(2).cv_keys
-
-
 def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_refinement(monkeypatch):
     """The up-front refinement and its details pass depend on the surface, its details and the
     patches the points activate alone: a static object's next response to the same patches takes
-    them as kept (`R._KEPT`, no `_redetail` pass of a refinement), on the same bits as computing
+    them as kept (`R._KEPT`, no `moves.redetail` pass of a refinement), on the same bits as computing
     them again after `pipeline.run.forget`."""
     from pipeline import run
 
@@ -402,8 +387,8 @@ def test_a_second_response_from_the_same_surface_to_the_same_patches_reuses_the_
     second = one_point(hs, [3.35, 3.42], [-0.01, 0.02, -0.15])  # the same patch on levels 1-3
     R.respond(hs, first, c, det=det)
     passes = []
-    redetail = R._redetail
-    monkeypatch.setattr(R, "_redetail", lambda old, d, new, moved=None, **kw: passes.append(moved) or redetail(old, d, new, moved, **kw))
+    redetail = M.redetail
+    monkeypatch.setattr(M, "redetail", lambda old, d, new, moved=None, **kw: passes.append(moved) or redetail(old, d, new, moved, **kw))
     kept, kept_rep = R.respond(hs, second, c, det=det)
     assert kept_rep.refined > 0 and () not in passes
     run.forget()
@@ -492,7 +477,7 @@ def test_kept_weights_follow_the_levels_arrays_not_the_surface():
         np.testing.assert_array_equal(getattr(pw, name), getattr(ref, name))
     refined = H.refine(hs, 2, np.array([[6, 6]]))
     det = H.details(refined)
-    moved = R._move_level(refined, 2, np.array([0, 1]), np.ones((2, 3)), det, True)
+    moved = M.move_level(refined, 2, np.array([0, 1]), np.ones((2, 3)), det, True)
     assert R._weights(moved, 2, u, v) is R._weights(refined, 2, u, v) is not pw
     assert R._weights(hs, 2, u, v) is pw and R._weights(hs, 2, u + 0.1, v) is not pw
     run.forget()
@@ -522,7 +507,7 @@ def test_closing_rings_skips_a_level_whose_vectors_are_as_the_response_found_the
     rings = R._closed_rings(hs, det)
     assert (1, 1, 1) in rings and (2, 1, 1) in rings
     rows = np.flatnonzero(hs.level(2).movable)[:4]
-    moved, mdet = R._redetail(hs, det, R._move_level(hs, 2, rows, np.full((4, 3), 1e-3), det, True), (2,))
+    moved, mdet = M.redetail(hs, det, M.move_level(hs, 2, rows, np.full((4, 3), 1e-3), det, True), (2,))
     summed = []
     ring_sums = R._ring_sums
     monkeypatch.setattr(R, "_ring_sums", lambda h, d, k, a, e: summed.append(k) or ring_sums(h, d, k, a, e))
