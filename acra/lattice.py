@@ -3,9 +3,10 @@
 The adaptive topology's vertices are points ``(i, j)`` of an integer lattice, ``0 <= i <= ni``,
 ``0 <= j < w``, kept as sorted keys ``i * w + j``. In array form they are ``np.unique`` of every
 cell corner's key with its inverse: a sort of four keys a cell over the whole set. Here the keys
-are bucketed by ``i`` (a counting sort: each column's few keys sorted alone), and each point's
-position among the keys comes out of the same pass, so the mesh finds every corner's vertex (and,
-as corners bound each cell side, the vertices between them) without a search. The keys, the
+are bucketed by ``i`` (a counting sort: each column's few keys sorted alone; a mesh's cell
+corners, already in order along each line, by one merge a line, `_corner_keys`), and each
+point's position among the keys comes out of the same pass, so the mesh finds every corner's
+vertex (and, as corners bound each cell side, the vertices between them) without a search. The keys, the
 positions and the column starts are the same as numpy's (`tests/test_tessellate.py` holds them to
 ``np.unique`` and ``np.searchsorted``).
 """
@@ -164,78 +165,102 @@ def quadtree_leaves(p0u, p0v, keys, starts):
 
 
 @njit(inline="always")
-def _corner(c, s, su, sv, sh, nu, nv, wrap_u, wrap_v):
-    """Lattice point ``(i, j)`` of corner ``s`` of cell ``c`` (counter-clockwise from the lower
-    one: 0 ``(u, v)``, 1 ``(u + h, v)``, 2 ``(u + h, v + h)``, 3 ``(u, v + h)``), an upper
-    corner wrapped onto a periodic seam."""
-    # branch-free in s: the corners come in no order where a sort reads them back
-    h = sh[c]
-    i = su[c] + h * ((s ^ (s >> 1)) & 1)
-    j = sv[c] + h * (s >> 1)
-    if wrap_u and i == nu:
-        i = 0
-    if wrap_v and j == nv:
-        j = 0
-    return i, j
-
-
-@njit(inline="always")
 def _corner_keys(su, sv, sh, nu, nv, wrap_u, wrap_v, w):
-    """`unique_keys` of the four corners of every cell ``(su, sv, sh) (nc,) int64`` (`_corner`),
-    corner ``s`` of cell ``c`` the point ``4 c + s``, each taken where it is used rather than
-    kept (eight int64 a cell of new memory, whose page faults cost more than taking them again):
-    the sorted distinct keys ``(m,) int64``, each column's start ``(nu + 2,) int64`` and each
-    corner's position in the keys ``(4 nc,) int32``. Two stable counting sorts, as `_key_order`'s;
-    the order among equal keys does not reach the results."""
+    """`unique_keys` of the four corners of every cell ``(su, sv, sh) (nc,) int64`` (sorted by
+    their lower corners' keys; corner ``s`` of cell ``c`` is the point ``4 c + s``,
+    counter-clockwise from the lower one: 0 ``(u, v)``, 1 ``(u + h, v)``, 2 ``(u + h, v + h)``, 3
+    ``(u, v + h)``, an upper corner on a periodic seam wrapped onto its first line): the sorted
+    distinct keys ``(m,) int64``, each column's start ``(nu + 2,) int64`` and each corner's
+    position in the keys ``(4 nc,) int32``.
+
+    The cells tile the domain, so on each lattice line ``u = i`` the cells starting there
+    (corners 0 and 3) have disjoint v ranges, and so have the cells ending there (corners 1 and
+    2): each side's corners, cell by cell in v order, are already sorted along the line. The
+    cells starting on a line are consecutive in the cells' order; those ending on it are
+    bucketed by their upper u line from the cells in v order (two stable counting sorts of the
+    ``nc`` cells, not of the ``4 nc`` corners). One merge of the two sides per line gives its
+    keys in order, each corner's position as it passes, with no sort of the corners. A corner on
+    the periodic v seam (``v + h = nv``) is the line's vertex at ``v = 0``, its first."""
     nc = su.shape[0]
     n = 4 * nc
     if n >= 2**31:
         raise ValueError("too many points for int32 orders")
+    # the cells in v order: a stable counting sort of their lower corners' v
     count = np.zeros(w + 1, np.int64)
     for c in range(nc):
-        for s in range(4):
-            j = _corner(c, s, su, sv, sh, nu, nv, wrap_u, wrap_v)[1]
-            count[j + 1] += 1
+        count[sv[c] + 1] += 1
     for x in range(w):
         count[x + 1] += count[x]
-    by_j = np.empty(n, np.int32)
-    first = np.zeros(nu + 2, np.int64)
+    by_v = np.empty(nc, np.int32)
     for c in range(nc):
-        for s in range(4):
-            i, j = _corner(c, s, su, sv, sh, nu, nv, wrap_u, wrap_v)
-            by_j[count[j]] = 4 * c + s
-            count[j] += 1
-            first[i + 1] += 1
+        by_v[count[sv[c]]] = c
+        count[sv[c]] += 1
+    # where each line's cells start (``starts``, consecutive: the cells come by u) and end
+    # (``ends``: the cells whose upper u line it is, in v order, from ``stops``)
+    starts = np.zeros(nu + 2, np.int64)
+    stops = np.zeros(nu + 2, np.int64)
+    for c in range(nc):
+        starts[su[c] + 1] += 1
+        stops[_upper(su[c] + sh[c], nu, wrap_u) + 1] += 1
     for x in range(nu + 1):
-        first[x + 1] += first[x]
-    fill = first.copy()
-    order = np.empty(n, np.int32)
-    for q in range(n):
-        p = by_j[q]
-        i = _corner(p >> 2, p & 3, su, sv, sh, nu, nv, wrap_u, wrap_v)[0]
-        order[fill[i]] = p
-        fill[i] += 1
+        starts[x + 1] += starts[x]
+        stops[x + 1] += stops[x]
+    fill = stops.copy()
+    ends = np.empty(nc, np.int32)
+    for q in range(nc):
+        c = by_v[q]
+        r = _upper(su[c] + sh[c], nu, wrap_u)
+        ends[fill[r]] = c
+        fill[r] += 1
     out = np.empty(n, np.int64)
-    at = by_j  # by_j is read no more: each corner's position takes its place
+    at = np.empty(n, np.int32)
+    first = np.empty(nu + 2, np.int64)
     m = 0
-    last = -1
-    col = 0
-    for q in range(n):
-        p = order[q]
-        i, j = _corner(p >> 2, p & 3, su, sv, sh, nu, nv, wrap_u, wrap_v)
-        x = i * w + j
-        if x != last:
-            while col <= i:  # the columns up to this key's start here
-                first[col] = m
-                col += 1
-            out[m] = x
+    for i in range(nu + 1):
+        first[i] = m
+        b, b_end = starts[i], starts[i + 1]
+        a, a_end = stops[i], stops[i + 1]
+        if b == b_end and a == a_end:
+            continue
+        # each side's last corner is its highest: a line reaches the periodic v seam where one does
+        seam = wrap_v and ((b < b_end and sv[b_end - 1] + sh[b_end - 1] == nv)
+                           or (a < a_end and sv[ends[a_end - 1]] + sh[ends[a_end - 1]] == nv))
+        line = m
+        last = -1
+        if seam:
+            out[m] = i * w
             m += 1
-            last = x
-        at[p] = m - 1
-    while col <= nu + 1:
-        first[col] = m
-        col += 1
+            last = 0
+        upper_b, upper_a = 0, 0  # whether the current cell's next corner is its upper one
+        while b < b_end or a < a_end:
+            jb = sv[b] + sh[b] * upper_b if b < b_end else w
+            ca = ends[a] if a < a_end else 0
+            ja = sv[ca] + sh[ca] * upper_a if a < a_end else w
+            if jb <= ja:
+                j, p = jb, 4 * b + 3 * upper_b
+                b += upper_b
+                upper_b ^= 1
+            else:
+                j, p = ja, 4 * ca + 1 + upper_a
+                a += upper_a
+                upper_a ^= 1
+            if seam and j == nv:
+                at[p] = line
+                continue
+            if j != last:
+                out[m] = i * w + j
+                m += 1
+                last = j
+            at[p] = m - 1
+    first[nu + 1] = m
     return out[:m].copy(), first, at
+
+
+@njit(inline="always")
+def _upper(x, n, wrap):
+    """Lattice line ``x`` (at most ``n``) of a cell's upper side, the seam's ``n`` as its ``0``
+    where the direction wraps."""
+    return 0 if wrap and x == n else x
 
 
 @njit(inline="always")
@@ -288,7 +313,7 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
     for q in range(nc):
         p = by_key[q]
         su[q], sv[q], sh[q] = cu[p], cv[p], ch[p]
-    # the corners' vertices (corner s of cell c at 4 c + s, `_corner`)
+    # the corners' vertices (corner s of cell c at 4 c + s, `_corner_keys`)
     lattice, first, at = _corner_keys(su, sv, sh, nu, nv, wrap_u, wrap_v, w)
     # the same vertices v-major: a stable counting sort of the u-major ones by v
     # (a key's v is its offset from its column's start key: no division)

@@ -379,6 +379,25 @@ def test_compiled_adaptive_mesh_is_the_array_form_s_vertex_for_vertex(shape, see
         np.testing.assert_array_equal(got.by_v, np.argsort(want.v, kind="stable"), err_msg="by_v")
 
 
+@settings(max_examples=30, deadline=None)
+@given(shape=st.sampled_from(["sphere", "torus", "sheet"]), seed=st.integers(0, 2**32 - 1),
+       samples=st.integers(1, 5), blobs=st.integers(0, 8))
+def test_compiled_mesh_s_corner_keys_merge_every_line_as_the_array_form_s_unique(shape, seed, samples, blobs):
+    """`acra.lattice.adaptive_mesh`'s corners' keys (`_corner_keys`: one merge a lattice line of
+    the cells starting and ending there) give the array form's ``np.unique`` of every corner, so
+    its vertices and faces, across a periodic seam in u (sphere), in both (torus, whose v seam
+    maps a line's top corners onto its first vertex) and in neither (sheet), for any refinement."""
+    maker = {"sphere": shapes.sphere, "torus": shapes.torus, "sheet": shapes.sheet}[shape]
+    hs = H.from_grid(*maker(6, 5), depth=4)
+    levels = _random_levels(hs, seed, blobs)
+    top = hs.depth - 1
+    present = {j: np.unique(np.argwhere(levels >= j) >> (top - j), axis=0) for j in range(1, top + 1)}
+    got, want = T._adaptive(hs.u, hs.v, samples, present), T._adaptive_array(hs.u, hs.v, samples, present)
+    for name in ("u", "v", "counts", "indices"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    np.testing.assert_array_equal(got.by_v, np.argsort(want.v, kind="stable"), err_msg="by_v")
+
+
 @pytest.mark.parametrize("shape", ["sphere", "torus", "sheet"])
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_compiled_quadtree_leaves_are_the_array_form_s_in_its_order(shape, seed):
