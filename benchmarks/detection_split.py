@@ -44,6 +44,7 @@ def main() -> None:
     from pipeline import grids, usdio
     from pipeline import queries as Q
     from pipeline import shape as S
+    from pipeline import tessellation as T
 
     spent: dict = collections.defaultdict(lambda: [0, 0.0])
 
@@ -61,9 +62,10 @@ def main() -> None:
     if args.stages or args.per_frame:
         _stages(args.repeat, args.per_frame)
         return
-    for name in ("intersect", "regions", "touching", "cast", "project", "tessellate", "_tessellate", "_candidate_vertices", "_inside_depth",
-                 "_triangles_near", "_face_boxes"):
+    for name in ("intersect", "regions", "touching", "cast", "project", "_inside_depth", "_triangles_near", "_face_boxes"):
         setattr(D, name, timed(f"detect.{name}", getattr(D, name)))
+    for name in ("tessellate", "tessellate_sorted", "vertices_in_box"):
+        setattr(T, name, timed(f"tessellation.{name}", getattr(T, name)))
     for name in ("rewind", "deepest_contact", "detect_pair"):
         setattr(C, name, timed(f"contact.{name}", getattr(C, name)))
     for name in ("nearest", "signed", "cast"):

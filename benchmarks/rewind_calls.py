@@ -32,7 +32,7 @@ FRESH = ("detect.worlds", "detect.answers", "contact.at")  # what a new matrix f
 # (module, name) timed by ``--nested``: the touch test and its narrow phase, the new geometry's
 # world boxes and sizes (`pair_pad`, `apart`), the anchor and its parts, the compiled passes
 NESTED = (("pipeline.detect", "touching"), ("pipeline.detect", "_intersect"), ("pipeline.detect", "pair_pad"),
-          ("pipeline.detect", "apart"), ("pipeline.detect", "_tessellate"), ("pipeline.contact", "_anchor_at"),
+          ("pipeline.detect", "apart"), ("pipeline.tessellation", "tessellate_sorted"), ("pipeline.contact", "_anchor_at"),
           ("pipeline.detect", "regions"), ("pipeline.detect", "project"), ("pipeline.detect", "_newton"),
           ("acra.narrow", "_patches_near"), ("acra.narrow", "_face_boxes"), ("acra.narrow", "_near"),
           ("acra.narrow", "_crossings"), ("pipeline.model", "_translated"))

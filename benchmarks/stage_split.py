@@ -30,6 +30,7 @@ from pipeline import frames as F
 from pipeline import grids
 from pipeline import residual
 from pipeline import shape as S
+from pipeline import tessellation as T
 from pipeline import usdio
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -50,8 +51,9 @@ def _timed(label: str, f):
 
 def instrument() -> None:
     """Wrap the functions named in the table (module attributes, so internal calls are seen)."""
-    for name in ("intersect", "regions", "touching", "cast", "project", "tessellate"):
+    for name in ("intersect", "regions", "touching", "cast", "project"):
         setattr(D, name, _timed(f"detect.{name}", getattr(D, name)))
+    T.tessellate = _timed("tessellation.tessellate", T.tessellate)
     for name in ("rewind", "deepest_contact"):
         setattr(C, name, _timed(f"contact.{name}", getattr(C, name)))
     P.data_points_for = _timed("datapoints.data_points_for", P.data_points_for)

@@ -18,13 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from acra import halfspaces, memo, meshops, narrow
-from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, Tessellation, _face_boxes, _World,
-                               candidate_patches, is_closed, surface_points, wrap_uv)
-from pipeline.grids import PatchGrid
+from pipeline import tessellation as T
+from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, _face_boxes, candidate_patches,
+                               is_closed, surface_points, wrap_uv)
 from pipeline.model import apply_inverse, apply_xform
 
 __all__ = [
-    "Intersections", "Region", "Projection", "Residual", "tessellate", "tessellated", "intersect", "inside",
+    "Intersections", "Region", "Projection", "Residual", "intersect", "inside",
     "surface_distance", "project", "regions", "touching", "with_on_surface", "pair_pad", "residual", "cast",
     "default_tolerance", "apart",
 ]
@@ -44,131 +44,6 @@ def apart(ga: Geometry, gb: Geometry) -> bool:
     (la, ha, da), (lb, hb, db) = ga._outer, gb._outer
     pad = _PAD * max(da, db)
     return not all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
-
-
-def unique_patches(patches: np.ndarray) -> np.ndarray:
-    """The distinct rows of level-0 ``patches (m, 2) int64`` (non-negative), ascending as
-    ``np.unique(axis=0)`` gives them: one integer key a row instead of its structured sort."""
-    patches = np.asarray(patches, np.int64).reshape(-1, 2)
-    if not len(patches):
-        return patches
-    width = int(patches[:, 1].max()) + 1
-    key = np.unique(patches[:, 0] * width + patches[:, 1])
-    return np.stack([key // width, key % width], axis=1)
-
-
-def unique_rows(x: np.ndarray) -> np.ndarray:
-    """Rows ``(u,) int64`` of the first of each distinct row of ``x (n, 2) float64``, in the order
-    of the distinct rows (the first column, then the second): ``np.unique(x, axis=0,
-    return_index=True)[1]``, from a stable sort of the two columns instead of a structured one."""
-    if not len(x):
-        return np.zeros(0, np.int64)
-    order = np.lexsort((x[:, 1], x[:, 0]))
-    s = x[order]
-    return order[np.r_[True, (s[1:, 0] != s[:-1, 0]) | (s[1:, 1] != s[:-1, 1])]]
-
-
-def tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
-    """Collision grids over level-0 ``patches (m, 2) int64`` at their `patch_density`, cached per
-    patch on ``geom`` (grids of different density meet at T-junctions, gaps ~ tessellation error);
-    the last few patch sets' tessellations are kept too (the narrow phase, the regions and the
-    on-surface search of a round ask for the same sets)."""
-    return _tessellate(geom, unique_patches(patches))
-
-
-def _tessellate(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
-    """`tessellate` of distinct ascending ``patches (m, 2) int64`` (`candidate_patches` and its
-    row subsets are), without sorting them again."""
-    if not len(patches):
-        return Tessellation(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
-    key = patches.tobytes()
-    geom._asked.setdefault(key, patches)
-    kept = geom._world.tessellations
-    hit = kept.pop(key, None)
-    if hit is None:
-        hit = _tessellation(geom, patches)
-    kept[key] = hit
-    while len(kept) > 8:
-        del kept[next(iter(kept))]
-    return hit
-
-
-def _tessellation(geom: SurfaceGeometry, patches: np.ndarray) -> Tessellation:
-    world = geom._world
-    if not world.grids and world.mapped is None:
-        # a new content's first set (each step of a rewinding search): its grids' points mapped
-        # in one product, each grid's rows split off only if another set of this content asks
-        obj, grids = geom.shape.cache.set_points(patches)
-        world.mapped = (patches, apply_xform(geom.xform, obj), grids)
-        uv, triangles, tri_patch = _LAYOUTS.kept(_patch_set_key(geom, patches), lambda: _layout(patches, grids))
-        return Tessellation(world.mapped[1], uv, triangles, tri_patch)
-    if world.mapped is not None:
-        _split_mapped(world)
-    cache = world.grids
-    keys = list(map(tuple, patches.tolist()))
-    todo = [k for k in keys if k not in cache]
-    points = None
-    if todo:
-        whole = len(todo) == len(keys)  # a new content's first set: every grid is mapped here
-        obj = geom.shape.grids_for(patches if whole else np.array(todo, np.int64))
-        # one product over the missing grids; a grid's rows are then kept, so whichever set asks
-        # for the patch later gets these bits (a product's rounding may depend on its batch)
-        mapped = apply_xform(geom.xform, np.concatenate([g.points for g in obj]))
-        end = 0
-        for p, g in zip(todo, obj):
-            start, end = end, end + len(g.points)
-            cache[p] = (mapped[start:end], g.uv, g.triangles)
-        if whole:  # the set's points, in its order, already
-            points = mapped
-    grids = [cache[k] for k in keys]
-    # a grid's parameters and triangles are its patch's and density's alone
-    # (`acra.tessellate.patch_grids`): only the points are the surface's
-    uv, triangles, tri_patch = _LAYOUTS.kept(_patch_set_key(geom, patches),
-                                             lambda: _layout(patches, [PatchGrid(*g, None) for g in grids]))
-    return Tessellation(np.concatenate([g[0] for g in grids]) if points is None else points, uv, triangles, tri_patch)
-
-
-def _layout(patches: np.ndarray, grids: list[PatchGrid]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Parameters ``(n, 2)``, triangles ``(f, 3) int64`` and their patches ``(f, 2) int64`` of
-    the grids of ``patches (m, 2) int64`` one after the other."""
-    points = np.array([len(g.points) for g in grids])
-    faces = np.array([len(g.triangles) for g in grids])
-    triangles = np.concatenate([g.triangles for g in grids])
-    triangles += np.repeat(np.cumsum(points) - points, faces)[:, None]  # each grid's rows after the ones before
-    return np.concatenate([g.uv for g in grids]), triangles, np.repeat(patches, faces, axis=0)
-
-
-def _split_mapped(world: _World) -> None:
-    """Each grid's rows of the set a content mapped first (`_World.mapped`) into its per-patch
-    grids, so the sets asked later take those bits (a product's rounding may depend on its batch)."""
-    patches, points, grids = world.mapped
-    end = 0
-    for p, g in zip(map(tuple, patches.tolist()), grids):
-        start, end = end, end + len(g.points)
-        world.grids[p] = (points[start:end], g.uv, g.triangles)
-    world.mapped = None
-
-
-# a patch set's layout and distinct parameters, the 8 most recent kept: a whole-surface set of a
-# large model holds megabytes, and `dog_head_spike`'s 30 frames ask for 5 sets
-_LAYOUTS = memo.Table("detect.layouts", 8)  # `_tessellation`'s parameters, triangles and their patches, most recent last
-_DISTINCT = memo.Table("detect.distinct", 8)  # `_distinct`'s answers, most recent last
-
-
-def _patch_set_key(geom: SurfaceGeometry, patches: np.ndarray) -> tuple:
-    """What a tessellation's layout depends on: distinct ascending level-0 ``patches (m, 2)``,
-    their densities and the domain (its wrapping)."""
-    u, v = geom.surface.u, geom.surface.v
-    return (patches.tobytes(), geom.shape.density_map[patches[:, 0], patches[:, 1]].tobytes(),
-            u.periodic, u.patches0, v.periodic, v.patches0)
-
-
-def tessellated(geom: SurfaceGeometry) -> np.ndarray:
-    """Level-0 patches ``(m, 2) int64`` tessellated so far for ``geom`` (broad-phase audit; their
-    grids may have been built for an earlier geometry of the same content, `_World`)."""
-    if not geom._asked:
-        return np.zeros((0, 2), np.int64)
-    return unique_patches(np.concatenate(list(geom._asked.values())))
 
 
 # --- narrow phase -------------------------------------------------------------------------------
@@ -311,7 +186,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, firs
         cb = _patch_rows(keep_b, boxes_b[0].shape[:2])
     if not len(ca):
         return _no_intersections(collider)
-    ta = _tessellate(ga, ca)
+    ta = T.tessellate_sorted(ga, ca)
     if collider:  # the collider's face boxes are the run's (`ColliderStatic.face_boxes`)
         pa = apply_inverse(gb.xform, ta.points)
         ka, kb = _triangles_near(_face_boxes(pa, ta.triangles), gb.static.face_boxes, pad)
@@ -321,7 +196,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, firs
         # meet and B is not tessellated
         if box_b is None or not _box_meets(ta.bounds, box_b, pad):
             return _no_intersections(collider)
-        tb = _tessellate(gb, cb)
+        tb = T.tessellate_sorted(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
         ka, kb = _triangles_near(ta.face_boxes, tb.face_boxes, pad)
     if not len(ka):
@@ -583,33 +458,6 @@ class Region:
         return float(self.depth.max()) if self.depth.size else 0.0
 
 
-def _candidate_vertices(geom: Geometry, bounds: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray | None]:
-    """Distinct tessellation vertices of ``geom`` within ``bounds``: world ``(k, 3)``, uv or None."""
-    lo, hi = bounds[0] - pad, bounds[1] + pad
-    if isinstance(geom, SurfaceGeometry):
-        # the distinct vertices within the padded box, gathered in one compiled pass
-        # (`acra.narrow.rows_in_box`): most of the candidate patches' vertices lie outside it
-        patches = candidate_patches(geom, bounds, pad)
-        tess = _tessellate(geom, patches)
-        return narrow.rows_in_box(tess.points, tess.uv, _distinct(geom, patches, tess), lo, hi)
-    # a collider: the vertices of the faces near the box, in order
-    used = np.unique(geom.static.mesh.faces[geom.static.faces_near(geom.xform, np.stack([lo, hi]))])
-    pts = apply_xform(geom.xform, geom.static.mesh.vertices[used])
-    keep = (pts >= lo) & (pts <= hi)
-    keep = keep[:, 0] & keep[:, 1] & keep[:, 2]  # `np.all(axis=1)`, without its row-by-row reduction
-    return pts[keep], None
-
-
-def _distinct(geom: SurfaceGeometry, patches: np.ndarray, tess: Tessellation) -> np.ndarray:
-    """``unique_rows(wrap_uv(geom.surface, tess.uv))`` for ``tess = tessellate(geom, patches)``
-    (``patches`` distinct and ascending): the first row of each distinct vertex. A grid's
-    parameters are its patch's and density's alone (`acra.tessellate.patch_grids`), so the
-    answer is one of the patch set, the patches' densities and the domain's wrapping, whatever
-    the surface's shape: the rounds and frames of a contact ask for the same set again (25 of
-    28 times over `dog_head_spike`'s frames 13-17), and the last few answers are kept."""
-    return _DISTINCT.kept(_patch_set_key(geom, patches), lambda: unique_rows(wrap_uv(geom.surface, tess.uv)))
-
-
 def _empty_region(x: Geometry) -> Region:
     """No vertices of ``x``."""
     return Region(None if isinstance(x, ColliderGeometry) else np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0))
@@ -625,7 +473,7 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
         if not is_closed(y) or not _boxes_overlap(x, y, pad):
             out.append(_empty_region(x))
             continue
-        pts, uv = _candidate_vertices(x, y.bounds, pad)
+        pts, uv = T.vertices_in_box(x, y.bounds, pad)
         if depth:
             m, d = _inside_depth(y, pts)
         else:
@@ -645,7 +493,7 @@ def with_on_surface(x: Geometry, y: Geometry, region: Region, pad: float) -> Reg
     went through ``y`` up to its far face left touching (`contact.detect_pair`)."""
     if not is_closed(y) or not _boxes_overlap(x, y, pad):
         return region
-    pts, uv = _candidate_vertices(x, y.bounds, pad)
+    pts, uv = T.vertices_in_box(x, y.bounds, pad)
     near = surface_distance(y, pts)[0] <= ON_SURFACE * max(x.size, y.size)
     rows = lambda a: np.ascontiguousarray(a).view(np.dtype((np.void, 24))).ravel()  # noqa: E731 (exact rows)
     new = near & ~np.isin(rows(pts), rows(region.points))
@@ -682,7 +530,7 @@ def touching(ga: SurfaceGeometry, gb: Geometry) -> bool:
                 continue
         elif not np.all((x.vertices >= y.bounds[0] - pad) & (x.vertices <= y.bounds[1] + pad)):
             continue
-        pts, _ = _candidate_vertices(x, y.bounds, pad)
+        pts, _ = T.vertices_in_box(x, y.bounds, pad)
         sample = pts[np.linspace(0, len(pts) - 1, min(5, len(pts))).astype(np.int64)]
         if len(sample) and 2 * inside(y, sample).sum() > len(sample):
             return True

@@ -301,3 +301,23 @@ def usd_array_text(values, type_name: str) -> str:
     Sdf.AttributeSpec(prim, "v", kind, Sdf.VariabilityVarying, True).default = kind.type.pythonClass.FromNumpy(np.ascontiguousarray(values))
     line = next(x for x in layer.ExportToString().splitlines() if f"{type_name} v = " in x)
     return line.split(" = ", 1)[1]
+
+
+def responded_sphere(seed, absorption=(0, 0.5, 0.5)):
+    """A closed sphere with random offsets, level 2 movable about a random patch, and a response
+    there seeded with it as parent: ``hs``, ``out``, the response's report, the generator and the
+    response's world point ``p (1, 3)``."""
+    from acra import respond as R
+    from acra.controls import check_controls
+    from acra.targets import DataPoints
+    from pipeline import shape as S
+
+    rng = np.random.default_rng(seed)
+    hs = H.from_grid(*shapes.sphere(24, 16), depth=3)
+    u0 = int(rng.integers(0, 24))
+    hs = with_random_offsets(H.make_movable(hs, 2, [[4 * u0, 24]]), 0.02, seed)
+    uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
+    p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
+    out, rep = R.respond(hs, DataPoints(uv, 0.9 * p, np.array([True])), check_controls(3, absorption=list(absorption)))
+    S.seed_details(out, rep.details, parent=hs)
+    return hs, out, rep, rng, p

@@ -18,9 +18,10 @@ from pipeline import geometry
 from pipeline import contact as C
 from pipeline import detect as D
 from pipeline import shape as S
+from pipeline import tessellation as T
 from pipeline.model import ColliderModel, apply_inverse
-from conftest import (BOX_TRIANGLES, BOX_VERTICES, assert_finite, box, move, rotated_scaled, sheet_geom, sphere_geom, wavy_sheet,
-                      with_random_offsets)
+from conftest import (BOX_TRIANGLES, BOX_VERTICES, assert_finite, box, move, responded_sphere, rotated_scaled, sheet_geom,
+                      sphere_geom, wavy_sheet, with_random_offsets)
 
 def every_patch(hs):
     """All level-0 patches ``(P, 2) int64`` of ``hs``."""
@@ -176,23 +177,12 @@ def test_grids_of_a_refined_sphere_lie_on_it():
     hs = H.make_movable(hs, 3, [[20, 20]])  # level-0 patch (2, 2) and its neighbours get 16 steps
     g = geometry.SurfaceGeometry(with_random_offsets(hs), move(5.0, -2.0, 1.0))
     assert geometry.patch_density(g).max() == 16
-    tess = D.tessellate(g, every_patch(g.surface))
+    tess = T.tessellate(g, every_patch(g.surface))
     np.testing.assert_allclose(geometry.surface_points(g, tess.uv).points, tess.points, atol=1e-12)
     assert len(tess.points) == sum((s + 1) ** 2 for s in geometry.patch_density(g).reshape(-1))
     pts = g.xform[:3, 3] + np.random.default_rng(2).normal(size=(200, 3))
     d, _ = D.surface_distance(g, pts)
     np.testing.assert_allclose(d, brute_closest(g, pts), rtol=0, atol=1e-12 * g.size)
-
-
-def test_patch_density_follows_refinement():
-    hs = H.from_grid(*shapes.sheet(8, 8, width=5.0, depth=5.0), depth=5)
-    hs = H.refine(hs, 3, [[10, 10]])  # inside level-0 patch (1, 1)
-    g = geometry.SurfaceGeometry(hs, move())
-    dens = geometry.patch_density(g)
-    assert dens[1, 1] == 16 and dens.sum() == 8 * (dens.size - 1) + 16
-    tess = D.tessellate(g, [[1, 1], [0, 0]])
-    assert tess.points.shape == (17 * 17 + 9 * 9, 3) and tess.triangles.shape == (2 * 256 + 2 * 64, 3)
-    np.testing.assert_allclose(tess.points, H.evaluate(hs, tess.uv[:, 0], tess.uv[:, 1]).points, atol=1e-14)
 
 
 def test_broad_phase_tessellates_only_patches_near_the_box():
@@ -204,12 +194,12 @@ def test_broad_phase_tessellates_only_patches_near_the_box():
     assert c is not None and c.region_a.points.shape == (1, 3)  # the sheet's corner vertex
     np.testing.assert_allclose(c.region_a.points[0], [-8.5, -8.5, 0.0], atol=1e-12)
     assert c.depth == pytest.approx(0.1, abs=1e-12)
-    np.testing.assert_array_equal(D.tessellated(g), [[0, 0], [0, 1], [1, 0], [1, 1]])
+    np.testing.assert_array_equal(T.tessellated(g), [[0, 0], [0, 1], [1, 0], [1, 1]])
     assert "full" not in g.shape.__dict__  # the open sheet's full grid was never built
     # two spheres far apart: nothing is tessellated at all
     s1, s2 = sphere_geom(), sphere_geom(move(2.5, 0.3, 0.0), "/s2")
     assert C.detect_pair(s1, s2) is None
-    assert D.tessellated(s1).size == 0 and D.tessellated(s2).size == 0
+    assert T.tessellated(s1).size == 0 and T.tessellated(s2).size == 0
 
 
 def test_box_wholly_inside_sphere_is_detected_without_fcl_contact():
@@ -245,7 +235,7 @@ def test_sphere_wholly_inside_a_rotated_scaled_collider_has_exact_depths():
     c = C.detect_pair(s, b)
     assert c is not None and c.region_b.empty
     # every vertex is inside; a point inside a box is as deep as its nearest face plane
-    all_uv = D.tessellate(s, np.argwhere(np.ones((16, 11), bool))).uv
+    all_uv = T.tessellate(s, np.argwhere(np.ones((16, 11), bool))).uv
     assert len(c.region_a.points) == len(np.unique(geometry.wrap_uv(s.surface, all_uv), axis=0))
     local = apply_inverse(m, c.region_a.points)
     np.testing.assert_allclose(c.region_a.depth, 1.5 * (1.0 - np.abs(local)).min(axis=1), atol=1e-12)
@@ -444,29 +434,12 @@ def test_a_responded_shape_reuses_its_parents_grids_only_where_it_did_not_change
         np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-12)
 
 
-def _responded_sphere(seed, absorption=(0, 0.5, 0.5)):
-    """A closed sphere with random offsets, level 2 movable about a random patch, and a response
-    there seeded with it as parent: ``hs``, ``out``, the response's report, the generator and the
-    response's world point ``p (1, 3)``."""
-    from acra import respond as R
-
-    rng = np.random.default_rng(seed)
-    hs = H.from_grid(*shapes.sphere(24, 16), depth=3)
-    u0 = int(rng.integers(0, 24))
-    hs = with_random_offsets(H.make_movable(hs, 2, [[4 * u0, 24]]), 0.02, seed)
-    uv = np.array([[u0 + rng.uniform(0, 1), 6 + rng.uniform(0, 1)]])
-    p = H.evaluate(hs, uv[:, 0], uv[:, 1]).points
-    out, rep = R.respond(hs, DataPoints(uv, 0.9 * p, np.array([True])), check_controls(3, absorption=list(absorption)))
-    S.seed_details(out, rep.details, parent=hs)
-    return hs, out, rep, rng, p
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_responded_shape_s_grid_set_from_its_parents_answers_as_a_new_one(seed):
     """A responded shape queried near the response, where its parent was, takes the parent's
     `GridSet` of those patches (faces, parameters, refitted trees): its closest points, distances
     and parameters are those of a set built anew from the same grids, bit for bit."""
-    hs, out, _, rng, p = _responded_sphere(seed)
+    hs, out, _, rng, p = responded_sphere(seed)
     parent = S.shape_of(hs)
     q = p * rng.uniform(0.8, 1.1, (40, 1)) + 0.05 * rng.normal(size=(40, 3))
     found = tuple(range(len(parent._boxes[2])))
@@ -483,40 +456,13 @@ def test_a_responded_shape_s_grid_set_from_its_parents_answers_as_a_new_one(seed
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_candidate_vertices_kept_per_patch_set_equal_a_new_search(seed):
-    """`detect._candidate_vertices` and `detect.tessellate` keep each patch set's distinct vertex
-    rows (`_distinct`) and layout (parameters, triangles, patches) and give a responded surface,
-    moved, what they give with nothing kept, bit for bit, seams and poles of a closed surface
-    included."""
-    hs, out, _, _, _ = _responded_sphere(seed)
-    xform = move(0.3, -0.1, 0.2)
-    bounds = np.array([[-2.0, -2.0, -0.5], [2.0, 2.0, 2.0]]) + xform[:3, 3]
-    D._DISTINCT.clear()
-    D._LAYOUTS.clear()
-    D._candidate_vertices(geometry.SurfaceGeometry(hs, xform), bounds, 1e-7)
-    g = geometry.SurfaceGeometry(out, xform)
-    got = D._candidate_vertices(g, bounds, 1e-7)
-    assert len(D._DISTINCT) == len(D._LAYOUTS) == 1  # the responded surface's set was the parent's
-    kept = D.tessellate(g, geometry.candidate_patches(g, bounds, 1e-7))
-    D._DISTINCT.clear()
-    D._LAYOUTS.clear()
-    g = geometry.SurfaceGeometry(out, xform)
-    ref = D._candidate_vertices(g, bounds, 1e-7)
-    assert len(got[0]) > 100
-    for a, b in zip(got, ref):
-        np.testing.assert_array_equal(a, b)
-    for name in ("points", "uv", "triangles", "tri_patch"):
-        np.testing.assert_array_equal(getattr(kept, name), getattr(D.tessellate(g, geometry.candidate_patches(g, bounds, 1e-7)), name))
-
-
 @pytest.mark.parametrize("seed,absorption", [(0, [0, 0.5, 0.5]), (2, [0.4, 0.3, 0.3]), (3, [1.0, 0, 0])])
 def test_a_responded_shapes_orientation_needs_no_changed_patches(seed, absorption):
     """`Shape.outward` of a responded shape (the residual's only ask of it, `frames._Run.visible`)
     evaluates its coarse grid without finding the changed patches (`_stale`, which compares every
     level): the same points as a fresh shape's, bit for bit, so the same sign; the changed patches
     are found once a builder that reuses the parent's asks (`coarse_index`), with the same answers."""
-    hs, out, rep, rng, p = _responded_sphere(seed, absorption)
+    hs, out, rep, rng, p = responded_sphere(seed, absorption)
     parent = S.shape_of(hs)
     parent.coarse_index  # the parent's grid and tree built, as detection leaves them
     child = S.shape_of(out)
@@ -538,7 +484,7 @@ def test_a_responded_shape_reuses_its_parents_boxes_and_coarse_grid_exactly(seed
     """Hull boxes and the coarse sample grid of a responded shape (the parent's where the
     response did not reach, recomputed elsewhere) equal a fresh shape's bit for bit, whichever
     levels moved."""
-    hs, out, rep, _, _ = _responded_sphere(seed, absorption)
+    hs, out, rep, _, _ = responded_sphere(seed, absorption)
     parent = S.shape_of(hs)
     child = S.shape_of(out)
     assert child.parent is parent and 0 < child._stale.sum() < child._stale.size
@@ -587,7 +533,7 @@ def test_inside_is_reproducible_for_points_on_the_surface():
     """Points exactly on the surface make trimesh re-cast in a random direction; the answer must
     still be the same on every call (a farm run is reproducible)."""
     g = sphere_geom()
-    on = D.tessellate(g, every_patch(g.surface)).points[::7]
+    on = T.tessellate(g, every_patch(g.surface)).points[::7]
     rng = np.random.default_rng(3)
     mid = on + 1e-12 * rng.normal(size=on.shape)
     first = D.inside(g, mid)
@@ -725,7 +671,7 @@ def test_a_responded_shape_s_cv_hull_is_level_0_s_and_its_moved_cvs(seed, absorp
     0 shares its parent's level-0 hull, and where no CV with a detail leaves it, takes it whole."""
     from scipy.spatial import ConvexHull
 
-    hs, out, rep, _, _ = _responded_sphere(seed, absorption)
+    hs, out, rep, _, _ = responded_sphere(seed, absorption)
     parent, child = S.shape_of(hs), S.shape_of(out)
     parent._level0_index  # built, as detection on an input without details builds it before a response
     every = np.concatenate(child.cv_positions)
@@ -800,19 +746,6 @@ def test_a_pair_apart_builds_no_world_patch_boxes():
     assert "boxes" not in vars(ga) and "boxes" not in vars(gb)
     near = sphere_geom(move(1.5, 0, 0), "/near")
     assert C.detect_pair(ga, near) is not None and "boxes" in vars(ga)
-
-
-def test_unique_patches_and_rows_are_numpy_unique():
-    """`detect.unique_patches` and `detect.unique_rows` give `np.unique(axis=0)`'s rows and first
-    indices, in its order, signed zeros and repeated rows included."""
-    rng = np.random.default_rng(0)
-    for _ in range(100):
-        n = int(rng.integers(1, 300))
-        x = rng.integers(-3, 6, (n, 2)).astype(float) / rng.choice([1, 3, 7])
-        x = np.where(rng.random((n, 2)) < 0.05, -0.0, x)
-        assert np.array_equal(D.unique_rows(x), np.unique(x, axis=0, return_index=True)[1])
-        p = rng.integers(0, 30, (n, 2))
-        assert np.array_equal(D.unique_patches(p), np.unique(p, axis=0))
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -959,14 +892,14 @@ def test_geometries_of_the_same_content_share_world_data_and_others_do_not():
     hs = H.from_grid(*shapes.sphere(16, 14))
     patches = np.array([[0, 0], [1, 2], [3, 1]])
     a = geometry.SurfaceGeometry(hs, move(0.25, 0.0, 0.0))
-    ta = D.tessellate(a, patches)
+    ta = T.tessellate(a, patches)
     b = geometry.SurfaceGeometry(H.with_cvs(hs, hs.cvs.copy()), move(0.25, 0.0, 0.0))
-    assert b._world is a._world and b.boxes is a.boxes and D.tessellate(b, patches) is ta
+    assert b._world is a._world and b.boxes is a.boxes and T.tessellate(b, patches) is ta
     assert b.bounds is a.bounds and not a.bounds.flags.writeable  # shared, so no caller may write it
-    assert D.tessellated(b).tolist() == patches.tolist()
+    assert T.tessellated(b).tolist() == patches.tolist()
     for other in (geometry.SurfaceGeometry(hs, move(0.5, 0.0, 0.0)), geometry.SurfaceGeometry(H.with_cvs(hs, 1.5 * hs.cvs), move(0.25, 0.0, 0.0))):
         assert other._world is not a._world
-        t = D.tessellate(other, patches)
+        t = T.tessellate(other, patches)
         np.testing.assert_allclose(t.points, apply_xform(other.xform, H.evaluate(other.surface, t.uv[:, 0], t.uv[:, 1]).points), atol=1e-13)
         assert not np.allclose(t.points, ta.points)
         lo, hi = other.shape.hulls  # the world boxes of this surface at this matrix, found afresh
@@ -994,12 +927,12 @@ def test_a_new_contents_first_patch_set_maps_the_shapes_kept_grid_points():
     seen = []
     for k in range(3):
         g = geometry.SurfaceGeometry(hs, move(0.1 + 0.37 * k, 0.2 * k, 0.0))
-        t = D.tessellate(g, first)
+        t = T.tessellate(g, first)
         obj, grids = g.shape.cache.set_points(first)
         seen.append(obj)
         assert not obj.flags.writeable
         np.testing.assert_array_equal(t.points, apply_xform(g.xform, np.concatenate([x.points for x in g.shape.grids_for(first)])))
-        u = D.tessellate(g, later)
+        u = T.tessellate(g, later)
         rows = np.cumsum([0] + [len(x.points) for x in grids])
         later_rows = np.cumsum([0] + [len(x.points) for x in g.shape.grids_for(later)])
         for i, j in ((1, 0), (2, 2)):  # patch (1, 2) and (3, 1): rows of the first set's product
