@@ -127,7 +127,7 @@ def data_points_for(
         if isinstance(gb, geometry.ColliderGeometry):
             r_uv, r_world, r_goal = rim.rim_points(ga, gb, region_uv, direction, group_level)
             if len(r_uv):  # a rim patch's point is its rim point, not its middle
-                valid &= ~_member(patch_keys(ga.surface, mids, group_level), patch_keys(ga.surface, r_uv, group_level))
+                valid &= ~member(patch_keys(ga.surface, mids, group_level), patch_keys(ga.surface, r_uv, group_level))
                 mids, a_world = np.concatenate([mids, r_uv]), np.concatenate([a_world, r_world])
                 wanted = np.concatenate([wanted, additional_targets(r_world, r_goal, share)])
                 valid = np.concatenate([valid, np.ones(len(r_uv), bool)])
@@ -143,9 +143,10 @@ def data_points_for(
     return DataPoints(uv_all, ga.to_object(world), is_contact), world, np.concatenate(origins)  # `apply_inverse`'s bits
 
 
-def _member(keys: np.ndarray, among: np.ndarray) -> np.ndarray:
+def member(keys: np.ndarray, among: np.ndarray) -> np.ndarray:
     """``np.isin(keys, among)`` of integer keys ``(n,)`` and ``(m,)``: ``(n,) bool``. A region's
-    patch middles against its rim's patches, a few dozen each: each key's place in the sorted
+    patch middles against its rim's patches, or a round's points' patches against detection's, a
+    few dozen each: each key's place in the sorted
     ``among`` (the first not below it) holds it or no place does, four numpy steps where
     `np.isin`'s set-up costs several times as much."""
     if not len(among):

@@ -523,7 +523,7 @@ class _Run:
                 # patch fight in the interpolation, and the surface swings between them from
                 # round to round)
                 taken = np.concatenate([d.uv for d, _, _ in points.get(j, [])] or [np.zeros((0, 2))])
-                keep = ~np.isin(patch_keys(gm.surface, uv, level), patch_keys(gm.surface, taken, level))
+                keep = ~P.member(patch_keys(gm.surface, uv, level), patch_keys(gm.surface, taken, level))
                 keep &= P.spread(start, np.full(3, np.inf), P.MEET * gm.size)
                 if keep.any():
                     dp = DataPoints(uv[keep], apply_inverse(gm.xform, world[keep]), np.zeros(int(keep.sum()), bool))

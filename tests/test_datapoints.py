@@ -280,7 +280,7 @@ def test_thinning_keeps_the_points_the_array_form_keeps(surface):
 
 @pytest.mark.parametrize("seed", range(5))
 def test_member_is_numpys_isin(seed):
-    """`datapoints._member` (the patch keys of a region's middles among its rim's) is
+    """`datapoints.member` (the patch keys of a region's middles among its rim's) is
     ``np.isin``: keys below, between and above the others, repeats, negative keys (a NaN
     parameter's least int64), either side empty."""
     rng = np.random.default_rng(seed)
@@ -289,5 +289,5 @@ def test_member_is_numpys_isin(seed):
         among = rng.integers(0, 50, m).astype(np.int64)
         if n > 2:
             keys[0] = np.iinfo(np.int64).min
-        got = P._member(keys, among)
+        got = P.member(keys, among)
         assert got.dtype == bool and np.array_equal(got, np.isin(keys, among))
