@@ -37,6 +37,7 @@ from pipeline.run import forget, run_file  # noqa: E402
 
 RUNS = ((0, 8), (2, 8))  # (refinements of the head's level 0, collision density): ×1 and ×16
 TIMES = one_frame.TIMES
+STAGES = ("ms_setup", "ms_detect", "ms_convert", "ms_respond", "ms_visible", "ms_output")
 
 
 def _counting():
@@ -112,6 +113,7 @@ def main() -> None:
     cpu = {r: [] for r in RUNS}
     vis = {r: [] for r in RUNS}
     per = {r: {} for r in RUNS}  # frame -> CPU ms of each pass
+    split = {r: {} for r in RUNS}  # (frame, stage) -> CPU ms of each pass
     wall = time.perf_counter
     for k in range(args.repeat):
         for scale, density in RUNS:
@@ -126,12 +128,16 @@ def main() -> None:
             vis[scale, density].append(float(np.median([s.ms_visible for s in hit])))
             for s in hit:
                 per[scale, density].setdefault(s.frame, []).append(s.ms_total)
+                for key in STAGES:
+                    split[scale, density].setdefault((s.frame, key), []).append(getattr(s, key))
     med = {}
     for r in RUNS:
         med[r] = statistics.median(cpu[r])
         print(f"×{4 ** r[0]} density {r[1]}: CPU ms a collision frame {med[r]:.2f} ({min(cpu[r]):.2f}–{max(cpu[r]):.2f}), "
               f"rounds' residual {statistics.median(vis[r]):.2f} ({min(vis[r]):.2f}–{max(vis[r]):.2f})")
         print("  per frame, median CPU ms: " + ", ".join(f"{f}: {statistics.median(v):.2f}" for f, v in sorted(per[r].items())))
+        for f in sorted(per[r]):
+            print(f"    frame {f}: " + ", ".join(f"{k[3:]} {statistics.median(split[r][f, k]):.2f}" for k in STAGES))
     print(f"ratio ×16 density 8 / ×1: {med[RUNS[1]] / med[RUNS[0]]:.3f}")
     print(f"digest {h.hexdigest()[:12]}")
 
