@@ -1,6 +1,7 @@
 """The scale curve's ×1 head and its ×16 head at the default density 8, collision frame by frame.
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD python3 benchmarks/scale_frames.py [--repeat 5]
+    PYTHONPATH=$PWD python3 benchmarks/scale_frames.py --scenes   # first rounds completed per scene
 
 `benchmarks/scale_curve.py`'s ×1 stage (density 8) and ×16 stage at density 8 (the run whose
 ratio to ×1 is the goal's hardest; docs/scale-curve.md), each run over the whole 30-frame scene
@@ -15,6 +16,9 @@ the median over the passes of each pass's median CPU ms a collision frame (``ms_
 `FrameStats` figure but the times and of the output layers' bytes: two checkouts agree where
 their digests agree. Another checkout's code runs with its own ``PYTHONPATH``, so two checkouts
 can be alternated.
+
+``--scenes`` instead runs every scene of ``scenes/`` once and prints, per scene, how many
+stopped first rounds `residual.complete` measured in full and how many stopped pairs they held.
 """
 
 from __future__ import annotations
@@ -71,7 +75,10 @@ def _counting():
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--scenes", action="store_true", help="count the completed first rounds of every scene")
     args = ap.parse_args()
+    if args.scenes:
+        return scenes()
     tmp = Path(tempfile.mkdtemp(prefix="scale_frames_"))
     grids = scale_curve.head_grids()
     srcs = {}
@@ -140,6 +147,24 @@ def main() -> None:
             print(f"    frame {f}: " + ", ".join(f"{k[3:]} {statistics.median(split[r][f, k]):.2f}" for k in STAGES))
     print(f"ratio ×16 density 8 / ×1: {med[RUNS[1]] / med[RUNS[0]]:.3f}")
     print(f"digest {h.hexdigest()[:12]}")
+
+
+def scenes() -> None:
+    """Per scene of ``scenes/``: the stopped first rounds `residual.complete` measured in full,
+    and the stopped pairs they held."""
+    counts, restore = _counting()
+    tmp = Path(tempfile.mkdtemp(prefix="scale_frames_"))
+    rows = []
+    try:
+        for src in sorted((Path(__file__).resolve().parents[1] / "scenes").glob("[!_]*.py")):
+            before = dict(counts)
+            forget()
+            run_file(src, output=tmp / f"{src.stem}.acra.usda")
+            rows.append(f"{src.stem} {counts['complete'] - before['complete']}/{counts['completed_pairs'] - before['completed_pairs']}")
+    finally:
+        restore()
+    print("completed first rounds / their stopped pairs: " + ", ".join(rows))
+    print(f"all scenes: {counts['complete']} / {counts['completed_pairs']}")
 
 
 if __name__ == "__main__":
