@@ -636,8 +636,13 @@ class _Run:
             score = max(vis.worst_rel, rnd.unseen_rel)
             if first is not None and score > options.tolerance:
                 # the first round holds lower bounds over the tolerance: a round within it is kept
-                # before it whatever its exact figures, one over it is held against them
-                kept, best = self._completed(st, first, best)
+                # before it whatever its exact figures, one over it is held against them. Its full
+                # score is at least its lower one over `residual.OVER` (a stopped side's full bound
+                # is at least its deepest point found but for eq. (6)'s rounding), so a round
+                # below that is kept before it too, and the first round is never reported: it
+                # needs no full measure
+                if not residual.OVER * score < best[0]:
+                    kept, best = self._completed(st, first, best)
                 first = None
             if score < best[0]:
                 best = (score, list(surfaces))

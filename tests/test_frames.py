@@ -363,11 +363,11 @@ def test_respond_frames_limits_blas_through_the_process_s_one_controller(tiny_st
 DEMO = Path(__file__).resolve().parents[1] / "scenes" / "dog_head_spike.py"
 
 
-def _demo_frames(frames, monkeypatch=None, settle=True, respond=True):
+def _demo_frames(frames, monkeypatch=None, settle=True, respond=True, options=F.RunOptions()):
     """The demo's ``frames`` after a run's state is dropped: the results and statistics, and each
     `residual.pair_depth` call's stop (finite or not), stopped or not, and how many calls each
     `_Run.visible` made. ``settle`` false: every side of the first round measured in full (as
-    without `_settle`); ``respond`` false: no response changes a surface."""
+    without `_settle`); ``respond`` false: no response changes a surface; ``options`` the run's."""
     from pipeline import residual, usdio
     from pipeline.run import forget
 
@@ -394,7 +394,7 @@ def _demo_frames(frames, monkeypatch=None, settle=True, respond=True):
             mp.setattr(F._Run, "respond", lambda self, *a, **k: None)
         forget()
         stage = usdio.open_input(usdio.load_scene_file(DEMO))
-        result, stats = F.respond_frames(stage, usdio.read_scene(stage), frames)
+        result, stats = F.respond_frames(stage, usdio.read_scene(stage), frames, options)
     return result, stats, calls, per_round
 
 
@@ -445,3 +445,24 @@ def test_a_kept_first_round_reports_its_full_measure():
     assert got[1][0].residual_rel > 1e-3 and got[1][0].iterations == F.RunOptions().iterations
     _same_outcome(got[:2], want[:2])
     assert len(got[0].residuals[15]) == 2  # both sides of the pair, the unmeasured one among them
+
+
+def test_a_first_round_a_later_round_beats_by_its_lower_bounds_is_not_completed():
+    """At half the default tolerance the demo's frame 15 takes two responses: its second round
+    is over the tolerance, yet below the first round's lower bound (the spike's tip, one deep
+    point) over `residual.OVER`, so the first round can never be kept or reported and is not
+    measured in full (`residual.complete` is not called); every figure and kept answer is the
+    full measure's."""
+    from pipeline import residual
+
+    options = F.RunOptions(tolerance=5e-4)
+    completed = []
+    complete = residual.complete
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(residual, "complete", lambda fr, *a, **k: completed.append(fr.stopped) or complete(fr, *a, **k))
+        got = _demo_frames([15], options=options)
+    want = _demo_frames([15], settle=False, options=options)
+    assert got[3][0] == (True, 1) and len(got[3]) == 3  # the second round measured, so over the tolerance
+    assert got[1][0].iterations == 2 and got[1][0].residual_rel <= 5e-4
+    assert completed == [] and got[2].count((True, True)) == 1
+    _same_outcome(got[:2], want[:2])
