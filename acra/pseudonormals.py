@@ -69,6 +69,56 @@ def _used(v, f, rows):
 
 
 @njit(cache=True, nogil=True)
+def _popcount(x):
+    """The bits set in the ``uint64`` ``x`` (summed in pairs, nibbles, then bytes)."""
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return np.int64((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
+@njit(cache=True, nogil=True)
+def _used_bits(v, f):
+    """`_used` of every face of ``f (F, 3) int64`` as each corner's place among the used
+    vertices ``(F, 3) int64`` (`_used`'s ``new[f]``) and those vertices ``(k, 3)``, through one
+    bit per vertex of ``v (n, 3)``: a vertex's place is the count of used vertices below it, the
+    counts of the words before its word plus the bits below it in its word. A part of a large
+    display uses a few hundred of its tens of thousands of points, and `_used`'s three passes
+    over all of them cost more than the part's weld."""
+    words = (v.shape[0] + 63) // 64
+    bits = np.zeros(words, np.uint64)
+    for i in range(f.shape[0]):
+        for k in range(3):
+            j = f[i, k]
+            bits[j >> 6] |= np.uint64(1) << np.uint64(j & 63)
+    before = np.empty(words, np.int64)  # the used vertices in the words before
+    total = 0
+    for w in range(words):
+        before[w] = total
+        total += _popcount(bits[w])
+    out = np.empty((total, 3))
+    r = 0
+    for w in range(words):  # each used vertex in increasing row, its values element by element (`_used`)
+        x = bits[w]
+        while x:
+            low = x & (~x + np.uint64(1))
+            j = 64 * w + _popcount(low - np.uint64(1))
+            for k in range(3):
+                out[r, k] = v[j, k]
+            r += 1
+            x ^= low
+    place = np.empty((f.shape[0], 3), np.int64)
+    for i in range(f.shape[0]):
+        for k in range(3):
+            j = f[i, k]
+            place[i, k] = before[j >> 6] + _popcount(bits[j >> 6] & ((np.uint64(1) << np.uint64(j & 63)) - np.uint64(1)))
+    return place, out
+
+
+SPARSE = 16  # `weld` numbers the used vertices by bits where the points outnumber the faces this many times
+
+
+@njit(cache=True, nogil=True)
 def _join(parent, i, j, dx, dy, dz, below):
     """Joins ``i`` and ``j``, whose difference is ``(dx, dy, dz)`` and squared distance at most
     `weld`'s ``above``, if it is at most ``below``; false if not (undecided). `_pairs_by_cells`
@@ -136,12 +186,21 @@ def weld(v, f, radius):
     """The vertices ``v (n, 3)`` that faces ``f (F, 3) int64`` use, welded: chained by distances
     within ``radius``, each group one vertex, its lowest row's, groups in the order of their
     lowest rows (`pipeline.clearance._weld`'s connected components over the used vertices).
+    Where the points outnumber the faces `SPARSE` times (a part of a large display) the used
+    vertices are numbered by a bit per point (`_used_bits`), else by a pass over them (`_used`).
 
     Returns ``(code, vertices (g, 3), faces (F, 3) int64)``; ``code`` 1 (and nothing else) if a
     pair's distance lies within 1e-9 of ``radius`` relative, where another computation of the
     distance might decide otherwise, or a coordinate lies beyond ``2^50`` times the radius
     (`_pairs_by_cells`; the caller then welds with its kd-tree)."""
-    rank, vu = _used(v, f, np.arange(f.shape[0]))
+    if v.shape[0] > SPARSE * f.shape[0]:  # a part of a large display: no pass over all its points
+        place, vu = _used_bits(v, f)
+    else:
+        rank, vu = _used(v, f, np.arange(f.shape[0]))
+        place = np.empty((f.shape[0], 3), np.int64)
+        for i in range(f.shape[0]):
+            for k in range(3):
+                place[i, k] = rank[f[i, k]]
     g = vu.shape[0]
     parent = np.arange(g)
     if radius > 0:
@@ -167,7 +226,7 @@ def weld(v, f, radius):
     fw = np.empty((f.shape[0], 3), np.int64)
     for i in range(f.shape[0]):
         for k in range(3):
-            fw[i, k] = label[rank[f[i, k]]]
+            fw[i, k] = label[place[i, k]]
     return 0, vw, fw
 
 

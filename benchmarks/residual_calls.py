@@ -7,7 +7,8 @@ Runs the scene's ``--frames`` (after a free frame, as `stage_split.py` does), ke
 replays them ``--passes`` times, each pass with empty part caches (every part solid built again,
 as the first query of a display builds it) and one fresh copy of each recorded `Shown`, shared by
 its calls as the run shares it (what it keeps: fingerprint, boxes, face chunks), and prints the CPU milliseconds of the fastest pass,
-its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box; where
+its split (closest-point searches, part solids, eq. (6), eq. (3), the triangles near a box, the
+boxes of points `acra.bvh.bounds` takes as a module's attribute; where
 the branch and bound is one compiled call, `acra.depthbound.depth`, its searches and eq. (6) are inside it) and a digest of every answer (depths,
 completeness, the points, parameters and depths found inside): two checkouts answer alike when
 their digests agree. Run it with ``PYTHONPATH`` at each checkout, alternating, for a comparison.
@@ -104,7 +105,8 @@ def main() -> None:
                         ("face_chunks", "triangles near a box (faces_meet_rows)"),  # boxes of a display's faces in chunks
                         ("faces_meet_rows", "triangles near a box (faces_meet_rows)"),  # its form giving the rows
                         ("depth", DEPTH),  # in one compiled call
-                        ("covering_radii", "covering radii (eq. (3))")):  # its compiled form
+                        ("covering_radii", "covering radii (eq. (3))"),  # its compiled form
+                        ("bounds", "boxes of points (bounds)")):  # `acra.bvh.bounds` as a module's attribute (`Shown.box_local`)
         for module in _kernel_modules():
             if hasattr(module, name):
                 setattr(module, name, _timed(label, getattr(module, name)))

@@ -146,7 +146,15 @@ class Shown:
 
     @cached_property
     def box_local(self) -> np.ndarray:
-        """The box ``(2, 3)`` of the object-space display points."""
+        """The box ``(2, 3)`` of the object-space display points. Under the identity matrix
+        (a translation of zeros) a finite world box is theirs, taken already (`shown`): each
+        world value is its point's ``x * 1`` plus zeros, the same value but for a zero's sign,
+        which neither the grid's cells (``floor((x - origin) / h)``, `acra.clearcells`) nor the
+        diagonal (squares) reads, and a point that is not finite leaves a coordinate of the
+        world box not finite."""
+        x = self.xform
+        if not np.count_nonzero(x[:3] - _IDENTITY34) and np.isfinite(self.box).all():  # a NaN counts
+            return self.box
         return bvh.bounds(self.local)
 
     @cached_property
@@ -154,6 +162,8 @@ class Shown:
         """Diagonal of the box of the object-space display points (the scale solids weld at)."""
         return float(np.linalg.norm(self.box_local[1] - self.box_local[0]))
 
+
+_IDENTITY34 = np.eye(4)[:3]  # an affine matrix's rows of the identity map
 
 _DIGESTS = memo.Table("residual.digests", 16)  # id(array) -> (array, digest), the arrays made read-only, most recent last
 

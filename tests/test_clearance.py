@@ -771,6 +771,31 @@ def test_non_uniform_scale_bound_covers_world_truth():
         assert k * d.bound >= dense_depth(world, tw) - 1e-12
 
 
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 3000), faces=st.integers(1, 200))
+def test_a_few_faces_of_many_points_number_their_vertices_by_bits_as_a_pass_over_them(seed, n, faces):
+    """`pseudonormals._used_bits` (a bit per point, counted) gives `_used`'s places of the
+    faces' corners and its vertices, bit for bit, however the used points fall across the
+    64-point words; `weld` of a few faces of many points (its bits) is the array form's."""
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(n, 3))
+    v[rng.random(v.shape) < 0.1] = -0.0
+    f = rng.integers(0, n, size=(faces, 3))
+    if rng.random() < 0.5:  # neighbouring rows, as a display's part uses them
+        f = np.minimum(f % 70 + int(rng.integers(0, n)), n - 1)
+    place, vu = pseudonormals._used_bits(v, f)
+    rank, want = pseudonormals._used(v, f, np.arange(faces))
+    assert np.array_equal(place, rank[f]) and vu.tobytes() == want.tobytes()
+    radius = 0.05
+    code, vw, fw = pseudonormals.weld(v, f, radius)
+    if n > pseudonormals.SPARSE * faces and code == 0:
+        used = np.unique(f)
+        label = C._weld(v[used], radius)
+        first = np.unique(label, return_index=True)[1]
+        assert vw.tobytes() == v[used][first].tobytes()
+        np.testing.assert_array_equal(fw, label[np.searchsorted(used, f)])
+
+
 @pytest.mark.parametrize("offset", [0.0, 3e12])
 def test_compiled_weld_is_the_kd_trees(offset):
     """`pseudonormals.weld` joins the groups `clearance._weld` (a kd-tree's pairs) joins, each

@@ -71,6 +71,46 @@ def test_a_translated_display_is_placed_in_one_pass_with_apply_xform_s_bits(t):
     assert world.tobytes() == (local @ m[:3, :3].T + m[:3, 3]).tobytes()
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_a_display_s_object_space_box_under_the_identity_is_its_world_box(seed):
+    """`Shown.box_local` under an identity matrix (a translation of +0.0 or -0.0) is the world box
+    `shown` took, the values of `bvh.bounds` of the object-space points (a zero's sign aside),
+    so the grid's cells and the weld's scale are the same bits; under a translation, or with a
+    point that is not finite, it is `bvh.bounds`' own."""
+    from acra import bvh, clearcells
+
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(300, 3)) * 10.0 ** rng.integers(-3, 4)
+    p[rng.random(p.shape) < 0.2] = 0.0
+    p[rng.random(p.shape) < 0.2] = -0.0
+    tris = np.arange(300, dtype=np.int64).reshape(-1, 3)
+    m = np.eye(4)
+    m[:3, 3] = rng.choice([0.0, -0.0], 3)
+    s = residual.shown("/pts", p, tris, m, closed=True)
+    ref = bvh.bounds(s.local)
+    assert s.box_local is s.box and np.array_equal(s.box_local, ref)
+    assert s.diagonal_local == float(np.linalg.norm(ref[1] - ref[0]))
+    # the cells the grid reads of the box: floor((x - origin) / h) at the box's corners
+    origin, h = rng.normal(size=3) * np.abs(ref).max(), 0.37 * float(np.ptp(ref, axis=0).max())
+    assert np.array_equal(np.floor((s.box_local - origin) / h), np.floor((ref - origin) / h))
+    tri = s.corners[:20]
+    rho = np.full(len(tri), 1e-3)
+    for kept_box in (s.box_local, ref):  # `clearcells.clear_of` with either box: the same answer
+        got = clearcells.clear_of(s.local, s.triangles, tri, rho, 0.0, 0.1, kept_box)
+        if kept_box is ref:
+            assert (got is None) == (first is None)
+            if got is not None:
+                assert all(np.array_equal(a, b) for a, b in zip(got[:2], first[:2])) and got[2] == first[2]
+        first = got
+    m[:3, 3] = (0.25, 0.0, 0.0)  # a translation: its own box
+    t = residual.shown("/pts", p, tris, m, closed=True)
+    assert t.box_local is not t.box and t.box_local.tobytes() == bvh.bounds(t.local).tobytes()
+    q = p.copy()
+    q[5, 1] = np.inf
+    u = residual.shown("/pts", q, tris, np.eye(4), closed=True)
+    assert u.box_local is not u.box and u.box_local.tobytes() == bvh.bounds(u.local).tobytes()
+
+
 def test_a_display_s_triangles_and_parameters_are_held_as_given():
     """`shown` holds a display's own triangles and parameters (the topology's: a numba kernel's
     output can carry another instance of the int64 dtype), so every round's `Shown` of the
