@@ -676,31 +676,15 @@ def _matrix(m) -> np.ndarray:
     return np.asarray(m, np.float64).T.copy()  # a Gf matrix's buffer: its 16 doubles, row by row
 
 
-def _transform_might_vary(prim: Usd.Prim) -> bool:
-    """Whether ``prim``'s world transform might differ between time codes: any of its or its
-    ancestors' transform ops might vary in time (`UsdGeom.Xformable.TransformMightBeTimeVarying`:
-    more than one time sample, a spline, varying clips)."""
-    while prim and not prim.IsPseudoRoot():
-        xformable = UsdGeom.Xformable(prim)
-        if xformable and xformable.TransformMightBeTimeVarying():
-            return True
-        prim = prim.GetParent()
-    return False
-
-
 def _world(stage: Usd.Stage, path: str, t: float, caches: list, held: dict | None) -> np.ndarray:
     """The object-to-world matrix ``(4, 4) float64`` (column-vector) of the prim at ``path`` at
-    time code ``t``, a new array. With ``held``, the prim is looked up once, and a transform that cannot
-    vary in time (`_transform_might_vary`) is read once and handed back as a copy at every later
-    call. ``caches`` holds the time code's one `UsdGeom.XformCache`, taken at its first need
-    (ancestors' transforms are shared between the objects of one time code): a new one, or with
-    ``held`` the one ``held`` keeps, moved to the time code (`UsdGeom.XformCache.SetTime`)."""
+    time code ``t``, a new array. ``caches`` holds the time code's one `UsdGeom.XformCache`,
+    taken at its first need (ancestors' transforms are shared between the objects of one time
+    code): a new one, or with ``held`` the one ``held`` keeps, moved to the time code
+    (`UsdGeom.XformCache.SetTime`), and the prim looked up once."""
     if held is None:
         prim = stage.GetPrimAtPath(path)
     else:
-        fixed = held.get(("world", path))
-        if fixed is not None:
-            return fixed.copy()
         prim = held.get(("prim", path))
         if prim is None:
             prim = held[("prim", path)] = stage.GetPrimAtPath(path)
@@ -715,12 +699,7 @@ def _world(stage: Usd.Stage, path: str, t: float, caches: list, held: dict | Non
                 cache = held["xform cache"] = UsdGeom.XformCache(t)
             cache.SetTime(t)
             caches.append(cache)
-    matrix = _matrix(caches[0].GetLocalToWorldTransform(prim))
-    if held is not None and ("world?", path) not in held:
-        held[("world?", path)] = True  # asked once: the answer holds for the unedited stage
-        if not _transform_might_vary(prim):
-            held[("world", path)] = matrix.copy()
-    return matrix
+    return _matrix(caches[0].GetLocalToWorldTransform(prim))
 
 
 def state_at(stage: Usd.Stage, scene: SceneModel, t: float, held: dict | None = None) -> tuple[list[DeformableState], list[ColliderState]]:
@@ -732,9 +711,8 @@ def state_at(stage: Usd.Stage, scene: SceneModel, t: float, held: dict | None = 
     left unedited, e.g. a run's) holds each deformable's surface and ``acra:enabled`` where USD
     says they cannot vary in time (`Usd.Attribute.ValueMightBeTimeVarying`: at most one time
     sample, no varying clips; these array and bool types take no spline), read at the first call
-    and handed back, the same objects, at every later one; and each object's prim and, where no
-    transform op of it or its ancestors might vary in time, its world transform (`_world`: a
-    copy at each call, as a transform read from the stage is a new array).
+    and handed back, the same objects, at every later one; and each object's prim and one
+    `UsdGeom.XformCache` for the world transforms (`_world`).
     """
     t = float(t)
     caches: list = []  # the time code's XformCache, made where a transform is read from the stage

@@ -177,10 +177,10 @@ def test_state_at_spline_op_and_animated_parent_at_subframes():
 
 
 def test_state_at_with_held_transforms_gives_the_stages_matrices_at_every_time():
-    """`state_at` with ``held``: a transform no op of the object or its ancestors varies in time
-    (none, one time sample, a static parent) is read once and handed back as a new array; one
-    under an animated parent, a spline op or keyed ops is read at each time. Every matrix is the
-    same bits as without ``held``, whatever time is asked first."""
+    """`state_at` with ``held`` reads world transforms through the one `UsdGeom.XformCache` it
+    keeps, moved to each time code: under a static parent, an animated parent, a spline op or
+    keyed ops, every matrix is the same bits as a new cache's (no ``held``), whatever time is
+    asked first and in whatever order, and a new array at each call."""
     stage = A.new_stage(0, 4)
     cvs, _, _ = shapes.sheet(4, 4)
     still = A.add_xform(stage, "/World/still")
@@ -214,12 +214,9 @@ def test_state_at_with_held_transforms_gives_the_stages_matrices_at_every_time()
                 np.testing.assert_array_equal(a.xform, b.xform)
                 assert all(a.xform is not s and not np.shares_memory(a.xform, s) for s in seen)
                 seen.append(a.xform)
-            ds[3].xform[:] = np.nan  # a caller's changes to a held matrix's copy stay its own
+            ds[3].xform[:] = np.nan  # a caller's changes to its matrix stay its own
             cs[0].xform[:] = np.nan
-        # held: /World/still/s and the colliders /World/c and /World/still/c
-        assert [m.path for m in scene.deformables + scene.colliders] == [
-            "/World/keyed", "/World/moving/s", "/World/splined", "/World/still/s", "/World/c", "/World/moving/c", "/World/still/c"]
-        assert [("world", m.path) in held for m in scene.deformables + scene.colliders] == [False, False, False, True, True, False, True]
+        assert isinstance(held.get("xform cache"), UsdGeom.XformCache)
 
 
 def test_state_at_interpolates_cvs_and_holds_enabled(scene_file):
