@@ -673,7 +673,33 @@ def surface_template(scene: SceneModel, model: DeformableModel) -> HSpline:
 
 def _matrix(m) -> np.ndarray:
     """USD row-vector ``Gf.Matrix4d`` to a column-vector ``(4, 4) float64``."""
-    return np.array(m, dtype=np.float64).T.copy()
+    return np.asarray(m, np.float64).T.copy()  # a Gf matrix's buffer: its 16 doubles, row by row
+
+
+def _world(stage: Usd.Stage, path: str, t: float, caches: list, held: dict | None) -> np.ndarray:
+    """The object-to-world matrix ``(4, 4) float64`` (column-vector) of the prim at ``path`` at
+    time code ``t``, a new array. ``caches`` holds the time code's one `UsdGeom.XformCache`,
+    taken at its first need (ancestors' transforms are shared between the objects of one time
+    code): a new one, or with ``held`` the one ``held`` keeps, moved to the time code
+    (`UsdGeom.XformCache.SetTime`), and the prim looked up once."""
+    if held is None:
+        prim = stage.GetPrimAtPath(path)
+    else:
+        prim = held.get(("prim", path))
+        if prim is None:
+            prim = held[("prim", path)] = stage.GetPrimAtPath(path)
+    if not caches:
+        if held is None:
+            caches.append(UsdGeom.XformCache(t))  # a float: USD's conversion to its time code
+        else:
+            # one cache for the run: moved to another time it keeps each prim's transform ops
+            # and their attribute queries, which a new cache finds again at every call
+            cache = held.get("xform cache")
+            if cache is None:
+                cache = held["xform cache"] = UsdGeom.XformCache(t)
+            cache.SetTime(t)
+            caches.append(cache)
+    return _matrix(caches[0].GetLocalToWorldTransform(prim))
 
 
 def state_at(stage: Usd.Stage, scene: SceneModel, t: float, held: dict | None = None) -> tuple[list[DeformableState], list[ColliderState]]:
@@ -685,19 +711,21 @@ def state_at(stage: Usd.Stage, scene: SceneModel, t: float, held: dict | None = 
     left unedited, e.g. a run's) holds each deformable's surface and ``acra:enabled`` where USD
     says they cannot vary in time (`Usd.Attribute.ValueMightBeTimeVarying`: at most one time
     sample, no varying clips; these array and bool types take no spline), read at the first call
-    and handed back, the same objects, at every later one.
+    and handed back, the same objects, at every later one; and each object's prim and one
+    `UsdGeom.XformCache` for the world transforms (`_world`).
     """
-    tc = Usd.TimeCode(float(t))
-    cache = UsdGeom.XformCache(tc)
+    t = float(t)
+    caches: list = []  # the time code's XformCache, made where a transform is read from the stage
     dstates = []
     for m in scene.deformables:
-        prim = stage.GetPrimAtPath(m.path)
         fixed = held.get(m.path) if held is not None else None
         if fixed is None:
+            tc = Usd.TimeCode(t)
+            prim = stage.GetPrimAtPath(m.path)
             cvs_attr = prim.GetAttribute("acra:cvs")
             flat = np.asarray(cvs_attr.Get(tc))
             if len(flat) != m.nu * m.nv:
-                raise InputError(m.path, "acra:cvs", f"has {len(flat)} values at time {float(t):g}, expected {m.nu * m.nv}")
+                raise InputError(m.path, "acra:cvs", f"has {len(flat)} values at time {t:g}, expected {m.nu * m.nv}")
             surface = replace(surface_template(scene, m), cvs=flat_to_cvs(flat, m.nu, m.nv))
             enabled_attr = prim.GetAttribute("acra:enabled")
             enabled = bool(enabled_attr.Get(tc)) if enabled_attr and enabled_attr.HasAuthoredValue() else True
@@ -705,8 +733,8 @@ def state_at(stage: Usd.Stage, scene: SceneModel, t: float, held: dict | None = 
                 held[m.path] = (surface, enabled)
         else:
             surface, enabled = fixed
-        dstates.append(DeformableState(surface, _matrix(cache.GetLocalToWorldTransform(prim)), enabled))
-    cstates = [ColliderState(_matrix(cache.GetLocalToWorldTransform(stage.GetPrimAtPath(c.path)))) for c in scene.colliders]
+        dstates.append(DeformableState(surface, _world(stage, m.path, t, caches, held), enabled))
+    cstates = [ColliderState(_world(stage, c.path, t, caches, held)) for c in scene.colliders]
     return dstates, cstates
 
 

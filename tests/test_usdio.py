@@ -176,6 +176,49 @@ def test_state_at_spline_op_and_animated_parent_at_subframes():
         np.testing.assert_allclose(d.xform @ [0, 0, 0, 1], (par @ child)[:, 3], atol=1e-6)
 
 
+def test_state_at_with_held_transforms_gives_the_stages_matrices_at_every_time():
+    """`state_at` with ``held`` reads world transforms through the one `UsdGeom.XformCache` it
+    keeps, moved to each time code: under a static parent, an animated parent, a spline op or
+    keyed ops, every matrix is the same bits as a new cache's (no ``held``), whatever time is
+    asked first and in whatever order, and a new array at each call."""
+    stage = A.new_stage(0, 4)
+    cvs, _, _ = shapes.sheet(4, 4)
+    still = A.add_xform(stage, "/World/still")
+    A.key_transform(still, 2, translate=(1.5, -2.25, 0.1), rotate_xyz=(10, 20, 30))  # one sample: cannot vary
+    A.add_deformable(stage, "/World/still/s", cvs)
+    moving = A.add_xform(stage, "/World/moving")
+    A.key_transform(moving, 0, translate=(0, 0, 0), rotate_xyz=(0, 0, 0))
+    A.key_transform(moving, 4, translate=(0, 10, 0), rotate_xyz=(0, 0, 90))
+    A.add_deformable(stage, "/World/moving/s", cvs)
+    splined = A.add_deformable(stage, "/World/splined", cvs)
+    spline = Ts.Spline("double")
+    spline.SetKnot(Ts.Knot(time=1.0, value=2.0, nextInterp=Ts.InterpLinear))
+    spline.SetKnot(Ts.Knot(time=2.0, value=4.0, nextInterp=Ts.InterpLinear))
+    UsdGeom.Xformable(splined).AddTranslateXOp().GetAttr().SetSpline(spline)
+    keyed = A.add_deformable(stage, "/World/keyed", cvs)
+    A.key_transform(keyed, 1, translate=(0, 0, 0))
+    A.key_transform(keyed, 3, translate=(0, 0, 6))
+    A.add_collider(stage, "/World/still/c", *A.box(1.0))
+    A.add_collider(stage, "/World/moving/c", *A.box(1.0))
+    A.add_collider(stage, "/World/c", *A.box(2.0))
+    scene = U.read_scene(stage)
+    times = (2.5, 0.0, 0.25, 1.5, 1.75, 3.5, 4.0, 2.5)
+    for first in (0, 3):  # a static transform read first at a time where the others are still and where they move
+        held: dict = {}
+        seen = []
+        for t in times[first:] + times[:first]:
+            ds, cs = U.state_at(stage, scene, t, held)
+            ds0, cs0 = U.state_at(stage, scene, t)
+            for a, b in zip(ds + cs, ds0 + cs0):
+                assert a.xform.dtype == np.float64 and a.xform.flags.c_contiguous and a.xform.flags.writeable
+                np.testing.assert_array_equal(a.xform, b.xform)
+                assert all(a.xform is not s and not np.shares_memory(a.xform, s) for s in seen)
+                seen.append(a.xform)
+            ds[3].xform[:] = np.nan  # a caller's changes to its matrix stay its own
+            cs[0].xform[:] = np.nan
+        assert isinstance(held.get("xform cache"), UsdGeom.XformCache)
+
+
 def test_state_at_interpolates_cvs_and_holds_enabled(scene_file):
     stage = U.open_input(scene_file)
     A.key_enabled(stage.GetPrimAtPath(SHEET), 1, True)
