@@ -84,3 +84,18 @@ def test_coarse_points_and_triangles_are_patch_grids_bits():
             pts, _, tris, _ = patch_grids(hs, p, 2, det=det)
             assert S.coarse_points(hs, p, det).tobytes() == pts.tobytes()
             assert np.array_equal(S.coarse_triangles(len(p)), tris) and S.coarse_triangles(len(p)).dtype == np.int64
+
+
+def test_a_shape_whose_every_patch_moved_evaluates_them_all_and_takes_its_parents_triangles():
+    hs, new, rep = _responded()
+    parent = S.Shape(hs)
+    parent._coarse  # noqa: B018
+    child = S.Shape(new)
+    child.parent, child.moved = parent, np.ones_like(rep.moved)
+    pts, tris = child._coarse
+    want_pts, want_tris = S.Shape(new)._coarse
+    assert pts.tobytes() == want_pts.tobytes() and np.array_equal(tris, want_tris)
+    assert tris is parent._coarse[1]
+    orphan = S.Shape(new)
+    orphan.parent, orphan.moved = S.Shape(hs), np.ones_like(rep.moved)  # the parent's grid not built: its own triangles
+    assert np.array_equal(orphan._coarse[1], want_tris) and "_coarse" not in orphan.parent.__dict__
