@@ -5,8 +5,8 @@
 Runs `dog_head_spike` frames 13-17 after frame 5 (``--repeat`` times, a fresh stage each time)
 and prints, per collision frame, the CPU ms (``time.process_time``) of each `pipeline.shape.Shape`
 builder (nested: ``hulls`` holds ``_stale`` and ``cv_positions``), `GridCache.build`, and the
-calls they make (`all_cv_positions`, `changed_patches`, `patch_boxes`, `patch_grids`, scipy's
-``ConvexHull`` and ``cKDTree``), medians over the runs.
+calls they make (`all_cv_positions`, `changed_patches`, `patch_boxes`, `coarse_points`,
+`patch_grids`, scipy's ``ConvexHull`` and ``cKDTree``), medians over the runs.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def main() -> None:
     # defined in `acra.details`; `S.H.all_cv_positions` (the `acra.hspline` re-export) looks it up there on each call
     LD.all_cv_positions = timed("all_cv_positions", LD.all_cv_positions)
     for name, label in (("changed_patches", "changed_patches"), ("patch_boxes", "patch_boxes"),
-                        ("patch_grids", "patch_grids (Shape._coarse)"), ("ConvexHull", "ConvexHull"),
+                        ("coarse_points", "coarse_points (Shape._coarse)"), ("ConvexHull", "ConvexHull"),
                         ("cKDTree", "cKDTree"), ("volume_sign", "volume_sign")):
         setattr(S, name, timed(label, getattr(S, name)))
     for name in ("hulls", "_coarse", "cv_hull", "_stale", "density_map", "details", "outward", "cv_positions"):

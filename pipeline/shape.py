@@ -21,20 +21,50 @@ from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.orientation import volume_sign
 from acra.patch_boxes import patch_boxes
-from acra.tessellate import patch_grids
 from pipeline import queries
 from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
                             timed)
 from pipeline.spatial import ConvexHull, QhullError, cKDTree
 
 __all__ = ["PatchGrid", "GridSet", "GridCache", "HullIndex", "Shape", "SetupClock", "shape_of", "seed_details", "Nearest",
-           "Closest", "bvh", "overlap", "content_digest", "surface_digest"]
+           "Closest", "bvh", "overlap", "content_digest", "surface_digest", "coarse_points", "coarse_triangles"]
 
 
 @timed
 def _kd_tree(points: np.ndarray) -> kdtree.PointTree:
     """A compiled kd-tree of ``points (n, 3)`` (`acra.kdtree`; its build timed as set-up)."""
     return kdtree.build(points)
+
+
+# a 2-step patch grid's samples in `patch_grids`' order (u's step slowest), in half patches
+_HALF_U = np.repeat(np.arange(3, dtype=np.int64), 3)
+_HALF_V = np.tile(np.arange(3, dtype=np.int64), 3)
+
+
+def coarse_points(hs: HSpline, patches: np.ndarray, det: H.Details | None) -> np.ndarray:
+    """``points (9 m, 3)`` of `patch_grids` ``(hs, patches, 2, det)`` for level-0 ``patches
+    (m, 2) int64``, each distinct sample evaluated once. Neighbouring patches share their edge
+    samples, and a shared sample has the same parameters in both, ``pu + 1.0 == (pu + 1) +
+    0.0`` (half patches are exact in float64): the same ``(u, v)`` evaluates to the same bits,
+    so one evaluation serves every copy, about half the samples of a block of patches."""
+    patches = np.asarray(patches, np.int64).reshape(-1, 2)
+    width = 2 * hs.v.patches0 + 1  # half-patch samples along v, the end included
+    first = 2 * (patches[:, 0] * width + patches[:, 1])  # each patch's sample (0, 0)
+    key = (first[:, None] + (_HALF_U * width + _HALF_V)).reshape(-1)
+    seen = np.zeros((2 * hs.u.patches0 + 1) * width, bool)
+    seen[key] = True
+    distinct = np.flatnonzero(seen)
+    slot = np.cumsum(seen) - 1  # a sample's row among the distinct ones
+    u, v = np.divmod(distinct, width)
+    return H.evaluate(hs, u / 2.0, v / 2.0, det=det).points[slot[key]]
+
+
+def coarse_triangles(m: int) -> np.ndarray:
+    """``triangles (8 m, 3) int64`` of `patch_grids` ``(hs, patches, 2)`` for ``m`` patches:
+    each patch's 9 rows split into 4 cells of 2 triangles, as `patch_grids` splits them."""
+    a = (3 * np.arange(2)[:, None] + np.arange(2)[None, :]).reshape(-1)  # each cell's first corner
+    cell = np.stack([a, a + 3, a + 4, a, a + 4, a + 1], axis=1).reshape(-1, 3)
+    return (cell[None] + 9 * np.arange(m, dtype=np.int64)[:, None, None]).reshape(-1, 3)
 
 
 class CoarseIndex:
@@ -252,12 +282,14 @@ class Shape:
         stale = self._changed if self._changed_known else None
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
-            pts, _, tris, _ = patch_grids(self.surface, p, 2, det=self.details)
-            return pts, tris
+            # the triangles depend on the patch count alone, which a response keeps
+            known = self.parent.__dict__.get("_coarse") if stale is not None else None
+            tris = known[1] if known is not None and len(known[1]) == 8 * len(p) else coarse_triangles(len(p))
+            return coarse_points(self.surface, p, self.details), tris
         pts, tris = self.parent._coarse
         pts = pts.copy()
         if stale.any():  # 9 points per patch, patches in row-major order
-            new = patch_grids(self.surface, np.argwhere(stale), 2, det=self.details)[0]
+            new = coarse_points(self.surface, np.argwhere(stale), self.details)
             pts.reshape(stale.size, 9, 3)[stale.reshape(-1)] = new.reshape(-1, 9, 3)
         return pts, tris
 

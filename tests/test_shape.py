@@ -7,6 +7,7 @@ from acra import respond as R
 from acra.controls import check_controls
 from acra.targets import DataPoints
 from acra import shapes
+from acra.tessellate import patch_grids
 from pipeline import shape as S
 
 
@@ -26,8 +27,8 @@ def test_a_responded_shape_evaluates_only_the_moved_patches_and_gives_the_same_b
     parent = S.Shape(hs)
     parent._coarse, parent.closed  # noqa: B018  (the round's view asked the parent first)
     seen = []
-    grids = S.patch_grids
-    monkeypatch.setattr(S, "patch_grids", lambda surface, patches, *a, **k: seen.append(len(patches)) or grids(surface, patches, *a, **k))
+    grids = S.coarse_points
+    monkeypatch.setattr(S, "coarse_points", lambda surface, patches, *a, **k: seen.append(len(patches)) or grids(surface, patches, *a, **k))
     child = S.Shape(new)
     child.__dict__["details"] = rep.details
     child.parent, child.moved = parent, rep.moved
@@ -57,3 +58,44 @@ def test_a_shape_without_moved_patches_compares_the_levels():
     child.parent = S.Shape(hs)
     np.testing.assert_array_equal(child._stale, H.changed_patches(hs, new) | (child.parent.density_map != child.density_map))
     assert "_stale" in child.__dict__ or child.moved is None
+
+
+def _surfaces():
+    """Seeded surfaces: a responded sphere with details (periodic in u, poles in v), a torus
+    (periodic both ways) and an open sheet, their level-0 CVs jittered."""
+    rng = np.random.default_rng(7)
+    _, responded, _ = _responded()
+    out = [responded]
+    for made in (shapes.torus(8, 9), shapes.sheet(7, 6)):
+        cvs, *periodic = made if isinstance(made, tuple) else (made,)
+        cvs = np.asarray(cvs, np.float64) + rng.normal(0.0, 0.02, np.shape(cvs))
+        out.append(H.from_grid(cvs, *periodic, depth=1))
+    return rng, out
+
+
+def test_coarse_points_and_triangles_are_patch_grids_bits():
+    rng, surfaces = _surfaces()
+    for hs in surfaces:
+        det = H.details(hs) if hs.depth > 1 else None
+        mask = np.ones((hs.u.patches0, hs.v.patches0), bool)
+        for trial in range(6):
+            chosen = mask if trial == 0 else rng.random(mask.shape) < rng.uniform(0.05, 0.9)
+            p = np.argwhere(chosen)
+            pts, _, tris, _ = patch_grids(hs, p, 2, det=det)
+            assert S.coarse_points(hs, p, det).tobytes() == pts.tobytes()
+            assert np.array_equal(S.coarse_triangles(len(p)), tris) and S.coarse_triangles(len(p)).dtype == np.int64
+
+
+def test_a_shape_whose_every_patch_moved_evaluates_them_all_and_takes_its_parents_triangles():
+    hs, new, rep = _responded()
+    parent = S.Shape(hs)
+    parent._coarse  # noqa: B018
+    child = S.Shape(new)
+    child.parent, child.moved = parent, np.ones_like(rep.moved)
+    pts, tris = child._coarse
+    want_pts, want_tris = S.Shape(new)._coarse
+    assert pts.tobytes() == want_pts.tobytes() and np.array_equal(tris, want_tris)
+    assert tris is parent._coarse[1]
+    orphan = S.Shape(new)
+    orphan.parent, orphan.moved = S.Shape(hs), np.ones_like(rep.moved)  # the parent's grid not built: its own triangles
+    assert np.array_equal(orphan._coarse[1], want_tris) and "_coarse" not in orphan.parent.__dict__
