@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["THIN", "compact", "crossings", "face_boxes", "patches_near", "rows_in_box", "solid_mask", "thin_faces",
+__all__ = ["THIN", "compact", "crossings", "face_boxes", "patches_near", "patch_rows_near", "rows_in_box", "solid_mask", "thin_faces",
            "triangles_near"]
 
 
@@ -100,7 +100,7 @@ def _near(lo_a, hi_a, lo_b, hi_b, pad, rounds, rows_a, rows_b):
 
 
 @njit(cache=True, nogil=True)
-def _patches_near(lo_a, hi_a, bounds_a, lo_b, hi_b, bounds_b, pad, keep_a, keep_b, box_b):
+def _patches_near(lo_a, hi_a, bounds_a, lo_b, hi_b, bounds_b, pad, keep_a, keep_b, box_b, pv_a, pv_b, rows_a, rows_b):
     keep_a[:] = True
     _cull(lo_a, hi_a, keep_a, bounds_b, pad)
     keep_b[:] = True
@@ -122,7 +122,36 @@ def _patches_near(lo_a, hi_a, bounds_a, lo_b, hi_b, bounds_b, pad, keep_a, keep_
                 meet_b[j] = True
     keep_a[:] = meet_a
     keep_b[:] = meet_b
-    return _bounds_of(lo_b, hi_b, keep_b, box_b)
+    return _bounds_of(lo_b, hi_b, keep_b, box_b), _grid_rows(keep_a, pv_a, rows_a), _grid_rows(keep_b, pv_b, rows_b)
+
+
+@njit(cache=True, nogil=True)
+def _grid_rows(keep, pv, rows):
+    """The kept rows of a row-major grid of ``pv`` columns as ``(row, column)`` pairs in
+    ``rows``, in order (``np.argwhere`` of the grid's mask); returns how many."""
+    m = 0
+    for i in range(keep.shape[0]):
+        if keep[i]:
+            rows[m, 0], rows[m, 1] = i // pv, i % pv
+            m += 1
+    return m
+
+
+def _broad_phase(box_a: tuple[np.ndarray, np.ndarray], bounds_a: np.ndarray, box_b: tuple[np.ndarray, np.ndarray],
+                 bounds_b: np.ndarray, pad: float, pv_a: int, pv_b: int):
+    """`_patches_near`'s outputs: kept rows ``(n,) bool`` of each side, ``b``'s kept box ``(2, 3)``
+    or None, and each side's kept ``(row, column)`` pairs ``(m, 2) int64`` of a grid of
+    ``pv_a`` (``pv_b``) columns."""
+    f = lambda x: np.ascontiguousarray(x, np.float64).reshape(-1, 3)  # noqa: E731
+    # The bounds are copied: `detect` shares them read-only, and numba types a read-only array
+    # apart from a writable one (each type a specialisation of `_cull`, compiled and cached again).
+    g = lambda x: np.array(x, np.float64).reshape(2, 3)  # noqa: E731
+    lo_a, hi_a, lo_b, hi_b = f(box_a[0]), f(box_a[1]), f(box_b[0]), f(box_b[1])
+    keep_a, keep_b, box = np.empty(len(lo_a), np.bool_), np.empty(len(lo_b), np.bool_), np.empty((2, 3))
+    rows_a, rows_b = np.empty((len(lo_a), 2), np.int64), np.empty((len(lo_b), 2), np.int64)
+    any_b, na, nb = _patches_near(lo_a, hi_a, g(bounds_a), lo_b, hi_b, g(bounds_b), float(pad), keep_a, keep_b, box,
+                                  np.int64(pv_a), np.int64(pv_b), rows_a, rows_b)
+    return keep_a, keep_b, box if any_b else None, rows_a[:na], rows_b[:nb]
 
 
 def patches_near(box_a: tuple[np.ndarray, np.ndarray], bounds_a: np.ndarray, box_b: tuple[np.ndarray, np.ndarray],
@@ -132,14 +161,17 @@ def patches_near(box_a: tuple[np.ndarray, np.ndarray], bounds_a: np.ndarray, box
     of ``b``'s against ``bounds_a``, then of those the ones overlapping some box kept on the
     other side. Returns the kept rows ``(m,) bool`` of each side and the box ``(2, 3)`` of
     ``b``'s kept boxes (``None`` if none is kept)."""
-    f = lambda x: np.ascontiguousarray(x, np.float64).reshape(-1, 3)  # noqa: E731
-    # The bounds are copied: `detect` shares them read-only, and numba types a read-only array
-    # apart from a writable one (each type a specialisation of `_cull`, compiled and cached again).
-    g = lambda x: np.array(x, np.float64).reshape(2, 3)  # noqa: E731
-    keep_a, keep_b, box = np.empty(len(f(box_a[0])), np.bool_), np.empty(len(f(box_b[0])), np.bool_), np.empty((2, 3))
-    any_b = _patches_near(f(box_a[0]), f(box_a[1]), g(bounds_a), f(box_b[0]), f(box_b[1]), g(bounds_b), float(pad),
-                          keep_a, keep_b, box)
-    return keep_a, keep_b, box if any_b else None
+    return _broad_phase(box_a, bounds_a, box_b, bounds_b, pad, 1, 1)[:3]
+
+
+def patch_rows_near(box_a: tuple[np.ndarray, np.ndarray], bounds_a: np.ndarray, box_b: tuple[np.ndarray, np.ndarray],
+                    bounds_b: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """`patches_near` of two grids of level-0 patch boxes ``lo, hi (P0u, P0v, 3)``, its kept
+    boxes given as patches ``(m, 2) int64``, row-major (``np.argwhere`` of each side's kept
+    mask), from the same pass: each side's patches and the box ``(2, 3)`` of ``b``'s kept
+    boxes (``None`` if none is kept)."""
+    _, _, box, ca, cb = _broad_phase(box_a, bounds_a, box_b, bounds_b, pad, box_a[0].shape[1], box_b[0].shape[1])
+    return ca, cb, box
 
 
 def triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarray, np.ndarray], pad: float,

@@ -17,7 +17,7 @@ from numba import njit
 from acra.hierarchy import HSpline, _split_cv
 from acra.details import Details, all_cv_positions, details
 
-__all__ = ["boxes_within", "patch_boxes", "patch_hulls", "rays_meet"]
+__all__ = ["boxes_within", "patch_boxes", "patch_hulls", "rays_meet", "translated_boxes"]
 
 
 @njit(cache=True, nogil=True)
@@ -115,6 +115,59 @@ def boxes_within(lo: np.ndarray, hi: np.ndarray, q: np.ndarray, limit: np.ndarra
         _within(np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64),
                 np.ascontiguousarray(q, np.float64), np.ascontiguousarray(limit, np.float64), out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _translated_boxes(centre, half, xform, lo, hi, box, inner):
+    for i in range(3):
+        for j in range(3):
+            if xform[i, j] != (1.0 if i == j else 0.0):
+                return False
+        if xform[i, 3] == 0.0 and np.signbit(xform[i, 3]):
+            return False
+    n = centre.shape[0]
+    for p in range(n):
+        for k in range(3):
+            c, h = centre[p, k], half[p, k]
+            w = c + xform[k, 3]
+            if not (np.isfinite(c) and np.isfinite(h) and np.isfinite(w)):
+                return False
+            lo[p, k], hi[p, k] = w - h, w + h
+    # no NaN is left (finite centres and half-extents), so plain comparisons are numpy's
+    # minimum and maximum
+    for k in range(3):
+        box[0, k], box[1, k], inner[0, k], inner[1, k] = lo[0, k], hi[0, k], lo[0, k], hi[0, k]
+        for p in range(1, n):
+            a, b = lo[p, k], hi[p, k]
+            if a < box[0, k]:
+                box[0, k] = a
+            if b > box[1, k]:
+                box[1, k] = b
+            if a > inner[0, k]:
+                inner[0, k] = a
+            if b < inner[1, k]:
+                inner[1, k] = b
+    return True
+
+
+def translated_boxes(centre: np.ndarray, half: np.ndarray, xform: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                     box: np.ndarray, inner: np.ndarray) -> bool:
+    """World boxes of object-space boxes ``centre, half (n, 3) float64`` (centres and
+    half-extents, ``n >= 1``) under ``xform (4, 4) float64`` whose linear part is exactly the
+    identity: ``lo, hi (n, 3) float64`` as ``M c + t -/+ |M| h``, ``box (2, 3)`` their union
+    (the least ``lo`` and greatest ``hi`` of each axis) and ``inner (2, 3)`` the greatest
+    ``lo`` and least ``hi``, in one pass. Returns whether it is so: the linear part is the
+    identity, no ``t`` is -0.0 and every centre, half-extent and mapped centre is finite (else
+    the outputs are unset).
+
+    Then numpy's products ``c @ I.T + t`` and ``h @ |I|.T`` are ``c + t`` and ``h`` bit for bit
+    in any summation order: each product is exact and all but one are zeros, which add nothing
+    to a finite value; a zero's sign may differ in ``h @ |I|.T`` and in ``c @ I.T``, and
+    ``c + t`` with ``t`` not -0.0 is never -0.0, so ``c + t -/+ h`` is the same either way."""
+    centre, half, xform = centre.view(), half.view(), xform.view()
+    # read-only views: one specialisation of the kernel whether the caller's arrays are writable or not
+    centre.flags.writeable = half.flags.writeable = xform.flags.writeable = False
+    return len(centre) > 0 and _translated_boxes(centre, half, xform, lo, hi, box, inner)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

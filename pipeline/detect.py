@@ -154,15 +154,6 @@ def _no_intersections(collider: bool) -> Intersections:
     return Intersections(np.zeros((0, 3)), empty, None if collider else empty, np.zeros(0, np.int64))
 
 
-def _patch_rows(keep: np.ndarray, grid: tuple) -> np.ndarray:
-    """Level-0 patches ``(m, 2) int64``, row-major, of the kept rows ``keep (P,) bool`` of a
-    ``grid = (P0u, P0v)`` of patch boxes: ``np.argwhere`` of the grid's mask, C-ordered."""
-    r, c = np.nonzero(keep.reshape(grid))
-    out = np.empty((len(r), 2), np.int64)
-    out[:, 0], out[:, 1] = r, c
-    return out
-
-
 def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, first: bool = False) -> Intersections | None:
     """`intersect`, computed. ``pad``: the pair's `pair_pad`, given by a caller that found the
     pair neither `apart` nor outside each other's box (`_boxes_overlap`) already. With
@@ -180,10 +171,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, firs
     else:
         # each side's `candidate_patches` in the other's box, of those the ones whose box meets
         # one of the other side's, and the box of B's: one compiled pass over the patch boxes
-        boxes_a, boxes_b = ga.boxes, gb.boxes
-        keep_a, keep_b, box_b = narrow.patches_near(boxes_a, ga.bounds, boxes_b, gb.bounds, pad)
-        ca = _patch_rows(keep_a, boxes_a[0].shape[:2])
-        cb = _patch_rows(keep_b, boxes_b[0].shape[:2])
+        ca, cb, box_b = narrow.patch_rows_near(ga.boxes, ga.bounds, gb.boxes, gb.bounds, pad)
     if not len(ca):
         return _no_intersections(collider)
     ta = T.tessellate_sorted(ga, ca)

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Union
 import numpy as np
 
 from acra import hspline as H
-from acra import memo, narrow
+from acra import memo, narrow, patch_boxes
 from acra.bvh import bounds as bounds_of
 from acra.hspline import HSpline
 from pipeline.grids import boxes_near
@@ -344,6 +344,8 @@ class SurfaceGeometry:
         if world.boxes is None:
             obj_centre, obj_half = _object_patch_boxes(self.shape)
             shape = self.shape.hulls[0].shape
+            if _translated_boxes(world, obj_centre, obj_half, self.xform, shape):
+                return world.boxes
             centre = apply_xform(self.xform, obj_centre).reshape(shape)
             half = (obj_half @ np.abs(self.xform[:3, :3]).T).reshape(shape)
             world.boxes = centre - half, centre + half
@@ -445,6 +447,24 @@ def _object_patch_boxes(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
         del _OBJECT_BOXES[dead]
     _OBJECT_BOXES[key] = (weakref.ref(shape), boxes)
     return boxes
+
+
+def _translated_boxes(world: _World, centre: np.ndarray, half: np.ndarray, xform: np.ndarray, shape: tuple) -> bool:
+    """Fill ``world``'s patch boxes ``(*shape, 3)``, their union and inner corners
+    (`_World`) from object-space ``centre, half (P, 3)`` under a matrix that only translates, in
+    one compiled pass (`acra.patch_boxes.translated_boxes`: the same bits as the products of
+    `SurfaceGeometry.boxes` and the reductions of `SurfaceGeometry.bounds` and
+    `pipeline.detect._every_box_meets`). A rewinding step's moving object has a new matrix, so
+    all three are new each step; returns False (nothing set) for any other matrix."""
+    if type(xform) is not np.ndarray or xform.dtype != np.float64 or xform.shape != (4, 4):
+        return False
+    lo, hi, box, inner = np.empty(centre.shape), np.empty(centre.shape), np.empty((2, 3)), np.empty((2, 3))
+    if not patch_boxes.translated_boxes(centre, half, xform, lo, hi, box, inner):
+        return False
+    box.setflags(write=False)  # shared by every geometry of this content
+    world.boxes, world.bounds = (lo.reshape(shape), hi.reshape(shape)), box
+    world.inner = (inner[0].tolist(), inner[1].tolist())
+    return True
 
 
 def _centre_half(lo: np.ndarray, hi: np.ndarray) -> tuple[tuple, tuple]:

@@ -200,7 +200,8 @@ def test_crossings_first_stops_at_a_contact_and_says_whether_the_sets_cross():
 def test_patches_near_is_the_broad_phase_in_arrays():
     """`narrow.patches_near` keeps the patch boxes `geometry.candidate_patches` keeps on each side,
     then those meeting a kept box of the other side, as the array form did, and gives the box of
-    ``b``'s kept boxes; boxes that touch exactly (a pad of 0) count, and no kept box gives None."""
+    ``b``'s kept boxes; boxes that touch exactly (a pad of 0) count, and no kept box gives None.
+    `narrow.patch_rows_near` gives the same patches as ``np.argwhere`` of each grid's mask."""
     rng = np.random.default_rng(3)
     for trial in range(40):
         la = np.round(rng.uniform(-1, 1, (5, 4, 3)), 1)
@@ -218,6 +219,11 @@ def test_patches_near_is_the_broad_phase_in_arrays():
         keep_a, keep_b, box = narrow.patches_near((la, ha), bounds_a, (lb, hb), bounds_b, pad)
         np.testing.assert_array_equal(np.argwhere(keep_a.reshape(5, 4)), ca)
         np.testing.assert_array_equal(np.argwhere(keep_b.reshape(3, 6)), cb)
+        rows_a, rows_b, box_rows = narrow.patch_rows_near((la, ha), bounds_a, (lb, hb), bounds_b, pad)
+        assert rows_a.dtype == rows_b.dtype == np.int64
+        np.testing.assert_array_equal(rows_a, ca.reshape(-1, 2))
+        np.testing.assert_array_equal(rows_b, cb.reshape(-1, 2))
+        assert (box_rows is None) == (box is None) and (box is None or np.array_equal(box_rows, box))
         if len(cb):
             np.testing.assert_array_equal(box, [lb[cb[:, 0], cb[:, 1]].min(axis=0), hb[cb[:, 0], cb[:, 1]].max(axis=0)])
         else:

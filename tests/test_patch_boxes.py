@@ -94,3 +94,48 @@ def test_rays_meet_is_the_array_form():
         assert np.array_equal(box_hit, want_box) and np.array_equal(ray_hit, want_ray)
         hits += box_hit.sum()
     assert hits > 100  # the cases meet boxes, not only miss them
+
+
+def _mapped_boxes_numpy(centre, half, xform):
+    """`pipeline.geometry.SurfaceGeometry.boxes`' array form, with its union and inner corners."""
+    world = centre @ xform[:3, :3].T + xform[:3, 3]
+    span = half @ np.abs(xform[:3, :3]).T
+    lo, hi = world - span, world + span
+    return lo, hi, np.stack([lo.min(axis=0), hi.max(axis=0)]), np.stack([lo.max(axis=0), hi.min(axis=0)])
+
+
+def test_translated_boxes_are_the_array_form():
+    """`translated_boxes` under a translation gives the products' boxes, their union and inner
+    corners bit for bit (zeros of either sign, a zero translation, half-extents of zero); any
+    other matrix, a -0.0 translation or a non-finite entry answers False."""
+    from acra.patch_boxes import translated_boxes
+
+    rng = np.random.default_rng(3)
+    done = 0
+    for trial in range(300):
+        n = int(rng.integers(1, 90))
+        centre = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-3, 4)
+        half = np.abs(rng.normal(size=(n, 3))) * 0.1
+        centre[rng.random((n, 3)) < 0.1] = 0.0
+        centre[rng.random((n, 3)) < 0.05] = -0.0
+        half[rng.random((n, 3)) < 0.1] = 0.0
+        xform = np.eye(4)
+        xform[:3, 3] = rng.normal(size=3) * 10.0 ** rng.integers(-3, 4)
+        xform[:3, 3][rng.random(3) < 0.2] = 0.0
+        kind = trial % 6
+        if kind == 1:
+            xform[rng.integers(0, 3), rng.integers(0, 3)] += 1e-12  # not a translation
+        elif kind == 2:
+            xform[rng.integers(0, 3), 3] = -0.0
+        elif kind == 3:
+            centre[rng.integers(0, n), rng.integers(0, 3)] = rng.choice([np.nan, np.inf])
+        outs = [np.empty((n, 3)), np.empty((n, 3)), np.empty((2, 3)), np.empty((2, 3))]
+        ok = translated_boxes(centre, half, xform, *outs)
+        assert ok == (kind not in (1, 2, 3))
+        if ok:
+            for got, want in zip(outs, _mapped_boxes_numpy(centre, half, xform)):
+                assert got.tobytes() == want.tobytes()
+            done += 1
+    assert done > 100
+    assert not translated_boxes(np.zeros((0, 3)), np.zeros((0, 3)), np.eye(4), *[np.empty((0, 3))] * 2,
+                                np.empty((2, 3)), np.empty((2, 3)))
