@@ -114,6 +114,17 @@ def build(case: str, d: Path) -> list[tuple[str, Path]]:
     return out
 
 
+def _predicted_mb(src: Path) -> float:
+    """What `acra run` predicts ``src``'s run to peak at (`pipeline.guard.predict_memory`), MB."""
+    from pxr import Usd
+
+    from pipeline import guard
+
+    stage = Usd.Stage.Open(str(src))
+    frames = int(stage.GetEndTimeCode() - stage.GetStartTimeCode()) + 1
+    return guard.predict_memory(stage, frames).nbytes / 2**20
+
+
 def run(label: str, src: Path) -> dict:
     """Run ``acra run`` on ``src`` under ``/usr/bin/time -v``; figures of the run."""
     out, rep = src.with_suffix(".acra.usdc"), src.with_suffix(".json")
@@ -124,7 +135,8 @@ def run(label: str, src: Path) -> dict:
     done = subprocess.run(cmd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", done.stderr)
-    row = {"case": label, "status": done.returncode, "wall_s": wall, "peak_mb": int(rss.group(1)) / 1024 if rss else None}
+    row = {"case": label, "status": done.returncode, "wall_s": wall, "peak_mb": int(rss.group(1)) / 1024 if rss else None,
+           "predicted_mb": _predicted_mb(src)}
     if rep.exists():
         data = json.loads(rep.read_text())
         per = data["per_frame"]
@@ -145,16 +157,17 @@ def run(label: str, src: Path) -> dict:
 
 def table(rows: list[dict]) -> str:
     """Markdown table of `run` rows: "process wall s" is the whole process (start-up included),
+    "predicted MB" what the memory guard predicts before reading the stage (at least the peak),
     "run ms/frame" the run less the write over the frames, "stage ms/frame" the median of
     `FrameStats.ms_total` (detection, conversion, response, display; not the stage evaluation)."""
-    head = ("| case | exit | frames (in collision) | process wall s | peak MB | run ms/frame | "
+    head = ("| case | exit | frames (in collision) | process wall s | peak MB | predicted MB | run ms/frame | "
             "stage ms/frame median (free / collision) | write ms | largest residual |")
-    lines = [head, "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [head, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     f = lambda x, spec: "—" if x is None else format(x, spec)  # noqa: E731
     for r in rows:
         lines.append(
             f"| {r['case']} | {r['status']} | {r.get('frames', '—')} ({r.get('in_collision', '—')}) | {r['wall_s']:.1f} | "
-            f"{f(r['peak_mb'], '.0f')} | {f(r.get('ms_run_per_frame'), '.2f')} | "
+            f"{f(r['peak_mb'], '.0f')} | {f(r.get('predicted_mb'), '.0f')} | {f(r.get('ms_run_per_frame'), '.2f')} | "
             f"{f(r.get('ms_frame_median'), '.2f')} ({f(r.get('ms_free_median'), '.2f')} / "
             f"{f(r.get('ms_collision_median'), '.1f')}) | {f(r.get('ms_write'), '.0f')} | {f(r.get('largest_residual'), '.2e')} |")
     return "\n".join(lines)

@@ -246,13 +246,15 @@ BYTES_PER_CV = 8192
 BYTES_PER_DISPLAY_VERTEX = 400
 # a collision-grid vertex (`shape.Shape.grids_for`, at most max_density steps per patch edge)
 BYTES_PER_COLLISION_VERTEX = 200
-# a collider triangle: the mesh, its fcl BVH (OBBRSS) and trimesh's ray structures (a 2,000,000-
-# triangle collider peaked at 2.8 GB, benchmarks/stress.py)
-BYTES_PER_COLLIDER_TRIANGLE = 1400
+# a collider triangle: the mesh, its fcl BVH (OBBRSS), its embree scene and the residual's solid
+# (welded mesh, pseudo-normals, BVH): runs pressing a sheet with 250,000, 1,000,000 and 2,000,000
+# triangles peak 2.9, 2.8 and 2.7 kB a triangle above a small run's peak (benchmarks/stress.py)
+BYTES_PER_COLLIDER_TRIANGLE = 3200
 # a processed frame's statistics and Vt arrays besides the display arrays
 BYTES_PER_FRAME = 4096
-# the interpreter with numpy, scipy, pxr, trimesh and fcl imported
-BASELINE = 250 * 2**20
+# the interpreter with numpy, scipy, pxr, trimesh, fcl and numba's kernels loaded: a 3-frame run of
+# a 4x4 sheet and a box peaks at 315 MB (benchmarks/stress.py)
+BASELINE = 330 * 2**20
 
 
 @dataclass(frozen=True)
