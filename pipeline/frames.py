@@ -375,21 +375,17 @@ class _Run:
         return True
 
     def collider_solid(self, j: int):
-        """Collider ``j``'s inside in its object space, built on first use (`residual.collider_solid`).
-        Where trimesh's processing (`geometry.prepare_collider`) left the model's vertices and
-        triangles as they were, byte for byte, the detection's solid of the same arrays
-        (`ColliderStatic.solid`, built by the same call) is that inside: it is built once a run."""
+        """Collider ``j``'s inside in its object space, built on first use (`residual.collider_solid`,
+        kept by the mesh's content for the run's display measure). Where trimesh's processing
+        (`geometry.prepare_collider`) left the model's vertices and triangles as they were, byte
+        for byte, the detection's solid of the same arrays (`ColliderStatic.solid`, built by the
+        same call) is that inside: it is built once a run."""
         if j not in self._collider_solids:
             c, st = self.scene.colliders[j], self.statics[j]
             v, f = np.asarray(c.vertices, np.float64), np.asarray(c.triangles, np.int64)
             mv, mf = np.asarray(st.mesh.vertices, np.float64), np.asarray(st.mesh.faces, np.int64)
-            if v.shape == mv.shape and f.shape == mf.shape and v.tobytes() == mv.tobytes() and f.tobytes() == mf.tobytes():
-                try:
-                    self._collider_solids[j] = st.solid
-                except ValueError:  # not closed: `residual.collider_solid`'s None
-                    self._collider_solids[j] = None
-            else:
-                self._collider_solids[j] = residual.collider_solid(v, f)
+            same = v.shape == mv.shape and f.shape == mf.shape and v.tobytes() == mv.tobytes() and f.tobytes() == mf.tobytes()
+            self._collider_solids[j] = residual.collider_solid(v, f, built=(lambda: st.solid) if same else None)
         return self._collider_solids[j]
 
 

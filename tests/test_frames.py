@@ -8,7 +8,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from conftest import write_tiny_stage
-from pipeline import geometry
+from pipeline import clearance, geometry
 from pipeline import detect as D
 from pipeline import frames as F
 from pipeline.cli import main
@@ -313,6 +313,7 @@ def test_a_colliders_inside_is_the_detections_solid_where_trimesh_kept_its_array
     answer. Either way the arrays are those `residual.collider_solid` builds."""
     from types import SimpleNamespace
 
+    from acra import memo
     from conftest import BOX_TRIANGLES, BOX_VERTICES
     from pipeline import residual
     from pipeline.model import ColliderModel
@@ -322,14 +323,30 @@ def test_a_colliders_inside_is_the_detections_solid_where_trimesh_kept_its_array
               ColliderModel("/open", BOX_VERTICES * 0.5, BOX_TRIANGLES[:-1])]
     run = SimpleNamespace(scene=SimpleNamespace(colliders=models), statics=[geometry.prepare_collider(m) for m in models],
                           _collider_solids={})
-    got = [F._Run.collider_solid(run, j) for j in range(3)]
+    with memo.scope():  # a run's memo: nothing kept from an earlier run of the same box
+        got = [F._Run.collider_solid(run, j) for j in range(3)]
+        kept = [residual.collider_solid(m.vertices, m.triangles) for m in models]
     assert got[0] is run.statics[0].solid and F._Run.collider_solid(run, 0) is got[0]
     assert got[1] is not None and got[1] is not run.statics[1].solid
     assert got[2] is None and residual.collider_solid(models[2].vertices, models[2].triangles) is None
     for j in (0, 1):
-        want = residual.collider_solid(models[j].vertices, models[j].triangles)
+        assert kept[j] is got[j]  # kept by the mesh's content: the run's display measure takes the loop's
+        want = clearance.solid(np.asarray(models[j].vertices, np.float64), np.asarray(models[j].triangles, np.int64))
         for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds", "facet", "convex"):
             np.testing.assert_array_equal(getattr(got[j], name), getattr(want, name))
+
+
+def test_a_run_builds_a_colliders_inside_once(monkeypatch, tmp_path):
+    """`box_into_sheet`'s box is measured by the frame loop's rounds and by the run's display
+    measure (`residual.measure_run`): its inside (`clearance.solid` of the box's 12 triangles)
+    is built once a run, and the output is a run's."""
+    from pipeline import run
+
+    built = []
+    solid = clearance.solid
+    monkeypatch.setattr(clearance, "solid", lambda v, f, **k: built.append(len(f)) or solid(v, f, **k))
+    run.run_file(SCENE, tmp_path / "out.usda")
+    assert built.count(12) == 1
 
 
 def test_respond_frames_limits_blas_through_the_process_s_one_controller(tiny_stage, monkeypatch):
