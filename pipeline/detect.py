@@ -46,6 +46,23 @@ def apart(ga: Geometry, gb: Geometry) -> bool:
     return not all(la[k] <= hb[k] + pad and lb[k] <= ha[k] + pad for k in range(3))
 
 
+def apart_all(geoms: list) -> np.ndarray:
+    """`apart` of every two of ``geoms`` at once: ``(n, n) bool``, symmetric, from the same
+    object-level boxes (`outer`) and in the same float64 arithmetic (the larger diagonal times
+    ``_PAD``, each upper side plus that pad, compared), so each entry is `apart`'s answer. A frame
+    of many objects then tests its pairs' boxes in a few array operations instead of one call a
+    pair (4,950 pairs of 100 deformables)."""
+    outer = [g._outer for g in geoms]
+    lo = np.array([o[0] for o in outer], np.float64).reshape(-1, 3)
+    hi = np.array([o[1] for o in outer], np.float64).reshape(-1, 3)
+    diag = np.array([o[2] for o in outer], np.float64)
+    pad = _PAD * np.maximum(diag[:, None], diag[None, :])
+    meet = np.ones(pad.shape, bool)
+    for k in range(3):
+        meet &= (lo[:, None, k] <= hi[None, :, k] + pad) & (lo[None, :, k] <= hi[:, None, k] + pad)
+    return ~meet
+
+
 # --- narrow phase -------------------------------------------------------------------------------
 class Intersections:
     """Crossing triangle pairs (fcl): world contact ``points (k, 3)``; level-0 patch of ``A``'s

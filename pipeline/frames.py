@@ -337,8 +337,13 @@ class _Run:
         """Detect every pair with an enabled deformable (round ``it`` of ``frame``)."""
         defs, options = self.defs, self.options
         rnd = _Round([], {}, {}, 0.0, 0.0)
+        # a pair whose objects' boxes lie apart is found by no test (`C.detect_pair` answers None):
+        # every pair's boxes at once
+        far = D.apart_all(list(geoms) + list(cgeoms)) if len(geoms) + len(cgeoms) > 2 else None
         for i, other in _pairs(len(defs), len(self.statics)):
             if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
+                continue
+            if far is not None and far[i, other[1] if other[0] == "d" else len(geoms) + other[1]]:
                 continue
             gb = geoms[other[1]] if other[0] == "d" else cgeoms[other[1]]
             key = (i, other)

@@ -564,8 +564,23 @@ class FrameResidual:
     stopped: bool = False
 
     def pair_rel(self, a: str, b: str) -> float:
-        """The larger of ``a`` in ``b`` and ``b`` in ``a``, each over its own object's size."""
-        return max((p.rel for p in self.pairs if {p.a, p.b} == {a, b}), default=0.0)
+        """The larger of ``a`` in ``b`` and ``b`` in ``a``, each over its own object's size (0
+        where neither was measured)."""
+        return self._by_pair().get((a, b) if a <= b else (b, a), 0.0)
+
+    def _by_pair(self) -> dict:
+        """Each measured unordered pair's larger ``rel`` by its two paths in sorted order, taken
+        as ``max`` takes it over ``pairs`` in order; built once for the pairs held (a frame of
+        many objects asks it of every pair)."""
+        kept = self.__dict__.get("_pair_max")
+        if kept is None or kept[0] != len(self.pairs):
+            by: dict = {}
+            for p in self.pairs:
+                key = (p.a, p.b) if p.a <= p.b else (p.b, p.a)
+                if key not in by or p.rel > by[key]:
+                    by[key] = p.rel
+            kept = self.__dict__["_pair_max"] = (len(self.pairs), by)
+        return kept[1]
 
 
 def known(fr: FrameResidual, tolerance: float) -> dict:
@@ -708,7 +723,7 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
         per = result.frames[st.frame]
         boxes = [_outer_box(xforms[m.path], _local_box(local_boxes, per[m.path].points)) for m in scene.deformables]
         boxes += [_outer_box(xforms[c.path], box) for c, box in zip(scene.colliders, collider_boxes)]
-        if not any(_meet(boxes[i], boxes[j]) for i in range(len(scene.deformables)) for j in range(len(boxes)) if j != i):
+        if not _any_meet(np.array(boxes).reshape(-1, 2, 3), len(scene.deformables)):
             # no deformable's display comes near another object: every pair's depth is 0 (`pair_depth`
             # finds no triangle of one in the other's box), so nothing is shown or measured
             st.residual, st.residual_rel = 0.0, 0.0
@@ -777,6 +792,11 @@ def _outer_box(xform: np.ndarray, box: np.ndarray) -> np.ndarray:
     return np.stack([lo - pad, hi + pad])
 
 
-def _meet(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether boxes ``a`` and ``b`` ``(2, 3)`` meet (`meshrows.faces_meet_rows`' comparisons)."""
-    return bool(np.all(a[0] <= b[1]) and np.all(b[0] <= a[1]))
+def _any_meet(boxes: np.ndarray, n: int) -> bool:
+    """Whether any of the first ``n`` of ``boxes (m, 2, 3)`` meets another of them: each corner
+    of one at most the other's opposite corner (`meshrows.faces_meet_rows`' comparisons), every
+    pair at once (a frame of many objects has thousands)."""
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    meet = np.all(lo[:n, None] <= hi[None], axis=2) & np.all(lo[None] <= hi[:n, None], axis=2)
+    meet[np.arange(n), np.arange(n)] = False
+    return bool(meet.any())

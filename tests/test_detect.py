@@ -736,6 +736,24 @@ def test_object_boxes_hold_the_exact_boxes_and_apart_implies_no_overlap(seed):
     assert (True, False) in seen and (False, True) in seen
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_apart_all_is_apart_of_every_pair(seed):
+    """`apart_all` gives `apart`'s answer for every two of a list of surfaces and colliders placed
+    at random, many near touching (boxes a pad apart, equal sides, one inside another), with
+    the diagonal entries apart from nothing."""
+    rng = np.random.default_rng(seed)
+    ball = trimesh.creation.icosphere(1)
+    static = geometry.prepare_collider(ColliderModel("/ball", ball.vertices, ball.faces))
+    geoms = []
+    for k in range(12):
+        m = move(*(rng.integers(-3, 4, size=3) * rng.choice([0.5, 1.0, 2.0, 2.0 + 1e-7])))
+        geoms.append(sphere_geom(m, f"/s{k}") if k % 3 else geometry.ColliderGeometry(static, m))
+    far = D.apart_all(geoms)
+    want = np.array([[D.apart(a, b) for b in geoms] for a in geoms])
+    np.testing.assert_array_equal(far, want)
+    assert want.any() and not want.all()
+
+
 def test_a_pair_apart_builds_no_world_patch_boxes():
     """Detection of two deformables whose objects are apart, and the free frame's sizes, never
     build the world box of each level-0 patch (`SurfaceGeometry.boxes`): the work of a free frame

@@ -404,7 +404,7 @@ def test_a_run_s_frames_apart_are_not_measured_and_read_zero(monkeypatch):
         bool(objects) and in_run[0]) or real(objects, *a, **k))
     got = figures()
     skipped = 3 - sum(calls)
-    monkeypatch.setattr(residual, "_meet", lambda a, b: True)
+    monkeypatch.setattr(residual, "_any_meet", lambda boxes, n: True)
     assert got == figures()
     assert skipped == 2 and got[0][2][1] > 0  # the free frames 0 and 5 skipped, frame 14 measured
 
@@ -484,3 +484,39 @@ def test_a_display_mostly_clear_of_a_deformable_is_measured_on_a_smaller_part(mo
     b = ball()
     exact = clearance.triangle_depth(b.whole(), a.near(b.box)[0], target, decide=2 * target)
     assert got.depth == pytest.approx(exact.bound, rel=1e-12) and got.depth > 0.5 * small
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_any_meet_is_every_pair_of_boxes_met(seed):
+    """`_any_meet`: whether any of the first ``n`` boxes meets another, as the per-pair comparisons
+    (each box's low corner at most the other's high corner, both ways) give it, on boxes that touch
+    at a side, lie apart by a rounding, hold NaN, or are only colliders'."""
+    rng = np.random.default_rng(seed)
+    for _ in range(60):
+        m = int(rng.integers(1, 9))
+        lo = rng.integers(-4, 4, size=(m, 3)).astype(np.float64)
+        hi = lo + rng.integers(0, 3, size=(m, 3))
+        nudge = rng.random((m, 3)) < 0.1  # a side one rounding past an integer another box touches
+        lo[nudge] = np.nextafter(lo[nudge], np.inf)
+        if rng.random() < 0.2:
+            hi[rng.integers(m), rng.integers(3)] = np.nan
+        boxes = np.stack([lo, hi], axis=1)
+        n = int(rng.integers(0, m + 1))
+        want = any(bool(np.all(boxes[i, 0] <= boxes[j, 1]) and np.all(boxes[j, 0] <= boxes[i, 1]))
+                   for i in range(n) for j in range(m) if j != i)
+        assert residual._any_meet(boxes, n) == want
+
+
+def test_pair_rel_is_the_larger_of_a_pairs_two_ways():
+    """`FrameResidual.pair_rel` of two paths: the larger ``rel`` of the pair's measured ways
+    whichever way it is asked, 0 for a pair not measured, and the pairs appended after a first
+    ask counted."""
+    fr = residual.FrameResidual()
+    nothing = residual.Inside(0.0, 0.0, np.zeros((0, 3)), None, np.zeros(0))
+    for a, b, rel in (("/b", "/a", 0.2), ("/a", "/b", 0.3), ("/a", "/c", 0.1), ("/c", "/a", 0.05)):
+        fr.pairs.append(residual.PairDepth(a, b, nothing, rel))
+    assert fr.pair_rel("/a", "/b") == fr.pair_rel("/b", "/a") == 0.3
+    assert fr.pair_rel("/c", "/a") == 0.1 and fr.pair_rel("/b", "/c") == 0.0
+    fr.pairs.append(residual.PairDepth("/c", "/b", nothing, 0.7))
+    assert fr.pair_rel("/b", "/c") == 0.7
+
