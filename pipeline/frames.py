@@ -428,8 +428,13 @@ class _Run:
             return shown[kind, j]
 
         objects, index, pairs, keys = [], {}, [], []
+        # `_measured` is False for a pair whose objects' boxes lie apart (its inner boxes lie
+        # within those): every pair's boxes at once (`detect.apart_all`)
+        far = D.apart_all(list(geoms) + list(cgeoms)) if len(geoms) + len(cgeoms) > 2 else None
         for i, other in _pairs(len(self.defs), len(self.statics)):
             if not enabled[i] and (other[0] == "c" or not enabled[other[1]]):
+                continue
+            if far is not None and far[i, other[1] if other[0] == "d" else len(geoms) + other[1]]:
                 continue
             ga, gb = geoms[i], (geoms[other[1]] if other[0] == "d" else cgeoms[other[1]])
             if not _measured(ga, gb):
