@@ -266,18 +266,20 @@ def collider_shown(path: str, box: np.ndarray, size: float, solid: clearance.Sol
 
 
 class _Once:
-    """A value built on the first call and kept."""
+    """A value built on the first call and kept (``None`` too)."""
+
+    _UNSET = object()
 
     def __init__(self, make) -> None:
-        self.make, self.value = make, None
+        self.make, self.value = make, _Once._UNSET
 
     def __call__(self):
-        if self.value is None:
+        if self.value is _Once._UNSET:
             self.value = self.make()
         return self.value
 
 
-_COLLIDER_SOLIDS = memo.Table("residual.collider_solids")  # a collider mesh's content digest -> its inside (or None); a run has a few
+_COLLIDER_SOLIDS = memo.Table("residual.collider_solids")  # a collider mesh's content digest -> (its inside or None,); a run has a few
 
 
 def collider_solid(vertices: np.ndarray, triangles: np.ndarray, built=None) -> clearance.Solid | None:
@@ -293,11 +295,11 @@ def collider_solid(vertices: np.ndarray, triangles: np.ndarray, built=None) -> c
 
     def make():
         try:
-            return clearance.solid(v, f) if built is None else built()
-        except ValueError:  # not closed
-            return None
+            return (clearance.solid(v, f) if built is None else built(),)
+        except ValueError:  # not closed: kept too, as the table keeps no None
+            return (None,)
 
-    return _COLLIDER_SOLIDS.kept(content_digest(v, f), make)
+    return _COLLIDER_SOLIDS.kept(content_digest(v, f), make)[0]
 
 
 @dataclass

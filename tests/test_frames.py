@@ -306,7 +306,7 @@ def test_a_hold_gives_the_bits_computing_the_frame_gives():
     assert stats[1].residual == stats[2].residual and stats[1].iterations == stats[2].iterations
 
 
-def test_a_colliders_inside_is_the_detections_solid_where_trimesh_kept_its_arrays():
+def test_a_colliders_inside_is_the_detections_solid_where_trimesh_kept_its_arrays(monkeypatch):
     """`_Run.collider_solid`: a collider whose vertices and triangles trimesh's processing leaves
     byte for byte takes `ColliderStatic.solid` (the same call on the same arrays), one built a
     run; one it changes (an unused vertex dropped) or an open one gets `residual.collider_solid`'s
@@ -329,6 +329,12 @@ def test_a_colliders_inside_is_the_detections_solid_where_trimesh_kept_its_array
     assert got[0] is run.statics[0].solid and F._Run.collider_solid(run, 0) is got[0]
     assert got[1] is not None and got[1] is not run.statics[1].solid
     assert got[2] is None and residual.collider_solid(models[2].vertices, models[2].triangles) is None
+    built = []
+    solid = clearance.solid
+    monkeypatch.setattr(clearance, "solid", lambda v, f, **k: built.append(len(f)) or solid(v, f, **k))
+    with memo.scope():  # an open mesh's answer (no inside) is kept as a closed one's is
+        assert [residual.collider_solid(models[2].vertices, models[2].triangles) for _ in range(3)] == [None] * 3
+    assert built == [11]
     for j in (0, 1):
         assert kept[j] is got[j]  # kept by the mesh's content: the run's display measure takes the loop's
         want = clearance.solid(np.asarray(models[j].vertices, np.float64), np.asarray(models[j].triangles, np.int64))
