@@ -28,7 +28,8 @@ from acra import hspline as H  # noqa: E402
 
 def main() -> None:
     absorption = tuple(float(x) for x in (sys.argv[1] if len(sys.argv) > 1 else "0,0,1").split(","))
-    tmp = pathlib.Path(tempfile.mkdtemp(prefix="fan_sweep_"))
+    held = tempfile.TemporaryDirectory(prefix="fan_sweep_")  # removed when main returns
+    tmp = pathlib.Path(held.name)
     ok, t0 = 0, time.perf_counter()
     for y in (-1.22, -1.2, -1.18):
         for x in (0.0, 0.02, 0.05):

@@ -22,7 +22,8 @@ import re
 import sys
 import tempfile
 
-os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="loop_refcounts_")  # before numba is imported
+_CACHE = tempfile.TemporaryDirectory(prefix="loop_refcounts_")  # removed at exit
+os.environ["NUMBA_CACHE_DIR"] = _CACHE.name  # before numba is imported
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODULES = ("nearest", "kdtree", "narrow", "levelkernels", "framekernels", "halfspaces", "raycast", "patch_boxes",

@@ -79,7 +79,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.scenes:
         return scenes()
-    tmp = Path(tempfile.mkdtemp(prefix="scale_frames_"))
+    held = tempfile.TemporaryDirectory(prefix="scale_frames_")  # removed when main returns
+    tmp = Path(held.name)
     grids = scale_curve.head_grids()
     srcs = {}
     for scale, _ in RUNS:
@@ -153,7 +154,8 @@ def scenes() -> None:
     """Per scene of ``scenes/``: the stopped first rounds `residual.complete` measured in full,
     and the stopped pairs they held."""
     counts, restore = _counting()
-    tmp = Path(tempfile.mkdtemp(prefix="scale_frames_"))
+    held = tempfile.TemporaryDirectory(prefix="scale_frames_")  # removed when main returns
+    tmp = Path(held.name)
     rows = []
     try:
         for src in sorted((Path(__file__).resolve().parents[1] / "scenes").glob("[!_]*.py")):
