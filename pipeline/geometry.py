@@ -356,11 +356,15 @@ class SurfaceGeometry:
         """World box ``(2, 3)`` of the whole surface (union of the patch boxes)."""
         world = self._world
         if world.bounds is None:
-            # `min(axis=0)` of the low corners and `max(axis=0)` of the high ones, each in one
-            # compiled pass (`acra.bvh.bounds`, exact: numpy reduces a last axis of 3 row by row)
             lo, hi = self.boxes
-            world.bounds = np.stack([bounds_of(lo)[0], bounds_of(hi)[1]])
-            world.bounds.setflags(write=False)  # shared by every geometry of this content
+            # a matrix that only translates gets the union in the boxes' own compiled pass
+            # (`_translated_boxes`, the same bits as the reductions below): each rewinding step's
+            # moving object finds it set there
+            if world.bounds is None:
+                # `min(axis=0)` of the low corners and `max(axis=0)` of the high ones, each in one
+                # compiled pass (`acra.bvh.bounds`, exact: numpy reduces a last axis of 3 row by row)
+                world.bounds = np.stack([bounds_of(lo)[0], bounds_of(hi)[1]])
+                world.bounds.setflags(write=False)  # shared by every geometry of this content
         return world.bounds
 
     @_once

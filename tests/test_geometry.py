@@ -125,3 +125,24 @@ def test_collider_to_object_has_apply_inverses_bits(seed):
     for n in (0, 1, 5, 300):
         pts = rng.normal(size=(n, 3)) * 3.0
         assert g.to_object(pts).tobytes() == apply_inverse(m, pts).tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_surface_bounds_are_the_reductions_of_its_boxes(seed):
+    """`SurfaceGeometry.bounds` is ``min(axis=0)`` of the world patch boxes' low corners and
+    ``max(axis=0)`` of their high ones, bit for bit, whether the boxes' compiled pass of a
+    translation (`_translated_boxes`) set it or the reductions did (a rotation and scale),
+    read before or after the boxes; the size is the diagonal's norm."""
+    from conftest import sphere_geom
+
+    rng = np.random.default_rng(seed)
+    t = rng.normal(size=3) * 10.0 ** rng.integers(-3, 4, 3)
+    for turn in (np.eye(4), rotated_scaled(seed)):
+        for boxes_first in (False, True):  # each a new matrix: world data is kept by content
+            g = sphere_geom(turn @ move(*(t + boxes_first)))
+            if boxes_first:
+                g.boxes
+            lo, hi = g.boxes
+            want = np.stack([lo.reshape(-1, 3).min(axis=0), hi.reshape(-1, 3).max(axis=0)])
+            assert g.bounds.tobytes() == want.tobytes() and not g.bounds.flags.writeable
+            assert g.size == float(np.linalg.norm(want[1] - want[0]))
