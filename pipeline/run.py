@@ -166,7 +166,8 @@ def run_file(
     spent importing before it called this, plus the frame loop's modules if not yet imported),
     ``scene`` (running a scene file and exporting its stage), ``read`` (opening, checking and
     reading the stage, the preview's set-up), ``frames`` (the frame loop, first frame included)
-    and ``write`` (the output layer or part file, the recording and the report, renamed into place).
+    and ``write`` (the output layer or part file and the recording), each ending where the next
+    begins; ``RunReport.seconds`` ends with ``write``.
     """
     t_start = time.perf_counter()
     from pipeline import frames as frame_loop
@@ -252,17 +253,19 @@ def run_file(
             if rrd_tmp is not None:
                 guard.flush_recording(preview)
                 pending.append((rrd_tmp, rrd))
-        run_report = RunReport(out, stats, ms_write, time.perf_counter() - t_start, scene, stage_path, result, over, status,
+        # the run's seconds and its phases end at one instant, so the phases after the imports add
+        # up to the seconds less the run's own imports; the report file's write and the renames
+        # (a few ms) are in neither
+        clock.lap("write")
+        run_report = RunReport(out, stats, ms_write, clock.last - t_start, scene, stage_path, result, over, status,
                                clock.phases)
         if report_path is not None:
             pending.append((guard.temporary_sibling(report_path), report_path))
-            clock.lap("write")  # the report holds the write up to here: its own few ms are left out
             report.write_json(pending[-1][0], report.report_dict(run_report, tolerance, over, status))
         with guard.signals_held():
             for tmp, final in pending:
                 os.replace(tmp, final)
             pending.clear()
-        clock.lap("write")
     finally:
         for tmp in [t for t, _ in pending] + [rrd_tmp]:
             if tmp is not None and tmp.exists():
