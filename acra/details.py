@@ -253,8 +253,6 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
     ends = closed_ends(new)
     ends_arr = _ends_array(ends)
     up, vp = bool(new.u.periodic), bool(new.v.periodic)
-    size = max(new.size(), 1e-300)
-    c1, c2 = 1e-6 * size, 1e-12 * size**2  # `_frames_at`'s tolerances of a degenerate frame
     if vec is None:
         vec = levelkernels.restate_rows(_plain(frames[k - 1]), _NO_FRAMES, rows, _plain(lev.offsets), _plain(vectors[k - 1]),
                                         _NO_MOVES, _NO_MOVES)[1]
@@ -270,39 +268,16 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> D
         every, ring, gu, gv, centre = _movable_places(new, k, lev, ends)
         if not every.size:
             continue
-        # the level in one compiled call (`levelkernels.descend_level`: its stale rows, their
-        # frames on the coarser surface, the restatement and the marks of its changed vectors);
-        # a stale pole ring's one normal (`_end_normal`) is found here and the call made again,
-        # and a degenerate frame is left to the steps below, which take the level as the kernel
-        # would
-        partial = _stacked(vectors[:k - 1], frames[:k - 1], table[:start[k - 1]])
-        old_vec = _plain(vectors[k - 1])
-        arrays = (centre, ring, ends_arr, every, pending.get(k, _NO_ROWS))
-        tail = (gu, gv, *H.eval_arrays(new, partial, k - 1), c1, c2, _plain(frames[k - 1]), _plain(lev.offsets), old_vec,
-                changes.bits(old_vec), lev.cv_keys, int(new.v.cvs(k)), k, int(new.u.patches(k)), int(new.v.patches(k)))
-        known, fixed, normal = (np.zeros(len(ends) or 1, bool), np.zeros(len(ends) or 1, bool),
-                                np.zeros((len(ends) or 1, 3)))
-        status, pos, fr, vec, changed = levelkernels.descend_level(stale, *arrays, known, fixed, normal, *tail)
-        if status == 1:
-            on = ring[pos]
-            for i, (axis, end) in enumerate(ends):
-                if np.count_nonzero(on == i):
-                    n_end = _end_normal(new, k, axis, end, partial)
-                    known[i], fixed[i] = True, n_end is not None
-                    if n_end is not None:
-                        normal[i] = n_end
-            status, pos, fr, vec, changed = levelkernels.descend_level(stale, *arrays, known, fixed, normal, *tail)
+        pos = levelkernels.stale_rows(stale, centre, ring, ends_arr, every, pending.get(k, _NO_ROWS))
         if not pos.size:
             continue
-        if status:
-            rows = every[pos]
-            fresh = _plain(_frames_at(new, k, ends, partial, ring[pos], gu[pos], gv[pos]))
-            fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), old_vec,
-                                                _NO_MOVES, _NO_MOVES)
-            changed = levelkernels.mark_changed(changes.bits(vec), changes.bits(old_vec), rows, lev.cv_keys,
-                                                int(new.v.cvs(k)), k, int(new.u.patches(k)), int(new.v.patches(k)), up,
-                                                vp, stale)
-        marked |= changed > 0
+        rows = every[pos]
+        fresh = _plain(_frames_at(new, k, ends, _stacked(vectors[:k - 1], frames[:k - 1], table[:start[k - 1]]),
+                                  ring[pos], gu[pos], gv[pos]))
+        fr, vec = levelkernels.restate_rows(_plain(frames[k - 1]), fresh, rows, _plain(lev.offsets), _plain(vectors[k - 1]),
+                                            _NO_MOVES, _NO_MOVES)
+        marked |= levelkernels.mark_changed(changes.bits(vec), changes.bits(vectors[k - 1]), rows, lev.cv_keys, int(new.v.cvs(k)), k,
+                                            int(new.u.patches(k)), int(new.v.patches(k)), up, vp, stale) > 0
         vectors[k - 1], frames[k - 1] = vec, fr
         table[start[k - 1]:start[k]] = vec
     return _stacked(vectors, frames, table)

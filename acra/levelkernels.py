@@ -30,11 +30,10 @@ import math
 import numpy as np
 from numba import njit
 
-from acra.framekernels import frames_at
-from acra.kernels import ascending, eval_points, mark_cells
+from acra.kernels import ascending, mark_cells
 
 __all__ = ["build_level", "block_keys", "point_entries", "unique_inverse", "movable_places", "differing_rows",
-           "mark_changed", "restate_rows", "stale_rows", "descend_level", "merge_points"]
+           "mark_changed", "restate_rows", "stale_rows", "merge_points"]
 
 
 _MAX_CELLS = 1 << 22  # largest level grid the dense marks are used for (4 M cells, ~40 MB)
@@ -521,65 +520,6 @@ def stale_rows(stale, centre, ring, ends, every, pending):
             out[n] = i
             n += 1
     return out[:n]
-
-
-@njit(cache=True, nogil=True)
-def descend_level(stale, centre, ring, ends, every, pending, end_known, end_fixed, end_normal, gu, gv, top, nu,
-                  u_periodic, nv, v_periodic, cvs, levels, keys, shifts, term_ends, patch_rows, table_rows, table, c1, c2,
-                  frames, offsets, vectors, old_bits, cv_keys, v_cvs, k, u_patches, v_patches):
-    """One finer level ``k`` of a move followed down the levels (`acra.details.moved_details`) in
-    one call: which movable CVs' frames the level-0 patches ``stale (P0u, P0v) bool`` reach
-    (`stale_rows` of ``centre``, ``ring``, ``ends``, ``every``, ``pending``); their frames on the
-    surface of levels ``0..k-1`` (`eval_points` at their centres ``gu, gv (n,) float64``, first
-    order, with ``top = k - 1`` and the surface's `acra.hspline.eval_arrays` from ``nu`` to
-    ``table``, the coarser levels' vectors; then `frames_at` with tolerances ``c1, c2``, a pole
-    ring's CVs with their end's one normal: ``end_known (E,) bool`` whether the caller found
-    each end's (`acra.details._end_normal`), ``end_fixed (E,) bool`` whether there is one, and
-    ``end_normal (E, 3) float64`` it); the
-    level's ``frames (c, 3, 3)`` and ``vectors (c, 3) float64`` restated on those rows from its
-    ``offsets (c, 3)`` (`restate_rows`); and the level-0 patches their changed vectors support
-    marked in ``stale`` (`mark_changed` against ``old_bits``, the bits of ``vectors``; the
-    level's CV keys ``cv_keys``, ``v_cvs`` CVs along v, ``u_patches, v_patches`` patches and the
-    directions' periodicity). Each step is the kernel Python calls for it, on the same arrays, so
-    the same bits; one call a level replaces a dozen Python steps.
-
-    Returns ``status, pos, frames, vectors, changed``: ``pos (p,) int64`` the positions among the
-    movable CVs whose frames are stale, ``changed`` how many vectors changed bits, ``status`` 0
-    when done; 1 when a stale row is on a pole ring whose normal is not known (the caller finds
-    it, evaluating the coarser surface along the end, and calls again) and 2 when a frame off
-    the rings is degenerate (its limit normal): then nothing is restated or marked, ``frames``
-    and ``vectors`` are the inputs, and the caller takes the level with ``pos``."""
-    pos = stale_rows(stale, centre, ring, ends, every, pending)
-    m = pos.shape[0]
-    if m == 0:
-        return 0, pos, frames, vectors, 0
-    fixed = np.zeros(m, np.bool_)
-    n_fixed = np.zeros((m, 3))
-    for i in range(m):
-        r = ring[pos[i]]
-        if r >= 0:
-            if not end_known[r]:
-                return 1, pos, frames, vectors, 0
-            if end_fixed[r]:
-                fixed[i] = True
-                n_fixed[i, 0], n_fixed[i, 1], n_fixed[i, 2] = end_normal[r, 0], end_normal[r, 1], end_normal[r, 2]
-    u = np.empty(m)
-    v = np.empty(m)
-    rows = np.empty(m, np.int64)
-    for i in range(m):
-        u[i], v[i], rows[i] = gu[pos[i]], gv[pos[i]], every[pos[i]]
-    ev = np.empty((3, m, 3))
-    # order and side as int64 values, not literals: the specialisation Python's calls compiled
-    eval_points(u, v, np.int64(1), np.int64(0), top, nu, u_periodic, nv, v_periodic, cvs, levels, keys, shifts,
-                term_ends, patch_rows, table_rows, table, ev)
-    fresh = np.empty((m, 3, 3))
-    if frames_at(ev[1], ev[2], c1, c2, fixed, n_fixed, fresh):
-        return 2, pos, frames, vectors, 0
-    none = np.zeros((0, 3))
-    fr, vec = restate_rows(frames, fresh, rows, offsets, vectors, none, none)
-    changed = mark_changed(vec.view(np.int64), old_bits, rows, cv_keys, v_cvs, k, u_patches, v_patches, u_periodic,
-                           v_periodic, stale)
-    return 0, pos, fr, vec, changed
 
 
 @njit(cache=True, nogil=True)
