@@ -101,8 +101,10 @@ def frames_at(du, dv, c1, c2, fixed, n_fixed, out):
     ``n_fixed[i]`` instead (a pole ring's one normal). Returns how many other rows are
     degenerate: if any, nothing is written to ``out`` and the caller takes their limit normals
     (`acra.hspline.surface_normals`). Each row is the same arithmetic as those kernels on it
-    alone, so the same bits. The evaluation stays with `acra.kernels.eval_points`' own
-    signature: a kernel calling it compiles its code again (about 5 s on a first run)."""
+    alone, so the same bits. The evaluation is the caller's `acra.kernels.eval_points` call: a
+    kernel calling it with the argument types Python's calls use links its compiled code (0.4 s
+    to compile such a caller), but a literal argument or another array layout compiles it again
+    for the caller (4.5 s on a first run; `benchmarks/nested_compile.py`)."""
     m = du.shape[0]
     n = np.empty((m, 3))
     bad = np.empty(m, np.bool_)
