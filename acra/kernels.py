@@ -128,52 +128,29 @@ def _same(x, y):
 
 
 @njit(inline="always")
-def _basis_bin(t, lv, scale, order, bin_t, bin_w, scratch):
-    """The bin of ``bin_w`` holding level ``lv``'s basis rows at ``t`` (`_basis` with ``scale``
-    and ``order``), written there first unless the bin already holds ``t`` (bit for bit).
-
-    ``bin_t (L, nb) float64``: the ``t`` each bin of each level holds (NaN: none); ``bin_w (L,
-    nb, order + 1, 4) float64``: its rows; ``scratch (3, 4) float64``. A level-``k`` basis row is
-    a function of ``t`` alone, and a display's vertices lie on a dyadic lattice, so their ``t``
-    on a level take few values (on a lattice of step ``2^-j`` a level-0 patch, ``2^(j-k)`` on
-    level ``k``): the bins keep one row per value, taken by ``floor(t nb)``, and the rows are the
-    ones `_basis` gives, so a point's sum takes the same products as without them."""
-    nb = bin_t.shape[1]
-    j = min(int(t * nb), nb - 1)  # 0 <= t <= 1
-    if not _same(t, bin_t[lv, j]):
-        _basis(t, scale, order, scratch)
-        for q in range(order + 1):
-            for a in range(4):
-                bin_w[lv, j, q, a] = scratch[q, a]
-        bin_t[lv, j] = t
-    return j
-
-
-@njit(inline="always")
-def _half(bin_w, lv, j, order, table, rows, base, half):
+def _half(rv, order, table, rows, base, half):
     """The v contraction of one 4×4 block: ``half[a, q, c] = sum_b rv[q, b] · block[a, b, c]``.
 
-    ``rv = bin_w[lv, j] (order + 1, 4) float64``: basis rows along v (`_basis_bin`); ``table (r,
-    3) float64`` with the block's rows ``rows (4, 4) int64`` (entry ``[a, b]`` is CV ``(a, b)``
-    of the block, row ``rows[a, b] - base`` of ``table``); ``half (4, 3, 3) float64`` written. It
-    reads neither u nor the point's sum, so points that share v (bit for bit) and the block share
-    it."""
+    ``rv (3, 4) float64``: basis rows along v (`_basis`); ``table (r, 3) float64`` with the
+    block's rows ``rows (4, 4) int64`` (entry ``[a, b]`` is CV ``(a, b)`` of the block, row
+    ``rows[a, b] - base`` of ``table``); ``half (4, 3, 3) float64`` written. It reads neither u
+    nor the point's sum, so points that share v (bit for bit) and the block share it."""
     for a in range(4):
         r0, r1, r2, r3 = rows[a, 0] - base, rows[a, 1] - base, rows[a, 2] - base, rows[a, 3] - base
         for q in range(order + 1):
-            w0, w1, w2, w3 = bin_w[lv, j, q, 0], bin_w[lv, j, q, 1], bin_w[lv, j, q, 2], bin_w[lv, j, q, 3]
+            w0, w1, w2, w3 = rv[q, 0], rv[q, 1], rv[q, 2], rv[q, 3]
             for c in range(3):
                 half[a, q, c] = w0 * table[r0, c] + w1 * table[r1, c] + w2 * table[r2, c] + w3 * table[r3, c]
 
 
 @njit(inline="always")
-def _add_term(bin_w, lv, j, order, half, sum_):
+def _add_term(ru, order, half, sum_):
     """Add one block's term to a point's sum: slot ``(p, q)`` is ``sum_a ru[p, a] · half[a, q]``
-    (``ru = bin_w[lv, j] (order + 1, 4) float64`` the basis rows along u, `_basis_bin`'s;
-    ``half (4, 3, 3)`` `_half`'s, ``sum_ (6, 3) float64`` the point's running sum per slot)."""
+    (``ru (3, 4) float64`` the basis rows along u, ``half (4, 3, 3)`` `_half`'s, ``sum_ (6, 3)
+    float64`` the point's running sum per slot)."""
     for s in range(_NSLOT[order]):
         p, q = _SLOT_P[s], _SLOT_Q[s]
-        w0, w1, w2, w3 = bin_w[lv, j, p, 0], bin_w[lv, j, p, 1], bin_w[lv, j, p, 2], bin_w[lv, j, p, 3]
+        w0, w1, w2, w3 = ru[p, 0], ru[p, 1], ru[p, 2], ru[p, 3]
         for c in range(3):
             sum_[s, c] += w0 * half[0, q, c] + w1 * half[1, q, c] + w2 * half[2, q, c] + w3 * half[3, q, c]
 
@@ -224,12 +201,8 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
     base = table_rows[0]
     if nlev > 1 and base + table.shape[0] < table_rows[levels[nlev - 1]]:
         raise ValueError("the detail table is shorter than the levels evaluated need")
-    # per visited level, basis rows kept by their parameter t (`_basis_bin`), shared by u and v:
-    # a display's points take few distinct t per level, so most terms read their rows there
-    nb = 256 if m >= 256 else 16
-    bin_t = np.full((max(nlev, 1), nb), np.nan)  # (nlev, nb) float64: the t each bin holds
-    bin_w = np.empty((max(nlev, 1), nb, order + 1, 4))  # (nlev, nb, order + 1, 4) float64: its rows
-    scratch = np.zeros((3, 4))  # (order, CV) float64: `_basis`' rows before they are binned
+    ru = np.zeros((3, 4))  # (order, CV) float64: basis rows along u of the current level
+    rv = np.zeros((3, 4))  # and along v
     sum_ = np.zeros((6, 3))  # (slot, xyz) float64: the current point's sum
     # (level, a, q, xyz) float64: per visited level, the v contraction of the last block summed
     # (`_half`), kept with the v and block it was taken for: a point with the same v (bit for bit)
@@ -258,7 +231,7 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
         for s in range(nslot):
             for c in range(3):
                 sum_[s, c] = -0.0  # -0.0 + x is x, the sign of a zero included
-        # v's rows first: u's bin is read right after it is taken (u and v share the bins)
+        _basis(tu, 1.0, order, ru)
         if not (half_block[0] == su and _same(v0, half_v[0])):
             sv, tv = _segment(v0, 0, p0v, v_periodic, side)
             for a in range(4):
@@ -270,11 +243,10 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
                     if v_periodic and iv >= nv:
                         iv -= nv
                     rows0[a, b] = iu * nv + iv
-            jv = _basis_bin(tv, 0, 1.0, order, bin_t, bin_w, scratch)
-            _half(bin_w, 0, jv, order, cvs, rows0, 0, half[0])
+            _basis(tv, 1.0, order, rv)
+            _half(rv, order, cvs, rows0, 0, half[0])
             half_v[0], half_block[0] = v0, su
-        ju = _basis_bin(tu, 0, 1.0, order, bin_t, bin_w, scratch)
-        _add_term(bin_w, 0, ju, order, half[0], sum_)
+        _add_term(ru, order, half[0], sum_)
         for lv in range(1, nlev):
             k = levels[lv]
             su, tu = _segment(u0, k, p0u, u_periodic, side)
@@ -310,12 +282,12 @@ def eval_points(u, v, order, side, top, nu, u_periodic, nv, v_periodic, cvs,
             if lo < 0:
                 continue
             scale = float(1 << k)
+            _basis(tu, scale, order, ru)
             if not (half_block[lv] == lo and _same(v0, half_v[lv])):
-                jv = _basis_bin(tv, lv, scale, order, bin_t, bin_w, scratch)
-                _half(bin_w, lv, jv, order, table, patch_rows[lo], base, half[lv])
+                _basis(tv, scale, order, rv)
+                _half(rv, order, table, patch_rows[lo], base, half[lv])
                 half_v[lv], half_block[lv] = v0, lo
-            ju = _basis_bin(tu, lv, scale, order, bin_t, bin_w, scratch)
-            _add_term(bin_w, lv, ju, order, half[lv], sum_)
+            _add_term(ru, order, half[lv], sum_)
         for s in range(nslot):
             for c in range(3):
                 out[s, i, c] = sum_[s, c]
