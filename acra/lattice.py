@@ -299,20 +299,37 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
     w = nv + 1
     nl = pu.shape[0]
     nc = nl * samples * samples
-    cu, cv, ch = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
-    c = 0
+    # the cells in (u, v) order, written there leaf by leaf: the leaves by the v of their lower
+    # corner (a stable counting sort of the leaves, not of their cells), then each leaf's rows of
+    # cells appended to their lattice lines. The leaves meeting a line cover disjoint v ranges,
+    # so each line's cells come in v order; the lower corners are distinct, so this is the one
+    # (u, v) order of the cells
+    count = np.zeros(w + 1, np.int64)
     for leaf in range(nl):
+        count[pv[leaf] * samples * ph[leaf] + 1] += 1
+    for x in range(w):
+        count[x + 1] += count[x]
+    leaf_by_v = np.empty(nl, np.int64)
+    for leaf in range(nl):
+        x = pv[leaf] * samples * ph[leaf]
+        leaf_by_v[count[x]] = leaf
+        count[x] += 1
+    fill = np.zeros(nu + 2, np.int64)  # per lattice line u, where its cells start
+    for leaf in range(nl):
+        for a in range(samples):
+            fill[(pu[leaf] * samples + a) * ph[leaf] + 1] += samples
+    for x in range(nu + 1):
+        fill[x + 1] += fill[x]
+    su, sv, sh = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
+    for q in range(nl):
+        leaf = leaf_by_v[q]
         h = ph[leaf]
         for a in range(samples):
+            line = (pu[leaf] * samples + a) * h
+            c = fill[line]
             for b in range(samples):
-                cu[c], cv[c], ch[c] = (pu[leaf] * samples + a) * h, (pv[leaf] * samples + b) * h, h
-                c += 1
-    # the cells in (u, v) order (their lower corners are distinct, so the keys' order is theirs)
-    by_key, _ = _key_order(cu, cv, nu, w)
-    su, sv, sh = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
-    for q in range(nc):
-        p = by_key[q]
-        su[q], sv[q], sh[q] = cu[p], cv[p], ch[p]
+                su[c + b], sv[c + b], sh[c + b] = line, (pv[leaf] * samples + b) * h, h
+            fill[line] = c + samples
     # the corners' vertices (corner s of cell c at 4 c + s, `_corner_keys`)
     lattice, first, at = _corner_keys(su, sv, sh, nu, nv, wrap_u, wrap_v, w)
     # the same vertices v-major: a stable counting sort of the u-major ones by v
