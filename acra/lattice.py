@@ -165,7 +165,7 @@ def quadtree_leaves(p0u, p0v, keys, starts):
 
 
 @njit(inline="always")
-def _corner_keys(su, sv, sh, nu, nv, wrap_u, wrap_v, w):
+def _corner_keys(su, sv, sh, starts, stops, ends, nu, nv, wrap_u, wrap_v, w):
     """`unique_keys` of the four corners of every cell ``(su, sv, sh) (nc,) int64`` (sorted by
     their lower corners' keys; corner ``s`` of cell ``c`` is the point ``4 c + s``,
     counter-clockwise from the lower one: 0 ``(u, v)``, 1 ``(u + h, v)``, 2 ``(u + h, v + h)``, 3
@@ -176,42 +176,16 @@ def _corner_keys(su, sv, sh, nu, nv, wrap_u, wrap_v, w):
     The cells tile the domain, so on each lattice line ``u = i`` the cells starting there
     (corners 0 and 3) have disjoint v ranges, and so have the cells ending there (corners 1 and
     2): each side's corners, cell by cell in v order, are already sorted along the line. The
-    cells starting on a line are consecutive in the cells' order; those ending on it are
-    bucketed by their upper u line from the cells in v order (two stable counting sorts of the
-    ``nc`` cells, not of the ``4 nc`` corners). One merge of the two sides per line gives its
-    keys in order, each corner's position as it passes, with no sort of the corners. A corner on
-    the periodic v seam (``v + h = nv``) is the line's vertex at ``v = 0``, its first."""
+    cells starting on line ``i`` are ``starts[i]`` to ``starts[i + 1]`` in the cells' order; those
+    ending on it, in v order, are ``ends[stops[i]:stops[i + 1]]`` (``starts, stops (nu + 2,)
+    int64``, ``ends (nc,) int64``: `adaptive_mesh` writes them as it orders the cells). One merge
+    of the two sides per line gives its keys in order, each corner's position as it passes, with
+    no sort of the corners. A corner on the periodic v seam (``v + h = nv``) is the line's vertex
+    at ``v = 0``, its first."""
     nc = su.shape[0]
     n = 4 * nc
     if n >= 2**31:
         raise ValueError("too many points for int32 orders")
-    # the cells in v order: a stable counting sort of their lower corners' v
-    count = np.zeros(w + 1, np.int64)
-    for c in range(nc):
-        count[sv[c] + 1] += 1
-    for x in range(w):
-        count[x + 1] += count[x]
-    by_v = np.empty(nc, np.int32)
-    for c in range(nc):
-        by_v[count[sv[c]]] = c
-        count[sv[c]] += 1
-    # where each line's cells start (``starts``, consecutive: the cells come by u) and end
-    # (``ends``: the cells whose upper u line it is, in v order, from ``stops``)
-    starts = np.zeros(nu + 2, np.int64)
-    stops = np.zeros(nu + 2, np.int64)
-    for c in range(nc):
-        starts[su[c] + 1] += 1
-        stops[_upper(su[c] + sh[c], nu, wrap_u) + 1] += 1
-    for x in range(nu + 1):
-        starts[x + 1] += starts[x]
-        stops[x + 1] += stops[x]
-    fill = stops.copy()
-    ends = np.empty(nc, np.int32)
-    for q in range(nc):
-        c = by_v[q]
-        r = _upper(su[c] + sh[c], nu, wrap_u)
-        ends[fill[r]] = c
-        fill[r] += 1
     out = np.empty(n, np.int64)
     at = np.empty(n, np.int32)
     first = np.empty(nu + 2, np.int64)
@@ -299,22 +273,54 @@ def adaptive_mesh(pu, pv, ph, samples, nu, nv, wrap_u, wrap_v):
     w = nv + 1
     nl = pu.shape[0]
     nc = nl * samples * samples
-    cu, cv, ch = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
-    c = 0
+    # the cells in (u, v) order, written there leaf by leaf: the leaves by the v of their lower
+    # corner (a stable counting sort of the leaves, not of their cells), then each leaf's rows of
+    # cells appended to their lattice lines. The leaves meeting a line cover disjoint v ranges,
+    # so each line's cells come in v order; the lower corners are distinct, so this is the one
+    # (u, v) order of the cells
+    count = np.zeros(w + 1, np.int64)
     for leaf in range(nl):
+        count[pv[leaf] * samples * ph[leaf] + 1] += 1
+    for x in range(w):
+        count[x + 1] += count[x]
+    leaf_by_v = np.empty(nl, np.int64)
+    for leaf in range(nl):
+        x = pv[leaf] * samples * ph[leaf]
+        leaf_by_v[count[x]] = leaf
+        count[x] += 1
+    fill = np.zeros(nu + 2, np.int64)  # per lattice line u, where its cells start
+    for leaf in range(nl):
+        for a in range(samples):
+            fill[(pu[leaf] * samples + a) * ph[leaf] + 1] += samples
+    for x in range(nu + 1):
+        fill[x + 1] += fill[x]
+    starts = fill.copy()
+    # and per lattice line, the cells whose upper side lies on it (`_corner_keys`' ``ends``), in
+    # v order by the same walk
+    stops = np.zeros(nu + 2, np.int64)
+    for leaf in range(nl):
+        for a in range(samples):
+            stops[_upper((pu[leaf] * samples + a + 1) * ph[leaf], nu, wrap_u) + 1] += samples
+    for x in range(nu + 1):
+        stops[x + 1] += stops[x]
+    fill_up = stops.copy()
+    su, sv, sh = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
+    ends = np.empty(nc, np.int64)
+    for q in range(nl):
+        leaf = leaf_by_v[q]
         h = ph[leaf]
         for a in range(samples):
+            line = (pu[leaf] * samples + a) * h
+            c = fill[line]
+            r = _upper(line + h, nu, wrap_u)
+            e = fill_up[r]
             for b in range(samples):
-                cu[c], cv[c], ch[c] = (pu[leaf] * samples + a) * h, (pv[leaf] * samples + b) * h, h
-                c += 1
-    # the cells in (u, v) order (their lower corners are distinct, so the keys' order is theirs)
-    by_key, _ = _key_order(cu, cv, nu, w)
-    su, sv, sh = np.empty(nc, np.int64), np.empty(nc, np.int64), np.empty(nc, np.int64)
-    for q in range(nc):
-        p = by_key[q]
-        su[q], sv[q], sh[q] = cu[p], cv[p], ch[p]
+                su[c + b], sv[c + b], sh[c + b] = line, (pv[leaf] * samples + b) * h, h
+                ends[e + b] = c + b
+            fill[line] = c + samples
+            fill_up[r] = e + samples
     # the corners' vertices (corner s of cell c at 4 c + s, `_corner_keys`)
-    lattice, first, at = _corner_keys(su, sv, sh, nu, nv, wrap_u, wrap_v, w)
+    lattice, first, at = _corner_keys(su, sv, sh, starts, stops, ends, nu, nv, wrap_u, wrap_v, w)
     # the same vertices v-major: a stable counting sort of the u-major ones by v
     # (a key's v is its offset from its column's start key: no division)
     m = lattice.shape[0]

@@ -650,3 +650,31 @@ def test_merge_matches_the_sorted_search_and_cells_numpy_s(seed):
             T._cells_into(x, float(1 << level), n, periodic, got_cell, got_before)
             np.testing.assert_array_equal(got_cell, wrap(cell))
             np.testing.assert_array_equal(got_before, wrap(before))
+
+
+@pytest.mark.parametrize("shape", ["sphere", "torus", "sheet"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_adaptive_mesh_orders_its_cells_whatever_the_leaves_order(shape, seed):
+    """`acra.lattice.adaptive_mesh` writes the cells in ``(u, v)`` order leaf by leaf (the leaves
+    counting-sorted by their lower v, each leaf's rows appended to their lattice lines): the
+    quadtree's leaves in any order give the same vertices, faces and rows by v."""
+    from acra.lattice import adaptive_mesh
+
+    maker = {"sphere": shapes.sphere, "torus": shapes.torus, "sheet": shapes.sheet}[shape]
+    hs = H.from_grid(*maker(8, 7), depth=4)
+    rng = np.random.default_rng(seed)
+    for samples, blobs in ((1, 2), (3, 5), (4, 8)):
+        levels = _random_levels(hs, seed, blobs)
+        top = hs.depth - 1
+        leaves = T._leaves(hs.u.patches0, hs.v.patches0,
+                           {j: np.unique(np.argwhere(levels >= j) >> (top - j), axis=0) for j in range(1, top + 1)}, top)
+        pu = np.concatenate([p[:, 0] for _, p in leaves]).astype(np.int64)
+        pv = np.concatenate([p[:, 1] for _, p in leaves]).astype(np.int64)
+        ph = np.concatenate([np.full(len(p), 1 << (top - k), np.int64) for k, p in leaves])
+        args = (samples, hs.u.patches0 * (samples << top), hs.v.patches0 * (samples << top),
+                bool(hs.u.periodic), bool(hs.v.periodic))
+        want = adaptive_mesh(pu, pv, ph, *args)
+        order = rng.permutation(pu.size)
+        got = adaptive_mesh(pu[order].copy(), pv[order].copy(), ph[order].copy(), *args)
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
