@@ -6,7 +6,8 @@ Runs the scene's ``--frames`` (after a free frame, as `residual_calls.py` does),
 the arguments of every call of ``--kernel`` (a compiled function of `acra`, named as
 ``MODULE.NAME``: `acra.clearcells._clear_cells`, the flooded grids of `residual._clear_depth`;
 `acra.meshrows._faces_at`, the corners, box and shift of the triangles near the other object;
-`acra.meshrows._face_chunks`, a display's chunk boxes), then replays them ``--passes`` times and
+`acra.meshrows._face_chunks`, a display's chunk boxes; `acra.bvh._part_tree`, a part solid's
+vertex normals and tree), then replays them ``--passes`` times and
 prints the CPU milliseconds of the fastest pass and a digest of every answer (each call's return
 value and what it writes of its output arrays, `ANSWERS`): two checkouts answer alike when their
 digests agree. Run it with ``PYTHONPATH`` at each checkout, alternating, for a comparison.
@@ -34,6 +35,8 @@ ANSWERS = {
     "clearcells._clear_cells": lambda m, a: (np.int64(m), a[12], a[13][:max(m, 0)]),  # count, keep, chosen rows
     "meshrows._faces_at": lambda plain, a: (np.bool_(plain), a[4], a[5]) + ((a[6],) if len(a[2]) else ()),
     "meshrows._face_chunks": lambda _, a: tuple(a[4:8]),  # the chunks' and groups' boxes
+    # a part's vertex normals, box, corners, leaf order, the filled nodes, their count, leaf corners
+    "bvh._part_tree": lambda t, _: t[:4] + tuple(x[:t[10]] for x in t[4:10]) + (np.int64(t[10]), t[11]),
 }
 
 
