@@ -79,36 +79,48 @@ def _box_sum(sat, lo, hi):
 @njit(cache=True, nogil=True)
 def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, box_lo, box_hi, keep, chosen):
     nx, ny, nz = dims[0], dims[1], dims[2]
-    lo, hi = np.empty(3, np.int64), np.empty(3, np.int64)
-    # the cells each face's box touches (clipped to the grid; empty if it misses it)
+    o0, o1, o2 = origin[0], origin[1], origin[2]
+    # the cells each face's box touches (clipped to the grid; empty if it misses it), its
+    # corners read once as values
     flo, fhi = np.empty((rows.shape[0], 3), np.int64), np.empty((rows.shape[0], 3), np.int64)
     touch = np.zeros((nx + 1, ny + 1, nz + 1), np.int32)
     for r in range(rows.shape[0]):
-        f = _row(faces, rows[r])
-        inside = True
-        for k in range(3):
-            a = min(min(points[f[0], k], points[f[1], k]), points[f[2], k])
-            b = max(max(points[f[0], k], points[f[1], k]), points[f[2], k])
-            flo[r, k] = max(_cell(a - slack, origin[k], h), 0)  # the slack: the solid's surface near this face's
-            fhi[r, k] = min(_cell(b + slack, origin[k], h), dims[k] - 1)
-            inside = inside and flo[r, k] <= fhi[r, k]
-        if inside:
-            _box_add(touch, _row(flo, r), _row(fhi, r), 1)
+        f0, f1, f2 = _row(faces, rows[r])
+        x0, y0, z0 = _row(points, f0)
+        x1, y1, z1 = _row(points, f1)
+        x2, y2, z2 = _row(points, f2)
+        l0 = max(_cell(min(min(x0, x1), x2) - slack, o0, h), 0)  # the slack: the solid's surface near this face's
+        h0 = min(_cell(max(max(x0, x1), x2) + slack, o0, h), nx - 1)
+        l1 = max(_cell(min(min(y0, y1), y2) - slack, o1, h), 0)
+        h1 = min(_cell(max(max(y0, y1), y2) + slack, o1, h), ny - 1)
+        l2 = max(_cell(min(min(z0, z1), z2) - slack, o2, h), 0)
+        h2 = min(_cell(max(max(z0, z1), z2) + slack, o2, h), nz - 1)
+        flo[r, 0], flo[r, 1], flo[r, 2], fhi[r, 0], fhi[r, 1], fhi[r, 2] = l0, l1, l2, h0, h1, h2
+        if l0 <= h0 and l1 <= h1 and l2 <= h2:
+            _box_add(touch, (l0, l1, l2), (h0, h1, h2), 1)
     _sums(touch)
     # the solid lies in its box: an untouched cell beyond the box's cells on an axis is outside,
     # and so is every untouched cell joined to one through untouched cells sharing a side
-    for k in range(3):
-        lo[k], hi[k] = _cell(box_lo[k], origin[k], h), _cell(box_hi[k], origin[k], h)
+    bl0, bh0 = _cell(box_lo[0], o0, h), _cell(box_hi[0], o0, h)
+    bl1, bh1 = _cell(box_lo[1], o1, h), _cell(box_hi[1], o1, h)
+    bl2, bh2 = _cell(box_lo[2], o2, h), _cell(box_hi[2], o2, h)
     out = np.zeros((nx, ny, nz), np.bool_)
     queue = np.empty(nx * ny * nz, np.int32)  # a cell's coordinates packed 10 bits each (no divisions)
     n = 0
     for i in range(nx):
         for j in range(ny):
             for q in range(nz):
-                if touch[i, j, q] == 0 and (i < lo[0] or i > hi[0] or j < lo[1] or j > hi[1] or q < lo[2] or q > hi[2]):
+                if touch[i, j, q] == 0 and (i < bl0 or i > bh0 or j < bl1 or j > bh1 or q < bl2 or q > bh2):
                     out[i, j, q] = True
-                    queue[n] = (i << 20) | (j << 10) | q
-                    n += 1
+                    # the flood reaches the same cells in any order, and a seed spreads only to
+                    # a neighbour that is no seed: untouched and within the box on all three
+                    # axes, which only a seed one cell beyond the box on one axis and within it
+                    # on the others has; only those are queued
+                    wi, wj, wq = bl0 <= i <= bh0, bl1 <= j <= bh1, bl2 <= q <= bh2
+                    if ((wj and wq and (i + 1 == bl0 or i - 1 == bh0)) or (wi and wq and (j + 1 == bl1 or j - 1 == bh1))
+                            or (wi and wj and (q + 1 == bl2 or q - 1 == bh2))):
+                        queue[n] = (i << 20) | (j << 10) | q
+                        n += 1
     at = 0
     while at < n:  # breadth first, the six sides written out (a loop over them branches per side)
         c = queue[at]
@@ -150,39 +162,41 @@ def _clear_cells(points, faces, rows, tri, rho, slack, reach, origin, h, dims, b
     wide = reach * (1.0 + 1e-9) + slack  # past the roundings of ``a - reach``, and the slack
     for t in range(tri.shape[0]):
         pad = rho[t] * (1.0 + 1e-9) + slack
-        clear = True
-        for k in range(3):
-            a = min(min(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
-            b = max(max(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
-            lo[k], hi[k] = _cell(a - pad, origin[k], h), _cell(b + pad, origin[k], h)
-            clear = clear and 0 <= lo[k] and hi[k] < dims[k]
-        clear = clear and _box_sum(known, (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2])) == 0
+        x0, y0, z0 = tri[t, 0, 0], tri[t, 0, 1], tri[t, 0, 2]
+        x1, y1, z1 = tri[t, 1, 0], tri[t, 1, 1], tri[t, 1, 2]
+        x2, y2, z2 = tri[t, 2, 0], tri[t, 2, 1], tri[t, 2, 2]
+        a0, b0 = min(min(x0, x1), x2), max(max(x0, x1), x2)
+        a1, b1 = min(min(y0, y1), y2), max(max(y0, y1), y2)
+        a2, b2 = min(min(z0, z1), z2), max(max(z0, z1), z2)
+        l0, h0 = _cell(a0 - pad, o0, h), _cell(b0 + pad, o0, h)
+        l1, h1 = _cell(a1 - pad, o1, h), _cell(b1 + pad, o1, h)
+        l2, h2 = _cell(a2 - pad, o2, h), _cell(b2 + pad, o2, h)
+        clear = 0 <= l0 and h0 < nx and 0 <= l1 and h1 < ny and 0 <= l2 and h2 < nz
+        clear = clear and _box_sum(known, (l0, l1, l2), (h0, h1, h2)) == 0
         keep[t] = not clear
         if clear:
             continue
-        for k in range(3):
-            a = min(min(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
-            b = max(max(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
-            lo[k], hi[k] = max(_cell(a, origin[k], h), 0), min(_cell(b, origin[k], h), dims[k] - 1)
-        for i in range(lo[0], hi[0] + 1):  # its cells inside, away from the surface: deeper than the reach
-            for j in range(lo[1], hi[1] + 1):
-                for q in range(lo[2], hi[2] + 1):
+        l0, h0 = max(_cell(a0, o0, h), 0), min(_cell(b0, o0, h), nx - 1)
+        l1, h1 = max(_cell(a1, o1, h), 0), min(_cell(b1, o1, h), ny - 1)
+        l2, h2 = max(_cell(a2, o2, h), 0), min(_cell(b2, o2, h), nz - 1)
+        for i in range(l0, h0 + 1):  # its cells inside, away from the surface: deeper than the reach
+            for j in range(l1, h1 + 1):
+                for q in range(l2, h2 + 1):
                     if out[i, j, q] or touch[i, j, q] > 0:
                         continue
                     apart = True  # no touched cell adjoins it
-                    for a0 in range(max(i - 1, 0), min(i + 2, nx)):
-                        for a1 in range(max(j - 1, 0), min(j + 2, ny)):
-                            for a2 in range(max(q - 1, 0), min(q + 2, nz)):
-                                apart = apart and touch[a0, a1, a2] == 0
+                    for e0 in range(max(i - 1, 0), min(i + 2, nx)):
+                        for e1 in range(max(j - 1, 0), min(j + 2, ny)):
+                            for e2 in range(max(q - 1, 0), min(q + 2, nz)):
+                                apart = apart and touch[e0, e1, e2] == 0
                     if apart:
                         return -1
-        for k in range(3):
-            a = min(min(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
-            b = max(max(tri[t, 0, k], tri[t, 1, k]), tri[t, 2, k])
-            lo[k], hi[k] = _cell(a - wide, origin[k], h), _cell(b + wide, origin[k], h)
-            if lo[k] < 0 or hi[k] >= dims[k]:
-                return -1  # the kept triangle's reach leaves the grid, whose faces alone are known
-        _box_add(want, (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]), 1)
+        l0, h0 = _cell(a0 - wide, o0, h), _cell(b0 + wide, o0, h)
+        l1, h1 = _cell(a1 - wide, o1, h), _cell(b1 + wide, o1, h)
+        l2, h2 = _cell(a2 - wide, o2, h), _cell(b2 + wide, o2, h)
+        if l0 < 0 or h0 >= nx or l1 < 0 or h1 >= ny or l2 < 0 or h2 >= nz:
+            return -1  # the kept triangle's reach leaves the grid, whose faces alone are known
+        _box_add(want, (l0, l1, l2), (h0, h1, h2), 1)
     _sums(want)
     for i in range(nx, 0, -1):  # the wanted cells' indicator, summed: ``want[i + 1, j + 1, q + 1]``
         for j in range(ny, 0, -1):

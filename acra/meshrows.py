@@ -232,29 +232,42 @@ def _faces_meet_chunks(points, faces, size, clo, chi, glo, ghi, lo, hi, pad, out
 
 @njit(cache=True, nogil=True)
 def _faces_at(points, faces, rows, shift, out, moved, box):
-    # the corners in order, their box in `acra.bvh.bounds`' comparisons and order (the first
-    # corner, then each later one against the least and largest so far, a NaN winning as in numpy), and, where ``moved``
-    # has rows, each corner less ``shift`` (numpy's subtraction); true where every such value is
-    # finite and not zero
+    # the corners in order, each read once as its three values, their box in `acra.bvh.bounds`'
+    # comparisons and order (the first corner's values, then each corner against the least and
+    # largest so far, held as values: the first against itself changes nothing, a NaN winning as
+    # in numpy), and, where ``moved`` has rows, each corner less ``shift`` (numpy's subtraction);
+    # true where every such value is finite and not zero
     placed = moved.shape[0] > 0
     plain = True
+    if rows.shape[0] == 0:
+        return plain
+    v = faces[rows[0], 0]
+    b0, b1, b2 = points[v, 0], points[v, 1], points[v, 2]
+    t0, t1, t2 = b0, b1, b2
+    s0, s1, s2 = shift[0], shift[1], shift[2]
     for i in range(rows.shape[0]):
+        r = rows[i]
         for c in range(3):
-            v = faces[rows[i], c]
-            for k in range(3):
-                x = points[v, k]
-                out[i, c, k] = x
-                if i == 0 and c == 0:
-                    box[0, k], box[1, k] = x, x
-                else:
-                    if x < box[0, k] or x != x:
-                        box[0, k] = x
-                    if x > box[1, k] or x != x:
-                        box[1, k] = x
-                if placed:
-                    d = x - shift[k]
-                    moved[i, c, k] = d
-                    plain &= d != 0.0 and abs(d) < np.inf  # false for NaN too
+            v = faces[r, c]
+            x, y, z = points[v, 0], points[v, 1], points[v, 2]
+            out[i, c, 0], out[i, c, 1], out[i, c, 2] = x, y, z
+            if x < b0 or x != x:
+                b0 = x
+            if x > t0 or x != x:
+                t0 = x
+            if y < b1 or y != y:
+                b1 = y
+            if y > t1 or y != y:
+                t1 = y
+            if z < b2 or z != z:
+                b2 = z
+            if z > t2 or z != z:
+                t2 = z
+            if placed:
+                d0, d1, d2 = x - s0, y - s1, z - s2
+                moved[i, c, 0], moved[i, c, 1], moved[i, c, 2] = d0, d1, d2
+                plain &= d0 != 0.0 and abs(d0) < np.inf and d1 != 0.0 and abs(d1) < np.inf and d2 != 0.0 and abs(d2) < np.inf
+    box[0, 0], box[0, 1], box[0, 2], box[1, 0], box[1, 1], box[1, 2] = b0, b1, b2, t0, t1, t2
     return plain
 
 
