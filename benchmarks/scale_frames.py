@@ -22,7 +22,8 @@ stopped first rounds `residual.complete` measured in full and how many stopped p
 
 ``--functions`` adds, after the timed passes, ``--repeat`` passes per scale with the CPU time
 spent in each of `FUNCTIONS` (the work that a larger model can make larger: the CV hull's
-inside test, the coarse grid's orientation, the display's translation to world) summed per
+inside test, the coarse grid's orientation, the display's translation to world, the level-0
+box of a responded surface) summed per
 collision frame, inclusive of what they call, and prints their median CPU ms per collision
 frame at ×1 and ×16 (the median over the passes of each pass's median over the five frames).
 """
@@ -54,10 +55,11 @@ def _functions() -> list[tuple[object, str, str]]:
     """``(owner, attribute, label)`` of the functions ``--functions`` times: class attributes
     (a ``cached_property``'s function) and module functions that the frame loop calls through
     their module."""
-    from pipeline import model, queries, shape
+    from pipeline import frames, model, queries, shape
     return [(shape.HullIndex, "within", "HullIndex.within"), (shape.Shape, "outward", "Shape.outward (with _coarse)"),
             (shape.Shape, "_coarse", "Shape._coarse"), (shape.Shape, "closed", "Shape.closed"),
-            (queries, "signed", "queries.signed"), (model, "_translated", "model._translated")]
+            (queries, "signed", "queries.signed"), (model, "_translated", "model._translated"),
+            (frames, "_inner_box", "frames._inner_box")]
 
 
 def _timing(spent: dict):
