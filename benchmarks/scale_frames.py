@@ -19,6 +19,13 @@ can be alternated.
 
 ``--scenes`` instead runs every scene of ``scenes/`` once and prints, per scene, how many
 stopped first rounds `residual.complete` measured in full and how many stopped pairs they held.
+
+``--functions`` adds, after the timed passes, ``--repeat`` passes per scale with the CPU time
+spent in each of `FUNCTIONS` (the work that a larger model can make larger: the CV hull's
+inside test, the coarse grid's orientation, the display's translation to world, the level-0
+box of a responded surface) summed per
+collision frame, inclusive of what they call, and prints their median CPU ms per collision
+frame at ×1 and ×16 (the median over the passes of each pass's median over the five frames).
 """
 
 from __future__ import annotations
@@ -42,6 +49,80 @@ from pipeline.run import forget, run_file  # noqa: E402
 RUNS = ((0, 8), (2, 8))  # (refinements of the head's level 0, collision density): ×1 and ×16
 TIMES = one_frame.TIMES
 STAGES = ("ms_setup", "ms_detect", "ms_convert", "ms_respond", "ms_visible", "ms_output")
+
+
+def _functions() -> list[tuple[object, str, str]]:
+    """``(owner, attribute, label)`` of the functions ``--functions`` times: class attributes
+    (a ``cached_property``'s function) and module functions that the frame loop calls through
+    their module."""
+    from pipeline import frames, model, queries, shape
+    return [(shape.HullIndex, "within", "HullIndex.within"), (shape.Shape, "outward", "Shape.outward (with _coarse)"),
+            (shape.Shape, "_coarse", "Shape._coarse"), (shape.Shape, "closed", "Shape.closed"),
+            (queries, "signed", "queries.signed"), (model, "_translated", "model._translated"),
+            (frames, "_inner_box", "frames._inner_box")]
+
+
+def _timing(spent: dict):
+    """Wrap `_functions` to add their CPU seconds to ``spent`` (label -> s); return a function
+    restoring the originals."""
+    import functools
+    undo = []
+    for owner, name, label in _functions():
+        held = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
+        target = held.func if isinstance(held, functools.cached_property) else held
+
+        def timed(*args, _f=target, _label=label, **kw):
+            t = time.process_time()
+            try:
+                return _f(*args, **kw)
+            finally:
+                spent[_label] = spent.get(_label, 0.0) + time.process_time() - t
+        if isinstance(held, functools.cached_property):
+            held.func = timed
+            undo.append(lambda held=held, target=target: setattr(held, "func", target))
+        else:
+            setattr(owner, name, timed)
+            undo.append(lambda owner=owner, name=name, held=held: setattr(owner, name, held))
+
+    def restore():
+        for u in undo:
+            u()
+    return restore
+
+
+def functions(srcs: dict, tmp: Path, repeat: int) -> None:
+    """``--functions``: median CPU ms per collision frame in each of `_functions`, ×1 and ×16."""
+    from pipeline import frames as F
+    spent: dict = {}
+    per = {r: {} for r in RUNS}  # label -> each pass's median over its collision frames
+    on_frame = F._Run.frame
+    restore = _timing(spent)
+    try:
+        for _ in range(repeat):
+            for scale, density in RUNS:
+                frames = []
+
+                def frame(self, f, result):
+                    spent.clear()
+                    st = on_frame(self, f, result)
+                    if st.in_collision:
+                        frames.append(dict(spent))
+                    return st
+                F._Run.frame = frame
+                forget()
+                try:
+                    run_file(srcs[scale], output=tmp / f"fn{scale}.acra.usda", density=density)
+                finally:
+                    F._Run.frame = on_frame
+                for _, _, label in _functions():
+                    per[scale, density].setdefault(label, []).append(
+                        1e3 * float(np.median([fr.get(label, 0.0) for fr in frames])))
+    finally:
+        restore()
+    print("CPU ms per collision frame in (median of passes of the median over the collision frames): ×1 / ×16")
+    for _, _, label in _functions():
+        a, b = (statistics.median(per[r][label]) for r in RUNS)
+        print(f"  {label}: {a:.2f} / {b:.2f}")
 
 
 def _counting():
@@ -76,6 +157,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--scenes", action="store_true", help="count the completed first rounds of every scene")
+    ap.add_argument("--functions", action="store_true", help="CPU ms per collision frame in the model-sized functions")
     args = ap.parse_args()
     if args.scenes:
         return scenes()
@@ -148,6 +230,8 @@ def main() -> None:
             print(f"    frame {f}: " + ", ".join(f"{k[3:]} {statistics.median(split[r][f, k]):.2f}" for k in STAGES))
     print(f"ratio ×16 density 8 / ×1: {med[RUNS[1]] / med[RUNS[0]]:.3f}")
     print(f"digest {h.hexdigest()[:12]}")
+    if args.functions:
+        functions(srcs, tmp, args.repeat)
 
 
 def scenes() -> None:

@@ -156,8 +156,13 @@ def _inner_box(g) -> tuple[np.ndarray, float] | None:
     m, t = g.xform[:3, :3], g.xform[:3, 3]
     cvs = g.surface.cvs.reshape(-1, 3)
     world = cvs @ m.T + t
-    reach = float(np.abs(t).max() + (np.abs(m) @ np.abs(cvs).max(axis=0)).max())
-    lo, hi = world.min(axis=0) + 1e-9 * reach, world.max(axis=0) - 1e-9 * reach
+    # each coordinate's extremes over its contiguous row of the transposed copies: numpy's
+    # reduction over the outer axis of an (n, 3) array walks it three values at a time, 5-10x
+    # slower at the ×16 head's 2,496 CVs; a minimum or maximum rounds nothing, so the values
+    # are the same whatever the order (a zero's sign aside, which no comparison below sees)
+    reach = float(np.abs(t).max() + (np.abs(m) @ np.abs(np.ascontiguousarray(cvs.T)).max(axis=1)).max())
+    rows = np.ascontiguousarray(world.T)
+    lo, hi = rows.min(axis=1) + 1e-9 * reach, rows.max(axis=1) - 1e-9 * reach
     return (np.stack([lo, hi]), float(np.linalg.norm(hi - lo))) if np.all(lo <= hi) else None
 
 

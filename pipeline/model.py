@@ -232,22 +232,44 @@ def _translated(points, xform, round32, local, world, box):
                 return False
         if xform[i, 3] == 0.0 and np.signbit(xform[i, 3]):
             return False
+    n = points.shape[0]
+    if n == 0:
+        return True
+    t0, t1, t2 = xform[0, 3], xform[1, 3], xform[2, 3]
+    # `bvh.bounds`' comparisons, in its order, so equal values of either sign pick alike: the
+    # first row starts the box and every row, the first again, takes ``w < lo`` and ``w > hi``,
+    # which leave the first row's values as they are; held in locals, so the loop keeps no
+    # per-element branch on the row and no store to ``box``
+    if round32:
+        lo0, lo1, lo2 = np.float64(np.float32(points[0, 0])), np.float64(np.float32(points[0, 1])), np.float64(np.float32(points[0, 2]))
+    else:
+        lo0, lo1, lo2 = points[0, 0], points[0, 1], points[0, 2]
+    lo0, lo1, lo2 = lo0 + t0, lo1 + t1, lo2 + t2
+    hi0, hi1, hi2 = lo0, lo1, lo2
     finite = True
-    for i in range(points.shape[0]):
-        for k in range(3):
-            x = np.float64(np.float32(points[i, k])) if round32 else points[i, k]
-            w = x + xform[k, 3]
-            local[i, k] = x
-            world[i, k] = w
-            finite &= np.isfinite(w)
-            # `bvh.bounds`' comparisons, in its order, so equal values of either sign pick alike
-            if i == 0:
-                box[0, k], box[1, k] = w, w
-            else:
-                if w < box[0, k]:
-                    box[0, k] = w
-                if w > box[1, k]:
-                    box[1, k] = w
+    for i in range(n):
+        if round32:
+            x0, x1, x2 = np.float64(np.float32(points[i, 0])), np.float64(np.float32(points[i, 1])), np.float64(np.float32(points[i, 2]))
+        else:
+            x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
+        w0, w1, w2 = x0 + t0, x1 + t1, x2 + t2
+        local[i, 0], local[i, 1], local[i, 2] = x0, x1, x2
+        world[i, 0], world[i, 1], world[i, 2] = w0, w1, w2
+        finite &= np.isfinite(w0) & np.isfinite(w1) & np.isfinite(w2)
+        if w0 < lo0:
+            lo0 = w0
+        if w0 > hi0:
+            hi0 = w0
+        if w1 < lo1:
+            lo1 = w1
+        if w1 > hi1:
+            hi1 = w1
+        if w2 < lo2:
+            lo2 = w2
+        if w2 > hi2:
+            hi2 = w2
+    box[0, 0], box[0, 1], box[0, 2] = lo0, lo1, lo2
+    box[1, 0], box[1, 1], box[1, 2] = hi0, hi1, hi2
     return finite
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from acra import halfspaces, kdtree, memo
 from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
-from acra.orientation import volume_sign
+from acra.orientation import volume_sign_about_mean
 from acra.patch_boxes import patch_boxes
 from pipeline import queries
 from pipeline.grids import (COLLAPSE, BvhCache, Closest, GridCache, GridSet, Nearest, PatchGrid, SetupClock, bvh, overlap,
@@ -98,7 +98,10 @@ class HullIndex:
     facet whose cone holds a point is looked up among those whose centroid direction from ``c`` is
     nearest the point's (a kd-tree of unit directions); points whose answer this does not settle
     (no such cone within 1e-12 of the size, or behind their facet by less than ``slack``) take the
-    test against every facet, so the answer is that test's (`within`). A hull of at most
+    test against every facet, so the answer is that test's (`within`). Points in a small box
+    (a contact's) take the compiled test against the few facets whose planes pass near the box
+    (`_facets_near`), which is the test against every facet, without the cone lookup's
+    per-point kd-tree query (docs/performance.md, *Scale with model size*). A hull of at most
     `DIRECT` facets takes that test for every point (`acra.halfspaces.within`, compiled): a
     point outside stops at the first facet it is beyond, and one inside costs about a
     nanosecond a facet, less than the kd-tree's lookup of its cone (a 198-facet CV hull: 0.16
@@ -133,6 +136,9 @@ class HullIndex:
         eq = self.equations
         if len(eq) <= self.DIRECT or not len(q):  # no points: no cone to look up
             return halfspaces.within(eq, q, slack)
+        near = self._facets_near(q, slack) if slack > 0.0 else None
+        if near is not None:
+            return halfspaces.within(eq[near], q, slack)
         c, sides, tree, tol = self._cones
         r = q - c
         size = np.linalg.norm(r, axis=1)
@@ -148,6 +154,41 @@ class HullIndex:
         if len(rest):
             res[rest] = halfspaces.within(eq, q[rest], slack)
         return res
+
+    def _facets_near(self, q: np.ndarray, slack: float) -> np.ndarray | None:
+        """Rows ``(m',) int64`` of the facets that some point of ``q (k, 3)``'s box may lie
+        beyond by more than ``slack``, where there are at most `DIRECT` of them (else ``None``).
+
+        Over the box with centre ``o`` and half extents ``h``, ``n · x + d`` is at most ``n · o
+        + |n| · h + d``; a facet whose bound is below ``slack`` by more than the rounding of
+        both sums (1e-12 of the magnitudes they add, ``|n| · (|o| + h) + |d|``) holds every
+        point of the box, as `acra.halfspaces.within` sums its value, so the test against the
+        others is the test against every facet. A contact's points fill a small box near one
+        side of the hull, which a handful of facets' planes pass near: the test costs what the
+        points cost, not what the hull's facet count costs. A non-finite point has no box
+        (``None``). `within` asks only at a positive ``slack`` (`Shape.signed`'s): at none, a
+        point on a facet plane (a hull vertex, as `cv_index` tests the CVs with details) is
+        the rounding's either way, and the cone lookup keeps its answer."""
+        lo, hi = q.min(axis=0), q.max(axis=0)
+        if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+            return None
+        mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        half = np.maximum(half, np.maximum(mid - lo, hi - mid))  # the box's centre rounded: still covers it
+        rows, d, size = self._box_rows
+        top, mag = np.split(rows @ np.concatenate([mid, half, np.abs(mid) + half]), 2)
+        top += d
+        mag += size
+        near = np.flatnonzero(~(top <= slack - 1e-12 * mag))  # a NaN bound is kept
+        return near if len(near) <= self.DIRECT else None
+
+    @cached_property
+    def _box_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_facets_near`'s rows: ``(2 m, 9) float64`` whose product with ``(o, h, |o| + h)``
+        gives each facet's ``n · o + |n| · h`` (first ``m``) and ``|n| · (|o| + h)`` (last
+        ``m``), the offsets ``d (m,)`` and ``|d| (m,)``."""
+        n, d = self.equations[:, :3], self.equations[:, 3]
+        an, zero = np.abs(n), np.zeros_like(n)
+        return np.ascontiguousarray(np.block([[n, an, zero], [zero, zero, an]])), d.copy(), np.abs(d)
 
 
 _REFINEMENTS_KEPT = 64
@@ -318,8 +359,8 @@ class Shape:
         """``+1`` if ``du × dv`` points out of a closed surface, else ``-1``: the sign of the
         volume enclosed by the coarse grid (divergence theorem)."""
         pts, tris = self._coarse
-        centre = pts.mean(axis=0)
-        sure = volume_sign(pts, tris, centre)  # compiled, where no summation order can flip it
+        # compiled, where no summation order can flip it; ``centre`` is ``pts.mean(axis=0)``
+        sure, centre = volume_sign_about_mean(pts, tris)
         if sure:
             return float(sure)
         a, b, c = (pts[tris[:, i]] - centre for i in range(3))

@@ -489,3 +489,41 @@ def test_a_first_round_a_later_round_beats_by_its_lower_bounds_is_not_completed(
     assert got[1][0].iterations == 2 and got[1][0].residual_rel <= 5e-4
     assert completed == [] and got[2].count((True, True)) == 1
     _same_outcome(got[:2], want[:2])
+
+
+def test_an_inner_box_is_the_array_forms_box():
+    """`frames._inner_box` of a surface whose patch boxes are not built: the box of its level-0
+    CVs mapped by its matrix, shrunk by 1e-9 of the mapping's terms, equal to the array form's
+    (numpy's reductions over the mapped CVs' first axis) value for value, and its diagonal bit
+    for bit: random grids with signed zeros and coordinates over 12 decades, under rotations,
+    scales and translations; a flat grid whose shrinking leaves no box gives ``None`` in both."""
+    from acra import hspline as H
+    from acra import shapes
+
+    def array_form(g):
+        m, t = g.xform[:3, :3], g.xform[:3, 3]
+        cvs = g.surface.cvs.reshape(-1, 3)
+        world = cvs @ m.T + t
+        reach = float(np.abs(t).max() + (np.abs(m) @ np.abs(cvs).max(axis=0)).max())
+        lo, hi = world.min(axis=0) + 1e-9 * reach, world.max(axis=0) - 1e-9 * reach
+        return (np.stack([lo, hi]), float(np.linalg.norm(hi - lo))) if np.all(lo <= hi) else None
+
+    rng = np.random.default_rng(23)
+    for trial in range(80):
+        cvs, up, vp = shapes.sphere(2 * int(rng.integers(2, 20)), int(rng.integers(5, 30)))
+        cvs = cvs * 10.0 ** rng.integers(-6, 6, size=(*cvs.shape[:2], 1))
+        cvs[rng.random(cvs.shape) < 0.1] = 0.0
+        cvs[rng.random(cvs.shape) < 0.1] = -0.0
+        if trial % 9 == 0:
+            cvs[..., 2] = 0.0  # flat: no box left after the shrinking
+        c, s = np.cos(rng.uniform(0, 6.3)), np.sin(rng.uniform(0, 6.3))
+        xf = np.eye(4)
+        if trial % 2:
+            xf[:2, :2] = [[c, -s], [s, c]]
+        xf[:3, :3] *= rng.uniform(0.5, 2.0, 3)
+        xf[:3, 3] = rng.normal(size=3) * rng.choice([0.0, 1.0, 1e3])
+        g = geometry.SurfaceGeometry(H.from_grid(cvs, up, vp), xf)
+        got, want = F._inner_box(g), array_form(g)
+        assert (got is None) == (want is None), trial
+        if got is not None:
+            assert np.array_equal(got[0], want[0]) and got[1] == want[1], trial

@@ -58,3 +58,33 @@ def test_other_matrices_and_arrays_take_numpy_s_path(monkeypatch):
     for q in (p[:8], p.astype(np.float32), p[::2], np.asfortranarray(p)):
         assert apply_xform(shift, q).tobytes() == _numpy(shift, q).tobytes()
     assert called == []
+
+
+@pytest.mark.parametrize("round32", [True, False])
+@pytest.mark.parametrize("n", [0, 1, 2, 7, 500])
+def test_a_translation_s_rows_and_box_are_the_array_forms(round32, n):
+    """`model.translated`: ``local`` is the points rounded to float32 (where ``round32``),
+    ``world`` is ``local`` plus the translation by numpy's arithmetic, and ``box`` is
+    `acra.bvh.bounds` of ``world``, bit for bit: signed zeros (which the box's comparisons pick
+    in row order), sums that cancel, values of every magnitude; no rows: true, the box unset."""
+    from acra import bvh
+
+    rng = np.random.default_rng(17 + n)
+    p = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-30, 30, size=(n, 1))
+    p[rng.random(p.shape) < 0.2] = 0.0
+    p[rng.random(p.shape) < 0.2] = -0.0
+    m = np.eye(4)
+    m[:3, 3] = (0.0, 1.5, -2.25)
+    if n:
+        p[-1] = (-0.0, -1.5, 2.25)  # a world row of zeros from both sides
+    local, world, box = np.empty((n, 3)), np.empty((n, 3)), np.full((2, 3), 7.0)
+    assert model.translated(p, m, round32, local, world, box)
+    want_local = p.astype(np.float32).astype(np.float64) if round32 else p
+    assert local.tobytes() == want_local.tobytes()
+    assert world.tobytes() == _numpy(m, want_local).tobytes()
+    if n:
+        assert box.tobytes() == bvh.bounds(world).tobytes()
+    else:
+        assert (box == 7.0).all()
+    same = p.copy()
+    assert model.translated(same, m, False, same, same, box) and same.tobytes() == _numpy(m, p).tobytes()

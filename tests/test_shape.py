@@ -99,3 +99,52 @@ def test_a_shape_whose_every_patch_moved_evaluates_them_all_and_takes_its_parent
     orphan = S.Shape(new)
     orphan.parent, orphan.moved = S.Shape(hs), np.ones_like(rep.moved)  # the parent's grid not built: its own triangles
     assert np.array_equal(orphan._coarse[1], want_tris) and "_coarse" not in orphan.parent.__dict__
+
+
+def _big_hull():
+    from scipy.spatial import ConvexHull
+
+    cvs = shapes.sphere(64, 48, radii=(1.0, 0.85, 0.9))[0].reshape(-1, 3)
+    index = S.HullIndex(ConvexHull(cvs))
+    assert len(index.equations) > S.HullIndex.DIRECT
+    return cvs, index
+
+
+def test_a_large_hull_tests_a_small_boxs_points_against_the_facets_near_it():
+    """`HullIndex.within` on a large hull (a 64x48 ellipsoid net's, about 4,500 facets) of points
+    in a small box (a contact's) answers as the compiled test against every facet, bit for bit,
+    at the slack `Shape.signed` uses, with no kd-tree of cone directions built: random
+    boxes about the surface, points in them, CVs within 1e-10 and the CVs themselves."""
+    from acra import halfspaces
+
+    rng = np.random.default_rng(11)
+    cvs, index = _big_hull()
+    eq = index.equations
+    for _ in range(40):
+        centre = cvs[rng.integers(len(cvs))] * rng.uniform(0.9, 1.1)
+        half = rng.uniform(0.001, 0.1, 3)
+        q = rng.uniform(centre - half, centre + half, (int(rng.integers(1, 600)), 3))
+        near = np.all(np.abs(cvs - centre) <= half, axis=1)
+        q = np.concatenate([q, cvs[near], cvs[near] * (1 + rng.normal(size=(near.sum(), 1)) * 1e-10)])
+        np.testing.assert_array_equal(index.within(q, 1e-9), halfspaces.within(eq, q, 1e-9))
+    assert "_cones" not in index.__dict__
+    q = np.array([[0.0, 0.0, 0.0], [0.1, 0.1, 0.1], [1.2, 0.0, 0.0]])
+    np.testing.assert_array_equal(index.within(q, 1e-9), [True, True, False])
+
+
+def test_a_large_hull_keeps_only_facets_whose_planes_pass_near_the_box():
+    """`HullIndex._facets_near` of a box near the hull's side keeps the facets whose bound over
+    the box reaches ``slack`` and drops every facet that holds the whole box: each dropped facet's
+    value at the box's eight corners is below ``slack``; a box holding the whole hull keeps more
+    than `DIRECT` facets (``None``: the cone lookup answers), and so does a non-finite point."""
+    cvs, index = _big_hull()
+    eq = index.equations
+    q = cvs[[504, 505, 552]] * 0.99  # three CVs about the equator, moved in
+    near = index._facets_near(q, 1e-9)
+    assert near is not None and 0 < len(near) < 200
+    lo, hi = q.min(axis=0), q.max(axis=0)
+    corners = np.array([[(lo, hi)[b >> i & 1][i] for i in range(3)] for b in range(8)])
+    dropped = np.setdiff1d(np.arange(len(eq)), near)
+    assert (corners @ eq[dropped, :3].T + eq[dropped, 3]).max() < 1e-9
+    assert index._facets_near(np.array([[-1.1, -1.0, -1.0], [1.1, 1.0, 1.0]]), 1e-9) is None
+    assert index._facets_near(np.array([[np.nan, 0.0, 0.0], [0.1, 0.0, 0.0]]), 1e-9) is None
