@@ -1,6 +1,6 @@
 """The residual's measures of a run on one thread and on two, replayed in one process.
 
-    python3 benchmarks/second_core.py [SCENE.py] [--frames 13:17] [--passes 9] [--kernels]
+    python3 benchmarks/second_core.py [SCENE.py] [--frames 13:17] [--passes 9] [--kernels | --bound]
 
 Runs the scene's ``--frames`` (after a free frame, as `residual_calls.py` does), keeping every
 `residual.measure_frame` call's arguments (the frame loop's rounds and the run's display), then
@@ -15,7 +15,17 @@ Prints, for each setting, the wall milliseconds (``time.perf_counter``) and CPU 
 ran side by side, and a digest of every answer (each pair's depths, completeness, the points,
 parameters and depths found inside): one thread and two must give the same digest, and so must
 two checkouts. Wall time is the figure two threads change; it needs an otherwise idle machine
-(give ``uptime`` with it), and CPU time must stay about the same.
+(give ``uptime`` with it), and CPU time must stay about the same. The first line says whether a
+second core was free: a compiled loop of about 10 ms twice, one after the other and side by
+side in two threads, fastest of 5 (side by side in about half the time on a free second core).
+
+``--bound`` gives instead what two threads could gain at most, from CPU time alone (so on a
+loaded machine too): each pair measured side by side is replayed on one thread, its two
+`pair_depth` calls timed whole (``a``, ``b``) and inside the compiled kernels they call from
+Python (``ka``, ``kb``: every numba dispatcher of an ``acra`` module, timed where a module's
+Python calls it by its module attribute; numpy's own loops are counted as holding the GIL, so
+the bound errs high). Two threads sharing one GIL take at least ``max(a, b, (a - ka) + (b - kb))``
+of wall time for the pair, against ``a + b`` on one; the fastest pass's sums are printed.
 
 ``--kernels`` times instead two compiled kernels split over numba's threads (``prange`` over
 chunks of their points, `_closest_split` and `_eval_split` below, numba's default threading
@@ -63,6 +73,36 @@ def _fresh(s, parts: dict, made: dict):
     out = dataclasses.replace(s, parts=None if s.parts is None else parts.setdefault(id(s.parts), {}), **more)
     made[id(s)] = (s, out)
     return out
+
+
+@njit(nogil=True, cache=True)
+def _spin(n):
+    """``n (int64)`` square roots summed: a compiled loop that holds no lock."""
+    s = 0.0
+    for i in range(n):
+        s += np.sqrt(i + 0.5)
+    return s
+
+
+def _free_core() -> str:
+    """The first line: a compiled loop twice, one after the other and side by side."""
+    import threading
+
+    n = np.int64(3_000_000)
+    _spin(n)
+
+    def after():
+        _spin(n)
+        _spin(n)
+
+    def beside():
+        worker = threading.Thread(target=_spin, args=(n,))
+        worker.start()
+        _spin(n)
+        worker.join()
+
+    return (f"a free second core? a compiled loop twice: one after the other {1e3 * _best(after, 5):.1f} ms, "
+            f"side by side {1e3 * _best(beside, 5):.1f} ms wall")
 
 
 def _pass(calls: list, threads: int) -> tuple[float, float, str, int]:
@@ -204,12 +244,77 @@ def _times(rows: dict, digests: dict, size: str, items: int, passes: int, whole,
     rows[size] = (n + 1, total + items, tw + w, t1 + s1, t2 + s2)
 
 
+def _bound(calls: list, passes: int) -> None:
+    """``--bound``: the pairs measured side by side, their calls' CPU time whole and in the
+    compiled kernels, and the least wall time two threads sharing the GIL could take."""
+    import importlib
+    import pkgutil
+
+    import acra
+    from numba.core.registry import CPUDispatcher
+
+    from pipeline import workers
+
+    inside = [0.0]
+    wrapped = []
+    for info in pkgutil.iter_modules(acra.__path__):
+        module = importlib.import_module(f"acra.{info.name}")
+        for name, f in list(vars(module).items()):
+            if isinstance(f, CPUDispatcher) and getattr(f, "__module__", None) == module.__name__:
+                def timed(*a, _f=f, **k):
+                    t = time.process_time()
+                    try:
+                        return _f(*a, **k)
+                    finally:
+                        inside[0] += time.process_time() - t
+                setattr(module, name, timed)
+                wrapped.append((module, name, f))
+    sides: list = []
+
+    def one_after_the_other(first, second):
+        out = []
+        for f in (first, second):
+            k0, t0 = inside[0], time.process_time()
+            out.append(f())
+            sides.append((time.process_time() - t0, inside[0] - k0))
+        return tuple(out)
+
+    config.NUMBA_NUM_THREADS = 2  # the path that measures a pair's sides side by side, run one after the other
+    both = workers.both
+    workers.both = one_after_the_other
+    best = None
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            for _ in range(passes):
+                parts: dict = {}
+                made: dict = {}
+                fresh = [([_fresh(s, parts, made) for s in objects], kw) for objects, kw in calls]
+                sides.clear()
+                for objects, kw in fresh:
+                    residual.measure_frame(objects, **kw, measured={})
+                pairs = [(sides[i], sides[i + 1]) for i in range(0, len(sides), 2)]
+                seq = sum(a[0] + b[0] for a, b in pairs)
+                if best is None or seq < best[0]:
+                    least = sum(max(a[0], b[0], (a[0] - a[1]) + (b[0] - b[1])) for a, b in pairs)
+                    kernel = sum(a[1] + b[1] for a, b in pairs)
+                    best = (seq, least, kernel, len(pairs))
+    finally:
+        workers.both = both
+        for module, name, f in wrapped:
+            setattr(module, name, f)
+    seq, least, kernel, n = best
+    print(f"{n} pairs measured side by side, fastest of {passes} passes on one thread: {1e3 * seq:.1f} ms CPU, "
+          f"{1e3 * kernel:.1f} of it in compiled kernels called from Python; two threads sharing the GIL: at least "
+          f"{1e3 * least:.1f} ms wall ({1e3 * (seq - least):.1f} less at most)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
     ap.add_argument("--frames", default="13:17", help="frames START:END (default 13:17)")
     ap.add_argument("--passes", type=int, default=9)
     ap.add_argument("--kernels", action="store_true", help="time the split kernels instead (module docstring)")
+    ap.add_argument("--bound", action="store_true", help="the most two threads could gain, from CPU time (module docstring)")
     args = ap.parse_args()
     a, b = (int(x) for x in args.frames.split(":"))
     stage = usdio.open_input(usdio.load_scene_file(args.scene))
@@ -231,6 +336,12 @@ def main() -> None:
     F.run_frames(stage, scene, list(range(a, b + 1)))
     residual.measure_frame = real
     kept = config.NUMBA_NUM_THREADS
+    if args.bound:
+        try:
+            _bound(calls, args.passes)
+        finally:
+            config.NUMBA_NUM_THREADS = kept
+        return
     out: dict = {1: [], 2: []}
     try:
         with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs
@@ -240,6 +351,7 @@ def main() -> None:
                     out[threads].append(_pass(calls, threads))
     finally:
         config.NUMBA_NUM_THREADS = kept
+    print(_free_core())
     print(f"{args.scene.name}, frames {a}-{b}: {len(calls)} measure_frame calls, {args.passes} passes each, alternated")
     for threads, runs in out.items():
         wall = [1e3 * r[0] for r in runs]
