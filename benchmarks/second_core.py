@@ -25,7 +25,9 @@ loaded machine too): each pair measured side by side is replayed on one thread, 
 Python (``ka``, ``kb``: every numba dispatcher of an ``acra`` module, timed where a module's
 Python calls it by its module attribute; numpy's own loops are counted as holding the GIL, so
 the bound errs high). Two threads sharing one GIL take at least ``max(a, b, (a - ka) + (b - kb))``
-of wall time for the pair, against ``a + b`` on one; the fastest pass's sums are printed.
+of wall time for the pair, against ``a + b`` on one; the fastest pass's sums are printed. Then
+the same split of `display.Displays.of` (the round's displays, which two threads could build
+side by side too), over a cold run of the frames, fastest of ``--passes``.
 
 ``--kernels`` times instead two compiled kernels split over numba's threads (``prange`` over
 chunks of their points, `_closest_split` and `_eval_split` below, numba's default threading
@@ -244,9 +246,11 @@ def _times(rows: dict, digests: dict, size: str, items: int, passes: int, whole,
     rows[size] = (n + 1, total + items, tw + w, t1 + s1, t2 + s2)
 
 
-def _bound(calls: list, passes: int) -> None:
+def _bound(calls: list, passes: int, stage=None, scene=None, frames=()) -> tuple:
     """``--bound``: the pairs measured side by side, their calls' CPU time whole and in the
-    compiled kernels, and the least wall time two threads sharing the GIL could take."""
+    compiled kernels, and the least wall time two threads sharing the GIL could take (the
+    fastest pass's sums: one thread's CPU, the least wall, the kernels' CPU, the pairs); and
+    `_bound_displays` of a run of ``frames`` (with ``stage``)."""
     import importlib
     import pkgutil
 
@@ -257,6 +261,7 @@ def _bound(calls: list, passes: int) -> None:
 
     inside = [0.0]
     wrapped = []
+    displays: list = []
     for info in pkgutil.iter_modules(acra.__path__):
         module = importlib.import_module(f"acra.{info.name}")
         for name, f in list(vars(module).items()):
@@ -284,6 +289,8 @@ def _bound(calls: list, passes: int) -> None:
     workers.both = one_after_the_other
     best = None
     try:
+        if stage is not None:
+            displays.extend(_bound_displays(stage, scene, frames, passes, inside))
         with threadpool_limits(limits=1, user_api="blas"):
             for _ in range(passes):
                 parts: dict = {}
@@ -298,14 +305,43 @@ def _bound(calls: list, passes: int) -> None:
                     least = sum(max(a[0], b[0], (a[0] - a[1]) + (b[0] - b[1])) for a, b in pairs)
                     kernel = sum(a[1] + b[1] for a, b in pairs)
                     best = (seq, least, kernel, len(pairs))
+        return best, displays
     finally:
         workers.both = both
         for module, name, f in wrapped:
             setattr(module, name, f)
-    seq, least, kernel, n = best
-    print(f"{n} pairs measured side by side, fastest of {passes} passes on one thread: {1e3 * seq:.1f} ms CPU, "
-          f"{1e3 * kernel:.1f} of it in compiled kernels called from Python; two threads sharing the GIL: at least "
-          f"{1e3 * least:.1f} ms wall ({1e3 * (seq - least):.1f} less at most)")
+
+
+def _bound_displays(stage, scene, frames: list, passes: int, inside: list) -> tuple[float, float, int]:
+    """`display.Displays.of` over a cold run of ``frames``: CPU s, CPU s inside the kernels
+    (``inside``, `_bound`'s counter), calls; the fastest of ``passes`` runs."""
+    from pipeline import display, run
+
+    real = display.Displays.of
+    spent: list = []
+
+    def of(self, *a, **k):
+        k0, t0 = inside[0], time.process_time()
+        try:
+            return real(self, *a, **k)
+        finally:
+            spent.append((time.process_time() - t0, inside[0] - k0))
+
+    best = None
+    display.Displays.of = of
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            for _ in range(passes):
+                run.forget()
+                F.run_frames(stage, scene, [5])
+                spent.clear()
+                F.run_frames(stage, scene, frames)
+                total = (sum(x[0] for x in spent), sum(x[1] for x in spent), len(spent))
+                if best is None or total[0] < best[0]:
+                    best = total
+    finally:
+        display.Displays.of = real
+    return best
 
 
 def main() -> None:
@@ -338,9 +374,15 @@ def main() -> None:
     kept = config.NUMBA_NUM_THREADS
     if args.bound:
         try:
-            _bound(calls, args.passes)
+            (seq, least, kernel, n), displays = _bound(calls, args.passes, stage, scene, list(range(a, b + 1)))
         finally:
             config.NUMBA_NUM_THREADS = kept
+        print(f"{n} pairs measured side by side, fastest of {args.passes} passes on one thread: {1e3 * seq:.1f} ms CPU, "
+              f"{1e3 * kernel:.1f} of it in compiled kernels called from Python; two threads sharing the GIL: at least "
+              f"{1e3 * least:.1f} ms wall ({1e3 * (seq - least):.1f} less at most)")
+        total, inner, count = displays
+        print(f"display.Displays.of, frames {a}-{b} cold, fastest of {args.passes}: {count} calls, {1e3 * total:.1f} ms CPU, "
+              f"{1e3 * inner:.1f} of it in compiled kernels called from Python")
         return
     out: dict = {1: [], 2: []}
     try:
