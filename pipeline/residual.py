@@ -32,7 +32,7 @@ from functools import cached_property
 import numpy as np
 
 from acra import bvh, clearcells, depthbound, memo, meshrows
-from pipeline import clearance
+from pipeline import clearance, workers
 from pipeline.model import SceneModel, apply_xform, translated
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
@@ -623,8 +623,23 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None, measured: 
         pairs = [(i, j) for i, a in enumerate(objects) if a.deformable for j in range(len(objects)) if j != i]
     answers: list = [None] * len(pairs)
     later = set(settle)
-    for n, (i, j) in enumerate(pairs):
-        if n not in later and objects[j].closed:
+    full = [n for n, (i, j) in enumerate(pairs) if n not in later and objects[j].closed]
+    a, b = (objects[pairs[full[0]][0]], objects[pairs[full[0]][1]]) if full else (None, None)
+    if (len(full) == 2 and pairs[full[0]] == pairs[full[1]][::-1] and workers.threads() > 1
+            and _kept(a, b, tolerance, measured, known) is None and _kept(b, a, tolerance, measured, known) is None):
+        # a pair both ways to measure (a closed pair's two sides, 2-4 ms each after a response):
+        # the sides read each other's display and write only their own part caches, so they run
+        # side by side (`pipeline.workers`) once the entries both would make in shared tables are taken
+        _shared(a, b)
+        keys = [k for k in ((id(a), id(b), tolerance), (id(b), id(a), tolerance)) if measured is not None and k not in measured]
+        answers[full[0]], answers[full[1]] = workers.both(
+            lambda: _pair_answer(a, b, tolerance, measured, known), lambda: _pair_answer(b, a, tolerance, measured, known))
+        for key in keys:  # the answers kept, most recent last, in the order one thread keeps them
+            if key in measured:
+                measured[key] = measured.pop(key)
+    else:
+        for n in full:
+            i, j = pairs[n]
             answers[n] = _pair_answer(objects[i], objects[j], tolerance, measured, known)
     proven = over or any(ins is not None and ins.depth / max(objects[i].size, 1e-300) > tolerance
                          for ins, (i, _) in zip(answers, pairs))
@@ -636,6 +651,25 @@ def measure_frame(objects: list[Shown], tolerance: float, pairs=None, measured: 
     return _residual([(objects[i], objects[j], ins) for (i, j), ins in zip(pairs, answers) if ins is not None])
 
 
+def _shared(a: Shown, b: Shown) -> None:
+    """The memo table entries `pair_depth` of ``a`` in ``b`` and of ``b`` in ``a`` both make
+    (`_placement`, and `_chunk_vertices` through `Shown.chunks`), made before the two run in two
+    threads: they then only read those tables (`pipeline.workers`)."""
+    for s in (a, b):
+        _placement(s.xform)
+        s.chunks
+
+
+def _kept(a: Shown, b: Shown, tolerance: float, measured: dict | None, known: dict | None) -> Inside | None:
+    """`_pair_answer`'s answer for ``a`` in ``b`` kept in ``measured`` or ``known``, or ``None``."""
+    hit = None if measured is None else measured.get((id(a), id(b), tolerance))
+    if hit is not None and hit[0] is a and hit[1] is b:
+        return hit[2]
+    if known and (a.fingerprint, b.fingerprint, tolerance) in known:
+        return known[a.fingerprint, b.fingerprint, tolerance]
+    return None
+
+
 def _pair_answer(a: Shown, b: Shown, tolerance: float, measured: dict | None, known: dict | None, settle: bool = False,
                  proven: bool = False) -> Inside:
     """`measure_frame`'s answer for ``a`` in ``b``: kept in ``measured`` or ``known``, else
@@ -644,11 +678,9 @@ def _pair_answer(a: Shown, b: Shown, tolerance: float, measured: dict | None, kn
     lower bound, kept nowhere)."""
     size = max(a.size, 1e-300)
     key = (id(a), id(b), tolerance)
-    hit = None if measured is None else measured.get(key)
-    if hit is not None and hit[0] is a and hit[1] is b:
-        return hit[2]
-    if known and (a.fingerprint, b.fingerprint, tolerance) in known:
-        return known[a.fingerprint, b.fingerprint, tolerance]
+    hit = _kept(a, b, tolerance, measured, known)
+    if hit is not None:
+        return hit
     if settle and proven:  # depth and deepest point 0: lower bounds
         return replace(_nothing(a), complete=False, stopped=True)
     more = {"stop": OVER * tolerance * size} if settle else {}

@@ -521,3 +521,48 @@ def test_pair_rel_is_the_larger_of_a_pairs_two_ways():
     fr.pairs.append(residual.PairDepth("/c", "/b", nothing, 0.7))
     assert fr.pair_rel("/b", "/c") == 0.7
 
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_pair_measured_both_ways_in_two_threads_gives_one_thread_s_answers(monkeypatch, seed):
+    """Two overlapping balls, each measured in the other: with two threads (numba's
+    ``NUMBA_NUM_THREADS``) the two sides run side by side (`pipeline.workers.both`) and give
+    the bits of one thread, kept in ``measured`` in the same order; a second frame on the same
+    `Shown` objects takes the kept answers."""
+    from numba.core import config
+
+    from pipeline import workers
+
+    rng = np.random.default_rng(seed)
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    topo = run_topology([ball], 4)
+    pts, tris = grid_samples(ball, topo)[0], topo.triangles()
+    shift = np.array([1.2, 0.0, 0.0]) + rng.uniform(-0.2, 0.2, 3)
+
+    def frame(threads: int):
+        monkeypatch.setattr(config, "NUMBA_NUM_THREADS", threads)
+        objects = []
+        for name, x in (("/a", np.zeros(3)), ("/b", shift)):
+            m = np.eye(4)
+            m[:3, 3] = x
+            objects.append(residual.shown(name, pts, tris, m, None, closed=True, outward=1.0, parts={}))
+        measured: dict = {}
+        fr = residual.measure_frame(objects, 1e-3, measured=measured)
+        return fr, measured, residual.measure_frame(objects, 1e-3, measured=measured)
+
+    sides = []
+    real = workers.both
+    monkeypatch.setattr(workers, "both", lambda f, g: sides.append(1) or real(f, g))
+    (one, kept_one, again_one), (two, kept_two, again_two) = frame(1), frame(2)
+    assert len(sides) == 1  # the second frame's answers are kept ones
+    assert [(p.a, p.b) for p in one.pairs] == [(p.a, p.b) for p in two.pairs] == [("/a", "/b"), ("/b", "/a")]
+    for fr in (one, two, again_one, again_two):
+        assert fr.pairs[0].inside.depth > 0
+    for x, y in ((one, two), (again_one, again_two), (one, again_two)):
+        for p, q in zip(x.pairs, y.pairs):
+            got, want = p.inside, q.inside
+            assert (got.depth, got.lower, got.complete, got.stopped, p.rel) == (want.depth, want.lower, want.complete,
+                                                                                 want.stopped, q.rel)
+            assert np.array_equal(got.points, want.points) and np.array_equal(got.deep, want.deep)
+    assert [(k[2], v[0].path, v[1].path) for k, v in kept_one.items()] == [(k[2], v[0].path, v[1].path)
+                                                                          for k, v in kept_two.items()]
