@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -149,6 +150,15 @@ def require(option: str):
     return distributed
 
 
+def worker_env(workers: int, cores: int | None = None) -> dict[str, str]:
+    """The environment of a LocalCluster's ``workers`` processes on ``cores`` (the machine's):
+    each may use ``cores // workers`` threads, at least 1 (``NUMBA_NUM_THREADS``, which a
+    collision frame's pair measure reads, `pipeline.workers`), so the workers together keep to
+    the machine's cores."""
+    cores = cores or os.cpu_count() or 1
+    return {"NUMBA_NUM_THREADS": str(max(1, cores // workers))}
+
+
 def connect(workers: int | None = None, scheduler: str | None = None):
     """A Dask ``(client, cluster)``: a new LocalCluster of ``workers`` processes with one thread
     each (``cluster`` to close after the client), or a client of the running ``scheduler``
@@ -173,6 +183,7 @@ def connect(workers: int | None = None, scheduler: str | None = None):
         cluster = distributed.LocalCluster(
             n_workers=workers, processes=True, threads_per_worker=1,
             dashboard_address=":0", silence_logs=logging.CRITICAL,  # a chunk's failure reaches the client; worker logs would only repeat it
+            env=worker_env(workers),
         )
         client = distributed.Client(cluster, set_as_default=False)
     try:

@@ -150,6 +150,19 @@ def test_workers_option_starts_a_local_cluster_and_reports_the_same_figures(shot
     assert key(farmed) == key(one)
 
 
+def test_local_cluster_workers_share_the_cores_between_their_threads():
+    assert farm.worker_env(2, cores=2) == {"NUMBA_NUM_THREADS": "1"}
+    assert farm.worker_env(1, cores=2) == {"NUMBA_NUM_THREADS": "2"}
+    assert farm.worker_env(3, cores=8) == {"NUMBA_NUM_THREADS": "2"}
+    assert farm.worker_env(16, cores=8) == {"NUMBA_NUM_THREADS": "1"}
+    client, cluster = farm.connect(workers=2)
+    try:
+        seen = client.run(lambda: __import__("os").environ.get("NUMBA_NUM_THREADS"))
+    finally:
+        farm._close(client, cluster)
+    assert sorted(seen.values()) == [farm.worker_env(2)["NUMBA_NUM_THREADS"]] * 2
+
+
 def test_usdc_output_is_byte_identical(shots, local_cluster):
     stage, frames, chunk, _, _ = shots["closed_objects"]
     single = run_file(stage, stage.parent / "single.usdc", frames).output.read_bytes()
