@@ -30,13 +30,31 @@ already typed and lowered. `install` makes a load refresh the contexts once with
 held back (`_refresh_for_loads`): every import and initialisation the refresh does still happens
 then, and the declarations are installed, in the same order, at the first compile (0.15-0.2 s
 CPU of a demo run: the first load's refresh and the other loads' 0.1 ms each).
+
+numba keeps a cached kernel while its own source file is unchanged (the file's digest is the
+cache's stamp), but a kernel holds the machine code of every compiled function it calls and every
+global constant it reads, from other modules too: `acra.sides` compiles `acra.kernels.eval_points`
+into its own code. `install` makes the stamp of a kernel defined in `acra` cover the modules its
+file imports from `acra`, transitively (`dependency_stamp`), so a changed callee's module (an
+upgrade, a checkout) makes every kernel that holds it compile again instead of running its
+old code.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import os
+import re
+
 import numpy as np
 
-__all__ = ["defined_symbols", "install"]
+__all__ = ["defined_symbols", "dependency_stamp", "install"]
+
+_PACKAGES = (os.path.dirname(os.path.abspath(__file__)),)  # the directories whose kernels `dependency_stamp` stamps
+# ``from acra[.m] import ...`` and ``from .[m] import ...``, at any indentation (a function may
+# import where it is called), with a parenthesised list over several lines
+_IMPORT = re.compile(r"^[ \t]*from[ \t]+(acra\.\w+|acra|\.\w+|\.)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)", re.M)
 
 _SECTION = np.dtype([("name", "<u4"), ("type", "<u4"), ("flags", "<u8"), ("addr", "<u8"), ("offset", "<u8"),
                      ("size", "<u8"), ("link", "<u4"), ("info", "<u4"), ("align", "<u8"), ("entsize", "<u8")])
@@ -72,6 +90,65 @@ def defined_symbols(obj: bytes) -> set[str] | None:
     strings = obj[nstart:nstart + nsize]
     at = symbols["name"][(symbols["shndx"] != _SHN_UNDEF) & (symbols["name"] != 0)]
     return {strings[a:strings.index(b"\0", a)].decode() for a in at.tolist()}
+
+
+@functools.lru_cache(maxsize=None)
+def _file(path: str, mtime: float, size: int) -> tuple[bytes, tuple[str, ...]]:
+    """The sha256 digest of the source file ``path`` and the files of the modules of its package
+    it imports (`_IMPORT`), as of its ``mtime`` and ``size``."""
+    with open(path, "rb") as f:
+        text = f.read()
+    here = os.path.dirname(path)
+    names = set()
+    for source, listed in _IMPORT.findall(text.decode("utf-8", "replace")):
+        if source not in ("acra", "."):  # ``from acra.m import ...``, ``from .m import ...``
+            names.add(source.rsplit(".", 1)[1])
+        else:  # ``from acra import a, b as c``: modules, or names of the package's __init__
+            names.update(n.split(" as ")[0].strip() for n in listed.strip("()").replace("\n", " ").split(","))
+    files = (os.path.join(here, n + ".py") for n in sorted(names) if n.isidentifier())
+    return hashlib.sha256(text).digest(), tuple(f for f in files if f != path and os.path.isfile(f))
+
+
+def _stat(path: str) -> tuple[str, float, int]:
+    st = os.stat(path)
+    return path, st.st_mtime, st.st_size
+
+
+def dependency_stamp(path: str) -> bytes:
+    """A digest of the source file ``path`` and of every module of its package it imports,
+    transitively: it differs whenever any of those files' contents do."""
+    path = os.path.abspath(path)
+    seen, todo = {}, [path]
+    while todo:
+        p = todo.pop()
+        if p not in seen:
+            seen[p] = _file(*_stat(p))
+            todo.extend(seen[p][1])
+    h = hashlib.sha256()
+    for p in sorted(seen):
+        h.update(os.path.basename(p).encode() + b"\0" + seen[p][0])
+    return h.digest()
+
+
+def _stamp_dependencies(caching) -> bool:
+    """Make the cache stamp of a kernel defined in a module of this package `dependency_stamp`'s
+    beside numba's own (the stamp is compared for equality when the cache index is read), where
+    numba's source-file locators have the method this wraps."""
+    mixin = getattr(caching, "_SourceFileBackedLocatorMixin", None)
+    own = getattr(mixin, "get_source_stamp", None)
+    if own is None or getattr(own, "_acra", False):
+        return own is not None
+
+    def get_source_stamp(self):
+        stamp = own(self)
+        path = getattr(self, "_py_file", None)
+        if not isinstance(path, str) or os.path.dirname(os.path.abspath(path)) not in _PACKAGES or not os.path.isfile(path):
+            return stamp
+        return stamp, dependency_stamp(path)
+
+    get_source_stamp._acra = True
+    mixin.get_source_stamp = get_source_stamp
+    return True
 
 
 def _caching_methods_known() -> bool:
@@ -133,6 +210,9 @@ def install() -> bool:
     """Make numba's cache loads read the defined symbols from the object code and defer parsing
     the linkable bitcode (module docstring); idempotent. Returns whether the loads are changed
     (False where this numba's code library differs from the one described)."""
+    from numba.core import caching
+
+    _stamp_dependencies(caching)
     found = _methods()
     if found is None:
         return False
@@ -143,7 +223,6 @@ def install() -> bool:
     for_linking = lib._get_module_for_linking
     pointer = jit.get_pointer_to_function
     from llvmlite import binding as ll
-    from numba.core import caching
 
     def _unserialize(cls, cg, state):
         name, kind, data = state

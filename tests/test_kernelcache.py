@@ -198,3 +198,46 @@ def test_a_cache_load_holds_back_the_declarations_until_a_compile(tmp_path):
     _child(PROBE.format(before="import acra"), tmp_path, tmp_path)  # compiles and writes the cache
     got = _child(HELD_BACK, tmp_path, tmp_path)
     assert got == {"value": 20.0, "held": True, "later": 10.0 + 2.0 + 10.0, "installed": True}
+
+
+def test_dependency_stamp_covers_the_modules_a_file_imports_transitively(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from . import b\n")
+    (pkg / "b.py").write_text("def f():\n    from .c import x\n")
+    (pkg / "c.py").write_text("x = 1\n")
+    (pkg / "d.py").write_text("y = 1\n")
+    a = str(pkg / "a.py")
+    first = kernelcache.dependency_stamp(a)
+    (pkg / "d.py").write_text("y = 2\n")  # imported by nothing a imports
+    assert kernelcache.dependency_stamp(a) == first
+    (pkg / "c.py").write_text("x = 22\n")  # a -> b -> c, imported inside a function
+    second = kernelcache.dependency_stamp(a)
+    assert second != first
+    (pkg / "c.py").write_text("x = 1\n")  # content, not time: the same text gives the same stamp
+    assert kernelcache.dependency_stamp(a) == first
+
+
+def test_a_kernel_compiles_again_when_a_kernel_it_calls_changes(tmp_path):
+    """numba checks a cached kernel against its own file alone; a kernel holds the code of the
+    kernels it calls, so a changed callee must not leave the caller's old code running."""
+    pkg = tmp_path / "kpkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "callee.py").write_text("from numba import njit\n\n\n@njit(cache=True)\ndef f():\n    return 1\n")
+    (pkg / "caller.py").write_text("from numba import njit\n\nfrom . import callee\n\n\n"
+                                   "@njit(cache=True)\ndef g():\n    return callee.f() + 10\n")
+    code = f"""
+        import json, os
+        os.environ["NUMBA_CACHE_DIR"] = {str(tmp_path / "cache")!r}
+        import acra
+        from acra import kernelcache
+        kernelcache._PACKAGES += ({str(pkg)!r},)
+        from kpkg import caller
+        print(json.dumps({{"g": int(caller.g()), "stats": [len(caller.g.stats.cache_hits), len(caller.g.stats.cache_misses)]}}))
+    """
+    assert _child(code, tmp_path, tmp_path)["g"] == 11
+    assert _child(code, tmp_path, tmp_path) == {"g": 11, "stats": [1, 0]}  # loaded from the cache
+    (pkg / "callee.py").write_text("from numba import njit\n\n\n@njit(cache=True)\ndef f():\n    return 2\n")
+    assert _child(code, tmp_path, tmp_path)["g"] == 12
