@@ -13,6 +13,13 @@ comparison.
 
 from __future__ import annotations
 
+import os
+
+# one thread (before numba is imported): a pair's two sides then run one after the other, so
+# the calls recorded come in one order and their digest is the same from run to run
+# (`pipeline.workers`)
+os.environ["NUMBA_NUM_THREADS"] = "1"
+
 import numpy as np
 
 from _replay import arguments, recorded, report, timed

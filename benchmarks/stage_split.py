@@ -12,6 +12,13 @@ cProfile's per-call overhead inflates Python-heavy functions; this split does no
 
 from __future__ import annotations
 
+import os
+
+# one thread (before numba is imported): a pair's two sides then run one after the other, so
+# the calls recorded come in one order and their digest is the same from run to run
+# (`pipeline.workers`)
+os.environ["NUMBA_NUM_THREADS"] = "1"
+
 import argparse
 import collections
 import functools
