@@ -49,7 +49,7 @@ def main() -> None:
     LD.all_cv_positions = timed("all_cv_positions", LD.all_cv_positions)
     for name, label in (("changed_patches", "changed_patches"), ("patch_boxes", "patch_boxes"),
                         ("coarse_points", "coarse_points (Shape._coarse)"), ("ConvexHull", "ConvexHull"),
-                        ("cKDTree", "cKDTree"), ("volume_sign", "volume_sign")):
+                        ("cKDTree", "cKDTree"), ("volume_sign_about_mean", "volume_sign_about_mean")):
         setattr(S, name, timed(label, getattr(S, name)))
     for name in ("hulls", "_coarse", "cv_hull", "_stale", "density_map", "details", "outward", "cv_positions"):
         prop = getattr(S.Shape, name)
