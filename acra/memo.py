@@ -14,7 +14,9 @@ the identity of the objects they were taken of. Those tables live in a `Memo`, o
 
 A module declares its table once, ``_ANSWERS = memo.Table("detect.answers")``: a handle whose
 entries are the current memo's (a `contextvars.ContextVar` names the memo, so each thread and
-each asyncio task sees its own). A table is an insertion-ordered ``dict`` behind the handle
+each asyncio task sees its own, except a thread run in a copy of another's context, as a frame's
+second thread is, `pipeline.workers`: the two share the run's tables, and an eviction tolerates
+the other thread's changes, `_evict`). A table is an insertion-ordered ``dict`` behind the handle
 (`Table.entries`); the handle answers the mapping operations the modules use, and `Table.kept`
 is the common rule: the answer under a key, made if missing, the most recent ``size`` kept.
 
@@ -112,8 +114,8 @@ class Table:
         except LookupError:
             memo = current()
         entries = memo.tables.get(self.name)
-        if entries is None:
-            entries = memo.tables[self.name] = {}
+        if entries is None:  # one dict however many threads ask first (`setdefault` is atomic)
+            entries = memo.tables.setdefault(self.name, {})
         return entries
 
     def kept(self, key: Any, make: Callable[[], Any], size: int | None = None) -> Any:
@@ -126,16 +128,12 @@ class Table:
         entries[key] = hit
         bound = self.size if size is None else size
         if bound is not None:
-            while len(entries) > bound:
-                del entries[next(iter(entries))]
+            _evict(entries, bound)
         return hit
 
     def trim(self, size: int | None = None) -> None:
         """Drop the oldest entries past ``size`` (default: the table's)."""
-        bound = self.size if size is None else size
-        entries = self.entries()
-        while len(entries) > bound:
-            del entries[next(iter(entries))]
+        _evict(self.entries(), self.size if size is None else size)
 
     # the mapping operations the modules use, on the current memo's entries
     def get(self, key: Any, default: Any = None) -> Any:
@@ -176,3 +174,16 @@ class Table:
 
     def clear(self) -> None:
         self.entries().clear()
+
+
+def _evict(entries: dict, bound: int) -> None:
+    """Drop the oldest of ``entries`` until at most ``bound`` remain. A frame's second thread
+    (`pipeline.workers`) shares the run's memo, so another thread may add or drop an entry
+    between this one taking the table's iterator and its first key (``RuntimeError``), or drop
+    that key first: the oldest key is taken again, and a key already gone is passed over."""
+    while len(entries) > bound:
+        try:
+            oldest = next(iter(entries))
+        except (RuntimeError, StopIteration):
+            continue
+        entries.pop(oldest, None)

@@ -16,9 +16,10 @@ thread is alone) and a fork after a frame (a Dask worker's process, a test) see 
 
 The second call runs in a copy of the caller's `contextvars` context: the run's memo
 (`acra.memo.scope`) and numpy's error state (a context variable) are the caller's. A memo
-table is a plain ``dict`` and not safe to change from two threads (an eviction reads its first
-key and deletes it), so a caller takes first, in its own thread, every table entry both calls
-would make (`pipeline.residual.measure_frame`), and the two calls then only read them.
+table is a plain ``dict``: an entry added or an eviction (`acra.memo._evict`, which tolerates
+the other thread's changes) is safe from either thread, but an entry both calls would make is
+made first, in the caller's thread (`pipeline.residual.measure_frame`), so it is made once and
+the tables hold their entries in the order one thread gives.
 """
 
 from __future__ import annotations

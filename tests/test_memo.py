@@ -97,3 +97,39 @@ def test_a_name_is_declared_once():
     _table("twice")
     with pytest.raises(ValueError, match="test_memo.twice"):
         _table("twice")
+
+
+def test_two_threads_sharing_a_memo_keep_its_bound_and_raise_nothing():
+    """A frame's second thread runs in a copy of the caller's context (`pipeline.workers`), so
+    both threads read and write the run's tables: evictions racing each other must neither raise
+    nor leave a table past its bound."""
+    import contextvars
+    import sys
+
+    errors: list = []
+
+    def hammer(seed: int) -> None:
+        try:
+            for i in range(40_000):
+                _SHARED.kept((seed, i % 7), lambda: i)
+                if i % 5 == 0:
+                    _SHARED.trim(2)
+        except Exception as exc:  # reported below, in the test's thread
+            errors.append(repr(exc))
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # hand the GIL over as often as the interpreter allows
+    try:
+        with memo.scope():
+            threads = [threading.Thread(target=contextvars.copy_context().run, args=(hammer, s)) for s in range(2)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            assert errors == []
+            assert len(_SHARED) <= 4
+    finally:
+        sys.setswitchinterval(interval)
+
+
+_SHARED = memo.Table("test_memo.shared", 4)
