@@ -1123,3 +1123,49 @@ def test_collider_first_hits_are_trimesh_intersects_location(seed):
             want_loc, want_ray = np.asarray(want_loc, np.float64).reshape(-1, 3)[order], np.asarray(want_ray, np.int64)[order]
             assert ray.dtype == np.int64 and np.array_equal(ray, want_ray)
             assert loc.shape == want_loc.shape and loc.tobytes() == want_loc.tobytes()
+
+
+def _same_region(x, y):
+    """Whether two `Region`s hold the same bits (parameters, points, depths)."""
+    return ((x.uv is None and y.uv is None) or (x.uv.tobytes() == y.uv.tobytes() and x.uv.shape == y.uv.shape)) and all(
+        a.shape == b.shape and a.tobytes() == b.tobytes() for a, b in ((x.points, y.points), (x.depth, y.depth)))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_regions_in_two_threads_give_one_thread_s_bits(monkeypatch, seed):
+    """Two overlapping deformables (a ball under a seeded rotation, non-uniform scale and shift,
+    and a responded ball with details): with two threads (numba's ``NUMBA_NUM_THREADS``) each
+    side's inside test searches side by side (`pipeline.workers.both`, set up in the caller's
+    thread) and the regions are one thread's bits, in fresh memos; and each region is the
+    array form's: the candidate vertices inside, their parameters and their `surface_distance`."""
+    from numba.core import config
+
+    from acra import memo
+    from pipeline import workers
+
+    hs, out, _, _, _ = responded_sphere(seed)
+    m = rotated_scaled(seed)
+    m[:3, :3] /= np.cbrt(abs(np.linalg.det(m[:3, :3])))  # about the ball's size: the two overlap
+    centre = apply_inverse(m, np.zeros((1, 3)))[0]
+
+    def regions(threads: int):
+        monkeypatch.setattr(config, "NUMBA_NUM_THREADS", threads)
+        with memo.scope():
+            ga = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(12, 10)), m @ move(*(centre + 0.6)), "/a")
+            gb = geometry.SurfaceGeometry(out, move(), "/b")
+            return ga, gb, D.regions(ga, gb)
+
+    sides = []
+    real = workers.both
+    monkeypatch.setattr(workers, "both", lambda f, g: sides.append(1) or real(f, g))
+    _, _, (ra1, rb1) = regions(1)
+    assert not sides
+    ga, gb, (ra2, rb2) = regions(2)
+    assert len(sides) == 1
+    assert not ra1.empty and not rb1.empty
+    assert _same_region(ra1, ra2) and _same_region(rb1, rb2)
+    pad = D.pair_pad(ga, gb)
+    for x, y, reg in ((ga, gb, ra2), (gb, ga, rb2)):
+        pts, uv = T.vertices_in_box(x, y.bounds, pad)
+        inside = D.inside(y, pts)
+        assert _same_region(reg, D.Region(uv[inside], pts[inside], D.surface_distance(y, pts[inside])[0]))
