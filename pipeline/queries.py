@@ -100,8 +100,6 @@ def signed_setup(shape: Shape, q: np.ndarray) -> tuple:
     if not len(qc):
         return q, cand, qc, None
     grid = shape.cache.gridset(tuple(patches.tolist()))
-    for _, index in grid.indices:  # each density's tree, built (or refitted) where the search would
-        index.index
     shape.outward, shape.eval_args, shape.details  # noqa: B018 (the side pass's, made here)
     return q, cand, qc, grid
 
