@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from acra import halfspaces, memo, meshops, narrow
-from pipeline import queries, workers
 from pipeline import tessellation as T
 from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, _face_boxes, candidate_patches,
                                is_closed, surface_points, wrap_uv)
@@ -490,19 +489,7 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
     if apart(ga, gb):
         return _empty_region(ga), _empty_region(gb)
     pad = pair_pad(ga, gb)
-    if not depth or workers.threads() < 2 or not isinstance(gb, SurfaceGeometry):
-        return _region_of(ga, gb, pad, depth), _region_of(gb, ga, pad, depth)
-    if not all(is_closed(y) and _boxes_overlap(x, y, pad) for x, y in ((ga, gb), (gb, ga))) or ga.shape is gb.shape:
-        return _region_of(ga, gb, pad), _region_of(gb, ga, pad)
-    # two deformables, each side's inside test a search of the other's shape: each side's
-    # candidate vertices and each search's set-up in the caller's thread, in one thread's order
-    # (A's first), then the two searches side by side (`pipeline.workers`): a search reads the
-    # other object's shape, whose kept data its set-up made, and writes only its own arrays
-    (pa, uva), (pb, uvb) = T.vertices_in_box(ga, gb.bounds, pad), T.vertices_in_box(gb, ga.bounds, pad)
-    if not len(pa) or not len(pb):
-        return _region_in(ga, gb, pa, uva), _region_in(gb, ga, pb, uvb)
-    ready = queries.signed_setup(gb.shape, gb.to_object(pa)), queries.signed_setup(ga.shape, ga.to_object(pb))
-    return workers.both(lambda: _searched_region(gb, pa, uva, ready[0]), lambda: _searched_region(ga, pb, uvb, ready[1]))
+    return _region_of(ga, gb, pad, depth), _region_of(gb, ga, pad, depth)
 
 
 def _region_of(x: Geometry, y: Geometry, pad: float, depth: bool = True) -> Region:
@@ -510,29 +497,13 @@ def _region_of(x: Geometry, y: Geometry, pad: float, depth: bool = True) -> Regi
     boxes miss within ``pad``)."""
     if not is_closed(y) or not _boxes_overlap(x, y, pad):
         return _empty_region(x)
-    return _region_in(x, y, *T.vertices_in_box(x, y.bounds, pad), depth)
-
-
-def _region_in(x: Geometry, y: Geometry, pts: np.ndarray, uv: np.ndarray | None, depth: bool = True) -> Region:
-    """``x``'s candidate vertices ``pts (k, 3)`` (parameters ``uv (k, 2)``, ``None`` on a
-    collider) inside ``y``: `_region_of` after `tessellation.vertices_in_box`."""
+    pts, uv = T.vertices_in_box(x, y.bounds, pad)
     if depth:
         _, rows, ins, d = _inside_rows(y, pts)
     else:
         rows = np.flatnonzero(inside(y, pts))  # taken by index: a boolean mask of an (n, 3) array goes element by element
         ins, d = np.take(pts, rows, axis=0), np.zeros(len(rows))
     return Region(None if uv is None else np.take(uv, rows, axis=0), ins, d)
-
-
-def _searched_region(y: SurfaceGeometry, pts: np.ndarray, uv: np.ndarray, ready: tuple) -> Region:
-    """`_region_in` of a deformable's candidate vertices ``pts (k, 3)`` (parameters ``uv (k, 2)``)
-    in a deformable ``y``, from its inside test's set-up ``ready``
-    (`queries.signed_setup` of ``pts`` in ``y``'s object space): the search, the side pass and
-    the depths, which read ``y``'s kept data and write only this region's arrays."""
-    m, near = queries.signed_search(y.shape, *ready)
-    rows = np.flatnonzero(m)
-    ins = np.take(pts, rows, axis=0)
-    return Region(np.take(uv, rows, axis=0), ins, np.linalg.norm(ins - apply_xform(y.xform, near.points), axis=1))
 
 
 ON_SURFACE = 1e-6  # a vertex this close to the other surface (fraction of the pair's size) lies on it

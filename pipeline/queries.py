@@ -77,20 +77,10 @@ def signed(shape: Shape, q: np.ndarray, nearest: bool = True) -> tuple[np.ndarra
     (`acra.sides.behind`); a closest point where ``du × dv`` has no direction (a pole, a
     collapsed edge) takes its normal from `hspline.surface_normals`' limit, as every point's
     normal is that function's answer."""
-    return signed_search(shape, *signed_setup(shape, q), nearest)
-
-
-def signed_setup(shape: Shape, q: np.ndarray) -> tuple:
-    """The part of `signed` that finds or builds what the shape keeps: its CV hull, the candidate
-    points and patches, the grid set of those patches and its trees, the side pass's arrays.
-    Returns the arguments of `signed_search` after ``shape``: ``q (k, 3)``, the candidate rows
-    ``(m,) int64`` and points ``(m, 3)``, the grid set (``None``: no point can be inside). A
-    caller runs it in its own thread before two searches run side by side
-    (`pipeline.detect.regions`): the shape's kept data, and the set-up clock
-    (`pipeline.grids.SetupClock`), are then only read by the search."""
     q = np.asarray(q, np.float64).reshape(-1, 3)
+    inside = np.zeros(len(q), bool)
     if not shape.closed or not len(q):
-        return q, None, None, None
+        return inside, _no_points() if nearest else None
     hull = shape.cv_hull
     if hull is not None and len(hull) > shape.cv_index.DIRECT:  # a large hull's test goes through its cones
         cand = np.nonzero(shape.cv_index.within(q, 1e-9 * shape.surface.size()))[0]
@@ -98,19 +88,8 @@ def signed_setup(shape: Shape, q: np.ndarray) -> tuple:
     else:
         cand, qc, patches = _candidates(shape, q, hull)
     if not len(qc):
-        return q, cand, qc, None
-    grid = shape.cache.gridset(tuple(patches.tolist()))
-    shape.outward, shape.eval_args, shape.details  # noqa: B018 (the side pass's, made here)
-    return q, cand, qc, grid
-
-
-def signed_search(shape: Shape, q: np.ndarray, cand: np.ndarray | None, qc: np.ndarray | None, grid,
-                  nearest: bool = True) -> tuple[np.ndarray, Nearest | None]:
-    """`signed`'s answer from `signed_setup`'s: the closest points of the candidates ``qc`` on
-    ``grid`` and their sides. Reads the shape's kept data and writes only its own arrays."""
-    inside = np.zeros(len(q), bool)
-    if grid is None:
         return inside, _no_points() if nearest else None
+    grid = shape.cache.gridset(tuple(patches.tolist()))
     dist, close, face = grid.closest(qc)
     outward = shape.outward
     uv, flag = sides.behind(grid.points, grid.uv, grid.triangles, grid.face_lo, grid.face_hi, face, close, qc, outward,

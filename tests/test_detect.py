@@ -1132,40 +1132,27 @@ def _same_region(x, y):
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_regions_in_two_threads_give_one_thread_s_bits(monkeypatch, seed):
+def test_regions_are_the_array_form(seed):
     """Two overlapping deformables (a ball under a seeded rotation, non-uniform scale and shift,
-    and a responded ball with details): with two threads (numba's ``NUMBA_NUM_THREADS``) each
-    side's inside test searches side by side (`pipeline.workers.both`, set up in the caller's
-    thread) and the regions are one thread's bits, in fresh memos; and each region is the
-    array form's: the candidate vertices inside, their parameters and their `surface_distance`."""
-    from numba.core import config
-
-    from acra import memo
-    from pipeline import workers
-
+    and a responded ball with details) and a deformable against a box collider: each region
+    (its inside rows gathered once for the points and the depths, `detect._inside_rows`) holds the
+    array form's bits: the candidate vertices inside by a boolean mask, their parameters and
+    their `surface_distance`."""
     hs, out, _, _, _ = responded_sphere(seed)
     m = rotated_scaled(seed)
     m[:3, :3] /= np.cbrt(abs(np.linalg.det(m[:3, :3])))  # about the ball's size: the two overlap
     centre = apply_inverse(m, np.zeros((1, 3)))[0]
-
-    def regions(threads: int):
-        monkeypatch.setattr(config, "NUMBA_NUM_THREADS", threads)
-        with memo.scope():
-            ga = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(12, 10)), m @ move(*(centre + 0.6)), "/a")
-            gb = geometry.SurfaceGeometry(out, move(), "/b")
-            return ga, gb, D.regions(ga, gb)
-
-    sides = []
-    real = workers.both
-    monkeypatch.setattr(workers, "both", lambda f, g: sides.append(1) or real(f, g))
-    _, _, (ra1, rb1) = regions(1)
-    assert not sides
-    ga, gb, (ra2, rb2) = regions(2)
-    assert len(sides) == 1
-    assert not ra1.empty and not rb1.empty
-    assert _same_region(ra1, ra2) and _same_region(rb1, rb2)
-    pad = D.pair_pad(ga, gb)
-    for x, y, reg in ((ga, gb, ra2), (gb, ga, rb2)):
-        pts, uv = T.vertices_in_box(x, y.bounds, pad)
-        inside = D.inside(y, pts)
-        assert _same_region(reg, D.Region(uv[inside], pts[inside], D.surface_distance(y, pts[inside])[0]))
+    ga = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(12, 10)), m @ move(*(centre + 0.6)), "/a")
+    gb = geometry.SurfaceGeometry(out, move(), "/b")
+    cap = geometry.ColliderGeometry(box(1.0), move(0.3, 0.2, 1.2))
+    for a, b in ((ga, gb), (gb, cap)):
+        ra, rb = D.regions(a, b)
+        assert not ra.empty
+        pad = D.pair_pad(a, b)
+        for x, y, reg in ((a, b, ra), (b, a, rb)):
+            if not geometry.is_closed(y):
+                continue
+            pts, uv = T.vertices_in_box(x, y.bounds, pad)
+            inside = D.inside(y, pts)
+            want = D.Region(None if uv is None else uv[inside], pts[inside], D.surface_distance(y, pts[inside])[0])
+            assert _same_region(reg, want)
