@@ -371,13 +371,28 @@ def surface_distance(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np
 def _inside_depth(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`inside` ``(k,) bool`` and, for the points inside, their `surface_distance` ``(m,)``: one
     closest-point query on a deformable."""
+    m, _, _, depth = _inside_rows(geom, points)
+    return m, depth
+
+
+def _inside_rows(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_inside_depth` with the points inside gathered once for both the depth and the region:
+    ``inside (k,) bool``, their rows ``(m,) int64`` (increasing), the points ``(m, 3)`` and their
+    `surface_distance` ``(m,)``. Rows are taken by index: a boolean mask of an ``(n, 3)`` array
+    goes element by element."""
     if isinstance(geom, SurfaceGeometry) and len(points) and geom.closed:
         m, near = geom.shape.signed(geom.to_object(points))
-        return m, np.linalg.norm(np.take(points, np.flatnonzero(m), axis=0) - apply_xform(geom.xform, near.points), axis=1)
+        rows = np.flatnonzero(m)
+        ins = np.take(points, rows, axis=0)
+        return m, rows, ins, np.linalg.norm(ins - apply_xform(geom.xform, near.points), axis=1)
     if isinstance(geom, ColliderGeometry) and len(points) and geom.static.closed:
-        return _collider_inside(geom, points, depth=True)
+        m, depth = _collider_inside(geom, points, depth=True)
+        rows = np.flatnonzero(m)
+        return m, rows, np.take(points, rows, axis=0), depth
     m = inside(geom, points)
-    return m, surface_distance(geom, points[m])[0]
+    rows = np.flatnonzero(m)
+    ins = np.take(points, rows, axis=0)
+    return m, rows, ins, surface_distance(geom, ins)[0]
 
 
 @dataclass(frozen=True, eq=False)
@@ -473,20 +488,22 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
     when the other object is open). ``depth=False`` leaves depths at zero."""
     if apart(ga, gb):
         return _empty_region(ga), _empty_region(gb)
-    pad, out = pair_pad(ga, gb), []
-    for x, y in ((ga, gb), (gb, ga)):
-        if not is_closed(y) or not _boxes_overlap(x, y, pad):
-            out.append(_empty_region(x))
-            continue
-        pts, uv = T.vertices_in_box(x, y.bounds, pad)
-        if depth:
-            m, d = _inside_depth(y, pts)
-        else:
-            m = inside(y, pts)
-            d = np.zeros(int(m.sum()))
-        rows = np.flatnonzero(m)  # taken by index: a boolean mask of an (n, 3) array goes element by element
-        out.append(Region(None if uv is None else np.take(uv, rows, axis=0), np.take(pts, rows, axis=0), d))
-    return out[0], out[1]
+    pad = pair_pad(ga, gb)
+    return _region_of(ga, gb, pad, depth), _region_of(gb, ga, pad, depth)
+
+
+def _region_of(x: Geometry, y: Geometry, pad: float, depth: bool = True) -> Region:
+    """One side of `regions`: ``x``'s vertices inside ``y`` (empty when ``y`` is open or the two
+    boxes miss within ``pad``)."""
+    if not is_closed(y) or not _boxes_overlap(x, y, pad):
+        return _empty_region(x)
+    pts, uv = T.vertices_in_box(x, y.bounds, pad)
+    if depth:
+        _, rows, ins, d = _inside_rows(y, pts)
+    else:
+        rows = np.flatnonzero(inside(y, pts))  # taken by index: a boolean mask of an (n, 3) array goes element by element
+        ins, d = np.take(pts, rows, axis=0), np.zeros(len(rows))
+    return Region(None if uv is None else np.take(uv, rows, axis=0), ins, d)
 
 
 ON_SURFACE = 1e-6  # a vertex this close to the other surface (fraction of the pair's size) lies on it

@@ -1123,3 +1123,36 @@ def test_collider_first_hits_are_trimesh_intersects_location(seed):
             want_loc, want_ray = np.asarray(want_loc, np.float64).reshape(-1, 3)[order], np.asarray(want_ray, np.int64)[order]
             assert ray.dtype == np.int64 and np.array_equal(ray, want_ray)
             assert loc.shape == want_loc.shape and loc.tobytes() == want_loc.tobytes()
+
+
+def _same_region(x, y):
+    """Whether two `Region`s hold the same bits (parameters, points, depths)."""
+    return ((x.uv is None and y.uv is None) or (x.uv.tobytes() == y.uv.tobytes() and x.uv.shape == y.uv.shape)) and all(
+        a.shape == b.shape and a.tobytes() == b.tobytes() for a, b in ((x.points, y.points), (x.depth, y.depth)))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_regions_are_the_array_form(seed):
+    """Two overlapping deformables (a ball under a seeded rotation, non-uniform scale and shift,
+    and a responded ball with details) and a deformable against a box collider: each region
+    (its inside rows gathered once for the points and the depths, `detect._inside_rows`) holds the
+    array form's bits: the candidate vertices inside by a boolean mask, their parameters and
+    their `surface_distance`."""
+    hs, out, _, _, _ = responded_sphere(seed)
+    m = rotated_scaled(seed)
+    m[:3, :3] /= np.cbrt(abs(np.linalg.det(m[:3, :3])))  # about the ball's size: the two overlap
+    centre = apply_inverse(m, np.zeros((1, 3)))[0]
+    ga = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(12, 10)), m @ move(*(centre + 0.6)), "/a")
+    gb = geometry.SurfaceGeometry(out, move(), "/b")
+    cap = geometry.ColliderGeometry(box(1.0), move(0.3, 0.2, 1.2))
+    for a, b in ((ga, gb), (gb, cap)):
+        ra, rb = D.regions(a, b)
+        assert not ra.empty
+        pad = D.pair_pad(a, b)
+        for x, y, reg in ((a, b, ra), (b, a, rb)):
+            if not geometry.is_closed(y):
+                continue
+            pts, uv = T.vertices_in_box(x, y.bounds, pad)
+            inside = D.inside(y, pts)
+            want = D.Region(None if uv is None else uv[inside], pts[inside], D.surface_distance(y, pts[inside])[0])
+            assert _same_region(reg, want)
