@@ -27,8 +27,7 @@ __all__ = ["facet_bound", "covering_radii", "children", "lattice_points", "depth
 
 
 @njit(cache=True, nogil=True)
-def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_start, facet_faces, tri, least, o0, o1, o2, cap,
-                      floor):
+def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_start, facet_faces, tri, least, o0, o1, o2, cap):
     """Eq. (6) of one cell ``cell (3, 3)`` whose corners' closest faces are ``f0, f1, f2``, with
     scratch ``tri (3, 3)`` and ``least (3,)``, as ``min(cap, eq. (6))``: each facet's faces gathered
     once, all three corners measured against each; a facet two corners share is measured once (min
@@ -36,10 +35,7 @@ def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_star
     face where known (the walk's, the same arithmetic, so the same bits), else negative: a facet of
     that face alone needs no second measure of its corner. A facet whose first measured corner is
     already at least the smaller of ``cap`` and the facets before cannot lower the minimum, so its
-    other corners are not measured. Once the minimum is at most ``floor``, the value at most
-    ``floor`` found so far is returned: a caller for which any value at most ``floor`` answers
-    alike (the cell is not split and cannot raise the maximum) needs no other facet; the value
-    is exact wherever it is above ``floor``."""
+    other corners are not measured."""
     best = cap
     for j in range(3):
         fj = f0 if j == 0 else (f1 if j == 1 else f2)
@@ -72,8 +68,6 @@ def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_star
                 if not top < best:
                     break
             best = min(best, top)
-            if best <= floor:
-                return best
             continue
         least[0], least[1], least[2] = np.inf, np.inf, np.inf
         for s in range(s0, s1):
@@ -88,8 +82,6 @@ def _cell_facet_bound(cell, f0, f1, f2, vertices, solid_faces, facet, facet_star
                 d = np.sqrt((cell[i, 0] - x) ** 2 + (cell[i, 1] - y) ** 2 + (cell[i, 2] - z) ** 2)
                 least[i] = min(least[i], d)
         best = min(best, max(max(least[0], least[1]), least[2]))
-        if best <= floor:
-            return best
     return best
 
 
@@ -99,7 +91,7 @@ def _facet_bound(cells, faces, vertices, solid_faces, facet, facet_start, facet_
     least = np.empty(3)
     for c in range(cells.shape[0]):
         out[c] = _cell_facet_bound(cells[c], faces[c, 0], faces[c, 1], faces[c, 2], vertices, solid_faces, facet,
-                                   facet_start, facet_faces, tri, least, -1.0, -1.0, -1.0, np.inf, -np.inf)
+                                   facet_start, facet_faces, tri, least, -1.0, -1.0, -1.0, np.inf)
 
 
 def facet_bound(cells: np.ndarray, faces: np.ndarray, vertices: np.ndarray, solid_faces: np.ndarray, facet: np.ndarray,
@@ -226,24 +218,20 @@ _NO_PLANES = np.full(1, -1, np.int64)  # `depth` without eq. (7): not a convex s
 
 
 @njit(cache=True, nogil=True)
-def _cell_bound(cell, f0, f1, f2, vertices, faces, normals, facet, facet_start, facet_faces, planes, scratch, least, sd, cap,
-                floor):
+def _cell_bound(cell, f0, f1, f2, vertices, faces, normals, facet, facet_start, facet_faces, planes, scratch, least, sd, cap):
     """`pipeline.clearance._cell_bound` of one cell ``cell (3, 3)`` whose corners' closest faces are
     ``f0, f1, f2`` and signed depths ``sd`` (3 floats: their magnitudes the walks' distances, or
     ``-inf`` where not found), no larger than ``cap`` (the cell's eq. (4), which the caller keeps
     if smaller): ``min(cap, eq. (6))``, and on a convex solid (``planes`` not `_NO_PLANES`) the
     smaller of it and eq. (7), ``min_j max_i max(0, (a_j - c_i) . n_j)`` over the planes of the
     faces ``planes`` (every facet's), or of ``f0, f1, f2`` if ``planes`` is empty. A dot product of
-    3 terms is summed as ``(p0 + p2) + p1``, as ``np.einsum`` sums it in the array form.
-    ``floor``: a value at most ``floor`` may be returned for any bound at most ``floor``
-    (`_cell_facet_bound`); above it the bound is exact, so ``-inf`` asks for it everywhere."""
+    3 terms is summed as ``(p0 + p2) + p1``, as ``np.einsum`` sums it in the array form."""
     # a corner's own distance, where its walk found it
     o0 = abs(sd[0]) if f0 >= 0 and abs(sd[0]) < np.inf else -1.0
     o1 = abs(sd[1]) if f1 >= 0 and abs(sd[1]) < np.inf else -1.0
     o2 = abs(sd[2]) if f2 >= 0 and abs(sd[2]) < np.inf else -1.0
-    out = _cell_facet_bound(cell, f0, f1, f2, vertices, faces, facet, facet_start, facet_faces, scratch, least, o0, o1, o2, cap,
-                            floor)
-    if (planes.shape[0] == 1 and planes[0] < 0) or out <= floor:
+    out = _cell_facet_bound(cell, f0, f1, f2, vertices, faces, facet, facet_start, facet_faces, scratch, least, o0, o1, o2, cap)
+    if planes.shape[0] == 1 and planes[0] < 0:
         return out
     g = planes.shape[0] if planes.shape[0] else 3
     plane = np.inf
@@ -349,18 +337,13 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
         need = np.empty(c, np.bool_)
         late = np.empty(c, np.int64)  # cells eq. (4) retires above 0: eq. (6) only if they could raise the maximum
         n_late = 0
-        # a cell is split while its bound is above ``line``; one whose eq. (6) is at most both
-        # ``line`` and the maximum retired so far is neither split nor raises that maximum, so
-        # its eq. (6) is taken only until it is known to lie there (`_cell_facet_bound`'s
-        # ``floor``): its bound is read no more this level, and its children are not made
-        line = min(now, decide) if low <= decide else now
         for i in range(c):
             b = bound[i]
             split = b > now or (b > decide and low <= decide)
             if b > 0.0 and split:
                 _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                 six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                  planes, scratch, least, _row(sd, i), b, min(retired, line))
+                                  planes, scratch, least, _row(sd, i), b)
                 if six < b:
                     b = six
                     bound[i] = b
@@ -390,7 +373,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                     break
                 _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                 six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                  planes, scratch, least, _row(sd, i), bound[i], retired)
+                                  planes, scratch, least, _row(sd, i), bound[i])
                 b = six if six < bound[i] else bound[i]
                 if b > retired:
                     retired = b
@@ -499,7 +482,7 @@ def _refine(tri, src, rows, lattice, sd, fc, rho, bound, low, target, decide, st
                 if v > 0.0:
                     _cell_corners(tri, src[rows[i]], lattice, i, steps, cell)
                     six = _cell_bound(cell, fc[i, 0], fc[i, 1], fc[i, 2], vertices, faces, normals, facet, facet_start, facet_faces,
-                                      planes, scratch, least, _row(sd, i), v, last)
+                                      planes, scratch, least, _row(sd, i), v)
                     v = six if six < v else v
                     if v > last:
                         last = v

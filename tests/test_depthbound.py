@@ -91,6 +91,6 @@ def test_a_cells_bound_with_its_corners_own_distances_is_eq6_capped_to_the_bit(m
     scratch, least = np.empty((3, 3)), np.empty(3)
     caps = np.where(rng.random(400) < 0.5, np.inf, eq6 * rng.uniform(0.5, 1.5, 400))
     got = np.array([depthbound._cell_bound(cells[c], face[c, 0], face[c, 1], face[c, 2], v, fc, normals, facet, facet_start, facet_faces,
-                                    depthbound._NO_PLANES, scratch, least, sd[c], caps[c], -np.inf) for c in range(400)])
+                                    depthbound._NO_PLANES, scratch, least, sd[c], caps[c]) for c in range(400)])
     assert (got < caps).any() and (got == caps).any()
     assert got.tobytes() == np.minimum(caps, eq6).tobytes()
