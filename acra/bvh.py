@@ -511,11 +511,9 @@ def _closest(tri, order, lo, hi, left, right, start, count, points, bound, dist,
                             near_box += (low - p[k]) ** 2
                         elif p[k] > high:
                             near_box += (p[k] - high) ** 2
-                    f = order[s]
-                    # at the best distance exactly, only a lower row could replace the best: the
-                    # triangles of a fan about a vertex nearest the point all lie at its distance
-                    if near_box > best or (near_box == best and best_face >= 0 and f > best_face):
+                    if near_box > best:
                         continue
+                    f = order[s]
                     x, y, z, wa, wb, wc = _point_triangle(p, _corner(tri, s, 0), _corner(tri, s, 1), _corner(tri, s, 2))
                     dd = (p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2
                     if dd < best or (dd == best and (best_face < 0 or f < best_face)):
