@@ -7,7 +7,8 @@ the arguments of every call of ``--kernel`` (a compiled function of `acra`, name
 ``MODULE.NAME``: `acra.clearcells._clear_cells`, the flooded grids of `residual._clear_depth`;
 `acra.meshrows._faces_at`, the corners, box and shift of the triangles near the other object;
 `acra.meshrows._face_chunks`, a display's chunk boxes; `acra.bvh._part_tree`, a part solid's
-vertex normals and tree), then replays them ``--passes`` times and
+vertex normals and tree; `acra.depthbound._depth`, the branch and bound of one `pair_depth`
+call whose answer no kept part answers), then replays them ``--passes`` times and
 prints the CPU milliseconds of the fastest pass and a digest of every answer (each call's return
 value and what it writes of its output arrays, `ANSWERS`): two checkouts answer alike when their
 digests agree. Run it with ``PYTHONPATH`` at each checkout, alternating, for a comparison.
@@ -44,6 +45,8 @@ ANSWERS = {
     "meshrows._face_chunks": lambda _, a: tuple(a[4:8]),  # the chunks' and groups' boxes
     # a part's vertex normals, box, corners, leaf order, the filled nodes, their count, leaf corners
     "bvh._part_tree": lambda t, _: t[:4] + tuple(x[:t[10]] for x in t[4:10]) + (np.int64(t[10]), t[11]),
+    # the branch and bound's code, bound, depth found, completeness, points evaluated, level, points inside
+    "depthbound._depth": lambda out, _: tuple(np.asarray(x) for x in out),
 }
 
 
