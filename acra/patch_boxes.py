@@ -170,23 +170,55 @@ def translated_boxes(centre: np.ndarray, half: np.ndarray, xform: np.ndarray, lo
     return len(centre) > 0 and _translated_boxes(centre, half, xform, lo, hi, box, inner)
 
 
+RAY_BLOCK = 8  # consecutive boxes `rays_meet` bounds by one box: a strip of patches along v
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _slab_meets(lo0, lo1, lo2, hi0, hi1, hi2, o, inv0, inv1, inv2):
+    """The slab test of one ray (origin ``o (3,)``, ``1 / d`` per axis) against one box."""
+    near, far = -np.inf, np.inf
+    for lo_a, hi_a, o_a, inv in ((lo0, hi0, o[0], inv0), (lo1, hi1, o[1], inv1), (lo2, hi2, o[2], inv2)):
+        t0, t1 = (lo_a - o_a) * inv, (hi_a - o_a) * inv
+        if np.isnan(t0):
+            t0 = -np.inf
+        if np.isnan(t1):
+            t1 = np.inf
+        near = max(near, min(t0, t1))
+        far = min(far, max(t0, t1))
+    return far >= near and far >= 0.0
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _rays_meet(lo, hi, o, d, box_hit, ray_hit):
+    m = lo.shape[0]
+    blocks = (m + RAY_BLOCK - 1) // RAY_BLOCK
+    # each block's box holds its boxes' lo and hi corners (either may be the larger)
+    blo, bhi = np.empty((blocks, 3)), np.empty((blocks, 3))
+    finite = True
+    for b in range(blocks):
+        for a in range(3):
+            x, y = np.inf, -np.inf
+            for j in range(b * RAY_BLOCK, min(m, (b + 1) * RAY_BLOCK)):
+                p, q = lo[j, a], hi[j, a]
+                finite = finite and np.isfinite(p) and np.isfinite(q)
+                x, y = min(x, p, q), max(y, p, q)
+            blo[b, a], bhi[b, a] = x, y
     for i in range(o.shape[0]):
         inv0, inv1, inv2 = 1.0 / d[i, 0], 1.0 / d[i, 1], 1.0 / d[i, 2]
-        for j in range(lo.shape[0]):
-            near, far = -np.inf, np.inf
-            for a, inv in ((0, inv0), (1, inv1), (2, inv2)):
-                t0, t1 = (lo[j, a] - o[i, a]) * inv, (hi[j, a] - o[i, a]) * inv
-                if np.isnan(t0):
-                    t0 = -np.inf
-                if np.isnan(t1):
-                    t1 = np.inf
-                near = max(near, min(t0, t1))
-                far = min(far, max(t0, t1))
-            if far >= near and far >= 0.0:
-                box_hit[j] = True
-                ray_hit[i] = True
+        # with finite corners and origin and a finite non-zero 1 / d per axis, no t is NaN and
+        # each t is monotone in the corner, so a block's interval per axis holds each of its
+        # boxes': a ray that misses the block's box misses every box in it
+        prune = finite and np.isfinite(o[i, 0]) and np.isfinite(o[i, 1]) and np.isfinite(o[i, 2])
+        for inv in (inv0, inv1, inv2):
+            prune = prune and np.isfinite(inv) and inv != 0.0
+        for b in range(blocks):
+            if prune and not _slab_meets(blo[b, 0], blo[b, 1], blo[b, 2], bhi[b, 0], bhi[b, 1], bhi[b, 2],
+                                         o[i], inv0, inv1, inv2):
+                continue
+            for j in range(b * RAY_BLOCK, min(m, (b + 1) * RAY_BLOCK)):
+                if _slab_meets(lo[j, 0], lo[j, 1], lo[j, 2], hi[j, 0], hi[j, 1], hi[j, 2], o[i], inv0, inv1, inv2):
+                    box_hit[j] = True
+                    ray_hit[i] = True
 
 
 def rays_meet(lo: np.ndarray, hi: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -196,7 +228,14 @@ def rays_meet(lo: np.ndarray, hi: np.ndarray, origins: np.ndarray, directions: n
     Per axis the ray is inside the slab for ``t`` between ``(lo - o) / d`` and ``(hi - o) / d``
     (``1 / d`` infinite for an axis-parallel ray; ``0 * inf``, a ray on the slab's plane, counts
     as inside); a ray meets the box where the slabs' intervals overlap at some ``t >= 0``. The
-    numbers are numpy's for the same formula, without its ``(n, m, 3)`` arrays."""
+    numbers are numpy's for the same formula, without its ``(n, m, 3)`` arrays.
+
+    A ray tests the boxes of a run of `RAY_BLOCK` rows only where it meets the box of their
+    corners by the same formula, which it does wherever it meets one of them (``fl(fl(x - o) *
+    inv)`` is monotone in ``x`` where nothing is infinite or NaN; an axis-parallel ray or a
+    non-finite number tests every box): the same answer for a test per ray of the ``m /
+    RAY_BLOCK`` blocks and of the boxes of the blocks it meets, which along one ray through a
+    model of level-0 patches are about as many as the patches across it, not all of them."""
     box_hit, ray_hit = np.zeros(len(lo), np.bool_), np.zeros(len(origins), np.bool_)
     if len(lo) and len(origins):
         _rays_meet(np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64),

@@ -96,6 +96,38 @@ def test_rays_meet_is_the_array_form():
     assert hits > 100  # the cases meet boxes, not only miss them
 
 
+
+def test_rays_meet_by_blocks_is_the_array_form():
+    """Many boxes in runs of `RAY_BLOCK` (a run's box tested first): the answer is the slab test
+    of every pair, for boxes in a grid along rays through it, boxes whose corners are swapped,
+    rays with a zero or -0.0 component, and a non-finite box, which every ray tests in full."""
+    from acra.patch_boxes import RAY_BLOCK, rays_meet
+
+    rng = np.random.default_rng(7)
+    hits = misses = 0
+    for trial in range(120):
+        m, n = int(rng.integers(RAY_BLOCK, 40 * RAY_BLOCK)), int(rng.integers(1, 60))
+        c = np.round(rng.normal(size=(m, 3)) * 3, 2)
+        c[: m // 2] = np.round(np.cumsum(rng.normal(size=(m // 2, 3)) * 0.2, axis=0), 2)  # strips, as patch rows
+        h = np.round(np.abs(rng.normal(size=(m, 3))) * 0.2, 2)
+        lo, hi = c - h, c + h
+        swap = rng.random(m) < 0.05
+        lo[swap], hi[swap] = hi[swap].copy(), lo[swap].copy()
+        o = np.round(rng.normal(size=(n, 3)) * 4, 2)
+        o[: n // 3] = lo[rng.integers(0, m, n // 3)]  # on boxes' corners and planes
+        d = rng.normal(size=(n, 3))
+        d[rng.random((n, 3)) < 0.05] = 0.0
+        d[rng.random(n) < 0.03] = -0.0
+        if trial % 10 == 9:
+            lo[rng.integers(0, m)] = (np.inf, -np.inf, np.nan)[trial // 10 % 3]
+        box_hit, ray_hit = rays_meet(lo, hi, o, d)
+        with np.errstate(invalid="ignore"):
+            want_box, want_ray = _rays_meet_numpy(lo, hi, o, d)
+        assert np.array_equal(box_hit, want_box) and np.array_equal(ray_hit, want_ray)
+        hits += box_hit.sum()
+        misses += (~box_hit).sum()
+    assert hits > 1000 and misses > 1000  # rays meet some boxes of a run and miss others
+
 def _mapped_boxes_numpy(centre, half, xform):
     """`pipeline.geometry.SurfaceGeometry.boxes`' array form, with its union and inner corners."""
     world = centre @ xform[:3, :3].T + xform[:3, 3]
