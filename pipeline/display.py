@@ -306,10 +306,14 @@ class Displays:
         display into their places, its matches and nudged rows added. A display planned since
         another's, or on another's new topology, is built after that one is committed, all of
         them in order in the caller's thread."""
-        plans = [self._plan(surface, samples) for surface, samples in wanted]
-        todo = [p for p in plans if p.display is None]
-        done = 0
+        plans: list = []
+        todo: list = []  # the plans that build a display, in order
+        done = 0  # of them committed
         try:
+            for surface, samples in wanted:
+                plans.append(self._plan(surface, samples))
+                if plans[-1].display is None:
+                    todo.append(plans[-1])
             if len(todo) >= 2 and not any(isinstance(p.old, _Pending) or p.topology is not p and
                                           isinstance(p.topology, _Pending) for p in todo):
                 from pipeline.workers import both
@@ -323,7 +327,7 @@ class Displays:
                     self._build(p)
                     self._commit(p)
                     done += 1
-        except BaseException:
+        except BaseException:  # no stand-in is left in the tables
             for p in todo[done:]:
                 self._drop(p)
             raise
@@ -344,11 +348,15 @@ class Displays:
         p.key = _refinement([surface], samples)
         kept = _TOPOLOGIES.kept(p.key, lambda: (p, None))
         p.topology, p.triangles = kept  # a `_Pending` where a plan builds it (``p`` itself: this one)
-        shape = shape_of(surface, self.density)
-        p.details = shape.details
-        p.old = self._nearest(shape, p.topology)
-        if p.old is not None:
-            p.stale = hspline.changed_cells(p.old.surface, p.old.details, surface, p.details, _cell_level(surface))
+        try:
+            shape = shape_of(surface, self.density)
+            p.details = shape.details
+            p.old = self._nearest(shape, p.topology)
+            if p.old is not None:
+                p.stale = hspline.changed_cells(p.old.surface, p.old.details, surface, p.details, _cell_level(surface))
+        except BaseException:
+            self._drop(p)
+            raise
         self._keep(surface, p)
         return p
 

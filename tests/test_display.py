@@ -523,3 +523,37 @@ def test_a_display_built_since_another_of_the_same_build_waits_for_it(monkeypatc
     for x, y in zip(alone[0], together[0]):
         for p, q in zip(x, y):
             np.testing.assert_array_equal(p, q)
+
+
+@pytest.mark.parametrize("threads, where", [(1, "build"), (2, "build"), (2, "plan")])
+def test_a_build_that_raises_leaves_no_stand_in_in_the_tables(threads, where, monkeypatch):
+    """Where a display's evaluation (either thread) or its plan raises inside `Displays.build`,
+    the error reaches the caller and neither the kept displays nor the kept topologies hold a
+    plan's stand-in (`display._Pending`): the next call builds the display anew."""
+    from numba.core import config
+
+    from acra import memo
+    from pipeline import shape as S
+
+    monkeypatch.setattr(config, "NUMBA_NUM_THREADS", threads)
+    real = display.grid_samples if where == "build" else S.shape_of
+    with memo.scope():
+        a, b, ra, rb = _two_objects_responded(0)
+        shown = display.Displays(density=8)
+        shown.of(a, 4), shown.of(b, 4)
+
+        def failing(hs, *args, **kwargs):
+            if hs is rb:
+                raise KeyboardInterrupt
+            return real(hs, *args, **kwargs)
+
+        target = (display, "grid_samples") if where == "build" else (S, "shape_of")
+        monkeypatch.setattr(*target, failing)
+        with pytest.raises(KeyboardInterrupt):
+            shown.build([(ra, 4), (rb, 4)])
+        topologies = memo.current().tables[display._TOPOLOGIES.name]
+        assert not any(isinstance(x, display._Pending) for x in shown._shown.values())
+        assert not any(isinstance(v[0], display._Pending) for v in topologies.values())
+        monkeypatch.setattr(*target, real)
+        d = shown.of(rb, 4)
+        np.testing.assert_array_equal(d.points, grid_samples(rb, d.topology, H.details(rb))[0])
