@@ -11,9 +11,12 @@ per level-0 patch edge, is the adaptive mesh of a surface without finer levels.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
 import weakref
 from dataclasses import dataclass, field
+from typing import Iterator
 
 import numpy as np
 from numba import njit
@@ -525,16 +528,48 @@ def _drop_dead(kept: dict) -> None:
         del kept[key]
 
 
+# A context's held notes (`held_notes`): a list of ``(limit normals, rows)``, or None (noted at once)
+_HELD: contextvars.ContextVar = contextvars.ContextVar("acra_tessellate_held_notes", default=None)
+
+
+@contextlib.contextmanager
+def held_notes() -> Iterator[list]:
+    """Inside the block, `grid_samples`' nudged rows (`_note_nudged`) go into the list it
+    yields, ``[(limit normals (n, 3) float64, rows (k,) int64), ...]`` in the order noted, not
+    into the run's table, which the block only reads: two evaluations in two threads
+    (`pipeline.display.Displays.build`) leave the table to their caller, who adds both lists
+    (`note_held`) in the order one thread would have noted them."""
+    notes: list = []
+    token = _HELD.set(notes)
+    try:
+        yield notes
+    finally:
+        _HELD.reset(token)
+
+
+def note_held(notes: list) -> None:
+    """Add `held_notes`' ``notes`` to the run's table, in their order."""
+    for limit, rows in notes:
+        _note_nudged(limit, rows)
+
+
 def _note_nudged(limit: np.ndarray, rows: np.ndarray) -> None:
     """Keep, for as long as ``limit`` (a `grid_samples` result) lives, its rows ``(k,) int64``
     whose normal `surface_normals` took at nudged points, so a later evaluation since it knows
-    which copied vertices read more than their own cells."""
+    which copied vertices read more than their own cells (inside `held_notes`, in its list)."""
+    held = _HELD.get()
+    if held is not None:
+        held.append((limit, np.asarray(rows, np.int64)))
+        return
     _drop_dead(_NUDGED)
     _NUDGED[id(limit)] = (weakref.ref(limit), np.asarray(rows, np.int64))
 
 
 def _nudged_rows(limit: np.ndarray) -> np.ndarray | None:
     """`_note_nudged`'s rows of ``limit`` (``None``: not known)."""
+    for kept, rows in _HELD.get() or ():
+        if kept is limit:
+            return rows
     hit = _NUDGED.get(id(limit))
     return hit[1] if hit is not None and hit[0]() is limit else None
 

@@ -6,7 +6,9 @@ Runs `dog_head_spike` frame 5, then frames 13-17 once to warm up and ``--repeat`
 one process, each after `pipeline.run.forget` (every answer kept by content dropped, as a fresh
 run starts without them) and an untimed frame 5 (the input's shapes, which a run builds at its
 first frame), and prints per function the least over the repeats of its
-CPU milliseconds (``time.process_time``, nested) per collision frame: `display.Displays.of` (a
+CPU milliseconds (``time.process_time``, nested) per collision frame: `display.Displays.of` (at a
+checkout with `Displays.build`, which `of` calls and the frame loop calls for a round's two
+displays at once, that; a
 round's display, with `run_topology` and `grid_samples` inside it), `display.finish` (the run's
 display and its residual: `evaluate_run`, `run_topologies`), `acra.respond.respond`, and the
 whole `run_frames` call; then the median over the repeats of the minor page faults a collision
@@ -14,8 +16,11 @@ frame (``getrusage``: memory the loop takes anew) and the process's resident siz
 last. Then one more untimed pass of frames 13-17 prints a digest of what the displays hold: every
 display `display.Displays.of` builds (its points, limit normals, face counts and indices, in the
 order built) and the run's display of each frame (`display.finish`: points and normals), so two
-checkouts can be shown to give the same bits. ``--calls`` adds one more pass, outside the table's figures,
-that lists every display `display.Displays.of` builds, by frame: its vertices, the points
+checkouts can be shown to give the same bits. The CPU time is the process's: where a round's two
+displays are built in two threads, a function's figure holds the other thread's work while both
+run, so compare functions with ``NUMBA_NUM_THREADS=1`` (``--calls`` too). ``--calls`` adds one more pass, outside the table's figures,
+that lists every display `display.Displays.of` builds (at a checkout with `Displays.build`, each
+display its `_build` builds, the plans outside the row), by frame: its vertices, the points
 evaluated (`acra.hspline.evaluate` inside it, a degenerate row's second-order evaluation
 included) and the CPU milliseconds of its topology (``built`` where `acra.lattice.adaptive_mesh`
 ran), its evaluations, its `grid_samples` and the whole call, with the sum a frame. Run it with ``PYTHONPATH`` set to another checkout
@@ -51,6 +56,11 @@ def _timed(label: str, f):
     return wrapper
 
 
+# what builds the rounds' displays: `display.Displays.build` (which `of` calls, and which the frame
+# loop calls for a round's two displays at once) where the checkout has it, else `Displays.of`
+_BUILDS = "build" if hasattr(display.Displays, "build") else "of"
+
+
 def _digest(stage, scene) -> str:
     """The first 16 hex digits of a SHA-256 over frames 13-17's displays (after `forget` and frame
     5, as a timed repeat runs them): each display `display.Displays.of` builds, in the order built
@@ -59,23 +69,26 @@ def _digest(stage, scene) -> str:
     from pipeline.run import forget
 
     h = hashlib.sha256()
-    of = display.Displays.of
+    name = _BUILDS
+    built = getattr(display.Displays, name)
 
-    def hashed(self, surface, samples):
-        hit = self._shown.get(id(surface))
-        sd = of(self, surface, samples)
-        if hit is not sd:  # a display built in this call
-            for a in (sd.points, sd.normals, sd.topology.counts, sd.topology.indices):
-                h.update(np.ascontiguousarray(a).tobytes())
-        return sd
+    def hashed(self, *args):
+        wanted = args[0] if name == "build" else [args]  # `build`'s (surface, samples) list, or `of`'s
+        hits = [self._shown.get(id(surface)) for surface, _ in wanted]
+        out = built(self, *args)
+        for hit, sd in zip(hits, out if name == "build" else [out]):
+            if hit is not sd:  # a display built in this call
+                for a in (sd.points, sd.normals, sd.topology.counts, sd.topology.indices):
+                    h.update(np.ascontiguousarray(a).tobytes())
+        return out
 
     forget()
     frames.run_frames(stage, scene, [5])
-    display.Displays.of = hashed
+    setattr(display.Displays, name, hashed)
     try:
         result, _ = frames.run_frames(stage, scene, list(range(13, 18)))
     finally:
-        display.Displays.of = of
+        setattr(display.Displays, name, built)
     for f in sorted(result.frames):
         for path in sorted(result.frames[f]):
             r = result.frames[f][path]
@@ -122,9 +135,22 @@ def _calls(stage, scene) -> None:
         at["frame"] = f
         return saved[5](self, f, result)
 
+    one = getattr(display.Displays, "_build", None)  # one display of `Displays.build` (the whole call
+    # holds the plans too), its topology built by `run_topology` inside it
+
+    def build_one(self, p):
+        now.clear()
+        t = time.process_time()
+        one(self, p)
+        rows.append((at["frame"], time.process_time() - t, dict(now)))
+
     forget()
     frames.run_frames(stage, scene, [5])
     display.Displays.of, display.Displays.topology = of, clocked("topology", saved[1])
+    topology = display.run_topology
+    if one is not None:
+        display.Displays.of, display.Displays._build = saved[0], build_one
+        display.run_topology = clocked("topology", topology)
     display.grid_samples, tessellate.evaluate = clocked("grid_samples", saved[2]), clocked("evaluate", saved[3])
     tessellate.adaptive_mesh, frames._Run.frame = clocked("mesh", saved[4]), frame
     try:
@@ -132,6 +158,8 @@ def _calls(stage, scene) -> None:
     finally:
         (display.Displays.of, display.Displays.topology, display.grid_samples, tessellate.evaluate,
          tessellate.adaptive_mesh, frames._Run.frame) = saved
+        if one is not None:
+            display.Displays._build, display.run_topology = one, topology
     print("\n`display.Displays.of`'s displays built, one pass, CPU ms\n")
     print("| frame | vertices | evaluated | topology | evaluations | `grid_samples` | `Displays.of` |")
     print("|---:|---:|---:|---:|---:|---:|---:|")
@@ -150,7 +178,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--calls", action="store_true", help="also list the displays built, one untimed pass")
     args = ap.parse_args()
-    display.Displays.of = _timed("display.Displays.of", display.Displays.of)
+    setattr(display.Displays, _BUILDS, _timed("display.Displays.of", getattr(display.Displays, _BUILDS)))
     display.evaluate_run = _timed("display.evaluate_run", display.evaluate_run)
     display.run_topology = _timed("tessellate.run_topology (in display)", display.run_topology)
     display.grid_samples = _timed("tessellate.grid_samples (in display)", display.grid_samples)

@@ -290,7 +290,7 @@ def _bound(calls: list, passes: int, stage=None, scene=None, frames=()) -> tuple
     best = None
     try:
         if stage is not None:
-            displays.extend(_bound_displays(stage, scene, frames, passes, inside))
+            displays.extend(_bound_displays(stage, scene, frames, passes, inside, sides))
         with threadpool_limits(limits=1, user_api="blas"):
             for _ in range(passes):
                 parts: dict = {}
@@ -312,23 +312,28 @@ def _bound(calls: list, passes: int, stage=None, scene=None, frames=()) -> tuple
             setattr(module, name, f)
 
 
-def _bound_displays(stage, scene, frames: list, passes: int, inside: list) -> tuple[float, float, int]:
-    """`display.Displays.of` over a cold run of ``frames``: CPU s, CPU s inside the kernels
-    (``inside``, `_bound`'s counter), calls; the fastest of ``passes`` runs."""
+def _bound_displays(stage, scene, frames: list, passes: int, inside: list, sides: list) -> tuple:
+    """`display.Displays.of` (at a checkout with `Displays.build`, which `of` calls and the frame
+    loop calls for a round's two displays at once, that) over a cold run of ``frames``: CPU s,
+    CPU s inside the kernels (``inside``, `_bound`'s counter), calls; and of the calls that build
+    two displays side by side (`pipeline.workers.both`, run one after the other into ``sides``
+    by `_bound`): their count, the two builds' CPU s, and the least wall time two threads sharing
+    the GIL take for them (as for a pair's sides); the fastest of ``passes`` runs."""
     from pipeline import display, run
 
-    real = display.Displays.of
+    name = "build" if hasattr(display.Displays, "build") else "of"
+    real = getattr(display.Displays, name)
     spent: list = []
 
-    def of(self, *a, **k):
-        k0, t0 = inside[0], time.process_time()
+    def built(self, *a, **k):
+        k0, t0, n0 = inside[0], time.process_time(), len(sides)
         try:
             return real(self, *a, **k)
         finally:
-            spent.append((time.process_time() - t0, inside[0] - k0))
+            spent.append((time.process_time() - t0, inside[0] - k0, sides[n0:]))
 
     best = None
-    display.Displays.of = of
+    setattr(display.Displays, name, built)
     try:
         with threadpool_limits(limits=1, user_api="blas"):
             for _ in range(passes):
@@ -336,11 +341,14 @@ def _bound_displays(stage, scene, frames: list, passes: int, inside: list) -> tu
                 F.run_frames(stage, scene, [5])
                 spent.clear()
                 F.run_frames(stage, scene, frames)
-                total = (sum(x[0] for x in spent), sum(x[1] for x in spent), len(spent))
+                pairs = [x[2] for x in spent if len(x[2]) == 2]
+                total = (sum(x[0] for x in spent), sum(x[1] for x in spent), len(spent), len(pairs),
+                         sum(a[0] + b[0] for a, b in pairs),
+                         sum(max(a[0], b[0], (a[0] - a[1]) + (b[0] - b[1])) for a, b in pairs))
                 if best is None or total[0] < best[0]:
                     best = total
     finally:
-        display.Displays.of = real
+        setattr(display.Displays, name, real)
     return best
 
 
@@ -380,9 +388,12 @@ def main() -> None:
         print(f"{n} pairs measured side by side, fastest of {args.passes} passes on one thread: {1e3 * seq:.1f} ms CPU, "
               f"{1e3 * kernel:.1f} of it in compiled kernels called from Python; two threads sharing the GIL: at least "
               f"{1e3 * least:.1f} ms wall ({1e3 * (seq - least):.1f} less at most)")
-        total, inner, count = displays
+        total, inner, count, two, builds, wall = displays
         print(f"display.Displays.of, frames {a}-{b} cold, fastest of {args.passes}: {count} calls, {1e3 * total:.1f} ms CPU, "
               f"{1e3 * inner:.1f} of it in compiled kernels called from Python")
+        if two:
+            print(f"{two} of them build two displays side by side: the builds {1e3 * builds:.1f} ms CPU on one thread; "
+                  f"two threads sharing the GIL: at least {1e3 * wall:.1f} ms wall ({1e3 * (builds - wall):.1f} less at most)")
         return
     out: dict = {1: [], 2: []}
     try:

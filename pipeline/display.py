@@ -26,7 +26,7 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from acra import hspline, memo
-from acra.tessellate import MeshTopology, grid_samples, pole_normals, run_topology
+from acra.tessellate import MeshTopology, grid_samples, held_notes, note_held, pole_normals, run_topology
 from pipeline.model import SceneModel
 
 __all__ = ["run_topologies", "evaluate_run", "finish", "kept_triangles", "surface_details", "SurfaceDisplay", "Displays"]
@@ -290,23 +290,127 @@ class Displays:
 
     def of(self, surface: hspline.HSpline, samples: int) -> SurfaceDisplay:
         """`SurfaceDisplay` of ``surface`` at ``samples`` steps per finest patch edge."""
+        return self.build([(surface, samples)])[0]
+
+    def build(self, wanted: list) -> list[SurfaceDisplay]:
+        """`of` of each ``(surface, samples)`` of ``wanted``, in order: the same displays, and
+        the same tables after, as those calls one after the other, with two displays' topologies
+        and evaluations built side by side (`pipeline.workers.both`) where neither needs the
+        other (a round's two deformables).
+
+        Each display is planned in the caller's thread, in order (`_plan`: the kept topology,
+        the display it is evaluated since, its changed cells), its place in the tables taken by
+        a `_Pending` (`_TOPOLOGIES`, ``_shown``, so each later plan reads them as it would after
+        the calls before it), and built (`_build`) from what its plan found: a build writes no
+        shared table. Each build is then committed in order (`_commit`): its topology and
+        display into their places, its matches and nudged rows added. A display planned since
+        another's, or on another's new topology, is built after that one is committed, all of
+        them in order in the caller's thread."""
+        plans: list = []
+        todo: list = []  # the plans that build a display, in order
+        done = 0  # of them committed
+        try:
+            for surface, samples in wanted:
+                plans.append(self._plan(surface, samples))
+                if plans[-1].display is None:
+                    todo.append(plans[-1])
+            if len(todo) >= 2 and not any(isinstance(p.old, _Pending) or p.topology is not p and
+                                          isinstance(p.topology, _Pending) for p in todo):
+                from pipeline.workers import both
+
+                both(lambda: [self._build(p) for p in todo[0::2]], lambda: [self._build(p) for p in todo[1::2]])
+                for p in todo:
+                    self._commit(p)
+                    done += 1
+            else:
+                for p in todo:
+                    self._build(p)
+                    self._commit(p)
+                    done += 1
+        except BaseException:  # no stand-in is left in the tables
+            for p in todo[done:]:
+                self._drop(p)
+            raise
+        return [p.display.display if isinstance(p.display, _Pending) else p.display for p in plans]
+
+    def _plan(self, surface: hspline.HSpline, samples: int) -> _Pending:
+        """What `of` finds in the tables for ``surface``, in its order: a kept display (the
+        plan's ``display``), else its topology (kept, or to build), its shape's details, the
+        display it is evaluated since and the cells changed since it; the plan stands in
+        ``_shown`` and, for a new topology, in `_TOPOLOGIES` until committed."""
         from pipeline.shape import shape_of
 
         hit = self._shown.pop(id(surface), None)
-        if hit is None or hit.surface is not surface:
-            topo, triangles = self.topology(surface, samples)
+        if hit is not None and hit.surface is surface:
+            self._keep(surface, hit)
+            return _Pending(surface, samples, display=hit)
+        p = _Pending(surface, samples)
+        p.key = _refinement([surface], samples)
+        kept = _TOPOLOGIES.kept(p.key, lambda: (p, None))
+        p.topology, p.triangles = kept  # a `_Pending` where a plan builds it (``p`` itself: this one)
+        try:
             shape = shape_of(surface, self.density)
-            old = self._nearest(shape, topo)
-            since = None
-            if old is not None:
-                stale = hspline.changed_cells(old.surface, old.details, surface, shape.details, _cell_level(surface))
-                since = None if stale.all() else (old.topology, old.points, old.normals, stale)
-            pts, limit = grid_samples(surface, topo, shape.details, since, self._matches)
-            hit = SurfaceDisplay(surface, topo, pts, limit, triangles, shape.details)
-        self._shown[id(surface)] = hit
+            p.details = shape.details
+            p.old = self._nearest(shape, p.topology)
+            if p.old is not None:
+                p.stale = hspline.changed_cells(p.old.surface, p.old.details, surface, p.details, _cell_level(surface))
+        except BaseException:
+            self._drop(p)
+            raise
+        self._keep(surface, p)
+        return p
+
+    def _build(self, p: _Pending) -> None:
+        """Build plan ``p``'s topology (where it builds one) and display, reading the shared
+        tables only: the matches it reads or makes go to ``p.matches``, its nudged rows to
+        ``p.notes`` (`acra.tessellate.held_notes`)."""
+        if p.topology is p:
+            topo = run_topology([p.surface], p.samples)
+            p.built = (topo, topo.triangles())
+        else:
+            p.built = (p.topology.built if isinstance(p.topology, _Pending) else (p.topology, p.triangles))
+        topo, triangles = p.built
+        old = p.old.display if isinstance(p.old, _Pending) else p.old
+        since = None
+        if old is not None and not p.stale.all():
+            since = (old.topology, old.points, old.normals, p.stale)
+        p.matches = _Matches(self._matches)
+        with held_notes() as p.notes:
+            pts, limit = grid_samples(p.surface, topo, p.details, since, p.matches)
+        p.display = SurfaceDisplay(p.surface, topo, pts, limit, triangles, p.details)
+
+    def _commit(self, p: _Pending) -> None:
+        """Put built plan ``p`` where it stood: its topology in `_TOPOLOGIES`, its display in
+        ``_shown`` (each unless a later plan evicted it, as that plan's call would have), its
+        matches in the kept matches (emptied first past ``4 * kept``, as before each display
+        is evaluated) and its nudged rows in `acra.tessellate`'s table."""
+        entries = _TOPOLOGIES.entries()
+        if p.topology is p and p.key in entries and entries[p.key][0] is p:
+            entries[p.key] = p.built
+        if self._shown.get(id(p.surface)) is p:
+            self._shown[id(p.surface)] = p.display
+        if len(self._matches) > 4 * self.kept:
+            self._matches.clear()
+        self._matches.update(p.matches)
+        note_held(p.notes)
+        # a plan that builds its topology stands for it (``p.topology is p``): a cycle, which would
+        # keep the display it was evaluated since until the cyclic collector's next pass
+        p.topology, p.old, p.matches, p.notes = p.built[0], None, None, None
+
+    def _drop(self, p: _Pending) -> None:
+        """Take uncommitted plan ``p`` out of the tables (a build raised)."""
+        entries = _TOPOLOGIES.entries()
+        if p.key is not None and p.key in entries and entries[p.key][0] is p:
+            del entries[p.key]
+        if self._shown.get(id(p.surface)) is p:
+            del self._shown[id(p.surface)]
+        p.topology = p.old = None
+
+    def _keep(self, surface: hspline.HSpline, shown) -> None:
+        """``shown`` (a display or a plan) as ``surface``'s, the most recent; the last ``kept``."""
+        self._shown[id(surface)] = shown
         while len(self._shown) > self.kept:
             del self._shown[next(iter(self._shown))]
-        return hit
 
     def shown(self, surface: hspline.HSpline) -> SurfaceDisplay | None:
         """The display of ``surface`` kept from `of`, else ``None`` (nothing is evaluated)."""
@@ -347,6 +451,46 @@ class Displays:
             if (old.surface.u, old.surface.v, old.surface.depth) == (hs.u, hs.v, hs.depth):
                 return old
         return None
+
+
+class _Pending:
+    """A display `Displays.build` planned: its ``surface`` and ``samples``; the kept
+    ``display`` (a `SurfaceDisplay`, or the plan of the same surface before it), else what its
+    plan found: its ``topology`` (a `MeshTopology` with its fan ``triangles``, or the `_Pending`
+    that builds it, itself where it does), its shape's ``details``, the display ``old`` it is
+    evaluated since (or a `_Pending`, or None) and the cells ``stale`` changed since it
+    (`hspline.changed_cells`); once built, ``built`` (its topology and triangles), its
+    ``display``, the ``matches`` its evaluation read or made and its nudged rows ``notes``. It
+    stands in the tables for its display until committed, with the ``surface``, ``details`` and
+    ``topology`` `Displays._nearest` reads of one."""
+
+    __slots__ = ("surface", "samples", "display", "key", "topology", "triangles", "details", "old", "stale",
+                 "built", "matches", "notes")
+
+    def __init__(self, surface: hspline.HSpline, samples: int, display=None) -> None:
+        self.surface, self.samples, self.display = surface, samples, display
+        self.key = self.topology = self.triangles = self.details = self.old = self.stale = None
+        self.built = self.matches = self.notes = None
+
+
+class _Matches(dict):
+    """`grid_samples`' matches as one build sees them: ``kept``'s (the `Displays`' shared ones)
+    read, each entry the build reads or makes recorded in itself in that order, which
+    `Displays._commit` adds to ``kept`` after: ``kept`` then holds what it would hold had the
+    build used it, and the build writes no shared table."""
+
+    def __init__(self, kept: dict) -> None:
+        super().__init__()
+        self.kept = kept
+
+    def get(self, key, default=None):
+        if key in self:
+            return self[key]
+        hit = self.kept.get(key)
+        if hit is None:
+            return default
+        self[key] = hit
+        return hit
 
 
 def _same_level0(a: hspline.HSpline, b: hspline.HSpline) -> bool:

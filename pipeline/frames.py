@@ -432,7 +432,7 @@ class _Run:
                     shown[kind, j] = residual.collider_shown(g.name, g.bounds, g.size, self.collider_solid(j), g.xform)
             return shown[kind, j]
 
-        objects, index, pairs, keys = [], {}, [], []
+        index, pairs, keys = {}, [], []
         # `_measured` is False for a pair whose objects' boxes lie apart (its inner boxes lie
         # within those): every pair's boxes at once (`detect.apart_all`)
         far = D.apart_all(list(geoms) + list(cgeoms)) if len(geoms) + len(cgeoms) > 2 else None
@@ -446,13 +446,23 @@ class _Run:
                 continue
             for kind_j in (("d", i), other):
                 if kind_j not in index:
-                    index[kind_j] = len(objects)
-                    objects.append(obj(*kind_j))
+                    index[kind_j] = len(index)
             pairs.append((index["d", i], index[other]))
             keys.append(((i, other), "a"))
             if other[0] == "d":
                 pairs.append((index[other], index["d", i]))
                 keys.append(((i, other), "b"))
+        # the deformables' displays not kept from before, built together (`display.Displays.build`:
+        # two side by side), in the order their objects come
+        wanted = []
+        for kind, j in index:
+            if kind == "d":
+                hit = self._shown.get((id(geoms[j].surface), geoms[j].xform.tobytes()))
+                if hit is None or hit[0] is not geoms[j].surface:
+                    wanted.append((geoms[j].surface, self.defs[j].controls.samples))
+        if len(wanted) > 1:
+            self.displays.build(wanted)
+        objects = [obj(*kind_j) for kind_j in index]
         settle = settle or {}
         order = sorted((n for n, ks in enumerate(keys) if ks in settle), key=lambda n: -settle[keys[n]])
         fr = residual.measure_frame(objects, self.options.tolerance, pairs, self._depths, settle=order, over=over)

@@ -19,7 +19,14 @@ The second call runs in a copy of the caller's `contextvars` context: the run's 
 table is a plain ``dict``: an entry added or an eviction (`acra.memo._evict`, which tolerates
 the other thread's changes) is safe from either thread, but an entry both calls would make is
 made first, in the caller's thread (`pipeline.residual.measure_frame`), so it is made once and
-the tables hold their entries in the order one thread gives.
+the tables hold their entries in the order one thread gives. Where the two calls would each add
+entries (a round's two displays, `pipeline.display.Displays.build`), each call writes no shared
+table: the caller plans both first, in order, and adds each call's entries after both have
+ended, in the order one thread would have added them.
+
+What runs side by side: a closed pair's two sides (`pipeline.residual.measure_frame`) and a
+round's two deformables' displays (`pipeline.display.Displays.build`, from
+`pipeline.frames._Run.visible`).
 """
 
 from __future__ import annotations

@@ -376,3 +376,184 @@ def test_a_dropped_display_and_its_shown_view_are_freed_without_the_cyclic_colle
     finally:
         if enabled:
             gc.enable()
+
+
+def _two_objects_responded(seed):
+    """A ball and a torus (other grids), each with a response of it that refines one more
+    place: ``(ball, torus, ball's response, torus's response)``, the responses' shapes seeded
+    with their parents (`pipeline.shape.seed_details`)."""
+    from pipeline import shape as S
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for grid, place in ((shapes.sphere(12, 10), [[10, 14]]), (shapes.torus(12, 8), [[6, 4]])):
+        hs = with_random_offsets(H.make_movable(H.from_grid(*grid, depth=3), 2, [place]), 0.02, seed)
+        refined = H.make_movable(hs, 2, [[2 * place[0][0] + 4, 2 * place[0][1] + 2]])
+        idx, off = H.offsets_of(refined, 2)
+        r = H.set_offsets(refined, 2, idx, off + rng.normal(scale=0.01, size=off.shape))
+        S.seed_details(r, None, 8, parent=hs)
+        out.append((hs, r))
+    return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def _tables(shown: display.Displays, names: dict) -> tuple:
+    """What ``shown`` and the current memo's display tables hold, in their order, with each
+    object identity (a surface, a topology, a display's limit normals) written as its name in
+    ``names`` (``id -> name``; "?" for an object not named)."""
+    from acra import memo
+    from acra import tessellate as T
+
+    def name(i):
+        return names.get(i, "?")
+
+    def key(k):
+        if k[0] == "matched":
+            return ("matched", name(k[1]), name(k[2]))
+        return ("cells", name(k[1])) + tuple(k[2:])
+
+    topologies = memo.current().tables.get(display._TOPOLOGIES.name, {})
+    nudged = memo.current().tables.get(T._NUDGED.name, {})
+    return ([name(k) for k in shown._shown], [key(k) for k in shown._matches],
+            [name(id(v[0])) for v in topologies.values()],
+            [(name(k), v[1].tolist()) for k, v in nudged.items() if v[0]() is not None])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_round_s_two_displays_built_side_by_side_are_one_thread_s(seed, monkeypatch):
+    """`Displays.build` of two objects' responses, each evaluated since its parent's display on
+    a topology of its own: with two threads (numba's ``NUMBA_NUM_THREADS``) the two are built
+    side by side (`pipeline.workers.both`), and the displays and tables (the displays kept,
+    the matches, the topologies, the nudged rows) are those of two `Displays.of` calls one after
+    the other, bit for bit and in order, even where the second thread's build ends first (the
+    caller's build waits for it here: a build writing the shared tables would put the second
+    object's entries first)."""
+    import threading
+
+    from numba.core import config
+
+    from acra import memo
+    from pipeline import workers
+
+    real_samples = display.grid_samples
+    sides: list = []  # one entry a `both` call, True while it runs
+    real_both = workers.both
+
+    def counted(f, g):
+        sides.append(True)
+        try:
+            return real_both(f, g)
+        finally:
+            sides[-1] = False
+
+    monkeypatch.setattr(workers, "both", counted)
+
+    def run(how: str):
+        monkeypatch.setattr(config, "NUMBA_NUM_THREADS", 2 if how == "two" else 1)
+        second_done = threading.Event()
+
+        def samples(hs, *args, **kwargs):
+            main = threading.current_thread() is threading.main_thread()
+            if how == "two" and main and sides and sides[-1]:
+                assert second_done.wait(60)
+            try:
+                return real_samples(hs, *args, **kwargs)
+            finally:
+                if not main:
+                    second_done.set()
+
+        monkeypatch.setattr(display, "grid_samples", samples)
+        with memo.scope():
+            a, b, ra, rb = _two_objects_responded(seed)
+            shown = display.Displays(density=8)
+            parents = [shown.of(a, 4), shown.of(b, 4)]
+            if how == "calls":
+                built = [shown.of(ra, 4), shown.of(rb, 4)]
+            else:
+                built = shown.build([(ra, 4), (rb, 4)])
+            assert [d.surface for d in built] == [ra, rb]
+            names = {}
+            for label, d in zip(("a", "b", "ra", "rb"), parents + built):
+                names[id(d.surface)], names[id(d.topology)], names[id(d.normals)] = label, "topo " + label, "normals " + label
+            assert built[0].topology is not parents[0].topology and built[1].topology is not parents[1].topology
+            return [(d.points, d.normals, d.topology.u, d.topology.v) for d in built], _tables(shown, names)
+
+    calls = run("calls")
+    assert not sides
+    one = run("one")
+    assert len(sides) == 1  # `both` ran the two one after the other
+    two = run("two")
+    assert len(sides) == 2
+    assert calls[1] == one[1] == two[1]
+    assert calls[1][0] == ["a", "b", "ra", "rb"] and calls[1][2] == ["topo a", "topo b", "topo ra", "topo rb"]
+    assert ("matched", "topo a", "topo ra") in calls[1][1] and ("matched", "topo b", "topo rb") in calls[1][1]
+    for got in (one[0], two[0]):
+        for x, y in zip(calls[0], got):
+            for p, q in zip(x, y):
+                np.testing.assert_array_equal(p, q)
+
+
+def test_a_display_built_since_another_of_the_same_build_waits_for_it(monkeypatch):
+    """`Displays.build` of a response and of a second response from it (the later round's): the
+    second is evaluated since the first's display, so the two are built one after the other in
+    the caller's thread (no `pipeline.workers.both`), as two `Displays.of` calls are."""
+    from acra import memo
+    from pipeline import shape as S
+    from pipeline import workers
+
+    sides: list = []
+    monkeypatch.setattr(workers, "both", lambda f, g: sides.append(1))
+
+    def run(together: bool):
+        rng = np.random.default_rng(3)
+        with memo.scope():
+            hs = _two_objects_responded(3)[2]
+            idx, off = H.offsets_of(hs, 2)
+            again = H.set_offsets(hs, 2, idx, off + rng.normal(scale=0.01, size=off.shape))
+            S.seed_details(again, None, 8, parent=hs)
+            shown = display.Displays(density=8)
+            built = shown.build([(hs, 4), (again, 4)]) if together else [shown.of(hs, 4), shown.of(again, 4)]
+            assert built[1].topology is built[0].topology
+            names = {id(built[0].surface): "r", id(built[1].surface): "again", id(built[0].topology): "topo",
+                     id(built[0].normals): "normals r", id(built[1].normals): "normals again"}
+            return [(d.points, d.normals) for d in built], _tables(shown, names)
+
+    alone, together = run(False), run(True)
+    assert not sides
+    assert alone[1] == together[1]
+    for x, y in zip(alone[0], together[0]):
+        for p, q in zip(x, y):
+            np.testing.assert_array_equal(p, q)
+
+
+@pytest.mark.parametrize("threads, where", [(1, "build"), (2, "build"), (2, "plan")])
+def test_a_build_that_raises_leaves_no_stand_in_in_the_tables(threads, where, monkeypatch):
+    """Where a display's evaluation (either thread) or its plan raises inside `Displays.build`,
+    the error reaches the caller and neither the kept displays nor the kept topologies hold a
+    plan's stand-in (`display._Pending`): the next call builds the display anew."""
+    from numba.core import config
+
+    from acra import memo
+    from pipeline import shape as S
+
+    monkeypatch.setattr(config, "NUMBA_NUM_THREADS", threads)
+    real = display.grid_samples if where == "build" else S.shape_of
+    with memo.scope():
+        a, b, ra, rb = _two_objects_responded(0)
+        shown = display.Displays(density=8)
+        shown.of(a, 4), shown.of(b, 4)
+
+        def failing(hs, *args, **kwargs):
+            if hs is rb:
+                raise KeyboardInterrupt
+            return real(hs, *args, **kwargs)
+
+        target = (display, "grid_samples") if where == "build" else (S, "shape_of")
+        monkeypatch.setattr(*target, failing)
+        with pytest.raises(KeyboardInterrupt):
+            shown.build([(ra, 4), (rb, 4)])
+        topologies = memo.current().tables[display._TOPOLOGIES.name]
+        assert not any(isinstance(x, display._Pending) for x in shown._shown.values())
+        assert not any(isinstance(v[0], display._Pending) for v in topologies.values())
+        monkeypatch.setattr(*target, real)
+        d = shown.of(rb, 4)
+        np.testing.assert_array_equal(d.points, grid_samples(rb, d.topology, H.details(rb))[0])
