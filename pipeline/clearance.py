@@ -149,11 +149,21 @@ def _facets(v: np.ndarray, f: np.ndarray, normals: np.ndarray, other: np.ndarray
     far = v[f[across, (other % 3 + 2) % 3]]  # the corner of the face across, off the shared edge
     same = (np.einsum("ij,ij->i", normals[me], normals[across]) > 1.0 - 1e-12) & (across != me)
     same &= np.abs(np.einsum("ij,ij->i", far - v[f[me, 0]], normals[me])) <= 1e-12 * scale
-    graph = coo_matrix((np.ones(int(same.sum())), (me[same], across[same])), shape=(n, n))
-    label = connected_components(graph, directed=False)[1].astype(np.int64)
+    if n <= SMALL_FACETS:
+        label = _components(n, me[same], across[same])
+    else:
+        graph = coo_matrix((np.ones(int(same.sum())), (me[same], across[same])), shape=(n, n))
+        label = connected_components(graph, directed=False)[1].astype(np.int64)
     sizes = np.bincount(label)
     area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-    for k in np.nonzero(sizes > 1)[0]:
+    pairs = np.nonzero(sizes == 2)[0]
+    if len(pairs):
+        sure, apart = _pair_facets(v, f, normals, other, area, label, pairs)
+        for k in pairs[apart]:
+            rows = np.nonzero(label == k)[0]
+            label[rows] = n + rows
+        pairs = pairs[~sure]
+    for k in np.r_[pairs, np.nonzero(sizes > 2)[0]].astype(np.int64):
         rows = np.nonzero(label == k)[0]
         corners = v[np.unique(f[rows])]
         nrm = normals[rows[0]]
@@ -169,6 +179,69 @@ def _facets(v: np.ndarray, f: np.ndarray, normals: np.ndarray, other: np.ndarray
     order = np.argsort(label, kind="stable")
     start = np.r_[0, np.cumsum(np.bincount(label))]
     return label.astype(np.int64), start.astype(np.int64), order.astype(np.int64)
+
+
+SMALL_FACETS = 256  # faces up to which `_facets` joins its facets by a union-find instead of scipy's graph
+
+
+def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected components ``(n,) int64`` of the graph on ``n`` nodes with edges ``a[i] - b[i]``,
+    each labelled by its least node. Renumbered by `np.unique` they are scipy's
+    ``connected_components`` labels, which number the components in the order of their least
+    node: `_facets` only ranks them."""
+    parent = list(range(n))
+
+    def root(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for x, y in zip(a.tolist(), b.tolist()):
+        rx, ry = root(x), root(y)
+        if rx != ry:
+            parent[max(rx, ry)] = min(rx, ry)
+    return np.array([root(x) for x in range(n)], np.int64)
+
+
+def _pair_facets(v: np.ndarray, f: np.ndarray, normals: np.ndarray, other: np.ndarray, area: np.ndarray,
+                 label: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`_facets`' convexity test of the groups ``pairs (g,)`` of exactly two faces, where it is
+    sure without a hull: ``sure (g,) bool`` and, of those, ``apart (g,) bool``, the groups that
+    are not convex (their faces stand alone).
+
+    The faces ``(a, b, c)`` and ``(b, a, d)`` share the edge ``ab``, lie in one plane and wind
+    alike, so ``c`` and ``d`` lie on either side of the line ``ab``: their union is convex where
+    the segment ``cd`` meets the segment ``ab``. Otherwise ``a`` or ``b`` lies inside the triangle
+    the other forms with ``c`` and ``d``, and the hull exceeds the two faces' areas by the
+    triangle ``(c, d, x)`` of the one inside: ``x``'s signed height over ``cd`` (in the plane, by
+    the face normal ``n``: ``((d - c) x (x - c)) . n``) with the other's sign and the smaller
+    magnitude. `_facets`' hull test keeps a group whose excess is at most 1e-9 of the hull's
+    area; a group is decided here where the excess is surely below 1e-11 of it or above 1e-7,
+    and only where the two faces' area is at least 1e-2 of the square of the diagonal of the
+    four corners' box (the rounding of these products and of the hull's is then below 1e-13 of
+    its area); the rest go to the hull."""
+    g = len(pairs)
+    order = np.argsort(label, kind="stable")
+    first = np.searchsorted(label[order], pairs)
+    r1, r2 = order[first], order[first + 1]
+    slots = 3 * r1[:, None] + np.arange(3)
+    k = np.argmax(other[slots] // 3 == r2[:, None], axis=1)  # r1's edge r2 shares
+    s = slots[np.arange(g), k]
+    a, b = v[f[r1, k]], v[f[r1, (k + 1) % 3]]
+    c, d = v[f[r1, (k + 2) % 3]], v[f[r2, (other[s] % 3 + 2) % 3]]
+    nrm = normals[r1]
+    cd = d - c
+    ha = np.einsum("ij,ij->i", np.cross(cd, a - c), nrm)
+    hb = np.einsum("ij,ij->i", np.cross(cd, b - c), nrm)
+    faces = area[r1] + area[r2]
+    excess = np.where(ha * hb > 0, 0.5 * np.minimum(np.abs(ha), np.abs(hb)), 0.0)
+    hull = faces + excess
+    quad = np.stack([a, b, c, d], axis=1)
+    span = (quad.max(axis=1) - quad.min(axis=1)) ** 2
+    shaped = np.isfinite(hull) & (faces >= 1e-2 * span.sum(axis=1)) & (other[s] // 3 == r2)
+    apart = shaped & (excess > 1e-7 * hull)
+    return apart | (shaped & (excess < 1e-11 * hull)), apart
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -836,3 +836,106 @@ def test_compiled_part_far_from_its_origin_is_the_array_form():
     assert pseudonormals.weld(v, f[:60], 2e-10)[0] == 1
     for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def _prism(poly: np.ndarray, fan: int) -> trimesh.Trimesh:
+    """A unit-high prism over the polygon ``poly (k, 2)``, its caps fanned from corner ``fan``."""
+    k = len(poly)
+    v = np.vstack([np.c_[poly, np.zeros(k)], np.c_[poly, np.ones(k)]])
+    tris = []
+    for i in range(1, k - 1):
+        a, b, c = fan, (fan + i) % k, (fan + i + 1) % k
+        tris += [[a, c, b], [k + a, k + b, k + c]]
+    for i in range(k):
+        j = (i + 1) % k
+        tris += [[i, j, k + j], [i, k + j, k + i]]
+    m = trimesh.Trimesh(v, np.array(tris), process=True)
+    if m.volume < 0:
+        m.invert()
+    return m
+
+
+def _hull_facets(s: C.Solid) -> np.ndarray:
+    """`_facets`' labels by the hull test alone, for every group of faces (no two-face shortcut,
+    scipy's components): the reference `_pair_facets` and `_components` are held to."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from pipeline.spatial import ConvexHull, QhullError
+
+    v, f, normals = s.vertices, s.faces, s.normals
+    n = len(f)
+    head, tail = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    key = np.minimum(head, tail) * len(v) + np.maximum(head, tail)
+    order = np.argsort(key, kind="stable")
+    other = np.arange(3 * n)
+    pair = np.nonzero(key[order][1:] == key[order][:-1])[0]
+    other[order[pair]], other[order[pair + 1]] = order[pair + 1], order[pair]
+    scale = float(np.linalg.norm(np.ptp(v, axis=0)))
+    across, me = other // 3, np.repeat(np.arange(n), 3)
+    far = v[f[across, (other % 3 + 2) % 3]]
+    same = (np.einsum("ij,ij->i", normals[me], normals[across]) > 1.0 - 1e-12) & (across != me)
+    same &= np.abs(np.einsum("ij,ij->i", far - v[f[me, 0]], normals[me])) <= 1e-12 * scale
+    label = connected_components(coo_matrix((np.ones(int(same.sum())), (me[same], across[same])), shape=(n, n)),
+                                 directed=False)[1].astype(np.int64)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    for k in np.nonzero(np.bincount(label) > 1)[0]:
+        rows = np.nonzero(label == k)[0]
+        corners, nrm = v[np.unique(f[rows])], normals[rows[0]]
+        e1 = C._unit(np.cross(nrm, [1.0, 0.0, 0.0] if abs(nrm[0]) < 0.9 else [0.0, 1.0, 0.0]))
+        try:
+            hull = ConvexHull(np.stack([corners @ e1, corners @ np.cross(nrm, e1)], axis=1)).volume
+        except QhullError:
+            hull = np.inf
+        if abs(hull - area[rows].sum()) > 1e-9 * max(hull, 1e-300):
+            label[rows] = n + rows
+    return np.unique(label, return_inverse=True)[1].astype(np.int64)
+
+
+@pytest.mark.parametrize("poly,fan", [
+    ([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], 3),  # an L: its caps' quads convex
+    ([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], 0),  # fanned from a convex corner: a concave quad
+    ([[0, 0], [2, 0], [0.5, 0.5], [0, 2]], 0),  # an arrowhead: its caps concave quads
+    ([[0, 0], [2, 0], [0.5, 0.5], [0, 2]], 2),
+    ([[0, 0], [2, 0], [1, 1 - 1e-9], [0, 2]], 0),  # concave by about 1e-9 of its area: the hull decides
+    ([[0, 0], [2, 0], [1, 1 - 1e-4], [0, 2]], 0),
+    ([[0, 0], [2, 0], [1, 1 + 1e-9], [0, 2]], 0),  # convex, a corner 1e-9 off the diagonal
+    ([[0, 0], [2, 0], [2, 2], [1, 2 - 1e-9], [0, 2]], 3),
+])
+def test_two_face_facets_take_the_hull_tests_answer(poly, fan):
+    """`_facets` decides a group of two faces without a hull where its excess over the faces is
+    surely below or above the hull test's 1e-9, and labels components by a union-find on small
+    meshes: the facets are the hull test's over every group, concave quads split."""
+    m = _prism(np.array(poly, float), fan)
+    s = C.solid(np.asarray(m.vertices, float), np.asarray(m.faces, np.int64))
+    assert np.array_equal(s.facet, _hull_facets(s))
+    assert np.array_equal(s.facet_start, np.r_[0, np.cumsum(np.bincount(s.facet))])
+
+
+def test_facets_of_boxes_and_hulls_are_the_hull_tests():
+    """Seeded boxes (turned, scaled, thin) and convex hulls of rounded points (coplanar quads and
+    larger groups): the facets are the hull test's."""
+    rng = np.random.default_rng(19)
+    meshes = [trimesh.creation.box(rng.uniform(1e-3, 10, 3)).apply_transform(
+        trimesh.transformations.random_rotation_matrix(rng.random(3))) for _ in range(8)]
+    meshes += [trimesh.creation.box((1, 2, 3)).subdivide()]
+    meshes += [trimesh.convex.convex_hull(np.round(rng.normal(size=(20, 3)) * 2) / 2) for _ in range(8)]
+    split = 0
+    for m in meshes:
+        s = C.solid(np.asarray(m.vertices, float), np.asarray(m.faces, np.int64))
+        assert np.array_equal(s.facet, _hull_facets(s))
+        split += len(s.facet_start) - 1
+    assert split < sum(len(m.faces) for m in meshes)  # facets of several faces were met
+
+
+def test_components_number_as_scipy():
+    """`_components` ranks components as scipy's ``connected_components`` numbers them."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        n = int(rng.integers(1, 40))
+        e = rng.integers(0, n, size=(int(rng.integers(0, 2 * n)), 2))
+        ours = np.unique(C._components(n, e[:, 0], e[:, 1]), return_inverse=True)[1]
+        theirs = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)[1]
+        assert np.array_equal(ours, theirs)
