@@ -20,6 +20,11 @@ table is a plain ``dict``: an entry added or an eviction (`acra.memo._evict`, wh
 the other thread's changes) is safe from either thread, but an entry both calls would make is
 made first, in the caller's thread (`pipeline.residual.measure_frame`), so it is made once and
 the tables hold their entries in the order one thread gives.
+
+Its callers: `pipeline.residual.measure_frame` (a closed pair's two sides) and, at the end of a
+run, a ``.usda`` layer's array texts (`pipeline.output_layer._SharedText`, through
+`acra.floattext.tuples_texts`: two sides of whole attributes' chains of samples, each text made
+from its own array and the text of the sample before it alone, into its own slot of a list).
 """
 
 from __future__ import annotations
