@@ -1,6 +1,6 @@
 """The output layer's write, per frame, for each kind of frame and format, timed.
 
-    PYTHONPATH=$PWD python3 benchmarks/layer_writes.py [SCENE.py] [--repeat 9]
+    PYTHONPATH=$PWD python3 benchmarks/layer_writes.py [SCENE.py] [--repeat 9] [--wall]
 
 Runs the scene once (`frames.run_frames`), then writes layers of its results, each as ``.usda``
 and as ``.usdc`` (`output_layer.write_output`, each write to a new file, removed untimed), the
@@ -10,7 +10,9 @@ frames around the collision frames (the computed frame before and after each run
 those with the collision frames. Prints the CPU milliseconds (`time.process_time`) per frame of
 the layer's kind, median and range over ``--repeat`` writes, and what `acra bench` charges a
 collision frame in CPU time (`pipeline.bench._writes`): the last layer less the one before, over
-the collision frames' count, each pass's difference, median and range. ``--profile FMT``
+the collision frames' count, each pass's difference, median and range. ``--wall`` reads the wall
+clock (``time.perf_counter``) instead: a write whose arrays' texts are formatted on two threads
+(`pipeline.workers`) spends more CPU time than wall time where a second core is free. ``--profile FMT``
 (``usda`` or ``usdc``) then profiles that share: cProfile with the CPU clock over ``--repeat``
 writes of each of the two layers, and prints the functions whose own time differs most between
 them, per collision frame (cProfile's overhead included, so the parts, not the total, are the
@@ -41,7 +43,9 @@ def main() -> None:
     parser.add_argument("scene", nargs="?", type=pathlib.Path, default=ROOT / "scenes" / "dog_head_spike.py")
     parser.add_argument("--repeat", type=int, default=9)
     parser.add_argument("--profile", choices=("usda", "usdc"), help="profile a collision frame's share of the run's write")
+    parser.add_argument("--wall", action="store_true", help="wall-clock time instead of CPU time")
     args = parser.parse_args()
+    clock = time.perf_counter if args.wall else time.process_time
     with tempfile.TemporaryDirectory() as tmp:
         src = pathlib.Path(tmp) / args.scene.name
         shutil.copy(args.scene, src)
@@ -59,7 +63,8 @@ def main() -> None:
             (i > 0 and computed[i - 1] in hit) or (i + 1 < len(computed) and computed[i + 1] in hit))]
         kinds["those with the collision frames"] = sorted(set(kinds["the free frames around them"]) | hit)
         kinds = {k: v for k, v in kinds.items() if v}
-        print(f"`python3 benchmarks/layer_writes.py {args.scene.name} --repeat {args.repeat}`: CPU ms per frame of the layer's kind, "
+        print(f"`python3 benchmarks/layer_writes.py {args.scene.name} --repeat {args.repeat}{' --wall' if args.wall else ''}`: "
+              f"{'wall' if args.wall else 'CPU'} ms per frame of the layer's kind, "
               f"median (range) of {args.repeat} writes; load average {os.getloadavg()[0]:.1f} (1 min)\n")
         print("| layer | frames | `.usda` | `.usdc` |\n|---|---:|---:|---:|")
         times = {(k, fmt): [] for k in kinds for fmt in ("usda", "usdc")}
@@ -68,9 +73,9 @@ def main() -> None:
                 for kind, which in kinds.items():
                     part = output_layer.FramesResult({f: r for f, r in result.frames.items() if f in set(which)}, result.topologies)
                     out = pathlib.Path(tmp) / f"layer{i}.acra.{fmt}"
-                    t = time.process_time()
+                    t = clock()
                     output_layer.write_output(stage_path, out, scene, part)
-                    ms = 1e3 * (time.process_time() - t)
+                    ms = 1e3 * (clock() - t)
                     out.unlink()
                     if i >= 2:
                         times[kind, fmt].append(ms)
