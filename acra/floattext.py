@@ -586,7 +586,8 @@ def _formatted(done: list, texts: list, refs: list, out: list, side: list[int]) 
     starts: dict = {}
     empty = np.frombuffer(b"", np.uint8), np.zeros(1, np.int64)
     for i in side:
-        (values, digits, odd, same), (hard_bytes, hard_at) = done[i], texts[i]
+        values, digits, _, same = done[i]  # the values left to ``hard`` come formatted in texts[i]
+        hard_bytes, hard_at = texts[i]
         j = refs[i]
         ref_text, ref_at = starts[j] if j is not None else empty
         buf = np.empty(_tuples_bound(values, hard_bytes, ref_text), np.uint8)
