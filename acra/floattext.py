@@ -467,31 +467,32 @@ def tuples_text(values: np.ndarray, hard) -> bytes:
     return tuples_texts([values], hard)[0].tobytes()
 
 
-def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[np.ndarray]:
+# the values (of tuples changed from the reference, or of every tuple) a side of `tuples_texts`
+# must hold before a second thread formats it: below this, the thread's start and the GIL handed
+# over at each kernel cost more than the values' text
+SIDE_MIN = 20000
+
+
+def tuples_texts(arrays: list, hard, refs: list | None = None, both=None) -> list[np.ndarray]:
     """`tuples_text` of each of ``arrays`` as a read-only ``(bytes,) uint8`` array, with one
     call of ``hard`` for each type's values left to it (USD's writer has a fixed cost a call).
     ``refs[i]``, where given, is the index ``j < i`` of an array whose text serves
     ``arrays[i]``: the tuples of ``arrays[i]`` whose bits equal the same tuple's of
     ``arrays[j]`` (same shape and type) are copied from ``j``'s text, not formatted again (a
     response moves a display's points near the contact alone). Each text is written into its
-    own buffer and the buffer cut to it, not copied out."""
+    own buffer and the buffer cut to it, not copied out.
+
+    ``both(first, second)``, where given, runs two calls and returns their answers (e.g.
+    `pipeline.workers.both`, side by side): the arrays' chains of references (an attribute's
+    samples) are dealt to two sides of about equal work (`_sides`), each side's values found and
+    then formatted by one call of each side. A chain is one side's alone, every text is made from
+    its own array and reference's text alone, and ``hard`` is called once a type in the caller,
+    so the texts are the bytes one call gives."""
     refs = list(refs) if refs is not None else [None] * len(arrays)
-    done = []
-    for i, values in enumerate(arrays):
-        values = np.ascontiguousarray(values)
-        j = refs[i]
-        if values.dtype != np.float64:
-            values = values.astype(np.float32, copy=False)
-        if j is not None and not (0 <= j < i and done[j][0].shape == values.shape and values.dtype == done[j][0].dtype == np.float32):
-            j = refs[i] = None
-        flat = values.reshape(-1).view(np.uint64 if values.dtype == np.float64 else np.uint32)
-        same = np.zeros(values.shape[0] if j is not None else 0, np.bool_)
-        if values.dtype == np.float64 or values.shape[1] == 0:
-            cs, ks, st = shortest_digits64(flat) if values.dtype == np.float64 else shortest_digits(flat, flat[:0], same)
-            done.append((values, (cs, ks, st), np.flatnonzero(st == 2), same))
-        else:  # float32: only the values the kernel hands back are found here, their text is written in one pass
-            done.append((values, None, _marks(flat, values.shape[1], done[j][0].reshape(-1).view(np.uint32) if j is not None else flat[:0], same),
-                         same))
+    done: list = [None] * len(arrays)
+    chains = _chains(refs)
+    sides = _sides(chains, [np.size(a) for a in arrays], both)
+    _run_sides(both, [lambda side=side: _found(arrays, refs, done, side) for side in sides])
     # each array's values left to ``hard``: their texts' bytes end to end and where each starts
     texts: list = [(_NO_BYTES, _ONE_START)] * len(done)
     for dtype in (np.float32, np.float64):
@@ -506,12 +507,87 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[np.ndarra
                 end = first + done[i][2].size
                 texts[i] = blob[at[first]:at[end]], at[first:end + 1] - at[first]
                 first = end
-    # a text and its tuple starts are kept while a later array refers to it
-    last_use = {j: i for i, j in enumerate(refs) if j is not None}
+    # a side's work is its formatted values (a copied tuple's text is one block copy, counted at
+    # a fiftieth of a formatted value's)
+    work = [(d[0].size - int(np.count_nonzero(d[3])) * (d[0].size // max(d[0].shape[0], 1))) + d[0].size // 50 for d in done]
+    sides = _sides(chains, work, both)
+    out: list = [None] * len(done)
+    _run_sides(both, [lambda side=side: _formatted(done, texts, refs, out, side) for side in sides])
+    return out
+
+
+def _chains(refs: list) -> list[list[int]]:
+    """The indices of the arrays linked by ``refs`` (``refs[i] < i``), each chain's in order,
+    the chains in the order of their first array."""
+    root = list(range(len(refs)))
+    for i, j in enumerate(refs):
+        if j is not None and 0 <= j < i:
+            root[i] = root[j]
+    chains: dict = {}
+    for i, r in enumerate(root):
+        chains.setdefault(r, []).append(i)
+    return list(chains.values())
+
+
+def _sides(chains: list[list[int]], work: list, both) -> list[list[int]]:
+    """``chains`` dealt to two sides of about equal ``work`` (an array's), each side's indices in
+    order: the heaviest chain first to the lighter side. One side (every index) without ``both``
+    or where the lighter side would hold less than `SIDE_MIN`."""
+    every = [i for chain in chains for i in chain]
+    if both is None or len(chains) < 2:
+        return [sorted(every)]
+    weight = [sum(work[i] for i in chain) for chain in chains]
+    load, dealt = [0, 0], [[], []]
+    for c in sorted(range(len(chains)), key=lambda c: (-weight[c], c)):
+        s = 0 if load[0] <= load[1] else 1
+        load[s] += weight[c]
+        dealt[s] += chains[c]
+    if min(load) < SIDE_MIN:
+        return [sorted(every)]
+    return [sorted(d) for d in dealt]
+
+
+def _run_sides(both, calls: list) -> None:
+    """Each of ``calls`` (one or two), through ``both`` where there are two."""
+    if len(calls) == 2:
+        both(*calls)
+    else:
+        for call in calls:
+            call()
+
+
+def _found(arrays: list, refs: list, done: list, side: list[int]) -> None:
+    """``done[i]`` for each ``i`` of ``side`` (in order, a chain's references before it): the
+    array as float32 or float64, its digits (float64) or None (float32, formatted in one pass),
+    the indices of its values left to ``hard``, and ``same``, its tuples whose bits are its
+    reference's. A reference that cannot serve (another shape or type) is dropped from ``refs``."""
+    for i in side:
+        values = np.ascontiguousarray(arrays[i])
+        j = refs[i]
+        if values.dtype != np.float64:
+            values = values.astype(np.float32, copy=False)
+        if j is not None and not (0 <= j < i and done[j][0].shape == values.shape and values.dtype == done[j][0].dtype == np.float32):
+            j = refs[i] = None
+        flat = values.reshape(-1).view(np.uint64 if values.dtype == np.float64 else np.uint32)
+        same = np.zeros(values.shape[0] if j is not None else 0, np.bool_)
+        if values.dtype == np.float64 or values.shape[1] == 0:
+            cs, ks, st = shortest_digits64(flat) if values.dtype == np.float64 else shortest_digits(flat, flat[:0], same)
+            done[i] = (values, (cs, ks, st), np.flatnonzero(st == 2), same)
+        else:  # float32: only the values the kernel hands back are found here, their text is written in one pass
+            done[i] = (values, None, _marks(flat, values.shape[1], done[j][0].reshape(-1).view(np.uint32) if j is not None else flat[:0], same),
+                       same)
+
+
+def _formatted(done: list, texts: list, refs: list, out: list, side: list[int]) -> None:
+    """``out[i]``, the text of each ``i`` of ``side`` (in order), from `_found`'s ``done[i]``,
+    its values' texts from ``hard`` (``texts[i]``) and its reference's text."""
+    # a text and its tuple starts are kept while a later array of the side refers to it
+    last_use = {refs[i]: i for i in side if refs[i] is not None}
     starts: dict = {}
-    out = []
     empty = np.frombuffer(b"", np.uint8), np.zeros(1, np.int64)
-    for i, ((values, digits, odd, same), (hard_bytes, hard_at)) in enumerate(zip(done, texts)):
+    for i in side:
+        values, digits, _, same = done[i]  # the values left to ``hard`` come formatted in texts[i]
+        hard_bytes, hard_at = texts[i]
         j = refs[i]
         ref_text, ref_at = starts[j] if j is not None else empty
         buf = np.empty(_tuples_bound(values, hard_bytes, ref_text), np.uint8)
@@ -522,12 +598,11 @@ def tuples_texts(arrays: list, hard, refs: list | None = None) -> list[np.ndarra
                                     hard_bytes, hard_at, same, ref_text, ref_at, buf)
         text = _trimmed(buf, size)
         text.flags.writeable = False  # read-only, as the other bytes arrays the kernels take
-        out.append(text)
+        out[i] = text
         if last_use.get(i, -1) > i:
             starts[i] = text, at
         if j is not None and last_use[j] == i:
             del starts[j]
-    return out
 
 
 @njit(cache=True, nogil=True)

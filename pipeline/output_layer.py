@@ -24,6 +24,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 from acra import float32, floattext
 from acra.hspline import HierarchyArrays, HSpline, details, from_arrays, from_grid, to_arrays
 from acra.tessellate import MeshTopology, grid_samples
+from pipeline import workers
 from pipeline.model import DeformableModel, SceneModel
 from pipeline.usdio import RESPONSE_TYPES, STATE_TYPES, WRAPS, T, cvs_to_flat, export_layer, flat_to_cvs, read_hierarchy, vt_array, vt_buffer
 
@@ -379,7 +380,10 @@ class _SharedText:
                 refs[place[k]] = place[j]
             last[path] = k
         arrays = [_numpy(self._arrays[k]) for k in floats]
-        for k, text in zip(floats, floattext.tuples_texts(arrays, _float_texts, refs)):
+        # the attributes' chains are formatted on two sides where a frame may use two threads
+        # (`pipeline.workers`): each chain's text is its own, the same bytes on one side or two
+        both = workers.both if workers.threads() > 1 else None
+        for k, text in zip(floats, floattext.tuples_texts(arrays, _float_texts, refs, both)):
             texts["v"][k] = text
         for k, value in enumerate(self._arrays):
             if _vt_type(value) in _COMPILED and _vt_type(value) not in _FLOATS:

@@ -24,9 +24,12 @@ entries (a round's two displays, `pipeline.display.Displays.build`), each call w
 table: the caller plans both first, in order, and adds each call's entries after both have
 ended, in the order one thread would have added them.
 
-What runs side by side: a closed pair's two sides (`pipeline.residual.measure_frame`) and a
+What runs side by side: a closed pair's two sides (`pipeline.residual.measure_frame`), a
 round's two deformables' displays (`pipeline.display.Displays.build`, from
-`pipeline.frames._Run.visible`).
+`pipeline.frames._Run.visible`) and, at the end of a run, a ``.usda`` layer's array texts
+(`pipeline.output_layer._SharedText`, through `acra.floattext.tuples_texts`: two sides of whole
+attributes' chains of samples, each text made from its own array and the text of the sample
+before it alone, into its own slot of a list).
 """
 
 from __future__ import annotations

@@ -140,3 +140,59 @@ def test_text_copied_from_a_reference_array_is_the_text_formatted_afresh():
     whole = floatdigits.shortest_digits(moved.reshape(-1).view(np.uint32))
     changed = ~np.repeat(same, 3)
     assert all(np.array_equal(a[changed], b[changed]) for a, b in zip((cs, ks, st), whole))
+
+
+def test_two_sides_give_the_bytes_of_one():
+    """`tuples_texts` with ``both``: the chains of references are dealt to two sides of about
+    equal work, each side found and formatted by one call of ``both``'s two (here in two threads,
+    the second started first), and the texts are the bytes one call gives; ``hard`` is called once
+    a type, in the caller."""
+    import threading
+
+    rng = np.random.default_rng(41)
+    n = 9000
+    base = (rng.standard_normal((n, 3)) * 10.0 ** rng.integers(-12, 16, (n, 3))).astype(np.float32)
+    base[rng.integers(0, n, 30), rng.integers(0, 3, 30)] = rng.choice([np.inf, -np.inf, np.nan], 30)
+    normals = (rng.standard_normal((n, 3)) / 3).astype(np.float32)
+    arrays, refs = [base, normals], [None, None]
+    for f in range(4):  # two attributes' samples, each moved near a contact from the one before
+        for k in (0, 1):
+            moved = arrays[-2].copy()
+            lo = int(rng.integers(0, n - 500))
+            moved[lo:lo + 400] += np.float32(0.25 * (f + 1))
+            arrays.append(moved)
+            refs.append(len(arrays) - 3)
+    arrays.append(rng.integers(-2**20, 2**20, (3000, 3)) / 2.0 ** rng.integers(0, 60, (3000, 3)))  # a response's float64 offsets
+    arrays[-1][rng.integers(0, 3000, 10), rng.integers(0, 3, 10)] = rng.choice([np.inf, -np.inf, np.nan], 10)
+    refs.append(None)
+    calls, sides = [], []
+    hard = lambda v: calls.append((v.dtype, threading.get_ident())) or _float_texts(v)  # noqa: E731
+
+    def both(first, second):
+        sides.append(1)
+        out = [None]
+        worker = threading.Thread(target=lambda: out.__setitem__(0, second()))
+        worker.start()
+        worker.join()
+        return first(), out[0]
+
+    one = [t.tobytes() for t in floattext.tuples_texts(arrays, hard, refs)]
+    two = [t.tobytes() for t in floattext.tuples_texts(arrays, hard, refs, both)]
+    assert two == one
+    assert len(sides) == 2  # the values found, then the texts, each on two sides
+    assert [dtype for dtype, _ in calls] == [np.float32, np.float64] * 2
+    assert {ident for _, ident in calls} == {threading.get_ident()}
+    assert one[0].decode().startswith("[(") and one[-1] == floattext.tuples_text(arrays[-1], _float_texts)
+
+
+def test_sides_deal_whole_chains_by_work():
+    """`floattext._sides`: each chain on one side, the heaviest first to the lighter side; one
+    side where ``both`` is absent, there is one chain, or the lighter side holds too little."""
+    chains = floattext._chains([None, None, 0, 1, None, 2, 4, 10])
+    assert chains == [[0, 2, 5], [1, 3], [4, 6], [7]]
+    work = [30000, 25000, 100, 100, 9000, 100, 9000, 50]
+    both = object()
+    assert floattext._sides(chains, work, both) == [[0, 2, 5, 7], [1, 3, 4, 6]]
+    assert floattext._sides(chains, work, None) == [list(range(8))]
+    assert floattext._sides(chains[:1], work, both) == [[0, 2, 5]]
+    assert floattext._sides(chains, [w // 10 for w in work], both) == [list(range(8))]

@@ -919,3 +919,42 @@ def test_coordinates_too_far_to_compute_with_are_refused(tmp_path):
         else:
             with pytest.raises(InputError, match=r"^/World/Sheet\.acra:cvs: coordinate beyond 1e\+15 at the default time at index 1: "):
                 U.read_scene(stage)
+
+
+def test_text_output_on_two_threads_is_one_threads_bytes(tmp_path, monkeypatch):
+    """A real run's ``.usda`` layer (`box_into_sheet`, a free frame and a collision frame) with
+    its arrays' texts formatted on two sides (`floattext.tuples_texts` through
+    `pipeline.workers.both`, the second side in a thread of its own) holds the bytes of the layer
+    formatted on one thread (``NUMBA_NUM_THREADS=1``), and USD's own text of the same results."""
+    import pathlib
+    import shutil
+    import threading
+
+    from numba.core import config
+
+    from acra import floattext
+    from pipeline import frames as F
+    from pipeline import workers
+
+    scene_file = tmp_path / "box_into_sheet.py"
+    shutil.copy(pathlib.Path(__file__).resolve().parents[1] / "scenes" / "box_into_sheet.py", scene_file)
+    stage_path = U.load_scene_file(scene_file)
+    stage = U.open_input(stage_path)
+    scene = U.read_scene(stage)
+    result, stats = F.run_frames(stage, scene, [10, 11])
+    assert [s.in_collision for s in stats] == [False, True]
+    monkeypatch.setattr(floattext, "SIDE_MIN", 0)  # the sheet's arrays are small: two sides however little each holds
+    threads, both = [], workers.both
+
+    def seen(first, second):
+        return both(first, lambda: threads.append(threading.get_ident()) or second())
+
+    monkeypatch.setattr(workers, "both", seen)
+    texts = {}
+    for n in (1, 2):
+        monkeypatch.setattr(config, "NUMBA_NUM_THREADS", n)
+        texts[n] = output_layer.write_output(stage_path, tmp_path / f"out{n}.usda", scene, result).read_bytes()
+    assert len(threads) == 2 and threading.get_ident() not in threads  # found and formatted, each on a second thread
+    assert texts[2] == texts[1]
+    crate = output_layer.write_output(stage_path, tmp_path / "out.usdc", scene, result)
+    assert texts[2] == _usd_text(crate)
