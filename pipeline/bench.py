@@ -194,10 +194,14 @@ def _writes(output_layer, report, tmp: Path) -> dict:
     the whole display's first formatting and the layer's fixed costs fall in both layers and
     cancel. The difference is taken in CPU time, which other processes' load leaves alone (a
     difference of two wall clocks on a loaded machine is mostly the load's), and given in wall
-    clock at the two layers' writes' own ratio of wall to CPU time, never below 1 (a write using
-    more than one thread is charged its CPU time). Each figure is the median of `WRITES` writes,
+    clock at the two layers' writes' own ratio of wall to CPU time, never below one over the
+    threads a write may use (`pipeline.workers.threads`: a ``.usda`` layer's texts are formatted
+    on two threads where two are allowed, so its wall clock can be below its CPU time, never
+    below that share of it). Each figure is the median of `WRITES` writes,
     the layers alternated after one untimed write of each (a format's first write in a process
     loads what later ones reuse)."""
+    from pipeline import workers
+
     order = [s.frame for s in sorted(report.stats, key=lambda s: s.frame) if not s.hold]
     hit = {s.frame for s in report.stats if not s.hold and s.in_collision}
     free = set(order) - hit
@@ -216,7 +220,7 @@ def _writes(output_layer, report, tmp: Path) -> dict:
         out[1, fmt] = _median(wall["free"]) / len(free) if free else float("nan")
         if hit:
             ratio = sum(wall["near"] + wall["both"]) / max(sum(cpu["near"] + cpu["both"]), 1e-12)
-            out[0, fmt] = (_median(cpu["both"]) - _median(cpu["near"])) * max(ratio, 1.0) / len(hit)
+            out[0, fmt] = (_median(cpu["both"]) - _median(cpu["near"])) * max(ratio, 1.0 / workers.threads()) / len(hit)
         else:
             out[0, fmt] = float("nan")
     return out

@@ -71,18 +71,23 @@ def test_bench_charges_collision_frames_what_they_add_to_the_run_write(monkeypat
     """A free frame's write is the free frames' layer over their count; a collision frame's is a
     layer of the collision frames with the free frames around them less a layer of those free
     frames alone, over the collision frames' count, in CPU time, given in wall clock at the
-    writes' ratio (never below 1); holds are in neither. Fake clocks make each write cost exactly
-    a layer's fixed 7 ms CPU, 11 ms for its first frame's whole display, then 2 ms a free frame
-    and 5 ms a collision frame after it (each collision frame adds 5 ms CPU), the wall clock
-    running 1.5 times as fast (a loaded machine) or 0.8 times (a write on two threads)."""
+    writes' ratio (never below one over the threads a frame may use); holds are in neither. Fake
+    clocks make each write cost exactly a layer's fixed 7 ms CPU, 11 ms for its first frame's
+    whole display, then 2 ms a free frame and 5 ms a collision frame after it (each collision
+    frame adds 5 ms CPU), the wall clock running 1.5 times as fast (a loaded machine), 0.8 or 0.3
+    times (a write on two threads; one thread's wall clock cannot run slower than its CPU clock,
+    nor two threads' slower than half of it)."""
     from types import SimpleNamespace as NS
+
+    from pipeline import workers
 
     kinds = {0: False, 1: False, 2: True, 3: True, 4: False, 5: True, 6: False, 7: False}  # frame -> in collision
     stats = [NS(frame=f, in_collision=c, hold=False) for f, c in kinds.items()]
     stats.append(NS(frame=8, in_collision=True, hold=True))  # a hold: written in neither layer
     report = NS(stats=stats, result=NS(frames={s.frame: object() for s in stats}, topologies={}), stage_path="in.usda", scene=None)
-    # (the wall clock's pace against the CPU clock's, what a collision frame is charged)
-    for pace, charged in ((1.5, 5 * 1.5), (0.8, 5)):  # a loaded machine; a write on more than one thread
+    # (threads a frame may use, the wall clock's pace against the CPU clock's, what a collision frame is charged)
+    for threads, pace, charged in ((2, 1.5, 5 * 1.5), (2, 0.8, 5 * 0.8), (2, 0.3, 5 * 0.5), (1, 0.8, 5)):
+        monkeypatch.setattr(workers, "threads", lambda threads=threads: threads)
         wall, cpu, written = [0.0], [0.0], []
 
         def write_output(stage_path, path, scene, part):
