@@ -1,5 +1,7 @@
 """What the call-replay benchmarks share (`closest_calls.py`, `signed_calls.py`): the command line,
-recording one function's calls over a run's frames, timing their replay and printing the line.
+recording one function's calls over a run's frames, timing their replay and printing the line;
+and the CPU time spent inside `acra`'s compiled kernels (`kernels_clocked`, for the bounds of
+`second_core.py` and `regions_bound.py`).
 
 A replay times one function apart from the frame: the scene's ``--frames`` run after a free frame
 (frame 5) with the function wrapped to keep each call's arguments, then the calls are made again
@@ -80,3 +82,30 @@ def report(args: argparse.Namespace, what: str, times: list[float], arrays) -> N
     print(f"{pathlib.Path(args.scene).stem} frames {args.frames[0]}-{args.frames[-1]}: {what}; "
           f"CPU ms a frame, median {statistics.median(ms):.3f}, fastest {min(ms):.3f} (of {args.passes} passes); "
           f"answers {digest.hexdigest()[:12]}")
+
+
+def kernels_clocked(inside: list) -> list:
+    """Wraps every compiled kernel `acra`'s modules define (numba ``CPUDispatcher``) so that its
+    calls add their CPU seconds to ``inside[0]``; returns ``[(module, name, kernel)]`` to put
+    them back. A kernel called from another compiled kernel is not wrapped there (it is inlined
+    in the caller's machine code), so each second counts once."""
+    import importlib
+    import pkgutil
+
+    import acra
+    from numba.core.registry import CPUDispatcher
+
+    wrapped = []
+    for info in pkgutil.iter_modules(acra.__path__):
+        module = importlib.import_module(f"acra.{info.name}")
+        for name, f in list(vars(module).items()):
+            if isinstance(f, CPUDispatcher) and getattr(f, "__module__", None) == module.__name__:
+                def timed(*a, _f=f, **k):
+                    t = time.process_time()
+                    try:
+                        return _f(*a, **k)
+                    finally:
+                        inside[0] += time.process_time() - t
+                setattr(module, name, timed)
+                wrapped.append((module, name, f))
+    return wrapped

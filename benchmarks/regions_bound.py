@@ -19,10 +19,8 @@ for the sides and for their inside tests. CPU time, so a loaded machine gives it
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import pathlib
-import pkgutil
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -35,27 +33,16 @@ def main() -> None:
     ap.add_argument("--passes", type=int, default=7)
     args = ap.parse_args()
     os.environ["NUMBA_NUM_THREADS"] = "1"  # read at numba's import, below
-    from numba.core.registry import CPUDispatcher
+    from _replay import kernels_clocked
     from threadpoolctl import threadpool_limits
 
-    import acra
     from pipeline import detect as D
     from pipeline import frames as F
     from pipeline import queries, usdio
     from pipeline.run import forget
 
     inside = [0.0]
-    for info in pkgutil.iter_modules(acra.__path__):
-        module = importlib.import_module(f"acra.{info.name}")
-        for name, f in list(vars(module).items()):
-            if isinstance(f, CPUDispatcher) and getattr(f, "__module__", None) == module.__name__:
-                def timed(*a, _f=f, **k):
-                    t = time.process_time()
-                    try:
-                        return _f(*a, **k)
-                    finally:
-                        inside[0] += time.process_time() - t
-                setattr(module, name, timed)
+    kernels_clocked(inside)
     searches, wholes, calls = [], [], []
 
     def clocked(real, out):

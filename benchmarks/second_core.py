@@ -251,29 +251,13 @@ def _bound(calls: list, passes: int, stage=None, scene=None, frames=()) -> tuple
     compiled kernels, and the least wall time two threads sharing the GIL could take (the
     fastest pass's sums: one thread's CPU, the least wall, the kernels' CPU, the pairs); and
     `_bound_displays` of a run of ``frames`` (with ``stage``)."""
-    import importlib
-    import pkgutil
-
-    import acra
-    from numba.core.registry import CPUDispatcher
+    from _replay import kernels_clocked
 
     from pipeline import workers
 
     inside = [0.0]
-    wrapped = []
     displays: list = []
-    for info in pkgutil.iter_modules(acra.__path__):
-        module = importlib.import_module(f"acra.{info.name}")
-        for name, f in list(vars(module).items()):
-            if isinstance(f, CPUDispatcher) and getattr(f, "__module__", None) == module.__name__:
-                def timed(*a, _f=f, **k):
-                    t = time.process_time()
-                    try:
-                        return _f(*a, **k)
-                    finally:
-                        inside[0] += time.process_time() - t
-                setattr(module, name, timed)
-                wrapped.append((module, name, f))
+    wrapped = kernels_clocked(inside)
     sides: list = []
 
     def one_after_the_other(first, second):
