@@ -490,16 +490,15 @@ def tuples_texts(arrays: list, hard, refs: list | None = None, both=None, order:
     its own array and reference's text alone, and ``hard`` is called once a type in the caller,
     so the texts are the bytes one call gives.
 
-    ``order``, where given (and ``both`` not), is the order the texts are formatted in, an array's
-    reference before it (the order a writer needs them: `pipeline.output_layer`), and
-    ``ready(i, text)`` is called as each ``text`` is made, in that order."""
+    ``order``, where given, is the order each side formats its texts in, an array's reference
+    before it (the order a writer needs them: `pipeline.output_layer`), and ``ready(i, text)`` is
+    called as each ``text`` is made (from the side's thread)."""
     refs = list(refs) if refs is not None else [None] * len(arrays)
     done: list = [None] * len(arrays)
     chains = _chains(refs)
-    sides = _sides(chains, [np.size(a) for a in arrays], both)
-    if order is not None and len(sides) == 1:
-        order = _referenced_first(order, refs)
-        sides = [order]
+    # with ``order``, each side's arrays in that order (a chain's references first)
+    rank = None if order is None else {i: p for p, i in enumerate(_referenced_first(order, refs))}
+    sides = _ranked(_sides(chains, [np.size(a) for a in arrays], both), rank)
     _run_sides(both, [lambda side=side: _found(arrays, refs, done, side) for side in sides])
     # each array's values left to ``hard``: their texts' bytes end to end and where each starts
     texts: list = [(_NO_BYTES, _ONE_START)] * len(done)
@@ -518,10 +517,15 @@ def tuples_texts(arrays: list, hard, refs: list | None = None, both=None, order:
     # a side's work is its formatted values (a copied tuple's text is one block copy, counted at
     # a fiftieth of a formatted value's)
     work = [(d[0].size - int(np.count_nonzero(d[3])) * (d[0].size // max(d[0].shape[0], 1))) + d[0].size // 50 for d in done]
-    sides = _sides(chains, work, both) if order is None or len(sides) > 1 else [order]
+    sides = _ranked(_sides(chains, work, both), rank)
     out: list = [None] * len(done)
     _run_sides(both, [lambda side=side: _formatted(done, texts, refs, out, side, ready) for side in sides])
     return out
+
+
+def _ranked(sides: list[list[int]], rank: dict | None) -> list[list[int]]:
+    """Each side's indices sorted by ``rank`` (every index's), where given."""
+    return sides if rank is None else [sorted(side, key=rank.__getitem__) for side in sides]
 
 
 def _referenced_first(order: list, refs: list) -> list[int]:

@@ -389,11 +389,11 @@ class _SharedText:
 
         def make(order, ready) -> None:
             arrays = [_numpy(self._arrays[k]) for k in floats]
-            # where the texts are written while they are made (`_Text.Export`), one side formats
-            # them in the writer's order; else the attributes' chains are formatted on two sides
-            # where a frame may use two threads (`pipeline.workers`): each chain's text is its
-            # own, the same bytes on one side or two
-            both = workers.both if workers.threads() > 1 and ready is None else None
+            # the attributes' chains are formatted on two sides where a frame may use two threads
+            # (`pipeline.workers`), each side's in the writer's order where the texts are written
+            # while they are made (`_Text.Export`): each chain's text is its own, the same bytes
+            # on one side or two
+            both = workers.both if workers.threads() > 1 else None
             wanted = None if order is None else [place[k] for k in order if k in place]
             tell = None if ready is None else (lambda i, text: ready(floats[i], text))
             for k, text in zip(floats, floattext.tuples_texts(arrays, _float_texts, refs, both, wanted, tell)):
