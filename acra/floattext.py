@@ -473,8 +473,7 @@ def tuples_text(values: np.ndarray, hard) -> bytes:
 SIDE_MIN = 20000
 
 
-def tuples_texts(arrays: list, hard, refs: list | None = None, both=None, order: list | None = None,
-                 ready=None) -> list[np.ndarray]:
+def tuples_texts(arrays: list, hard, refs: list | None = None, both=None) -> list[np.ndarray]:
     """`tuples_text` of each of ``arrays`` as a read-only ``(bytes,) uint8`` array, with one
     call of ``hard`` for each type's values left to it (USD's writer has a fixed cost a call).
     ``refs[i]``, where given, is the index ``j < i`` of an array whose text serves
@@ -488,17 +487,11 @@ def tuples_texts(arrays: list, hard, refs: list | None = None, both=None, order:
     samples) are dealt to two sides of about equal work (`_sides`), each side's values found and
     then formatted by one call of each side. A chain is one side's alone, every text is made from
     its own array and reference's text alone, and ``hard`` is called once a type in the caller,
-    so the texts are the bytes one call gives.
-
-    ``order``, where given, is the order each side formats its texts in, an array's reference
-    before it (the order a writer needs them: `pipeline.output_layer`), and ``ready(i, text)`` is
-    called as each ``text`` is made (from the side's thread)."""
+    so the texts are the bytes one call gives."""
     refs = list(refs) if refs is not None else [None] * len(arrays)
     done: list = [None] * len(arrays)
     chains = _chains(refs)
-    # with ``order``, each side's arrays in that order (a chain's references first)
-    rank = None if order is None else {i: p for p, i in enumerate(_referenced_first(order, refs))}
-    sides = _ranked(_sides(chains, [np.size(a) for a in arrays], both), rank)
+    sides = _sides(chains, [np.size(a) for a in arrays], both)
     _run_sides(both, [lambda side=side: _found(arrays, refs, done, side) for side in sides])
     # each array's values left to ``hard``: their texts' bytes end to end and where each starts
     texts: list = [(_NO_BYTES, _ONE_START)] * len(done)
@@ -517,28 +510,9 @@ def tuples_texts(arrays: list, hard, refs: list | None = None, both=None, order:
     # a side's work is its formatted values (a copied tuple's text is one block copy, counted at
     # a fiftieth of a formatted value's)
     work = [(d[0].size - int(np.count_nonzero(d[3])) * (d[0].size // max(d[0].shape[0], 1))) + d[0].size // 50 for d in done]
-    sides = _ranked(_sides(chains, work, both), rank)
+    sides = _sides(chains, work, both)
     out: list = [None] * len(done)
-    _run_sides(both, [lambda side=side: _formatted(done, texts, refs, out, side, ready) for side in sides])
-    return out
-
-
-def _ranked(sides: list[list[int]], rank: dict | None) -> list[list[int]]:
-    """Each side's indices sorted by ``rank`` (every index's), where given."""
-    return sides if rank is None else [sorted(side, key=rank.__getitem__) for side in sides]
-
-
-def _referenced_first(order: list, refs: list) -> list[int]:
-    """``order`` (every index once) with each index's chain of references (those before it,
-    ``refs[i] < i``: the others are not used) moved before it."""
-    seen, out = set(), []
-    for i in order:
-        chain = []
-        while i is not None and i not in seen:
-            seen.add(i)
-            chain.append(i)
-            i = refs[i] if refs[i] is not None and 0 <= refs[i] < i else None
-        out += reversed(chain)
+    _run_sides(both, [lambda side=side: _formatted(done, texts, refs, out, side) for side in sides])
     return out
 
 
@@ -604,13 +578,11 @@ def _found(arrays: list, refs: list, done: list, side: list[int]) -> None:
                        same)
 
 
-def _formatted(done: list, texts: list, refs: list, out: list, side: list[int], ready=None) -> None:
-    """``out[i]``, the text of each ``i`` of ``side`` (in order, a reference before the arrays
-    referring to it), from `_found`'s ``done[i]``, its values' texts from ``hard``
-    (``texts[i]``) and its reference's text; ``ready(i, out[i])`` after each, where given."""
+def _formatted(done: list, texts: list, refs: list, out: list, side: list[int]) -> None:
+    """``out[i]``, the text of each ``i`` of ``side`` (in order), from `_found`'s ``done[i]``,
+    its values' texts from ``hard`` (``texts[i]``) and its reference's text."""
     # a text and its tuple starts are kept while a later array of the side refers to it
-    position = {i: p for p, i in enumerate(side)}
-    last_use = {refs[i]: position[i] for i in side if refs[i] is not None}
+    last_use = {refs[i]: i for i in side if refs[i] is not None}
     starts: dict = {}
     empty = np.frombuffer(b"", np.uint8), np.zeros(1, np.int64)
     for i in side:
@@ -627,12 +599,10 @@ def _formatted(done: list, texts: list, refs: list, out: list, side: list[int], 
         text = _trimmed(buf, size)
         text.flags.writeable = False  # read-only, as the other bytes arrays the kernels take
         out[i] = text
-        if last_use.get(i, -1) > position[i]:
+        if last_use.get(i, -1) > i:
             starts[i] = text, at
-        if j is not None and last_use[j] == position[i]:
+        if j is not None and last_use[j] == i:
             del starts[j]
-        if ready is not None:
-            ready(i, text)
 
 
 @njit(cache=True, nogil=True)

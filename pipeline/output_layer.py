@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -353,14 +352,11 @@ class _SharedText:
         self._samples.append((path, time, k))
         return self._made[k]
 
-    def _texts(self) -> tuple[list, list[str], object]:
+    def _texts(self) -> tuple[list[bytes], list[str]]:
         """Each array's text (bytes, or a ``(bytes,) uint8`` array from `floattext.tuples_texts`)
         and its stand-in's text, as USD's text writer formats them: the arrays of `_COMPILED`
         types by `acra.floattext`, the others' by USD's writer (a scratch layer holding each as a
-        default value), the stand-ins' from their types' text (`_STAND_INS`). The float arrays'
-        texts are ``None`` here: the third item, ``make(order, ready)``, makes them into the
-        first list (``order``: their indices in the order wanted, or ``None``; ``ready(k,
-        text)`` as each is made, where given)."""
+        default value), the stand-ins' from their types' text (`_STAND_INS`)."""
         texts: dict = {"v": [None] * len(self._arrays), "s": [_STAND_INS[_vt_type(value)][2].format(k) for k, value in enumerate(self._arrays)]}
         others = [k for k, value in enumerate(self._arrays) if _vt_type(value) not in _COMPILED]
         if others:
@@ -372,9 +368,6 @@ class _SharedText:
                     Sdf.AttributeSpec(prim, f"v{k}", _STAND_INS[_vt_type(value)][0], Sdf.VariabilityVarying, True).default = _authored(value)
             for m in _SCRATCH_LINE.finditer(scratch.ExportToString()):
                 texts["v"][int(m.group(2))] = m.group(3).encode()
-        for k, value in enumerate(self._arrays):
-            if _vt_type(value) in _COMPILED and _vt_type(value) not in _FLOATS:
-                texts["v"][k] = _COMPILED[_vt_type(value)](value)
         floats = [k for k, value in enumerate(self._arrays) if _vt_type(value) in _FLOATS]
         # each array's text starts from the one authored before it on the same attribute (the
         # previous frame's display): a response moves the points near the contact alone
@@ -386,25 +379,21 @@ class _SharedText:
             if j is not None and j != k and k in place and refs[place[k]] is None and j in place:
                 refs[place[k]] = place[j]
             last[path] = k
-
-        def make(order, ready) -> None:
-            arrays = [_numpy(self._arrays[k]) for k in floats]
-            # the attributes' chains are formatted on two sides where a frame may use two threads
-            # (`pipeline.workers`), each side's in the writer's order where the texts are written
-            # while they are made (`_Text.Export`): each chain's text is its own, the same bytes
-            # on one side or two
-            both = workers.both if workers.threads() > 1 else None
-            wanted = None if order is None else [place[k] for k in order if k in place]
-            tell = None if ready is None else (lambda i, text: ready(floats[i], text))
-            for k, text in zip(floats, floattext.tuples_texts(arrays, _float_texts, refs, both, wanted, tell)):
-                texts["v"][k] = text
-
-        return texts["v"], texts["s"], (make if floats else None)
+        arrays = [_numpy(self._arrays[k]) for k in floats]
+        # the attributes' chains are formatted on two sides where a frame may use two threads
+        # (`pipeline.workers`): each chain's text is its own, the same bytes on one side or two
+        both = workers.both if workers.threads() > 1 else None
+        for k, text in zip(floats, floattext.tuples_texts(arrays, _float_texts, refs, both)):
+            texts["v"][k] = text
+        for k, value in enumerate(self._arrays):
+            if _vt_type(value) in _COMPILED and _vt_type(value) not in _FLOATS:
+                texts["v"][k] = _COMPILED[_vt_type(value)](value)
+        return texts["v"], texts["s"]
 
     def export(self, layer: Sdf.Layer, out: Path) -> Path:
         if not self._arrays:
             return export_layer(layer, out)
-        values, stand_ins, make = self._texts()
+        values, stand_ins = self._texts()
         stand_ins = [t.encode() for t in stand_ins]
         which = {text: k for k, text in enumerate(stand_ins)}
         text = layer.ExportToString().encode()  # the stand-ins' layer: its arrays' text is not in it
@@ -412,8 +401,7 @@ class _SharedText:
         found, expected = [0] * len(self._arrays), [0] * len(self._arrays)
         for _, _, k in self._samples:
             expected[k] += 1
-        floats = {k for k, value in enumerate(self._arrays) if _vt_type(value) in _FLOATS}
-        if all(v is not None or k in floats for k, v in enumerate(values)) and len(which) == len(stand_ins):
+        if all(v is not None for v in values) and len(which) == len(stand_ins):
             for m in pattern.finditer(text):
                 found[which[m.group()]] += 1
         if found != expected:
@@ -425,98 +413,29 @@ class _SharedText:
                     else:
                         layer.SetTimeSample(path, time, _authored(self._arrays[k]))
             return export_layer(layer, out)
-        return export_layer(_Text(text, pattern, which, values, make), out)
+        return export_layer(_Text(text, pattern, which, values), out)
 
 
 class _Text:
     """A ``.usda`` layer's ``text`` (UTF-8) whose stand-ins (``pattern``, ``which`` of them) are
-    written as their arrays' text ``values`` (bytes or ``uint8`` arrays; ``None`` where
-    ``make(order, ready)`` makes it), as `Sdf.Layer.Export` writes a layer
+    written as their arrays' text ``values`` (bytes or ``uint8`` arrays), as `Sdf.Layer.Export` writes a layer
     (`usdio.export_layer`). The pieces are views of the text and the arrays' texts, handed to the
     file a few hundred at a time (`os.writev`: one system call for them, no copy into a buffer),
-    so a long run's text is held once. Where a frame may use two threads (`pipeline.workers`),
-    the texts are made in the caller's thread in the order the file holds them while a thread of
-    its own writes the pieces whose texts are ready (the system calls release the GIL); each
-    text is the same bytes however the two interleave."""
+    so a long run's text is held once."""
 
-    def __init__(self, text: bytes, pattern: re.Pattern, which: dict, values: list, make=None) -> None:
-        self.text, self.pattern, self.which, self.values, self.make = text, pattern, which, values, make
+    def __init__(self, text: bytes, pattern: re.Pattern, which: dict, values: list[bytes]) -> None:
+        self.text, self.pattern, self.which, self.values = text, pattern, which, values
 
     def Export(self, path: str) -> bool:  # noqa: N802 (Sdf.Layer's name)
         text = memoryview(self.text)
-        pieces: list = []  # views of the text, and the index of each array whose text goes there
-        at = 0
+        pieces, at = [], 0
         for m in self.pattern.finditer(self.text):
-            pieces += (text[at:m.start()], self.which[m.group()])
+            pieces += (text[at:m.start()], self.values[self.which[m.group()]])
             at = m.end()
         pieces.append(text[at:])
-        pieces = [p for p in pieces if type(p) is int or len(p)]
         with open(path, "wb", buffering=0) as fh:
-            if self.make is None or workers.threads() < 2:
-                if self.make is not None:
-                    self.make(None, None)
-                _write_pieces(fh, [memoryview(self.values[p]) if type(p) is int else p for p in pieces])
-            else:
-                order = list(dict.fromkeys(p for p in pieces if type(p) is int and self.values[p] is None))
-                _written_while_made(fh, pieces, self.values, lambda ready: self.make(order, ready))
+            _write_pieces(fh, [memoryview(p) for p in pieces if len(p)])
         return True
-
-
-def _written_while_made(fh, pieces: list, values: list, make) -> None:
-    """Write ``pieces`` (views, or indices ``k`` of ``values``) in order to ``fh`` from a thread
-    of its own while ``make(ready)`` runs in the caller's, making the missing ``values`` and
-    calling ``ready(k, text)`` as each is made: the thread writes each run of pieces whose
-    texts are ready and waits for the next. An error of either ends both and is raised in the
-    caller (``make``'s first) once the thread has ended."""
-    have = threading.Condition()
-    state = {"stop": False, "made": False, "error": None}
-
-    def ready(k: int, text) -> None:
-        with have:
-            values[k] = text
-            have.notify()
-        if state["error"] is not None:
-            raise state["error"]
-
-    def write() -> None:
-        try:
-            i = 0
-            while i < len(pieces):
-                with have:
-                    while type(pieces[i]) is int and values[pieces[i]] is None and not (state["stop"] or state["made"]):
-                        have.wait()
-                    if state["stop"]:
-                        return
-                    if type(pieces[i]) is int and values[pieces[i]] is None:
-                        raise RuntimeError(f"no text was made for array {pieces[i]}")
-                    run = []
-                    for p in pieces[i:]:
-                        if type(p) is int:
-                            if values[p] is None:
-                                break
-                            p = memoryview(values[p])
-                        run.append(p)
-                i += len(run)
-                _write_pieces(fh, run)
-        except BaseException as exc:  # raised in the caller's thread
-            state["error"] = exc
-
-    writer = threading.Thread(target=write, name="acra-usda-writer", daemon=True)
-    writer.start()
-    try:
-        make(ready)
-        with have:
-            state["made"] = True
-            have.notify()
-    except BaseException:
-        with have:
-            state["stop"] = True
-            have.notify()
-        raise
-    finally:
-        writer.join()
-    if state["error"] is not None:
-        raise state["error"]
 
 
 def _write_pieces(fh, pieces: list[memoryview]) -> None:

@@ -196,29 +196,3 @@ def test_sides_deal_whole_chains_by_work():
     assert floattext._sides(chains, work, None) == [list(range(8))]
     assert floattext._sides(chains[:1], work, both) == [[0, 2, 5]]
     assert floattext._sides(chains, [w // 10 for w in work], both) == [list(range(8))]
-
-
-def test_texts_in_a_given_order_are_the_bytes_of_index_order():
-    """`tuples_texts` with ``order`` (the order a writer wants, here the attributes' samples
-    latest first and a forward reference, which is not used) formats each chain's references
-    before the arrays referring to them and calls ``ready`` with each text as it is made, in the
-    order given where references allow: the texts are the bytes of the index order's."""
-    rng = np.random.default_rng(43)
-    n = 3000
-    arrays, refs = [(rng.standard_normal((n, 3)) * 10.0 ** rng.integers(-12, 16, (n, 3))).astype(np.float32)], [None]
-    for f in range(5):
-        moved = arrays[-1].copy()
-        lo = int(rng.integers(0, n - 300))
-        moved[lo:lo + 200] += np.float32(0.5 * (f + 1))
-        arrays.append(moved)
-        refs.append(len(arrays) - 2)
-    arrays.append((rng.standard_normal((n, 3)) / 3).astype(np.float32))
-    refs.append(None)
-    refs[0] = 6  # a reference after the array: not used
-    one = [t.tobytes() for t in floattext.tuples_texts(arrays, _float_texts, refs)]
-    made = []
-    order = [6, 5, 2, 4, 0, 1, 3]
-    got = [t.tobytes() for t in floattext.tuples_texts(arrays, _float_texts, refs, None, order, lambda i, t: made.append((i, t.tobytes())))]
-    assert got == one
-    assert [i for i, _ in made] == [6, 0, 1, 2, 3, 4, 5]  # 5's chain back to 0 first: 2, 4 and 3 were already made
-    assert [t for _, t in made] == [one[i] for i, _ in made]

@@ -430,74 +430,6 @@ def test_text_layer_pieces_are_written_whole_however_the_writes_split(tmp_path, 
     assert (tmp_path / "out").read_bytes() == b"".join(pieces)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_text_layer_written_while_its_texts_are_made(tmp_path, monkeypatch, seed):
-    """`output_layer._written_while_made` writes the pieces in order from its own thread while
-    the caller makes the missing texts (here in a shuffled order, one at a time), each system
-    call taking at most 7 bytes: the file is the pieces' bytes end to end."""
-    import os
-    import threading
-
-    rng = np.random.default_rng(seed)
-    texts = [bytes(rng.integers(0, 256, int(n), dtype=np.uint8)) for n in rng.integers(1, 40, 60)]
-    pieces = [memoryview(bytes(rng.integers(0, 256, int(n), dtype=np.uint8))) if i % 3 == 0 else int(rng.integers(0, 60))
-              for i, n in enumerate(rng.integers(1, 40, 400))]
-    values = [None if i % 2 else t for i, t in enumerate(texts)]
-    expected = b"".join(bytes(p) if type(p) is not int else texts[p] for p in pieces)
-    real, writers = os.writev, set()
-
-    def short_writev(fd, views):
-        writers.add(threading.get_ident())
-        return real(fd, [b"".join(bytes(v) for v in views)[:7]])
-
-    monkeypatch.setattr(output_layer.os, "writev", short_writev)
-
-    def make(ready):
-        for k in rng.permutation([k for k, v in enumerate(values) if v is None]):
-            ready(int(k), np.frombuffer(texts[k], np.uint8))
-
-    with open(tmp_path / "out", "wb", buffering=0) as fh:
-        output_layer._written_while_made(fh, pieces, values, make)
-    assert (tmp_path / "out").read_bytes() == expected
-    assert writers and threading.get_ident() not in writers
-
-
-@pytest.mark.parametrize("where", ["make", "write"])
-def test_text_layer_written_while_made_fails_whole(tmp_path, monkeypatch, where):
-    """An error while the texts are made (the caller) or written (the writer's thread) ends both
-    and is raised in the caller, and `usdio.export_layer` leaves nothing at the output path."""
-    import threading
-
-    from numba.core import config
-
-    pieces = [memoryview(b"head "), 0, memoryview(b" middle "), 1, memoryview(b" tail")]
-    values = [None, None]
-
-    def make(ready):
-        ready(0, np.frombuffer(b"zero", np.uint8))
-        if where == "make":
-            raise KeyboardInterrupt
-        ready(1, np.frombuffer(b"one", np.uint8))
-
-    def failing(fd, views):
-        raise OSError("disk full")
-
-    if where == "write":
-        monkeypatch.setattr(output_layer.os, "writev", failing)
-    monkeypatch.setattr(config, "NUMBA_NUM_THREADS", 2)
-
-    class Layer:
-        def Export(self, path):  # noqa: N802
-            with open(path, "wb", buffering=0) as fh:
-                output_layer._written_while_made(fh, pieces, values, make)
-            return True
-
-    before = threading.active_count()
-    with pytest.raises(KeyboardInterrupt if where == "make" else OSError):
-        U.export_layer(Layer(), tmp_path / "out.usda")
-    assert list(tmp_path.iterdir()) == [] and threading.active_count() == before
-
-
 class SimpleWriter:
     """A file whose ``write`` takes at most 5 bytes a call, as a raw file may."""
 
@@ -993,10 +925,7 @@ def test_text_output_on_two_threads_is_one_threads_bytes(tmp_path, monkeypatch):
     """A real run's ``.usda`` layer (`box_into_sheet`, a free frame and a collision frame) with
     its arrays' texts formatted on two sides (`floattext.tuples_texts` through
     `pipeline.workers.both`, the second side in a thread of its own) holds the bytes of the layer
-    formatted on one thread (``NUMBA_NUM_THREADS=1``), and USD's own text of the same results.
-    On two threads the texts are made in the caller's thread while a thread of its own writes
-    them (`output_layer._written_while_made`); the texts' two sides (`floattext.tuples_texts`
-    through `pipeline.workers.both`) make the same bytes as one."""
+    formatted on one thread (``NUMBA_NUM_THREADS=1``), and USD's own text of the same results."""
     import pathlib
     import shutil
     import threading
@@ -1022,17 +951,10 @@ def test_text_output_on_two_threads_is_one_threads_bytes(tmp_path, monkeypatch):
 
     monkeypatch.setattr(workers, "both", seen)
     texts = {}
-    writers, write = [], output_layer._write_pieces
-    monkeypatch.setattr(output_layer, "_write_pieces", lambda *a: writers.append(threading.get_ident()) or write(*a))
     for n in (1, 2):
         monkeypatch.setattr(config, "NUMBA_NUM_THREADS", n)
         texts[n] = output_layer.write_output(stage_path, tmp_path / f"out{n}.usda", scene, result).read_bytes()
-    assert writers[0] == threading.get_ident() and writers[1:] and threading.get_ident() not in writers[1:]  # one thread: the caller writes
+    assert len(threads) == 2 and threading.get_ident() not in threads  # found and formatted, each on a second thread
     assert texts[2] == texts[1]
-    # the texts' two sides, each side's found and formatted on a second thread, give the same texts
-    arrays = [np.asarray(result.frames[f][p].points, np.float32) for f in sorted(result.frames) for p in sorted(result.frames[f])]
-    one = [t.tobytes() for t in floattext.tuples_texts(arrays, output_layer._float_texts)]
-    two = [t.tobytes() for t in floattext.tuples_texts(arrays, output_layer._float_texts, None, seen)]
-    assert len(threads) == 2 and threading.get_ident() not in threads and two == one
     crate = output_layer.write_output(stage_path, tmp_path / "out.usdc", scene, result)
     assert texts[2] == _usd_text(crate)
