@@ -62,7 +62,7 @@ def main() -> None:
     if args.stages or args.per_frame:
         _stages(args.repeat, args.per_frame)
         return
-    for name in ("intersect", "regions", "touching", "cast", "project", "_inside_depth", "_triangles_near", "_face_boxes"):
+    for name in ("intersect", "regions", "touching", "cast", "project", "_inside_rows", "_triangles_near", "_face_boxes"):
         setattr(D, name, timed(f"detect.{name}", getattr(D, name)))
     for name in ("tessellate", "tessellate_sorted", "vertices_in_box"):
         setattr(T, name, timed(f"tessellation.{name}", getattr(T, name)))

@@ -368,18 +368,11 @@ def surface_distance(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np
     return np.linalg.norm(points - close, axis=1), close
 
 
-def _inside_depth(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """`inside` ``(k,) bool`` and, for the points inside, their `surface_distance` ``(m,)``: one
-    closest-point query on a deformable."""
-    m, _, _, depth = _inside_rows(geom, points)
-    return m, depth
-
-
 def _inside_rows(geom: Geometry, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`_inside_depth` with the points inside gathered once for both the depth and the region:
-    ``inside (k,) bool``, their rows ``(m,) int64`` (increasing), the points ``(m, 3)`` and their
-    `surface_distance` ``(m,)``. Rows are taken by index: a boolean mask of an ``(n, 3)`` array
-    goes element by element."""
+    """`inside` ``(k,) bool`` and, for the points inside, their rows ``(m,) int64`` (increasing),
+    the points ``(m, 3)`` and their `surface_distance` ``(m,)``, gathered once for both the depth
+    and the region: one closest-point query on a deformable. Rows are taken by index: a boolean
+    mask of an ``(n, 3)`` array goes element by element."""
     if isinstance(geom, SurfaceGeometry) and len(points) and geom.closed:
         m, near = geom.shape.signed(geom.to_object(points))
         rows = np.flatnonzero(m)

@@ -557,7 +557,7 @@ def test_points_on_a_collider_face_are_not_inside_at_any_scale(scale):
         pts = local + np.array([0.0, off * size, 0.0])
         world = pts + g.xform[:3, 3]
         assert D.inside(g, world).tolist() == [expect] * len(pts), (off, scale)
-        m, depth = D._inside_depth(g, world)
+        m, _, _, depth = D._inside_rows(g, world)
         assert m.tolist() == [expect] * len(pts) and len(depth) == int(m.sum())
 
 
@@ -790,7 +790,7 @@ def test_collider_inside_agrees_with_ray_parity_near_and_far(seed):
     want[st.index.query(local)[0] <= D.ON_MESH * size] = False
     got = D.inside(g, world)
     np.testing.assert_array_equal(got, want)
-    m, depth = D._inside_depth(g, world)
+    m, _, _, depth = D._inside_rows(g, world)
     np.testing.assert_array_equal(m, want)
     assert len(depth) == int(want.sum())
     far = st.index.query(local)[0] > D.SIDE_SURE * size
@@ -810,7 +810,7 @@ def _convex_collider(kind: str, rng) -> geometry.ColliderStatic:
 @pytest.mark.parametrize("kind,seed", [("box", 0), ("box", 1), ("slab", 2), ("hull", 3), ("hull", 4), ("hull", 5)])
 def test_collider_inside_by_planes_is_the_closest_points_answer(kind, seed):
     """A convex collider's face planes (`ColliderStatic.planes`) answer `inside` and
-    `_inside_depth` exactly as the closest points and parity do, on points of its faces, edges and
+    `_inside_rows` exactly as the closest points and parity do, on points of its faces, edges and
     corners moved by rounding up to far outside and deep inside, under a rotation and scale."""
     rng = np.random.default_rng(seed)
     st = _convex_collider(kind, rng)
@@ -831,7 +831,7 @@ def test_collider_inside_by_planes_is_the_closest_points_answer(kind, seed):
     gs = geometry.ColliderGeometry(slow, g.xform)
     got, want = D.inside(g, world), D.inside(gs, world)
     np.testing.assert_array_equal(got, want)
-    (m, depth), (ms, depths) = D._inside_depth(g, world), D._inside_depth(gs, world)
+    (m, _, _, depth), (ms, _, _, depths) = D._inside_rows(g, world), D._inside_rows(gs, world)
     np.testing.assert_array_equal(m, ms)
     np.testing.assert_array_equal(depth, depths)
     assert 0 < want.sum() < len(want)
