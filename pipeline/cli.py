@@ -191,31 +191,42 @@ def main(argv: list[str] | None = None) -> int:
     from pipeline import guard, report
     from pipeline.model import InputError
 
+    arrived: list[int] = []
     try:
-        with guard.terminate_raises():
+        with guard.terminate_raises() as arrived:
             if as_program:
                 _settle_imports(args.command)
             if args.command == "run":  # as a program, the imports since this module started
                 return run(args, time.perf_counter() - _LOADED if as_program else None)
             return {"bench": bench, "merge": merge, "preview": preview}[args.command](args)
-    except InputError as err:
-        print(f"acra: error: {err}", file=sys.stderr)
-        return report.EXIT_INPUT
-    except _farm_error() as err:  # chunks that kept failing on the cluster (retries spent)
-        print(f"acra: error: {err}; nothing written", file=sys.stderr)
-        return report.EXIT_FARM
-    except OSError as err:  # an output directory that is missing or read-only, a full disk
-        print(f"acra: error: {err.filename or 'file system'}: {err.strerror or err}; nothing written", file=sys.stderr)
-        return report.EXIT_INPUT
-    except (KeyboardInterrupt, guard.Terminated, SystemError) as err:
-        signal = guard.interruption(err)  # a SystemError carries one raised inside a compiled call
+    except BaseException as err:
+        # a signal first: an error raised while the run unwinds from one is part of that signal
+        signal = guard.interruption(err, arrived)
         if signal is None:
-            raise
+            status = _failed(err, report, InputError)
+            if status is None:
+                raise
+            return status
         print("acra: interrupted; nothing written", file=sys.stderr)
         return report.EXIT_TERMINATED if isinstance(signal, guard.Terminated) else report.EXIT_INTERRUPTED
     finally:
         if as_program:
             gc.freeze()
+
+
+def _failed(err: BaseException, report, input_error: type) -> int | None:
+    """The exit status of a run that ``err`` ended without a signal, with its one line on stderr,
+    or ``None`` for an error no line explains (raised again: a traceback is a defect to fix)."""
+    if isinstance(err, input_error):
+        print(f"acra: error: {err}", file=sys.stderr)
+        return report.EXIT_INPUT
+    if isinstance(err, _farm_error()):  # chunks that kept failing on the cluster (retries spent)
+        print(f"acra: error: {err}; nothing written", file=sys.stderr)
+        return report.EXIT_FARM
+    if isinstance(err, OSError):  # an output directory that is missing or read-only, a full disk
+        print(f"acra: error: {err.filename or 'file system'}: {err.strerror or err}; nothing written", file=sys.stderr)
+        return report.EXIT_INPUT
+    return None
 
 
 # what keeps a process alive past its main thread or flushes at exit beyond atexit: a recording

@@ -40,6 +40,7 @@ from pipeline.model import InputError
 __all__ = [
     "Terminated",
     "interruption",
+    "raise_arrived",
     "terminate_raises",
     "signals_held",
     "same_file",
@@ -66,45 +67,80 @@ class Terminated(BaseException):
     ``except BaseException`` cleanup runs, so no temporary file survives); exit status 143."""
 
 
-def _raise_terminated(signum, frame):
-    raise Terminated(signum)
+def _signalled(signum: int) -> BaseException:
+    """The exception a run unwinds with for ``signum``."""
+    return Terminated(signum) if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
-def interruption(err: BaseException) -> BaseException | None:
-    """The `KeyboardInterrupt` or `Terminated` that ``err`` carries, or ``None``.
+# each open `terminate_raises` block's record of the signals that arrived in it, innermost last
+_BLOCKS: list[list[int]] = []
+
+
+def interruption(err: BaseException, arrived: list[int] | tuple = ()) -> BaseException | None:
+    """The `KeyboardInterrupt` or `Terminated` that ``err`` carries, or, where it carries none,
+    the first signal of ``arrived`` (`terminate_raises`' record) as one; else ``None``.
 
     A signal's handler runs at the next point the interpreter checks for signals. Inside a
     compiled kernel's call that can be Python code the kernel's wrapper runs (boxing its result),
     whose C caller then returns its result with the handler's exception set: Python reports that
-    as a `SystemError` caused by it. The run was interrupted all the same."""
+    as a `SystemError` caused by it. A C call may also replace the handler's exception with its
+    own error, without a cause (numpy's comparison of two arrays reports "cannot compare" when
+    the comparison it tried failed): the record of the signals that arrived names it then. The run
+    was interrupted all the same."""
     seen = set()
     while err is not None and id(err) not in seen:
         if isinstance(err, (KeyboardInterrupt, Terminated)):
             return err
         seen.add(id(err))
         err = err.__cause__ or err.__context__
-    return None
+    return _signalled(arrived[0]) if arrived else None
+
+
+def raise_arrived() -> None:
+    """Raise the first signal that arrived inside the innermost `terminate_raises` block as its
+    exception. A handler's exception raised where the interpreter only reports it (a weak
+    reference's callback, a ``__del__``) is lost, and the run would go on: this is where it
+    stops instead (between frames, before a run's files are renamed into place)."""
+    if _BLOCKS and _BLOCKS[-1]:
+        raise _signalled(_BLOCKS[-1][0])
 
 
 @contextlib.contextmanager
 def terminate_raises():
-    """SIGTERM raises `Terminated` inside the block (main thread only; elsewhere a no-op)."""
+    """SIGTERM raises `Terminated` and SIGINT `KeyboardInterrupt` inside the block (SIGINT only
+    where it has Python's default handler), each recorded as it arrives; yields the record
+    ``(k,) list of int`` for `interruption` (main thread only; elsewhere a no-op that yields an
+    empty record)."""
+    arrived: list[int] = []
+
+    def raised(signum, frame):
+        arrived.append(signum)
+        raise _signalled(signum)
+
     try:
-        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+        previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, raised)}
     except ValueError:  # not the main thread: signals cannot be handled here
-        yield
+        yield arrived
         return
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, raised)
+    _BLOCKS.append(arrived)
     try:
-        yield
+        yield arrived
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        _BLOCKS.pop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 @contextlib.contextmanager
 def signals_held():
     """SIGINT and SIGTERM do nothing inside the block (the final renames of a run's files, a few
     microseconds): a run that gets there completes and has written everything, so a signal then
-    is dropped rather than reported as "nothing written" (main thread; elsewhere a no-op)."""
+    is dropped rather than reported as "nothing written" (main thread; elsewhere a no-op). A
+    signal that arrived before the block and whose exception was lost (`raise_arrived`) stops the
+    run at its entry, before anything is renamed."""
+    raise_arrived()
     held = (signal.SIGINT, signal.SIGTERM)
     try:
         previous = {sig: signal.signal(sig, lambda signum, frame: None) for sig in held}

@@ -231,7 +231,11 @@ def run_file(
             result, stats = farm.run_frames(stage_path, identity, scene, frames_run, options, workers, scheduler, chunk,
                                             (lambda n: bar.update(None, n)) if bar is not None else None)
         else:
-            on_frame = (lambda st, result: bar.update(st.frame)) if bar is not None else None
+            def on_frame(st, result) -> None:
+                guard.raise_arrived()  # a signal whose exception was lost stops the run here
+                if bar is not None:
+                    bar.update(st.frame)
+
             result, stats = frame_loop.run_frames(stage, scene, frames_run, options, on_frame)
         if bar is not None:
             bar.close()

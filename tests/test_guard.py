@@ -382,6 +382,90 @@ def _raised_inside_a_compiled_call(signal_error: BaseException):
         raise SystemError("CPUDispatcher(<function _depth>) returned a result with an exception set") from err
 
 
+def test_sigint_is_recorded_and_raises_inside_the_block_only():
+    before = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        with guard.terminate_raises() as arrived:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)
+    assert arrived == [signal.SIGINT] and signal.getsignal(signal.SIGINT) is before
+
+
+def _replaced_by_a_c_call(sig: int) -> tuple[BaseException, list]:
+    """What a C call that catches the handler's exception and raises its own error, without a
+    cause, leaves (numpy's comparison of two arrays: "cannot compare"), with the block's record."""
+    try:
+        with guard.terminate_raises() as arrived:
+            try:
+                os.kill(os.getpid(), sig)
+                time.sleep(5)
+            except (guard.Terminated, KeyboardInterrupt):
+                raise TypeError("Cannot compare structured arrays unless they have a common dtype.") from None
+    except TypeError as err:
+        err.__context__ = None  # a C call sets neither the cause nor the context
+        return err, arrived
+    raise AssertionError("the signal raised nothing")
+
+
+@pytest.mark.parametrize("sig, kind", [(signal.SIGTERM, guard.Terminated), (signal.SIGINT, KeyboardInterrupt)])
+def test_an_error_that_replaced_a_signal_is_the_signal_by_the_record(sig, kind):
+    err, arrived = _replaced_by_a_c_call(sig)
+    assert arrived == [sig]
+    assert guard.interruption(err) is None  # nothing in the chain
+    found = guard.interruption(err, arrived)
+    assert type(found) is kind and (kind is KeyboardInterrupt or found.args == (sig,))
+    assert guard.interruption(TypeError("not a signal"), []) is None
+
+
+def test_the_command_reports_a_signal_an_error_replaced(monkeypatch, tmp_path, capsys):
+    """`acra run` ends with 143 and its one line when a C call turned SIGTERM into its own error."""
+    import pipeline.cli as cli
+
+    def replaced(args, imports_s=None):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        except guard.Terminated:
+            raise TypeError("Cannot compare structured arrays unless they have a common dtype.") from None
+        raise AssertionError("the signal raised nothing")
+
+    monkeypatch.setattr(cli, "run", replaced)
+    code, err = _run(["run", str(SCENES / "dog_head_spike.py"), "-o", str(tmp_path / "o.usda")], capsys)
+    assert code == 143 and err.strip().splitlines() == ["acra: interrupted; nothing written"]
+    monkeypatch.setattr(cli, "run", lambda args, imports_s=None: (_ for _ in ()).throw(TypeError("a defect")))
+    with pytest.raises(TypeError, match="a defect"):  # an error without a signal is not hidden
+        main(["run", str(SCENES / "dog_head_spike.py"), "-o", str(tmp_path / "o.usda")])
+
+
+class _LosesASignal:
+    """Raises SIGTERM while being collected: the handler's exception is reported by the interpreter
+    (an "Exception ignored in" line) and dropped."""
+
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(100_000):  # the handler runs at the next check of the interpreter's loop
+            pass
+
+
+def test_a_lost_signal_stops_the_run_between_frames_and_before_the_renames(monkeypatch, tmp_path):
+    dropped = []
+    monkeypatch.setattr("sys.unraisablehook", lambda u: dropped.append(u.exc_type))
+    with guard.terminate_raises() as arrived:
+        guard.raise_arrived()  # nothing arrived: nothing raised
+        lost = _LosesASignal()
+        del lost
+        assert dropped == [guard.Terminated] and arrived == [signal.SIGTERM]
+        with pytest.raises(guard.Terminated):
+            guard.raise_arrived()
+        tmp, final = tmp_path / ".o.tmp", tmp_path / "o.usda"
+        tmp.write_text("x")
+        with pytest.raises(guard.Terminated):
+            with guard.signals_held():
+                os.replace(tmp, final)
+        assert not final.exists() and tmp.exists()
+    guard.raise_arrived()  # outside the block: nothing recorded
+
+
 @pytest.mark.parametrize("signal_error", [guard.Terminated(15), KeyboardInterrupt()])
 def test_an_interruption_is_found_behind_the_system_error_it_caused(signal_error):
     with pytest.raises(SystemError) as raised:
