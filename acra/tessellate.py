@@ -757,28 +757,79 @@ def pole_normals(hs: HSpline, topo, points: np.ndarray, limit: np.ndarray, in_pl
     ``in_place`` they are written over ``limit`` (returned), which spares a copy of the whole
     display where the caller needs the limit normals no more; every mean is of the limit normals
     either way (a corner on two poles' lines)."""
-    scale = hs.size()
+    lines, rows, starts = _end_rows(hs, topo)
     shared = []
-    for line in _end_lines(hs, topo):
-        if np.ptp(points[line], axis=0).max() > 1e-12 * scale:
-            continue
-        m = limit[line].mean(axis=0)
-        norm = np.linalg.norm(m)
-        if norm > 1e-12:
-            shared.append((line, m / norm))
+    if lines:
+        means = np.empty((len(lines), 3))
+        collapsed = _pole_means(_f64(points), _f64(limit), rows, starts, 1e-12 * hs.size(), means)
+        for line, m, pole in zip(lines, means, collapsed):
+            if not pole:
+                continue
+            norm = np.linalg.norm(m)
+            if norm > 1e-12:
+                shared.append((line, m / norm))
     out = limit if in_place else limit.copy()
     for line, n in shared:
         out[line] = n
     return out
 
 
-_END_LINES = memo.Table("tessellate.end_lines")  # id(topology) -> (a weak reference to it, the surface's directions, its `_end_lines`)
+@njit(cache=True, nogil=True)
+def _pole_means(points, limit, rows, starts, tol, means):
+    """Of each end line ``rows[starts[j]:starts[j + 1]]`` (`_end_rows`), whether its ``points
+    (n, 3) float64`` lie within ``tol`` of one point, returned ``(k,) bool``: numpy's
+    ``not np.ptp(points[line], axis=0).max() > tol`` (an extent NaN where a column holds a NaN,
+    or spans two equal infinities); and where they do, the mean of its ``limit (n, 3) float64``
+    rows into ``means[j]`` (``(k, 3) float64``): numpy's ``limit[line].mean(axis=0)``, each
+    column summed in row order from ``+0.0`` (numpy's identity of the sum: a column of ``-0.0``
+    sums to ``+0.0``), then divided by the count. Both in one pass a line, without the
+    gathered copies."""
+    k = starts.shape[0] - 1
+    collapsed = np.zeros(k, np.bool_)
+    for j in range(k):
+        a, b = starts[j], starts[j + 1]
+        nan = False
+        above = False
+        for e in range(3):
+            lo = hi = points[rows[a], e]
+            gap = lo != lo
+            for i in range(a + 1, b):
+                x = points[rows[i], e]
+                if x != x:
+                    gap = True
+                elif x < lo:
+                    lo = x
+                elif x > hi:
+                    hi = x
+            extent = hi - lo
+            if gap or extent != extent:
+                nan = True
+            elif extent > tol:
+                above = True
+        if above and not nan:
+            continue
+        collapsed[j] = True
+        for e in range(3):
+            total = 0.0
+            for i in range(a, b):
+                total += limit[rows[i], e]
+            means[j, e] = total / (b - a)
+    return collapsed
+
+
+_END_LINES = memo.Table("tessellate.end_lines")  # id(topology) -> (a weak reference to it, the surface's directions, its `_end_rows`)
 
 
 def _end_lines(hs: HSpline, topo) -> list[np.ndarray]:
     """The vertices ``(k,) int64`` of each end of each open direction of ``topo`` that has two or
     more (the rows `pole_normals` may share a normal over), a function of the topology alone,
     kept while it lives: the frames of a run share their display's."""
+    return _end_rows(hs, topo)[0]
+
+
+def _end_rows(hs: HSpline, topo) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """`_end_lines` and the same rows end to end ``(r,) int64`` with each line's start in them
+    and their end ``(k + 1,) int64`` (`_pole_means`' arguments), kept with them."""
     hit = _END_LINES.get(id(topo))
     if hit is not None and hit[0]() is topo and hit[1] == (hs.u, hs.v):
         return hit[2]
@@ -790,13 +841,17 @@ def _end_lines(hs: HSpline, topo) -> list[np.ndarray]:
             line = np.nonzero(x == end)[0]
             if line.size >= 2:
                 lines.append(line)
+    rows = np.concatenate(lines).astype(np.int64) if lines else _NO_INDEX
+    starts = np.zeros(len(lines) + 1, np.int64)
+    starts[1:] = np.cumsum([line.size for line in lines])
+    ends = (lines, rows, starts)
     try:
         ref = weakref.ref(topo)
     except TypeError:  # a topology without weak references is not kept
-        return lines
+        return ends
     _drop_dead(_END_LINES)
-    _END_LINES[id(topo)] = (ref, (hs.u, hs.v), lines)
-    return lines
+    _END_LINES[id(topo)] = (ref, (hs.u, hs.v), ends)
+    return ends
 
 
 def patch_grids(hs: HSpline, patches: np.ndarray, samples: int, det: Details | None = None):

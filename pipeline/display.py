@@ -92,7 +92,7 @@ def kept_triangles(topo: MeshTopology) -> np.ndarray:
 
 
 def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology], density: int = 8,
-                 displays: Displays | None = None) -> dict[int, float]:
+                 displays: Displays | None = None, spent: bool = False) -> dict[int, float]:
     """Evaluate every frame's surfaces on ``topologies`` into ``result`` (its points and normals,
     object space), and set ``result.topologies``. Returns the milliseconds spent per frame (a
     surface's evaluation is charged to the first frame that shows it).
@@ -102,7 +102,10 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
     another topology (the run's refines a round's where another frame's response refined more)
     only the vertices that display lacks are evaluated (`acra.tessellate.grid_samples` since
     it, no cell changed). A surface the displays do not hold has its normals taken only where it
-    differs from the surface before it, the others copied."""
+    differs from the surface before it, the others copied. With ``spent`` (no display is read
+    again: `finish`, at the end of the frame loop), a display on the run's topology has its
+    limit normals written over by the display normals (`pole_normals` in place), which spares a
+    copy of the display; without it they stay whole."""
     ms: dict[int, float] = {f: 0.0 for f in result.frames}
     matches: dict = {}  # `grid_samples`' matches: each vertex's cells on a topology, shared by its frames
     for model in scene.deformables:
@@ -139,9 +142,9 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
                 else:
                     pts, limit = grid_samples(r.surface, topo, det, since, matches)
                 kept = id(r.surface) in read_again
-                # a display's own limit normals stay whole: a later round's display may be
+                # a display's own limit normals stay whole while a later round's display may be
                 # evaluated since it
-                own = shown is None or limit is not shown.normals
+                own = spent or shown is None or limit is not shown.normals
                 normals = pole_normals(r.surface, topo, pts, limit, in_place=own and not kept)
                 hit = done[id(r.surface)] = (r.surface, pts, normals, limit if kept else None)
                 ms[f] += 1e3 * (time.perf_counter() - t0)
@@ -163,7 +166,7 @@ def finish(stage, scene: SceneModel, result, stats: list, options, displays: Dis
     # residual call it on small arrays only, and a threaded OpenBLAS leaves its workers spinning
     # on the second core after a call, where the output layer's writing that follows runs
     with _blas().limit(limits=1, user_api="blas"):
-        ms = evaluate_run(scene, result, run_topologies(scene, result), options.density, displays)
+        ms = evaluate_run(scene, result, run_topologies(scene, result), options.density, displays, spent=True)
         residual.measure_run(stage, scene, result, stats, options, displays)
     for st in stats:
         st.ms_output += ms.get(st.frame, 0.0)

@@ -307,6 +307,37 @@ def test_the_run_s_limit_normals_a_later_frame_reads_are_left_whole(tiny_stage, 
     assert read_again(first[0], None)  # without the displays the first surface's are read again
 
 
+def test_the_spent_run_s_display_writes_its_normals_over_the_displays_own(tiny_stage):
+    """`evaluate_run` with ``spent`` (no display is read again: `finish`) gives a surface the
+    rounds displayed on the run's topology the display's own limit-normal array, written over by
+    the display normals (no copy), and every frame's points and normals equal a full evaluation
+    bit for bit; `finish` runs it spent."""
+    scene, model, shown, result, topologies = _four_responded_frames(tiny_stage)
+    topo = topologies[model.path]
+    display.evaluate_run(scene, result, topologies, displays=shown, spent=True)
+    taken = 0
+    for per in result.frames.values():
+        r = per[model.path]
+        points, limit = grid_samples(r.surface, topo, H.details(r.surface))
+        np.testing.assert_array_equal(r.points, points)
+        np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topo, points, limit))
+        d = shown.shown(r.surface)
+        if d is not None and d.topology is topo:
+            assert r.normals is d.normals
+            taken += 1
+    assert taken >= 1
+    stage = usdio.open_input(tiny_stage(frames=4, n=7, levels=3, depth=0.15, samples=2))
+    scene = usdio.read_scene(stage)
+    (model,) = scene.deformables
+    displays = display.Displays(density=8)
+    result, stats = F.respond_frames(stage, scene, [1, 2, 3, 4], displays=displays)
+    display.finish(stage, scene, result, stats, F.RunOptions(), displays)
+    topo = result.topologies[model.path]
+    pairs = [(per[model.path], displays.shown(per[model.path].surface)) for per in result.frames.values()]
+    on = [(r, d) for r, d in pairs if d is not None and d.topology is topo]
+    assert on and all(r.normals is d.normals for r, d in on)
+
+
 def test_the_run_s_triangles_are_the_kept_topology_s(tiny_stage):
     """`kept_triangles` of a topology `_topology` keeps is the array kept with it (the run's
     residual takes it, built once a round built the topology), equal to ``triangles()``; of

@@ -594,6 +594,48 @@ def test_pole_normals_in_place_equal_a_copy_where_two_poles_meet():
     np.testing.assert_array_equal(written.view(np.int64), copied.view(np.int64))
 
 
+def test_pole_means_are_numpy_s_extent_test_and_mean_bit_for_bit():
+    """`_pole_means` tells each end line collapsed as numpy's ``not np.ptp(points[line],
+    axis=0).max() > tol`` does (a NaN, two equal infinities, an extent just above the
+    tolerance) and gives its limit normals' mean as ``limit[line].mean(axis=0)`` bit for bit (a
+    column of ``-0.0`` included)."""
+    rng = np.random.default_rng(5)
+    kinds = set()
+    for _ in range(400):
+        n = int(rng.integers(4, 300))
+        points, limit = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+        lines = []
+        for _ in range(int(rng.integers(1, 5))):
+            line = np.sort(rng.choice(n, int(rng.integers(2, min(n, 130))), replace=False)).astype(np.int64)
+            kind = int(rng.integers(0, 6))
+            if kind:
+                points[line] = rng.normal(size=3)  # collapsed, then perturbed by kind
+            if kind == 2:
+                points[line[0], 1] += 1e-11
+            elif kind == 3:
+                points[line[rng.integers(line.size)], rng.integers(3)] = np.nan
+            elif kind == 4:
+                points[line, 0] = np.inf
+            elif kind == 5:
+                points[line[0], 2] = -np.inf
+            if rng.random() < 0.3:
+                limit[line, rng.integers(3)] = -0.0
+            lines.append(line)
+        rows = np.concatenate(lines)
+        starts = np.concatenate([[0], np.cumsum([line.size for line in lines])]).astype(np.int64)
+        means = np.empty((len(lines), 3))
+        tol = 1e-12 * rng.uniform(0.1, 10)
+        collapsed = T._pole_means(points, limit, rows, starts, tol, means)
+        for line, pole, m in zip(lines, collapsed, means):
+            with np.errstate(invalid="ignore"):
+                want = not np.ptp(points[line], axis=0).max() > tol
+            assert pole == want
+            kinds.add(bool(pole))
+            if pole:
+                assert m.tobytes() == limit[line].mean(axis=0).tobytes()
+    assert kinds == {True, False}
+
+
 def test_kept_rows_hold_their_arrays_by_weak_references_without_callbacks():
     """`_note_nudged` and `_end_lines` keep their answers per live array or topology through weak
     references without callbacks (a callback runs Python code when the array dies, and an
