@@ -150,21 +150,17 @@ def chunk_vertices(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, nogil=True)
-def _chunk_box(points, start, verts, c, clo, chi):
-    # the least and largest value on each axis of chunk ``c``'s points, in the order listed
-    a0, a1, a2, b0, b1, b2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
-    for r in range(start[c], start[c + 1]):
-        v = verts[r]
-        x, y, z = points[v, 0], points[v, 1], points[v, 2]
-        a0, b0 = min(a0, x), max(b0, x)
-        a1, b1 = min(a1, y), max(b1, y)
-        a2, b2 = min(a2, z), max(b2, z)
-    clo[c, 0], clo[c, 1], clo[c, 2], chi[c, 0], chi[c, 1], chi[c, 2] = a0, a1, a2, b0, b1, b2
-
-
-@njit(cache=True, nogil=True)
-def _group_boxes(size, clo, chi, glo, ghi):
+def _face_chunks(points, start, verts, size, clo, chi, glo, ghi):
     nc = clo.shape[0]
+    for c in range(nc):
+        a0, a1, a2, b0, b1, b2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
+        for r in range(start[c], start[c + 1]):
+            v = verts[r]
+            x, y, z = points[v, 0], points[v, 1], points[v, 2]
+            a0, b0 = min(a0, x), max(b0, x)
+            a1, b1 = min(a1, y), max(b1, y)
+            a2, b2 = min(a2, z), max(b2, z)
+        clo[c, 0], clo[c, 1], clo[c, 2], chi[c, 0], chi[c, 1], chi[c, 2] = a0, a1, a2, b0, b1, b2
     for g in range(glo.shape[0]):
         a0, a1, a2, b0, b1, b2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
         for c in range(g * size, min((g + 1) * size, nc)):
@@ -173,60 +169,19 @@ def _group_boxes(size, clo, chi, glo, ghi):
         glo[g, 0], glo[g, 1], glo[g, 2], ghi[g, 0], ghi[g, 1], ghi[g, 2] = a0, a1, a2, b0, b1, b2
 
 
-@njit(cache=True, nogil=True)
-def _face_chunks(points, start, verts, size, clo, chi, glo, ghi):
-    for c in range(clo.shape[0]):
-        _chunk_box(points, start, verts, c, clo, chi)
-    _group_boxes(size, clo, chi, glo, ghi)
-
-
-@njit(cache=True, nogil=True)
-def _face_chunks_since(points, bits, old_bits, start, verts, size, old_lo, old_hi, clo, chi, glo, ghi):
-    # a chunk all of whose points hold the bits they held in the old points has the old box:
-    # its minima and maxima are taken of the same values in the same order
-    n = bits.shape[0]
-    moved = np.empty(n, np.bool_)
-    for i in range(n):
-        moved[i] = bits[i, 0] != old_bits[i, 0] or bits[i, 1] != old_bits[i, 1] or bits[i, 2] != old_bits[i, 2]
-    for c in range(clo.shape[0]):
-        fresh = False
-        for r in range(start[c], start[c + 1]):
-            if moved[verts[r]]:
-                fresh = True
-                break
-        if fresh:
-            _chunk_box(points, start, verts, c, clo, chi)
-        else:
-            clo[c, 0], clo[c, 1], clo[c, 2] = old_lo[c, 0], old_lo[c, 1], old_lo[c, 2]
-            chi[c, 0], chi[c, 1], chi[c, 2] = old_hi[c, 0], old_hi[c, 1], old_hi[c, 2]
-    _group_boxes(size, clo, chi, glo, ghi)
-
-
-def face_chunks(points: np.ndarray, used: tuple[np.ndarray, np.ndarray], since: tuple | None = None,
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def face_chunks(points: np.ndarray, used: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Boxes of a mesh's faces in chunks of `CHUNK` consecutive rows, and of those chunks in
     groups of `CHUNK`, for `faces_meet_rows`: ``(lo (c, 3), hi (c, 3), group_lo (g, 3), group_hi
     (g, 3))`` float64, the minima and maxima of the points ``points (n, 3) float64`` (finite) each
     chunk's faces use (``used``, `chunk_vertices` of the faces). A display's rows run along its
     surface, so a chunk's faces lie together and a query near a contact opens a few chunks
-    instead of comparing every point.
-
-    ``since``: ``(old (n, 3) float64, lo, hi)``, other points of the same faces and their chunk
-    boxes (this function's ``lo`` and ``hi``). A chunk whose points all hold the same bits in
-    ``old`` takes its old box, the same bits."""
+    instead of comparing every point."""
     start, verts = used
     nc = len(start) - 1
     ng = -(-nc // CHUNK)
     clo, chi, glo, ghi = np.empty((nc, 3)), np.empty((nc, 3)), np.empty((ng, 3)), np.empty((ng, 3))
     if nc:
-        p = np.ascontiguousarray(points, np.float64)
-        old = None if since is None else np.ascontiguousarray(since[0], np.float64)
-        if old is not None and old.shape == p.shape and since[1].shape == clo.shape and since[2].shape == chi.shape:
-            _face_chunks_since(p, p.view(np.uint64), old.view(np.uint64), start, verts, CHUNK,
-                               np.ascontiguousarray(since[1], np.float64), np.ascontiguousarray(since[2], np.float64),
-                               clo, chi, glo, ghi)
-        else:
-            _face_chunks(p, start, verts, CHUNK, clo, chi, glo, ghi)
+        _face_chunks(np.ascontiguousarray(points, np.float64), start, verts, CHUNK, clo, chi, glo, ghi)
     return clo, chi, glo, ghi
 
 

@@ -124,7 +124,7 @@ class Shown:
         """`acra.meshrows.face_chunks` of the world triangles: `near_rows` compares the faces of the
         chunks near its box alone (the same rows). Each display is asked near both objects of a
         pair, as the inner object and as the other, and a still display every frame."""
-        return _chunk_boxes(self.world, self.triangles)
+        return meshrows.face_chunks(self.world, _chunk_vertices(self.triangles, len(self.world)))
 
     @cached_property
     def fingerprint(self) -> bytes:
@@ -205,23 +205,6 @@ def _chunk_vertices(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarr
     lists[id(triangles)] = hit
     _CHUNK_VERTICES.trim()
     return hit[2]
-
-
-_CHUNK_BOXES = memo.Table("residual.chunk_boxes", 16)  # id(triangles) -> (triangles, world points, their `meshrows.face_chunks`), most recent last
-
-
-def _chunk_boxes(world: np.ndarray, triangles: np.ndarray) -> tuple:
-    """`meshrows.face_chunks` of ``world (n, 3) float64`` on ``triangles (t, 3) int64`` since the
-    last display's on the same triangles array (a chunk whose points kept their bits keeps its
-    box); a `Shown`'s points never change."""
-    used = _chunk_vertices(triangles, len(world))
-    kept = _CHUNK_BOXES.entries()
-    hit = kept.pop(id(triangles), None)
-    since = None if hit is None or hit[0] is not triangles else (hit[1], hit[2][0], hit[2][1])
-    chunks = meshrows.face_chunks(world, used, since)
-    kept[id(triangles)] = (triangles, world, chunks)
-    _CHUNK_BOXES.trim()
-    return chunks
 
 
 def _same_bytes(x: np.ndarray, y: np.ndarray) -> bool:
