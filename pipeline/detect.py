@@ -19,7 +19,6 @@ import numpy as np
 
 from acra import halfspaces, memo, meshops, narrow
 from pipeline import tessellation as T
-from pipeline import workers
 from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, _face_boxes, candidate_patches,
                                is_closed, surface_points, wrap_uv)
 from pipeline.model import apply_inverse, apply_xform
@@ -483,21 +482,7 @@ def regions(ga: SurfaceGeometry, gb: Geometry, depth: bool = True) -> tuple[Regi
     if apart(ga, gb):
         return _empty_region(ga), _empty_region(gb)
     pad = pair_pad(ga, gb)
-    if depth and isinstance(gb, SurfaceGeometry) and workers.threads() > 1 and gb.closed and ga.closed \
-            and _boxes_overlap(ga, gb, pad):
-        # two closed deformables: each side's candidate vertices in the caller's thread, in one
-        # thread's order (the tessellation's kept tables), then the two inside tests side by
-        # side, each on the other object's shape alone
-        va, vb = T.vertices_in_box(ga, gb.bounds, pad), T.vertices_in_box(gb, ga.bounds, pad)
-        return workers.both(lambda: _region_in(gb, *va), lambda: _region_in(ga, *vb))
     return _region_of(ga, gb, pad, depth), _region_of(gb, ga, pad, depth)
-
-
-def _region_in(y: Geometry, pts: np.ndarray, uv: np.ndarray | None) -> Region:
-    """The candidate vertices ``pts (k, 3)`` (parameters ``uv (k, 2)``, ``None`` on a collider)
-    inside ``y``, with their depths."""
-    _, rows, ins, d = _inside_rows(y, pts)
-    return Region(None if uv is None else np.take(uv, rows, axis=0), ins, d)
 
 
 def _region_of(x: Geometry, y: Geometry, pad: float, depth: bool = True) -> Region:

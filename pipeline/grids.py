@@ -10,7 +10,6 @@ analogue of RAPID's initial set-up in the thesis's Fig. 5.2. Arrays are float64 
 from __future__ import annotations
 
 import hashlib
-import threading
 import time
 import weakref
 from dataclasses import dataclass
@@ -189,52 +188,35 @@ class Closest:
 
 
 # --- set-up time ---------------------------------------------------------------------------------
-class _OpenBuilders(type):
-    """`SetupClock.open`: the calling thread's own count, so a builder in a frame's second thread
-    (`pipeline.workers.both`) neither hides in nor closes one the caller's thread has open."""
-
-    @property
-    def open(cls) -> int:
-        return getattr(cls._depth, "open", 0)
-
-
-class SetupClock(metaclass=_OpenBuilders):
+class SetupClock:
     """Milliseconds spent building `Shape` data (the thesis's "initial setup" of RAPID, Fig. 5.2):
     the frame loop reads it around detection to report set-up apart from the queries. ``open``:
-    how many `timed` builders are running in the calling thread, one inside another (a shape's
-    patch boxes build its details on their first read): only the outermost one's time is counted,
-    once. ``ms`` is the sum over every thread's outermost builders, each builder's time counted
-    once on whichever thread runs it; a stage's own time is its wall time less the set-up added
-    meanwhile, so set-up in a frame's second thread is taken out of the stage that started it."""
+    how many `timed` builders are running, one inside another (a shape's patch boxes build its
+    details on their first read): only the outermost one's time is counted, once."""
 
     ms: float = 0.0
-    _depth = threading.local()  # ``open``: the calling thread's builders running
-    _adding = threading.Lock()  # ``ms += t`` is a read and a write: one thread's sum at a time
+    open: int = 0
 
 
 def timed(build):
     """Decorate a `Shape` builder so its time goes to `SetupClock`: the whole time of a builder
-    that no other one in its thread called, nothing for a builder called inside another (its
-    time is in that one's)."""
-
-    depth = SetupClock._depth
+    that no other one called, nothing for a builder called inside another (its time is in that
+    one's)."""
 
     def clocked(*args, **kwargs):
-        n = getattr(depth, "open", 0)
-        depth.open = n + 1
-        if n:
+        if SetupClock.open:
+            SetupClock.open += 1
             try:
                 return build(*args, **kwargs)
             finally:
-                depth.open = n
+                SetupClock.open -= 1
+        SetupClock.open = 1
         t = time.perf_counter()
         try:
             return build(*args, **kwargs)
         finally:
-            t = 1e3 * (time.perf_counter() - t)
-            depth.open = 0
-            with SetupClock._adding:
-                SetupClock.ms += t
+            SetupClock.ms += 1e3 * (time.perf_counter() - t)
+            SetupClock.open = 0
 
     clocked.__name__, clocked.__doc__ = build.__name__, build.__doc__
     return clocked

@@ -1156,38 +1156,3 @@ def test_regions_are_the_array_form(seed):
             inside = D.inside(y, pts)
             want = D.Region(None if uv is None else uv[inside], pts[inside], D.surface_distance(y, pts[inside])[0])
             assert _same_region(reg, want)
-
-
-@pytest.mark.parametrize("seed", range(3))
-def test_two_deformables_regions_in_two_threads_are_one_threads(monkeypatch, seed):
-    """Two overlapping closed deformables, ``A`` a new ball each time: with two threads (numba's
-    ``NUMBA_NUM_THREADS``) the two sides' inside tests run side by side (`pipeline.workers.both`;
-    ``B``'s vertices inside ``A`` in the second thread, which builds ``A``'s set-up) and give one
-    thread's regions bit for bit; the builders' time is counted on `grids.SetupClock`, whichever
-    thread ran them, and no builder is left open."""
-    from numba.core import config
-
-    from pipeline import grids, workers
-
-    hs, out, _, _, _ = responded_sphere(seed)
-    m = rotated_scaled(seed)
-    m[:3, :3] /= np.cbrt(abs(np.linalg.det(m[:3, :3])))
-    centre = apply_inverse(m, np.zeros((1, 3)))[0]
-    sides, opened = [], []
-    real_both, clock = workers.both, grids.SetupClock
-    monkeypatch.setattr(workers, "both", lambda f, g: sides.append(1) or real_both(f, g))
-
-    def pair(threads: int):
-        monkeypatch.setattr(config, "NUMBA_NUM_THREADS", threads)
-        ga = geometry.SurfaceGeometry(H.from_grid(*shapes.sphere(12, 10)), m @ move(*(centre + 0.6)), "/a")
-        gb = geometry.SurfaceGeometry(out, move(), "/b")
-        s0 = clock.ms
-        got = D.regions(ga, gb)
-        opened.append(clock.open)
-        return got, clock.ms - s0
-
-    (one, ms_one), (two, ms_two) = pair(1), pair(2)
-    assert len(sides) == 1 and opened == [0, 0]
-    assert ms_one > 0 and ms_two > 0
-    assert not one[0].empty and not one[1].empty
-    assert _same_region(one[0], two[0]) and _same_region(one[1], two[1])

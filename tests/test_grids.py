@@ -72,49 +72,6 @@ def test_a_builder_that_raises_inside_another_leaves_the_clock_counting(monkeypa
     assert grids.SetupClock.open == 0
 
 
-def test_a_builder_in_a_second_thread_counts_its_own_time_while_the_callers_is_open(monkeypatch):
-    """A frame's second thread (`pipeline.workers.both`) builds while the caller's thread has a
-    builder open: each thread's outermost builder is counted once, the second thread's nested
-    builder adds nothing, and neither thread closes the other's count."""
-    import threading
-
-    monkeypatch.setattr(grids.SetupClock, "ms", 0.0)
-    reads = _clock(monkeypatch, [1.0, 2.0, 2.004, 1.010])
-    opened, closed = threading.Event(), threading.Event()
-    seen = []
-
-    @grids.timed
-    def inner():
-        return 1
-
-    @grids.timed
-    def second_side():
-        seen.append(grids.SetupClock.open)
-        return inner() + inner()
-
-    def second():
-        opened.wait()
-        seen.append(second_side())
-        seen.append(grids.SetupClock.open)
-        closed.set()
-
-    @grids.timed
-    def first_side():
-        opened.set()
-        closed.wait()
-        seen.append(grids.SetupClock.open)
-        return 3
-
-    worker = threading.Thread(target=second)
-    worker.start()
-    assert first_side() == 3
-    worker.join()
-    assert seen == [1, 2, 0, 1]
-    assert reads == [1.0, 2.0, 2.004, 1.010]
-    assert grids.SetupClock.ms == pytest.approx(14.0, abs=1e-9)
-    assert grids.SetupClock.open == 0
-
-
 def test_a_dropped_shape_its_grids_and_sets_are_freed_without_the_cyclic_collector():
     """A `Shape` and its `GridCache` make no reference cycle: with the cyclic collector off, a
     shape that built grids, point sets and grid sets, and a child shape responded from it that
