@@ -385,6 +385,8 @@ class ResponseReport:
     ----------
     applied : (K,) float64
         Share of its move each data point received (1 unless ``obey`` skipped levels).
+    remaining : (K, 3) float64
+        ``target - Q`` after the response.
     refined : int
         Patches the ``refine`` policy activated.
     details : Details or None
@@ -392,24 +394,13 @@ class ResponseReport:
     moved : (P0u, P0v) bool or None
         Level-0 patches holding every one where the responded surface may differ from the one
         responded from (a superset of `H.changed_patches`); ``None`` where it was not followed.
-    remaining : (K, 3) float64
-        ``target - Q`` after the response: the responded surface evaluated at the data points
-        when first read (the frame loop reads none; its residual is the display's).
     """
 
     applied: np.ndarray
+    remaining: np.ndarray
     refined: int
     details: D.Details | None = None
     moved: np.ndarray | None = None
-    # ``(hs, u (K,) float64, v (K,) float64, det, target (K, 3) float64)``: what `remaining` evaluates
-    at: tuple | None = None
-
-    @functools.cached_property
-    def remaining(self) -> np.ndarray:
-        if self.at is None:
-            return np.zeros((0, 3))
-        hs, u, v, det, target = self.at
-        return np.asarray(target) - H.evaluate(hs, u, v, det=det).points
 
 
 def _make_movable(hs: H.HSpline, level: int, uv: np.ndarray) -> H.HSpline:
@@ -500,7 +491,7 @@ def respond(
     pu, pv = uv[:, 0].copy(), uv[:, 1].copy()
     K = uv.shape[0]
     if K == 0:
-        return hs, ResponseReport(np.zeros(0), 0)
+        return hs, ResponseReport(np.zeros(0), np.zeros((0, 3)), 0)
     L = controls.absorption.size
     if L > hs.depth:
         raise ControlError("acra:absorption", f"has {L} levels but the surface has {hs.depth}")
@@ -620,4 +611,5 @@ def respond(
         hs, det = M.settled(hs, det)
     hs, det = _close_rings(hs, det, rings, controls.refine, det0.__dict__.get(_SPREAD) if det0 is not None else None)
     H.keep_details(hs, det)
-    return hs, ResponseReport(applied, refined, det, M.moved_patches(hs, start, det), (hs, pu, pv, det, points.target))
+    final = H.evaluate(hs, pu, pv, det=det).points
+    return hs, ResponseReport(applied, np.asarray(points.target) - final, refined, det, M.moved_patches(hs, start, det))
