@@ -1,7 +1,7 @@
 """The responses of a run's collision frames, replayed and timed.
 
     python3 benchmarks/respond_calls.py [SCENE.py] [--frames 13:17] [--repeat 5] [--save FILE] [--check FILE]
-                                        [--split MODULE:FUNCTION ...] [--per-call]
+                                        [--split MODULE:FUNCTION ...] [--per-call] [--decompositions]
 
 Runs the scene's ``--frames`` (after a free frame, as `benchmarks/stage_split.py` does) and
 records every `acra.respond.respond` call with its arguments, then calls `respond` again on each
@@ -21,6 +21,11 @@ milliseconds per collision frame (the least of each call, summed): each function
 warm in a loop, so a lower bound of its share of the responses (nested functions count in
 each that calls them). ``--per-call`` prints each call's least CPU milliseconds with its
 surface's depth and data points (call ``n`` is `benchmarks/respond_laps.py`'s ``--calls n``).
+``--decompositions`` lists each solve whose decomposition a cold pass of the responses computes
+(`acra.interpolate._decomposition` with no kept entry): its call, level, dense weights' shape,
+their rows and columns with no nonzero entry, the least CPU microseconds over ``--repeat`` x 20
+of the dense weights, the Gram product and `eigh` (as `_decomposition` takes them), and the
+earlier computed solve whose dense weights have the same bits, if any.
 """
 
 from __future__ import annotations
@@ -80,6 +85,7 @@ def main() -> None:
     ap.add_argument("--check")
     ap.add_argument("--split", nargs="+", default=[], metavar="MODULE:FUNCTION")
     ap.add_argument("--per-call", action="store_true")
+    ap.add_argument("--decompositions", action="store_true")
     args = ap.parse_args()
     first, last = (int(x) for x in args.frames.split(":"))
     calls = record(pathlib.Path(args.scene), first, last, args.warm)
@@ -98,6 +104,9 @@ def main() -> None:
     if args.split:
         with threadpool_limits(limits=1, user_api="blas"):
             _split(calls, args.split, args.repeat, nframes)
+    if args.decompositions:
+        with threadpool_limits(limits=1, user_api="blas"):
+            _decompositions(calls, args.repeat)
 
 
 def _split(calls, names, repeat, nframes) -> None:
@@ -135,6 +144,48 @@ def _split(calls, names, repeat, nframes) -> None:
                 original(*a, **kw)
                 least[n] = min(least[n], time.process_time() - c)
         print(f"{m.__name__}.{f}: {len(seen) / nframes:.1f} calls, {1e3 * least.sum() / nframes:.3f} ms CPU per collision frame")
+
+
+def _decompositions(calls, repeat) -> None:
+    """`main` with ``--decompositions`` (see the module's docstring)."""
+    from acra import interpolate as I
+
+    decomposition, eigh, seen, at, solved = I._decomposition, I._eigh, [], [0], [False]
+
+    def solving(g):
+        solved[0] = True
+        return eigh(g)
+
+    def recording(pw, act, every):
+        solved[0] = False
+        out = decomposition(pw, act, every)
+        if solved[0]:  # no kept entry: `_decomposition` decomposed the Gram matrix
+            seen.append((at[0], pw, act, every, out[0]))
+        return out
+
+    I._decomposition, I._eigh = recording, solving
+    try:
+        run.forget()
+        for n, (a, kw) in enumerate(calls):
+            at[0] = n
+            R.respond(*a, **kw)
+    finally:
+        I._decomposition, I._eigh = decomposition, eigh
+    for i, (n, pw, act, every, W) in enumerate(seen):
+        least = [np.inf] * 3
+        for _ in range(20 * repeat):
+            t0 = time.process_time()
+            dense = pw.dense() if every else pw.dense()[act]
+            t1 = time.process_time()
+            gram = dense @ dense.T
+            t2 = time.process_time()
+            eigh(gram)
+            t3 = time.process_time()
+            least = [min(x, y) for x, y in zip(least, (t1 - t0, t2 - t1, t3 - t2))]
+        same = next((j for j in range(i) if seen[j][4].shape == W.shape and np.array_equal(seen[j][4], W)), None)
+        print(f"call {n} level {pw.level}: weights {W.shape[0]}x{W.shape[1]}, {int(np.count_nonzero(~W.any(axis=1)))} zero rows, "
+              f"{int(np.count_nonzero(~W.any(axis=0)))} zero columns; dense {1e6 * least[0]:.1f}, Gram {1e6 * least[1]:.1f}, "
+              f"eigh {1e6 * least[2]:.1f} us CPU; " + ("no earlier one's weights the same" if same is None else f"the weights of decomposition {same}"))
 
 
 def _replay(calls, repeat, best, cpu, results) -> None:
