@@ -79,9 +79,10 @@ class Shown:
     like : Shown or None
         Another display of the same surface, whose ``parts`` may hold a part of the same content
         (`_like`): the round's display where the run's display of a frame differs from it.
-    topology : bytes or None
-        `acra.tessellate.MeshTopology.key` of the topology whose fan triangles and vertex
-        parameters ``triangles`` and ``vertex_uv`` are (`shown`), else ``None``.
+    topology : acra.tessellate.MeshTopology or None
+        The topology whose fan triangles and vertex parameters ``triangles`` and ``vertex_uv``
+        are (`shown`), else ``None``; its `MeshTopology.key`, where it has one, stands for them
+        in `fingerprint`.
 
     A pair gathers only the triangles near the other object (`near`); ``corners`` and ``uv``
     gather all of them.
@@ -101,7 +102,7 @@ class Shown:
     deformable: bool = True
     parts: dict | None = None
     like: Shown | None = None
-    topology: bytes | None = None
+    topology: object = None
 
     @cached_property
     def corners(self) -> np.ndarray:
@@ -144,11 +145,12 @@ class Shown:
             h.update(b"-" if x is None else repr((x.dtype.str, x.shape)).encode())
             if x is not None:
                 h.update(np.ascontiguousarray(x).data)
-        if self.topology is not None:
+        key = getattr(self.topology, "key", None)
+        if key is not None:
             # the triangles and parameters are a function of the topology's key (`shown`), so it
             # stands for them: a new topology's arrays are not hashed (about 1.5 MB on the
             # demo's head); tagged apart from the arrays' digests, which lead with a dtype
-            h.update(b"topology" + self.topology + (b"-" if self.vertex_uv is None else b"uv"))
+            h.update(b"topology" + key + (b"-" if self.vertex_uv is None else b"uv"))
             return h.digest()
         for x in (self.triangles, self.vertex_uv):  # a display's, the same arrays every round and frame
             h.update(b"-" if x is None else _digest(x))
@@ -245,7 +247,7 @@ def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarra
     return Shown(path, world, None if uv is None else _held(uv, np.float64),
                  float(np.linalg.norm(box[1] - box[0])), box, np.asarray(xform, np.float64), closed, p32,
                  _held(triangles, np.int64), float(outward), whole, True, parts,
-                 topology=getattr(topology, "key", None))
+                 topology=topology)
 
 
 def _held(x, dtype) -> np.ndarray:

@@ -324,7 +324,7 @@ def test_a_display_on_a_keyed_topology_is_known_by_its_points_and_the_topology_s
                                outward=1.0, topology=btopo if keyed else None)]
 
     first = objects()
-    assert all(o.topology is not None for o in first)
+    assert all(o.topology.key is not None for o in first)
     again = objects()
     assert [o.fingerprint for o in again] == [o.fingerprint for o in first]
     measured = residual.measure_frame(first, 1e-3)
