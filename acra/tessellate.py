@@ -12,6 +12,7 @@ per level-0 patch edge, is the adaptive mesh of a surface without finer levels.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import contextvars
 import functools
 import weakref
@@ -127,6 +128,11 @@ class MeshTopology:
     by_v : (n,) int64 or None
         The vertices' rows by ``(v, u)`` (numpy's stable ``argsort`` of ``v``), where the mesh's
         build gives it (`acra.lattice.adaptive_mesh`): the order `grid_samples` evaluates in.
+    source : tuple or None
+        What the mesh is a function of, where its build gives it (`_adaptive_keys`): the two
+        directions' ``(patches0, periodic)``, the samples, the finest level and the quadtree's
+        leaves ``pu, pv, level (l,) int64``, `acra.lattice.adaptive_mesh`'s inputs; `key`
+        digests it.
     """
 
     u: np.ndarray
@@ -134,6 +140,23 @@ class MeshTopology:
     counts: np.ndarray
     indices: np.ndarray
     by_v: np.ndarray | None = field(default=None, compare=False, repr=False)
+    source: tuple | None = field(default=None, compare=False, repr=False)
+
+    @functools.cached_property
+    def key(self) -> bytes | None:
+        """A digest of `source` (``None`` without one): two topologies with the same key hold the
+        same arrays, as `acra.lattice.adaptive_mesh` is a function of its inputs alone. Refinements
+        whose patch keys differ where finer patches cover them have the same leaves, and so the
+        same key. It stands for the digests of the vertex parameters and fan triangles, which
+        hash about 1.5 MB on the demo's head, where the leaves are a few kilobytes
+        (`pipeline.residual.Shown.fingerprint`)."""
+        if self.source is None:
+            return None
+        *figures, pu, pv, level = self.source
+        h = hashlib.sha1(repr(("adaptive_mesh", *figures, len(pu))).encode())
+        for x in (pu, pv, level):
+            h.update(np.ascontiguousarray(x, np.int64).data)
+        return h.digest()
 
     @property
     def quads(self) -> np.ndarray:
@@ -278,7 +301,8 @@ def _adaptive_keys(u: Direction, v: Direction, samples: int, present: dict[int, 
     lu, lv, counts, indices, by_v = adaptive_mesh(pu, pv, steps, s, u.patches0 * (s << top), v.patches0 * (s << top),
                                                   bool(u.periodic), bool(v.periodic))
     step = float(s << top)
-    return MeshTopology(lu / step, lv / step, counts, indices, by_v)
+    source = ((int(u.patches0), bool(u.periodic)), (int(v.patches0), bool(v.periodic)), s, int(top), pu, pv, level)
+    return MeshTopology(lu / step, lv / step, counts, indices, by_v, source)
 
 
 def _adaptive_array(u: Direction, v: Direction, samples: int, present: dict[int, np.ndarray]) -> MeshTopology:

@@ -7,7 +7,8 @@ every run builds the input shapes again) with the frame loop's clock read as the
 time (``time.process_time``): on a shared machine other processes' load then counts far less
 than in wall-clock figures (``--wall`` keeps the wall clock). Prints the frame loop's own split
 (`FrameStats`: set-up, detection, conversion, response, residual where the user looks; ms per
-collision frame) and the nested time inside the detection functions, medians over the runs.
+collision frame) and the nested time inside the detection functions (and the kept round's content
+keys, `residual.known`), medians over the runs.
 ``--stages`` times no function (no wrapper's overhead) and prints each stage's median and range
 over the runs (the sum of set-up, detection and conversion as ``three``), to two decimals: one
 line to compare checkouts by (another checkout: this file with ``PYTHONPATH`` at it).
@@ -81,6 +82,9 @@ def main() -> None:
         prop = getattr(S.Shape, name)
         prop.func = timed(f"Shape.{name}", prop.func)
     F._Run.detect = timed("frames._Run.detect", F._Run.detect)
+    from pipeline import residual as R  # the end of a frame's content keys of its kept round (`residual.known`)
+
+    R.known = timed("residual.known", R.known)
 
     stages = ("ms_setup", "ms_detect", "ms_convert", "ms_respond", "ms_visible", "ms_total")
     runs, splits = [], []

@@ -79,6 +79,10 @@ class Shown:
     like : Shown or None
         Another display of the same surface, whose ``parts`` may hold a part of the same content
         (`_like`): the round's display where the run's display of a frame differs from it.
+    topology : acra.tessellate.MeshTopology or None
+        The topology whose fan triangles and vertex parameters ``triangles`` and ``vertex_uv``
+        are (`shown`), else ``None``; its `MeshTopology.key`, where it has one, stands for them
+        in `fingerprint`.
 
     A pair gathers only the triangles near the other object (`near`); ``corners`` and ``uv``
     gather all of them.
@@ -98,6 +102,7 @@ class Shown:
     deformable: bool = True
     parts: dict | None = None
     like: Shown | None = None
+    topology: object = None
 
     @cached_property
     def corners(self) -> np.ndarray:
@@ -140,6 +145,13 @@ class Shown:
             h.update(b"-" if x is None else repr((x.dtype.str, x.shape)).encode())
             if x is not None:
                 h.update(np.ascontiguousarray(x).data)
+        key = getattr(self.topology, "key", None)
+        if key is not None:
+            # the triangles and parameters are a function of the topology's key (`shown`), so it
+            # stands for them: a new topology's arrays are not hashed (about 1.5 MB on the
+            # demo's head); tagged apart from the arrays' digests, which lead with a dtype
+            h.update(b"topology" + key + (b"-" if self.vertex_uv is None else b"uv"))
+            return h.digest()
         for x in (self.triangles, self.vertex_uv):  # a display's, the same arrays every round and frame
             h.update(b"-" if x is None else _digest(x))
         return h.digest()
@@ -220,18 +232,22 @@ def _same_bytes(x: np.ndarray, y: np.ndarray) -> bool:
 
 
 def shown(path: str, points: np.ndarray, triangles: np.ndarray, xform: np.ndarray, uv: np.ndarray | None = None,
-          closed: bool = False, outward: float = 1.0, whole=None, parts: dict | None = None) -> Shown:
+          closed: bool = False, outward: float = 1.0, whole=None, parts: dict | None = None, topology=None) -> Shown:
     """A deformable's display as the user sees it: object-space ``points (n, 3)`` (rounded to
     float32, as the output stores them), ``triangles (t, 3) int64``, world matrix ``xform (4, 4)``,
     vertex parameters ``uv (n, 2)``; ``closed`` with the winding's ``outward`` sign; ``whole()``
     gives its whole `clearance.Solid` (default: built from the points); ``parts`` keeps the part
-    solids built of these points and triangles (a dict shared by every call on one display)."""
+    solids built of these points and triangles (a dict shared by every call on one display).
+    ``topology``: the `acra.tessellate.MeshTopology` whose fan triangles (``topology.triangles()``)
+    and parameters (``topology.uv``, or ``None``) ``triangles`` and ``uv`` are, whose key then
+    stands for them in `Shown.fingerprint`."""
     p32, world, box = _placed(points, xform)
     if whole is None and closed:
         whole = _Once(lambda: clearance.solid(p32, triangles))
     return Shown(path, world, None if uv is None else _held(uv, np.float64),
                  float(np.linalg.norm(box[1] - box[0])), box, np.asarray(xform, np.float64), closed, p32,
-                 _held(triangles, np.int64), float(outward), whole, True, parts)
+                 _held(triangles, np.int64), float(outward), whole, True, parts,
+                 topology=topology)
 
 
 def _held(x, dtype) -> np.ndarray:
@@ -734,13 +750,13 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
     from pipeline.shape import shape_of
 
     colliders = [_Once(lambda c=c: collider_solid(c.vertices, c.triangles)) for c in scene.colliders]
-    meshes: dict = {}  # path -> the run display's triangles and vertex parameters
+    meshes: dict = {}  # path -> the run display's triangles, vertex parameters and topology
 
-    def mesh(m) -> tuple[np.ndarray, np.ndarray]:
+    def mesh(m) -> tuple[np.ndarray, np.ndarray, object]:
         # built on first need: a frame whose objects are the loop's `Shown`s reads neither
         if m.path not in meshes:
             topo = result.topology(m)
-            meshes[m.path] = (kept_triangles(topo), np.stack([topo.u, topo.v], axis=1))
+            meshes[m.path] = (kept_triangles(topo), np.stack([topo.u, topo.v], axis=1), topo)
         return meshes[m.path]
 
     import time
@@ -781,12 +797,12 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
             if same:
                 objects.append(view)
             else:
-                triangles, uv = mesh(m)
+                triangles, uv, topo = mesh(m)
                 # the round's display of this surface, where the run's shows other points: the
                 # parts it built may be the run's near the other objects (`_like`)
                 like = None if sd is None else sd.view(m.path, xforms[m.path])
-                objects.append(replace(shown(m.path, r.points, triangles, xforms[m.path], uv, shape.closed, shape.outward),
-                                       like=like))
+                objects.append(replace(shown(m.path, r.points, triangles, xforms[m.path], uv, shape.closed, shape.outward,
+                                             topology=topo), like=like))
         for c, s in zip(scene.colliders, colliders):
             v = apply_xform(xforms[c.path], c.vertices)
             box = np.stack([v.min(axis=0), v.max(axis=0)])

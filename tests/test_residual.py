@@ -300,6 +300,46 @@ def test_a_measured_pair_is_taken_by_content_where_the_displays_hold_the_same():
     assert len(residual.measure_frame(again, 2e-3, known=known).pairs[0].inside.points) > 0
 
 
+def test_a_display_on_a_keyed_topology_is_known_by_its_points_and_the_topology_s_key():
+    """`shown` with the topology its triangles and parameters are of: the topology's key stands
+    for those arrays in the fingerprint. The same points on the same refinement built again (new
+    topology, triangles and parameter arrays) share a fingerprint and take the measured answer;
+    one point's last float32 bit, a refinement with one patch more, or the arrays digested
+    without a topology do not."""
+    ball = H.from_grid(*shapes.sphere(10, 8))
+    cvs, up, vp = shapes.sheet(6, 6, width=3.0, depth=3.0)
+    cvs[..., 2] = 0.2
+    hs = H.from_grid(cvs, up, vp, depth=2)
+    finer = H.make_movable(hs, 1, [[2, 2]])
+
+    def objects(surface=hs, nudge: int = -1, keyed: bool = True):
+        topo = run_topology([surface], 4)
+        pts = grid_samples(surface, topo)[0].astype(np.float32)
+        if nudge >= 0:
+            pts[nudge, 2] = np.nextafter(pts[nudge, 2], np.float32(1))
+        btopo = run_topology([ball], 4)
+        return [residual.shown("/sheet", pts, topo.triangles(), np.eye(4), np.stack([topo.u, topo.v], axis=1),
+                               topology=topo if keyed else None),
+                residual.shown("/ball", grid_samples(ball, btopo)[0], btopo.triangles(), np.eye(4), None, closed=True,
+                               outward=1.0, topology=btopo if keyed else None)]
+
+    first = objects()
+    assert all(o.topology.key is not None for o in first)
+    again = objects()
+    assert [o.fingerprint for o in again] == [o.fingerprint for o in first]
+    measured = residual.measure_frame(first, 1e-3)
+    assert measured.pairs[0].inside.depth > 0
+    taken = residual.measure_frame(again, 1e-3, known=residual.known(measured, 1e-3))
+    got, want = taken.pairs[0].inside, measured.pairs[0].inside
+    assert (got.depth, got.lower, got.complete, len(got.points)) == (want.depth, want.lower, want.complete, 0)
+    assert len(want.points) > 0
+    n = int(np.argmax(first[0].local[:, 2] == first[0].local[:, 2].max()))
+    others = [objects(nudge=n)[0], objects(finer)[0], objects(keyed=False)[0]]
+    assert others[0].local[n, 2] != first[0].local[n, 2] and np.array_equal(np.delete(others[0].local, n, 0),
+                                                                             np.delete(first[0].local, n, 0))
+    assert len({o.fingerprint for o in others + [first[0]]}) == 4
+
+
 def test_a_part_s_answer_is_kept_for_the_same_triangles_in_another_display(monkeypatch):
     """Two displays of the inner object that differ only far from the other object (the run's
     display and the round's, `measure_run`): their pairs' fingerprints differ, but the triangles

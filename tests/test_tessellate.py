@@ -320,6 +320,24 @@ def test_run_topology_holds_every_surface_s_vertices():
         assert set(zip(one.u, one.v)) <= have
 
 
+def test_a_topology_s_key_is_its_refinement_s_and_stands_for_its_arrays():
+    """`MeshTopology.key` digests what `acra.lattice.adaptive_mesh` builds the mesh from (the
+    quadtree's leaves, samples, finest level, directions): the surfaces in another order or
+    repeated, or refinements with the same leaves, give the same key and the same arrays; other
+    leaves or other samples give another key; a topology built otherwise has none."""
+    hs = with_random_offsets(H.make_movable(wavy_sheet(depth=3), 2, [[6, 6]]))
+    other = H.make_movable(wavy_sheet(depth=3), 1, [[1, 1]])
+    run = T.run_topology([hs, other], 3)
+    # ``hs`` alone: ``other``'s refined patches lie within ``hs``'s finer ones, the same leaves
+    for again in (T.run_topology([other, hs], 3), T.run_topology([hs, other, hs], 3), T.run_topology([hs], 3)):
+        assert again is not run and again.key == run.key and len(run.key) == 20
+        for name in ("u", "v", "counts", "indices"):
+            np.testing.assert_array_equal(getattr(again, name), getattr(run, name))
+    coarser, fewer = T.run_topology([other], 3), T.run_topology([hs, other], 2)
+    assert len({coarser.key, fewer.key, run.key}) == 3 and len(coarser.u) != len(run.u) != len(fewer.u)
+    assert T.MeshTopology(run.u, run.v, run.counts, run.indices).key is None
+
+
 def test_run_topology_equals_the_dense_map_and_scales_with_the_refined_area():
     """`run_topology` builds from the active patches alone: the same mesh, vertex for vertex and
     face for face, as `adaptive_topology` of the union of the surfaces' `finest_levels`; and a
