@@ -213,7 +213,7 @@ def _grid_faces(grids: list) -> np.ndarray:
     tri = grids[0].triangles
     if all(g.triangles is tri and len(g.solid) == len(tri) for g in grids):
         return (tri[None] + base[:, None, None]).reshape(-1, 3)
-    # a pole grid drops its sliver rows (the demo's head: 8 of 128), the others keep their list
+    # a pole grid drops its sliver rows (the demo's spike: 8 of 128), the others keep their list
     # whole: one sum over the joined lists, not one a grid (`benchmarks/ray_mesh_calls.py`)
     counts = [len(g.solid) for g in grids]
     faces = np.concatenate([g.triangles if c == len(g.triangles) else g.triangles[g.solid] for g, c in zip(grids, counts)])
