@@ -148,14 +148,15 @@ def data_points_for(
 
 def _all_meet(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, a_world: np.ndarray, p_self: np.ndarray,
               region_uv: np.ndarray, region_depth: np.ndarray | None, rows: np.ndarray, settled: float) -> bool:
-    """Whether `spread` drops every one of a region's patch middles ``a_world (g, 3)`` (world)
-    whatever their casts onto ``gb`` answer, so that `data_points_for` gives no additional point
-    with or without them. It drops a point within ``MEET`` of the size of the contact point
-    ``p_self (3,)``, and a middle's row keeps its point unless the middle stalls
-    (`data_points_for`'s ``region_depth``): only a patch deeper than ``settled`` can stall, and it
-    then takes its deepest sample ``region_uv[rows] (g, 2)``, so such a patch's sample must lie
-    within ``MEET`` too, by a margin above any rounding of its evaluation in another batch. A
-    collider's rim adds points of its own: never all dropped here."""
+    """Whether `spread` drops every one of a region's patch middles ``a_world (g, 3) float64``
+    (world) whatever their casts onto ``gb`` answer, so that `data_points_for` gives no additional
+    point with or without them. It drops a point within ``MEET`` of the size of the contact point
+    ``p_self (3,) float64``, and a middle's row keeps its point unless the middle stalls
+    (`data_points_for`'s ``region_depth (k,) float64`` of the samples ``region_uv (k, 2) float64``):
+    only a patch deeper than ``settled`` can stall, and it then takes its deepest sample (row
+    ``rows (g,) int64`` of the samples), so such a patch's sample must lie within ``MEET`` too, by
+    a margin above any rounding of its evaluation in another batch. A collider's rim adds points
+    of its own: never all dropped here."""
     if isinstance(gb, geometry.ColliderGeometry):
         return False
     contact = np.asarray(p_self, float)
