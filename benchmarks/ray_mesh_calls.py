@@ -9,8 +9,9 @@ builds, then times, in CPU time, on each recorded set (its grids taken from the 
 * ``gathered``: every grid's triangles concatenated, their solid rows gathered at once and moved
   by one repeated sum;
 * ``shared``: `queries._grid_faces`, what `_ray_mesh` does: the triangle list grids built together
-  share, moved by every grid's offset in one broadcast sum where no grid has a pole row's slivers
-  (grid by grid otherwise);
+  share, moved by every grid's offset in one broadcast sum where no grid has a pole row's slivers;
+  otherwise each grid's list, its solid rows gathered only where it drops slivers, joined and
+  moved by one repeated sum;
 * ``build``: `_ray_mesh` whole, with `RayMesh._prepare` (the float32 copy and the face groups'
   boxes), the mesh dropped from the shape before each call.
 

@@ -113,34 +113,65 @@ def data_points_for(
         # `region_midpoints` and `region_deepest` in one pass over the samples
         mids, _, rows, _ = region_groups(ga.surface, region_uv, group_level, region_depth)
         a_world = apply_xform(ga.xform, H.evaluate(ga.surface, mids[:, 0], mids[:, 1], det=ga.details).points)
-        hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
-        if region_depth is not None:
-            deep = np.asarray(region_uv, np.float64).reshape(-1, 2)[rows]
-            depth = np.asarray(region_depth, np.float64).reshape(-1)[rows]
-            stalled = np.nonzero(valid & (depth > settled) & (np.linalg.norm(hits - a_world, axis=1) <= STALLED * depth))[0]
-            if stalled.size:
-                d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[stalled, 0], deep[stalled, 1], det=ga.details).points)
-                d_hits, d_valid = D.cast(gb, d_world, np.broadcast_to(direction, d_world.shape))
-                use = stalled[d_valid]
-                mids[use], a_world[use], hits[use] = deep[use], d_world[d_valid], d_hits[d_valid]
-        wanted = additional_targets(a_world, hits, share)
-        if isinstance(gb, geometry.ColliderGeometry):
-            r_uv, r_world, r_goal = rim.rim_points(ga, gb, region_uv, direction, group_level)
-            if len(r_uv):  # a rim patch's point is its rim point, not its middle
-                valid &= ~member(patch_keys(ga.surface, mids, group_level), patch_keys(ga.surface, r_uv, group_level))
-                mids, a_world = np.concatenate([mids, r_uv]), np.concatenate([a_world, r_world])
-                wanted = np.concatenate([wanted, additional_targets(r_world, r_goal, share)])
-                valid = np.concatenate([valid, np.ones(len(r_uv), bool)])
-        valid &= spread(a_world, np.asarray(p_self, float), MEET * size)
-        if np.any(valid):
-            uvs.append(mids[valid])
-            targets.append(wanted[valid])
-            origins.append(a_world[valid])
+        # `spread` keeps none of the middles whatever their casts answer where they all lie on the
+        # contact point (a region around a pole): no cast, no additional point
+        if not _all_meet(ga, gb, a_world, p_self, region_uv, region_depth, rows, settled):
+            hits, valid = D.cast(gb, a_world, np.broadcast_to(direction, a_world.shape))
+            if region_depth is not None:
+                deep = np.asarray(region_uv, np.float64).reshape(-1, 2)[rows]
+                depth = np.asarray(region_depth, np.float64).reshape(-1)[rows]
+                stalled = np.nonzero(valid & (depth > settled) & (np.linalg.norm(hits - a_world, axis=1) <= STALLED * depth))[0]
+                if stalled.size:
+                    d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[stalled, 0], deep[stalled, 1], det=ga.details).points)
+                    d_hits, d_valid = D.cast(gb, d_world, np.broadcast_to(direction, d_world.shape))
+                    use = stalled[d_valid]
+                    mids[use], a_world[use], hits[use] = deep[use], d_world[d_valid], d_hits[d_valid]
+            wanted = additional_targets(a_world, hits, share)
+            if isinstance(gb, geometry.ColliderGeometry):
+                r_uv, r_world, r_goal = rim.rim_points(ga, gb, region_uv, direction, group_level)
+                if len(r_uv):  # a rim patch's point is its rim point, not its middle
+                    valid &= ~member(patch_keys(ga.surface, mids, group_level), patch_keys(ga.surface, r_uv, group_level))
+                    mids, a_world = np.concatenate([mids, r_uv]), np.concatenate([a_world, r_world])
+                    wanted = np.concatenate([wanted, additional_targets(r_world, r_goal, share)])
+                    valid = np.concatenate([valid, np.ones(len(r_uv), bool)])
+            valid &= spread(a_world, np.asarray(p_self, float), MEET * size)
+            if np.any(valid):
+                uvs.append(mids[valid])
+                targets.append(wanted[valid])
+                origins.append(a_world[valid])
     uv_all = np.concatenate(uvs)
     world = np.concatenate(targets)
     is_contact = np.zeros(len(uv_all), bool)
     is_contact[0] = True
     return DataPoints(uv_all, ga.to_object(world), is_contact), world, np.concatenate(origins)  # `apply_inverse`'s bits
+
+
+def _all_meet(ga: geometry.SurfaceGeometry, gb: geometry.Geometry, a_world: np.ndarray, p_self: np.ndarray,
+              region_uv: np.ndarray, region_depth: np.ndarray | None, rows: np.ndarray, settled: float) -> bool:
+    """Whether `spread` drops every one of a region's patch middles ``a_world (g, 3) float64``
+    (world) whatever their casts onto ``gb`` answer, so that `data_points_for` gives no additional
+    point with or without them. It drops a point within ``MEET`` of the size of the contact point
+    ``p_self (3,) float64``, and a middle's row keeps its point unless the middle stalls
+    (`data_points_for`'s ``region_depth (k,) float64`` of the samples ``region_uv (k, 2) float64``):
+    only a patch deeper than ``settled`` can stall, and it then takes its deepest sample (row
+    ``rows (g,) int64`` of the samples), so such a patch's sample must lie within ``MEET`` too, by
+    a margin above any rounding of its evaluation in another batch. A collider's rim adds points
+    of its own: never all dropped here."""
+    if isinstance(gb, geometry.ColliderGeometry):
+        return False
+    contact = np.asarray(p_self, float)
+    radius = MEET * ga.size
+    if not (np.linalg.norm(a_world - contact, axis=1) <= radius).all():  # `spread`'s own test, the same bits
+        return False
+    if region_depth is None:
+        return True
+    could = np.flatnonzero(np.asarray(region_depth, np.float64).reshape(-1)[rows] > settled)
+    if not len(could):
+        return True
+    deep = np.asarray(region_uv, np.float64).reshape(-1, 2)[rows[could]]
+    d_world = apply_xform(ga.xform, H.evaluate(ga.surface, deep[:, 0], deep[:, 1], det=ga.details).points)
+    slack = 1e-12 * (np.abs(d_world).max() + np.abs(contact).max() + ga.size)  # thousands of roundings
+    return bool((np.linalg.norm(d_world - contact, axis=1) <= radius - slack).all())
 
 
 def member(keys: np.ndarray, among: np.ndarray) -> np.ndarray:

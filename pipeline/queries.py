@@ -205,14 +205,20 @@ def _grid_faces(grids: list) -> np.ndarray:
     """The solid triangles ``(f, 3) int64`` of ``grids`` (`PatchGrid`) one grid after another,
     each moved past the points of the grids before it. Grids built together at one density share
     their triangle list (`GridCache.build`); where every grid shares it and keeps all of it (no
-    pole row's slivers), the list moved by every grid's offset in one sum is the same faces."""
-    base = np.cumsum([0] + [len(g.points) for g in grids[:-1]])
+    pole row's slivers), the list moved by every grid's offset in one sum is the same faces.
+    Otherwise each grid's rows are gathered only where it drops slivers, and the lists joined
+    are moved by one repeated sum, as `GridSet` joins them: integer sums, the same faces."""
+    sizes = [len(g.points) for g in grids]
+    base = np.cumsum([0] + sizes[:-1])
     tri = grids[0].triangles
     if all(g.triangles is tri and len(g.solid) == len(tri) for g in grids):
         return (tri[None] + base[:, None, None]).reshape(-1, 3)
-    # a pole grid's rows masked out, or the lists of two densities joined, cost what this does
-    # (`benchmarks/ray_mesh_calls.py`)
-    return np.concatenate([g.triangles[g.solid] + b for g, b in zip(grids, base)])
+    # a pole grid drops its sliver rows (the demo's spike: 8 of 128), the others keep their list
+    # whole: one sum over the joined lists, not one a grid (`benchmarks/ray_mesh_calls.py`)
+    counts = [len(g.solid) for g in grids]
+    faces = np.concatenate([g.triangles if c == len(g.triangles) else g.triangles[g.solid] for g, c in zip(grids, counts)])
+    faces += np.repeat(base, counts)[:, None]
+    return faces
 
 
 def cast(shape: Shape, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

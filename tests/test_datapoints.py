@@ -291,3 +291,49 @@ def test_member_is_numpys_isin(seed):
             keys[0] = np.iinfo(np.int64).min
         got = P.member(keys, among)
         assert got.dtype == bool and np.array_equal(got, np.isin(keys, among))
+
+
+def _two_sheets():
+    """A sheet z = 0 (level-0 patches of about 0.7) and one above it at z = 0.05, both deformable."""
+    from acra import hspline as H
+    from acra import shapes
+
+    cvs, _, _ = shapes.sheet(8, 8, width=5.0, depth=5.0)
+    low = geometry.SurfaceGeometry(H.from_grid(cvs), np.eye(4), "/low")
+    up = np.eye(4)
+    up[2, 3] = 0.05
+    return low, geometry.SurfaceGeometry(H.from_grid(cvs.copy()), up, "/high")
+
+
+@pytest.mark.parametrize("at, region_uv, depth, casts", [
+    (2.0, [[1.9995, 2.0], [2.0005, 2.0]], None, 0),  # two patches' middles on the contact point
+    (2.0, [[1.9995, 2.0], [2.0005, 2.0]], [0.04, 0.04], 0),  # deep enough to stall: their samples meet too
+    (2.5, [[2.2, 2.5], [2.8, 2.5]], None, 0),  # one patch, its middle on the contact point
+    (2.5, [[2.2, 2.5], [2.8, 2.5]], [0.001, 0.002], 0),  # ... too shallow to stall
+    (2.5, [[2.2, 2.5], [2.8, 2.5]], [0.04, 0.01], 1),  # ... deep enough, and its deepest sample 0.2 away
+    (2.5, [[2.2, 2.5], [2.3, 2.5]], None, 1),  # a middle 0.05 away
+])
+def test_middles_that_all_meet_the_contact_point_are_not_cast(monkeypatch, at, region_uv, depth, casts):
+    """`spread` drops every additional point within `MEET` of the size of the contact point, so a
+    region whose patch middles (and, where a patch may stall, its deepest sample) all lie there
+    asks no cast: the data points are those of the casts and `spread` (`_all_meet` held false),
+    bit for bit, and the contact's alone."""
+    from acra import hspline as H
+
+    low, high = _two_sheets()
+    uv = np.array([at, at])
+    p_self = H.evaluate(low.surface, uv[:1], uv[1:]).points[0]
+    args = (low, high, uv, p_self, p_self + [0.0, 0.0, 0.05], np.array(region_uv), 0.5, 0, np.array([0.0, 0.0, 1.0]))
+    kw = {} if depth is None else {"region_depth": np.array(depth), "settled": 0.005}
+    cast, calls = P.D.cast, []
+    monkeypatch.setattr(P.D, "cast", lambda *a, **k: calls.append(1) or cast(*a, **k))
+    got = P.data_points_for(*args, **kw)
+    assert len(calls) == casts
+    monkeypatch.setattr(P, "_all_meet", lambda *a: False)
+    want = P.data_points_for(*args, **kw)
+    assert len(calls) == casts + 1
+    for g, w in zip((got[0].uv, got[0].target, got[0].is_contact, got[1], got[2]),
+                    (want[0].uv, want[0].target, want[0].is_contact, want[1], want[2])):
+        assert g.dtype == w.dtype and g.shape == w.shape and g.tobytes() == w.tobytes()
+    if casts == 0:
+        assert len(got[0].uv) == 1  # the contact alone

@@ -30,7 +30,7 @@ def _same(mesh: queries.RayMesh, want: queries.RayMesh) -> None:
 def test_ray_mesh_is_each_grids_solid_triangles_one_after_another(kind, seed):
     """`queries._ray_mesh` gives the mesh of its grids taken one at a time, bit for bit: a torus's
     grids (one density, every triangle solid: one sum over the shared triangles) and a sphere's
-    with its pole grids among them (the slivers dropped, grid by grid)."""
+    with its pole grids among them (their slivers dropped, the lists joined and moved by one sum)."""
     hs = H.from_grid(*shapes.torus(12, 8), depth=2) if kind == "torus" else H.from_grid(*shapes.sphere(10, 15), depth=2)
     shape = S.Shape(hs)
     patches = shape._boxes[2]
@@ -65,3 +65,16 @@ def test_ray_mesh_of_grids_of_different_densities():
 
     patches = np.stack([np.arange(4), np.zeros(4, np.int64)], 1)
     _same(queries._ray_mesh(Stub(), patches, np.arange(4)), _reference(grids))
+
+
+def test_grid_faces_gather_only_the_grids_that_drop_rows():
+    """Three grids of 4 points sharing two triangles, the middle one dropping its first: its one
+    solid row moved by 4, the last grid's two rows by 8, the first grid's as they are."""
+    tri = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
+    pts = np.zeros((4, 3))
+    grids = [PatchGrid(pts, pts[:, :2], tri, np.arange(2)), PatchGrid(pts, pts[:, :2], tri, np.array([1])),
+             PatchGrid(pts, pts[:, :2], tri, np.arange(2))]
+    faces = queries._grid_faces(grids)
+    assert faces.dtype == np.int64
+    assert faces.tolist() == [[0, 1, 2], [0, 2, 3], [4, 6, 7], [8, 9, 10], [8, 10, 11]]
+    assert tri.tolist() == [[0, 1, 2], [0, 2, 3]]  # the shared list is left as it is
