@@ -26,6 +26,7 @@ call. World units unless stated; arrays are float64.
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
@@ -771,7 +772,14 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
             xforms = {m.path: s.xform for m, s in zip(scene.deformables, dstates)}
             xforms.update({c.path: s.xform for c, s in zip(scene.colliders, cstates)})
         per = result.frames[st.frame]
-        boxes = [_outer_box(xforms[m.path], _local_box(local_boxes, per[m.path].points)) for m in scene.deformables]
+        # the `Shown` the loop built of each deformable's round display under this frame's matrix
+        # (`SurfaceDisplay.view`), with the round display, where the displays hold the surface
+        kept = []
+        for m in scene.deformables:
+            sd = None if displays is None else displays.shown(per[m.path].surface)
+            kept.append((sd, None if sd is None else sd.view(m.path, xforms[m.path])))
+        boxes = [_display_box(xforms[m.path], per[m.path].points, view if sd is not None and sd.points is per[m.path].points
+                              else None, local_boxes) for m, (sd, view) in zip(scene.deformables, kept)]
         boxes += [_outer_box(xforms[c.path], box) for c, box in zip(scene.colliders, collider_boxes)]
         if not _any_meet(np.array(boxes).reshape(-1, 2, 3), len(scene.deformables)):
             # no deformable's display comes near another object: every pair's depth is 0 (`pair_depth`
@@ -787,11 +795,10 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
             st.ms_total += ms
             continue
         objects = []
-        for m in scene.deformables:
+        for m, (sd, like) in zip(scene.deformables, kept):
             r = per[m.path]
             shape = shape_of(r.surface, options.density)
-            sd = None if displays is None else displays.shown(r.surface)
-            view = sd.view(m.path, xforms[m.path]) if sd is not None and sd.points is r.points else None
+            view = like if sd is not None and sd.points is r.points else None
             # an open object's winding is read by nothing (it is never the outer object)
             same = view is not None and view.closed == shape.closed and (view.outward == shape.outward or not shape.closed)
             if same:
@@ -800,7 +807,6 @@ def measure_run(stage, scene: SceneModel, result, stats: list, options, displays
                 triangles, uv, topo = mesh(m)
                 # the round's display of this surface, where the run's shows other points: the
                 # parts it built may be the run's near the other objects (`_like`)
-                like = None if sd is None else sd.view(m.path, xforms[m.path])
                 objects.append(replace(shown(m.path, r.points, triangles, xforms[m.path], uv, shape.closed, shape.outward,
                                              topology=topo), like=like))
         for c, s in zip(scene.colliders, colliders):
@@ -831,12 +837,44 @@ def _local_box(kept: dict, points: np.ndarray) -> np.ndarray:
     return hit[1]
 
 
+def _display_box(xform: np.ndarray, points: np.ndarray, view: Shown | None, kept: dict) -> np.ndarray:
+    """`_outer_box` of a deformable's run display ``points (n, 3) float64`` (object space) under
+    ``xform (4, 4)``; ``view`` is the `Shown` the frame loop built of these points under ``xform``
+    (`SurfaceDisplay.view`), or ``None``. Where ``xform``'s linear part is the identity with no
+    translation -0.0, the corners' mapping is the view's world box (``box``), not a pass over the
+    points: there each world value is ``x + t`` (`model.translated`: the products by the identity
+    add only zeros), monotone in ``x`` as the rounding to float32 is, so the least world value is
+    the least float32 point's plus ``t``, and neither holds a zero of the other sign (a zero sum
+    with ``t``, not -0.0, is +0.0). A box that is not finite (a point that is not finite) takes
+    the points' own box (`_local_box`, kept in ``kept``)."""
+    if view is not None and _translation(xform) and all(map(math.isfinite, view.box.ravel().tolist())):
+        return _padded(view.box)
+    return _outer_box(xform, _local_box(kept, points))
+
+
+def _translation(xform: np.ndarray) -> bool:
+    """Whether ``xform (4, 4)``'s linear part is exactly the identity (a zero of either sign)
+    and no coordinate of its translation is -0.0 (`model.translated`'s test)."""
+    rows = np.asarray(xform, np.float64).tolist()  # 16 Python floats: cheaper to test than arrays
+    return all(rows[i][j] == (1.0 if i == j else 0.0) for i in range(3) for j in range(3)) and not any(
+        rows[i][3] == 0.0 and math.copysign(1.0, rows[i][3]) < 0.0 for i in range(3))
+
+
 def _outer_box(xform: np.ndarray, box: np.ndarray) -> np.ndarray:
     """A world box ``(2, 3)`` holding every point of the object-space ``box`` mapped by ``xform``
-    (`apply_xform`): its 8 corners' box, widened by 1e-9 of its diagonal and of its largest
-    coordinate for the rounding of each point's own mapping."""
-    corners = np.array([[box[i, 0], box[j, 1], box[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-    world = apply_xform(np.asarray(xform, np.float64), corners)
+    (`apply_xform`): `_padded` of its 8 corners' images."""
+    return _padded(apply_xform(np.asarray(xform, np.float64), _corners(box)))
+
+
+def _corners(box: np.ndarray) -> np.ndarray:
+    """The 8 corners ``(8, 3) float64`` of ``box (2, 3)``."""
+    return np.array([[box[i, 0], box[j, 1], box[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+
+
+def _padded(world: np.ndarray) -> np.ndarray:
+    """The box ``(2, 3)`` of ``world (m, 3)`` (a box's corners, or a box ``(2, 3)`` itself),
+    widened by 1e-9 of its diagonal and of its largest coordinate for the rounding of each
+    point's own mapping."""
     lo, hi = world.min(axis=0), world.max(axis=0)
     pad = 1e-9 * (float(np.linalg.norm(hi - lo)) + float(np.abs(world).max())) + 1e-300
     return np.stack([lo - pad, hi + pad])

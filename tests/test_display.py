@@ -588,3 +588,31 @@ def test_a_build_that_raises_leaves_no_stand_in_in_the_tables(threads, where, mo
         monkeypatch.setattr(*target, real)
         d = shown.of(rb, 4)
         np.testing.assert_array_equal(d.points, grid_samples(rb, d.topology, H.details(rb))[0])
+
+
+def test_a_refinement_key_is_the_union_of_the_distinct_key_lists():
+    """`_refinement` of several surfaces: each level's key bytes are `np.unique` of every
+    surface's list, taken over the distinct lists alone; one strictly increasing list is its own
+    union, and a list that is not (out of order, or repeating a key) is sorted as `np.unique` does."""
+    class Level:
+        def __init__(self, patches):
+            self.patches = patches
+
+    class Surface:
+        u, v, depth = "u", "v", 2
+
+        def __init__(self, patches):
+            self._level = Level(patches)
+
+        def level(self, k):
+            return self._level
+
+    cases = [[[1, 4, 9]] * 3, [[1, 4, 9], [1, 4, 9], [2, 4]], [[9, 4, 1]] * 2, [[4, 4, 7]] * 2, [[], []], [[5]] * 2,
+             [[3, 1], [1, 3]]]
+    for lists in cases:
+        surfaces = [Surface(np.array(k, np.int64)) for k in lists]
+        key = display._refinement(surfaces, 4)
+        assert key[:4] == ("u", "v", 2, 4)
+        assert key[4] == (np.unique(np.concatenate([np.array(k, np.int64) for k in lists])).tobytes(),)
+    one = Surface(np.array([9, 4], np.int64))
+    assert display._refinement([one], 4)[4] == (np.array([9, 4], np.int64).tobytes(),)

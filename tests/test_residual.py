@@ -606,3 +606,43 @@ def test_a_pair_measured_both_ways_in_two_threads_gives_one_thread_s_answers(mon
             assert np.array_equal(got.points, want.points) and np.array_equal(got.deep, want.deep)
     assert [(k[2], v[0].path, v[1].path) for k, v in kept_one.items()] == [(k[2], v[0].path, v[1].path)
                                                                           for k, v in kept_two.items()]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_displays_box_under_a_translation_is_its_views_bit_for_bit(seed):
+    """`_display_box`: a run display's gate box taken from the `Shown` the loop built of the same
+    points (`shown`'s world box) equals the box of its points' own corners (`_outer_box` of
+    `_local_box`) bit for bit, under translations of +0.0 and nonzero values, on points holding
+    zeros of both signs, values that round to one float32 and values that round to zero; under a
+    translation of -0.0, a matrix that is not one, or a point that is not finite it takes the
+    points' own box."""
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        pts = rng.normal(size=(int(rng.integers(1, 200)), 3)) * 10.0 ** rng.integers(-3, 4)
+        special = rng.random(pts.shape)
+        pts[special < 0.05] = 0.0
+        pts[(special >= 0.05) & (special < 0.1)] = -0.0
+        pts[(special >= 0.1) & (special < 0.13)] = rng.choice([1e-50, -1e-50, 1.0 + 1e-12, 1.0 - 1e-12])
+        xform = np.eye(4)
+        xform[:3, 3] = rng.choice([0.0, 1.5, -2.25, 1e-8, 3e5], size=3) if rng.random() < 0.8 else 0.0
+        want = residual._outer_box(xform, residual._local_box({}, pts))
+        view = residual.shown("/s", pts, np.zeros((0, 3), np.int64), xform)
+        assert residual._translation(xform)
+        assert residual._display_box(xform, pts, view, {}).tobytes() == want.tobytes()
+        assert residual._display_box(xform, pts, None, {}).tobytes() == want.tobytes()
+    pts = rng.normal(size=(50, 3))
+    for change in ("minus zero", "rotation", "scale", "nan"):
+        xform, p = np.eye(4), pts.copy()
+        if change == "minus zero":
+            xform[1, 3] = -0.0
+        elif change == "rotation":
+            xform[:2, :2] = [[0.0, -1.0], [1.0, 0.0]]
+        elif change == "scale":
+            xform[2, 2] = 2.0
+        else:
+            p[3, 1] = np.nan
+        view = residual.shown("/s", p, np.zeros((0, 3), np.int64), xform)
+        assert residual._translation(xform) == (change == "nan")
+        got = residual._display_box(xform, p, view, {})
+        want = residual._outer_box(xform, residual._local_box({}, p))
+        assert got.tobytes() == want.tobytes()
