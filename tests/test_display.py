@@ -199,15 +199,21 @@ def test_the_run_s_display_takes_the_rounds_displays_and_equals_a_full_evaluatio
     scene, model, shown, result, topologies = _four_responded_frames(tiny_stage)
     topo = topologies[model.path]
     display.evaluate_run(scene, result, topologies, displays=shown)
-    taken = 0
+    taken = sum(d is not None and d.topology is topo and r.points is d.points
+                for r, d in _frames_as_evaluated_in_full(result, model, topo, shown))
+    assert taken >= 1
+
+
+def _frames_as_evaluated_in_full(result, model, topo, shown):
+    """Each frame's run result of ``model`` and the frame loop's display of its surface (or
+    ``None``), once its points and normals are asserted equal to a full evaluation on ``topo``
+    with normals, bit for bit."""
     for per in result.frames.values():
         r = per[model.path]
         points, limit = grid_samples(r.surface, topo, H.details(r.surface))
         np.testing.assert_array_equal(r.points, points)
         np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topo, points, limit))
-        d = shown.shown(r.surface)
-        taken += d is not None and d.topology is topo and r.points is d.points
-    assert taken >= 1
+        yield r, shown.shown(r.surface)
 
 
 def test_the_run_s_residual_takes_the_rounds_shown_objects(tiny_stage, monkeypatch):
@@ -316,12 +322,7 @@ def test_the_spent_run_s_display_writes_its_normals_over_the_displays_own(tiny_s
     topo = topologies[model.path]
     display.evaluate_run(scene, result, topologies, displays=shown, spent=True)
     taken = 0
-    for per in result.frames.values():
-        r = per[model.path]
-        points, limit = grid_samples(r.surface, topo, H.details(r.surface))
-        np.testing.assert_array_equal(r.points, points)
-        np.testing.assert_array_equal(r.normals, pole_normals(r.surface, topo, points, limit))
-        d = shown.shown(r.surface)
+    for r, d in _frames_as_evaluated_in_full(result, model, topo, shown):
         if d is not None and d.topology is topo:
             assert r.normals is d.normals
             taken += 1
