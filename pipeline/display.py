@@ -98,14 +98,14 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
     surface's evaluation is charged to the first frame that shows it).
 
     A surface the frame loop's ``displays`` still holds (`Displays.shown`) is not evaluated
-    again: on the same topology its display's points and limit normals are the run's; on
-    another topology (the run's refines a round's where another frame's response refined more)
-    only the vertices that display lacks are evaluated (`acra.tessellate.grid_samples` since
-    it, no cell changed). A surface the displays do not hold has its normals taken only where it
-    differs from the surface before it, the others copied. With ``spent`` (no display is read
-    again: `finish`, at the end of the frame loop), a display on the run's topology has its
-    limit normals written over by the display normals (`pole_normals` in place), which spares a
-    copy of the display; without it they stay whole."""
+    again: on the same topology (`_same_topology`) its display's points and limit normals are
+    the run's; on another topology (the run's refines a round's where another frame's response
+    refined more) only the vertices that display lacks are evaluated
+    (`acra.tessellate.grid_samples` since it, no cell changed). A surface the displays do not
+    hold has its normals taken only where it differs from the surface before it, the others
+    copied. With ``spent`` (no display is read again: `finish`, at the end of the frame loop), a
+    display on the run's topology has its limit normals written over by the display normals
+    (`pole_normals` in place), which spares a copy of the display; without it they stay whole."""
     ms: dict[int, float] = {f: 0.0 for f in result.frames}
     matches: dict = {}  # `grid_samples`' matches: each vertex's cells on a topology, shared by its frames
     for model in scene.deformables:
@@ -131,7 +131,7 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
                     last[0], surface_details(last[0], density), r.surface, det, _cell_level(r.surface)))
                 if since is not None and since[2].all():
                     since = None
-                if shown is not None and shown.topology is topo:
+                if shown is not None and _same_topology(shown.topology, topo):
                     pts, limit = shown.points, shown.normals
                 elif shown is not None:
                     # every vertex of both is an exact surface point: those at the display's
@@ -152,6 +152,18 @@ def evaluate_run(scene: SceneModel, result, topologies: dict[str, MeshTopology],
             result.frames[f][model.path] = replace(r, points=hit[1], normals=hit[2])
     result.topologies = dict(topologies)
     return ms
+
+
+def _same_topology(a: MeshTopology, b: MeshTopology) -> bool:
+    """Whether ``a`` and ``b`` hold the same vertex parameters and faces: the same object, or two
+    with one `MeshTopology.key` (`acra.lattice.adaptive_mesh` is a function of the leaves the key
+    digests; a round's refinement and the run's union of them name different patch keys where
+    finer patches cover them, and so build two topologies of the same leaves). A display on
+    either then holds the run display's vertices in its rows: its points are the run's, not a
+    copy of every row through `grid_samples`, and the run's residual reads the `Shown` the frame
+    loop built of them (`pipeline.residual.measure_run`)."""
+    key = getattr(a, "key", None)
+    return a is b or (key is not None and key == getattr(b, "key", None))
 
 
 def finish(stage, scene: SceneModel, result, stats: list, options, displays: Displays | None = None) -> None:

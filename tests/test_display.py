@@ -339,6 +339,30 @@ def test_the_spent_run_s_display_writes_its_normals_over_the_displays_own(tiny_s
     assert on and all(r.normals is d.normals for r, d in on)
 
 
+def test_a_display_on_a_topology_of_the_run_s_key_gives_its_points_and_equals_a_full_evaluation(tiny_stage):
+    """A topology built apart from the run's (another object) with the same `MeshTopology.key`
+    holds the same arrays (`_same_topology`): `evaluate_run` on it gives a surface the rounds
+    displayed on the run's topology the display's points array itself, copying no row, and every
+    frame's points and normals equal a full evaluation on it bit for bit."""
+    scene, model, shown, result, topologies = _four_responded_frames(tiny_stage)
+    topo = topologies[model.path]
+    surfaces = display._distinct(result, model.path)
+    twin = run_topology(surfaces, model.controls.samples)
+    assert twin is not topo and twin.key is not None and twin.key == topo.key
+    for name in ("u", "v", "counts", "indices"):
+        np.testing.assert_array_equal(getattr(twin, name), getattr(topo, name))
+    assert display._same_topology(twin, topo) and display._same_topology(topo, topo)
+    other = run_topology(surfaces, model.controls.samples + 1)
+    assert not display._same_topology(other, topo)
+    display.evaluate_run(scene, result, {model.path: twin}, displays=shown, spent=True)
+    taken = 0
+    for r, d in _frames_as_evaluated_in_full(result, model, twin, shown):
+        if d is not None and d.topology is topo:
+            assert r.points is d.points and r.normals is d.normals
+            taken += 1
+    assert taken >= 1
+
+
 def test_the_run_s_triangles_are_the_kept_topology_s(tiny_stage):
     """`kept_triangles` of a topology `_topology` keeps is the array kept with it (the run's
     residual takes it, built once a round built the topology), equal to ``triangles()``; of
