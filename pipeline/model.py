@@ -8,6 +8,7 @@ responses are new objects.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -203,6 +204,15 @@ def apply_xform(xform: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 TRANSLATED_ROWS = 64  # fewer points are mapped by numpy as fast as the compiled pass is called
+
+
+def is_translation(xform: np.ndarray) -> bool:
+    """Whether ``xform (4, 4)``'s linear part is exactly the identity (a zero of either sign) and
+    no coordinate of its translation is -0.0: `translated`'s test of the matrix, without points
+    (16 Python floats: cheaper to test than arrays)."""
+    rows = np.asarray(xform, np.float64).tolist()
+    return all(rows[i][j] == (1.0 if i == j else 0.0) for i in range(3) for j in range(3)) and not any(
+        rows[i][3] == 0.0 and math.copysign(1.0, rows[i][3]) < 0.0 for i in range(3))
 
 
 def translated(points: np.ndarray, xform: np.ndarray, round32: bool, local: np.ndarray, world: np.ndarray,

@@ -34,7 +34,7 @@ import numpy as np
 
 from acra import bvh, clearcells, depthbound, memo, meshrows
 from pipeline import clearance, workers
-from pipeline.model import SceneModel, apply_xform, translated
+from pipeline.model import SceneModel, apply_xform, is_translation, translated
 
 __all__ = ["Shown", "Inside", "PairDepth", "FrameResidual", "shown", "collider_shown", "collider_solid", "pair_depth",
            "measure_frame", "complete", "measure_run", "known", "TARGET", "OVER"]
@@ -841,23 +841,15 @@ def _display_box(xform: np.ndarray, points: np.ndarray, view: Shown | None, kept
     """`_outer_box` of a deformable's run display ``points (n, 3) float64`` (object space) under
     ``xform (4, 4)``; ``view`` is the `Shown` the frame loop built of these points under ``xform``
     (`SurfaceDisplay.view`), or ``None``. Where ``xform``'s linear part is the identity with no
-    translation -0.0, the corners' mapping is the view's world box (``box``), not a pass over the
-    points: there each world value is ``x + t`` (`model.translated`: the products by the identity
-    add only zeros), monotone in ``x`` as the rounding to float32 is, so the least world value is
+    translation -0.0 (`model.is_translation`), the corners' mapping is the view's world box
+    (``box``), not a pass over the points: there each world value is ``x + t``
+    (`model.translated`: the products by the identity add only zeros), monotone in ``x`` as the rounding to float32 is, so the least world value is
     the least float32 point's plus ``t``, and neither holds a zero of the other sign (a zero sum
     with ``t``, not -0.0, is +0.0). A box that is not finite (a point that is not finite) takes
     the points' own box (`_local_box`, kept in ``kept``)."""
-    if view is not None and _translation(xform) and all(map(math.isfinite, view.box.ravel().tolist())):
+    if view is not None and is_translation(xform) and all(map(math.isfinite, view.box.ravel().tolist())):
         return _padded(view.box)
     return _outer_box(xform, _local_box(kept, points))
-
-
-def _translation(xform: np.ndarray) -> bool:
-    """Whether ``xform (4, 4)``'s linear part is exactly the identity (a zero of either sign)
-    and no coordinate of its translation is -0.0 (`model.translated`'s test)."""
-    rows = np.asarray(xform, np.float64).tolist()  # 16 Python floats: cheaper to test than arrays
-    return all(rows[i][j] == (1.0 if i == j else 0.0) for i in range(3) for j in range(3)) and not any(
-        rows[i][3] == 0.0 and math.copysign(1.0, rows[i][3]) < 0.0 for i in range(3))
 
 
 def _outer_box(xform: np.ndarray, box: np.ndarray) -> np.ndarray:

@@ -88,3 +88,26 @@ def test_a_translation_s_rows_and_box_are_the_array_forms(round32, n):
         assert (box == 7.0).all()
     same = p.copy()
     assert model.translated(same, m, False, same, same, box) and same.tobytes() == _numpy(m, p).tobytes()
+
+
+def test_is_translation_is_translated_s_test_of_the_matrix():
+    """`model.is_translation` answers as `model.translated` does on finite points: the identity's
+    entries (a zero of either sign) and no -0.0 in the translation; any other entry, a -0.0
+    translation or a NaN answers false."""
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(5, 3))
+    out = np.empty((5, 3))
+    cases = []
+    for _ in range(200):
+        m = np.eye(4)
+        m[:3, 3] = rng.choice([0.0, -0.0, 1.5, -2.25, 1e-300], size=3)
+        i, j = rng.integers(0, 3, size=2)
+        change = rng.integers(0, 4)
+        if change == 1:
+            m[i, j] = -0.0 if i != j else 1.0 + 2.0**-52
+        elif change == 2:
+            m[i, j] = np.nan
+        cases.append(m)
+    answers = [model.is_translation(m) for m in cases]
+    assert answers == [model.translated(pts, m, False, out, out, np.empty((2, 3))) for m in cases]
+    assert any(answers) and not all(answers)

@@ -10,7 +10,7 @@ from acra import shapes
 from acra.tessellate import grid_samples, run_topology
 from acceptance import visible
 from pipeline import clearance, residual
-from pipeline.model import apply_xform, translated
+from pipeline.model import apply_xform, is_translation, translated
 
 
 def box_collider(half: float = 0.5, xform=None) -> residual.Shown:
@@ -627,7 +627,7 @@ def test_a_displays_box_under_a_translation_is_its_views_bit_for_bit(seed):
         xform[:3, 3] = rng.choice([0.0, 1.5, -2.25, 1e-8, 3e5], size=3) if rng.random() < 0.8 else 0.0
         want = residual._outer_box(xform, residual._local_box({}, pts))
         view = residual.shown("/s", pts, np.zeros((0, 3), np.int64), xform)
-        assert residual._translation(xform)
+        assert is_translation(xform)
         assert residual._display_box(xform, pts, view, {}).tobytes() == want.tobytes()
         assert residual._display_box(xform, pts, None, {}).tobytes() == want.tobytes()
     pts = rng.normal(size=(50, 3))
@@ -642,7 +642,7 @@ def test_a_displays_box_under_a_translation_is_its_views_bit_for_bit(seed):
         else:
             p[3, 1] = np.nan
         view = residual.shown("/s", p, np.zeros((0, 3), np.int64), xform)
-        assert residual._translation(xform) == (change == "nan")
+        assert is_translation(xform) == (change == "nan")
         got = residual._display_box(xform, p, view, {})
         want = residual._outer_box(xform, residual._local_box({}, p))
         assert got.tobytes() == want.tobytes()
