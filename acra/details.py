@@ -205,8 +205,7 @@ _NO_MOVES = np.zeros((0, 3))  # `levelkernels.restate_rows`' moves (and moved of
 MOVED_VECTORS = "_moved_vectors"
 
 
-def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int,
-                  raw: np.ndarray | None = None) -> Details | None:
+def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int) -> Details | None:
     """`details` of ``new``, which is ``old`` with other offsets on level ``level >= 1`` alone
     (a response's move, `acra.moves.move_level`: the same `Level` objects elsewhere, the same
     CVs and movability on ``level``), found from ``old_det`` by following the move down the
@@ -221,9 +220,7 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int,
     vectors that changed marked for the finer levels; every other row keeps ``old_det``'s bits,
     as `details` would give them (each row's frame and vector is its own point's, its own
     product). Levels the move does not reach keep ``old_det``'s arrays. Frames ``old_det`` left
-    pending (`details`' ``lazy``) are evaluated with the others; the result has none.
-    ``raw (P0u, P0v) bool``, if given, takes `changes.mark_moved`'s marks of the move (the patches
-    a CV whose offset changed bits supports), from the rows found here."""
+    pending (`details`' ``lazy``) are evaluated with the others; the result has none."""
     pending = old_det.__dict__.get(_PENDING, {})
     if new.depth != old.depth or len(old_det.vectors) != old.depth - 1 or new.cvs is not old.cvs \
             or any(k <= level for k in pending):
@@ -256,9 +253,6 @@ def moved_details(old: HSpline, old_det: Details, new: HSpline, level: int,
     ends = closed_ends(new)
     ends_arr = _ends_array(ends)
     up, vp = bool(new.u.periodic), bool(new.v.periodic)
-    if raw is not None:  # `changes.mark_moved`: only these rows' offsets can differ
-        levelkernels.mark_changed(changes.bits(lev.offsets), changes.bits(was.offsets), rows, lev.cv_keys, int(new.v.cvs(k)), k,
-                                  int(new.u.patches(k)), int(new.v.patches(k)), up, vp, raw)
     if vec is None:
         vec = levelkernels.restate_rows(_plain(frames[k - 1]), _NO_FRAMES, rows, _plain(lev.offsets), _plain(vectors[k - 1]),
                                         _NO_MOVES, _NO_MOVES)[1]

@@ -207,9 +207,10 @@ def redetail(old: H.HSpline, old_det: D.Details | None, new: H.HSpline,
     if old_det is None:
         return new, D.details(new)
     if moved is not None and len(moved) == 1 and moved[0] >= 1:
-        raw = np.zeros((new.u.patches0, new.v.patches0), bool)  # `H.mark_moved`'s, marked by the pass
-        det = D.moved_details(old, old_det, new, moved[0], raw)
+        det = D.moved_details(old, old_det, new, moved[0])
         if det is not None:
+            raw = np.zeros((new.u.patches0, new.v.patches0), bool)
+            H.mark_moved(old, new, moved[0], raw)
             return new, _noted(old, old_det, det, raw, None)
     stale = H.changed_patches(old, new, levels=moved)
     return new, _noted(old, old_det, D.details(new, since=(old, old_det, stale), moved=moved, lazy=lazy), None, stale)

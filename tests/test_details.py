@@ -174,40 +174,6 @@ def test_moved_details_follow_a_move_down_the_levels_as_a_full_pass(monkeypatch)
     assert mine < theirs
 
 
-def test_moved_details_marks_the_moves_patches_as_mark_moved_does():
-    """`D.moved_details`' ``raw`` is `changes.mark_moved` of the move, exactly: after a move that
-    names its rows (`moves.move_level`, some of them moved by zero), after one that does not (the
-    same offsets set as a new `Level`, every row compared) and after a move of zeros alone."""
-    from acra import changes
-    from acra.hierarchy import with_fine, with_offsets
-    from acra.moves import move_level
-    for seed in range(4):
-        rng = np.random.default_rng(seed)
-        hs = H.from_grid(*shapes.sphere(12, 10), depth=4)
-        u0 = int(rng.integers(0, 12))
-        hs = H.make_movable(hs, 1, [[2 * u0 + 1, 8]])
-        hs = H.make_movable(hs, 2, [[4 * u0 + 2, 16], [4 * u0 + 6, 1]])
-        hs = with_random_offsets(H.make_movable(hs, 3, [[8 * u0 + 4, 30], [8 * u0 + 12, 2]]), 0.02, seed)
-        det = D.details(hs)
-        for k in range(1, hs.depth):
-            rows = np.unique(rng.choice(np.nonzero(hs.level(k).movable)[0], size=4, replace=False))
-            dv = rng.normal(scale=0.03, size=(rows.size, 3))
-            dv[0] = 0.0  # a row the move names but does not change
-            hinted = move_level(hs, k, rows, dv, det, True)
-            fine = list(hs.fine)
-            fine[k - 1] = with_offsets(hs.level(k), hinted.level(k).offsets)  # the same move, unnamed
-            unnamed = with_fine(hs, tuple(fine), same_cvs=True)
-            still = move_level(hs, k, rows, np.zeros_like(dv), det, True)
-            for moved in (hinted, unnamed, still):
-                raw = np.zeros((hs.u.patches0, hs.v.patches0), bool)
-                assert D.moved_details(hs, det, moved, k, raw) is not None
-                want = np.zeros_like(raw)
-                changes.mark_moved(hs, moved, k, want)
-                np.testing.assert_array_equal(raw, want)
-            assert not raw.any()  # the move of zeros changes no bits
-            assert D.moved_details(hs, det, hinted, k, None) is not None
-
-
 def test_a_pole_rings_detail_turns_as_one_under_a_small_coarse_wiggle():
     """Every CV of a fine level's pole ring frames its detail with one normal, the end's
     (`acra.details._end_normal`). Near a pole one tangent vanishes, so the per-CV normals there swing
