@@ -11,12 +11,18 @@ frame (`time.process_time`), the median (range) over the passes of: the frame lo
 the part of the row around them (the data points gathered, the parent's details looked up,
 `pipeline.shape.seed_details`, the carried state) and the same calls replayed; then each call's
 median in the loop and replayed. A pass's sum is its calls' one run each, where
-`respond_calls.py` sums each call's least over its repeats.
+`respond_calls.py` sums each call's least over its repeats. Last, the cyclic garbage collections
+that start inside the calls (`gc.callbacks`), in the loop and replayed: per call, how many over
+the passes, of which generations, and their CPU ms (the median collection's and the whole sum,
+over the passes): a collection runs where the frame's allocations cross the collector's
+threshold, and walks the young objects every stage of the frame left.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import gc
 import pathlib
 import statistics
 import time
@@ -44,14 +50,33 @@ def main() -> None:
 
     def recording(*a, **k):
         calls.append((a, k))
+        where[0], n0 = ("loop", len(calls) - 1), len(events)
         c = time.process_time()
         try:
             return respond(*a, **k)
         finally:
             inside[-1].append(time.process_time() - c)
+            note("loop", len(calls) - 1, n0, len(inside) > 1)
 
     rows, replayed = [], []
     nframes = 1
+    events: list = []  # (phase, generation, CPU seconds) of each collection, from `gc.callbacks`
+    where: list = [None]  # ("loop" | "replayed", call) while a call runs, else None
+    collected: dict = collections.defaultdict(list)  # (where, call) -> [(generation, CPU ms)] past the first pass
+
+    def watch(phase, info):
+        if where[0] is not None:
+            events.append((phase, info["generation"], time.process_time()))
+
+    def note(tag: str, i: int, n0: int, counted: bool) -> None:
+        # the collections that started and stopped inside call ``i``
+        for (a, g, t0), (b, _, t1) in zip(events[n0::2], events[n0 + 1::2]):
+            if counted and a == "start" and b == "stop":
+                collected[(tag, i)].append((g, 1e3 * (t1 - t0)))
+        del events[n0:]
+        where[0] = None
+
+    gc.callbacks.append(watch)
     for _ in range(args.passes + 1):
         forget()
         stage = usdio.open_input(usdio.load_scene_file(ROOT / "scenes" / "dog_head_spike.py"))
@@ -69,10 +94,12 @@ def main() -> None:
         once = []
         with threadpool_limits(limits=1, user_api="blas"):
             forget()
-            for a, k in calls:
+            for i, (a, k) in enumerate(calls):
+                where[0], n0 = ("replayed", i), len(events)
                 c = time.process_time()
                 respond(*a, **k)
                 once.append(time.process_time() - c)
+                note("replayed", i, n0, len(inside) > 1)
         replayed.append(once)
         nframes = len(hit)
     loop = 1e3 * np.array(inside[1:])
@@ -89,6 +116,17 @@ def main() -> None:
           f"around them {cell(row - calls_loop)}; the calls replayed {cell(calls_again)}")
     print("each call, ms CPU (median): loop " + " ".join(f"{x:.3f}" for x in np.median(loop, axis=0)))
     print("                        replayed " + " ".join(f"{x:.3f}" for x in np.median(again, axis=0)))
+    print(f"cyclic collections inside the calls over the {args.passes} passes (call: count, generations, "
+          "median and summed ms CPU):")
+    for tag in ("loop", "replayed"):
+        cells = []
+        for (t, i), got in sorted(collected.items()):
+            if t == tag:
+                gens = collections.Counter(g for g, _ in got)
+                ms = [x for _, x in got]
+                cells.append(f"call {i}: {len(got)}, gen {dict(sorted(gens.items()))}, "
+                             f"{statistics.median(ms):.3f}, {sum(ms):.3f}")
+        print(f"  {tag}: " + ("; ".join(cells) if cells else "none"))
 
 
 if __name__ == "__main__":
