@@ -40,12 +40,10 @@ LEAF = 4  # triangles per leaf
 
 @dataclass(frozen=True, eq=False)
 class Tree:
-    """A BVH over triangles ``tri (f, 3, 3)``.
+    """A BVH over triangles ``tri (f, 3, 3)`` (`tri`, from its leaves: the walks read ``leaf_tri``).
 
     Attributes
     ----------
-    tri : (f, 3, 3) float64
-        The triangles, in their given rows.
     order : (f,) int64
         Triangle rows in leaf order: a leaf holds ``order[start : start + count]``.
     lo, hi : (n, 3) float64
@@ -58,7 +56,6 @@ class Tree:
         ``tri[order]``: a leaf's triangles side by side in memory.
     """
 
-    tri: np.ndarray
     order: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
@@ -67,6 +64,15 @@ class Tree:
     start: np.ndarray
     count: np.ndarray
     leaf_tri: np.ndarray
+
+    @property
+    def tri(self) -> np.ndarray:
+        """The triangles ``(f, 3, 3) float64`` in their given rows: ``leaf_tri`` put back in place
+        (``tri[order] = leaf_tri``). Only ``leaf_tri`` is kept: the walks read nothing else, and
+        a part's tree is built from its vertices and faces without a copy in the given rows."""
+        out = np.empty_like(self.leaf_tri)
+        out[self.order] = self.leaf_tri
+        return out
 
 
 @njit(cache=True, nogil=True)
@@ -225,22 +231,20 @@ def build(tri: np.ndarray) -> Tree:
     left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
     order = np.arange(f, dtype=np.int64)
     used = _build(*_boxes_centroids(tri), order, lo, hi, left, right, start, count)
-    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], tri[order])
+    return Tree(order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], tri[order])
 
 
 @njit(cache=True, nogil=True)
-def _build_linear(vertices, faces, tri, lo, hi, left, right, start, count):
-    """`build_linear`'s tree: fills the corners ``tri (f, 3, 3)`` and the node arrays; returns the
-    leaf order and the node count."""
+def _build_linear(vertices, faces, lo, hi, left, right, start, count):
+    """`build_linear`'s tree: fills the node arrays; returns the leaf order and the node count.
+    Each face's box and centroid are read from its corners' rows of ``vertices``: the values
+    ``vertices[faces]`` holds, without that copy."""
     f = faces.shape[0]
     tlo, thi, cen = np.empty((f, 3)), np.empty((f, 3)), np.empty((f, 3))
     for i in range(f):
-        for c in range(3):
-            v = faces[i, c]
-            for k in range(3):
-                tri[i, c, k] = vertices[v, k]
+        p, q, r = faces[i, 0], faces[i, 1], faces[i, 2]
         for k in range(3):
-            a, b, c = tri[i, 0, k], tri[i, 1, k], tri[i, 2, k]
+            a, b, c = vertices[p, k], vertices[q, k], vertices[r, k]
             tlo[i, k] = min(min(a, b), c)
             thi[i, k] = max(max(a, b), c)
             cen[i, k] = ((a + b) + c) / 3.0
@@ -280,11 +284,14 @@ def _build_linear(vertices, faces, tri, lo, hi, left, right, start, count):
 
 
 @njit(cache=True, nogil=True)
-def _gather(tri, order, out):
+def _gather(vertices, faces, order, out):
+    """The corners of ``faces[order]`` on ``vertices`` into ``out (f, 3, 3)``: a leaf's triangles
+    side by side."""
     for s in range(order.shape[0]):
         for c in range(3):
+            v = faces[order[s], c]
             for k in range(3):
-                out[s, c, k] = tri[order[s], c, k]
+                out[s, c, k] = vertices[v, k]
 
 
 def build_linear(vertices: np.ndarray, faces: np.ndarray) -> Tree:
@@ -302,31 +309,29 @@ def build_linear(vertices: np.ndarray, faces: np.ndarray) -> Tree:
     if not f:
         raise ValueError("a BVH needs at least one triangle")
     n = 2 * f + 1
-    tri = np.empty((f, 3, 3))
     lo, hi = np.empty((n, 3)), np.empty((n, 3))
     left, right, start, count = (np.empty(n, np.int64) for _ in range(4))
-    order, used = _build_linear(v, fc, tri, lo, hi, left, right, start, count)
+    order, used = _build_linear(v, fc, lo, hi, left, right, start, count)
     leaf_tri = np.empty((f, 3, 3))
-    _gather(tri, order, leaf_tri)
-    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf_tri)
+    _gather(v, fc, order, leaf_tri)
+    return Tree(order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf_tri)
 
 
 @njit(cache=True, nogil=True)
 def _part_tree(vertices, faces, normals, angle):
-    """`part_tree`'s arrays: the vertex normals, the box, then `build_linear`'s corners, leaf
-    order, node arrays (``2 f + 1`` rows, the first ``used`` filled), ``used`` and leaf corners."""
+    """`part_tree`'s arrays: the vertex normals, the box, then `build_linear`'s leaf order, node
+    arrays (``2 f + 1`` rows, the first ``used`` filled), ``used`` and leaf corners."""
     vn = _vertex_normals(vertices.shape[0], faces, normals, angle)
     box = np.empty((2, 3))
     _bounds(vertices, box)
     f = faces.shape[0]
     n = 2 * f + 1
-    tri = np.empty((f, 3, 3))
     lo, hi = np.empty((n, 3)), np.empty((n, 3))
     left, right, start, count = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
-    order, used = _build_linear(vertices, faces, tri, lo, hi, left, right, start, count)
+    order, used = _build_linear(vertices, faces, lo, hi, left, right, start, count)
     leaf_tri = np.empty((f, 3, 3))
-    _gather(tri, order, leaf_tri)
-    return vn, box, tri, order, lo, hi, left, right, start, count, used, leaf_tri
+    _gather(vertices, faces, order, leaf_tri)
+    return vn, box, order, lo, hi, left, right, start, count, used, leaf_tri
 
 
 def part_tree(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, angle: np.ndarray):
@@ -335,8 +340,8 @@ def part_tree(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, angl
     of the face ``normals (f, 3)`` and corner ``angle (f, 3)``), the box ``(2, 3)`` of ``vertices
     (n, 3)`` (`bounds`) and `build_linear`'s `Tree` of ``vertices[faces]`` (``faces (f, 3) int64``,
     ``f >= 1``, C-contiguous): the same arrays, without a call and its arguments' checks each."""
-    vn, box, tri, order, lo, hi, left, right, start, count, used, leaf_tri = _part_tree(vertices, faces, normals, angle)
-    return vn, box, Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf_tri)
+    vn, box, order, lo, hi, left, right, start, count, used, leaf_tri = _part_tree(vertices, faces, normals, angle)
+    return vn, box, Tree(order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf_tri)
 
 
 @njit(cache=True, nogil=True)

@@ -131,7 +131,7 @@ def build(tri: np.ndarray) -> Tree:
     order, used = _build(tri, lo, hi, left, right, start, count)
     leaf = _in_order(tri, order)
     _boxes(leaf, lo, hi, left, right, start, count, used)
-    return Tree(tri, order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf)
+    return Tree(order, lo[:used], hi[:used], left[:used], right[:used], start[:used], count[:used], leaf)
 
 
 def refit(tree: Tree, tri: np.ndarray) -> Tree:
@@ -145,7 +145,7 @@ def refit(tree: Tree, tri: np.ndarray) -> Tree:
     lo, hi = np.empty_like(tree.lo), np.empty_like(tree.hi)
     leaf = _in_order(tri, tree.order)
     _boxes(leaf, lo, hi, tree.left, tree.right, tree.start, tree.count, len(lo))
-    return Tree(tri, tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, leaf)
+    return Tree(tree.order, lo, hi, tree.left, tree.right, tree.start, tree.count, leaf)
 
 
 class Index:

@@ -138,10 +138,17 @@ def _pairs_by_cells(vu, parent, below, above, reach):
     `_join` (the distance test inline; the sign of a difference does not change its square), so
     the groups are the connected components of the pairs within ``radius``, whatever the order.
     The points are chained by their cell ``floor(x / (1.5 reach))`` along x in a hash table, so
-    such a pair lies in one cell or two neighbouring ones, each chain in decreasing row, walked
-    down to the row asking: no sort (a sort of the points by x cost a display's part more than
-    the rest of the weld). Returns 1 if joined, 0 if a pair was undecided, -1 if a coordinate
-    is too large for its cell to be an exact integer (``|x| >= 2^50`` cells)."""
+    such a pair lies in one cell or two neighbouring ones, each chain in decreasing row: a point
+    walks its own cell's chain down to its row and the next cell's (``+1``) whole, so each pair
+    is tested once, from its lower row in one cell or from the lower cell, and a point looks up
+    one cell besides its own, whose slot it keeps from its insertion. No sort (a sort of the
+    points by x cost a display's part more than the rest of the weld). A point whose three
+    differences from the last point chained in its cell are 0 (the same values: a pole row's
+    copies, which come in consecutive rows) joins that point and stays out of the chains: its
+    differences from any third point are that point's, but for a zero's sign, so each of its
+    pairs is decided as that point's is, and a pole's copies are not tested pair by pair (the
+    chain's head alone is compared: a ring of points sharing their x costs no more). Returns 1 if joined, 0 if a pair was undecided, -1 if a
+    coordinate is too large for its cell to be an exact integer (``|x| >= 2^50`` cells)."""
     g = vu.shape[0]
     cell = 1.5 * reach
     q = np.empty(g, np.int64)
@@ -157,27 +164,45 @@ def _pairs_by_cells(vu, parent, below, above, reach):
     key = np.empty(size, np.int64)
     head = np.full(size, -1, np.int64)  # each cell's points, chained through ``after``
     after = np.full(g, -1, np.int64)
+    at = np.full(g, -1, np.int64)  # each chained point's slot; -1 for a copy
     for i in range(g):
         slot = np.int64((np.uint64(q[i]) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
         while head[slot] >= 0 and key[slot] != q[i]:
             slot = (slot + 1) & mask
         key[slot] = q[i]
+        j = head[slot]  # differences of 0 (not a test of equality: inf - inf is not 0)
+        if j >= 0 and vu[i, 0] - vu[j, 0] == 0.0 and vu[i, 1] - vu[j, 1] == 0.0 and vu[i, 2] - vu[j, 2] == 0.0:
+            # distance 0, within ``below`` (``radius > 0``)
+            ri, rj = _root(parent, i), _root(parent, j)
+            if ri != rj:
+                parent[max(ri, rj)] = min(ri, rj)
+            continue
+        at[i] = slot
         after[i] = head[slot]
         head[slot] = i
     for i in range(g):
-        for dq in range(-1, 2):
-            c = q[i] + dq
-            slot = np.int64((np.uint64(c) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
-            while head[slot] >= 0 and key[slot] != c:
-                slot = (slot + 1) & mask
-            j = head[slot]
-            while j > i:
-                dx = vu[j, 0] - vu[i, 0]
-                if abs(dx) <= reach:
-                    dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
-                    if (dx * dx + dy * dy) + dz * dz <= above and not _join(parent, i, j, dx, dy, dz, below):
-                        return 0
-                j = after[j]
+        if at[i] < 0:
+            continue
+        j = head[at[i]]
+        while j > i:  # the own cell's points of higher rows
+            dx = vu[j, 0] - vu[i, 0]
+            if abs(dx) <= reach:
+                dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
+                if (dx * dx + dy * dy) + dz * dz <= above and not _join(parent, i, j, dx, dy, dz, below):
+                    return 0
+            j = after[j]
+        c = q[i] + 1
+        slot = np.int64((np.uint64(c) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
+        while head[slot] >= 0 and key[slot] != c:
+            slot = (slot + 1) & mask
+        j = head[slot]
+        while j >= 0:  # the next cell's points, every row
+            dx = vu[j, 0] - vu[i, 0]
+            if abs(dx) <= reach:
+                dy, dz = vu[j, 1] - vu[i, 1], vu[j, 2] - vu[i, 2]
+                if (dx * dx + dy * dy) + dz * dz <= above and not _join(parent, i, j, dx, dy, dz, below):
+                    return 0
+            j = after[j]
     return 1
 
 

@@ -43,11 +43,20 @@ ANSWERS = {
     "clearcells._clear_cells": lambda m, a: (np.int64(m), a[12], a[13][:max(m, 0)]),  # count, keep, chosen rows
     "meshrows._faces_at": lambda plain, a: (np.bool_(plain), a[4], a[5]) + ((a[6],) if len(a[2]) else ()),
     "meshrows._face_chunks": lambda _, a: tuple(a[4:8]),  # the chunks' and groups' boxes
-    # a part's vertex normals, box, corners, leaf order, the filled nodes, their count, leaf corners
-    "bvh._part_tree": lambda t, _: t[:4] + tuple(x[:t[10]] for x in t[4:10]) + (np.int64(t[10]), t[11]),
+    # a part's vertex normals, box, corners (put back from the leaf corners), leaf order, the
+    # filled nodes, their count, leaf corners
+    "bvh._part_tree": lambda t, _: t[:2] + (_in_rows(t[10], t[2]), t[2]) + tuple(x[:t[9]] for x in t[3:9])
+    + (np.int64(t[9]), t[10]),
     # the branch and bound's code, bound, depth found, completeness, points evaluated, level, points inside
     "depthbound._depth": lambda out, _: tuple(np.asarray(x) for x in out),
 }
+
+
+def _in_rows(leaf_tri: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """The corners ``(f, 3, 3)`` in the faces' rows, from a tree's ``leaf_tri`` and ``order``."""
+    out = np.empty_like(leaf_tri)
+    out[order] = leaf_tri
+    return out
 
 
 def _digest(h, value) -> None:

@@ -826,6 +826,40 @@ def test_compiled_weld_is_the_kd_trees(offset):
     assert len(vw) < len(used) - 150  # the copies and the chain joined
 
 
+def test_a_poles_copies_join_their_first_point_as_the_kd_trees_pairs_join_them():
+    """`pseudonormals._pairs_by_cells` joins a point whose differences from the last point of
+    its cell are 0 to it without testing its pairs (a pole row's copies in consecutive rows):
+    the groups are the kd-tree's, with copies in consecutive and in scattered rows, zeros of
+    either sign, and points near a copy within the radius or beyond it; a pair whose distance
+    lies at the radius from a copy's point leaves the weld undecided (code 1) as from the point;
+    a coordinate's infinity is no copy (its difference is not 0)."""
+    rng = np.random.default_rng(23)
+    radius = 1e-3
+    base = rng.uniform(-1, 1, (200, 3))
+    base[:30, 1] = 0.0
+    pole = np.repeat(base[:1], 64, axis=0)  # consecutive copies
+    pole[1::2, 1] = -0.0
+    near = base[:1] + np.outer(np.arange(1, 4), [0.0, 0.6 * radius, 0.0])  # a chain from the pole
+    v = np.concatenate([base[:100], pole, near, base[100:], base[3:40]])  # base[3:40] again, scattered
+    faces = np.arange(len(v) - len(v) % 3).reshape(-1, 3)
+    code, vw, fw = pseudonormals.weld(v, faces, radius)
+    assert code == 0
+    used = np.unique(faces)
+    label = C._weld(v[used], radius)
+    first = np.unique(label, return_index=True)[1]
+    assert vw.tobytes() == v[used][first].tobytes()
+    np.testing.assert_array_equal(fw, label[np.searchsorted(used, faces)])
+    assert len(vw) == 200  # the pole, its chain and the repeated rows joined
+    # a point at the radius from the pole: undecided, whichever of its copies asks
+    far = v.copy()
+    far[-2] = base[0] + [0.0, 0.0, radius]
+    assert pseudonormals.weld(far, faces, radius)[0] == 1
+    # copies of a point with an infinite coordinate stay apart, as their pair's distance is NaN
+    inf = np.array([[0.5, np.inf, 0.0], [0.5, np.inf, 0.0], [0.5, np.inf, 0.0]])
+    code, vw, fw = pseudonormals.weld(inf, np.array([[0, 1, 2]]), radius)
+    assert code == 0 and len(vw) == 3
+
+
 def test_compiled_part_far_from_its_origin_is_the_array_form():
     """A part whose coordinates are too large for the compiled weld's cells (code 1) is welded
     by the kd-tree and equals the array form."""
