@@ -76,6 +76,9 @@ def main() -> None:
     grids.GridSet.nearest = timed("GridSet.nearest", grids.GridSet.nearest)
     grids.Closest.query = timed("Closest.query", grids.Closest.query)
     grids.BvhCache.get = timed("BvhCache.get", grids.BvhCache.get)
+    from acra import nearest  # a grid set's closest-point index, built at its first query (`grids.Closest.index`)
+
+    nearest.index = timed("nearest.index", nearest.index)
     import fcl  # detect imports it where a pair needs its BVH; the patched name is the module's
     fcl.collide = timed("fcl.collide", fcl.collide)
     for name in ("hulls", "_coarse", "cv_hull", "_stale"):

@@ -30,12 +30,16 @@ from pipeline import contact
 
 FRESH = ("detect.worlds", "detect.answers", "contact.at")  # what a new matrix finds computed in the run: nothing
 # (module, name) timed by ``--nested``: the touch test and its narrow phase, the new geometry's
-# world boxes and sizes (`pair_pad`, `apart`), the anchor and its parts, the compiled passes
+# world boxes and sizes (`pair_pad`, `apart`, the object-level box `_mapped_box`), the anchor and
+# its parts, the compiled passes and the Python wrappers that call them (`patch_rows_near`,
+# `face_boxes`, `triangles_near`, `crossings`)
 NESTED = (("pipeline.detect", "touching"), ("pipeline.detect", "_intersect"), ("pipeline.detect", "pair_pad"),
-          ("pipeline.detect", "apart"), ("pipeline.tessellation", "tessellate_sorted"), ("pipeline.contact", "_anchor_at"),
+          ("pipeline.detect", "apart"), ("pipeline.geometry", "_mapped_box"),
+          ("pipeline.tessellation", "tessellate_sorted"), ("pipeline.contact", "_anchor_at"),
           ("pipeline.detect", "regions"), ("pipeline.detect", "project"), ("pipeline.detect", "_newton"),
-          ("acra.narrow", "_patches_near"), ("acra.narrow", "_face_boxes"), ("acra.narrow", "_near"),
-          ("acra.narrow", "_crossings"), ("pipeline.model", "_translated"))
+          ("acra.narrow", "patch_rows_near"), ("acra.narrow", "face_boxes"), ("acra.narrow", "triangles_near"),
+          ("acra.narrow", "crossings"), ("acra.narrow", "_patches_near"), ("acra.narrow", "_face_boxes"),
+          ("acra.narrow", "_near"), ("acra.narrow", "_crossings"), ("pipeline.model", "_translated"))
 
 
 def main() -> None:
