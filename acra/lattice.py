@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["unique_keys", "quadtree_leaves", "adaptive_mesh", "fan_triangles"]
+__all__ = ["unique_keys", "quadtree_leaves", "adaptive_mesh", "fan_triangles", "half_patch_points"]
 
 
 @njit(inline="always")
@@ -463,3 +463,42 @@ def fan_triangles(counts, indices):
             k += 1
         start += counts[f]
     return out
+
+
+@njit(cache=True, nogil=True)
+def half_patch_points(u, v, points, patches, p0u, p0v, wrap_u, wrap_v, out):
+    """Copy a mesh's vertex points at level-0 patches' half-patch samples, if it has them all.
+
+    ``u, v (n,) float64``: the vertices' parameters (level-0 units), sorted by ``(u, v)``
+    (`acra.tessellate.MeshTopology`'s), ``points (n, 3)`` theirs. For each of ``patches (m,)
+    int64`` (row-major numbers of a ``p0u`` by ``p0v`` patch grid), its 9 samples ``(pu + i / 2,
+    pv + j / 2)``, ``i`` slowest, go to ``out (9 m, 3)`` in that order (`pipeline.shape`'s
+    `coarse_points` order), each found by a binary search over ``(u, v)``; a wrapped
+    direction's end ``p0`` is looked up at 0, the seam's one vertex. Returns False (``out``
+    partly written) at the first sample with no vertex."""
+    n = u.shape[0]
+    r = 0
+    for k in range(patches.shape[0]):
+        pu, pv = patches[k] // p0v, patches[k] % p0v
+        for i in range(3):
+            a2 = 2 * pu + i
+            if wrap_u and a2 == 2 * p0u:
+                a2 = 0
+            a = a2 / 2.0
+            for j in range(3):
+                b2 = 2 * pv + j
+                if wrap_v and b2 == 2 * p0v:
+                    b2 = 0
+                b = b2 / 2.0
+                lo, hi = 0, n
+                while lo < hi:  # the first vertex not before (a, b)
+                    mid = (lo + hi) >> 1
+                    if u[mid] < a or (u[mid] == a and v[mid] < b):
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                if lo == n or u[lo] != a or v[lo] != b:
+                    return False
+                out[r, 0], out[r, 1], out[r, 2] = points[lo, 0], points[lo, 1], points[lo, 2]
+                r += 1
+    return True
