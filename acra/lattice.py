@@ -466,20 +466,24 @@ def fan_triangles(counts, indices):
 
 
 @njit(cache=True, nogil=True)
-def half_patch_points(u, v, points, patches, p0u, p0v, wrap_u, wrap_v, out):
+def half_patch_points(u, v, points, patches, p0v, wrap_u, wrap_v, out):
     """Copy a mesh's vertex points at level-0 patches' half-patch samples, if it has them all.
 
     ``u, v (n,) float64``: the vertices' parameters (level-0 units), sorted by ``(u, v)``
-    (`acra.tessellate.MeshTopology`'s), ``points (n, 3)`` theirs. For each of ``patches (m,)
-    int64`` (row-major numbers of a ``p0u`` by ``p0v`` patch grid), its 9 samples ``(pu + i / 2,
-    pv + j / 2)``, ``i`` slowest, go to ``out (9 m, 3)`` in that order (`pipeline.shape`'s
-    `coarse_points` order), each found by a binary search over ``(u, v)``; a wrapped
-    direction's end ``p0`` is looked up at 0, the seam's one vertex. Returns False (``out``
-    partly written) at the first sample with no vertex."""
+    (`acra.tessellate.MeshTopology`'s), ``points (n, 3)`` theirs. Each patch marked in
+    ``patches (P0u P0v,) bool`` (row-major over ``P0v`` columns) has 9 samples ``(pu + i / 2,
+    pv + j / 2)``, ``i`` slowest, whose points go to rows ``9 p .. 9 p + 8`` of ``out (9 P0u
+    P0v, 3)`` (`pipeline.shape`'s `coarse_points` order; the other rows are left as they are);
+    a wrapped direction's end is looked up at 0, the seam's one vertex. Each sample is found by
+    a binary search over ``(u, v)``. Returns False (``out`` partly written) at the first sample
+    with no vertex."""
     n = u.shape[0]
-    r = 0
-    for k in range(patches.shape[0]):
-        pu, pv = patches[k] // p0v, patches[k] % p0v
+    p0u = patches.shape[0] // p0v
+    for p in range(patches.shape[0]):
+        if not patches[p]:
+            continue
+        pu, pv = p // p0v, p % p0v
+        r = 9 * p
         for i in range(3):
             a2 = 2 * pu + i
             if wrap_u and a2 == 2 * p0u:

@@ -328,34 +328,32 @@ class Shape:
             # the triangles depend on the patch count alone, which a response keeps
             known = self.parent.__dict__.get("_coarse") if stale is not None else None
             tris = known[1] if known is not None and len(known[1]) == 8 * len(p) else coarse_triangles(len(p))
-            new = self._shown_points(stale) if stale is not None else None
-            return (coarse_points(self.surface, p, self.details) if new is None else new), tris
+            pts = np.empty((9 * len(p), 3))
+            if stale is None or not self._shown_points(stale, pts):
+                pts = coarse_points(self.surface, p, self.details)
+            return pts, tris
         pts, tris = self.parent._coarse
         pts = pts.copy()
-        if stale.any():  # 9 points per patch, patches in row-major order
-            new = self._shown_points(stale)
-            if new is None:
-                new = coarse_points(self.surface, np.argwhere(stale), self.details)
+        if stale.any() and not self._shown_points(stale, pts):  # 9 points per patch, patches in row-major order
+            new = coarse_points(self.surface, np.argwhere(stale), self.details)
             pts.reshape(stale.size, 9, 3)[stale.reshape(-1)] = new.reshape(-1, 9, 3)
         return pts, tris
 
-    def _shown_points(self, patches: np.ndarray) -> np.ndarray | None:
-        """`coarse_points` of the level-0 patches ``patches (P0u, P0v) bool`` read from the
-        display `outward_shown` hands `_coarse`: ``points (9 m, 3)``, its vertices at their
-        samples (`acra.lattice.half_patch_points`); ``None`` without one, or where it was
-        evaluated with other details or lacks a sample. A display vertex is the surface
-        evaluated at its own ``(u, v)`` alone (`acra.tessellate.grid_samples`), the sample's
-        parameters bit for bit (a periodic end ``P0`` the seam's vertex at 0:
-        `acra.kernels.eval_points` wraps ``P0`` to exactly 0.0 before it reads anything of the
-        parameter), so its point is the bits `coarse_points` gives."""
+    def _shown_points(self, patches: np.ndarray, out: np.ndarray) -> bool:
+        """Write `coarse_points` of the level-0 patches ``patches (P0u, P0v) bool`` into their
+        rows of ``out (9 P, 3)`` (9 a patch, row-major), read from the display `outward_shown`
+        hands `_coarse`: its vertices at their samples (`acra.lattice.half_patch_points`).
+        False (``out`` partly written) without one, or where it was evaluated with other details
+        or lacks a sample. A display vertex is the surface evaluated at its own ``(u, v)`` alone
+        (`acra.tessellate.grid_samples`), the sample's parameters bit for bit (a periodic end
+        ``P0`` the seam's vertex at 0: `acra.kernels.eval_points` wraps ``P0`` to exactly 0.0
+        before it reads anything of the parameter), so its point is the bits `coarse_points`
+        gives."""
         sd, hs = self._display, self.surface
         if sd is None or sd.surface is not hs or sd.details is not self.details:
-            return None
-        rows = np.flatnonzero(patches)
-        out = np.empty((9 * len(rows), 3))
-        found = lattice.half_patch_points(sd.topology.u, sd.topology.v, sd.points, rows, int(hs.u.patches0),
-                                          int(hs.v.patches0), bool(hs.u.periodic), bool(hs.v.periodic), out)
-        return out if found else None
+            return False
+        return lattice.half_patch_points(sd.topology.u, sd.topology.v, sd.points, patches.reshape(-1),
+                                         int(hs.v.patches0), bool(hs.u.periodic), bool(hs.v.periodic), out)
 
     def outward_shown(self, display) -> float:
         """`outward`, a responded surface's moved coarse samples read from ``display`` (a
