@@ -9,6 +9,8 @@ point's position among the keys comes out of the same pass, so the mesh finds ev
 vertex (and, as corners bound each cell side, the vertices between them) without a search. The keys, the
 positions and the column starts are the same as numpy's (`tests/test_tessellate.py` holds them to
 ``np.unique`` and ``np.searchsorted``).
+A mesh's vertices at given parameters are found by a binary search over their sorted ``(u,
+v)`` (`half_patch_points`: `pipeline.shape`'s coarse samples read from a display).
 """
 
 from __future__ import annotations
