@@ -9,6 +9,8 @@ point's position among the keys comes out of the same pass, so the mesh finds ev
 vertex (and, as corners bound each cell side, the vertices between them) without a search. The keys, the
 positions and the column starts are the same as numpy's (`tests/test_tessellate.py` holds them to
 ``np.unique`` and ``np.searchsorted``).
+A mesh's vertices at given parameters are found by a binary search over their sorted ``(u,
+v)`` (`half_patch_points`: `pipeline.shape`'s coarse samples read from a display).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["unique_keys", "quadtree_leaves", "adaptive_mesh", "fan_triangles"]
+__all__ = ["unique_keys", "quadtree_leaves", "adaptive_mesh", "fan_triangles", "half_patch_points"]
 
 
 @njit(inline="always")
@@ -463,3 +465,46 @@ def fan_triangles(counts, indices):
             k += 1
         start += counts[f]
     return out
+
+
+@njit(cache=True, nogil=True)
+def half_patch_points(u, v, points, patches, p0v, wrap_u, wrap_v, out):
+    """Copy a mesh's vertex points at level-0 patches' half-patch samples, if it has them all.
+
+    ``u, v (n,) float64``: the vertices' parameters (level-0 units), sorted by ``(u, v)``
+    (`acra.tessellate.MeshTopology`'s), ``points (n, 3)`` theirs. Each patch marked in
+    ``patches (P0u P0v,) bool`` (row-major over ``P0v`` columns) has 9 samples ``(pu + i / 2,
+    pv + j / 2)``, ``i`` slowest, whose points go to rows ``9 p .. 9 p + 8`` of ``out (9 P0u
+    P0v, 3)`` (`pipeline.shape`'s `coarse_points` order; the other rows are left as they are);
+    a wrapped direction's end is looked up at 0, the seam's one vertex. Each sample is found by
+    a binary search over ``(u, v)``. Returns False (``out`` partly written) at the first sample
+    with no vertex."""
+    n = u.shape[0]
+    p0u = patches.shape[0] // p0v
+    for p in range(patches.shape[0]):
+        if not patches[p]:
+            continue
+        pu, pv = p // p0v, p % p0v
+        r = 9 * p
+        for i in range(3):
+            a2 = 2 * pu + i
+            if wrap_u and a2 == 2 * p0u:
+                a2 = 0
+            a = a2 / 2.0
+            for j in range(3):
+                b2 = 2 * pv + j
+                if wrap_v and b2 == 2 * p0v:
+                    b2 = 0
+                b = b2 / 2.0
+                lo, hi = 0, n
+                while lo < hi:  # the first vertex not before (a, b)
+                    mid = (lo + hi) >> 1
+                    if u[mid] < a or (u[mid] == a and v[mid] < b):
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                if lo == n or u[lo] != a or v[lo] != b:
+                    return False
+                out[r, 0], out[r, 1], out[r, 2] = points[lo, 0], points[lo, 1], points[lo, 2]
+                r += 1
+    return True

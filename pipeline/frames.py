@@ -422,7 +422,7 @@ class _Run:
                         sd = self.displays.of(g.surface, m.controls.samples)
                         hit = (g.surface, sd.view(m.path, g.xform, lambda: residual.shown(
                             m.path, sd.points, sd.triangles, g.xform, sd.uv, g.closed,
-                            g.shape.outward if g.closed else 1.0, sd.solid, sd.parts, sd.topology)))
+                            g.shape.outward_shown(sd) if g.closed else 1.0, sd.solid, sd.parts, sd.topology)))
                     self._shown[key] = hit
                     while len(self._shown) > 4 * len(self.defs) + 4:
                         del self._shown[next(iter(self._shown))]

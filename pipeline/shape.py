@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-from acra import halfspaces, kdtree, memo
+from acra import halfspaces, kdtree, lattice, memo
 from acra import hspline as H
 from acra.hspline import HSpline, changed_patches
 from acra.orientation import volume_sign_about_mean
@@ -212,6 +212,7 @@ class Shape:
         self.moved: np.ndarray | None = None
         self.bvhs = BvhCache()  # fcl BVHs of the narrow phase's world triangle sets, by content
         self.ray_meshes: dict[bytes, object] = {}  # merged grids that rays were cast on (`queries.cast`)
+        self._display = None  # a display of the surface while `outward_shown` builds `_coarse`
 
     @cached_property
     def digest(self) -> bytes:
@@ -315,24 +316,58 @@ class Shape:
     def _coarse(self) -> tuple[np.ndarray, np.ndarray]:
         """A 2-step grid of every level-0 patch: surface ``points (9 P, 3)`` and ``triangles
         (8 P, 3) int64``; the parent's points off `_changed`, once that is known or free (the
-        response handed its `moved` patches). Before that every patch is evaluated (a patch's 9
-        points depend on its own CVs and details alone, so they are the parent's bits where it
-        did not change): finding the changed patches compares every level's offsets, which costs
-        about what evaluating 9 points a patch does, and the residual's orientation (`outward`)
-        of a responded surface needs nothing else of it."""
+        response handed its `moved` patches), and on it those of the display `outward_shown`
+        hands it where its vertices hold every sample (`_shown_points`). Before that every
+        patch is evaluated (a patch's 9 points depend on its own CVs and details alone, so they
+        are the parent's bits where it did not change): finding the changed patches compares
+        every level's offsets, which costs about what evaluating 9 points a patch does, and the
+        residual's orientation (`outward`) of a responded surface needs nothing else of it."""
         stale = self._changed if self._changed_known else None
         if stale is None or stale.all():
             p = np.argwhere(np.ones((self.surface.u.patches0, self.surface.v.patches0), bool))
             # the triangles depend on the patch count alone, which a response keeps
             known = self.parent.__dict__.get("_coarse") if stale is not None else None
             tris = known[1] if known is not None and len(known[1]) == 8 * len(p) else coarse_triangles(len(p))
-            return coarse_points(self.surface, p, self.details), tris
+            pts = np.empty((9 * len(p), 3))
+            if stale is None or not self._shown_points(stale, pts):
+                pts = coarse_points(self.surface, p, self.details)
+            return pts, tris
         pts, tris = self.parent._coarse
         pts = pts.copy()
-        if stale.any():  # 9 points per patch, patches in row-major order
+        if stale.any() and not self._shown_points(stale, pts):  # 9 points per patch, patches in row-major order
             new = coarse_points(self.surface, np.argwhere(stale), self.details)
             pts.reshape(stale.size, 9, 3)[stale.reshape(-1)] = new.reshape(-1, 9, 3)
         return pts, tris
+
+    def _shown_points(self, patches: np.ndarray, out: np.ndarray) -> bool:
+        """Write `coarse_points` of the level-0 patches ``patches (P0u, P0v) bool`` into their
+        rows of ``out (9 P, 3)`` (9 a patch, row-major), read from the display `outward_shown`
+        hands `_coarse`: its vertices at their samples (`acra.lattice.half_patch_points`).
+        False (``out`` partly written) without one, or where it was evaluated with other details
+        or lacks a sample. A display vertex is the surface evaluated at its own ``(u, v)`` alone
+        (`acra.tessellate.grid_samples`), the sample's parameters bit for bit (a periodic end
+        ``P0`` the seam's vertex at 0: `acra.kernels.eval_points` wraps ``P0`` to exactly 0.0
+        before it reads anything of the parameter), so its point is the bits `coarse_points`
+        gives."""
+        sd, hs = self._display, self.surface
+        if sd is None or sd.surface is not hs or sd.details is not self.details:
+            return False
+        return lattice.half_patch_points(sd.topology.u, sd.topology.v, sd.points, patches.reshape(-1),
+                                         int(hs.v.patches0), bool(hs.u.periodic), bool(hs.v.periodic), out)
+
+    def outward_shown(self, display) -> float:
+        """`outward`, a responded surface's moved coarse samples read from ``display`` (a
+        `pipeline.display.SurfaceDisplay` of the surface: its ``surface``, ``topology``,
+        ``points`` and ``details``), the bits evaluating them gives (`_shown_points`). The
+        display is read while `_coarse` is built and not kept: a kept shape does not hold its
+        display's points."""
+        if "_coarse" in self.__dict__ or not self._changed_known:
+            return self.outward
+        self._display = display
+        try:
+            return self.outward
+        finally:
+            self._display = None
 
     @cached_property
     def coarse_index(self) -> "CoarseIndex":

@@ -148,3 +148,40 @@ def test_a_large_hull_keeps_only_facets_whose_planes_pass_near_the_box():
     assert (corners @ eq[dropped, :3].T + eq[dropped, 3]).max() < 1e-9
     assert index._facets_near(np.array([[-1.1, -1.0, -1.0], [1.1, 1.0, 1.0]]), 1e-9) is None
     assert index._facets_near(np.array([[np.nan, 0.0, 0.0], [0.1, 0.0, 0.0]]), 1e-9) is None
+
+
+def _display(hs, det):
+    """A display of ``hs`` as `outward_shown` reads one: its own adaptive topology at 8 samples
+    and the points there."""
+    from types import SimpleNamespace
+
+    from acra.tessellate import grid_samples, run_topology
+
+    topo = run_topology([hs], 8)
+    return SimpleNamespace(surface=hs, topology=topo, points=grid_samples(hs, topo, det, normals=False)[0], details=det)
+
+
+def test_a_responded_shape_reads_its_moved_coarse_samples_from_its_display(monkeypatch):
+    hs, new, rep = _responded()
+    torus = H.from_grid(*shapes.torus(8, 9))  # periodic both ways: both seams' end samples
+    moved = H.from_grid(torus.cvs + np.random.default_rng(3).normal(0.0, 0.02, torus.cvs.shape), True, True)
+    cases = [(hs, new, rep.details, rep.moved), (hs, new, rep.details, np.ones_like(rep.moved)),
+             (torus, moved, None, np.ones((8, 9), bool))]
+    for old, surface, det, patches in cases:
+        want = S.Shape(surface)
+        want.outward  # noqa: B018  (evaluated in full)
+        parent = S.Shape(old)
+        parent._coarse  # noqa: B018
+        child = S.Shape(surface)
+        child.__dict__["details"] = det
+        child.parent, child.moved = parent, patches
+        shown = _display(surface, det)
+        with monkeypatch.context() as m:
+            m.setattr(S, "coarse_points", None)  # nothing evaluated: every sample is a display vertex
+            assert child.outward_shown(shown) == want.outward
+        assert child._coarse[0].tobytes() == want._coarse[0].tobytes() and child._display is None
+    other = S.Shape(new)  # a display evaluated with other details: the samples are evaluated
+    other.__dict__["details"] = rep.details
+    other.parent, other.moved = S.Shape(hs), rep.moved
+    assert other.outward_shown(_display(new, H.details(new))) == S.Shape(new).outward
+    assert other._coarse[0].tobytes() == S.Shape(new)._coarse[0].tobytes()

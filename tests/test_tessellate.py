@@ -738,3 +738,33 @@ def test_compiled_adaptive_mesh_orders_its_cells_whatever_the_leaves_order(shape
         got = adaptive_mesh(pu[order].copy(), pv[order].copy(), ph[order].copy(), *args)
         for a, b in zip(got, want):
             np.testing.assert_array_equal(a, b)
+
+
+def test_half_patch_points_are_the_vertices_at_each_patchs_half_patch_samples():
+    """`acra.lattice.half_patch_points` copies, patch by patch, the point of the vertex at each of
+    the 9 samples ``(pu + i / 2, pv + j / 2)`` (``i`` slowest) of the marked patches into their 9
+    rows, a wrapped end at 0, as a lookup of the vertices' parameters gives, and leaves the other
+    rows; a topology with one step a patch has no half samples."""
+    from acra import lattice
+
+    rng = np.random.default_rng(5)
+    for hs in (H.from_grid(*shapes.sphere(6, 8)), H.from_grid(*shapes.torus(5, 7)), wavy_sheet()):
+        p0u, p0v = hs.u.patches0, hs.v.patches0
+        topo = T.run_topology([hs], 4)
+        points = rng.normal(size=(len(topo.u), 3))
+        at = {(a, b): r for r, (a, b) in enumerate(zip(topo.u.tolist(), topo.v.tolist()))}
+        patches = rng.random(p0u * p0v) < 0.4
+        want = rng.normal(size=(9 * p0u * p0v, 3))
+        out = want.copy()
+        for p in np.flatnonzero(patches).tolist():
+            for i in range(3):
+                for j in range(3):
+                    a, b = (2 * (p // p0v) + i) / 2.0, (2 * (p % p0v) + j) / 2.0
+                    a = 0.0 if hs.u.periodic and a == p0u else a
+                    b = 0.0 if hs.v.periodic and b == p0v else b
+                    want[9 * p + 3 * i + j] = points[at[a, b]]
+        assert lattice.half_patch_points(topo.u, topo.v, points, patches, p0v, hs.u.periodic, hs.v.periodic, out)
+        assert out.tobytes() == want.tobytes()
+        coarse = T.run_topology([hs], 1)
+        assert not lattice.half_patch_points(coarse.u, coarse.v, rng.normal(size=(len(coarse.u), 3)), patches,
+                                             p0v, hs.u.periodic, hs.v.periodic, out)
