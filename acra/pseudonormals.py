@@ -277,11 +277,41 @@ _SMALL = 32  # a bucket of more faces or edges than this (a pole's fan) is match
 
 
 @njit(cache=True, nogil=True)
-def _repeated(f, rows, g):
-    """Of the faces ``f[rows]`` (``f (F, 3) int64`` over ``g`` vertices, ``rows (m,) int64``),
-    the first of each sorted corner triple, in the given order: ``(m,) bool`` (faces bucketed by
-    their lowest corner, in row order, and compared within the bucket)."""
+def part_mesh(v, f, radius, flip):
+    """The part's mesh from welded ``v (g, 3)`` and relabelled ``f (F, 3) int64``: drops faces no
+    wider than ``radius`` (twice the area over the longest edge) and repeated faces (the first
+    kept), keeps the vertices used, checks each edge has at most two faces traversing it
+    oppositely, and reverses the winding if ``flip``.
+
+    Returns ``(code, v (n, 3), f (m, 3) int64, normals (m, 3), edge_normals (m, 3, 3), sin
+    (m, 3), cos (m, 3))``: ``code`` 0, or 1 (no face left), 2 (an edge of more than two faces), 3
+    (an edge traversed the same way twice), for the array form to raise its error; ``sin`` and
+    ``cos`` are each corner's ``|e1 x e2|`` and ``e1 . e2``, for its angle."""
+    g = v.shape[0]
+    nf = f.shape[0]
+    keep = np.zeros(nf, np.bool_)
+    for r in range(nf):
+        a, b, c = f[r, 0], f[r, 1], f[r, 2]
+        e10, e11, e12 = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        e20, e21, e22 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        x0, x1, x2 = _cross(e10, e11, e12, e20, e21, e22)
+        area2 = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        longest = -np.inf
+        for k in range(3):
+            p, q = f[r, k], f[r, (k + 1) % 3]
+            d0, d1, d2 = v[q, 0] - v[p, 0], v[q, 1] - v[p, 1], v[q, 2] - v[p, 2]
+            s = (d0 ** 2 + d1 ** 2) + d2 ** 2
+            if s > longest:
+                longest = s
+        keep[r] = area2 > radius * np.sqrt(longest)
+    rows = np.nonzero(keep)[0]
     m = rows.shape[0]
+    empty = (np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)),
+             np.zeros((0, 3)))
+    if m == 0:
+        return (1,) + empty
+    # repeated faces: the first of each sorted corner triple, in the given order (faces bucketed
+    # by their lowest corner, in row order, and compared within the bucket)
     low = np.empty(m, np.int64)
     rest = np.empty((m, 2), np.int64)
     for i in range(m):
@@ -306,165 +336,82 @@ def _repeated(f, rows, g):
                 if rest[j, 0] == rest[i, 0] and rest[j, 1] == rest[i, 1]:
                     first[i] = False
                     break
-    return first
-
-
-@njit(cache=True, nogil=True)
-def _twins(fo, n):
-    """Each edge slot's twin in the faces ``fo (m, 3) int64`` over ``n`` vertices (slot ``3 i +
-    k`` runs from corner ``k`` to corner ``k + 1``): ``(code, other (3 m,) int64)``, ``other``
-    the slot traversing the same edge the other way (itself on a rim), ``code`` 0, 2 (an edge of
-    more than two faces) or 3 (an edge traversed the same way twice).
-
-    Edges are chained by their lower end (``before`` each slot's previous one of that end), and
-    each slot walks the earlier slots of its chain for its other end: an earlier slot already
-    matched is an edge's third face. A pole's chain (more than `_SMALL` slots) is sorted by the
-    other end instead."""
-    m = fo.shape[0]
+    rows = rows[np.nonzero(first)[0]]
+    m = rows.shape[0]
+    # the vertices used, renumbered in order
+    new, vo = _used(v, f, rows)
+    n = vo.shape[0]
+    fo = np.empty((m, 3), np.int64)
+    for i in range(m):
+        for k in range(3):
+            fo[i, 2 - k if flip else k] = new[f[rows[i], k]]
+    # every undirected edge in at most two faces, traversed oppositely
+    # (edges bucketed by their lower end, in slot order, and matched within the bucket)
     head = fo.reshape(-1)
+    low = np.empty(3 * m, np.int64)
     high = np.empty(3 * m, np.int64)
-    before = np.empty(3 * m, np.int64)
-    last = np.full(n, -1, np.int64)
-    count = np.zeros(n, np.int64)
     for i in range(m):
         for k in range(3):
             h, t = fo[i, k], fo[i, (k + 1) % 3]
-            s, lo = 3 * i + k, min(h, t)
-            high[s], before[s], last[lo] = max(h, t), last[lo], s
-            count[lo] += 1
+            low[3 * i + k], high[3 * i + k] = min(h, t), max(h, t)
+    start, member = _buckets(low, n)
     other = np.arange(3 * m)
+    matched = np.zeros(3 * m, np.bool_)
     for x in range(n):
-        if count[x] > _SMALL:  # a pole's edges: sorted by their other end, in slot order where equal
-            seg = np.empty(count[x], np.int64)
-            s = last[x]
-            for p in range(count[x] - 1, -1, -1):
-                seg[p], s = s, before[s]
-            order = np.argsort(high[seg], kind="mergesort")
+        if start[x + 1] - start[x] > _SMALL:  # a pole's edges: sorted by their other end
+            seg = member[start[x]:start[x + 1]]
+            order = np.argsort(high[seg], kind="mergesort")  # equal ends in slot order
             a = 0
             while a < order.shape[0]:
                 b = a + 1
                 while b < order.shape[0] and high[seg[order[b]]] == high[seg[order[a]]]:
                     b += 1
                 if b - a > 2:
-                    return 2, other
+                    return (2,) + empty  # more than two faces
                 if b - a == 2:
                     s, t = seg[order[a]], seg[order[a + 1]]
                     if head[s] == head[t]:
-                        return 3, other
+                        return (3,) + empty
                     other[s], other[t] = t, s
                 a = b
-    for s in range(3 * m):
-        h = head[s]
-        lo = min(h, head[s + 1 if s % 3 < 2 else s - 2])
-        if count[lo] > _SMALL:
             continue
-        r = before[s]
-        while r >= 0:
-            if high[r] == high[s]:
-                if other[r] != r:
-                    return 2, other  # more than two faces
-                if head[r] == h:  # both faces traverse it from the same corner
-                    return 3, other
-                other[s], other[r] = r, s
-                break  # an earlier slot of this edge would have been r's twin
-            r = before[r]
-    return 0, other
-
-
-@njit(cache=True, nogil=True)
-def _renumbered(v, f, rows, flip):
-    """The vertices the faces ``f[rows]`` use (`_used`) and the faces over them, winding reversed
-    if ``flip``: ``(vertices (n, 3), faces (m, 3) int64)``."""
-    new, vo = _used(v, f, rows)
-    fo = np.empty((rows.shape[0], 3), np.int64)
-    for i in range(rows.shape[0]):
-        for k in range(3):
-            fo[i, 2 - k if flip else k] = new[f[rows[i], k]]
-    return vo, fo
-
-
-@njit(cache=True, nogil=True)
-def part_mesh(v, f, radius, flip):
-    """The part's mesh from welded ``v (g, 3)`` and relabelled ``f (F, 3) int64``: drops faces no
-    wider than ``radius`` (twice the area over the longest edge) and repeated faces (the first
-    kept), keeps the vertices used, checks each edge has at most two faces traversing it
-    oppositely, and reverses the winding if ``flip``.
-
-    Returns ``(code, v (n, 3), f (m, 3) int64, normals (m, 3), edge_normals (m, 3, 3), sin
-    (m, 3), cos (m, 3))``: ``code`` 0, or 1 (no face left), 2 (an edge of more than two faces), 3
-    (an edge traversed the same way twice), for the array form to raise its error; ``sin`` and
-    ``cos`` are each corner's ``|e1 x e2|`` and ``e1 . e2``, for its angle."""
-    g = v.shape[0]
-    nf = f.shape[0]
-    # one pass a face, its corners in the part's winding: its edge vectors once; corner k's are
-    # ``a`` (to corner k+1) and ``b`` (to corner k+2), the next edge and the previous one negated,
-    # which is exact, so each sum and product is the one subtracting the corners gives; corner
-    # 0's cross product is the normal's. Unflipped, corner 0's |a x b| is the width test's twice
-    # the area: ``b`` is ``c - a`` but for a zero's sign, which the squares drop.
-    rows = np.empty(nf, np.int64)
-    normals, sin, cos = np.empty((nf, 3)), np.empty((nf, 3)), np.empty((nf, 3))
+        for p in range(start[x], start[x + 1]):
+            s = member[p]
+            if matched[s]:
+                continue
+            t = -1
+            for q in range(p + 1, start[x + 1]):
+                r = member[q]
+                if high[r] == high[s]:
+                    if t >= 0:
+                        return (2,) + empty  # more than two faces
+                    t = r
+            if t >= 0:
+                if head[s] == head[t]:  # both faces traverse it from the same corner
+                    return (3,) + empty
+                other[s], other[t] = t, s
+                matched[t] = True
+    # one pass a face: its edge vectors once; corner k's are ``a`` (to corner k+1) and ``b`` (to
+    # corner k+2), the next edge and the previous one negated, which is exact, so each sum and
+    # product is the one subtracting the corners gives; corner 0's cross product is the normal's
+    normals, sin, cos = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
     e = np.empty((3, 3))
-    m = 0
-    loose = False  # a kept face with a repeated corner
-    for r in range(nf):
+    for i in range(m):
         for k in range(3):
-            p, q = f[r, 2 - k if flip else k], f[r, (4 - k) % 3 if flip else (k + 1) % 3]
+            p, q = fo[i, k], fo[i, (k + 1) % 3]
             for c in range(3):
-                e[k, c] = v[q, c] - v[p, c]
-        longest = -np.inf
-        for k in range(3):  # the same three squared lengths in either winding
-            s = (e[k, 0] ** 2 + e[k, 1] ** 2) + e[k, 2] ** 2
-            if s > longest:
-                longest = s
+                e[k, c] = vo[q, c] - vo[p, c]
         for k in range(3):
             a0, a1, a2 = e[k, 0], e[k, 1], e[k, 2]
             j = (k + 2) % 3
             b0, b1, b2 = -e[j, 0], -e[j, 1], -e[j, 2]
             x0, x1, x2 = _cross(a0, a1, a2, b0, b1, b2)
             n = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
-            sin[m, k] = n
-            cos[m, k] = (a0 * b0 + a2 * b2) + a1 * b1
+            sin[i, k] = n
+            cos[i, k] = (a0 * b0 + a2 * b2) + a1 * b1
             if k == 0:  # `_unit_rows`
                 d = n if n > 0 else 1.0
-                normals[m, 0], normals[m, 1], normals[m, 2] = x0 / d, x1 / d, x2 / d
-        area2 = sin[m, 0]
-        if flip:  # twice the area from the given winding's corner 0
-            a, b, c = f[r, 0], f[r, 1], f[r, 2]
-            x0, x1, x2 = _cross(v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2],
-                                v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2])
-            area2 = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
-        if area2 > radius * np.sqrt(longest):
-            rows[m] = r
-            m += 1
-            if f[r, 0] == f[r, 1] or f[r, 1] == f[r, 2] or f[r, 0] == f[r, 2]:
-                loose = True
-    if m == 0:
-        return (1, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)),
-                np.zeros((0, 3)))
-    rows, normals, sin, cos = rows[:m], normals[:m], sin[:m], cos[:m]
-    vo, fo = _renumbered(v, f, rows, flip)
-    code, other = _twins(fo, vo.shape[0])
-    # repeated faces (the first kept): where every edge has at most two faces traversing it
-    # oppositely, two faces with the same three distinct corners are wound oppositely and each
-    # one's three twins lie in the other, so a part with no such face and no repeated corner
-    # has none to drop
-    alike = code != 0 or loose
-    for i in range(m):
-        o = other[3 * i] // 3
-        if o != i and other[3 * i + 1] // 3 == o and other[3 * i + 2] // 3 == o:
-            alike = True
-            break
-    if alike:
-        first = _repeated(f, rows, g)
-        if not first.all():
-            keep = np.nonzero(first)[0]
-            rows, normals, sin, cos = rows[keep], normals[keep], sin[keep], cos[keep]
-            m = rows.shape[0]
-            vo, fo = _renumbered(v, f, rows, flip)
-            code, other = _twins(fo, vo.shape[0])
-        if code:
-            return (code, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)),
-                    np.zeros((0, 3)), np.zeros((0, 3)))
+                normals[i, 0], normals[i, 1], normals[i, 2] = x0 / d, x1 / d, x2 / d
     # an inner edge's two slots sum the same two normals in either order, the same bits (addition
     # commutes), so each edge is summed and scaled once, from its lower slot
     edge_normals = np.empty((3 * m, 3))

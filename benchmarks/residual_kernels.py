@@ -7,7 +7,7 @@ the arguments of every call of ``--kernel`` (a compiled function of `acra`, name
 ``MODULE.NAME``: `acra.clearcells._clear_cells`, the flooded grids of `residual._clear_depth`;
 `acra.meshrows._faces_at`, the corners, box and shift of the triangles near the other object;
 `acra.meshrows._face_chunks`, a display's chunk boxes; `acra.bvh._part_tree`, a part solid's
-vertex normals and tree; `acra.pseudonormals.welded_part`, a part solid's weld and mesh; `acra.depthbound._depth`, the branch and bound of one `pair_depth`
+vertex normals and tree; `acra.depthbound._depth`, the branch and bound of one `pair_depth`
 call whose answer no kept part answers), then replays them ``--passes`` times and
 prints the CPU milliseconds of the fastest pass and a digest of every answer (each call's return
 value and what it writes of its output arrays, `ANSWERS`): two checkouts answer alike when their
@@ -49,8 +49,6 @@ ANSWERS = {
     + (np.int64(t[9]), t[10]),
     # the branch and bound's code, bound, depth found, completeness, points evaluated, level, points inside
     "depthbound._depth": lambda out, _: tuple(np.asarray(x) for x in out),
-    # a part's code, vertices, faces, normals, edge pseudo-normals, corners' sines and cosines
-    "pseudonormals.welded_part": lambda t, _: tuple(np.asarray(x) for x in t),
 }
 
 

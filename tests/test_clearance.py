@@ -973,33 +973,3 @@ def test_components_number_as_scipy():
         ours = np.unique(C._components(n, e[:, 0], e[:, 1]), return_inverse=True)[1]
         theirs = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)[1]
         assert np.array_equal(ours, theirs)
-
-
-def test_compiled_part_drops_an_oppositely_wound_copy_and_finds_its_defects():
-    """A face repeated with its winding reversed (its three edges' twins all in the copy, so the
-    edges alone pass) is dropped as the array form drops it; a third face on an edge answers code
-    2 and an edge traversed the same way twice code 3 (`pseudonormals._twins`)."""
-    v, f = uv_sphere(8, 12)
-    near = v[f].mean(axis=1)[:, 2] > 0.0
-    faces = np.concatenate([f[near], f[near][40:41, ::-1]])
-    for outward in (1.0, -1.0):
-        a = C.solid(v, faces, part=True, outward=outward, scale=2.0)
-        b = C.solid(v, faces, part=True, outward=outward, scale=2.0, compiled=False)
-        for name in ("vertices", "faces", "normals", "edge_normals", "vertex_normals", "bounds"):
-            x, y = getattr(a, name), getattr(b, name)
-            assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), name
-        np.testing.assert_array_equal(a.faces, C.solid(v, f[near], part=True, outward=outward, scale=2.0).faces)
-    code, vw, fw = pseudonormals.weld(v, faces, 2e-7)
-    assert code == 0 and pseudonormals.part_mesh(vw, fw, 2e-7, False)[0] == 0
-    code, vo, fo = pseudonormals.part_mesh(vw, fw[:-1], 2e-7, False)[:3]
-    edges = np.sort(np.stack([fo, np.roll(fo, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-    keys, count = np.unique(edges, axis=0, return_counts=True)
-    inner = {tuple(e) for e in keys[count == 2]}
-    row = next(i for i in range(len(fo)) if all(tuple(sorted((fo[i, k], fo[i, (k + 1) % 3]))) in inner for k in range(3)))
-    p, q = fo[row, 0], fo[row, 1]
-    extra = np.concatenate([vo, [[0.0, 0.0, 2.0]]])
-    third = np.concatenate([fo, [[q, p, len(vo)]]])  # an inner edge's third face, wound as its twin
-    assert pseudonormals.part_mesh(extra, third, 0.0, False)[0] == 2
-    flipped = fo.copy()
-    flipped[row] = flipped[row, ::-1]  # each of its edges traversed as its neighbour's
-    assert pseudonormals.part_mesh(vo, flipped, 0.0, False)[0] == 3
