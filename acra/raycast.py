@@ -26,7 +26,7 @@ from numba import njit
 
 from acra import meshops
 
-__all__ = ["GROUP", "SLACK", "merged", "merged_bounds", "group_boxes", "scaled_boxes", "sure_first_hits", "sure_hits"]
+__all__ = ["GROUP", "SLACK", "merged", "group_boxes", "sure_first_hits", "sure_hits"]
 
 GROUP = 16  # consecutive faces per box
 # Bound on embree's float32 error of an edge function, a determinant or a depth, as a multiple of
@@ -67,64 +67,17 @@ def _merge(keys, referenced, new_id, rep):
     return count
 
 
-@njit(cache=True, nogil=True)
-def _merge_all(vertices, faces, factor, new_id, rep, out_v, out_f, box):
-    """`acra.meshops.merge_keys`, `_merge`, the gathers of the merged vertices ``out_v`` and
-    renumbered faces ``out_f`` and their box ``box (2, 3)`` (`acra.bvh.bounds`) in one pass;
-    returns the merged vertices' count. A key is numpy's ``round`` (to nearest, ties to even) of
-    the coordinate times ``factor``: the same integers as `merge_keys`, so the same groups."""
-    n = vertices.shape[0]
-    referenced = np.zeros(n, np.bool_)
-    if faces.shape[0]:
-        for f in range(faces.shape[0]):
-            for k in range(3):
-                referenced[faces[f, k]] = True
-    else:
-        referenced[:] = True
-    keys = np.zeros((n, 3), np.int64)
-    for i in range(n):
-        if referenced[i]:
-            for a in range(3):
-                keys[i, a] = np.int64(np.rint(vertices[i, a] * factor))
-    count = _merge(keys, referenced, new_id, rep)
-    for j in range(count):
-        for a in range(3):
-            out_v[j, a] = vertices[rep[j], a]
-    for f in range(faces.shape[0]):
-        for k in range(3):
-            out_f[f, k] = new_id[faces[f, k]]
-    for a in range(3):
-        box[0, a], box[1, a] = out_v[0, a], out_v[0, a]
-    for j in range(1, count):
-        for a in range(3):
-            x = out_v[j, a]
-            # numpy's minimum and maximum: a NaN wins, and no comparison lets a later value replace it
-            if x < box[0, a] or x != x:
-                box[0, a] = x
-            if x > box[1, a] or x != x:
-                box[1, a] = x
-    return count
-
-
 def merged(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`acra.meshops.merge_vertices` (trimesh's merge to 1e-8), the same vertices ``(m, 3)`` and
     faces ``(f, 3) int64``, grouping the rounded rows in one compiled pass instead of sorting them."""
-    return merged_bounds(vertices, faces)[:2]
-
-
-def merged_bounds(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """`merged` and the box ``(2, 3)`` of the merged vertices (`acra.bvh.bounds`' min and max
-    corners; ``None`` without vertices): the keys, the grouping, the gathers and the box in one
-    compiled pass, where numpy takes a call for each."""
-    vertices = np.ascontiguousarray(vertices, np.float64)
-    faces = np.ascontiguousarray(faces, np.int64)
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
     if not len(vertices):
-        return vertices, faces, None
-    n = len(vertices)
-    new_id, rep = np.zeros(n, np.int64), np.empty(n, np.int64)
-    out_v, out_f, box = np.empty((n, 3)), np.empty(faces.shape, np.int64), np.empty((2, 3))
-    count = _merge_all(vertices, faces, float(10 ** meshops.MERGE_DIGITS), new_id, rep, out_v, out_f, box)
-    return out_v[:count], out_f, box
+        return vertices, faces
+    referenced, keys = meshops.merge_keys(vertices, faces)
+    new_id, rep = np.zeros(len(vertices), np.int64), np.empty(len(vertices), np.int64)
+    count = _merge(keys, referenced, new_id, rep)
+    return vertices[rep[:count]], new_id[faces]
 
 
 @njit(cache=True, nogil=True)
@@ -147,26 +100,6 @@ def group_boxes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np
     lo, hi = np.empty((count, 3)), np.empty((count, 3))
     _group_boxes(vertices, faces, GROUP, lo, hi)
     return lo, hi
-
-
-@njit(cache=True, nogil=True)
-def _scaled_boxes(vertices, origin, factor, faces, group, scaled, lo, hi):
-    for i in range(vertices.shape[0]):
-        for a in range(3):
-            scaled[i, a] = np.float32((vertices[i, a] - origin[a]) * factor)
-    _group_boxes(scaled, faces, group, lo, hi)
-
-
-def scaled_boxes(vertices: np.ndarray, origin: np.ndarray, factor: float, faces: np.ndarray
-                 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    """embree's float32 vertices ``(v, 3) float32``, ``((vertices - origin) * factor)`` rounded
-    to float32 as numpy's ``astype`` rounds (to nearest), and `group_boxes` of them for ``faces
-    (f, 3) int64``, in one compiled pass. ``vertices (v, 3)``, ``origin (3,)``."""
-    vertices = np.ascontiguousarray(vertices, np.float64)
-    count = -(-len(faces) // GROUP)
-    scaled, lo, hi = np.empty(vertices.shape, np.float32), np.empty((count, 3)), np.empty((count, 3))
-    _scaled_boxes(vertices, np.ascontiguousarray(origin, np.float64), float(factor), faces, GROUP, scaled, lo, hi)
-    return scaled, (lo, hi)
 
 
 @njit(cache=True, nogil=True)

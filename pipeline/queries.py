@@ -17,6 +17,7 @@ from embreex.mesh_construction import TriangleMesh
 
 from acra import hspline as H
 from acra import meshops, raycast, sides
+from acra.bvh import bounds
 from acra.nearest import candidates
 from acra.patch_boxes import rays_meet
 from pipeline.grids import Nearest
@@ -112,7 +113,7 @@ _DEVICE = None  # the embree device every scene shares: a scene of its own would
 class RayMesh:
     """A merged triangle mesh cast on as trimesh's embree intersector (``trimesh.ray.ray_pyembree``,
     first hits with locations) casts, without a `trimesh.Trimesh`: the vertices merged to 1e-8
-    (`acra.raycast.merged_bounds`, trimesh's rule), moved to the box's low corner and scaled to a diagonal of
+    (`acra.raycast.merged`, trimesh's rule), moved to the box's low corner and scaled to a diagonal of
     100 in float32 for embree, which reports the first triangle a ray meets; the hit is where the
     float64 ray meets that triangle's plane (its first corner, unit normal). The same bits as
     trimesh's (tests/test_meshops.py).
@@ -124,8 +125,8 @@ class RayMesh:
     0.2-0.8 ms to build, 30 times a cast of 70 rays."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        # (2, 3): the merged vertices' min and max corners (None without vertices)
-        self.vertices, self.faces, self.box = raycast.merged_bounds(vertices, faces)
+        self.vertices, self.faces = raycast.merged(vertices, faces)
+        self.box = bounds(self.vertices) if len(self.vertices) else None  # (2, 3): min and max corners
         self.scale = meshops.scale(self.vertices, self.box)
         self._scene = None
         self._ready = False
@@ -134,7 +135,8 @@ class RayMesh:
         """embree's float32 vertices ``(v, 3)`` and the boxes of the faces, at the first cast."""
         self.origin = self.box[0]
         self.factor = float(100.0 / self.scale)
-        self.scaled, self.boxes = raycast.scaled_boxes(self.vertices, self.origin, self.factor, self.faces)
+        self.scaled = ((self.vertices - self.origin) * self.factor).astype(np.float32)
+        self.boxes = raycast.group_boxes(self.scaled, self.faces)
         self._ready = True
 
     @property

@@ -71,39 +71,6 @@ def test_merged_is_trimeshs_merge(scale):
     assert got[0].tobytes() == want[0].tobytes() and got[1].shape == want[1].shape
 
 
-@pytest.mark.parametrize("scale", [1.0, 1e-3, 250.0])
-def test_merged_bounds_are_the_merge_and_its_box(scale):
-    from acra.bvh import bounds
-
-    for seed in range(3):
-        points, faces = _grids(np.random.default_rng(seed), scale)
-        v, f, box = raycast.merged_bounds(points, faces)
-        want_v, want_f = meshops.merge_vertices(points, faces)
-        assert v.tobytes() == want_v.tobytes() and f.tobytes() == want_f.tobytes() and f.dtype == np.int64
-        assert box.tobytes() == bounds(want_v).tobytes()
-    # coordinates whose keys are halves of 1e-8 (numpy's round: ties to even) and their neighbours
-    x = (np.arange(-300, 300) + 0.5) / 1e8
-    x = x[x * 1e8 == np.arange(-300, 300) + 0.5][:60].reshape(-1, 3)  # keys exactly halfway
-    assert len(x) == 20
-    points = np.concatenate([x, np.nextafter(x, np.inf), np.nextafter(x, -np.inf), x[::-1]])
-    faces = np.arange(len(points) - len(points) % 3).reshape(-1, 3)
-    got, want = raycast.merged_bounds(points, faces), meshops.merge_vertices(points, faces)
-    assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
-    assert raycast.merged_bounds(np.zeros((0, 3)), np.zeros((0, 3), np.int64))[2] is None
-
-
-@pytest.mark.parametrize("scale", [1.0, 1e-3, 250.0])
-def test_scaled_boxes_are_numpys_float32_and_the_group_boxes(scale):
-    points, faces = _grids(np.random.default_rng(5), scale)
-    v, f = meshops.merge_vertices(points, faces)
-    origin, factor = v.min(axis=0), float(100.0 / meshops.scale(v))
-    scaled, (lo, hi) = raycast.scaled_boxes(v, origin, factor, f)
-    want = ((v - origin) * factor).astype(np.float32)
-    want_lo, want_hi = raycast.group_boxes(want, f)
-    assert scaled.dtype == np.float32 and scaled.tobytes() == want.tobytes()
-    assert lo.tobytes() == want_lo.tobytes() and hi.tobytes() == want_hi.tobytes()
-
-
 def test_hit_faces_normals_are_the_whole_meshs_rows():
     v, f = meshops.merge_vertices(*_grids(np.random.default_rng(3), 7.0))
     whole = meshops.face_normals(v, f)
