@@ -29,7 +29,16 @@ def test_bench_splits_every_stage_over_collision_and_free_frames():
     assert all(np.isfinite(write_usdc)) and min(write_usdc) > 0
     assert b.frame_ms_usdc[1] - write_usdc[1] == pytest.approx(b.frame_ms[1] - write[1], rel=1e-9, abs=1e-9)
     assert b.residual_rel <= 1e-3
+    # the process's first run is its own line: the one collision frame's loop in each run, and the
+    # medians (one later run) are that run's frame loop plus its write
+    assert set(b.per_frame) == {11} and all(ms > 0 for ms in b.per_frame[11])
+    assert b.frame_ms[0] - write[0] == pytest.approx(b.per_frame[11][1], rel=1e-9)
+    assert np.isfinite(b.first_in_process).all() and b.first_in_process[0] > b.first_in_process[1] > 0
     text = B.format_report(b)
+    assert "The process's first run, left out of the medians above" in text
+    assert f"| 11 | {b.per_frame[11][0]:.1f} | {b.per_frame[11][1]:.1f} |" in text
+    assert "| collision frame, the process's first run | " in text
+    assert "medians over 1 cold runs after the process's first" in text
     assert "| detection |" in text and "30: 16" in text and "end to end" in text
     assert "free frame, `-o NAME.usdc`" in text and "end to end, `-o NAME.usdc`" in text
     assert "Holds, left out of both kinds: 5 frames" in text and "(1 collision frame, 10 free frames)" in text
@@ -58,6 +67,8 @@ def test_bench_times_a_first_run_with_an_empty_numba_cache(monkeypatch, tiny_sta
     assert "First run after a fresh install" in text
     assert (b.n_collision, b.n_free) == (0, 3) and "nan" not in text
     assert "| collision frame | — | ≤ 10 ms | not measured: no collision frame in this scene |" in text
+    assert "| collision frame, the process's first run | — | ≤ 10 ms | not measured: no collision frame in this scene |" in text
+    assert "Each collision frame's frame loop" not in text
     assert "| free frame | " in text and "| free frame | — " not in text
     assert B.run_bench(free_only, repeat=1).first_run is None
 
