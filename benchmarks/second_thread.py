@@ -12,7 +12,8 @@ run's parked thread, `workers.kept`). The run keeps the process's numba thread c
 `workers.both`: `residual.measure_frame`, `display.Displays.build`, the output layer's
 `output_layer._SharedText._texts`) and setting, the calls a run makes and the wall and CPU
 milliseconds (``time.perf_counter``, ``time.process_time``: both threads counted) they take a
-run, median and range over the runs; the collision frames' summed ``FrameStats.ms_total`` and
+run, median and range over the runs, those of the frame loop's frames and of its collision
+frames apart; the collision frames' summed ``FrameStats.ms_total`` and
 CPU time (every run's), and a digest of the output layer's bytes (the same in every run of every
 setting). Wall time needs an idle second core to show what a second thread gains (give
 ``uptime`` with it); CPU time is the cost of the second thread on a loaded machine too.
@@ -45,7 +46,7 @@ def main() -> None:
     from pipeline import display, frames, output_layer, residual
 
     parked, threads = workers._parked, workers.threads
-    mode = {"now": None, "run": 0}
+    mode = {"now": None, "run": 0, "frame": None}  # "frame": the calls of the frame under way
     # mode -> call site -> run -> [(wall s, CPU s) of each call]
     times: dict = collections.defaultdict(lambda: collections.defaultdict(lambda: collections.defaultdict(list)))
     frame_cpu: dict = collections.defaultdict(lambda: collections.defaultdict(float))  # mode -> run -> CPU s
@@ -59,7 +60,11 @@ def main() -> None:
             try:
                 return call(*args, **kwargs)
             finally:
-                times[mode["now"]][label][mode["run"]].append((time.perf_counter() - w, time.process_time() - c))
+                where = "" if mode["frame"] is None else " (frames)"
+                cost = (time.perf_counter() - w, time.process_time() - c)
+                times[mode["now"]][label + where][mode["run"]].append(cost)
+                if mode["frame"] is not None:
+                    mode["frame"].append((label, cost))
         setattr(owner, name, wrapper)
 
     timed(residual, "measure_frame", "residual.measure_frame")
@@ -68,10 +73,15 @@ def main() -> None:
     frame = frames._Run.frame
 
     def one_frame(self, f, result):
-        c = time.process_time()
-        st = frame(self, f, result)
+        c, mode["frame"] = time.process_time(), []
+        try:
+            st = frame(self, f, result)
+        finally:
+            calls, mode["frame"] = mode["frame"], None
         if st.in_collision and not st.hold:
             frame_cpu[mode["now"]][mode["run"]] += time.process_time() - c
+            for label, cost in calls:
+                times[mode["now"]][label + " (collision frames)"][mode["run"]].append(cost)
         return st
     frames._Run.frame = one_frame
     workers.threads = lambda: 1 if mode["now"] == "one" else threads()

@@ -10,9 +10,13 @@ its call's inputs alone, so the bits do not depend on how the two interleave.
 The number of threads a frame may use is numba's own setting, ``NUMBA_NUM_THREADS`` (numba's
 default: the machine's cores). A farm running one process per core sets ``NUMBA_NUM_THREADS=1``
 and every call runs in the caller's thread, one after the other, as without this module
-(`docs/farm.md`). The second thread is started for the two calls and joined before `both`
-returns, so no thread outlives a frame: `pipeline.cli`'s fast exit (taken only where the main
-thread is alone) and a fork after a frame (a Dask worker's process, a test) see one thread.
+(`docs/farm.md`). Within a `kept` block (a run, `pipeline.run.run_file`; a frame loop,
+`pipeline.frames.respond_frames`) the second calls go to one thread parked between them, made
+at the block's first call and joined when the block ends; outside one, `both` starts a thread
+for its call and joins it before it returns. So no thread outlives a run or a frame loop:
+`pipeline.cli`'s fast exit (taken only where the main thread is alone) and a fork after a run
+(a Dask worker's process, a test) see one thread, and a process forked within a block (whose
+child has no parked thread) starts a thread per call there.
 
 The second call runs in a copy of the caller's `contextvars` context: the run's memo
 (`acra.memo.scope`) and numpy's error state (a context variable) are the caller's. A memo
