@@ -34,6 +34,7 @@ from pipeline import residual
 from pipeline import shape as S
 from pipeline import state
 from pipeline import usdio
+from pipeline import workers
 from pipeline import output_layer
 from pipeline.guard import format_size
 from pipeline.model import InputError, SceneModel, apply_inverse
@@ -810,8 +811,11 @@ def _run_frames(stage, scene, frames, options, on_frame, initial=None, displays=
     run = _Run(stage, scene, options, state.for_run(stage, scene, frames, options, initial), displays)
     result = output_layer.FramesResult()
     stats: list[FrameStats] = []
-    for frame in frames:
-        stats.append(run.frame(frame, result))
-        if on_frame is not None:
-            on_frame(stats[-1], result)
+    # the frames' second calls side by side go to one parked thread, ended with the loop (or
+    # with the run around it, `pipeline.run.run_file`)
+    with workers.kept():
+        for frame in frames:
+            stats.append(run.frame(frame, result))
+            if on_frame is not None:
+                on_frame(stats[-1], result)
     return result, stats

@@ -28,6 +28,7 @@ import numpy as np
 
 from acra import memo
 from pipeline import guard, report
+from pipeline import workers as second_core
 from pipeline.model import InputError
 
 __all__ = ["RunReport", "run_file", "frame_list", "refuse_outputs"]
@@ -126,10 +127,12 @@ def forget() -> None:
 
 def _own_memo(run):
     """``run`` inside a memo of its own (`acra.memo.scope`): what its frames keep is the run's,
-    dropped with it; a run after it, or beside it in another thread, starts from nothing."""
+    dropped with it; a run after it, or beside it in another thread, starts from nothing. Its
+    frames' second thread is parked between their calls and ended with it
+    (`pipeline.workers.kept`)."""
     @functools.wraps(run)
     def in_scope(*args, **kwargs):
-        with memo.scope():
+        with memo.scope(), second_core.kept():
             return run(*args, **kwargs)
     return in_scope
 

@@ -527,3 +527,38 @@ def test_an_inner_box_is_the_array_forms_box():
         assert (got is None) == (want is None), trial
         if got is not None:
             assert np.array_equal(got[0], want[0]) and got[1] == want[1], trial
+
+
+def test_the_frame_loop_hands_its_second_calls_to_one_parked_thread_and_ends_it(monkeypatch):
+    """With two threads, the demo's frames 13-14 give one thread's answers bit for bit; every
+    second call of the loop (`workers.both`: a closed pair's two sides, a round's two displays)
+    runs in the one thread the loop parks (`workers.kept`), which has ended when it returns."""
+    import threading
+
+    from numba.core import config
+
+    from pipeline import workers
+
+    one = _demo_frames([13, 14])[:2]
+    made, ran = [], []
+
+    class Recorded(workers._Second):
+        __slots__ = ()
+
+        def __init__(self):
+            super().__init__()
+            made.append(self.thread)
+
+    both = workers.both
+
+    def recorded(first, second):
+        return both(first, lambda: (ran.append(threading.get_ident()), second())[1])
+
+    before = threading.active_count()
+    monkeypatch.setattr(config, "NUMBA_NUM_THREADS", 2)
+    monkeypatch.setattr(workers, "_Second", Recorded)
+    monkeypatch.setattr(workers, "both", recorded)
+    two = _demo_frames([13, 14])[:2]
+    _same_outcome(one, two)
+    assert len(made) == 1 and len(ran) >= 2 and set(ran) == {made[0].ident}
+    assert not made[0].is_alive() and threading.active_count() == before

@@ -51,3 +51,55 @@ def test_an_exception_of_either_call_is_raised_in_the_caller(monkeypatch, thread
 def test_no_thread_count_below_one(monkeypatch):
     monkeypatch.setattr(config, "NUMBA_NUM_THREADS", 0)
     assert workers.threads() == 1
+
+
+def test_a_kept_block_hands_every_second_call_to_one_parked_thread(monkeypatch):
+    """Inside `workers.kept` the second calls all run in one thread, not the caller's, in the
+    caller's context, with the answers and exceptions `both` gives without the block; the
+    thread is ended with the block."""
+    monkeypatch.setattr(config, "NUMBA_NUM_THREADS", 2)
+    _NAME.set("caller")
+    before = threading.active_count()
+    caller = threading.get_ident()
+    seconds = set()
+    with workers.kept():
+        for n in range(5):
+            a, b = workers.both(lambda n=n: (n, threading.get_ident()), lambda n=n: (-n, threading.get_ident(), _NAME.get()))
+            assert a == (n, caller) and b[0] == -n and b[2] == "caller"
+            seconds.add(b[1])
+        assert threading.active_count() == before + 1
+        with pytest.raises(ValueError, match="second"):
+            workers.both(lambda: 1, lambda: (_ for _ in ()).throw(ValueError("second")))
+        with pytest.raises(ValueError, match="first"):
+            workers.both(lambda: (_ for _ in ()).throw(ValueError("first")), lambda: (_ for _ in ()).throw(ValueError("second")))
+        assert workers.both(lambda: "a", lambda: "b") == ("a", "b")  # usable after an exception
+    assert len(seconds) == 1 and caller not in seconds
+    assert threading.active_count() == before
+
+
+def test_a_both_inside_a_kept_blocks_call_starts_a_thread_of_its_own(monkeypatch):
+    """A `both` inside ``first`` (the parked thread busy), inside ``second`` (another thread)
+    or in a forked child (another process) does not use the block's thread; the answers are
+    the same."""
+    monkeypatch.setattr(config, "NUMBA_NUM_THREADS", 2)
+    before = threading.active_count()
+
+    def inner():
+        return workers.both(lambda: "x", lambda: "y")
+
+    with workers.kept():
+        assert workers.both(inner, inner) == (("x", "y"), ("x", "y"))
+        assert workers.both(lambda: 0, lambda: 1) == (0, 1)
+        parked = workers._parked()
+        parked.pid = -1  # as a forked child sees it
+        assert workers._parked() is None and workers.both(lambda: 2, lambda: 3) == (2, 3)
+        parked.pid = workers.os.getpid()
+    assert threading.active_count() == before
+
+
+def test_one_thread_makes_no_parked_thread(monkeypatch):
+    monkeypatch.setattr(config, "NUMBA_NUM_THREADS", 1)
+    before = threading.active_count()
+    with workers.kept():
+        assert workers.both(lambda: threading.active_count(), lambda: threading.active_count()) == (before, before)
+    assert threading.active_count() == before
