@@ -255,3 +255,40 @@ def test_culls_compile_once_for_read_only_bounds(monkeypatch):
     narrow.patches_near((lo, hi), bounds, (lo + 0.5, hi + 0.5), bounds, 0.0)
     narrow.triangles_near((lo, hi), (lo + 0.5, hi + 0.5), 0.0)
     assert seen == {numba.typeof(np.empty((2, 3)))}, seen
+
+
+def test_near_crossings_is_the_cull_then_the_count():
+    """`narrow.near_crossings` answers as `face_boxes`, `triangles_near` and `crossings` one after
+    the other: the same kept rows, count and ``unsure``, whole or stopped at the first contact,
+    and the face boxes it finds (a side given none) bit for bit `face_boxes`'."""
+    rng = np.random.default_rng(11)
+    crossed = empty = 0
+    for trial in range(300):
+        scale = float(rng.choice([1e-3, 1.0, 100.0]))
+        if trial % 2:
+            pa, fa = _grid(rng, int(rng.integers(4, 12)), np.zeros(3), scale)
+            pb, fb = _grid(rng, int(rng.integers(4, 12)), rng.normal(size=3) * scale * rng.choice([0.5, 3.0]),
+                           scale * rng.choice([0.3, 1.0]))
+        else:
+            n, m = int(rng.integers(3, 50)), int(rng.integers(3, 50))
+            pa = rng.normal(size=(n, 3)) * scale
+            pb = rng.normal(size=(m, 3)) * scale + rng.normal(size=3) * scale * rng.choice([0, 0.5, 2, 6])
+            fa = np.array([rng.choice(n, 3, replace=False) for _ in range(int(rng.integers(1, 30)))])
+            fb = np.array([rng.choice(m, 3, replace=False) for _ in range(int(rng.integers(1, 30)))])
+            if trial % 6 == 2:  # degenerate and thin
+                fa[::3, 1] = fa[::3, 0]
+        pad, first = float(rng.choice([0.0, 1e-7 * scale, 0.1 * scale])), bool(trial % 3 == 0)
+        box_a, box_b = narrow.face_boxes(pa, fa), narrow.face_boxes(pb, fb)
+        ka, kb = narrow.triangles_near(box_a, box_b, pad)
+        want = narrow.crossings(pa, fa, ka, pb, fb, kb, pad, first) if len(ka) else (0, False)
+        given = [(box_a, box_b), (None, box_b), (box_a, None), (None, None)][trial % 4]
+        ga, gb, count, unsure, got_a, got_b = narrow.near_crossings(pa, fa, given[0], pb, fb, given[1], pad, first)
+        assert np.array_equal(ga, ka) and np.array_equal(gb, kb), trial
+        assert ga.dtype == kb.dtype == np.int64
+        if len(ka):
+            assert (count, unsure) == want, trial
+        for got, ref in ((got_a, box_a), (got_b, box_b)):
+            assert all(g.tobytes() == r.tobytes() for g, r in zip(got, ref)), trial
+        crossed += count > 0
+        empty += not len(ka)
+    assert crossed > 30 and empty > 5
