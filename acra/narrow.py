@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["THIN", "compact", "crossings", "face_boxes", "near_crossings", "patches_near", "patch_rows_near", "rows_in_box", "solid_mask", "thin_faces",
+__all__ = ["THIN", "compact", "crossings", "face_boxes", "patches_near", "patch_rows_near", "rows_in_box", "solid_mask", "thin_faces",
            "triangles_near"]
 
 
@@ -534,49 +534,6 @@ def crossings(pa: np.ndarray, fa: np.ndarray, ka: np.ndarray, pb: np.ndarray, fb
                                np.ascontiguousarray(fb, np.int64), np.ascontiguousarray(kb, np.int64), float(pad), THIN,
                                bool(first))
     return int(total), bool(unsure)
-
-
-@njit(cache=True, nogil=True)
-def _near_crossings(pa, fa, lo_a, hi_a, boxes_a, pb, fb, lo_b, hi_b, boxes_b, pad, rounds, thin, first, rows_a, rows_b):
-    # `face_boxes` of a side without them, `triangles_near` and `crossings` in one call: the same
-    # kernels on the same rows in the same order, so the same boxes, rows and counts
-    if boxes_a:
-        _face_boxes(pa, fa, lo_a, hi_a)
-    if boxes_b:
-        _face_boxes(pb, fb, lo_b, hi_b)
-    for i in range(rows_a.shape[0]):
-        rows_a[i] = i
-    for j in range(rows_b.shape[0]):
-        rows_b[j] = j
-    na, nb = _near(lo_a, hi_a, lo_b, hi_b, pad, rounds, rows_a, rows_b)
-    if na == 0 or nb == 0:
-        return na, nb, 0, False
-    total, unsure = _crossings(pa, fa, rows_a[:na], pb, fb, rows_b[:nb], pad, thin, first)
-    return na, nb, total, unsure
-
-
-def near_crossings(pa: np.ndarray, fa: np.ndarray, box_a: tuple[np.ndarray, np.ndarray] | None, pb: np.ndarray,
-                   fb: np.ndarray, box_b: tuple[np.ndarray, np.ndarray] | None, pad: float, first: bool = False,
-                   rounds: int = 2):
-    """`triangles_near` of the triangles ``fa (f, 3) int64`` of ``pa (n, 3) float64`` and ``fb (g,
-    3) int64`` of ``pb (m, 3) float64``, then `crossings` of the kept rows, in one compiled call;
-    a side's triangle boxes ``lo, hi (f, 3)`` are ``box_a`` (``box_b``) or, given ``None``, found
-    here (`face_boxes`). Returns the kept rows ``ka (k,) int64`` and ``kb``, the count, whether
-    some pair's contacts are unknown, and each side's boxes; the count is 0 (not unknown) where a
-    side keeps no row, as `crossings` answers."""
-    pa, fa = np.ascontiguousarray(pa, np.float64), np.ascontiguousarray(fa, np.int64)
-    pb, fb = np.ascontiguousarray(pb, np.float64), np.ascontiguousarray(fb, np.int64)
-    boxes = []
-    for box, faces in ((box_a, fa), (box_b, fb)):
-        if box is None:
-            boxes.append((np.empty((len(faces), 3)), np.empty((len(faces), 3)), True))
-        else:
-            boxes.append((np.ascontiguousarray(box[0], np.float64), np.ascontiguousarray(box[1], np.float64), False))
-    (lo_a, hi_a, new_a), (lo_b, hi_b, new_b) = boxes
-    rows_a, rows_b = np.empty(len(fa), np.int64), np.empty(len(fb), np.int64)
-    na, nb, total, unsure = _near_crossings(pa, fa, lo_a, hi_a, new_a, pb, fb, lo_b, hi_b, new_b, float(pad), int(rounds),
-                                            THIN, bool(first), rows_a, rows_b)
-    return rows_a[:na], rows_b[:nb], int(total), bool(unsure), (lo_a, hi_a), (lo_b, hi_b)
 
 
 @njit(cache=True, nogil=True)

@@ -20,7 +20,7 @@ import numpy as np
 from acra import halfspaces, memo, meshops, narrow
 from pipeline import tessellation as T
 from pipeline.geometry import (ColliderGeometry, ColliderStatic, Geometry, SurfaceGeometry, _face_boxes, candidate_patches,
-                               Tessellation, is_closed, surface_points, wrap_uv)
+                               is_closed, surface_points, wrap_uv)
 from pipeline.model import apply_inverse, apply_xform
 
 __all__ = [
@@ -149,22 +149,6 @@ def _triangles_near(box_a: tuple[np.ndarray, np.ndarray], box_b: tuple[np.ndarra
     return narrow.triangles_near(box_a, box_b, pad, rounds)
 
 
-def _near_crossings(ta: Tessellation, tb: Tessellation, pad: float, first: bool):
-    """Two surfaces' kept triangle rows ``ka, kb (k,) int64`` (`_triangles_near` of their face
-    boxes), `acra.narrow.crossings`' count and whether some pair's contacts are unknown, in one
-    compiled call (`acra.narrow.near_crossings`). A tessellation's face boxes are found there
-    where it has none yet (a rewinding step's moving side) and kept in it, as
-    `Tessellation.face_boxes` keeps them: the same kernel on the same points, so the same bits."""
-    kept_a, kept_b = ta.__dict__.get("face_boxes"), tb.__dict__.get("face_boxes")
-    ka, kb, count, unsure, box_a, box_b = narrow.near_crossings(ta.points, ta.triangles, kept_a, tb.points, tb.triangles,
-                                                                kept_b, pad, first)
-    if kept_a is None:
-        ta.__dict__["face_boxes"] = box_a
-    if kept_b is None:
-        tb.__dict__["face_boxes"] = box_b
-    return ka, kb, count, unsure
-
-
 ANSWERS_KEPT = 8
 _ANSWERS = memo.Table("detect.answers", ANSWERS_KEPT)  # `intersect`'s answers by the pair's content, most recent last
 
@@ -219,7 +203,7 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, firs
             return _no_intersections(collider)
         tb = T.tessellate_sorted(gb, cb)
         pa, pb, fb_all = ta.points, tb.points, tb.triangles
-        ka, kb, count, unsure = _near_crossings(ta, tb, pad, first)
+        ka, kb = _triangles_near(ta.face_boxes, tb.face_boxes, pad)
     if not len(ka):
         return _no_intersections(collider)
 
@@ -245,6 +229,8 @@ def _intersect(ga: SurfaceGeometry, gb: Geometry, pad: float | None = None, firs
     if collider:
         count, unsure = (0, True) if gb.static.thin else narrow.crossings(pa, ta.triangles, ka, gb.static.mesh.vertices,
                                                                          gb.static.mesh.faces, kb, pad, first)
+    else:
+        count, unsure = narrow.crossings(pa, ta.triangles, ka, pb, fb_all, kb, pad, first)
     if first and count:
         return None
     if not unsure:
