@@ -1,6 +1,6 @@
 """The residual where the user looks, frame by frame: what each collision frame spends in it.
 
-    PYTHONPATH=$PWD python3 benchmarks/visible_frames.py [SCENE.py] [--frames 13:17] [--repeat 5] [--passes 9]
+    PYTHONPATH=$PWD python3 benchmarks/visible_frames.py [SCENE.py] [--frames 13:17] [--repeat 5] [--passes 9] [--midpoints]
 
 Runs the scene's ``--frames`` (after a free frame, as `residual_calls.py` does) ``--repeat``
 times in one process, on one thread, and prints per frame the CPU milliseconds of
@@ -13,6 +13,13 @@ numpy and Python between them: the stage's least less the kernels' sum; a replay
 its data in the processor's caches, so the rest is an upper bound). Frames that cost more than
 others show which kernel carries the difference. Each `acra.depthbound._depth` call is also
 listed (its triangles, the part's faces, the points evaluated, the last level and its CPU).
+
+With ``--midpoints`` it instead runs the frames once through the branch and bound's array form
+(`clearance._triangle_depth` with ``compiled=False``, the same bits) and counts, per refined
+level of each call, the distinct midpoints, those whose signed distance lies below minus the
+largest covering radius of a child cell they are a corner of (and below twice that), and those
+inside: such a point is never its cell's largest corner with a bound above 0, so only eq. (6),
+a deepest point or the part's reach could read its exact value.
 """
 
 from __future__ import annotations
@@ -111,6 +118,35 @@ def _kernel_calls(stage, scene, frames: list[int]) -> tuple[dict, dict]:
     return calls, reals
 
 
+def _midpoints(stage, scene, frames: list[int]) -> None:
+    """Print, per `clearance._triangle_depth` call and refined level, ``(midpoints, below -rho,
+    below -2 rho, inside)`` (`--midpoints`)."""
+    from acra import depthbound
+    from pipeline import clearance
+
+    real_depth, real_children = clearance._triangle_depth, depthbound.children
+
+    def array_form(s, corners, target, max_split, budget, reach, decide, compiled, stop):
+        print(f"  call: {len(corners)} triangles")
+        return real_depth(s, corners, target, max_split, budget, reach, decide, False, stop)
+
+    def children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho):
+        child = np.full(len(sd_mid), -np.inf)  # the largest covering radius of a child cell at each midpoint
+        np.maximum.at(child, inverse, np.repeat(rho, 3) / 2)
+        print(f"    level: {len(sd_mid)} midpoints, {int((sd_mid < -child).sum())} below -rho, "
+              f"{int((sd_mid < -2 * child).sum())} below -2 rho, {int((sd_mid > 0).sum())} inside")
+        return real_children(lattice, mid, sd, sd_mid, fc, face_mid, inverse, rows, rho)
+
+    clearance._triangle_depth, depthbound.children = array_form, children
+    try:
+        F.run_frames(stage, scene, [5])
+        for f in frames:
+            print(f"frame {f}")
+            F.run_frames(stage, scene, [f])
+    finally:
+        clearance._triangle_depth, depthbound.children = real_depth, real_children
+
+
 def _fastest(f, calls: list, passes: int) -> float:
     """CPU ms of the fastest of ``passes`` replays of ``calls`` through ``f``."""
     best = np.inf
@@ -128,11 +164,16 @@ def main() -> None:
     ap.add_argument("--frames", default="13:17", help="frames START:END (default 13:17)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--passes", type=int, default=9)
+    ap.add_argument("--midpoints", action="store_true", help="count the refined levels' midpoints instead")
     args = ap.parse_args()
     a, b = (int(x) for x in args.frames.split(":"))
     frames = list(range(a, b + 1))
     stage = usdio.open_input(usdio.load_scene_file(args.scene))
     scene = usdio.read_scene(stage)
+    if args.midpoints:
+        with threadpool_limits(limits=1, user_api="blas"):
+            _midpoints(stage, scene, frames)
+        return
     with threadpool_limits(limits=1, user_api="blas"):  # as the frame loop runs
         visible = _visible_ms(stage, scene, frames, args.repeat)
         calls, reals = _kernel_calls(stage, scene, frames)
