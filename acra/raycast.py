@@ -96,29 +96,26 @@ def _group_boxes(v, faces, group, lo, hi):
                     hi[g, a] = max(hi[g, a], x)
 
 
-def group_boxes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def group_boxes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Boxes ``lo, hi (g, 3)`` of each `GROUP` consecutive faces ``faces (f, 3) int64`` of
-    ``vertices (v, 3) float32``."""
+    ``vertices (v, 3) float32``, and the boxes ``(r, 3)`` of each `RUN` consecutive groups (the
+    least and greatest of their corners: exact)."""
     count = -(-len(faces) // GROUP)
     lo, hi = np.empty((count, 3)), np.empty((count, 3))
     _group_boxes(vertices, faces, GROUP, lo, hi)
-    return lo, hi
+    if not count:
+        return lo, hi, lo, hi
+    starts = np.arange(0, count, RUN)
+    return lo, hi, np.minimum.reduceat(lo, starts), np.maximum.reduceat(hi, starts)
 
 
 @njit(cache=True, nogil=True)
-def _sure_first_hits(v, faces, group, glo, ghi, orig, dirs, slack, tri, sure, v64, orig64, dirs64, zero, loc, has):
+def _sure_first_hits(v, faces, group, glo, ghi, rlo, rhi, orig, dirs, slack, tri, sure, v64, orig64, dirs64, zero, loc,
+                     has):
     reach = 3.0 * max(np.abs(glo).max(), np.abs(ghi).max()) if glo.shape[0] else 0.0
-    # each `RUN` consecutive groups' box: a ray that misses it (the same padded slab test) misses
-    # every group box in it, since a box holding another widens each slab's interval, so a run
-    # is skipped only where each of its groups would be, and the groups met keep their order
-    runs = -(-glo.shape[0] // RUN)
-    rlo, rhi = np.empty((runs, 3)), np.empty((runs, 3))
-    for r in range(runs):
-        for a in range(3):
-            lo, hi = np.inf, -np.inf
-            for g in range(r * RUN, min((r + 1) * RUN, glo.shape[0])):
-                lo, hi = min(lo, glo[g, a]), max(hi, ghi[g, a])
-            rlo[r, a], rhi[r, a] = lo, hi
+    # a ray that misses a run's box (the same padded slab test) misses every group box in it, since
+    # a box holding another widens each slab's interval: a run is skipped only where each of its
+    # groups would be, and the groups met keep their order
     for i in range(orig.shape[0]):
         ox, oy, oz = np.float64(orig[i, 0]), np.float64(orig[i, 1]), np.float64(orig[i, 2])
         dx, dy, dz = np.float64(dirs[i, 0]), np.float64(dirs[i, 1]), np.float64(dirs[i, 2])
@@ -129,11 +126,29 @@ def _sure_first_hits(v, faces, group, glo, ghi, orig, dirs, slack, tri, sure, v6
         best, best_lo, best_hi = -1, np.inf, np.inf
         other_lo = np.inf  # the least distance any other possible hit may have
         unsure = False
-        for r in range(runs):
+        g = 0
+        while g < glo.shape[0]:
+            if g % RUN == 0:  # a run's first group: its run's box first
+                near, far = -np.inf, np.inf
+                skip = False
+                for a, o, d in ((0, ox, dx), (1, oy, dy), (2, oz, dz)):
+                    lo, hi = rlo[g // RUN, a] - pad, rhi[g // RUN, a] + pad
+                    if d == 0.0:
+                        if o < lo or o > hi:
+                            skip = True
+                        continue
+                    t0, t1 = (lo - o) / d, (hi - o) / d
+                    near = max(near, min(t0, t1))
+                    far = min(far, max(t0, t1))
+                if skip or near > far or far < -pad:
+                    g += RUN
+                    continue
+            g += 1
+            k = g - 1
             near, far = -np.inf, np.inf
             skip = False
             for a, o, d in ((0, ox, dx), (1, oy, dy), (2, oz, dz)):
-                lo, hi = rlo[r, a] - pad, rhi[r, a] + pad
+                lo, hi = glo[k, a] - pad, ghi[k, a] + pad
                 if d == 0.0:
                     if o < lo or o > hi:
                         skip = True
@@ -143,69 +158,55 @@ def _sure_first_hits(v, faces, group, glo, ghi, orig, dirs, slack, tri, sure, v6
                 far = min(far, max(t0, t1))
             if skip or near > far or far < -pad:
                 continue
-            for g in range(r * RUN, min((r + 1) * RUN, glo.shape[0])):
-                near, far = -np.inf, np.inf
-                skip = False
-                for a, o, d in ((0, ox, dx), (1, oy, dy), (2, oz, dz)):
-                    lo, hi = glo[g, a] - pad, ghi[g, a] + pad
-                    if d == 0.0:
-                        if o < lo or o > hi:
-                            skip = True
+            for f in range(k * group, min((k + 1) * group, faces.shape[0])):
+                a0, a1, a2 = faces[f, 0], faces[f, 1], faces[f, 2]
+                v0x, v0y, v0z = np.float64(v[a0, 0]), np.float64(v[a0, 1]), np.float64(v[a0, 2])
+                v1x, v1y, v1z = np.float64(v[a1, 0]), np.float64(v[a1, 1]), np.float64(v[a1, 2])
+                v2x, v2y, v2z = np.float64(v[a2, 0]), np.float64(v[a2, 1]), np.float64(v[a2, 2])
+                if (v0x == v1x and v0y == v1y and v0z == v1z) or (v0x == v2x and v0y == v2y and v0z == v2z):
+                    continue  # an edge from the first corner is exactly 0, so is embree's determinant
+                e1x, e1y, e1z = v0x - v1x, v0y - v1y, v0z - v1z
+                e2x, e2y, e2z = v2x - v0x, v2y - v0y, v2z - v0z
+                cx, cy, cz = v0x - ox, v0y - oy, v0z - oz
+                # Ng = e2 x e1, R = C x D (embree's Möller-Trumbore quantities)
+                ngx, ngy, ngz = e2y * e1z - e2z * e1y, e2z * e1x - e2x * e1z, e2x * e1y - e2y * e1x
+                rx, ry, rz = cy * dz - cz * dy, cz * dx - cx * dz, cx * dy - cy * dx
+                den = ngx * dx + ngy * dy + ngz * dz
+                u = rx * e2x + ry * e2y + rz * e2z
+                w = rx * e1x + ry * e1y + rz * e1z
+                t = ngx * cx + ngy * cy + ngz * cz
+                n1 = abs(e1x) + abs(e1y) + abs(e1z)
+                n2 = abs(e2x) + abs(e2y) + abs(e2z)
+                nc = max(abs(cx) + abs(cy) + abs(cz), abs(v1x - ox) + abs(v1y - oy) + abs(v1z - oz),
+                         abs(v2x - ox) + abs(v2y - oy) + abs(v2z - oz))  # Plücker's corners too
+                eu, ew = slack * nc * nd * n2, slack * nc * nd * n1
+                ed, et = slack * n1 * n2 * nd, slack * n1 * n2 * nc
+                if abs(den) <= ed:  # the side the triangle faces is unsure
+                    # a hit needs both edge functions within the determinant's size
+                    if abs(u) - eu > abs(den) + ed or abs(w) - ew > abs(den) + ed:
                         continue
-                    t0, t1 = (lo - o) / d, (hi - o) / d
-                    near = max(near, min(t0, t1))
-                    far = min(far, max(t0, t1))
-                if skip or near > far or far < -pad:
+                    unsure = True
                     continue
-                for f in range(g * group, min((g + 1) * group, faces.shape[0])):
-                    a0, a1, a2 = faces[f, 0], faces[f, 1], faces[f, 2]
-                    v0x, v0y, v0z = np.float64(v[a0, 0]), np.float64(v[a0, 1]), np.float64(v[a0, 2])
-                    v1x, v1y, v1z = np.float64(v[a1, 0]), np.float64(v[a1, 1]), np.float64(v[a1, 2])
-                    v2x, v2y, v2z = np.float64(v[a2, 0]), np.float64(v[a2, 1]), np.float64(v[a2, 2])
-                    if (v0x == v1x and v0y == v1y and v0z == v1z) or (v0x == v2x and v0y == v2y and v0z == v2z):
-                        continue  # an edge from the first corner is exactly 0, so is embree's determinant
-                    e1x, e1y, e1z = v0x - v1x, v0y - v1y, v0z - v1z
-                    e2x, e2y, e2z = v2x - v0x, v2y - v0y, v2z - v0z
-                    cx, cy, cz = v0x - ox, v0y - oy, v0z - oz
-                    # Ng = e2 x e1, R = C x D (embree's Möller-Trumbore quantities)
-                    ngx, ngy, ngz = e2y * e1z - e2z * e1y, e2z * e1x - e2x * e1z, e2x * e1y - e2y * e1x
-                    rx, ry, rz = cy * dz - cz * dy, cz * dx - cx * dz, cx * dy - cy * dx
-                    den = ngx * dx + ngy * dy + ngz * dz
-                    u = rx * e2x + ry * e2y + rz * e2z
-                    w = rx * e1x + ry * e1y + rz * e1z
-                    t = ngx * cx + ngy * cy + ngz * cz
-                    n1 = abs(e1x) + abs(e1y) + abs(e1z)
-                    n2 = abs(e2x) + abs(e2y) + abs(e2z)
-                    nc = max(abs(cx) + abs(cy) + abs(cz), abs(v1x - ox) + abs(v1y - oy) + abs(v1z - oz),
-                             abs(v2x - ox) + abs(v2y - oy) + abs(v2z - oz))  # Plücker's corners too
-                    eu, ew = slack * nc * nd * n2, slack * nc * nd * n1
-                    ed, et = slack * n1 * n2 * nd, slack * n1 * n2 * nc
-                    if abs(den) <= ed:  # the side the triangle faces is unsure
-                        # a hit needs both edge functions within the determinant's size
-                        if abs(u) - eu > abs(den) + ed or abs(w) - ew > abs(den) + ed:
-                            continue
-                        unsure = True
-                        continue
-                    s = 1.0 if den > 0.0 else -1.0
-                    ad, us, ws, ts = abs(den), u * s, w * s, t * s
-                    rest = ad - us - ws
-                    er = eu + ew + ed + slack * (abs(us) + abs(ws) + ad)
-                    if us < -eu or ws < -ew or rest < -er or ts < -et:
-                        continue  # a sure miss
-                    # the distance embree computes lies in [t_lo, t_hi] (its reciprocal good to 1e-6)
-                    t_lo = (ts - et) / (ad + ed) if ts - et >= 0.0 else (ts - et) / (ad - ed)
-                    t_hi = (ts + et) / (ad - ed)
-                    t_lo -= 1e-6 * abs(t_lo)
-                    t_hi += 1e-6 * abs(t_hi)
-                    if us > eu and ws > ew and rest > er and ts > et:
-                        if best < 0 or t_hi < best_lo or (t_lo + t_hi < best_lo + best_hi):
-                            if best >= 0:
-                                other_lo = min(other_lo, best_lo)
-                            best, best_lo, best_hi = f, t_lo, t_hi
-                        else:
-                            other_lo = min(other_lo, t_lo)
+                s = 1.0 if den > 0.0 else -1.0
+                ad, us, ws, ts = abs(den), u * s, w * s, t * s
+                rest = ad - us - ws
+                er = eu + ew + ed + slack * (abs(us) + abs(ws) + ad)
+                if us < -eu or ws < -ew or rest < -er or ts < -et:
+                    continue  # a sure miss
+                # the distance embree computes lies in [t_lo, t_hi] (its reciprocal good to 1e-6)
+                t_lo = (ts - et) / (ad + ed) if ts - et >= 0.0 else (ts - et) / (ad - ed)
+                t_hi = (ts + et) / (ad - ed)
+                t_lo -= 1e-6 * abs(t_lo)
+                t_hi += 1e-6 * abs(t_hi)
+                if us > eu and ws > ew and rest > er and ts > et:
+                    if best < 0 or t_hi < best_lo or (t_lo + t_hi < best_lo + best_hi):
+                        if best >= 0:
+                            other_lo = min(other_lo, best_lo)
+                        best, best_lo, best_hi = f, t_lo, t_hi
                     else:
                         other_lo = min(other_lo, t_lo)
+                else:
+                    other_lo = min(other_lo, t_lo)
         tri[i] = best
         sure[i] = not unsure and (other_lo > best_hi if best >= 0 else other_lo == np.inf)
         if has.shape[0] == 0 or not sure[i] or best < 0:
@@ -232,21 +233,21 @@ def _sure_first_hits(v, faces, group, glo, ghi, orig, dirs, slack, tri, sure, v6
         has[i] = True
 
 
-def sure_first_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, np.ndarray],
+def sure_first_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, ...],
                     origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The triangle embree reports for each ray ``origins, directions (n, 3) float32`` on
-    ``vertices (v, 3) float32, faces (f, 3) int64`` (`group_boxes` ``boxes``): ``(n,) int64``,
+    ``vertices (v, 3) float32, faces (f, 3) int64`` (`group_boxes`' four arrays ``boxes``): ``(n,) int64``,
     -1 for none, and whether that answer is sure ``(n,) bool`` (unsure rows hold no answer)."""
     none = np.zeros((0, 3))
     tri, sure = np.full(len(origins), -1, np.int64), np.zeros(len(origins), np.bool_)
     if len(origins):
-        _sure_first_hits(vertices, faces, GROUP, boxes[0], boxes[1], np.ascontiguousarray(origins, np.float32),
+        _sure_first_hits(vertices, faces, GROUP, *boxes, np.ascontiguousarray(origins, np.float32),
                          np.ascontiguousarray(directions, np.float32), SLACK, tri, sure, none, none, none, 0.0, none,
                          np.zeros(0, np.bool_))
     return tri, sure
 
 
-def sure_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, np.ndarray], origins: np.ndarray,
+def sure_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, ...], origins: np.ndarray,
               directions: np.ndarray, exact: tuple[np.ndarray, np.ndarray, np.ndarray]
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`sure_first_hits` and, in the same pass, the hit of each sure ray: where the float64 ray
@@ -263,7 +264,7 @@ def sure_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, 
     loc, has = np.empty((n, 3)), np.zeros(n, np.bool_)
     if n:
         v64, o64, d64 = (np.ascontiguousarray(a, np.float64) for a in exact)
-        _sure_first_hits(vertices, faces, GROUP, boxes[0], boxes[1], np.ascontiguousarray(origins, np.float32),
+        _sure_first_hits(vertices, faces, GROUP, *boxes, np.ascontiguousarray(origins, np.float32),
                          np.ascontiguousarray(directions, np.float32), SLACK, tri, sure, v64, o64, d64,
                          meshops.TOL_ZERO, loc, has)
     return tri, sure, loc, has

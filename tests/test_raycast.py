@@ -125,7 +125,7 @@ def test_generic_rays_build_no_embree_scene():
 def test_runs_of_groups_answer_as_every_group(scale, monkeypatch):
     """`raycast.sure_hits` testing a run's box before its `RUN` group boxes: the same triangles,
     sureness, hits and rows as visiting every group box (the kernel's own Python with runs of one
-    group), bit for bit, with a last run shorter than the others."""
+    group: each group box its own run), bit for bit, with a last run shorter than the others."""
     rng = np.random.default_rng(11)
     v, f, origin, factor, scaled, _ = _embree_view(*_grids(rng, scale))
     o, d, _ = _rays(rng, v, f, n=240)
@@ -136,9 +136,9 @@ def test_runs_of_groups_answer_as_every_group(scale, monkeypatch):
     got = raycast.sure_hits(scaled, f, boxes, so, sd, (v, o, d))
     n = len(o)
     want = (np.full(n, -1, np.int64), np.zeros(n, np.bool_), np.empty((n, 3)), np.zeros(n, np.bool_))
-    monkeypatch.setattr(raycast, "RUN", 1)
-    raycast._sure_first_hits.py_func(scaled, f, raycast.GROUP, boxes[0], boxes[1], so, sd, raycast.SLACK, want[0], want[1],
-                                     v, o, d, meshops.TOL_ZERO, want[2], want[3])
+    monkeypatch.setattr(raycast, "RUN", 1)  # one group a run: the kernel's Python visits every group box
+    raycast._sure_first_hits.py_func(scaled, f, raycast.GROUP, boxes[0], boxes[1], boxes[0], boxes[1], so, sd, raycast.SLACK,
+                                     want[0], want[1], v, o, d, meshops.TOL_ZERO, want[2], want[3])
     assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
     assert got[3].tobytes() == want[3].tobytes() and (want[1] & (want[0] >= 0)).sum() > n // 4
     assert got[2][want[3]].tobytes() == want[2][want[3]].tobytes()
