@@ -15,9 +15,7 @@ tied hits and nearly parallel triangles are left unsure for embree to decide
 (`RayMesh.first_hits`), so the caller's answers are embree's in every case.
 
 Triangles are visited through boxes of `GROUP` consecutive faces (a grid's faces come row by
-row, so a group is a compact strip), widened by the rounding slack of the ray's distances; the
-group boxes through boxes of `RUN` consecutive groups, so a ray tests the groups of the runs it
-meets.
+row, so a group is a compact strip), widened by the rounding slack of the ray's distances.
 Arrays are float64 unless stated.
 """
 
@@ -28,10 +26,9 @@ from numba import njit
 
 from acra import meshops
 
-__all__ = ["GROUP", "SLACK", "group_boxes", "merged", "sure_first_hits", "sure_hits"]
+__all__ = ["GROUP", "SLACK", "merged", "group_boxes", "sure_first_hits", "sure_hits"]
 
 GROUP = 16  # consecutive faces per box
-RUN = 4  # consecutive groups per box of groups, tested before its groups' boxes
 # Bound on embree's float32 error of an edge function, a determinant or a depth, as a multiple of
 # float32's unit roundoff times the product of the operands' L1 norms: each is a triple product of
 # differences (a cross product and a dot, about 5 roundings each, some fused); 64 is a wide margin
@@ -96,26 +93,18 @@ def _group_boxes(v, faces, group, lo, hi):
                     hi[g, a] = max(hi[g, a], x)
 
 
-def group_boxes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def group_boxes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Boxes ``lo, hi (g, 3)`` of each `GROUP` consecutive faces ``faces (f, 3) int64`` of
-    ``vertices (v, 3) float32``, and the boxes ``(r, 3)`` of each `RUN` consecutive groups (the
-    least and greatest of their corners: exact)."""
+    ``vertices (v, 3) float32``."""
     count = -(-len(faces) // GROUP)
     lo, hi = np.empty((count, 3)), np.empty((count, 3))
     _group_boxes(vertices, faces, GROUP, lo, hi)
-    if not count:
-        return lo, hi, lo, hi
-    starts = np.arange(0, count, RUN)
-    return lo, hi, np.minimum.reduceat(lo, starts), np.maximum.reduceat(hi, starts)
+    return lo, hi
 
 
 @njit(cache=True, nogil=True)
-def _sure_first_hits(v, faces, group, glo, ghi, rlo, rhi, orig, dirs, slack, tri, sure, v64, orig64, dirs64, zero, loc,
-                     has):
+def _sure_first_hits(v, faces, group, glo, ghi, orig, dirs, slack, tri, sure, v64, orig64, dirs64, zero, loc, has):
     reach = 3.0 * max(np.abs(glo).max(), np.abs(ghi).max()) if glo.shape[0] else 0.0
-    # a ray that misses a run's box (the same padded slab test) misses every group box in it, since
-    # a box holding another widens each slab's interval: a run is skipped only where each of its
-    # groups would be, and the groups met keep their order
     for i in range(orig.shape[0]):
         ox, oy, oz = np.float64(orig[i, 0]), np.float64(orig[i, 1]), np.float64(orig[i, 2])
         dx, dy, dz = np.float64(dirs[i, 0]), np.float64(dirs[i, 1]), np.float64(dirs[i, 2])
@@ -126,29 +115,11 @@ def _sure_first_hits(v, faces, group, glo, ghi, rlo, rhi, orig, dirs, slack, tri
         best, best_lo, best_hi = -1, np.inf, np.inf
         other_lo = np.inf  # the least distance any other possible hit may have
         unsure = False
-        g = 0
-        while g < glo.shape[0]:
-            if g % RUN == 0:  # a run's first group: its run's box first
-                near, far = -np.inf, np.inf
-                skip = False
-                for a, o, d in ((0, ox, dx), (1, oy, dy), (2, oz, dz)):
-                    lo, hi = rlo[g // RUN, a] - pad, rhi[g // RUN, a] + pad
-                    if d == 0.0:
-                        if o < lo or o > hi:
-                            skip = True
-                        continue
-                    t0, t1 = (lo - o) / d, (hi - o) / d
-                    near = max(near, min(t0, t1))
-                    far = min(far, max(t0, t1))
-                if skip or near > far or far < -pad:
-                    g += RUN
-                    continue
-            g += 1
-            k = g - 1
+        for g in range(glo.shape[0]):
             near, far = -np.inf, np.inf
             skip = False
             for a, o, d in ((0, ox, dx), (1, oy, dy), (2, oz, dz)):
-                lo, hi = glo[k, a] - pad, ghi[k, a] + pad
+                lo, hi = glo[g, a] - pad, ghi[g, a] + pad
                 if d == 0.0:
                     if o < lo or o > hi:
                         skip = True
@@ -158,7 +129,7 @@ def _sure_first_hits(v, faces, group, glo, ghi, rlo, rhi, orig, dirs, slack, tri
                 far = min(far, max(t0, t1))
             if skip or near > far or far < -pad:
                 continue
-            for f in range(k * group, min((k + 1) * group, faces.shape[0])):
+            for f in range(g * group, min((g + 1) * group, faces.shape[0])):
                 a0, a1, a2 = faces[f, 0], faces[f, 1], faces[f, 2]
                 v0x, v0y, v0z = np.float64(v[a0, 0]), np.float64(v[a0, 1]), np.float64(v[a0, 2])
                 v1x, v1y, v1z = np.float64(v[a1, 0]), np.float64(v[a1, 1]), np.float64(v[a1, 2])
@@ -233,21 +204,21 @@ def _sure_first_hits(v, faces, group, glo, ghi, rlo, rhi, orig, dirs, slack, tri
         has[i] = True
 
 
-def sure_first_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, ...],
+def sure_first_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, np.ndarray],
                     origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The triangle embree reports for each ray ``origins, directions (n, 3) float32`` on
-    ``vertices (v, 3) float32, faces (f, 3) int64`` (`group_boxes`' four arrays ``boxes``): ``(n,) int64``,
+    ``vertices (v, 3) float32, faces (f, 3) int64`` (`group_boxes` ``boxes``): ``(n,) int64``,
     -1 for none, and whether that answer is sure ``(n,) bool`` (unsure rows hold no answer)."""
     none = np.zeros((0, 3))
     tri, sure = np.full(len(origins), -1, np.int64), np.zeros(len(origins), np.bool_)
     if len(origins):
-        _sure_first_hits(vertices, faces, GROUP, *boxes, np.ascontiguousarray(origins, np.float32),
+        _sure_first_hits(vertices, faces, GROUP, boxes[0], boxes[1], np.ascontiguousarray(origins, np.float32),
                          np.ascontiguousarray(directions, np.float32), SLACK, tri, sure, none, none, none, 0.0, none,
                          np.zeros(0, np.bool_))
     return tri, sure
 
 
-def sure_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, ...], origins: np.ndarray,
+def sure_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, np.ndarray], origins: np.ndarray,
               directions: np.ndarray, exact: tuple[np.ndarray, np.ndarray, np.ndarray]
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`sure_first_hits` and, in the same pass, the hit of each sure ray: where the float64 ray
@@ -264,7 +235,7 @@ def sure_hits(vertices: np.ndarray, faces: np.ndarray, boxes: tuple[np.ndarray, 
     loc, has = np.empty((n, 3)), np.zeros(n, np.bool_)
     if n:
         v64, o64, d64 = (np.ascontiguousarray(a, np.float64) for a in exact)
-        _sure_first_hits(vertices, faces, GROUP, *boxes, np.ascontiguousarray(origins, np.float32),
+        _sure_first_hits(vertices, faces, GROUP, boxes[0], boxes[1], np.ascontiguousarray(origins, np.float32),
                          np.ascontiguousarray(directions, np.float32), SLACK, tri, sure, v64, o64, d64,
                          meshops.TOL_ZERO, loc, has)
     return tri, sure, loc, has

@@ -114,31 +114,8 @@ def test_generic_rays_build_no_embree_scene():
     mesh = RayMesh(points, faces)
     lo, hi = points.min(axis=0), points.max(axis=0)
     origins = lo + (hi - lo) * rng.random((70, 3)) + np.array([0.0, 0.0, 2.0])
-    _, ray = mesh.first_hits(origins, np.array([0.0, 0.0, -1.0]) + 0.1 * rng.standard_normal((70, 3)))
+    loc, ray = mesh.first_hits(origins, np.array([0.0, 0.0, -1.0]) + 0.1 * rng.standard_normal((70, 3)))
     assert len(ray) > 35 and mesh._scene is None
     vertex = mesh.vertices[mesh.faces[len(mesh.faces) // 2, 1]]
     mesh.first_hits(vertex[None] + [[0.0, 0.0, 1.0]], np.array([[0.0, 0.0, -1.0]]))
     assert mesh._scene is not None
-
-
-@pytest.mark.parametrize("scale", [1.0, 1e-3, 250.0])
-def test_runs_of_groups_answer_as_every_group(scale, monkeypatch):
-    """`raycast.sure_hits` testing a run's box before its `RUN` group boxes: the same triangles,
-    sureness, hits and rows as visiting every group box (the kernel's own Python with runs of one
-    group: each group box its own run), bit for bit, with a last run shorter than the others."""
-    rng = np.random.default_rng(11)
-    v, f, origin, factor, scaled, _ = _embree_view(*_grids(rng, scale))
-    o, d, _ = _rays(rng, v, f, n=240)
-    d[:20] = meshops.unitize(np.cross(d[:20], rng.standard_normal((20, 3))))[0]  # some rays near their plane
-    so, sd = ((o - origin) * factor).astype(np.float32), d.astype(np.float32)
-    boxes = raycast.group_boxes(scaled, f)
-    assert len(boxes[0]) % raycast.RUN and len(boxes[0]) > 4 * raycast.RUN
-    got = raycast.sure_hits(scaled, f, boxes, so, sd, (v, o, d))
-    n = len(o)
-    want = (np.full(n, -1, np.int64), np.zeros(n, np.bool_), np.empty((n, 3)), np.zeros(n, np.bool_))
-    monkeypatch.setattr(raycast, "RUN", 1)  # one group a run: the kernel's Python visits every group box
-    raycast._sure_first_hits.py_func(scaled, f, raycast.GROUP, boxes[0], boxes[1], boxes[0], boxes[1], so, sd, raycast.SLACK,
-                                     want[0], want[1], v, o, d, meshops.TOL_ZERO, want[2], want[3])
-    assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
-    assert got[3].tobytes() == want[3].tobytes() and (want[1] & (want[0] >= 0)).sum() > n // 4
-    assert got[2][want[3]].tobytes() == want[2][want[3]].tobytes()
