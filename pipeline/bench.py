@@ -290,11 +290,10 @@ def format_report(b: Bench) -> str:
         lines.append(f"| {stage} | {_ms(c, 1)} | {_ms(f, 2)} | {'' if n is None else f'{n}: '}{ms} |")
     lines.append(f"| **whole frame** (USD writing .usda) | **{_ms(b.frame_ms[0], 1)}** | **{_ms(b.frame_ms[1], 2)}** | |")
     lines.append(f"| whole frame, `-o NAME.usdc` | {_ms(b.frame_ms_usdc[0], 1)} | {_ms(b.frame_ms_usdc[1], 2)} | |")
-    if not math.isnan(b.first_in_process[0] + b.first_in_process[1]) or b.per_frame:
+    if b.per_frame:  # a scene with collision frames: the first run's loads fall in them
         lines += ["", (f"The process's first run, left out of the medians above (it also loads each compiled kernel from "
                        f"numba's cache at the kernel's first call): collision frame {_ms(b.first_in_process[0], 1)} ms, "
                        f"free frame {_ms(b.first_in_process[1], 2)} ms (USD writing .usda).")]
-    if b.per_frame:
         lines += ["", "Each collision frame's frame loop without writing (`FrameStats.ms_total`), ms:", "",
                   "| frame | the process's first run | later runs (median) |", "|---:|---:|---:|"]
         lines += [f"| {f} | {a:.1f} | {m:.1f} |" for f, (a, m) in b.per_frame.items()]

@@ -110,7 +110,8 @@ _KEPT: contextvars.ContextVar[tuple[int, list] | None] = contextvars.ContextVar(
 
 @contextlib.contextmanager
 def kept() -> Iterator[None]:
-    """Inside the block (a run, `pipeline.run.run_file`; a farm chunk, `pipeline.farm.run_chunk`)
+    """Inside the block (a run, `pipeline.run.run_file`; a frame loop, `pipeline.frames.respond_frames`,
+    which a farm chunk runs)
     `both` hands its second calls to one parked thread, made at the first such call and ended
     with the block, instead of a thread started for each call: a run's collision frames make two
     such calls each. The thread is joined before the block ends, so no thread outlives the run."""
